@@ -1,0 +1,1 @@
+"""Comparison of twin and measurement: alignment, residuals, effect naming, identification."""

@@ -1,0 +1,60 @@
+"""The `feed-twin` command line.
+
+Each subcommand lives in the module that owns its capability and exposes two functions:
+`configure(parser)` adds its arguments, `main(args) -> int` runs it. Modules are imported only
+when their subcommand runs, so `feed-twin --help` stays fast and a broken optional module never
+hides the others.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, kw_only=True)
+class Subcommand:
+    name: str
+    module: str  # dotted path of the module with configure(parser) and main(args)
+    help: str
+
+
+SUBCOMMANDS: tuple[Subcommand, ...] = (
+    Subcommand(
+        name="info", module="feed_twin.info_cli", help="show versions and what is installed"
+    ),
+)
+
+
+def _top_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="feed-twin",
+        description="Digital twin of a CNC ball-screw feed axis on ROS 2.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for cmd in SUBCOMMANDS:
+        sub.add_parser(cmd.name, help=cmd.help, add_help=False)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    top = _top_parser()
+    if not argv or argv[0] in ("-h", "--help"):
+        top.print_help()
+        return 0 if argv else 2
+    by_name = {cmd.name: cmd for cmd in SUBCOMMANDS}
+    cmd = by_name.get(argv[0])
+    if cmd is None:
+        top.error(f"unknown command {argv[0]!r}; choose from {', '.join(by_name)}")
+    module = importlib.import_module(cmd.module)
+    parser = argparse.ArgumentParser(prog=f"feed-twin {cmd.name}", description=cmd.help)
+    module.configure(parser)
+    args = parser.parse_args(argv[1:])
+    return int(module.main(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Cascaded position, velocity and current loops (field-oriented control), pure and compiled."""

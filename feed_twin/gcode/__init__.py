@@ -1,0 +1,1 @@
+"""G-code pipeline: lexer -> modal interpreter -> planner -> sampled trajectory."""

@@ -1,0 +1,182 @@
+"""Typed YAML loading: frozen parameter dataclasses from mappings, with errors that say where.
+
+Every parameter class in feed_twin is a frozen, keyword-only dataclass that validates itself in
+`__post_init__` with the `require_*` helpers below. `from_mapping` builds one from a YAML mapping,
+rejects unknown keys and missing fields, converts nested dataclasses, tuples and literals, and
+re-raises any `ValueError` prefixed with the file and the dotted field path, so a user reads
+`config/axis.yaml: plant.table.m = -3.0: must be > 0`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from pathlib import Path
+from typing import Any, Literal, TypeVar
+
+import yaml
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown, of the wrong type or outside its range."""
+
+
+def require_finite(name: str, value: float) -> None:
+    if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
+        raise ValueError(f"{name} = {value!r}: must be a finite number")
+
+
+def require_positive(name: str, value: float) -> None:
+    require_finite(name, value)
+    if value <= 0.0:
+        raise ValueError(f"{name} = {value!r}: must be > 0")
+
+
+def require_nonnegative(name: str, value: float) -> None:
+    require_finite(name, value)
+    if value < 0.0:
+        raise ValueError(f"{name} = {value!r}: must be >= 0")
+
+
+def require_range(name: str, value: float, low: float, high: float) -> None:
+    require_finite(name, value)
+    if not low <= value <= high:
+        raise ValueError(f"{name} = {value!r}: must lie in [{low}, {high}]")
+
+
+def require_integer_multiple(name: str, value: float, base: float, base_name: str) -> int:
+    """Return value/base when it is a whole number (to 1e-9 relative), else raise."""
+    require_positive(name, value)
+    ratio = value / base
+    whole = round(ratio)
+    if whole < 1 or abs(ratio - whole) > 1e-9 * max(1.0, ratio):
+        raise ValueError(
+            f"{name} = {value!r}: must be an integer multiple of {base_name} = {base!r}"
+        )
+    return whole
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    """Read a YAML file whose top level is a mapping; errors name the file (and line)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError(f"{where}: invalid YAML: {problem}") from None
+    if data is None:
+        raise ConfigError(f"{path}: the file is empty")
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: the top level must be a mapping, not {type(data).__name__}")
+    return data
+
+
+def from_mapping(cls: type[T], data: Any, *, source: str, path: str = "") -> T:
+    """Build the frozen dataclass `cls` from `data`, validating keys, types and ranges."""
+    where = f"{source}: {path}" if path else source
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__} {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConfigError(
+            f"{where}: unknown key(s) {', '.join(map(str, unknown))}; allowed: {', '.join(fields)}"
+        )
+    missing = [
+        name
+        for name, f in fields.items()
+        if name not in data
+        and f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+    ]
+    if missing:
+        raise ConfigError(f"{where}: missing required field(s) {', '.join(missing)}")
+    hints = typing.get_type_hints(cls)
+    kwargs = {
+        name: _convert(hints[name], value, source=source, path=_join(path, name))
+        for name, value in data.items()
+    }
+    try:
+        return cls(**kwargs)
+    except ConfigError:
+        raise
+    except ValueError as exc:
+        prefix = f"{source}: {path}." if path else f"{source}: "
+        raise ConfigError(f"{prefix}{exc}") from None
+
+
+def _join(path: str, name: str | int) -> str:
+    if isinstance(name, int):
+        return f"{path}[{name}]"
+    return f"{path}.{name}" if path else name
+
+
+def _convert(hint: Any, value: Any, *, source: str, path: str) -> Any:
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    where = f"{source}: {path}"
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        options = [a for a in args if a is not type(None)]
+        errors = []
+        for option in options:
+            try:
+                return _convert(option, value, source=source, path=path)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        raise ConfigError(
+            errors[0] if len(errors) == 1 else f"{where} = {value!r}: " + "; ".join(errors)
+        )
+    if origin is Literal:
+        if value not in args:
+            choices = ", ".join(repr(a) for a in args)
+            raise ConfigError(f"{where} = {value!r}: must be one of {choices}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{where} = {value!r}: expected a list")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(
+                _convert(args[0], v, source=source, path=_join(path, i))
+                for i, v in enumerate(value)
+            )
+        if len(args) != len(value):
+            raise ConfigError(f"{where} = {value!r}: expected {len(args)} entries")
+        return tuple(
+            _convert(a, v, source=source, path=_join(path, i))
+            for i, (a, v) in enumerate(zip(args, value, strict=True))
+        )
+    if dataclasses.is_dataclass(hint):
+        return from_mapping(hint, value, source=source, path=path)
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{where} = {value!r}: expected a number")
+        return float(value)
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where} = {value!r}: expected a whole number")
+        return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where} = {value!r}: expected true or false")
+        return value
+    if hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where} = {value!r}: expected a string")
+        return value
+    if hint is Any:
+        return value
+    raise TypeError(f"from_mapping cannot convert to {hint!r} (field {path})")

@@ -1,0 +1,1 @@
+"""Physical components of the feed axis (electrical, mechanical, sensors) and their assembly."""
