@@ -25,6 +25,9 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
     Subcommand(
         name="info", module="feed_twin.info_cli", help="show versions and what is installed"
     ),
+    Subcommand(
+        name="bag", module="feed_twin.io.bag_cli", help="inspect or recover a recorded bag"
+    ),
 )
 
 
