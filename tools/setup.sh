@@ -1,0 +1,167 @@
+#!/usr/bin/env bash
+# Set up feed_twin from nothing on Debian 12: system tools, .venv with Python 3.11, the pinned
+# dependencies, feed_twin itself (editable) and the msgs/ interface package built into .venv.
+#
+#   tools/setup.sh           full set-up; a no-op (< 1 s) when nothing changed since the last run
+#   tools/setup.sh --check   only check (and, as root, install) the system tools
+#
+# Environment:
+#   FEED_TWIN_NO_AUTO_INSTALL=1   never call apt-get, even as root; name the missing package
+#   FEED_TWIN_PYTHON=...          interpreter to create .venv with (default: python3.11 on PATH)
+#   FEED_TWIN_VENV=...            virtual environment directory (default: <repo>/.venv)
+#
+# The tool checks use bash builtins only, so they give their one-line answer even with a PATH
+# that lacks everything.
+
+set -o errexit -o nounset -o pipefail
+
+here="${BASH_SOURCE[0]%/*}"
+[[ "$here" == "${BASH_SOURCE[0]}" ]] && here="."
+repo="$(cd "$here/.." && pwd)"
+venv="${FEED_TWIN_VENV:-$repo/.venv}"
+python_cmd="${FEED_TWIN_PYTHON:-python3.11}"
+stamp="$venv/feed_twin-setup.stamp"
+
+say() { printf 'setup: %s\n' "$*"; }
+die() {
+    printf 'setup: error: %s\n' "$*" >&2
+    exit 1
+}
+
+is_root() { [[ "${EUID:-$(id -u)}" -eq 0 ]]; }
+may_auto_install() { is_root && [[ -z "${FEED_TWIN_NO_AUTO_INSTALL:-}" ]]; }
+
+apt_updated=0
+apt_install() {
+    export DEBIAN_FRONTEND=noninteractive
+    if [[ $apt_updated -eq 0 ]]; then
+        apt-get update -qq >/dev/null || die "apt-get update failed"
+        apt_updated=1
+    fi
+    apt-get install -y -qq --no-install-recommends "$@" >/dev/null ||
+        die "apt-get install $* failed"
+}
+
+# The Debian packages behind each missing tool, in one list (no duplicates, stable order).
+missing_packages() {
+    local -a pkgs=()
+    if ! command -v "$python_cmd" >/dev/null 2>&1; then
+        pkgs+=(python3.11 python3.11-venv python3.11-dev)
+    else
+        # venv needs ensurepip (python3.11-venv); the message extension needs Python.h (-dev).
+        "$python_cmd" -c 'import ensurepip, venv' >/dev/null 2>&1 || pkgs+=(python3.11-venv)
+        "$python_cmd" -c 'import os, sysconfig, sys
+sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))' \
+            >/dev/null 2>&1 || pkgs+=(python3.11-dev)
+    fi
+    command -v cmake >/dev/null 2>&1 || pkgs+=(cmake)
+    command -v g++ >/dev/null 2>&1 || pkgs+=(g++)
+    command -v make >/dev/null 2>&1 || pkgs+=(make)
+    printf '%s\n' "${pkgs[@]}"
+}
+
+check_tools() {
+    local -a missing
+    mapfile -t missing < <(missing_packages)
+    [[ ${#missing[@]} -eq 0 || -z "${missing[0]}" ]] && return 0
+    if may_auto_install; then
+        say "installing Debian packages: ${missing[*]}"
+        apt_install "${missing[@]}"
+        mapfile -t missing < <(missing_packages)
+        [[ ${#missing[@]} -eq 0 || -z "${missing[0]}" ]] && return 0
+        die "still missing after apt-get install: ${missing[*]}"
+    fi
+    die "missing Debian package(s) ${missing[*]}: run 'sudo apt-get install ${missing[*]}'"
+}
+
+# Nice to have for the tests (Rerun's headless screenshots render with Vulkan on lavapipe).
+optional_packages() {
+    local -a want=(mesa-vulkan-drivers) absent=()
+    local pkg
+    for pkg in "${want[@]}"; do
+        dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" ||
+            absent+=("$pkg")
+    done
+    [[ ${#absent[@]} -eq 0 ]] && return 0
+    if may_auto_install; then
+        say "installing Debian packages for the tests: ${absent[*]}"
+        apt_install "${absent[@]}"
+    else
+        say "note: not installing ${absent[*]} (not root); headless Rerun screenshots need it"
+    fi
+}
+
+# Everything the set-up result depends on; a change in any of these reruns the set-up.
+inputs_hash() {
+    (
+        cd "$repo"
+        printf '%s\n' "$python_cmd" "$venv"
+        cat requirements.txt constraints.txt pyproject.toml tools/setup.sh tools/build_msgs.sh
+        find msgs -path msgs/build -prune -o -type f -print | LC_ALL=C sort | xargs cat
+    ) | sha256sum | cut -d' ' -f1
+}
+
+up_to_date() {
+    [[ -f "$stamp" && -x "$venv/bin/python" && -x "$venv/bin/feed-twin" ]] &&
+        [[ -f "$venv/share/feed_twin_msgs/package.xml" ]] &&
+        [[ "$(cat "$stamp")" == "$(inputs_hash)" ]]
+}
+
+run_logged() {
+    local log="$1"
+    shift
+    if ! "$@" >"$log" 2>&1; then
+        tail -n 25 "$log" >&2
+        die "'$*' failed; full log: $log"
+    fi
+}
+
+main() {
+    if [[ "${1:-}" == "--check" ]]; then
+        check_tools
+        say "system tools present"
+        return 0
+    fi
+    [[ $# -eq 0 ]] || die "unknown argument '$1' (use --check or nothing)"
+
+    local t0=$SECONDS
+    if up_to_date; then
+        say "up to date ($venv)"
+        return 0
+    fi
+    check_tools
+    optional_packages
+
+    local logdir="$repo/msgs/build"
+    mkdir -p "$logdir"
+    if [[ -e "$venv" ]] && ! "$venv/bin/python" -c 'import sys; assert sys.version_info[:2] == (3, 11)' \
+        >/dev/null 2>&1; then
+        say "removing unusable $venv"
+        rm -rf "$venv"
+    fi
+    if [[ ! -e "$venv" ]]; then
+        say "creating $venv with $("$python_cmd" -c 'import sys; print(sys.executable)')"
+        "$python_cmd" -m venv "$venv"
+    fi
+    rm -f "$stamp"
+
+    say "installing pinned dependencies (requirements.txt, constraints.txt)"
+    run_logged "$logdir/pip.log" "$venv/bin/python" -m pip install -q --upgrade pip \
+        -c "$repo/constraints.txt"
+    run_logged "$logdir/pip.log" "$venv/bin/python" -m pip install -q \
+        -r "$repo/requirements.txt" -c "$repo/constraints.txt"
+    say "installing feed_twin (editable)"
+    run_logged "$logdir/pip-editable.log" "$venv/bin/python" -m pip install -q --no-deps \
+        -e "$repo"
+
+    say "building msgs/ (feed_twin_msgs) into $venv"
+    bash "$repo/tools/build_msgs.sh" "$venv"
+
+    # Rerun asks once per machine whether it may send usage analytics; answer no.
+    "$venv/bin/rerun" analytics disable >/dev/null 2>&1 || say "note: 'rerun analytics disable' failed"
+
+    inputs_hash >"$stamp"
+    say "done in $((SECONDS - t0)) s"
+}
+
+main "$@"
