@@ -1,0 +1,852 @@
+"""The cascaded drive controller: configuration, flat parameter/state layout and the compiled tick.
+
+Structure (chain position -> velocity -> current, each loop at an integer multiple of the base
+period; all positions and velocities load side, SI):
+
+Position loop (period T_p), P with feed-forward, on the fine-interpolated NC setpoint x_r:
+    v_cmd = Kv * (x_r - x_fb) + k_vff * v_r,      i_ff = k_aff * a_r * (2*pi/lead) * J_total / K_t
+    x_fb = theta_enc * lead / (2*pi)   (semi-closed loop)   or   x_scale   (closed loop)
+Velocity loop (period T_v), PI with clamping anti-windup and the effort (current) limit:
+    i_q* = clip(Kp * (e_v + (T_v/Ti) * sum e_v) + i_ff + effort_add, +/- effort_limit)
+    followed by an optional 2nd-order low-pass and an optional notch (biquads) on i_q*;
+    v_est from encoder differences through a FIR on the differences and an optional low-pass.
+Current loop (period T_i), FOC with d/q PI, decoupling and back-EMF feed-forward:
+    i_d, i_q = Park(Clarke(i_a, i_b, i_c), theta_e),  theta_e = p * theta_enc + offset
+    u_d = PI_d(0 - i_d) - omega_e * L_q * i_q
+    u_q = PI_q(i_q* - i_q) + omega_e * (L_d * i_d + psi_pm)
+    (u_d, u_q) limited to the circle margin * u_dc / sqrt(3) (d priority), clamping anti-windup,
+    inverse Park at theta_e + advance * omega_e * T_i, SVPWM (min-max injection) -> duty cycles.
+Without a current loop (ideal force/torque source such as the EMPS bench) the velocity-loop output
+is the effort command itself, in the drive's input units.
+
+Computation delay: with `computation_delay: true`, what the innermost loop computes at its sample
+k is applied from its next sample (digital drives compute during one PWM period and load the
+result at the next), so the output vector carries the previous result.
+
+Boundary modes (CiA 402): `position` (CSP, all loops here), `velocity` (CSV: REF_VEL_EXT_M_S in,
+no position loop), `torque` (CST: REF_I_Q_EXT_A in, only the current loop). The mode is a slot of
+the parameter vector, so one configuration serves the ROS controller node (outer loops) and the
+simulated drive (current loop) with the same kernels.
+
+Drive behaviour: the power stage is enabled by the state slot `enable_cmd` (`enable`/`disable`),
+a following error beyond its limit or a phase current beyond the trip level latches a FAULT_*
+code until `clear_fault`; while disabled or faulted all integrators are held at zero, duties are
+1/2 (zero voltage), the effort is 0 and OUT_ENABLED is 0.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numba import njit
+
+from feed_twin.control import signals as sig
+from feed_twin.control.blocks import (
+    BIQUAD_IDENTITY,
+    biquad_step,
+    fir_velocity_step,
+    lowpass1_alpha,
+    lowpass2_coefficients,
+    notch_coefficients,
+    pi_integrate,
+    pi_step,
+)
+from feed_twin.control.transforms import (
+    SQRT3,
+    clarke,
+    inverse_park,
+    limit_voltage_circle,
+    park,
+    svpwm_duties,
+)
+from feed_twin.io.config import (
+    from_mapping,
+    require_integer_multiple,
+    require_nonnegative,
+    require_positive,
+    require_range,
+)
+
+TWO_PI = 2.0 * math.pi
+MAX_FIR_TAPS = 16
+
+Mode = Literal["position", "velocity", "torque"]
+MODE_CODES = {"position": 0, "velocity": 1, "torque": 2}
+MODE_POSITION = 0
+MODE_VELOCITY = 1
+MODE_TORQUE = 2
+
+Interpolation = Literal["hold", "linear", "extrapolate"]
+INTERPOLATION_CODES = {"hold": 0, "linear": 1, "extrapolate": 2}
+INTERP_HOLD = 0
+INTERP_LINEAR = 1
+INTERP_EXTRAPOLATE = 2
+
+
+# ---------------------------------------------------------------------------------------------
+# Configuration
+
+
+@dataclass(frozen=True, kw_only=True)
+class DriveConfig:
+    """The controller's own copy of the drive facts it needs (load-side signals, motor-side plant).
+
+    `K_t` converts the velocity loop's output unit into motor torque: N m/A for a PMSM with a
+    current loop (1.5 * p * psi_pm for the amplitude-invariant frame), N m per drive input unit for
+    an ideal torque/force source (for a linear drive command in N per unit, multiply by
+    lead / (2*pi)).
+    """
+
+    lead_m: float  # screw lead [m/rev]; converts encoder angle to table position
+    J_total_kg_m2: float  # total inertia reflected to the motor shaft [kg m^2]
+    K_t: float  # motor torque per unit of effort [N m/A or N m/unit]
+    effort_limit: float  # current limit [A] or drive-input saturation [unit], symmetric
+
+    def __post_init__(self) -> None:
+        require_positive("lead_m", self.lead_m)
+        require_positive("J_total_kg_m2", self.J_total_kg_m2)
+        require_positive("K_t", self.K_t)
+        require_positive("effort_limit", self.effort_limit)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PositionLoopConfig:
+    period_s: float  # sample period [s], an integer multiple of the base period
+    Kv_1_s: float  # position gain [1/s] (velocity per following error)
+    feedback: Literal["motor_encoder", "linear_scale"]  # semi-closed or closed loop
+    velocity_ff: float = 0.0  # velocity feed-forward gain [-], 0..1
+    acceleration_ff: float = 0.0  # acceleration feed-forward gain [-], 0..1
+    interpolation: Interpolation = "linear"  # fine interpolation of the NC setpoints
+    following_error_limit_m: float | None = None  # trip level [m]; None: no monitoring
+    velocity_limit_m_s: float | None = None  # clamp of the velocity command [m/s]
+
+    def __post_init__(self) -> None:
+        require_positive("period_s", self.period_s)
+        require_nonnegative("Kv_1_s", self.Kv_1_s)
+        require_range("velocity_ff", self.velocity_ff, 0.0, 1.0)
+        require_range("acceleration_ff", self.acceleration_ff, 0.0, 1.0)
+        if self.following_error_limit_m is not None:
+            require_positive("following_error_limit_m", self.following_error_limit_m)
+        if self.velocity_limit_m_s is not None:
+            require_positive("velocity_limit_m_s", self.velocity_limit_m_s)
+
+
+@dataclass(frozen=True, kw_only=True)
+class VelocityEstimatorConfig:
+    fir_taps: tuple[float, ...] = (1.0,)  # weights of the latest differences [-], sum 1
+    lowpass_hz: float | None = None  # first-order low-pass after the FIR [Hz]; None: off
+
+    def __post_init__(self) -> None:
+        if not 1 <= len(self.fir_taps) <= MAX_FIR_TAPS:
+            raise ValueError(
+                f"fir_taps = {list(self.fir_taps)!r}: must have 1 to {MAX_FIR_TAPS} entries"
+            )
+        for i, tap in enumerate(self.fir_taps):
+            require_range(f"fir_taps[{i}]", tap, -1e6, 1e6)
+        if abs(sum(self.fir_taps) - 1.0) > 1e-9:
+            raise ValueError(
+                f"fir_taps = {list(self.fir_taps)!r}: must sum to 1 (unit gain on a ramp), "
+                f"sum is {sum(self.fir_taps)!r}"
+            )
+        if self.lowpass_hz is not None:
+            require_positive("lowpass_hz", self.lowpass_hz)
+
+
+@dataclass(frozen=True, kw_only=True)
+class NotchConfig:
+    frequency_hz: float  # centre frequency [Hz]
+    bandwidth_hz: float  # width [Hz]
+    depth: float  # gain at the centre [-], 0 (full notch) .. 1 (no notch)
+
+    def __post_init__(self) -> None:
+        require_positive("frequency_hz", self.frequency_hz)
+        require_positive("bandwidth_hz", self.bandwidth_hz)
+        require_range("depth", self.depth, 0.0, 1.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class VelocityLoopConfig:
+    period_s: float  # sample period [s], an integer multiple of the base period
+    Kp: float  # proportional gain [effort unit per m/s], e.g. A/(m/s)
+    Ti_s: float | None = None  # integral time [s]; None: P only
+    estimator: VelocityEstimatorConfig = dataclasses.field(default_factory=VelocityEstimatorConfig)
+    setpoint_lowpass_hz: float | None = None  # 2nd-order low-pass on the current setpoint [Hz]
+    notch: NotchConfig | None = None  # notch on the current setpoint
+
+    def __post_init__(self) -> None:
+        require_positive("period_s", self.period_s)
+        require_nonnegative("Kp", self.Kp)
+        if self.Ti_s is not None:
+            require_positive("Ti_s", self.Ti_s)
+        if self.setpoint_lowpass_hz is not None:
+            require_positive("setpoint_lowpass_hz", self.setpoint_lowpass_hz)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CurrentLoopConfig:
+    period_s: float  # sample period [s], an integer multiple of the base period
+    pole_pairs: int  # [-]
+    R_s_ohm: float  # stator resistance [ohm] (for tuning and margins)
+    L_d_H: float  # d inductance [H] (decoupling)
+    L_q_H: float  # q inductance [H] (decoupling)
+    psi_pm_Vs: float  # permanent-magnet flux linkage [V s] (back-EMF feed-forward)
+    Kp_d_V_A: float  # d-axis proportional gain [V/A]
+    Ti_d_s: float  # d-axis integral time [s]
+    Kp_q_V_A: float  # q-axis proportional gain [V/A]
+    Ti_q_s: float  # q-axis integral time [s]
+    decoupling: bool = True  # cross-coupling compensation -/+ omega_e * L * i
+    back_emf_ff: bool = True  # omega_e * psi_pm feed-forward on u_q
+    voltage_margin: float = 1.0  # usable fraction of the linear range u_dc/sqrt(3) [-]
+    angle_advance_periods: float = 0.0  # delay compensation: advance by omega_e*T_i*this [-]
+    encoder_offset_rad: float = 0.0  # electrical angle of the d axis at encoder zero [rad]
+    i_trip_A: float | None = None  # overcurrent trip level on |i_a|,|i_b|,|i_c| [A]
+
+    def __post_init__(self) -> None:
+        require_positive("period_s", self.period_s)
+        if isinstance(self.pole_pairs, bool) or not isinstance(self.pole_pairs, int):
+            raise ValueError(f"pole_pairs = {self.pole_pairs!r}: must be a whole number")
+        require_positive("pole_pairs", self.pole_pairs)
+        require_positive("R_s_ohm", self.R_s_ohm)
+        require_positive("L_d_H", self.L_d_H)
+        require_positive("L_q_H", self.L_q_H)
+        require_nonnegative("psi_pm_Vs", self.psi_pm_Vs)
+        require_nonnegative("Kp_d_V_A", self.Kp_d_V_A)
+        require_positive("Ti_d_s", self.Ti_d_s)
+        require_nonnegative("Kp_q_V_A", self.Kp_q_V_A)
+        require_positive("Ti_q_s", self.Ti_q_s)
+        require_range("voltage_margin", self.voltage_margin, 1e-3, 1.0)
+        require_range("angle_advance_periods", self.angle_advance_periods, 0.0, 3.0)
+        require_range("encoder_offset_rad", self.encoder_offset_rad, -TWO_PI, TWO_PI)
+        if self.i_trip_A is not None:
+            require_positive("i_trip_A", self.i_trip_A)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ControllerConfig:
+    """The `controller:` section: which loops exist, their rates, gains and limits."""
+
+    base_period_s: float  # base tick of the engine [s] (normally the current-loop period)
+    mode: Mode  # CiA 402 boundary: position (CSP), velocity (CSV), torque (CST)
+    drive: DriveConfig
+    nc_period_s: float = 1.0e-3  # NC interpolation period [s]
+    computation_delay: bool = True  # innermost result applied one of its samples later
+    enabled_at_start: bool = True  # power stage enabled in the initial state
+    position: PositionLoopConfig | None = None
+    velocity: VelocityLoopConfig | None = None
+    current: CurrentLoopConfig | None = None
+
+    def __post_init__(self) -> None:
+        require_positive("base_period_s", self.base_period_s)
+        base = self.base_period_s
+        require_integer_multiple("nc_period_s", self.nc_period_s, base, "base_period_s")
+        for name in ("position", "velocity", "current"):
+            loop = getattr(self, name)
+            if loop is not None:
+                require_integer_multiple(f"{name}.period_s", loop.period_s, base, "base_period_s")
+        if self.position is not None and self.velocity is None:
+            raise ValueError("position: a position loop needs a velocity loop under it")
+        needs = {"position": ("position", "velocity"), "velocity": ("velocity",), "torque": ()}
+        for loop_name in needs[self.mode]:
+            if getattr(self, loop_name) is None:
+                raise ValueError(f"mode = {self.mode!r}: needs a {loop_name} section")
+        if self.velocity is not None:
+            est = self.velocity.estimator
+            for name, value in (
+                ("lowpass_hz", est.lowpass_hz),
+                ("setpoint_lowpass_hz", self.velocity.setpoint_lowpass_hz),
+                ("notch.frequency_hz", self.velocity.notch and self.velocity.notch.frequency_hz),
+            ):
+                if value and value >= 0.5 / self.velocity.period_s:
+                    raise ValueError(
+                        f"velocity.{'estimator.' if name == 'lowpass_hz' else ''}{name} = "
+                        f"{value!r}: must lie below the velocity loop's Nyquist frequency "
+                        f"{0.5 / self.velocity.period_s!r} Hz"
+                    )
+
+
+def load_controller_config(mapping: Mapping[str, Any], source: str) -> ControllerConfig:
+    """Build a ControllerConfig from the `controller:` mapping of a YAML file.
+
+    Errors are `ConfigError`s reading `<source>: controller.<field> = <value>: <reason>`.
+    """
+    return from_mapping(ControllerConfig, dict(mapping), source=source, path="controller")
+
+
+# ---------------------------------------------------------------------------------------------
+# Flat layouts. Unpacking `range` over the name tuple keeps constants and names in step (a
+# mismatch fails at import); numba folds these module integers into the kernels.
+
+PARAM_NAMES = (
+    "base_period_s",
+    "mode",
+    "computation_delay",
+    "nc_div",
+    "lead_m",
+    "effort_limit",
+    "has_position",
+    "pos_div",
+    "Kv_1_s",
+    "velocity_ff",
+    "acc_ff_gain",
+    "feedback_scale",
+    "interpolation",
+    "fe_limit_m",
+    "v_limit_m_s",
+    "has_velocity",
+    "vel_div",
+    "vel_period_s",
+    "vel_Kp",
+    "vel_Ki_T",
+    "vel_lowpass_alpha",
+    "fir_n",
+    "bq_lp_b0",
+    "bq_lp_b1",
+    "bq_lp_b2",
+    "bq_lp_a1",
+    "bq_lp_a2",
+    "bq_notch_b0",
+    "bq_notch_b1",
+    "bq_notch_b2",
+    "bq_notch_a1",
+    "bq_notch_a2",
+    "has_current",
+    "cur_div",
+    "cur_period_s",
+    "pole_pairs",
+    "L_d_H",
+    "L_q_H",
+    "psi_pm_Vs",
+    "Kp_d",
+    "Ki_T_d",
+    "Kp_q",
+    "Ki_T_q",
+    "decoupling",
+    "back_emf_ff",
+    "voltage_margin",
+    "angle_advance_periods",
+    "encoder_offset_rad",
+    "i_trip_A",
+)
+(
+    P_BASE_PERIOD,
+    P_MODE,
+    P_COMPUTATION_DELAY,
+    P_NC_DIV,
+    P_LEAD,
+    P_EFFORT_LIMIT,
+    P_HAS_POSITION,
+    P_POS_DIV,
+    P_KV,
+    P_VFF,
+    P_ACC_FF_GAIN,
+    P_FEEDBACK_SCALE,
+    P_INTERPOLATION,
+    P_FE_LIMIT,
+    P_V_LIMIT,
+    P_HAS_VELOCITY,
+    P_VEL_DIV,
+    P_VEL_PERIOD,
+    P_VEL_KP,
+    P_VEL_KI_T,
+    P_VEL_LP_ALPHA,
+    P_FIR_N,
+    P_BQ_LP,
+    _P_BQ_LP_1,
+    _P_BQ_LP_2,
+    _P_BQ_LP_3,
+    _P_BQ_LP_4,
+    P_BQ_NOTCH,
+    _P_BQ_NOTCH_1,
+    _P_BQ_NOTCH_2,
+    _P_BQ_NOTCH_3,
+    _P_BQ_NOTCH_4,
+    P_HAS_CURRENT,
+    P_CUR_DIV,
+    P_CUR_PERIOD,
+    P_POLE_PAIRS,
+    P_L_D,
+    P_L_Q,
+    P_PSI_PM,
+    P_KP_D,
+    P_KI_T_D,
+    P_KP_Q,
+    P_KI_T_Q,
+    P_DECOUPLING,
+    P_BACK_EMF_FF,
+    P_VOLTAGE_MARGIN,
+    P_ANGLE_ADVANCE,
+    P_ENCODER_OFFSET,
+    P_I_TRIP,
+) = range(len(PARAM_NAMES))
+P_FIR_TAPS = len(PARAM_NAMES)  # the FIR taps follow the fixed slots
+
+STATE_NAMES = (
+    "initialised",
+    "enable_cmd",
+    "fault",
+    "nc_tick",
+    "nc_prev_pos_m",
+    "nc_prev_vel_m_s",
+    "nc_prev_acc_m_s2",
+    "nc_pos_m",
+    "nc_vel_m_s",
+    "nc_acc_m_s2",
+    "pos_ref_m",
+    "following_error_m",
+    "vel_cmd_m_s",
+    "effort_ff",
+    "vel_est_m_s",
+    "enc_pos_prev_m",
+    "vel_int",
+    "effort_cmd",
+    "bq_lp_s1",
+    "bq_lp_s2",
+    "bq_notch_s1",
+    "bq_notch_s2",
+    "i_d_int",
+    "i_q_int",
+    "u_d_ref_V",
+    "u_q_ref_V",
+    "duty_next_a",
+    "duty_next_b",
+    "duty_next_c",
+    "duty_a",
+    "duty_b",
+    "duty_c",
+    "effort_next",
+    "effort_out",
+)
+(
+    S_INITIALISED,
+    S_ENABLE_CMD,
+    S_FAULT,
+    S_NC_TICK,
+    S_NC_PREV_POS,
+    S_NC_PREV_VEL,
+    S_NC_PREV_ACC,
+    S_NC_POS,
+    S_NC_VEL,
+    S_NC_ACC,
+    S_POS_REF,
+    S_FOLLOWING_ERROR,
+    S_VEL_CMD,
+    S_EFFORT_FF,
+    S_VEL_EST,
+    S_ENC_POS_PREV,
+    S_VEL_INT,
+    S_EFFORT_CMD,
+    S_BQ_LP,
+    _S_BQ_LP_2,
+    S_BQ_NOTCH,
+    _S_BQ_NOTCH_2,
+    S_I_D_INT,
+    S_I_Q_INT,
+    S_U_D_REF,
+    S_U_Q_REF,
+    S_DUTY_NEXT_A,
+    S_DUTY_NEXT_B,
+    S_DUTY_NEXT_C,
+    S_DUTY_A,
+    S_DUTY_B,
+    S_DUTY_C,
+    S_EFFORT_NEXT,
+    S_EFFORT_OUT,
+) = range(len(STATE_NAMES))
+S_FIR_HIST = len(STATE_NAMES)  # the FIR difference history follows the fixed slots
+
+
+# ---------------------------------------------------------------------------------------------
+# Building the parameter vector
+
+
+@dataclass(frozen=True, kw_only=True)
+class CompiledCascade:
+    """A configuration flattened for `cascade_tick`: parameters, state layout and base period."""
+
+    config: ControllerConfig
+    params: np.ndarray  # float64, read-only, slots PARAM_NAMES then the FIR taps
+    base_period_s: float  # [s]
+    param_names: tuple[str, ...]
+    state_names: tuple[str, ...]
+
+    def initial_state(self) -> np.ndarray:
+        """A fresh state vector: everything zero, drive enabled if configured so."""
+        cs = np.zeros(len(self.state_names))
+        cs[S_ENABLE_CMD] = 1.0 if self.config.enabled_at_start else 0.0
+        cs[S_DUTY_NEXT_A : S_DUTY_C + 1] = 0.5
+        return cs
+
+    def state_view(self, cs: np.ndarray) -> dict[str, float]:
+        """Named copy of a state vector, for reports and debugging."""
+        return {name: float(v) for name, v in zip(self.state_names, cs, strict=True)}
+
+
+def build_cascade(config: ControllerConfig) -> CompiledCascade:
+    """Flatten a ControllerConfig into the parameter vector read by `cascade_tick`."""
+    base = config.base_period_s
+    drive = config.drive
+    p = np.zeros(P_FIR_TAPS)
+    p[P_BASE_PERIOD] = base
+    p[P_MODE] = MODE_CODES[config.mode]
+    p[P_COMPUTATION_DELAY] = float(config.computation_delay)
+    p[P_NC_DIV] = round(config.nc_period_s / base)
+    p[P_LEAD] = drive.lead_m
+    p[P_EFFORT_LIMIT] = drive.effort_limit
+    p[P_V_LIMIT] = math.inf
+    p[P_FE_LIMIT] = math.inf
+    p[P_I_TRIP] = math.inf
+    p[P_BQ_LP : P_BQ_LP + 5] = BIQUAD_IDENTITY
+    p[P_BQ_NOTCH : P_BQ_NOTCH + 5] = BIQUAD_IDENTITY
+    p[P_VEL_LP_ALPHA] = 1.0
+    taps: tuple[float, ...] = (1.0,)
+    pos = config.position
+    if pos is not None:
+        p[P_HAS_POSITION] = 1.0
+        p[P_POS_DIV] = round(pos.period_s / base)
+        p[P_KV] = pos.Kv_1_s
+        p[P_VFF] = pos.velocity_ff
+        # a [m/s^2] -> motor angular acceleration -> torque J*alpha -> effort torque/K_t
+        p[P_ACC_FF_GAIN] = (
+            pos.acceleration_ff * (TWO_PI / drive.lead_m) * (drive.J_total_kg_m2 / drive.K_t)
+        )
+        p[P_FEEDBACK_SCALE] = 1.0 if pos.feedback == "linear_scale" else 0.0
+        p[P_INTERPOLATION] = INTERPOLATION_CODES[pos.interpolation]
+        if pos.following_error_limit_m is not None:
+            p[P_FE_LIMIT] = pos.following_error_limit_m
+        if pos.velocity_limit_m_s is not None:
+            p[P_V_LIMIT] = pos.velocity_limit_m_s
+    vel = config.velocity
+    if vel is not None:
+        T_v = vel.period_s
+        p[P_HAS_VELOCITY] = 1.0
+        p[P_VEL_DIV] = round(T_v / base)
+        p[P_VEL_PERIOD] = T_v
+        p[P_VEL_KP] = vel.Kp
+        p[P_VEL_KI_T] = 0.0 if vel.Ti_s is None else vel.Kp * T_v / vel.Ti_s
+        if vel.estimator.lowpass_hz is not None:
+            p[P_VEL_LP_ALPHA] = lowpass1_alpha(vel.estimator.lowpass_hz, T_v)
+        taps = vel.estimator.fir_taps
+        if vel.setpoint_lowpass_hz is not None:
+            p[P_BQ_LP : P_BQ_LP + 5] = lowpass2_coefficients(
+                frequency_hz=vel.setpoint_lowpass_hz, period_s=T_v
+            )
+        if vel.notch is not None:
+            p[P_BQ_NOTCH : P_BQ_NOTCH + 5] = notch_coefficients(
+                frequency_hz=vel.notch.frequency_hz,
+                bandwidth_hz=vel.notch.bandwidth_hz,
+                depth=vel.notch.depth,
+                period_s=T_v,
+            )
+    cur = config.current
+    if cur is not None:
+        T_i = cur.period_s
+        p[P_HAS_CURRENT] = 1.0
+        p[P_CUR_DIV] = round(T_i / base)
+        p[P_CUR_PERIOD] = T_i
+        p[P_POLE_PAIRS] = cur.pole_pairs
+        p[P_L_D] = cur.L_d_H
+        p[P_L_Q] = cur.L_q_H
+        p[P_PSI_PM] = cur.psi_pm_Vs
+        p[P_KP_D] = cur.Kp_d_V_A
+        p[P_KI_T_D] = cur.Kp_d_V_A * T_i / cur.Ti_d_s
+        p[P_KP_Q] = cur.Kp_q_V_A
+        p[P_KI_T_Q] = cur.Kp_q_V_A * T_i / cur.Ti_q_s
+        p[P_DECOUPLING] = float(cur.decoupling)
+        p[P_BACK_EMF_FF] = float(cur.back_emf_ff)
+        p[P_VOLTAGE_MARGIN] = cur.voltage_margin
+        p[P_ANGLE_ADVANCE] = cur.angle_advance_periods
+        p[P_ENCODER_OFFSET] = cur.encoder_offset_rad
+        if cur.i_trip_A is not None:
+            p[P_I_TRIP] = cur.i_trip_A
+    p[P_FIR_N] = len(taps)
+    params = np.concatenate([p, np.asarray(taps, dtype=np.float64)])
+    params.setflags(write=False)
+    fir_names = tuple(f"fir_diff_{i}" for i in range(len(taps)))
+    tap_names = tuple(f"fir_tap_{i}" for i in range(len(taps)))
+    return CompiledCascade(
+        config=config,
+        params=params,
+        base_period_s=base,
+        param_names=PARAM_NAMES + tap_names,
+        state_names=STATE_NAMES + fir_names,
+    )
+
+
+def with_mode(cascade: CompiledCascade, mode: Mode) -> CompiledCascade:
+    """The same controller at another CiA 402 boundary (validated like a loaded config)."""
+    return build_cascade(dataclasses.replace(cascade.config, mode=mode))
+
+
+# ---------------------------------------------------------------------------------------------
+# Drive commands on a state vector (what a CiA 402 controlword does)
+
+
+def enable(cs: np.ndarray) -> None:
+    """Request the power stage on (takes effect at the next tick unless a fault is latched)."""
+    cs[S_ENABLE_CMD] = 1.0
+
+
+def disable(cs: np.ndarray) -> None:
+    """Request the power stage off; integrators are cleared at the next tick."""
+    cs[S_ENABLE_CMD] = 0.0
+
+
+def clear_fault(cs: np.ndarray) -> None:
+    """Acknowledge a latched fault (fault reset)."""
+    cs[S_FAULT] = 0.0
+
+
+def fault_reason(code: float) -> str:
+    """Text of a FAULT_* code as found in OUT_FAULT."""
+    key = int(code)
+    if key not in sig.FAULT_REASONS:
+        raise ValueError(f"fault code = {code!r}: unknown; known: {sorted(sig.FAULT_REASONS)}")
+    return sig.FAULT_REASONS[key]
+
+
+# ---------------------------------------------------------------------------------------------
+# Kernels
+
+
+@njit(cache=True)
+def _due(k: int, div: float) -> bool:
+    return k % int(div) == 0
+
+
+@njit(cache=True)
+def _hold_off(cs: np.ndarray) -> None:
+    """Power stage off: clear integrators, filters and pending outputs."""
+    cs[S_VEL_INT] = 0.0
+    cs[S_I_D_INT] = 0.0
+    cs[S_I_Q_INT] = 0.0
+    cs[S_BQ_LP] = 0.0
+    cs[S_BQ_LP + 1] = 0.0
+    cs[S_BQ_NOTCH] = 0.0
+    cs[S_BQ_NOTCH + 1] = 0.0
+    cs[S_EFFORT_CMD] = 0.0
+    cs[S_U_D_REF] = 0.0
+    cs[S_U_Q_REF] = 0.0
+    for i in range(3):
+        cs[S_DUTY_NEXT_A + i] = 0.5
+        cs[S_DUTY_A + i] = 0.5
+    cs[S_EFFORT_NEXT] = 0.0
+    cs[S_EFFORT_OUT] = 0.0
+
+
+@njit(cache=True)
+def _nc_sample(cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray) -> None:
+    """Latch a new NC setpoint and keep the previous one for interpolation."""
+    if _due(k, cp[P_NC_DIV]):
+        cs[S_NC_PREV_POS] = cs[S_NC_POS]
+        cs[S_NC_PREV_VEL] = cs[S_NC_VEL]
+        cs[S_NC_PREV_ACC] = cs[S_NC_ACC]
+        cs[S_NC_POS] = ref[sig.REF_POS_M]
+        cs[S_NC_VEL] = ref[sig.REF_VEL_M_S]
+        cs[S_NC_ACC] = ref[sig.REF_ACC_M_S2]
+        cs[S_NC_TICK] = k
+
+
+@njit(cache=True)
+def _initialise(cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray, meas: np.ndarray) -> None:
+    """First tick: start the interpolator at the current setpoint and the estimator at rest.
+
+    The NC sample is treated as latched at the last NC instant at or before k, so the
+    interpolator's phase matches the engine's NC schedule even when the first tick is not one.
+    """
+    cs[S_NC_PREV_POS] = cs[S_NC_POS] = ref[sig.REF_POS_M]
+    cs[S_NC_PREV_VEL] = cs[S_NC_VEL] = ref[sig.REF_VEL_M_S]
+    cs[S_NC_PREV_ACC] = cs[S_NC_ACC] = ref[sig.REF_ACC_M_S2]
+    div = int(cp[P_NC_DIV])
+    cs[S_NC_TICK] = k - k % div
+    cs[S_ENC_POS_PREV] = meas[sig.MEAS_THETA_ENC_RAD] * (cp[P_LEAD] / TWO_PI)
+    cs[S_INITIALISED] = 1.0
+
+
+@njit(cache=True)
+def _interpolate(cp: np.ndarray, cs: np.ndarray, k: int) -> tuple[float, float, float]:
+    """Fine-interpolated (x, v, a) setpoint at tick k from the latched NC samples."""
+    method = int(cp[P_INTERPOLATION])
+    if method == INTERP_HOLD:
+        return cs[S_NC_POS], cs[S_NC_VEL], cs[S_NC_ACC]
+    frac = (k - cs[S_NC_TICK]) / cp[P_NC_DIV]
+    if method == INTERP_LINEAR:
+        # one NC period late, but continuous: the standard drive-side interpolator
+        x = cs[S_NC_PREV_POS] + frac * (cs[S_NC_POS] - cs[S_NC_PREV_POS])
+        v = cs[S_NC_PREV_VEL] + frac * (cs[S_NC_VEL] - cs[S_NC_PREV_VEL])
+        a = cs[S_NC_PREV_ACC] + frac * (cs[S_NC_ACC] - cs[S_NC_PREV_ACC])
+        return x, v, a
+    dt = frac * cp[P_NC_DIV] * cp[P_BASE_PERIOD]
+    a = cs[S_NC_ACC]
+    v = cs[S_NC_VEL] + a * dt
+    x = cs[S_NC_POS] + cs[S_NC_VEL] * dt + 0.5 * a * dt * dt
+    return x, v, a
+
+
+@njit(cache=True)
+def position_step(
+    cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray, meas: np.ndarray, active: bool
+) -> None:
+    """Position loop sample: fine interpolation, following error, velocity command, acc FF."""
+    x_r, v_r, a_r = _interpolate(cp, cs, k)
+    if cp[P_FEEDBACK_SCALE] > 0.5:
+        x_fb = meas[sig.MEAS_X_SCALE_M]
+    else:
+        x_fb = meas[sig.MEAS_THETA_ENC_RAD] * (cp[P_LEAD] / TWO_PI)
+    e = x_r - x_fb
+    cs[S_POS_REF] = x_r
+    cs[S_FOLLOWING_ERROR] = e
+    if active and abs(e) > cp[P_FE_LIMIT] and cs[S_FAULT] == 0.0:
+        cs[S_FAULT] = sig.FAULT_FOLLOWING_ERROR
+    v_cmd = cp[P_KV] * e + cp[P_VFF] * v_r
+    cs[S_VEL_CMD] = min(max(v_cmd, -cp[P_V_LIMIT]), cp[P_V_LIMIT])
+    cs[S_EFFORT_FF] = cp[P_ACC_FF_GAIN] * a_r
+
+
+@njit(cache=True)
+def velocity_estimate_step(cp: np.ndarray, cs: np.ndarray, meas: np.ndarray) -> None:
+    """Velocity estimator sample from the motor encoder (load-side m/s)."""
+    x_enc = meas[sig.MEAS_THETA_ENC_RAD] * (cp[P_LEAD] / TWO_PI)
+    v_raw = fir_velocity_step(
+        cp, P_FIR_TAPS, int(cp[P_FIR_N]), cs, S_FIR_HIST, S_ENC_POS_PREV, x_enc, cp[P_VEL_PERIOD]
+    )
+    cs[S_VEL_EST] += cp[P_VEL_LP_ALPHA] * (v_raw - cs[S_VEL_EST])
+
+
+@njit(cache=True)
+def velocity_step(cp: np.ndarray, cs: np.ndarray, v_cmd: float, effort_add: float) -> None:
+    """Velocity loop sample: PI + feed-forward, effort limit, setpoint filters -> effort command."""
+    lim = cp[P_EFFORT_LIMIT]
+    e = v_cmd - cs[S_VEL_EST]
+    u = pi_step(
+        cs, S_VEL_INT, e, cp[P_VEL_KP], cp[P_VEL_KI_T], cs[S_EFFORT_FF] + effort_add, -lim, lim
+    )
+    u = biquad_step(cp, P_BQ_LP, cs, S_BQ_LP, u)
+    u = biquad_step(cp, P_BQ_NOTCH, cs, S_BQ_NOTCH, u)
+    cs[S_EFFORT_CMD] = min(max(u, -lim), lim)
+
+
+@njit(cache=True)
+def current_step(
+    cp: np.ndarray, cs: np.ndarray, meas: np.ndarray, i_q_ref: float
+) -> tuple[float, float, float]:
+    """Current loop sample: FOC d/q PI with decoupling -> duty cycles (a, b, c) in [0, 1]."""
+    p = cp[P_POLE_PAIRS]
+    theta_e = p * meas[sig.MEAS_THETA_ENC_RAD] + cp[P_ENCODER_OFFSET]
+    omega_e = p * cs[S_VEL_EST] * (TWO_PI / cp[P_LEAD])
+    i_alpha, i_beta = clarke(meas[sig.MEAS_I_A], meas[sig.MEAS_I_B], meas[sig.MEAS_I_C])
+    i_d, i_q = park(i_alpha, i_beta, theta_e)
+    e_d = 0.0 - i_d
+    e_q = i_q_ref - i_q
+    ff_d = -cp[P_DECOUPLING] * omega_e * cp[P_L_Q] * i_q
+    ff_q = cp[P_DECOUPLING] * omega_e * cp[P_L_D] * i_d + cp[P_BACK_EMF_FF] * omega_e * cp[P_PSI_PM]
+    u_d = cp[P_KP_D] * e_d + cs[S_I_D_INT] + ff_d
+    u_q = cp[P_KP_Q] * e_q + cs[S_I_Q_INT] + ff_q
+    u_dc = meas[sig.MEAS_U_DC_V]
+    u_max = cp[P_VOLTAGE_MARGIN] * u_dc / SQRT3
+    u_d_lim, u_q_lim = limit_voltage_circle(u_d, u_q, u_max)
+    cs[S_I_D_INT] = pi_integrate(cs[S_I_D_INT], e_d, cp[P_KI_T_D], u_d, u_d_lim)
+    cs[S_I_Q_INT] = pi_integrate(cs[S_I_Q_INT], e_q, cp[P_KI_T_Q], u_q, u_q_lim)
+    cs[S_U_D_REF] = u_d_lim
+    cs[S_U_Q_REF] = u_q_lim
+    theta_out = theta_e + cp[P_ANGLE_ADVANCE] * omega_e * cp[P_CUR_PERIOD]
+    u_alpha, u_beta = inverse_park(u_d_lim, u_q_lim, theta_out)
+    if u_dc <= 0.0:
+        return 0.5, 0.5, 0.5
+    return svpwm_duties(u_alpha, u_beta, u_dc)
+
+
+@njit(cache=True)
+def _overcurrent(cp: np.ndarray, meas: np.ndarray) -> bool:
+    lim = cp[P_I_TRIP]
+    return (
+        abs(meas[sig.MEAS_I_A]) > lim
+        or abs(meas[sig.MEAS_I_B]) > lim
+        or abs(meas[sig.MEAS_I_C]) > lim
+    )
+
+
+@njit(cache=True)
+def cascade_tick(
+    cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray, meas: np.ndarray, out: np.ndarray
+) -> None:
+    """One base tick k of the whole cascade: read ref/meas, update cs, write out.
+
+    The loops due at tick k run outer to inner, so a new position setpoint reaches the duty
+    cycles within the same tick (plus the configured computation delay).
+    """
+    mode = int(cp[P_MODE])
+    if cs[S_INITIALISED] == 0.0:
+        _initialise(cp, cs, k, ref, meas)
+    active = cs[S_ENABLE_CMD] > 0.5 and cs[S_FAULT] == 0.0
+    if active and cp[P_HAS_CURRENT] > 0.5 and _overcurrent(cp, meas):
+        cs[S_FAULT] = sig.FAULT_OVERCURRENT
+    if cp[P_HAS_POSITION] > 0.5:
+        _nc_sample(cp, cs, k, ref)
+    has_velocity = cp[P_HAS_VELOCITY] > 0.5
+    vel_due = has_velocity and _due(k, cp[P_VEL_DIV])
+    if vel_due:
+        velocity_estimate_step(cp, cs, meas)
+    if cp[P_HAS_POSITION] > 0.5 and _due(k, cp[P_POS_DIV]):
+        position_step(cp, cs, k, ref, meas, active and mode == MODE_POSITION)
+    active = cs[S_ENABLE_CMD] > 0.5 and cs[S_FAULT] == 0.0
+    effort_add = ref[sig.REF_EFFORT_ADD]
+    if mode == MODE_VELOCITY:
+        cs[S_VEL_CMD] = ref[sig.REF_VEL_EXT_M_S]
+        cs[S_EFFORT_FF] = 0.0
+    if not active:
+        _hold_off(cs)
+    elif mode == MODE_TORQUE:
+        lim = cp[P_EFFORT_LIMIT]
+        cs[S_EFFORT_CMD] = min(max(ref[sig.REF_I_Q_EXT_A] + effort_add, -lim), lim)
+    elif vel_due:
+        velocity_step(cp, cs, cs[S_VEL_CMD], effort_add)
+
+    delayed = cp[P_COMPUTATION_DELAY] > 0.5
+    if cp[P_HAS_CURRENT] > 0.5:
+        if active and _due(k, cp[P_CUR_DIV]):
+            d_a, d_b, d_c = current_step(cp, cs, meas, cs[S_EFFORT_CMD])
+            if delayed:
+                cs[S_DUTY_A] = cs[S_DUTY_NEXT_A]
+                cs[S_DUTY_B] = cs[S_DUTY_NEXT_B]
+                cs[S_DUTY_C] = cs[S_DUTY_NEXT_C]
+                cs[S_DUTY_NEXT_A] = d_a
+                cs[S_DUTY_NEXT_B] = d_b
+                cs[S_DUTY_NEXT_C] = d_c
+            else:
+                cs[S_DUTY_A] = d_a
+                cs[S_DUTY_B] = d_b
+                cs[S_DUTY_C] = d_c
+        out[sig.OUT_EFFORT_CMD] = 0.0
+        out[sig.OUT_I_Q_REF_A] = cs[S_EFFORT_CMD]
+    else:
+        vel_due_out = (mode == MODE_TORQUE) or vel_due
+        if active and vel_due_out:
+            if delayed:
+                cs[S_EFFORT_OUT] = cs[S_EFFORT_NEXT]
+                cs[S_EFFORT_NEXT] = cs[S_EFFORT_CMD]
+            else:
+                cs[S_EFFORT_OUT] = cs[S_EFFORT_CMD]
+        out[sig.OUT_EFFORT_CMD] = cs[S_EFFORT_OUT]
+        out[sig.OUT_I_Q_REF_A] = cs[S_EFFORT_CMD]
+    out[sig.OUT_DUTY_A] = cs[S_DUTY_A]
+    out[sig.OUT_DUTY_B] = cs[S_DUTY_B]
+    out[sig.OUT_DUTY_C] = cs[S_DUTY_C]
+    out[sig.OUT_I_D_REF_A] = 0.0
+    out[sig.OUT_U_D_REF_V] = cs[S_U_D_REF]
+    out[sig.OUT_U_Q_REF_V] = cs[S_U_Q_REF]
+    out[sig.OUT_POS_REF_M] = cs[S_POS_REF]
+    out[sig.OUT_VEL_REF_M_S] = cs[S_VEL_CMD]
+    out[sig.OUT_VEL_EST_M_S] = cs[S_VEL_EST]
+    out[sig.OUT_FOLLOWING_ERROR_M] = cs[S_FOLLOWING_ERROR]
+    if cs[S_FAULT] != 0.0:
+        out[sig.OUT_FAULT] = cs[S_FAULT]
+    elif cs[S_ENABLE_CMD] <= 0.5:
+        out[sig.OUT_FAULT] = sig.FAULT_DISABLED
+    else:
+        out[sig.OUT_FAULT] = sig.FAULT_NONE
+    out[sig.OUT_ENABLED] = 1.0 if active else 0.0
