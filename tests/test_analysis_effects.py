@@ -126,4 +126,4 @@ def test_effort_driven_position_residual_is_not_blamed_on_position_effects():
     # a stiff loop turns a missing force into a following-error change of force / K
     ranked = rank(m, effort_residual=force, position_residual=force / 1.4e6)
     assert ranked[0].name == "coulomb_friction"
-    assert not BY_NAME["backlash"].name in [c.name for c in ranked if c.significant]
+    assert BY_NAME["backlash"].name not in [c.name for c in ranked if c.significant]
