@@ -26,7 +26,15 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
         name="info", module="feed_twin.info_cli", help="show versions and what is installed"
     ),
     Subcommand(
-        name="bag", module="feed_twin.io.bag_cli", help="inspect or recover a recorded bag"
+        name="tune",
+        module="feed_twin.control.tune_cli",
+        help="controller gains from plant parameters and margins of the configured loops",
+    ),
+    Subcommand(name="bag", module="feed_twin.io.bag_cli", help="inspect or recover a recorded bag"),
+    Subcommand(
+        name="msgs-check",
+        module="feed_twin.ros.msgcheck",
+        help="round-trip every message type over DDS and check every field",
     ),
 )
 

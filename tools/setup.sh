@@ -4,6 +4,8 @@
 #
 #   tools/setup.sh           full set-up; a no-op (< 1 s) when nothing changed since the last run
 #   tools/setup.sh --check   only check (and, as root, install) the system tools
+#   tools/setup.sh --status  say whether a set-up is needed, change nothing
+#   tools/setup.sh --hash    print the hash of the set-up inputs that the stamp records
 #
 # Environment:
 #   FEED_TWIN_NO_AUTO_INSTALL=1   never call apt-get, even as root; name the missing package
@@ -122,7 +124,15 @@ main() {
         say "system tools present"
         return 0
     fi
-    [[ $# -eq 0 ]] || die "unknown argument '$1' (use --check or nothing)"
+    if [[ "${1:-}" == "--status" ]]; then
+        if up_to_date; then say "up to date ($venv)"; else say "set-up needed ($venv)"; fi
+        return 0
+    fi
+    if [[ "${1:-}" == "--hash" ]]; then
+        inputs_hash
+        return 0
+    fi
+    [[ $# -eq 0 ]] || die "unknown argument '$1' (use --check, --status, --hash or nothing)"
 
     local t0=$SECONDS
     if up_to_date; then

@@ -1,0 +1,36 @@
+# feed_twin: `make demo` and `make test` are the only commands a fresh Debian 12 machine needs.
+# Both run the idempotent set-up first (tools/setup.sh: .venv, pinned dependencies, msgs/).
+
+VENV := .venv
+BIN := $(VENV)/bin
+PYTEST_ARGS ?=
+
+.PHONY: setup test test-fast demo bench
+
+setup:
+	@bash tools/setup.sh
+
+# ruff and pytest all run even when one fails, so the pytest summary line is always printed;
+# pytest's exit 5 ("no tests collected") counts as success.
+test: setup
+	@bash tools/run_tests.sh $(PYTEST_ARGS)
+
+test-fast: setup
+	@bash tools/run_tests.sh -m "not slow" $(PYTEST_ARGS)
+
+demo: setup
+	@echo "demo: the node set (G-code -> controller -> simulated axis over ROS 2) comes with"
+	@echo "demo: issue 5; until then this shows the installation and round-trips every"
+	@echo "demo: feed_twin message type between two ROS 2 nodes over DDS."
+	@$(BIN)/feed-twin info
+	@$(BIN)/feed-twin msgs-check
+
+bench: setup
+	@status=0; found=0; \
+	for script in benchmarks/*.py; do \
+		[ -e "$$script" ] || continue; found=1; \
+		echo "== $$script"; \
+		$(BIN)/python "$$script" || { echo "bench: $$script failed"; status=1; }; \
+	done; \
+	[ $$found -eq 1 ] || echo "bench: no benchmarks/*.py yet"; \
+	exit $$status

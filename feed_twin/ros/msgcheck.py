@@ -1,0 +1,253 @@
+"""Round trip of every message type feed_twin uses, over real DDS, field by field.
+
+`filled_message` gives every leaf field of a message a distinct non-default value, so a field
+that is dropped, truncated or swapped with another on the way shows up in `field_differences`.
+`round_trip` publishes messages from one node and receives them in a second node of the same
+process, through the RMW and DDS (not an intra-process shortcut: rclpy has none). The CLI
+`feed-twin msgs-check` runs it for all types in a private domain and reports the latency.
+"""
+
+from __future__ import annotations
+
+import argparse
+import array
+import importlib
+import json
+import os
+import re
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import rclpy
+from feed_twin_msgs.msg import (
+    AxisCommand,
+    AxisFeedback,
+    AxisState,
+    DriveCommand,
+    HealthStatus,
+    TwinResidual,
+)
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+from feed_twin.ros.domain import private_graph_env, reserve_domain_id
+
+FEED_TWIN_MESSAGE_TYPES: tuple[type, ...] = (
+    AxisCommand,
+    DriveCommand,
+    AxisFeedback,
+    AxisState,
+    TwinResidual,
+    HealthStatus,
+)
+# Standard messages the node set publishes alongside its own.
+STANDARD_MESSAGE_TYPES: tuple[type, ...] = (JointState, Clock)
+MESSAGE_TYPES = FEED_TWIN_MESSAGE_TYPES + STANDARD_MESSAGE_TYPES
+
+_SEQUENCE_LENGTH = 3  # elements put into each unbounded sequence
+_SIGNED = {"int8", "int16", "int32", "int64"}
+_UNSIGNED = {"uint8", "uint16", "uint32", "uint64"}
+_FLOATS = {"double", "float"}
+_ARRAY = re.compile(r"^(?P<elem>[\w/]+)\[(?P<size>\d+)\]$")
+_SEQUENCE = re.compile(r"^sequence<(?P<elem>[\w/]+)(?:,\s*(?P<bound>\d+))?>$")
+
+
+def type_name(msg_type: type) -> str:
+    """`pkg/msg/Type` of a generated message class."""
+    package = msg_type.__module__.split(".")[0]
+    return f"{package}/msg/{msg_type.__name__}"
+
+
+def _message_class(type_string: str) -> type:
+    package, name = type_string.split("/")
+    return getattr(importlib.import_module(f"{package}.msg"), name)
+
+
+class _Counter:
+    def __init__(self, start: int) -> None:
+        self.value = start
+
+    def next(self) -> int:
+        self.value += 1
+        return self.value
+
+
+def _scalar(type_string: str, counter: _Counter) -> Any:
+    k = counter.next()
+    if type_string in _FLOATS:
+        return k + 0.125  # exact in float32 too, so a float field compares exactly
+    if type_string in _SIGNED:
+        return -(k % 100 + 1)  # negative: catches a signed field read as unsigned
+    if type_string in _UNSIGNED:
+        return k % 200 + 1
+    if type_string == "boolean":
+        return True
+    if type_string == "string":
+        return f"s{k}"
+    if "/" in type_string:
+        return _fill(_message_class(type_string)(), counter)
+    raise ValueError(f"field type {type_string!r} is not supported by filled_message")
+
+
+def _fill(message: Any, counter: _Counter) -> Any:
+    for name, type_string in message.get_fields_and_field_types().items():
+        if match := _ARRAY.match(type_string):
+            values = [_scalar(match["elem"], counter) for _ in range(int(match["size"]))]
+        elif match := _SEQUENCE.match(type_string):
+            length = min(_SEQUENCE_LENGTH, int(match["bound"] or _SEQUENCE_LENGTH))
+            values = [_scalar(match["elem"], counter) for _ in range(length)]
+        else:
+            values = _scalar(type_string, counter)
+        setattr(message, name, values)
+    return message
+
+
+def filled_message(msg_type: type, *, seed: int = 0) -> Any:
+    """A message of msg_type whose leaf fields all differ from their defaults and each other."""
+    return _fill(msg_type(), _Counter(seed))
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, array.array | list | tuple) or hasattr(value, "tolist"):
+        return list(value.tolist() if hasattr(value, "tolist") else value)
+    return value
+
+
+def field_differences(sent: Any, received: Any, prefix: str = "") -> list[str]:
+    """Dotted paths of the fields whose values differ, as `path: sent != received`."""
+    differences: list[str] = []
+    for name in sent.get_fields_and_field_types():
+        path = f"{prefix}{name}"
+        a, b = getattr(sent, name), getattr(received, name)
+        if hasattr(a, "get_fields_and_field_types"):
+            differences += field_differences(a, b, prefix=f"{path}.")
+            continue
+        a, b = _plain(a), _plain(b)
+        if a and isinstance(a, list) and hasattr(a[0], "get_fields_and_field_types"):
+            if len(a) != len(b):
+                differences.append(f"{path}: {len(a)} elements != {len(b)}")
+            for index, (x, y) in enumerate(zip(a, b, strict=False)):
+                differences += field_differences(x, y, prefix=f"{path}[{index}].")
+        elif a != b:
+            differences.append(f"{path}: {a!r} != {b!r}")
+    return differences
+
+
+@dataclass(frozen=True, kw_only=True)
+class RoundTrip:
+    """Outcome for one message: what came back, and how long publish -> callback took."""
+
+    type_name: str
+    sent: Any
+    received: Any | None  # None when nothing arrived within the timeout
+    latency_s: float  # wall-clock time from publish() to the subscriber callback [s]
+
+    @property
+    def differences(self) -> list[str]:
+        if self.received is None:
+            return ["nothing received"]
+        return field_differences(self.sent, self.received)
+
+
+def round_trip(
+    messages: Sequence[Any], *, domain_id: int, timeout_s: float = 10.0
+) -> list[RoundTrip]:
+    """Publish each message from one node and receive it in another, over DDS.
+
+    Each message type gets its own topic; publishing waits until the subscription is matched,
+    so nothing is lost to discovery. Messages that do not arrive within timeout_s (wall clock,
+    for the whole call) come back with `received=None`.
+    """
+    if timeout_s <= 0.0:
+        raise ValueError(f"timeout_s = {timeout_s!r}: must be > 0")
+    qos = QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=len(messages), reliability=ReliabilityPolicy.RELIABLE
+    )
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    deadline = time.monotonic() + timeout_s
+    try:
+        talker = rclpy.create_node("feed_twin_msgcheck_talker", context=context)
+        listener = rclpy.create_node("feed_twin_msgcheck_listener", context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(talker)
+        executor.add_node(listener)
+        received: dict[int, tuple[Any, float]] = {}
+        publishers = []
+        for index, message in enumerate(messages):
+            topic = f"/feed_twin_msgcheck/m{index}_{type(message).__name__}"
+
+            def on_message(msg: Any, index: int = index) -> None:
+                received.setdefault(index, (msg, time.perf_counter()))
+
+            listener.create_subscription(type(message), topic, on_message, qos)
+            publishers.append(talker.create_publisher(type(message), topic, qos))
+        while time.monotonic() < deadline and any(
+            p.get_subscription_count() == 0 for p in publishers
+        ):
+            executor.spin_once(timeout_sec=0.01)
+        sent_at: dict[int, float] = {}
+        for index, (publisher, message) in enumerate(zip(publishers, messages, strict=True)):
+            sent_at[index] = time.perf_counter()
+            publisher.publish(message)
+        while time.monotonic() < deadline and len(received) < len(messages):
+            executor.spin_once(timeout_sec=0.01)
+        results = []
+        for index, message in enumerate(messages):
+            msg, at = received.get(index, (None, float("nan")))
+            results.append(
+                RoundTrip(
+                    type_name=type_name(type(message)),
+                    sent=message,
+                    received=msg,
+                    latency_s=at - sent_at[index],
+                )
+            )
+        executor.shutdown()
+        talker.destroy_node()
+        listener.destroy_node()
+        return results
+    finally:
+        rclpy.shutdown(context=context)
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--timeout", type=float, default=10.0, help="seconds to wait for all messages [s]"
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object last")
+
+
+def main(args: argparse.Namespace) -> int:
+    with reserve_domain_id() as domain:
+        # rcl reads the discovery range from the environment at init.
+        os.environ.update(private_graph_env(domain.domain_id))
+        messages = [filled_message(t, seed=100 * i) for i, t in enumerate(MESSAGE_TYPES)]
+        results = round_trip(messages, domain_id=domain.domain_id, timeout_s=args.timeout)
+    failures = 0
+    print(f"round trip of {len(results)} message types over DDS (domain {domain.domain_id}):")
+    for result in results:
+        problems = result.differences
+        failures += bool(problems)
+        verdict = "ok" if not problems else "FAILED: " + "; ".join(problems)
+        fields = len(result.sent.get_fields_and_field_types())
+        print(
+            f"  {result.type_name:<32} {fields:>3} fields  "
+            f"{result.latency_s * 1e3:7.3f} ms  {verdict}"
+        )
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "types": len(results),
+                    "failed": failures,
+                    "latency_ms": {r.type_name: r.latency_s * 1e3 for r in results},
+                }
+            )
+        )
+    return 1 if failures else 0

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# The test command behind `make test` and `make test-fast`: ruff check, ruff format --check and
+# pytest, all three run even when an earlier one fails (so pytest's summary line is always
+# printed); the exit status is non-zero when any failed. Arguments go to pytest.
+# pytest's exit status 5 (no tests collected) counts as success.
+
+set -o nounset
+
+here="${BASH_SOURCE[0]%/*}"
+[[ "$here" == "${BASH_SOURCE[0]}" ]] && here="."
+cd "$here/.." || exit 1
+bin="${FEED_TWIN_VENV:-.venv}/bin"
+
+failed=()
+
+echo "== ruff check"
+"$bin/ruff" check . || failed+=("ruff check")
+echo "== ruff format --check"
+"$bin/ruff" format --check . || failed+=("ruff format")
+echo "== pytest $*"
+"$bin/pytest" "$@"
+status=$?
+if [[ $status -eq 5 ]]; then
+    echo "run_tests: pytest collected no tests"
+elif [[ $status -ne 0 ]]; then
+    failed+=("pytest (exit $status)")
+fi
+
+if [[ ${#failed[@]} -gt 0 ]]; then
+    printf 'run_tests: FAILED: %s\n' "$(IFS=,; echo "${failed[*]}")"
+    exit 1
+fi
+echo "run_tests: all passed"
