@@ -321,25 +321,51 @@ def load_measured(path: str | Path, column_map: ColumnMap | str | Path) -> Measu
 
 
 def _read_bag_table(path: Path, column_map: ColumnMap) -> tuple[list[str], np.ndarray]:
+    """Bag columns named `<topic>:<field>` (dotted field path, or `log_time_s`).
+
+    Topics other than the time column's are resampled onto its time stamps by their own
+    receive times (linear interpolation), so signals from several topics share one time base.
+    """
+    from feed_twin.io.bag import BagError, BagReader
+
+    specs = [column_map.time] + [spec for _, spec in column_map.signals]
+    by_topic: dict[str, list[str]] = {}
+    for spec in specs:
+        topic, sep, name = spec.column.partition(":")
+        if not sep or not topic or not name:
+            raise MeasuredDataError(
+                f"{path}: map column {spec.column!r} must read '<topic>:<field>' for a bag"
+            )
+        by_topic.setdefault(topic, [])
+        if name != "log_time_s":
+            by_topic[topic].append(name)
     try:
-        from feed_twin.io import bag  # noqa: PLC0415 - optional until the bag reader lands
-    except ImportError:
-        raise MeasuredDataError(
-            f"{path}: reading bags needs feed_twin.io.bag, which this installation lacks; "
-            "export the topics to CSV"
-        ) from None
-    reader = getattr(bag, "read_columns", None)
-    if reader is None:
-        raise MeasuredDataError(f"{path}: feed_twin.io.bag has no read_columns(path) function")
-    wanted = [column_map.time.column] + [spec.column for _, spec in column_map.signals]
-    columns = reader(path, wanted)
-    header = list(columns)
-    length = max(len(v) for v in columns.values())
-    table = np.full((length, len(header)), np.nan)
-    for j, name in enumerate(header):
-        values = np.asarray(columns[name], dtype=float)
-        table[: len(values), j] = values
-    return header, table
+        reader = BagReader(path)
+        known = {t.name for t in reader.info.topics}
+        data: dict[str, dict[str, np.ndarray]] = {}
+        for topic, fields in by_topic.items():
+            if topic not in known:
+                if all(s.optional for s in specs if s.column.startswith(topic + ":")):
+                    continue
+                raise MeasuredDataError(
+                    f"{path}: the map names topic {topic!r}, which the bag lacks; it has "
+                    f"{', '.join(sorted(known))}"
+                )
+            data[topic] = reader.columns(topic, fields)
+    except BagError as exc:
+        raise MeasuredDataError(str(exc)) from None
+    time_topic = column_map.time.column.partition(":")[0]
+    base = data[time_topic]["log_time_s"]
+    header: list[str] = []
+    cols: list[np.ndarray] = []
+    for topic, columns in data.items():
+        for name, values in columns.items():
+            values = np.asarray(values, dtype=float)
+            if topic != time_topic:
+                values = np.interp(base, columns["log_time_s"], values)
+            header.append(f"{topic}:{name}")
+            cols.append(values)
+    return header, np.column_stack(cols)
 
 
 def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap) -> MeasuredRun:

@@ -1,0 +1,178 @@
+"""Simulation-based (output-error) least squares with the engine's batch mode.
+
+The cost is the closed-loop mismatch between the measured run and the twin driven by the same
+command and known disturbances,
+
+    J(theta) = sum_k [(e_meas(k) - e_sim(k; theta)) / s_e]^2
+               + [(x_meas(k) - x_sim(k; theta)) / s_x]^2
+
+over a decimated time base, with e the drive effort and x the measured position. s_e and s_x
+normalise the two channels by the nominal model's residual RMS, so each starts with the same
+weight. scipy's trust-region reflective solver minimises it; its Jacobian comes from forward
+differences evaluated as ONE batch of P perturbed parameter sets, which is what the engine's
+batch mode is for. A step whose simulation diverges returns a large finite residual, so the
+solver backs off instead of failing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+DIVERGED_RESIDUAL = 1e3  # residual entries (normalised) of a diverged simulation
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class SimOutputs:
+    """Simulated signals of a batch: one row per parameter set (SI units)."""
+
+    x_m: np.ndarray  # (N, T) position as the measurement system reports it
+    effort: np.ndarray | None  # (N, T) drive effort in the measured effort's unit, or None
+    ok: np.ndarray  # (N,) False where the simulation diverged
+
+
+BatchSimulator = Callable[[np.ndarray], SimOutputs]  # params (N, P) -> outputs
+
+
+@dataclass(frozen=True, kw_only=True)
+class FreeParameter:
+    name: str  # engine parameter slot, e.g. "friction.F_c_pos"
+    initial: float
+    scale: float  # typical magnitude, sets the finite-difference step and the solver scaling
+    lower: float = -np.inf
+    upper: float = np.inf
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FitResult:
+    values: dict[str, float]
+    cost_initial: float  # J at the initial values
+    cost: float  # J at the result
+    converged: bool
+    message: str
+    evaluations: int  # parameter sets simulated
+    outputs: SimOutputs  # the simulation at the result
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Measured:
+    """The measured channels on the simulation's time base."""
+
+    x_m: np.ndarray
+    effort: np.ndarray | None
+    scale_x: float  # [m] normalisation of the position channel
+    scale_effort: float  # normalisation of the effort channel
+    stride: int = 1  # use every stride-th sample
+
+
+def residual_vector(meas: Measured, x_sim: np.ndarray, effort_sim: np.ndarray | None) -> np.ndarray:
+    s = slice(None, None, meas.stride)
+    parts = [(meas.x_m[s] - x_sim[s]) / meas.scale_x]
+    if meas.effort is not None and effort_sim is not None:
+        parts.append((meas.effort[s] - effort_sim[s]) / meas.scale_effort)
+    return np.concatenate(parts)
+
+
+def cost_of(meas: Measured, out: SimOutputs, row: int = 0) -> float:
+    if not out.ok[row]:
+        return np.inf
+    r = residual_vector(meas, out.x_m[row], None if out.effort is None else out.effort[row])
+    return float(np.dot(r, r))
+
+
+def fit(
+    simulate: BatchSimulator,
+    base: np.ndarray,
+    index: dict[str, int],
+    free: list[FreeParameter],
+    meas: Measured,
+    *,
+    max_evaluations: int = 60,
+) -> FitResult:
+    """Fit the free parameters; the others stay at `base` (a full engine parameter vector)."""
+    slots = np.array([index[p.name] for p in free], dtype=int)
+    scale = np.array([p.scale for p in free], dtype=float)
+    lower = np.array([p.lower for p in free]) / scale
+    upper = np.array([p.upper for p in free]) / scale
+    z0 = np.clip(np.array([p.initial for p in free]) / scale, lower, upper)
+    counter = {"sets": 0}
+    cache: dict[bytes, tuple[np.ndarray, SimOutputs]] = {}
+
+    def params_of(zs: np.ndarray) -> np.ndarray:
+        batch = np.repeat(base[None, :], len(zs), axis=0)
+        batch[:, slots] = zs * scale
+        return batch
+
+    def residuals_of(out: SimOutputs, n: int) -> list[np.ndarray]:
+        rows = []
+        for i in range(n):
+            if out.ok[i]:
+                e = None if out.effort is None else out.effort[i]
+                r = residual_vector(meas, out.x_m[i], e)
+                rows.append(np.where(np.isfinite(r), r, DIVERGED_RESIDUAL))
+            else:
+                rows.append(None)
+        length = next((len(r) for r in rows if r is not None), None)
+        if length is None:
+            length = len(residual_vector(meas, meas.x_m, meas.effort))
+        return [np.full(length, DIVERGED_RESIDUAL) if r is None else r for r in rows]
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        key = z.tobytes()
+        if key not in cache:
+            out = simulate(params_of(z[None, :]))
+            counter["sets"] += 1
+            cache.clear()
+            cache[key] = (residuals_of(out, 1)[0], out)
+        return cache[key][0]
+
+    def jac(z: np.ndarray) -> np.ndarray:
+        r0 = fun(z)
+        step = 1e-3 * np.maximum(np.abs(z), 1.0)
+        # step inward at an upper bound so that every perturbed set stays feasible
+        step = np.where(z + step > upper, -step, step)
+        zs = z[None, :] + np.diag(step)
+        out = simulate(params_of(zs))
+        counter["sets"] += len(zs)
+        rows = residuals_of(out, len(zs))
+        return np.column_stack([(rows[i] - r0) / step[i] for i in range(len(zs))])
+
+    r_init = fun(z0)
+    cost_initial = float(np.dot(r_init, r_init))
+    try:
+        sol = least_squares(
+            fun,
+            z0,
+            jac=jac,
+            bounds=(lower, upper),
+            method="trf",
+            x_scale="jac",
+            max_nfev=max_evaluations,
+            xtol=1e-6,
+            ftol=1e-6,
+        )
+        z, converged, message = sol.x, bool(sol.status > 0), str(sol.message)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        z, converged, message = z0, False, f"least squares failed: {exc}"
+    r = fun(z)
+    cost = float(np.dot(r, r))
+    out = cache[z.tobytes()][1]
+    if not bool(out.ok[0]) or cost > cost_initial:
+        # never hand back a worse model than the one we started from
+        z, cost, converged = z0, cost_initial, False
+        message = f"{message}; kept the initial values (the fit did not improve them)"
+        fun(z)
+        out = cache[z.tobytes()][1]
+    values = {p.name: float(v) for p, v in zip(free, z * scale, strict=True)}
+    return FitResult(
+        values=values,
+        cost_initial=cost_initial,
+        cost=cost,
+        converged=converged,
+        message=message,
+        evaluations=counter["sets"],
+        outputs=out,
+    )
