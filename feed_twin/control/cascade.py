@@ -248,6 +248,10 @@ class ControllerConfig:
             loop = getattr(self, name)
             if loop is not None:
                 require_integer_multiple(f"{name}.period_s", loop.period_s, base, "base_period_s")
+        if self.position is not None:
+            require_integer_multiple(
+                "nc_period_s", self.nc_period_s, self.position.period_s, "position.period_s"
+            )
         if self.position is not None and self.velocity is None:
             raise ValueError("position: a position loop needs a velocity loop under it")
         needs = {"position": ("position", "velocity"), "velocity": ("velocity",), "torque": ()}
@@ -639,7 +643,7 @@ def _hold_off(cs: np.ndarray) -> None:
 
 
 @njit(cache=True)
-def _nc_sample(cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray) -> None:
+def nc_sample(cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray) -> None:
     """Latch a new NC setpoint and keep the previous one for interpolation."""
     if _due(k, cp[P_NC_DIV]):
         cs[S_NC_PREV_POS] = cs[S_NC_POS]
@@ -652,7 +656,7 @@ def _nc_sample(cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray) -> None:
 
 
 @njit(cache=True)
-def _initialise(cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray, meas: np.ndarray) -> None:
+def initialise(cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray, meas: np.ndarray) -> None:
     """First tick: start the interpolator at the current setpoint and the estimator at rest.
 
     The NC sample is treated as latched at the last NC instant at or before k, so the
@@ -781,12 +785,12 @@ def cascade_tick(
     """
     mode = int(cp[P_MODE])
     if cs[S_INITIALISED] == 0.0:
-        _initialise(cp, cs, k, ref, meas)
+        initialise(cp, cs, k, ref, meas)
     active = cs[S_ENABLE_CMD] > 0.5 and cs[S_FAULT] == 0.0
     if active and cp[P_HAS_CURRENT] > 0.5 and _overcurrent(cp, meas):
         cs[S_FAULT] = sig.FAULT_OVERCURRENT
     if cp[P_HAS_POSITION] > 0.5:
-        _nc_sample(cp, cs, k, ref)
+        nc_sample(cp, cs, k, ref)
     has_velocity = cp[P_HAS_VELOCITY] > 0.5
     vel_due = has_velocity and _due(k, cp[P_VEL_DIV])
     if vel_due:

@@ -1,0 +1,197 @@
+"""The cascade in the ros2_control shape: `reset()`, then `update(t, reference, measurement)`.
+
+These classes are for use outside the compiled engine (the ROS controller node, notebooks, tests).
+They hold a parameter and a state vector from `build_cascade` and call the very njit step
+functions that `cascade_tick` calls, so there is one implementation of every control law.
+
+Each controller runs at a fixed sample period: `update` must be called at `t = k * period_s` on the
+base grid (a multiple of the loop's own period), with strictly increasing k, otherwise it raises.
+`measurement` is always a MEAS_* vector; `reference` and the command depend on the loop:
+
+| class          | reference                          | command                                  |
+|----------------|------------------------------------|------------------------------------------|
+| `Cascade`      | REF_* vector                       | OUT_* vector (copy)                      |
+| `PositionLoop` | REF_* vector (NC x, v, a)          | `PositionCommand` (v_ref, effort_ff, ...) |
+| `VelocityLoop` | `VelocitySetpoint` (v, effort_ff)  | effort / q-current setpoint [A or unit]  |
+| `CurrentLoop`  | q-current setpoint [A]             | duty cycles (a, b, c) in [0, 1]          |
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from feed_twin.control import cascade as cc
+from feed_twin.control import signals as sig
+
+
+@dataclass(frozen=True, kw_only=True)
+class PositionCommand:
+    vel_ref_m_s: float  # velocity setpoint for the velocity loop [m/s], load side
+    effort_ff: float  # acceleration feed-forward [effort unit, A for a PMSM]
+    pos_ref_m: float  # fine-interpolated position setpoint [m]
+    following_error_m: float  # setpoint minus feedback position [m]
+
+
+@dataclass(frozen=True, kw_only=True)
+class VelocitySetpoint:
+    vel_m_s: float  # [m/s], load side
+    effort_ff: float = 0.0  # feed-forward added to the loop output [effort unit]
+
+
+class _SampledController:
+    """Fixed-period bookkeeping shared by the loop classes: time -> tick, reset, state vector."""
+
+    def __init__(self, config: cc.ControllerConfig, loop_period_s: float) -> None:
+        self._cascade = cc.build_cascade(config)
+        self.base_period_s = self._cascade.base_period_s
+        self.period_s = loop_period_s
+        self._div = round(loop_period_s / self.base_period_s)
+        self.reset()
+
+    @property
+    def params(self) -> np.ndarray:
+        return self._cascade.params
+
+    @property
+    def state(self) -> dict[str, float]:
+        """Named copy of the controller state (integrators, filters, fault, ...)."""
+        return self._cascade.state_view(self._cs)
+
+    def reset(self) -> None:
+        """Back to the initial state; the next update may start at any grid time."""
+        self._cs = self._cascade.initial_state()
+        self._last_k: int | None = None
+
+    def _tick(self, t: float) -> int:
+        k = round(t / self.base_period_s)
+        if abs(t - k * self.base_period_s) > 1e-6 * self.base_period_s or k % self._div:
+            raise ValueError(
+                f"t = {t!r} s: not a sample instant of this loop (period {self.period_s!r} s)"
+            )
+        if self._last_k is not None and k <= self._last_k:
+            raise ValueError(
+                f"t = {t!r} s: not after the previous update at "
+                f"{self._last_k * self.base_period_s!r} s"
+            )
+        self._last_k = k
+        return k
+
+    @staticmethod
+    def _vector(name: str, value: np.ndarray, size: int) -> np.ndarray:
+        arr = np.asarray(value, dtype=np.float64)
+        if arr.shape != (size,):
+            raise ValueError(f"{name}: expected a vector of {size} floats, got shape {arr.shape}")
+        return arr
+
+
+class Cascade(_SampledController):
+    """All configured loops at the base period, exactly the engine's `cascade_tick`."""
+
+    def __init__(self, config: cc.ControllerConfig) -> None:
+        super().__init__(config, config.base_period_s)
+        self._out = np.zeros(sig.OUT_SIZE)
+
+    def update(self, t: float, reference: np.ndarray, measurement: np.ndarray) -> np.ndarray:
+        k = self._tick(t)
+        ref = self._vector("reference", reference, sig.REF_SIZE)
+        meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
+        cc.cascade_tick(self._cascade.params, self._cs, k, ref, meas, self._out)
+        return self._out.copy()
+
+    def enable(self) -> None:
+        cc.enable(self._cs)
+
+    def disable(self) -> None:
+        cc.disable(self._cs)
+
+    def clear_fault(self) -> None:
+        cc.clear_fault(self._cs)
+
+
+class PositionLoop(_SampledController):
+    """P position loop with velocity/acceleration feed-forward and fine interpolation."""
+
+    def __init__(self, config: cc.ControllerConfig) -> None:
+        if config.position is None:
+            raise ValueError("PositionLoop: the configuration has no position section")
+        super().__init__(config, config.position.period_s)
+        self._pending_ref: np.ndarray | None = None
+
+    def update(self, t: float, reference: np.ndarray, measurement: np.ndarray) -> PositionCommand:
+        ref = self._vector("reference", reference, sig.REF_SIZE)
+        meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
+        first = self._last_k is None
+        k = self._tick(t)
+        cp, cs = self._cascade.params, self._cs
+        if first:
+            cc.initialise(cp, cs, k, ref, meas)
+        cc.nc_sample(cp, cs, k, ref)
+        cc.position_step(cp, cs, k, ref, meas, False)
+        return PositionCommand(
+            vel_ref_m_s=float(cs[cc.S_VEL_CMD]),
+            effort_ff=float(cs[cc.S_EFFORT_FF]),
+            pos_ref_m=float(cs[cc.S_POS_REF]),
+            following_error_m=float(cs[cc.S_FOLLOWING_ERROR]),
+        )
+
+
+class VelocityLoop(_SampledController):
+    """PI velocity loop on the encoder-difference estimate, with limit and setpoint filters."""
+
+    def __init__(self, config: cc.ControllerConfig) -> None:
+        if config.velocity is None:
+            raise ValueError("VelocityLoop: the configuration has no velocity section")
+        super().__init__(dataclasses.replace(config, mode="velocity"), config.velocity.period_s)
+
+    def update(self, t: float, reference: VelocitySetpoint, measurement: np.ndarray) -> float:
+        meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
+        first = self._last_k is None
+        k = self._tick(t)
+        cp, cs = self._cascade.params, self._cs
+        if first:
+            cc.initialise(cp, cs, k, np.zeros(sig.REF_SIZE), meas)
+        cc.velocity_estimate_step(cp, cs, meas)
+        cs[cc.S_EFFORT_FF] = reference.effort_ff
+        cc.velocity_step(cp, cs, reference.vel_m_s, 0.0)
+        return float(cs[cc.S_EFFORT_CMD])
+
+    @property
+    def velocity_estimate_m_s(self) -> float:
+        return float(self._cs[cc.S_VEL_EST])
+
+
+class CurrentLoop(_SampledController):
+    """FOC current loop: d/q PI, decoupling, voltage limit, SVPWM, computation delay.
+
+    The speed for decoupling and back-EMF feed-forward comes from `set_velocity_estimate`
+    (load side m/s), normally the velocity loop's estimate.
+    """
+
+    def __init__(self, config: cc.ControllerConfig) -> None:
+        if config.current is None:
+            raise ValueError("CurrentLoop: the configuration has no current section")
+        super().__init__(dataclasses.replace(config, mode="torque"), config.current.period_s)
+        self._delayed = config.computation_delay
+
+    def set_velocity_estimate(self, vel_m_s: float) -> None:
+        self._cs[cc.S_VEL_EST] = vel_m_s
+
+    def update(
+        self, t: float, reference: float, measurement: np.ndarray
+    ) -> tuple[float, float, float]:
+        meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
+        self._tick(t)
+        cs = self._cs
+        new = cc.current_step(self._cascade.params, cs, meas, float(reference))
+        if not self._delayed:
+            return new
+        applied = (
+            float(cs[cc.S_DUTY_NEXT_A]),
+            float(cs[cc.S_DUTY_NEXT_B]),
+            float(cs[cc.S_DUTY_NEXT_C]),
+        )
+        cs[cc.S_DUTY_NEXT_A : cc.S_DUTY_NEXT_C + 1] = new
+        return applied

@@ -1,0 +1,448 @@
+"""Controller tuning from plant parameters, and margins of the linearised loops.
+
+Delays are lumped into a dead time T_sigma per loop (computation delay plus zero-order hold plus
+measurement delay); the loops are linearised with L_d = L_q, no friction, rigid mechanics.
+
+Current loop, plant 1/(R_s + s L) e^{-s T_sigma}, T_sigma = 1.5 * T_i (one sample computation
+delay + half a sample of zero-order hold). PI with Ti = L/R_s cancels the electrical pole:
+    technical optimum (Betragsoptimum):  Kp = L / (2 T_sigma)
+    given bandwidth f_c:                 Kp = 2 pi f_c L   (open-loop crossover at 2 pi f_c)
+Velocity loop, plant K_t/(J s) behind the closed current loop G_ci(s), with
+    T_sigma_v = 2 T_sigma_i (current loop as lag) + T_v (hold + difference quotient) + FIR group
+                delay + 1/(2 pi f_lp) (estimator low-pass),
+symmetric optimum with the normalised crossover a (a = 2: 36.9 deg phase margin):
+    Kp = J / (K_t a T_sigma_v)  [A per rad/s],  Ti = a^2 T_sigma_v,  crossover 1/(a T_sigma_v);
+the load-side gain is Kp * 2 pi / lead [A per m/s].
+Position loop: the Kv that gives a target phase margin (default 70 deg) around the closed
+velocity loop.
+
+Margins come from the frequency response of the linearised open loop L(j w) on a logarithmic
+grid, refined with Brent's method: phase margin 180 deg + arg L at |L| = 1, gain margin
+-20 log10 |L| where arg L first reaches -180 deg.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from feed_twin.control.cascade import ControllerConfig
+
+TWO_PI = 2.0 * math.pi
+TransferFunction = Callable[[np.ndarray], np.ndarray]  # s (complex array) -> L(s)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Margins:
+    phase_margin_deg: float  # [deg]; inf when |L| never crosses 1
+    crossover_rad_s: float  # gain crossover [rad/s]; nan when none
+    gain_margin_db: float  # [dB]; inf when the phase never reaches -180 deg
+    phase_crossover_rad_s: float  # [rad/s]; nan when none
+
+
+def frequency_response(loop: TransferFunction, omega: np.ndarray) -> np.ndarray:
+    """L(j w) at the angular frequencies omega [rad/s]."""
+    return np.asarray(loop(1j * np.asarray(omega, dtype=np.float64)), dtype=np.complex128)
+
+
+def _unwrapped_phase(loop: TransferFunction, omega: np.ndarray) -> np.ndarray:
+    return np.unwrap(np.angle(frequency_response(loop, omega)))
+
+
+def loop_margins(
+    loop: TransferFunction, *, omega_min: float = 1e-1, omega_max: float = 1e6, points: int = 4000
+) -> Margins:
+    """Phase and gain margins of the open loop `loop` (first crossings from low frequency)."""
+    omega = np.geomspace(omega_min, omega_max, points)
+    response = frequency_response(loop, omega)
+    log_mag = np.log(np.abs(response))
+    phase = np.unwrap(np.angle(response))
+    crossover, pm = math.nan, math.inf
+    down = np.nonzero((log_mag[:-1] >= 0.0) & (log_mag[1:] < 0.0))[0]
+    if down.size:
+        i = down[0]
+        crossover = brentq(
+            lambda w: math.log(abs(complex(loop(np.array([1j * w]))[0]))), omega[i], omega[i + 1]
+        )
+        pm = 180.0 + math.degrees(_phase_at(loop, crossover, omega[i], phase[i]))
+    phase_crossover, gm = math.nan, math.inf
+    below = np.nonzero((phase[:-1] > -math.pi) & (phase[1:] <= -math.pi))[0]
+    if below.size:
+        i = below[0]
+        phase_crossover = brentq(
+            lambda w: _phase_at(loop, w, omega[i], phase[i]) + math.pi, omega[i], omega[i + 1]
+        )
+        gm = -20.0 * math.log10(abs(complex(loop(np.array([1j * phase_crossover]))[0])))
+    return Margins(
+        phase_margin_deg=pm,
+        crossover_rad_s=crossover,
+        gain_margin_db=gm,
+        phase_crossover_rad_s=phase_crossover,
+    )
+
+
+def _phase_at(loop: TransferFunction, w: float, w_ref: float, phase_ref: float) -> float:
+    """Continuous phase at w, on the branch of the unwrapped phase at the nearby w_ref."""
+    ratio = complex(loop(np.array([1j * w]))[0]) / complex(loop(np.array([1j * w_ref]))[0])
+    return phase_ref + math.atan2(ratio.imag, ratio.real)
+
+
+def closed_loop_bandwidth(
+    loop: TransferFunction, *, omega_min: float = 1e-1, omega_max: float = 1e6
+) -> float:
+    """-3 dB frequency [rad/s] of the unity-feedback closed loop L/(1+L) (first crossing)."""
+    omega = np.geomspace(omega_min, omega_max, 4000)
+    response = frequency_response(loop, omega)
+    mag = np.abs(response / (1.0 + response))
+    target = 1.0 / math.sqrt(2.0)
+    idx = np.nonzero((mag[:-1] >= target) & (mag[1:] < target))[0]
+    if not idx.size:
+        return math.nan
+    i = idx[0]
+
+    def excess(w: float) -> float:
+        s = complex(loop(np.array([1j * w]))[0])
+        return abs(s / (1.0 + s)) - target
+
+    return brentq(excess, omega[i], omega[i + 1])
+
+
+# ---------------------------------------------------------------------------------------------
+# Linearised loops
+
+
+def pi_controller(Kp: float, Ti_s: float | None) -> TransferFunction:
+    """C(s) = Kp (1 + 1/(s Ti)); P only when Ti is None."""
+    if Ti_s is None:
+        return lambda s: Kp + 0.0 * s
+    return lambda s: Kp * (1.0 + 1.0 / (s * Ti_s))
+
+
+def current_open_loop(
+    *, Kp: float, Ti_s: float, R_s: float, L: float, T_sigma_s: float
+) -> TransferFunction:
+    """L_i(s) = PI(s) e^{-s T_sigma} / (R_s + s L)."""
+    pi = pi_controller(Kp, Ti_s)
+    return lambda s: pi(s) * np.exp(-s * T_sigma_s) / (R_s + s * L)
+
+
+def velocity_open_loop(
+    *,
+    Kp: float,
+    Ti_s: float | None,
+    m_eq_kg: float,
+    force_per_unit: float,
+    T_delay_s: float,
+    current_closed_loop: TransferFunction | None,
+) -> TransferFunction:
+    """L_v(s) = PI(s) G_ci(s) F/(m s) e^{-s T_delay}, load side (m/s per effort unit)."""
+    pi = pi_controller(Kp, Ti_s)
+    inner = current_closed_loop or (lambda s: 1.0 + 0.0 * s)
+    return lambda s: pi(s) * inner(s) * force_per_unit / (m_eq_kg * s) * np.exp(-s * T_delay_s)
+
+
+def closed(loop: TransferFunction) -> TransferFunction:
+    return lambda s: loop(s) / (1.0 + loop(s))
+
+
+def position_open_loop(
+    *, Kv_1_s: float, velocity_closed_loop: TransferFunction, T_delay_s: float
+) -> TransferFunction:
+    """L_p(s) = Kv/s * T_v(s) e^{-s T_delay}."""
+    return lambda s: Kv_1_s / s * velocity_closed_loop(s) * np.exp(-s * T_delay_s)
+
+
+# ---------------------------------------------------------------------------------------------
+# Designs
+
+
+@dataclass(frozen=True, kw_only=True)
+class CurrentLoopDesign:
+    Kp_V_A: float
+    Ti_s: float
+    T_sigma_s: float  # lumped dead time [s]
+    rise_time_90_s: float  # time to 90 % of a current step, linear model [s]
+    bandwidth_hz: float  # closed-loop -3 dB [Hz]
+    margins: Margins
+
+
+def current_rise_time_90(
+    *, Kp: float, Ti_s: float, R_s: float, L: float, T_sigma_s: float, steps_per_delay: int = 400
+) -> float:
+    """Time for the linearised current loop to reach 90 % of a step (fine-step simulation)."""
+    dt = T_sigma_s / steps_per_delay
+    buffer = np.zeros(steps_per_delay)
+    i = 0.0
+    integral = 0.0
+    for n in range(200 * steps_per_delay):
+        e = 1.0 - i
+        integral += Kp / Ti_s * e * dt
+        u = buffer[n % steps_per_delay]
+        buffer[n % steps_per_delay] = Kp * e + integral
+        i += dt * (u - R_s * i) / L
+        if i >= 0.9:
+            return (n + 1) * dt
+    return math.inf
+
+
+def tune_current_loop(
+    *,
+    R_s: float,
+    L: float,
+    period_s: float,
+    delay_periods: float = 1.5,
+    bandwidth_hz: float | None = None,
+) -> CurrentLoopDesign:
+    """PI gains for the current loop: technical optimum, or a given crossover frequency."""
+    for name, value in (("R_s", R_s), ("L", L), ("period_s", period_s)):
+        if not value > 0.0:
+            raise ValueError(f"{name} = {value!r}: must be > 0")
+    T_sigma = delay_periods * period_s
+    Ti = L / R_s
+    Kp = L / (2.0 * T_sigma) if bandwidth_hz is None else TWO_PI * bandwidth_hz * L
+    loop = current_open_loop(Kp=Kp, Ti_s=Ti, R_s=R_s, L=L, T_sigma_s=T_sigma)
+    return CurrentLoopDesign(
+        Kp_V_A=Kp,
+        Ti_s=Ti,
+        T_sigma_s=T_sigma,
+        rise_time_90_s=current_rise_time_90(Kp=Kp, Ti_s=Ti, R_s=R_s, L=L, T_sigma_s=T_sigma),
+        bandwidth_hz=closed_loop_bandwidth(loop) / TWO_PI,
+        margins=loop_margins(loop),
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class VelocityLoopDesign:
+    Kp: float  # [effort unit per m/s], load side
+    Ti_s: float
+    T_sigma_s: float  # lumped small time constants [s]
+    a: float  # symmetric-optimum normalised crossover [-]
+    crossover_hz: float  # design open-loop crossover 1/(2 pi a T_sigma) [Hz]
+    bandwidth_hz: float  # closed-loop -3 dB of the linearised loop [Hz]
+    margins: Margins
+
+
+def estimator_delay(
+    fir_taps: tuple[float, ...], lowpass_hz: float | None, period_s: float
+) -> float:
+    """Low-frequency delay of the velocity estimate [s]: half a sample for the difference
+    quotient, the FIR's group delay sum(i c_i) T, and 1/(2 pi f) for the low-pass."""
+    fir = sum(i * c for i, c in enumerate(fir_taps)) * period_s
+    lp = 0.0 if lowpass_hz is None else 1.0 / (TWO_PI * lowpass_hz)
+    return 0.5 * period_s + fir + lp
+
+
+def tune_velocity_loop(
+    *,
+    J_total_kg_m2: float,
+    K_t: float,
+    lead_m: float,
+    period_s: float,
+    T_current_s: float,
+    estimator_delay_s: float,
+    a: float = 2.0,
+    crossover_hz: float | None = None,
+    current_closed_loop: TransferFunction | None = None,
+) -> VelocityLoopDesign:
+    """Symmetric optimum PI for the velocity loop (load-side gains).
+
+    `T_current_s` is the equivalent lag of the closed current loop (2 T_sigma_i for the technical
+    optimum, 0 for an ideal force source); `crossover_hz` overrides `a` with a target crossover.
+    """
+    T_sigma = T_current_s + 0.5 * period_s + estimator_delay_s
+    if crossover_hz is not None:
+        a = 1.0 / (TWO_PI * crossover_hz * T_sigma)
+    if not a > 1.0:
+        raise ValueError(
+            f"crossover_hz = {crossover_hz!r}: too high for the loop's delays "
+            f"(T_sigma = {T_sigma!r} s needs a crossover below {1 / (TWO_PI * T_sigma)!r} Hz)"
+        )
+    ratio = TWO_PI / lead_m  # motor rad per table m
+    Kp_rad = J_total_kg_m2 / (K_t * a * T_sigma)
+    Kp = Kp_rad * ratio
+    Ti = a * a * T_sigma
+    loop = velocity_open_loop(
+        Kp=Kp,
+        Ti_s=Ti,
+        m_eq_kg=J_total_kg_m2 * ratio * ratio,
+        force_per_unit=K_t * ratio,
+        T_delay_s=0.5 * period_s + estimator_delay_s,
+        current_closed_loop=current_closed_loop or (lambda s: 1.0 / (1.0 + s * T_current_s)),
+    )
+    return VelocityLoopDesign(
+        Kp=Kp,
+        Ti_s=Ti,
+        T_sigma_s=T_sigma,
+        a=a,
+        crossover_hz=1.0 / (TWO_PI * a * T_sigma),
+        bandwidth_hz=closed_loop_bandwidth(loop) / TWO_PI,
+        margins=loop_margins(loop),
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class PositionLoopDesign:
+    Kv_1_s: float
+    margins: Margins
+
+
+def tune_position_loop(
+    *,
+    velocity_closed_loop: TransferFunction,
+    velocity_bandwidth_hz: float,
+    period_s: float,
+    phase_margin_deg: float = 70.0,
+) -> PositionLoopDesign:
+    """The Kv that gives the position loop around the closed velocity loop a target phase margin.
+
+    The margin falls monotonically with Kv (more crossover frequency, more lag from the velocity
+    loop and the delay), so Brent's method on Kv in (0, 2 pi f_bw,v] finds it; 70 deg keeps the
+    setpoint response free of overshoot, as contouring requires.
+    """
+    if not 0.0 < phase_margin_deg < 90.0:
+        raise ValueError(f"phase_margin_deg = {phase_margin_deg!r}: must lie in (0, 90)")
+
+    def margin(Kv: float) -> float:
+        loop = position_open_loop(
+            Kv_1_s=Kv, velocity_closed_loop=velocity_closed_loop, T_delay_s=0.5 * period_s
+        )
+        return loop_margins(loop).phase_margin_deg - phase_margin_deg
+
+    Kv_max = TWO_PI * velocity_bandwidth_hz
+    Kv = Kv_max if margin(Kv_max) >= 0.0 else brentq(margin, 1e-6 * Kv_max, Kv_max, rtol=1e-6)
+    loop = position_open_loop(
+        Kv_1_s=Kv, velocity_closed_loop=velocity_closed_loop, T_delay_s=0.5 * period_s
+    )
+    return PositionLoopDesign(Kv_1_s=Kv, margins=loop_margins(loop))
+
+
+# ---------------------------------------------------------------------------------------------
+# A whole configuration
+
+
+@dataclass(frozen=True, kw_only=True)
+class TuningReport:
+    current_design: CurrentLoopDesign | None
+    current_configured: Margins | None
+    current_bandwidth_hz: float | None
+    velocity_design: VelocityLoopDesign | None
+    velocity_configured: Margins | None
+    velocity_bandwidth_hz: float | None
+    position_design: PositionLoopDesign | None
+    position_configured: Margins | None
+
+    def lines(self) -> list[str]:
+        """Human-readable summary, one line per loop and variant."""
+        out = []
+
+        def fmt(m: Margins | None) -> str:
+            if m is None:
+                return "-"
+            return (
+                f"PM {m.phase_margin_deg:6.1f} deg at {m.crossover_rad_s / TWO_PI:8.1f} Hz, "
+                f"GM {m.gain_margin_db:5.1f} dB"
+            )
+
+        if self.current_design is not None:
+            d = self.current_design
+            out.append(
+                f"current  design    Kp = {d.Kp_V_A:.4g} V/A, Ti = {d.Ti_s:.4g} s, "
+                f"t90 = {d.rise_time_90_s * 1e6:.0f} us, bw = {d.bandwidth_hz:.0f} Hz; "
+                + fmt(d.margins)
+            )
+            out.append(
+                f"current  configured bw = {self.current_bandwidth_hz:.0f} Hz; "
+                + fmt(self.current_configured)
+            )
+        if self.velocity_design is not None:
+            d = self.velocity_design
+            out.append(
+                f"velocity design    Kp = {d.Kp:.4g} per m/s, Ti = {d.Ti_s:.4g} s, a = {d.a:.2f}, "
+                f"bw = {d.bandwidth_hz:.0f} Hz; " + fmt(d.margins)
+            )
+            out.append(
+                f"velocity configured bw = {self.velocity_bandwidth_hz:.0f} Hz; "
+                + fmt(self.velocity_configured)
+            )
+        if self.position_design is not None:
+            out.append(
+                f"position design    Kv = {self.position_design.Kv_1_s:.4g} 1/s; "
+                + fmt(self.position_design.margins)
+            )
+            out.append("position configured " + fmt(self.position_configured))
+        return out
+
+
+def tune_config(config: ControllerConfig) -> TuningReport:
+    """Recommended gains for a configuration's plant facts, and margins of its configured gains."""
+    drive = config.drive
+    ratio = TWO_PI / drive.lead_m
+    m_eq = drive.J_total_kg_m2 * ratio * ratio
+    force_per_unit = drive.K_t * ratio
+    cur, vel, pos = config.current, config.velocity, config.position
+    cur_design = cur_conf = cur_bw = None
+    inner_closed: TransferFunction | None = None
+    T_current = 0.0
+    if cur is not None:
+        cur_design = tune_current_loop(R_s=cur.R_s_ohm, L=cur.L_q_H, period_s=cur.period_s)
+        configured = current_open_loop(
+            Kp=cur.Kp_q_V_A,
+            Ti_s=cur.Ti_q_s,
+            R_s=cur.R_s_ohm,
+            L=cur.L_q_H,
+            T_sigma_s=cur_design.T_sigma_s,
+        )
+        cur_conf = loop_margins(configured)
+        cur_bw = closed_loop_bandwidth(configured) / TWO_PI
+        inner_closed = closed(configured)
+        T_current = 2.0 * cur_design.T_sigma_s
+    vel_design = vel_conf = vel_bw = None
+    pos_design = pos_conf = None
+    if vel is not None:
+        est_delay = estimator_delay(vel.estimator.fir_taps, vel.estimator.lowpass_hz, vel.period_s)
+        vel_design = tune_velocity_loop(
+            J_total_kg_m2=drive.J_total_kg_m2,
+            K_t=drive.K_t,
+            lead_m=drive.lead_m,
+            period_s=vel.period_s,
+            T_current_s=T_current,
+            estimator_delay_s=est_delay,
+            current_closed_loop=inner_closed,
+        )
+        configured_v = velocity_open_loop(
+            Kp=vel.Kp,
+            Ti_s=vel.Ti_s,
+            m_eq_kg=m_eq,
+            force_per_unit=force_per_unit,
+            T_delay_s=0.5 * vel.period_s + est_delay,
+            current_closed_loop=inner_closed,
+        )
+        vel_conf = loop_margins(configured_v)
+        vel_bw = closed_loop_bandwidth(configured_v) / TWO_PI
+        if pos is not None:
+            pos_design = tune_position_loop(
+                velocity_closed_loop=closed(configured_v),
+                velocity_bandwidth_hz=vel_bw,
+                period_s=pos.period_s,
+            )
+            pos_conf = loop_margins(
+                position_open_loop(
+                    Kv_1_s=pos.Kv_1_s,
+                    velocity_closed_loop=closed(configured_v),
+                    T_delay_s=0.5 * pos.period_s,
+                )
+            )
+    return TuningReport(
+        current_design=cur_design,
+        current_configured=cur_conf,
+        current_bandwidth_hz=cur_bw,
+        velocity_design=vel_design,
+        velocity_configured=vel_conf,
+        velocity_bandwidth_hz=vel_bw,
+        position_design=pos_design,
+        position_configured=pos_conf,
+    )
