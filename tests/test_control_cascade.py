@@ -1,0 +1,302 @@
+"""The compiled cascade tick: computation delay, FOC internals, modes, rates, interpolation,
+drive behaviour (enable, faults) and the ros2_control-shaped classes that share its kernels."""
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from feed_twin.control import cascade as cc
+from feed_twin.control import signals as sig
+from feed_twin.control.loops import (
+    Cascade,
+    CurrentLoop,
+    PositionLoop,
+    VelocityLoop,
+    VelocitySetpoint,
+)
+from feed_twin.control.transforms import SQRT3, clarke, inverse_clarke, inverse_park, park
+from feed_twin.io.config import load_yaml
+
+FIXTURES = Path(__file__).parent / "fixtures"
+U_DC = 560.0
+
+
+def _config(name: str, **changes) -> cc.ControllerConfig:
+    path = FIXTURES / name
+    config = cc.load_controller_config(load_yaml(path)["controller"], source=str(path))
+    return dataclasses.replace(config, **changes)
+
+
+AXIS = _config("controller_axis.yaml")
+EMPS = _config("controller_emps.yaml")
+
+
+class Rig:
+    """Drives cascade_tick by hand with settable ref and meas vectors."""
+
+    def __init__(self, config: cc.ControllerConfig) -> None:
+        self.cascade = cc.build_cascade(config)
+        self.cs = self.cascade.initial_state()
+        self.ref = np.zeros(sig.REF_SIZE)
+        self.meas = np.zeros(sig.MEAS_SIZE)
+        self.meas[sig.MEAS_U_DC_V] = U_DC
+        self.out = np.zeros(sig.OUT_SIZE)
+
+    def tick(self, k: int) -> np.ndarray:
+        cc.cascade_tick(self.cascade.params, self.cs, k, self.ref, self.meas, self.out)
+        return self.out.copy()
+
+
+def _voltage_dq(out: np.ndarray, theta_e: float) -> tuple[float, float]:
+    """(u_d, u_q) that the duties in `out` make an averaged inverter apply."""
+    phases = [(out[sig.OUT_DUTY_A + i] - 0.5) * U_DC for i in range(3)]
+    return park(*clarke(*phases), theta_e)
+
+
+def test_duties_computed_at_tick_k_apply_from_tick_k_plus_one():
+    kp = AXIS.current.Kp_q_V_A
+    rig = Rig(dataclasses.replace(AXIS, mode="torque"))
+    rig.ref[sig.REF_I_Q_EXT_A] = 2.0
+    first = rig.tick(0)
+    assert first[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1] == pytest.approx([0.5, 0.5, 0.5])
+    second = rig.tick(1)
+    # the first sample's output: u_q = Kp*e with an empty integrator, at theta_e = 0
+    assert _voltage_dq(second, 0.0) == pytest.approx((0.0, kp * 2.0), abs=1e-9)
+    prompt = Rig(dataclasses.replace(AXIS, mode="torque", computation_delay=False))
+    prompt.ref[sig.REF_I_Q_EXT_A] = 2.0
+    assert _voltage_dq(prompt.tick(0), 0.0) == pytest.approx((0.0, kp * 2.0), abs=1e-9)
+
+
+def test_park_angle_is_encoder_times_pole_pairs_and_decoupling_feeds_forward():
+    config = dataclasses.replace(AXIS, mode="torque", computation_delay=False)
+    cur = config.current
+    rig = Rig(config)
+    theta_m = 0.7
+    theta_e = cur.pole_pairs * theta_m
+    rig.meas[sig.MEAS_THETA_ENC_RAD] = theta_m
+    i_d, i_q = 0.5, 3.0
+    rig.meas[sig.MEAS_I_A : sig.MEAS_I_C + 1] = inverse_clarke(*inverse_park(i_d, i_q, theta_e))
+    rig.ref[sig.REF_I_Q_EXT_A] = i_q
+    v_load = 0.05  # m/s
+    rig.cs[cc.S_INITIALISED] = 1.0
+    rig.cs[cc.S_VEL_EST] = v_load
+    rig.cs[cc.S_ENC_POS_PREV] = theta_m * config.drive.lead_m / (2 * math.pi)
+    rig.cs[cc.S_FIR_HIST : cc.S_FIR_HIST + 2] = v_load
+    rig.cs[cc.S_ENC_POS_PREV] -= v_load * config.velocity.period_s
+    out = rig.tick(0)
+    omega_e = cur.pole_pairs * v_load * 2 * math.pi / config.drive.lead_m
+    u_d_expected = cur.Kp_d_V_A * (0.0 - i_d) - omega_e * cur.L_q_H * i_q
+    u_q_expected = omega_e * (cur.L_d_H * i_d + cur.psi_pm_Vs)  # e_q = 0
+    assert out[sig.OUT_VEL_EST_M_S] == pytest.approx(v_load, rel=1e-9)
+    assert out[sig.OUT_U_D_REF_V] == pytest.approx(u_d_expected, rel=1e-9)
+    assert out[sig.OUT_U_Q_REF_V] == pytest.approx(u_q_expected, rel=1e-9)
+    assert _voltage_dq(out, theta_e) == pytest.approx((u_d_expected, u_q_expected), rel=1e-9)
+
+
+def test_angle_advance_rotates_the_output_vector():
+    base = dataclasses.replace(AXIS, mode="torque", computation_delay=False)
+    advanced = dataclasses.replace(
+        base, current=dataclasses.replace(base.current, angle_advance_periods=1.5)
+    )
+    outs = []
+    for config in (base, advanced):
+        rig = Rig(config)
+        rig.ref[sig.REF_I_Q_EXT_A] = 1.0
+        rig.cs[cc.S_INITIALISED] = 1.0
+        rig.cs[cc.S_VEL_EST] = 0.2
+        rig.cs[cc.S_FIR_HIST : cc.S_FIR_HIST + 2] = 0.2
+        rig.cs[cc.S_ENC_POS_PREV] = -0.2 * config.velocity.period_s
+        outs.append(rig.tick(0))
+    omega_e = 4 * 0.2 * 2 * math.pi / 0.01
+    angle = 1.5 * omega_e * 62.5e-6
+    plain = _voltage_dq(outs[0], 0.0)
+    rotated = _voltage_dq(outs[1], angle)
+    assert rotated == pytest.approx(plain, rel=1e-9)
+
+
+def test_voltage_is_limited_to_the_inverter_circle_and_integrator_holds():
+    rig = Rig(dataclasses.replace(AXIS, mode="torque", computation_delay=False))
+    rig.ref[sig.REF_I_Q_EXT_A] = 30.0  # Kp * 30 A = 640 V > 0.95 * 560 / sqrt(3)
+    for k in range(50):
+        out = rig.tick(k)
+        u = math.hypot(out[sig.OUT_U_D_REF_V], out[sig.OUT_U_Q_REF_V])
+        assert u == pytest.approx(0.95 * U_DC / SQRT3, rel=1e-9)
+        assert 0.0 <= min(out[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1])
+        assert max(out[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1]) <= 1.0
+    assert rig.cs[cc.S_I_Q_INT] == 0.0
+
+
+def test_torque_mode_clamps_to_the_current_limit():
+    rig = Rig(dataclasses.replace(AXIS, mode="torque"))
+    rig.ref[sig.REF_I_Q_EXT_A] = 100.0
+    assert rig.tick(0)[sig.OUT_I_Q_REF_A] == AXIS.drive.effort_limit
+
+
+def test_loops_run_at_their_own_rates():
+    base = cc.build_cascade(AXIS)
+    divs = {n: base.params[i] for n, i in (("pos", cc.P_POS_DIV), ("vel", cc.P_VEL_DIV))}
+    assert divs == {"pos": 4, "vel": 2}
+    rig = Rig(AXIS)
+    rig.ref[sig.REF_POS_M] = 0.0
+    changes = []
+    last = None
+    for k in range(16):
+        rig.meas[sig.MEAS_THETA_ENC_RAD] = 1e-3 * k * k  # accelerating: the estimate changes
+        out = rig.tick(k)
+        if last is not None and out[sig.OUT_VEL_EST_M_S] != last:
+            changes.append(k)
+        last = out[sig.OUT_VEL_EST_M_S]
+    assert changes == list(range(2, 16, 2))
+
+
+def _ramp_rig(interpolation: str) -> tuple[Rig, float, float]:
+    config = dataclasses.replace(
+        AXIS, position=dataclasses.replace(AXIS.position, interpolation=interpolation)
+    )
+    return Rig(config), 0.2, config.nc_period_s
+
+
+@pytest.mark.parametrize("interpolation", ["hold", "linear", "extrapolate"])
+def test_fine_interpolation_of_an_nc_ramp(interpolation):
+    rig, v, t_nc = _ramp_rig(interpolation)
+    base = AXIS.base_period_s
+    nc_div = round(t_nc / base)
+    pos_div = round(AXIS.position.period_s / base)
+    for k in range(0, 5 * nc_div):
+        if k % nc_div == 0:
+            rig.ref[sig.REF_POS_M] = v * k * base
+            rig.ref[sig.REF_VEL_M_S] = v
+        out = rig.tick(k)
+        if k % pos_div or k < nc_div:
+            continue
+        t = k * base
+        expected = {
+            "hold": v * (k - k % nc_div) * base,
+            "linear": v * (t - t_nc),
+            "extrapolate": v * t,
+        }[interpolation]
+        assert out[sig.OUT_POS_REF_M] == pytest.approx(expected, rel=1e-12, abs=1e-15)
+
+
+def test_position_loop_law_with_feed_forward():
+    rig = Rig(AXIS)
+    x_ref, v_ref, a_ref, x_meas = 0.01, 0.1, 2.0, 0.0099
+    rig.ref[sig.REF_POS_M : sig.REF_ACC_M_S2 + 1] = (x_ref, v_ref, a_ref)
+    rig.meas[sig.MEAS_X_SCALE_M] = x_meas
+    rig.meas[sig.MEAS_THETA_ENC_RAD] = 5.0  # ignored: closed loop on the scale
+    out = rig.tick(0)
+    assert out[sig.OUT_FOLLOWING_ERROR_M] == pytest.approx(x_ref - x_meas)
+    assert out[sig.OUT_VEL_REF_M_S] == pytest.approx(50.0 * 1e-4 + v_ref)
+    assert rig.cs[cc.S_EFFORT_FF] == pytest.approx(a_ref * 2 * math.pi / 0.01 * 5.8e-3 / 1.9)
+
+
+def test_emps_velocity_mode_takes_the_external_setpoint():
+    rig = Rig(dataclasses.replace(EMPS, mode="velocity"))
+    rig.ref[sig.REF_POS_M] = 1.0  # ignored in velocity mode
+    rig.ref[sig.REF_VEL_EXT_M_S] = 0.01
+    assert rig.tick(0)[sig.OUT_EFFORT_CMD] == pytest.approx(243.45 * 0.01)
+
+
+def test_following_error_trips_latches_and_clears():
+    config = dataclasses.replace(
+        EMPS, position=dataclasses.replace(EMPS.position, following_error_limit_m=1e-3)
+    )
+    rig = Rig(config)
+    rig.ref[sig.REF_POS_M] = 1e-4
+    out = rig.tick(0)
+    assert out[sig.OUT_FAULT] == sig.FAULT_NONE and out[sig.OUT_ENABLED] == 1.0
+    assert out[sig.OUT_EFFORT_CMD] == pytest.approx(160.18 * 243.45 * 1e-4)
+    rig.ref[sig.REF_POS_M] = 2e-3
+    out = rig.tick(1)
+    assert out[sig.OUT_FAULT] == sig.FAULT_FOLLOWING_ERROR
+    assert cc.fault_reason(out[sig.OUT_FAULT]) == "following error limit exceeded"
+    assert out[sig.OUT_ENABLED] == 0.0 and out[sig.OUT_EFFORT_CMD] == 0.0
+    rig.ref[sig.REF_POS_M] = 0.0
+    assert rig.tick(2)[sig.OUT_FAULT] == sig.FAULT_FOLLOWING_ERROR  # latched
+    cc.clear_fault(rig.cs)
+    out = rig.tick(3)
+    assert out[sig.OUT_FAULT] == sig.FAULT_NONE and out[sig.OUT_ENABLED] == 1.0
+
+
+def test_overcurrent_trips_and_the_power_stage_goes_to_zero_voltage():
+    rig = Rig(AXIS)
+    rig.tick(0)
+    rig.meas[sig.MEAS_I_B] = -46.0
+    out = rig.tick(1)
+    assert out[sig.OUT_FAULT] == sig.FAULT_OVERCURRENT
+    assert list(out[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1]) == [0.5, 0.5, 0.5]
+    assert rig.cs[cc.S_I_Q_INT] == 0.0 and rig.cs[cc.S_VEL_INT] == 0.0
+
+
+def test_disable_clears_integrators_and_enable_resumes():
+    rig = Rig(dataclasses.replace(AXIS, mode="velocity"))
+    rig.ref[sig.REF_VEL_EXT_M_S] = 0.005  # 12.8 A: inside the current limit
+    for k in range(10):
+        rig.tick(k)
+    assert rig.cs[cc.S_VEL_INT] > 0.0
+    cc.disable(rig.cs)
+    out = rig.tick(10)
+    assert out[sig.OUT_FAULT] == sig.FAULT_DISABLED and out[sig.OUT_ENABLED] == 0.0
+    assert rig.cs[cc.S_VEL_INT] == 0.0 and out[sig.OUT_I_Q_REF_A] == 0.0
+    cc.enable(rig.cs)
+    out = rig.tick(12)
+    assert out[sig.OUT_FAULT] == sig.FAULT_NONE and out[sig.OUT_ENABLED] == 1.0
+    assert out[sig.OUT_I_Q_REF_A] > 0.0
+    rig_off = Rig(dataclasses.replace(AXIS, enabled_at_start=False))
+    assert rig_off.tick(0)[sig.OUT_ENABLED] == 0.0
+
+
+def test_cascade_class_equals_the_engine_tick():
+    rig = Rig(EMPS)
+    ctrl = Cascade(EMPS)
+    rng = np.random.default_rng(3)
+    for k in range(30):
+        rig.ref[sig.REF_POS_M] = 1e-3 * k
+        rig.meas[sig.MEAS_THETA_ENC_RAD] = rng.normal() * 1e-2
+        expected = rig.tick(k)
+        got = ctrl.update(k * 1e-3, rig.ref, rig.meas)
+        assert np.array_equal(got, expected)
+    ctrl.reset()
+    assert ctrl.state["initialised"] == 0.0
+
+
+def test_loop_classes_call_the_same_laws():
+    meas = np.zeros(sig.MEAS_SIZE)
+    meas[sig.MEAS_U_DC_V] = U_DC
+    meas[sig.MEAS_X_SCALE_M] = 0.004
+    ref = np.zeros(sig.REF_SIZE)
+    ref[sig.REF_POS_M : sig.REF_VEL_M_S + 1] = (0.005, 0.02)
+    cmd = PositionLoop(AXIS).update(0.0, ref, meas)
+    assert cmd.vel_ref_m_s == pytest.approx(50.0 * 0.001 + 0.02)
+    assert cmd.following_error_m == pytest.approx(0.001)
+    vel = VelocityLoop(EMPS)
+    assert vel.update(0.0, VelocitySetpoint(vel_m_s=0.02), meas) == pytest.approx(243.45 * 0.02)
+    cur = CurrentLoop(AXIS)
+    assert cur.update(0.0, 2.0, meas) == (0.5, 0.5, 0.5)  # computation delay
+    rig = Rig(dataclasses.replace(AXIS, mode="torque"))
+    rig.ref[sig.REF_I_Q_EXT_A] = 2.0
+    rig.tick(0)
+    assert cur.update(62.5e-6, 2.0, meas) == pytest.approx(
+        tuple(rig.tick(1)[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1]), abs=1e-12
+    )
+
+
+def test_loop_classes_reject_off_grid_and_repeated_times():
+    loop = PositionLoop(AXIS)
+    ref, meas = np.zeros(sig.REF_SIZE), np.zeros(sig.MEAS_SIZE)
+    with pytest.raises(ValueError) as err:
+        loop.update(1e-4, ref, meas)
+    assert str(err.value) == "t = 0.0001 s: not a sample instant of this loop (period 0.00025 s)"
+    loop.update(2.5e-4, ref, meas)
+    with pytest.raises(ValueError) as err:
+        loop.update(2.5e-4, ref, meas)
+    assert str(err.value) == "t = 0.00025 s: not after the previous update at 0.00025 s"
+    with pytest.raises(ValueError, match=r"measurement: expected a vector of 6 floats"):
+        loop.update(5e-4, ref, np.zeros(3))
+    with pytest.raises(ValueError, match="PositionLoop: the configuration has no position"):
+        PositionLoop(dataclasses.replace(EMPS, mode="velocity", position=None))
+    with pytest.raises(ValueError, match="CurrentLoop: the configuration has no current"):
+        CurrentLoop(EMPS)
