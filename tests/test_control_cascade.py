@@ -124,7 +124,7 @@ def test_voltage_is_limited_to_the_inverter_circle_and_integrator_holds():
         out = rig.tick(k)
         u = math.hypot(out[sig.OUT_U_D_REF_V], out[sig.OUT_U_Q_REF_V])
         assert u == pytest.approx(0.95 * U_DC / SQRT3, rel=1e-9)
-        assert 0.0 <= min(out[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1])
+        assert min(out[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1]) >= 0.0
         assert max(out[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1]) <= 1.0
     assert rig.cs[cc.S_I_Q_INT] == 0.0
 
