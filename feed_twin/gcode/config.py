@@ -1,0 +1,137 @@
+"""NC configuration: the machine's axes, limits, work offsets and planner tolerances.
+
+`NcConfig` is read from the `nc:` section of an axis config YAML (other top-level sections are
+ignored). All values are SI; millimetres appear only in G-code text.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from feed_twin.io.config import (
+    ConfigError,
+    from_mapping,
+    load_yaml,
+    require_nonnegative,
+    require_positive,
+)
+
+LINEAR_AXIS_NAMES = ("X", "Y", "Z", "U", "V", "W")
+WORK_OFFSET_CODES = ("G54", "G55", "G56", "G57", "G58", "G59")
+
+
+@dataclass(frozen=True, kw_only=True)
+class NcAxis:
+    """One linear machine axis and its kinematic limits (machine coordinates)."""
+
+    name: str  # G-code letter: X, Y, Z, U, V or W
+    v_max_m_s: float  # [m/s] largest velocity of feed moves
+    rapid_m_s: float  # [m/s] rapid traverse rate (G0)
+    a_max_m_s2: float  # [m/s^2] acceleration limit
+    j_max_m_s3: float  # [m/s^3] jerk limit (used by the 'jerk' profile)
+    travel_min_m: float  # [m] lower software limit
+    travel_max_m: float  # [m] upper software limit
+
+    def __post_init__(self) -> None:
+        if self.name not in LINEAR_AXIS_NAMES:
+            raise ValueError(f"name = {self.name!r}: must be one of {', '.join(LINEAR_AXIS_NAMES)}")
+        for name in ("v_max_m_s", "rapid_m_s", "a_max_m_s2", "j_max_m_s3"):
+            require_positive(name, getattr(self, name))
+        if not (math.isfinite(self.travel_min_m) and math.isfinite(self.travel_max_m)):
+            raise ValueError(
+                f"travel_min_m, travel_max_m = {self.travel_min_m!r}, {self.travel_max_m!r}: "
+                "must be finite"
+            )
+        if self.travel_max_m <= self.travel_min_m:
+            raise ValueError(
+                f"travel_max_m = {self.travel_max_m!r}: must be > travel_min_m = "
+                f"{self.travel_min_m!r}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class WorkOffsets:
+    """Work coordinate origins G54-G59 in machine coordinates [m], one entry per axis."""
+
+    G54: tuple[float, ...]
+    G55: tuple[float, ...]
+    G56: tuple[float, ...]
+    G57: tuple[float, ...]
+    G58: tuple[float, ...]
+    G59: tuple[float, ...]
+
+
+@dataclass(frozen=True, kw_only=True)
+class NcConfig:
+    """Everything the interpreter and planner need to turn a program into setpoints."""
+
+    axes: tuple[NcAxis, ...]  # the machine's linear axes; X, Y and Z are required
+    twin_axis: str  # name of the axis the twin models; the others are still planned
+    work_offsets_m: WorkOffsets  # [m] G54-G59 origins
+    start_position_m: tuple[float, ...]  # [m] machine position when the program starts
+    path_tolerance_m: float  # [m] G64 corner blending: largest deviation from the corner
+    chord_tolerance_m: float  # [m] largest sagitta of the chords that approximate an arc
+    arc_radius_tolerance_m: float  # [m] allowed start/end radius mismatch of an arc
+    interpolation_period_s: float = 1e-3  # [s] setpoint sample period
+    profile: Literal["jerk", "trapezoid"] = "jerk"  # jerk-limited S-curve or trapezoidal
+    lookahead_segments: int = 2000  # segments planned together when streaming
+    block_delete: bool = True  # '/' blocks are skipped (the block-delete switch is on)
+    dwell_p_unit: Literal["s", "ms"] = "s"  # unit of G4 P (RS274/NGC: s; Fanuc: ms)
+    axis_names: tuple[str, ...] = field(init=False)
+
+    def __post_init__(self) -> None:
+        names = tuple(a.name for a in self.axes)
+        if len(set(names)) != len(names):
+            raise ValueError(f"axes = {names!r}: axis names must be unique")
+        for required in ("X", "Y", "Z"):
+            if required not in names:
+                raise ValueError(f"axes = {names!r}: axis {required} is required")
+        if self.twin_axis not in names:
+            raise ValueError(f"twin_axis = {self.twin_axis!r}: must be one of {names!r}")
+        n = len(names)
+        if len(self.start_position_m) != n:
+            raise ValueError(
+                f"start_position_m = {self.start_position_m!r}: needs {n} entries (one per axis)"
+            )
+        for i, (axis, x) in enumerate(zip(self.axes, self.start_position_m, strict=True)):
+            if not axis.travel_min_m <= x <= axis.travel_max_m:
+                raise ValueError(
+                    f"start_position_m[{i}] = {x!r}: outside the travel of axis {axis.name} "
+                    f"[{axis.travel_min_m}, {axis.travel_max_m}]"
+                )
+        for code in WORK_OFFSET_CODES:
+            offset = getattr(self.work_offsets_m, code)
+            if len(offset) != n:
+                raise ValueError(
+                    f"work_offsets_m.{code} = {offset!r}: needs {n} entries (one per axis)"
+                )
+        require_positive("path_tolerance_m", self.path_tolerance_m)
+        require_positive("chord_tolerance_m", self.chord_tolerance_m)
+        require_nonnegative("arc_radius_tolerance_m", self.arc_radius_tolerance_m)
+        require_positive("interpolation_period_s", self.interpolation_period_s)
+        if isinstance(self.lookahead_segments, bool) or not isinstance(
+            self.lookahead_segments, int
+        ):
+            raise ValueError(f"lookahead_segments = {self.lookahead_segments!r}: must be an int")
+        if self.lookahead_segments < 8:
+            raise ValueError(f"lookahead_segments = {self.lookahead_segments!r}: must be >= 8")
+        object.__setattr__(self, "axis_names", names)
+
+    def axis_index(self, name: str) -> int:
+        return self.axis_names.index(name)
+
+
+def nc_config_from_mapping(data: object, *, source: str) -> NcConfig:
+    """Build an `NcConfig` from the mapping under `nc:`; errors read `source: nc.field ...`."""
+    return from_mapping(NcConfig, data, source=source, path="nc")
+
+
+def load_nc_config(path: str | Path) -> NcConfig:
+    """Read the `nc:` section of any YAML file (other top-level sections are ignored)."""
+    data = load_yaml(path)
+    if "nc" not in data:
+        raise ConfigError(f"{path}: no 'nc' section (top-level keys: {', '.join(map(str, data))})")
+    return nc_config_from_mapping(data["nc"], source=str(path))

@@ -1,0 +1,167 @@
+"""Lexer: one line of G-code text -> the words of that block, with their columns.
+
+Accepts RS274/NGC (LinuxCNC), Fanuc- and Sinumerik-style text: case-insensitive, spaces
+anywhere inside a word (`X - 1 .5` is not accepted, but `X -1.5` and `x-1.5` are), `( ... )`
+and `; ...` comments, a leading `/` for block delete, `N` line numbers (dropped here) and `%`
+delimiter lines. Controller-specific assignments and calls that do not move the axes
+(Sinumerik `T="DRILL_10"`, `MSG("...")`, `R1=5`) come back as notes so the interpreter can
+warn about them; a single axis letter assignment (`X=5`, Sinumerik) is an ordinary word.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from feed_twin.gcode.errors import GcodeError
+
+_TOKEN = re.compile(
+    r"[ \t\r\f\v]+"
+    r"|(?P<comment>\([^)]*\)|;.*)"
+    r"|(?P<aname>[A-Za-z_][A-Za-z0-9_]*)[ \t]*=[ \t]*"
+    r"(?P<avalue>\"[^\"]*\"|[-+]?[ \t]*(?:\d+\.?\d*|\.\d+)(?![\w.]))"
+    r"|(?P<call>[A-Za-z_][A-Za-z0-9_]*)[ \t]*\([ \t]*\"[^\"]*\"[ \t]*\)"
+    r"|(?P<letter>[A-Za-z])[ \t]*(?P<number>[-+]?[ \t]*(?:\d+\.?\d*|\.\d+))"
+    r"|(?P<bad>.)"
+)
+
+_BAD_CHARACTER_REASONS = {
+    "(": "comment '(' is never closed",
+    "#": "parameters (#) are not supported",
+    "[": "expressions [...] are not supported",
+    "=": "assignment without a name",
+    '"': "string outside an assignment",
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Word:
+    """One word of a block: `letter` upper case, `value` as written (program units)."""
+
+    letter: str
+    value: float
+    column: int  # 1-based column of the letter
+    text: str  # the word as written, spaces removed, letter upper case (for messages)
+
+
+@dataclass(frozen=True, slots=True)
+class Note:
+    """A controller-specific item that does not move the axes (accepted with a warning)."""
+
+    column: int
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class Block:
+    line: int  # 1-based line number in the file
+    words: tuple[Word, ...]
+    notes: tuple[Note, ...]
+
+
+def lex_line(text: str, line: int, *, file: str, block_delete: bool) -> Block | None:
+    """Split one line into words; None for lines without words (blank, comment, `%`, deleted)."""
+    stripped = text.lstrip()
+    if not stripped or stripped[0] == "%":
+        return None
+    start = 0
+    if stripped[0] == "/":
+        if block_delete:
+            return None
+        start = text.index("/") + 1
+    words: list[Word] = []
+    notes: list[Note] = []
+    for m in _TOKEN.finditer(text, start):
+        kind = m.lastgroup
+        if kind is None or kind == "comment":
+            continue
+        if kind == "number":
+            number = m.group("number")
+            if " " in number or "\t" in number:
+                number = number.replace(" ", "").replace("\t", "")
+            letter = m.group("letter").upper()
+            words.append(Word(letter, float(number), m.start() + 1, letter + number))
+        elif kind == "avalue":
+            name = m.group("aname").upper()
+            value = m.group("avalue")
+            if len(name) == 1 and not value.startswith('"'):
+                number = value.replace(" ", "").replace("\t", "")
+                words.append(Word(name, float(number), m.start() + 1, name + number))
+            else:
+                notes.append(Note(m.start() + 1, m.group(0)))
+        elif kind == "call":
+            notes.append(Note(m.start() + 1, m.group(0)))
+        else:
+            char = m.group("bad")
+            column = m.start() + 1
+            if char.isalpha():
+                raise GcodeError(
+                    "word has no number", file=file, line=line, column=column, word=char.upper()
+                )
+            reason = _BAD_CHARACTER_REASONS.get(char, "unexpected character")
+            raise GcodeError(reason, file=file, line=line, column=column, word=char)
+    if not words and not notes:
+        return None
+    return Block(line, tuple(words), tuple(notes))
+
+
+def iter_source_lines(source: str | Path) -> tuple[str, Iterator[tuple[int, str]]]:
+    """(file name for messages, iterator of (line number, text)) for a path or program text.
+
+    A `Path`, or a string that names an existing file, is read lazily line by line (bounded
+    memory); any other string is the program text itself. Binary data raises a `GcodeError`.
+    """
+    if isinstance(source, Path) or (
+        isinstance(source, str) and "\n" not in source and _is_file(source)
+    ):
+        path = Path(source)
+        if not path.is_file():
+            raise GcodeError("no such G-code file", file=str(path))
+        return str(path), _file_lines(path)
+    if not isinstance(source, str):
+        raise TypeError(f"expected a path or program text, got {type(source).__name__}")
+    return "<text>", _text_lines(source, "<text>")
+
+
+def _is_file(text: str) -> bool:
+    try:
+        return len(text) < 4096 and Path(text).is_file()
+    except OSError:
+        return False
+
+
+def _check_text(text: str, number: int, file: str) -> None:
+    if "\x00" in text:
+        raise GcodeError(
+            "not a text G-code file (NUL byte: binary data)",
+            file=file,
+            line=number,
+            column=text.index("\x00") + 1,
+        )
+
+
+def _text_lines(text: str, file: str) -> Iterator[tuple[int, str]]:
+    for number, line in enumerate(text.splitlines(), start=1):
+        _check_text(line, number, file)
+        yield number, line
+
+
+def _file_lines(path: Path) -> Iterator[tuple[int, str]]:
+    file = str(path)
+    number = 0
+    with path.open("rb") as handle:
+        for raw in handle:
+            number += 1
+            try:
+                line = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise GcodeError(
+                    f"not a text G-code file (invalid UTF-8 byte 0x{raw[exc.start]:02x})",
+                    file=file,
+                    line=number,
+                    column=exc.start + 1,
+                ) from None
+            _check_text(line, number, file)
+            yield number, line.rstrip("\r\n")

@@ -1,0 +1,276 @@
+"""One-dimensional feed profiles along the path, and the blended path geometry (numba kernels).
+
+The planner moves a path parameter s [m] (arc length of the programmed polyline) with a
+profile made of pieces whose acceleration is zero at both ends:
+
+- body: speed changes v0 -> vp -> v1 with a cruise at vp between. Each speed change of size
+  dv is a jerk-limited S-curve (acceleration ramps at jerk J to at most A and back to zero):
+  T(dv) = dv/A + A/J when dv >= A^2/J, else 2*sqrt(dv/J); it covers (v_from + v_to)/2 * T by
+  symmetry. With `jerk` false the ramps vanish (trapezoid: T = dv/A).
+- cruise: constant speed through a corner blend (ds/dt = v, d2s/dt2 = 0).
+- hold: standstill (dwell, pauses).
+
+Corner blend (G64) at a corner P_c between unit directions u_A and u_B, dU = u_B - u_A, over
+sigma = s - s_c in [-w, w]:
+    x(s) = P_c + u_A*sigma + dU*G(sigma),  dx/ds = u_A + dU*h,  d2x/ds2 = dU*h'
+with h' a triangle (0 -> 1/w -> 0), so h runs 0 -> 1 and G(w) = w (the blend rejoins the
+second line exactly). The largest distance from the corner is |dU|*w/6. Along a cruise piece
+the axis acceleration is dU_i * h' * v^2 <= |dU_i| v^2 / w and the jerk is |dU_i| v^3 / w^2,
+which is how the planner sizes w and the corner speed. Acceleration is continuous everywhere.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+BODY = 0
+CRUISE = 1
+HOLD = 2
+
+
+@njit(cache=True)
+def phase_time(dv: float, A: float, J: float, jerk: bool) -> float:
+    """Duration [s] of a speed change of dv >= 0 that starts and ends at zero acceleration."""
+    if dv <= 0.0:
+        return 0.0
+    if not jerk:
+        return dv / A
+    if dv * J >= A * A:
+        return dv / A + A / J
+    return 2.0 * math.sqrt(dv / J)
+
+
+@njit(cache=True)
+def phase_distance(va: float, vb: float, A: float, J: float, jerk: bool) -> float:
+    return 0.5 * (va + vb) * phase_time(abs(vb - va), A, J, jerk)
+
+
+@njit(cache=True)
+def reach(v_known: float, L: float, A: float, J: float, jerk: bool, v_cap: float) -> float:
+    """Largest v <= v_cap from which one speed change to v_known fits in the length L."""
+    if v_cap <= v_known:
+        return v_cap
+    if phase_distance(v_cap, v_known, A, J, jerk) <= L:
+        return v_cap
+    lo = v_known
+    hi = v_cap
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        if phase_distance(mid, v_known, A, J, jerk) <= L:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def plan_speeds(
+    cap: np.ndarray, L: np.ndarray, A: np.ndarray, J: np.ndarray, jerk: bool, v_first: float
+) -> np.ndarray:
+    """Boundary speeds: backward then forward pass over bodies i (node i -> node i+1)."""
+    m = L.shape[0]
+    v = cap.copy()
+    v[0] = v_first
+    for i in range(m - 1, 0, -1):
+        v[i] = min(v[i], reach(v[i + 1], L[i], A[i], J[i], jerk, v[i]))
+    for i in range(m):
+        v[i + 1] = min(v[i + 1], reach(v[i], L[i], A[i], J[i], jerk, v[i + 1]))
+    return v
+
+
+@njit(cache=True)
+def body_profiles(
+    v: np.ndarray, L: np.ndarray, V: np.ndarray, A: np.ndarray, J: np.ndarray, jerk: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Peak speed vp and durations (speed-up, cruise, slow-down) of each body."""
+    m = L.shape[0]
+    vp = np.empty(m)
+    t_up = np.empty(m)
+    t_cruise = np.empty(m)
+    t_down = np.empty(m)
+    for i in range(m):
+        v0 = v[i]
+        v1 = v[i + 1]
+        a = A[i]
+        j = J[i]
+        top = V[i]
+        if phase_distance(v0, top, a, j, jerk) + phase_distance(top, v1, a, j, jerk) > L[i]:
+            lo = max(v0, v1)
+            hi = top
+            for _ in range(200):
+                mid = 0.5 * (lo + hi)
+                if mid <= lo or mid >= hi:
+                    break
+                d = phase_distance(v0, mid, a, j, jerk) + phase_distance(mid, v1, a, j, jerk)
+                if d <= L[i]:
+                    lo = mid
+                else:
+                    hi = mid
+            top = lo
+        vp[i] = top
+        t_up[i] = phase_time(top - v0, a, j, jerk)
+        t_down[i] = phase_time(top - v1, a, j, jerk)
+        rest = L[i] - phase_distance(v0, top, a, j, jerk) - phase_distance(top, v1, a, j, jerk)
+        t_cruise[i] = rest / top if (top > 0.0 and rest > 0.0) else 0.0
+    return vp, t_up, t_cruise, t_down
+
+
+@njit(cache=True)
+def _phase_eval(va: float, vb: float, A: float, J: float, jerk: bool, tau: float):
+    """(s, v, a) at time tau into a speed change va -> vb; s counted from its start."""
+    dv = vb - va
+    if dv == 0.0:
+        return va * tau, va, 0.0
+    sg = 1.0 if dv > 0.0 else -1.0
+    adv = abs(dv)
+    if not jerk:
+        T = adv / A
+        tau = min(max(tau, 0.0), T)
+        return va * tau + 0.5 * sg * A * tau * tau, va + sg * A * tau, sg * A
+    if adv * J >= A * A:
+        tj = A / J
+        ta = adv / A - tj
+        peak = A
+    else:
+        tj = math.sqrt(adv / J)
+        ta = 0.0
+        peak = J * tj
+    T = 2.0 * tj + ta
+    tau = min(max(tau, 0.0), T)
+    if tau < tj:
+        return va * tau + sg * J * tau**3 / 6.0, va + 0.5 * sg * J * tau * tau, sg * J * tau
+    if tau < tj + ta:
+        v1 = va + 0.5 * sg * J * tj * tj
+        s1 = va * tj + sg * J * tj**3 / 6.0
+        t2 = tau - tj
+        return s1 + v1 * t2 + 0.5 * sg * peak * t2 * t2, v1 + sg * peak * t2, sg * peak
+    r = T - tau
+    total = 0.5 * (va + vb) * T
+    return total - (vb * r - sg * J * r**3 / 6.0), vb - 0.5 * sg * J * r * r, sg * J * r
+
+
+@njit(cache=True)
+def sample_pieces(
+    times: np.ndarray,
+    kind: np.ndarray,
+    t0: np.ndarray,
+    dur: np.ndarray,
+    s0: np.ndarray,
+    v0: np.ndarray,
+    vp: np.ndarray,
+    v1: np.ndarray,
+    A: np.ndarray,
+    J: np.ndarray,
+    t_up: np.ndarray,
+    t_cruise: np.ndarray,
+    jerk: bool,
+):
+    """Path parameter s, ds/dt, d2s/dt2 and the active piece at increasing sample times."""
+    n = times.shape[0]
+    m = t0.shape[0]
+    s = np.empty(n)
+    sd = np.empty(n)
+    sdd = np.empty(n)
+    piece = np.empty(n, dtype=np.int64)
+    p = 0
+    for k in range(n):
+        t = times[k]
+        while p < m - 1 and t >= t0[p] + dur[p]:
+            p += 1
+        tau = min(max(t - t0[p], 0.0), dur[p])
+        piece[k] = p
+        if kind[p] == HOLD:
+            s[k] = s0[p]
+            sd[k] = 0.0
+            sdd[k] = 0.0
+        elif kind[p] == CRUISE:
+            s[k] = s0[p] + v0[p] * tau
+            sd[k] = v0[p]
+            sdd[k] = 0.0
+        else:
+            if tau < t_up[p]:
+                ds, vv, aa = _phase_eval(v0[p], vp[p], A[p], J[p], jerk, tau)
+            elif tau < t_up[p] + t_cruise[p]:
+                d_up = 0.5 * (v0[p] + vp[p]) * t_up[p]
+                ds, vv, aa = d_up + vp[p] * (tau - t_up[p]), vp[p], 0.0
+            else:
+                d_up = 0.5 * (v0[p] + vp[p]) * t_up[p]
+                ds, vv, aa = _phase_eval(
+                    vp[p], v1[p], A[p], J[p], jerk, tau - t_up[p] - t_cruise[p]
+                )
+                ds += d_up + vp[p] * t_cruise[p]
+            s[k] = s0[p] + ds
+            sd[k] = vv
+            sdd[k] = aa
+    return s, sd, sdd, piece
+
+
+@njit(cache=True)
+def _blend_shape(sigma: float, w: float):
+    """G, h, h' of the corner blend at sigma in [-w, w] (see the module docstring)."""
+    if sigma <= 0.0:
+        q = sigma + w
+        return q**3 / (6.0 * w * w), q * q / (2.0 * w * w), q / (w * w)
+    q = w - sigma
+    return sigma + q**3 / (6.0 * w * w), 1.0 - q * q / (2.0 * w * w), q / (w * w)
+
+
+@njit(cache=True)
+def evaluate_path(
+    s: np.ndarray,
+    sd: np.ndarray,
+    sdd: np.ndarray,
+    S0: np.ndarray,
+    L: np.ndarray,
+    P0: np.ndarray,
+    P1: np.ndarray,
+    u: np.ndarray,
+    w_start: np.ndarray,
+    du_start: np.ndarray,
+    w_end: np.ndarray,
+    du_end: np.ndarray,
+):
+    """Axis position, velocity and acceleration at path parameters s (non-decreasing)."""
+    n = s.shape[0]
+    m = S0.shape[0]
+    na = P0.shape[1]
+    pos = np.empty((n, na))
+    vel = np.empty((n, na))
+    acc = np.empty((n, na))
+    seg = np.empty(n, dtype=np.int64)
+    k = 0
+    for idx in range(n):
+        si = s[idx]
+        while k < m - 1 and si > S0[k] + L[k]:
+            k += 1
+        seg[idx] = k
+        sigma = si - S0[k]
+        v = sd[idx]
+        a = sdd[idx]
+        if sigma < w_start[k]:
+            G, h, hp = _blend_shape(sigma, w_start[k])
+            for i in range(na):
+                ua = u[k, i] - du_start[k, i]
+                d = ua + du_start[k, i] * h
+                pos[idx, i] = P0[k, i] + ua * sigma + du_start[k, i] * G
+                vel[idx, i] = d * v
+                acc[idx, i] = d * a + du_start[k, i] * hp * v * v
+        elif L[k] - sigma < w_end[k]:
+            sig = sigma - L[k]
+            G, h, hp = _blend_shape(sig, w_end[k])
+            for i in range(na):
+                d = u[k, i] + du_end[k, i] * h
+                pos[idx, i] = P1[k, i] + u[k, i] * sig + du_end[k, i] * G
+                vel[idx, i] = d * v
+                acc[idx, i] = d * a + du_end[k, i] * hp * v * v
+        else:
+            for i in range(na):
+                pos[idx, i] = P0[k, i] + u[k, i] * sigma
+                vel[idx, i] = u[k, i] * v
+                acc[idx, i] = u[k, i] * a
+    return pos, vel, acc, seg
