@@ -1,0 +1,237 @@
+"""The controller node: NC setpoints + drive feedback -> DriveCommand, once per exchange.
+
+Subscribes `command` (AxisCommand, from the G-code node or a real NC) and `feedback`
+(AxisFeedback, from the sim node or a real drive); for every feedback sample at time t it waits
+until the NC setpoint for t is known (a setpoint stamped >= t has arrived, or the program has
+finished, after which the last setpoint is held at standstill), runs `split.ControllerCore` and
+publishes `drive_command` stamped t. All control maths is in feed_twin.control; this file only
+converts messages.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from feed_twin_msgs.msg import AxisCommand, AxisFeedback, DriveCommand
+from std_msgs.msg import String
+
+from feed_twin.control import signals as sig
+from feed_twin.control.cascade import ControllerConfig, load_controller_config
+from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.ros.runtime import (
+    DATA_QOS,
+    EXIT_ERROR,
+    EXIT_OK,
+    LATCHED_QOS,
+    FeedTwinNode,
+    NodeOptions,
+    init_context,
+    spin_nodes,
+)
+from feed_twin.ros.split import (
+    NS_PER_S,
+    Boundary,
+    ControllerCore,
+    DriveSetpoint,
+    NcSample,
+    load_node_set_config,
+)
+from feed_twin.ros.topics import CONTROLLER_NODE
+
+
+def stamp_ns(header) -> int:
+    return header.stamp.sec * NS_PER_S + header.stamp.nanosec
+
+
+def set_stamp(header, t_ns: int) -> None:
+    header.stamp.sec, header.stamp.nanosec = divmod(t_ns, NS_PER_S)
+
+
+def nc_sample(msg: AxisCommand) -> NcSample:
+    return NcSample(
+        t_ns=stamp_ns(msg.header),
+        position_m=msg.position,
+        velocity_m_s=msg.velocity,
+        acceleration_m_s2=msg.acceleration,
+        line=msg.line,
+    )
+
+
+def measurement(msg: AxisFeedback, out: np.ndarray) -> np.ndarray:
+    out[sig.MEAS_THETA_ENC_RAD] = msg.encoder_angle
+    out[sig.MEAS_X_SCALE_M] = msg.scale_position
+    out[sig.MEAS_I_A] = msg.i_a
+    out[sig.MEAS_I_B] = msg.i_b
+    out[sig.MEAS_I_C] = msg.i_c
+    out[sig.MEAS_U_DC_V] = msg.u_dc
+    return out
+
+
+def drive_command(setpoint: DriveSetpoint, axis: str) -> DriveCommand:
+    msg = DriveCommand()
+    set_stamp(msg.header, setpoint.t_ns)
+    msg.axis = axis
+    msg.mode = setpoint.mode
+    msg.enable = setpoint.enable
+    msg.position = setpoint.position_m
+    msg.velocity = setpoint.velocity_m_s
+    msg.torque = setpoint.torque_Nm
+    msg.i_q = setpoint.i_q_A
+    msg.i_d = setpoint.i_d_A
+    return msg
+
+
+class ControllerNode(FeedTwinNode):
+    def __init__(
+        self,
+        options: NodeOptions,
+        config: ControllerConfig,
+        *,
+        boundary: Boundary,
+        exchange_period_s: float,
+        axis_label: str,
+        context=None,
+    ) -> None:
+        super().__init__(CONTROLLER_NODE, options, context=context)
+        self.core = ControllerCore(config, boundary=boundary, exchange_period_s=exchange_period_s)
+        for note in self.core.notes:
+            self.get_logger().info(note)
+        self.axis_label = axis_label
+        self._commands: collections.deque[NcSample] = collections.deque()
+        self._latest_command_ns: int | None = None
+        self._held: NcSample | None = None
+        self._pending: collections.deque[AxisFeedback] = collections.deque()
+        self._program_finished = False
+        self._paused = False
+        self._meas = np.zeros(sig.MEAS_SIZE)
+        self.steps = 0
+        self._pub = self.create_publisher(DriveCommand, self.topics.drive_command, DATA_QOS)
+        self.create_subscription(AxisCommand, self.topics.command, self._on_command, DATA_QOS)
+        self.create_subscription(AxisFeedback, self.topics.feedback, self._on_feedback, DATA_QOS)
+        self.create_subscription(
+            String, self.topics.program_state, self._on_program_state, LATCHED_QOS
+        )
+        self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
+        # A command stream is due once drive feedback flows; silence while paused is expected.
+        self._command_dog = self.watch_input(
+            self.topics.command,
+            "feed_twin_msgs/msg/AxisCommand",
+            armed=lambda: bool(self._pending) and not self._paused and not self._program_finished,
+        )
+        self._feedback_dog = self.watch_input(
+            self.topics.feedback,
+            "feed_twin_msgs/msg/AxisFeedback",
+            armed=lambda: self._latest_command_ns is not None and self.steps == 0,
+        )
+        self.start_heartbeat()
+
+    def _on_command(self, msg: AxisCommand) -> None:
+        sample = nc_sample(msg)
+        self._commands.append(sample)
+        self._latest_command_ns = sample.t_ns
+        self._command_dog.feed()
+        self._serve()
+
+    def _on_feedback(self, msg: AxisFeedback) -> None:
+        self._pending.append(msg)
+        self._feedback_dog.feed()
+        self._serve()
+
+    def _on_program_state(self, msg: String) -> None:
+        state = msg.data.split(" ", 1)[0]
+        self._paused = state == "paused"
+        if state in ("finished", "stopped"):
+            self._program_finished = True
+            self._serve()
+
+    def _on_run_state(self, msg: String) -> None:
+        if msg.data.startswith("done"):
+            self.finish(EXIT_OK, "")
+
+    def _command_for(self, t_ns: int) -> NcSample | None:
+        commands = self._commands
+        while len(commands) > 1 and commands[1].t_ns <= t_ns:
+            commands.popleft()
+        known = self._latest_command_ns is not None and self._latest_command_ns >= t_ns
+        if commands and commands[0].t_ns <= t_ns and known:
+            self._held = commands[0]
+            return commands[0]
+        if self._program_finished and self._held is not None:
+            last = commands[-1] if commands else self._held
+            self._held = NcSample(
+                t_ns=t_ns,
+                position_m=last.position_m,
+                velocity_m_s=0.0,
+                acceleration_m_s2=0.0,
+                line=-1,
+            )
+            return self._held
+        return None
+
+    def _serve(self) -> None:
+        while self._pending:
+            feedback = self._pending[0]
+            t_ns = stamp_ns(feedback.header)
+            nc = self._command_for(t_ns)
+            if nc is None:
+                return
+            self._pending.popleft()
+            try:
+                setpoint = self.core.step(t_ns, nc, measurement(feedback, self._meas))
+            except ValueError as exc:
+                self.finish(EXIT_ERROR, f"controller: at t = {t_ns * 1e-9:.6f} s: {exc}")
+                return
+            self._pub.publish(drive_command(setpoint, self.axis_label))
+            self.steps += 1
+
+
+def load_node_controller_config(path: Path) -> ControllerConfig:
+    data = load_yaml(path)
+    if "controller" not in data:
+        raise ConfigError(f"{path}: no controller section")
+    return load_controller_config(data["controller"], source=str(path))
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", required=True, type=Path)
+    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
+    parser.add_argument("--input-timeout", type=float, default=10.0)
+    parser.add_argument("--startup-timeout", type=float, default=60.0)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="feed_twin.ros.controller_node")
+    configure(parser)
+    args = parser.parse_args(argv)
+    try:
+        ros = load_node_set_config(args.config)
+        controller = load_node_controller_config(args.config)
+    except (ConfigError, ValueError) as exc:
+        print(f"controller node: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    options = NodeOptions(
+        machine=ros.machine,
+        axis=ros.axis,
+        peers=tuple(p for p in args.peers.split(",") if p),
+        input_timeout_s=args.input_timeout,
+        startup_timeout_s=args.startup_timeout,
+    )
+    context = init_context()
+    node = ControllerNode(
+        options,
+        controller,
+        boundary=ros.boundary,
+        exchange_period_s=ros.exchange_period_s,
+        axis_label=ros.axis.upper(),
+        context=context,
+    )
+    return spin_nodes([node], context)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

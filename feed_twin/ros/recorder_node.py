@@ -1,0 +1,174 @@
+"""The recorder node: every topic of the axis, as exact wire bytes, into a rosbag2 MCAP bag.
+
+It subscribes with `raw=True`, so the stored bytes are what DDS delivered (no deserialisation,
+no re-serialisation padding), and writes them through `feed_twin.io.bag.BagWriter`. Besides the
+node set's own topics (subscribed at start, so the first messages are not missed) it scans the
+graph every 0.2 s and adds any other topic under the axis namespace, plus /clock and /rosout,
+with the QoS its publisher offers. Log time and publish time are the wall-clock receive time in
+ns (rclpy's EventsExecutor cannot hand raw callbacks the message info with the send time).
+
+The run ends when the sim node announces it on `run_state`; the recorder then drains what is
+still in flight (until 0.3 s without a message, at most 3 s) and closes the bag. On SIGINT,
+SIGTERM or a lost peer it closes the bag as well.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+
+from feed_twin.io.bag import BagWriter, QosProfile
+from feed_twin.ros.runtime import (
+    DATA_QOS,
+    EXIT_OK,
+    HEARTBEAT_QOS,
+    LATCHED_QOS,
+    FeedTwinNode,
+    NodeOptions,
+    init_context,
+    spin_nodes,
+)
+from feed_twin.ros.topics import RECORDER_NODE
+
+DRAIN_QUIET_S = 0.3
+DRAIN_MAX_S = 3.0
+SCAN_PERIOD_S = 0.2
+EXTRA_GLOBAL_TOPICS = ("/rosout",)
+
+
+def message_class(type_name: str) -> type:
+    package, _, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{package}.msg"), name)
+
+
+def _bag_qos(qos: QoSProfile) -> QosProfile:
+    def seconds(duration: object) -> float:
+        ns = getattr(duration, "nanoseconds", None)
+        return float("inf") if ns is None or ns >= 2**63 - 1 or ns == 0 else ns * 1e-9
+
+    return QosProfile(
+        history="keep_all" if qos.history.value == 2 else "keep_last",
+        depth=int(qos.depth),
+        reliability="best_effort"
+        if qos.reliability == ReliabilityPolicy.BEST_EFFORT
+        else "reliable",
+        durability=(
+            "transient_local" if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL else "volatile"
+        ),
+        deadline_s=seconds(qos.deadline),
+        lifespan_s=seconds(qos.lifespan),
+        liveliness_lease_duration_s=seconds(qos.liveliness_lease_duration),
+    )
+
+
+class RecorderNode(FeedTwinNode):
+    def __init__(self, options: NodeOptions, bag_path: Path, *, context=None) -> None:
+        super().__init__(RECORDER_NODE, options, context=context)
+        self.bag = BagWriter(bag_path)
+        self.bag_path = bag_path
+        self._subscriptions: dict[str, object] = {}
+        self._last_message = time.monotonic()
+        self._ending_since: float | None = None
+        self.end_reason = ""
+        known = self.topics.types()
+        qos_for = {
+            self.topics.program_state: LATCHED_QOS,
+            self.topics.run_state: LATCHED_QOS,
+            self.topics.heartbeat: HEARTBEAT_QOS,
+        }
+        for topic, type_name in known.items():
+            self._record(topic, type_name, qos_for.get(topic, DATA_QOS))
+        self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
+        self.create_timer(SCAN_PERIOD_S, self._scan, clock=self.wall)
+        self.create_timer(0.05, self._drain_check, clock=self.wall)
+        self.start_heartbeat()
+
+    def _record(self, topic: str, type_name: str, qos: QoSProfile) -> None:
+        if topic in self._subscriptions:
+            return
+        self.bag.add_topic(topic, type_name, qos=(_bag_qos(qos),))
+        write = self.bag.write
+
+        def on_message(data: bytes, topic: str = topic) -> None:
+            now = time.time_ns()
+            self._last_message = time.monotonic()
+            write(topic, data, log_time_ns=now, publish_time_ns=now)
+
+        self._subscriptions[topic] = self.create_subscription(
+            message_class(type_name), topic, on_message, qos, raw=True
+        )
+
+    def _scan(self) -> None:
+        prefix = self.topics.namespace + "/"
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._subscriptions or len(types) != 1:
+                continue
+            if not (topic.startswith(prefix) or topic in EXTRA_GLOBAL_TOPICS):
+                continue
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                continue
+            offered = publishers[0].qos_profile
+            qos = QoSProfile(
+                depth=max(10, int(offered.depth)),
+                reliability=offered.reliability,
+                durability=offered.durability,
+            )
+            try:
+                self._record(topic, types[0], qos)
+            except (LookupError, ImportError) as exc:
+                self.get_logger().warning(f"not recording {topic}: {exc}")
+
+    def _on_run_state(self, msg: String) -> None:
+        if self._ending_since is None and msg.data.startswith("done"):
+            self.end_reason = msg.data
+            self._ending_since = time.monotonic()
+
+    def _drain_check(self) -> None:
+        if self._ending_since is None or self.done:
+            return
+        now = time.monotonic()
+        if now - self._last_message > DRAIN_QUIET_S or now - self._ending_since > DRAIN_MAX_S:
+            self.finish(EXIT_OK, "")
+
+    def on_shutdown(self, reason: str) -> None:
+        info = self.bag.close()
+        print(
+            f"recorder: {info.message_count} messages on {len(info.topics)} topics -> "
+            f"{self.bag_path}",
+            file=sys.stderr,
+        )
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--machine", required=True)
+    parser.add_argument("--axis", required=True)
+    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
+    parser.add_argument("--bag", required=True, type=Path, help="bag directory to create")
+    parser.add_argument("--startup-timeout", type=float, default=60.0)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="feed_twin.ros.recorder_node")
+    configure(parser)
+    args = parser.parse_args(argv)
+    options = NodeOptions(
+        machine=args.machine,
+        axis=args.axis,
+        peers=tuple(p for p in args.peers.split(",") if p),
+        startup_timeout_s=args.startup_timeout,
+    )
+    context = init_context()
+    node = RecorderNode(options, args.bag, context=context)
+    return spin_nodes([node], context)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

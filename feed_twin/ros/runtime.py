@@ -1,0 +1,277 @@
+"""What every feed_twin node shares: liveness, input watchdogs, QoS, and the spin loop.
+
+- Liveness: each node publishes a heartbeat (its role) every 0.1 s of wall time on
+  `/<machine>/<axis>/heartbeat` and watches its peers' heartbeats. A peer that was seen and then
+  stays silent for `peer_timeout_s` (0.6 s) is gone: the node names it and stops with exit code
+  `EXIT_PEER_LOST`. A peer never seen within `startup_timeout_s` is reported as not started.
+  Heartbeats begin only after a node's set-up (numba compilation included), so a slow start is
+  not mistaken for a crash.
+- Input watchdogs: a node that waits for messages on a topic reports, after a timeout, what the
+  graph offers instead (the same type on other topics, or the topic with another type), which
+  is what goes wrong when a real command stream is wired to the wrong namespace.
+- Spinning: rclpy's EventsExecutor is several times faster than the default executor here, but
+  its `spin()` busy-loops and ignores SIGTERM, so `spin_nodes` drives it with `spin_once` and
+  handles SIGINT/SIGTERM itself, letting every node finish cleanly (the recorder closes its bag).
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.context import Context
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
+
+from feed_twin.ros.topics import AxisTopics
+
+EXIT_OK = 0
+EXIT_ERROR = 1  # a configuration, program or runtime error; the message says which
+EXIT_PEER_LOST = 3  # another node of the set disappeared
+EXIT_INPUT_TIMEOUT = 4  # an expected topic stayed silent
+EXIT_SIGNAL = 130  # stopped by SIGINT/SIGTERM (after a clean shutdown)
+
+HEARTBEAT_PERIOD_S = 0.1
+PEER_TIMEOUT_S = 0.6
+
+# Data topics: reliable and in order. Transient-local history lets a subscriber that matched a
+# few milliseconds late (the recorder, usually) still receive the first messages.
+DATA_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=200,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+# Program/run state: the latest value matters, also for late joiners.
+LATCHED_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+HEARTBEAT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+
+@dataclass(frozen=True, kw_only=True)
+class NodeOptions:
+    """Settings every feed_twin node takes from the runner."""
+
+    machine: str
+    axis: str
+    peers: tuple[str, ...]  # roles whose heartbeat this node watches
+    startup_timeout_s: float = 60.0  # [s] wall time for peers to appear
+    input_timeout_s: float = 10.0  # [s] wall time an expected topic may stay silent
+    peer_timeout_s: float = PEER_TIMEOUT_S  # [s]
+
+    def __post_init__(self) -> None:
+        for name in ("startup_timeout_s", "input_timeout_s", "peer_timeout_s"):
+            value = getattr(self, name)
+            if not value > 0.0:
+                raise ValueError(f"{name} = {value!r}: must be > 0")
+
+    @property
+    def topics(self) -> AxisTopics:
+        return AxisTopics(machine=self.machine, axis=self.axis)
+
+
+class FeedTwinNode(Node):
+    """A node with a role, heartbeats, peer watching and a finish state the spin loop reads."""
+
+    def __init__(self, role: str, options: NodeOptions, *, context: Context | None = None):
+        super().__init__(
+            role,
+            namespace=options.topics.namespace,
+            context=context,
+            start_parameter_services=True,
+        )
+        self.role = role
+        self.options = options
+        self.topics = options.topics
+        self.exit_code: int | None = None
+        self.exit_message = ""
+        self.wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self._created = time.monotonic()
+        self._peer_seen: dict[str, float] = {}
+        self._watchdogs: list[_Watchdog] = []
+        self._heartbeat_pub = self.create_publisher(String, self.topics.heartbeat, HEARTBEAT_QOS)
+        self._heartbeat_on = False
+        self.create_subscription(String, self.topics.heartbeat, self._on_heartbeat, HEARTBEAT_QOS)
+        self.create_timer(HEARTBEAT_PERIOD_S, self._tick, clock=self.wall)
+
+    # -- life cycle ---------------------------------------------------------------------------
+
+    def start_heartbeat(self) -> None:
+        """Call at the end of set-up: peers start watching this node from its first beat."""
+        self._heartbeat_on = True
+        self._heartbeat_pub.publish(String(data=self.role))
+
+    def finish(self, code: int, message: str = "") -> None:
+        """Ask the spin loop to stop this node; the first reason wins."""
+        if self.exit_code is None:
+            self.exit_code = code
+            self.exit_message = message
+            if message:
+                log = self.get_logger().info if code == EXIT_OK else self.get_logger().error
+                log(message)
+
+    @property
+    def done(self) -> bool:
+        return self.exit_code is not None
+
+    def on_shutdown(self, reason: str) -> None:
+        """Called once when the node stops (signal, peer loss, end of run); override to clean up."""
+
+    # -- watchdogs ----------------------------------------------------------------------------
+
+    def watch_input(
+        self, topic: str, type_name: str, *, armed: Callable[[], bool] = lambda: True
+    ) -> _Watchdog:
+        """Report after `input_timeout_s` of silence on `topic` while `armed()` holds."""
+        dog = _Watchdog(topic=topic, type_name=type_name, armed=armed)
+        self._watchdogs.append(dog)
+        return dog
+
+    def _on_heartbeat(self, msg: String) -> None:
+        if msg.data != self.role:
+            self._peer_seen[msg.data] = time.monotonic()
+
+    def _tick(self) -> None:
+        if self.done:
+            return
+        now = time.monotonic()
+        if self._heartbeat_on:
+            self._heartbeat_pub.publish(String(data=self.role))
+        for peer in self.options.peers:
+            seen = self._peer_seen.get(peer)
+            if seen is None:
+                if self._heartbeat_on and now - self._created > self.options.startup_timeout_s:
+                    self.finish(
+                        EXIT_PEER_LOST,
+                        f"node '{self.topics.namespace}/{peer}' did not start within "
+                        f"{self.options.startup_timeout_s:g} s",
+                    )
+            elif now - seen > self.options.peer_timeout_s:
+                self.finish(
+                    EXIT_PEER_LOST,
+                    f"node '{self.topics.namespace}/{peer}' is gone: no heartbeat for "
+                    f"{now - seen:.2f} s",
+                )
+        for dog in self._watchdogs:
+            if not dog.armed():
+                dog.last = now
+                continue
+            if dog.last is None:
+                dog.last = now
+            if now - dog.last > self.options.input_timeout_s:
+                self.finish(EXIT_INPUT_TIMEOUT, self.describe_silence(dog.topic, dog.type_name))
+
+    def peers_alive(self) -> bool:
+        return all(p in self._peer_seen for p in self.options.peers)
+
+    def describe_silence(self, topic: str, type_name: str) -> str:
+        """Why nothing arrives on `topic`: what the graph offers instead."""
+        lines = [
+            f"no {type_name} message on {topic} for {self.options.input_timeout_s:g} s "
+            f"({self.role} node)"
+        ]
+        offered = [
+            (name, types) for name, types in self.get_topic_names_and_types() if name != topic
+        ]
+        same = [i.topic_type for i in self.get_publishers_info_by_topic(topic)]
+        mistyped = sorted({t for t in same if t != type_name})
+        if mistyped:
+            lines.append(f"  {topic} is published with type {', '.join(mistyped)} instead")
+        elif not same:
+            lines.append(f"  nobody publishes {topic}")
+        similar = sorted(name for name, types in offered if type_name in types)
+        if similar:
+            lines.append(f"  {type_name} is published on: {', '.join(similar)} (wrong namespace?)")
+        return "\n".join(lines)
+
+
+@dataclass
+class _Watchdog:
+    topic: str
+    type_name: str
+    armed: Callable[[], bool]
+    last: float | None = None
+
+    def feed(self) -> None:
+        self.last = time.monotonic()
+
+
+class _SignalFlag:
+    def __init__(self) -> None:
+        self.received: int | None = None
+
+    def __call__(self, signum: int, frame: object) -> None:
+        self.received = signum
+
+
+def init_context(args: Sequence[str] | None = None) -> Context:
+    """A fresh rclpy context without rclpy's own signal handlers (spin_nodes handles them)."""
+    context = Context()
+    rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    return context
+
+
+def spin_nodes(
+    nodes: Sequence[FeedTwinNode],
+    context: Context,
+    *,
+    until_all_done: bool = False,
+    poll_s: float = 0.02,
+) -> int:
+    """Spin until one node finishes (or all, with until_all_done) or a signal arrives.
+
+    Every node's `on_shutdown` runs before returning; returns the process exit code (the
+    first non-zero code of the nodes, EXIT_SIGNAL after SIGINT/SIGTERM).
+    """
+    flag = _SignalFlag()
+    previous = {s: signal.signal(s, flag) for s in (signal.SIGINT, signal.SIGTERM)}
+    executor = EventsExecutor(context=context)
+    for node in nodes:
+        executor.add_node(node)
+    try:
+        while flag.received is None:
+            if until_all_done:
+                if all(n.done for n in nodes):
+                    break
+            elif any(n.done for n in nodes):
+                break
+            executor.spin_once(timeout_sec=poll_s)
+        reason = (
+            f"stopped by {signal.Signals(flag.received).name}"
+            if flag.received is not None
+            else next((n.exit_message for n in nodes if n.done and n.exit_message), "")
+        )
+        for node in nodes:
+            try:
+                node.on_shutdown(reason)
+            except Exception as exc:  # noqa: BLE001 - one node's cleanup must not skip another's
+                print(f"{node.role}: error while shutting down: {exc}", file=sys.stderr)
+        codes = [n.exit_code for n in nodes if n.exit_code not in (None, EXIT_OK)]
+        if flag.received is not None:
+            return EXIT_SIGNAL
+        return codes[0] if codes else EXIT_OK
+    finally:
+        for node in nodes:
+            executor.remove_node(node)
+            node.destroy_node()
+        executor.shutdown()
+        context.try_shutdown()
+        for s, handler in previous.items():
+            signal.signal(s, handler)

@@ -1,0 +1,92 @@
+"""Names of the node set's topics, services and nodes, and the message type of each topic.
+
+Every axis lives under its own namespace `/<machine>/<axis>/`, so several axes and machines run
+side by side on one ROS graph. `/clock` is global, as ROS tools expect it. This module does not
+import rclpy: the runner and the recorder's type table use it too.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+_NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+
+# Node names (one per role; the namespace tells axes apart).
+GCODE_NODE = "gcode"
+CONTROLLER_NODE = "controller"
+SIM_NODE = "sim"
+RECORDER_NODE = "recorder"
+NODE_ROLES = (GCODE_NODE, CONTROLLER_NODE, SIM_NODE, RECORDER_NODE)
+
+
+@dataclass(frozen=True, kw_only=True)
+class AxisTopics:
+    """Topic names of one axis, and the installed message type of each."""
+
+    machine: str
+    axis: str
+
+    def __post_init__(self) -> None:
+        for field_name in ("machine", "axis"):
+            value = getattr(self, field_name)
+            if not isinstance(value, str) or not _NAME.match(value):
+                raise ValueError(
+                    f"{field_name} = {value!r}: must be a lower-case ROS name "
+                    "(letters, digits, underscores; starting with a letter)"
+                )
+
+    @property
+    def namespace(self) -> str:
+        return f"/{self.machine}/{self.axis}"
+
+    @property
+    def command(self) -> str:  # gcode -> controller: NC setpoints
+        return f"{self.namespace}/command"
+
+    @property
+    def drive_command(self) -> str:  # controller -> sim: CiA 402 setpoints
+        return f"{self.namespace}/drive_command"
+
+    @property
+    def feedback(self) -> str:  # sim -> controller: what a drive reports
+        return f"{self.namespace}/feedback"
+
+    @property
+    def state(self) -> str:  # sim -> anyone: the simulated truth
+        return f"{self.namespace}/state"
+
+    @property
+    def joint_states(self) -> str:  # sim -> standard tools
+        return f"{self.namespace}/joint_states"
+
+    @property
+    def program_state(self) -> str:  # gcode -> anyone: loaded/running/paused/finished/error
+        return f"{self.namespace}/program_state"
+
+    @property
+    def run_state(self) -> str:  # sim -> anyone: the run's end, with its reason
+        return f"{self.namespace}/run_state"
+
+    @property
+    def heartbeat(self) -> str:  # every node -> every node: liveness
+        return f"{self.namespace}/heartbeat"
+
+    clock = "/clock"
+
+    def types(self) -> dict[str, str]:
+        """Topic name -> message type (pkg/msg/Type) of every topic the node set publishes."""
+        return {
+            self.command: "feed_twin_msgs/msg/AxisCommand",
+            self.drive_command: "feed_twin_msgs/msg/DriveCommand",
+            self.feedback: "feed_twin_msgs/msg/AxisFeedback",
+            self.state: "feed_twin_msgs/msg/AxisState",
+            self.joint_states: "sensor_msgs/msg/JointState",
+            self.program_state: "std_msgs/msg/String",
+            self.run_state: "std_msgs/msg/String",
+            self.heartbeat: "std_msgs/msg/String",
+            self.clock: "rosgraph_msgs/msg/Clock",
+        }
+
+    def service(self, node: str, name: str) -> str:
+        return f"{self.namespace}/{node}/{name}"
