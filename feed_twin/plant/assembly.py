@@ -1,0 +1,685 @@
+"""Assembly of a plant from components and connections, and generation of its glue code.
+
+The assembler
+1. joins connected ports into nodes (connecting equates the across variables and sums the
+   through variables: the generated code accumulates every force applied at a node in `F_n<k>`);
+2. merges mechanical nodes linked by transformers (the ball screw) into one generalized
+   coordinate q with a ratio r per node (across_n = r_n * q): the coordinate's effective inertia
+   is sum J_i r_i^2 and its generalized force sum r_n F_n, so rigid chains such as the EMPS bench
+   are one body without any hand-written reduction;
+3. lays out the flat state vector (coordinates, then component states, then energy accumulators)
+   and the flat parameter vector (component slots, then derived slots: node ratios and inverse
+   effective inertias), each slot with a name and a named constant in the generated source;
+4. asks each component to emit its glue stage by stage and writes three functions from the same
+   lines: `rhs` (derivatives), `outputs` (auxiliary signals, powers, stored energies) and `sense`
+   (sensor samples), plus `fill_derived(p)`. The engine (feed_twin.sim.kernel) adds the loop and
+   compiles the whole module once per structure.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import inspect
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from feed_twin.control import signals
+from feed_twin.plant.component import STAGES, Component, Emitter, check_name
+
+POSITION_LIMIT = 1.0e4  # |q| [m or rad] counted as a runaway
+VELOCITY_LIMIT = 1.0e5  # |dq/dt| [m/s or rad/s] counted as a runaway
+NOISE_CHANNELS_PER_COMPONENT = 8
+
+
+class AssemblyError(ValueError):
+    """The components and connections do not form a valid plant."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Node:
+    index: int
+    kind: str
+    ports: tuple[str, ...]  # "component.port"
+
+
+@dataclass(frozen=True, kw_only=True)
+class Coordinate:
+    """A generalized coordinate: mechanical nodes moving rigidly together."""
+
+    index: int
+    name: str  # the body that names it, e.g. "motor" -> states motor.phi, motor.omega
+    kind: str  # kind of the reference node: rotational or translational
+    nodes: tuple[int, ...]
+    ratios: dict[int, str]  # node index -> Python expression of r_n in p[...] slots
+    position_state: str
+    velocity_state: str
+
+
+def _const(prefix: str, name: str) -> str:
+    return prefix + re.sub(r"[^A-Za-z0-9]", "_", name).upper()
+
+
+def _component_source_digest(components: Sequence[Component]) -> str:
+    """Hash of the source of every module whose numba functions the generated code calls."""
+    modules = {type(c).__module__ for c in components} | {
+        "feed_twin.plant.coupling",
+        "feed_twin.plant.guide_friction",
+        "feed_twin.plant.noise",
+        "feed_twin.plant.sensors",
+        "feed_twin.control.signals",
+        __name__,
+    }
+    digest = hashlib.sha256()
+    for name in sorted(modules):
+        module = __import__(name, fromlist=["_"])
+        digest.update(inspect.getsource(module).encode())
+    return digest.hexdigest()
+
+
+class PlantModel:
+    """An assembled plant: layouts, names and the generated source of its functions.
+
+    Build with `assemble(...)`. The object is immutable after construction; parameter sets are
+    plain float64 vectors (`nominal_params()`, `param_vector(overrides)`), states plain vectors
+    (`initial_state(...)`).
+    """
+
+    def __init__(
+        self,
+        components: Sequence[tuple[str, Component]],
+        connections: Sequence[tuple[str, str]],
+        *,
+        source: str = "<plant>",
+    ) -> None:
+        self.source = source
+        self.components: dict[str, Component] = {}
+        for name, comp in components:
+            try:
+                check_name(name)
+            except ValueError as exc:
+                raise AssemblyError(f"{source}: plant.components: {exc}") from None
+            if name in self.components:
+                raise AssemblyError(f"{source}: plant.{name}: duplicate component name")
+            self.components[name] = comp
+        self.connections = tuple(tuple(c) for c in connections)
+        self._build_nodes()
+        self._build_coordinates()
+        self._build_layouts()
+        self._generate()
+
+    # ------------------------------------------------------------------ graph
+
+    def _port_kind(self, ref: str, where: str) -> str:
+        comp_name, _, port = ref.partition(".")
+        if comp_name not in self.components:
+            raise AssemblyError(
+                f"{self.source}: {where} = {ref!r}: no component named {comp_name!r}; "
+                f"components: {', '.join(self.components)}"
+            )
+        ports = self.components[comp_name].ports()
+        if port not in ports:
+            raise AssemblyError(
+                f"{self.source}: {where} = {ref!r}: {comp_name} "
+                f"({self.components[comp_name].TYPE}) has no port {port!r}; "
+                f"ports: {', '.join(ports)}"
+            )
+        return ports[port]
+
+    def _build_nodes(self) -> None:
+        parent: dict[str, str] = {}
+        kinds: dict[str, str] = {}
+        for name, comp in self.components.items():
+            for port, kind in comp.ports().items():
+                parent[f"{name}.{port}"] = f"{name}.{port}"
+                kinds[f"{name}.{port}"] = kind
+
+        def find(a: str) -> str:
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            return a
+
+        for i, pair in enumerate(self.connections):
+            where = f"plant.connect[{i}]"
+            if len(pair) != 2:
+                raise AssemblyError(f"{self.source}: {where} = {list(pair)!r}: needs two ports")
+            ka = self._port_kind(pair[0], where)
+            kb = self._port_kind(pair[1], where)
+            if ka != kb:
+                raise AssemblyError(
+                    f"{self.source}: {where} = {list(pair)!r}: cannot connect a {ka} port to a "
+                    f"{kb} port"
+                )
+            parent[find(pair[0])] = find(pair[1])
+        groups: dict[str, list[str]] = {}
+        for ref in parent:  # insertion order: component order, then port order
+            groups.setdefault(find(ref), []).append(ref)
+        self.nodes: list[Node] = []
+        self.node_of: dict[str, int] = {}
+        for ports in groups.values():
+            node = Node(index=len(self.nodes), kind=kinds[ports[0]], ports=tuple(ports))
+            self.nodes.append(node)
+            for ref in ports:
+                self.node_of[ref] = node.index
+        for node in self.nodes:
+            if node.kind in ("dc", "ac3") and len(node.ports) < 2:
+                raise AssemblyError(
+                    f"{self.source}: plant.connect: the {node.kind} port {node.ports[0]} is not "
+                    "connected to anything"
+                )
+
+    def _build_coordinates(self) -> None:
+        inertia_nodes: dict[int, list[tuple[str, str, float]]] = {}
+        for name, comp in self.components.items():
+            for spec in comp.inertias():
+                node = self.node_of[f"{name}.{spec.port}"]
+                inertia_nodes.setdefault(node, []).append((name, spec.slot, spec.factor))
+        self.inertia_nodes = inertia_nodes
+        edges: dict[int, list[tuple[int, str, bool, str]]] = {}
+        self.lossy_nodes: set[int] = set()
+        for name, comp in self.components.items():
+            spec = getattr(comp, "TRANSFORMER", None)
+            if spec is None:
+                continue
+            rot, trans, slot = spec
+            a, b = self.node_of[f"{name}.{rot}"], self.node_of[f"{name}.{trans}"]
+            expr = f"p[{_const('P_', f'{name}.{slot}')}]"
+            edges.setdefault(a, []).append((b, expr, True, name))
+            edges.setdefault(b, []).append((a, expr, False, name))
+            if getattr(comp, "lossy", False):
+                if b in inertia_nodes:
+                    raise AssemblyError(
+                        f"{self.source}: plant.{name}.efficiency = {comp.efficiency!r}: a lossy "
+                        f"screw needs a massless translational flange, but {name}.{trans} "
+                        "carries a mass; put an AxialCompliance between the screw and the nut"
+                    )
+                self.lossy_nodes.add(b)
+        mech = [n for n in self.nodes if n.kind in ("rotational", "translational")]
+        seen: set[int] = set()
+        self.coordinates: list[Coordinate] = []
+        self.coordinate_of: dict[int, int] = {}
+        for start in mech:
+            if start.index in seen:
+                continue
+            ratios: dict[int, str] = {start.index: "1.0"}
+            used: set[str] = set()
+            order = [start.index]
+            queue = [start.index]
+            seen.add(start.index)
+            while queue:
+                n = queue.pop()
+                for m, expr, forward, via in edges.get(n, []):
+                    if via in used:
+                        continue
+                    used.add(via)
+                    r = f"({ratios[n]} * {expr})" if forward else f"({ratios[n]} / {expr})"
+                    if m in ratios:
+                        raise AssemblyError(
+                            f"{self.source}: plant.connect: transformers form a loop at "
+                            f"{', '.join(self.nodes[m].ports)}"
+                        )
+                    ratios[m] = r
+                    order.append(m)
+                    seen.add(m)
+                    queue.append(m)
+            bodies = [n for n in order if n in inertia_nodes]
+            if not bodies:
+                ports = [p for n in order for p in self.nodes[n].ports]
+                raise AssemblyError(
+                    f"{self.source}: plant.connect: the flanges {', '.join(ports)} carry no "
+                    "inertia (massless node); add a body or connect them rigidly to one"
+                )
+            # re-reference the coordinate to the first body so its states carry that body's name
+            ref = bodies[0]
+            ref_expr = ratios[ref]
+            ratios = {
+                n: "1.0" if n == ref else f"({expr} / {ref_expr})" for n, expr in ratios.items()
+            }
+            body = inertia_nodes[ref][0][0]
+            kind = self.nodes[ref].kind
+            pos, vel = ("phi", "omega") if kind == "rotational" else ("s", "v")
+            coord = Coordinate(
+                index=len(self.coordinates),
+                name=body,
+                kind=kind,
+                nodes=tuple(order),
+                ratios=ratios,
+                position_state=f"{body}.{pos}",
+                velocity_state=f"{body}.{vel}",
+            )
+            self.coordinates.append(coord)
+            for n in order:
+                self.coordinate_of[n] = coord.index
+
+    # ------------------------------------------------------------------ layouts
+
+    def _build_layouts(self) -> None:
+        states: list[tuple[str, str, float]] = []
+        for c in self.coordinates:
+            unit_p, unit_v = ("rad", "rad/s") if c.kind == "rotational" else ("m", "m/s")
+            states.append((c.position_state, unit_p, POSITION_LIMIT))
+            states.append((c.velocity_state, unit_v, VELOCITY_LIMIT))
+        for name, comp in self.components.items():
+            for spec in comp.states():
+                states.append((f"{name}.{spec.name}", spec.unit, spec.limit))
+        self._core_states = states
+        params: list[tuple[str, float]] = []
+        for name, comp in self.components.items():
+            for slot, value in comp.slots().items():
+                params.append((f"{name}.{slot}", value))
+        self._component_params = params
+        derived = []
+        for c in self.coordinates:
+            for n in c.nodes:
+                derived.append(f"derived.ratio_n{n}")
+            derived.append(f"derived.inv_inertia.{c.name}")
+        self._derived = derived
+        self.param_names: tuple[str, ...] = tuple(n for n, _ in params) + tuple(derived)
+        self.param_index = {n: i for i, n in enumerate(self.param_names)}
+        self.ext_names: tuple[str, ...] = tuple(
+            name for name, comp in self.components.items() if getattr(comp, "HAS_INPUT", False)
+        )
+
+    # ------------------------------------------------------------------ code generation
+
+    def _generate(self) -> None:
+        gen = _Generator(self)
+        for stage in STAGES:
+            for name, comp in self.components.items():
+                gen.current = name
+                comp.emit(stage, gen)
+        self.state_names: tuple[str, ...] = tuple(s for s, _, _ in self._core_states) + tuple(
+            gen.energy_states
+        )
+        self.state_units: tuple[str, ...] = tuple(u for _, u, _ in self._core_states) + (
+            ("J",) * len(gen.energy_states)
+        )
+        self.state_limits = np.array(
+            [lim for _, _, lim in self._core_states] + [math.inf] * len(gen.energy_states)
+        )
+        self.state_index = {n: i for i, n in enumerate(self.state_names)}
+        self.energy_kinds: dict[str, str] = dict(gen.energy_kinds)
+        kinetic = [f"stored.{c.name}.kinetic" for c in self.coordinates]
+        self.aux_names: tuple[str, ...] = tuple(gen.aux_names) + tuple(kinetic)
+        self.stored_names: tuple[str, ...] = tuple(gen.stored_names) + tuple(kinetic)
+        self.meas_delay_slots = dict(gen.meas_delays)
+        self.switching_inverter = next(
+            (n for n, c in self.components.items() if getattr(c, "switching", False)), None
+        )
+        self.source_code = gen.module_source()
+        self.structure_digest = hashlib.sha256(
+            (self.source_code + _component_source_digest(list(self.components.values()))).encode()
+        ).hexdigest()[:16]
+
+    # ------------------------------------------------------------------ vectors
+
+    def nominal_params(self) -> np.ndarray:
+        """The parameter vector of the components as configured (derived slots filled)."""
+        return self.param_vector()
+
+    def param_vector(self, overrides: Mapping[str, float] | None = None) -> np.ndarray:
+        """Nominal parameters with named slots replaced, derived slots recomputed."""
+        p = np.zeros(len(self.param_names))
+        for i, (_, value) in enumerate(self._component_params):
+            p[i] = value
+        for name, value in (overrides or {}).items():
+            if name not in self.param_index or name.startswith("derived."):
+                raise KeyError(f"parameter {name!r}: unknown; slots: {', '.join(self.param_names)}")
+            p[self.param_index[name]] = float(value)
+        return self.fill_derived(p)
+
+    def fill_derived(self, p: np.ndarray) -> np.ndarray:
+        """Recompute the derived slots of p in place (also the batch form p[N, P]); returns p."""
+        namespace = self.namespace()
+        rows = p.reshape(-1, p.shape[-1])
+        for row in rows:
+            namespace["fill_derived"](row)
+            inv = [row[self.param_index[f"derived.inv_inertia.{c.name}"]] for c in self.coordinates]
+            for c, value in zip(self.coordinates, inv, strict=True):
+                if not (math.isfinite(value) and value > 0.0):
+                    raise ValueError(
+                        f"coordinate {c.name}: effective inertia 1/{value!r} is not positive"
+                    )
+        return p
+
+    def initial_state(self, positions: Mapping[str, float] | None = None) -> np.ndarray:
+        """State at rest with all springs relaxed; `positions` sets bodies, e.g. {"table": 0.1}.
+
+        A position given for one body moves every coordinate linked to it through two-port
+        force elements (couplings, compliances, backlash) so that no spring starts stretched.
+        """
+        x = np.zeros(len(self.state_names))
+        p = self.nominal_params()
+        coord_pos: dict[int, float] = {}
+        links: dict[int, list[tuple[int, float, float]]] = {}
+        for name, comp in self.components.items():
+            ports = [
+                pt for pt in comp.ports() if comp.ports()[pt] in ("rotational", "translational")
+            ]
+            if len(ports) != 2 or getattr(comp, "TRANSFORMER", None):
+                continue
+            na, nb = (self.node_of[f"{name}.{pt}"] for pt in ports)
+            ca, cb = self.coordinate_of[na], self.coordinate_of[nb]
+            ra, rb = self._ratio_value(na, p), self._ratio_value(nb, p)
+            links.setdefault(ca, []).append((cb, ra, rb))
+            links.setdefault(cb, []).append((ca, rb, ra))
+        for body, value in (positions or {}).items():
+            matches = [c for c in self.coordinates if c.name == body]
+            if not matches:
+                raise KeyError(
+                    f"initial position of {body!r}: no coordinate of that name; coordinates: "
+                    f"{', '.join(c.name for c in self.coordinates)}"
+                )
+            start = matches[0].index
+            coord_pos[start] = float(value)
+            queue = [start]
+            while queue:
+                c = queue.pop()
+                for other, r_self, r_other in links.get(c, []):
+                    if other not in coord_pos:
+                        coord_pos[other] = coord_pos[c] * r_self / r_other
+                        queue.append(other)
+        for c in self.coordinates:
+            x[self.state_index[c.position_state]] = coord_pos.get(c.index, 0.0)
+        return x
+
+    def _ratio_value(self, node: int, p: np.ndarray) -> float:
+        return float(p[self.param_index[f"derived.ratio_n{node}"]])
+
+    # ------------------------------------------------------------------ compiled functions
+
+    def namespace(self) -> dict:
+        """The plant functions executed as plain Python (un-jitted numba callees inside)."""
+        if not hasattr(self, "_namespace"):
+            # the same source, with njit as the identity: plain Python calling the jitted
+            # component functions, for the reference integration and linearisation
+            namespace: dict = {}
+            text = self.source_code.replace("from numba import njit\n", "")
+            namespace["njit"] = lambda **_: lambda f: f
+            exec(compile(text, f"<plant {self.structure_digest}>", "exec"), namespace)
+            self._namespace = namespace
+        return self._namespace
+
+    def linearize(
+        self,
+        x: np.ndarray,
+        p: np.ndarray,
+        out: np.ndarray | None = None,
+        ext: np.ndarray | None = None,
+        *,
+        states: Sequence[str] | None = None,
+        rel_step: float = 1e-6,
+    ) -> np.ndarray:
+        """Jacobian d(rhs)/dx at (x, p) by central differences over the named states."""
+        rhs = self.namespace()["rhs"]
+        out = np.zeros(signals.OUT_SIZE) if out is None else out
+        ext = np.zeros(max(len(self.ext_names), 1)) if ext is None else ext
+        sw = np.zeros(3)
+        names = list(states) if states is not None else list(self.state_names)
+        idx = [self.state_index[n] for n in names]
+        jac = np.zeros((len(idx), len(idx)))
+        f_hi, f_lo = np.zeros(len(x)), np.zeros(len(x))
+        for j, i in enumerate(idx):
+            step = rel_step * max(1.0, abs(x[i]))
+            xp, xm = x.copy(), x.copy()
+            xp[i] += step
+            xm[i] -= step
+            rhs(0.0, xp, p, out, ext, sw, f_hi)
+            rhs(0.0, xm, p, out, ext, sw, f_lo)
+            jac[:, j] = (f_hi[idx] - f_lo[idx]) / (2.0 * step)
+        return jac
+
+    def with_params(self, **changes: Mapping[str, float]) -> PlantModel:
+        """A model whose components are replaced by `dataclasses.replace(component, **fields)`."""
+        comps = [
+            (n, dataclasses.replace(c, **changes[n]) if n in changes else c)
+            for n, c in self.components.items()
+        ]
+        return PlantModel(comps, self.connections, source=self.source)
+
+
+class _Generator(Emitter):
+    """Collects the lines of the generated functions while components emit."""
+
+    def __init__(self, model: PlantModel) -> None:
+        self.m = model
+        self.current: str | None = None
+        self.lines: list[tuple[str, str]] = []  # (kind, code); kind: all, dx, aux, meas
+        self.imports: dict[str, str] = {}
+        self.energy_states: list[str] = []
+        self.energy_kinds: dict[str, str] = {}
+        self.aux_names: list[str] = []
+        self.stored_names: list[str] = []
+        self.meas_delays: dict[str, str] = {}
+        self.signal_names: set[str] = set()
+        self.node_scale: dict[int, str] = {}
+        self.comp_index = {n: i for i, n in enumerate(model.components)}
+        self.n_core = len(model._core_states)
+
+    # -------------------------------------------------- Emitter
+    def _name(self) -> str:
+        assert self.current is not None
+        return self.current
+
+    def p(self, slot: str) -> str:
+        full = f"{self._name()}.{slot}"
+        if full not in self.m.param_index:
+            raise KeyError(f"{full}: no such parameter slot")
+        return f"p[{_const('P_', full)}]"
+
+    def x(self, state: str) -> str:
+        return f"x[{_const('X_', f'{self._name()}.{state}')}]"
+
+    def d(self, state: str, expr: str) -> None:
+        self.lines.append(("dx", f"dx[{_const('X_', f'{self._name()}.{state}')}] = {expr}"))
+
+    def local(self, name: str) -> str:
+        return f"{self._name()}__{name}"
+
+    def line(self, code: str) -> None:
+        self.lines.append(("all", code))
+
+    def call(self, targets: tuple[str, ...], func: str, args: tuple[str, ...]) -> None:
+        module, _, fname = func.rpartition(".")
+        alias = f"_{module.rsplit('.', 1)[-1]}_{fname}"
+        self.imports[alias] = f"from {module} import {fname} as {alias}"
+        lhs = ", ".join(targets)
+        self.lines.append(("all", f"{lhs} = {alias}({', '.join(args)})"))
+
+    def _node(self, port: str) -> int:
+        return self.m.node_of[f"{self._name()}.{port}"]
+
+    def across(self, port: str) -> tuple[str, str]:
+        n = self._node(port)
+        return f"s_n{n}", f"v_n{n}"
+
+    def apply(self, port: str, expr: str) -> None:
+        self.lines.append(("all", f"F_n{self._node(port)} += {expr}"))
+
+    def node_force(self, port: str) -> str:
+        return f"F_n{self._node(port)}"
+
+    def scale_node(self, port: str, expr: str) -> None:
+        self.node_scale[self._node(port)] = expr
+
+    def el(self, port: str, var: str) -> str:
+        return f"e{self._node(port)}_{var}"
+
+    def drive(self, slot: str) -> str:
+        self.signal_names.add(slot)
+        return f"out[{slot}]"
+
+    def switch(self, phase: int) -> str:
+        return f"sw[{phase}]"
+
+    def ext(self) -> str:
+        return f"ext[{_const('EXT_', self._name())}]"
+
+    def aux(self, name: str, expr: str) -> None:
+        full = f"{self._name()}.{name}"
+        self.aux_names.append(full)
+        self.lines.append(("aux", f"aux[{_const('A_', full)}] = {expr}"))
+
+    def power(self, kind: str, name: str, expr: str) -> None:
+        full = f"energy.{self._name()}.{name}"
+        self.energy_states.append(full)
+        self.energy_kinds[full] = kind
+        self.lines.append(("dx", f"dx[{_const('X_', full)}] = {expr}"))
+        self.aux(f"power.{name}", expr)
+
+    def stored(self, name: str, expr: str) -> None:
+        full = f"stored.{self._name()}.{name}"
+        self.stored_names.append(full)
+        self.aux_names.append(full)
+        self.lines.append(("aux", f"aux[{_const('A_', full)}] = {expr}"))
+
+    def meas(self, slot: str, expr: str, delay: str = "0") -> None:
+        if slot in self.meas_delays:
+            raise AssemblyError(
+                f"{self.m.source}: plant.{self._name()}: a second sensor for {slot}"
+            )
+        self.signal_names.add(slot)
+        self.meas_delays[slot] = self._name()
+        self.lines.append(("meas", f"meas[{slot}] = {expr}"))
+        self.lines.append(("meas", f"mdelay[{slot}] = {delay}"))
+        if "quantize_floor" in expr:
+            self.imports["quantize_floor"] = "from feed_twin.plant.sensors import quantize_floor"
+        if "adc(" in expr:
+            self.imports["adc"] = "from feed_twin.plant.sensors import adc"
+
+    def noise(self, channel: int) -> str:
+        self.imports["standard_normal"] = "from feed_twin.plant.noise import standard_normal"
+        base = self.comp_index[self._name()] * NOISE_CHANNELS_PER_COMPONENT
+        return f"standard_normal(seed, k, {base + channel})"
+
+    # -------------------------------------------------- output
+    def _constants(self) -> list[str]:
+        m = self.m
+        out = ["# state slots"]
+        names = [s for s, _, _ in m._core_states] + self.energy_states
+        out += [f"{_const('X_', n)} = {i}" for i, n in enumerate(names)]
+        out.append(f"N_X = {len(names)}")
+        out.append("# parameter slots")
+        out += [f"{_const('P_', n)} = {i}" for i, n in enumerate(m.param_names)]
+        out.append(f"N_P = {len(m.param_names)}")
+        out.append("# auxiliary outputs")
+        kinetic = [f"stored.{c.name}.kinetic" for c in m.coordinates]
+        aux = self.aux_names + kinetic
+        out += [f"{_const('A_', n)} = {i}" for i, n in enumerate(aux)]
+        out.append(f"N_A = {len(aux)}")
+        out.append("# external inputs")
+        out += [f"{_const('EXT_', n)} = {i}" for i, n in enumerate(m.ext_names)]
+        out.append(f"N_EXT = {max(len(m.ext_names), 1)}")
+        return out
+
+    def _preamble(self) -> list[str]:
+        m = self.m
+        lines = []
+        for c in m.coordinates:
+            q = f"x[{_const('X_', c.position_state)}]"
+            w = f"x[{_const('X_', c.velocity_state)}]"
+            lines.append(f"q{c.index} = {q}")
+            lines.append(f"w{c.index} = {w}")
+            for n in c.nodes:
+                if c.ratios[n] == "1.0":
+                    lines.append(f"s_n{n} = q{c.index}")
+                    lines.append(f"v_n{n} = w{c.index}")
+                else:
+                    r = f"p[{_const('P_', f'derived.ratio_n{n}')}]"
+                    lines.append(f"s_n{n} = {r} * q{c.index}")
+                    lines.append(f"v_n{n} = {r} * w{c.index}")
+                lines.append(f"F_n{n} = 0.0")
+        return lines
+
+    def _coordinate_lines(self, kind: str) -> list[tuple[str, str]]:
+        m = self.m
+        lines: list[tuple[str, str]] = []
+        for c in m.coordinates:
+            terms = []
+            for n in c.nodes:
+                f = f"F_n{n}"
+                if n in self.node_scale:
+                    f = f"{f} * {self.node_scale[n]}"
+                if c.ratios[n] != "1.0":
+                    f = f"{f} * p[{_const('P_', f'derived.ratio_n{n}')}]"
+                terms.append(f)
+            inv = f"p[{_const('P_', f'derived.inv_inertia.{c.name}')}]"
+            lines.append(("dx", f"dx[{_const('X_', c.position_state)}] = w{c.index}"))
+            lines.append(
+                ("dx", f"dx[{_const('X_', c.velocity_state)}] = ({' + '.join(terms)}) * {inv}")
+            )
+            lines.append(
+                (
+                    "aux",
+                    f"aux[{_const('A_', f'stored.{c.name}.kinetic')}]"
+                    f" = 0.5 * w{c.index} ** 2 / {inv}",
+                )
+            )
+        return lines
+
+    def _fill_derived(self) -> list[str]:
+        m = self.m
+        body = []
+        for c in m.coordinates:
+            for n in c.nodes:
+                expr = c.ratios[n]
+                body.append(f"    p[{_const('P_', f'derived.ratio_n{n}')}] = {expr}")
+            terms = []
+            for n in c.nodes:
+                for comp, slot, factor in m.inertia_nodes.get(n, []):
+                    r = f"p[{_const('P_', f'derived.ratio_n{n}')}]"
+                    terms.append(f"{factor!r} * p[{_const('P_', f'{comp}.{slot}')}] * {r} ** 2")
+            body.append(
+                f"    p[{_const('P_', f'derived.inv_inertia.{c.name}')}]"
+                f" = 1.0 / ({' + '.join(terms)})"
+            )
+        return ["@njit(cache=True)", "def fill_derived(p):"] + body + ["    return p"]
+
+    def module_source(self) -> str:
+        head = [
+            f'"""Generated by feed_twin.plant.assembly for {self.m.source}; do not edit."""',
+            "import math",
+            "import numpy as np",
+            "from numba import njit",
+            "from feed_twin.control.signals import MEAS_SIZE, OUT_SIZE, REF_SIZE",
+        ]
+        sig_names = sorted(self.signal_names | {"OUT_ENABLED"})
+        head.append(f"from feed_twin.control.signals import {', '.join(sig_names)}")
+        head += sorted(set(self.imports.values()))
+        body_all = self._preamble()
+        funcs = []
+        specs = (
+            ("rhs", "t, x, p, out, ext, sw, dx", {"all", "dx"}),
+            ("outputs", "t, x, p, out, ext, sw, aux", {"all", "aux"}),
+            ("sense", "t, x, p, out, ext, sw, k, seed, meas, mdelay", {"all", "meas"}),
+        )
+        coord_lines = self._coordinate_lines("")
+        for name, args, kinds in specs:
+            lines = list(body_all)
+            # coordinate sums go after `dynamics`/`transmit` lines; `sense` lines come last
+            lines += [code for kind, code in self.lines if kind in kinds and kind != "meas"]
+            lines += [code for kind, code in coord_lines if kind in kinds]
+            lines += [code for kind, code in self.lines if kind == "meas" and "meas" in kinds]
+            funcs.append("")
+            funcs.append("@njit(cache=True)")
+            funcs.append(f"def {name}({args}):")
+            funcs += [f"    {code}" for code in lines]
+            funcs.append("    return None")
+        return (
+            "\n".join(head + [""] + self._constants() + [""] + self._fill_derived() + funcs) + "\n"
+        )
+
+
+def assemble(
+    components: Sequence[tuple[str, Component]],
+    connections: Sequence[tuple[str, str]],
+    *,
+    source: str = "<plant>",
+) -> PlantModel:
+    """Build a PlantModel from (name, component) pairs and [port, port] connections."""
+    return PlantModel(components, connections, source=source)

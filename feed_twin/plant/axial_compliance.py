@@ -1,0 +1,161 @@
+"""Axial compliance of the feed drive: support bearings, screw shaft and nut in series.
+
+Equation: with delta = s_a - s_b (screw-side flange a, nut flange b) the cut force a -> b is
+    f = k(x) * delta + d * (v_a - v_b),   1/k(x) = 1/k_bearing + 1/k_screw(x) + 1/k_nut,
+where x = x_0 + s_b is the nut's distance from the driven-end (fixed) bearing and
+    fixed-fixed:  k_screw(x) = E*A*L / (x * (L - x)),     fixed-free:  k_screw(x) = E*A / x,
+with A = pi*d_root^2/4 and L the bearing span. x is clamped to [x_min, L - x_min] (fixed-fixed)
+or [x_min, L] (fixed-free): at a bearing the formula's stiffness goes to infinity while the real
+one is limited by the bearing and the screw's end journal; x_min (typically a nut length) keeps
+the stiffness finite. The stored energy V = k(x)*delta^2/2 depends on x, so the nut also feels
+-dV/dx = -k'(x)*delta^2/2: with it the element is conservative (energy test), without it it
+would create energy whenever the nut moves under load. That force is tiny (micro-newtons).
+Ports: `a`, `b` (translational: s [m], v [m/s], f [N]).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from numba import njit
+
+from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.plant.component import Component, Emitter
+
+
+@njit(cache=True)
+def axial_stiffness(
+    x: float, L: float, EA: float, k_bearing: float, k_nut: float, fixed_fixed: float, x_min: float
+) -> tuple[float, float]:
+    """(k(x) [N/m], dk/dx [N/m^2]) of bearings, screw section and nut in series."""
+    if fixed_fixed > 0.5:
+        lo, hi = x_min, L - x_min
+    else:
+        lo, hi = x_min, L
+    clamped = x < lo or x > hi
+    xc = min(max(x, lo), hi)
+    if fixed_fixed > 0.5:
+        compliance_screw = xc * (L - xc) / (EA * L)
+        dcompliance = (L - 2.0 * xc) / (EA * L)
+    else:
+        compliance_screw = xc / EA
+        dcompliance = 1.0 / EA
+    if clamped:
+        dcompliance = 0.0
+    k = 1.0 / (1.0 / k_bearing + compliance_screw + 1.0 / k_nut)
+    return k, -k * k * dcompliance
+
+
+@njit(cache=True)
+def axial_force(
+    delta: float,
+    delta_rate: float,
+    x: float,
+    L: float,
+    EA: float,
+    k_bearing: float,
+    k_nut: float,
+    fixed_fixed: float,
+    x_min: float,
+    d: float,
+) -> tuple[float, float, float, float, float]:
+    """(cut force a->b, extra force on b from dk/dx, stiffness, stored energy, loss power)."""
+    k, dk = axial_stiffness(x, L, EA, k_bearing, k_nut, fixed_fixed, x_min)
+    damping = d * delta_rate
+    return (
+        k * delta + damping,
+        -0.5 * dk * delta * delta,
+        k,
+        0.5 * k * delta * delta,
+        damping * delta_rate,
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class AxialCompliance(Component):
+    TYPE = "AxialCompliance"
+    PORTS = {"a": "translational", "b": "translational"}
+
+    arrangement: Literal["fixed-fixed", "fixed-free"]  # bearing arrangement of the screw
+    E: float  # Young's modulus of the screw [Pa] (steel about 210e9)
+    d_root: float  # root diameter of the screw [m]
+    L: float  # span between the support bearings [m]
+    x_0: float  # nut distance from the driven-end bearing when s_b = 0 [m]
+    x_min: float  # closest nut-to-bearing distance used in k_screw(x) [m]
+    k_bearing: float  # axial stiffness of the support bearing set [N/m]
+    k_nut: float  # axial stiffness of the preloaded nut [N/m]
+    d: float  # axial damping [N s/m]
+
+    def __post_init__(self) -> None:
+        require_positive("E", self.E)
+        require_positive("d_root", self.d_root)
+        require_positive("L", self.L)
+        require_positive("x_min", self.x_min)
+        if self.x_min >= 0.5 * self.L:
+            raise ValueError(f"x_min = {self.x_min!r}: must be < L/2 = {0.5 * self.L!r}")
+        require_nonnegative("x_0", self.x_0)
+        if self.x_0 > self.L:
+            raise ValueError(f"x_0 = {self.x_0!r}: must lie within the bearing span L = {self.L!r}")
+        require_positive("k_bearing", self.k_bearing)
+        require_positive("k_nut", self.k_nut)
+        require_nonnegative("d", self.d)
+
+    def slots(self) -> dict[str, float]:
+        return {
+            "L": self.L,
+            "EA": self.E * math.pi * self.d_root**2 / 4.0,
+            "x_0": self.x_0,
+            "x_min": self.x_min,
+            "k_bearing": self.k_bearing,
+            "k_nut": self.k_nut,
+            "fixed_fixed": 1.0 if self.arrangement == "fixed-fixed" else 0.0,
+            "d": self.d,
+        }
+
+    def stiffness(self, s_b: float) -> float:
+        """k(x) [N/m] at nut flange position s_b [m] (plain Python, for analysis and tests)."""
+        slots = self.slots()
+        k, _ = axial_stiffness.py_func(
+            self.x_0 + s_b,
+            slots["L"],
+            slots["EA"],
+            self.k_bearing,
+            self.k_nut,
+            slots["fixed_fixed"],
+            self.x_min,
+        )
+        return k
+
+    def damping_bounds(self) -> dict[str, float]:
+        return {"a": self.d, "b": self.d}
+
+    def emit(self, stage: str, g: Emitter) -> None:
+        if stage != "dynamics":
+            return
+        s_a, v_a = g.across("a")
+        s_b, v_b = g.across("b")
+        f, f_x, k, e, loss = (g.local(n) for n in ("f", "f_x", "k", "e", "loss"))
+        g.call(
+            (f, f_x, k, e, loss),
+            "feed_twin.plant.axial_compliance.axial_force",
+            (
+                f"{s_a} - {s_b}",
+                f"{v_a} - {v_b}",
+                f"{g.p('x_0')} + {s_b}",
+                g.p("L"),
+                g.p("EA"),
+                g.p("k_bearing"),
+                g.p("k_nut"),
+                g.p("fixed_fixed"),
+                g.p("x_min"),
+                g.p("d"),
+            ),
+        )
+        g.apply("a", f"-{f}")
+        g.apply("b", f"{f} + {f_x}")
+        g.aux("force", f)
+        g.aux("stiffness", k)
+        g.stored("spring", e)
+        g.power("loss", "damping", loss)

@@ -1,0 +1,71 @@
+"""Backlash: a dead-zone spring-damper (no force inside the gap, stiff contact outside).
+
+Equation: with delta = s_a - s_b and half gap b = gap/2,
+    f_e = k * (delta - b) if delta > b,  k * (delta + b) if delta < -b,  else 0,
+    f = f_e + d * (v_a - v_b) in contact, limited so that f never changes the sign of f_e
+(a contact can push, never pull: without the limit the damper would glue the faces together
+while they separate). f is passed from a to b (-f into a, +f into b). Stored energy
+k*(|delta| - b)^2/2 in contact, loss (f - f_e)*(v_a - v_b).
+Ports: `a`, `b` (translational: s [m], v [m/s], f [N]).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from numba import njit
+
+from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.plant.component import Component, Emitter
+
+
+@njit(cache=True)
+def backlash_force(
+    delta: float, delta_rate: float, gap: float, k: float, d: float
+) -> tuple[float, float, float]:
+    """(cut force a->b, stored energy, loss power) of a dead-zone contact."""
+    half = 0.5 * gap
+    if delta > half:
+        f_e = k * (delta - half)
+        f = max(f_e + d * delta_rate, 0.0)
+    elif delta < -half:
+        f_e = k * (delta + half)
+        f = min(f_e + d * delta_rate, 0.0)
+    else:
+        return 0.0, 0.0, 0.0
+    return f, 0.5 * f_e * f_e / k, (f - f_e) * delta_rate
+
+
+@dataclass(frozen=True, kw_only=True)
+class Backlash(Component):
+    TYPE = "Backlash"
+    PORTS = {"a": "translational", "b": "translational"}
+
+    gap: float  # total clearance [m]
+    k: float  # contact stiffness [N/m]
+    d: float  # contact damping [N s/m]
+
+    def __post_init__(self) -> None:
+        require_nonnegative("gap", self.gap)
+        require_positive("k", self.k)
+        require_nonnegative("d", self.d)
+
+    def damping_bounds(self) -> dict[str, float]:
+        return {"a": self.d, "b": self.d}
+
+    def emit(self, stage: str, g: Emitter) -> None:
+        if stage != "dynamics":
+            return
+        s_a, v_a = g.across("a")
+        s_b, v_b = g.across("b")
+        f, e, loss = g.local("f"), g.local("e"), g.local("loss")
+        g.call(
+            (f, e, loss),
+            "feed_twin.plant.backlash.backlash_force",
+            (f"{s_a} - {s_b}", f"{v_a} - {v_b}", g.p("gap"), g.p("k"), g.p("d")),
+        )
+        g.apply("a", f"-{f}")
+        g.apply("b", f)
+        g.aux("force", f)
+        g.stored("spring", e)
+        g.power("loss", "damping", loss)

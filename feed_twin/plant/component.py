@@ -1,0 +1,173 @@
+"""The component contract: typed ports, parameter slots, owned states and emitted glue.
+
+A component is a frozen, keyword-only parameter dataclass with pure numba equations in its own
+module. It never integrates anything itself: the assembler (`feed_twin.plant.assembly`) owns the
+state vector, maps each port to a node, and asks every component to `emit` the few lines of glue
+that call its equations with the right node variables and parameter slots. The generated lines
+are the only place where components meet, so the physics exists once, as numba functions, and
+both the compiled kernel and its un-jitted `py_func` (the reference integration) run it.
+
+Port kinds and their variables (SI):
+- `rotational`: across angle phi [rad] and speed omega [rad/s]; through torque tau [N m],
+  positive into the flange.
+- `translational`: across position s [m] and velocity v [m/s]; through force f [N] into the flange.
+- `dc`: bus voltage u [V] (written by the source) and current i [A] drawn by the load.
+- `ac3`: three phase voltages u_a, u_b, u_c [V] (pole voltages written by the inverter) and the
+  phase currents i_a, i_b, i_c [A] (written by the machine).
+
+Evaluation stages, in order, inside one derivative call: `currents` (machines expose phase
+currents from their states), `dc_current` (inverters sum the bus current), `dc_voltage` (the bus
+sets its voltage), `voltages` (inverters set the pole voltages), `dynamics` (machines and force
+elements compute derivatives and apply through variables), `transmit` (transformers scale the
+forces of their output node). `sense` runs only when the sensors are sampled.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+PortKind = Literal["rotational", "translational", "dc", "ac3"]
+STAGES = ("currents", "dc_current", "dc_voltage", "voltages", "dynamics", "transmit", "sense")
+NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
+@dataclass(frozen=True, kw_only=True)
+class StateSpec:
+    """One state a component owns (not the mechanical coordinates, which the assembler owns)."""
+
+    name: str  # short name, the full state name is "<component>.<name>"
+    unit: str
+    limit: float  # |value| above this is a runaway: the engine stops with a divergence error
+
+
+@dataclass(frozen=True, kw_only=True)
+class InertiaSpec:
+    """An inertia (or mass) a component puts on one of its mechanical ports."""
+
+    port: str
+    slot: str  # parameter slot holding the value [kg m^2] or [kg]
+    factor: float = 1.0  # share of the slot value at this port (a shaft puts half at each end)
+
+
+class Component:
+    """Base of every plant component; subclasses are frozen keyword-only dataclasses.
+
+    Subclasses set `TYPE` (the YAML `type:`), `PORTS` (port name -> kind) and override what they
+    need: `slots()` (parameter slot name -> value, default every float field), `states()`,
+    `inertias()`, `structure()` (anything that changes the generated code) and `emit()`.
+    """
+
+    TYPE: ClassVar[str]
+    PORTS: ClassVar[dict[str, PortKind]]
+
+    def ports(self) -> dict[str, PortKind]:
+        return self.PORTS
+
+    def slots(self) -> dict[str, float]:
+        values: dict[str, float] = {}
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            value = getattr(self, f.name)
+            if isinstance(value, float):
+                values[f.name] = value
+            elif isinstance(value, int) and not isinstance(value, bool):
+                values[f.name] = float(value)
+        return values
+
+    def states(self) -> tuple[StateSpec, ...]:
+        return ()
+
+    def inertias(self) -> tuple[InertiaSpec, ...]:
+        return ()
+
+    def damping_bounds(self) -> dict[str, float]:
+        """Largest velocity gradient of a through variable at each port [N s/m or N m s/rad].
+
+        The engine checks h * c / M_eff < 2.5 (explicit RK4 is stable for real eigenvalues down
+        to -2.78/h), so a regularised friction that is too sharp for the step is refused.
+        """
+        return {}
+
+    def structure(self) -> tuple:
+        """What of this component shapes the generated code (beyond its type and ports)."""
+        return ()
+
+    def emit(self, stage: str, g: Emitter) -> None:
+        """Write this component's glue for `stage` through the emitter `g`."""
+        del stage, g
+
+
+class Emitter:
+    """What a component sees while the assembler generates code (implemented in assembly.py).
+
+    Every method returns a Python expression or records a line; names are resolved to named
+    constants of the generated module, so the generated source reads like hand-written glue.
+    """
+
+    def p(self, slot: str) -> str:  # parameter slot of the emitting component
+        raise NotImplementedError
+
+    def x(self, state: str) -> str:  # own state value
+        raise NotImplementedError
+
+    def d(self, state: str, expr: str) -> None:  # own state derivative
+        raise NotImplementedError
+
+    def local(self, name: str) -> str:  # a local variable private to the component
+        raise NotImplementedError
+
+    def line(self, code: str) -> None:
+        raise NotImplementedError
+
+    def call(self, targets: tuple[str, ...], func: str, args: tuple[str, ...]) -> None:
+        """`targets = func(args)` where func is a numba function imported by its dotted path."""
+        raise NotImplementedError
+
+    def across(self, port: str) -> tuple[str, str]:  # (position, velocity) of a mechanical port
+        raise NotImplementedError
+
+    def apply(self, port: str, expr: str) -> None:  # add a through force/torque at a port
+        raise NotImplementedError
+
+    def node_force(self, port: str) -> str:  # sum of forces other elements apply at the node
+        raise NotImplementedError
+
+    def scale_node(self, port: str, expr: str) -> None:  # multiply that sum before it is applied
+        raise NotImplementedError
+
+    def el(self, port: str, var: str) -> str:  # variable of an electrical node, e.g. ("ac", "i_a")
+        raise NotImplementedError
+
+    def drive(self, slot: str) -> str:  # controller output OUT_* held over the tick
+        raise NotImplementedError
+
+    def switch(self, phase: int) -> str:  # switching inverter: state 0/1 of a phase leg
+        raise NotImplementedError
+
+    def ext(self) -> str:  # this component's external input channel (a force [N])
+        raise NotImplementedError
+
+    def aux(self, name: str, expr: str) -> None:  # a named auxiliary output
+        raise NotImplementedError
+
+    def power(self, kind: Literal["source", "loss"], name: str, expr: str) -> None:
+        """Power [W] into the system from outside ("source") or dissipated ("loss")."""
+        raise NotImplementedError
+
+    def stored(self, name: str, expr: str) -> None:  # stored energy [J] (springs, fields, gravity)
+        raise NotImplementedError
+
+    def meas(self, slot: str, expr: str) -> None:  # sensor sample into MEAS_* (before delay)
+        raise NotImplementedError
+
+    def noise(self, channel: int) -> str:  # standard normal sample, seeded, per tick and channel
+        raise NotImplementedError
+
+
+def check_name(name: str) -> None:
+    if not NAME_PATTERN.match(name):
+        raise ValueError(
+            f"name = {name!r}: must start with a lower-case letter and contain only a-z, 0-9, _"
+        )

@@ -1,0 +1,225 @@
+"""Permanent-magnet synchronous machine in the rotor (d, q) frame, with iron loss and cogging.
+
+Electrical (amplitude-invariant transforms, electrical speed omega_e = p*omega, angle p*phi):
+    psi_d = L_d*i_d + psi_pm,  psi_q = L_q*i_q,  e_d = -omega_e*psi_q,  e_q = omega_e*psi_d,
+    L_d di_d/dt = u_d - R_s*i_d - e_d,   L_q di_q/dt = u_q - R_s*i_q - e_q,
+where i_d, i_q are the terminal currents (the states). The iron-loss resistance R_fe sits across
+the induced voltage e: it draws i_fe = e/R_fe, and only the remainder i_m = i - i_fe makes torque:
+    tau_e = 1.5 * p * (psi_d*i_m,q - psi_q*i_m,d)  (= 1.5*p*(psi_pm*i_q + (L_d - L_q)*i_d*i_q)
+                                                     when R_fe is absent).
+Power balance, exact: 1.5*(u_d*i_d + u_q*i_q) = copper 1.5*R_s*|i|^2 + iron 1.5*|e|^2/R_fe
++ d/dt(0.75*(L_d*i_d^2 + L_q*i_q^2)) + tau_e*omega.
+Mechanical: rotor inertia J on the flange; bearing friction tau_f = T_c*tanh(omega/omega_reg) +
+b*omega against the motion; cogging torque sum_k A_k*sin(n_k*phi + phase_k) (n_k per mechanical
+revolution), the gradient of the potential -sum_k A_k/n_k*cos(n_k*phi + phase_k).
+The stator windings are star-connected with an isolated neutral, so the zero-sequence part of the
+pole voltages drops out.
+Ports: `ac` (ac3: pole voltages [V] in, phase currents [A] out), `flange` (rotational: phi [rad],
+omega [rad/s], tau [N m] into the flange).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from numba import njit
+
+from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.plant.component import Component, Emitter, InertiaSpec, StateSpec
+
+SQRT3 = math.sqrt(3.0)
+
+
+@njit(cache=True)
+def phase_currents(
+    i_d: float, i_q: float, theta_e: float
+) -> tuple[float, float, float, float, float]:
+    """(i_a, i_b, i_c, cos(theta_e), sin(theta_e)) from the rotor-frame currents."""
+    c = math.cos(theta_e)
+    s = math.sin(theta_e)
+    i_alpha = c * i_d - s * i_q
+    i_beta = s * i_d + c * i_q
+    return (
+        i_alpha,
+        -0.5 * i_alpha + 0.5 * SQRT3 * i_beta,
+        -0.5 * i_alpha - 0.5 * SQRT3 * i_beta,
+        c,
+        s,
+    )
+
+
+@njit(cache=True)
+def pmsm_dq(
+    u_a: float,
+    u_b: float,
+    u_c: float,
+    c: float,
+    s: float,
+    i_d: float,
+    i_q: float,
+    omega: float,
+    R_s: float,
+    L_d: float,
+    L_q: float,
+    psi_pm: float,
+    p: float,
+    G_fe: float,
+) -> tuple[float, float, float, float, float, float, float]:
+    """(di_d/dt, di_q/dt, tau_e, copper loss, iron loss, u_d, u_q) of the dq machine."""
+    u_alpha = (2.0 / 3.0) * (u_a - 0.5 * u_b - 0.5 * u_c)
+    u_beta = (u_b - u_c) / SQRT3
+    u_d = c * u_alpha + s * u_beta
+    u_q = -s * u_alpha + c * u_beta
+    omega_e = p * omega
+    psi_d = L_d * i_d + psi_pm
+    psi_q = L_q * i_q
+    e_d = -omega_e * psi_q
+    e_q = omega_e * psi_d
+    i_md = i_d - G_fe * e_d
+    i_mq = i_q - G_fe * e_q
+    tau_e = 1.5 * p * (psi_d * i_mq - psi_q * i_md)
+    return (
+        (u_d - R_s * i_d - e_d) / L_d,
+        (u_q - R_s * i_q - e_q) / L_q,
+        tau_e,
+        1.5 * R_s * (i_d * i_d + i_q * i_q),
+        1.5 * G_fe * (e_d * e_d + e_q * e_q),
+        u_d,
+        u_q,
+    )
+
+
+@njit(cache=True)
+def cogging(phi: float, order: float, amplitude: float, phase: float) -> tuple[float, float]:
+    """(torque [N m], potential [J]) of one cogging harmonic."""
+    arg = order * phi + phase
+    return amplitude * math.sin(arg), amplitude / order * math.cos(arg)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CoggingHarmonic:
+    order: int  # periods per mechanical revolution (e.g. the lcm of slots and poles)
+    amplitude: float  # torque amplitude [N m]
+    phase: float  # phase [rad]
+
+    def __post_init__(self) -> None:
+        if self.order < 1:
+            raise ValueError(f"order = {self.order!r}: must be >= 1")
+        require_nonnegative("amplitude", self.amplitude)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Pmsm(Component):
+    TYPE = "Pmsm"
+    PORTS = {"ac": "ac3", "flange": "rotational"}
+
+    R_s: float  # stator resistance per phase [ohm]
+    L_d: float  # d-axis inductance [H]
+    L_q: float  # q-axis inductance [H]
+    psi_pm: float  # permanent-magnet flux linkage, amplitude [V s]
+    p: int  # pole pairs
+    R_fe: float | None  # iron-loss resistance [ohm]; null for no iron loss
+    J: float  # rotor inertia [kg m^2]
+    T_c: float  # bearing/seal Coulomb friction torque [N m]
+    b: float  # bearing viscous friction [N m s/rad]
+    omega_reg: float  # regularisation speed of the friction sign [rad/s]
+    cogging: tuple[CoggingHarmonic, ...] = ()
+    i_max: float  # current magnitude above which the state counts as a runaway [A]
+
+    def __post_init__(self) -> None:
+        for name in ("R_s", "L_d", "L_q", "psi_pm", "J", "omega_reg", "i_max"):
+            require_positive(name, getattr(self, name))
+        if self.p < 1:
+            raise ValueError(f"p = {self.p!r}: must be >= 1")
+        if self.R_fe is not None:
+            require_positive("R_fe", self.R_fe)
+        require_nonnegative("T_c", self.T_c)
+        require_nonnegative("b", self.b)
+
+    def slots(self) -> dict[str, float]:
+        values = {
+            "R_s": self.R_s,
+            "L_d": self.L_d,
+            "L_q": self.L_q,
+            "psi_pm": self.psi_pm,
+            "p": float(self.p),
+            "G_fe": 0.0 if self.R_fe is None else 1.0 / self.R_fe,
+            "J": self.J,
+            "T_c": self.T_c,
+            "b": self.b,
+            "omega_reg": self.omega_reg,
+        }
+        for n, h in enumerate(self.cogging):
+            values[f"cog{n}_order"] = float(h.order)
+            values[f"cog{n}_amplitude"] = h.amplitude
+            values[f"cog{n}_phase"] = h.phase
+        return values
+
+    def states(self) -> tuple[StateSpec, ...]:
+        return (
+            StateSpec(name="i_d", unit="A", limit=self.i_max),
+            StateSpec(name="i_q", unit="A", limit=self.i_max),
+        )
+
+    def inertias(self) -> tuple[InertiaSpec, ...]:
+        return (InertiaSpec(port="flange", slot="J"),)
+
+    def damping_bounds(self) -> dict[str, float]:
+        return {"flange": self.T_c / self.omega_reg + self.b}
+
+    def structure(self) -> tuple:
+        return (len(self.cogging),)
+
+    def emit(self, stage: str, g: Emitter) -> None:
+        phi, omega = g.across("flange")
+        c, s = g.local("cos"), g.local("sin")
+        if stage == "currents":
+            g.call(
+                (g.el("ac", "i_a"), g.el("ac", "i_b"), g.el("ac", "i_c"), c, s),
+                "feed_twin.plant.pmsm.phase_currents",
+                (g.x("i_d"), g.x("i_q"), f"{g.p('p')} * {phi}"),
+            )
+        elif stage == "dynamics":
+            di_d, di_q, tau_e, p_cu, p_fe, u_d, u_q = (
+                g.local(n) for n in ("di_d", "di_q", "tau_e", "p_cu", "p_fe", "u_d", "u_q")
+            )
+            g.call(
+                (di_d, di_q, tau_e, p_cu, p_fe, u_d, u_q),
+                "feed_twin.plant.pmsm.pmsm_dq",
+                (g.el("ac", "u_a"), g.el("ac", "u_b"), g.el("ac", "u_c"), c, s)
+                + (g.x("i_d"), g.x("i_q"), omega)
+                + tuple(g.p(n) for n in ("R_s", "L_d", "L_q", "psi_pm", "p", "G_fe")),
+            )
+            g.d("i_d", di_d)
+            g.d("i_q", di_q)
+            tau_f = g.local("tau_f")
+            g.call(
+                (tau_f,),
+                "feed_twin.plant.guide_friction.friction_force",
+                (omega, g.p("T_c"), g.p("T_c"), g.p("b"), g.p("b"), "0.0", "1.0")
+                + (g.p("omega_reg"),),
+            )
+            torque = [tau_e, f"-{tau_f}"]
+            for n in range(len(self.cogging)):
+                tau_cog, v_cog = g.local(f"tau_cog{n}"), g.local(f"v_cog{n}")
+                g.call(
+                    (tau_cog, v_cog),
+                    "feed_twin.plant.pmsm.cogging",
+                    (phi, g.p(f"cog{n}_order"), g.p(f"cog{n}_amplitude"), g.p(f"cog{n}_phase")),
+                )
+                torque.append(tau_cog)
+                g.stored(f"cogging{n}", v_cog)
+            g.apply("flange", " + ".join(torque))
+            g.aux("tau_e", tau_e)
+            g.aux("u_d", u_d)
+            g.aux("u_q", u_q)
+            for x in ("a", "b", "c"):
+                g.aux(f"i_{x}", g.el("ac", f"i_{x}"))
+            g.power("loss", "copper", p_cu)
+            g.power("loss", "iron", p_fe)
+            g.power("loss", "bearing", f"{tau_f} * {omega}")
+            g.stored(
+                "magnetic",
+                f"0.75 * ({g.p('L_d')} * {g.x('i_d')} ** 2 + {g.p('L_q')} * {g.x('i_q')} ** 2)",
+            )

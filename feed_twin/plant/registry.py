@@ -1,0 +1,46 @@
+"""The component types a plant YAML may name, by their `type:`."""
+
+from __future__ import annotations
+
+from feed_twin.plant.axial_compliance import AxialCompliance
+from feed_twin.plant.backlash import Backlash
+from feed_twin.plant.ball_screw import BallScrew
+from feed_twin.plant.component import Component
+from feed_twin.plant.coupling import Coupling
+from feed_twin.plant.dc_bus import DcBus
+from feed_twin.plant.dc_motor import DcMotor
+from feed_twin.plant.effort_source import EffortSource
+from feed_twin.plant.external_force import ConstantForce, ExternalForce
+from feed_twin.plant.gravity import Gravity
+from feed_twin.plant.guide_friction import GuideFriction
+from feed_twin.plant.inertia import Inertia
+from feed_twin.plant.inverter import Inverter
+from feed_twin.plant.mass import Mass
+from feed_twin.plant.pmsm import Pmsm
+from feed_twin.plant.screw_shaft import ScrewShaft
+from feed_twin.plant.sensors import CurrentSensor, Encoder, LinearScale
+
+COMPONENT_TYPES: dict[str, type[Component]] = {
+    cls.TYPE: cls
+    for cls in (
+        AxialCompliance,
+        Backlash,
+        BallScrew,
+        ConstantForce,
+        Coupling,
+        CurrentSensor,
+        DcBus,
+        DcMotor,
+        EffortSource,
+        Encoder,
+        ExternalForce,
+        Gravity,
+        GuideFriction,
+        Inertia,
+        Inverter,
+        LinearScale,
+        Mass,
+        Pmsm,
+        ScrewShaft,
+    )
+}

@@ -1,0 +1,60 @@
+"""Ball-screw shaft in torsion: distributed inertia lumped at both ends, one torsional spring.
+
+Equation: tau = k_t * (phi_a - phi_b) + d * (omega_a - omega_b) passed from end a (drive side) to
+end b (nut side), with the solid-shaft values
+    k_t = G * pi * d_root^4 / (32 * length),   J = rho * pi * d_root^4 * length / 32,
+and J/2 lumped at each end (the two-mass approximation of the first torsional mode).
+Ports: `a`, `b` (rotational: phi [rad], omega [rad/s], tau [N m]).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.plant.component import Component, Emitter, InertiaSpec
+from feed_twin.plant.coupling import emit_spring_damper
+
+
+@dataclass(frozen=True, kw_only=True)
+class ScrewShaft(Component):
+    TYPE = "ScrewShaft"
+    PORTS = {"a": "rotational", "b": "rotational"}
+
+    d_root: float  # root (core) diameter of the screw [m]
+    length: float  # length between the drive-side bearing and the nut [m]
+    G: float  # shear modulus [Pa] (steel about 80e9)
+    rho: float  # density [kg/m^3] (steel about 7850)
+    d: float  # torsional damping [N m s/rad]
+
+    def __post_init__(self) -> None:
+        require_positive("d_root", self.d_root)
+        require_positive("length", self.length)
+        require_positive("G", self.G)
+        require_positive("rho", self.rho)
+        require_nonnegative("d", self.d)
+
+    @property
+    def polar_moment(self) -> float:
+        return math.pi * self.d_root**4 / 32.0
+
+    def slots(self) -> dict[str, float]:
+        return {
+            "k_t": self.G * self.polar_moment / self.length,
+            "J": self.rho * self.polar_moment * self.length,
+            "d": self.d,
+        }
+
+    def inertias(self) -> tuple[InertiaSpec, ...]:
+        return (
+            InertiaSpec(port="a", slot="J", factor=0.5),
+            InertiaSpec(port="b", slot="J", factor=0.5),
+        )
+
+    def damping_bounds(self) -> dict[str, float]:
+        return {"a": self.d, "b": self.d}
+
+    def emit(self, stage: str, g: Emitter) -> None:
+        if stage == "dynamics":
+            emit_spring_damper(g, g.p("k_t"), g.p("d"))

@@ -1,0 +1,134 @@
+"""Sensors the drive samples once per base tick: encoder, linear scale, phase-current ADC.
+
+Each writes its MEAS_* slots (feed_twin.control.signals) at a sample instant; the engine delays
+the sample by `delay_ticks` whole base periods before the controller sees it.
+- Encoder on a rotational flange: theta = floor(phi / q) * q with q = 2*pi / counts_per_rev
+  (an incremental count, so it truncates towards -inf like a counter does).
+- LinearScale on a translational flange: x = floor(s / q) * q with q = resolution.
+- CurrentSensor on the ac3 node: for each phase, y = gain*i + offset + noise_std*n (n standard
+  normal, seeded: see feed_twin.plant.noise), clipped to the ADC range [-range_A, range_A) and
+  rounded to the ADC step 2*range_A / 2^adc_bits.
+Ports: `flange` (rotational or translational, reads only) or `ac` (ac3, reads the currents).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from numba import njit
+
+from feed_twin.io.config import require_finite, require_nonnegative, require_positive
+from feed_twin.plant.component import Component, Emitter
+
+MAX_DELAY_TICKS = 15  # the engine keeps the last 16 samples
+
+
+@njit(cache=True)
+def quantize_floor(value: float, step: float) -> float:
+    return math.floor(value / step) * step
+
+
+@njit(cache=True)
+def adc(value: float, step: float, full_scale: float) -> float:
+    clipped = min(max(value, -full_scale), full_scale - step)
+    return math.floor(clipped / step + 0.5) * step
+
+
+def _check_delay(delay_ticks: int) -> None:
+    if not 0 <= delay_ticks <= MAX_DELAY_TICKS:
+        raise ValueError(f"delay_ticks = {delay_ticks!r}: must lie in [0, {MAX_DELAY_TICKS}]")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Encoder(Component):
+    TYPE = "Encoder"
+    PORTS = {"flange": "rotational"}
+
+    counts_per_rev: int  # counts per revolution after quadrature decoding
+    delay_ticks: int  # sample delay in base periods
+
+    def __post_init__(self) -> None:
+        if self.counts_per_rev < 1:
+            raise ValueError(f"counts_per_rev = {self.counts_per_rev!r}: must be >= 1")
+        _check_delay(self.delay_ticks)
+
+    def slots(self) -> dict[str, float]:
+        return {"step": 2.0 * math.pi / self.counts_per_rev, "delay_ticks": float(self.delay_ticks)}
+
+    def emit(self, stage: str, g: Emitter) -> None:
+        if stage == "sense":
+            phi, _ = g.across("flange")
+            g.meas(
+                "MEAS_THETA_ENC_RAD",
+                f"quantize_floor({phi}, {g.p('step')})",
+                delay=g.p("delay_ticks"),
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class LinearScale(Component):
+    TYPE = "LinearScale"
+    PORTS = {"flange": "translational"}
+
+    resolution: float  # measuring step [m]
+    delay_ticks: int  # sample delay in base periods
+
+    def __post_init__(self) -> None:
+        require_positive("resolution", self.resolution)
+        _check_delay(self.delay_ticks)
+
+    def emit(self, stage: str, g: Emitter) -> None:
+        if stage == "sense":
+            s, _ = g.across("flange")
+            g.meas(
+                "MEAS_X_SCALE_M",
+                f"quantize_floor({s}, {g.p('resolution')})",
+                delay=g.p("delay_ticks"),
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class CurrentSensor(Component):
+    TYPE = "CurrentSensor"
+    PORTS = {"ac": "ac3"}
+
+    gain: float  # sensor gain error factor (1 = ideal) [-]
+    offset: float  # offset [A]
+    noise_std: float  # white-noise standard deviation per sample [A]
+    adc_bits: int  # ADC resolution [bit]
+    range_A: float  # ADC full scale, +/- [A]
+    delay_ticks: int  # sample delay in base periods
+
+    def __post_init__(self) -> None:
+        require_positive("gain", self.gain)
+        require_finite("offset", self.offset)
+        require_nonnegative("noise_std", self.noise_std)
+        if not 2 <= self.adc_bits <= 24:
+            raise ValueError(f"adc_bits = {self.adc_bits!r}: must lie in [2, 24]")
+        require_positive("range_A", self.range_A)
+        _check_delay(self.delay_ticks)
+
+    def slots(self) -> dict[str, float]:
+        return {
+            "gain": self.gain,
+            "offset": self.offset,
+            "noise_std": self.noise_std,
+            "step": 2.0 * self.range_A / 2.0**self.adc_bits,
+            "range_A": self.range_A,
+            "delay_ticks": float(self.delay_ticks),
+        }
+
+    def emit(self, stage: str, g: Emitter) -> None:
+        if stage != "sense":
+            return
+        for n, x in enumerate(("a", "b", "c")):
+            raw = (
+                f"{g.p('gain')} * {g.el('ac', f'i_{x}')} + {g.p('offset')}"
+                f" + {g.p('noise_std')} * {g.noise(n)}"
+            )
+            g.meas(
+                f"MEAS_I_{x.upper()}",
+                f"adc({raw}, {g.p('step')}, {g.p('range_A')})",
+                delay=g.p("delay_ticks"),
+            )

@@ -1,0 +1,337 @@
+"""The engine: an assembled plant and (optionally) the cascade controller in one compiled loop.
+
+    engine = Engine(model, base_period_s=62.5e-6, controller=build_cascade(cfg))
+    result = engine.advance(16000, ref=ref)        # or run(...) from a fresh reset
+    result["table.s"], result.names, result.as_dict()
+
+State (plant states, controller state, sensor ring, held controller output, tick counter) lives
+in arrays on the engine between calls, so `advance` in chunks gives bit-identical results to one
+long call (the ROS lockstep node calls it once per message). `run_batch` advances N parameter
+sets at once. Inputs per tick: `ref` (n, REF_SIZE) for the controller, `drive` (n, OUT_SIZE) for
+open loop (prescribed duties / effort, OUT_ENABLED = 1 to switch the power stage on), `ext`
+(n, number of ExternalForce components) [N].
+Recorded signals: every state, every plant auxiliary (`<component>.<signal>`, powers
+`<component>.power.<name>` [W], stored energies `stored.<component>.<name>` [J]), the sensor
+samples as the controller saw them (`meas.<MEAS name>`), the controller outputs
+(`out.<OUT name>`) and the controller state (`ctrl.<name>`), at every `output_period_s`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from feed_twin.control import signals
+from feed_twin.plant.assembly import PlantModel
+from feed_twin.sim.kernel import RING, load_kernel
+
+RK4_STABILITY_MARGIN = 2.5  # explicit RK4 is stable for h*|lambda| < 2.78 on the real axis
+
+
+class DivergenceError(RuntimeError):
+    """A state became NaN, infinite or exceeded its runaway limit."""
+
+
+@dataclass(frozen=True)
+class SimResult:
+    """Named, decimated signals of a run: `result["table.s"]`, `result.t`, `result.as_dict()`."""
+
+    t: np.ndarray  # sample times [s]
+    names: tuple[str, ...]
+    data: np.ndarray  # (len(t), len(names))
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.data[:, self.names.index(name)]
+        except ValueError:
+            raise KeyError(
+                f"signal {name!r}: not recorded; signals: {', '.join(self.names)}"
+            ) from None
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        out = {"t": self.t}
+        out.update({n: self.data[:, i] for i, n in enumerate(self.names)})
+        return out
+
+    @staticmethod
+    def concat(parts: Sequence[SimResult]) -> SimResult:
+        return SimResult(
+            t=np.concatenate([p.t for p in parts]),
+            names=parts[0].names,
+            data=np.concatenate([p.data for p in parts]),
+        )
+
+
+def _as_2d(array: np.ndarray | None, n: int, width: int, what: str) -> np.ndarray:
+    if array is None:
+        return np.zeros((n, width))
+    a = np.ascontiguousarray(array, dtype=np.float64)
+    if a.ndim == 1 and width == 1:
+        a = a[:, None]
+    if a.shape != (n, width):
+        raise ValueError(f"{what}: shape {a.shape} given, expected ({n}, {width})")
+    return a
+
+
+class Engine:
+    """Fixed-step simulation of a PlantModel with the controller inside the compiled loop."""
+
+    def __init__(
+        self,
+        model: PlantModel,
+        *,
+        base_period_s: float,
+        substeps: int = 1,
+        output_period_s: float | None = None,
+        seed: int = 0,
+        controller=None,  # feed_twin.control.cascade.CompiledCascade, None for open loop
+        params: np.ndarray | None = None,
+        record: Sequence[str] | None = None,
+    ) -> None:
+        if not base_period_s > 0.0:
+            raise ValueError(f"base_period_s = {base_period_s!r}: must be > 0")
+        if substeps < 1:
+            raise ValueError(f"substeps = {substeps!r}: must be >= 1")
+        self.model = model
+        self.h = float(base_period_s)
+        self.nsub = int(substeps)
+        out_period = self.h if output_period_s is None else output_period_s
+        self.dec = round(out_period / self.h)
+        if self.dec < 1 or abs(self.dec * self.h - out_period) > 1e-9 * out_period:
+            raise ValueError(
+                f"output_period_s = {output_period_s!r}: must be an integer multiple of "
+                f"base_period_s = {base_period_s!r}"
+            )
+        self.seed = int(seed)
+        self.controller = controller
+        if controller is not None and abs(controller.base_period_s - self.h) > 1e-12 * self.h:
+            raise ValueError(
+                f"base_period_s = {base_period_s!r}: the controller's base period is "
+                f"{controller.base_period_s!r}"
+            )
+        self.p = model.nominal_params() if params is None else np.array(params, dtype=float)
+        check_step(model, self.p, self.h, self.nsub)
+        self.kernel = load_kernel(model, closed_loop=controller is not None)
+        ctrl_names = tuple(controller.state_names) if controller is not None else ()
+        self.all_names = (
+            model.state_names
+            + model.aux_names
+            + tuple(f"meas.{n}" for n in signals.MEAS_NAMES)
+            + tuple(f"out.{n}" for n in signals.OUT_NAMES)
+            + tuple(f"ctrl.{n}" for n in ctrl_names)
+        )
+        index = {n: i for i, n in enumerate(self.all_names)}
+        names = self.all_names if record is None else tuple(record)
+        missing = [n for n in names if n not in index]
+        if missing:
+            raise KeyError(f"record: unknown signal(s) {', '.join(missing)}")
+        self.record_names = names
+        self.sel = np.array([index[n] for n in names], dtype=np.int64)
+        self.cp = (
+            np.array(controller.params, dtype=float) if controller is not None else np.zeros(1)
+        )
+        self.n_ext = max(len(model.ext_names), 1)
+        self.reset()
+
+    def reset(
+        self,
+        x0: np.ndarray | None = None,
+        positions: Mapping[str, float] | None = None,
+        cs0: np.ndarray | None = None,
+    ) -> None:
+        """Back to tick 0: plant state x0 (or at rest at `positions`), fresh controller state."""
+        self.x = (
+            np.array(x0, dtype=float) if x0 is not None else self.model.initial_state(positions)
+        )
+        if self.controller is not None:
+            self.cs = np.array(self.controller.initial_state() if cs0 is None else cs0, float)
+        else:
+            self.cs = np.zeros(0)
+        self.ring = np.zeros((RING, signals.MEAS_SIZE))
+        self.out = np.zeros(signals.OUT_SIZE)
+        self.k = 0
+
+    def advance(
+        self,
+        n_ticks: int,
+        ref: np.ndarray | None = None,
+        drive: np.ndarray | None = None,
+        ext: np.ndarray | None = None,
+    ) -> SimResult:
+        """Advance n_ticks base periods from the current tick; returns what was recorded."""
+        ref2 = _as_2d(ref, n_ticks, signals.REF_SIZE, "ref")
+        drive2 = _as_2d(drive, n_ticks, signals.OUT_SIZE, "drive")
+        ext2 = _as_2d(ext, n_ticks, self.n_ext, "ext")
+        k0 = self.k
+        ks = np.arange(k0, k0 + n_ticks)
+        rec_ticks = ks[ks % self.dec == 0]
+        rec = np.full((len(rec_ticks), len(self.sel)), np.nan)
+        status = np.zeros(4)
+        done = self.kernel.advance(
+            self.x,
+            self.p,
+            self.cp,
+            self.cs,
+            k0,
+            n_ticks,
+            ref2,
+            drive2,
+            ext2,
+            self.seed,
+            self.ring,
+            self.out,
+            self.h,
+            self.nsub,
+            self.dec,
+            self.sel,
+            rec,
+            self.model.state_limits,
+            status,
+        )
+        self.k = k0 + done
+        if status[0] != 0.0:
+            raise DivergenceError(divergence_message(self.model, status, self.h))
+        return SimResult(t=rec_ticks * self.h, names=self.record_names, data=rec)
+
+    def run(self, n_ticks: int, **inputs) -> SimResult:
+        """reset() then advance(n_ticks, ...)."""
+        self.reset()
+        return self.advance(n_ticks, **inputs)
+
+
+def divergence_message(model: PlantModel, status: np.ndarray, h: float) -> str:
+    k, i, value = int(status[1]), int(status[2]), float(status[3])
+    state = model.state_names[i]
+    coordinate = next(
+        (c for c in model.coordinates if state in (c.position_state, c.velocity_state)), None
+    )
+    if coordinate is not None:
+        ports = sorted({p for n in coordinate.nodes for p in model.nodes[n].ports})
+        owner = f"coordinate {coordinate.name} (flanges {', '.join(ports)})"
+    else:
+        owner = f"component {state.split('.')[0]}"
+    return (
+        f"simulation diverged at t = {(k + 1) * h:.6g} s (tick {k}): state {state} of {owner} "
+        f"= {value!r}, limit {model.state_limits[i]!r}"
+    )
+
+
+def check_step(model: PlantModel, p: np.ndarray, h: float, nsub: int) -> None:
+    """Refuse a sub-step for which a regularised friction or damper makes RK4 unstable."""
+    hs = h / nsub
+    for name, comp in model.components.items():
+        for port, c in comp.damping_bounds().items():
+            node = model.node_of[f"{name}.{port}"]
+            coord = model.coordinates[model.coordinate_of[node]]
+            r = p[model.param_index[f"derived.ratio_n{node}"]]
+            inv = p[model.param_index[f"derived.inv_inertia.{coord.name}"]]
+            rate = hs * c * r * r * inv
+            if rate >= RK4_STABILITY_MARGIN:
+                raise ValueError(
+                    f"{model.source}: plant.{name}: step {hs!r} s times damping slope {c!r} over "
+                    f"the effective inertia {1.0 / (r * r * inv)!r} is {rate:.3g}, must be < "
+                    f"{RK4_STABILITY_MARGIN} for explicit RK4: raise the regularisation "
+                    "velocity or engine.substeps"
+                )
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """Signals of N parameter sets: data (N, T, signals); `status[b]` is 0 or the diverged tick."""
+
+    t: np.ndarray
+    names: tuple[str, ...]
+    data: np.ndarray
+    diverged: np.ndarray  # bool (N,)
+    messages: tuple[str, ...]  # one per set, "" when the set ran through
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.data[:, :, self.names.index(name)]
+        except ValueError:
+            raise KeyError(
+                f"signal {name!r}: not recorded; signals: {', '.join(self.names)}"
+            ) from None
+
+
+def run_batch(
+    engine: Engine,
+    params: np.ndarray,
+    n_ticks: int,
+    *,
+    ref: np.ndarray | None = None,
+    drive: np.ndarray | None = None,
+    ext: np.ndarray | None = None,
+    x0: np.ndarray | None = None,
+    controller_params: np.ndarray | None = None,
+    seeds: np.ndarray | None = None,
+) -> BatchResult:
+    """Run N parameter sets (rows of `params`, e.g. from `model.param_vector`) from tick 0.
+
+    Every set starts from `x0` (default: the engine's initial state) and a fresh controller; the
+    inputs are shared. A set that diverges is marked in `diverged`, its signals after the
+    divergence are NaN, and the others run on.
+    """
+    P = np.ascontiguousarray(params, dtype=float)
+    if P.ndim != 2 or P.shape[1] != len(engine.model.param_names):
+        raise ValueError(
+            f"params: shape {P.shape} given, expected (N, {len(engine.model.param_names)})"
+        )
+    N = P.shape[0]
+    for row in P:
+        check_step(engine.model, row, engine.h, engine.nsub)
+    engine.reset()
+    X = np.tile(engine.x if x0 is None else np.asarray(x0, float), (N, 1))
+    CS = np.tile(engine.cs, (N, 1)) if engine.cs.size else np.zeros((N, 0))
+    if controller_params is None:
+        CP = np.tile(engine.cp, (N, 1))
+    else:
+        CP = np.ascontiguousarray(np.broadcast_to(controller_params, (N, engine.cp.size)))
+    seeds_arr = (
+        np.full(N, engine.seed, dtype=np.int64) if seeds is None else np.asarray(seeds, np.int64)
+    )
+    rings = np.zeros((N, RING, signals.MEAS_SIZE))
+    outs = np.zeros((N, signals.OUT_SIZE))
+    ks = np.arange(n_ticks)
+    rec_ticks = ks[ks % engine.dec == 0]
+    rec = np.full((N, len(rec_ticks), len(engine.sel)), np.nan)
+    status = np.zeros((N, 4))
+    engine.kernel.advance_batch(
+        X,
+        P,
+        CP,
+        CS,
+        0,
+        n_ticks,
+        _as_2d(ref, n_ticks, signals.REF_SIZE, "ref"),
+        _as_2d(drive, n_ticks, signals.OUT_SIZE, "drive"),
+        _as_2d(ext, n_ticks, engine.n_ext, "ext"),
+        seeds_arr,
+        rings,
+        outs,
+        engine.h,
+        engine.nsub,
+        engine.dec,
+        engine.sel,
+        rec,
+        engine.model.state_limits,
+        status,
+    )
+    diverged = status[:, 0] != 0.0
+    messages = []
+    for b in range(N):
+        if diverged[b]:
+            k = int(status[b, 1])
+            rec[b, rec_ticks > k, :] = np.nan
+            messages.append(divergence_message(engine.model, status[b], engine.h))
+        else:
+            messages.append("")
+    return BatchResult(
+        t=rec_ticks * engine.h,
+        names=engine.record_names,
+        data=rec,
+        diverged=diverged,
+        messages=tuple(messages),
+    )
