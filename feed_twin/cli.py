@@ -32,6 +32,11 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
     ),
     Subcommand(name="bag", module="feed_twin.io.bag_cli", help="inspect or recover a recorded bag"),
     Subcommand(
+        name="plan",
+        module="feed_twin.gcode.cli",
+        help="plan a G-code program into sampled setpoints (CSV) and print a summary",
+    ),
+    Subcommand(
         name="msgs-check",
         module="feed_twin.ros.msgcheck",
         help="round-trip every message type over DDS and check every field",

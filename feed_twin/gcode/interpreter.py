@@ -154,6 +154,10 @@ class Interpreter:
             yield from self.block(block)
 
     def block(self, block: Block) -> list[Item]:
+        if not block.notes and self.motion in (0, 1):
+            simple = self._simple_block(block)
+            if simple is not None:
+                return simple
         line = block.line
         out: list[Item] = []
         g_words: dict[str, tuple[int, Word]] = {}
@@ -343,6 +347,46 @@ class Interpreter:
                 out.append(Event(line, "end", float(code), w.text, True))
                 self.ended = True
         return out
+
+    def _simple_block(self, block: Block) -> list[Item] | None:
+        """The common CAM block (axis words, maybe F and N) in G0/G1; None for anything else.
+
+        Same result as the general path, which handles (and reports) everything else.
+        """
+        target = list(self.position)
+        index = self.index
+        seen = set()
+        feed = None
+        unit = self.length_unit
+        absolute = self.absolute
+        for w in block.words:
+            letter = w.letter
+            if letter in seen:
+                return None
+            seen.add(letter)
+            i = index.get(letter)
+            if i is not None:
+                if absolute:
+                    target[i] = w.value * unit + self.work_offset[i] + self.g92[i]
+                else:
+                    target[i] = self.position[i] + w.value * unit
+            elif letter == "F":
+                if w.value <= 0.0:
+                    return None
+                feed = w.value
+            elif letter != "N":
+                return None
+        if feed is not None:
+            self.feed = feed * self.feed_unit / 60.0
+        if len(seen) == ("N" in seen) + (feed is not None):
+            return []
+        if self.motion == 1 and self.feed is None:
+            return None
+        for i, x in enumerate(target):
+            low, high = self.travel[i]
+            if not low - 1e-12 <= x <= high + 1e-12:
+                return None
+        return self._line_move(target, block.line, {})
 
     def _dwell(self, g4: Word, other: dict[str, Word], g_words: dict, line: int) -> list[Item]:
         if "motion" in g_words:

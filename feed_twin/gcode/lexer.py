@@ -14,6 +14,7 @@ import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 from feed_twin.gcode.errors import GcodeError
 
@@ -27,6 +28,10 @@ _TOKEN = re.compile(
     r"|(?P<bad>.)"
 )
 
+# Most lines of CAM output are plain words; they take a faster route with the same result.
+_SIMPLE_LINE = re.compile(r"(?:[ \t]*[A-Za-z][-+]?(?:\d+\.?\d*|\.\d+))+[ \t\r]*")
+_SIMPLE_WORD = re.compile(r"([A-Za-z])([-+]?(?:\d+\.?\d*|\.\d+))")
+
 _BAD_CHARACTER_REASONS = {
     "(": "comment '(' is never closed",
     "#": "parameters (#) are not supported",
@@ -36,8 +41,7 @@ _BAD_CHARACTER_REASONS = {
 }
 
 
-@dataclass(frozen=True, slots=True)
-class Word:
+class Word(NamedTuple):
     """One word of a block: `letter` upper case, `value` as written (program units)."""
 
     letter: str
@@ -54,8 +58,7 @@ class Note:
     text: str
 
 
-@dataclass(frozen=True, slots=True)
-class Block:
+class Block(NamedTuple):
     line: int  # 1-based line number in the file
     words: tuple[Word, ...]
     notes: tuple[Note, ...]
@@ -71,7 +74,16 @@ def lex_line(text: str, line: int, *, file: str, block_delete: bool) -> Block | 
         if block_delete:
             return None
         start = text.index("/") + 1
-    words: list[Word] = []
+    if start == 0 and _SIMPLE_LINE.fullmatch(text):
+        upper = text.upper()
+        return Block(
+            line,
+            tuple(
+                Word(m[1], float(m[2]), m.start() + 1, m[0]) for m in _SIMPLE_WORD.finditer(upper)
+            ),
+            (),
+        )
+    words = []
     notes: list[Note] = []
     for m in _TOKEN.finditer(text, start):
         kind = m.lastgroup

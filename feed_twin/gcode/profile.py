@@ -57,7 +57,7 @@ def reach(v_known: float, L: float, A: float, J: float, jerk: bool, v_cap: float
         return v_cap
     lo = v_known
     hi = v_cap
-    for _ in range(200):
+    for _ in range(48):
         mid = 0.5 * (lo + hi)
         if mid <= lo or mid >= hi:
             break
@@ -102,7 +102,7 @@ def body_profiles(
         if phase_distance(v0, top, a, j, jerk) + phase_distance(top, v1, a, j, jerk) > L[i]:
             lo = max(v0, v1)
             hi = top
-            for _ in range(200):
+            for _ in range(48):
                 mid = 0.5 * (lo + hi)
                 if mid <= lo or mid >= hi:
                     break
@@ -252,7 +252,8 @@ def evaluate_path(
         sigma = si - S0[k]
         v = sd[idx]
         a = sdd[idx]
-        if sigma < w_start[k]:
+        if w_start[k] > 0.0 and sigma < w_start[k]:
+            sigma = max(sigma, 0.0)
             G, h, hp = _blend_shape(sigma, w_start[k])
             for i in range(na):
                 ua = u[k, i] - du_start[k, i]
@@ -260,8 +261,8 @@ def evaluate_path(
                 pos[idx, i] = P0[k, i] + ua * sigma + du_start[k, i] * G
                 vel[idx, i] = d * v
                 acc[idx, i] = d * a + du_start[k, i] * hp * v * v
-        elif L[k] - sigma < w_end[k]:
-            sig = sigma - L[k]
+        elif w_end[k] > 0.0 and L[k] - sigma < w_end[k]:
+            sig = max(sigma - L[k], -w_end[k])
             G, h, hp = _blend_shape(sig, w_end[k])
             for i in range(na):
                 d = u[k, i] + du_end[k, i] * h
