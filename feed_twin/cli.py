@@ -23,6 +23,16 @@ class Subcommand:
 
 SUBCOMMANDS: tuple[Subcommand, ...] = (
     Subcommand(
+        name="diagnose",
+        module="feed_twin.analysis.cli",
+        help="find where twin and machine disagree, name and fit the missing effects",
+    ),
+    Subcommand(
+        name="simulate",
+        module="feed_twin.analysis.simulate_cli",
+        help="run a model against a measured run's command; write measured and sim_ columns",
+    ),
+    Subcommand(
         name="info", module="feed_twin.info_cli", help="show versions and what is installed"
     ),
     Subcommand(

@@ -86,14 +86,18 @@ def cost_of(meas: Measured, out: SimOutputs, row: int = 0) -> float:
 def fit(
     simulate: BatchSimulator,
     base: np.ndarray,
-    index: dict[str, int],
+    index: dict[str, tuple[int, ...]],
     free: list[FreeParameter],
     meas: Measured,
     *,
     max_evaluations: int = 60,
 ) -> FitResult:
-    """Fit the free parameters; the others stay at `base` (a full engine parameter vector)."""
-    slots = np.array([index[p.name] for p in free], dtype=int)
+    """Fit the free parameters; the others stay at `base` (a full engine parameter vector).
+
+    `index` maps a free parameter's name to the engine slots it sets (several for a tied
+    parameter, e.g. one Coulomb force for both directions).
+    """
+    slots = [index[p.name] for p in free]
     scale = np.array([p.scale for p in free], dtype=float)
     lower = np.array([p.lower for p in free]) / scale
     upper = np.array([p.upper for p in free]) / scale
@@ -103,7 +107,9 @@ def fit(
 
     def params_of(zs: np.ndarray) -> np.ndarray:
         batch = np.repeat(base[None, :], len(zs), axis=0)
-        batch[:, slots] = zs * scale
+        for j, group in enumerate(slots):
+            for i in group:
+                batch[:, i] = zs[:, j] * scale[j]
         return batch
 
     def residuals_of(out: SimOutputs, n: int) -> list[np.ndarray]:

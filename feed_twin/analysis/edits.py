@@ -1,0 +1,182 @@
+"""How each effect of the library enters the model: which component, which free parameters.
+
+An edit takes the current model document and the ranking's candidate (its least-squares weights
+are the initial guess) and returns a new document with the effect's component added or its
+parameters freed, plus the free parameters and the nominal ones that interact with it (those
+are re-estimated together: adding Coulomb friction changes the best viscous coefficient and
+mass). The original document is never modified.
+
+Effects whose component the integrated model does not (yet) offer have no edit; the workflow
+still names them with their evidence but cannot fit them, and says so.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from feed_twin.analysis.effects import Candidate
+from feed_twin.analysis.fit import FreeParameter
+from feed_twin.analysis.twin import ModelDoc
+
+
+@dataclass(frozen=True, kw_only=True)
+class Edit:
+    doc: ModelDoc
+    free: list[FreeParameter]
+    added: int  # degrees of freedom the effect adds to the model (for the partial F-test)
+    # reported parameter name -> function of the fitted slot values
+    report: dict[str, Callable[[dict[str, float]], float]]
+
+
+def _symmetric(doc: ModelDoc) -> ModelDoc:
+    """Tie forward/backward friction values that are equal, so they stay one parameter."""
+    fr = doc.friction()
+    if fr is None or doc.ties_of(fr) == "asymmetric":
+        return doc
+    for tied, pos, neg in (("F_c", "F_c_pos", "F_c_neg"), ("F_v", "F_v_pos", "F_v_neg")):
+        if doc.get(f"{fr}.{pos}") == doc.get(f"{fr}.{neg}"):
+            doc = doc.tie(f"{fr}.{tied}", (f"{fr}.{pos}", f"{fr}.{neg}"))
+    return doc
+
+
+def _param(
+    doc: ModelDoc,
+    name: str,
+    initial: float | None = None,
+    *,
+    lower: float = 0.0,
+    floor: float = 1.0,
+) -> FreeParameter:
+    value = doc.get(name) if initial is None else initial
+    return FreeParameter(name=name, initial=value, scale=max(abs(value), floor), lower=lower)
+
+
+def interacting(doc: ModelDoc) -> list[FreeParameter]:
+    """The rigid-body parameters every force-like effect trades off against, re-fitted with it:
+    the moving mass, the friction terms the model already has, a constant force."""
+    free = []
+    m = doc.mass_slot()
+    if m is not None:
+        value = doc.get(m)
+        free.append(FreeParameter(name=m, initial=value, scale=value, lower=0.2 * value))
+    fr = doc.friction()
+    if fr is not None:
+        for tied, pos, neg in (("F_c", "F_c_pos", "F_c_neg"), ("F_v", "F_v_pos", "F_v_neg")):
+            if f"{fr}.{tied}" in doc.tie_names():
+                if doc.get(f"{fr}.{tied}") > 0.0:
+                    free.append(_param(doc, f"{fr}.{tied}"))
+            else:
+                for name in (pos, neg):
+                    if doc.get(f"{fr}.{name}") > 0.0 or doc.ties_of(fr) == "asymmetric":
+                        free.append(_param(doc, f"{fr}.{name}"))
+        if doc.get(f"{fr}.dF_s") > 0.0:
+            free.append(_param(doc, f"{fr}.dF_s"))
+            free.append(_param(doc, f"{fr}.v_s", lower=1e-4, floor=1e-3))
+    for name in doc.of_type("ConstantForce"):
+        free.append(_param(doc, f"{name}.f_0", lower=-math.inf))
+    return free
+
+
+def _with(free: list[FreeParameter], new: FreeParameter) -> list[FreeParameter]:
+    """`free` with `new` replacing the entry of the same name (or added first)."""
+    return [new] + [p for p in free if p.name != new.name]
+
+
+def _friction_name(doc: ModelDoc) -> str:
+    fr = doc.friction()
+    if fr is None:
+        raise LookupError("the model has no GuideFriction component")
+    return fr
+
+
+def coulomb(doc: ModelDoc, cand: Candidate) -> Edit:
+    doc = _symmetric(doc.with_friction())
+    fr = _friction_name(doc)
+    fc = max(abs(cand.coefficients.get("sign_v", 0.0)), 1e-3)
+    doc = doc.tie(f"{fr}.F_c", (f"{fr}.F_c_pos", f"{fr}.F_c_neg")).set(f"{fr}.F_c", fc)
+    free = _with(interacting(doc), _param(doc, f"{fr}.F_c", fc))
+    return Edit(doc=doc, free=free, added=1, report={"F_c_N": lambda v: v[f"{fr}.F_c"]})
+
+
+def viscous(doc: ModelDoc, cand: Candidate) -> Edit:
+    doc = _symmetric(doc.with_friction())
+    fr = _friction_name(doc)
+    doc = doc.tie(f"{fr}.F_v", (f"{fr}.F_v_pos", f"{fr}.F_v_neg"))
+    guess = max(doc.get(f"{fr}.F_v") + cand.coefficients.get("v", 0.0), 0.0)
+    doc = doc.set(f"{fr}.F_v", guess)
+    free = _with(interacting(doc), _param(doc, f"{fr}.F_v", guess))
+    return Edit(doc=doc, free=free, added=1, report={"F_v_N_s_m": lambda v: v[f"{fr}.F_v"]})
+
+
+def stribeck(doc: ModelDoc, cand: Candidate) -> Edit:
+    doc = _symmetric(doc.with_friction())
+    fr = _friction_name(doc)
+    vs = float(cand.variant.split("=")[1].split()[0]) if cand.variant else 0.005
+    ds = max(abs(cand.coefficients.get("stribeck", 0.0)), 1e-3)
+    doc = doc.set(f"{fr}.dF_s", ds).set(f"{fr}.v_s", vs)
+    free = interacting(doc)
+    return Edit(
+        doc=doc,
+        free=free,
+        added=2,
+        report={"dF_s_N": lambda v: v[f"{fr}.dF_s"], "v_s_m_s": lambda v: v[f"{fr}.v_s"]},
+    )
+
+
+def asymmetric(doc: ModelDoc, cand: Candidate) -> Edit:
+    doc = doc.with_friction()
+    fr = _friction_name(doc)
+    doc = doc.untie().mark_asymmetric(fr)
+    report = {
+        name: (lambda n: lambda v: v[f"{fr}.{n}"])(name)
+        for name in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg")
+    }
+    return Edit(doc=doc, free=interacting(doc), added=2, report=report)
+
+
+def constant_force(doc: ModelDoc, cand: Candidate) -> Edit:
+    # the residual is measured minus twin: a force the drive must supply is a load of -f_0
+    f0 = -cand.coefficients.get("one", 0.0)
+    doc, slot = _symmetric(doc).with_constant_force(f0)
+    free = _with(interacting(doc), _param(doc, slot, f0, lower=-math.inf))
+    return Edit(doc=doc, free=free, added=1, report={"f_0_N": lambda v: v[slot]})
+
+
+def mass_error(doc: ModelDoc, cand: Candidate) -> Edit:
+    m = doc.mass_slot()
+    if m is None:
+        raise LookupError("the model has no Mass component")
+    doc = _symmetric(doc)
+    value = doc.get(m)
+    guess = max(value + cand.coefficients.get("a", 0.0), 0.2 * value)
+    doc = doc.set(m, guess)
+    free = _with(
+        interacting(doc), FreeParameter(name=m, initial=guess, scale=value, lower=0.2 * value)
+    )
+    return Edit(doc=doc, free=free, added=1, report={"m_kg": lambda v: v[m]})
+
+
+def gain_error(doc: ModelDoc, cand: Candidate) -> Edit:
+    g = doc.gain_slot()
+    if g is None:
+        raise LookupError("the model has no EffortSource component")
+    doc = _symmetric(doc)
+    value = doc.get(g)
+    # measured effort = K_nom/K_true * needed effort: weight c = K_nom/K_true - 1
+    guess = value / (1.0 + cand.coefficients.get("effort", 0.0))
+    doc = doc.set(g, guess)
+    free = [FreeParameter(name=g, initial=guess, scale=abs(value))] + interacting(doc)
+    return Edit(doc=doc, free=free, added=1, report={"gain": lambda v: v[g]})
+
+
+EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
+    "coulomb_friction": coulomb,
+    "viscous_friction": viscous,
+    "stribeck_friction": stribeck,
+    "asymmetric_friction": asymmetric,
+    "constant_force": constant_force,
+    "mass_error": mass_error,
+    "torque_constant_error": gain_error,
+}

@@ -1,0 +1,411 @@
+"""The workflow's only door to the integrated model: model documents and batch simulation.
+
+`ModelDoc` is a model YAML (the `plant:` and `controller:` sections of feed_twin.plant.config
+and feed_twin.control.cascade) held as data, with the edits the effect library needs: set a
+parameter, tie two slots to one fitted value, add a component, write the augmented file. Edits
+return new documents; the nominal file is never touched.
+
+`Twin` compiles a document once (H3's assembler and engine, H4's cascade) and simulates N
+parameter sets at once with `run_batch`, driven by a measured run's command and known
+disturbances. What it returns is what the measurement system of the real axis reports: the
+position as the controller's feedback sensor sees it and the drive effort in the measured
+effort's SI unit.
+
+Why the diagnosis twin measures without quantisation: with the encoder's real count the
+simulated position, and through the loop the effort, are piecewise constant in the parameters,
+so finite-difference Jacobians of an output-error fit are zero or random. The twin used for
+fitting sets the step of every Encoder and LinearScale to 1e-12 of a revolution or metre (the
+quantisation noise is in the measurement, not in what the model should explain).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from feed_twin.analysis.fit import SimOutputs
+from feed_twin.control import signals
+from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.io.measured import MeasuredDataError, MeasuredRun
+
+SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
+FIXED_SECTIONS = ("plant", "controller")
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class ModelDoc:
+    """A model YAML as data plus the ties between slots that the fit treats as one value."""
+
+    data: dict[str, Any]
+    source: str
+    ties: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    asymmetric: tuple[str, ...] = ()  # GuideFriction components fitted per direction
+    # the drive gain of the document the workflow started from: the measured effort was
+    # converted with the nominal gain, so the twin's effort is too (even if the fit changes it)
+    reference_gain: float | None = None
+
+    @classmethod
+    def load(cls, path: str | Path) -> ModelDoc:
+        data = load_yaml(path)
+        for key in FIXED_SECTIONS:
+            if key not in data:
+                raise ConfigError(f"{path}: missing required section {key}")
+        doc = cls(data=data, source=str(path))
+        g = doc.gain_slot()
+        return ModelDoc(
+            data=data, source=str(path), reference_gain=None if g is None else doc.get(g)
+        )
+
+    # ---------------------------------------------------------------- lookup
+
+    def _components(self) -> list[dict[str, Any]]:
+        return self.data["plant"]["components"]
+
+    def component(self, name: str) -> dict[str, Any]:
+        for entry in self._components():
+            if entry.get("name") == name:
+                return entry
+        raise LookupError(f"{self.source}: no component named {name!r}")
+
+    def of_type(self, kind: str) -> list[str]:
+        return [e["name"] for e in self._components() if e.get("type") == kind]
+
+    def mass_slot(self) -> str | None:
+        masses = self.of_type("Mass")
+        return f"{masses[-1]}.m" if masses else None
+
+    def friction(self) -> str | None:
+        found = self.of_type("GuideFriction")
+        return found[0] if found else None
+
+    def gain_slot(self) -> str | None:
+        found = self.of_type("EffortSource")
+        return f"{found[0]}.gain" if found else None
+
+    def tie_names(self) -> tuple[str, ...]:
+        return tuple(name for name, _ in self.ties)
+
+    def ties_of(self, friction: str) -> str:
+        return "asymmetric" if friction in self.asymmetric else "symmetric"
+
+    def mark_asymmetric(self, friction: str) -> ModelDoc:
+        return self._copy(asymmetric=self.asymmetric + (friction,))
+
+    def tie_members(self, name: str) -> tuple[str, ...]:
+        for tied, members in self.ties:
+            if tied == name:
+                return members
+        return (name,)
+
+    def get(self, slot: str) -> float:
+        first = self.tie_members(slot)[0]
+        comp, _, field_name = first.partition(".")
+        params = self.component(comp)["params"]
+        if field_name not in params:
+            raise LookupError(f"{self.source}: plant.{comp} has no parameter {field_name!r}")
+        return float(params[field_name])
+
+    # ---------------------------------------------------------------- edits
+
+    def _copy(self, **changes: Any) -> ModelDoc:
+        return ModelDoc(
+            data=changes.get("data", copy.deepcopy(self.data)),
+            source=self.source,
+            ties=changes.get("ties", self.ties),
+            asymmetric=changes.get("asymmetric", self.asymmetric),
+            reference_gain=self.reference_gain,
+        )
+
+    def set(self, slot: str, value: float) -> ModelDoc:
+        new = self._copy()
+        for member in self.tie_members(slot):
+            comp, _, field_name = member.partition(".")
+            new.component(comp)["params"][field_name] = float(value)
+        return new
+
+    def tie(self, name: str, members: tuple[str, ...]) -> ModelDoc:
+        """Treat `members` as one parameter `name` (set to their mean now)."""
+        if name in dict(self.ties):
+            return self
+        mean = sum(self.get(m) for m in members) / len(members)
+        new = self._copy(ties=self.ties + ((name, members),))
+        return new.set(name, mean)
+
+    def untie(self) -> ModelDoc:
+        return self._copy(ties=())
+
+    def add_component(self, entry: dict[str, Any], connect_to: str) -> ModelDoc:
+        """Append a component and connect its `flange` to the port `connect_to`."""
+        new = self._copy()
+        new.data["plant"]["components"].append(copy.deepcopy(entry))
+        new.data["plant"]["connect"].append([f"{entry['name']}.flange", connect_to])
+        return new
+
+    def table_port(self) -> str:
+        slot = self.mass_slot()
+        if slot is None:
+            raise LookupError(f"{self.source}: the model has no Mass (table) to act on")
+        return f"{slot.split('.')[0]}.flange"
+
+    def _free_name(self, base: str) -> str:
+        taken = {e["name"] for e in self._components()}
+        name, i = base, 2
+        while name in taken:
+            name, i = f"{base}{i}", i + 1
+        return name
+
+    def with_friction(self) -> ModelDoc:
+        """The document with a GuideFriction on the table (all zero) if it has none."""
+        if self.friction() is not None:
+            return self
+        entry = {
+            "name": self._free_name("friction"),
+            "type": "GuideFriction",
+            "params": {
+                "F_c_pos": 0.0,
+                "F_c_neg": 0.0,
+                "F_v_pos": 0.0,
+                "F_v_neg": 0.0,
+                "dF_s": 0.0,
+                "v_s": 0.005,
+                "v_reg": 1e-3,
+            },
+        }
+        return self.add_component(entry, self.table_port())
+
+    def with_constant_force(self, f_0: float) -> tuple[ModelDoc, str]:
+        existing = self.of_type("ConstantForce")
+        if existing:
+            return self.set(f"{existing[0]}.f_0", f_0), f"{existing[0]}.f_0"
+        name = self._free_name("constant_force")
+        entry = {"name": name, "type": "ConstantForce", "params": {"f_0": float(f_0)}}
+        return self.add_component(entry, self.table_port()), f"{name}.f_0"
+
+    def dump(self, path: str | Path, header: list[str]) -> None:
+        text = "".join(f"# {line}\n" for line in header)
+        text += yaml.safe_dump(self.data, sort_keys=False, default_flow_style=None, width=100)
+        Path(path).write_text(text)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Drive:
+    """What the twin is driven with: the command and the known disturbances, SI, one base."""
+
+    t_s: np.ndarray
+    pos_ref_m: np.ndarray
+    vel_ref_m_s: np.ndarray
+    acc_ref_m_s2: np.ndarray
+    effort_add: np.ndarray | None  # known signal added to the controller effort [effort SI]
+    force_ext_N: np.ndarray | None  # known external force on the table [N]
+    x0_m: float  # measured position at the start
+    sensor: str  # motor_encoder or linear_scale
+
+
+def drive_from_run(run: MeasuredRun) -> Drive:
+    h = run.sample_period_s
+    if "pos_cmd_m" in run:
+        pos = run["pos_cmd_m"]
+        vel = run["vel_cmd_m_s"] if "vel_cmd_m_s" in run else np.gradient(pos, h)
+    elif "vel_cmd_m_s" in run:
+        vel = run["vel_cmd_m_s"]
+        # trapezoidal integration from the measured start position
+        pos = run["pos_meas_m"][0] + np.concatenate(
+            ([0.0], np.cumsum(0.5 * (vel[1:] + vel[:-1]) * h))
+        )
+    else:
+        raise MeasuredDataError(f"{run.source}: no command (pos_cmd_m or vel_cmd_m_s)")
+    adds = [n for n in run.disturbance_names if n.startswith("disturbance_effort_add")]
+    forces = [n for n in run.disturbance_names if n.startswith("disturbance_force")]
+    return Drive(
+        t_s=run.t_s,
+        pos_ref_m=pos,
+        vel_ref_m_s=vel,
+        acc_ref_m_s2=np.gradient(vel, h),
+        effort_add=sum(run[n] for n in adds) if adds else None,
+        force_ext_N=sum(run[n] for n in forces) if forces else None,
+        x0_m=float(run["pos_meas_m"][0]),
+        sensor=run.position_sensor,
+    )
+
+
+@dataclass(eq=False)
+class Twin:
+    """A compiled model document, ready to simulate parameter sets against a measured run."""
+
+    doc: ModelDoc
+    plant: Any
+    engine: Any
+    controller: Any
+    index: dict[str, tuple[int, ...]]
+    nominal: np.ndarray
+    lead_m: float | None
+    pole_pairs: int | None
+    effort_name: str
+    effort_unit: str
+    _cache: dict = field(default_factory=dict)
+
+    @classmethod
+    def compile(cls, doc: ModelDoc, *, smooth_sensors: bool = True) -> Twin:
+        from feed_twin.control.cascade import build_cascade, load_controller_config
+        from feed_twin.plant.config import load_plant
+        from feed_twin.sim.engine import Engine
+
+        plant = load_plant(doc.data["plant"], source=doc.source)
+        cfg = load_controller_config(doc.data["controller"], source=doc.source)
+        controller = build_cascade(cfg)
+        nominal = plant.nominal_params()
+        if smooth_sensors:
+            for name in doc.of_type("Encoder") + doc.of_type("LinearScale"):
+                nominal[plant.param_index[f"{name}.step"]] = SMOOTH_SENSOR_STEP
+        kinds = {e["type"] for e in doc.data["plant"]["components"]}
+        if "Pmsm" in kinds or "DcMotor" in kinds:
+            effort_name, unit = "current_q_A", "A"
+        else:
+            source = doc.of_type("EffortSource")
+            domain = doc.component(source[0])["params"].get("domain") if source else None
+            effort_name, unit = (
+                ("torque_cmd_Nm", "N m") if domain == "rotational" else ("force_cmd_N", "N")
+            )
+        nsub = _substeps(plant, nominal, controller.base_period_s)
+        engine = Engine(
+            plant,
+            base_period_s=controller.base_period_s,
+            substeps=nsub,
+            controller=controller,
+            params=nominal,
+            record=_recorded(plant),
+        )
+        index = {name: (i,) for i, name in enumerate(plant.param_names)}
+        for name, members in doc.ties:
+            index[name] = tuple(plant.param_index[m] for m in members)
+        screws = doc.of_type("BallScrew")
+        lead = float(doc.component(screws[0])["params"]["lead"]) if screws else None
+        if lead is None:
+            lead = getattr(getattr(cfg, "drive", None), "lead_m", None)
+        motors = doc.of_type("Pmsm")
+        pole_pairs = int(doc.component(motors[0])["params"]["p"]) if motors else None
+        return cls(
+            doc=doc,
+            plant=plant,
+            engine=engine,
+            controller=controller,
+            index=index,
+            nominal=nominal,
+            lead_m=lead,
+            pole_pairs=pole_pairs,
+            effort_name=effort_name,
+            effort_unit=unit,
+        )
+
+    @property
+    def base_period_s(self) -> float:
+        return float(self.controller.base_period_s)
+
+    def _inputs(self, drive: Drive) -> tuple[np.ndarray, np.ndarray | None, int, int]:
+        h = self.base_period_s
+        period = float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
+        dec = round(period / h)
+        if dec < 1 or abs(dec * h - period) > 1e-6 * period:
+            raise MeasuredDataError(
+                f"the record's sample period {period!r} s is not a whole multiple of the "
+                f"model's base period {h!r} s"
+            )
+        n = len(drive.t_s) * dec
+        hold = np.repeat  # commands are held between record samples (NC-sample hold)
+        ref = np.zeros((n, signals.REF_SIZE))
+        ref[:, signals.REF_POS_M] = hold(drive.pos_ref_m, dec)
+        ref[:, signals.REF_VEL_M_S] = hold(drive.vel_ref_m_s, dec)
+        ref[:, signals.REF_ACC_M_S2] = hold(drive.acc_ref_m_s2, dec)
+        if drive.effort_add is not None:
+            gain = self.doc.reference_gain or 1.0
+            ref[:, signals.REF_EFFORT_ADD] = hold(drive.effort_add / gain, dec)
+        ext = None
+        if drive.force_ext_N is not None:
+            if not self.plant.ext_names:
+                raise MeasuredDataError(
+                    f"the record has a known external force but {self.doc.source} has no "
+                    "ExternalForce component to apply it"
+                )
+            ext = np.zeros((n, len(self.plant.ext_names)))
+            ext[:, 0] = hold(drive.force_ext_N, dec)
+        return ref, ext, n, dec
+
+    def _x0(self, drive: Drive, p: np.ndarray) -> np.ndarray:
+        table = self.doc.table_port()
+        node = self.plant.node_of[table]
+        coord = self.plant.coordinates[self.plant.coordinate_of[node]]
+        ratio = float(p[self.plant.param_index[f"derived.ratio_n{node}"]])
+        return self.plant.initial_state({coord.name: drive.x0_m / ratio})
+
+    def simulate(self, drive: Drive, params: np.ndarray) -> SimOutputs:
+        """Simulate each row of `params` (full parameter vectors) on the drive's command."""
+        from feed_twin.sim.engine import check_step, run_batch
+
+        key = id(drive)
+        if self._cache.get("key") != key:
+            self._cache = {"key": key, "inputs": self._inputs(drive)}
+        ref, ext, n, dec = self._cache["inputs"]
+        P = np.array(params, dtype=float, ndmin=2)
+        ok = np.ones(len(P), dtype=bool)
+        for i, row in enumerate(P):
+            try:
+                self.plant.fill_derived(row)
+                check_step(self.plant, row, self.engine.h, self.engine.nsub)
+            except ValueError:
+                ok[i] = False
+        rows = np.flatnonzero(ok)
+        T = len(drive.t_s)
+        x = np.full((len(P), T), np.nan)
+        effort = np.full((len(P), T), np.nan)
+        if len(rows):
+            x0 = self._x0(drive, P[rows[0]])
+            res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0)
+            pos, eff = self._measured_signals(res, dec)
+            x[rows] = pos[:, :T]
+            effort[rows] = eff[:, :T]
+            ok[rows] = ~res.diverged
+        return SimOutputs(x_m=x, effort=effort, ok=ok)
+
+    def _measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:
+        sel = slice(None, None, dec)
+        if "meas.x_scale_m" in res.names and self.doc.of_type("LinearScale"):
+            pos = res["meas.x_scale_m"][:, sel]
+        else:
+            lead = self.controller_lead()
+            pos = res["meas.theta_enc_rad"][:, sel] * lead / (2.0 * math.pi)
+        if self.effort_name == "current_q_A":
+            eff = res["out.i_q_ref_A"][:, sel]
+        else:
+            gain = self.doc.reference_gain or 1.0
+            eff = res["out.effort_cmd"][:, sel] * gain
+        return pos, eff
+
+    def controller_lead(self) -> float:
+        lead = self.doc.data["controller"].get("drive", {}).get("lead_m")
+        if lead is None:
+            raise ConfigError(f"{self.doc.source}: controller.drive.lead_m is needed")
+        return float(lead)
+
+
+def _recorded(plant: Any) -> list[str]:
+    names = ["meas.theta_enc_rad", "meas.x_scale_m", "out.effort_cmd", "out.i_q_ref_A"]
+    return names
+
+
+def _substeps(plant: Any, p: np.ndarray, h: float) -> int:
+    """The fewest RK4 sub-steps the engine accepts for these parameters (1, 2, 4, ... 64)."""
+    from feed_twin.sim.engine import check_step
+
+    for nsub in (1, 2, 4, 8, 16, 32, 64):
+        try:
+            check_step(plant, p, h, nsub)
+            return nsub
+        except ValueError:
+            continue
+    raise ConfigError(f"{plant.source}: no sub-step count up to 64 makes RK4 stable")
