@@ -109,9 +109,14 @@ def lex_line(text: str, line: int, *, file: str, block_delete: bool) -> Block | 
             char = m.group("bad")
             column = m.start() + 1
             if char.isalpha():
-                raise GcodeError(
-                    "word has no number", file=file, line=line, column=column, word=char.upper()
-                )
+                rest = text[m.end() :].lstrip()
+                follower = rest[:1]
+                if follower in ("#", "["):
+                    word = char.upper() + rest.split()[0]
+                    reason = _BAD_CHARACTER_REASONS[follower]
+                else:
+                    word, reason = char.upper(), "word has no number"
+                raise GcodeError(reason, file=file, line=line, column=column, word=word)
             reason = _BAD_CHARACTER_REASONS.get(char, "unexpected character")
             raise GcodeError(reason, file=file, line=line, column=column, word=char)
     if not words and not notes:
