@@ -140,10 +140,22 @@ main() {
         return 0
     fi
     check_tools
-    optional_packages
 
+    # Several shells may run `make test` in one tree at once: one set-up at a time, and the
+    # ones that waited find it done.
     local logdir="$repo/msgs/build"
     mkdir -p "$logdir"
+    exec 9>"$logdir/setup.lock"
+    if ! flock -n 9; then
+        say "waiting for another set-up in this tree to finish"
+        flock 9
+    fi
+    if up_to_date; then
+        say "up to date ($venv)"
+        return 0
+    fi
+    optional_packages
+
     if [[ -e "$venv" ]] && ! "$venv/bin/python" -c 'import sys; assert sys.version_info[:2] == (3, 11)' \
         >/dev/null 2>&1; then
         say "removing unusable $venv"

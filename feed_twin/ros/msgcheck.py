@@ -237,7 +237,7 @@ def main(args: argparse.Namespace) -> int:
         verdict = "ok" if not problems else "FAILED: " + "; ".join(problems)
         fields = len(result.sent.get_fields_and_field_types())
         print(
-            f"  {result.type_name:<32} {fields:>3} fields  "
+            f"  {result.type_name:<32} {fields:>3} field{'s' if fields != 1 else ' '}  "
             f"{result.latency_s * 1e3:7.3f} ms  {verdict}"
         )
     if args.json:
