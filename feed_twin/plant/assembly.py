@@ -95,8 +95,10 @@ class PlantModel:
         connections: Sequence[tuple[str, str]],
         *,
         source: str = "<plant>",
+        track_energy: bool = False,
     ) -> None:
         self.source = source
+        self.track_energy = track_energy
         self.components: dict[str, Component] = {}
         for name, comp in components:
             try:
@@ -440,7 +442,19 @@ class PlantModel:
             (n, dataclasses.replace(c, **changes[n]) if n in changes else c)
             for n, c in self.components.items()
         ]
-        return PlantModel(comps, self.connections, source=self.source)
+        return PlantModel(
+            comps, self.connections, source=self.source, track_energy=self.track_energy
+        )
+
+    def with_energy_tracking(self, track_energy: bool = True) -> PlantModel:
+        """The same plant whose state also integrates every source and loss power [J]
+        (states `energy.<component>.<name>`, for energy balances); off by default for speed."""
+        return PlantModel(
+            list(self.components.items()),
+            self.connections,
+            source=self.source,
+            track_energy=track_energy,
+        )
 
 
 class _Generator(Emitter):
@@ -527,9 +541,10 @@ class _Generator(Emitter):
 
     def power(self, kind: str, name: str, expr: str) -> None:
         full = f"energy.{self._name()}.{name}"
-        self.energy_states.append(full)
         self.energy_kinds[full] = kind
-        self.lines.append(("dx", f"dx[{_const('X_', full)}] = {expr}"))
+        if self.m.track_energy:
+            self.energy_states.append(full)
+            self.lines.append(("dx", f"dx[{_const('X_', full)}] = {expr}"))
         self.aux(f"power.{name}", expr)
 
     def stored(self, name: str, expr: str) -> None:
@@ -680,6 +695,7 @@ def assemble(
     connections: Sequence[tuple[str, str]],
     *,
     source: str = "<plant>",
+    track_energy: bool = False,
 ) -> PlantModel:
     """Build a PlantModel from (name, component) pairs and [port, port] connections."""
-    return PlantModel(components, connections, source=source)
+    return PlantModel(components, connections, source=source, track_energy=track_energy)

@@ -24,6 +24,8 @@ from numba import njit
 from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter
 
+STRIBECK_CUTOFF = 50.0  # (v/v_s)^2 beyond which exp(-(v/v_s)^2) < 2e-22 is taken as 0
+
 
 @njit(cache=True)
 def friction_force(
@@ -40,8 +42,10 @@ def friction_force(
     sgn = math.tanh(v / v_reg)
     F_c = 0.5 * (F_c_pos + F_c_neg) + 0.5 * (F_c_pos - F_c_neg) * sgn
     F_v = 0.5 * (F_v_pos + F_v_neg) + 0.5 * (F_v_pos - F_v_neg) * sgn
-    r = v / v_s
-    return (F_c + dF_s * math.exp(-r * r)) * sgn + F_v * v
+    r2 = (v / v_s) ** 2
+    # exp underflows far outside the Stribeck range, and libm's underflow path is slow
+    stribeck = dF_s * math.exp(-r2) if dF_s != 0.0 and r2 < STRIBECK_CUTOFF else 0.0
+    return (F_c + stribeck) * sgn + F_v * v
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -35,18 +35,17 @@ BOTH_OFF = -1.0  # switch-state marker of a dead-time interval in the switching 
 
 
 @njit(cache=True)
-def leg_duty(command: float, i: float, dead_fraction: float, i_reg: float, enabled: float) -> float:
-    """Effective duty (or switch state) of one leg; command < 0 marks a dead-time interval."""
+def leg_duty(
+    command: float, i: float, dead_fraction: float, i_reg: float, enabled: float
+) -> tuple[float, float]:
+    """(effective duty or switch state, smooth sign of i) of one leg.
+
+    command < 0 marks a dead-time interval of the switching model (both switches off).
+    """
     sgn = math.tanh(i / i_reg)
     if enabled < 0.5 or command < 0.0:
-        return 0.5 * (1.0 - sgn)
-    return command - dead_fraction * sgn
-
-
-@njit(cache=True)
-def leg_voltage(duty_eff: float, u_dc: float, i: float, u_f: float, i_reg: float) -> float:
-    """Pole voltage [V] of a leg with effective duty duty_eff."""
-    return duty_eff * u_dc - u_f * math.tanh(i / i_reg)
+        return 0.5 * (1.0 - sgn), sgn
+    return command - dead_fraction * sgn, sgn
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -91,10 +90,10 @@ class Inverter(Component):
             terms = []
             for n, x in enumerate(PHASES):
                 command = g.switch(n) if self.switching else g.drive(DUTY_SLOTS[n])
-                duty = g.local(f"d_{x}")
+                duty, sgn = g.local(f"d_{x}"), g.local(f"sgn_{x}")
                 i = g.el("ac", f"i_{x}")
                 g.call(
-                    (duty,),
+                    (duty, sgn),
                     "feed_twin.plant.inverter.leg_duty",
                     (command, i, g.p("dead_fraction"), g.p("i_reg"), enabled),
                 )
@@ -105,11 +104,8 @@ class Inverter(Component):
             loss = []
             for x in PHASES:
                 u, i = g.el("ac", f"u_{x}"), g.el("ac", f"i_{x}")
-                g.call(
-                    (u,),
-                    "feed_twin.plant.inverter.leg_voltage",
-                    (g.local(f"d_{x}"), u_dc, i, g.p("u_f"), g.p("i_reg")),
-                )
+                duty, sgn = g.local(f"d_{x}"), g.local(f"sgn_{x}")
+                g.line(f"{u} = {duty} * {u_dc} - {g.p('u_f')} * {sgn}")
                 g.aux(f"u_{x}", u)
-                loss.append(f"({u_dc} * {g.local(f'd_{x}')} - {u}) * {i}")
+                loss.append(f"({u_dc} * {duty} - {u}) * {i}")
             g.power("loss", "conduction", " + ".join(loss))

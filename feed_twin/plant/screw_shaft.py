@@ -2,8 +2,10 @@
 
 Equation: tau = k_t * (phi_a - phi_b) + d * (omega_a - omega_b) passed from end a (drive side) to
 end b (nut side), with the solid-shaft values
-    k_t = G * pi * d_root^4 / (32 * length),   J = rho * pi * d_root^4 * length / 32,
-and J/2 lumped at each end (the two-mass approximation of the first torsional mode).
+    k_t = G * pi * d_root^4 / (32 * length),   J = rho * pi * d_nominal^4 * length / 32,
+and J/2 lumped at each end (the two-mass approximation of the first torsional mode). The core
+(root diameter) carries the torsion; the inertia counts the thread lands too, which the nominal
+diameter approximates (catalogues quote J from it).
 Ports: `a`, `b` (rotational: phi [rad], omega [rad/s], tau [N m]).
 """
 
@@ -23,6 +25,7 @@ class ScrewShaft(Component):
     PORTS = {"a": "rotational", "b": "rotational"}
 
     d_root: float  # root (core) diameter of the screw [m]
+    d_nominal: float  # nominal diameter of the screw [m]
     length: float  # length between the drive-side bearing and the nut [m]
     G: float  # shear modulus [Pa] (steel about 80e9)
     rho: float  # density [kg/m^3] (steel about 7850)
@@ -30,19 +33,16 @@ class ScrewShaft(Component):
 
     def __post_init__(self) -> None:
         require_positive("d_root", self.d_root)
+        require_positive("d_nominal", self.d_nominal)
         require_positive("length", self.length)
         require_positive("G", self.G)
         require_positive("rho", self.rho)
         require_nonnegative("d", self.d)
 
-    @property
-    def polar_moment(self) -> float:
-        return math.pi * self.d_root**4 / 32.0
-
     def slots(self) -> dict[str, float]:
         return {
-            "k_t": self.G * self.polar_moment / self.length,
-            "J": self.rho * self.polar_moment * self.length,
+            "k_t": self.G * math.pi * self.d_root**4 / 32.0 / self.length,
+            "J": self.rho * math.pi * self.d_nominal**4 / 32.0 * self.length,
             "d": self.d,
         }
 
