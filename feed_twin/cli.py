@@ -42,6 +42,11 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
     ),
     Subcommand(name="bag", module="feed_twin.io.bag_cli", help="inspect or recover a recorded bag"),
     Subcommand(
+        name="run",
+        module="feed_twin.ros.run_cli",
+        help="run a G-code program through the ROS 2 node set, record it and summarise it",
+    ),
+    Subcommand(
         name="plan",
         module="feed_twin.gcode.cli",
         help="plan a G-code program into sampled setpoints (CSV) and print a summary",

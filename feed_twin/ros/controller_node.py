@@ -38,6 +38,7 @@ from feed_twin.ros.split import (
     Boundary,
     ControllerCore,
     DriveSetpoint,
+    NcBuffer,
     NcSample,
     load_node_set_config,
 )
@@ -102,11 +103,9 @@ class ControllerNode(FeedTwinNode):
         for note in self.core.notes:
             self.get_logger().info(note)
         self.axis_label = axis_label
-        self._commands: collections.deque[NcSample] = collections.deque()
-        self._latest_command_ns: int | None = None
-        self._held: NcSample | None = None
+        self.exchange_ns = round(exchange_period_s * NS_PER_S)
+        self.nc = NcBuffer()
         self._pending: collections.deque[AxisFeedback] = collections.deque()
-        self._program_finished = False
         self._paused = False
         self._meas = np.zeros(sig.MEAS_SIZE)
         self.steps = 0
@@ -121,19 +120,17 @@ class ControllerNode(FeedTwinNode):
         self._command_dog = self.watch_input(
             self.topics.command,
             "feed_twin_msgs/msg/AxisCommand",
-            armed=lambda: bool(self._pending) and not self._paused and not self._program_finished,
+            armed=lambda: bool(self._pending) and not self._paused and not self.nc.finished,
         )
         self._feedback_dog = self.watch_input(
             self.topics.feedback,
             "feed_twin_msgs/msg/AxisFeedback",
-            armed=lambda: self._latest_command_ns is not None and self.steps == 0,
+            armed=lambda: self.nc.latest_ns is not None and self.steps == 0,
         )
         self.start_heartbeat()
 
     def _on_command(self, msg: AxisCommand) -> None:
-        sample = nc_sample(msg)
-        self._commands.append(sample)
-        self._latest_command_ns = sample.t_ns
+        self.nc.add(nc_sample(msg))
         self._command_dog.feed()
         self._serve()
 
@@ -146,38 +143,19 @@ class ControllerNode(FeedTwinNode):
         state = msg.data.split(" ", 1)[0]
         self._paused = state == "paused"
         if state in ("finished", "stopped"):
-            self._program_finished = True
+            self.nc.finish()
             self._serve()
 
     def _on_run_state(self, msg: String) -> None:
         if msg.data.startswith("done"):
             self.finish(EXIT_OK, "")
 
-    def _command_for(self, t_ns: int) -> NcSample | None:
-        commands = self._commands
-        while len(commands) > 1 and commands[1].t_ns <= t_ns:
-            commands.popleft()
-        known = self._latest_command_ns is not None and self._latest_command_ns >= t_ns
-        if commands and commands[0].t_ns <= t_ns and known:
-            self._held = commands[0]
-            return commands[0]
-        if self._program_finished and self._held is not None:
-            last = commands[-1] if commands else self._held
-            self._held = NcSample(
-                t_ns=t_ns,
-                position_m=last.position_m,
-                velocity_m_s=0.0,
-                acceleration_m_s2=0.0,
-                line=-1,
-            )
-            return self._held
-        return None
-
     def _serve(self) -> None:
         while self._pending:
             feedback = self._pending[0]
-            t_ns = stamp_ns(feedback.header)
-            nc = self._command_for(t_ns)
+            # Feedback latched at t_k sets the setpoint the drive applies from t_k+1 (drive_host).
+            t_ns = stamp_ns(feedback.header) + self.exchange_ns
+            nc = self.nc.for_time(t_ns)
             if nc is None:
                 return
             self._pending.popleft()

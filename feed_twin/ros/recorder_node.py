@@ -73,7 +73,7 @@ class RecorderNode(FeedTwinNode):
         super().__init__(RECORDER_NODE, options, context=context)
         self.bag = BagWriter(bag_path)
         self.bag_path = bag_path
-        self._subscriptions: dict[str, object] = {}
+        self._recorded: dict[str, object] = {}
         self._last_message = time.monotonic()
         self._ending_since: float | None = None
         self.end_reason = ""
@@ -91,7 +91,7 @@ class RecorderNode(FeedTwinNode):
         self.start_heartbeat()
 
     def _record(self, topic: str, type_name: str, qos: QoSProfile) -> None:
-        if topic in self._subscriptions:
+        if topic in self._recorded:
             return
         self.bag.add_topic(topic, type_name, qos=(_bag_qos(qos),))
         write = self.bag.write
@@ -101,14 +101,14 @@ class RecorderNode(FeedTwinNode):
             self._last_message = time.monotonic()
             write(topic, data, log_time_ns=now, publish_time_ns=now)
 
-        self._subscriptions[topic] = self.create_subscription(
+        self._recorded[topic] = self.create_subscription(
             message_class(type_name), topic, on_message, qos, raw=True
         )
 
     def _scan(self) -> None:
         prefix = self.topics.namespace + "/"
         for topic, types in self.get_topic_names_and_types():
-            if topic in self._subscriptions or len(types) != 1:
+            if topic in self._recorded or len(types) != 1:
                 continue
             if not (topic.startswith(prefix) or topic in EXTRA_GLOBAL_TOPICS):
                 continue

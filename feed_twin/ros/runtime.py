@@ -134,6 +134,11 @@ class FeedTwinNode(Node):
     def on_shutdown(self, reason: str) -> None:
         """Called once when the node stops (signal, peer loss, end of run); override to clean up."""
 
+    def poll(self) -> float | None:
+        """Called by the spin loop before each wait; returns how long it may block at most [s]
+        (None: no limit of its own). Nodes that pace themselves by the wall clock override it."""
+        return None
+
     # -- watchdogs ----------------------------------------------------------------------------
 
     def watch_input(
@@ -252,7 +257,8 @@ def spin_nodes(
                     break
             elif any(n.done for n in nodes):
                 break
-            executor.spin_once(timeout_sec=poll_s)
+            waits = [w for w in (n.poll() for n in nodes) if w is not None]
+            executor.spin_once(timeout_sec=min([poll_s, *waits]))
         reason = (
             f"stopped by {signal.Signals(flag.received).name}"
             if flag.received is not None

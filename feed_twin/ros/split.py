@@ -21,6 +21,7 @@ below (used by the cross-check test) computes exactly what the node set computes
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -44,6 +45,32 @@ NS_PER_S = 1_000_000_000
 
 
 @dataclass(frozen=True, kw_only=True)
+class StateSignals:
+    """Engine signal names behind the AxisState fields ("" where the plant has no such signal).
+
+    The defaults name the components of config/axis_default.yaml; another plant sets its own
+    in the `ros.signals` section.
+    """
+
+    table_position: str = "table.s"
+    table_velocity: str = "table.v"
+    motor_angle: str = "motor.phi"
+    motor_velocity: str = "motor.omega"
+    i_d: str = "motor.i_d"
+    i_q: str = "motor.i_q"
+    u_d: str = "motor.u_d"
+    u_q: str = "motor.u_q"
+    u_dc: str = "bus.u_dc"
+    i_dc: str = "bus.i_dc"
+    torque_em: str = "motor.tau_e"
+    friction_force: str = "guides.force"
+    screw_force: str = "backlash.force"
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(v for v in vars(self).values() if v)
+
+
+@dataclass(frozen=True, kw_only=True)
 class NodeSetConfig:
     """The `ros:` section of an axis config: names, exchange rate and controller/drive split."""
 
@@ -53,6 +80,7 @@ class NodeSetConfig:
     boundary: Boundary = "torque"  # CiA 402 split, see the module docstring
     settle_s: float = 0.2  # simulated time after the program's end [s]
     lookahead: int = 20  # NC setpoints published ahead of the simulation clock [-]
+    signals: StateSignals = dataclasses.field(default_factory=StateSignals)
 
     def __post_init__(self) -> None:
         require_positive("exchange_period_s", self.exchange_period_s)
@@ -231,3 +259,43 @@ def load_node_set_config(path: str | Path) -> NodeSetConfig:
     """The `ros:` section of an axis config file; defaults when the file has none."""
     data = load_yaml(path)
     return from_mapping(NodeSetConfig, data.get("ros", {}) or {}, source=str(path), path="ros")
+
+
+class NcBuffer:
+    """The NC setpoints received so far, and the rule that picks the one for an exchange time.
+
+    The setpoint for t is the latest one stamped <= t, known once a setpoint stamped >= t has
+    arrived (topics deliver in order). After the program has finished the last position is held
+    at standstill (line -1), as a control does at program end.
+    """
+
+    def __init__(self) -> None:
+        self._samples: collections.deque[NcSample] = collections.deque()
+        self.latest_ns: int | None = None
+        self.finished = False
+        self._last: NcSample | None = None
+
+    def add(self, sample: NcSample) -> None:
+        self._samples.append(sample)
+        self.latest_ns = sample.t_ns
+
+    def finish(self) -> None:
+        self.finished = True
+
+    def for_time(self, t_ns: int) -> NcSample | None:
+        samples = self._samples
+        while len(samples) > 1 and samples[1].t_ns <= t_ns:
+            samples.popleft()
+        if samples and samples[0].t_ns <= t_ns and self.latest_ns >= t_ns:
+            self._last = samples[0]
+            return samples[0]
+        if self.finished and (self._last is not None or samples):
+            last = samples[-1] if samples else self._last
+            return NcSample(
+                t_ns=t_ns,
+                position_m=last.position_m,
+                velocity_m_s=0.0,
+                acceleration_m_s2=0.0,
+                line=-1,
+            )
+        return None

@@ -1,0 +1,303 @@
+"""The G-code node: plans a program with the core planner and streams AxisCommand setpoints.
+
+- Program: the ROS parameter `program` (a path; set it at start or later through the standard
+  parameter service while idle). Loading validates and plans the whole program first
+  (`feed_twin.gcode.plan_program`), so a bad program stops before any motion, with the
+  interpreter's `file:line:col: ...` message on `program_state` and in the log.
+- Services (std_srvs/Trigger) under the node: `start` (also resumes after a pause), `pause`,
+  `stop` (ends the program at the next standstill of the planned path, never mid-move).
+- M0 pauses; M1 pauses when the parameter `optional_stop` is true. While paused the NC holds the
+  position (setpoints at standstill, as a real control does) and the program time stands still;
+  `start` resumes.
+- Positions: the plant starts at rest at its own position 0, so the setpoints are the twin
+  axis's machine positions minus its start position.
+- Timing: setpoints are stamped in simulation time, one per interpolation period, and published
+  up to `lookahead` periods ahead of the latest /clock so the controller never waits for them.
+- `program_state` (latched std_msgs/String): `loaded ...`, `running`, `paused line N ...`,
+  `finished <t_ns>`, `stopped <t_ns>`, `error <message>`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from feed_twin_msgs.msg import AxisCommand
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_config, plan_program
+from feed_twin.io.config import ConfigError
+from feed_twin.ros.runtime import (
+    DATA_QOS,
+    EXIT_ERROR,
+    EXIT_OK,
+    LATCHED_QOS,
+    FeedTwinNode,
+    NodeOptions,
+    init_context,
+    spin_nodes,
+)
+from feed_twin.ros.split import NS_PER_S, load_node_set_config
+from feed_twin.ros.topics import GCODE_NODE
+
+STANDSTILL_M_S = 1e-9  # |v| below which the planned path is at rest [m/s]
+
+
+class ProgramStream:
+    """The setpoint sequence of one axis with pauses, in integer nanoseconds (no rclpy).
+
+    `next_sample()` returns (t_ns, x, v, a, line) of the next setpoint to publish; while paused
+    it returns a standstill sample at the paused position and the program time stands still.
+    """
+
+    def __init__(
+        self,
+        trajectory: SampledTrajectory,
+        axis: str,
+        *,
+        period_ns: int,
+        t0_ns: int,
+        optional_stop: bool,
+    ) -> None:
+        x, self.v, self.a = trajectory.axis(axis)
+        # The plant starts at rest at its position 0: setpoints are relative to the NC start.
+        self.x = x - x[0]
+        self.line = trajectory.line
+        self.n = len(trajectory)
+        self.period_ns = period_ns
+        self.t0_ns = t0_ns
+        kinds = {"pause"} | ({"optional_pause"} if optional_stop else set())
+        period_s = period_ns / NS_PER_S
+        self.pause_at: dict[int, str] = {}
+        for event in trajectory.events:
+            if event.kind in kinds:
+                k = min(self.n - 1, int(round(event.t_s / period_s)))
+                self.pause_at[k] = f"line {event.line} ({event.text})"
+        self.k = 0  # index of the next program sample
+        self.published = 0  # samples published (program + hold)
+        self.paused: str | None = None
+        self.stop_requested = False
+        self.stopped = False
+
+    @property
+    def finished(self) -> bool:
+        return self.k >= self.n or self.stopped
+
+    @property
+    def next_t_ns(self) -> int:
+        return self.t0_ns + self.published * self.period_ns
+
+    def next_sample(self) -> tuple[int, float, float, float, int]:
+        t_ns = self.next_t_ns
+        self.published += 1
+        if self.paused is not None:
+            k = max(self.k - 1, 0)
+            return t_ns, float(self.x[k]), 0.0, 0.0, int(self.line[k])
+        k = self.k
+        self.k += 1
+        if k in self.pause_at:
+            self.paused = self.pause_at.pop(k)
+        if self.stop_requested and abs(self.v[k]) < STANDSTILL_M_S and k > 0:
+            self.stopped = True
+        return t_ns, float(self.x[k]), float(self.v[k]), float(self.a[k]), int(self.line[k])
+
+    @property
+    def end_t_ns(self) -> int:
+        return self.next_t_ns - self.period_ns
+
+
+class GcodeNode(FeedTwinNode):
+    def __init__(
+        self,
+        options: NodeOptions,
+        nc: NcConfig,
+        *,
+        lookahead: int,
+        program: str = "",
+        autostart: bool = False,
+        optional_stop: bool = False,
+        context=None,
+    ) -> None:
+        super().__init__(GCODE_NODE, options, context=context)
+        self.nc = nc
+        self.lookahead = lookahead
+        self.period_ns = round(nc.interpolation_period_s * NS_PER_S)
+        self.stream: ProgramStream | None = None
+        self.trajectory: SampledTrajectory | None = None
+        self.running = False
+        self._clock_ns = 0
+        self._pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
+        self._state_pub = self.create_publisher(String, self.topics.program_state, LATCHED_QOS)
+        self.create_subscription(Clock, "/clock", self._on_clock, DATA_QOS)
+        self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
+        self.create_service(Trigger, "start", self._srv_start)
+        self.create_service(Trigger, "pause", self._srv_pause)
+        self.create_service(Trigger, "stop", self._srv_stop)
+        self.declare_parameter("optional_stop", optional_stop)
+        self.declare_parameter("program", "")
+        self.add_on_set_parameters_callback(self._on_parameters)
+        self.autostart = autostart
+        if program:
+            self.set_parameters([Parameter("program", value=program)])
+        self.start_heartbeat()
+
+    # -- program ------------------------------------------------------------------------------
+
+    def _state(self, text: str) -> None:
+        self._state_pub.publish(String(data=text))
+
+    def load(self, program: str) -> bool:
+        try:
+            trajectory = plan_program(Path(program), self.nc)
+        except GcodeError as exc:
+            self._state(f"error {exc}")
+            self.finish(EXIT_ERROR, f"G-code error: {exc}")
+            return False
+        self.trajectory = trajectory
+        duration = len(trajectory) * self.nc.interpolation_period_s
+        self._state(f"loaded {program} {len(trajectory)} samples {duration:.3f} s")
+        self.get_logger().info(f"loaded {program}: {len(trajectory)} samples, {duration:.3f} s")
+        if self.autostart:
+            self.start()
+        return True
+
+    def start(self) -> str:
+        if self.stream is not None and self.stream.paused is not None:
+            self.stream.paused = None
+            self._state("running")
+            return "resumed"
+        if self.trajectory is None:
+            return "no program loaded"
+        if self.running:
+            return "already running"
+        self.stream = ProgramStream(
+            self.trajectory,
+            self.nc.twin_axis,
+            period_ns=self.period_ns,
+            t0_ns=self._clock_ns,
+            optional_stop=bool(self.get_parameter("optional_stop").value),
+        )
+        self.running = True
+        self._state("running")
+        self._publish_ahead()
+        return "started"
+
+    def _publish_ahead(self) -> None:
+        stream = self.stream
+        if stream is None or not self.running:
+            return
+        horizon = self._clock_ns + self.lookahead * self.period_ns
+        was_paused = stream.paused
+        while not stream.finished and stream.next_t_ns <= horizon:
+            t_ns, x, v, a, line = stream.next_sample()
+            msg = AxisCommand()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t_ns, NS_PER_S)
+            msg.axis = self.nc.twin_axis
+            msg.position, msg.velocity, msg.acceleration, msg.line = x, v, a, line
+            self._pub.publish(msg)
+            if stream.paused is not None and was_paused is None:
+                self._state(f"paused {stream.paused}")
+                was_paused = stream.paused
+        if stream.finished and self.running:
+            self.running = False
+            word = "stopped" if stream.stopped else "finished"
+            self._state(f"{word} {stream.end_t_ns}")
+
+    # -- callbacks ----------------------------------------------------------------------------
+
+    def _on_clock(self, msg: Clock) -> None:
+        self._clock_ns = msg.clock.sec * NS_PER_S + msg.clock.nanosec
+        self._publish_ahead()
+
+    def _on_run_state(self, msg: String) -> None:
+        if msg.data.startswith("done"):
+            self.finish(EXIT_OK, "")
+
+    def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        for p in params:
+            if p.name == "program" and p.value:
+                if self.running:
+                    return SetParametersResult(
+                        successful=False, reason="a program is running; stop it first"
+                    )
+                if not self.load(str(p.value)):
+                    return SetParametersResult(successful=False, reason=self.exit_message)
+        return SetParametersResult(successful=True)
+
+    def _srv_start(self, request, response):
+        result = self.start()
+        response.success = result in ("started", "resumed")
+        response.message = result
+        return response
+
+    def _srv_pause(self, request, response):
+        if self.stream is None or not self.running:
+            response.success, response.message = False, "not running"
+        else:
+            self.stream.paused = self.stream.paused or "by request"
+            self._state(f"paused {self.stream.paused}")
+            response.success, response.message = True, "paused"
+        return response
+
+    def _srv_stop(self, request, response):
+        if self.stream is None or not self.running:
+            response.success, response.message = False, "not running"
+        else:
+            self.stream.stop_requested = True
+            self.stream.paused = None
+            response.success, response.message = True, "stopping at the next standstill"
+        return response
+
+
+def program_lines(path: str | Path) -> dict[int, str]:
+    """Source text per 1-based line number, for the dashboard's G-code log."""
+    text = Path(path).read_text(encoding="utf-8", errors="replace")
+    return {i + 1: line.rstrip() for i, line in enumerate(text.splitlines())}
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", required=True, type=Path)
+    parser.add_argument("--program", default="")
+    parser.add_argument("--autostart", action="store_true")
+    parser.add_argument("--optional-stop", action="store_true")
+    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
+    parser.add_argument("--startup-timeout", type=float, default=60.0)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="feed_twin.ros.gcode_node")
+    configure(parser)
+    args = parser.parse_args(argv)
+    try:
+        ros = load_node_set_config(args.config)
+        nc = load_nc_config(args.config)
+    except (ConfigError, ValueError) as exc:
+        print(f"gcode node: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    options = NodeOptions(
+        machine=ros.machine,
+        axis=ros.axis,
+        peers=tuple(p for p in args.peers.split(",") if p),
+        startup_timeout_s=args.startup_timeout,
+    )
+    context = init_context()
+    node = GcodeNode(
+        options,
+        nc,
+        lookahead=ros.lookahead,
+        program=args.program,
+        autostart=args.autostart,
+        optional_stop=args.optional_stop,
+        context=context,
+    )
+    return spin_nodes([node], context)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

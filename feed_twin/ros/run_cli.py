@@ -1,0 +1,395 @@
+"""`feed-twin run PROGRAM --config CONFIG`: the G-code, controller, sim and recorder nodes.
+
+1. Checks the config and the program in-process first: a G-code error stops the run before any
+   node starts, with the interpreter's `file:line:col: ...` message.
+2. Starts the four nodes as separate processes (default) or in this process
+   (`--single-process`), in the current ROS domain, and shows progress (simulated time).
+3. Watches them: a node that exits with an error ends the run; the others notice a killed node
+   by its missing heartbeat within 1 s and stop too. SIGINT/SIGTERM stop every node cleanly.
+4. Afterwards: the bag (recovered if the recorder was killed), the `.rrd` next to it, and the
+   summary (cycle time, max/RMS following error, peak current, peak velocity); `--json` makes
+   the last line one JSON object with these figures, the timing and the output paths.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from feed_twin.io.config import ConfigError
+
+NODE_MODULES = {
+    "recorder": "feed_twin.ros.recorder_node",
+    "controller": "feed_twin.ros.controller_node",
+    "sim": "feed_twin.ros.sim_node",
+    "gcode": "feed_twin.ros.gcode_node",
+}
+ROLES = ("recorder", "controller", "sim", "gcode")
+STOP_GRACE_S = 10.0
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("program", type=Path, help="G-code program")
+    parser.add_argument("--config", type=Path, default=Path("config/axis_default.yaml"))
+    parser.add_argument("--out", type=Path, default=Path("bags"), help="output directory")
+    parser.add_argument("--name", default=None, help="bag name (default: program + time)")
+    parser.add_argument("--realtime", action="store_true", help="pace by the wall clock")
+    parser.add_argument("--json", action="store_true", help="last line: one JSON object")
+    parser.add_argument("--single-process", action="store_true")
+    parser.add_argument("--live", action="store_true", help="serve a live web viewer")
+    parser.add_argument("--optional-stop", action="store_true", help="M1 pauses")
+    parser.add_argument("--max-time", type=float, default=None, help="simulated seconds at most")
+    parser.add_argument(
+        "--input-timeout", type=float, default=10.0, help="silence on an input topic [s]"
+    )
+    parser.add_argument("--startup-timeout", type=float, default=120.0)
+
+
+@dataclass
+class Outputs:
+    bag: Path
+    rrd: Path
+    logs: Path
+
+
+def _outputs(args: argparse.Namespace) -> Outputs:
+    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    return Outputs(bag=out / name, rrd=out / f"{name}.rrd", logs=out / f"{name}.logs")
+
+
+def _check_inputs(args: argparse.Namespace):
+    """Config sections and the whole program, before any node starts."""
+    from feed_twin.gcode import load_nc_config, validate_program
+    from feed_twin.ros.split import load_node_set_config
+
+    ros = load_node_set_config(args.config)
+    nc = load_nc_config(args.config)
+    if abs(nc.interpolation_period_s - ros.exchange_period_s) > 1e-12 and (
+        nc.interpolation_period_s < ros.exchange_period_s
+    ):
+        raise ConfigError(
+            f"{args.config}: nc.interpolation_period_s = {nc.interpolation_period_s!r}: must not "
+            f"be shorter than ros.exchange_period_s = {ros.exchange_period_s!r}"
+        )
+    validate_program(args.program, nc)
+    return ros, nc
+
+
+def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[str]:
+    peers = ",".join(r for r in ROLES if r != role)
+    common = ["--peers", peers, "--startup-timeout", str(args.startup_timeout)]
+    if role == "recorder":
+        return ["--machine", ros.machine, "--axis", ros.axis, "--bag", str(out.bag), *common]
+    if role == "gcode":
+        extra = ["--optional-stop"] if args.optional_stop else []
+        return [
+            "--config", str(args.config), "--program", str(args.program), "--autostart",
+            *extra, *common,
+        ]  # fmt: skip
+    timeout = ["--input-timeout", str(args.input_timeout)]
+    if role == "controller":
+        return ["--config", str(args.config), *timeout, *common]
+    extra = ["--realtime"] if args.realtime else []
+    if args.max_time is not None:
+        extra += ["--max-time", str(args.max_time)]
+    return ["--config", str(args.config), *timeout, *extra, *common]
+
+
+class _Stop:
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def __call__(self, signum: int, frame: object) -> None:
+        self.signum = signum
+
+
+def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
+    out.logs.mkdir(parents=True, exist_ok=True)
+    procs: dict[str, subprocess.Popen] = {}
+    logs: dict[str, Path] = {}
+    stop = _Stop()
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    code, reason = 0, ""
+    env = dict(os.environ)
+    # Discovery stays on this host unless the user chose otherwise.
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    try:
+        for role in ROLES:
+            logs[role] = out.logs / f"{role}.log"
+            with open(logs[role], "wb") as log:
+                procs[role] = subprocess.Popen(
+                    [sys.executable, "-m", NODE_MODULES[role], *_node_args(role, args, ros, out)],
+                    stdin=subprocess.DEVNULL,
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                    env=env,
+                    start_new_session=True,  # a terminal's Ctrl-C reaches the runner only
+                )
+        progress = _Progress(ros, enabled=not args.json)
+        first_failure: str | None = None
+        while any(p.poll() is None for p in procs.values()):
+            if stop.signum is not None:
+                reason = f"stopped by {signal.Signals(stop.signum).name}"
+                for p in procs.values():
+                    if p.poll() is None:
+                        p.send_signal(signal.SIGTERM)
+                _wait_all(procs, STOP_GRACE_S)
+                break
+            for role, p in procs.items():
+                rc = p.poll()
+                if rc not in (None, 0) and first_failure is None:
+                    first_failure = role
+                    code = rc
+                    reason = f"{role} node exited with code {rc}: {_last_error(logs[role])}"
+            if first_failure is not None:
+                # The others stop on their own (lost heartbeat); give them the grace period.
+                _wait_all(procs, STOP_GRACE_S)
+                break
+            progress.update(logs["sim"])
+            time.sleep(0.05)
+        progress.close()
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait(timeout=10)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    if stop.signum is not None:
+        code = 130
+    elif first_failure is None:
+        failed = {r: p.returncode for r, p in procs.items() if p.returncode}
+        if failed:
+            role, code = next(iter(failed.items()))
+            reason = f"{role} node exited with code {code}: {_last_error(logs[role])}"
+    timing = _timing(logs["sim"])
+    return code, reason, timing
+
+
+def _wait_all(procs: dict[str, subprocess.Popen], grace_s: float) -> None:
+    deadline = time.monotonic() + grace_s
+    for p in procs.values():
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+    for p in procs.values():
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    for p in procs.values():
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(timeout=5.0)
+
+
+def _last_error(log: Path) -> str:
+    try:
+        lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return "(no log)"
+    marked = [ln for ln in lines if "ERROR" in ln or "Error" in ln or "error" in ln]
+    chosen = marked[-3:] if marked else lines[-3:]
+    return " | ".join(chosen) or "(empty log)"
+
+
+def _timing(log: Path) -> dict:
+    try:
+        for line in reversed(log.read_text(errors="replace").splitlines()):
+            if line.startswith("TIMING "):
+                return json.loads(line[len("TIMING ") :])
+    except (OSError, ValueError):
+        pass
+    return {}
+
+
+class _Progress:
+    """Simulated time on stderr (a terminal only), from the sim node's PROGRESS log lines."""
+
+    def __init__(self, ros, *, enabled: bool) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.start = time.monotonic()
+        self.last = 0.0
+        self.offset = 0
+
+    def update(self, sim_log: Path) -> None:
+        now = time.monotonic()
+        if not self.enabled or now - self.last < 0.5:
+            return
+        self.last = now
+        sim_s = None
+        try:
+            with open(sim_log, "rb") as f:
+                f.seek(self.offset)
+                chunk = f.read()
+        except OSError:
+            return
+        self.offset += len(chunk)
+        for line in chunk.decode(errors="replace").splitlines():
+            if line.startswith("PROGRESS "):
+                sim_s = line.split()[1]
+        if sim_s is not None:
+            print(
+                f"\rsimulated {float(sim_s):8.3f} s, wall {now - self.start:6.1f} s",
+                end="",
+                file=sys.stderr,
+            )
+
+    def close(self) -> None:
+        if self.enabled:
+            print(file=sys.stderr)
+
+
+def _run_single_process(args: argparse.Namespace, ros, nc, out: Outputs) -> tuple[int, str, dict]:
+    from feed_twin.control.cascade import load_controller_config
+    from feed_twin.io.config import load_yaml
+    from feed_twin.ros.controller_node import ControllerNode
+    from feed_twin.ros.gcode_node import GcodeNode
+    from feed_twin.ros.recorder_node import RecorderNode
+    from feed_twin.ros.runtime import NodeOptions, init_context, spin_nodes
+    from feed_twin.ros.sim_node import SimNode, build_drive_host
+
+    host = build_drive_host(args.config, ros)
+    host.engine.advance(0)
+    controller_config = load_controller_config(
+        load_yaml(args.config)["controller"], source=str(args.config)
+    )
+    context = init_context()
+
+    def options(role: str, **kw) -> NodeOptions:
+        return NodeOptions(
+            machine=ros.machine,
+            axis=ros.axis,
+            peers=tuple(r for r in ROLES if r != role),
+            startup_timeout_s=args.startup_timeout,
+            **kw,
+        )
+
+    recorder = RecorderNode(options("recorder"), out.bag, context=context)
+    controller = ControllerNode(
+        options("controller", input_timeout_s=args.input_timeout),
+        controller_config,
+        boundary=ros.boundary,
+        exchange_period_s=ros.exchange_period_s,
+        axis_label=ros.axis.upper(),
+        context=context,
+    )
+    sim = SimNode(
+        options("sim", input_timeout_s=args.input_timeout),
+        host,
+        settle_s=ros.settle_s,
+        joint_name=ros.axis,
+        axis_label=ros.axis.upper(),
+        realtime=args.realtime,
+        max_time_s=args.max_time,
+        context=context,
+    )
+    gcode = GcodeNode(
+        options("gcode"),
+        nc,
+        lookahead=ros.lookahead,
+        program=str(args.program),
+        autostart=True,
+        optional_stop=args.optional_stop,
+        context=context,
+    )
+    nodes = [recorder, controller, sim, gcode]
+    code = spin_nodes(nodes, context, until_all_done=True)
+    reason = next((n.exit_message for n in nodes if n.exit_code and n.exit_message), "")
+    return code, reason, sim.timing_report()
+
+
+def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
+    from feed_twin.io.bag import BagError, info, recover
+    from feed_twin.ros.gcode_node import program_lines
+    from feed_twin.ros.summary import read_run, summarise, write_dashboard
+    from feed_twin.ros.topics import AxisTopics
+
+    if not out.bag.exists():
+        return None, "no bag was written"
+    try:
+        info(out.bag)
+    except BagError:
+        try:
+            recover(out.bag)
+        except BagError as exc:
+            return None, f"the bag is unreadable: {exc}"
+    topics = AxisTopics(machine=ros.machine, axis=ros.axis)
+    run = read_run(out.bag, topics)
+    write_dashboard(run, topics, out.rrd, program_lines=program_lines(args.program))
+    try:
+        return summarise(run, topics), ""
+    except ValueError as exc:
+        return None, str(exc)
+
+
+def main(args: argparse.Namespace) -> int:
+    from feed_twin.gcode import GcodeError
+
+    try:
+        ros, nc = _check_inputs(args)
+    except GcodeError as exc:
+        print(f"feed-twin run: G-code error, nothing was started: {exc}", file=sys.stderr)
+        return 1
+    except (ConfigError, ValueError, OSError) as exc:
+        print(f"feed-twin run: {exc}", file=sys.stderr)
+        return 1
+    out = _outputs(args)
+    viewer = None
+    if args.live:
+        from feed_twin.io.dashboard import LiveViewer
+
+        viewer = LiveViewer()
+        print(f"live viewer: {viewer.web_url}", file=sys.stderr)
+    try:
+        if args.single_process:
+            code, reason, timing = _run_single_process(args, ros, nc, out)
+        else:
+            code, reason, timing = _run_processes(args, ros, out)
+        summary, problem = _finish_outputs(args, ros, out)
+        if viewer is not None and out.rrd.exists():
+            _send_to_viewer(out.rrd, viewer)
+    finally:
+        if viewer is not None and not args.live:
+            viewer.stop()
+    if reason:
+        print(f"feed-twin run: {reason}", file=sys.stderr)
+    if summary is not None:
+        print(summary.format())
+    elif problem:
+        print(f"feed-twin run: {problem}", file=sys.stderr)
+    if timing:
+        keys = ("realtime_factor", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms")
+        shown = ", ".join(f"{k} {timing[k]:.3f}" for k in keys if isinstance(timing.get(k), float))
+        missed = timing.get("missed_steps")
+        print(f"timing: {shown}" + (f", missed steps {missed}" if missed is not None else ""))
+    print(f"bag: {out.bag}\nrerun: {out.rrd}")
+    if args.json:
+        record = {
+            "exit_code": code,
+            "reason": reason,
+            "bag": str(out.bag),
+            "rrd": str(out.rrd),
+            "logs": str(out.logs),
+            **(summary.as_dict() if summary is not None else {}),
+            **{f"timing_{k}": v for k, v in timing.items()},
+        }
+        print(json.dumps(record))
+    if code == 0 and summary is None:
+        return 1
+    return code
+
+
+def _send_to_viewer(rrd: Path, viewer) -> None:
+    import rerun as rr
+
+    rec = rr.RecordingStream("feed_twin")
+    rec.connect_grpc(viewer.grpc_url)
+    rec.log_file_from_path(rrd)
+    rec.flush()

@@ -1,0 +1,342 @@
+"""The sim node: hosts the plant and the drive's inner loops, publishes what a drive reports.
+
+Per exchange it holds the latest DriveCommand, advances the engine one exchange period
+(`drive_host.DriveHost`) and publishes `feedback` (AxisFeedback: sensors as the drive latched
+them), `state` (AxisState: the simulated truth), `joint_states` (sensor_msgs/JointState: table
+position, velocity and the force the nut applies to it, for standard tools) and `/clock`.
+
+Timing:
+- lockstep (default): the next exchange runs as soon as the DriveCommand for it arrives, so the
+  run is deterministic and as fast as the graph allows;
+- real time: exchanges start at wall-clock instants t0 + k*T; a DriveCommand that has not
+  arrived by then counts as a missed step and the previous one is held (as a drive does). At the
+  end the node reports lateness p50/p99/max of the exchange starts and the missed steps.
+The run ends `settle_s` after the program has finished (or was stopped); the node announces it
+on `run_state` ("done ..."), which ends the other nodes too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from feed_twin_msgs.msg import AxisFeedback, AxisState, DriveCommand
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+
+from feed_twin.control import signals as sig
+from feed_twin.io.config import ConfigError
+from feed_twin.ros.drive_host import DriveHost, ExchangeSample
+from feed_twin.ros.runtime import (
+    DATA_QOS,
+    EXIT_ERROR,
+    EXIT_OK,
+    LATCHED_QOS,
+    FeedTwinNode,
+    NodeOptions,
+    init_context,
+    spin_nodes,
+)
+from feed_twin.ros.split import NS_PER_S, DriveSetpoint, NodeSetConfig, load_node_set_config
+from feed_twin.ros.topics import SIM_NODE
+
+STATUS_ENABLED = 1 | 2 | 4 | 16 | 32 | 512  # ready, switched on, operation enabled, voltage,
+# quick stop inactive, remote (AxisFeedback.STATUS_*)
+STATUS_FAULT = 8
+
+
+def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
+    """The engine of the axis config at the drive's CiA 402 mode, wrapped for exchanges."""
+    from feed_twin.sim.config import build_engine, load_axis_config
+
+    axis = load_axis_config(config_path)
+    if axis.controller is None:
+        raise ConfigError(f"{config_path}: the sim node needs a controller section")
+    engine = build_engine(
+        axis,
+        mode=ros.boundary,
+        record=DriveHost.record_names(ros.signals),
+        output_period_s=ros.exchange_period_s,
+    )
+    current = axis.controller.current
+    return DriveHost(
+        engine,
+        exchange_period_s=ros.exchange_period_s,
+        K_t=axis.controller.drive.K_t,
+        signals=ros.signals,
+        pole_pairs=current.pole_pairs if current is not None else 0,
+        encoder_offset_rad=current.encoder_offset_rad if current is not None else 0.0,
+    )
+
+
+def setpoint_from(msg: DriveCommand) -> DriveSetpoint:
+    return DriveSetpoint(
+        t_ns=msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec,
+        mode=msg.mode,
+        enable=msg.enable,
+        position_m=msg.position,
+        velocity_m_s=msg.velocity,
+        torque_Nm=msg.torque,
+        i_q_A=msg.i_q,
+        i_d_A=msg.i_d,
+    )
+
+
+class SimNode(FeedTwinNode):
+    def __init__(
+        self,
+        options: NodeOptions,
+        host: DriveHost,
+        *,
+        settle_s: float,
+        joint_name: str,
+        axis_label: str,
+        realtime: bool = False,
+        max_time_s: float | None = None,
+        context=None,
+    ) -> None:
+        super().__init__(SIM_NODE, options, context=context)
+        self.host = host
+        self.settle_ns = round(settle_s * NS_PER_S)
+        self.axis_label = axis_label
+        self.joint_name = joint_name
+        self.realtime = realtime
+        self.max_ns = None if max_time_s is None else round(max_time_s * NS_PER_S)
+        self.end_ns: int | None = None
+        self.end_word = ""
+        self.started = False
+        self.steps = 0
+        self.missed_steps = 0
+        self.lateness_s: list[float] = []
+        self.wall_start: float | None = None
+        self.wall_end: float | None = None
+        self._pending: dict[int, DriveSetpoint] = {}
+        self._progress_at = 0.0
+        self._feedback_pub = self.create_publisher(AxisFeedback, self.topics.feedback, DATA_QOS)
+        self._state_pub = self.create_publisher(AxisState, self.topics.state, DATA_QOS)
+        self._joint_pub = self.create_publisher(JointState, self.topics.joint_states, DATA_QOS)
+        self._clock_pub = self.create_publisher(Clock, "/clock", DATA_QOS)
+        self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
+        self.create_subscription(
+            DriveCommand, self.topics.drive_command, self._on_command, DATA_QOS
+        )
+        self.create_subscription(
+            String, self.topics.program_state, self._on_program_state, LATCHED_QOS
+        )
+        self._command_dog = self.watch_input(
+            self.topics.drive_command,
+            "feed_twin_msgs/msg/DriveCommand",
+            armed=lambda: self.started and not self.done and not self.realtime,
+        )
+        # Pre-allocated messages: only the fields change per exchange.
+        self._feedback = AxisFeedback(axis=axis_label)
+        self._state = AxisState(axis=axis_label)
+        self._joint = JointState(name=[joint_name], position=[0.0], velocity=[0.0], effort=[0.0])
+        self._clock = Clock()
+        self.start_heartbeat()
+
+    # -- start and end ------------------------------------------------------------------------
+
+    def poll(self) -> float | None:
+        """Called by the spin loop; starts the run once every peer is up; paces real time."""
+        if not self.started:
+            if self.peers_alive() and self._subscribers_ready():
+                self.started = True
+                self.wall_start = time.monotonic()
+                self._exchange(None)
+            return 0.01
+        now = time.monotonic()
+        if now - self._progress_at > 0.5:
+            self._progress_at = now
+            print(f"PROGRESS {self.host.t_ns / NS_PER_S:.3f}", file=sys.stderr, flush=True)
+        if not self.realtime or self.done:
+            return None
+        deadline = self.wall_start + self.host.k * self.host.exchange_ns / NS_PER_S
+        now = time.monotonic()
+        if now >= deadline:
+            self.lateness_s.append(now - deadline)
+            t_ns = self.host.t_ns
+            setpoint = self._pending.pop(t_ns, None)
+            self._pending = {t: s for t, s in self._pending.items() if t > t_ns}
+            if setpoint is None:
+                self.missed_steps += 1
+            self._exchange(setpoint)
+            return 0.0
+        return min(deadline - now, 0.0002)
+
+    def _subscribers_ready(self) -> bool:
+        return self._feedback_pub.get_subscription_count() >= 1 and (
+            self.count_publishers(self.topics.drive_command) >= 1
+        )
+
+    def _on_program_state(self, msg: String) -> None:
+        word, _, rest = msg.data.partition(" ")
+        if word in ("finished", "stopped") and self.end_ns is None:
+            self.end_ns = int(rest) + self.settle_ns
+            self.end_word = word
+        elif word == "error":
+            self._end(EXIT_ERROR, f"done error: {rest}")
+
+    def _end(self, code: int, text: str) -> None:
+        if self.done:
+            return
+        self.wall_end = time.monotonic()
+        self._run_pub.publish(String(data=text))
+        self.finish(code, "" if code == EXIT_OK else text)
+
+    # -- exchanges ----------------------------------------------------------------------------
+
+    def _on_command(self, msg: DriveCommand) -> None:
+        setpoint = setpoint_from(msg)
+        self._command_dog.feed()
+        if self.realtime:
+            self._pending[setpoint.t_ns] = setpoint
+            return
+        if not self.started or self.done:
+            return
+        if setpoint.t_ns != self.host.t_ns:
+            self._end(
+                EXIT_ERROR,
+                f"done error: DriveCommand stamped {setpoint.t_ns} ns, the simulation is at "
+                f"{self.host.t_ns} ns (lockstep broken: two controllers on one axis?)",
+            )
+            return
+        self._exchange(setpoint)
+
+    def _exchange(self, setpoint: DriveSetpoint | None) -> None:
+        if self.end_ns is not None and self.host.t_ns > self.end_ns:
+            self._end(EXIT_OK, f"done {self.end_word} at {self.host.t_ns} ns")
+            return
+        if self.max_ns is not None and self.host.t_ns > self.max_ns:
+            self._end(EXIT_OK, f"done time limit at {self.host.t_ns} ns")
+            return
+        try:
+            sample = self.host.step(setpoint)
+        except Exception as exc:  # noqa: BLE001 - a diverged plant ends the run with its message
+            self._end(EXIT_ERROR, f"done error: {exc}")
+            return
+        self.steps += 1
+        self._publish(sample)
+        fault = int(sample.out[sig.OUT_FAULT])
+        if fault:
+            from feed_twin.control.cascade import fault_reason
+
+            self.get_logger().error(
+                f"drive fault at t = {sample.t_ns * 1e-9:.6f} s: {fault_reason(fault)}"
+            )
+
+    def _publish(self, s: ExchangeSample) -> None:
+        sec, nsec = divmod(s.t_ns, NS_PER_S)
+        fb = self._feedback
+        fb.header.stamp.sec, fb.header.stamp.nanosec = sec, nsec
+        meas = s.meas
+        fb.encoder_counts = int(s.feedback["encoder_counts"])
+        fb.encoder_angle = float(meas[sig.MEAS_THETA_ENC_RAD])
+        fb.scale_position = float(meas[sig.MEAS_X_SCALE_M])
+        fb.i_a = float(meas[sig.MEAS_I_A])
+        fb.i_b = float(meas[sig.MEAS_I_B])
+        fb.i_c = float(meas[sig.MEAS_I_C])
+        fb.u_dc = float(meas[sig.MEAS_U_DC_V])
+        fb.i_d = s.feedback["i_d"]
+        fb.i_q = s.feedback["i_q"]
+        fb.following_error = s.feedback["following_error"]
+        fb.mode = self.host.setpoint.mode
+        fault = int(s.out[sig.OUT_FAULT])
+        enabled = s.out[sig.OUT_ENABLED] > 0.5
+        fb.status_word = (STATUS_ENABLED if enabled else 0) | (STATUS_FAULT if fault else 0)
+        fb.fault_code = fault
+        st = self._state
+        st.header.stamp.sec, st.header.stamp.nanosec = sec, nsec
+        for name, value in s.truth.items():
+            setattr(st, name, float(value))
+        js = self._joint
+        js.header.stamp.sec, js.header.stamp.nanosec = sec, nsec
+        js.position[0] = s.truth["table_position"]
+        js.velocity[0] = s.truth["table_velocity"]
+        js.effort[0] = s.truth["screw_force"]
+        # The clock reads the time the simulation has reached: the end of this exchange.
+        csec, cnsec = divmod(s.t_ns + self.host.exchange_ns, NS_PER_S)
+        self._clock.clock.sec, self._clock.clock.nanosec = csec, cnsec
+        self._feedback_pub.publish(fb)
+        self._state_pub.publish(st)
+        self._joint_pub.publish(js)
+        self._clock_pub.publish(self._clock)
+
+    def timing_report(self) -> dict[str, float | int | None]:
+        wall = (self.wall_end or time.monotonic()) - (self.wall_start or time.monotonic())
+        sim_s = self.steps * self.host.exchange_ns / NS_PER_S
+        report: dict[str, float | int | None] = {
+            "steps": self.steps,
+            "sim_time_s": sim_s,
+            "wall_time_s": wall,
+            "realtime_factor": sim_s / wall if wall > 0 else None,
+        }
+        if self.realtime:
+            late = np.asarray(self.lateness_s) * 1e3
+            report.update(
+                lateness_p50_ms=float(np.percentile(late, 50)) if late.size else math.nan,
+                lateness_p99_ms=float(np.percentile(late, 99)) if late.size else math.nan,
+                lateness_max_ms=float(late.max()) if late.size else math.nan,
+                missed_steps=self.missed_steps,
+            )
+        return report
+
+    def on_shutdown(self, reason: str) -> None:
+        if not self.done or self.exit_code != EXIT_OK:
+            # The context may already be shutting down; the others also stop on lost heartbeats.
+            with contextlib.suppress(Exception):
+                self._run_pub.publish(String(data=f"done error: {reason or 'stopped'}"))
+        print("TIMING " + json.dumps(self.timing_report()), file=sys.stderr, flush=True)
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", required=True, type=Path)
+    parser.add_argument("--realtime", action="store_true")
+    parser.add_argument("--max-time", type=float, default=None, help="simulated seconds at most")
+    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
+    parser.add_argument("--input-timeout", type=float, default=10.0)
+    parser.add_argument("--startup-timeout", type=float, default=60.0)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="feed_twin.ros.sim_node")
+    configure(parser)
+    args = parser.parse_args(argv)
+    try:
+        ros = load_node_set_config(args.config)
+        host = build_drive_host(args.config, ros)
+        host.engine.advance(0)  # compile (or load the cached kernel) before the first beat
+    except (ConfigError, ValueError, KeyError) as exc:
+        print(f"sim node: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    options = NodeOptions(
+        machine=ros.machine,
+        axis=ros.axis,
+        peers=tuple(p for p in args.peers.split(",") if p),
+        input_timeout_s=args.input_timeout,
+        startup_timeout_s=args.startup_timeout,
+    )
+    context = init_context()
+    node = SimNode(
+        options,
+        host,
+        settle_s=ros.settle_s,
+        joint_name=ros.axis,
+        axis_label=ros.axis.upper(),
+        realtime=args.realtime,
+        max_time_s=args.max_time,
+        context=context,
+    )
+    return spin_nodes([node], context)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,160 @@
+"""A run's figures and its Rerun dashboard, computed from the recorded bag (no rclpy).
+
+Everything is read back through `feed_twin.io.bag.BagReader` and placed on the simulation-time
+axis by the messages' header stamps, so the summary and the dashboard describe what was
+recorded, whichever process produced it.
+
+Figures:
+- cycle_time_s: first to last NC setpoint that belongs to a program line (line >= 1);
+- following_error_max_m / _rms_m: |x_setpoint - x_table| of AxisState over the cycle;
+- current_peak_A: the largest phase-current amplitude sqrt(i_d^2 + i_q^2) (amplitude-invariant
+  frame: the peak of the phase currents);
+- velocity_peak_m_s: the largest |table velocity|.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from feed_twin.io.bag import BagReader
+from feed_twin.io.dashboard import Dashboard
+from feed_twin.ros.topics import AxisTopics
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunSummary:
+    cycle_time_s: float
+    following_error_max_m: float
+    following_error_rms_m: float
+    current_peak_A: float
+    velocity_peak_m_s: float
+    sim_time_s: float
+    samples: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+    def format(self) -> str:
+        return "\n".join(
+            [
+                f"cycle time:            {self.cycle_time_s:.3f} s",
+                f"following error max:   {self.following_error_max_m * 1e6:.2f} um",
+                f"following error RMS:   {self.following_error_rms_m * 1e6:.2f} um",
+                f"peak current:          {self.current_peak_A:.2f} A",
+                f"peak velocity:         {self.velocity_peak_m_s * 1e3:.2f} mm/s"
+                f" ({self.velocity_peak_m_s * 60.0:.2f} m/min)",
+                f"simulated time:        {self.sim_time_s:.3f} s ({self.samples} exchanges)",
+            ]
+        )
+
+
+STATE_FIELDS = (
+    "header.stamp",
+    "position_setpoint",
+    "table_position",
+    "table_velocity",
+    "following_error",
+    "i_d",
+    "i_q",
+    "u_d",
+    "u_q",
+    "u_dc",
+    "friction_force",
+)
+
+
+def read_run(bag: str | Path, topics: AxisTopics) -> dict[str, dict[str, np.ndarray]]:
+    """The columns the summary and dashboard need, per topic (empty dict for absent topics)."""
+    reader = BagReader(bag)
+    present = {t.name for t in reader.info.topics if t.message_count > 0}
+    wanted = {
+        topics.state: STATE_FIELDS,
+        topics.command: ("header.stamp", "position", "velocity", "line"),
+        topics.feedback: ("header.stamp", "i_a", "i_b", "i_c"),
+        topics.drive_command: ("header.stamp", "i_q", "i_d"),
+    }
+    return {
+        name: reader.columns(name, fields) if name in present else {}
+        for name, fields in wanted.items()
+    }
+
+
+def summarise(run: dict[str, dict[str, np.ndarray]], topics: AxisTopics) -> RunSummary:
+    state = run[topics.state]
+    command = run[topics.command]
+    if not state:
+        raise ValueError(f"the bag has no {topics.state} messages: nothing was simulated")
+    t = state["header.stamp"]
+    if command:
+        in_program = command["line"] >= 1
+        tc = command["header.stamp"][in_program]
+        start, end = (float(tc[0]), float(tc[-1])) if tc.size else (0.0, 0.0)
+    else:
+        start, end = float(t[0]), float(t[-1])
+    window = (t >= start) & (t <= end) if end > start else np.ones_like(t, dtype=bool)
+    e = state["following_error"][window]
+    amplitude = np.hypot(state["i_d"], state["i_q"])
+    return RunSummary(
+        cycle_time_s=end - start,
+        following_error_max_m=float(np.max(np.abs(e))) if e.size else 0.0,
+        following_error_rms_m=float(np.sqrt(np.mean(e * e))) if e.size else 0.0,
+        current_peak_A=float(np.nanmax(amplitude)) if amplitude.size else 0.0,
+        velocity_peak_m_s=float(np.max(np.abs(state["table_velocity"]))),
+        sim_time_s=float(t[-1] - t[0]),
+        samples=int(t.size),
+    )
+
+
+def write_dashboard(
+    run: dict[str, dict[str, np.ndarray]],
+    topics: AxisTopics,
+    rrd_path: Path,
+    *,
+    program_lines: dict[int, str] | None = None,
+) -> Path:
+    """The Rerun recording of a run (dashboard blueprint included)."""
+    with Dashboard(rrd_path=rrd_path) as dash:
+        state = run[topics.state]
+        if state:
+            dash.log_columns(
+                state["header.stamp"],
+                {
+                    "x_m": state["table_position"],
+                    "following_error_m": state["following_error"],
+                    "v_m_s": state["table_velocity"],
+                    "i_q_A": state["i_q"],
+                    "i_d_A": state["i_d"],
+                    "u_d_V": state["u_d"],
+                    "u_q_V": state["u_q"],
+                    "u_dc_V": state["u_dc"],
+                    "f_friction_N": state["friction_force"],
+                },
+            )
+        command = run[topics.command]
+        if command:
+            dash.log_columns(
+                command["header.stamp"],
+                {"x_cmd_m": command["position"], "v_cmd_m_s": command["velocity"]},
+            )
+            lines = command["line"].astype(int)
+            changes = np.flatnonzero(np.diff(lines, prepend=-2))
+            for k in changes:
+                line = int(lines[k])
+                if line >= 1:
+                    text = (program_lines or {}).get(line, "")
+                    dash.log_gcode_line(float(command["header.stamp"][k]), line, text)
+        feedback = run[topics.feedback]
+        if feedback:
+            dash.log_columns(
+                feedback["header.stamp"],
+                {"i_a_A": feedback["i_a"], "i_b_A": feedback["i_b"], "i_c_A": feedback["i_c"]},
+            )
+        drive = run[topics.drive_command]
+        if drive:
+            dash.log_columns(
+                drive["header.stamp"], {"i_q_ref_A": drive["i_q"], "i_d_ref_A": drive["i_d"]}
+            )
+    return rrd_path
