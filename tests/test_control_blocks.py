@@ -1,4 +1,5 @@
-"""PI anti-windup, biquad notch/low-pass designs and the FIR velocity estimator."""
+"""PI anti-windup and the biquad notch/low-pass designs (the FIR estimator is tested through the
+velocity loop in test_control_cascade.py)."""
 
 import math
 
@@ -7,12 +8,11 @@ import pytest
 
 from feed_twin.control.blocks import (
     biquad_response,
-    biquad_step,
-    fir_velocity_step,
+    biquad_update,
     lowpass1_alpha,
     lowpass2_coefficients,
     notch_coefficients,
-    pi_step,
+    pi_update,
 )
 
 T = 1.0e-3
@@ -20,14 +20,14 @@ T = 1.0e-3
 
 def _servo_integrator(setpoint: float, kp: float, ti: float, limit: float, steps: int):
     """PI around the plant y' = u (sampled, forward Euler); returns y and the integrator."""
-    cs = np.zeros(1)
+    x_i = 0.0
     y = 0.0
     ys, xs, us = [], [], []
     for _ in range(steps):
-        u = pi_step(cs, 0, setpoint - y, kp, kp * T / ti, 0.0, -limit, limit)
+        u, x_i = pi_update(x_i, setpoint - y, kp, kp * T / ti, 0.0, -limit, limit)
         y += T * u
         ys.append(y)
-        xs.append(cs[0])
+        xs.append(x_i)
         us.append(u)
     return np.array(ys), np.array(xs), np.array(us)
 
@@ -47,54 +47,27 @@ def test_pi_integrator_stops_in_saturation_and_overshoot_stays_at_the_linear_bou
     assert 0.0 < overshoot <= 1.1 * bound
     assert y[-1] == pytest.approx(setpoint, abs=1e-3)
     # the same loop without anti-windup (limit only on the plant input) overshoots far more
-    cs = np.zeros(1)
-    y_w, yw_max = 0.0, 0.0
+    x_w, y_w, yw_max = 0.0, 0.0, 0.0
     for _ in range(8000):
-        u_unlim = pi_step(cs, 0, setpoint - y_w, kp, kp * T / ti, 0.0, -math.inf, math.inf)
+        u_unlim, x_w = pi_update(x_w, setpoint - y_w, kp, kp * T / ti, 0.0, -math.inf, math.inf)
         y_w += T * min(max(u_unlim, -limit), limit)
         yw_max = max(yw_max, y_w)
     assert yw_max - setpoint > 10.0 * overshoot
 
 
 def test_pi_integrator_resumes_when_the_error_reverses():
-    cs = np.zeros(1)
-    cs[0] = 0.5
-    pi_step(cs, 0, 2.0, 1.0, 0.1, 0.0, -1.0, 1.0)  # saturated high, e > 0: hold
-    assert cs[0] == 0.5
-    pi_step(cs, 0, -0.2, 1.0, 0.1, 0.0, -1.0, 1.0)  # inside the limits: integrate
-    assert cs[0] == pytest.approx(0.48)
-
-
-@pytest.mark.parametrize("taps", [(1.0,), (0.5, 0.5), (0.25, 0.25, 0.25, 0.25), (1.5, -0.5)])
-def test_fir_velocity_estimate_is_exact_on_a_ramp(taps):
-    v_true, q0 = 0.0834, -0.12
-    cp = np.array(taps)
-    cs = np.zeros(len(taps) + 1)
-    cs[len(taps)] = q0  # previous position
-    for k in range(1, 12):
-        v = fir_velocity_step(cp, 0, len(taps), cs, 0, len(taps), q0 + v_true * k * T, T)
-        if k >= len(taps):
-            assert v == pytest.approx(v_true, rel=1e-9)
-
-
-def test_fir_two_tap_matches_the_emps_difference_of_averages():
-    q = np.random.default_rng(1).normal(size=50)
-    cp = np.array([0.5, 0.5])
-    cs = np.zeros(3)
-    cs[2] = q[0]
-    for k in range(1, 50):
-        v = fir_velocity_step(cp, 0, 2, cs, 0, 2, q[k], T)
-        if k >= 2:
-            qf, qf_prev = 0.5 * (q[k] + q[k - 1]), 0.5 * (q[k - 1] + q[k - 2])
-            assert v == pytest.approx((qf - qf_prev) / T, rel=1e-12, abs=1e-9)
+    u, x_i = pi_update(0.5, 2.0, 1.0, 0.1, 0.0, -1.0, 1.0)  # saturated high, e > 0: hold
+    assert (u, x_i) == (1.0, 0.5)
+    u, x_i = pi_update(x_i, -0.2, 1.0, 0.1, 0.0, -1.0, 1.0)  # inside the limits: integrate
+    assert u == pytest.approx(0.3) and x_i == pytest.approx(0.48)
 
 
 def _run_sine(coeffs, f_hz: float, period_s: float, cycles: int = 60) -> float:
-    cp = np.array(coeffs)
-    cs = np.zeros(2)
+    s1 = s2 = 0.0
     n = int(cycles / (f_hz * period_s))
-    t = np.arange(n) * period_s
-    y = np.array([biquad_step(cp, 0, cs, 0, math.sin(2 * math.pi * f_hz * tk)) for tk in t])
+    y = np.empty(n)
+    for k in range(n):
+        y[k], s1, s2 = biquad_update(*coeffs, s1, s2, math.sin(2 * math.pi * f_hz * k * period_s))
     tail = y[n // 2 :]
     return float(np.sqrt(2.0 * np.mean(tail**2)))
 

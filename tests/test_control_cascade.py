@@ -300,3 +300,55 @@ def test_loop_classes_reject_off_grid_and_repeated_times():
         PositionLoop(dataclasses.replace(EMPS, mode="velocity", position=None))
     with pytest.raises(ValueError, match="CurrentLoop: the configuration has no current"):
         CurrentLoop(EMPS)
+
+
+@pytest.mark.parametrize("taps", [(1.0,), (0.5, 0.5), (0.25, 0.25, 0.25, 0.25), (1.5, -0.5)])
+def test_fir_velocity_estimate_is_exact_on_a_ramp(taps):
+    config = dataclasses.replace(
+        EMPS,
+        velocity=dataclasses.replace(
+            EMPS.velocity, estimator=cc.VelocityEstimatorConfig(fir_taps=taps)
+        ),
+    )
+    loop = VelocityLoop(config)
+    meas = np.zeros(sig.MEAS_SIZE)
+    v_true, x0 = 0.0834, -0.12
+    rad_per_m = 2 * math.pi / config.drive.lead_m
+    for k in range(12):
+        meas[sig.MEAS_THETA_ENC_RAD] = (x0 + v_true * k * 1e-3) * rad_per_m
+        loop.update(k * 1e-3, VelocitySetpoint(vel_m_s=0.0), meas)
+        if k >= len(taps):
+            assert loop.velocity_estimate_m_s == pytest.approx(v_true, rel=1e-9)
+
+
+def test_emps_fir_is_the_difference_of_two_sample_averages():
+    q = np.random.default_rng(1).normal(size=50) * 1e-3
+    loop = VelocityLoop(EMPS)
+    meas = np.zeros(sig.MEAS_SIZE)
+    for k in range(50):
+        meas[sig.MEAS_THETA_ENC_RAD] = q[k] * 2 * math.pi / EMPS.drive.lead_m
+        loop.update(k * 1e-3, VelocitySetpoint(vel_m_s=0.0), meas)
+        if k >= 2:
+            qf, qf_prev = 0.5 * (q[k] + q[k - 1]), 0.5 * (q[k - 1] + q[k - 2])
+            assert loop.velocity_estimate_m_s == pytest.approx((qf - qf_prev) / 1e-3, rel=1e-9)
+
+
+def test_estimator_lowpass_is_first_order_with_its_corner_frequency():
+    f_c = 50.0
+    config = dataclasses.replace(
+        EMPS,
+        velocity=dataclasses.replace(
+            EMPS.velocity,
+            estimator=cc.VelocityEstimatorConfig(fir_taps=(1.0,), lowpass_hz=f_c),
+        ),
+    )
+    loop = VelocityLoop(config)
+    meas = np.zeros(sig.MEAS_SIZE)
+    v_true = 0.05
+    pole = math.exp(-2 * math.pi * f_c * 1e-3)  # the continuous pole mapped exactly
+    for k in range(60):
+        meas[sig.MEAS_THETA_ENC_RAD] = v_true * k * 1e-3 * 2 * math.pi / config.drive.lead_m
+        loop.update(k * 1e-3, VelocitySetpoint(vel_m_s=0.0), meas)
+        # the ramp's differences reach the filter from k = 1: a sampled first-order step response
+        expected = v_true * (1 - pole**k)
+        assert loop.velocity_estimate_m_s == pytest.approx(expected, rel=1e-9, abs=1e-15)

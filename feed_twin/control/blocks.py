@@ -1,8 +1,9 @@
 """Discrete control blocks shared by the loops: PI anti-windup, biquad filters, velocity estimator.
 
 Each block is split into a design function (plain Python, run once when the parameter vector is
-built) and a numba step kernel that reads its coefficients from the parameter vector `cp` and its
-memory from the state vector `cs` at given offsets, so the compiled loop has no objects.
+built) and a numba update function on scalars: memory in, (output, next memory) out. Scalars keep
+the compiled tick free of array reference counting (an atomic increment and decrement per array
+argument of every non-scalar call, which cost more than the control laws themselves).
 
 PI with anti-windup by conditional integration (clamping):
     u = Kp*e + x_i + u_ff,  u_sat = clip(u, lo, hi),
@@ -19,7 +20,8 @@ depth and the low-pass -3 dB point hold exactly at that frequency after discreti
             zeta = bandwidth / (2*f0), |H(j*w0)| = depth;
     lowpass H(s) = w0^2 / (s^2 + (w0/Q)*s + w0^2).
 
-Velocity estimator from position samples q(k) at period T:
+Velocity estimator from position samples q(k) at period T (its loop over the taps lives in
+`cascade.cascade_tick`, the only function that touches the state arrays):
     v_raw(k) = sum_i c_i * (q(k-i) - q(k-i-1)) / T  (FIR on differences, sum c_i = 1),
 then an optional first-order low-pass  v(k) = v(k-1) + alpha*(v_raw(k) - v(k-1)),
 alpha = 1 - exp(-2*pi*f_c*T). With sum c_i = 1 the FIR estimate is exact on a ramp once its
@@ -97,42 +99,19 @@ def pi_integrate(x_i: float, e: float, ki_T: float, u_unsat: float, u_sat: float
 
 
 @njit(cache=True)
-def pi_step(
-    cs: np.ndarray, i_int: int, e: float, kp: float, ki_T: float, u_ff: float, lo: float, hi: float
-) -> float:
-    """One PI sample with clamping anti-windup; integrator in cs[i_int]. Returns clipped output."""
-    u = kp * e + cs[i_int] + u_ff
+def pi_update(
+    x_i: float, e: float, kp: float, ki_T: float, u_ff: float, lo: float, hi: float
+) -> tuple[float, float]:
+    """One PI sample with clamping anti-windup: (clipped output, next integrator value)."""
+    u = kp * e + x_i + u_ff
     u_sat = min(max(u, lo), hi)
-    cs[i_int] = pi_integrate(cs[i_int], e, ki_T, u, u_sat)
-    return u_sat
+    return u_sat, pi_integrate(x_i, e, ki_T, u, u_sat)
 
 
 @njit(cache=True)
-def biquad_step(cp: np.ndarray, i_coef: int, cs: np.ndarray, i_state: int, x: float) -> float:
-    """One sample of the biquad whose coefficients start at cp[i_coef], states at cs[i_state]."""
-    y = cp[i_coef] * x + cs[i_state]
-    cs[i_state] = cp[i_coef + 1] * x - cp[i_coef + 3] * y + cs[i_state + 1]
-    cs[i_state + 1] = cp[i_coef + 2] * x - cp[i_coef + 4] * y
-    return y
-
-
-@njit(cache=True)
-def fir_velocity_step(
-    cp: np.ndarray,
-    i_taps: int,
-    n_taps: int,
-    cs: np.ndarray,
-    i_hist: int,
-    i_prev: int,
-    q: float,
-    period_s: float,
-) -> float:
-    """FIR velocity estimate from a new position sample q; history of differences in cs."""
-    for i in range(n_taps - 1, 0, -1):
-        cs[i_hist + i] = cs[i_hist + i - 1]
-    cs[i_hist] = (q - cs[i_prev]) / period_s
-    cs[i_prev] = q
-    v = 0.0
-    for i in range(n_taps):
-        v += cp[i_taps + i] * cs[i_hist + i]
-    return v
+def biquad_update(
+    b0: float, b1: float, b2: float, a1: float, a2: float, s1: float, s2: float, x: float
+) -> tuple[float, float, float]:
+    """One biquad sample: (output, next s1, next s2)."""
+    y = b0 * x + s1
+    return y, b1 * x - a1 * y + s2, b2 * x - a2 * y

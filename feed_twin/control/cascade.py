@@ -48,13 +48,12 @@ from numba import njit
 from feed_twin.control import signals as sig
 from feed_twin.control.blocks import (
     BIQUAD_IDENTITY,
-    biquad_step,
-    fir_velocity_step,
+    biquad_update,
     lowpass1_alpha,
     lowpass2_coefficients,
     notch_coefficients,
     pi_integrate,
-    pi_step,
+    pi_update,
 )
 from feed_twin.control.transforms import (
     SQRT3,
@@ -614,206 +613,242 @@ def fault_reason(code: float) -> str:
 
 
 # ---------------------------------------------------------------------------------------------
-# Kernels
+# Kernels. Only `cascade_tick` touches the arrays; the laws below take and return scalars, which
+# keeps numba from reference-counting array arguments on every call inside the hot loop.
 
 
 @njit(cache=True)
-def _due(k: int, div: float) -> bool:
+def due(k: int, div: float) -> bool:
+    """A loop with period div (in base ticks) samples at tick k."""
     return k % int(div) == 0
 
 
 @njit(cache=True)
-def _hold_off(cs: np.ndarray) -> None:
-    """Power stage off: clear integrators, filters and pending outputs."""
-    cs[S_VEL_INT] = 0.0
-    cs[S_I_D_INT] = 0.0
-    cs[S_I_Q_INT] = 0.0
-    cs[S_BQ_LP] = 0.0
-    cs[S_BQ_LP + 1] = 0.0
-    cs[S_BQ_NOTCH] = 0.0
-    cs[S_BQ_NOTCH + 1] = 0.0
-    cs[S_EFFORT_CMD] = 0.0
-    cs[S_U_D_REF] = 0.0
-    cs[S_U_Q_REF] = 0.0
-    for i in range(3):
-        cs[S_DUTY_NEXT_A + i] = 0.5
-        cs[S_DUTY_A + i] = 0.5
-    cs[S_EFFORT_NEXT] = 0.0
-    cs[S_EFFORT_OUT] = 0.0
-
-
-@njit(cache=True)
-def nc_sample(cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray) -> None:
-    """Latch a new NC setpoint and keep the previous one for interpolation."""
-    if _due(k, cp[P_NC_DIV]):
-        cs[S_NC_PREV_POS] = cs[S_NC_POS]
-        cs[S_NC_PREV_VEL] = cs[S_NC_VEL]
-        cs[S_NC_PREV_ACC] = cs[S_NC_ACC]
-        cs[S_NC_POS] = ref[sig.REF_POS_M]
-        cs[S_NC_VEL] = ref[sig.REF_VEL_M_S]
-        cs[S_NC_ACC] = ref[sig.REF_ACC_M_S2]
-        cs[S_NC_TICK] = k
-
-
-@njit(cache=True)
-def initialise(cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray, meas: np.ndarray) -> None:
-    """First tick: start the interpolator at the current setpoint and the estimator at rest.
-
-    The NC sample is treated as latched at the last NC instant at or before k, so the
-    interpolator's phase matches the engine's NC schedule even when the first tick is not one.
-    """
-    cs[S_NC_PREV_POS] = cs[S_NC_POS] = ref[sig.REF_POS_M]
-    cs[S_NC_PREV_VEL] = cs[S_NC_VEL] = ref[sig.REF_VEL_M_S]
-    cs[S_NC_PREV_ACC] = cs[S_NC_ACC] = ref[sig.REF_ACC_M_S2]
-    div = int(cp[P_NC_DIV])
-    cs[S_NC_TICK] = k - k % div
-    cs[S_ENC_POS_PREV] = meas[sig.MEAS_THETA_ENC_RAD] * (cp[P_LEAD] / TWO_PI)
-    cs[S_INITIALISED] = 1.0
-
-
-@njit(cache=True)
-def _interpolate(cp: np.ndarray, cs: np.ndarray, k: int) -> tuple[float, float, float]:
-    """Fine-interpolated (x, v, a) setpoint at tick k from the latched NC samples."""
-    method = int(cp[P_INTERPOLATION])
-    if method == INTERP_HOLD:
-        return cs[S_NC_POS], cs[S_NC_VEL], cs[S_NC_ACC]
-    frac = (k - cs[S_NC_TICK]) / cp[P_NC_DIV]
-    if method == INTERP_LINEAR:
-        # one NC period late, but continuous: the standard drive-side interpolator
-        x = cs[S_NC_PREV_POS] + frac * (cs[S_NC_POS] - cs[S_NC_PREV_POS])
-        v = cs[S_NC_PREV_VEL] + frac * (cs[S_NC_VEL] - cs[S_NC_PREV_VEL])
-        a = cs[S_NC_PREV_ACC] + frac * (cs[S_NC_ACC] - cs[S_NC_PREV_ACC])
-        return x, v, a
-    dt = frac * cp[P_NC_DIV] * cp[P_BASE_PERIOD]
-    a = cs[S_NC_ACC]
-    v = cs[S_NC_VEL] + a * dt
-    x = cs[S_NC_POS] + cs[S_NC_VEL] * dt + 0.5 * a * dt * dt
-    return x, v, a
-
-
-@njit(cache=True)
-def position_step(
-    cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray, meas: np.ndarray, active: bool
-) -> None:
-    """Position loop sample: fine interpolation, following error, velocity command, acc FF."""
-    x_r, v_r, a_r = _interpolate(cp, cs, k)
-    if cp[P_FEEDBACK_SCALE] > 0.5:
-        x_fb = meas[sig.MEAS_X_SCALE_M]
-    else:
-        x_fb = meas[sig.MEAS_THETA_ENC_RAD] * (cp[P_LEAD] / TWO_PI)
-    e = x_r - x_fb
-    cs[S_POS_REF] = x_r
-    cs[S_FOLLOWING_ERROR] = e
-    if active and abs(e) > cp[P_FE_LIMIT] and cs[S_FAULT] == 0.0:
-        cs[S_FAULT] = sig.FAULT_FOLLOWING_ERROR
-    v_cmd = cp[P_KV] * e + cp[P_VFF] * v_r
-    cs[S_VEL_CMD] = min(max(v_cmd, -cp[P_V_LIMIT]), cp[P_V_LIMIT])
-    cs[S_EFFORT_FF] = cp[P_ACC_FF_GAIN] * a_r
-
-
-@njit(cache=True)
-def velocity_estimate_step(cp: np.ndarray, cs: np.ndarray, meas: np.ndarray) -> None:
-    """Velocity estimator sample from the motor encoder (load-side m/s)."""
-    x_enc = meas[sig.MEAS_THETA_ENC_RAD] * (cp[P_LEAD] / TWO_PI)
-    v_raw = fir_velocity_step(
-        cp, P_FIR_TAPS, int(cp[P_FIR_N]), cs, S_FIR_HIST, S_ENC_POS_PREV, x_enc, cp[P_VEL_PERIOD]
-    )
-    cs[S_VEL_EST] += cp[P_VEL_LP_ALPHA] * (v_raw - cs[S_VEL_EST])
-
-
-@njit(cache=True)
-def velocity_step(cp: np.ndarray, cs: np.ndarray, v_cmd: float, effort_add: float) -> None:
-    """Velocity loop sample: PI + feed-forward, effort limit, setpoint filters -> effort command."""
-    lim = cp[P_EFFORT_LIMIT]
-    e = v_cmd - cs[S_VEL_EST]
-    u = pi_step(
-        cs, S_VEL_INT, e, cp[P_VEL_KP], cp[P_VEL_KI_T], cs[S_EFFORT_FF] + effort_add, -lim, lim
-    )
-    u = biquad_step(cp, P_BQ_LP, cs, S_BQ_LP, u)
-    u = biquad_step(cp, P_BQ_NOTCH, cs, S_BQ_NOTCH, u)
-    cs[S_EFFORT_CMD] = min(max(u, -lim), lim)
-
-
-@njit(cache=True)
-def current_step(
-    cp: np.ndarray, cs: np.ndarray, meas: np.ndarray, i_q_ref: float
+def interpolate(
+    method: int,
+    frac: float,
+    nc_period_s: float,
+    prev: tuple[float, float, float],
+    cur: tuple[float, float, float],
 ) -> tuple[float, float, float]:
-    """Current loop sample: FOC d/q PI with decoupling -> duty cycles (a, b, c) in [0, 1]."""
-    p = cp[P_POLE_PAIRS]
-    theta_e = p * meas[sig.MEAS_THETA_ENC_RAD] + cp[P_ENCODER_OFFSET]
-    omega_e = p * cs[S_VEL_EST] * (TWO_PI / cp[P_LEAD])
-    i_alpha, i_beta = clarke(meas[sig.MEAS_I_A], meas[sig.MEAS_I_B], meas[sig.MEAS_I_C])
+    """Fine-interpolated (x, v, a) at the fraction `frac` of the NC period since the latest
+    NC sample `cur` (x, v, a); `prev` is the sample before it."""
+    if method == INTERP_HOLD:
+        return cur
+    if method == INTERP_LINEAR:
+        # one NC period late, but continuous in x: the usual drive-side interpolator
+        return (
+            prev[0] + frac * (cur[0] - prev[0]),
+            prev[1] + frac * (cur[1] - prev[1]),
+            prev[2] + frac * (cur[2] - prev[2]),
+        )
+    dt = frac * nc_period_s
+    return (cur[0] + cur[1] * dt + 0.5 * cur[2] * dt * dt, cur[1] + cur[2] * dt, cur[2])
+
+
+@njit(cache=True)
+def position_law(
+    x_r: float,
+    v_r: float,
+    a_r: float,
+    x_fb: float,
+    Kv: float,
+    vff: float,
+    acc_ff_gain: float,
+    v_limit: float,
+) -> tuple[float, float, float]:
+    """P position loop: (velocity command [m/s], effort feed-forward, following error [m])."""
+    e = x_r - x_fb
+    v_cmd = min(max(Kv * e + vff * v_r, -v_limit), v_limit)
+    return v_cmd, acc_ff_gain * a_r, e
+
+
+@njit(cache=True, _nrt=False)
+def current_law(
+    i_a: float,
+    i_b: float,
+    i_c: float,
+    theta_e: float,
+    omega_e: float,
+    i_q_ref: float,
+    u_dc: float,
+    x_d: float,
+    x_q: float,
+    cp: np.ndarray,
+) -> tuple[float, float, float, float, float, float, float]:
+    """FOC sample: (d_a, d_b, d_c, u_d, u_q, next x_d, next x_q); x_* are the PI integrators.
+
+    `cp` is only read; numba does not reference-count read-only parameter arrays passed on.
+    """
+    i_alpha, i_beta = clarke(i_a, i_b, i_c)
     i_d, i_q = park(i_alpha, i_beta, theta_e)
     e_d = 0.0 - i_d
     e_q = i_q_ref - i_q
-    ff_d = -cp[P_DECOUPLING] * omega_e * cp[P_L_Q] * i_q
-    ff_q = cp[P_DECOUPLING] * omega_e * cp[P_L_D] * i_d + cp[P_BACK_EMF_FF] * omega_e * cp[P_PSI_PM]
-    u_d = cp[P_KP_D] * e_d + cs[S_I_D_INT] + ff_d
-    u_q = cp[P_KP_Q] * e_q + cs[S_I_Q_INT] + ff_q
-    u_dc = meas[sig.MEAS_U_DC_V]
-    u_max = cp[P_VOLTAGE_MARGIN] * u_dc / SQRT3
+    dec = cp[P_DECOUPLING] * omega_e
+    ff_d = -dec * cp[P_L_Q] * i_q
+    ff_q = dec * cp[P_L_D] * i_d + cp[P_BACK_EMF_FF] * omega_e * cp[P_PSI_PM]
+    u_d = cp[P_KP_D] * e_d + x_d + ff_d
+    u_q = cp[P_KP_Q] * e_q + x_q + ff_q
+    u_max = cp[P_VOLTAGE_MARGIN] * max(u_dc, 0.0) / SQRT3
     u_d_lim, u_q_lim = limit_voltage_circle(u_d, u_q, u_max)
-    cs[S_I_D_INT] = pi_integrate(cs[S_I_D_INT], e_d, cp[P_KI_T_D], u_d, u_d_lim)
-    cs[S_I_Q_INT] = pi_integrate(cs[S_I_Q_INT], e_q, cp[P_KI_T_Q], u_q, u_q_lim)
-    cs[S_U_D_REF] = u_d_lim
-    cs[S_U_Q_REF] = u_q_lim
+    x_d = pi_integrate(x_d, e_d, cp[P_KI_T_D], u_d, u_d_lim)
+    x_q = pi_integrate(x_q, e_q, cp[P_KI_T_Q], u_q, u_q_lim)
     theta_out = theta_e + cp[P_ANGLE_ADVANCE] * omega_e * cp[P_CUR_PERIOD]
     u_alpha, u_beta = inverse_park(u_d_lim, u_q_lim, theta_out)
     if u_dc <= 0.0:
-        return 0.5, 0.5, 0.5
-    return svpwm_duties(u_alpha, u_beta, u_dc)
+        return 0.5, 0.5, 0.5, u_d_lim, u_q_lim, x_d, x_q
+    d_a, d_b, d_c = svpwm_duties(u_alpha, u_beta, u_dc)
+    return d_a, d_b, d_c, u_d_lim, u_q_lim, x_d, x_q
 
 
-@njit(cache=True)
-def _overcurrent(cp: np.ndarray, meas: np.ndarray) -> bool:
-    lim = cp[P_I_TRIP]
-    return (
-        abs(meas[sig.MEAS_I_A]) > lim
-        or abs(meas[sig.MEAS_I_B]) > lim
-        or abs(meas[sig.MEAS_I_C]) > lim
-    )
-
-
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def cascade_tick(
     cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray, meas: np.ndarray, out: np.ndarray
 ) -> None:
-    """One base tick k of the whole cascade: read ref/meas, update cs, write out.
+    """One base tick k of the whole cascade: read ref/meas, update cs, write every OUT_* slot.
 
     The loops due at tick k run outer to inner, so a new position setpoint reaches the duty
     cycles within the same tick (plus the configured computation delay).
     """
     mode = int(cp[P_MODE])
-    if cs[S_INITIALISED] == 0.0:
-        initialise(cp, cs, k, ref, meas)
-    active = cs[S_ENABLE_CMD] > 0.5 and cs[S_FAULT] == 0.0
-    if active and cp[P_HAS_CURRENT] > 0.5 and _overcurrent(cp, meas):
-        cs[S_FAULT] = sig.FAULT_OVERCURRENT
-    if cp[P_HAS_POSITION] > 0.5:
-        nc_sample(cp, cs, k, ref)
+    m_per_rad = cp[P_LEAD] / TWO_PI
+    x_enc = meas[sig.MEAS_THETA_ENC_RAD] * m_per_rad
+    has_position = cp[P_HAS_POSITION] > 0.5
     has_velocity = cp[P_HAS_VELOCITY] > 0.5
-    vel_due = has_velocity and _due(k, cp[P_VEL_DIV])
-    if vel_due:
-        velocity_estimate_step(cp, cs, meas)
-    if cp[P_HAS_POSITION] > 0.5 and _due(k, cp[P_POS_DIV]):
-        position_step(cp, cs, k, ref, meas, active and mode == MODE_POSITION)
+    has_current = cp[P_HAS_CURRENT] > 0.5
+    nc_div = cp[P_NC_DIV]
+
+    if cs[S_INITIALISED] == 0.0:
+        # start the interpolator at the current setpoint (latched at the last NC instant at or
+        # before k) and the velocity estimator at rest
+        for i in range(3):
+            cs[S_NC_PREV_POS + i] = ref[sig.REF_POS_M + i]
+            cs[S_NC_POS + i] = ref[sig.REF_POS_M + i]
+        cs[S_NC_TICK] = k - k % int(nc_div)
+        cs[S_ENC_POS_PREV] = x_enc
+        cs[S_INITIALISED] = 1.0
+
     active = cs[S_ENABLE_CMD] > 0.5 and cs[S_FAULT] == 0.0
+    if active and has_current:
+        i_trip = cp[P_I_TRIP]
+        if (
+            abs(meas[sig.MEAS_I_A]) > i_trip
+            or abs(meas[sig.MEAS_I_B]) > i_trip
+            or abs(meas[sig.MEAS_I_C]) > i_trip
+        ):
+            cs[S_FAULT] = sig.FAULT_OVERCURRENT
+
+    if has_position and due(k, nc_div):
+        for i in range(3):
+            cs[S_NC_PREV_POS + i] = cs[S_NC_POS + i]
+            cs[S_NC_POS + i] = ref[sig.REF_POS_M + i]
+        cs[S_NC_TICK] = k
+
+    vel_due = has_velocity and due(k, cp[P_VEL_DIV])
+    if vel_due:
+        n_taps = int(cp[P_FIR_N])
+        for i in range(n_taps - 1, 0, -1):
+            cs[S_FIR_HIST + i] = cs[S_FIR_HIST + i - 1]
+        cs[S_FIR_HIST] = (x_enc - cs[S_ENC_POS_PREV]) / cp[P_VEL_PERIOD]
+        cs[S_ENC_POS_PREV] = x_enc
+        v_raw = 0.0
+        for i in range(n_taps):
+            v_raw += cp[P_FIR_TAPS + i] * cs[S_FIR_HIST + i]
+        cs[S_VEL_EST] += cp[P_VEL_LP_ALPHA] * (v_raw - cs[S_VEL_EST])
+
+    if has_position and due(k, cp[P_POS_DIV]):
+        x_r, v_r, a_r = interpolate(
+            int(cp[P_INTERPOLATION]),
+            (k - cs[S_NC_TICK]) / nc_div,
+            nc_div * cp[P_BASE_PERIOD],
+            (cs[S_NC_PREV_POS], cs[S_NC_PREV_VEL], cs[S_NC_PREV_ACC]),
+            (cs[S_NC_POS], cs[S_NC_VEL], cs[S_NC_ACC]),
+        )
+        x_fb = meas[sig.MEAS_X_SCALE_M] if cp[P_FEEDBACK_SCALE] > 0.5 else x_enc
+        v_cmd, effort_ff, e = position_law(
+            x_r, v_r, a_r, x_fb, cp[P_KV], cp[P_VFF], cp[P_ACC_FF_GAIN], cp[P_V_LIMIT]
+        )
+        cs[S_POS_REF] = x_r
+        cs[S_FOLLOWING_ERROR] = e
+        cs[S_VEL_CMD] = v_cmd
+        cs[S_EFFORT_FF] = effort_ff
+        if active and mode == MODE_POSITION and abs(e) > cp[P_FE_LIMIT]:
+            cs[S_FAULT] = sig.FAULT_FOLLOWING_ERROR
+
+    active = cs[S_ENABLE_CMD] > 0.5 and cs[S_FAULT] == 0.0
+    lim = cp[P_EFFORT_LIMIT]
     effort_add = ref[sig.REF_EFFORT_ADD]
     if mode == MODE_VELOCITY:
         cs[S_VEL_CMD] = ref[sig.REF_VEL_EXT_M_S]
         cs[S_EFFORT_FF] = 0.0
     if not active:
-        _hold_off(cs)
+        # power stage off: integrators, filters and pending outputs cleared
+        cs[S_VEL_INT] = 0.0
+        cs[S_I_D_INT] = 0.0
+        cs[S_I_Q_INT] = 0.0
+        for i in range(2):
+            cs[S_BQ_LP + i] = 0.0
+            cs[S_BQ_NOTCH + i] = 0.0
+        cs[S_EFFORT_CMD] = 0.0
+        cs[S_U_D_REF] = 0.0
+        cs[S_U_Q_REF] = 0.0
+        for i in range(3):
+            cs[S_DUTY_NEXT_A + i] = 0.5
+            cs[S_DUTY_A + i] = 0.5
+        cs[S_EFFORT_NEXT] = 0.0
+        cs[S_EFFORT_OUT] = 0.0
     elif mode == MODE_TORQUE:
-        lim = cp[P_EFFORT_LIMIT]
         cs[S_EFFORT_CMD] = min(max(ref[sig.REF_I_Q_EXT_A] + effort_add, -lim), lim)
     elif vel_due:
-        velocity_step(cp, cs, cs[S_VEL_CMD], effort_add)
+        u, cs[S_VEL_INT] = pi_update(
+            cs[S_VEL_INT],
+            cs[S_VEL_CMD] - cs[S_VEL_EST],
+            cp[P_VEL_KP],
+            cp[P_VEL_KI_T],
+            cs[S_EFFORT_FF] + effort_add,
+            -lim,
+            lim,
+        )
+        u, cs[S_BQ_LP], cs[S_BQ_LP + 1] = biquad_update(
+            cp[P_BQ_LP],
+            cp[P_BQ_LP + 1],
+            cp[P_BQ_LP + 2],
+            cp[P_BQ_LP + 3],
+            cp[P_BQ_LP + 4],
+            cs[S_BQ_LP],
+            cs[S_BQ_LP + 1],
+            u,
+        )
+        u, cs[S_BQ_NOTCH], cs[S_BQ_NOTCH + 1] = biquad_update(
+            cp[P_BQ_NOTCH],
+            cp[P_BQ_NOTCH + 1],
+            cp[P_BQ_NOTCH + 2],
+            cp[P_BQ_NOTCH + 3],
+            cp[P_BQ_NOTCH + 4],
+            cs[S_BQ_NOTCH],
+            cs[S_BQ_NOTCH + 1],
+            u,
+        )
+        cs[S_EFFORT_CMD] = min(max(u, -lim), lim)
 
     delayed = cp[P_COMPUTATION_DELAY] > 0.5
-    if cp[P_HAS_CURRENT] > 0.5:
-        if active and _due(k, cp[P_CUR_DIV]):
-            d_a, d_b, d_c = current_step(cp, cs, meas, cs[S_EFFORT_CMD])
+    if has_current:
+        if active and due(k, cp[P_CUR_DIV]):
+            p = cp[P_POLE_PAIRS]
+            d_a, d_b, d_c, u_d, u_q, cs[S_I_D_INT], cs[S_I_Q_INT] = current_law(
+                meas[sig.MEAS_I_A],
+                meas[sig.MEAS_I_B],
+                meas[sig.MEAS_I_C],
+                p * meas[sig.MEAS_THETA_ENC_RAD] + cp[P_ENCODER_OFFSET],
+                p * cs[S_VEL_EST] / m_per_rad,
+                cs[S_EFFORT_CMD],
+                meas[sig.MEAS_U_DC_V],
+                cs[S_I_D_INT],
+                cs[S_I_Q_INT],
+                cp,
+            )
+            cs[S_U_D_REF] = u_d
+            cs[S_U_Q_REF] = u_q
             if delayed:
                 cs[S_DUTY_A] = cs[S_DUTY_NEXT_A]
                 cs[S_DUTY_B] = cs[S_DUTY_NEXT_B]
@@ -826,21 +861,20 @@ def cascade_tick(
                 cs[S_DUTY_B] = d_b
                 cs[S_DUTY_C] = d_c
         out[sig.OUT_EFFORT_CMD] = 0.0
-        out[sig.OUT_I_Q_REF_A] = cs[S_EFFORT_CMD]
     else:
-        vel_due_out = (mode == MODE_TORQUE) or vel_due
-        if active and vel_due_out:
+        if active and (mode == MODE_TORQUE or vel_due):
             if delayed:
                 cs[S_EFFORT_OUT] = cs[S_EFFORT_NEXT]
                 cs[S_EFFORT_NEXT] = cs[S_EFFORT_CMD]
             else:
                 cs[S_EFFORT_OUT] = cs[S_EFFORT_CMD]
         out[sig.OUT_EFFORT_CMD] = cs[S_EFFORT_OUT]
-        out[sig.OUT_I_Q_REF_A] = cs[S_EFFORT_CMD]
+
     out[sig.OUT_DUTY_A] = cs[S_DUTY_A]
     out[sig.OUT_DUTY_B] = cs[S_DUTY_B]
     out[sig.OUT_DUTY_C] = cs[S_DUTY_C]
     out[sig.OUT_I_D_REF_A] = 0.0
+    out[sig.OUT_I_Q_REF_A] = cs[S_EFFORT_CMD]
     out[sig.OUT_U_D_REF_V] = cs[S_U_D_REF]
     out[sig.OUT_U_Q_REF_V] = cs[S_U_Q_REF]
     out[sig.OUT_POS_REF_M] = cs[S_POS_REF]

@@ -1,8 +1,9 @@
 """The cascade in the ros2_control shape: `reset()`, then `update(t, reference, measurement)`.
 
 These classes are for use outside the compiled engine (the ROS controller node, notebooks, tests).
-They hold a parameter and a state vector from `build_cascade` and call the very njit step
-functions that `cascade_tick` calls, so there is one implementation of every control law.
+They hold a parameter and a state vector from `build_cascade` and call the engine's own njit
+`cascade_tick` with the loops they do not own switched off, so there is one implementation of
+every control law.
 
 Each controller runs at a fixed sample period: `update` must be called at `t = k * period_s` on the
 base grid (a multiple of the loop's own period), with strictly increasing k, otherwise it raises.
@@ -42,30 +43,72 @@ class VelocitySetpoint:
 
 
 class _SampledController:
-    """Fixed-period bookkeeping shared by the loop classes: time -> tick, reset, state vector."""
+    """Fixed-period bookkeeping shared by the loop classes: time -> tick, reset, state vector.
 
-    def __init__(self, config: cc.ControllerConfig, loop_period_s: float) -> None:
-        self._cascade = cc.build_cascade(config)
+    A loop class runs `cascade_tick` on a copy of the parameter vector in which the loops it does
+    not own are switched off (and the computation delay, which belongs to the drive's output,
+    is off unless the class owns the innermost loop).
+    """
+
+    def __init__(
+        self,
+        config: cc.ControllerConfig,
+        loop_period_s: float,
+        *,
+        mode: cc.Mode,
+        keep: tuple[str, ...],
+        computation_delay: bool = False,
+    ) -> None:
+        self._cascade = cc.build_cascade(
+            dataclasses.replace(config, mode=mode, computation_delay=computation_delay)
+        )
+        params = self._cascade.params.copy()
+        for loop, slot in (
+            ("position", cc.P_HAS_POSITION),
+            ("velocity", cc.P_HAS_VELOCITY),
+            ("current", cc.P_HAS_CURRENT),
+        ):
+            if loop not in keep:
+                params[slot] = 0.0
+        params.setflags(write=False)
+        self._params = params
         self.base_period_s = self._cascade.base_period_s
         self.period_s = loop_period_s
         self._div = round(loop_period_s / self.base_period_s)
+        self._ref = np.zeros(sig.REF_SIZE)
+        self._out = np.zeros(sig.OUT_SIZE)
         self.reset()
 
     @property
     def params(self) -> np.ndarray:
-        return self._cascade.params
+        return self._params
 
     @property
     def state(self) -> dict[str, float]:
         """Named copy of the controller state (integrators, filters, fault, ...)."""
         return self._cascade.state_view(self._cs)
 
+    @property
+    def fault(self) -> int:
+        """Latched FAULT_* code, 0 when none."""
+        return int(self._cs[cc.S_FAULT])
+
     def reset(self) -> None:
         """Back to the initial state; the next update may start at any grid time."""
         self._cs = self._cascade.initial_state()
         self._last_k: int | None = None
 
-    def _tick(self, t: float) -> int:
+    def enable(self) -> None:
+        cc.enable(self._cs)
+
+    def disable(self) -> None:
+        cc.disable(self._cs)
+
+    def clear_fault(self) -> None:
+        cc.clear_fault(self._cs)
+
+    def _step(self, t: float, ref: np.ndarray, measurement: np.ndarray) -> np.ndarray:
+        meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
         k = round(t / self.base_period_s)
         if abs(t - k * self.base_period_s) > 1e-6 * self.base_period_s or k % self._div:
             raise ValueError(
@@ -77,64 +120,51 @@ class _SampledController:
                 f"{self._last_k * self.base_period_s!r} s"
             )
         self._last_k = k
-        return k
+        cc.cascade_tick(self._params, self._cs, k, ref, meas, self._out)
+        return self._out
 
     @staticmethod
     def _vector(name: str, value: np.ndarray, size: int) -> np.ndarray:
-        arr = np.asarray(value, dtype=np.float64)
+        arr = np.ascontiguousarray(value, dtype=np.float64)
         if arr.shape != (size,):
             raise ValueError(f"{name}: expected a vector of {size} floats, got shape {arr.shape}")
         return arr
 
 
 class Cascade(_SampledController):
-    """All configured loops at the base period, exactly the engine's `cascade_tick`."""
+    """All configured loops at the base period in the configured mode: the engine's tick."""
 
     def __init__(self, config: cc.ControllerConfig) -> None:
-        super().__init__(config, config.base_period_s)
-        self._out = np.zeros(sig.OUT_SIZE)
+        super().__init__(
+            config,
+            config.base_period_s,
+            mode=config.mode,
+            keep=("position", "velocity", "current"),
+            computation_delay=config.computation_delay,
+        )
 
     def update(self, t: float, reference: np.ndarray, measurement: np.ndarray) -> np.ndarray:
-        k = self._tick(t)
         ref = self._vector("reference", reference, sig.REF_SIZE)
-        meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
-        cc.cascade_tick(self._cascade.params, self._cs, k, ref, meas, self._out)
-        return self._out.copy()
-
-    def enable(self) -> None:
-        cc.enable(self._cs)
-
-    def disable(self) -> None:
-        cc.disable(self._cs)
-
-    def clear_fault(self) -> None:
-        cc.clear_fault(self._cs)
+        return self._step(t, ref, measurement).copy()
 
 
 class PositionLoop(_SampledController):
-    """P position loop with velocity/acceleration feed-forward and fine interpolation."""
+    """P position loop with velocity/acceleration feed-forward and fine interpolation; trips on
+    the following-error limit (see `fault`)."""
 
     def __init__(self, config: cc.ControllerConfig) -> None:
         if config.position is None:
             raise ValueError("PositionLoop: the configuration has no position section")
-        super().__init__(config, config.position.period_s)
-        self._pending_ref: np.ndarray | None = None
+        super().__init__(config, config.position.period_s, mode="position", keep=("position",))
 
     def update(self, t: float, reference: np.ndarray, measurement: np.ndarray) -> PositionCommand:
         ref = self._vector("reference", reference, sig.REF_SIZE)
-        meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
-        first = self._last_k is None
-        k = self._tick(t)
-        cp, cs = self._cascade.params, self._cs
-        if first:
-            cc.initialise(cp, cs, k, ref, meas)
-        cc.nc_sample(cp, cs, k, ref)
-        cc.position_step(cp, cs, k, ref, meas, False)
+        out = self._step(t, ref, measurement)
         return PositionCommand(
-            vel_ref_m_s=float(cs[cc.S_VEL_CMD]),
-            effort_ff=float(cs[cc.S_EFFORT_FF]),
-            pos_ref_m=float(cs[cc.S_POS_REF]),
-            following_error_m=float(cs[cc.S_FOLLOWING_ERROR]),
+            vel_ref_m_s=float(out[sig.OUT_VEL_REF_M_S]),
+            effort_ff=float(self._cs[cc.S_EFFORT_FF]),
+            pos_ref_m=float(out[sig.OUT_POS_REF_M]),
+            following_error_m=float(out[sig.OUT_FOLLOWING_ERROR_M]),
         )
 
 
@@ -144,19 +174,12 @@ class VelocityLoop(_SampledController):
     def __init__(self, config: cc.ControllerConfig) -> None:
         if config.velocity is None:
             raise ValueError("VelocityLoop: the configuration has no velocity section")
-        super().__init__(dataclasses.replace(config, mode="velocity"), config.velocity.period_s)
+        super().__init__(config, config.velocity.period_s, mode="velocity", keep=("velocity",))
 
     def update(self, t: float, reference: VelocitySetpoint, measurement: np.ndarray) -> float:
-        meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
-        first = self._last_k is None
-        k = self._tick(t)
-        cp, cs = self._cascade.params, self._cs
-        if first:
-            cc.initialise(cp, cs, k, np.zeros(sig.REF_SIZE), meas)
-        cc.velocity_estimate_step(cp, cs, meas)
-        cs[cc.S_EFFORT_FF] = reference.effort_ff
-        cc.velocity_step(cp, cs, reference.vel_m_s, 0.0)
-        return float(cs[cc.S_EFFORT_CMD])
+        self._ref[sig.REF_VEL_EXT_M_S] = reference.vel_m_s
+        self._ref[sig.REF_EFFORT_ADD] = reference.effort_ff
+        return float(self._step(t, self._ref, measurement)[sig.OUT_EFFORT_CMD])
 
     @property
     def velocity_estimate_m_s(self) -> float:
@@ -173,8 +196,13 @@ class CurrentLoop(_SampledController):
     def __init__(self, config: cc.ControllerConfig) -> None:
         if config.current is None:
             raise ValueError("CurrentLoop: the configuration has no current section")
-        super().__init__(dataclasses.replace(config, mode="torque"), config.current.period_s)
-        self._delayed = config.computation_delay
+        super().__init__(
+            config,
+            config.current.period_s,
+            mode="torque",
+            keep=("current",),
+            computation_delay=config.computation_delay,
+        )
 
     def set_velocity_estimate(self, vel_m_s: float) -> None:
         self._cs[cc.S_VEL_EST] = vel_m_s
@@ -182,16 +210,10 @@ class CurrentLoop(_SampledController):
     def update(
         self, t: float, reference: float, measurement: np.ndarray
     ) -> tuple[float, float, float]:
-        meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
-        self._tick(t)
-        cs = self._cs
-        new = cc.current_step(self._cascade.params, cs, meas, float(reference))
-        if not self._delayed:
-            return new
-        applied = (
-            float(cs[cc.S_DUTY_NEXT_A]),
-            float(cs[cc.S_DUTY_NEXT_B]),
-            float(cs[cc.S_DUTY_NEXT_C]),
+        self._ref[sig.REF_I_Q_EXT_A] = reference
+        out = self._step(t, self._ref, measurement)
+        return (
+            float(out[sig.OUT_DUTY_A]),
+            float(out[sig.OUT_DUTY_B]),
+            float(out[sig.OUT_DUTY_C]),
         )
-        cs[cc.S_DUTY_NEXT_A : cc.S_DUTY_NEXT_C + 1] = new
-        return applied
