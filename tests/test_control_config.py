@@ -198,3 +198,9 @@ def test_fault_reason_texts():
     assert cc.fault_reason(1.0) == "following error limit exceeded"
     with pytest.raises(ValueError, match=r"fault code = 9.0: unknown; known: \[0, 1, 2, 3\]"):
         cc.fault_reason(9.0)
+
+
+def test_source_digest_names_the_kernel_sources():
+    digest = cc.source_digest()
+    assert len(digest) == 20 and int(digest, 16) >= 0
+    assert digest == cc.source_digest()

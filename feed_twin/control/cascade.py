@@ -37,9 +37,11 @@ code until `clear_fault`; while disabled or faulted all integrators are held at 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -809,26 +811,17 @@ def cascade_tick(
             -lim,
             lim,
         )
-        u, cs[S_BQ_LP], cs[S_BQ_LP + 1] = biquad_update(
-            cp[P_BQ_LP],
-            cp[P_BQ_LP + 1],
-            cp[P_BQ_LP + 2],
-            cp[P_BQ_LP + 3],
-            cp[P_BQ_LP + 4],
-            cs[S_BQ_LP],
-            cs[S_BQ_LP + 1],
-            u,
-        )
-        u, cs[S_BQ_NOTCH], cs[S_BQ_NOTCH + 1] = biquad_update(
-            cp[P_BQ_NOTCH],
-            cp[P_BQ_NOTCH + 1],
-            cp[P_BQ_NOTCH + 2],
-            cp[P_BQ_NOTCH + 3],
-            cp[P_BQ_NOTCH + 4],
-            cs[S_BQ_NOTCH],
-            cs[S_BQ_NOTCH + 1],
-            u,
-        )
+        for p_bq, s_bq in ((P_BQ_LP, S_BQ_LP), (P_BQ_NOTCH, S_BQ_NOTCH)):
+            u, cs[s_bq], cs[s_bq + 1] = biquad_update(
+                cp[p_bq],
+                cp[p_bq + 1],
+                cp[p_bq + 2],
+                cp[p_bq + 3],
+                cp[p_bq + 4],
+                cs[s_bq],
+                cs[s_bq + 1],
+                u,
+            )
         cs[S_EFFORT_CMD] = min(max(u, -lim), lim)
 
     delayed = cp[P_COMPUTATION_DELAY] > 0.5
@@ -888,3 +881,13 @@ def cascade_tick(
     else:
         out[sig.OUT_FAULT] = sig.FAULT_NONE
     out[sig.OUT_ENABLED] = 1.0 if active else 0.0
+
+
+def source_digest() -> str:
+    """Hash of the controller's kernel sources, for caches of code that inlines `cascade_tick`
+    (numba's cache of a caller does not notice changes in callees from other modules)."""
+    digest = hashlib.sha256()
+    here = Path(__file__).resolve().parent
+    for name in ("cascade.py", "blocks.py", "transforms.py", "signals.py"):
+        digest.update((here / name).read_bytes())
+    return digest.hexdigest()[:20]
