@@ -207,9 +207,16 @@ class _StreamPlanner:
             cj = np.where(corner, np.minimum(cj, v_acc), cj)
             if self.jerk:
                 cj = np.where(corner, np.minimum(cj, v_jerk), cj)
+            # A tight corner is quicker to stop at than to round within the tolerance under a
+            # jerk limit; stop there when the local time estimate says so.
+            stop_here = corner & (
+                self._corner_cost(cj, wj, V, A, J) >= self._corner_cost(0.0 * cj, 0.0 * wj, V, A, J)
+            )
+            cj = np.where(stop_here, 0.0, cj)
+            wj = np.where(stop_here, 0.0, wj)
             cap[1:n] = cj
             w[1:n] = wj
-            du[1:n] = np.where(corner[:, None], du[1:n], 0.0)
+            du[1:n] = np.where((corner & ~stop_here)[:, None], du[1:n], 0.0)
             same_limits = (V[:-1] == V[1:]) & (A[:-1] == A[1:]) & (J[:-1] == J[1:])
             passing = np.zeros(n + 1, dtype=bool)
             passing[1:n] = ~corner & same_limits
@@ -391,6 +398,29 @@ class _StreamPlanner:
             self.has_context = True
             self.stops = {node for node in self.stops if node >= self.g0 + 1}
         return chunk
+
+    def _corner_cost(
+        self, v: np.ndarray, w: np.ndarray, V: np.ndarray, A: np.ndarray, J: np.ndarray
+    ) -> np.ndarray:
+        """Time lost at each interior corner against cruising at the neighbouring caps.
+
+        Slowing from V to v takes T(V - v) and covers (V + v)/2 * T, which at V would take
+        (V + v)/(2V) * T: the loss is T * (V - v)/(2V). The blend itself adds 2w/v - 2w/V.
+        """
+        loss = np.zeros_like(v)
+        for V_s, A_s, J_s in ((V[:-1], A[:-1], J[:-1]), (V[1:], A[1:], J[1:])):
+            dv = np.maximum(V_s - v, 0.0)
+            if self.jerk:
+                short = dv * J_s < A_s * A_s
+                with np.errstate(invalid="ignore"):
+                    T = np.where(short, 2.0 * np.sqrt(dv / J_s), dv / A_s + A_s / J_s)
+            else:
+                T = dv / A_s
+            loss += T * dv / (2.0 * V_s)
+        V_ref = np.minimum(V[:-1], V[1:])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            blend = np.where(w > 0.0, 2.0 * w / v - 2.0 * w / V_ref, 0.0)
+        return loss + blend
 
     def _plan_standstill(self) -> SampledTrajectory:
         """A program (or tail) without moves: only dwells and events at the current point."""

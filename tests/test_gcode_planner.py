@@ -1,0 +1,304 @@
+"""Planner: limits at every sample, geometry within tolerance, closed-form times, streaming."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from feed_twin.gcode import (
+    SampledTrajectory,
+    load_nc_config,
+    plan_program,
+    plan_program_stream,
+)
+
+FIXTURES = Path(__file__).parent / "fixtures" / "gcode"
+CONFIG = load_nc_config(FIXTURES / "nc_test.yaml")
+TRAPEZOID = dataclasses.replace(CONFIG, profile="trapezoid")
+SLACK = 1e-9
+MM = 1e-3
+V_MAX = np.array([a.v_max_m_s for a in CONFIG.axes])
+RAPID = np.array([a.rapid_m_s for a in CONFIG.axes])
+A_MAX = np.array([a.a_max_m_s2 for a in CONFIG.axes])
+J_MAX = np.array([a.j_max_m_s3 for a in CONFIG.axes])
+
+
+def assert_limits(traj: SampledTrajectory, config, *, v_limit=None) -> None:
+    """|v|, |a| per axis at every sample; |j| (and |dv/dt|) from differences of the samples.
+
+    Acceleration is continuous and piecewise smooth in the jerk profile, so by the mean value
+    theorem a difference quotient of the samples never exceeds the jerk bound.
+    """
+    period = config.interpolation_period_s
+    v_limit = np.maximum(V_MAX, RAPID) if v_limit is None else v_limit
+    assert np.all(np.abs(traj.vel_m_s) <= v_limit * (1 + SLACK))
+    assert np.all(np.abs(traj.acc_m_s2) <= A_MAX * (1 + SLACK))
+    assert np.all(np.abs(np.diff(traj.vel_m_s, axis=0)) / period <= A_MAX * (1 + SLACK))
+    if config.profile == "jerk":
+        assert np.all(np.abs(np.diff(traj.acc_m_s2, axis=0)) / period <= J_MAX * (1 + SLACK))
+        # Positions, velocities and accelerations are one function and its derivatives:
+        # the trapezoidal rule on v misses the position by at most j*T^3/12.
+        step = np.diff(traj.pos_m, axis=0)
+        trapezoid = 0.5 * period * (traj.vel_m_s[1:] + traj.vel_m_s[:-1])
+        assert np.all(np.abs(step - trapezoid) <= J_MAX * period**3 / 12 * (1 + 1e-6) + 1e-15)
+    assert np.allclose(traj.t_s, np.arange(len(traj)) * period, rtol=0, atol=1e-12)
+    assert np.all(traj.vel_m_s[-1] == 0.0)
+
+
+def polyline_distance(points: np.ndarray, vertices_mm) -> np.ndarray:
+    """Distance [m] of each point to the nearest segment of a polyline (vertices in mm)."""
+    v = np.asarray(vertices_mm, dtype=float) * MM
+    best = np.full(len(points), np.inf)
+    for a, b in zip(v[:-1], v[1:], strict=True):
+        ab = b - a
+        t = np.clip((points - a) @ ab / (ab @ ab), 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(points - (a + t[:, None] * ab), axis=1))
+    return best
+
+
+SQUARE = "G21 G90 G64 P0.5 G1 X50 F3000\nY30\nX0\nY0\nM2"
+SQUARE_PATH = [(0, 0, 0), (50, 0, 0), (50, 30, 0), (0, 30, 0), (0, 0, 0)]
+
+
+@pytest.mark.parametrize("config", [CONFIG, TRAPEZOID], ids=["jerk", "trapezoid"])
+def test_blended_square_stays_within_the_path_tolerance_and_does_not_stop(config):
+    traj = plan_program(SQUARE, config)
+    assert_limits(traj, config, v_limit=V_MAX)
+    tolerance = 0.5 * MM
+    deviation = polyline_distance(traj.pos_m, SQUARE_PATH)
+    assert deviation.max() <= tolerance * (1 + SLACK)
+    assert deviation.max() >= 0.5 * tolerance  # the corners are really blended
+    speed = np.linalg.norm(traj.vel_m_s, axis=1)
+    for corner in SQUARE_PATH[1:-1]:
+        near = np.linalg.norm(traj.pos_m - np.array(corner) * MM, axis=1) < 2 * MM
+        assert speed[near].min() > 5 * MM  # rounds the corner without stopping
+    np.testing.assert_allclose(traj.pos_m[-1], 0.0, atol=1e-15)
+
+
+def test_exact_stop_square_follows_the_corners_exactly_and_takes_longer():
+    exact = plan_program(SQUARE.replace("G64 P0.5", "G61"), CONFIG)
+    blended = plan_program(SQUARE, CONFIG)
+    assert polyline_distance(exact.pos_m, SQUARE_PATH).max() <= 1e-15
+    assert exact.t_s[-1] > blended.t_s[-1] + 0.1
+    for corner in SQUARE_PATH[1:-1]:
+        at = np.argmin(np.linalg.norm(exact.pos_m - np.array(corner) * MM, axis=1))
+        # The grid misses the instant of rest by at most half a period: v <= j*(T/2)^2/2.
+        assert np.linalg.norm(exact.vel_m_s[at]) <= J_MAX.max() * (0.5e-3) ** 2 / 2
+
+
+def test_tight_corner_is_stopped_at_when_that_is_quicker_than_rounding_it():
+    # 90 degrees within 5 um under a 30 m/s^3 jerk limit: rounding would crawl (about v^3/r^2
+    # with r ~ 10 um), stopping is quicker, so G64 stops there exactly like G61 does.
+    tight = plan_program(SQUARE.replace("P0.5", "P0.005"), CONFIG)
+    exact = plan_program(SQUARE.replace("G64 P0.5", "G61"), CONFIG)
+    assert tight.t_s[-1] == exact.t_s[-1]
+    np.testing.assert_allclose(tight.pos_m, exact.pos_m, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("program", "centre_mm", "plane"),
+    [
+        ("G17 G1 X10 F4000\nG2 X10 Y0 I-10 J0\nG3 X-10 Y0 R10\nM2", (0, 0, 0), (0, 1)),
+        ("G18 G1 X10 F4000\nG2 X-10 Z0 I-10 K0\nG2 X10 Z0 I10 K0\nM2", (0, 0, 0), (2, 0)),
+        ("G19 G1 Y10 F4000\nG3 Y0 Z10 J-10\nG2 Y-10 Z0 J0 K-10\nM2", (0, 0, 0), (1, 2)),
+    ],
+)
+@pytest.mark.parametrize("config", [CONFIG, TRAPEZOID], ids=["jerk", "trapezoid"])
+def test_arcs_in_each_plane_lie_within_chord_and_blend_tolerance(program, centre_mm, plane, config):
+    traj = plan_program(program, config)
+    assert_limits(traj, config, v_limit=V_MAX)
+    on_arc = np.flatnonzero(np.diff(traj.line, prepend=traj.line[0]).cumsum() > 0)
+    on_arc = on_arc[traj.line[on_arc] > 1]
+    p = traj.pos_m[on_arc] - np.array(centre_mm) * MM
+    radius = np.hypot(p[:, plane[0]], p[:, plane[1]])
+    normal = 3 - plane[0] - plane[1]
+    tolerance = config.chord_tolerance_m + config.path_tolerance_m
+    # Samples near the joint with the lead-in line are blended towards it (at most tol).
+    assert np.all(np.abs(radius - 0.01) <= tolerance * (1 + SLACK))
+    assert np.all(np.abs(p[:, normal]) <= 1e-15)
+
+
+def test_helix_limits_and_end_point():
+    program = "G17 G1 X10 F3000\nG3 X10 Y0 Z-3 I-10 P2\nM2"
+    traj = plan_program(program, CONFIG)
+    assert_limits(traj, CONFIG, v_limit=V_MAX)
+    np.testing.assert_allclose(traj.pos_m[-1], [0.01, 0.0, -0.003], atol=1e-15)
+    helix = traj.line == 2
+    p = traj.pos_m[helix]
+    theta = np.unwrap(np.arctan2(p[:, 1], p[:, 0]))
+    expected_z = -0.003 * (theta - theta[0]) / (4 * np.pi)
+    assert np.all(np.abs(p[:, 2] - expected_z) <= 2 * CONFIG.path_tolerance_m)
+
+
+def test_programmed_feed_is_reached_on_a_long_move():
+    traj = plan_program("G1 X200 F6000\nM2", CONFIG)
+    v = traj.vel_m_s[:, 0]
+    assert v.max() == pytest.approx(0.1, rel=1e-12)
+    assert np.count_nonzero(np.abs(v - 0.1) <= 1e-12) * CONFIG.interpolation_period_s > 1.0
+
+
+def test_rapid_moves_run_at_the_rate_of_the_limiting_axis():
+    traj = plan_program("G0 X300 Y-300\nM2", CONFIG)
+    vx, vy = traj.vel_m_s[:, 0], traj.vel_m_s[:, 1]
+    # Straight-line rapid: Y (0.3 m/s) limits; X follows at the same rate.
+    assert np.abs(vy).max() == pytest.approx(0.3, rel=1e-12)
+    assert vx.max() == pytest.approx(0.3, rel=1e-12)
+    assert_limits(traj, CONFIG, v_limit=RAPID)
+
+
+def _move_time_trapezoid(length: float, v: float, a: float) -> float:
+    if length >= v * v / a:
+        return length / v + v / a
+    return 2.0 * math.sqrt(length / a)
+
+
+def _move_time_jerk(length: float, v: float, a: float, j: float) -> float:
+    """Rest-to-rest S-curve that reaches both a and v (checked by the caller)."""
+    assert v >= a * a / j and length >= v * (v / a + a / j)
+    return length / v + v / a + a / j
+
+
+def test_trapezoid_program_time_matches_closed_form():
+    program = "G61 G1 X100 F6000\nY40 F9000\nX70 Y20 F2000\nG0 X0 Y0\nG1 X1 F6000\nG4 P0.75\nM2"
+    moves = [  # (start, end, feed mm/min or None for rapid)
+        ((0, 0), (100, 0), 6000),
+        ((100, 0), (100, 40), 9000),
+        ((100, 40), (70, 20), 2000),
+        ((70, 20), (0, 0), None),
+        ((0, 0), (1, 0), 6000),
+    ]
+    expected = 0.75
+    for start, end, feed in moves:
+        d = (np.array(end, float) - np.array(start, float)) * MM
+        length = float(np.linalg.norm(d))
+        u = np.abs(d[:2]) / length
+        with np.errstate(divide="ignore"):
+            rate = RAPID[:2] if feed is None else V_MAX[:2]
+            v = min(np.min(rate / u), math.inf if feed is None else feed * MM / 60)
+            a = np.min(A_MAX[:2] / u)
+        expected += _move_time_trapezoid(length, v, a)
+    traj = plan_program(program, TRAPEZOID)
+    moving = np.flatnonzero(np.any(traj.vel_m_s != 0, axis=1))
+    end_time = traj.events[-1].t_s
+    assert end_time == pytest.approx(expected, rel=1e-3)
+    assert end_time == pytest.approx(expected, rel=1e-9)  # in fact exact
+    assert traj.t_s[moving[-1]] <= end_time
+
+
+def test_jerk_limited_single_move_time_matches_closed_form():
+    traj = plan_program("G1 X300 F9000\nM2", CONFIG)
+    expected = _move_time_jerk(0.3, 0.15, 2.0, 40.0)
+    assert traj.events[-1].t_s == pytest.approx(expected, rel=1e-9)
+
+
+def test_dwell_lasts_exactly_its_time_at_rest_on_its_line():
+    base = "G1 X20 F3000\nG1 Y10\nM2"
+    with_dwell = "G1 X20 F3000\nG4 P0.3725\nG1 Y10\nM2"
+    a = plan_program(base, CONFIG)
+    b = plan_program(with_dwell, CONFIG)
+    dwell = [e for e in b.events if e.kind == "dwell"][0]
+    assert dwell.line == 2 and dwell.value == 0.3725
+    # Without the dwell the corner is blended; compare with the same corner as an exact stop.
+    c = plan_program("G1 X20 F3000\nG9 X20.000001\nG1 Y10\nM2", CONFIG)
+    del c
+    exact = plan_program("G61 G1 X20 F3000\nG1 Y10\nM2", CONFIG)
+    assert b.events[-1].t_s - exact.events[-1].t_s == pytest.approx(0.3725, abs=1e-12)
+    inside = (b.t_s > dwell.t_s + 1e-9) & (b.t_s < dwell.t_s + 0.3725 - 1e-9)
+    assert np.count_nonzero(inside) >= 371
+    assert np.all(b.vel_m_s[inside] == 0.0) and np.all(b.line[inside] == 2)
+    np.testing.assert_allclose(b.pos_m[inside], [[0.02, 0.0, 0.0]] * np.count_nonzero(inside))
+    assert a.t_s[-1] < b.t_s[-1]
+
+
+def test_events_are_timed_where_the_path_is_at_rest():
+    traj = plan_program("S1000 M3\nG1 X30 F3000\nM0\nG1 Y20\nM5\nM30", CONFIG)
+    kinds = [(e.kind, e.line) for e in traj.events]
+    assert kinds == [
+        ("spindle_speed", 1),
+        ("spindle_cw", 1),
+        ("pause", 3),
+        ("spindle_stop", 5),
+        ("end", 6),
+    ]
+    for event in traj.events:
+        k = int(round(event.t_s / CONFIG.interpolation_period_s))
+        assert np.all(traj.vel_m_s[max(k - 1, 0) : k + 1] == pytest.approx(0.0, abs=1e-4))
+    pause = traj.events[2]
+    k = int(np.searchsorted(traj.t_s, pause.t_s))
+    np.testing.assert_allclose(traj.pos_m[k], [0.03, 0.0, 0.0], atol=1e-9)
+
+
+def test_line_numbers_follow_the_program():
+    traj = plan_program("G1 X10 F3000\nX20\n(comment)\nY10\nM2", CONFIG)
+    assert set(np.unique(traj.line)) == {1, 2, 4}
+    assert np.all(np.diff(traj.line) >= 0)
+    at_x15 = np.argmin(np.abs(traj.pos_m[:, 0] - 0.015))
+    assert traj.line[at_x15] == 2
+
+
+def _zigzag(n: int) -> str:
+    body = "\n".join(f"X{0.5 * (k + 1):.3f} Y{0.2 * (k % 2):.3f}" for k in range(n))
+    return f"G21 G90 G64 G1 F2400\n{body}\nM2"
+
+
+def test_streaming_chunks_join_into_a_valid_trajectory():
+    small = dataclasses.replace(CONFIG, lookahead_segments=16)
+    program = _zigzag(300)
+    chunks = list(plan_program_stream(program, small))
+    assert len(chunks) > 10
+    joined = SampledTrajectory.concatenate(chunks)
+    assert_limits(joined, small, v_limit=V_MAX)
+    whole = plan_program(program, CONFIG)
+    np.testing.assert_allclose(joined.pos_m[-1], whole.pos_m[-1], atol=1e-15)
+    # A shorter look-ahead can only be slower or equal, never faster (it is always safe).
+    assert joined.t_s[-1] >= whole.t_s[-1] - 1e-9
+    vertices = [(0, 0, 0)] + [(0.5 * (k + 1), 0.2 * (k % 2), 0) for k in range(300)]
+    assert polyline_distance(joined.pos_m, vertices).max() <= CONFIG.path_tolerance_m * (1 + SLACK)
+
+
+def test_stream_validates_the_whole_program_before_the_first_chunk():
+    program = _zigzag(800).replace("M2", "G1 X900\nM2")
+    with pytest.raises(ValueError, match=r"^<text>:802:4: word 'X900': X = 900 mm"):
+        plan_program_stream(program, CONFIG)
+
+
+def _long_program(path: Path, n: int) -> None:
+    with path.open("w") as handle:
+        handle.write("G21 G90 G64 G1 F6000\n")
+        for k in range(n):
+            handle.write(f"X{(k % 1000) * 0.05:.2f} Y{0.02 * (k % 2):.2f}\n")
+        handle.write("M2\n")
+
+
+def _peak_memory_of_streaming(path: Path) -> tuple[int, int]:
+    tracemalloc.start()
+    samples = 0
+    for chunk in plan_program_stream(path, CONFIG):
+        samples += len(chunk)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return peak, samples
+
+
+def test_streaming_memory_does_not_grow_with_program_length(tmp_path):
+    short, long_ = tmp_path / "short.ngc", tmp_path / "long.ngc"
+    _long_program(short, 4000)
+    _long_program(long_, 40000)
+    peak_short, n_short = _peak_memory_of_streaming(short)
+    peak_long, n_long = _peak_memory_of_streaming(long_)
+    assert n_long > 8 * n_short
+    assert peak_long < 1.5 * peak_short + 2e6
+
+
+@pytest.mark.slow
+def test_million_line_program_streams_in_bounded_memory(tmp_path):
+    path = tmp_path / "million.ngc"
+    _long_program(path, 1_000_000)
+    peak, samples = _peak_memory_of_streaming(path)
+    assert samples > 1_000_000
+    assert peak < 50e6  # the samples alone would need > 200 MB
