@@ -227,11 +227,12 @@ def check_step(model: PlantModel, p: np.ndarray, h: float, nsub: int) -> None:
             coord = model.coordinates[model.coordinate_of[node]]
             r = p[model.param_index[f"derived.ratio_n{node}"]]
             inv = p[model.param_index[f"derived.inv_inertia.{coord.name}"]]
-            rate = hs * c * r * r * inv
+            rate = float(hs * c * r * r * inv)
             if rate >= RK4_STABILITY_MARGIN:
                 raise ValueError(
-                    f"{model.source}: plant.{name}: step {hs!r} s times damping slope {c!r} over "
-                    f"the effective inertia {1.0 / (r * r * inv)!r} is {rate:.3g}, must be < "
+                    f"{model.source}: plant.{name}: step {hs:.6g} s times damping slope {c:.6g} "
+                    f"over the effective inertia {float(1.0 / (r * r * inv)):.6g} is {rate:.3g}, "
+                    f"must be < "
                     f"{RK4_STABILITY_MARGIN} for explicit RK4: raise the regularisation "
                     "velocity or engine.substeps"
                 )
