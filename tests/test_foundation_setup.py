@@ -95,6 +95,8 @@ def _fake_apt_get(tools: Path, log: Path, provides: dict[str, str]) -> None:
         f'#!{BASH}\necho "$*" >> {log}\nif [ "$1" = install ]; then\n{links}fi\nexit 0\n'
     )
     script.chmod(0o755)
+    for command in ("tail", "rm"):  # the set-up's apt-get wrapper keeps a log
+        (tools / command).symlink_to(_real(command))
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="auto-install only runs as root")
@@ -252,3 +254,23 @@ def test_a_failed_cmake_step_shows_the_relevant_lines_and_the_log(tmp_path):
     assert len(lines) <= 32
     assert len(lines) < len(log.read_text().splitlines())
     assert "Detecting CXX compiler ABI info" not in result.stderr
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="auto-install only runs as root")
+def test_as_root_a_failing_apt_get_is_reported_with_its_last_line(tmp_path):
+    tools = _tool_dir(tmp_path, {"python3.11": _python311(), "make": _real("make")})
+    _fake_apt_get(tools, tmp_path / "apt.log", {})
+    (tools / "apt-get").write_text(
+        f"#!{BASH}\n"
+        'if [ "$1" = install ]; then echo "E: Unable to locate package g++"; exit 100; fi\n'
+    )
+    result = _run([str(SETUP), "--check"], tools, TMPDIR=str(tmp_path))
+    assert result.returncode == 1
+    log = (
+        tmp_path / f"feed_twin-apt-{result.stderr.split('feed_twin-apt-')[1].split('.log')[0]}.log"
+    )
+    assert result.stderr.splitlines() == [
+        "setup: error: apt-get install cmake g++ failed: E: Unable to locate package g++ "
+        f"(log: {log})"
+    ]
+    assert log.read_text() == "E: Unable to locate package g++\n"

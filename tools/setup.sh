@@ -36,12 +36,14 @@ may_auto_install() { is_root && [[ -z "${FEED_TWIN_NO_AUTO_INSTALL:-}" ]]; }
 apt_updated=0
 apt_install() {
     export DEBIAN_FRONTEND=noninteractive
+    local log="${TMPDIR:-/tmp}/feed_twin-apt-$$.log"
     if [[ $apt_updated -eq 0 ]]; then
-        apt-get update -qq >/dev/null || die "apt-get update failed"
+        apt-get update -qq >"$log" 2>&1 || die "apt-get update failed: $(tail -n 1 "$log")"
         apt_updated=1
     fi
-    apt-get install -y -qq --no-install-recommends "$@" >/dev/null ||
-        die "apt-get install $* failed"
+    apt-get install -y -qq --no-install-recommends "$@" >"$log" 2>&1 ||
+        die "apt-get install $* failed: $(tail -n 1 "$log") (log: $log)"
+    rm -f "$log"
 }
 
 # The Debian packages behind each missing tool, in one list (no duplicates, stable order).
