@@ -20,8 +20,9 @@ test-fast: setup
 
 demo: setup
 	@echo "demo: the node set (G-code -> controller -> simulated axis over ROS 2) comes with"
-	@echo "demo: issue 5; until then this shows the installation and round-trips every"
-	@echo "demo: feed_twin message type between two ROS 2 nodes over DDS."
+	@echo "demo: issue 5; until then this shows the installation and sends every feed_twin"
+	@echo "demo: message type over DDS, between two nodes in one process and from a child"
+	@echo "demo: process, checking every field on arrival."
 	@$(BIN)/feed-twin info
 	@$(BIN)/feed-twin msgs-check
 

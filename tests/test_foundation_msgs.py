@@ -54,6 +54,15 @@ def test_every_message_type_round_trips_over_dds_with_every_field(ros_domain_id)
         assert result.latency_s > 0.0
 
 
+@pytest.mark.ros
+def test_every_message_type_arrives_intact_from_a_node_in_another_process(ros_domain_id):
+    results = msgcheck.round_trip_between_processes(domain_id=ros_domain_id, timeout_s=30.0)
+    assert [r.type_name for r in results] == [msgcheck.type_name(t) for t in msgcheck.MESSAGE_TYPES]
+    for result in results:
+        assert result.received is not None, f"{result.type_name}: nothing received"
+        assert result.differences == [], result.type_name
+
+
 @pytest.mark.parametrize("msg_type", msgcheck.MESSAGE_TYPES, ids=lambda t: t.__name__)
 def test_filled_message_differs_from_default_in_every_leaf(msg_type):
     filled = msgcheck.filled_message(msg_type)
