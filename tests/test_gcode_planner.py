@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import os
 import tracemalloc
 from pathlib import Path
 
@@ -302,3 +304,98 @@ def test_million_line_program_streams_in_bounded_memory(tmp_path):
     peak, samples = _peak_memory_of_streaming(path)
     assert samples > 1_000_000
     assert peak < 50e6  # the samples alone would need > 200 MB
+
+
+GOLDEN_PROGRAMS = sorted(p.name for p in FIXTURES.glob("*.ngc"))
+GOLDEN_FILE = FIXTURES / "goldens.json"
+REGENERATE = os.environ.get("FEED_TWIN_REGEN_GOLDEN") == "1"
+
+
+def _summary(traj: SampledTrajectory) -> dict:
+    step = np.linalg.norm(np.diff(traj.pos_m, axis=0), axis=1)
+    return {
+        "cycle_time_s": float(traj.events[-1].t_s) if traj.events else float(traj.t_s[-1]),
+        "samples": len(traj),
+        "final_position_m": traj.pos_m[-1].tolist(),
+        "path_length_m": float(step.sum()),
+        "peak_velocity_m_s": np.abs(traj.vel_m_s).max(axis=0).tolist(),
+        "events": [[e.kind, e.line, e.t_s, e.value] for e in traj.events],
+        "lines": sorted(int(x) for x in np.unique(traj.line)),
+    }
+
+
+@pytest.fixture(scope="module")
+def goldens() -> dict:
+    if REGENERATE:
+        data = {name: _summary(plan_program(FIXTURES / name, CONFIG)) for name in GOLDEN_PROGRAMS}
+        GOLDEN_FILE.write_text(json.dumps(data, indent=1) + "\n")
+    return json.loads(GOLDEN_FILE.read_text())
+
+
+@pytest.mark.parametrize("name", GOLDEN_PROGRAMS)
+def test_golden_programs_match_their_goldens_and_hold_the_limits(name, goldens):
+    traj = plan_program(FIXTURES / name, CONFIG)
+    assert_limits(traj, CONFIG)
+    got = _summary(traj)
+    want = goldens[name]
+    assert got["samples"] == want["samples"]
+    assert got["lines"] == want["lines"]
+    assert [e[:2] for e in got["events"]] == [e[:2] for e in want["events"]]
+    np.testing.assert_allclose(
+        [e[2:] for e in got["events"]], [e[2:] for e in want["events"]], rtol=1e-9, atol=1e-9
+    )
+    for key in ("cycle_time_s", "path_length_m", "final_position_m", "peak_velocity_m_s"):
+        np.testing.assert_allclose(got[key], want[key], rtol=1e-9, atol=1e-12, err_msg=key)
+
+
+# Facts read off the programs by hand, independent of the goldens.
+def test_golden_square_programs_have_their_programmed_lengths():
+    metric = plan_program(FIXTURES / "square_metric_abs.ngc", CONFIG)
+    # G0 Z5, Z-5 down, 2*(50+30) around, Z5 up, exact stops. Samples straddle each stop,
+    # cutting the corner by at most the travel within one period of rest: j*T^3/6 each side.
+    cut = 2 * J_MAX.max() * 1e-9 / 6 * 8
+    length = np.linalg.norm(np.diff(metric.pos_m, axis=0), axis=1).sum()
+    assert length == pytest.approx((5 + 5 + 160 + 5) * MM, abs=cut)
+    inch = plan_program(FIXTURES / "square_inch_incr.ngc", CONFIG)
+    length = np.linalg.norm(np.diff(inch.pos_m, axis=0), axis=1).sum()
+    assert length == pytest.approx((0.2 + 0.2 + 6 + 0.2) * 25.4 * MM, abs=cut)
+    np.testing.assert_allclose(inch.pos_m[-1], [0.0, 0.0, 0.2 * 25.4 * MM], atol=1e-15)
+    feed = np.linalg.norm(inch.vel_m_s, axis=1).max()
+    assert feed == pytest.approx(120 * 25.4 * MM / 60, rel=1e-12)  # F120 in/min, long sides
+
+
+def test_golden_work_offsets_land_on_the_configured_origins():
+    traj = plan_program(FIXTURES / "work_offsets.ngc", CONFIG)
+    offsets = CONFIG.work_offsets_m
+
+    def was_at(point) -> bool:
+        # Exact stops: the nearest sample is within j*T^3/6 of the stop point.
+        distance = np.linalg.norm(traj.pos_m - np.array(point), axis=1).min()
+        return bool(distance <= J_MAX.max() * 1e-9 / 6)
+
+    g55, g56, g59 = map(np.array, (offsets.G55, offsets.G56, offsets.G59))
+    assert was_at(g55) and was_at(g55 + [0.01, 0, 0])
+    assert was_at([g56[0], g56[1], g55[2]]) and was_at([g56[0] + 0.01, g56[1], g55[2]])
+    assert was_at([0.0, 0.0, 0.0]) and was_at(g59)
+    assert was_at(g59 + [0.01, 0, 0])  # G92 X0 at the G59 origin, then X10
+    np.testing.assert_allclose(traj.pos_m[-1], offsets.G54, atol=1e-15)
+
+
+def test_golden_controller_dialects_warn_and_run():
+    fanuc = plan_program(FIXTURES / "fanuc_style.ngc", CONFIG)
+    warnings = [e.text for e in fanuc.events if e.kind == "warning"]
+    assert warnings == [
+        "line 2: program number O1001 ignored",
+        "line 6: H2 ignored (tool offsets are not modelled)",
+        "line 6: G43 tool length taken as 0 (no tool table)",
+    ]
+    np.testing.assert_allclose(fanuc.pos_m[-1], [-0.02, -0.02, -0.001], atol=1e-15)
+    sinumerik = plan_program(FIXTURES / "sinumerik_style.ngc", CONFIG)
+    warnings = [e.text for e in sinumerik.events if e.kind == "warning"]
+    assert warnings == [
+        'line 3: controller-specific word T="CUTTER_8" ignored',
+        "line 3: D1 ignored (tool offsets are not modelled)",
+        'line 5: controller-specific word MSG("CONTOUR") ignored',
+    ]
+    # G700 X0.5 is 12.7 mm; G70 keeps F in mm/min, G700 reads F60 as 60 in/min.
+    np.testing.assert_allclose(sinumerik.pos_m[-1], [0.0127, 0.0, 0.0], atol=1e-15)

@@ -81,14 +81,13 @@ _GROUP_OF.update({940: "feed mode", 610: "path control", 611: "path control", 64
 _GROUP_OF.update({c: "work offset" for c in (540, 550, 560, 570, 580, 590)})
 _GROUP_OF.update({40: "non-modal", 90: "non-modal", 530: "non-modal", 920: "non-modal"})
 _GROUP_OF.update({921: "non-modal", 922: "non-modal"})
-_GROUP_OF.update({400: "cutter compensation", 490: "tool length offset"})
+_GROUP_OF.update({400: "cutter compensation", 430: "tool length offset", 490: "tool length offset"})
 _UNSUPPORTED_G = {
     930: "unsupported mode (inverse-time feed)",
     950: "unsupported mode (feed per revolution)",
     960: "unsupported mode (constant surface speed)",
     410: "unsupported mode (cutter radius compensation)",
     420: "unsupported mode (cutter radius compensation)",
-    430: "unsupported mode (tool length offset)",
     280: "unsupported (return to reference point)",
     300: "unsupported (return to reference point)",
     100: "unsupported (setting offsets from the program)",
@@ -163,6 +162,9 @@ class Interpreter:
         g_words: dict[str, tuple[int, Word]] = {}
         m_words: list[tuple[int, Word]] = []
         other: dict[str, Word] = {}
+        notes = [
+            f"line {line}: controller-specific word {note.text} ignored" for note in block.notes
+        ]
         for w in block.words:
             letter = w.letter
             if letter == "G":
@@ -190,6 +192,10 @@ class Interpreter:
                 m_words.append((code, w))
             elif letter == "N":
                 continue
+            elif letter in ("D", "H"):
+                notes.append(f"line {line}: {w.text} ignored (tool offsets are not modelled)")
+            elif letter == "O" and len(block.words) == 1:
+                notes.append(f"line {line}: program number {w.text} ignored")
             elif letter in self.allowed:
                 if letter in other:
                     raise self.error(f"repeats {other[letter].text} in the same block", w, line)
@@ -203,16 +209,13 @@ class Interpreter:
                     reason = "unknown word"
                 raise self.error(reason, w, line)
 
-        for note in block.notes:
-            out.append(
-                Event(
-                    line,
-                    "warning",
-                    0.0,
-                    f"line {line}: controller-specific word {note.text} ignored",
-                    False,
-                )
+        tool_length = g_words.get("tool length offset")
+        if tool_length is not None and tool_length[0] == 430:
+            notes.append(
+                f"line {line}: {tool_length[1].text} tool length taken as 0 (no tool table)"
             )
+        for text in notes:
+            out.append(Event(line, "warning", 0.0, text, False))
 
         units = g_words.get("units")
         if units is not None:

@@ -98,9 +98,11 @@ def lex_line(text: str, line: int, *, file: str, block_delete: bool) -> Block | 
         elif kind == "avalue":
             name = m.group("aname").upper()
             value = m.group("avalue")
-            if len(name) == 1 and not value.startswith('"'):
+            if (len(name) == 1 or name == "CR") and not value.startswith('"'):
+                # Sinumerik: X=5 is X5, CR=10 is the circle radius (R10 elsewhere).
                 number = value.replace(" ", "").replace("\t", "")
-                words.append(Word(name, float(number), m.start() + 1, name + number))
+                letter = "R" if name == "CR" else name
+                words.append(Word(letter, float(number), m.start() + 1, name + "=" + number))
             else:
                 notes.append(Note(m.start() + 1, m.group(0)))
         elif kind == "call":
