@@ -274,3 +274,16 @@ def test_as_root_a_failing_apt_get_is_reported_with_its_last_line(tmp_path):
         f"(log: {log})"
     ]
     assert log.read_text() == "E: Unable to locate package g++\n"
+
+
+def test_a_python_other_than_3_11_is_refused_with_the_reason(tmp_path):
+    tools = _tool_dir(tmp_path, {})
+    fake = tools / "python3.11"
+    fake.write_text(f"#!{BASH}\necho 3.12\n")
+    fake.chmod(0o755)
+    result = _run([str(SETUP), "--check"], tools, FEED_TWIN_NO_AUTO_INSTALL="1")
+    assert result.returncode == 1
+    assert result.stderr.splitlines() == [
+        "setup: error: python3.11 is Python 3.12; feed_twin needs 3.11 "
+        "(the ROS 2 Jazzy wheels are cp311)"
+    ]

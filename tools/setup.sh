@@ -66,6 +66,14 @@ sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Pyth
 
 check_tools() {
     local -a missing
+    local version
+    # The ROS 2 Jazzy wheels are built for CPython 3.11 only.
+    if command -v "$python_cmd" >/dev/null 2>&1; then
+        version="$("$python_cmd" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>&1)" ||
+            version="unusable"
+        [[ "$version" == "3.11" ]] ||
+            die "$python_cmd is Python $version; feed_twin needs 3.11 (the ROS 2 Jazzy wheels are cp311)"
+    fi
     mapfile -t missing < <(missing_packages)
     [[ ${#missing[@]} -eq 0 || -z "${missing[0]}" ]] && return 0
     if may_auto_install; then
