@@ -287,3 +287,46 @@ def test_a_python_other_than_3_11_is_refused_with_the_reason(tmp_path):
         "setup: error: python3.11 is Python 3.12; feed_twin needs 3.11 "
         "(the ROS 2 Jazzy wheels are cp311)"
     ]
+
+
+RUN_TESTS = REPO / "tools" / "run_tests.sh"
+
+
+def _fake_venv_tools(tmp_path: Path, *, ruff: int, pytest_status: int) -> Path:
+    """A venv whose ruff and pytest only record their arguments and exit with the given codes."""
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    for name, status in (("ruff", ruff), ("pytest", pytest_status)):
+        script = venv / "bin" / name
+        script.write_text(f'#!{BASH}\necho "{name} $*"\nexit {status}\n')
+        script.chmod(0o755)
+    return venv
+
+
+@pytest.mark.parametrize(
+    ("ruff", "pytest_status", "status", "last_line"),
+    [
+        (0, 0, 0, "pytest -m not slow"),
+        (0, 5, 0, "run_tests: pytest collected no tests"),
+        (0, 1, 1, "run_tests: FAILED: pytest (exit 1)"),
+        (1, 0, 1, "run_tests: FAILED: ruff check, ruff format"),
+        (1, 2, 1, "run_tests: FAILED: ruff check, ruff format, pytest (exit 2)"),
+    ],
+)
+def test_the_test_runner_runs_everything_and_combines_the_outcomes(
+    tmp_path, ruff, pytest_status, status, last_line
+):
+    venv = _fake_venv_tools(tmp_path, ruff=ruff, pytest_status=pytest_status)
+    result = subprocess.run(
+        [BASH, str(RUN_TESTS), "-m", "not slow"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "FEED_TWIN_VENV": str(venv)},
+        timeout=60,
+    )
+    assert result.returncode == status
+    lines = result.stdout.splitlines()
+    # pytest runs even when ruff failed, so its summary is always printed.
+    assert "ruff check ." in lines and "ruff format --check ." in lines
+    assert "pytest -m not slow" in lines
+    assert lines[-1] == last_line

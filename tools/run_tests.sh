@@ -28,6 +28,7 @@ fi
 
 # On success pytest's summary stays the last line of the output, where CI looks for it.
 if [[ ${#failed[@]} -gt 0 ]]; then
-    printf 'run_tests: FAILED: %s\n' "$(IFS=,; echo "${failed[*]}")"
+    summary="$(printf '%s, ' "${failed[@]}")"
+    echo "run_tests: FAILED: ${summary%, }"
     exit 1
 fi
