@@ -16,16 +16,19 @@ from feed_twin.control.cascade import build_cascade, cascade_tick, load_controll
 from feed_twin.io.config import load_yaml
 
 DATA = Path("/work/shared/data/emps")
-FIXTURE = Path(__file__).parent / "fixtures" / "controller_emps.yaml"
+CONFIGS = (
+    Path(__file__).resolve().parent.parent / "config" / "emps.yaml",
+    Path(__file__).parent / "fixtures" / "controller_emps.yaml",
+)
 # The controller's memory before the record is unknown: the 2-tap FIR needs 2 samples of history.
 SKIP = 2
 
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason="EMPS data set not present")
 
 
-def _replay(csv_name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _replay(csv_name: str, config_file: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     data = np.genfromtxt(DATA / csv_name, delimiter=",", names=True)
-    config = load_controller_config(load_yaml(FIXTURE)["controller"], source=str(FIXTURE))
+    config = load_controller_config(load_yaml(config_file)["controller"], source=str(config_file))
     cascade = build_cascade(config)
     cs = cascade.initial_state()
     ref = np.zeros(sig.REF_SIZE)
@@ -43,15 +46,17 @@ def _replay(csv_name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return vir[SKIP:], data["vir_ctrl_V"][SKIP:], pulses[SKIP:]
 
 
-def test_emps_controller_reproduces_recorded_output():
-    vir, recorded, _ = _replay("DATA_EMPS.csv")
+@pytest.mark.parametrize("config_file", CONFIGS, ids=lambda p: p.name)
+def test_emps_controller_reproduces_recorded_output(config_file):
+    vir, recorded, _ = _replay("DATA_EMPS.csv", config_file)
     rms = float(np.sqrt(np.mean((vir - recorded) ** 2)))
     assert rms < 0.01
     assert np.sqrt(np.mean(recorded**2)) > 100.0 * rms  # the comparison is not trivially small
 
 
-def test_emps_controller_with_pulses_as_effort_add():
-    vir, recorded, pulses = _replay("DATA_EMPS_PULSES.csv")
+@pytest.mark.parametrize("config_file", CONFIGS, ids=lambda p: p.name)
+def test_emps_controller_with_pulses_as_effort_add(config_file):
+    vir, recorded, pulses = _replay("DATA_EMPS_PULSES.csv", config_file)
     residual = vir - recorded
     off = pulses == 0.0
     assert off.sum() > 10_000 and (~off).sum() > 10_000

@@ -9,6 +9,7 @@ import pytest
 
 from feed_twin.control import tune_cli
 from feed_twin.control.tuning import (
+    closed,
     closed_loop_bandwidth,
     estimator_delay,
     loop_margins,
@@ -44,7 +45,7 @@ def test_margins_of_a_triple_lag_and_of_a_loop_that_never_reaches_minus_180():
 
 
 def test_closed_loop_bandwidth_of_a_first_order_loop():
-    assert closed_loop_bandwidth(lambda s: 300.0 / s) == pytest.approx(300.0, rel=1e-9)
+    assert closed_loop_bandwidth(closed(lambda s: 300.0 / s)) == pytest.approx(300.0, rel=1e-9)
 
 
 def test_technical_optimum_with_dead_time_has_its_analytic_margins():

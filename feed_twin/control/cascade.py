@@ -15,7 +15,8 @@ Current loop (period T_i), FOC with d/q PI, decoupling and back-EMF feed-forward
     u_d = PI_d(0 - i_d) - omega_e * L_q * i_q
     u_q = PI_q(i_q* - i_q) + omega_e * (L_d * i_d + psi_pm)
     (u_d, u_q) limited to the circle margin * u_dc / sqrt(3) (d priority), clamping anti-windup,
-    inverse Park at theta_e + advance * omega_e * T_i, SVPWM (min-max injection) -> duty cycles.
+    inverse Park at theta_e + advance * omega_e * T_i, optional dead-time compensation per phase
+    (u_comp * clip(i_x / band, -1, 1)), SVPWM (min-max injection) -> duty cycles.
 Without a current loop (ideal force/torque source such as the EMPS bench) the velocity-loop output
 is the effort command itself, in the drive's input units.
 
@@ -60,10 +61,11 @@ from feed_twin.control.blocks import (
 from feed_twin.control.transforms import (
     SQRT3,
     clarke,
+    inverse_clarke,
     inverse_park,
     limit_voltage_circle,
     park,
-    svpwm_duties,
+    svpwm_phase_duties,
 )
 from feed_twin.io.config import (
     from_mapping,
@@ -206,6 +208,10 @@ class CurrentLoopConfig:
     angle_advance_periods: float = 0.0  # delay compensation: advance by omega_e*T_i*this [-]
     encoder_offset_rad: float = 0.0  # electrical angle of the d axis at encoder zero [rad]
     i_trip_A: float | None = None  # overcurrent trip level on |i_a|,|i_b|,|i_c| [A]
+    # Dead-time compensation: each phase reference gets u_comp * clip(i_x / band, -1, 1) added,
+    # the voltage the inverter loses to dead time and device drop, about t_dead*f_pwm*u_dc + u_f.
+    dead_time_comp_V: float = 0.0  # [V]; 0 = off
+    dead_time_comp_band_A: float = 0.5  # current over which the correction changes sign [A]
 
     def __post_init__(self) -> None:
         require_positive("period_s", self.period_s)
@@ -225,6 +231,8 @@ class CurrentLoopConfig:
         require_range("encoder_offset_rad", self.encoder_offset_rad, -TWO_PI, TWO_PI)
         if self.i_trip_A is not None:
             require_positive("i_trip_A", self.i_trip_A)
+        require_nonnegative("dead_time_comp_V", self.dead_time_comp_V)
+        require_positive("dead_time_comp_band_A", self.dead_time_comp_band_A)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -336,6 +344,8 @@ PARAM_NAMES = (
     "angle_advance_periods",
     "encoder_offset_rad",
     "i_trip_A",
+    "dead_time_comp_V",
+    "dead_time_comp_band_A",
 )
 (
     P_BASE_PERIOD,
@@ -387,6 +397,8 @@ PARAM_NAMES = (
     P_ANGLE_ADVANCE,
     P_ENCODER_OFFSET,
     P_I_TRIP,
+    P_DEAD_TIME_COMP,
+    P_DEAD_TIME_BAND,
 ) = range(len(PARAM_NAMES))
 P_FIR_TAPS = len(PARAM_NAMES)  # the FIR taps follow the fixed slots
 
@@ -568,6 +580,8 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
         p[P_ENCODER_OFFSET] = cur.encoder_offset_rad
         if cur.i_trip_A is not None:
             p[P_I_TRIP] = cur.i_trip_A
+        p[P_DEAD_TIME_COMP] = cur.dead_time_comp_V
+        p[P_DEAD_TIME_BAND] = cur.dead_time_comp_band_A
     p[P_FIR_N] = len(taps)
     params = np.concatenate([p, np.asarray(taps, dtype=np.float64)])
     params.setflags(write=False)
@@ -699,7 +713,14 @@ def current_law(
     u_alpha, u_beta = inverse_park(u_d_lim, u_q_lim, theta_out)
     if u_dc <= 0.0:
         return 0.5, 0.5, 0.5, u_d_lim, u_q_lim, x_d, x_q
-    d_a, d_b, d_c = svpwm_duties(u_alpha, u_beta, u_dc)
+    u_a, u_b, u_c = inverse_clarke(u_alpha, u_beta)
+    comp = cp[P_DEAD_TIME_COMP]
+    if comp > 0.0:
+        band = cp[P_DEAD_TIME_BAND]
+        u_a += comp * min(max(i_a / band, -1.0), 1.0)
+        u_b += comp * min(max(i_b / band, -1.0), 1.0)
+        u_c += comp * min(max(i_c / band, -1.0), 1.0)
+    d_a, d_b, d_c = svpwm_phase_duties(u_a, u_b, u_c, u_dc)
     return d_a, d_b, d_c, u_d_lim, u_q_lim, x_d, x_q
 
 

@@ -75,16 +75,24 @@ def limit_voltage_circle(u_d: float, u_q: float, u_max: float) -> tuple[float, f
 
 
 @njit(cache=True)
-def svpwm_duties(u_alpha: float, u_beta: float, u_dc: float) -> tuple[float, float, float]:
-    """Duty cycles in [0, 1] for a two-level inverter from the (alpha, beta) voltage [V].
+def svpwm_phase_duties(
+    u_a: float, u_b: float, u_c: float, u_dc: float
+) -> tuple[float, float, float]:
+    """Duty cycles in [0, 1] for phase voltage references [V] (any common mode is replaced).
 
     Min-max zero-sequence injection; outside the linear range the duties clip at 0/1 and the
     inverter saturates (overmodulation), which the voltage-circle limit upstream normally prevents.
     """
-    u_a, u_b, u_c = inverse_clarke(u_alpha, u_beta)
     u_0 = -0.5 * (max(u_a, max(u_b, u_c)) + min(u_a, min(u_b, u_c)))
     inv = 1.0 / u_dc
     d_a = min(max(0.5 + (u_a + u_0) * inv, 0.0), 1.0)
     d_b = min(max(0.5 + (u_b + u_0) * inv, 0.0), 1.0)
     d_c = min(max(0.5 + (u_c + u_0) * inv, 0.0), 1.0)
     return d_a, d_b, d_c
+
+
+@njit(cache=True)
+def svpwm_duties(u_alpha: float, u_beta: float, u_dc: float) -> tuple[float, float, float]:
+    """Duty cycles in [0, 1] for a two-level inverter from the (alpha, beta) voltage [V]."""
+    u_a, u_b, u_c = inverse_clarke(u_alpha, u_beta)
+    return svpwm_phase_duties(u_a, u_b, u_c, u_dc)

@@ -92,23 +92,19 @@ def _phase_at(loop: TransferFunction, w: float, w_ref: float, phase_ref: float) 
 
 
 def closed_loop_bandwidth(
-    loop: TransferFunction, *, omega_min: float = 1e-1, omega_max: float = 1e6
+    closed_loop: TransferFunction, *, omega_min: float = 1e-1, omega_max: float = 1e6
 ) -> float:
-    """-3 dB frequency [rad/s] of the unity-feedback closed loop L/(1+L) (first crossing)."""
+    """-3 dB frequency [rad/s] of a closed loop T(s) with T(0) = 1 (first crossing of 1/sqrt 2)."""
     omega = np.geomspace(omega_min, omega_max, 4000)
-    response = frequency_response(loop, omega)
-    mag = np.abs(response / (1.0 + response))
+    mag = np.abs(frequency_response(closed_loop, omega))
     target = 1.0 / math.sqrt(2.0)
     idx = np.nonzero((mag[:-1] >= target) & (mag[1:] < target))[0]
     if not idx.size:
         return math.nan
     i = idx[0]
-
-    def excess(w: float) -> float:
-        s = complex(loop(np.array([1j * w]))[0])
-        return abs(s / (1.0 + s)) - target
-
-    return brentq(excess, omega[i], omega[i + 1])
+    return brentq(
+        lambda w: abs(complex(closed_loop(np.array([1j * w]))[0])) - target, omega[i], omega[i + 1]
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -130,23 +126,41 @@ def current_open_loop(
     return lambda s: pi(s) * np.exp(-s * T_sigma_s) / (R_s + s * L)
 
 
-def velocity_open_loop(
+def dead_time(T_s: float) -> TransferFunction:
+    return lambda s: np.exp(-s * T_s)
+
+
+def velocity_forward(
     *,
     Kp: float,
     Ti_s: float | None,
     m_eq_kg: float,
     force_per_unit: float,
-    T_delay_s: float,
+    T_hold_s: float,
     current_closed_loop: TransferFunction | None,
 ) -> TransferFunction:
-    """L_v(s) = PI(s) G_ci(s) F/(m s) e^{-s T_delay}, load side (m/s per effort unit)."""
+    """Forward path PI(s) G_ci(s) F/(m s) e^{-s T_hold} from velocity error to true velocity,
+    load side; the estimator delay belongs to the feedback path (see `closed`)."""
     pi = pi_controller(Kp, Ti_s)
     inner = current_closed_loop or (lambda s: 1.0 + 0.0 * s)
-    return lambda s: pi(s) * inner(s) * force_per_unit / (m_eq_kg * s) * np.exp(-s * T_delay_s)
+    return lambda s: pi(s) * inner(s) * force_per_unit / (m_eq_kg * s) * np.exp(-s * T_hold_s)
 
 
-def closed(loop: TransferFunction) -> TransferFunction:
-    return lambda s: loop(s) / (1.0 + loop(s))
+def series(*parts: TransferFunction) -> TransferFunction:
+    def product(s: np.ndarray) -> np.ndarray:
+        result = np.ones_like(s)
+        for part in parts:
+            result = result * part(s)
+        return result
+
+    return product
+
+
+def closed(forward: TransferFunction, feedback: TransferFunction | None = None) -> TransferFunction:
+    """Setpoint to output: F/(1 + F H); the output is the true one, before the sensor path H."""
+    if feedback is None:
+        return lambda s: forward(s) / (1.0 + forward(s))
+    return lambda s: forward(s) / (1.0 + forward(s) * feedback(s))
 
 
 def position_open_loop(
@@ -210,7 +224,7 @@ def tune_current_loop(
         Ti_s=Ti,
         T_sigma_s=T_sigma,
         rise_time_90_s=current_rise_time_90(Kp=Kp, Ti_s=Ti, R_s=R_s, L=L, T_sigma_s=T_sigma),
-        bandwidth_hz=closed_loop_bandwidth(loop) / TWO_PI,
+        bandwidth_hz=closed_loop_bandwidth(closed(loop)) / TWO_PI,
         margins=loop_margins(loop),
     )
 
@@ -265,22 +279,23 @@ def tune_velocity_loop(
     Kp_rad = J_total_kg_m2 / (K_t * a * T_sigma)
     Kp = Kp_rad * ratio
     Ti = a * a * T_sigma
-    loop = velocity_open_loop(
+    forward = velocity_forward(
         Kp=Kp,
         Ti_s=Ti,
         m_eq_kg=J_total_kg_m2 * ratio * ratio,
         force_per_unit=K_t * ratio,
-        T_delay_s=0.5 * period_s + estimator_delay_s,
+        T_hold_s=0.5 * period_s,
         current_closed_loop=current_closed_loop or (lambda s: 1.0 / (1.0 + s * T_current_s)),
     )
+    feedback = dead_time(estimator_delay_s)
     return VelocityLoopDesign(
         Kp=Kp,
         Ti_s=Ti,
         T_sigma_s=T_sigma,
         a=a,
         crossover_hz=1.0 / (TWO_PI * a * T_sigma),
-        bandwidth_hz=closed_loop_bandwidth(loop) / TWO_PI,
-        margins=loop_margins(loop),
+        bandwidth_hz=closed_loop_bandwidth(closed(forward, feedback)) / TWO_PI,
+        margins=loop_margins(series(forward, feedback)),
     )
 
 
@@ -397,7 +412,7 @@ def tune_config(config: ControllerConfig) -> TuningReport:
             T_sigma_s=cur_design.T_sigma_s,
         )
         cur_conf = loop_margins(configured)
-        cur_bw = closed_loop_bandwidth(configured) / TWO_PI
+        cur_bw = closed_loop_bandwidth(closed(configured)) / TWO_PI
         inner_closed = closed(configured)
         T_current = 2.0 * cur_design.T_sigma_s
     vel_design = vel_conf = vel_bw = None
@@ -413,26 +428,28 @@ def tune_config(config: ControllerConfig) -> TuningReport:
             estimator_delay_s=est_delay,
             current_closed_loop=inner_closed,
         )
-        configured_v = velocity_open_loop(
+        forward = velocity_forward(
             Kp=vel.Kp,
             Ti_s=vel.Ti_s,
             m_eq_kg=m_eq,
             force_per_unit=force_per_unit,
-            T_delay_s=0.5 * vel.period_s + est_delay,
+            T_hold_s=0.5 * vel.period_s,
             current_closed_loop=inner_closed,
         )
-        vel_conf = loop_margins(configured_v)
-        vel_bw = closed_loop_bandwidth(configured_v) / TWO_PI
+        feedback = dead_time(est_delay)
+        vel_conf = loop_margins(series(forward, feedback))
+        velocity_closed = closed(forward, feedback)
+        vel_bw = closed_loop_bandwidth(velocity_closed) / TWO_PI
         if pos is not None:
             pos_design = tune_position_loop(
-                velocity_closed_loop=closed(configured_v),
+                velocity_closed_loop=velocity_closed,
                 velocity_bandwidth_hz=vel_bw,
                 period_s=pos.period_s,
             )
             pos_conf = loop_margins(
                 position_open_loop(
                     Kv_1_s=pos.Kv_1_s,
-                    velocity_closed_loop=closed(configured_v),
+                    velocity_closed_loop=velocity_closed,
                     T_delay_s=0.5 * pos.period_s,
                 )
             )
