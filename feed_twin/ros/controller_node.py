@@ -26,7 +26,6 @@ from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_ERROR,
-    EXIT_OK,
     LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
@@ -40,6 +39,7 @@ from feed_twin.ros.split import (
     DriveSetpoint,
     NcBuffer,
     NcSample,
+    NodeLoopGains,
     load_node_set_config,
 )
 from feed_twin.ros.topics import CONTROLLER_NODE
@@ -96,10 +96,13 @@ class ControllerNode(FeedTwinNode):
         boundary: Boundary,
         exchange_period_s: float,
         axis_label: str,
+        gains: NodeLoopGains | None = None,
         context=None,
     ) -> None:
         super().__init__(CONTROLLER_NODE, options, context=context)
-        self.core = ControllerCore(config, boundary=boundary, exchange_period_s=exchange_period_s)
+        self.core = ControllerCore(
+            config, boundary=boundary, exchange_period_s=exchange_period_s, gains=gains
+        )
         for note in self.core.notes:
             self.get_logger().info(note)
         self.axis_label = axis_label
@@ -115,7 +118,6 @@ class ControllerNode(FeedTwinNode):
         self.create_subscription(
             String, self.topics.program_state, self._on_program_state, LATCHED_QOS
         )
-        self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
         # A command stream is due once drive feedback flows; silence while paused is expected.
         self._command_dog = self.watch_input(
             self.topics.command,
@@ -145,10 +147,6 @@ class ControllerNode(FeedTwinNode):
         if state in ("finished", "stopped"):
             self.nc.finish()
             self._serve()
-
-    def _on_run_state(self, msg: String) -> None:
-        if msg.data.startswith("done"):
-            self.finish(EXIT_OK, "")
 
     def _serve(self) -> None:
         while self._pending:
@@ -206,6 +204,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         boundary=ros.boundary,
         exchange_period_s=ros.exchange_period_s,
         axis_label=ros.axis.upper(),
+        gains=ros.node_gains,
         context=context,
     )
     return spin_nodes([node], context)

@@ -36,7 +36,6 @@ from feed_twin.io.config import ConfigError
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_ERROR,
-    EXIT_OK,
     LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
@@ -135,7 +134,6 @@ class GcodeNode(FeedTwinNode):
         self._pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
         self._state_pub = self.create_publisher(String, self.topics.program_state, LATCHED_QOS)
         self.create_subscription(Clock, "/clock", self._on_clock, DATA_QOS)
-        self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
         self.create_service(Trigger, "start", self._srv_start)
         self.create_service(Trigger, "pause", self._srv_pause)
         self.create_service(Trigger, "stop", self._srv_stop)
@@ -214,10 +212,6 @@ class GcodeNode(FeedTwinNode):
     def _on_clock(self, msg: Clock) -> None:
         self._clock_ns = msg.clock.sec * NS_PER_S + msg.clock.nanosec
         self._publish_ahead()
-
-    def _on_run_state(self, msg: String) -> None:
-        if msg.data.startswith("done"):
-            self.finish(EXIT_OK, "")
 
     def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:

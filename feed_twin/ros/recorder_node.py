@@ -22,12 +22,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from std_msgs.msg import String
 
 from feed_twin.io.bag import BagWriter, QosProfile
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_OK,
+    EXIT_PEER_LOST,
     HEARTBEAT_QOS,
     LATCHED_QOS,
     FeedTwinNode,
@@ -77,6 +77,7 @@ class RecorderNode(FeedTwinNode):
         self._last_message = time.monotonic()
         self._ending_since: float | None = None
         self.end_reason = ""
+        self._peer_lost: str | None = None
         known = self.topics.types()
         qos_for = {
             self.topics.program_state: LATCHED_QOS,
@@ -85,7 +86,6 @@ class RecorderNode(FeedTwinNode):
         }
         for topic, type_name in known.items():
             self._record(topic, type_name, qos_for.get(topic, DATA_QOS))
-        self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
         self.create_timer(SCAN_PERIOD_S, self._scan, clock=self.wall)
         self.create_timer(0.05, self._drain_check, clock=self.wall)
         self.start_heartbeat()
@@ -126,9 +126,19 @@ class RecorderNode(FeedTwinNode):
             except (LookupError, ImportError) as exc:
                 self.get_logger().warning(f"not recording {topic}: {exc}")
 
-    def _on_run_state(self, msg: String) -> None:
-        if self._ending_since is None and msg.data.startswith("done"):
-            self.end_reason = msg.data
+    def on_run_done(self, text: str) -> None:
+        self.end_reason = text
+        if self._ending_since is None:
+            self._ending_since = time.monotonic()
+
+    def on_peer_lost(self, message: str) -> None:
+        # Under load the recorder may lag behind the graph, and a peer that ended normally looks
+        # lost until the queued end-of-run message is processed: record what is still in
+        # flight first, then decide.
+        if self._peer_lost is None:
+            self._peer_lost = message
+            self.get_logger().warning(f"{message}; recording what is still in flight")
+        if self._ending_since is None:
             self._ending_since = time.monotonic()
 
     def _drain_check(self) -> None:
@@ -136,7 +146,10 @@ class RecorderNode(FeedTwinNode):
             return
         now = time.monotonic()
         if now - self._last_message > DRAIN_QUIET_S or now - self._ending_since > DRAIN_MAX_S:
-            self.finish(EXIT_OK, "")
+            if self.run_ended or self._peer_lost is None:
+                self.finish(EXIT_OK, "")
+            else:
+                self.finish(EXIT_PEER_LOST, self._peer_lost)
 
     def on_shutdown(self, reason: str) -> None:
         info = self.bag.close()

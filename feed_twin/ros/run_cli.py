@@ -33,7 +33,8 @@ NODE_MODULES = {
     "gcode": "feed_twin.ros.gcode_node",
 }
 ROLES = ("recorder", "controller", "sim", "gcode")
-STOP_GRACE_S = 10.0
+STOP_GRACE_S = 10.0  # [s] for nodes to finish after SIGTERM
+PEER_NOTICE_S = 2.0  # [s] for nodes to notice a lost peer before they are told to stop
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -152,8 +153,9 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
                     code = rc
                     reason = f"{role} node exited with code {rc}: {_last_error(logs[role])}"
             if first_failure is not None:
-                # The others stop on their own (lost heartbeat); give them the grace period.
-                _wait_all(procs, STOP_GRACE_S)
+                # Nodes that had seen the failed one stop on their own within a second (lost
+                # heartbeat); the others (it died while starting) are told to stop.
+                _wait_all(procs, PEER_NOTICE_S)
                 break
             progress.update(logs["sim"])
             time.sleep(0.05)
@@ -278,6 +280,7 @@ def _run_single_process(args: argparse.Namespace, ros, nc, out: Outputs) -> tupl
         boundary=ros.boundary,
         exchange_period_s=ros.exchange_period_s,
         axis_label=ros.axis.upper(),
+        gains=ros.node_gains,
         context=context,
     )
     sim = SimNode(
@@ -288,6 +291,7 @@ def _run_single_process(args: argparse.Namespace, ros, nc, out: Outputs) -> tupl
         axis_label=ros.axis.upper(),
         realtime=args.realtime,
         max_time_s=args.max_time,
+        clock_divider=ros.clock_divider,
         context=context,
     )
     gcode = GcodeNode(

@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import resource
 import signal
 import sys
 import time
@@ -108,7 +109,9 @@ class FeedTwinNode(Node):
         self._watchdogs: list[_Watchdog] = []
         self._heartbeat_pub = self.create_publisher(String, self.topics.heartbeat, HEARTBEAT_QOS)
         self._heartbeat_on = False
+        self.run_ended = False
         self.create_subscription(String, self.topics.heartbeat, self._on_heartbeat, HEARTBEAT_QOS)
+        self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
         self.create_timer(HEARTBEAT_PERIOD_S, self._tick, clock=self.wall)
 
     # -- life cycle ---------------------------------------------------------------------------
@@ -133,6 +136,19 @@ class FeedTwinNode(Node):
 
     def on_shutdown(self, reason: str) -> None:
         """Called once when the node stops (signal, peer loss, end of run); override to clean up."""
+
+    def on_peer_lost(self, message: str) -> None:
+        """A watched peer went silent; by default the node stops with EXIT_PEER_LOST."""
+        self.finish(EXIT_PEER_LOST, message)
+
+    def on_run_done(self, text: str) -> None:
+        """The sim node announced the end of the run; by default the node stops cleanly."""
+        self.finish(EXIT_OK, "")
+
+    def _on_run_state(self, msg: String) -> None:
+        if msg.data.startswith("done") and not self.run_ended:
+            self.run_ended = True  # peers leave from now on: that is no longer a fault
+            self.on_run_done(msg.data)
 
     def poll(self) -> float | None:
         """Called by the spin loop before each wait; returns how long it may block at most [s]
@@ -159,7 +175,7 @@ class FeedTwinNode(Node):
         now = time.monotonic()
         if self._heartbeat_on:
             self._heartbeat_pub.publish(String(data=self.role))
-        for peer in self.options.peers:
+        for peer in () if self.run_ended else self.options.peers:
             seen = self._peer_seen.get(peer)
             if seen is None:
                 if self._heartbeat_on and now - self._created > self.options.startup_timeout_s:
@@ -169,10 +185,9 @@ class FeedTwinNode(Node):
                         f"{self.options.startup_timeout_s:g} s",
                     )
             elif now - seen > self.options.peer_timeout_s:
-                self.finish(
-                    EXIT_PEER_LOST,
+                self.on_peer_lost(
                     f"node '{self.topics.namespace}/{peer}' is gone: no heartbeat for "
-                    f"{now - seen:.2f} s",
+                    f"{now - seen:.2f} s"
                 )
         for dog in self._watchdogs:
             if not dog.armed():
@@ -269,6 +284,9 @@ def spin_nodes(
                 node.on_shutdown(reason)
             except Exception as exc:  # noqa: BLE001 - one node's cleanup must not skip another's
                 print(f"{node.role}: error while shutting down: {exc}", file=sys.stderr)
+        usage = resource.getrusage(resource.RUSAGE_SELF)
+        roles = "+".join(n.role for n in nodes)
+        print(f"CPU {roles} {usage.ru_utime + usage.ru_stime:.2f} s", file=sys.stderr, flush=True)
         codes = [n.exit_code for n in nodes if n.exit_code not in (None, EXIT_OK)]
         if flag.received is not None:
             return EXIT_SIGNAL

@@ -101,6 +101,7 @@ class SimNode(FeedTwinNode):
         axis_label: str,
         realtime: bool = False,
         max_time_s: float | None = None,
+        clock_divider: int = 1,
         context=None,
     ) -> None:
         super().__init__(SIM_NODE, options, context=context)
@@ -109,6 +110,7 @@ class SimNode(FeedTwinNode):
         self.axis_label = axis_label
         self.joint_name = joint_name
         self.realtime = realtime
+        self.clock_divider = clock_divider
         self.max_ns = None if max_time_s is None else round(max_time_s * NS_PER_S)
         self.end_ns: int | None = None
         self.end_word = ""
@@ -185,9 +187,13 @@ class SimNode(FeedTwinNode):
         elif word == "error":
             self._end(EXIT_ERROR, f"done error: {rest}")
 
+    def on_run_done(self, text: str) -> None:
+        """Its own announcement comes back on the latched topic; _end has already finished."""
+
     def _end(self, code: int, text: str) -> None:
         if self.done:
             return
+        self.run_ended = True
         self.wall_end = time.monotonic()
         self._run_pub.publish(String(data=text))
         self.finish(code, "" if code == EXIT_OK else text)
@@ -257,6 +263,11 @@ class SimNode(FeedTwinNode):
         st.header.stamp.sec, st.header.stamp.nanosec = sec, nsec
         for name, value in s.truth.items():
             setattr(st, name, float(value))
+        self._feedback_pub.publish(fb)
+        self._state_pub.publish(st)
+        if (self.host.k - 1) % self.clock_divider:
+            return
+        # Tools get joint states and the clock at a lower rate; every message carries its stamp.
         js = self._joint
         js.header.stamp.sec, js.header.stamp.nanosec = sec, nsec
         js.position[0] = s.truth["table_position"]
@@ -265,8 +276,6 @@ class SimNode(FeedTwinNode):
         # The clock reads the time the simulation has reached: the end of this exchange.
         csec, cnsec = divmod(s.t_ns + self.host.exchange_ns, NS_PER_S)
         self._clock.clock.sec, self._clock.clock.nanosec = csec, cnsec
-        self._feedback_pub.publish(fb)
-        self._state_pub.publish(st)
         self._joint_pub.publish(js)
         self._clock_pub.publish(self._clock)
 
@@ -333,6 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         axis_label=ros.axis.upper(),
         realtime=args.realtime,
         max_time_s=args.max_time,
+        clock_divider=ros.clock_divider,
         context=context,
     )
     return spin_nodes([node], context)

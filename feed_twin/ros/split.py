@@ -71,6 +71,26 @@ class StateSignals:
 
 
 @dataclass(frozen=True, kw_only=True)
+class NodeLoopGains:
+    """Gains of the loops the controller node runs at the exchange period (None: derived).
+
+    A velocity loop tuned for 8 kHz inside a drive is unstable at a 1 kHz exchange with one
+    period of transport delay; without explicit values `controller_node_config` re-tunes it
+    by the symmetric optimum for the node's delays (feed_twin.control.tuning).
+    """
+
+    Kv_1_s: float | None = None  # position gain [1/s]
+    velocity_Kp: float | None = None  # [effort unit per m/s], load side
+    velocity_Ti_s: float | None = None  # [s]
+
+    def __post_init__(self) -> None:
+        for name in ("Kv_1_s", "velocity_Kp", "velocity_Ti_s"):
+            value = getattr(self, name)
+            if value is not None:
+                require_positive(name, value)
+
+
+@dataclass(frozen=True, kw_only=True)
 class NodeSetConfig:
     """The `ros:` section of an axis config: names, exchange rate and controller/drive split."""
 
@@ -79,8 +99,10 @@ class NodeSetConfig:
     exchange_period_s: float = 1.0e-3  # controller <-> drive message period [s]
     boundary: Boundary = "torque"  # CiA 402 split, see the module docstring
     settle_s: float = 0.2  # simulated time after the program's end [s]
-    lookahead: int = 20  # NC setpoints published ahead of the simulation clock [-]
+    lookahead: int = 50  # NC setpoints published ahead of the simulation clock [-]
+    clock_divider: int = 10  # /clock and joint_states every this many exchanges [-]
     signals: StateSignals = dataclasses.field(default_factory=StateSignals)
+    node_gains: NodeLoopGains = dataclasses.field(default_factory=NodeLoopGains)
 
     def __post_init__(self) -> None:
         require_positive("exchange_period_s", self.exchange_period_s)
@@ -95,6 +117,13 @@ class NodeSetConfig:
             raise ValueError(f"lookahead = {self.lookahead!r}: must be a whole number")
         if not 1 <= self.lookahead <= 1000:
             raise ValueError(f"lookahead = {self.lookahead!r}: must lie in [1, 1000]")
+        if isinstance(self.clock_divider, bool) or not isinstance(self.clock_divider, int):
+            raise ValueError(f"clock_divider = {self.clock_divider!r}: must be a whole number")
+        if not 1 <= self.clock_divider < self.lookahead:
+            raise ValueError(
+                f"clock_divider = {self.clock_divider!r}: must lie in [1, lookahead - 1] "
+                f"= [1, {self.lookahead - 1}] so the NC stays ahead of the clock"
+            )
 
     @property
     def exchange_ns(self) -> int:
@@ -128,14 +157,22 @@ class DriveSetpoint:
 
 
 def controller_node_config(
-    config: ControllerConfig, exchange_period_s: float
+    config: ControllerConfig,
+    exchange_period_s: float,
+    gains: NodeLoopGains | None = None,
 ) -> tuple[ControllerConfig, list[str]]:
     """The controller section the controller node runs: loops at least one exchange period.
 
-    Returns the derived configuration and one note per change, for the node's log.
+    A loop faster than the exchange runs at the exchange period. The velocity loop then sees
+    the exchange's delays (one period of transport, the hold, the estimator), so unless `gains`
+    gives its gains it is re-tuned by the symmetric optimum (a = 2) for those delays and the
+    position gain is capped at a quarter of its closed-loop bandwidth. Returns the
+    derived configuration and one note per change, for the node's log.
     """
+    gains = gains or NodeLoopGains()
     notes: list[str] = []
     replace: dict[str, object] = {"base_period_s": exchange_period_s, "current": None}
+    slowed: set[str] = set()
     for name in ("position", "velocity"):
         loop = getattr(config, name)
         if loop is None:
@@ -148,6 +185,7 @@ def controller_node_config(
                 f"{exchange_period_s!r} s in the controller node"
             )
             period = exchange_period_s
+            slowed.add(name)
         elif abs(ratio - round(ratio)) > 1e-9:
             raise ValueError(
                 f"controller.{name}.period_s = {period!r}: must be a multiple of the exchange "
@@ -159,6 +197,27 @@ def controller_node_config(
             f"controller.nc_period_s = {config.nc_period_s!r}: must not be shorter than the "
             f"exchange period {exchange_period_s!r} s"
         )
+    velocity = replace.get("velocity")
+    position = replace.get("position")
+    if velocity is not None:
+        Kp, Ti, Kv_cap = velocity.Kp, velocity.Ti_s, None
+        if "velocity" in slowed and gains.velocity_Kp is None:
+            Kp, Ti, Kv_cap = _retune_velocity(config, velocity, exchange_period_s)
+            notes.append(
+                f"velocity loop re-tuned for the exchange: Kp {velocity.Kp:g} -> {Kp:.4g}, "
+                f"Ti {velocity.Ti_s!r} -> {Ti:.4g} s"
+            )
+        Kp = gains.velocity_Kp if gains.velocity_Kp is not None else Kp
+        Ti = gains.velocity_Ti_s if gains.velocity_Ti_s is not None else Ti
+        replace["velocity"] = dataclasses.replace(velocity, Kp=Kp, Ti_s=Ti)
+        if position is not None:
+            Kv = position.Kv_1_s
+            if gains.Kv_1_s is not None:
+                Kv = gains.Kv_1_s
+            elif Kv_cap is not None and Kv > Kv_cap:
+                notes.append(f"position gain capped for the exchange: Kv {Kv:g} -> {Kv_cap:.4g}")
+                Kv = Kv_cap
+            replace["position"] = dataclasses.replace(position, Kv_1_s=Kv)
     try:
         derived = dataclasses.replace(config, **replace)
     except ValueError as exc:
@@ -169,6 +228,28 @@ def controller_node_config(
     return derived, notes
 
 
+def _retune_velocity(config, velocity, exchange_period_s: float) -> tuple[float, float, float]:
+    from feed_twin.control.tuning import estimator_delay, tune_velocity_loop
+
+    drive = config.drive
+    current = config.current
+    # The closed current loop lags by about 2 T_sigma_i = 3 T_i (technical optimum).
+    T_current = 3.0 * current.period_s if current is not None else 0.0
+    est = velocity.estimator
+    delay = estimator_delay(est.fir_taps, est.lowpass_hz, exchange_period_s) + exchange_period_s
+    design = tune_velocity_loop(
+        J_total_kg_m2=drive.J_total_kg_m2,
+        K_t=drive.K_t,
+        lead_m=drive.lead_m,
+        period_s=exchange_period_s,
+        T_current_s=T_current,
+        estimator_delay_s=delay,
+    )
+    # Rule of thumb for a position loop around a PI velocity loop: Kv at most a quarter of the
+    # velocity loop's closed-loop bandwidth keeps the setpoint response free of overshoot.
+    return design.Kp, design.Ti_s, 2.0 * math.pi * design.bandwidth_hz / 4.0
+
+
 class ControllerCore:
     """What the controller node computes per exchange: NC sample + drive feedback -> setpoint.
 
@@ -176,7 +257,12 @@ class ControllerCore:
     """
 
     def __init__(
-        self, config: ControllerConfig, *, boundary: Boundary, exchange_period_s: float
+        self,
+        config: ControllerConfig,
+        *,
+        boundary: Boundary,
+        exchange_period_s: float,
+        gains: NodeLoopGains | None = None,
     ) -> None:
         if boundary not in BOUNDARY_MODES:
             raise ValueError(
@@ -191,7 +277,7 @@ class ControllerCore:
         self._velocity: VelocityLoop | None = None
         self._ref = np.zeros(sig.REF_SIZE)
         if boundary != "position":
-            node_config, self.notes = controller_node_config(config, exchange_period_s)
+            node_config, self.notes = controller_node_config(config, exchange_period_s, gains)
             if node_config.position is None:
                 raise ValueError(f"boundary = {boundary!r}: the controller has no position loop")
             self._position = PositionLoop(node_config)
