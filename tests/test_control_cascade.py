@@ -352,3 +352,27 @@ def test_estimator_lowpass_is_first_order_with_its_corner_frequency():
         # the ramp's differences reach the filter from k = 1: a sampled first-order step response
         expected = v_true * (1 - pole**k)
         assert loop.velocity_estimate_m_s == pytest.approx(expected, rel=1e-9, abs=1e-15)
+
+
+@pytest.mark.parametrize("depth", [0.0, 0.2])
+def test_notch_on_the_current_setpoint_attenuates_at_its_centre(depth):
+    f0, T_v = 100.0, 1e-3
+    plain = dataclasses.replace(
+        EMPS,
+        velocity=dataclasses.replace(
+            EMPS.velocity, estimator=cc.VelocityEstimatorConfig(fir_taps=(1.0,))
+        ),
+    )
+    notch = cc.NotchConfig(frequency_hz=f0, bandwidth_hz=40.0, depth=depth)
+    notched = dataclasses.replace(plain, velocity=dataclasses.replace(plain.velocity, notch=notch))
+    amplitudes = []
+    for config in (plain, notched):
+        loop = VelocityLoop(config)
+        meas = np.zeros(sig.MEAS_SIZE)
+        outputs = []
+        for k in range(600):
+            x = 1e-5 * math.sin(2 * math.pi * f0 * k * T_v)
+            meas[sig.MEAS_THETA_ENC_RAD] = x * 2 * math.pi / config.drive.lead_m
+            outputs.append(loop.update(k * T_v, VelocitySetpoint(vel_m_s=0.0), meas))
+        amplitudes.append(np.max(np.abs(outputs[300:])))
+    assert amplitudes[1] / amplitudes[0] == pytest.approx(depth, abs=0.01)
