@@ -344,8 +344,14 @@ class PlantModel:
             inv = [row[self.param_index[f"derived.inv_inertia.{c.name}"]] for c in self.coordinates]
             for c, value in zip(self.coordinates, inv, strict=True):
                 if not (math.isfinite(value) and value > 0.0):
+                    bodies = [
+                        f"{comp}.{slot}"
+                        for n in c.nodes
+                        for comp, slot, _ in self.inertia_nodes.get(n, [])
+                    ]
                     raise ValueError(
-                        f"coordinate {c.name}: effective inertia 1/{value!r} is not positive"
+                        f"coordinate {c.name}: effective inertia {float(1.0 / value)!r} is not "
+                        f"positive (from {', '.join(bodies)})"
                     )
         return p
 

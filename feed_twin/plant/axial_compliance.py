@@ -22,7 +22,7 @@ from typing import Literal
 from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.component import Component, Emitter, SlotReader
 
 
 @njit(cache=True)
@@ -128,8 +128,8 @@ class AxialCompliance(Component):
         )
         return k
 
-    def damping_bounds(self) -> dict[str, float]:
-        return {"a": self.d, "b": self.d}
+    def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
+        return {"a": slot("d"), "b": slot("d")}
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage != "dynamics":

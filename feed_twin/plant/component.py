@@ -26,10 +26,12 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 PortKind = Literal["rotational", "translational", "dc", "ac3"]
+SlotReader = Callable[[str], float]  # parameter slot name of the component -> its value
 STAGES = ("currents", "dc_current", "dc_voltage", "voltages", "dynamics", "transmit", "sense")
 NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_]*$")
 
@@ -82,12 +84,14 @@ class Component:
     def inertias(self) -> tuple[InertiaSpec, ...]:
         return ()
 
-    def damping_bounds(self) -> dict[str, float]:
-        """Largest velocity gradient of a through variable at each port [N s/m or N m s/rad].
+    def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
+        """Largest velocity gradient of a through variable at each port [N s/m or N m s/rad],
+        from the parameter values `slot(name)` of the set being run.
 
         The engine checks h * c / M_eff < 2.5 (explicit RK4 is stable for real eigenvalues down
         to -2.78/h), so a regularised friction that is too sharp for the step is refused.
         """
+        del slot
         return {}
 
     def structure(self) -> tuple:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.component import Component, Emitter, SlotReader
 
 
 @njit(cache=True)
@@ -55,8 +55,8 @@ class Coupling(Component):
         require_positive("k", self.k)
         require_nonnegative("d", self.d)
 
-    def damping_bounds(self) -> dict[str, float]:
-        return {"a": self.d, "b": self.d}
+    def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
+        return {"a": slot("d"), "b": slot("d")}
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "dynamics":

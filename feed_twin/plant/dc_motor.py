@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, InertiaSpec, StateSpec
+from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader, StateSpec
 
 
 @njit(cache=True)
@@ -62,8 +62,8 @@ class DcMotor(Component):
     def inertias(self) -> tuple[InertiaSpec, ...]:
         return (InertiaSpec(port="flange", slot="J"),)
 
-    def damping_bounds(self) -> dict[str, float]:
-        return {"flange": self.T_c / self.omega_reg + self.b}
+    def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
+        return {"flange": slot("T_c") / slot("omega_reg") + slot("b")}
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage != "dynamics":

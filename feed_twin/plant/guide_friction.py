@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.component import Component, Emitter, SlotReader
 
 STRIBECK_CUTOFF = 50.0  # (v/v_s)^2 beyond which exp(-(v/v_s)^2) < 2e-22 is taken as 0
 
@@ -80,9 +80,9 @@ class GuideFriction(Component):
             self.v_reg,
         )
 
-    def damping_bounds(self) -> dict[str, float]:
-        c0 = (max(self.F_c_pos, self.F_c_neg) + self.dF_s) / self.v_reg
-        return {"flange": c0 + max(self.F_v_pos, self.F_v_neg)}
+    def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
+        c0 = (max(slot("F_c_pos"), slot("F_c_neg")) + slot("dF_s")) / slot("v_reg")
+        return {"flange": c0 + max(slot("F_v_pos"), slot("F_v_neg"))}
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage != "dynamics":

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 
 from feed_twin.io.config import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, InertiaSpec
+from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader
 from feed_twin.plant.coupling import emit_spring_damper
 
 
@@ -52,8 +52,8 @@ class ScrewShaft(Component):
             InertiaSpec(port="b", slot="J", factor=0.5),
         )
 
-    def damping_bounds(self) -> dict[str, float]:
-        return {"a": self.d, "b": self.d}
+    def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
+        return {"a": slot("d"), "b": slot("d")}
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "dynamics":

@@ -214,7 +214,7 @@ def divergence_message(model: PlantModel, status: np.ndarray, h: float) -> str:
         owner = f"component {state.split('.')[0]}"
     return (
         f"simulation diverged at t = {(k + 1) * h:.6g} s (tick {k}): state {state} of {owner} "
-        f"= {value!r}, limit {model.state_limits[i]!r}"
+        f"= {value!r}, limit {float(model.state_limits[i])!r}"
     )
 
 
@@ -222,7 +222,11 @@ def check_step(model: PlantModel, p: np.ndarray, h: float, nsub: int) -> None:
     """Refuse a sub-step for which a regularised friction or damper makes RK4 unstable."""
     hs = h / nsub
     for name, comp in model.components.items():
-        for port, c in comp.damping_bounds().items():
+
+        def slot(field: str, name: str = name) -> float:
+            return float(p[model.param_index[f"{name}.{field}"]])
+
+        for port, c in comp.damping_bounds(slot).items():
             node = model.node_of[f"{name}.{port}"]
             coord = model.coordinates[model.coordinate_of[node]]
             r = p[model.param_index[f"derived.ratio_n{node}"]]
@@ -273,7 +277,8 @@ def run_batch(
 
     Every set starts from `x0` (default: the engine's initial state) and a fresh controller; the
     inputs are shared. A set that diverges is marked in `diverged`, its signals after the
-    divergence are NaN, and the others run on.
+    divergence are NaN, and the others run on; a set whose friction is too sharp for the step
+    (see `check_step`) is not run, marked diverged, all NaN, with the reason in `messages`.
     """
     P = np.ascontiguousarray(params, dtype=float)
     if P.ndim != 2 or P.shape[1] != len(engine.model.param_names):
@@ -281,8 +286,14 @@ def run_batch(
             f"params: shape {P.shape} given, expected (N, {len(engine.model.param_names)})"
         )
     N = P.shape[0]
-    for row in P:
-        check_step(engine.model, row, engine.h, engine.nsub)
+    status = np.zeros((N, 4))
+    refused = [""] * N
+    for b, row in enumerate(P):
+        try:
+            check_step(engine.model, row, engine.h, engine.nsub)
+        except ValueError as exc:
+            refused[b] = str(exc)
+            status[b, 0] = 2.0  # not run: the kernel skips sets whose status is set
     engine.reset()
     X = np.tile(engine.x if x0 is None else np.asarray(x0, float), (N, 1))
     CS = np.tile(engine.cs, (N, 1)) if engine.cs.size else np.zeros((N, 0))
@@ -298,7 +309,6 @@ def run_batch(
     ks = np.arange(n_ticks)
     rec_ticks = ks[ks % engine.dec == 0]
     rec = np.full((N, len(rec_ticks), len(engine.sel)), np.nan)
-    status = np.zeros((N, 4))
     engine.kernel.advance_batch(
         X,
         P,
@@ -323,7 +333,9 @@ def run_batch(
     diverged = status[:, 0] != 0.0
     messages = []
     for b in range(N):
-        if diverged[b]:
+        if refused[b]:
+            messages.append(f"not run: {refused[b]}")
+        elif diverged[b]:
             k = int(status[b, 1])
             rec[b, rec_ticks > k, :] = np.nan
             messages.append(divergence_message(engine.model, status[b], engine.h))

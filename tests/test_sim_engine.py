@@ -1,0 +1,185 @@
+"""The engine: chunked runs, batch mode, sensors, seeded noise, divergence and its errors."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from feed_twin.control import signals as sig
+from feed_twin.plant.config import load_plant
+from feed_twin.sim.config import build_engine, load_axis_config
+from feed_twin.sim.engine import DivergenceError, Engine, run_batch
+
+
+def _emps_ref(n: int) -> np.ndarray:
+    ref = np.zeros((n, sig.REF_SIZE))
+    t = np.arange(n) * 1e-3
+    ref[:, sig.REF_POS_M] = 0.02 * (1.0 - np.cos(2.0 * math.pi * t))
+    return ref
+
+
+@pytest.fixture(scope="module")
+def emps():
+    return load_axis_config("config/emps.yaml")
+
+
+def test_advancing_in_chunks_is_bit_identical_to_one_run(emps):
+    n = 600
+    ref = _emps_ref(n)
+    one = build_engine(emps).run(n, ref=ref)
+    engine = build_engine(emps)
+    parts = []
+    start = 0
+    for size in (1, 7, 92, 300, 200):
+        parts.append(engine.advance(size, ref=ref[start : start + size]))
+        start += size
+    chunks = type(one).concat(parts)
+    assert np.array_equal(one.t, chunks.t)
+    assert np.array_equal(one.data, chunks.data)
+
+
+def test_axis_with_current_noise_is_reproducible_bit_for_bit_and_seed_dependent():
+    axis = load_axis_config("config/axis_default.yaml")
+    n = 400
+    ref = np.zeros((n, sig.REF_SIZE))
+    ref[:, sig.REF_POS_M] = 1e-4
+    runs = [
+        build_engine(axis, output_period_s=axis.engine.base_period_s).run(n, ref=ref) for _ in "ab"
+    ]
+    assert np.array_equal(runs[0].data, runs[1].data)
+    engine = build_engine(axis, output_period_s=axis.engine.base_period_s)
+    engine.seed = 2
+    other = engine.run(n, ref=ref)
+    a = runs[0]["meas.i_a_meas_A"]
+    assert not np.array_equal(a, other["meas.i_a_meas_A"])
+    # ADC noise: std 0.02 A around the true current, on a 100 A / 4096 step
+    error = runs[0]["meas.i_a_meas_A"] - runs[0]["motor.i_a"]
+    step = 100.0 / 4096
+    assert np.std(error) == pytest.approx(math.sqrt(0.02**2 + step**2 / 12), rel=0.15)
+    assert abs(np.mean(error)) < 0.01
+
+
+def test_batch_equals_single_runs_and_flags_a_refused_set(emps):
+    plant = emps.plant
+    n = 300
+    ref = _emps_ref(n)
+    record = ["table.s", "meas.theta_enc_rad", "out.effort_cmd", "drive.effort"]
+    engine = build_engine(emps, record=record)
+    masses = [80.0, 95.1089, 120.0]
+    P = np.array([plant.param_vector({"table.m": m}) for m in masses])
+    P = np.vstack([P, plant.param_vector({"table.m": 1e-3})])  # friction far too stiff
+    batch = run_batch(engine, P, n, ref=ref)
+    assert list(batch.diverged) == [False, False, False, True]
+    assert batch.messages[3].startswith("not run: config/emps.yaml: plant.friction: step")
+    assert np.all(np.isnan(batch["table.s"][3]))
+    for b, m in enumerate(masses):
+        single = build_engine(emps, record=record, params=plant.param_vector({"table.m": m}))
+        res = single.run(n, ref=ref)
+        assert np.array_equal(batch.data[b], res.data)
+
+
+def _unstable_axis():
+    """The default axis with a nut 1e4 times stiffer: its mode is far beyond RK4's reach."""
+    axis = load_axis_config("config/axis_default.yaml")
+    return axis.plant.with_params(axial={"k_nut": 1e13}, backlash={"k": 1e13})
+
+
+def test_divergence_raises_with_time_and_state():
+    plant = _unstable_axis()
+    engine = Engine(plant, base_period_s=6.25e-5)
+    x0 = plant.initial_state()
+    x0[plant.state_index["nut.s"]] = 1e-9
+    engine.reset(x0=x0)
+    with pytest.raises(
+        DivergenceError,
+        match=r"simulation diverged at t = [0-9.e-]+ s \(tick \d+\): state \w+\.(s|v|phi|omega) "
+        r"of coordinate \w+ \(flanges [\w., ]+\) = [-+0-9.e]+|nan|inf, limit (10000\.0|100000\.0)$",
+    ):
+        engine.advance(2000)
+
+
+def test_batch_flags_a_diverging_set_and_runs_the_others():
+    plant = _unstable_axis()
+    engine = Engine(plant, base_period_s=6.25e-5, record=["nut.s", "table.s"])
+    x0 = plant.initial_state()
+    x0[plant.state_index["nut.s"]] = 1e-9
+    stable = plant.param_vector({"axial.k_nut": 1e9, "backlash.k": 5e8})
+    P = np.vstack([stable, plant.nominal_params()])
+    batch = run_batch(engine, P, 400, x0=x0)
+    assert list(batch.diverged) == [False, True]
+    assert "simulation diverged at t = " in batch.messages[1]
+    assert np.all(np.isfinite(batch["nut.s"][0]))
+    assert np.isnan(batch["nut.s"][1, -1])
+
+
+def test_encoder_quantises_and_delays_its_samples():
+    plant = load_plant(
+        {
+            "components": [
+                {"name": "rotor", "type": "Inertia", "params": {"J": 1.0}},
+                {
+                    "name": "drive",
+                    "type": "EffortSource",
+                    "params": {"domain": "rotational", "gain": 1.0, "T_lag": 0.0, "f_max": 1e6},
+                },
+                {
+                    "name": "encoder",
+                    "type": "Encoder",
+                    "params": {"counts_per_rev": 1000, "delay_ticks": 3},
+                },
+            ],
+            "connect": [["rotor.flange", "drive.flange"], ["rotor.flange", "encoder.flange"]],
+        },
+        source="encoder",
+    )
+    engine = Engine(plant, base_period_s=1e-3, record=["rotor.phi", "meas.theta_enc_rad"])
+    n = 200
+    drive = np.zeros((n, sig.OUT_SIZE))
+    drive[:, sig.OUT_EFFORT_CMD] = 2.0
+    drive[:, sig.OUT_ENABLED] = 1.0
+    res = engine.run(n, drive=drive)
+    step = 2.0 * math.pi / 1000
+    phi = res["rotor.phi"]
+    delayed = np.concatenate([np.full(3, phi[0]), phi[:-3]])
+    np.testing.assert_array_equal(res["meas.theta_enc_rad"], np.floor(delayed / step) * step)
+
+
+def test_engine_input_errors_name_the_problem(emps):
+    engine = build_engine(emps)
+    with pytest.raises(ValueError, match=r"ref: shape \(5, 3\) given, expected \(5, 6\)"):
+        engine.advance(5, ref=np.zeros((5, 3)))
+    with pytest.raises(KeyError, match="record: unknown signal.s. table.q"):
+        build_engine(emps, record=["table.s", "table.q"])
+    with pytest.raises(KeyError, match="signal 'nope': not recorded"):
+        engine.run(3)["nope"]
+    with pytest.raises(ValueError, match=r"output_period_s = 0.0015: must be an integer multiple"):
+        build_engine(emps, output_period_s=1.5e-3)
+    with pytest.raises(
+        ValueError, match=r"base_period_s = 0.002: the controller's base period is 0.001"
+    ):
+        Engine(emps.plant, base_period_s=2e-3, controller=engine.controller)
+    with pytest.raises(ValueError, match=r"params: shape \(2, 3\) given, expected \(N, 19\)"):
+        run_batch(engine, np.zeros((2, 3)), 10)
+    with pytest.raises(KeyError, match="parameter 'table.mass': unknown"):
+        emps.plant.param_vector({"table.mass": 1.0})
+    with pytest.raises(
+        ValueError,
+        match=r"coordinate table: effective inertia -95.1089 is not positive \(from table.m\)",
+    ):
+        emps.plant.param_vector({"table.m": -95.1089})
+
+
+def test_a_friction_too_sharp_for_the_step_is_refused(emps):
+    with pytest.raises(
+        ValueError,
+        match=r"plant.friction: step 0.001 s times damping slope 2.0\d+e\+06 over the effective "
+        r"inertia 95.1089 is 21.\d, must be < 2.5 for explicit RK4",
+    ):
+        Engine(
+            emps.plant,
+            base_period_s=1e-3,
+            substeps=1,
+            params=emps.plant.param_vector({"friction.v_reg": 1e-5}),
+        )
