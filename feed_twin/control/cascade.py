@@ -62,9 +62,7 @@ from feed_twin.control.transforms import (
     SQRT3,
     clarke,
     inverse_clarke,
-    inverse_park,
     limit_voltage_circle,
-    park,
     svpwm_phase_duties,
 )
 from feed_twin.io.config import (
@@ -696,8 +694,13 @@ def current_law(
 
     `cp` is only read; numba does not reference-count read-only parameter arrays passed on.
     """
+    # one sin/cos pair serves Park and inverse Park (the advance rotates it): trigonometric
+    # calls are the dearest part of the tick
+    cos_e = math.cos(theta_e)
+    sin_e = math.sin(theta_e)
     i_alpha, i_beta = clarke(i_a, i_b, i_c)
-    i_d, i_q = park(i_alpha, i_beta, theta_e)
+    i_d = cos_e * i_alpha + sin_e * i_beta
+    i_q = -sin_e * i_alpha + cos_e * i_beta
     e_d = 0.0 - i_d
     e_q = i_q_ref - i_q
     dec = cp[P_DECOUPLING] * omega_e
@@ -709,8 +712,13 @@ def current_law(
     u_d_lim, u_q_lim = limit_voltage_circle(u_d, u_q, u_max)
     x_d = pi_integrate(x_d, e_d, cp[P_KI_T_D], u_d, u_d_lim)
     x_q = pi_integrate(x_q, e_q, cp[P_KI_T_Q], u_q, u_q_lim)
-    theta_out = theta_e + cp[P_ANGLE_ADVANCE] * omega_e * cp[P_CUR_PERIOD]
-    u_alpha, u_beta = inverse_park(u_d_lim, u_q_lim, theta_out)
+    advance = cp[P_ANGLE_ADVANCE] * omega_e * cp[P_CUR_PERIOD]
+    if advance != 0.0:
+        cos_a = math.cos(advance)
+        sin_a = math.sin(advance)
+        cos_e, sin_e = cos_e * cos_a - sin_e * sin_a, sin_e * cos_a + cos_e * sin_a
+    u_alpha = cos_e * u_d_lim - sin_e * u_q_lim
+    u_beta = sin_e * u_d_lim + cos_e * u_q_lim
     if u_dc <= 0.0:
         return 0.5, 0.5, 0.5, u_d_lim, u_q_lim, x_d, x_q
     u_a, u_b, u_c = inverse_clarke(u_alpha, u_beta)
