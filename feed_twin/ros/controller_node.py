@@ -23,6 +23,7 @@ from std_msgs.msg import String
 from feed_twin.control import signals as sig
 from feed_twin.control.cascade import ControllerConfig, load_controller_config
 from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.ros.cdr import FlatCodec
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_ERROR,
@@ -44,47 +45,50 @@ from feed_twin.ros.split import (
 )
 from feed_twin.ros.topics import CONTROLLER_NODE
 
-
-def stamp_ns(header) -> int:
-    return header.stamp.sec * NS_PER_S + header.stamp.nanosec
-
-
-def set_stamp(header, t_ns: int) -> None:
-    header.stamp.sec, header.stamp.nanosec = divmod(t_ns, NS_PER_S)
+AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
+AXIS_FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")
+DRIVE_COMMAND = FlatCodec("feed_twin_msgs/msg/DriveCommand")
 
 
-def nc_sample(msg: AxisCommand) -> NcSample:
+def nc_sample(data: bytes) -> NcSample:
+    m = AXIS_COMMAND.decode_map(data)
     return NcSample(
-        t_ns=stamp_ns(msg.header),
-        position_m=msg.position,
-        velocity_m_s=msg.velocity,
-        acceleration_m_s2=msg.acceleration,
-        line=msg.line,
+        t_ns=m["header.stamp.sec"] * NS_PER_S + m["header.stamp.nanosec"],
+        position_m=m["position"],
+        velocity_m_s=m["velocity"],
+        acceleration_m_s2=m["acceleration"],
+        line=m["line"],
     )
 
 
-def measurement(msg: AxisFeedback, out: np.ndarray) -> np.ndarray:
-    out[sig.MEAS_THETA_ENC_RAD] = msg.encoder_angle
-    out[sig.MEAS_X_SCALE_M] = msg.scale_position
-    out[sig.MEAS_I_A] = msg.i_a
-    out[sig.MEAS_I_B] = msg.i_b
-    out[sig.MEAS_I_C] = msg.i_c
-    out[sig.MEAS_U_DC_V] = msg.u_dc
-    return out
+def feedback_sample(data: bytes, out: np.ndarray) -> int:
+    """Fill the MEAS_* vector from AxisFeedback bytes; returns the stamp [ns]."""
+    m = AXIS_FEEDBACK.decode_map(data)
+    out[sig.MEAS_THETA_ENC_RAD] = m["encoder_angle"]
+    out[sig.MEAS_X_SCALE_M] = m["scale_position"]
+    out[sig.MEAS_I_A] = m["i_a"]
+    out[sig.MEAS_I_B] = m["i_b"]
+    out[sig.MEAS_I_C] = m["i_c"]
+    out[sig.MEAS_U_DC_V] = m["u_dc"]
+    return m["header.stamp.sec"] * NS_PER_S + m["header.stamp.nanosec"]
 
 
-def drive_command(setpoint: DriveSetpoint, axis: str) -> DriveCommand:
-    msg = DriveCommand()
-    set_stamp(msg.header, setpoint.t_ns)
-    msg.axis = axis
-    msg.mode = setpoint.mode
-    msg.enable = setpoint.enable
-    msg.position = setpoint.position_m
-    msg.velocity = setpoint.velocity_m_s
-    msg.torque = setpoint.torque_Nm
-    msg.i_q = setpoint.i_q_A
-    msg.i_d = setpoint.i_d_A
-    return msg
+def drive_command(setpoint: DriveSetpoint, axis: str) -> bytes:
+    sec, nsec = divmod(setpoint.t_ns, NS_PER_S)
+    return DRIVE_COMMAND.encode_map(
+        {
+            "header.stamp.sec": sec,
+            "header.stamp.nanosec": nsec,
+            "axis": axis,
+            "mode": setpoint.mode,
+            "enable": setpoint.enable,
+            "position": setpoint.position_m,
+            "velocity": setpoint.velocity_m_s,
+            "torque": setpoint.torque_Nm,
+            "i_q": setpoint.i_q_A,
+            "i_d": setpoint.i_d_A,
+        }
+    )
 
 
 class ControllerNode(FeedTwinNode):
@@ -108,13 +112,17 @@ class ControllerNode(FeedTwinNode):
         self.axis_label = axis_label
         self.exchange_ns = round(exchange_period_s * NS_PER_S)
         self.nc = NcBuffer()
-        self._pending: collections.deque[AxisFeedback] = collections.deque()
+        self._pending: collections.deque[bytes] = collections.deque()
         self._paused = False
         self._meas = np.zeros(sig.MEAS_SIZE)
         self.steps = 0
         self._pub = self.create_publisher(DriveCommand, self.topics.drive_command, DATA_QOS)
-        self.create_subscription(AxisCommand, self.topics.command, self._on_command, DATA_QOS)
-        self.create_subscription(AxisFeedback, self.topics.feedback, self._on_feedback, DATA_QOS)
+        self.create_subscription(
+            AxisCommand, self.topics.command, self._on_command, DATA_QOS, raw=True
+        )
+        self.create_subscription(
+            AxisFeedback, self.topics.feedback, self._on_feedback, DATA_QOS, raw=True
+        )
         self.create_subscription(
             String, self.topics.program_state, self._on_program_state, LATCHED_QOS
         )
@@ -131,13 +139,13 @@ class ControllerNode(FeedTwinNode):
         )
         self.start_heartbeat()
 
-    def _on_command(self, msg: AxisCommand) -> None:
-        self.nc.add(nc_sample(msg))
+    def _on_command(self, data: bytes) -> None:
+        self.nc.add(nc_sample(data))
         self._command_dog.feed()
         self._serve()
 
-    def _on_feedback(self, msg: AxisFeedback) -> None:
-        self._pending.append(msg)
+    def _on_feedback(self, data: bytes) -> None:
+        self._pending.append(data)
         self._feedback_dog.feed()
         self._serve()
 
@@ -150,15 +158,14 @@ class ControllerNode(FeedTwinNode):
 
     def _serve(self) -> None:
         while self._pending:
-            feedback = self._pending[0]
             # Feedback latched at t_k sets the setpoint the drive applies from t_k+1 (drive_host).
-            t_ns = stamp_ns(feedback.header) + self.exchange_ns
+            t_ns = feedback_sample(self._pending[0], self._meas) + self.exchange_ns
             nc = self.nc.for_time(t_ns)
             if nc is None:
                 return
             self._pending.popleft()
             try:
-                setpoint = self.core.step(t_ns, nc, measurement(feedback, self._meas))
+                setpoint = self.core.step(t_ns, nc, self._meas)
             except ValueError as exc:
                 self.finish(EXIT_ERROR, f"controller: at t = {t_ns * 1e-9:.6f} s: {exc}")
                 return

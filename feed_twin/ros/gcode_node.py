@@ -33,6 +33,7 @@ from std_srvs.srv import Trigger
 
 from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_config, plan_program
 from feed_twin.io.config import ConfigError
+from feed_twin.ros.cdr import FlatCodec
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_ERROR,
@@ -45,6 +46,7 @@ from feed_twin.ros.runtime import (
 from feed_twin.ros.split import NS_PER_S, load_node_set_config
 from feed_twin.ros.topics import GCODE_NODE
 
+AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
 STANDSTILL_M_S = 1e-9  # |v| below which the planned path is at rest [m/s]
 
 
@@ -194,11 +196,20 @@ class GcodeNode(FeedTwinNode):
         was_paused = stream.paused
         while not stream.finished and stream.next_t_ns <= horizon:
             t_ns, x, v, a, line = stream.next_sample()
-            msg = AxisCommand()
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t_ns, NS_PER_S)
-            msg.axis = self.nc.twin_axis
-            msg.position, msg.velocity, msg.acceleration, msg.line = x, v, a, line
-            self._pub.publish(msg)
+            sec, nsec = divmod(t_ns, NS_PER_S)
+            self._pub.publish(
+                AXIS_COMMAND.encode_map(
+                    {
+                        "header.stamp.sec": sec,
+                        "header.stamp.nanosec": nsec,
+                        "axis": self.nc.twin_axis,
+                        "position": x,
+                        "velocity": v,
+                        "acceleration": a,
+                        "line": line,
+                    }
+                )
+            )
             if stream.paused is not None and was_paused is None:
                 self._state(f"paused {stream.paused}")
                 was_paused = stream.paused

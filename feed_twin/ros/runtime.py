@@ -44,10 +44,12 @@ HEARTBEAT_PERIOD_S = 0.1
 PEER_TIMEOUT_S = 0.6
 
 # Data topics: reliable and in order. Transient-local history lets a subscriber that matched a
-# few milliseconds late (the recorder, usually) still receive the first messages.
+# few milliseconds late (the recorder, usually) still receive the first messages. The depth
+# (5 s at 1 kHz) is what a reliable writer keeps for a reader that falls behind: a recorder
+# descheduled on a loaded machine must not lose samples (a 200-deep history did).
 DATA_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
-    depth=200,
+    depth=5000,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
@@ -286,7 +288,12 @@ def spin_nodes(
                 print(f"{node.role}: error while shutting down: {exc}", file=sys.stderr)
         usage = resource.getrusage(resource.RUSAGE_SELF)
         roles = "+".join(n.role for n in nodes)
-        print(f"CPU {roles} {usage.ru_utime + usage.ru_stime:.2f} s", file=sys.stderr, flush=True)
+        print(
+            f"CPU {roles} {usage.ru_utime + usage.ru_stime:.2f} s; ended: "
+            f"{reason or 'run done'}; codes {[n.exit_code for n in nodes]}",
+            file=sys.stderr,
+            flush=True,
+        )
         codes = [n.exit_code for n in nodes if n.exit_code not in (None, EXIT_OK)]
         if flag.received is not None:
             return EXIT_SIGNAL

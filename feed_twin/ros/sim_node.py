@@ -34,6 +34,7 @@ from std_msgs.msg import String
 
 from feed_twin.control import signals as sig
 from feed_twin.io.config import ConfigError
+from feed_twin.ros.cdr import FlatCodec
 from feed_twin.ros.drive_host import DriveHost, ExchangeSample
 from feed_twin.ros.runtime import (
     DATA_QOS,
@@ -77,16 +78,22 @@ def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
     )
 
 
-def setpoint_from(msg: DriveCommand) -> DriveSetpoint:
+DRIVE_COMMAND = FlatCodec("feed_twin_msgs/msg/DriveCommand")
+AXIS_FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")
+AXIS_STATE = FlatCodec("feed_twin_msgs/msg/AxisState")
+
+
+def setpoint_from(data: bytes) -> DriveSetpoint:
+    m = DRIVE_COMMAND.decode_map(data)
     return DriveSetpoint(
-        t_ns=msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec,
-        mode=msg.mode,
-        enable=msg.enable,
-        position_m=msg.position,
-        velocity_m_s=msg.velocity,
-        torque_Nm=msg.torque,
-        i_q_A=msg.i_q,
-        i_d_A=msg.i_d,
+        t_ns=m["header.stamp.sec"] * NS_PER_S + m["header.stamp.nanosec"],
+        mode=m["mode"],
+        enable=m["enable"],
+        position_m=m["position"],
+        velocity_m_s=m["velocity"],
+        torque_Nm=m["torque"],
+        i_q_A=m["i_q"],
+        i_d_A=m["i_d"],
     )
 
 
@@ -128,7 +135,7 @@ class SimNode(FeedTwinNode):
         self._clock_pub = self.create_publisher(Clock, "/clock", DATA_QOS)
         self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
         self.create_subscription(
-            DriveCommand, self.topics.drive_command, self._on_command, DATA_QOS
+            DriveCommand, self.topics.drive_command, self._on_command, DATA_QOS, raw=True
         )
         self.create_subscription(
             String, self.topics.program_state, self._on_program_state, LATCHED_QOS
@@ -138,9 +145,6 @@ class SimNode(FeedTwinNode):
             "feed_twin_msgs/msg/DriveCommand",
             armed=lambda: self.started and not self.done and not self.realtime,
         )
-        # Pre-allocated messages: only the fields change per exchange.
-        self._feedback = AxisFeedback(axis=axis_label)
-        self._state = AxisState(axis=axis_label)
         self._joint = JointState(name=[joint_name], position=[0.0], velocity=[0.0], effort=[0.0])
         self._clock = Clock()
         self.start_heartbeat()
@@ -200,8 +204,8 @@ class SimNode(FeedTwinNode):
 
     # -- exchanges ----------------------------------------------------------------------------
 
-    def _on_command(self, msg: DriveCommand) -> None:
-        setpoint = setpoint_from(msg)
+    def _on_command(self, data: bytes) -> None:
+        setpoint = setpoint_from(data)
         self._command_dog.feed()
         if self.realtime:
             self._pending[setpoint.t_ns] = setpoint
@@ -241,30 +245,31 @@ class SimNode(FeedTwinNode):
 
     def _publish(self, s: ExchangeSample) -> None:
         sec, nsec = divmod(s.t_ns, NS_PER_S)
-        fb = self._feedback
-        fb.header.stamp.sec, fb.header.stamp.nanosec = sec, nsec
         meas = s.meas
-        fb.encoder_counts = int(s.feedback["encoder_counts"])
-        fb.encoder_angle = float(meas[sig.MEAS_THETA_ENC_RAD])
-        fb.scale_position = float(meas[sig.MEAS_X_SCALE_M])
-        fb.i_a = float(meas[sig.MEAS_I_A])
-        fb.i_b = float(meas[sig.MEAS_I_B])
-        fb.i_c = float(meas[sig.MEAS_I_C])
-        fb.u_dc = float(meas[sig.MEAS_U_DC_V])
-        fb.i_d = s.feedback["i_d"]
-        fb.i_q = s.feedback["i_q"]
-        fb.following_error = s.feedback["following_error"]
-        fb.mode = self.host.setpoint.mode
         fault = int(s.out[sig.OUT_FAULT])
         enabled = s.out[sig.OUT_ENABLED] > 0.5
-        fb.status_word = (STATUS_ENABLED if enabled else 0) | (STATUS_FAULT if fault else 0)
-        fb.fault_code = fault
-        st = self._state
-        st.header.stamp.sec, st.header.stamp.nanosec = sec, nsec
-        for name, value in s.truth.items():
-            setattr(st, name, float(value))
-        self._feedback_pub.publish(fb)
-        self._state_pub.publish(st)
+        feedback = {
+            "header.stamp.sec": sec,
+            "header.stamp.nanosec": nsec,
+            "axis": self.axis_label,
+            "encoder_counts": int(s.feedback["encoder_counts"]),
+            "encoder_angle": float(meas[sig.MEAS_THETA_ENC_RAD]),
+            "scale_position": float(meas[sig.MEAS_X_SCALE_M]),
+            "i_a": float(meas[sig.MEAS_I_A]),
+            "i_b": float(meas[sig.MEAS_I_B]),
+            "i_c": float(meas[sig.MEAS_I_C]),
+            "i_d": s.feedback["i_d"],
+            "i_q": s.feedback["i_q"],
+            "u_dc": float(meas[sig.MEAS_U_DC_V]),
+            "following_error": s.feedback["following_error"],
+            "mode": self.host.setpoint.mode,
+            "status_word": (STATUS_ENABLED if enabled else 0) | (STATUS_FAULT if fault else 0),
+            "fault_code": fault,
+        }
+        state = {"header.stamp.sec": sec, "header.stamp.nanosec": nsec, "axis": self.axis_label}
+        state.update(s.truth)
+        self._feedback_pub.publish(AXIS_FEEDBACK.encode_map(feedback))
+        self._state_pub.publish(AXIS_STATE.encode_map(state))
         if (self.host.k - 1) % self.clock_divider:
             return
         # Tools get joint states and the clock at a lower rate; every message carries its stamp.
