@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from feed_twin.gcode.config import NcConfig
 from feed_twin.gcode.errors import GcodeError
@@ -31,8 +31,7 @@ MM = 1e-3  # [m] per millimetre
 INCH = 25.4e-3  # [m] per inch
 
 
-@dataclass(frozen=True, slots=True)
-class Move:
+class Move(NamedTuple):
     line: int
     end_m: tuple[float, ...]  # [m] machine coordinates, one per configured axis
     rapid: bool  # G0: per-axis rapid rates; otherwise the programmed feed
@@ -41,14 +40,12 @@ class Move:
     exact_stop: bool  # stop at the end of this move (G61, G9)
 
 
-@dataclass(frozen=True, slots=True)
-class Stop:
+class Stop(NamedTuple):
     line: int
     dwell_s: float  # [s] time spent at standstill
 
 
-@dataclass(frozen=True, slots=True)
-class Event:
+class Event(NamedTuple):
     line: int
     kind: str
     value: float
@@ -360,6 +357,7 @@ class Interpreter:
         index = self.index
         seen = set()
         feed = None
+        motion = self.motion
         unit = self.length_unit
         absolute = self.absolute
         for w in block.words:
@@ -377,18 +375,21 @@ class Interpreter:
                 if w.value <= 0.0:
                     return None
                 feed = w.value
+            elif letter == "G" and (w.value == 0.0 or w.value == 1.0):
+                motion = int(w.value)
             elif letter != "N":
                 return None
-        if feed is not None:
-            self.feed = feed * self.feed_unit / 60.0
-        if len(seen) == ("N" in seen) + (feed is not None):
-            return []
-        if self.motion == 1 and self.feed is None:
+        if len(seen) == ("N" in seen) + (feed is not None) + ("G" in seen):
+            return None
+        if motion == 1 and self.feed is None and feed is None:
             return None
         for i, x in enumerate(target):
             low, high = self.travel[i]
             if not low - 1e-12 <= x <= high + 1e-12:
                 return None
+        if feed is not None:
+            self.feed = feed * self.feed_unit / 60.0
+        self.motion = motion
         return self._line_move(target, block.line, {})
 
     def _dwell(self, g4: Word, other: dict[str, Word], g_words: dict, line: int) -> list[Item]:
@@ -440,7 +441,10 @@ class Interpreter:
                 )
 
     def _line_move(self, target: list[float], line: int, g_words: dict) -> list[Item]:
-        if all(abs(a - b) <= 1e-12 for a, b in zip(target, self.position, strict=True)):
+        for a, b in zip(target, self.position, strict=True):
+            if abs(a - b) > 1e-12:
+                break
+        else:
             return []
         self.position = target
         rapid = self.motion == 0

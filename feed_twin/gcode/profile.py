@@ -50,22 +50,44 @@ def phase_distance(va: float, vb: float, A: float, J: float, jerk: bool) -> floa
 
 @njit(cache=True)
 def reach(v_known: float, L: float, A: float, J: float, jerk: bool, v_cap: float) -> float:
-    """Largest v <= v_cap from which one speed change to v_known fits in the length L."""
+    """Largest v <= v_cap from which one speed change to v_known fits in the length L.
+
+    Closed form of (v + v_known)/2 * T(v - v_known) = L for x = v - v_known:
+    trapezoid x^2 + 2 v_k x - 2AL = 0; jerk with x >= A^2/J
+    x^2 + (2 v_k + A^2/J) x + 2 v_k A^2/J - 2AL = 0; with x < A^2/J and y = sqrt(x/J)
+    J y^3 + 2 v_k y - L = 0 (one real root, by the hyperbolic form of Cardano's solution).
+    """
     if v_cap <= v_known:
         return v_cap
     if phase_distance(v_cap, v_known, A, J, jerk) <= L:
         return v_cap
-    lo = v_known
-    hi = v_cap
-    for _ in range(48):
-        mid = 0.5 * (lo + hi)
-        if mid <= lo or mid >= hi:
-            break
-        if phase_distance(mid, v_known, A, J, jerk) <= L:
-            lo = mid
+    if not jerk:
+        x = 2.0 * A * L / (v_known + math.sqrt(v_known * v_known + 2.0 * A * L))
+    else:
+        x0 = A * A / J
+        if (2.0 * v_known + x0) * A / J <= L:
+            b = 2.0 * v_known + x0
+            c = 2.0 * v_known * x0 - 2.0 * A * L
+            x = -2.0 * c / (b + math.sqrt(b * b - 4.0 * c))
         else:
-            hi = mid
-    return lo
+            p = 2.0 * v_known / J
+            if p > 0.0:
+                q = -L / J
+                arg = 1.5 * q / p * math.sqrt(3.0 / p)
+                y = -2.0 * math.sqrt(p / 3.0) * math.sinh(math.asinh(arg) / 3.0)
+            else:
+                y = (L / J) ** (1.0 / 3.0)
+            x = J * y * y
+    v = min(v_known + x, v_cap)
+    # v - v_known loses digits when x << v_known, so the distance can come out slightly above
+    # L; step down (by growing relative amounts) until it fits, keeping the result feasible.
+    shrink = 1e-15
+    for _ in range(40):
+        if phase_distance(v, v_known, A, J, jerk) <= L:
+            return v
+        v = v_known + (v - v_known) * (1.0 - shrink)
+        shrink *= 4.0
+    return v_known
 
 
 @njit(cache=True)
