@@ -9,6 +9,7 @@ import pytest
 
 from feed_twin.control import tune_cli
 from feed_twin.control.tuning import (
+    LoadMode,
     closed,
     closed_loop_bandwidth,
     estimator_delay,
@@ -140,7 +141,10 @@ def test_tuning_errors_name_the_value():
 
 
 def test_tune_subcommand_prints_gains_and_margins(capsys):
-    code = tune_cli.main(argparse.Namespace(config=str(FIXTURES / "controller_axis.yaml")))
+    args = argparse.Namespace(
+        config=str(FIXTURES / "controller_axis.yaml"), load_mode_hz=None, load_mode_zeta=0.03
+    )
+    code = tune_cli.main(args)
     assert code == 0
     text = capsys.readouterr().out
     assert "current  design    Kp = 21.33 V/A" in text
@@ -151,5 +155,43 @@ def test_tune_subcommand_prints_gains_and_margins(capsys):
 def test_tune_subcommand_reports_config_errors(tmp_path, capsys):
     bad = tmp_path / "bad.yaml"
     bad.write_text("plant: {}\n")
-    assert tune_cli.main(argparse.Namespace(config=str(bad))) == 2
+    args = argparse.Namespace(config=str(bad), load_mode_hz=None, load_mode_zeta=0.03)
+    assert tune_cli.main(args) == 2
     assert capsys.readouterr().err == f"error: {bad}: no controller section\n"
+
+
+def test_load_mode_limits_kv_to_its_damping_with_the_asked_gain_margin():
+    mode = LoadMode(frequency_hz=120.0, zeta=0.03)
+    d = tune_position_loop(
+        velocity_closed_loop=lambda s: 1.0 + 0.0 * s,
+        velocity_bandwidth_hz=500.0,
+        period_s=1e-9,  # no sampling delay: the mode alone sets the phase crossover
+        load_mode=mode,
+        mode_gain_margin=2.0,
+    )
+    w0 = 2 * math.pi * 120.0
+    assert d.limited_by == "load mode"
+    assert d.Kv_1_s == pytest.approx(2 * 0.03 * w0 / 2.0, rel=1e-12)
+    # Kv/s * w0^2/(s^2 + 2 zeta w0 s + w0^2) reaches -180 deg at w0, where |L| = Kv/(2 zeta w0)
+    assert d.margins.phase_crossover_rad_s == pytest.approx(w0, rel=1e-6)
+    assert d.margins.gain_margin_db == pytest.approx(20 * math.log10(2.0), rel=1e-6)
+    with pytest.raises(ValueError, match=r"zeta = 1.5: must lie in \(0, 1\)"):
+        LoadMode(frequency_hz=100.0, zeta=1.5)
+    with pytest.raises(ValueError, match="mode_gain_margin = 0.5: must be >= 1"):
+        tune_position_loop(
+            velocity_closed_loop=lambda s: 1.0 + 0.0 * s,
+            velocity_bandwidth_hz=500.0,
+            period_s=1e-3,
+            mode_gain_margin=0.5,
+        )
+
+
+def test_tune_subcommand_with_a_load_mode(capsys):
+    args = argparse.Namespace(
+        config=str(FIXTURES / "controller_axis.yaml"), load_mode_hz=120.0, load_mode_zeta=0.03
+    )
+    assert tune_cli.main(args) == 0
+    assert "(limited by load mode)" in capsys.readouterr().out
+    args.load_mode_hz = -3.0
+    assert tune_cli.main(args) == 2
+    assert capsys.readouterr().err == "error: frequency_hz = -3.0: must be > 0\n"

@@ -6,12 +6,24 @@ import argparse
 import sys
 
 from feed_twin.control.cascade import load_controller_config
-from feed_twin.control.tuning import tune_config
+from feed_twin.control.tuning import LoadMode, tune_config
 from feed_twin.io.config import ConfigError, load_yaml
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, help="YAML file with a controller: section")
+    parser.add_argument(
+        "--load-mode-hz",
+        type=float,
+        default=None,
+        help="first mode of the load against the motor [Hz] (limits Kv on a scale loop)",
+    )
+    parser.add_argument(
+        "--load-mode-zeta",
+        type=float,
+        default=0.03,
+        help="damping ratio of that mode [-] (default 0.03)",
+    )
 
 
 def main(args: argparse.Namespace) -> int:
@@ -20,10 +32,13 @@ def main(args: argparse.Namespace) -> int:
         if "controller" not in data:
             raise ConfigError(f"{args.config}: no controller section")
         config = load_controller_config(data["controller"], source=str(args.config))
-    except ConfigError as exc:
+        load_mode = None
+        if args.load_mode_hz is not None:
+            load_mode = LoadMode(frequency_hz=args.load_mode_hz, zeta=args.load_mode_zeta)
+    except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"{args.config}: mode {config.mode}, base period {config.base_period_s * 1e6:g} us")
-    for line in tune_config(config).lines():
+    for line in tune_config(config, load_mode=load_mode).lines():
         print(line)
     return 0

@@ -14,7 +14,8 @@ symmetric optimum with the normalised crossover a (a = 2: 36.9 deg phase margin)
     Kp = J / (K_t a T_sigma_v)  [A per rad/s],  Ti = a^2 T_sigma_v,  crossover 1/(a T_sigma_v);
 the load-side gain is Kp * 2 pi / lead [A per m/s].
 Position loop: the Kv that gives a target phase margin (default 70 deg) around the closed
-velocity loop.
+velocity loop, and, closed on a linear scale, at most 2 zeta w0 / 2 of the load's first mode
+(the mode's resonance peak 1/(2 zeta) must not lift |L| to 1 at -180 deg).
 
 Margins come from the frequency response of the linearised open loop L(j w) on a logarithmic
 grid, refined with Brent's method: phase margin 180 deg + arg L at |L| = 1, gain margin
@@ -302,7 +303,27 @@ def tune_velocity_loop(
 @dataclass(frozen=True, kw_only=True)
 class PositionLoopDesign:
     Kv_1_s: float
+    limited_by: str  # "phase margin" or "load mode"
     margins: Margins
+
+
+@dataclass(frozen=True, kw_only=True)
+class LoadMode:
+    """The first mode of the load against the motor, seen by a position loop on the scale."""
+
+    frequency_hz: float  # undamped natural frequency [Hz]
+    zeta: float  # modal damping ratio [-]
+
+    def __post_init__(self) -> None:
+        if not self.frequency_hz > 0.0:
+            raise ValueError(f"frequency_hz = {self.frequency_hz!r}: must be > 0")
+        if not 0.0 < self.zeta < 1.0:
+            raise ValueError(f"zeta = {self.zeta!r}: must lie in (0, 1)")
+
+    def transfer(self) -> TransferFunction:
+        """Load position per motor-side position: w0^2 / (s^2 + 2 zeta w0 s + w0^2)."""
+        w0 = TWO_PI * self.frequency_hz
+        return lambda s: w0 * w0 / (s * s + 2.0 * self.zeta * w0 * s + w0 * w0)
 
 
 def tune_position_loop(
@@ -311,28 +332,40 @@ def tune_position_loop(
     velocity_bandwidth_hz: float,
     period_s: float,
     phase_margin_deg: float = 70.0,
+    load_mode: LoadMode | None = None,
+    mode_gain_margin: float = 2.0,
 ) -> PositionLoopDesign:
-    """The Kv that gives the position loop around the closed velocity loop a target phase margin.
+    """The Kv that gives the position loop around the closed velocity loop a target phase margin,
+    and, closed on the load (linear scale), at most 2 zeta w0 / mode_gain_margin.
 
     The margin falls monotonically with Kv (more crossover frequency, more lag from the velocity
     loop and the delay), so Brent's method on Kv in (0, 2 pi f_bw,v] finds it; 70 deg keeps the
-    setpoint response free of overshoot, as contouring requires.
+    setpoint response free of overshoot, as contouring requires. A lightly damped load mode at
+    w0 raises |L| there by 1/(2 zeta) at -180 deg: |L(j w0)| = Kv / (2 zeta w0) must stay below 1.
     """
     if not 0.0 < phase_margin_deg < 90.0:
         raise ValueError(f"phase_margin_deg = {phase_margin_deg!r}: must lie in (0, 90)")
+    if not mode_gain_margin >= 1.0:
+        raise ValueError(f"mode_gain_margin = {mode_gain_margin!r}: must be >= 1")
+    mode = load_mode.transfer() if load_mode is not None else (lambda s: 1.0 + 0.0 * s)
 
-    def margin(Kv: float) -> float:
-        loop = position_open_loop(
+    def loop_for(Kv: float) -> TransferFunction:
+        rigid = position_open_loop(
             Kv_1_s=Kv, velocity_closed_loop=velocity_closed_loop, T_delay_s=0.5 * period_s
         )
-        return loop_margins(loop).phase_margin_deg - phase_margin_deg
+        return series(rigid, mode)
+
+    def margin(Kv: float) -> float:
+        return loop_margins(loop_for(Kv)).phase_margin_deg - phase_margin_deg
 
     Kv_max = TWO_PI * velocity_bandwidth_hz
     Kv = Kv_max if margin(Kv_max) >= 0.0 else brentq(margin, 1e-6 * Kv_max, Kv_max, rtol=1e-6)
-    loop = position_open_loop(
-        Kv_1_s=Kv, velocity_closed_loop=velocity_closed_loop, T_delay_s=0.5 * period_s
-    )
-    return PositionLoopDesign(Kv_1_s=Kv, margins=loop_margins(loop))
+    limited_by = "phase margin"
+    if load_mode is not None:
+        Kv_mode = 2.0 * load_mode.zeta * TWO_PI * load_mode.frequency_hz / mode_gain_margin
+        if Kv_mode < Kv:
+            Kv, limited_by = Kv_mode, "load mode"
+    return PositionLoopDesign(Kv_1_s=Kv, limited_by=limited_by, margins=loop_margins(loop_for(Kv)))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -385,15 +418,20 @@ class TuningReport:
             )
         if self.position_design is not None:
             out.append(
-                f"position design    Kv = {self.position_design.Kv_1_s:.4g} 1/s; "
+                f"position design    Kv = {self.position_design.Kv_1_s:.4g} 1/s "
+                f"(limited by {self.position_design.limited_by}); "
                 + fmt(self.position_design.margins)
             )
             out.append("position configured " + fmt(self.position_configured))
         return out
 
 
-def tune_config(config: ControllerConfig) -> TuningReport:
-    """Recommended gains for a configuration's plant facts, and margins of its configured gains."""
+def tune_config(config: ControllerConfig, *, load_mode: LoadMode | None = None) -> TuningReport:
+    """Recommended gains for a configuration's plant facts, and margins of its configured gains.
+
+    `load_mode` (the first mode of the load against the motor) enters the position loop when it
+    is closed on the linear scale; a semi-closed loop does not see it in its feedback.
+    """
     drive = config.drive
     ratio = TWO_PI / drive.lead_m
     m_eq = drive.J_total_kg_m2 * ratio * ratio
@@ -441,18 +479,21 @@ def tune_config(config: ControllerConfig) -> TuningReport:
         velocity_closed = closed(forward, feedback)
         vel_bw = closed_loop_bandwidth(velocity_closed) / TWO_PI
         if pos is not None:
+            seen = load_mode if pos.feedback == "linear_scale" else None
             pos_design = tune_position_loop(
                 velocity_closed_loop=velocity_closed,
                 velocity_bandwidth_hz=vel_bw,
                 period_s=pos.period_s,
+                load_mode=seen,
             )
-            pos_conf = loop_margins(
-                position_open_loop(
-                    Kv_1_s=pos.Kv_1_s,
-                    velocity_closed_loop=velocity_closed,
-                    T_delay_s=0.5 * pos.period_s,
-                )
+            configured_p = position_open_loop(
+                Kv_1_s=pos.Kv_1_s,
+                velocity_closed_loop=velocity_closed,
+                T_delay_s=0.5 * pos.period_s,
             )
+            if seen is not None:
+                configured_p = series(configured_p, seen.transfer())
+            pos_conf = loop_margins(configured_p)
     return TuningReport(
         current_design=cur_design,
         current_configured=cur_conf,
