@@ -266,17 +266,17 @@ class ControllerConfig:
             if getattr(self, loop_name) is None:
                 raise ValueError(f"mode = {self.mode!r}: needs a {loop_name} section")
         if self.velocity is not None:
-            est = self.velocity.estimator
-            for name, value in (
-                ("lowpass_hz", est.lowpass_hz),
-                ("setpoint_lowpass_hz", self.velocity.setpoint_lowpass_hz),
-                ("notch.frequency_hz", self.velocity.notch and self.velocity.notch.frequency_hz),
+            vel = self.velocity
+            nyquist = 0.5 / vel.period_s
+            for path, value in (
+                ("velocity.estimator.lowpass_hz", vel.estimator.lowpass_hz),
+                ("velocity.setpoint_lowpass_hz", vel.setpoint_lowpass_hz),
+                ("velocity.notch.frequency_hz", vel.notch.frequency_hz if vel.notch else None),
             ):
-                if value and value >= 0.5 / self.velocity.period_s:
+                if value is not None and value >= nyquist:
                     raise ValueError(
-                        f"velocity.{'estimator.' if name == 'lowpass_hz' else ''}{name} = "
-                        f"{value!r}: must lie below the velocity loop's Nyquist frequency "
-                        f"{0.5 / self.velocity.period_s!r} Hz"
+                        f"{path} = {value!r}: must lie below the velocity loop's Nyquist "
+                        f"frequency {nyquist!r} Hz"
                     )
 
 
