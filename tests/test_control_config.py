@@ -142,6 +142,18 @@ def test_with_mode_switches_the_boundary():
             "the velocity loop's Nyquist frequency 4000.0 Hz",
         ),
         (
+            "velocity.estimator.lowpass_hz",
+            4000.0,
+            "config/test.yaml: controller.velocity.estimator.lowpass_hz = 4000.0: must lie below "
+            "the velocity loop's Nyquist frequency 4000.0 Hz",
+        ),
+        (
+            "position.period_s",
+            3.75e-4,
+            "config/test.yaml: controller.nc_period_s = 0.001: must be an integer multiple of "
+            "position.period_s = 0.000375",
+        ),
+        (
             "current.pole_pairs",
             2.5,
             "config/test.yaml: controller.current.pole_pairs = 2.5: expected a whole number",
