@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -78,7 +79,8 @@ class ProgramStream:
         self.pause_at: dict[int, str] = {}
         for event in trajectory.events:
             if event.kind in kinds:
-                k = min(self.n - 1, int(round(event.t_s / period_s)))
+                # The first sample at or after the event: the path is at rest there.
+                k = min(self.n - 1, math.ceil(event.t_s / period_s - 1e-6))
                 self.pause_at[k] = f"line {event.line} ({event.text})"
         self.k = 0  # index of the next program sample
         self.published = 0  # samples published (program + hold)

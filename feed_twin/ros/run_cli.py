@@ -38,7 +38,7 @@ PEER_NOTICE_S = 2.0  # [s] for nodes to notice a lost peer before they are told 
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("program", type=Path, help="G-code program")
+    parser.add_argument("program", type=Path, nargs="?", help="G-code program")
     parser.add_argument("--config", type=Path, default=Path("config/axis_default.yaml"))
     parser.add_argument("--out", type=Path, default=Path("bags"), help="output directory")
     parser.add_argument("--name", default=None, help="bag name (default: program + time)")
@@ -52,6 +52,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--input-timeout", type=float, default=10.0, help="silence on an input topic [s]"
     )
     parser.add_argument("--startup-timeout", type=float, default=120.0)
+    parser.add_argument(
+        "--no-gcode",
+        action="store_true",
+        help="start no G-code node: the command stream comes from outside (a real NC)",
+    )
 
 
 @dataclass
@@ -62,7 +67,8 @@ class Outputs:
 
 
 def _outputs(args: argparse.Namespace) -> Outputs:
-    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    stem = args.program.stem if args.program is not None else "external"
+    name = args.name or f"{stem}_{time.strftime('%Y%m%d_%H%M%S')}"
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     return Outputs(bag=out / name, rrd=out / f"{name}.rrd", logs=out / f"{name}.logs")
@@ -82,12 +88,17 @@ def _check_inputs(args: argparse.Namespace):
             f"{args.config}: nc.interpolation_period_s = {nc.interpolation_period_s!r}: must not "
             f"be shorter than ros.exchange_period_s = {ros.exchange_period_s!r}"
         )
-    validate_program(args.program, nc)
+    if args.program is not None:
+        validate_program(args.program, nc)
     return ros, nc
 
 
+def _roles(args: argparse.Namespace) -> tuple[str, ...]:
+    return tuple(r for r in ROLES if not (r == "gcode" and args.no_gcode))
+
+
 def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[str]:
-    peers = ",".join(r for r in ROLES if r != role)
+    peers = ",".join(r for r in _roles(args) if r != role)
     common = ["--peers", peers, "--startup-timeout", str(args.startup_timeout)]
     if role == "recorder":
         return ["--machine", ros.machine, "--axis", ros.axis, "--bag", str(out.bag), *common]
@@ -125,7 +136,7 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
     # Discovery stays on this host unless the user chose otherwise.
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     try:
-        for role in ROLES:
+        for role in _roles(args):
             logs[role] = out.logs / f"{role}.log"
             with open(logs[role], "wb") as log:
                 procs[role] = subprocess.Popen(
@@ -268,7 +279,7 @@ def _run_single_process(args: argparse.Namespace, ros, nc, out: Outputs) -> tupl
         return NodeOptions(
             machine=ros.machine,
             axis=ros.axis,
-            peers=tuple(r for r in ROLES if r != role),
+            peers=tuple(r for r in _roles(args) if r != role),
             startup_timeout_s=args.startup_timeout,
             **kw,
         )
@@ -294,16 +305,19 @@ def _run_single_process(args: argparse.Namespace, ros, nc, out: Outputs) -> tupl
         clock_divider=ros.clock_divider,
         context=context,
     )
-    gcode = GcodeNode(
-        options("gcode"),
-        nc,
-        lookahead=ros.lookahead,
-        program=str(args.program),
-        autostart=True,
-        optional_stop=args.optional_stop,
-        context=context,
-    )
-    nodes = [recorder, controller, sim, gcode]
+    nodes = [recorder, controller, sim]
+    if not args.no_gcode:
+        nodes.append(
+            GcodeNode(
+                options("gcode"),
+                nc,
+                lookahead=ros.lookahead,
+                program=str(args.program),
+                autostart=True,
+                optional_stop=args.optional_stop,
+                context=context,
+            )
+        )
     code = spin_nodes(nodes, context, until_all_done=True)
     reason = next((n.exit_message for n in nodes if n.exit_code and n.exit_message), "")
     return code, reason, sim.timing_report()
@@ -326,7 +340,8 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
             return None, f"the bag is unreadable: {exc}"
     topics = AxisTopics(machine=ros.machine, axis=ros.axis)
     run = read_run(out.bag, topics)
-    write_dashboard(run, topics, out.rrd, program_lines=program_lines(args.program))
+    lines = program_lines(args.program) if args.program is not None else None
+    write_dashboard(run, topics, out.rrd, program_lines=lines)
     try:
         return summarise(run, topics), ""
     except ValueError as exc:
@@ -336,6 +351,11 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
 def main(args: argparse.Namespace) -> int:
     from feed_twin.gcode import GcodeError
 
+    if args.program is None and not args.no_gcode:
+        print(
+            "feed-twin run: a PROGRAM is needed (or --no-gcode for an external NC)", file=sys.stderr
+        )
+        return 2
     try:
         ros, nc = _check_inputs(args)
     except GcodeError as exc:

@@ -34,6 +34,7 @@ from feed_twin.control import signals as sig
 from feed_twin.control.cascade import ControllerConfig
 from feed_twin.control.loops import PositionLoop, VelocityLoop, VelocitySetpoint
 from feed_twin.io.config import from_mapping, load_yaml, require_positive
+from feed_twin.ros.topics import AxisTopics
 
 Boundary = Literal["torque", "velocity", "position"]
 # CiA 402 modes of operation, as in feed_twin_msgs/DriveCommand.
@@ -105,6 +106,7 @@ class NodeSetConfig:
     node_gains: NodeLoopGains = dataclasses.field(default_factory=NodeLoopGains)
 
     def __post_init__(self) -> None:
+        AxisTopics(machine=self.machine, axis=self.axis)  # names must be valid ROS names
         require_positive("exchange_period_s", self.exchange_period_s)
         ns = self.exchange_period_s * NS_PER_S
         if abs(ns - round(ns)) > 1e-6:
