@@ -140,3 +140,33 @@ def test_following_error_on_a_ramp_is_v_over_kv_and_velocity_ff_removes_it(feedb
         position=dataclasses.replace(pos, feedback=feedback, velocity_ff=1.0, acceleration_ff=0.0),
     )
     assert abs(_ramp_following_error(with_ff, v=v)) <= 0.05 * error
+
+
+def test_following_error_trip_opens_the_power_stage_and_latches():
+    pos = AXIS.controller.position
+    # without feed-forward 0.1 m/s needs v/Kv = 3.3 mm of following error: above the 2 mm limit
+    axis = _with_controller(
+        AXIS, position=dataclasses.replace(pos, velocity_ff=0.0, acceleration_ff=0.0)
+    )
+    engine = build_engine(axis, output_period_s=T)
+    v, a, t_end = 0.1, 2.0, 0.15
+    n = round(t_end / T)
+    div = round(axis.controller.nc_period_s / T)
+    k = np.arange(n)
+    t_nc = (k - k % div) * T
+    t_a = v / a
+    ref = np.zeros((n, sig.REF_SIZE))
+    ref[:, sig.REF_POS_M] = np.where(
+        t_nc < t_a, 0.5 * a * t_nc**2, 0.5 * a * t_a**2 + v * (t_nc - t_a)
+    )
+    ref[:, sig.REF_VEL_M_S] = np.where(t_nc < t_a, a * t_nc, v)
+    res = engine.run(n, ref=ref)
+    fault = res["out.fault"]
+    j = int(np.argmax(fault != 0.0))
+    assert j > 0 and np.all(fault[j:] == sig.FAULT_FOLLOWING_ERROR)
+    error = res["out.following_error_m"]
+    limit = pos.following_error_limit_m
+    assert abs(error[j - 1]) <= limit < abs(error[j])
+    assert np.all(res["out.enabled"][:j] == 1.0) and np.all(res["out.enabled"][j:] == 0.0)
+    for phase in ("a", "b", "c"):
+        assert np.all(res[f"out.duty_{phase}"][j + 1 :] == 0.5)
