@@ -135,7 +135,7 @@ class ControllerNode(FeedTwinNode):
         self._feedback_dog = self.watch_input(
             self.topics.feedback,
             "feed_twin_msgs/msg/AxisFeedback",
-            armed=lambda: self.nc.latest_ns is not None and self.steps == 0,
+            armed=lambda: self.peers_alive() and self.nc.latest_ns is not None and not self.steps,
         )
         self.start_heartbeat()
 

@@ -1,0 +1,58 @@
+"""Shared helpers of the node-set tests: a merged axis config, private domains, the runner."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+from feed_twin.ros.domain import private_graph_env
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT_PROGRAM = "%\nG21 G90 G54 G64\nG1 X10 F3000\nM30\n%\n"
+
+
+def merged_config(directory: Path) -> Path:
+    """config/axis_default.yaml with an `nc:` section (from nc_default.yaml if it has none)."""
+    data = yaml.safe_load((ROOT / "config" / "axis_default.yaml").read_text())
+    if "nc" not in data:
+        data["nc"] = yaml.safe_load((ROOT / "config" / "nc_default.yaml").read_text())["nc"]
+    path = directory / "axis.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def node_env(domain_id: int) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(private_graph_env(domain_id))
+    return env
+
+
+def start_run(args: list[str], domain_id: int, **popen) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "feed_twin.cli", "run", *args],
+        env=node_env(domain_id),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **popen,
+    )
+
+
+def run(args: list[str], domain_id: int, timeout_s: float = 240.0) -> tuple[int, str, str]:
+    proc = start_run(args, domain_id)
+    try:
+        out, err = proc.communicate(timeout=timeout_s)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=10)
+    return proc.returncode, out, err
+
+
+def last_json(stdout: str) -> dict:
+    return json.loads(stdout.strip().splitlines()[-1])

@@ -1,0 +1,126 @@
+"""End to end: `feed-twin run` through the node set, read back, cross-checked in-process."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from nodes_support import SHORT_PROGRAM, last_json, merged_config, run
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from feed_twin.gcode import load_nc_config, plan_program
+from feed_twin.io.bag import BagReader
+from feed_twin.io.dashboard import rerun_binary
+from feed_twin.ros.domain import reserve_domain_id
+from feed_twin.ros.drive_host import Lockstep, nc_samples
+from feed_twin.ros.sim_node import build_drive_host
+from feed_twin.ros.split import NS_PER_S, ControllerCore, load_node_set_config
+from feed_twin.sim.config import load_axis_config
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+TARGET_M = 0.010  # the program moves X by +10 mm
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    directory = tmp_path_factory.mktemp("run")
+    program = directory / "move.ngc"
+    program.write_text(SHORT_PROGRAM)
+    return {"dir": directory, "config": merged_config(directory), "program": program}
+
+
+@pytest.fixture(scope="module")
+def multi(setup: dict) -> dict:
+    with reserve_domain_id() as domain:
+        code, out, err = run(
+            [
+                str(setup["program"]), "--config", str(setup["config"]),
+                "--out", str(setup["dir"] / "bags"), "--name", "multi", "--json",
+            ],
+            domain.domain_id,
+        )  # fmt: skip
+    assert code == 0, err
+    return last_json(out)
+
+
+def in_process_positions(setup: dict, until_ns: int) -> dict[int, float]:
+    """The same exchanges computed without DDS: ControllerCore + DriveHost (drive_host.Lockstep)."""
+    config = setup["config"]
+    ros = load_node_set_config(config)
+    axis = load_axis_config(config)
+    controller = ControllerCore(
+        axis.controller, boundary=ros.boundary, exchange_period_s=ros.exchange_period_s
+    )
+    host = build_drive_host(config, ros)
+    trajectory = plan_program(setup["program"], load_nc_config(config))
+    x, v, a = trajectory.axis("X")
+    commands = nc_samples(trajectory.t_s, x - x[0], v, a, trajectory.line)
+    samples = Lockstep(controller, host, ros).run(commands, until_ns=until_ns)
+    return {s.t_ns: s.truth["table_position"] for s in samples}
+
+
+def test_run_summary_and_outputs(multi: dict) -> None:
+    assert multi["exit_code"] == 0
+    # 10 mm at 3000 mm/min with the NC's jerk-limited profile, then 0.2 s of settling.
+    assert 0.2 < multi["cycle_time_s"] < 0.4
+    assert multi["velocity_peak_m_s"] == pytest.approx(0.05, rel=0.05)
+    assert 0.0 < multi["following_error_max_m"] < 1e-4
+    assert multi["following_error_rms_m"] < multi["following_error_max_m"]
+    assert multi["current_peak_A"] > 0.5  # accelerating 200 kg + the screw and motor
+    assert Path(multi["rrd"]).stat().st_size > 10_000
+    subprocess.run([str(rerun_binary()), "rrd", "verify", multi["rrd"]], check=True, timeout=60)
+
+
+def test_bag_read_back_by_rosbags(multi: dict) -> None:
+    store = get_typestore(Stores.EMPTY)
+    positions: list[tuple[int, float]] = []
+    with Reader(multi["bag"]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        types = {c.topic: c.msgtype for c in reader.connections}
+        for conn in reader.connections:
+            store.register(get_types_from_msg(conn.msgdef.data, conn.msgtype))
+        state = [c for c in reader.connections if c.topic == "/cnc/x/state"]
+        for conn, _, raw in reader.messages(connections=state):
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            positions.append((msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec,
+                              msg.table_position))  # fmt: skip
+    steps = multi["timing_steps"]
+    assert types["/cnc/x/state"] == "feed_twin_msgs/msg/AxisState"
+    assert types["/cnc/x/joint_states"] == "sensor_msgs/msg/JointState"
+    assert types["/clock"] == "rosgraph_msgs/msg/Clock"
+    # Nothing lost: one state, feedback and drive command per exchange.
+    assert counts["/cnc/x/state"] == counts["/cnc/x/feedback"] == steps
+    assert counts["/cnc/x/drive_command"] == steps
+    stamps = np.array([t for t, _ in positions])
+    np.testing.assert_array_equal(np.diff(stamps), 1_000_000)
+    # At rest on the target after the settle time (integral action removes the friction offset).
+    assert positions[-1][1] == pytest.approx(TARGET_M, abs=2e-6)
+
+
+def test_node_set_equals_in_process_exchanges(setup: dict, multi: dict) -> None:
+    recorded = BagReader(multi["bag"]).columns("/cnc/x/state", ["header.stamp", "table_position"])
+    stamps = np.round(recorded["header.stamp"] * NS_PER_S).astype(np.int64)
+    expected = in_process_positions(setup, int(stamps[-1]))
+    assert len(expected) == stamps.size
+    reference = np.array([expected[int(t)] for t in stamps])
+    np.testing.assert_allclose(recorded["table_position"], reference, rtol=0.0, atol=1e-9)
+
+
+def test_single_process_gives_the_same_trajectory(setup: dict, multi: dict) -> None:
+    with reserve_domain_id() as domain:
+        code, out, err = run(
+            [
+                str(setup["program"]), "--config", str(setup["config"]),
+                "--out", str(setup["dir"] / "bags"), "--name", "single", "--json",
+                "--single-process",
+            ],
+            domain.domain_id,
+        )  # fmt: skip
+    assert code == 0, err
+    single = last_json(out)
+    a = BagReader(single["bag"]).columns("/cnc/x/state", ["table_position"])["table_position"]
+    b = BagReader(multi["bag"]).columns("/cnc/x/state", ["table_position"])["table_position"]
+    np.testing.assert_array_equal(a, b)
