@@ -36,7 +36,7 @@ RING = {ring}
 SWITCHING = {switching}
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rk4_step(t, hs, x, p, out, ext, sw, k1, k2, k3, k4, xt):
     rhs(t, x, p, out, ext, sw, k1)
     for i in range(N_X):
@@ -73,7 +73,7 @@ def leg_state(tau, duty, t_dead, period):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def integrate_tick(t0, h, nsub, x, p, out, ext, sw, k1, k2, k3, k4, xt, edges):
     hs = h / nsub
     if not SWITCHING or out[OUT_ENABLED] < 0.5:
@@ -213,10 +213,24 @@ def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
 _LOADED: dict[str, ModuleType] = {}
 
 
+def _callee_digest() -> str:
+    """Hash of every source file whose numba functions a kernel may call.
+
+    numba's cache does not notice a change in a callee defined in another module, so the kernel
+    file name carries this hash: edit a component or the controller and a new kernel compiles.
+    """
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for folder in ("plant", "control", "sim"):
+        for path in sorted((root / folder).glob("*.py")):
+            digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
 def load_kernel(model: PlantModel, *, closed_loop: bool) -> ModuleType:
     """Import (writing it first if new) the compiled-loop module for this plant structure."""
     text = kernel_source(model, closed_loop=closed_loop)
-    digest = hashlib.sha256((text + model.structure_digest).encode()).hexdigest()[:20]
+    digest = hashlib.sha256((text + _callee_digest()).encode()).hexdigest()[:20]
     if digest in _LOADED:
         return _LOADED[digest]
     name = f"feed_twin_kernel_{digest}"

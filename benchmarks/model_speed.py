@@ -1,0 +1,199 @@
+"""Speed of the compiled engine: realtime factor, batch throughput, against solve_ivp, cold start.
+
+Figures (last printed line, one JSON object):
+- realtime_factor: config/axis_default.yaml closed loop (position, velocity and current loops,
+  averaged inverter, 16 kHz), a 1 s trapezoidal move (0.1 m/s, 2 m/s^2), one thread, after a
+  warm-up run; best of 5; simulated seconds per wall-clock second.
+- batch_axis_seconds_per_second: 1000 parameter sets of the same axis (table mass varied),
+  0.2 s of the same move each, advanced in parallel (numba prange over all cores).
+- solve_ivp_ratio: wall time of feed_twin.sim.reference (the same generated plant functions,
+  un-jitted, under scipy solve_ivp DOP853 per controller tick) over the kernel's, per simulated
+  second, on 20 ms of the move.
+- first_run_s: a fresh Python process that loads the config, builds the engine and simulates
+  1 s, with numba's on-disk cache warm (the script runs it twice and reports the second).
+- motulator_ratio: motulator (PyPI, Python 3.12, in its own venv under the cache directory)
+  simulating a comparable drive (PMSM, current + speed control, two-mass mechanics, 62.5 us
+  sampling) for 1 s, its wall time over ours for 1 s; null with the reason when it cannot run.
+
+    .venv/bin/python benchmarks/model_speed.py [--skip-motulator]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from feed_twin.control import signals as sig
+from feed_twin.sim.config import build_engine, load_axis_config
+from feed_twin.sim.engine import run_batch
+from feed_twin.sim.kernel import cache_dir
+from feed_twin.sim.reference import reference_run
+
+ROOT = Path(__file__).resolve().parent.parent
+AXIS = ROOT / "config" / "axis_default.yaml"
+PY312 = Path("/root/.pyenv/versions/3.12.1/bin/python3.12")
+
+
+def trapezoid(n: int, h: float, v_max: float = 0.1, a_max: float = 2.0) -> np.ndarray:
+    t = np.arange(n) * h
+    t_end = n * h
+    v = np.minimum(np.minimum(a_max * t, a_max * (t_end - 0.05 - t)), v_max).clip(0.0)
+    ref = np.zeros((n, sig.REF_SIZE))
+    ref[:, sig.REF_VEL_M_S] = v
+    ref[:, sig.REF_POS_M] = np.cumsum(v) * h
+    ref[:, sig.REF_ACC_M_S2] = np.gradient(v, h)
+    return ref
+
+
+def best_of(fn, repeats: int) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def realtime_factor(axis) -> tuple[float, float]:
+    engine = build_engine(axis)
+    n = round(1.0 / engine.h)
+    ref = trapezoid(n, engine.h)
+    engine.run(n, ref=ref)
+    wall = best_of(lambda: engine.run(n, ref=ref), 5)
+    return 1.0 / wall, wall
+
+
+def batch_rate(axis, n_sets: int = 1000, duration: float = 0.2) -> float:
+    engine = build_engine(axis, record=["table.s"], output_period_s=0.01)
+    n = round(duration / engine.h)
+    ref = trapezoid(n, engine.h, v_max=0.05)
+    plant = axis.plant
+    masses = np.linspace(150.0, 250.0, n_sets)
+    P = np.tile(plant.nominal_params(), (n_sets, 1))
+    P[:, plant.param_index["table.m"]] = masses
+    plant.fill_derived(P)
+    run_batch(engine, P[:4], 16, ref=ref[:16])  # compile
+    t0 = time.perf_counter()
+    res = run_batch(engine, P, n, ref=ref)
+    wall = time.perf_counter() - t0
+    if res.diverged.any():
+        raise RuntimeError(f"batch: {res.diverged.sum()} sets diverged: {res.messages[0]}")
+    return n_sets * duration / wall
+
+
+def solve_ivp_ratio(axis) -> float:
+    engine = build_engine(axis, output_period_s=1e-3)
+    n = round(0.02 / engine.h)
+    ref = trapezoid(n, engine.h)
+    engine.run(n, ref=ref)
+    fast = best_of(lambda: engine.run(n, ref=ref), 3)
+    t0 = time.perf_counter()
+    reference_run(engine, n, ref=ref, rtol=1e-8, atol=1e-10)
+    slow = time.perf_counter() - t0
+    return slow / fast
+
+
+FIRST_RUN = """
+import time
+t0 = time.perf_counter()
+import numpy as np
+from feed_twin.control import signals as sig
+from feed_twin.sim.config import build_engine, load_axis_config
+axis = load_axis_config({path!r})
+engine = build_engine(axis)
+n = round(1.0 / engine.h)
+ref = np.zeros((n, sig.REF_SIZE))
+ref[:, sig.REF_POS_M] = 0.01
+engine.run(n, ref=ref)
+print(time.perf_counter() - t0)
+"""
+
+
+def first_run_s() -> float:
+    code = FIRST_RUN.format(path=str(AXIS))
+    walls = []
+    for _ in range(2):  # the first fills the cache if it is cold
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, cwd=ROOT)
+        walls.append(time.perf_counter() - t0)
+    return walls[-1]
+
+
+MOTULATOR_SCRIPT = ROOT / "benchmarks" / "motulator_drive.py"
+
+
+def motulator_wall() -> tuple[float | None, str]:
+    """Wall time of 1 s of the comparable motulator drive, or (None, reason)."""
+    if not PY312.exists():
+        return None, f"{PY312} not found (motulator needs Python >= 3.12)"
+    venv = cache_dir().parent / "motulator-venv"
+    python = venv / "bin" / "python"
+    try:
+        if not python.exists():
+            subprocess.run([str(PY312), "-m", "venv", str(venv)], check=True, capture_output=True)
+        probe = subprocess.run([str(python), "-c", "import motulator"], capture_output=True)
+        if probe.returncode != 0:
+            subprocess.run(
+                [str(python), "-m", "pip", "install", "--quiet", "motulator"],
+                check=True,
+                capture_output=True,
+                timeout=600,
+            )
+        out = subprocess.run(
+            [str(python), str(MOTULATOR_SCRIPT)],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=1800,
+        )
+    except subprocess.CalledProcessError as exc:
+        tail = exc.stderr or b""
+        tail = tail.decode() if isinstance(tail, bytes) else tail
+        return (
+            None,
+            f"motulator run failed: {tail.strip().splitlines()[-1] if tail.strip() else exc}",
+        )
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return None, f"motulator unavailable: {exc}"
+    return float(out.stdout.strip().splitlines()[-1]), ""
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--skip-motulator", action="store_true")
+    args = parser.parse_args()
+    axis = load_axis_config(AXIS)
+    rtf, wall_1s = realtime_factor(axis)
+    print(f"realtime factor {rtf:.1f} (1 s in {wall_1s * 1e3:.1f} ms)")
+    batch = batch_rate(axis)
+    print(f"batch {batch:.1f} axis-seconds per second (1000 sets, {os.cpu_count()} cores)")
+    ratio = solve_ivp_ratio(axis)
+    print(f"solve_ivp reference is {ratio:.0f}x slower")
+    first = first_run_s()
+    print(f"cold process, warm cache: {first:.2f} s")
+    figures = {
+        "realtime_factor": round(rtf, 2),
+        "batch_axis_seconds_per_second": round(batch, 2),
+        "solve_ivp_ratio": round(ratio, 1),
+        "first_run_s": round(first, 3),
+        "motulator_ratio": None,
+        "motulator_reason": "skipped (--skip-motulator)",
+        "cores": os.cpu_count(),
+    }
+    if not args.skip_motulator:
+        wall, reason = motulator_wall()
+        figures["motulator_ratio"] = None if wall is None else round(wall / wall_1s, 1)
+        figures["motulator_reason"] = reason or None
+    print(json.dumps(figures))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
