@@ -216,3 +216,43 @@ def test_source_digest_names_the_kernel_sources():
     digest = cc.source_digest()
     assert len(digest) == 20 and int(digest, 16) >= 0
     assert digest == cc.source_digest()
+
+
+@pytest.mark.parametrize(
+    ("build", "message"),
+    [
+        (
+            lambda: cc.VelocityEstimatorConfig(fir_taps=(1.0 / 17,) * 17),
+            "fir_taps = [",
+        ),
+        (
+            lambda: cc.CurrentLoopConfig(**{**PMSM["current"], "pole_pairs": 2.0}),
+            "pole_pairs = 2.0: must be a whole number",
+        ),
+        (
+            lambda: cc.PositionLoopConfig(period_s=1e-3, Kv_1_s=10.0, feedback="tacho"),
+            "feedback = 'tacho': must be one of 'motor_encoder', 'linear_scale'",
+        ),
+        (
+            lambda: cc.NotchConfig(frequency_hz=100.0, bandwidth_hz=10.0, depth=1.5),
+            "depth = 1.5: must lie in [0.0, 1.0]",
+        ),
+    ],
+)
+def test_direct_construction_errors(build, message):
+    with pytest.raises(ValueError) as err:
+        build()
+    assert str(err.value).startswith(message)
+
+
+def test_with_mode_rejects_an_unknown_mode():
+    cascade = cc.build_cascade(_load(PMSM))
+    with pytest.raises(ValueError) as err:
+        cc.with_mode(cascade, "homing")
+    assert str(err.value) == "mode = 'homing': must be one of 'position', 'velocity', 'torque'"
+
+
+def test_too_many_fir_taps_message():
+    with pytest.raises(ValueError) as err:
+        cc.VelocityEstimatorConfig(fir_taps=(1.0 / 17,) * 17)
+    assert str(err.value).endswith(": must have 1 to 16 entries")

@@ -93,6 +93,12 @@ INTERP_EXTRAPOLATE = 2
 # Configuration
 
 
+def require_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
+    """Literal fields checked again for direct construction (the YAML loader checks them too)."""
+    if value not in choices:
+        raise ValueError(f"{name} = {value!r}: must be one of {', '.join(map(repr, choices))}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class DriveConfig:
     """The controller's own copy of the drive facts it needs (load-side signals, motor-side plant).
@@ -128,6 +134,8 @@ class PositionLoopConfig:
 
     def __post_init__(self) -> None:
         require_positive("period_s", self.period_s)
+        require_choice("feedback", self.feedback, ("motor_encoder", "linear_scale"))
+        require_choice("interpolation", self.interpolation, tuple(INTERPOLATION_CODES))
         require_nonnegative("Kv_1_s", self.Kv_1_s)
         require_range("velocity_ff", self.velocity_ff, 0.0, 1.0)
         require_range("acceleration_ff", self.acceleration_ff, 0.0, 1.0)
@@ -248,6 +256,7 @@ class ControllerConfig:
     current: CurrentLoopConfig | None = None
 
     def __post_init__(self) -> None:
+        require_choice("mode", self.mode, tuple(MODE_CODES))
         require_positive("base_period_s", self.base_period_s)
         base = self.base_period_s
         require_integer_multiple("nc_period_s", self.nc_period_s, base, "base_period_s")
