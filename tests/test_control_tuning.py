@@ -195,3 +195,23 @@ def test_tune_subcommand_with_a_load_mode(capsys):
     args.load_mode_hz = -3.0
     assert tune_cli.main(args) == 2
     assert capsys.readouterr().err == "error: frequency_hz = -3.0: must be > 0\n"
+
+
+def test_velocity_tuning_input_errors():
+    kwargs = dict(
+        J_total_kg_m2=1e-3,
+        K_t=1.0,
+        lead_m=0.01,
+        period_s=1e-3,
+        T_current_s=0.0,
+        estimator_delay_s=1e-3,
+    )
+    with pytest.raises(ValueError) as err:
+        tune_velocity_loop(**kwargs, a=0.8)
+    assert str(err.value) == "a = 0.8: must be > 1 (a = 2 is the classic symmetric optimum)"
+    with pytest.raises(ValueError) as err:
+        tune_velocity_loop(**{**kwargs, "K_t": 0.0})
+    assert str(err.value) == "K_t = 0.0: must be > 0"
+    with pytest.raises(ValueError) as err:
+        tune_velocity_loop(**{**kwargs, "T_current_s": -1e-4})
+    assert str(err.value) == "T_current_s = -0.0001: must be >= 0"

@@ -268,14 +268,27 @@ def tune_velocity_loop(
     `T_current_s` is the equivalent lag of the closed current loop (2 T_sigma_i for the technical
     optimum, 0 for an ideal force source); `crossover_hz` overrides `a` with a target crossover.
     """
+    for name, value in (
+        ("J_total_kg_m2", J_total_kg_m2),
+        ("K_t", K_t),
+        ("lead_m", lead_m),
+        ("period_s", period_s),
+    ):
+        if not value > 0.0:
+            raise ValueError(f"{name} = {value!r}: must be > 0")
+    for name, value in (("T_current_s", T_current_s), ("estimator_delay_s", estimator_delay_s)):
+        if not value >= 0.0:
+            raise ValueError(f"{name} = {value!r}: must be >= 0")
     T_sigma = T_current_s + 0.5 * period_s + estimator_delay_s
     if crossover_hz is not None:
         a = 1.0 / (TWO_PI * crossover_hz * T_sigma)
-    if not a > 1.0:
-        raise ValueError(
-            f"crossover_hz = {crossover_hz!r}: too high for the loop's delays "
-            f"(T_sigma = {T_sigma!r} s needs a crossover below {1 / (TWO_PI * T_sigma)!r} Hz)"
-        )
+        if not a > 1.0:
+            raise ValueError(
+                f"crossover_hz = {crossover_hz!r}: too high for the loop's delays "
+                f"(T_sigma = {T_sigma!r} s needs a crossover below {1 / (TWO_PI * T_sigma)!r} Hz)"
+            )
+    elif not a > 1.0:
+        raise ValueError(f"a = {a!r}: must be > 1 (a = 2 is the classic symmetric optimum)")
     ratio = TWO_PI / lead_m  # motor rad per table m
     Kp_rad = J_total_kg_m2 / (K_t * a * T_sigma)
     Kp = Kp_rad * ratio
