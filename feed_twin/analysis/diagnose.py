@@ -10,25 +10,25 @@
          removes the most cost, if that reduction is itself significant
       -> metrics "after", optional validation on a second run, report.
 
-Significance of a fitted effect: the cost reduction is tested like the ranking (partial F-test
-with the effective sample count of the new residual) and must exceed MIN_EXPLAINED of the cost.
+Significance: a candidate is fitted only if its signature passed the ranking's statistical test
+(partial F-test against the noise left by all signatures, see analysis.effects); the fitted
+effect is kept only if the simulation confirms it, removing at least MIN_EXPLAINED of the cost.
 A fit that does not converge is reported and its model discarded; the last good model stays.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from feed_twin.analysis.compare import Metrics, align, compute_metrics
-from feed_twin.analysis.edits import EDITS, Edit
+from feed_twin.analysis.edits import EDITS, Edit, interacting
 from feed_twin.analysis.effects import (
-    ALPHA,
     MIN_EXPLAINED,
     Candidate,
     Motion,
@@ -36,7 +36,14 @@ from feed_twin.analysis.effects import (
     motion_from_position,
     rank,
 )
-from feed_twin.analysis.fit import FitResult, Measured, SimOutputs, cost_of, fit
+from feed_twin.analysis.fit import (
+    FitResult,
+    FreeParameter,
+    Measured,
+    SimOutputs,
+    cost_of,
+    fit,
+)
 from feed_twin.analysis.locate import locate
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
@@ -61,6 +68,18 @@ class _State:
     outputs: SimOutputs
     cost: float
     found: list[FoundEffect] = field(default_factory=list)
+    found_free: list[FreeParameter] = field(default_factory=list)
+
+
+class _Values(dict):
+    """Fitted values read from a model document on demand (for the reported parameters)."""
+
+    def __init__(self, doc: ModelDoc) -> None:
+        super().__init__()
+        self.doc = doc
+
+    def __missing__(self, name: str) -> float:
+        return self.doc.get(name)
 
 
 def _noop(_: str) -> None:
@@ -111,29 +130,6 @@ def _trace(label: str, run: MeasuredRun, drive: Drive, out: SimOutputs) -> Trace
     )
 
 
-def _reduction_significant(meas: Measured, out: SimOutputs, before: float, after: float, p: int):
-    """Partial F-test of a cost reduction, effective samples from the new residual."""
-    from feed_twin.analysis.fit import residual_vector
-
-    e = None if out.effort is None else out.effort[0]
-    r = residual_vector(meas, out.x_m[0], e)
-    half = len(r) // (2 if meas.effort is not None and e is not None else 1)
-    n_eff = 0.0
-    for part in (r[:half], r[half:]) if half < len(r) else (r,):
-        part = part - part.mean()
-        denom = float(np.dot(part, part))
-        rho = float(np.dot(part[1:], part[:-1]) / denom) if denom > 0 else 0.0
-        rho = min(max(rho, 0.0), 0.9999)
-        n_eff += len(part) * (1.0 - rho) / (1.0 + rho)
-    n_eff = max(n_eff, p + 2.0)
-    if after <= 0.0:
-        return True, 0.0
-    f_stat = ((before - after) / p) / (after / (n_eff - p))
-    p_value = float(stats.f.sf(f_stat, p, n_eff - p)) if f_stat > 0 else 1.0
-    explained = (before - after) / before if before > 0 else 0.0
-    return (p_value < ALPHA and explained >= MIN_EXPLAINED), p_value
-
-
 def _try(
     state: _State, cand: Candidate, drive: Drive, meas: Measured, opts: Options
 ) -> tuple[Edit, Twin, FitResult] | str:
@@ -141,16 +137,72 @@ def _try(
         edit = EDITS[cand.name](state.doc, cand)
     except (KeyError, LookupError) as exc:
         return f"{cand.name}: cannot be added to this model ({exc})"
+    # the effects found before interact with the new one (a constant force fitted alone has
+    # absorbed part of a Coulomb force found later): their parameters are fitted again with it
+    names = {p.name for p in edit.own}
+    again = []
+    for p in state.found_free:
+        if p.name in names:
+            continue
+        if not edit.doc.has_slot(p.name):
+            continue  # the parameter was split or replaced by the new effect
+        again.append(dataclasses.replace(p, initial=edit.doc.get(p.name)))
+        names.add(p.name)
+    own = edit.own + again
+    edit = dataclasses.replace(
+        edit, own=own, free=own + [p for p in edit.free if p.name not in names]
+    )
     twin = Twin.compile(edit.doc)
     result = fit(
         lambda params: twin.simulate(drive, params),
         twin.nominal,
         twin.index,
-        edit.free,
+        edit.own,
         meas,
         max_evaluations=opts.max_evaluations,
     )
     return edit, twin, result
+
+
+def _final_joint(state: _State, drive: Drive, meas: Measured, opts: Options) -> str | None:
+    """Re-fit all found effects together with the nominal parameters they interact with.
+
+    Done once, at the end: re-estimating the mass or the viscous coefficient in every round
+    would let them absorb the signature of an effect that is found later. If the joint fit
+    does not converge or is not better, the effect-by-effect model stays and the note says so.
+    """
+    free = []
+    for p in state.found_free:
+        if not state.doc.has_slot(p.name):
+            continue  # a tie split by a later effect (Coulomb by asymmetric friction)
+        free.append(dataclasses.replace(p, initial=state.doc.get(p.name)))
+    names = {p.name for p in free}
+    gain = state.doc.gain_slot()
+    if gain not in names:
+        # with a fitted drive gain the mass and friction would be degenerate (the gain scales
+        # every force), so they are re-estimated only when the gain is not
+        free += [p for p in interacting(state.doc) if p.name not in names]
+    twin = Twin.compile(state.doc)
+    joint = fit(
+        lambda params: twin.simulate(drive, params),
+        twin.nominal,
+        twin.index,
+        free,
+        meas,
+        max_evaluations=opts.max_evaluations,
+    )
+    if not joint.converged or joint.cost > state.cost:
+        return (
+            f"the joint re-fit of the found effects and the nominal parameters did not "
+            f"converge or improve ({joint.message}); kept the effect-by-effect fit"
+        )
+    doc = state.doc
+    for name, value in joint.values.items():
+        doc = doc.set(name, value)
+    state.doc = doc
+    state.twin = Twin.compile(doc)
+    state.outputs, state.cost = joint.outputs, joint.cost
+    return None
 
 
 def diagnose(
@@ -202,6 +254,7 @@ def diagnose(
     state = _State(doc=nominal, twin=twin, outputs=out0, cost=cost_of(meas, out0))
     excluded: list[str] = []
     ranking: list[Candidate] = []
+    reports: list[dict] = []
     for round_no in range(1, opts.max_effects + 1):
         re, rp = _residuals(run, state.outputs)
         ranking = rank(motion, effort_residual=re, position_residual=rp, exclude=tuple(excluded))
@@ -251,21 +304,19 @@ def diagnose(
             trials,
             key=lambda t: (state.cost - t[3].cost) / t[1].added / max(t[3].cost, 1e-300),
         )
-        ok, p_value = _reduction_significant(
-            meas, result.outputs, state.cost, result.cost, edit.added
-        )
         explained = (state.cost - result.cost) / state.cost if state.cost > 0 else 0.0
-        if not ok:
+        if explained < MIN_EXPLAINED:
             notes.append(
                 f"{cand.name} was fitted but removed only {100 * explained:.1f} % of the cost "
-                f"(p = {p_value:.2g}); not kept"
+                f"(less than {100 * MIN_EXPLAINED:.0f} %); not kept"
             )
             excluded.append(cand.name)
             continue
         doc = edit.doc
         for name, value in result.values.items():
             doc = doc.set(name, value)
-        params = {k: float(f(result.values)) for k, f in edit.report.items()}
+        params = {k: float(f(_Values(doc))) for k, f in edit.report.items()}
+        reports.append(edit.report)
         state.found.append(
             FoundEffect(
                 name=cand.name,
@@ -277,6 +328,7 @@ def diagnose(
                 component=cand.effect.component,
             )
         )
+        state.found_free.extend(p for p in edit.own if p not in state.found_free)
         state.doc, state.twin, state.outputs, state.cost = (
             doc,
             new_twin,
@@ -285,6 +337,17 @@ def diagnose(
         )
         excluded.append(cand.name)
         progress(f"  added {cand.name}: {params}; it removed {100 * explained:.1f} % of the cost")
+    if state.found:
+        progress("re-fitting the found effects together with the nominal parameters")
+        note = _final_joint(state, drive, meas, opts)
+        if note is not None:
+            notes.append(note)
+        state.found = [
+            dataclasses.replace(
+                e, parameters={k: float(f(_Values(state.doc))) for k, f in r.items()}
+            )
+            for e, r in zip(state.found, reports, strict=True)
+        ]
     timings["identify_s"] = time.perf_counter() - clock
     after = _metrics(run, state.outputs)
     if state.found:

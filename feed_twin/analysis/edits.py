@@ -24,7 +24,8 @@ from feed_twin.analysis.twin import ModelDoc
 @dataclass(frozen=True, kw_only=True)
 class Edit:
     doc: ModelDoc
-    free: list[FreeParameter]
+    own: list[FreeParameter]  # the effect's own parameters (fitted first, alone)
+    free: list[FreeParameter]  # own + the interacting ones (the final, joint fit)
     added: int  # degrees of freedom the effect adds to the model (for the partial F-test)
     # reported parameter name -> function of the fitted slot values
     report: dict[str, Callable[[dict[str, float]], float]]
@@ -79,11 +80,6 @@ def interacting(doc: ModelDoc) -> list[FreeParameter]:
     return free
 
 
-def _with(free: list[FreeParameter], new: FreeParameter) -> list[FreeParameter]:
-    """`free` with `new` replacing the entry of the same name (or added first)."""
-    return [new] + [p for p in free if p.name != new.name]
-
-
 def _friction_name(doc: ModelDoc) -> str:
     fr = doc.friction()
     if fr is None:
@@ -91,13 +87,32 @@ def _friction_name(doc: ModelDoc) -> str:
     return fr
 
 
+def _edit(
+    doc: ModelDoc,
+    own: list[FreeParameter],
+    report: dict[str, Callable[[dict[str, float]], float]],
+    *,
+    added: int | None = None,
+    interacts: bool = True,
+) -> Edit:
+    names = {p.name for p in own}
+    others = [p for p in interacting(doc) if p.name not in names] if interacts else []
+    return Edit(
+        doc=doc,
+        own=own,
+        free=own + others,
+        added=len(own) if added is None else added,
+        report=report,
+    )
+
+
 def coulomb(doc: ModelDoc, cand: Candidate) -> Edit:
     doc = _symmetric(doc.with_friction())
     fr = _friction_name(doc)
     fc = max(abs(cand.coefficients.get("sign_v", 0.0)), 1e-3)
     doc = doc.tie(f"{fr}.F_c", (f"{fr}.F_c_pos", f"{fr}.F_c_neg")).set(f"{fr}.F_c", fc)
-    free = _with(interacting(doc), _param(doc, f"{fr}.F_c", fc))
-    return Edit(doc=doc, free=free, added=1, report={"F_c_N": lambda v: v[f"{fr}.F_c"]})
+    own = [_param(doc, f"{fr}.F_c", fc)]
+    return _edit(doc, own, {"F_c_N": lambda v: v[f"{fr}.F_c"]})
 
 
 def viscous(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -106,8 +121,8 @@ def viscous(doc: ModelDoc, cand: Candidate) -> Edit:
     doc = doc.tie(f"{fr}.F_v", (f"{fr}.F_v_pos", f"{fr}.F_v_neg"))
     guess = max(doc.get(f"{fr}.F_v") + cand.coefficients.get("v", 0.0), 0.0)
     doc = doc.set(f"{fr}.F_v", guess)
-    free = _with(interacting(doc), _param(doc, f"{fr}.F_v", guess))
-    return Edit(doc=doc, free=free, added=1, report={"F_v_N_s_m": lambda v: v[f"{fr}.F_v"]})
+    own = [_param(doc, f"{fr}.F_v", guess)]
+    return _edit(doc, own, {"F_v_N_s_m": lambda v: v[f"{fr}.F_v"]})
 
 
 def stribeck(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -116,32 +131,34 @@ def stribeck(doc: ModelDoc, cand: Candidate) -> Edit:
     vs = float(cand.variant.split("=")[1].split()[0]) if cand.variant else 0.005
     ds = max(abs(cand.coefficients.get("stribeck", 0.0)), 1e-3)
     doc = doc.set(f"{fr}.dF_s", ds).set(f"{fr}.v_s", vs)
-    free = interacting(doc)
-    return Edit(
-        doc=doc,
-        free=free,
-        added=2,
-        report={"dF_s_N": lambda v: v[f"{fr}.dF_s"], "v_s_m_s": lambda v: v[f"{fr}.v_s"]},
-    )
+    own = [_param(doc, f"{fr}.dF_s"), _param(doc, f"{fr}.v_s", lower=1e-4, floor=1e-3)]
+    report = {"dF_s_N": lambda v: v[f"{fr}.dF_s"], "v_s_m_s": lambda v: v[f"{fr}.v_s"]}
+    return _edit(doc, own, report)
 
 
 def asymmetric(doc: ModelDoc, cand: Candidate) -> Edit:
+    """Forward and backward friction apart. Coulomb is split only once Coulomb friction is in
+    the model: a split Coulomb force alone would look like a constant force while moving."""
     doc = doc.with_friction()
     fr = _friction_name(doc)
+    has_coulomb = doc.get(f"{fr}.F_c_pos") > 0.0 or doc.get(f"{fr}.F_c_neg") > 0.0
     doc = doc.untie().mark_asymmetric(fr)
+    names = ("F_v_pos", "F_v_neg") + (("F_c_pos", "F_c_neg") if has_coulomb else ())
+    own = [_param(doc, f"{fr}.{n}") for n in names]
     report = {
         name: (lambda n: lambda v: v[f"{fr}.{n}"])(name)
         for name in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg")
     }
-    return Edit(doc=doc, free=interacting(doc), added=2, report=report)
+    # one more value per direction-split term than the symmetric model had
+    return _edit(doc, own, report, added=len(names) // 2)
 
 
 def constant_force(doc: ModelDoc, cand: Candidate) -> Edit:
     # the residual is measured minus twin: a force the drive must supply is a load of -f_0
     f0 = -cand.coefficients.get("one", 0.0)
     doc, slot = _symmetric(doc).with_constant_force(f0)
-    free = _with(interacting(doc), _param(doc, slot, f0, lower=-math.inf))
-    return Edit(doc=doc, free=free, added=1, report={"f_0_N": lambda v: v[slot]})
+    own = [_param(doc, slot, f0, lower=-math.inf)]
+    return _edit(doc, own, {"f_0_N": lambda v: v[slot]})
 
 
 def mass_error(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -152,10 +169,8 @@ def mass_error(doc: ModelDoc, cand: Candidate) -> Edit:
     value = doc.get(m)
     guess = max(value + cand.coefficients.get("a", 0.0), 0.2 * value)
     doc = doc.set(m, guess)
-    free = _with(
-        interacting(doc), FreeParameter(name=m, initial=guess, scale=value, lower=0.2 * value)
-    )
-    return Edit(doc=doc, free=free, added=1, report={"m_kg": lambda v: v[m]})
+    own = [FreeParameter(name=m, initial=guess, scale=value, lower=0.2 * value)]
+    return _edit(doc, own, {"m_kg": lambda v: v[m]})
 
 
 def gain_error(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -167,8 +182,10 @@ def gain_error(doc: ModelDoc, cand: Candidate) -> Edit:
     # measured effort = K_nom/K_true * needed effort: weight c = K_nom/K_true - 1
     guess = value / (1.0 + cand.coefficients.get("effort", 0.0))
     doc = doc.set(g, guess)
-    free = [FreeParameter(name=g, initial=guess, scale=abs(value))] + interacting(doc)
-    return Edit(doc=doc, free=free, added=1, report={"gain": lambda v: v[g]})
+    own = [FreeParameter(name=g, initial=guess, scale=abs(value))]
+    # the gain scales every force of the model at once: fitted together with the mass and
+    # friction it would be degenerate, so it is fitted alone
+    return _edit(doc, own, {"gain": lambda v: v[g]}, interacts=False)
 
 
 EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {

@@ -6,12 +6,15 @@ would follow. Ranking projects a residual onto each effect's regressors (ordinar
 the explained fraction is `||P r||^2 / ||r||^2`, and a partial F-test on an effective sample
 count tells whether it is more than chance.
 
-Why an effective sample count: residuals of a 1 kHz record are strongly correlated from sample
-to sample (drift, loop dynamics), so n samples carry far fewer than n independent observations.
-With the lag-1 autocorrelation rho of the remaining residual, an AR(1) process has
-`n_eff = n (1 - rho) / (1 + rho)` (Bartlett's correction); the F statistic uses n_eff. An effect
-counts as found only if the test rejects at `ALPHA` *and* it explains at least
-`MIN_EXPLAINED` of the residual, so a huge record cannot make a negligible effect significant.
+The noise an effect is tested against is what remains after ALL signatures of the domain are
+fitted at once (so the structure of a second hidden effect does not count as noise). Residuals
+of a 1 kHz record are strongly correlated from sample to sample, so n samples carry far fewer
+than n independent observations: with the lag-1 autocorrelation rho of that remaining residual,
+an AR(1) process has `n_eff = n (1 - rho) / (1 + rho)` (Bartlett's correction), and projecting
+such noise onto p regressors gives about (n / n_eff) times the white-noise energy. Hence
+`F = (ESS / p) * n_eff / RSS_all` against F(p, n_eff - p_all). An effect counts as found only if
+the test rejects at `ALPHA` *and* it explains at least `MIN_EXPLAINED` of the residual, so a huge
+record cannot make a negligible effect significant.
 
 Domains: force-like effects act on the drive effort; position-like effects (sensor delay, lead
 error, backlash with a linear scale, thermal growth) act on the measured position. A missing
@@ -384,24 +387,46 @@ def rank(
             _, _, _, _, coef = test_regressors(rp, coupled, offset)
             rp = rp - coef["effort_residual"] * coupled["effort_residual"]
         residual_of["position"] = rp
-    out: list[Candidate] = []
+    best_of: list[tuple[Effect, str, dict[str, np.ndarray], tuple, int]] = []
     for effect in LIBRARY:
         if effect.name in exclude or not available(effect, motion, domains):
             continue
         r = residual_of[effect.domain]
+        nuisance = offset if effect.domain == "position" else None
         variants = effect.variants(motion)
         best = None
         for label, sig in variants:
-            result = test_regressors(
-                r, sig(motion), offset if effect.domain == "position" else None
-            )
-            if best is None or result[0] > best[1][0]:
-                best = (label, result)
+            regs = sig(motion)
+            result = test_regressors(r, regs, nuisance)
+            if best is None or result[0] > best[2][0]:
+                best = (label, regs, result)
         assert best is not None
-        label, (explained, f_stat, p_value, n_eff, coef) = best
+        best_of.append((effect, best[0], best[1], best[2], len(variants)))
+    noise = {
+        d: _noise_level(
+            residual_of[d],
+            [b for b in best_of if b[0].domain == d],
+            offset if d == "position" else None,
+        )
+        for d in domains
+    }
+    out: list[Candidate] = []
+    for effect, label, regs, result, n_variants in best_of:
+        explained, _, _, _, coef = result
+        r = residual_of[effect.domain]
+        if effect.domain == "position":
+            r = r - r.mean()
+        rss_full, n_eff, p_full = noise[effect.domain]
+        p = len(regs)
+        ess = explained * float(np.dot(r, r))
+        # see the module docstring: the noise level and its effective sample count come from
+        # the residual of all signatures together, so another effect's structure is not noise
+        f_stat = (ess / p) * n_eff / rss_full if rss_full > 0 else math.inf
+        dof = max(n_eff - p_full, 1.0)
+        p_value = float(stats.f.sf(f_stat, p, dof)) if math.isfinite(f_stat) else 0.0
         # the variant search is one more free parameter, which the F-test's p does not see;
         # Bonferroni over the variants keeps the false-alarm rate at ALPHA
-        p_adj = min(1.0, p_value * len(variants))
+        p_adj = min(1.0, p_value * n_variants)
         out.append(
             Candidate(
                 effect=effect,
@@ -416,6 +441,21 @@ def rank(
         )
     out.sort(key=lambda c: (c.significant, c.explained_fraction), reverse=True)
     return out
+
+
+def _noise_level(r: np.ndarray, entries: list, nuisance: np.ndarray | None):
+    """(RSS, effective samples, parameters) of r after all the domain's signatures at once."""
+    columns = [np.asarray(v, dtype=float) for e in entries for v in e[2].values()]
+    if nuisance is not None:
+        columns.append(nuisance)
+    if not columns:
+        return float(np.dot(r, r)), _effective_samples(r), 0
+    Z = np.column_stack(columns)
+    scale = np.linalg.norm(Z, axis=0)
+    scale[scale == 0.0] = 1.0
+    coef, _, rank_z, _ = np.linalg.lstsq(Z / scale, r, rcond=None)
+    e = r - (Z / scale) @ coef
+    return float(np.dot(e, e)), _effective_samples(e), int(rank_z)
 
 
 def _lowpass(r: np.ndarray, motion: Motion) -> np.ndarray:

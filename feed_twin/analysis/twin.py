@@ -103,11 +103,25 @@ class ModelDoc:
                 return members
         return (name,)
 
+    def has_slot(self, slot: str) -> bool:
+        """True for a tie name or a parameter the document holds (not a split tie)."""
+        if slot in self.tie_names():
+            return True
+        comp, _, field_name = slot.partition(".")
+        try:
+            return field_name in self.component(comp)["params"]
+        except LookupError:
+            return False
+
     def get(self, slot: str) -> float:
         first = self.tie_members(slot)[0]
         comp, _, field_name = first.partition(".")
         params = self.component(comp)["params"]
         if field_name not in params:
+            pair = (f"{field_name}_pos", f"{field_name}_neg")
+            if all(p in params for p in pair):
+                # a tie that a later edit split (Coulomb -> asymmetric): report the mean
+                return 0.5 * (float(params[pair[0]]) + float(params[pair[1]]))
             raise LookupError(f"{self.source}: plant.{comp} has no parameter {field_name!r}")
         return float(params[field_name])
 
@@ -251,7 +265,7 @@ class Twin:
     _cache: dict = field(default_factory=dict)
 
     @classmethod
-    def compile(cls, doc: ModelDoc, *, smooth_sensors: bool = True) -> Twin:
+    def compile(cls, doc: ModelDoc, *, smooth_sensors: bool = True, min_substeps: int = 1) -> Twin:
         from feed_twin.control.cascade import build_cascade, load_controller_config
         from feed_twin.plant.config import load_plant
         from feed_twin.sim.engine import Engine
@@ -272,7 +286,7 @@ class Twin:
             effort_name, unit = (
                 ("torque_cmd_Nm", "N m") if domain == "rotational" else ("force_cmd_N", "N")
             )
-        nsub = _substeps(plant, nominal, controller.base_period_s)
+        nsub = max(min_substeps, _substeps(plant, nominal, controller.base_period_s))
         engine = Engine(
             plant,
             base_period_s=controller.base_period_s,

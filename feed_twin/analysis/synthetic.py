@@ -1,0 +1,224 @@
+"""Synthetic "measured" runs with hidden effects, for testing the workflow blind.
+
+A truth model is the nominal model document plus
+- the hidden effect(s), each set through the same component the workflow would add,
+- a little unmodelled dynamics: the drive's current loop as a first-order lag (`T_lag`) that
+  the nominal model does not have,
+- the real sensor: the encoder with its true count (quantisation), not the fitting twin's
+  smooth one,
+- sensor noise on the recorded effort (a measured current is never clean).
+It runs on the same engine as the twin (no second copy of the physics), driven by a G-code
+program planned by feed_twin.gcode, and is written as a CSV in a machine's own units (ms, mm,
+volts) with a column map, exactly as a user would bring real data. The workflow is never told
+what was hidden.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from feed_twin.analysis.twin import Drive, ModelDoc, Twin
+
+# A program with moves of several lengths and feeds, reversals and dwells on one axis (X).
+PROGRAM = """\
+(feed_twin synthetic run: moves and reversals along X)
+G21 G90 G94 G54 G64
+G1 X20 F6000
+G1 X60 F2400
+G4 P0.15
+G1 X10 F4800
+G1 X35 F900
+G1 X5 F3600
+G4 P0.1
+G1 X70 F7200
+G1 X40 F1800
+G1 X50 F600
+G1 X0 F5400
+G4 P0.1
+M30
+"""
+
+NC_CONFIG = """\
+nc:
+  twin_axis: X
+  profile: jerk
+  interpolation_period_s: 0.001
+  path_tolerance_m: 1.0e-5
+  chord_tolerance_m: 2.0e-6
+  arc_radius_tolerance_m: 1.0e-5
+  lookahead_segments: 200
+  block_delete: true
+  dwell_p_unit: s
+  start_position_m: [0.0, 0.0, 0.0]
+  axes:
+    - {name: X, v_max_m_s: 0.15, rapid_m_s: 0.15, a_max_m_s2: 0.8, j_max_m_s3: 40.0,
+       travel_min_m: -0.01, travel_max_m: 0.3}
+    - {name: Y, v_max_m_s: 0.15, rapid_m_s: 0.15, a_max_m_s2: 0.8, j_max_m_s3: 40.0,
+       travel_min_m: -0.01, travel_max_m: 0.3}
+    - {name: Z, v_max_m_s: 0.15, rapid_m_s: 0.15, a_max_m_s2: 0.8, j_max_m_s3: 40.0,
+       travel_min_m: -0.01, travel_max_m: 0.3}
+  work_offsets_m:
+    G54: [0.0, 0.0, 0.0]
+    G55: [0.0, 0.0, 0.0]
+    G56: [0.0, 0.0, 0.0]
+    G57: [0.0, 0.0, 0.0]
+    G58: [0.0, 0.0, 0.0]
+    G59: [0.0, 0.0, 0.0]
+"""
+
+MAP = """\
+# column map of a synthetic run (written by feed_twin.analysis.synthetic)
+time: {{column: time_ms, unit: ms}}
+position_sensor: motor_encoder
+signals:
+  pos_cmd_m: {{column: x_cmd_mm, unit: mm}}
+  pos_meas_m: {{column: x_act_mm, unit: mm}}
+  force_cmd_N: {{column: u_drive_V, unit: V, gain: {gain!r}}}
+plausibility: {{travel_m: 0.3, max_speed_m_s: 0.5}}
+"""
+
+
+def _friction(doc: ModelDoc) -> tuple[ModelDoc, str]:
+    doc = doc.with_friction()
+    fr = doc.friction()
+    assert fr is not None
+    return doc, fr
+
+
+def _coulomb(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    doc, fr = _friction(doc)
+    return doc.set(f"{fr}.F_c_pos", p["F_c_N"]).set(f"{fr}.F_c_neg", p["F_c_N"])
+
+
+def _viscous(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    doc, fr = _friction(doc)
+    return doc.set(f"{fr}.F_v_pos", p["F_v_N_s_m"]).set(f"{fr}.F_v_neg", p["F_v_N_s_m"])
+
+
+def _stribeck(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    doc, fr = _friction(doc)
+    return doc.set(f"{fr}.dF_s", p["dF_s_N"]).set(f"{fr}.v_s", p["v_s_m_s"])
+
+
+def _asymmetric(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    doc, fr = _friction(doc)
+    for name in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg"):
+        if name in p:
+            doc = doc.set(f"{fr}.{name}", p[name])
+    return doc
+
+
+def _constant(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    return doc.with_constant_force(p["f_0_N"])[0]
+
+
+def _mass(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    slot = doc.mass_slot()
+    assert slot is not None
+    return doc.set(slot, p["m_kg"])
+
+
+def _gain(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    slot = doc.gain_slot()
+    assert slot is not None
+    return doc.set(slot, p["gain"])
+
+
+HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
+    "coulomb_friction": _coulomb,
+    "viscous_friction": _viscous,
+    "stribeck_friction": _stribeck,
+    "asymmetric_friction": _asymmetric,
+    "constant_force": _constant,
+    "mass_error": _mass,
+    "torque_constant_error": _gain,
+}
+
+
+@dataclass(frozen=True, kw_only=True)
+class Unmodelled:
+    """What the truth has beyond the hidden effects."""
+
+    current_lag_s: float = 5e-4  # [s] first-order lag of the drive's current loop
+    effort_noise_std: float = 0.3  # [effort unit] white noise on the recorded effort
+    seed: int = 0
+
+
+def truth_model(
+    nominal: ModelDoc, hidden: Mapping[str, Mapping[str, float]], unmodelled: Unmodelled
+) -> ModelDoc:
+    doc = nominal
+    for name, params in hidden.items():
+        doc = HIDDEN[name](doc, params)
+    if unmodelled.current_lag_s > 0.0:
+        for source in doc.of_type("EffortSource"):
+            doc = doc.set(f"{source}.T_lag", unmodelled.current_lag_s)
+    return doc
+
+
+def command(program: str = PROGRAM, nc_config: str = NC_CONFIG) -> tuple[np.ndarray, np.ndarray]:
+    """(t [s], X position setpoint [m]) of a G-code program planned by feed_twin.gcode."""
+    import yaml
+
+    from feed_twin.gcode.config import nc_config_from_mapping
+    from feed_twin.gcode.planner import plan_program
+
+    cfg = nc_config_from_mapping(yaml.safe_load(nc_config)["nc"], source="<synthetic nc>")
+    traj = plan_program(program, cfg)
+    x, _, _ = traj.axis("X")
+    return traj.t_s.copy(), x.copy()
+
+
+def generate(
+    nominal: ModelDoc,
+    hidden: Mapping[str, Mapping[str, float]],
+    *,
+    unmodelled: Unmodelled | None = None,
+    program: str = PROGRAM,
+) -> dict[str, np.ndarray]:
+    """The columns of a synthetic record in the file's own units (see MAP)."""
+    um = unmodelled or Unmodelled()
+    truth = truth_model(nominal, hidden, um)
+    # the lag adds a fast pole: sub-steps keep explicit RK4 well inside its stability limit
+    h = float(truth.data["controller"]["base_period_s"])
+    nsub = max(1, int(np.ceil(2.0 * h / um.current_lag_s))) if um.current_lag_s > 0 else 1
+    twin = Twin.compile(truth, smooth_sensors=False, min_substeps=nsub)
+    t, x_cmd = command(program)
+    n = len(t)
+    drive = Drive(
+        t_s=t,
+        pos_ref_m=x_cmd,
+        vel_ref_m_s=np.gradient(x_cmd, h),
+        acc_ref_m_s2=np.gradient(np.gradient(x_cmd, h), h),
+        effort_add=None,
+        force_ext_N=None,
+        x0_m=float(x_cmd[0]),
+        sensor="motor_encoder",
+    )
+    out = twin.simulate(drive, twin.nominal[None, :])
+    if not out.ok[0]:
+        raise RuntimeError(f"the truth model {sorted(hidden)} diverged")
+    rng = np.random.default_rng(um.seed)
+    gain = nominal.reference_gain or 1.0
+    effort = out.effort[0] + rng.normal(0.0, um.effort_noise_std, n)
+    return {
+        "time_ms": t * 1e3,
+        "x_cmd_mm": x_cmd * 1e3,
+        "x_act_mm": out.x_m[0] * 1e3,
+        "u_drive_V": effort / gain,
+    }
+
+
+def write_csv(path: str | Path, columns: Mapping[str, np.ndarray], nominal: ModelDoc) -> Path:
+    """Write the record and its column map `<stem>_map.yaml` next to it; returns the map."""
+    path = Path(path)
+    names = list(columns)
+    table = np.column_stack([columns[k] for k in names])
+    np.savetxt(path, table, delimiter=",", header=",".join(names), comments="", fmt="%.12g")
+    map_path = path.with_name(f"{path.stem}_map.yaml")
+    map_path.write_text(MAP.format(gain=nominal.reference_gain or 1.0))
+    return map_path
