@@ -399,3 +399,45 @@ def test_golden_controller_dialects_warn_and_run():
     ]
     # G700 X0.5 is 12.7 mm; G70 keeps F in mm/min, G700 reads F60 as 60 in/min.
     np.testing.assert_allclose(sinumerik.pos_m[-1], [0.0127, 0.0, 0.0], atol=1e-15)
+
+
+def _random_program(rng: np.random.Generator, n: int) -> str:
+    """Lines, arcs, rapids, dwells, mode switches and bursts of tiny moves, within travel."""
+    lines = [f"G21 G90 G64 P{rng.uniform(0.001, 0.5):.3f}"]
+    for _ in range(n):
+        r = rng.random()
+        x, y, z = rng.uniform(-80, 80, 3)
+        f = rng.uniform(100, 12000)
+        if r < 0.1:
+            lines.append(f"G0 X{x:.3f} Y{y:.3f} Z{z / 4:.3f}")
+        elif r < 0.2:
+            lines.append(f"G3 X{x:.3f} Y{y:.3f} R{rng.uniform(90, 150):.3f} F{f:.0f}")
+        elif r < 0.25:
+            lines.append(f"G4 P{rng.uniform(0, 0.05):.3f}")
+        elif r < 0.3:
+            lines.append("G61" if rng.random() < 0.5 else "G64")
+        elif r < 0.5:
+            lines.append(f"G1 X{x:.3f} F{f:.0f}")
+        elif r < 0.7:
+            dx, dy = rng.normal(0, 0.2, 2)
+            lines.append(f"G91 G1 X{dx:.4f} Y{dy:.4f} F{f:.0f}\nG90")
+        else:
+            lines.append(f"G1 X{x:.3f} Y{y:.3f} Z{z / 4:.3f} F{f:.0f}")
+    return "\n".join(lines + ["M2"])
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_random_programs_hold_every_limit_with_any_look_ahead(seed):
+    # Found two bugs: a stop treated as a straight joint (velocity jump), and look-ahead
+    # windows whose later constraints lowered an already committed speed.
+    rng = np.random.default_rng(seed)
+    config = dataclasses.replace(
+        CONFIG,
+        profile="jerk" if seed % 3 else "trapezoid",
+        lookahead_segments=int(rng.choice([8, 16, 50, 400])),
+    )
+    program = _random_program(rng, 60)
+    traj = SampledTrajectory.concatenate(plan_program_stream(program, config))
+    assert_limits(traj, config)
+    whole = plan_program(program, config)
+    np.testing.assert_allclose(traj.pos_m[-1], whole.pos_m[-1], atol=1e-15)

@@ -252,6 +252,11 @@ class _StreamPlanner:
         b0 = boundaries[:-1]
         b1 = boundaries[1:]
         length = S[b1] - S[b0] - w[b0] - w[b1]
+        if not final:
+            # The window's end is at rest for now; the next window may put a blend there, which
+            # takes up to BLEND_SHARE of the last move. Stopping before that share keeps every
+            # speed planned now reachable later (look-ahead only ever relaxes constraints).
+            length[-1] -= BLEND_SHARE * L[n - 1]
         length = np.maximum(length, 0.0)
         # Bodies take the tightest limits of their moves (equal by construction, up to rounding).
         Vb = np.minimum.reduceat(V, b0)
@@ -267,6 +272,8 @@ class _StreamPlanner:
             half = first + (n - first) // 2
             candidates = np.flatnonzero(b1 <= half)
             q_commit = int(candidates[-1]) + 1 if len(candidates) else 1
+            if q_commit >= m:
+                return None  # nothing but the provisional last body: wait for more moves
         q = np.arange(q_commit)
         nodes = boundaries[: q_commit + 1]
         v_node = speeds[: q_commit + 1]
@@ -284,6 +291,12 @@ class _StreamPlanner:
         tu = np.zeros(n_pieces)
         tc = np.zeros(n_pieces)
         piece_line = np.full(n_pieces, -1, dtype=np.int64)
+        # First move each piece runs on: a blend starts on the move before its node.
+        piece_seg = np.zeros(n_pieces, dtype=np.int64)
+        piece_seg[3 * q] = np.maximum(nodes[:-1] - 1, 0)
+        piece_seg[3 * q + 1] = np.maximum(nodes[:-1] - 1, 0)
+        piece_seg[3 * q + 2] = np.minimum(nodes[:-1], n - 1)
+        piece_seg[-1] = n - 1
         w_n = w[nodes[:-1]]
         s_node = S[nodes[:-1]]
         cruise = 3 * q + 1
@@ -312,6 +325,7 @@ class _StreamPlanner:
         extra_dur: list[float] = []
         extra_s: list[float] = []
         extra_line: list[int] = []
+        extra_node: list[int] = []
         timed: list[tuple[int, float, Event]] = []  # (piece slot, offset within node, event)
         emit_nodes = list(nodes[:-1]) + ([end_node] if final else [])
         for slot, j in enumerate(emit_nodes):
@@ -325,6 +339,7 @@ class _StreamPlanner:
                     extra_dur.append(entry.dwell_s)
                     extra_s.append(S[j])
                     extra_line.append(entry.line)
+                    extra_node.append(int(j))
                     offset += entry.dwell_s
                 else:
                     timed.append((slot, offset, entry))
@@ -336,13 +351,17 @@ class _StreamPlanner:
             s0 = np.concatenate((s0, extra_s))
             zeros = np.zeros(len(extra_key))
             v0, vpk, v1, tu, tc = (np.concatenate((x, zeros)) for x in (v0, vpk, v1, tu, tc))
+            piece_seg = np.concatenate((piece_seg, np.maximum(np.array(extra_node) - 1, 0)))
             Ak = np.concatenate((Ak, zeros + 1.0))
             Jk = np.concatenate((Jk, zeros + 1.0))
             piece_line = np.concatenate((piece_line, extra_line))
             order = np.argsort(key, kind="stable")
-            key, kind, dur, s0, v0, vpk, v1, Ak, Jk, tu, tc, piece_line = (
-                x[order] for x in (key, kind, dur, s0, v0, vpk, v1, Ak, Jk, tu, tc, piece_line)
+            key, kind, dur, s0, v0, vpk, v1, Ak, Jk, tu, tc, piece_line, piece_seg = (
+                x[order]
+                for x in (key, kind, dur, s0, v0, vpk, v1, Ak, Jk, tu, tc, piece_line, piece_seg)
             )
+        if not np.all(np.isfinite(dur)):
+            raise RuntimeError("planner error: a corner blend planned at rest (please report)")
         t0 = self.t_s + np.concatenate(([0.0], np.cumsum(dur)[:-1]))
         t_end = self.t_s + float(np.sum(dur))
 
@@ -370,7 +389,19 @@ class _StreamPlanner:
         w_start = w[:n]
         w_end = w[1:]
         pos, vel, acc, seg = prof.evaluate_path(
-            s, sd, sdd, S[:-1], L, P[:-1], P[1:], u, w_start, du[:n], w_end, du[1:]
+            s,
+            sd,
+            sdd,
+            S[:-1],
+            L,
+            P[:-1],
+            P[1:],
+            u,
+            w_start,
+            du[:n],
+            w_end,
+            du[1:],
+            piece_seg[piece],
         )
         lines = np.array(self.lines, dtype=np.int64)[seg]
         held = piece_line[piece]

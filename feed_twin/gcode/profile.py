@@ -91,15 +91,52 @@ def reach(v_known: float, L: float, A: float, J: float, jerk: bool, v_cap: float
 
 
 @njit(cache=True)
+def braking_distance(v: float, v_to: float, A: float, J: float, jerk: bool) -> float:
+    """Room [m] needed to slow from v to v_to or to any speed between (v >= v_to).
+
+    Jerk-limited, slowing to a low speed can need more room than stopping: the distance of
+    v -> x rises for x below v/3 (or A^2/2J) and falls above. Planning with the largest
+    distance over [v_to, v] makes the bound monotonic in the target speed, so relaxing a later
+    constraint (more look-ahead) never lowers a speed planned earlier.
+    """
+    d = phase_distance(v, v_to, A, J, jerk)
+    if jerk:
+        for x in (v / 3.0, 0.5 * A * A / J):
+            if v_to < x < v:
+                d = max(d, phase_distance(v, x, A, J, jerk))
+    return d
+
+
+@njit(cache=True)
+def braking_reach(v_to: float, L: float, A: float, J: float, jerk: bool, v_cap: float) -> float:
+    """Largest v <= v_cap with braking_distance(v, v_to) <= L."""
+    v = reach(v_to, L, A, J, jerk, v_cap)
+    if braking_distance(v, v_to, A, J, jerk) <= L:
+        return v
+    lo = v_to
+    hi = v
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        if braking_distance(mid, v_to, A, J, jerk) <= L:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
 def plan_speeds(
     cap: np.ndarray, L: np.ndarray, A: np.ndarray, J: np.ndarray, jerk: bool, v_first: float
 ) -> np.ndarray:
-    """Boundary speeds: backward then forward pass over bodies i (node i -> node i+1)."""
+    """Boundary speeds: backward (braking bounds) then forward pass over bodies i (node i ->
+    node i+1). The forward pass takes the bound when slowing down, so it always fits."""
     m = L.shape[0]
     v = cap.copy()
     v[0] = v_first
     for i in range(m - 1, 0, -1):
-        v[i] = min(v[i], reach(v[i + 1], L[i], A[i], J[i], jerk, v[i]))
+        v[i] = min(v[i], braking_reach(v[i + 1], L[i], A[i], J[i], jerk, v[i]))
     for i in range(m):
         v[i + 1] = min(v[i + 1], reach(v[i], L[i], A[i], J[i], jerk, v[i + 1]))
     return v
@@ -256,8 +293,12 @@ def evaluate_path(
     du_start: np.ndarray,
     w_end: np.ndarray,
     du_end: np.ndarray,
+    first_seg: np.ndarray,
 ):
-    """Axis position, velocity and acceleration at path parameters s (non-decreasing)."""
+    """Axis position, velocity and acceleration at path parameters s (non-decreasing).
+
+    `first_seg[k]` is the first move that sample k may lie on (from its profile piece).
+    """
     n = s.shape[0]
     m = S0.shape[0]
     na = P0.shape[1]
@@ -268,6 +309,8 @@ def evaluate_path(
     k = 0
     for idx in range(n):
         si = s[idx]
+        # At a stop both moves touch s; the piece knows which move it runs on.
+        k = max(k, first_seg[idx])
         while k < m - 1 and si > S0[k] + L[k]:
             k += 1
         seg[idx] = k
