@@ -5,7 +5,7 @@ flanges into one coordinate (rigid transformer), so the ratio is exact and costs
 Efficiency: let F be the force the rest of the chain applies at the translational flange and v its
 velocity. When the screw drives the load (F*v < 0) the rotary side must deliver |F*v|/eta; when the
 load back-drives the screw (F*v > 0) only eta*F*v arrives. The factor switches smoothly,
-    c = (1/eta + eta)/2 + (1/eta - eta)/2 * tanh(-F*v / P_REG),
+    c = (1/eta + eta)/2 + (1/eta - eta)/2 * sgn(-F*v / P_REG),
 and the generalized force of the translational flange is r*c*F; the loss (1 - c)*F*v is >= 0.
 P_REG = 1 mW keeps the switch smooth without changing the loss of any real move.
 Because F must be known explicitly, a lossy screw (eta < 1) needs its translational flange to be
@@ -22,6 +22,7 @@ from numba import njit
 
 from feed_twin.io.config import require_positive, require_range
 from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.smooth import smooth_sign
 
 P_REG = 1e-3  # power scale of the smooth direction switch [W]
 
@@ -32,7 +33,7 @@ def efficiency_factor(force: float, velocity: float, eta: float) -> tuple[float,
     power = force * velocity
     mean = 0.5 * (1.0 / eta + eta)
     half = 0.5 * (1.0 / eta - eta)
-    c = mean + half * math.tanh(-power / P_REG)
+    c = mean + half * smooth_sign(-power / P_REG)
     return c, (1.0 - c) * power
 
 

@@ -1,7 +1,7 @@
 """Permanent-magnet DC motor fed by a linear power amplifier.
 
 Equations: u = clip(gain * effort_cmd, -u_max, u_max) while the drive is enabled, else 0;
-    L di/dt = u - R*i - k*omega,   tau = k*i - (T_c*tanh(omega/omega_reg) + b*omega),
+    L di/dt = u - R*i - k*omega,   tau = k*i - (T_c*sgn(omega/omega_reg) + b*omega),
 with k the torque constant (= back-EMF constant in SI). The amplifier delivers u*i; copper loss
 R*i^2, friction loss; magnetic energy L*i^2/2.
 Port: `flange` (rotational: phi [rad], omega [rad/s], tau [N m]).

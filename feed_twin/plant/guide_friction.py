@@ -1,8 +1,9 @@
 """Guide-way friction: Coulomb + Stribeck + viscous, direction dependent, regularised.
 
 Equation: the force into the flange is f = -F(v) with
-    F(v) = [F_c(v) + dF_s * exp(-(v/v_s)^2)] * tanh(v/v_reg) + F_v(v) * v,
-    F_c(v) = (F_c_pos + F_c_neg)/2 + (F_c_pos - F_c_neg)/2 * tanh(v/v_reg), likewise F_v(v),
+    F(v) = [F_c(v) + dF_s * exp(-(v/v_s)^2)] * sgn(v/v_reg) + F_v(v) * v,
+    F_c(v) = (F_c_pos + F_c_neg)/2 + (F_c_pos - F_c_neg)/2 * sgn(v/v_reg), likewise F_v(v),
+with sgn the smooth sign function of feed_twin.plant.smooth (x/sqrt(1+x^2)),
 so positive and negative motion can have their own Coulomb and viscous values (worn screws and
 the EMPS bench are asymmetric) while F stays smooth. dF_s is the Stribeck excess of the breakaway
 force over the Coulomb level, v_s its velocity scale.
@@ -23,6 +24,7 @@ from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
+from feed_twin.plant.smooth import smooth_sign
 
 STRIBECK_CUTOFF = 50.0  # (v/v_s)^2 beyond which exp(-(v/v_s)^2) < 2e-22 is taken as 0
 
@@ -39,7 +41,7 @@ def friction_force(
     v_reg: float,
 ) -> float:
     """Friction force magnitude-with-sign F(v) [N]; the flange receives -F(v)."""
-    sgn = math.tanh(v / v_reg)
+    sgn = smooth_sign(v / v_reg)
     F_c = 0.5 * (F_c_pos + F_c_neg) + 0.5 * (F_c_pos - F_c_neg) * sgn
     F_v = 0.5 * (F_v_pos + F_v_neg) + 0.5 * (F_v_pos - F_v_neg) * sgn
     r2 = (v / v_s) ** 2

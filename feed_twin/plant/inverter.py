@@ -3,7 +3,8 @@
 Each leg x in {a, b, c} sets a pole voltage (against the negative bus rail) from its switch state
 and the sign of its phase current i_x (out of the leg, into the machine):
     u_x = d_eff,x * u_dc - u_f * sgn(i_x),   i_dc = sum_x d_eff,x * i_x,
-where u_f is the conduction drop of the conducting IGBT or diode and sgn(i) = tanh(i / i_reg).
+where u_f is the conduction drop of the conducting IGBT or diode and sgn(i) is the smooth sign
+of i / i_reg (feed_twin.plant.smooth).
 Averaged model (`model: averaged`): d_eff = d - t_dead * f_pwm * sgn(i): dead time removes
 t_dead of high time per period when the current leaves the leg (the lower diode holds the pole
 low until the delayed upper switch turns on) and adds it when the current enters.
@@ -20,7 +21,6 @@ currents i_a..i_c [A] set by the machine).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -28,6 +28,7 @@ from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.smooth import smooth_sign
 
 PHASES = ("a", "b", "c")
 DUTY_SLOTS = ("OUT_DUTY_A", "OUT_DUTY_B", "OUT_DUTY_C")
@@ -42,7 +43,7 @@ def leg_duty(
 
     command < 0 marks a dead-time interval of the switching model (both switches off).
     """
-    sgn = math.tanh(i / i_reg)
+    sgn = smooth_sign(i / i_reg)
     if enabled < 0.5 or command < 0.0:
         return 0.5 * (1.0 - sgn), sgn
     return command - dead_fraction * sgn, sgn

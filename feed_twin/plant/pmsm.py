@@ -9,7 +9,7 @@ the induced voltage e: it draws i_fe = e/R_fe, and only the remainder i_m = i - 
                                                      when R_fe is absent).
 Power balance, exact: 1.5*(u_d*i_d + u_q*i_q) = copper 1.5*R_s*|i|^2 + iron 1.5*|e|^2/R_fe
 + d/dt(0.75*(L_d*i_d^2 + L_q*i_q^2)) + tau_e*omega.
-Mechanical: rotor inertia J on the flange; bearing friction tau_f = T_c*tanh(omega/omega_reg) +
+Mechanical: rotor inertia J on the flange; bearing friction tau_f = T_c*sgn(omega/omega_reg) +
 b*omega against the motion; cogging torque sum_k A_k*sin(n_k*phi + phase_k) (n_k per mechanical
 revolution), the gradient of the potential -sum_k A_k/n_k*cos(n_k*phi + phase_k).
 The stator windings are star-connected with an isolated neutral, so the zero-sequence part of the

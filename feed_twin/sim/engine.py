@@ -133,6 +133,7 @@ class Engine:
             np.array(controller.params, dtype=float) if controller is not None else np.zeros(1)
         )
         self.n_ext = max(len(model.ext_names), 1)
+        self.work = np.zeros(self.kernel.work_size(len(ctrl_names)))
         self.reset()
 
     def reset(
@@ -189,6 +190,7 @@ class Engine:
             rec,
             self.model.state_limits,
             status,
+            self.work,
         )
         self.k = k0 + done
         if status[0] != 0.0:
@@ -329,6 +331,7 @@ def run_batch(
         rec,
         engine.model.state_limits,
         status,
+        np.zeros((N, engine.work.size)),
     )
     diverged = status[:, 0] != 0.0
     messages = []

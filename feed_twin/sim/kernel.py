@@ -117,23 +117,46 @@ def integrate_tick(t0, h, nsub, x, p, out, ext, sw, k1, k2, k3, k4, xt, edges):
             rk4_step(t0 + a + s * step, step, x, p, out, ext, sw, k1, k2, k3, k4, xt)
 
 
-@njit(cache=True)
+def work_size(n_cs):
+    """Length of the scratch vector `advance` needs (it allocates nothing itself)."""
+    return 5 * N_X + 16 + 3 + 3 * MEAS_SIZE + N_A + (N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs)
+
+
+@njit(cache=True, _nrt=False)
 def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec, sel, rec,
-            xlim, status):
-    """Advance n ticks from tick k0; returns the number of ticks done (< n on divergence)."""
-    k1 = np.empty(N_X)
-    k2 = np.empty(N_X)
-    k3 = np.empty(N_X)
-    k4 = np.empty(N_X)
-    xt = np.empty(N_X)
-    edges = np.empty(16)
-    sw = np.zeros(3)
-    mraw = np.zeros(MEAS_SIZE)
-    mdelay = np.zeros(MEAS_SIZE)
-    meas = np.zeros(MEAS_SIZE)
+            xlim, status, work):
+    """Advance n ticks from tick k0; returns the number of ticks done (< n on divergence).
+
+    Compiled without numba's reference counting (no allocation here: `work` is the scratch):
+    every array argument passed to an inner call would otherwise cost atomic counts.
+    """
     n_cs = cs.shape[0]
-    row = np.empty(N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs)
-    aux = np.empty(N_A)
+    o = 0
+    k1 = work[o:o + N_X]
+    o += N_X
+    k2 = work[o:o + N_X]
+    o += N_X
+    k3 = work[o:o + N_X]
+    o += N_X
+    k4 = work[o:o + N_X]
+    o += N_X
+    xt = work[o:o + N_X]
+    o += N_X
+    edges = work[o:o + 16]
+    o += 16
+    sw = work[o:o + 3]
+    o += 3
+    mraw = work[o:o + MEAS_SIZE]
+    o += MEAS_SIZE
+    mdelay = work[o:o + MEAS_SIZE]
+    o += MEAS_SIZE
+    meas = work[o:o + MEAS_SIZE]
+    o += MEAS_SIZE
+    aux = work[o:o + N_A]
+    o += N_A
+    row = work[o:o + N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs]
+    for i in range(3):
+        sw[i] = 0.0
     r = 0
     for j in range(n):
         k = k0 + j
@@ -174,11 +197,11 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
 
 @njit(cache=True, parallel=True)
 def advance_batch(X, P, CP, CS, k0, n, ref, drive, ext, seeds, rings, outs, h, nsub, dec, sel,
-                  rec, xlim, status):
+                  rec, xlim, status, works):
     for b in prange(X.shape[0]):
         if status[b, 0] == 0.0:
             advance(X[b], P[b], CP[b], CS[b], k0, n, ref, drive, ext, seeds[b], rings[b], outs[b],
-                    h, nsub, dec, sel, rec[b], xlim, status[b])
+                    h, nsub, dec, sel, rec[b], xlim, status[b], works[b])
 '''
 
 _CLOSED = """        cascade_tick(cp, cs, k, ref[j], meas, out)"""
