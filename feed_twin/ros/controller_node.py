@@ -109,6 +109,7 @@ class ControllerNode(FeedTwinNode):
         )
         for note in self.core.notes:
             self.get_logger().info(note)
+        self.core.warm_up()
         self.axis_label = axis_label
         self.exchange_ns = round(exchange_period_s * NS_PER_S)
         self.nc = NcBuffer()

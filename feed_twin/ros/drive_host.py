@@ -98,6 +98,12 @@ class DriveHost:
         self.setpoint = DriveSetpoint(t_ns=0, mode=MODE_CST, enable=True)
         self.k = 0
 
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the kernels before the first exchange."""
+        self.engine.advance(0)
+        clarke(0.0, 0.0, 0.0)
+        park(0.0, 0.0, 0.0)
+
     @staticmethod
     def record_names(signals: StateSignals) -> tuple[str, ...]:
         return tuple(dict.fromkeys((*signals.names(), *MEAS_RECORD, *OUT_RECORD)))

@@ -8,7 +8,7 @@ with the QoS its publisher offers. Log time and publish time are the wall-clock 
 ns (rclpy's EventsExecutor cannot hand raw callbacks the message info with the send time).
 
 The run ends when the sim node announces it on `run_state`; the recorder then drains what is
-still in flight (until 0.3 s without a message, at most 3 s) and closes the bag. On SIGINT,
+still in flight (until 0.3 s without a message, at most 30 s) and closes the bag. On SIGINT,
 SIGTERM or a lost peer it closes the bag as well.
 """
 
@@ -38,7 +38,7 @@ from feed_twin.ros.runtime import (
 from feed_twin.ros.topics import RECORDER_NODE
 
 DRAIN_QUIET_S = 0.3
-DRAIN_MAX_S = 3.0
+DRAIN_MAX_S = 30.0  # a recorder starved of CPU may lag seconds behind the graph
 SCAN_PERIOD_S = 0.2
 EXTRA_GLOBAL_TOPICS = ("/rosout",)
 

@@ -162,7 +162,7 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
                 if rc not in (None, 0) and first_failure is None:
                     first_failure = role
                     code = rc
-                    reason = f"{role} node exited with code {rc}: {_last_error(logs[role])}"
+                    reason = ""
             if first_failure is not None:
                 # Nodes that had seen the failed one stop on their own within a second (lost
                 # heartbeat); the others (it died while starting) are told to stop.
@@ -184,7 +184,15 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
         failed = {r: p.returncode for r, p in procs.items() if p.returncode}
         if failed:
             role, code = next(iter(failed.items()))
-            reason = f"{role} node exited with code {code}: {_last_error(logs[role])}"
+            reason = _exit_text(role, code, logs[role])
+    else:
+        reason = _exit_text(first_failure, code, logs[first_failure])
+        # What the others said: they name the node they lost.
+        reason += "".join(
+            f"\n  {_exit_text(role, p.returncode, logs[role])}"
+            for role, p in procs.items()
+            if role != first_failure and p.returncode
+        )
     timing = _timing(logs["sim"])
     return code, reason, timing
 
@@ -202,11 +210,18 @@ def _wait_all(procs: dict[str, subprocess.Popen], grace_s: float) -> None:
             p.wait(timeout=5.0)
 
 
+def _exit_text(role: str, code: int, log: Path) -> str:
+    if code < 0:
+        return f"{role} node was killed by {signal.Signals(-code).name}"
+    return f"{role} node exited with code {code}: {_last_error(log)}"
+
+
 def _last_error(log: Path) -> str:
     try:
         lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
     except OSError:
         return "(no log)"
+    lines = [ln for ln in lines if not ln.startswith(("PROGRESS ", "TIMING ", "CPU "))]
     marked = [ln for ln in lines if "ERROR" in ln or "Error" in ln or "error" in ln]
     chosen = marked[-3:] if marked else lines[-3:]
     return " | ".join(chosen) or "(empty log)"
@@ -269,7 +284,7 @@ def _run_single_process(args: argparse.Namespace, ros, nc, out: Outputs) -> tupl
     from feed_twin.ros.sim_node import SimNode, build_drive_host
 
     host = build_drive_host(args.config, ros)
-    host.engine.advance(0)
+    host.warm_up()
     controller_config = load_controller_config(
         load_yaml(args.config)["controller"], source=str(args.config)
     )

@@ -150,6 +150,7 @@ class FeedTwinNode(Node):
     def _on_run_state(self, msg: String) -> None:
         if msg.data.startswith("done") and not self.run_ended:
             self.run_ended = True  # peers leave from now on: that is no longer a fault
+            self.get_logger().info(f"run state: {msg.data}")
             self.on_run_done(msg.data)
 
     def poll(self) -> float | None:

@@ -327,7 +327,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         ros = load_node_set_config(args.config)
         host = build_drive_host(args.config, ros)
-        host.engine.advance(0)  # compile (or load the cached kernel) before the first beat
+        host.warm_up()  # before the first heartbeat: a compiling node must not look dead
     except (ConfigError, ValueError, KeyError) as exc:
         print(f"sim node: {exc}", file=sys.stderr)
         return EXIT_ERROR

@@ -22,6 +22,7 @@ below (used by the cross-check test) computes exactly what the node set computes
 from __future__ import annotations
 
 import collections
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -285,6 +286,15 @@ class ControllerCore:
             self._position = PositionLoop(node_config)
             if boundary == "torque":
                 self._velocity = VelocityLoop(node_config)
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the loop kernels on a throw-away copy, so that
+        the first exchange does not stall the node for seconds."""
+        if self.boundary == "position":
+            return
+        spare = copy.deepcopy(self)
+        nc = NcSample(t_ns=0, position_m=0.0, velocity_m_s=0.0, acceleration_m_s2=0.0, line=-1)
+        spare.step(0, nc, np.zeros(sig.MEAS_SIZE))
 
     def step(self, t_ns: int, nc: NcSample, meas: np.ndarray) -> DriveSetpoint:
         t = t_ns / NS_PER_S

@@ -1,0 +1,221 @@
+"""Faults of the node set: a killed node, a signal to the runner, a bad program, a wrong topic."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from nodes_support import ROOT, merged_config, node_env, run, start_run
+
+from feed_twin.io.bag import BagReader, info
+from feed_twin.ros.domain import reserve_domain_id
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+SAMPLE = ROOT / "tests" / "fixtures" / "gcode" / "sample.ngc"  # about 7 s of motion
+ROLES = ("sim", "controller", "gcode", "recorder")
+
+
+@pytest.fixture(scope="module")
+def config(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return merged_config(tmp_path_factory.mktemp("faults"))
+
+
+def node_pids(config: Path) -> dict[str, int]:
+    """PIDs of this run's node processes (found by their module and this test's config path)."""
+    found: dict[str, int] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        text = [a.decode(errors="replace") for a in argv]
+        for role in ROLES:
+            module = f"feed_twin.ros.{role}_node"
+            if module in text and (str(config) in text or role == "recorder"):
+                if role == "recorder" and not any(str(config.parent) in a for a in text):
+                    continue
+                found[role] = int(entry.name)
+    return found
+
+
+def wait_for_progress(log: Path, sim_s: float, timeout_s: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if log.exists():
+            values = re.findall(r"PROGRESS (\S+)", log.read_text(errors="replace"))
+            if values and float(values[-1]) >= sim_s:
+                return
+        time.sleep(0.1)
+    raise AssertionError(f"the run did not reach {sim_s} s of simulated time")
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    stat = Path(f"/proc/{pid}/stat")
+    return stat.exists() and stat.read_text().split()[2] != "Z"
+
+
+def start_sample_run(config: Path, name: str, domain_id: int) -> subprocess.Popen:
+    out = config.parent / "bags"
+    return start_run(
+        [str(SAMPLE), "--config", str(config), "--out", str(out), "--name", name, "--json"],
+        domain_id,
+    )
+
+
+@pytest.mark.parametrize("victim", ROLES)
+def test_killed_node_is_noticed_named_and_bag_readable(config: Path, victim: str) -> None:
+    name = f"kill_{victim}"
+    logs = config.parent / "bags" / f"{name}.logs"
+    with reserve_domain_id() as domain:
+        proc = start_sample_run(config, name, domain.domain_id)
+        try:
+            wait_for_progress(logs / "sim.log", 0.5)
+            pids = node_pids(config)
+            assert set(pids) == set(ROLES), pids
+            os.kill(pids[victim], signal.SIGKILL)
+            killed_at = time.monotonic()
+            others = {r: p for r, p in pids.items() if r != victim}
+            ended: dict[str, float] = {}
+            while len(ended) < len(others) and time.monotonic() - killed_at < 10.0:
+                for role, pid in others.items():
+                    if role not in ended and not alive(pid):
+                        ended[role] = time.monotonic() - killed_at
+                time.sleep(0.02)
+            out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)
+    assert proc.returncode != 0
+    gone = f"node '/cnc/x/{victim}' is gone"
+    assert gone in err
+    # Every other node noticed by itself (no heartbeat for 0.6 s) and ended promptly.
+    for role in others:
+        text = (logs / f"{role}.log").read_text(errors="replace")
+        assert gone in text, role
+        match = re.search(r"is gone: no heartbeat for (\S+) s", text)
+        assert float(match[1]) < 1.0
+        assert ended[role] < 3.0, (role, ended)
+    bag = config.parent / "bags" / name
+    summary = info(bag)  # finished by the recorder, or recovered by the runner
+    counts = {t.name: t.message_count for t in summary.topics}
+    assert counts["/cnc/x/state"] > 300
+    states = BagReader(bag).columns("/cnc/x/state", ["table_position"])["table_position"]
+    assert states.size == counts["/cnc/x/state"]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_signal_stops_every_node_and_finalises_the_bag(config: Path, signum: int) -> None:
+    name = f"signal_{signal.Signals(signum).name}"
+    logs = config.parent / "bags" / f"{name}.logs"
+    with reserve_domain_id() as domain:
+        proc = start_sample_run(config, name, domain.domain_id)
+        try:
+            wait_for_progress(logs / "sim.log", 0.5)
+            pids = node_pids(config)
+            proc.send_signal(signum)
+            out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)
+    assert proc.returncode == 130
+    assert f"stopped by {signal.Signals(signum).name}" in err
+    assert not any(alive(pid) for pid in pids.values())
+    bag = config.parent / "bags" / name
+    assert (bag / "metadata.yaml").exists()  # closed by the recorder, not recovered
+    recorder_log = (logs / "recorder.log").read_text()
+    assert "stopped by SIGTERM" in recorder_log
+    summary = info(bag)
+    counts = {t.name: t.message_count for t in summary.topics}
+    # Nothing lost up to the stop: every exchange the sim made is in the bag.
+    steps = int(re.search(r'"steps": (\d+)', (logs / "sim.log").read_text())[1])
+    assert counts["/cnc/x/state"] == steps
+
+
+def test_gcode_error_stops_before_motion(config: Path, tmp_path: Path) -> None:
+    program = tmp_path / "bad.ngc"
+    program.write_text("G21 G90\nG1 X10 F3000\nG93 G1 X20 F2\n")
+    with reserve_domain_id() as domain:
+        code, out, err = run(
+            [str(program), "--config", str(config), "--out", str(tmp_path / "bags")],
+            domain.domain_id,
+        )
+    assert code == 1
+    assert re.search(r"G-code error, nothing was started: .*bad\.ngc:3:1: word 'G93'", err), err
+    assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
+
+
+WRONG_STREAM = """
+import sys, time
+from feed_twin.ros.runtime import init_context
+from rclpy.node import Node
+from rclpy.experimental import EventsExecutor
+from {module} import {cls}
+ctx = init_context()
+node = Node("external_nc", context=ctx)
+pub = node.create_publisher({cls}, "{topic}", 10)
+ex = EventsExecutor(context=ctx)
+ex.add_node(node)
+print("ready", flush=True)
+while True:
+    pub.publish({cls}())
+    ex.spin_once(timeout_sec=0.01)
+"""
+
+
+@pytest.mark.parametrize(
+    ("module", "cls", "topic", "expected"),
+    [
+        (
+            "feed_twin_msgs.msg",
+            "AxisCommand",
+            "/cnc/y/command",
+            r"feed_twin_msgs/msg/AxisCommand is published on: /cnc/y/command \(wrong namespace\?\)",
+        ),
+        (
+            "std_msgs.msg",
+            "Float64",
+            "/cnc/x/command",
+            r"/cnc/x/command is published with type std_msgs/msg/Float64 instead",
+        ),
+    ],
+)
+def test_missing_or_mistyped_command_stream_is_reported(
+    config: Path, tmp_path: Path, module: str, cls: str, topic: str, expected: str
+) -> None:
+    with reserve_domain_id() as domain:
+        source = WRONG_STREAM.format(module=module, cls=cls, topic=topic)
+        external = subprocess.Popen(
+            [sys.executable, "-c", source],
+            env=node_env(domain.domain_id),
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert external.stdout.readline().strip() == "ready"
+            code, out, err = run(
+                [
+                    "--no-gcode", "--config", str(config), "--out", str(tmp_path / "bags"),
+                    "--input-timeout", "2", "--max-time", "30",
+                ],
+                domain.domain_id,
+            )  # fmt: skip
+        finally:
+            external.kill()
+            external.wait(timeout=10)
+    assert code == 4, err
+    assert "no feed_twin_msgs/msg/AxisCommand message on /cnc/x/command for 2 s" in err
+    assert re.search(expected, err), err
