@@ -143,7 +143,7 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
 class Unmodelled:
     """What the truth has beyond the hidden effects."""
 
-    current_lag_s: float = 5e-4  # [s] first-order lag of the drive's current loop
+    current_lag_s: float = 2e-4  # [s] first-order lag of the drive's current loop
     effort_noise_std: float = 0.3  # [effort unit] white noise on the recorded effort
     seed: int = 0
 
