@@ -49,6 +49,7 @@ def _drive_plant(
                         "b": 0.0,
                         "omega_reg": 0.01,
                         "i_max": 1000.0,
+                        "T_open": 2.0e-4,
                     },
                 },
                 {"name": "load", "type": "Inertia", "params": {"J": 1.0e3}},
@@ -162,3 +163,16 @@ def test_energy_balance_of_a_closed_loop_move_closes():
     assert all(energy[n_] >= -1e-9 for n_ in energy if plant.energy_kinds[n_] == "loss")
     residual = source - delta_stored - losses
     assert residual == pytest.approx(0.0, abs=5e-3 * source)
+
+
+def test_currents_die_out_when_the_inverter_is_switched_off():
+    plant = _drive_plant(L_d=4e-3, L_q=4e-3)
+    h = 1.0 / F_PWM
+    on, off = 1600, 160  # 0.1 s on, then 10 ms off (50 decay times of 0.2 ms)
+    drive = _duties(on + off, 3.0, 0.0)
+    drive[on:, sig.OUT_ENABLED] = 0.0
+    res = Engine(plant, base_period_s=h).run(on + off, drive=drive)
+    i_on = math.hypot(res["motor.i_d"][on - 1], res["motor.i_q"][on - 1])
+    assert i_on > 5.0
+    after = np.hypot(res["motor.i_d"][on + 16 :], res["motor.i_q"][on + 16 :])
+    assert np.max(after) < math.exp(-4.0) * i_on  # 1 ms = 5 decay times later

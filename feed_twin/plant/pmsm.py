@@ -14,6 +14,12 @@ b*omega against the motion; cogging torque sum_k A_k*sin(n_k*phi + phase_k) (n_k
 revolution), the gradient of the potential -sum_k A_k/n_k*cos(n_k*phi + phase_k).
 The stator windings are star-connected with an isolated neutral, so the zero-sequence part of the
 pole voltages drops out.
+Inverter off (OUT_ENABLED = 0): with all switches open and the line back-EMF below the bus
+voltage the freewheeling diodes block as soon as the currents reach zero, within tens of
+microseconds; an explicit step cannot follow that commutation (the regularised diode model is a
+stiff resistor near zero current), so the currents decay as di/dt = -i/T_open instead, T_open
+a few steps. Not modelled: generator braking through the diodes when the line back-EMF exceeds
+the bus (motor speeds near the voltage limit), and the energy balance while the drive is off.
 Ports: `ac` (ac3: pole voltages [V] in, phase currents [A] out), `flange` (rotational: phi [rad],
 omega [rad/s], tau [N m] into the flange).
 """
@@ -65,6 +71,8 @@ def pmsm_dq(
     psi_pm: float,
     p: float,
     G_fe: float,
+    enabled: float,
+    T_open: float,
 ) -> tuple[float, float, float, float, float, float, float]:
     """(di_d/dt, di_q/dt, tau_e, copper loss, iron loss, u_d, u_q) of the dq machine."""
     u_alpha = (2.0 / 3.0) * (u_a - 0.5 * u_b - 0.5 * u_c)
@@ -79,9 +87,15 @@ def pmsm_dq(
     i_md = i_d - G_fe * e_d
     i_mq = i_q - G_fe * e_q
     tau_e = 1.5 * p * (psi_d * i_mq - psi_q * i_md)
+    if enabled < 0.5:
+        di_d = -i_d / T_open
+        di_q = -i_q / T_open
+    else:
+        di_d = (u_d - R_s * i_d - e_d) / L_d
+        di_q = (u_q - R_s * i_q - e_q) / L_q
     return (
-        (u_d - R_s * i_d - e_d) / L_d,
-        (u_q - R_s * i_q - e_q) / L_q,
+        di_d,
+        di_q,
         tau_e,
         1.5 * R_s * (i_d * i_d + i_q * i_q),
         1.5 * G_fe * (e_d * e_d + e_q * e_q),
@@ -126,9 +140,10 @@ class Pmsm(Component):
     omega_reg: float  # regularisation speed of the friction sign [rad/s]
     cogging: tuple[CoggingHarmonic, ...] = ()
     i_max: float  # current magnitude above which the state counts as a runaway [A]
+    T_open: float  # decay time of the currents while the inverter is off [s], >= 2.5 x step
 
     def __post_init__(self) -> None:
-        for name in ("R_s", "L_d", "L_q", "psi_pm", "J", "omega_reg", "i_max"):
+        for name in ("R_s", "L_d", "L_q", "psi_pm", "J", "omega_reg", "i_max", "T_open"):
             require_positive(name, getattr(self, name))
         if self.p < 1:
             raise ValueError(f"p = {self.p!r}: must be >= 1")
@@ -149,6 +164,7 @@ class Pmsm(Component):
             "T_c": self.T_c,
             "b": self.b,
             "omega_reg": self.omega_reg,
+            "T_open": self.T_open,
         }
         for n, h in enumerate(self.cogging):
             values[f"cog{n}_order"] = float(h.order)
@@ -189,7 +205,8 @@ class Pmsm(Component):
                 "feed_twin.plant.pmsm.pmsm_dq",
                 (g.el("ac", "u_a"), g.el("ac", "u_b"), g.el("ac", "u_c"), c, s)
                 + (g.x("i_d"), g.x("i_q"), omega)
-                + tuple(g.p(n) for n in ("R_s", "L_d", "L_q", "psi_pm", "p", "G_fe")),
+                + tuple(g.p(n) for n in ("R_s", "L_d", "L_q", "psi_pm", "p", "G_fe"))
+                + (g.drive("OUT_ENABLED"), g.p("T_open")),
             )
             g.d("i_d", di_d)
             g.d("i_q", di_q)

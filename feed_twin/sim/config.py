@@ -1,6 +1,6 @@
 """One axis YAML, all sections: `plant:` (feed_twin.plant.config), `engine:` (here),
-`controller:` (feed_twin.control.cascade.load_controller_config) and `nc:` (kept as a mapping for
-the G-code stage, which loads it itself).
+`controller:` (feed_twin.control.cascade.load_controller_config), and `nc:` and `shadow:` (kept
+as mappings for the G-code stage and the shadow twin, which load them themselves).
 
     axis = load_axis_config("config/axis_default.yaml")      # or a parsed mapping
     engine = build_engine(axis)                               # closed loop, as configured
@@ -26,7 +26,7 @@ from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.engine import Engine
 
-SECTIONS = ("plant", "engine", "controller", "nc")
+SECTIONS = ("plant", "engine", "controller", "nc", "shadow")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -57,6 +57,7 @@ class AxisConfig:
     engine: EngineConfig
     controller: Any  # feed_twin.control.cascade.ControllerConfig, or None
     nc: Mapping[str, Any] | None
+    shadow: Mapping[str, Any] | None
     raw: Mapping[str, Any]
 
 
@@ -97,6 +98,7 @@ def load_axis_config(
         engine=engine,
         controller=controller,
         nc=data.get("nc"),
+        shadow=data.get("shadow"),
         raw=data,
     )
 
