@@ -1,0 +1,105 @@
+"""The `shadow:` section of an axis YAML: stream timing, message-fault policy, health limits.
+
+    shadow:
+      sample_period_s: 1.0e-3     # the machine's command/measurement cycle [s]
+      stamp_tolerance: 0.25       # a stamp may sit this fraction of a period off its slot [1]
+      reorder_window: 5           # slots a stream may run ahead before a gap is final [1]
+      missing_fill: interpolate   # hold | interpolate: what fills a lost sample
+      missing_flag_after: 20      # this many lost measured samples in a row -> STALE [1]
+      window_s: 2.0               # rolling residual statistics window [s]
+      baseline_s: 4.0             # baseline window from the start of the run [s]
+      evaluate_period_s: 0.5      # health is judged this often (machine time) [s]
+      fe_dev_rms_warn_m: 2.0e-6   # rolling RMS rise over the baseline that warns [m]
+      fe_dev_rms_error_m: 2.0e-5  # ... that is an error [m]
+      effort_dev_rms_warn: 2.0    # effort-deviation RMS rise that warns [effort unit]
+      effort_dev_rms_error: 20.0  # ... that is an error [effort unit]
+
+The effort unit is the measured effort's SI unit (N, N m or A), as in the discrepancy workflow.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from feed_twin.io.config import (
+    ConfigError,
+    from_mapping,
+    load_yaml,
+    require_positive,
+    require_range,
+)
+
+SECTION = "shadow"
+
+
+@dataclass(frozen=True, kw_only=True)
+class ShadowConfig:
+    sample_period_s: float  # [s] period of the machine's command and measured streams
+    stamp_tolerance: float  # [1] largest |stamp - slot time| / period accepted as on the grid
+    reorder_window: int  # [1] slots a stream may be ahead of a missing sample before it is final
+    missing_fill: Literal["hold", "interpolate"]
+    missing_flag_after: int  # [1] consecutive missing measured samples that make the twin STALE
+    window_s: float  # [s] rolling statistics window
+    baseline_s: float  # [s] baseline window at the start of the run
+    evaluate_period_s: float  # [s] health evaluation period, machine time
+    fe_dev_rms_warn_m: float  # [m] rise of the rolling following-error deviation RMS: WARN
+    fe_dev_rms_error_m: float  # [m] ... ERROR
+    effort_dev_rms_warn: float  # [effort unit] rise of the rolling effort deviation RMS: WARN
+    effort_dev_rms_error: float  # [effort unit] ... ERROR
+
+    def __post_init__(self) -> None:
+        require_positive("sample_period_s", self.sample_period_s)
+        require_range("stamp_tolerance", self.stamp_tolerance, 0.0, 0.5)
+        for name in ("reorder_window", "missing_flag_after"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} = {value!r}: must be a whole number >= 1")
+        if self.missing_fill not in ("hold", "interpolate"):
+            raise ValueError(
+                f"missing_fill = {self.missing_fill!r}: must be 'hold' or 'interpolate'"
+            )
+        for name in ("window_s", "baseline_s", "evaluate_period_s"):
+            require_positive(name, getattr(self, name))
+            if getattr(self, name) < 10 * self.sample_period_s:
+                raise ValueError(
+                    f"{name} = {getattr(self, name)!r}: must span at least 10 samples "
+                    f"(10 * sample_period_s = {10 * self.sample_period_s!r} s)"
+                )
+        for kind in ("fe_dev_rms", "effort_dev_rms"):
+            unit = "_m" if kind == "fe_dev_rms" else ""
+            warn, error = f"{kind}_warn{unit}", f"{kind}_error{unit}"
+            require_positive(warn, getattr(self, warn))
+            require_positive(error, getattr(self, error))
+            if getattr(self, error) <= getattr(self, warn):
+                raise ValueError(
+                    f"{error} = {getattr(self, error)!r}: must be above "
+                    f"{warn} = {getattr(self, warn)!r}"
+                )
+
+    @property
+    def window_samples(self) -> int:
+        return max(10, round(self.window_s / self.sample_period_s))
+
+    @property
+    def baseline_samples(self) -> int:
+        return max(10, round(self.baseline_s / self.sample_period_s))
+
+    @property
+    def evaluate_samples(self) -> int:
+        return max(1, round(self.evaluate_period_s / self.sample_period_s))
+
+
+def load_shadow_config(data: str | Path | Mapping[str, Any], *, source: str | None = None):
+    """The `shadow:` section of a YAML file (or of a parsed mapping) as a ShadowConfig."""
+    if isinstance(data, Mapping):
+        doc = dict(data)
+        source = source or "<mapping>"
+    else:
+        doc = load_yaml(data)
+        source = source or str(data)
+    if SECTION not in doc:
+        raise ConfigError(f"{source}: missing required section {SECTION}")
+    return from_mapping(ShadowConfig, doc[SECTION], source=source, path=SECTION)

@@ -1,0 +1,289 @@
+"""Health of a shadowed axis: rolling residual statistics against a baseline, and what changed.
+
+The residuals are the following-error deviation `fe_dev = e_meas - e_twin = x_twin - x_meas`
+[m] and the effort deviation `effort_dev = effort_meas - effort_twin` [effort unit], as in the
+discrepancy workflow. A model never matches a machine exactly, so health compares the machine
+with ITSELF at the start of the run:
+
+- baseline: the first `baseline_s` of residuals give the baseline RMS of both deviations and a
+  baseline residual model: every effort-domain signature of the effect library
+  (feed_twin.analysis.effects), fitted jointly to the baseline effort residual by least squares;
+- every `evaluate_period_s`, the RMS over the last `window_s` is compared with the baseline RMS:
+  a rise above `*_warn` is WARN, above `*_error` ERROR;
+- on WARN or ERROR the window's effort residual minus the baseline model's prediction on the
+  window's motion (what changed since the start) is ranked with the library's `rank`; the
+  leading significant effect is named, and its least-squares weight converted to the physical
+  parameter it belongs to (Coulomb and viscous friction, moving mass, constant force) and set
+  against the value at the start: "coulomb_friction +35 % since start";
+- STALE when the measured stream has lost `missing_flag_after` samples in a row.
+
+In a `Verdict`, `nominal_value` is the parameter's value at the start of the run (the model's
+value plus the baseline fit's deviation), `estimated_value` its value in the current window, and
+`relative_change` their difference over |nominal_value|.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from feed_twin.analysis.effects import BY_NAME, motion_from_position, rank
+from feed_twin.shadow.config import ShadowConfig
+
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
+MIN_SPEED_M_S = 1e-4  # [m/s] below this peak speed in a window nothing can be attributed
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhysicalEffect:
+    """How one library effect's regressor weight maps to a model parameter."""
+
+    effect: str  # library name, e.g. "coulomb_friction"
+    regressor: str  # the signature column whose weight is the change, e.g. "sign_v"
+    parameter: str  # dotted config path, e.g. "plant.friction.F_c"
+    unit: str  # SI unit of the parameter
+    nominal: float  # model value [unit]
+    per_effort: float  # parameter units per (effort unit * regressor unit)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Verdict:
+    t_s: float  # machine time of the last sample judged [s]
+    level: int  # OK, WARN, ERROR or STALE
+    fe_dev_rms_m: float  # rolling RMS over the window [m]
+    effort_dev_rms: float  # rolling RMS over the window [effort unit]
+    baseline_fe_dev_rms_m: float
+    baseline_effort_dev_rms: float
+    effect: str = ""
+    parameter: str = ""
+    unit: str = ""
+    nominal_value: float = math.nan
+    estimated_value: float = math.nan
+    relative_change: float = math.nan
+    message: str = ""
+
+    @property
+    def level_name(self) -> str:
+        return LEVEL_NAMES[self.level]
+
+
+class _Ring:
+    """The last `size` rows of a few float columns (bounded memory)."""
+
+    def __init__(self, size: int, width: int) -> None:
+        self.size = size
+        self.data = np.zeros((0, width))
+
+    def extend(self, rows: np.ndarray) -> None:
+        self.data = np.concatenate([self.data, rows])[-self.size :]
+
+
+class HealthMonitor:
+    """Judge the residual stream; `update` takes blocks of residual rows in slot order."""
+
+    COLUMNS = ("t_s", "x_meas_m", "fe_dev_m", "effort_dev", "effort_twin")
+
+    def __init__(
+        self,
+        config: ShadowConfig,
+        *,
+        physical: tuple[PhysicalEffect, ...],
+        effort_unit: str,
+        lead_m: float | None,
+        pole_pairs: int | None,
+        travel_m: float,
+    ) -> None:
+        self.config = config
+        self.physical = {p.effect: p for p in physical}
+        self.effort_unit = effort_unit
+        self.lead_m = lead_m
+        self.pole_pairs = pole_pairs
+        self.travel_m = travel_m
+        self._window = _Ring(config.window_samples, len(self.COLUMNS))
+        self._baseline_rows: list[np.ndarray] = []
+        self._baseline_count = 0
+        self.baseline: dict[str, float] | None = None
+        self._baseline_model: list[tuple[str, str, dict[str, float]]] = []
+        self._since_eval = 0
+        self.verdicts: list[Verdict] = []  # every evaluation, most recent last
+        self.last: Verdict | None = None
+
+    @property
+    def baseline_ready(self) -> bool:
+        return self.baseline is not None
+
+    def update(self, rows: np.ndarray, *, missing_run: int) -> list[Verdict]:
+        """Add residual rows (columns COLUMNS); return the verdicts evaluated on the way."""
+        out: list[Verdict] = []
+        if self.baseline is None:
+            need = self.config.baseline_samples - self._baseline_count
+            self._baseline_rows.append(rows[:need])
+            self._baseline_count += len(rows[:need])
+            if self._baseline_count >= self.config.baseline_samples:
+                self._set_baseline(np.concatenate(self._baseline_rows))
+                self._baseline_rows = []
+        start, n = 0, len(rows)
+        while start < n:
+            chunk = rows[start : start + self.config.evaluate_samples - self._since_eval]
+            self._window.extend(chunk)
+            self._since_eval += len(chunk)
+            start += len(chunk)
+            if self._since_eval >= self.config.evaluate_samples:
+                self._since_eval = 0
+                stale = missing_run >= self.config.missing_flag_after and start >= n
+                verdict = self.evaluate(stale=stale)
+                if verdict is not None:
+                    out.append(verdict)
+        return out
+
+    def evaluate(self, *, stale: bool = False) -> Verdict | None:
+        """Judge the current window against the baseline (None before the baseline is set)."""
+        if self.baseline is None:
+            return None
+        w = self._window.data
+        b = self.baseline
+        fe_rms = float(np.sqrt(np.mean(w[:, 2] ** 2)))
+        eff_rms = float(np.sqrt(np.mean(w[:, 3] ** 2)))
+        common = dict(
+            t_s=float(w[-1, 0]),
+            fe_dev_rms_m=fe_rms,
+            effort_dev_rms=eff_rms,
+            baseline_fe_dev_rms_m=b["fe_dev_rms_m"],
+            baseline_effort_dev_rms=b["effort_dev_rms"],
+        )
+        c = self.config
+        if stale:
+            verdict = Verdict(
+                level=STALE,
+                message=f"no measured samples for {c.missing_flag_after} cycles or more",
+                **common,
+            )
+        else:
+            rise_fe = fe_rms - b["fe_dev_rms_m"]
+            rise_eff = eff_rms - b["effort_dev_rms"]
+            level = OK
+            if rise_fe > c.fe_dev_rms_error_m or rise_eff > c.effort_dev_rms_error:
+                level = ERROR
+            elif rise_fe > c.fe_dev_rms_warn_m or rise_eff > c.effort_dev_rms_warn:
+                level = WARN
+            if level == OK:
+                verdict = Verdict(level=OK, message="residuals at their baseline", **common)
+            else:
+                rises = (
+                    f"FE deviation RMS {rise_fe * 1e6:+.3g} um, effort deviation RMS "
+                    f"{rise_eff:+.3g} {self.effort_unit} since start"
+                )
+                verdict = Verdict(level=level, **common, **self._name_effect(w, rises))
+        self.verdicts.append(verdict)
+        if len(self.verdicts) > 10_000:
+            del self.verdicts[:5_000]
+        self.last = verdict
+        return verdict
+
+    # ------------------------------------------------------------------ baseline and naming
+
+    def _motion(self, w: np.ndarray):
+        return motion_from_position(
+            w[:, 0],
+            w[:, 1],
+            effort_sim=w[:, 4],
+            lead_m=self.lead_m,
+            pole_pairs=self.pole_pairs,
+            travel_m=self.travel_m,
+        )
+
+    def _moving(self, w: np.ndarray) -> bool:
+        x = w[:, 1]
+        h = self.config.sample_period_s
+        return len(x) > 20 and float(np.max(np.abs(np.diff(x)))) / h > MIN_SPEED_M_S
+
+    def _set_baseline(self, rows: np.ndarray) -> None:
+        self.baseline = {
+            "fe_dev_rms_m": float(np.sqrt(np.mean(rows[:, 2] ** 2))),
+            "effort_dev_rms": float(np.sqrt(np.mean(rows[:, 3] ** 2))),
+        }
+        if not self._moving(rows):
+            return
+        motion = self._motion(rows)
+        ranked = rank(motion, effort_residual=rows[:, 3], position_residual=None)
+        chosen = [(c.name, c.variant) for c in ranked]
+        columns, owners = self._regressors(motion, chosen)
+        if not columns:
+            return
+        Z = np.column_stack([v for v in columns.values()])
+        scale = np.linalg.norm(Z, axis=0)
+        scale[scale == 0.0] = 1.0
+        coef, *_ = np.linalg.lstsq(Z / scale, rows[:, 3], rcond=1e-10)
+        coef = coef / scale
+        by_effect: dict[tuple[str, str], dict[str, float]] = {}
+        for (key, value), owner in zip(zip(columns, coef, strict=True), owners, strict=True):
+            by_effect.setdefault(owner, {})[key.split(":", 1)[1]] = float(value)
+        self._baseline_model = [(name, variant, c) for (name, variant), c in by_effect.items()]
+
+    @staticmethod
+    def _regressors(motion, chosen):
+        columns: dict[str, np.ndarray] = {}
+        owners: list[tuple[str, str]] = []
+        for name, variant in chosen:
+            effect = BY_NAME[name]
+            for label, sig in effect.variants(motion):
+                if label == variant:
+                    for key, values in sig(motion).items():
+                        columns[f"{name}:{key}"] = np.asarray(values, dtype=float)
+                        owners.append((name, variant))
+        return columns, owners
+
+    def baseline_prediction(self, motion) -> np.ndarray:
+        """The baseline residual model evaluated on another window's motion."""
+        pred = np.zeros_like(motion.t_s)
+        for name, variant, coefs in self._baseline_model:
+            for label, sig in BY_NAME[name].variants(motion):
+                if label == variant:
+                    regs = sig(motion)
+                    for key, c in coefs.items():
+                        pred += c * regs[key]
+        return pred
+
+    def _baseline_weight(self, effect: str, regressor: str) -> float:
+        for name, _, coefs in self._baseline_model:
+            if name == effect:
+                return coefs.get(regressor, 0.0)
+        return 0.0
+
+    def _name_effect(self, w: np.ndarray, rises: str) -> dict:
+        if not self._moving(w):
+            return {"message": f"{rises}; the axis did not move enough to name an effect"}
+        motion = self._motion(w)
+        change = w[:, 3] - self.baseline_prediction(motion)
+        ranked = rank(motion, effort_residual=change, position_residual=None)
+        found = next((c for c in ranked if c.significant), None)
+        if found is None:
+            return {"message": f"{rises}; no effect of the library explains the change"}
+        phys = self.physical.get(found.name)
+        if phys is None or phys.regressor not in found.coefficients:
+            weights = ", ".join(f"{k} {v:+.3g}" for k, v in found.coefficients.items())
+            return {
+                "effect": found.name,
+                "message": f"{found.name} changed since start ({weights} [{self.effort_unit}])"
+                f"; {rises}",
+            }
+        start = phys.nominal + phys.per_effort * self._baseline_weight(found.name, phys.regressor)
+        now = start + phys.per_effort * found.coefficients[phys.regressor]
+        rel = (now - start) / abs(start) if start != 0.0 else math.nan
+        what = (
+            f"{found.name} {100.0 * rel:+.0f} % since start"
+            if math.isfinite(rel)
+            else f"{found.name} {now - start:+.4g} {phys.unit} since start"
+        )
+        return {
+            "effect": found.name,
+            "parameter": phys.parameter,
+            "unit": phys.unit,
+            "nominal_value": start,
+            "estimated_value": now,
+            "relative_change": rel,
+            "message": f"{what} ({start:.4g} -> {now:.4g} {phys.unit}); {rises}",
+        }

@@ -1,0 +1,202 @@
+"""One time-stamped stream of a real machine (commands or measurements) on its slot grid.
+
+The machine stamps every sample with its own cycle time; slot k is the sample stamped
+`t0 + k * period`. Messages travel over a network and may arrive late, twice, out of order or
+not at all. `SlotStream` turns what arrives into exactly one value per slot, in slot order, with
+a bounded buffer and never waiting for ever. The policy, per message:
+
+- on the grid: a stamp more than `tolerance * period` away from every slot is counted
+  `off_grid` and dropped (a stamp that does not belong to the machine's cycle is not trusted);
+- duplicated: a second sample for a slot still buffered, or for one already released with a real
+  value, is dropped and counted `duplicated`;
+- out of order: a sample older than the newest one received but for a slot not yet released is
+  put in its place (the buffer is ordered by slot) and counted `reordered`;
+- late: a sample for a slot already released (it arrived after its slot was filled) is dropped
+  and counted `late`; so is a sample from before the stream's start;
+- far ahead: a sample more than `MAX_JUMP_S` ahead of the newest is dropped and counted
+  `rejected` (a corrupted stamp must not make the twin simulate hours of filled samples);
+- missing: once the stream has run `window` slots past a slot that never arrived, that slot is
+  final: it is filled by linear interpolation between its released predecessor and its next
+  received sample (`fill = "interpolate"`) or by holding the predecessor (`fill = "hold"`), and
+  counted `missing`. At the start (no predecessor) the next sample is held backwards.
+  `missing_run` counts the current run of consecutive missing slots.
+
+Released values leave the buffer, so memory is bounded by `window` plus what arrives ahead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Literal
+
+import numpy as np
+
+MAX_JUMP_S = 60.0  # [s] a stamp this far beyond the newest one is rejected as corrupt
+
+
+@dataclass
+class FaultCounts:
+    """How many messages of one stream met each rule of the policy (see the module docstring)."""
+
+    received: int = 0
+    accepted: int = 0  # buffered for a slot (includes reordered)
+    reordered: int = 0
+    duplicated: int = 0
+    late: int = 0
+    off_grid: int = 0
+    rejected: int = 0
+    missing: int = 0  # slots filled because their sample never came in time
+    missing_run: int = 0  # consecutive filled slots up to the last released one
+
+    def as_dict(self) -> dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class Released:
+    """Values of consecutive slots `first .. first + len(values) - 1`, in slot order."""
+
+    first: int
+    values: np.ndarray  # (n, width)
+    filled: np.ndarray  # (n,) bool: True where the policy filled a missing sample
+
+
+class SlotStream:
+    """Buffer one stream and release one value per slot (see the module docstring)."""
+
+    def __init__(
+        self,
+        *,
+        name: str,
+        width: int,
+        period_s: float,
+        tolerance: float,
+        window: int,
+        fill: Literal["hold", "interpolate"],
+    ) -> None:
+        if not period_s > 0.0:
+            raise ValueError(f"{name}: period_s = {period_s!r}: must be > 0")
+        if window < 1:
+            raise ValueError(f"{name}: window = {window!r}: must be >= 1")
+        if fill not in ("hold", "interpolate"):
+            raise ValueError(f"{name}: fill = {fill!r}: must be 'hold' or 'interpolate'")
+        self.name = name
+        self.width = width
+        self.period_s = float(period_s)
+        self.tolerance = float(tolerance)
+        self.window = int(window)
+        self.fill = fill
+        self.t0_s: float | None = None
+        self.next_slot: int | None = None  # first slot not yet released (None before start)
+        self.newest: int | None = None
+        self.counts = FaultCounts()
+        self._pending: dict[int, np.ndarray] = {}
+        self._released_real: set[int] = set()  # recent real slots, for duplicate detection
+        self._last: np.ndarray | None = None
+        self._last_slot: int | None = None
+
+    def set_origin(self, t0_s: float) -> None:
+        """Put slot 0 at machine time t0_s (the twin shares one grid between its streams)."""
+        self.t0_s = float(t0_s)
+
+    def slot_of(self, t_s: float) -> tuple[int, bool]:
+        if self.t0_s is None:
+            raise RuntimeError(f"{self.name}: the slot grid has no origin yet")
+        x = (t_s - self.t0_s) / self.period_s
+        k = round(x)
+        return k, abs(x - k) <= self.tolerance
+
+    @property
+    def pending_count(self) -> int:
+        return len(self._pending)
+
+    def first_pending(self) -> int | None:
+        return min(self._pending) if self._pending else None
+
+    def push(self, t_s: float, values: np.ndarray | tuple | list) -> str:
+        """Offer one sample; returns what the policy did with it (a FaultCounts field name)."""
+        c = self.counts
+        c.received += 1
+        k, on_grid = self.slot_of(t_s)
+        if not on_grid:
+            c.off_grid += 1
+            return "off_grid"
+        if self.newest is not None and (k - self.newest) * self.period_s > MAX_JUMP_S:
+            c.rejected += 1
+            return "rejected"
+        if self.next_slot is not None and k < self.next_slot:
+            if k in self._released_real:
+                c.duplicated += 1
+                return "duplicated"
+            c.late += 1
+            return "late"
+        if k in self._pending:
+            c.duplicated += 1
+            return "duplicated"
+        self._pending[k] = np.asarray(values, dtype=float)
+        c.accepted += 1
+        if self.newest is not None and k < self.newest:
+            c.reordered += 1
+            outcome = "reordered"
+        else:
+            self.newest = k
+            outcome = "accepted"
+        return outcome
+
+    def start(self, slot: int) -> None:
+        """Release from `slot` on; buffered samples before it are late."""
+        self.next_slot = int(slot)
+        for k in [k for k in self._pending if k < slot]:
+            del self._pending[k]
+            self.counts.late += 1
+            self.counts.accepted -= 1
+
+    def release(self, *, final: bool = False, limit: int | None = None) -> Released | None:
+        """Every slot that is decided: received, or final because the stream ran `window` past
+        it (with `final`, every slot up to the newest). At most `limit` slots."""
+        if self.next_slot is None or self.newest is None:
+            return None
+        horizon = self.newest if final else self.newest - self.window
+        k = self.next_slot
+        out: list[np.ndarray] = []
+        filled: list[bool] = []
+        while limit is None or len(out) < limit:
+            value = self._pending.pop(k, None)
+            if value is not None:
+                out.append(value)
+                filled.append(False)
+                self.counts.missing_run = 0
+                self._remember(k)
+            elif k <= horizon:
+                out.append(self._filler(k))
+                filled.append(True)
+                self.counts.missing += 1
+                self.counts.missing_run += 1
+            else:
+                break
+            self._last, self._last_slot = out[-1], k
+            k += 1
+        if not out:
+            return None
+        first = self.next_slot
+        self.next_slot = k
+        return Released(first=first, values=np.vstack(out), filled=np.asarray(filled))
+
+    def _remember(self, k: int) -> None:
+        self._released_real.add(k)
+        if len(self._released_real) > 4 * self.window + 16:
+            floor = k - 2 * self.window
+            self._released_real = {s for s in self._released_real if s >= floor}
+
+    def _filler(self, k: int) -> np.ndarray:
+        ahead = [s for s in self._pending if s > k]
+        nxt = min(ahead) if ahead else None
+        if self._last is None:
+            if nxt is None:
+                raise RuntimeError(f"{self.name}: nothing to fill slot {k} from")
+            return self._pending[nxt].copy()
+        if self.fill == "hold" or nxt is None:
+            return self._last.copy()
+        assert self._last_slot is not None
+        w = (k - self._last_slot) / (nxt - self._last_slot)
+        return (1.0 - w) * self._last + w * self._pending[nxt]

@@ -1,0 +1,402 @@
+"""The shadow twin: the integrated model driven, sample by sample, by a real machine's commands.
+
+A real axis publishes its NC command (table position, optionally velocity) and its measurement
+(position as its feedback sensor reports it, optionally the drive effort), each stamped with the
+machine's own cycle time. `ShadowTwin` puts both streams on one slot grid (`SlotStream`, with the
+documented message-fault policy), derives the feed-forward signals exactly as the discrepancy
+workflow does, advances the engine over every slot whose command is decided, and pairs each
+twin sample with the machine's measured sample of the same slot:
+
+    fe_dev     = e_meas - e_twin = x_twin - x_meas          [m]
+    effort_dev = effort_meas - effort_twin                  [effort unit: N, N m or A]
+
+plus their RMS over the last `window_s` and the health verdicts of `HealthMonitor`.
+
+Identity with the offline workflow (feed_twin.analysis.twin.Twin.simulate): the same compiled
+twin (H6's `Twin`: smooth sensors, the same sub-steps), the same start (at rest at the measured
+position of the first slot), commands held over the slot's base ticks, the velocity (when the
+machine sends none) and the acceleration from `numpy.gradient` over the command samples (central
+differences inside, one-sided at both ends). Central differences need the next command sample,
+so the twin runs one slot behind the command stream (two when it also derives the velocity).
+Known disturbances (effort_add, external forces) of a recorded run are not part of a live
+machine's streams and are not applied.
+
+A divergence of the twin (NaN or runaway state) does not stop it: it is restarted at rest at the
+measured position of the slot and counted in `twin_restarts`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from feed_twin.analysis.twin import Drive, Twin
+from feed_twin.control import signals
+from feed_twin.shadow.config import ShadowConfig
+from feed_twin.shadow.health import HealthMonitor, PhysicalEffect, Verdict
+from feed_twin.shadow.stream import SlotStream
+from feed_twin.sim.engine import DivergenceError
+
+CMD_POS, CMD_VEL = 0, 1
+MEAS_POS, MEAS_EFFORT = 0, 1
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class ResidualBlock:
+    """Consecutive slots of paired machine and twin samples (SI; effort in its unit)."""
+
+    t_s: np.ndarray  # machine time of each slot [s]
+    x_cmd_m: np.ndarray
+    x_meas_m: np.ndarray
+    x_twin_m: np.ndarray
+    effort_meas: np.ndarray  # NaN when the machine sends no effort
+    effort_twin: np.ndarray
+    fe_dev_m: np.ndarray
+    effort_dev: np.ndarray
+    fe_dev_rms_m: np.ndarray  # rolling RMS over window_s, up to and including the slot
+    effort_dev_rms: np.ndarray
+    measured_filled: np.ndarray  # bool: the machine's sample was missing and filled
+    command_filled: np.ndarray  # bool
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    @staticmethod
+    def concat(blocks: list[ResidualBlock]) -> ResidualBlock:
+        names = ResidualBlock.__dataclass_fields__
+        return ResidualBlock(**{n: np.concatenate([getattr(b, n) for b in blocks]) for n in names})
+
+
+class _RollingRms:
+    """RMS of the last `size` values, per sample, across block boundaries."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.tail = np.zeros(0)
+
+    def __call__(self, values: np.ndarray) -> np.ndarray:
+        sq = np.concatenate([self.tail, np.asarray(values, dtype=float) ** 2])
+        cs = np.concatenate(([0.0], np.cumsum(sq)))
+        n_old = len(self.tail)
+        end = np.arange(n_old + 1, len(sq) + 1)
+        begin = np.maximum(end - self.size, 0)
+        mean = (cs[end] - cs[begin]) / (end - begin)
+        self.tail = sq[-self.size :]
+        return np.sqrt(np.maximum(mean, 0.0))
+
+
+class _Rows:
+    """A SimResult seen as a batch of one, for Twin's signal extraction."""
+
+    def __init__(self, res: Any) -> None:
+        self.names = res.names
+        self._res = res
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._res[name][None, :]
+
+
+def physical_effects(twin: Twin) -> tuple[PhysicalEffect, ...]:
+    """The library effects whose weight maps to a parameter of this model, with their scales."""
+    doc = twin.doc
+    if twin.effort_unit == "N":
+        per_effort = 1.0
+    elif twin.lead_m is None:
+        return ()
+    elif twin.effort_unit == "N m":
+        per_effort = 2.0 * math.pi / twin.lead_m
+    else:
+        k_t = doc.data["controller"].get("drive", {}).get("K_t")
+        if k_t is None:
+            return ()
+        per_effort = float(k_t) * 2.0 * math.pi / twin.controller_lead()
+    out: list[PhysicalEffect] = []
+    friction = doc.friction()
+    if friction is not None:
+        p = doc.component(friction)["params"]
+        for effect, reg, field, unit in (
+            ("coulomb_friction", "sign_v", "F_c", "N"),
+            ("viscous_friction", "v", "F_v", "N s/m"),
+        ):
+            nominal = 0.5 * (float(p[f"{field}_pos"]) + float(p[f"{field}_neg"]))
+            out.append(
+                PhysicalEffect(
+                    effect=effect,
+                    regressor=reg,
+                    parameter=f"plant.{friction}.{field}",
+                    unit=unit,
+                    nominal=nominal,
+                    per_effort=per_effort,
+                )
+            )
+    mass = doc.mass_slot()
+    if mass is not None:
+        out.append(
+            PhysicalEffect(
+                effect="mass_error",
+                regressor="a",
+                parameter=f"plant.{mass}",
+                unit="kg",
+                nominal=doc.get(mass),
+                per_effort=per_effort,
+            )
+        )
+    forces = doc.of_type("ConstantForce")
+    # ConstantForce pushes the table in +x; the drive must supply the opposite effort
+    nominal_f0 = doc.get(f"{forces[0]}.f_0") if forces else 0.0
+    out.append(
+        PhysicalEffect(
+            effect="constant_force",
+            regressor="one",
+            parameter=f"plant.{forces[0]}.f_0" if forces else "plant.constant_force.f_0",
+            unit="N",
+            nominal=nominal_f0,
+            per_effort=-per_effort,
+        )
+    )
+    return tuple(out)
+
+
+class ShadowTwin:
+    """Run `twin` in step with a machine's command and measured streams (module docstring)."""
+
+    def __init__(
+        self,
+        twin: Twin,
+        config: ShadowConfig,
+        *,
+        command_velocity: bool,
+        travel_m: float,
+    ) -> None:
+        self.twin = twin
+        self.config = config
+        self.engine = twin.engine
+        h = config.sample_period_s
+        self.dec = round(h / self.engine.h)
+        if self.dec < 1 or abs(self.dec * self.engine.h - h) > 1e-9 * h:
+            raise ValueError(
+                f"shadow.sample_period_s = {h!r}: must be a whole multiple of the model's base "
+                f"period {self.engine.h!r} s"
+            )
+        self.command_velocity = bool(command_velocity)
+        self.lookahead = 1 if self.command_velocity else 2
+        common = dict(
+            period_s=h,
+            tolerance=config.stamp_tolerance,
+            window=config.reorder_window,
+            fill=config.missing_fill,
+        )
+        self.commands = SlotStream(name="command", width=2 if command_velocity else 1, **common)
+        self.measured = SlotStream(name="measured", width=2, **common)
+        self.health = HealthMonitor(
+            config,
+            physical=physical_effects(twin),
+            effort_unit=twin.effort_unit,
+            lead_m=twin.lead_m,
+            pole_pairs=twin.pole_pairs,
+            travel_m=travel_m,
+        )
+        self.start_slot: int | None = None
+        self.twin_restarts = 0
+        self.last_restart_message = ""
+        self._fe_rms = _RollingRms(config.window_samples)
+        self._eff_rms = _RollingRms(config.window_samples)
+        self._engine_started = False
+        # released command rows not yet simulated, plus the two before them (for differences)
+        self._cmd_first = 0  # slot of _cmd[0]
+        self._cmd = np.zeros((0, 2))
+        self._cmd_filled = np.zeros(0, dtype=bool)
+        self._next_sim: int | None = None
+        self._twin_q: list[np.ndarray] = []  # rows: slot, x_cmd, x_twin, effort_twin, filled
+        self._meas_q: list[np.ndarray] = []  # rows: slot, x_meas, effort_meas, filled
+        self.new_verdicts: list[Verdict] = []
+
+    # ------------------------------------------------------------------ input
+
+    def _origin(self, t_s: float) -> None:
+        if self.commands.t0_s is None:
+            self.commands.set_origin(t_s)
+            self.measured.set_origin(t_s)
+
+    def push_command(self, t_s: float, pos_m: float, vel_m_s: float | None = None) -> str:
+        """One NC sample of the machine; returns the policy's outcome (FaultCounts field)."""
+        self._origin(t_s)
+        if self.command_velocity:
+            if vel_m_s is None:
+                raise ValueError("push_command: this twin takes the command velocity; none given")
+            return self.commands.push(t_s, (pos_m, vel_m_s))
+        return self.commands.push(t_s, (pos_m,))
+
+    def push_measured(self, t_s: float, pos_m: float, effort: float = math.nan) -> str:
+        """One measured sample: position [m] as the feedback sensor reports it, drive effort."""
+        self._origin(t_s)
+        return self.measured.push(t_s, (pos_m, effort))
+
+    # ------------------------------------------------------------------ processing
+
+    def process(self, *, final: bool = False) -> ResidualBlock | None:
+        """Advance over every decided slot; the newly paired samples (None if there are none).
+
+        `final`: the streams have ended; every slot up to the newest is decided now.
+        """
+        self.new_verdicts = []
+        if self.start_slot is None and not self._try_start(final):
+            return None
+        m = self.measured.release(final=final)
+        if m is not None:
+            n = len(m.values)
+            self._meas_q.append(
+                np.column_stack(
+                    [np.arange(m.first, m.first + n), m.values[:, 0], m.values[:, 1], m.filled]
+                )
+            )
+        if not self._engine_started:
+            if not self._meas_q:
+                return None
+            self._restart(float(self._meas_q[0][0, 1]))
+            self._engine_started = True
+        c = self.commands.release(final=final)
+        if c is not None:
+            rows = c.values if self.command_velocity else np.column_stack([c.values, c.values])
+            self._cmd = np.concatenate([self._cmd, rows])
+            self._cmd_filled = np.concatenate([self._cmd_filled, c.filled])
+        self._simulate(final)
+        return self._pair()
+
+    def _try_start(self, final: bool) -> bool:
+        first = self.commands.first_pending()
+        if first is None or self.commands.newest is None:
+            return False
+        if self.commands.newest < first + self.lookahead and not final:
+            return False
+        self.start_slot = first
+        self.commands.start(first)
+        self.measured.start(first)
+        self._cmd_first = first
+        self._next_sim = first
+        return True
+
+    def _restart(self, x0_m: float) -> None:
+        p = self.engine.p
+        drive = Drive(
+            t_s=np.zeros(0),
+            pos_ref_m=np.zeros(0),
+            vel_ref_m_s=np.zeros(0),
+            acc_ref_m_s2=np.zeros(0),
+            effort_add=None,
+            force_ext_N=None,
+            x0_m=x0_m,
+            sensor="",
+        )
+        self.engine.reset(x0=self.twin._x0(drive, p))
+
+    def _derived(self, final: bool) -> tuple[np.ndarray, np.ndarray] | None:
+        """(rows [pos, vel, acc], filled) of the slots whose derivatives are decided."""
+        assert self._next_sim is not None and self.start_slot is not None
+        n_have = len(self._cmd)
+        last_have = self._cmd_first + n_have - 1
+        last_ready = last_have if final else last_have - self.lookahead
+        if last_ready < self._next_sim or n_have == 0:
+            return None
+        h = self.config.sample_period_s
+        pos = self._cmd[:, CMD_POS]
+        if self.command_velocity:
+            vel = self._cmd[:, CMD_VEL]
+        else:
+            vel = np.gradient(pos, h) if n_have > 1 else np.zeros(1)
+            # the buffer's first entry is one-sided unless it is the run's first slot: it is
+            # only used for slots two or more behind, whose value is already simulated
+        acc = np.gradient(vel, h) if n_have > 1 else np.zeros(1)
+        i0 = self._next_sim - self._cmd_first
+        i1 = last_ready - self._cmd_first + 1
+        rows = np.column_stack([pos[i0:i1], vel[i0:i1], acc[i0:i1]])
+        return rows, self._cmd_filled[i0:i1]
+
+    def _simulate(self, final: bool) -> None:
+        derived = self._derived(final)
+        if derived is None:
+            return
+        rows, filled = derived
+        n = len(rows)
+        ref = np.zeros((n * self.dec, signals.REF_SIZE))
+        ref[:, signals.REF_POS_M] = np.repeat(rows[:, 0], self.dec)
+        ref[:, signals.REF_VEL_M_S] = np.repeat(rows[:, 1], self.dec)
+        ref[:, signals.REF_ACC_M_S2] = np.repeat(rows[:, 2], self.dec)
+        assert self._next_sim is not None
+        slots = np.arange(self._next_sim, self._next_sim + n)
+        try:
+            res = self.engine.advance(n * self.dec, ref=ref)
+            x, eff = self.twin._measured_signals(_Rows(res), self.dec)
+            x_twin, eff_twin = x[0], eff[0]
+        except DivergenceError as exc:
+            self.twin_restarts += 1
+            self.last_restart_message = str(exc)
+            x_twin = np.full(n, np.nan)
+            eff_twin = np.full(n, np.nan)
+            self._restart_at(slots[-1])
+        self._twin_q.append(np.column_stack([slots, rows[:, 0], x_twin, eff_twin, filled]))
+        self._next_sim += n
+        # keep the two slots before the next one: central differences reach back that far
+        keep_from = max(self._next_sim - 2, self.start_slot or 0) - self._cmd_first
+        if keep_from > 0:
+            self._cmd = self._cmd[keep_from:]
+            self._cmd_filled = self._cmd_filled[keep_from:]
+            self._cmd_first += keep_from
+
+    def _restart_at(self, slot: int) -> None:
+        x0 = None
+        for block in reversed(self._meas_q):
+            hit = block[block[:, 0] <= slot]
+            if len(hit):
+                x0 = float(hit[-1, 1])
+                break
+        self._restart(x0 if x0 is not None else 0.0)
+
+    def _pair(self) -> ResidualBlock | None:
+        if not self._twin_q or not self._meas_q:
+            return None
+        tw = np.concatenate(self._twin_q)
+        me = np.concatenate(self._meas_q)
+        n = min(len(tw), len(me))
+        if n == 0:
+            return None
+        self._twin_q = [tw[n:]] if len(tw) > n else []
+        self._meas_q = [me[n:]] if len(me) > n else []
+        tw, me = tw[:n], me[:n]
+        assert np.array_equal(tw[:, 0], me[:, 0])  # both queues run in slot order from start
+        t = self.commands.t0_s + tw[:, 0] * self.config.sample_period_s
+        fe_dev = tw[:, 2] - me[:, 1]
+        effort_dev = me[:, 2] - tw[:, 3]
+        block = ResidualBlock(
+            t_s=t,
+            x_cmd_m=tw[:, 1],
+            x_meas_m=me[:, 1],
+            x_twin_m=tw[:, 2],
+            effort_meas=me[:, 2],
+            effort_twin=tw[:, 3],
+            fe_dev_m=fe_dev,
+            effort_dev=effort_dev,
+            fe_dev_rms_m=self._fe_rms(np.nan_to_num(fe_dev)),
+            effort_dev_rms=self._eff_rms(np.nan_to_num(effort_dev)),
+            measured_filled=me[:, 3].astype(bool),
+            command_filled=tw[:, 4].astype(bool),
+        )
+        ok = np.isfinite(fe_dev)
+        if ok.any():
+            health_rows = np.column_stack(
+                [t, me[:, 1], fe_dev, np.nan_to_num(effort_dev), np.nan_to_num(tw[:, 3])]
+            )[ok]
+            self.new_verdicts = self.health.update(
+                health_rows, missing_run=self.measured.counts.missing_run
+            )
+        return block
+
+    def counts(self) -> dict[str, Any]:
+        return {
+            "command": self.commands.counts.as_dict(),
+            "measured": self.measured.counts.as_dict(),
+            "twin_restarts": self.twin_restarts,
+        }
