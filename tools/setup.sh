@@ -177,6 +177,7 @@ main() {
     fi
     rm -f "$stamp"
 
+    local t_pip=$SECONDS
     say "installing pinned dependencies (requirements.txt, constraints.txt)"
     run_logged "$logdir/pip.log" "$venv/bin/python" -m pip install -q --upgrade pip \
         -c "$repo/constraints.txt"
@@ -188,14 +189,16 @@ main() {
     run_logged "$logdir/pip-editable.log" "$venv/bin/python" -m pip install -q --no-deps \
         -e "$repo"
 
+    local t_msgs=$SECONDS
     say "building msgs/ (feed_twin_msgs) into $venv"
     bash "$repo/tools/build_msgs.sh" "$venv"
+    t_msgs=$((SECONDS - t_msgs))
 
     # Rerun asks once per machine whether it may send usage analytics; answer no.
     "$venv/bin/rerun" analytics disable >/dev/null 2>&1 || say "note: 'rerun analytics disable' failed"
 
     inputs_hash >"$stamp"
-    say "done in $((SECONDS - t0)) s"
+    say "done in $((SECONDS - t0)) s (pip $((SECONDS - t_pip - t_msgs)) s, msgs/ $t_msgs s)"
 }
 
 main "$@"
