@@ -11,6 +11,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 import feed_twin
 
 PACKAGE_DIR = Path(feed_twin.__file__).resolve().parent
@@ -86,6 +88,7 @@ def test_no_core_module_imports_ros_in_its_source():
     assert offending == [], "only feed_twin/ros/ may import ROS modules:\n" + "\n".join(offending)
 
 
+@pytest.mark.slow  # imports the whole core (numba, scipy) in a fresh interpreter
 def test_importing_every_core_module_loads_no_ros_module():
     modules = [_module_name(p) for p in _core_files()]
     probe = textwrap.dedent(

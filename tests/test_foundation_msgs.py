@@ -55,6 +55,7 @@ def test_every_message_type_round_trips_over_dds_with_every_field(ros_domain_id)
 
 
 @pytest.mark.ros
+@pytest.mark.slow  # starts a second Python with rclpy: 1-4 s depending on the machine's load
 def test_every_message_type_arrives_intact_from_a_node_in_another_process(ros_domain_id):
     results = msgcheck.round_trip_between_processes(domain_id=ros_domain_id, timeout_s=30.0)
     assert [r.type_name for r in results] == [msgcheck.type_name(t) for t in msgcheck.MESSAGE_TYPES]
