@@ -1,0 +1,143 @@
+"""`feed-twin simulate` / `diagnose` on the command line, and their error messages."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, fit
+from feed_twin.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+EMPS = Path("/work/shared/data/emps")
+NOMINAL = ROOT / "config" / "emps_nominal.yaml"
+MAP = ROOT / "config" / "emps_map.yaml"
+
+
+def test_simulate_writes_measured_and_sim_columns(tmp_path, capsys):
+    out = tmp_path / "traces.csv"
+    code = main(
+        [
+            "simulate",
+            "--config",
+            str(NOMINAL),
+            "--measured",
+            str(EMPS / "DATA_EMPS_PULSES.csv"),
+            "--map",
+            str(MAP),
+            "--out",
+            str(out),
+        ]
+    )
+    assert code == 0
+    header = out.read_text().splitlines()[0].split(",")
+    assert header[0] == "t_s"
+    for name in ("pos_cmd_m", "pos_meas_m", "force_cmd_N", "disturbance_effort_add_N"):
+        assert name in header and f"sim_{name}" in header
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    col = {n: data[:, i] for i, n in enumerate(header)}
+    # the nominal twin tracks the measured position to a few hundredths of a percent
+    err = np.linalg.norm(col["pos_meas_m"] - col["sim_pos_meas_m"]) / np.linalg.norm(
+        col["pos_meas_m"]
+    )
+    assert err < 5e-4
+    # and without Coulomb friction and offset its force is tens of percent off
+    ferr = np.linalg.norm(col["force_cmd_N"] - col["sim_force_cmd_N"]) / np.linalg.norm(
+        col["force_cmd_N"]
+    )
+    assert 0.2 < ferr < 0.6
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_missing_map_is_explained(tmp_path, capsys):
+    csv = tmp_path / "run.csv"
+    csv.write_text("t,x\n0,0\n")
+    code = main(["diagnose", str(csv), "--config", str(NOMINAL), "--out", str(tmp_path / "o")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "no column map given (--map) and no run_map.yaml next to the data" in err
+
+
+def test_record_without_command_asks_for_the_program(tmp_path, capsys):
+    m = tmp_path / "m.yaml"
+    m.write_text(MAP.read_text().replace("  pos_cmd_m: {column: qg_ref_m, unit: m}\n", ""))
+    code = main(
+        [
+            "simulate",
+            "--config",
+            str(NOMINAL),
+            "--measured",
+            str(EMPS / "DATA_EMPS.csv"),
+            "--map",
+            str(m),
+            "--out",
+            str(tmp_path / "t.csv"),
+        ]
+    )
+    assert code == 2
+    assert "has no command (pos_cmd_m or vel_cmd_m_s); give the G-code" in capsys.readouterr().err
+
+
+def test_bad_model_config_is_named(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("plant: {components: [], connect: []}\n")
+    code = main(
+        [
+            "simulate",
+            "--config",
+            str(bad),
+            "--measured",
+            str(EMPS / "DATA_EMPS.csv"),
+            "--map",
+            str(MAP),
+            "--out",
+            str(tmp_path / "t.csv"),
+        ]
+    )
+    assert code == 2
+    assert f"{bad}: missing required section controller" in capsys.readouterr().err
+
+
+def _line_model(true_slope: float):
+    """A stand-in batch simulator: x = slope * t (no plant: the fit logic alone is under test)."""
+    t = np.linspace(0.0, 1.0, 200)
+
+    def simulate(params: np.ndarray) -> SimOutputs:
+        x = params[:, :1] * t[None, :] ** 2 + params[:, 1:2] * t[None, :]
+        return SimOutputs(x_m=x, effort=None, ok=np.ones(len(params), bool))
+
+    meas = Measured(x_m=true_slope * t**2 + 0.5 * t, effort=None, scale_x=1.0, scale_effort=1.0)
+    return simulate, meas
+
+
+def test_fit_recovers_parameters_and_counts_simulations():
+    simulate, meas = _line_model(2.0)
+    free = [
+        FreeParameter(name="a", initial=1.0, scale=1.0),
+        FreeParameter(name="b", initial=0.0, scale=1.0),
+    ]
+    r = fit(simulate, np.zeros(2), {"a": (0,), "b": (1,)}, free, meas)
+    assert r.converged
+    assert r.values["a"] == pytest.approx(2.0, abs=1e-6)
+    assert r.values["b"] == pytest.approx(0.5, abs=1e-6)
+    assert r.cost < 1e-12 < r.cost_initial
+    assert r.evaluations >= 3  # the Jacobian costs one batch of 2 sets
+
+
+def test_fit_that_cannot_converge_says_so_and_keeps_the_start():
+    t = np.linspace(0.0, 1.0, 50)
+
+    def diverging(params: np.ndarray) -> SimOutputs:
+        ok = params[:, 0] < 1.5  # beyond that the "plant" diverges
+        x = np.where(ok[:, None], params[:, :1] * t[None, :], np.nan)
+        return SimOutputs(x_m=x, effort=None, ok=ok)
+
+    meas = Measured(x_m=3.0 * t, effort=None, scale_x=1.0, scale_effort=1.0)
+    free = [FreeParameter(name="a", initial=1.0, scale=1.0)]
+    r = fit(diverging, np.zeros(1), {"a": (0,)}, free, meas, max_evaluations=3)
+    assert not r.converged
+    assert r.values["a"] <= 1.5
+    assert math.isfinite(r.cost) and r.cost <= r.cost_initial

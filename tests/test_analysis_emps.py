@@ -1,0 +1,72 @@
+"""EMPS end to end: identify on DATA_EMPS.csv only, validate on DATA_EMPS_PULSES.csv.
+
+Issue 6: starting from mass + viscous friction only, the workflow must name the missing
+coulomb_friction, constant_force and asymmetric_friction, and the closed-loop simulation of the
+validation run must reach a force relative error <= 6 % and a position error <= 0.005 %
+(the benchmark's reference model: 8.94 % force, 0.0080 % position).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from feed_twin.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+EMPS = Path("/work/shared/data/emps")
+
+
+@pytest.mark.slow
+def test_emps_diagnosis_names_the_benchmark_effects_and_validates(tmp_path, capsys):
+    nominal = ROOT / "config" / "emps_nominal.yaml"
+    before = nominal.read_bytes()
+    out = tmp_path / "emps"
+    code = main(
+        [
+            "diagnose",
+            str(EMPS / "DATA_EMPS.csv"),
+            "--config", str(nominal),
+            "--map", str(ROOT / "config" / "emps_map.yaml"),
+            "--validate", str(EMPS / "DATA_EMPS_PULSES.csv"),
+            "--out", str(out),
+        ]
+    )  # fmt: skip
+    assert code == 0
+    progress = capsys.readouterr().out
+    assert "[diagnose] round 1: fitting coulomb_friction" in progress
+    report = json.loads((out / "report.json").read_text())
+    names = [e["name"] for e in report["effects"]]
+    assert {"coulomb_friction", "constant_force", "asymmetric_friction"} <= set(names), names
+    assert all(
+        set(e) >= {"name", "evidence", "parameters", "explained_fraction"}
+        for e in report["effects"]
+    )
+    v = report["validation"]["after"]
+    assert v["effort_rel_err_pct"] <= 6.0
+    assert v["pos_rel_err_pct"] <= 0.005
+    # the fit also beats the nominal model on the identification run itself
+    assert report["after"]["effort_rel_err_pct"] < 0.2 * report["before"]["effort_rel_err_pct"]
+    # benchmark's physics: Coulomb about 20 N, offset about 3 N, viscous slower forward than back
+    params = {e["name"]: e["parameters"] for e in report["effects"]}
+    assert params["coulomb_friction"]["F_c_N"] == pytest.approx(20.4, rel=0.1)
+    assert params["asymmetric_friction"]["F_v_pos"] < params["asymmetric_friction"]["F_v_neg"]
+    for name in (
+        "report.md",
+        "model.yaml",
+        "diagnose.rrd",
+        "identification.png",
+        "validation.png",
+        "signature.png",
+    ):
+        assert (out / name).stat().st_size > 0, name
+    # the original stays untouched; the augmented model carries the added component
+    assert nominal.read_bytes() == before
+    model = yaml.safe_load((out / "model.yaml").read_text())
+    types = [c["type"] for c in model["plant"]["components"]]
+    assert "ConstantForce" in types
+    md = (out / "report.md").read_text()
+    assert "## Validation on" in md and "coulomb_friction" in md
