@@ -29,7 +29,7 @@ log="$build/build.log"
 relevant_lines() {
     grep -E -A4 \
         'CMake Error|error:|Error:|Error parsing|Traceback|Exception|Invalid|invalid|does not|\*\*\*' \
-        "$1" | grep -v -E '^--$|^-- ' | head -n 30
+        "$1" | grep -v -E '^--$|^-- |^\[ *[0-9]+%\]' | head -n 30
 }
 
 fail() {
