@@ -47,3 +47,18 @@ def test_an_unknown_subcommand_is_named():
     )
     assert result.returncode == 2
     assert "unknown command 'no-such-command'; choose from " in result.stderr
+
+
+def test_info_reports_the_installed_message_package():
+    result = subprocess.run(
+        [str(FEED_TWIN), "info"], capture_output=True, text=True, timeout=60, check=True
+    )
+    sources = sorted(p.stem for p in (Path(__file__).parents[1] / "msgs" / "msg").glob("*.msg"))
+    line = next(x for x in result.stdout.splitlines() if x.strip().startswith("feed_twin_msgs"))
+    assert line.split(None, 1)[1] == f"0.1.0 ({', '.join(sources)})"
+
+
+def test_info_says_how_to_get_a_missing_message_package():
+    from feed_twin.info_cli import _interface_package
+
+    assert _interface_package("no_such_msgs") == "not installed (run `make setup`)"
