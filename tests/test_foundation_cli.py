@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -53,9 +54,11 @@ def test_info_reports_the_installed_message_package():
     result = subprocess.run(
         [str(FEED_TWIN), "info"], capture_output=True, text=True, timeout=60, check=True
     )
-    sources = sorted(p.stem for p in (Path(__file__).parents[1] / "msgs" / "msg").glob("*.msg"))
+    msgs = Path(__file__).parents[1] / "msgs"
+    sources = sorted(p.stem for p in (msgs / "msg").glob("*.msg"))
+    version = re.search(r"<version>(.+)</version>", (msgs / "package.xml").read_text())[1]
     line = next(x for x in result.stdout.splitlines() if x.strip().startswith("feed_twin_msgs"))
-    assert line.split(None, 1)[1] == f"0.1.0 ({', '.join(sources)})"
+    assert line.split(None, 1)[1] == f"{version} ({', '.join(sources)})"
 
 
 def test_info_says_how_to_get_a_missing_message_package():
