@@ -36,6 +36,11 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
         name="info", module="feed_twin.info_cli", help="show versions and what is installed"
     ),
     Subcommand(
+        name="model",
+        module="feed_twin.sim.model_cli",
+        help="show the assembled plant of an axis config and its natural frequencies",
+    ),
+    Subcommand(
         name="tune",
         module="feed_twin.control.tune_cli",
         help="controller gains from plant parameters and margins of the configured loops",
@@ -50,6 +55,11 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
         name="plan",
         module="feed_twin.gcode.cli",
         help="plan a G-code program into sampled setpoints (CSV) and print a summary",
+    ),
+    Subcommand(
+        name="replay",
+        module="feed_twin.shadow.replay_cli",
+        help="run the shadow twin against a recorded bag; write a comparison bag, .rrd, report",
     ),
     Subcommand(
         name="msgs-check",
