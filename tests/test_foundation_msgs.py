@@ -3,16 +3,18 @@ carry a unit for every physical field and agree with the core's constants."""
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
+from feed_twin_msgs.msg import AxisFeedback, DriveCommand, HealthStatus
 
 from feed_twin.control import signals
-
-rclpy = pytest.importorskip("rclpy")
-msgcheck = pytest.importorskip("feed_twin.ros.msgcheck")
-from feed_twin_msgs.msg import AxisFeedback, DriveCommand, HealthStatus  # noqa: E402
+from feed_twin.ros import msgcheck
+from feed_twin.ros.domain import private_graph_env, reserve_domain_id
 
 MSG_DIR = Path(__file__).resolve().parents[1] / "msgs" / "msg"
 
@@ -128,14 +130,16 @@ def test_modes_are_the_cia402_cyclic_synchronous_modes():
 
 
 def test_health_levels_match_diagnostic_status():
-    diagnostic_msgs = pytest.importorskip("diagnostic_msgs.msg")
-    status = diagnostic_msgs.DiagnosticStatus
-    assert (
-        int.from_bytes(status.OK, "little"),
-        int.from_bytes(status.WARN, "little"),
-        int.from_bytes(status.ERROR, "little"),
-        int.from_bytes(status.STALE, "little"),
-    ) == (HealthStatus.OK, HealthStatus.WARN, HealthStatus.ERROR, HealthStatus.STALE)
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    levels = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
+    levels += (DiagnosticStatus.STALE,)
+    assert tuple(int.from_bytes(level, "little") for level in levels) == (
+        HealthStatus.OK,
+        HealthStatus.WARN,
+        HealthStatus.ERROR,
+        HealthStatus.STALE,
+    )
 
 
 _FIELD = re.compile(r"^(?P<type>[\w/\[\]<>=,]+)\s+(?P<name>[a-z][a-z0-9_]*)\s*(?:#\s*(?P<c>.*))?$")
@@ -170,3 +174,39 @@ def test_every_message_has_a_header_and_an_axis_name():
         fields = msg_type.get_fields_and_field_types()
         assert fields["header"] == "std_msgs/Header", msg_type.__name__
         assert fields["axis"] == "string", msg_type.__name__
+
+
+def test_filled_message_names_an_unsupported_field_type():
+    from std_msgs.msg import Byte
+
+    with pytest.raises(
+        ValueError, match=r"^field type 'octet' is not supported by filled_message$"
+    ):
+        msgcheck.filled_message(Byte)
+
+
+def test_field_differences_names_elements_of_message_sequences():
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    sent = DiagnosticArray(status=[DiagnosticStatus(name="a"), DiagnosticStatus(name="b")])
+    shorter = DiagnosticArray(status=[DiagnosticStatus(name="a")])
+    assert msgcheck.field_differences(sent, shorter) == ["status: 2 elements != 1"]
+    changed = DiagnosticArray(status=[DiagnosticStatus(name="a"), DiagnosticStatus(name="c")])
+    assert msgcheck.field_differences(sent, changed) == ["status[1].name: 'b' != 'c'"]
+
+
+@pytest.mark.ros
+def test_a_talker_without_listener_gives_up_and_says_so():
+    with reserve_domain_id() as domain:
+        result = subprocess.run(
+            [sys.executable, "-m", "feed_twin.ros.msgcheck", "--talker", str(domain.domain_id)]
+            + ["--timeout", "0.5"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={**os.environ, **private_graph_env(domain.domain_id)},
+        )
+    assert result.returncode == 1
+    assert result.stderr.splitlines()[-1] == (
+        f"msgcheck talker: no listener matched within 0.5 s (domain {domain.domain_id})"
+    )

@@ -330,3 +330,15 @@ def test_the_test_runner_runs_everything_and_combines_the_outcomes(
     assert "ruff check ." in lines and "ruff format --check ." in lines
     assert "pytest -m not slow" in lines
     assert lines[-1] == last_line
+
+
+def test_the_msgs_tools_state_their_usage():
+    check = subprocess.run(
+        [sys.executable, str(CHECK_MSGS)], capture_output=True, text=True, timeout=60
+    )
+    assert (check.returncode, check.stderr) == (2, "usage: check_msgs.py MSGS_DIR PREFIX\n")
+    build = _run([str(BUILD_MSGS)], os.environ["PATH"])
+    assert (build.returncode, build.stderr) == (
+        2,
+        "usage: tools/build_msgs.sh VENV [SOURCE_DIR [BUILD_DIR]]\n",
+    )

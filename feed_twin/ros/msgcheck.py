@@ -310,7 +310,10 @@ def _talker_main(domain_id: int, timeout_s: float = 60.0) -> int:
             lambda: all(p.get_subscription_count() for p in publishers),
         )
         if not matched:
-            print("msgcheck talker: no listener matched within the timeout", file=sys.stderr)
+            print(
+                f"msgcheck talker: no listener matched within {timeout_s} s (domain {domain_id})",
+                file=sys.stderr,
+            )
             return 1
         for publisher, message in zip(publishers, messages, strict=True):
             publisher.publish(message)
@@ -384,4 +387,6 @@ def main(args: argparse.Namespace) -> int:
 if __name__ == "__main__":
     cli = argparse.ArgumentParser(prog="python -m feed_twin.ros.msgcheck")
     cli.add_argument("--talker", type=int, required=True, metavar="DOMAIN_ID")
-    sys.exit(_talker_main(cli.parse_args().talker))
+    cli.add_argument("--timeout", type=float, default=60.0, help="wait for a listener [s]")
+    options = cli.parse_args()
+    sys.exit(_talker_main(options.talker, options.timeout))
