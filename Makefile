@@ -26,10 +26,12 @@ demo: setup
 	@$(BIN)/feed-twin info
 	@$(BIN)/feed-twin msgs-check
 
+# benchmarks/_*.py are helpers that a benchmark runs itself (e.g. under another interpreter).
 bench: setup
 	@status=0; found=0; \
 	for script in benchmarks/*.py; do \
-		[ -e "$$script" ] || continue; found=1; \
+		[ -e "$$script" ] || continue; \
+		case "$${script##*/}" in _*) continue ;; esac; found=1; \
 		echo "== $$script"; \
 		$(BIN)/python "$$script" || { echo "bench: $$script failed"; status=1; }; \
 	done; \
