@@ -342,3 +342,26 @@ def test_the_msgs_tools_state_their_usage():
         2,
         "usage: tools/build_msgs.sh VENV [SOURCE_DIR [BUILD_DIR]]\n",
     )
+
+
+@pytest.mark.slow
+def test_a_build_tree_of_another_checkout_is_started_afresh(tmp_path):
+    msgs = _msgs_copy(tmp_path)
+    _replace(
+        msgs / "CMakeLists.txt",
+        "find_package(std_msgs REQUIRED)",
+        "find_package(std_msgs REQUIRED)\nfind_package(no_such_msgs REQUIRED)",
+    )
+    build = msgs / "build"
+    build.mkdir()
+    (build / "CMakeCache.txt").write_text(
+        "CMAKE_HOME_DIRECTORY:INTERNAL=/elsewhere/msgs\nCMAKE_INSTALL_PREFIX:PATH=/elsewhere/.venv\n"
+    )
+    (build / "stale_object.o").write_text("")
+    result = _run([str(BUILD_MSGS), str(VENV), str(msgs)], os.environ["PATH"])
+    assert not (build / "stale_object.o").exists()
+    # CMake ran on a clean tree: it reports the real error, not a cache from another checkout.
+    assert "does not match the source" not in result.stderr  # CMake's words for that
+    assert any("no_such_msgs" in line for line in result.stderr.splitlines())
+    cache = (build / "CMakeCache.txt").read_text()
+    assert f"CMAKE_HOME_DIRECTORY:INTERNAL={msgs}" in cache

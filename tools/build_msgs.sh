@@ -51,6 +51,16 @@ if ! "$venv/bin/python" "$repo/tools/check_msgs.py" "$src" "$venv" 2>"$log"; the
     exit 1
 fi
 
+# A build tree configured for another source tree or prefix (a moved checkout, another venv)
+# makes CMake refuse or mix two installs: start that one afresh.
+cache="$build/CMakeCache.txt"
+if [[ -f "$cache" ]] &&
+    ! { grep -qx "CMAKE_HOME_DIRECTORY:INTERNAL=$src" "$cache" &&
+        grep -qx "CMAKE_INSTALL_PREFIX:PATH=$venv" "$cache"; }; then
+    find "$build" -mindepth 1 -maxdepth 1 ! -name build.log ! -name 'pip*.log' \
+        ! -name setup.lock -exec rm -rf {} +
+fi
+
 jobs="$(nproc 2>/dev/null || echo 2)"
 cmake -S "$src" -B "$build" \
     -DCMAKE_INSTALL_PREFIX="$venv" \
