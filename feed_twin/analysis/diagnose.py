@@ -82,6 +82,10 @@ class _Values(dict):
         return self.doc.get(name)
 
 
+def _unit(twin: Twin, cand: Candidate) -> str:
+    return twin.effort_unit if cand.effect.domain == "effort" else "m"
+
+
 def _noop(_: str) -> None:
     pass
 
@@ -133,10 +137,15 @@ def _trace(label: str, run: MeasuredRun, drive: Drive, out: SimOutputs) -> Trace
 def _try(
     state: _State, cand: Candidate, drive: Drive, meas: Measured, opts: Options
 ) -> tuple[Edit, Twin, FitResult] | str:
+    if cand.name not in EDITS:
+        return (
+            f"{cand.name}: named by its signature, but the workflow cannot add "
+            f"{cand.effect.component} to a model yet; not fitted"
+        )
     try:
         edit = EDITS[cand.name](state.doc, cand)
-    except (KeyError, LookupError) as exc:
-        return f"{cand.name}: cannot be added to this model ({exc})"
+    except LookupError as exc:
+        return f"{cand.name}: cannot be added to this model ({exc}); not fitted"
     # the effects found before interact with the new one (a constant force fitted alone has
     # absorbed part of a Coulomb force found later): their parameters are fitted again with it
     names = {p.name for p in edit.own}
@@ -255,6 +264,7 @@ def diagnose(
     excluded: list[str] = []
     ranking: list[Candidate] = []
     reports: list[dict] = []
+    unfitted: list[dict] = []
     for round_no in range(1, opts.max_effects + 1):
         re, rp = _residuals(run, state.outputs)
         ranking = rank(motion, effort_residual=re, position_residual=rp, exclude=tuple(excluded))
@@ -279,6 +289,13 @@ def diagnose(
             tried = _try(state, cand, drive, meas, opts)
             if isinstance(tried, str):
                 notes.append(tried)
+                unfitted.append(
+                    {
+                        "name": cand.name,
+                        "evidence": evidence(cand, _unit(twin, cand)),
+                        "reason": tried,
+                    }
+                )
                 excluded.append(cand.name)
                 continue
             edit, new_twin, result = tried
@@ -320,9 +337,7 @@ def diagnose(
         state.found.append(
             FoundEffect(
                 name=cand.name,
-                evidence=evidence(
-                    cand, twin.effort_unit if cand.effect.domain == "effort" else "m"
-                ),
+                evidence=evidence(cand, _unit(twin, cand)),
                 parameters=params,
                 explained_fraction=explained,
                 component=cand.effect.component,
@@ -353,6 +368,9 @@ def diagnose(
     if state.found:
         names = ", ".join(e.name for e in state.found)
         verdict = f"the nominal model misses {names}; with them the gap shrinks as shown"
+    elif unfitted:
+        names = ", ".join(u["name"] for u in unfitted)
+        verdict = f"the residual carries the signature of {names}, which could not be fitted"
     else:
         verdict = "no significant missing effect: the residuals are at the noise level"
     validation = None
@@ -396,6 +414,7 @@ def diagnose(
         ),
         validation=validation,
         validation_traces=validation_traces,
+        named_not_fitted=tuple(unfitted),
         notes=tuple(notes),
         timings_s=timings,
     )

@@ -71,6 +71,8 @@ class Diagnosis:
     location: Location | None
     ranking: tuple[dict[str, Any], ...] = ()  # last ranking of every candidate, for the record
     validation: dict[str, Any] | None = None
+    # significant signatures the workflow could not add to the model: {name, evidence, reason}
+    named_not_fitted: tuple[dict[str, str], ...] = ()
     validation_traces: tuple[Trace, Trace] | None = None
     notes: tuple[str, ...] = ()  # warnings of the loader, fit convergence messages
     timings_s: dict[str, float] = field(default_factory=dict)
@@ -87,6 +89,7 @@ class Diagnosis:
                 "correlation": self.alignment.correlation,
             },
             "effects": [e.as_dict() for e in self.effects],
+            "named_not_fitted": list(self.named_not_fitted),
             "before": self.before.as_dict(),
             "after": self.after.as_dict(),
             "validation": self.validation,
@@ -135,6 +138,9 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
             f"   - evidence: {e.evidence}",
             f"   - fitted: {params}",
         ]
+    if d.named_not_fitted:
+        lines += ["", "Also significant, but not fitted (no way to add it to this model yet):", ""]
+        lines += [f"- **{u['name']}**: {u['evidence']}" for u in d.named_not_fitted]
     lines += [
         "",
         "## Before and after",
