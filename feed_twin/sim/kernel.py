@@ -240,13 +240,14 @@ def _callee_digest() -> str:
     """Hash of every source file whose numba functions a kernel may call.
 
     numba's cache does not notice a change in a callee defined in another module, so the kernel
-    file name carries this hash: edit a component or the controller and a new kernel compiles.
+    file name carries this hash: edit a component, the controller or this loop and a new kernel
+    compiles.
     """
     root = Path(__file__).resolve().parent.parent
     digest = hashlib.sha256()
-    for folder in ("plant", "control", "sim"):
-        for path in sorted((root / folder).glob("*.py")):
-            digest.update(path.read_bytes())
+    paths = sorted((root / "plant").glob("*.py")) + sorted((root / "control").glob("*.py"))
+    for path in [*paths, Path(__file__).resolve()]:
+        digest.update(path.read_bytes())
     return digest.hexdigest()
 
 
