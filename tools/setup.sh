@@ -164,7 +164,9 @@ main() {
         say "up to date ($venv)"
         return 0
     fi
-    optional_packages
+    # apt-get (disk, one core) overlaps with pip (network first) instead of adding to it.
+    optional_packages &
+    local optional_pid=$!
 
     if [[ -e "$venv" ]] && ! "$venv/bin/python" -c 'import sys; assert sys.version_info[:2] == (3, 11)' \
         >/dev/null 2>&1; then
@@ -196,6 +198,8 @@ main() {
 
     # Rerun asks once per machine whether it may send usage analytics; answer no.
     "$venv/bin/rerun" analytics disable >/dev/null 2>&1 || say "note: 'rerun analytics disable' failed"
+
+    wait "$optional_pid" || say "note: the optional Debian packages were not installed (see above)"
 
     inputs_hash >"$stamp"
     say "done in $((SECONDS - t0)) s (pip $((SECONDS - t_pip - t_msgs)) s, msgs/ $t_msgs s)"
