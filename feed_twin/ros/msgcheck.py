@@ -3,8 +3,10 @@
 `filled_message` gives every leaf field of a message a distinct non-default value, so a field
 that is dropped, truncated or swapped with another on the way shows up in `field_differences`.
 `round_trip` publishes messages from one node and receives them in a second node of the same
-process, through the RMW and DDS (not an intra-process shortcut: rclpy has none). The CLI
-`feed-twin msgs-check` runs it for all types in a private domain and reports the latency.
+process, through the RMW and DDS (not an intra-process shortcut: rclpy has none);
+`round_trip_between_processes` receives them from a node in a child process. The CLI
+`feed-twin msgs-check` runs both for all types in a private domain and reports the one-process
+publish -> callback latency.
 """
 
 from __future__ import annotations
