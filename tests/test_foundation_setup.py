@@ -148,8 +148,11 @@ def test_the_stamp_decides_whether_a_set_up_is_needed(tmp_path):
     assert len(digest) == 64
     (venv / "feed_twin-setup.stamp").write_text(digest + "\n")
     assert _run([str(SETUP), "--status"], path, **env).stdout == f"setup: up to date ({venv})\n"
-    # The full set-up with an unchanged stamp is a no-op that touches nothing.
-    result = _run([str(SETUP)], path, **env)
+    # The full set-up with an unchanged stamp is a no-op that touches nothing. Its PATH holds
+    # only what the stamp check uses: were the stamp stale, it would stop at the tool check
+    # instead of installing into the fake venv.
+    hashing = {name: _real(name) for name in ("cat", "find", "sort", "xargs", "sha256sum", "cut")}
+    result = _run([str(SETUP)], _tool_dir(tmp_path, hashing), **env)
     assert (result.returncode, result.stdout) == (0, f"setup: up to date ({venv})\n")
     # Another interpreter changes the inputs, so the stamp no longer matches.
     other = {**env, "FEED_TWIN_PYTHON": "python3.11-other"}
