@@ -7,16 +7,25 @@ machine coordinates. Each move k has a direction u_k and the limits along it
     A_k = min_i a_max_i/|u_ki|,   J_k = min_i j_max_i/|u_ki|
 
 so that the axis components u_ki * (ds/dt, d2s/dt2, d3s/dt3) stay within every axis's limits.
-Corners (G64) are blended (see `profile`): blend half-width
-w = min(6*tol/|dU|, 0.4*L_in, 0.4*L_out) and corner speed
-v_c = min(V_in, V_out, sqrt(a_max_i*w/|dU_i|), cbrt(j_max_i*w^2/|dU_i|)), so the blend stays
-within the path tolerance and the axis limits. G61, G9, dwells and stopping M-codes end a
-move at rest. Collinear joints with equal limits are passed through without a boundary.
 
-Look-ahead: a backward and a forward pass over the boundary speeds of up to
-`lookahead_segments` moves, with the window's last boundary at rest; the first half is
-committed, sampled and yielded, the rest is planned again with the next moves. A committed
-speed is never raised later, so the result is always safe, and memory stays bounded.
+Corners (G64) are blended (see `profile`) with half-width w <= 6*tol/|dU| (deviation at most
+tol) and a share of the neighbouring moves:
+- a corner blended alone (sharp: |dU| > SHARP_CORNER, or with an event, or a forced break) takes
+  at most BLEND_SHARE of each move and is crossed at constant speed
+  v_c <= min(V_in, V_out, sqrt(a_max_i*w/|dU_i|), cbrt(j_max_i*w^2/|dU_i|));
+- gentle corners (chords of an arc, CAM polylines) may take whole moves, so that neighbouring
+  blends overlap into a chain whose curvature is continuous; a chain is a body of its own in
+  the speed profile, with the axis limits shared between the curvature terms and s'' and s'''
+  (`_chain_limits`).
+A corner that is quicker to stop at than to round under the jerk limit becomes a stop. G61,
+G9, dwells and stopping M-codes end a move at rest. Collinear joints with equal limits are
+passed through. Every profile piece starts and ends at zero acceleration.
+
+Look-ahead: a backward pass of braking bounds and a forward pass over the boundary speeds of up
+to `lookahead_segments` moves, with the window's end at rest; the first half is committed,
+sampled and yielded, the rest is planned again with the next moves. Committed speeds stay
+reachable as constraints relax (the braking bound is monotonic), so the result is always
+safe, and memory stays bounded.
 """
 
 from __future__ import annotations
@@ -34,7 +43,10 @@ from feed_twin.gcode.interpreter import Event, Interpreter, Move, Stop
 from feed_twin.gcode.lexer import Block, iter_source_lines, lex_line
 from feed_twin.gcode.trajectory import NcEvent, SampledTrajectory
 
-BLEND_SHARE = 0.4  # largest part of a move one corner blend may use (two corners: 80 %)
+BLEND_SHARE = 0.4  # largest part of a move a corner blended alone may use
+NEIGHBOUR_SHARE = 0.55  # the same for its neighbours, so that a straight piece stays between
+CHAIN_SHARE = 1.0  # elsewhere: blends may reach the neighbouring corner and overlap
+SHARP_CORNER = 0.25  # |u_out - u_in| above this (about 14 degrees) is a corner, not a curve
 COLLINEAR = 1e-12  # |u_out - u_in| below this is a straight joint, not a corner
 
 
@@ -146,6 +158,7 @@ class _StreamPlanner:
         self.stops: set[int] = set()  # global node indices where the path is at rest
         self.entries: dict[int, list[Event | Stop]] = {}  # global node -> events and dwells
         self.v_first = 0.0
+        self.w_first = 0.0  # blend half-width at the first node of the next window
         self.t_s = 0.0
         self.k_next = 0
         self.last_line = 0
@@ -189,96 +202,146 @@ class _StreamPlanner:
             J = np.full(n, np.inf)
 
         # Nodes 0..n; node j is the start of listed move j.
-        cap = np.zeros(n + 1)
-        w = np.zeros(n + 1)
-        du = np.zeros((n + 1, len(self.axes)))
-        if n > 1:
-            du[1:n] = u[1:] - u[:-1]
-            ndu = np.sqrt(np.einsum("ij,ij->i", du[1:n], du[1:n]))
-            tol = np.array(self.tols[:-1])
-            corner = ndu >= COLLINEAR
-            with np.errstate(divide="ignore", invalid="ignore"):
-                wj = np.minimum(6.0 * tol / ndu, BLEND_SHARE * np.minimum(L[:-1], L[1:]))
-                wj = np.where(corner, wj, 0.0)
-                adu = np.abs(du[1:n])
-                v_acc = np.min(np.sqrt(self.a_max * wj[:, None] / adu), axis=1)
-                v_jerk = np.min(np.cbrt(self.j_max * (wj * wj)[:, None] / adu), axis=1)
-            cj = np.minimum(V[:-1], V[1:])
-            cj = np.where(corner, np.minimum(cj, v_acc), cj)
-            if self.jerk:
-                cj = np.where(corner, np.minimum(cj, v_jerk), cj)
-            # A tight corner is quicker to stop at than to round within the tolerance under a
-            # jerk limit; stop there when the local time estimate says so.
-            stop_here = corner & (
-                self._corner_cost(cj, wj, V, A, J) >= self._corner_cost(0.0 * cj, 0.0 * wj, V, A, J)
-            )
-            cj = np.where(stop_here, 0.0, cj)
-            wj = np.where(stop_here, 0.0, wj)
-            cap[1:n] = cj
-            w[1:n] = wj
-            du[1:n] = np.where((corner & ~stop_here)[:, None], du[1:n], 0.0)
-            same_limits = (V[:-1] == V[1:]) & (A[:-1] == A[1:]) & (J[:-1] == J[1:])
-            passing = np.zeros(n + 1, dtype=bool)
-            passing[1:n] = ~corner & same_limits
-        else:
-            passing = np.zeros(n + 1, dtype=bool)
         g = self.g0
-        for node in list(self.stops):
-            j = node - g
-            if 0 <= j <= n:
-                cap[j] = 0.0
-                w[j] = 0.0
-                du[j] = 0.0
+        na = len(self.axes)
+        du = np.zeros((n + 1, na))
+        du[1:n] = u[1:] - u[:-1]
+        ndu = np.sqrt(np.einsum("ij,ij->i", du, du))
+        corner = ndu >= COLLINEAR
+        corner[0] = corner[n] = False
+        stop = np.zeros(n + 1, dtype=bool)
+        stop[0] = not self.has_context
+        stop[n] = True
+        for node in self.stops:
+            if 0 <= node - g <= n:
+                stop[node - g] = True
+        has_entries = np.zeros(n + 1, dtype=bool)
         for node in self.entries:
-            j = node - g
-            if 0 <= j <= n:
-                passing[j] = False
-        passing[: first + 1] = False
-        passing[n] = False
+            if 0 <= node - g <= n:
+                has_entries[node - g] = True
         forced = (np.arange(n + 1) + g) % self.forced == 0
-        passing &= ~forced
-        cap[n] = 0.0
-        w[n] = 0.0
-        du[n] = 0.0
-        if not self.has_context:
-            cap[0] = 0.0
-            w[0] = 0.0
+        tol = np.zeros(n + 1)
+        tol[1:n] = self.tols[:-1]
+        L_in = np.concatenate(([0.0], L))
+        L_out = np.concatenate((L, [0.0]))
+        V_in = np.concatenate(([np.inf], V))
+        V_out = np.concatenate((V, [np.inf]))
 
-        boundaries = np.flatnonzero(~passing)
-        boundaries = boundaries[boundaries >= first]
-        if len(boundaries) < 2:
-            return self._plan_standstill() if final else None
+        def blends(share_in: np.ndarray, share_out: np.ndarray) -> tuple[np.ndarray, ...]:
+            """Blend half-widths, blend vectors and corner speed caps for shares of the moves."""
+            with np.errstate(divide="ignore", invalid="ignore"):
+                w = np.minimum(6.0 * tol / ndu, np.minimum(share_in * L_in, share_out * L_out))
+            w = np.where(corner & ~stop, w, 0.0)
+            if self.has_context:
+                w[first] = self.w_first
+            dU = np.where((w > 0.0)[:, None], du, 0.0)
+            a_s, a_e, j_s, j_e = self._zone_coefficients(L, w, dU)
+            zero = np.zeros((1, na))
+            # Per node: its blend runs through the end zone before it and the start zone after.
+            a_node = np.maximum(np.vstack((zero, a_e)), np.vstack((a_s, zero)))
+            j_node = np.maximum(np.vstack((zero, j_e)), np.vstack((j_s, zero)))
+            cap = np.minimum(np.minimum(V_in, V_out), self._cruise_cap(a_node, j_node, 1.0, 1.0))
+            return w, dU, cap, a_node, j_node
+
+        # A tight corner is quicker to stop at than to round within the tolerance under a jerk
+        # limit; stop there when the local time estimate (with single blends) says so.
+        single = np.full(n + 1, BLEND_SHARE)
+        w, _, cap, _, _ = blends(single, single)
+        if n > 1:
+            inner = slice(1, n)
+            stop[inner] |= (w[inner] > 0.0) & (
+                self._corner_cost(cap[inner], w[inner], V, A, J)
+                >= self._corner_cost(0.0 * cap[inner], 0.0 * w[inner], V, A, J)
+            )
+        # Sharp corners, corners with events and forced breaks are blended alone (BLEND_SHARE
+        # of each move, and their neighbours keep off: NEIGHBOUR_SHARE). Elsewhere neighbouring
+        # blends may reach each other and overlap into chains, so that a finely divided curve
+        # keeps a continuous curvature instead of one that rises and falls on every move.
+        alone = (has_entries | forced | (ndu > SHARP_CORNER)) & corner & ~stop
+        share_in = np.full(n + 1, CHAIN_SHARE)
+        share_out = np.full(n + 1, CHAIN_SHARE)
+        # Next to a stop as well: a corner that ends up alone needs a body to get up to speed.
+        keep_off = alone | stop
+        share_in[1:] = np.where(keep_off[:-1], NEIGHBOUR_SHARE, share_in[1:])
+        share_out[:-1] = np.where(keep_off[1:], NEIGHBOUR_SHARE, share_out[:-1])
+        share_in = np.where(alone, BLEND_SHARE, share_in)
+        share_out = np.where(alone, BLEND_SHARE, share_out)
+        w, du, cap, a_node, j_node = blends(share_in, share_out)
+        cap = np.where(stop, 0.0, cap)
+
+        same_limits = np.zeros(n + 1, dtype=bool)
+        same_limits[1:n] = (V[:-1] == V[1:]) & (A[:-1] == A[1:]) & (J[:-1] == J[1:])
+        passing = ~corner & same_limits & ~(stop | has_entries | forced)
+        passing &= ~(w > 0.0)
+        passing[: first + 1] = False
+        nodes_b = np.flatnonzero(~passing)
+        nodes_b = nodes_b[nodes_b >= first]
+        # Chains: neighbouring corners whose blends meet leave no straight body between them.
+        linked = (
+            (w[nodes_b[:-1]] > 0.0)
+            & (w[nodes_b[1:]] > 0.0)
+            & (nodes_b[1:] == nodes_b[:-1] + 1)
+            & (w[nodes_b[:-1]] + w[nodes_b[1:]] >= L[np.minimum(nodes_b[:-1], n - 1)])
+            & ~alone[nodes_b[:-1]]
+            & ~alone[nodes_b[1:]]
+        )
+        g_start = np.flatnonzero(np.concatenate(([True], ~linked)))
+        g_end = np.flatnonzero(np.concatenate((~linked, [True])))
+        ja = nodes_b[g_start]
+        jb = nodes_b[g_end]
+        is_chain = g_end > g_start
+        Vc, Ac, Jc = self._chain_limits(nodes_b, g_start, a_node, j_node, u, V)
+
+        # 1-D nodes: a single corner (crossed at constant speed over its blend), or the entry
+        # and the exit of a chain (a body of its own with shares of the limits kept for the
+        # curvature). Bodies join consecutive 1-D nodes.
+        count = 1 + is_chain.astype(np.int64)
+        grp = np.repeat(np.arange(len(ja)), count)
+        pos_in = np.arange(len(grp)) - np.repeat(np.cumsum(count) - count, count)
+        kind_q = np.where(is_chain[grp], 1 + pos_in, 0)  # 0 single, 1 entry, 2 exit
+        node_q = np.where(kind_q == 2, jb[grp], ja[grp])
         S = np.concatenate(([0.0], np.cumsum(L)))
-        b0 = boundaries[:-1]
-        b1 = boundaries[1:]
-        length = S[b1] - S[b0] - w[b0] - w[b1]
+        sa = np.where(kind_q == 2, S[node_q] + w[node_q], S[node_q] - w[node_q])
+        sb = np.where(kind_q == 0, S[node_q] + w[node_q], sa)
+        cap_q = np.where(kind_q == 0, cap[node_q], Vc[grp])
+        if len(node_q) < 2:
+            return self._plan_standstill() if final else None
+        length = np.maximum(sa[1:] - sb[:-1], 0.0)
         if not final:
             # The window's end is at rest for now; the next window may put a blend there, which
-            # takes up to BLEND_SHARE of the last move. Stopping before that share keeps every
-            # speed planned now reachable later (look-ahead only ever relaxes constraints).
-            length[-1] -= BLEND_SHARE * L[n - 1]
-        length = np.maximum(length, 0.0)
-        # Bodies take the tightest limits of their moves (equal by construction, up to rounding).
-        Vb = np.minimum.reduceat(V, b0)
-        Ab = np.minimum.reduceat(A, b0)
-        Jb = np.minimum.reduceat(J, b0)
-        speeds = prof.plan_speeds(cap[boundaries], length, Ab, Jb, self.jerk, self.v_first)
+            # takes up to the whole last move. Stopping before it keeps every speed planned now
+            # reachable later (look-ahead only ever relaxes constraints).
+            length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
+        in_chain = kind_q[:-1] == 1
+        pairs = np.column_stack((node_q[:-1], node_q[1:])).ravel()
+        pad = np.array([np.inf])
+        Vb = np.minimum.reduceat(np.concatenate((V, pad)), pairs)[::2]
+        Ab = np.minimum.reduceat(np.concatenate((A, pad)), pairs)[::2]
+        Jb = np.minimum.reduceat(np.concatenate((J, pad)), pairs)[::2]
+        Vb = np.where(in_chain, Vc[grp[:-1]], Vb)
+        Ab = np.where(in_chain, Ac[grp[:-1]], Ab)
+        Jb = np.where(in_chain, Jc[grp[:-1]], Jb)
+        speeds = prof.plan_speeds(cap_q, length, Ab, Jb, self.jerk, self.v_first)
         vp, t_up, t_cruise, t_down = prof.body_profiles(speeds, length, Vb, Ab, Jb, self.jerk)
 
-        m = len(b0)
+        m = len(length)
         if final:
             q_commit = m
         else:
+            # Commit up to a single corner well inside the window, so that the next window
+            # starting there sees the same geometry around it.
             half = first + (n - first) // 2
-            candidates = np.flatnonzero(b1 <= half)
-            q_commit = int(candidates[-1]) + 1 if len(candidates) else 1
-            if q_commit >= m:
-                return None  # nothing but the provisional last body: wait for more moves
+            candidates = np.flatnonzero(
+                (kind_q[1:] == 0) & (node_q[1:] <= half) & (node_q[1:] + 3 < n)
+            )
+            if len(candidates) == 0:
+                return None  # nothing safely committable yet: wait for more moves
+            q_commit = int(candidates[-1]) + 1
         q = np.arange(q_commit)
-        nodes = boundaries[: q_commit + 1]
+        nodes = node_q[: q_commit + 1]
         v_node = speeds[: q_commit + 1]
 
-        # Three pieces per boundary node: hold (dwells, filled below), cruise (blend), body.
+        # Three pieces per 1-D node: hold (dwells, filled below), cruise (blend), body.
         n_pieces = 3 * q_commit + 1
         kind = np.full(n_pieces, prof.HOLD, dtype=np.int64)
         dur = np.zeros(n_pieces)
@@ -291,25 +354,27 @@ class _StreamPlanner:
         tu = np.zeros(n_pieces)
         tc = np.zeros(n_pieces)
         piece_line = np.full(n_pieces, -1, dtype=np.int64)
-        # First move each piece runs on: a blend starts on the move before its node.
+        # First move each piece runs on: a blend or a chain starts on the move before its node.
+        before = np.maximum(nodes[:-1] - 1, 0)
         piece_seg = np.zeros(n_pieces, dtype=np.int64)
-        piece_seg[3 * q] = np.maximum(nodes[:-1] - 1, 0)
-        piece_seg[3 * q + 1] = np.maximum(nodes[:-1] - 1, 0)
-        piece_seg[3 * q + 2] = np.minimum(nodes[:-1], n - 1)
+        piece_seg[3 * q] = before
+        piece_seg[3 * q + 1] = before
+        piece_seg[3 * q + 2] = np.where(
+            kind_q[:q_commit] == 1, before, np.minimum(nodes[:-1], n - 1)
+        )
         piece_seg[-1] = n - 1
-        w_n = w[nodes[:-1]]
-        s_node = S[nodes[:-1]]
         cruise = 3 * q + 1
         body = 3 * q + 2
         kind[cruise] = prof.CRUISE
+        span = sb[:q_commit] - sa[:q_commit]
         with np.errstate(divide="ignore", invalid="ignore"):
-            dur[cruise] = np.where(w_n > 0.0, 2.0 * w_n / v_node[:-1], 0.0)
-        s0[cruise] = s_node - w_n
+            dur[cruise] = np.where(span > 0.0, span / v_node[:-1], 0.0)
+        s0[cruise] = sa[:q_commit]
         v0[cruise] = v_node[:-1]
-        s0[3 * q] = s_node
+        s0[3 * q] = sa[:q_commit]
         kind[body] = prof.BODY
         dur[body] = t_up[:q_commit] + t_cruise[:q_commit] + t_down[:q_commit]
-        s0[body] = s_node + w_n
+        s0[body] = sb[:q_commit]
         v0[body] = v_node[:-1]
         vpk[body] = vp[:q_commit]
         v1[body] = v_node[1:]
@@ -318,7 +383,7 @@ class _StreamPlanner:
         tu[body] = t_up[:q_commit]
         tc[body] = t_cruise[:q_commit]
         end_node = nodes[-1]
-        s0[-1] = S[end_node]
+        s0[-1] = sa[q_commit]
 
         # Dwells and events: only at the (few) nodes that have entries.
         extra_key: list[float] = []
@@ -328,8 +393,9 @@ class _StreamPlanner:
         extra_node: list[int] = []
         timed: list[tuple[int, float, Event]] = []  # (piece slot, offset within node, event)
         emit_nodes = list(nodes[:-1]) + ([end_node] if final else [])
-        for slot, j in enumerate(emit_nodes):
-            entries = self.entries.pop(int(j) + g, None)
+        emit_kinds = list(kind_q[: len(emit_nodes)])
+        for slot, (j, kind_j) in enumerate(zip(emit_nodes, emit_kinds, strict=True)):
+            entries = self.entries.pop(int(j) + g, None) if kind_j == 0 else None
             if not entries:
                 continue
             offset = 0.0
@@ -427,8 +493,97 @@ class _StreamPlanner:
             del self.tols[:keep]
             self.g0 += keep
             self.has_context = True
+            self.w_first = float(w[end_node])
             self.stops = {node for node in self.stops if node >= self.g0 + 1}
         return chunk
+
+    def _zone_coefficients(
+        self, L: np.ndarray, w: np.ndarray, du: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Largest |d2x/ds2| and |d3x/ds3| per axis in the start and end blend zone of each move.
+
+        On move k the blends of node k (start, sigma in [0, w_k]) and node k+1 (end, sigma in
+        [L - w_k+1, L]) may overlap; there d2x/ds2 = dU_k h'_k + dU_k+1 h'_k+1 is linear in
+        sigma between the zone ends and d3x/ds3 = dU_k h''_k + dU_k+1 h''_k+1 is constant on
+        each part, so a few points bound them. Returns (a_start, a_end, j_start, j_end), (n, na).
+        """
+        ws = w[:-1][:, None]
+        we = w[1:][:, None]
+        dus = du[:-1]
+        due = du[1:]
+        Lc = L[:, None]
+
+        def curvature(sigma: np.ndarray) -> np.ndarray:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                hs = np.where(ws > 0.0, np.maximum(ws - sigma, 0.0) / (ws * ws), 0.0)
+                he = np.where(we > 0.0, np.maximum(sigma - (Lc - we), 0.0) / (we * we), 0.0)
+            return np.abs(dus * hs + due * he)
+
+        inner_start = np.minimum(ws, Lc)
+        inner_end = np.maximum(Lc - we, 0.0)
+        overlap = (ws > 0.0) & (we > 0.0) & (ws > Lc - we)
+        a_start = np.maximum(curvature(np.zeros_like(ws)), curvature(inner_start))
+        a_end = np.maximum(curvature(Lc), curvature(inner_end))
+        a_start = np.where(overlap, np.maximum(a_start, curvature(inner_end)), a_start)
+        a_end = np.where(overlap, np.maximum(a_end, curvature(inner_start)), a_end)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            start_only = (ws > 0.0) & (np.minimum(ws, Lc - we) > 0.0)
+            end_only = (we > 0.0) & (Lc - np.maximum(ws, Lc - we) > 0.0)
+            j_s = np.where(start_only, np.abs(dus) / (ws * ws), 0.0)
+            j_e = np.where(end_only, np.abs(due) / (we * we), 0.0)
+            j_both = np.where(overlap, np.abs(due / (we * we) - dus / (ws * ws)), 0.0)
+        return a_start, a_end, np.maximum(j_s, j_both), np.maximum(j_e, j_both)
+
+    def _cruise_cap(
+        self, a_coef: np.ndarray, j_coef: np.ndarray, a_share: float, j_share: float
+    ) -> np.ndarray:
+        """Highest speed v with coef*v^2 <= a_share*a_max and coef*v^3 <= j_share*j_max."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cap = np.min(
+                np.where(a_coef > 0.0, np.sqrt(a_share * self.a_max / a_coef), np.inf), axis=-1
+            )
+            if self.jerk:
+                j_cap = np.where(j_coef > 0.0, np.cbrt(j_share * self.j_max / j_coef), np.inf)
+                cap = np.minimum(cap, np.min(j_cap, axis=-1))
+        return cap
+
+    def _chain_limits(
+        self,
+        nodes_b: np.ndarray,
+        g_start: np.ndarray,
+        a_node: np.ndarray,
+        j_node: np.ndarray,
+        u: np.ndarray,
+        V: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Speed cap, acceleration and jerk along each chain of overlapping blends [SI].
+
+        Along a chain the axis motion is d(s) ds/dt with d a convex combination of the move
+        directions (|d_i| <= max |u_i|), and
+            a_i = d_i s'' + d'_i (s')^2,   j_i = d_i s''' + 3 d'_i s' s'' + d''_i (s')^3.
+        Half of each axis's acceleration goes to the curvature term (cap V) and half to s''
+        (A); a third of its jerk to each of the three jerk terms (V, then A, then J).
+        """
+        absu = np.abs(u)
+        pad = np.zeros((1, absu.shape[1]))
+        u_node = np.maximum(np.vstack((pad, absu)), np.vstack((absu, pad)))
+        v_node = np.minimum(np.concatenate(([np.inf], V)), np.concatenate((V, [np.inf])))
+        a_g = np.maximum.reduceat(a_node[nodes_b], g_start, axis=0)
+        j_g = np.maximum.reduceat(j_node[nodes_b], g_start, axis=0)
+        u_g = np.maximum.reduceat(u_node[nodes_b], g_start, axis=0)
+        Vc = np.minimum(
+            np.minimum.reduceat(v_node[nodes_b], g_start),
+            self._cruise_cap(a_g, j_g, 0.5, 1.0 / 3.0),
+        )
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Ac = np.min(np.where(u_g > 0.0, 0.5 * self.a_max / u_g, np.inf), axis=1)
+            if self.jerk:
+                cross = self.j_max / (9.0 * a_g * Vc[:, None])
+                Ac = np.minimum(Ac, np.min(np.where(a_g > 0.0, cross, np.inf), axis=1))
+                Jc = np.min(np.where(u_g > 0.0, self.j_max / (3.0 * u_g), np.inf), axis=1)
+            else:
+                Jc = np.full(len(Vc), np.inf)
+        return Vc, Ac, Jc
 
     def _corner_cost(
         self, v: np.ndarray, w: np.ndarray, V: np.ndarray, A: np.ndarray, J: np.ndarray

@@ -59,6 +59,8 @@ def reach(v_known: float, L: float, A: float, J: float, jerk: bool, v_cap: float
     """
     if v_cap <= v_known:
         return v_cap
+    if L <= 0.0:
+        return v_known
     if phase_distance(v_cap, v_known, A, J, jerk) <= L:
         return v_cap
     if not jerk:
@@ -317,26 +319,27 @@ def evaluate_path(
         sigma = si - S0[k]
         v = sd[idx]
         a = sdd[idx]
+        for i in range(na):
+            pos[idx, i] = P0[k, i] + u[k, i] * sigma
+            vel[idx, i] = u[k, i]
+            acc[idx, i] = 0.0
+        # Blends of the node at each end of the move; they may overlap and simply add up.
         if w_start[k] > 0.0 and sigma < w_start[k]:
-            sigma = max(sigma, 0.0)
-            G, h, hp = _blend_shape(sigma, w_start[k])
+            sg = max(sigma, 0.0)
+            G, h, hp = _blend_shape(sg, w_start[k])
             for i in range(na):
-                ua = u[k, i] - du_start[k, i]
-                d = ua + du_start[k, i] * h
-                pos[idx, i] = P0[k, i] + ua * sigma + du_start[k, i] * G
-                vel[idx, i] = d * v
-                acc[idx, i] = d * a + du_start[k, i] * hp * v * v
-        elif w_end[k] > 0.0 and L[k] - sigma < w_end[k]:
-            sig = max(sigma - L[k], -w_end[k])
-            G, h, hp = _blend_shape(sig, w_end[k])
+                pos[idx, i] += du_start[k, i] * (G - sg)
+                vel[idx, i] += du_start[k, i] * (h - 1.0)
+                acc[idx, i] += du_start[k, i] * hp
+        if w_end[k] > 0.0 and L[k] - sigma < w_end[k]:
+            sg = max(sigma - L[k], -w_end[k])
+            G, h, hp = _blend_shape(sg, w_end[k])
             for i in range(na):
-                d = u[k, i] + du_end[k, i] * h
-                pos[idx, i] = P1[k, i] + u[k, i] * sig + du_end[k, i] * G
-                vel[idx, i] = d * v
-                acc[idx, i] = d * a + du_end[k, i] * hp * v * v
-        else:
-            for i in range(na):
-                pos[idx, i] = P0[k, i] + u[k, i] * sigma
-                vel[idx, i] = u[k, i] * v
-                acc[idx, i] = u[k, i] * a
+                pos[idx, i] += du_end[k, i] * G
+                vel[idx, i] += du_end[k, i] * h
+                acc[idx, i] += du_end[k, i] * hp
+        for i in range(na):
+            d = vel[idx, i]
+            vel[idx, i] = d * v
+            acc[idx, i] = d * a + acc[idx, i] * v * v
     return pos, vel, acc, seg
