@@ -141,3 +141,37 @@ def test_fit_that_cannot_converge_says_so_and_keeps_the_start():
     assert not r.converged
     assert r.values["a"] <= 1.5
     assert math.isfinite(r.cost) and r.cost <= r.cost_initial
+
+
+@pytest.mark.slow
+def test_command_from_the_program_that_ran(tmp_path):
+    from feed_twin.analysis.program import command_from_program
+    from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, generate, write_csv
+    from feed_twin.analysis.twin import ModelDoc
+    from feed_twin.io.measured import load_measured
+
+    nominal = ModelDoc.load(NOMINAL)
+    cols = generate(nominal, {})
+    # the scope started 0.4 s after the program and recorded no command
+    start = 400
+    cols = {k: v[start:] for k, v in cols.items() if k != "x_cmd_mm"}
+    cols["time_ms"] = cols["time_ms"] - cols["time_ms"][0] + 123.0
+    map_path = write_csv(tmp_path / "scope.csv", cols, nominal)
+    map_path.write_text(
+        map_path.read_text().replace("  pos_cmd_m: {column: x_cmd_mm, unit: mm}\n", "")
+    )
+    run = load_measured(tmp_path / "scope.csv", map_path)
+    assert "pos_cmd_m" not in run
+    import yaml
+
+    nc = yaml.safe_load(NC_CONFIG)["nc"]
+    program = tmp_path / "part.ngc"
+    program.write_text(PROGRAM)
+    bare = command_from_program(run, program, nc=nc)
+    # the bare command comparison is late by the loop lag, about 1/Kv = 6 ms
+    assert any("the program starts -0.39" in w for w in bare.warnings), bare.warnings
+    with_cmd = command_from_program(run, program, nc=nc, model=nominal)
+    assert any("the program starts -0.4000" in w for w in with_cmd.warnings), with_cmd.warnings
+    truth = generate(nominal, {})["x_cmd_mm"][start:] * 1e-3
+    # aligned to a fraction of a sample: the setpoint error stays below v_max * 0.1 ms
+    assert np.max(np.abs(with_cmd["pos_cmd_m"] - truth)) < 0.12 * 1e-4

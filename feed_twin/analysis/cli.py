@@ -34,13 +34,17 @@ def _map_for(measured: Path, given: str | None) -> Path:
     )
 
 
-def _load(measured: str, map_path: str | None, program: str | None = None) -> MeasuredRun:
+def _load(
+    measured: str, map_path: str | None, program: str | None = None, model=None
+) -> MeasuredRun:
     path = Path(measured)
     run = load_measured(path, _map_for(path, map_path))
     if program is not None:
         from feed_twin.analysis.program import command_from_program
 
-        run = command_from_program(run, program)
+        nc = None if model is None else model.data.get("nc")
+        source = "<nc>" if model is None else model.source
+        run = command_from_program(run, program, nc=nc, nc_source=source, model=model)
     if "pos_cmd_m" not in run and "vel_cmd_m_s" not in run:
         raise MeasuredDataError(
             f"{measured}: the record has no command (pos_cmd_m or vel_cmd_m_s); give the G-code "
@@ -68,13 +72,15 @@ def main_diagnose(args: argparse.Namespace) -> int:
     def progress(text: str) -> None:
         print(f"[diagnose] {text}", flush=True)
 
+    from feed_twin.gcode.errors import GcodeError
+
     try:
-        run = _load(args.measured, args.map, args.program)
+        doc = ModelDoc.load(args.config)
+        run = _load(args.measured, args.map, args.program, doc)
         for w in run.warnings:
             progress(f"warning: {w}")
-        other = _load(args.validate, args.map, args.program) if args.validate else None
-        doc = ModelDoc.load(args.config)
-    except (MeasuredDataError, ConfigError) as exc:
+        other = _load(args.validate, args.map, args.program, doc) if args.validate else None
+    except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
         return 2
     out = Path(args.out)
