@@ -81,7 +81,7 @@ def test_batch_equals_single_runs_and_flags_a_refused_set(emps):
 
 
 def _unstable_axis():
-    """The default axis with a nut 1e4 times stiffer: its mode is far beyond RK4's reach."""
+    """The default axis with a backlash contact 2e4 times stiffer: far beyond RK4's reach."""
     axis = load_axis_config("config/axis_default.yaml")
     return axis.plant.with_params(axial={"k_nut": 1e13}, backlash={"k": 1e13})
 
@@ -90,7 +90,7 @@ def test_divergence_raises_with_time_and_state():
     plant = _unstable_axis()
     engine = Engine(plant, base_period_s=6.25e-5)
     x0 = plant.initial_state()
-    x0[plant.state_index["nut.s"]] = 1e-9
+    x0[plant.state_index["nut.s"]] = 1e-5  # beyond the half gap: the contact engages
     engine.reset(x0=x0)
     with pytest.raises(
         DivergenceError,
@@ -104,7 +104,7 @@ def test_batch_flags_a_diverging_set_and_runs_the_others():
     plant = _unstable_axis()
     engine = Engine(plant, base_period_s=6.25e-5, record=["nut.s", "table.s"])
     x0 = plant.initial_state()
-    x0[plant.state_index["nut.s"]] = 1e-9
+    x0[plant.state_index["nut.s"]] = 1e-5  # beyond the half gap: the contact engages
     stable = plant.param_vector({"axial.k_nut": 1e9, "backlash.k": 5e8})
     P = np.vstack([stable, plant.nominal_params()])
     batch = run_batch(engine, P, 400, x0=x0)
