@@ -17,6 +17,7 @@ from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
+from feed_twin.plant.coupling import emit_two_port
 
 
 @njit(cache=True)
@@ -54,18 +55,7 @@ class Backlash(Component):
         return {"a": slot("d"), "b": slot("d")}
 
     def emit(self, stage: str, g: Emitter) -> None:
-        if stage != "dynamics":
-            return
-        s_a, v_a = g.across("a")
-        s_b, v_b = g.across("b")
-        f, e, loss = g.local("f"), g.local("e"), g.local("loss")
-        g.call(
-            (f, e, loss),
-            "feed_twin.plant.backlash.backlash_force",
-            (f"{s_a} - {s_b}", f"{v_a} - {v_b}", g.p("gap"), g.p("k"), g.p("d")),
-        )
-        g.apply("a", f"-{f}")
-        g.apply("b", f)
-        g.aux("force", f)
-        g.stored("spring", e)
-        g.power("loss", "damping", loss)
+        if stage == "dynamics":
+            emit_two_port(
+                g, "feed_twin.plant.backlash.backlash_force", (g.p("gap"), g.p("k"), g.p("d"))
+            )

@@ -26,16 +26,13 @@ def spring_damper(
     return k * delta + damping, 0.5 * k * delta * delta, damping * delta_rate
 
 
-def emit_spring_damper(g: Emitter, k: str, d: str) -> None:
-    """Glue shared by every two-port linear spring-damper on ports a and b."""
+def emit_two_port(g: Emitter, func: str, params: tuple[str, ...]) -> None:
+    """Glue of a two-port element on ports a, b whose law is
+    `func(delta, delta_rate, *params) -> (cut force a->b, stored energy, loss power)`."""
     s_a, v_a = g.across("a")
     s_b, v_b = g.across("b")
     f, e, loss = g.local("f"), g.local("e"), g.local("loss")
-    g.call(
-        (f, e, loss),
-        "feed_twin.plant.coupling.spring_damper",
-        (f"{s_a} - {s_b}", f"{v_a} - {v_b}", k, d),
-    )
+    g.call((f, e, loss), func, (f"{s_a} - {s_b}", f"{v_a} - {v_b}", *params))
     g.apply("a", f"-{f}")
     g.apply("b", f)
     g.aux("force", f)
@@ -60,4 +57,4 @@ class Coupling(Component):
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "dynamics":
-            emit_spring_damper(g, g.p("k"), g.p("d"))
+            emit_two_port(g, "feed_twin.plant.coupling.spring_damper", (g.p("k"), g.p("d")))

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader
-from feed_twin.plant.coupling import emit_spring_damper
+from feed_twin.plant.coupling import emit_two_port
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -57,4 +57,4 @@ class ScrewShaft(Component):
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "dynamics":
-            emit_spring_damper(g, g.p("k_t"), g.p("d"))
+            emit_two_port(g, "feed_twin.plant.coupling.spring_damper", (g.p("k_t"), g.p("d")))
