@@ -10,16 +10,20 @@ with ITSELF at the start of the run:
   (feed_twin.analysis.effects), fitted jointly to the baseline effort residual by least squares;
 - every `evaluate_period_s`, the RMS over the last `window_s` is compared with the baseline RMS:
   a rise above `*_warn` is WARN, above `*_error` ERROR;
-- on WARN or ERROR the window's effort residual minus the baseline model's prediction on the
+- on WARN or ERROR (at most once per `window_s`, and whenever the level rises, because ranking
+  costs about 0.1 s) the window's effort residual minus the baseline model's prediction on the
   window's motion (what changed since the start) is ranked with the library's `rank`; the
   leading significant effect is named, and its least-squares weight converted to the physical
   parameter it belongs to (Coulomb and viscous friction, moving mass, constant force) and set
-  against the value at the start: "coulomb_friction +35 % since start";
+  against the model's value: "coulomb_friction +35 % since start";
 - STALE when the measured stream has lost `missing_flag_after` samples in a row.
 
-In a `Verdict`, `nominal_value` is the parameter's value at the start of the run (the model's
-value plus the baseline fit's deviation), `estimated_value` its value in the current window, and
-`relative_change` their difference over |nominal_value|.
+In a `Verdict`, `nominal_value` is the model's value of the parameter, `estimated_value` that
+value plus the change since the start, and `relative_change` the change over |nominal_value|
+(as HealthStatus defines it). The change is referred to the model's value, not to a baseline
+estimate of the parameter itself: the library's signatures overlap (Coulomb, Stribeck and
+asymmetric friction all follow the direction of motion), so a joint fit cannot split the
+baseline residual between them, while the change since the start is well determined.
 """
 
 from __future__ import annotations
@@ -35,6 +39,10 @@ from feed_twin.shadow.config import ShadowConfig
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
 MIN_SPEED_M_S = 1e-4  # [m/s] below this peak speed in a window nothing can be attributed
+# Ranking works on the window decimated to at most this many samples: the signatures of
+# friction, mass and force effects are smooth functions of the motion, and ranking a 4000-sample
+# window costs about 0.1 s, which a live twin cannot spend every few seconds.
+NAMING_SAMPLES = 1000
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -109,6 +117,8 @@ class HealthMonitor:
         self._baseline_model: list[tuple[str, str, dict[str, float]]] = []
         self._since_eval = 0
         self.verdicts: list[Verdict] = []  # every evaluation, most recent last
+        self._naming: dict = {}
+        self._named_at: float | None = None
         self.last: Verdict | None = None
 
     @property
@@ -176,7 +186,14 @@ class HealthMonitor:
                     f"FE deviation RMS {rise_fe * 1e6:+.3g} um, effort deviation RMS "
                     f"{rise_eff:+.3g} {self.effort_unit} since start"
                 )
-                verdict = Verdict(level=level, **common, **self._name_effect(w, rises))
+                t_now = float(w[-1, 0])
+                due = self._named_at is None or t_now - self._named_at >= c.window_s - 1e-9
+                if due or self.last is None or level > self.last.level:
+                    self._naming = self._name_effect(w)
+                    self._named_at = t_now
+                naming = dict(self._naming)
+                naming["message"] = f"{naming['message']}; {rises}"
+                verdict = Verdict(level=level, **common, **naming)
         self.verdicts.append(verdict)
         if len(self.verdicts) > 10_000:
             del self.verdicts[:5_000]
@@ -207,6 +224,7 @@ class HealthMonitor:
         }
         if not self._moving(rows):
             return
+        rows = _decimated(rows)
         motion = self._motion(rows)
         ranked = rank(motion, effort_residual=rows[:, 3], position_residual=None)
         chosen = [(c.name, c.variant) for c in ranked]
@@ -247,30 +265,24 @@ class HealthMonitor:
                         pred += c * regs[key]
         return pred
 
-    def _baseline_weight(self, effect: str, regressor: str) -> float:
-        for name, _, coefs in self._baseline_model:
-            if name == effect:
-                return coefs.get(regressor, 0.0)
-        return 0.0
-
-    def _name_effect(self, w: np.ndarray, rises: str) -> dict:
+    def _name_effect(self, w: np.ndarray) -> dict:
         if not self._moving(w):
-            return {"message": f"{rises}; the axis did not move enough to name an effect"}
+            return {"message": "the axis did not move enough to name an effect"}
+        w = _decimated(w)
         motion = self._motion(w)
         change = w[:, 3] - self.baseline_prediction(motion)
         ranked = rank(motion, effort_residual=change, position_residual=None)
         found = next((c for c in ranked if c.significant), None)
         if found is None:
-            return {"message": f"{rises}; no effect of the library explains the change"}
+            return {"message": "no effect of the library explains the change"}
         phys = self.physical.get(found.name)
         if phys is None or phys.regressor not in found.coefficients:
             weights = ", ".join(f"{k} {v:+.3g}" for k, v in found.coefficients.items())
             return {
                 "effect": found.name,
-                "message": f"{found.name} changed since start ({weights} [{self.effort_unit}])"
-                f"; {rises}",
+                "message": f"{found.name} changed since start ({weights} [{self.effort_unit}])",
             }
-        start = phys.nominal + phys.per_effort * self._baseline_weight(found.name, phys.regressor)
+        start = phys.nominal
         now = start + phys.per_effort * found.coefficients[phys.regressor]
         rel = (now - start) / abs(start) if start != 0.0 else math.nan
         what = (
@@ -285,5 +297,9 @@ class HealthMonitor:
             "nominal_value": start,
             "estimated_value": now,
             "relative_change": rel,
-            "message": f"{what} ({start:.4g} -> {now:.4g} {phys.unit}); {rises}",
+            "message": f"{what} ({start:.4g} -> {now:.4g} {phys.unit})",
         }
+
+
+def _decimated(rows: np.ndarray) -> np.ndarray:
+    return rows[:: max(1, len(rows) // NAMING_SAMPLES)]

@@ -7,12 +7,14 @@ a bounded buffer and never waiting for ever. The policy, per message:
 
 - on the grid: a stamp more than `tolerance * period` away from every slot is counted
   `off_grid` and dropped (a stamp that does not belong to the machine's cycle is not trusted);
-- duplicated: a second sample for a slot still buffered, or for one already released with a real
-  value, is dropped and counted `duplicated`;
+- duplicated: a second sample for a slot still buffered, or for one released with a real value
+  in the last `2 * window` slots, is dropped and counted `duplicated` (an older one is `late`);
 - out of order: a sample older than the newest one received but for a slot not yet released is
   put in its place (the buffer is ordered by slot) and counted `reordered`;
-- late: a sample for a slot already released (it arrived after its slot was filled) is dropped
-  and counted `late`; so is a sample from before the stream's start;
+- late: a sample for a slot already decided (the stream had run `window` slots past it, so it
+  is, or will be, filled) is dropped and counted `late`; so is a sample from before the
+  stream's start. Decisions depend only on the stream's own arrival order, never on when the
+  twin calls `release`, so a replay in blocks decides exactly as the live twin did;
 - far ahead: a sample more than `MAX_JUMP_S` ahead of the newest is dropped and counted
   `rejected` (a corrupted stamp must not make the twin simulate hours of filled samples);
 - missing: once the stream has run `window` slots past a slot that never arrived, that slot is
@@ -26,6 +28,7 @@ Released values leave the buffer, so memory is bounded by `window` plus what arr
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Literal
 
@@ -92,7 +95,8 @@ class SlotStream:
         self.counts = FaultCounts()
         self._pending: dict[int, np.ndarray] = {}
         self._released_real: set[int] = set()  # recent real slots, for duplicate detection
-        self._last: np.ndarray | None = None
+        self._final_through = -(2**62)  # slots up to here are decided (filled if never seen)
+        self._last: list[float] | None = None
         self._last_slot: int | None = None
 
     def set_origin(self, t0_s: float) -> None:
@@ -124,24 +128,51 @@ class SlotStream:
         if self.newest is not None and (k - self.newest) * self.period_s > MAX_JUMP_S:
             c.rejected += 1
             return "rejected"
-        if self.next_slot is not None and k < self.next_slot:
-            if k in self._released_real:
-                c.duplicated += 1
-                return "duplicated"
-            c.late += 1
-            return "late"
-        if k in self._pending:
+        if k in self._pending or k in self._released_real:
             c.duplicated += 1
             return "duplicated"
-        self._pending[k] = np.asarray(values, dtype=float)
+        if (self.next_slot is not None and k < self.next_slot) or k <= self._final_through:
+            c.late += 1
+            return "late"
+        self._pending[k] = [float(v) for v in values]
         c.accepted += 1
         if self.newest is not None and k < self.newest:
             c.reordered += 1
-            outcome = "reordered"
-        else:
-            self.newest = k
-            outcome = "accepted"
-        return outcome
+            return "reordered"
+        self.newest = k
+        self._final_through = k - self.window
+        return "accepted"
+
+    def push_many(self, t_s: np.ndarray, values: np.ndarray) -> None:
+        """Offer samples in arrival order; the same policy as `push`, one sample at a time,
+        with a vectorised path for the usual case (on the grid, each newer than the last)."""
+        t_s = np.asarray(t_s, dtype=float)
+        values = np.asarray(values, dtype=float).reshape(len(t_s), self.width)
+        if len(t_s) == 0:
+            return
+        if self.t0_s is None:
+            raise RuntimeError(f"{self.name}: the slot grid has no origin yet")
+        x = (t_s - self.t0_s) / self.period_s
+        k = np.round(x).astype(np.int64)
+        lowest = max(self._final_through, -1 if self.newest is None else self.newest)
+        clean = (
+            bool(np.all(np.abs(x - k) <= self.tolerance))
+            and bool(np.all(np.diff(k) > 0))
+            and (self.newest is None or int(k[0]) > lowest)
+            and (self.next_slot is None or int(k[0]) >= self.next_slot)
+            and (self.newest is None or (int(k[-1]) - self.newest) * self.period_s <= MAX_JUMP_S)
+            and (self.newest is not None or (int(k[-1]) - int(k[0])) * self.period_s <= MAX_JUMP_S)
+        )
+        if not clean:
+            for t, row in zip(t_s, values, strict=True):
+                self.push(float(t), row)
+            return
+        self._pending.update(zip(k.tolist(), values.tolist(), strict=True))
+        n = len(k)
+        self.counts.received += n
+        self.counts.accepted += n
+        self.newest = int(k[-1])
+        self._final_through = self.newest - self.window
 
     def start(self, slot: int) -> None:
         """Release from `slot` on; buffered samples before it are late."""
@@ -156,47 +187,53 @@ class SlotStream:
         it (with `final`, every slot up to the newest). At most `limit` slots."""
         if self.next_slot is None or self.newest is None:
             return None
-        horizon = self.newest if final else self.newest - self.window
+        horizon = self.newest if final else self._final_through
         k = self.next_slot
-        out: list[np.ndarray] = []
+        out: list[list[float]] = []
         filled: list[bool] = []
-        while limit is None or len(out) < limit:
-            value = self._pending.pop(k, None)
+        real: list[int] = []
+        pending = self._pending
+        stop = math.inf if limit is None else limit
+        while len(out) < stop:
+            value = pending.pop(k, None)
             if value is not None:
                 out.append(value)
                 filled.append(False)
-                self.counts.missing_run = 0
-                self._remember(k)
+                real.append(k)
             elif k <= horizon:
+                self._last, self._last_slot = (
+                    (out[-1], k - 1) if out else (self._last, self._last_slot)
+                )
                 out.append(self._filler(k))
                 filled.append(True)
                 self.counts.missing += 1
-                self.counts.missing_run += 1
             else:
                 break
-            self._last, self._last_slot = out[-1], k
             k += 1
         if not out:
             return None
-        first = self.next_slot
-        self.next_slot = k
-        return Released(first=first, values=np.vstack(out), filled=np.asarray(filled))
-
-    def _remember(self, k: int) -> None:
-        self._released_real.add(k)
+        self._last, self._last_slot = out[-1], k - 1
+        # the current run of filled slots: those at the end of this release, plus the run
+        # before it when nothing real was released
+        trailing = len(filled) - (max(i for i, f in enumerate(filled) if not f) + 1 if real else 0)
+        self.counts.missing_run = trailing if real else self.counts.missing_run + trailing
+        self._released_real.update(real[-2 * self.window :])
         if len(self._released_real) > 4 * self.window + 16:
             floor = k - 2 * self.window
             self._released_real = {s for s in self._released_real if s >= floor}
+        first = self.next_slot
+        self.next_slot = k
+        return Released(first=first, values=np.array(out, dtype=float), filled=np.array(filled))
 
-    def _filler(self, k: int) -> np.ndarray:
+    def _filler(self, k: int) -> list[float]:
         ahead = [s for s in self._pending if s > k]
         nxt = min(ahead) if ahead else None
         if self._last is None:
             if nxt is None:
                 raise RuntimeError(f"{self.name}: nothing to fill slot {k} from")
-            return self._pending[nxt].copy()
+            return list(self._pending[nxt])
         if self.fill == "hold" or nxt is None:
-            return self._last.copy()
+            return list(self._last)
         assert self._last_slot is not None
         w = (k - self._last_slot) / (nxt - self._last_slot)
-        return (1.0 - w) * self._last + w * self._pending[nxt]
+        return [(1.0 - w) * a + w * b for a, b in zip(self._last, self._pending[nxt], strict=True)]

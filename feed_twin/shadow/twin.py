@@ -235,6 +235,30 @@ class ShadowTwin:
         self._origin(t_s)
         return self.measured.push(t_s, (pos_m, effort))
 
+    def push_commands(
+        self, t_s: np.ndarray, pos_m: np.ndarray, vel_m_s: np.ndarray | None = None
+    ) -> None:
+        """Several NC samples in arrival order (the same policy as push_command)."""
+        if len(t_s) == 0:
+            return
+        self._origin(float(t_s[0]))
+        if self.command_velocity:
+            if vel_m_s is None:
+                raise ValueError("push_commands: this twin takes the command velocity; none given")
+            self.commands.push_many(t_s, np.column_stack([pos_m, vel_m_s]))
+        else:
+            self.commands.push_many(t_s, np.asarray(pos_m, dtype=float)[:, None])
+
+    def push_measured_many(
+        self, t_s: np.ndarray, pos_m: np.ndarray, effort: np.ndarray | None = None
+    ) -> None:
+        """Several measured samples in arrival order (the same policy as push_measured)."""
+        if len(t_s) == 0:
+            return
+        self._origin(float(t_s[0]))
+        eff = np.full(len(t_s), math.nan) if effort is None else np.asarray(effort, dtype=float)
+        self.measured.push_many(t_s, np.column_stack([pos_m, eff]))
+
     # ------------------------------------------------------------------ processing
 
     def process(self, *, final: bool = False) -> ResidualBlock | None:

@@ -1,0 +1,196 @@
+"""A stand-in for a real axis: a truth model that answers NC commands with measured samples.
+
+The truth is the nominal model document with hidden effects and unmodelled dynamics, built by
+the discrepancy workflow's synthetic-data generator (feed_twin.analysis.synthetic.truth_model:
+the same components the workflow would add, a current-loop lag, the encoder's real count) and
+run on the same engine, one NC period at a time, state kept between calls. The recorded effort
+gets white noise as a real current measurement has. `set_parameter` changes a parameter of the
+running truth (e.g. raises the Coulomb friction to play a worn screw); the change acts from the
+next call on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from feed_twin.analysis.synthetic import PROGRAM, Unmodelled, command, truth_model
+from feed_twin.analysis.twin import Drive, ModelDoc, Twin
+from feed_twin.control import signals
+from feed_twin.shadow.twin import _Rows
+
+
+def program_command(
+    duration_s: float, period_s: float, program: str = PROGRAM
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(t, x, v, a) of a G-code program repeated back to back for `duration_s`, NC samples.
+
+    The program must end where it starts (the default one returns to X0), so repeats join
+    without a jump. Velocity and acceleration are the NC's feed-forward signals (central
+    differences of the planned position).
+    """
+    t1, x1 = command(program)
+    if abs(x1[-1] - x1[0]) > 1e-9:
+        raise ValueError(
+            f"program_command: the program ends at {x1[-1]!r} m, not at its start {x1[0]!r} m"
+        )
+    n = round(duration_s / period_s)
+    x = np.resize(x1[:-1], n)
+    v = np.gradient(x, period_s)
+    a = np.gradient(v, period_s)
+    return np.arange(n) * period_s, x, v, a
+
+
+class StandIn:
+    """A truth model driven by NC samples (position, velocity, acceleration feed-forward)."""
+
+    def __init__(
+        self,
+        nominal: ModelDoc,
+        *,
+        hidden: Mapping[str, Mapping[str, float]],
+        unmodelled: Unmodelled,
+        sample_period_s: float,
+        x0_m: float,
+    ) -> None:
+        self.doc = truth_model(nominal, hidden, unmodelled)
+        h = float(self.doc.data["controller"]["base_period_s"])
+        lag = unmodelled.current_lag_s
+        # the lag adds a fast pole: sub-steps keep explicit RK4 well inside its stability limit
+        nsub = max(1, int(np.ceil(2.0 * h / lag))) if lag > 0 else 1
+        self.twin = Twin.compile(self.doc, smooth_sensors=False, min_substeps=nsub)
+        self.engine = self.twin.engine
+        self.dec = round(sample_period_s / self.engine.h)
+        if self.dec < 1 or abs(self.dec * self.engine.h - sample_period_s) > 1e-9:
+            raise ValueError(
+                f"sample_period_s = {sample_period_s!r}: must be a whole multiple of the truth "
+                f"model's base period {self.engine.h!r} s"
+            )
+        self.noise_std = unmodelled.effort_noise_std
+        self._rng = np.random.default_rng(unmodelled.seed)
+        drive = Drive(
+            t_s=np.zeros(0),
+            pos_ref_m=np.zeros(0),
+            vel_ref_m_s=np.zeros(0),
+            acc_ref_m_s2=np.zeros(0),
+            effort_add=None,
+            force_ext_N=None,
+            x0_m=x0_m,
+            sensor="",
+        )
+        self.engine.reset(x0=self.twin._x0(drive, self.engine.p))
+
+    def step(
+        self, x_m: np.ndarray, v_m_s: np.ndarray, a_m_s2: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Measured position [m] and effort [effort unit] at each of the given NC samples."""
+        n = len(x_m)
+        ref = np.zeros((n * self.dec, signals.REF_SIZE))
+        ref[:, signals.REF_POS_M] = np.repeat(x_m, self.dec)
+        ref[:, signals.REF_VEL_M_S] = np.repeat(v_m_s, self.dec)
+        ref[:, signals.REF_ACC_M_S2] = np.repeat(a_m_s2, self.dec)
+        res = self.engine.advance(n * self.dec, ref=ref)
+        x, effort = self.twin._measured_signals(_Rows(res), self.dec)
+        return x[0], effort[0] + self._rng.normal(0.0, self.noise_std, n)
+
+    def parameter(self, name: str) -> float:
+        return float(self.engine.p[self.twin.plant.param_index[name]])
+
+    def set_parameter(self, name: str, value: float) -> None:
+        """Change one truth parameter (e.g. "friction.F_c_pos") from the next step on."""
+        index = self.twin.plant.param_index
+        if name not in index:
+            raise KeyError(f"the stand-in's truth model has no parameter {name!r}")
+        p = self.engine.p.copy()
+        p[index[name]] = float(value)
+        self.twin.plant.fill_derived(p)
+        self.engine.p = p
+
+
+BAG_MAP = """\
+# column map of a stand-in recording (feed_twin.shadow.standin.record_bag)
+time: {{column: "{command}:header.stamp", unit: s}}
+position_sensor: {sensor}
+signals:
+  pos_cmd_m: {{column: "{command}:position", unit: m}}
+  vel_cmd_m_s: {{column: "{command}:velocity", unit: m/s}}
+  pos_meas_m: {{column: "{joints}:position[0]", unit: m}}
+  {effort}: {{column: "{joints}:effort[0]", unit: {unit}}}
+plausibility: {{travel_m: {travel!r}, max_speed_m_s: 0.5}}
+"""
+_UNIT_OF = {"force_cmd_N": "N", "torque_cmd_Nm": "Nm", "current_q_A": "A"}
+
+
+def record_bag(
+    path: str | Path,
+    standin: StandIn,
+    *,
+    duration_s: float,
+    period_s: float,
+    namespace: str = "/cnc/x",
+    changes: Sequence[tuple[float, str, float]] = (),
+    travel_m: float = 0.3,
+) -> Path:
+    """Run the stand-in on the repeated program and record it as a machine would publish it:
+    AxisCommand on `<namespace>/command`, sensor_msgs/JointState (position [m], effort in the
+    model's effort unit) on `<namespace>/joint_states`, log time = stamp. `changes` are
+    (time [s], parameter, value) applied to the truth during the run. Writes the column map
+    `<bag name>_map.yaml` next to the bag and returns its path."""
+    from feed_twin.io.bag import BagWriter
+    from feed_twin.ros.cdr import FlatCodec
+    from feed_twin.shadow.bagstreams import encode_joint_state
+
+    path = Path(path)
+    t, x, v, a = program_command(duration_s, period_s)
+    command_topic, joints_topic = f"{namespace}/command", f"{namespace}/joint_states"
+    codec = FlatCodec("feed_twin_msgs/msg/AxisCommand")
+    pending = sorted(changes)
+    chunk = max(1, round(0.1 / period_s))
+    with BagWriter(path, flush_period_s=None) as writer:
+        writer.add_topic(command_topic, "feed_twin_msgs/msg/AxisCommand")
+        writer.add_topic(joints_topic, "sensor_msgs/msg/JointState")
+        for k0 in range(0, len(t), chunk):
+            while pending and pending[0][0] <= t[k0]:
+                _, name, value = pending.pop(0)
+                standin.set_parameter(name, value)
+            sl = slice(k0, k0 + chunk)
+            xm, em = standin.step(x[sl], v[sl], a[sl])
+            for j in range(len(xm)):
+                k = k0 + j
+                stamp = round(float(t[k]) * 1e9)
+                sec, nsec = divmod(stamp, 1_000_000_000)
+                writer.write(
+                    command_topic,
+                    codec.encode_map(
+                        {
+                            "header.stamp.sec": sec,
+                            "header.stamp.nanosec": nsec,
+                            "axis": "x",
+                            "position": float(x[k]),
+                            "velocity": float(v[k]),
+                            "acceleration": float(a[k]),
+                            "line": -1,
+                        }
+                    ),
+                    log_time_ns=stamp,
+                )
+                writer.write(
+                    joints_topic,
+                    encode_joint_state(stamp, ["x"], [float(xm[j])], [], [float(em[j])]),
+                    log_time_ns=stamp,
+                )
+    map_path = path.with_name(f"{path.name}_map.yaml")
+    effort = standin.twin.effort_name
+    map_path.write_text(
+        BAG_MAP.format(
+            command=command_topic,
+            joints=joints_topic,
+            sensor="linear_scale" if standin.doc.of_type("LinearScale") else "motor_encoder",
+            effort=effort,
+            unit=_UNIT_OF[effort],
+            travel=travel_m,
+        )
+    )
+    return map_path
