@@ -126,7 +126,7 @@ def first_run_s() -> float:
     return walls[-1]
 
 
-MOTULATOR_SCRIPT = ROOT / "benchmarks" / "motulator_drive.py"
+MOTULATOR_SCRIPT = ROOT / "benchmarks" / "_motulator_drive.py"
 
 
 def motulator_wall() -> tuple[float | None, str]:

@@ -1,6 +1,6 @@
 """One axis YAML, all sections: `plant:` (feed_twin.plant.config), `engine:` (here),
-`controller:` (feed_twin.control.cascade.load_controller_config), and `nc:` and `shadow:` (kept
-as mappings for the G-code stage and the shadow twin, which load them themselves).
+`controller:` (feed_twin.control.cascade.load_controller_config), and `nc:`, `shadow:` and `ros:`
+(kept as mappings for the G-code stage, the shadow twin and the node set, which load them).
 
     axis = load_axis_config("config/axis_default.yaml")      # or a parsed mapping
     engine = build_engine(axis)                               # closed loop, as configured
@@ -26,7 +26,7 @@ from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.engine import Engine
 
-SECTIONS = ("plant", "engine", "controller", "nc", "shadow")
+SECTIONS = ("plant", "engine", "controller", "nc", "shadow", "ros")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -58,6 +58,7 @@ class AxisConfig:
     controller: Any  # feed_twin.control.cascade.ControllerConfig, or None
     nc: Mapping[str, Any] | None
     shadow: Mapping[str, Any] | None
+    ros: Mapping[str, Any] | None
     raw: Mapping[str, Any]
 
 
@@ -99,6 +100,7 @@ def load_axis_config(
         controller=controller,
         nc=data.get("nc"),
         shadow=data.get("shadow"),
+        ros=data.get("ros"),
         raw=data,
     )
 
