@@ -144,6 +144,18 @@ def test_programmed_feed_is_reached_on_a_long_move():
     assert np.count_nonzero(np.abs(v - 0.1) <= 1e-12) * CONFIG.interpolation_period_s > 1.0
 
 
+@pytest.mark.parametrize("radius_mm", [20, 100])
+def test_programmed_feed_is_reached_on_arcs_made_of_chords(radius_mm):
+    # F3000 on R20: centripetal v^2/R = 0.125 m/s^2 and jerk v^3/R^2 = 0.3 m/s^3 are far below
+    # the limits, so the control must run the arc at F (the chords' blends chain up).
+    program = f"G1 X{radius_mm} F3000\nG3 X{radius_mm} Y0 I-{radius_mm} J0\nG1 Y-20\nM2"
+    traj = plan_program(program, CONFIG)
+    speed = np.linalg.norm(traj.vel_m_s, axis=1)[traj.line == 2]
+    assert speed.max() == pytest.approx(0.05, rel=1e-9)
+    assert np.mean(speed > 0.045) > 0.5
+    assert_limits(traj, CONFIG, v_limit=V_MAX)
+
+
 def test_rapid_moves_run_at_the_rate_of_the_limiting_axis():
     traj = plan_program("G0 X300 Y-300\nM2", CONFIG)
     vx, vy = traj.vel_m_s[:, 0], traj.vel_m_s[:, 1]

@@ -46,6 +46,7 @@ from feed_twin.gcode.trajectory import NcEvent, SampledTrajectory
 BLEND_SHARE = 0.4  # largest part of a move a corner blended alone may use
 NEIGHBOUR_SHARE = 0.55  # the same for its neighbours, so that a straight piece stays between
 CHAIN_SHARE = 1.0  # elsewhere: blends may reach the neighbouring corner and overlap
+CHAIN_CUT = 1.5  # a chain is cut where its local speed cap changes by more than this factor
 SHARP_CORNER = 0.25  # |u_out - u_in| above this (about 14 degrees) is a corner, not a curve
 COLLINEAR = 1e-12  # |u_out - u_in| below this is a straight joint, not a corner
 
@@ -287,40 +288,61 @@ class _StreamPlanner:
         )
         g_start = np.flatnonzero(np.concatenate(([True], ~linked)))
         g_end = np.flatnonzero(np.concatenate((~linked, [True])))
-        ja = nodes_b[g_start]
-        jb = nodes_b[g_end]
-        is_chain = g_end > g_start
-        Vc, Ac, Jc = self._chain_limits(nodes_b, g_start, a_node, j_node, u, V)
+        in_group = np.arange(len(nodes_b))
+        first_of = np.repeat(g_start, g_end - g_start + 1)
+        last_of = np.repeat(g_end, g_end - g_start + 1)
+        chained = last_of > first_of
+        # A chain is cut where its local speed cap changes a lot (typically where the
+        # curvature ramps up at its ends), so that a slow end does not slow all of it.
+        local = self._cruise_cap(a_node[nodes_b], j_node[nodes_b], 0.5, 1.0 / 3.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = local[1:] / local[:-1]  # inf/inf (straight stretches) gives nan: no cut
+        cut = np.zeros(len(nodes_b), dtype=bool)
+        cut[1:] = (ratio > CHAIN_CUT) | (ratio < 1.0 / CHAIN_CUT)
+        cut &= chained & (in_group > first_of) & (in_group < last_of)
 
-        # 1-D nodes: a single corner (crossed at constant speed over its blend), or the entry
-        # and the exit of a chain (a body of its own with shares of the limits kept for the
-        # curvature). Bodies join consecutive 1-D nodes.
-        count = 1 + is_chain.astype(np.int64)
-        grp = np.repeat(np.arange(len(ja)), count)
-        pos_in = np.arange(len(grp)) - np.repeat(np.cumsum(count) - count, count)
-        kind_q = np.where(is_chain[grp], 1 + pos_in, 0)  # 0 single, 1 entry, 2 exit
-        node_q = np.where(kind_q == 2, jb[grp], ja[grp])
+        # 1-D nodes: a single corner (crossed at constant speed over its blend), or the entry,
+        # the cuts and the exit of a chain (bodies of their own with shares of the limits kept
+        # for the curvature). Bodies join consecutive 1-D nodes.
+        emit = ~chained | (in_group == first_of) | (in_group == last_of) | cut
+        pos_q = np.flatnonzero(emit)
+        kind_q = np.where(
+            ~chained[pos_q],
+            0,
+            np.where(
+                in_group[pos_q] == first_of[pos_q],
+                1,
+                np.where(in_group[pos_q] == last_of[pos_q], 2, 3),
+            ),
+        )  # 0 single, 1 chain entry, 2 chain exit, 3 cut inside a chain
+        node_q = nodes_b[pos_q]
         S = np.concatenate(([0.0], np.cumsum(L)))
-        sa = np.where(kind_q == 2, S[node_q] + w[node_q], S[node_q] - w[node_q])
+        sa = np.where(kind_q == 0, S[node_q] - w[node_q], S[node_q])
+        sa = np.where(kind_q == 1, S[node_q] - w[node_q], sa)
+        sa = np.where(kind_q == 2, S[node_q] + w[node_q], sa)
         sb = np.where(kind_q == 0, S[node_q] + w[node_q], sa)
-        cap_q = np.where(kind_q == 0, cap[node_q], Vc[grp])
         if len(node_q) < 2:
             return self._plan_standstill() if final else None
+        in_chain = (kind_q[:-1] == 1) | (kind_q[:-1] == 3)
+        Vc, Ac, Jc = self._chain_limits(nodes_b, pos_q, a_node, j_node, u, V)
+        cap_q = cap[node_q].copy()
+        cap_q[1:] = np.where(in_chain, np.minimum(cap_q[1:], Vc), cap_q[1:])
+        cap_q[:-1] = np.where(in_chain, np.minimum(cap_q[:-1], Vc), cap_q[:-1])
+        cap_q = np.where(kind_q == 0, cap[node_q], cap_q)
         length = np.maximum(sa[1:] - sb[:-1], 0.0)
         if not final:
             # The window's end is at rest for now; the next window may put a blend there, which
             # takes up to the whole last move. Stopping before it keeps every speed planned now
             # reachable later (look-ahead only ever relaxes constraints).
             length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
-        in_chain = kind_q[:-1] == 1
         pairs = np.column_stack((node_q[:-1], node_q[1:])).ravel()
         pad = np.array([np.inf])
         Vb = np.minimum.reduceat(np.concatenate((V, pad)), pairs)[::2]
         Ab = np.minimum.reduceat(np.concatenate((A, pad)), pairs)[::2]
         Jb = np.minimum.reduceat(np.concatenate((J, pad)), pairs)[::2]
-        Vb = np.where(in_chain, Vc[grp[:-1]], Vb)
-        Ab = np.where(in_chain, Ac[grp[:-1]], Ab)
-        Jb = np.where(in_chain, Jc[grp[:-1]], Jb)
+        Vb = np.where(in_chain, Vc, Vb)
+        Ab = np.where(in_chain, Ac, Ab)
+        Jb = np.where(in_chain, Jc, Jb)
         speeds = prof.plan_speeds(cap_q, length, Ab, Jb, self.jerk, self.v_first)
         vp, t_up, t_cruise, t_down = prof.body_profiles(speeds, length, Vb, Ab, Jb, self.jerk)
 
@@ -550,31 +572,36 @@ class _StreamPlanner:
     def _chain_limits(
         self,
         nodes_b: np.ndarray,
-        g_start: np.ndarray,
+        pos_q: np.ndarray,
         a_node: np.ndarray,
         j_node: np.ndarray,
         u: np.ndarray,
         V: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Speed cap, acceleration and jerk along each chain of overlapping blends [SI].
+        """Speed cap, acceleration and jerk [SI] of the body from each 1-D node to the next,
+        as if it ran along a chain of overlapping blends (used where it does).
 
         Along a chain the axis motion is d(s) ds/dt with d a convex combination of the move
         directions (|d_i| <= max |u_i|), and
             a_i = d_i s'' + d'_i (s')^2,   j_i = d_i s''' + 3 d'_i s' s'' + d''_i (s')^3.
         Half of each axis's acceleration goes to the curvature term (cap V) and half to s''
-        (A); a third of its jerk to each of the three jerk terms (V, then A, then J).
+        (A); a third of its jerk to each of the three jerk terms (V, then A, then J). The body
+        from node p to node q meets the blends of nodes p..q, hence the maxima over them.
         """
         absu = np.abs(u)
-        pad = np.zeros((1, absu.shape[1]))
-        u_node = np.maximum(np.vstack((pad, absu)), np.vstack((absu, pad)))
+        zero = np.zeros((1, absu.shape[1]))
+        u_node = np.maximum(np.vstack((zero, absu)), np.vstack((absu, zero)))
         v_node = np.minimum(np.concatenate(([np.inf], V)), np.concatenate((V, [np.inf])))
-        a_g = np.maximum.reduceat(a_node[nodes_b], g_start, axis=0)
-        j_g = np.maximum.reduceat(j_node[nodes_b], g_start, axis=0)
-        u_g = np.maximum.reduceat(u_node[nodes_b], g_start, axis=0)
-        Vc = np.minimum(
-            np.minimum.reduceat(v_node[nodes_b], g_start),
-            self._cruise_cap(a_g, j_g, 0.5, 1.0 / 3.0),
-        )
+        pairs = np.column_stack((pos_q[:-1], pos_q[1:] + 1)).ravel()
+
+        def over_bodies(values: np.ndarray, reduce) -> np.ndarray:
+            padded = np.concatenate((values[nodes_b], values[nodes_b][-1:]))
+            return reduce.reduceat(padded, pairs, axis=0)[::2]
+
+        a_g = over_bodies(a_node, np.maximum)
+        j_g = over_bodies(j_node, np.maximum)
+        u_g = over_bodies(u_node, np.maximum)
+        Vc = np.minimum(over_bodies(v_node, np.minimum), self._cruise_cap(a_g, j_g, 0.5, 1.0 / 3.0))
         with np.errstate(divide="ignore", invalid="ignore"):
             Ac = np.min(np.where(u_g > 0.0, 0.5 * self.a_max / u_g, np.inf), axis=1)
             if self.jerk:
