@@ -46,9 +46,13 @@ def node_pids(config: Path) -> dict[str, int]:
     return found
 
 
-def wait_for_progress(log: Path, sim_s: float, timeout_s: float = 120.0) -> None:
+def wait_for_progress(
+    proc: subprocess.Popen, log: Path, sim_s: float, timeout_s: float = 120.0
+) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise AssertionError(f"the run ended early: {proc.stderr.read()}")
         if log.exists():
             values = re.findall(r"PROGRESS (\S+)", log.read_text(errors="replace"))
             if values and float(values[-1]) >= sim_s:
@@ -81,14 +85,14 @@ def test_killed_node_is_noticed_named_and_bag_readable(config: Path, victim: str
     with reserve_domain_id() as domain:
         proc = start_sample_run(config, name, domain.domain_id)
         try:
-            wait_for_progress(logs / "sim.log", 0.5)
+            wait_for_progress(proc, logs / "sim.log", 0.5)
             pids = node_pids(config)
             assert set(pids) == set(ROLES), pids
             os.kill(pids[victim], signal.SIGKILL)
             killed_at = time.monotonic()
             others = {r: p for r, p in pids.items() if r != victim}
             ended: dict[str, float] = {}
-            while len(ended) < len(others) and time.monotonic() - killed_at < 10.0:
+            while len(ended) < len(others) and time.monotonic() - killed_at < 40.0:
                 for role, pid in others.items():
                     if role not in ended and not alive(pid):
                         ended[role] = time.monotonic() - killed_at
@@ -107,7 +111,8 @@ def test_killed_node_is_noticed_named_and_bag_readable(config: Path, victim: str
         assert gone in text, role
         match = re.search(r"is gone: no heartbeat for (\S+) s", text)
         assert float(match[1]) < 1.0
-        assert ended[role] < 3.0, (role, ended)
+        # The recorder first records what is still in flight (it may lag on a loaded machine).
+        assert ended[role] < (30.0 if role == "recorder" else 3.0), (role, ended)
     bag = config.parent / "bags" / name
     summary = info(bag)  # finished by the recorder, or recovered by the runner
     counts = {t.name: t.message_count for t in summary.topics}
@@ -123,7 +128,7 @@ def test_signal_stops_every_node_and_finalises_the_bag(config: Path, signum: int
     with reserve_domain_id() as domain:
         proc = start_sample_run(config, name, domain.domain_id)
         try:
-            wait_for_progress(logs / "sim.log", 0.5)
+            wait_for_progress(proc, logs / "sim.log", 0.5)
             pids = node_pids(config)
             proc.send_signal(signum)
             out, err = proc.communicate(timeout=60)
@@ -137,7 +142,7 @@ def test_signal_stops_every_node_and_finalises_the_bag(config: Path, signum: int
     bag = config.parent / "bags" / name
     assert (bag / "metadata.yaml").exists()  # closed by the recorder, not recovered
     recorder_log = (logs / "recorder.log").read_text()
-    assert "stopped by SIGTERM" in recorder_log
+    assert f"stopped by {signal.Signals(signum).name}" in recorder_log
     summary = info(bag)
     counts = {t.name: t.message_count for t in summary.topics}
     # Nothing lost up to the stop: every exchange the sim made is in the bag.

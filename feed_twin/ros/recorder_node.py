@@ -28,6 +28,7 @@ from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_OK,
     EXIT_PEER_LOST,
+    EXIT_SIGNAL,
     HEARTBEAT_QOS,
     LATCHED_QOS,
     FeedTwinNode,
@@ -78,6 +79,7 @@ class RecorderNode(FeedTwinNode):
         self._ending_since: float | None = None
         self.end_reason = ""
         self._peer_lost: str | None = None
+        self._signal: str | None = None
         known = self.topics.types()
         qos_for = {
             self.topics.program_state: LATCHED_QOS,
@@ -131,6 +133,12 @@ class RecorderNode(FeedTwinNode):
         if self._ending_since is None:
             self._ending_since = time.monotonic()
 
+    def on_signal(self, name: str) -> None:
+        # The runner stops the producers first: record what they sent before closing the bag.
+        self._signal = name
+        if self._ending_since is None:
+            self._ending_since = time.monotonic()
+
     def on_peer_lost(self, message: str) -> None:
         # Under load the recorder may lag behind the graph, and a peer that ended normally looks
         # lost until the queued end-of-run message is processed: record what is still in
@@ -146,7 +154,9 @@ class RecorderNode(FeedTwinNode):
             return
         now = time.monotonic()
         if now - self._last_message > DRAIN_QUIET_S or now - self._ending_since > DRAIN_MAX_S:
-            if self.run_ended or self._peer_lost is None:
+            if self._signal is not None:
+                self.finish(EXIT_SIGNAL, f"stopped by {self._signal}")
+            elif self.run_ended or self._peer_lost is None:
                 self.finish(EXIT_OK, "")
             else:
                 self.finish(EXIT_PEER_LOST, self._peer_lost)

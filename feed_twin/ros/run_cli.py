@@ -152,9 +152,14 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
         while any(p.poll() is None for p in procs.values()):
             if stop.signum is not None:
                 reason = f"stopped by {signal.Signals(stop.signum).name}"
-                for p in procs.values():
+                # Producers first, the recorder last, so that it records everything they sent.
+                producers = {r: p for r, p in procs.items() if r != "recorder"}
+                for p in producers.values():
                     if p.poll() is None:
-                        p.send_signal(signal.SIGTERM)
+                        p.send_signal(stop.signum)
+                _wait_all(producers, STOP_GRACE_S)
+                if "recorder" in procs and procs["recorder"].poll() is None:
+                    procs["recorder"].send_signal(stop.signum)
                 _wait_all(procs, STOP_GRACE_S)
                 break
             for role, p in procs.items():
@@ -205,9 +210,10 @@ def _wait_all(procs: dict[str, subprocess.Popen], grace_s: float) -> None:
     for p in procs.values():
         if p.poll() is None:
             p.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + STOP_GRACE_S
     for p in procs.values():
         with contextlib.suppress(subprocess.TimeoutExpired):
-            p.wait(timeout=5.0)
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
 
 
 def _exit_text(role: str, code: int, log: Path) -> str:
@@ -217,14 +223,18 @@ def _exit_text(role: str, code: int, log: Path) -> str:
 
 
 def _last_error(log: Path) -> str:
+    """The node's last error record, continuation lines included, else its last lines."""
     try:
         lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
     except OSError:
         return "(no log)"
     lines = [ln for ln in lines if not ln.startswith(("PROGRESS ", "TIMING ", "CPU "))]
-    marked = [ln for ln in lines if "ERROR" in ln or "Error" in ln or "error" in ln]
-    chosen = marked[-3:] if marked else lines[-3:]
-    return " | ".join(chosen) or "(empty log)"
+    starts = [i for i, ln in enumerate(lines) if "[ERROR]" in ln or "Error" in ln]
+    if not starts:
+        return " | ".join(lines[-3:]) or "(empty log)"
+    block = [lines[starts[-1]]]
+    block += [ln for ln in lines[starts[-1] + 1 :] if ln.startswith("  ")][:6]
+    return "\n    ".join(block)
 
 
 def _timing(log: Path) -> dict:

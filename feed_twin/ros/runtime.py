@@ -41,6 +41,7 @@ EXIT_INPUT_TIMEOUT = 4  # an expected topic stayed silent
 EXIT_SIGNAL = 130  # stopped by SIGINT/SIGTERM (after a clean shutdown)
 
 HEARTBEAT_PERIOD_S = 0.1
+SIGNAL_DRAIN_S = 30.0  # [s] nodes may take after SIGINT/SIGTERM to finish (recorder drain)
 PEER_TIMEOUT_S = 0.6
 
 # Data topics: reliable and in order. Transient-local history lets a subscriber that matched a
@@ -139,6 +140,10 @@ class FeedTwinNode(Node):
     def on_shutdown(self, reason: str) -> None:
         """Called once when the node stops (signal, peer loss, end of run); override to clean up."""
 
+    def on_signal(self, name: str) -> None:
+        """SIGINT/SIGTERM arrived; by default the node stops at once."""
+        self.finish(EXIT_SIGNAL, f"stopped by {name}")
+
     def on_peer_lost(self, message: str) -> None:
         """A watched peer went silent; by default the node stops with EXIT_PEER_LOST."""
         self.finish(EXIT_PEER_LOST, message)
@@ -161,10 +166,21 @@ class FeedTwinNode(Node):
     # -- watchdogs ----------------------------------------------------------------------------
 
     def watch_input(
-        self, topic: str, type_name: str, *, armed: Callable[[], bool] = lambda: True
+        self,
+        topic: str,
+        type_name: str,
+        *,
+        armed: Callable[[], bool] = lambda: True,
+        timeout_s: float | None = None,
     ) -> _Watchdog:
-        """Report after `input_timeout_s` of silence on `topic` while `armed()` holds."""
-        dog = _Watchdog(topic=topic, type_name=type_name, armed=armed)
+        """Report after `timeout_s` (default input_timeout_s) of silence on `topic` while
+        `armed()` holds."""
+        dog = _Watchdog(
+            topic=topic,
+            type_name=type_name,
+            armed=armed,
+            timeout_s=self.options.input_timeout_s if timeout_s is None else timeout_s,
+        )
         self._watchdogs.append(dog)
         return dog
 
@@ -198,18 +214,18 @@ class FeedTwinNode(Node):
                 continue
             if dog.last is None:
                 dog.last = now
-            if now - dog.last > self.options.input_timeout_s:
-                self.finish(EXIT_INPUT_TIMEOUT, self.describe_silence(dog.topic, dog.type_name))
+            if now - dog.last > dog.timeout_s:
+                self.finish(
+                    EXIT_INPUT_TIMEOUT,
+                    self.describe_silence(dog.topic, dog.type_name, dog.timeout_s),
+                )
 
     def peers_alive(self) -> bool:
         return all(p in self._peer_seen for p in self.options.peers)
 
-    def describe_silence(self, topic: str, type_name: str) -> str:
+    def describe_silence(self, topic: str, type_name: str, timeout_s: float) -> str:
         """Why nothing arrives on `topic`: what the graph offers instead."""
-        lines = [
-            f"no {type_name} message on {topic} for {self.options.input_timeout_s:g} s "
-            f"({self.role} node)"
-        ]
+        lines = [f"no {type_name} message on {topic} for {timeout_s:g} s ({self.role} node)"]
         offered = [
             (name, types) for name, types in self.get_topic_names_and_types() if name != topic
         ]
@@ -230,6 +246,7 @@ class _Watchdog:
     topic: str
     type_name: str
     armed: Callable[[], bool]
+    timeout_s: float
     last: float | None = None
 
     def feed(self) -> None:
@@ -268,9 +285,19 @@ def spin_nodes(
     executor = EventsExecutor(context=context)
     for node in nodes:
         executor.add_node(node)
+    signalled_at: float | None = None
     try:
-        while flag.received is None:
-            if until_all_done:
+        while True:
+            if flag.received is not None and signalled_at is None:
+                signalled_at = time.monotonic()
+                name = signal.Signals(flag.received).name
+                for node in nodes:
+                    node.on_signal(name)
+            if signalled_at is not None:
+                # After a signal, nodes that drain (the recorder) finish on their own.
+                if all(n.done for n in nodes) or time.monotonic() - signalled_at > SIGNAL_DRAIN_S:
+                    break
+            elif until_all_done:
                 if all(n.done for n in nodes):
                     break
             elif any(n.done for n in nodes):

@@ -140,10 +140,13 @@ class SimNode(FeedTwinNode):
         self.create_subscription(
             String, self.topics.program_state, self._on_program_state, LATCHED_QOS
         )
+        # Twice the controller's timeout: when the NC stream is missing the controller stays
+        # silent too, and the node nearest the cause should be the one that reports.
         self._command_dog = self.watch_input(
             self.topics.drive_command,
             "feed_twin_msgs/msg/DriveCommand",
             armed=lambda: self.started and not self.done and not self.realtime,
+            timeout_s=2.0 * options.input_timeout_s,
         )
         self._joint = JointState(name=[joint_name], position=[0.0], velocity=[0.0], effort=[0.0])
         self._clock = Clock()
@@ -171,12 +174,16 @@ class SimNode(FeedTwinNode):
             self.lateness_s.append(now - deadline)
             t_ns = self.host.t_ns
             setpoint = self._pending.pop(t_ns, None)
-            self._pending = {t: s for t, s in self._pending.items() if t > t_ns}
             if setpoint is None:
+                # Missed: a drive applies the newest setpoint it has (a late one included).
                 self.missed_steps += 1
+                late = [t for t in self._pending if t < t_ns]
+                setpoint = self._pending[max(late)] if late else None
+            self._pending = {t: s for t, s in self._pending.items() if t > t_ns}
             self._exchange(setpoint)
             return 0.0
-        return min(deadline - now, 0.0002)
+        # Block on DDS events until shortly before the deadline, then poll finely.
+        return max(deadline - now - 0.0003, 0.0) if deadline - now > 0.0005 else 0.0
 
     def _subscribers_ready(self) -> bool:
         return self._feedback_pub.get_subscription_count() >= 1 and (
