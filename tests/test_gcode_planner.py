@@ -151,7 +151,10 @@ def test_programmed_feed_is_reached_on_arcs_made_of_chords(radius_mm):
     program = f"G1 X{radius_mm} F3000\nG3 X{radius_mm} Y0 I-{radius_mm} J0\nG1 Y-20\nM2"
     traj = plan_program(program, CONFIG)
     speed = np.linalg.norm(traj.vel_m_s, axis=1)[traj.line == 2]
-    assert speed.max() == pytest.approx(0.05, rel=1e-9)
+    # The path parameter runs at F; the blended tool path is a little shorter than the chords
+    # (|x'(s)| >= cos of half the chord angle), so the tool speed is F to within 1e-3.
+    assert speed.max() == pytest.approx(0.05, rel=1e-3)
+    assert speed.max() <= 0.05 * (1 + SLACK)
     assert np.mean(speed > 0.045) > 0.5
     assert_limits(traj, CONFIG, v_limit=V_MAX)
 
