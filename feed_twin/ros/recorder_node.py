@@ -98,9 +98,13 @@ class RecorderNode(FeedTwinNode):
         self.bag.add_topic(topic, type_name, qos=(_bag_qos(qos),))
         write = self.bag.write
 
+        # Heartbeats go on while peers live; only data counts when judging "quiet".
+        counts = topic != self.topics.heartbeat
+
         def on_message(data: bytes, topic: str = topic) -> None:
             now = time.time_ns()
-            self._last_message = time.monotonic()
+            if counts:
+                self._last_message = time.monotonic()
             write(topic, data, log_time_ns=now, publish_time_ns=now)
 
         self._recorded[topic] = self.create_subscription(
