@@ -276,8 +276,34 @@ def _mechanical_chain(plant):
     return PlantModel(comps, conns, source="chain")
 
 
+def test_lead_error_shifts_the_relaxed_nut_by_the_sinusoid():
+    lead, amplitude, phase = 0.01, 4e-6, 0.7
+    plant = _mechanical_chain(_conservative_axis()).with_params(
+        axial={
+            "lead_error_amplitude": amplitude,
+            "lead_error_period": lead,
+            "lead_error_phase": phase,
+        }
+    )
+    outputs = plant.namespace()["outputs"]
+    aux = np.zeros(len(plant.aux_names))
+    p = plant.nominal_params()
+    for phi in (0.3, 1.9, 4.4):
+        x = plant.initial_state()
+        x[plant.state_index["screw_shaft.phi"]] = phi
+        s_ideal = lead / (2.0 * math.pi) * phi
+        error = amplitude * math.sin(2.0 * math.pi * s_ideal / lead + phase)
+        x[plant.state_index["nut.s"]] = s_ideal + error
+        outputs(0.0, x, p, np.zeros(sig.OUT_SIZE), np.zeros(1), np.zeros(3), aux)
+        assert aux[plant.aux_names.index("axial.lead_error")] == pytest.approx(error, rel=1e-12)
+        assert aux[plant.aux_names.index("axial.force")] == pytest.approx(0.0, abs=1e-6)
+
+
 def test_mechanical_energy_is_conserved_with_damping_and_friction_off():
-    plant = _mechanical_chain(_conservative_axis())
+    # with a lead error too: the screw side receives -f*(1 + e'), the virtual work of e
+    plant = _mechanical_chain(_conservative_axis()).with_params(
+        axial={"lead_error_amplitude": 5e-6, "lead_error_period": 0.01, "lead_error_phase": 0.0}
+    )
     # RK4 is not symplectic: it dissipates a mode at about (h*omega)^6/144 per step. The nut on
     # its springs (18.7e3 rad/s) needs 8 sub-steps for a drift below 1e-5 over 0.1 s; with one
     # sub-step the same mode is damped by about 1 % numerically (physically 13 %).

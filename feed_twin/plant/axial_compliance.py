@@ -10,6 +10,10 @@ one is limited by the bearing and the screw's end journal; x_min (typically a nu
 the stiffness finite. The stored energy V = k(x)*delta^2/2 depends on x, so the nut also feels
 -dV/dx = -k'(x)*delta^2/2: with it the element is conservative (energy test), without it it
 would create energy whenever the nut moves under load. That force is tiny (micro-newtons).
+Periodic lead error: the screw's thread deviates from the ideal helix by
+e(s_a) = A*sin(2*pi*s_a/P + phase) (P = the lead for the once-per-revolution error of the
+accuracy classes, s_a = r*phi the ideal nut travel), so the spring sees delta = s_a + e(s_a) - s_b,
+and the screw side receives -f*(1 + e'(s_a)) (virtual work: still conservative).
 Ports: `a`, `b` (translational: s [m], v [m/s], f [N]).
 """
 
@@ -46,6 +50,15 @@ def axial_stiffness(
         dcompliance = 0.0
     k = 1.0 / (1.0 / k_bearing + compliance_screw + 1.0 / k_nut)
     return k, -k * k * dcompliance
+
+
+@njit(cache=True)
+def lead_error(
+    s_a: float, amplitude: float, wavenumber: float, phase: float
+) -> tuple[float, float]:
+    """(e(s_a) [m], de/ds_a [-]) of a sinusoidal lead error."""
+    arg = wavenumber * s_a + phase
+    return amplitude * math.sin(arg), amplitude * wavenumber * math.cos(arg)
 
 
 @njit(cache=True)
@@ -87,6 +100,9 @@ class AxialCompliance(Component):
     k_bearing: float  # axial stiffness of the support bearing set [N/m]
     k_nut: float  # axial stiffness of the preloaded nut [N/m]
     d: float  # axial damping [N s/m]
+    lead_error_amplitude: float = 0.0  # amplitude A of the periodic lead error [m]; 0: none
+    lead_error_period: float | None = None  # its period P in nut travel [m], usually the lead
+    lead_error_phase: float = 0.0  # its phase [rad]
 
     def __post_init__(self) -> None:
         require_positive("E", self.E)
@@ -101,6 +117,14 @@ class AxialCompliance(Component):
         require_positive("k_bearing", self.k_bearing)
         require_positive("k_nut", self.k_nut)
         require_nonnegative("d", self.d)
+        require_nonnegative("lead_error_amplitude", self.lead_error_amplitude)
+        if self.lead_error_period is not None:
+            require_positive("lead_error_period", self.lead_error_period)
+        elif self.lead_error_amplitude > 0.0:
+            raise ValueError(
+                f"lead_error_period = None: a lead error of amplitude "
+                f"{self.lead_error_amplitude!r} needs its period"
+            )
 
     def slots(self) -> dict[str, float]:
         return {
@@ -112,6 +136,11 @@ class AxialCompliance(Component):
             "k_nut": self.k_nut,
             "fixed_fixed": 1.0 if self.arrangement == "fixed-fixed" else 0.0,
             "d": self.d,
+            "lead_error_amplitude": self.lead_error_amplitude,
+            "lead_error_wavenumber": (
+                0.0 if self.lead_error_period is None else 2.0 * math.pi / self.lead_error_period
+            ),
+            "lead_error_phase": self.lead_error_phase,
         }
 
     def stiffness(self, s_b: float) -> float:
@@ -136,13 +165,24 @@ class AxialCompliance(Component):
             return
         s_a, v_a = g.across("a")
         s_b, v_b = g.across("b")
+        err, slope = g.local("lead_error"), g.local("lead_error_slope")
+        g.call(
+            (err, slope),
+            "feed_twin.plant.axial_compliance.lead_error",
+            (
+                s_a,
+                g.p("lead_error_amplitude"),
+                g.p("lead_error_wavenumber"),
+                g.p("lead_error_phase"),
+            ),
+        )
         f, f_x, k, e, loss = (g.local(n) for n in ("f", "f_x", "k", "e", "loss"))
         g.call(
             (f, f_x, k, e, loss),
             "feed_twin.plant.axial_compliance.axial_force",
             (
-                f"{s_a} - {s_b}",
-                f"{v_a} - {v_b}",
+                f"{s_a} + {err} - {s_b}",
+                f"{v_a} * (1.0 + {slope}) - {v_b}",
                 f"{g.p('x_0')} + {s_b}",
                 g.p("L"),
                 g.p("EA"),
@@ -153,9 +193,10 @@ class AxialCompliance(Component):
                 g.p("d"),
             ),
         )
-        g.apply("a", f"-{f}")
+        g.apply("a", f"-{f} * (1.0 + {slope})")
         g.apply("b", f"{f} + {f_x}")
         g.aux("force", f)
+        g.aux("lead_error", err)
         g.aux("stiffness", k)
         g.stored("spring", e)
         g.power("loss", "damping", loss)
