@@ -118,6 +118,8 @@ class HealthMonitor:
         self._since_eval = 0
         self.verdicts: list[Verdict] = []  # every evaluation, most recent last
         self._naming: dict = {}
+        self._invalid_run = 0  # consecutive rows without a real measured sample
+        self._t_last = math.nan
         self._named_at: float | None = None
         self.last: Verdict | None = None
 
@@ -125,25 +127,34 @@ class HealthMonitor:
     def baseline_ready(self) -> bool:
         return self.baseline is not None
 
-    def update(self, rows: np.ndarray, *, missing_run: int) -> list[Verdict]:
-        """Add residual rows (columns COLUMNS); return the verdicts evaluated on the way."""
+    def update(self, rows: np.ndarray, *, valid: np.ndarray) -> list[Verdict]:
+        """Add residual rows (columns COLUMNS; only the `valid` ones enter the statistics, all
+        count for the evaluation period and the run of invalid ones makes the twin STALE);
+        return the verdicts evaluated on the way."""
         out: list[Verdict] = []
         if self.baseline is None:
+            good = rows[valid]
             need = self.config.baseline_samples - self._baseline_count
-            self._baseline_rows.append(rows[:need])
-            self._baseline_count += len(rows[:need])
+            self._baseline_rows.append(good[:need])
+            self._baseline_count += len(good[:need])
             if self._baseline_count >= self.config.baseline_samples:
                 self._set_baseline(np.concatenate(self._baseline_rows))
                 self._baseline_rows = []
         start, n = 0, len(rows)
         while start < n:
-            chunk = rows[start : start + self.config.evaluate_samples - self._since_eval]
-            self._window.extend(chunk)
-            self._since_eval += len(chunk)
-            start += len(chunk)
+            stop = start + self.config.evaluate_samples - self._since_eval
+            good = valid[start:stop]
+            self._window.extend(rows[start:stop][good])
+            self._since_eval += len(good)
+            real = np.flatnonzero(good)
+            self._invalid_run = (
+                len(good) - 1 - int(real[-1]) if len(real) else self._invalid_run + len(good)
+            )
+            self._t_last = float(rows[min(stop, n) - 1, 0])
+            start = min(stop, n)
             if self._since_eval >= self.config.evaluate_samples:
                 self._since_eval = 0
-                stale = missing_run >= self.config.missing_flag_after and start >= n
+                stale = self._invalid_run >= self.config.missing_flag_after
                 verdict = self.evaluate(stale=stale)
                 if verdict is not None:
                     out.append(verdict)
@@ -151,14 +162,14 @@ class HealthMonitor:
 
     def evaluate(self, *, stale: bool = False) -> Verdict | None:
         """Judge the current window against the baseline (None before the baseline is set)."""
-        if self.baseline is None:
+        if self.baseline is None or not len(self._window.data):
             return None
         w = self._window.data
         b = self.baseline
         fe_rms = float(np.sqrt(np.mean(w[:, 2] ** 2)))
         eff_rms = float(np.sqrt(np.mean(w[:, 3] ** 2)))
         common = dict(
-            t_s=float(w[-1, 0]),
+            t_s=self._t_last if stale else float(w[-1, 0]),
             fe_dev_rms_m=fe_rms,
             effort_dev_rms=eff_rms,
             baseline_fe_dev_rms_m=b["fe_dev_rms_m"],

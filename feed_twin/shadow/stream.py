@@ -21,7 +21,10 @@ a bounded buffer and never waiting for ever. The policy, per message:
   final: it is filled by linear interpolation between its released predecessor and its next
   received sample (`fill = "interpolate"`) or by holding the predecessor (`fill = "hold"`), and
   counted `missing`. At the start (no predecessor) the next sample is held backwards.
-  `missing_run` counts the current run of consecutive missing slots.
+  `missing_run` counts the current run of consecutive missing slots;
+- stopped: a stream that stops altogether cannot run past its missing slots, so the twin
+  decides them from the other stream (`decide_through`): once it is `missing_flag_after +
+  window` slots ahead, the silent stream's slots are filled (held) and counted `missing`.
 
 Released values leave the buffer, so memory is bounded by `window` plus what arrives ahead.
 """
@@ -173,6 +176,12 @@ class SlotStream:
         self.counts.accepted += n
         self.newest = int(k[-1])
         self._final_through = self.newest - self.window
+
+    def decide_through(self, slot: int) -> None:
+        """Treat every slot up to `slot` as decided although this stream has not run past it
+        (the twin calls this when the OTHER stream is far ahead: this one has stopped)."""
+        if self.newest is not None and slot > self._final_through:
+            self._final_through = int(slot)
 
     def start(self, slot: int) -> None:
         """Release from `slot` on; buffered samples before it are late."""

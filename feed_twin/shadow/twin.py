@@ -269,6 +269,13 @@ class ShadowTwin:
         self.new_verdicts = []
         if self.start_slot is None and not self._try_start(final):
             return None
+        # a stream that went silent is decided from the other one (see SlotStream), so neither
+        # the twin nor the pairing waits for it and the queues stay bounded
+        lead = self.config.missing_flag_after + self.config.reorder_window
+        if self.commands.newest is not None:
+            self.measured.decide_through(self.commands.newest - lead)
+        if self.measured.newest is not None:
+            self.commands.decide_through(self.measured.newest - lead)
         m = self.measured.release(final=final)
         if m is not None:
             n = len(m.values)
@@ -408,14 +415,12 @@ class ShadowTwin:
             measured_filled=me[:, 3].astype(bool),
             command_filled=tw[:, 4].astype(bool),
         )
-        ok = np.isfinite(fe_dev)
-        if ok.any():
-            health_rows = np.column_stack(
-                [t, me[:, 1], fe_dev, np.nan_to_num(effort_dev), np.nan_to_num(tw[:, 3])]
-            )[ok]
-            self.new_verdicts = self.health.update(
-                health_rows, missing_run=self.measured.counts.missing_run
-            )
+        # filled measured samples and twin restarts are not evidence about the machine
+        valid = np.isfinite(fe_dev) & ~block.measured_filled
+        health_rows = np.column_stack(
+            [t, me[:, 1], fe_dev, np.nan_to_num(effort_dev), np.nan_to_num(tw[:, 3])]
+        )
+        self.new_verdicts = self.health.update(health_rows, valid=valid)
         return block
 
     def counts(self) -> dict[str, Any]:

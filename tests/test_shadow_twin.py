@@ -1,0 +1,236 @@
+"""The shadow twin against a stand-in machine (EMPS model), in process.
+
+- identity: streamed sample by sample, the twin gives bit for bit what the discrepancy
+  workflow's batch simulation gives on the same command (Twin.simulate);
+- message faults on both streams never stall it, are counted as injected, and leave the
+  twin's own samples untouched where only the measurement was hit;
+- health: a Coulomb friction raised by 35 % in the middle of the run is named with its size,
+  and the same run without a change raises no warning at all.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from feed_twin.analysis.synthetic import Unmodelled
+from feed_twin.analysis.twin import Drive, ModelDoc, Twin
+from feed_twin.shadow.config import load_shadow_config
+from feed_twin.shadow.health import OK, STALE, WARN
+from feed_twin.shadow.standin import StandIn, program_command
+from feed_twin.shadow.twin import ResidualBlock, ShadowTwin
+
+T = 1e-3
+F_C = 20.3935  # [N] Coulomb friction of config/emps.yaml
+SHADOW = {
+    "sample_period_s": T,
+    "stamp_tolerance": 0.25,
+    "reorder_window": 5,
+    "missing_fill": "interpolate",
+    "missing_flag_after": 20,
+    "window_s": 3.0,
+    "baseline_s": 4.0,
+    "evaluate_period_s": 0.5,
+    "fe_dev_rms_warn_m": 2.0e-6,
+    "fe_dev_rms_error_m": 2.0e-5,
+    "effort_dev_rms_warn": 1.5,
+    "effort_dev_rms_error": 15.0,
+}
+
+
+@pytest.fixture(scope="module")
+def doc() -> ModelDoc:
+    return ModelDoc.load("config/emps.yaml")
+
+
+@pytest.fixture(scope="module")
+def config():
+    return load_shadow_config({"shadow": SHADOW}, source="test")
+
+
+def machine_run(doc: ModelDoc, duration_s: float, raise_at_s: float | None = None) -> dict:
+    """The stand-in answering the repeated program; friction x1.35 from raise_at_s."""
+    t, x, v, a = program_command(duration_s, T)
+    standin = StandIn(doc, hidden={}, unmodelled=Unmodelled(), sample_period_s=T, x0_m=x[0])
+    xm, em = np.zeros_like(t), np.zeros_like(t)
+    step = 100
+    for k0 in range(0, len(t), step):
+        if raise_at_s is not None and t[k0] >= raise_at_s:
+            standin.set_parameter("friction.F_c_pos", 1.35 * F_C)
+            standin.set_parameter("friction.F_c_neg", 1.35 * F_C)
+        sl = slice(k0, k0 + step)
+        xm[sl], em[sl] = standin.step(x[sl], v[sl], a[sl])
+    return {"t": t, "x": x, "v": v, "xm": xm, "em": em}
+
+
+@pytest.fixture(scope="module")
+def clean(doc) -> dict:
+    return machine_run(doc, 3.0)
+
+
+def shadow_of(doc, config, *, command_velocity: bool = True) -> ShadowTwin:
+    return ShadowTwin(Twin.compile(doc), config, command_velocity=command_velocity, travel_m=0.3)
+
+
+def stream_through(shadow: ShadowTwin, run: dict, *, with_velocity: bool = True) -> ResidualBlock:
+    blocks = []
+    for k in range(len(run["t"])):
+        vel = run["v"][k] if with_velocity else None
+        shadow.push_command(run["t"][k], run["x"][k], vel)
+        shadow.push_measured(run["t"][k], run["xm"][k], run["em"][k])
+        if k % 37 == 0:
+            b = shadow.process()
+            if b is not None:
+                blocks.append(b)
+    b = shadow.process(final=True)
+    if b is not None:
+        blocks.append(b)
+    return ResidualBlock.concat(blocks)
+
+
+def offline(doc: ModelDoc, run: dict, vel: np.ndarray):
+    twin = Twin.compile(doc)
+    drive = Drive(
+        t_s=run["t"],
+        pos_ref_m=run["x"],
+        vel_ref_m_s=vel,
+        acc_ref_m_s2=np.gradient(vel, T),
+        effort_add=None,
+        force_ext_N=None,
+        x0_m=float(run["xm"][0]),
+        sensor="motor_encoder",
+    )
+    out = twin.simulate(drive, twin.nominal[None, :])
+    return out.x_m[0], out.effort[0]
+
+
+@pytest.mark.parametrize("with_velocity", [True, False])
+def test_streamed_twin_is_bit_identical_to_the_batch_simulation(
+    doc, config, clean, with_velocity
+) -> None:
+    shadow = shadow_of(doc, config, command_velocity=with_velocity)
+    got = stream_through(shadow, clean, with_velocity=with_velocity)
+    vel = clean["v"] if with_velocity else np.gradient(clean["x"], T)
+    x_ref, effort_ref = offline(doc, clean, vel)
+    assert len(got) == len(clean["t"])
+    np.testing.assert_array_equal(got.x_twin_m, x_ref)
+    np.testing.assert_array_equal(got.effort_twin, effort_ref)
+    np.testing.assert_array_equal(got.fe_dev_m, x_ref - clean["xm"])
+    np.testing.assert_array_equal(got.effort_dev, clean["em"] - effort_ref)
+    # the rolling RMS of the last sample is the RMS of the whole (shorter than window) run
+    assert got.fe_dev_rms_m[-1] == pytest.approx(np.sqrt(np.mean(got.fe_dev_m**2)), rel=1e-9)
+
+
+def test_message_faults_are_counted_and_never_stall_the_twin(doc, config, clean) -> None:
+    n = len(clean["t"])
+    rng = np.random.default_rng(7)
+    lost = set(rng.choice(np.arange(10, n - 10), 60, replace=False).tolist())
+    dup = sorted(set(rng.choice(np.arange(10, n - 10), 25, replace=False).tolist()) - lost)
+    swapped = [k for k in range(100, n - 100, 211) if k not in lost and k + 1 not in lost]
+    late = [k for k in range(150, n - 100, 397) if k not in lost and k not in swapped]
+    order: list[int] = []
+    for k in range(n):
+        if k in lost or k in late:
+            continue
+        order.append(k)
+        if k in dup:
+            order.append(k)
+        if k - 8 in late:
+            order.append(k - 8)  # 8 slots late: beyond the 5-slot window
+    for k in swapped:
+        i = order.index(k)
+        order[i], order[i + 1] = order[i + 1], order[i]
+    shadow = shadow_of(doc, config)
+    blocks = []
+    cmd_lost = 1500
+    sent = 0  # the commands arrive in time and in order, one of them is lost
+    for j, k in enumerate(order):
+        while sent <= k:
+            if sent != cmd_lost:
+                shadow.push_command(clean["t"][sent], clean["x"][sent], clean["v"][sent])
+            sent += 1
+        shadow.push_measured(clean["t"][k], clean["xm"][k], clean["em"][k])
+        if j % 50 == 0 and (b := shadow.process()) is not None:
+            blocks.append(b)
+    for k in range(sent, n):
+        shadow.push_command(clean["t"][k], clean["x"][k], clean["v"][k])
+    blocks.append(shadow.process(final=True))
+    got = ResidualBlock.concat([b for b in blocks if b is not None])
+    assert len(got) == n  # every slot came out, none twice
+    c = shadow.measured.counts
+    assert c.duplicated == len(dup)
+    assert c.late == len(late)
+    assert c.missing == len(lost) + len(late)
+    assert c.reordered == len(swapped)
+    assert shadow.commands.counts.missing == 1
+    np.testing.assert_array_equal(np.flatnonzero(got.measured_filled), sorted(lost | set(late)))
+    assert np.flatnonzero(got.command_filled).tolist() == [cmd_lost]
+    real = ~got.measured_filled
+    np.testing.assert_array_equal(got.x_meas_m[real], clean["xm"][real])
+    # the lost command sample is interpolated; on a smooth command the twin barely notices
+    x_ref, _ = offline(doc, clean, clean["v"])
+    assert np.max(np.abs(got.x_twin_m - x_ref)) < 1e-7
+
+
+def test_a_silent_measurement_stream_makes_the_twin_stale(doc, config) -> None:
+    run = machine_run(doc, 6.0)
+    stop = 5000  # the measurement stops after 5 s, the commands go on
+    shadow = shadow_of(doc, config)
+    blocks = []
+    for k in range(len(run["t"])):
+        shadow.push_command(run["t"][k], run["x"][k], run["v"][k])
+        if k < stop:
+            shadow.push_measured(run["t"][k], run["xm"][k], run["em"][k])
+        if k % 100 == 0 and (b := shadow.process()) is not None:
+            blocks.append(b)
+    got = ResidualBlock.concat(blocks)
+    lead = SHADOW["missing_flag_after"] + SHADOW["reorder_window"]
+    # the pairing keeps going: only the lead plus one processing step behind the commands
+    assert len(got) >= len(run["t"]) - lead - 1 - 100 - 1
+    assert shadow.health.last is not None and shadow.health.last.level == STALE
+    assert "no measured samples for 20 cycles or more" in shadow.health.last.message
+
+
+def test_raised_friction_is_named_with_its_size(doc, config) -> None:
+    run = machine_run(doc, 14.0, raise_at_s=7.0)
+    shadow = shadow_of(doc, config)
+    stream_through(shadow, run)
+    verdicts = shadow.health.verdicts
+    before = [v for v in verdicts if v.t_s < 7.0]
+    assert before and all(v.level == OK for v in before)
+    settled = [v for v in verdicts if v.t_s >= 7.0 + SHADOW["window_s"] + 0.5]
+    assert settled and all(v.level == WARN for v in settled)
+    for v in settled:
+        assert v.effect == "coulomb_friction"
+        assert v.parameter == "plant.friction.F_c" and v.unit == "N"
+        assert v.nominal_value == pytest.approx(F_C)
+        # the stand-in's friction went up by 0.35 * 20.39 N = 7.14 N
+        assert v.relative_change == pytest.approx(0.35, abs=0.03)
+        assert v.message.startswith("coulomb_friction +3")
+        assert "% since start" in v.message
+
+
+def test_no_change_no_warning_over_the_whole_run(doc, config) -> None:
+    run = machine_run(doc, 14.0)
+    shadow = shadow_of(doc, config)
+    stream_through(shadow, run)
+    verdicts = shadow.health.verdicts
+    assert len(verdicts) == pytest.approx((14.0 - SHADOW["baseline_s"]) / 0.5, abs=1.5)
+    assert all(v.level == OK for v in verdicts), [v.message for v in verdicts if v.level]
+    last = verdicts[-1]
+    assert last.effort_dev_rms - last.baseline_effort_dev_rms < SHADOW["effort_dev_rms_warn"] / 3
+    assert math.isnan(last.relative_change) and last.effect == ""
+
+
+def test_sample_period_must_fit_the_model(doc) -> None:
+    cfg = load_shadow_config({"shadow": {**SHADOW, "sample_period_s": 1.5e-3}}, source="test")
+    with pytest.raises(ValueError, match=r"shadow.sample_period_s = 0.0015: must be a whole "):
+        shadow_of(doc, cfg)
+
+
+def test_command_velocity_is_required_when_configured(doc, config) -> None:
+    shadow = shadow_of(doc, config)
+    with pytest.raises(ValueError, match="push_command: this twin takes the command velocity"):
+        shadow.push_command(0.0, 0.0)
