@@ -1,0 +1,117 @@
+"""Speed of the ROS 2 node set (issue 5 targets): the last printed line is one JSON object.
+
+- lockstep_realtime_factor: `feed-twin run` in lockstep, the G-code, controller and sim nodes
+  in separate processes (plus the recorder), 1 kHz exchange, a 10 s program: simulated time
+  over the wall time from the first to the last exchange (target >= 4).
+- realtime_p99_lateness_ms, realtime_lateness_p50/max_ms, missed_steps: `--realtime`, 1 kHz,
+  a 60 s program (target p99 <= 0.5 ms, 0 missed steps).
+Also reported: the machine's load average at the start, since the figures depend on it, and
+the CPU seconds of each node process.
+
+    .venv/bin/python benchmarks/nodes_speed.py [--realtime-seconds 60] [--lockstep-seconds 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import yaml
+
+from feed_twin.ros.domain import private_graph_env, reserve_domain_id
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def program(seconds: float) -> str:
+    """Back-and-forth moves of 100 mm at 6 m/min with short dwells, about `seconds` long."""
+    lines = ["%", "G21 G90 G54 G64"]
+    per_cycle = 1.77  # [s] two 100 mm moves at 6 m/min with acceleration, two 0.05 s dwells
+    for _ in range(max(1, round(seconds / per_cycle))):
+        lines += ["G1 X50 F6000", "G4 P0.05", "G1 X-50", "G4 P0.05"]
+    lines += ["M30", "%", ""]
+    return "\n".join(lines)
+
+
+def config(directory: Path) -> Path:
+    data = yaml.safe_load((ROOT / "config" / "axis_default.yaml").read_text())
+    if "nc" not in data:
+        data["nc"] = yaml.safe_load((ROOT / "config" / "nc_default.yaml").read_text())["nc"]
+    path = directory / "axis.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def run(directory: Path, name: str, seconds: float, realtime: bool) -> dict:
+    prog = directory / f"{name}.ngc"
+    prog.write_text(program(seconds))
+    args = [
+        sys.executable, "-m", "feed_twin.cli", "run", str(prog),
+        "--config", str(config(directory)), "--out", str(directory / "bags"),
+        "--name", name, "--json",
+    ]  # fmt: skip
+    if realtime:
+        args.append("--realtime")
+    with reserve_domain_id() as domain:
+        env = dict(os.environ)
+        env.update(private_graph_env(domain.domain_id))
+        proc = subprocess.run(args, env=env, capture_output=True, text=True, timeout=1800)
+    if proc.returncode != 0:
+        raise SystemExit(f"{name}: feed-twin run failed ({proc.returncode}):\n{proc.stderr}")
+    record = json.loads(proc.stdout.strip().splitlines()[-1])
+    cpu = {}
+    for log in (directory / "bags" / f"{name}.logs").glob("*.log"):
+        match = re.search(r"^CPU (\S+) ([\d.]+) s", log.read_text(), re.MULTILINE)
+        if match:
+            cpu[match[1]] = float(match[2])
+    record["cpu_s"] = cpu
+    return record
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--lockstep-seconds", type=float, default=10.0)
+    parser.add_argument("--realtime-seconds", type=float, default=60.0)
+    args = parser.parse_args()
+    load = os.getloadavg()
+    with tempfile.TemporaryDirectory(prefix="nodes_speed_") as tmp:
+        directory = Path(tmp)
+        lockstep = run(directory, "lockstep", args.lockstep_seconds, realtime=False)
+        print(
+            f"lockstep: {lockstep['timing_sim_time_s']:.2f} s simulated in "
+            f"{lockstep['timing_wall_time_s']:.2f} s, realtime factor "
+            f"{lockstep['timing_realtime_factor']:.2f}; CPU {lockstep['cpu_s']}"
+        )
+        realtime = run(directory, "realtime", args.realtime_seconds, realtime=True)
+        print(
+            f"realtime: lateness p50 {realtime['timing_lateness_p50_ms']:.3f} ms, p99 "
+            f"{realtime['timing_lateness_p99_ms']:.3f} ms, max "
+            f"{realtime['timing_lateness_max_ms']:.3f} ms, missed steps "
+            f"{realtime['timing_missed_steps']}; CPU {realtime['cpu_s']}"
+        )
+    print(
+        json.dumps(
+            {
+                "lockstep_realtime_factor": lockstep["timing_realtime_factor"],
+                "lockstep_sim_time_s": lockstep["timing_sim_time_s"],
+                "lockstep_cpu_s": lockstep["cpu_s"],
+                "realtime_p99_lateness_ms": realtime["timing_lateness_p99_ms"],
+                "realtime_lateness_p50_ms": realtime["timing_lateness_p50_ms"],
+                "realtime_lateness_max_ms": realtime["timing_lateness_max_ms"],
+                "missed_steps": realtime["timing_missed_steps"],
+                "realtime_sim_time_s": realtime["timing_sim_time_s"],
+                "load_average_1min_at_start": load[0],
+                "cores": os.cpu_count(),
+            }
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
