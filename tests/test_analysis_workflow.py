@@ -29,6 +29,7 @@ CASES = {
     "constant_force": {"f_0_N": -20.0},
     "mass_error": {"m_kg": 120.0},
     "torque_constant_error": {"gain": 29.88},
+    "measurement_delay": {"delay_ticks": 2},
 }
 
 

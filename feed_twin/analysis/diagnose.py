@@ -150,7 +150,7 @@ def _try(
     # absorbed part of a Coulomb force found later): their parameters are fitted again with it
     names = {p.name for p in edit.own}
     again = []
-    for p in state.found_free:
+    for p in () if edit.grid else state.found_free:
         if p.name in names:
             continue
         if not edit.doc.has_slot(p.name):
@@ -162,6 +162,8 @@ def _try(
         edit, own=own, free=own + [p for p in edit.free if p.name not in names]
     )
     twin = Twin.compile(edit.doc)
+    if edit.grid:
+        return edit, twin, _grid_search(twin, edit, drive, meas)
     result = fit(
         lambda params: twin.simulate(drive, params),
         twin.nominal,
@@ -171,6 +173,33 @@ def _try(
         max_evaluations=opts.max_evaluations,
     )
     return edit, twin, result
+
+
+def _grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
+    """Whole-number parameter (a delay in ticks): every grid value in one batch, best kept."""
+    (param,) = edit.own
+    slots = twin.index[param.name]
+    batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
+    for i in slots:
+        batch[:, i] = edit.grid
+    out = twin.simulate(drive, batch)
+    costs = np.array([cost_of(meas, out, row) for row in range(len(edit.grid))])
+    best = int(np.argmin(costs))
+    start = int(np.argmin(np.abs(np.asarray(edit.grid) - param.initial)))
+    row = SimOutputs(
+        x_m=out.x_m[best : best + 1],
+        effort=None if out.effort is None else out.effort[best : best + 1],
+        ok=out.ok[best : best + 1],
+    )
+    return FitResult(
+        values={param.name: float(edit.grid[best])},
+        cost_initial=float(costs[start]),
+        cost=float(costs[best]),
+        converged=bool(np.isfinite(costs[best])),
+        message=f"grid search over {len(edit.grid)} values",
+        evaluations=len(edit.grid),
+        outputs=row,
+    )
 
 
 def _final_joint(state: _State, drive: Drive, meas: Measured, opts: Options) -> str | None:
@@ -343,7 +372,8 @@ def diagnose(
                 component=cand.effect.component,
             )
         )
-        state.found_free.extend(p for p in edit.own if p not in state.found_free)
+        if not edit.grid:  # searched whole numbers stay out of the least-squares re-fits
+            state.found_free.extend(p for p in edit.own if p not in state.found_free)
         state.doc, state.twin, state.outputs, state.cost = (
             doc,
             new_twin,

@@ -27,6 +27,8 @@ class Edit:
     own: list[FreeParameter]  # the effect's own parameters (fitted first, alone)
     free: list[FreeParameter]  # own + the interacting ones (the final, joint fit)
     added: int  # degrees of freedom the effect adds to the model (for the partial F-test)
+    # whole-number parameters are searched over these values instead of least squares
+    grid: tuple[float, ...] = ()
     # reported parameter name -> function of the fitted slot values
     report: dict[str, Callable[[dict[str, float]], float]]
 
@@ -94,6 +96,7 @@ def _edit(
     *,
     added: int | None = None,
     interacts: bool = True,
+    grid: tuple[float, ...] = (),
 ) -> Edit:
     names = {p.name for p in own}
     others = [p for p in interacting(doc) if p.name not in names] if interacts else []
@@ -103,6 +106,7 @@ def _edit(
         free=own + others,
         added=len(own) if added is None else added,
         report=report,
+        grid=grid,
     )
 
 
@@ -188,7 +192,25 @@ def gain_error(doc: ModelDoc, cand: Candidate) -> Edit:
     return _edit(doc, own, {"gain": lambda v: v[g]}, interacts=False)
 
 
+MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
+
+
+def measurement_delay(doc: ModelDoc, cand: Candidate) -> Edit:
+    sensors = doc.of_type("Encoder") + doc.of_type("LinearScale")
+    if not sensors:
+        raise LookupError("the model has no Encoder or LinearScale")
+    slots = tuple(f"{s}.delay_ticks" for s in sensors)
+    name = "sensors.delay_ticks"
+    doc = doc.tie(name, slots)
+    period = float(doc.data["controller"]["base_period_s"])
+    own = [FreeParameter(name=name, initial=doc.get(name), scale=1.0, lower=0.0)]
+    report = {"delay_ticks": lambda v: v[name], "delay_s": lambda v: v[name] * period}
+    # a delay in whole sensor samples: searched, not differentiated
+    return _edit(doc, own, report, interacts=False, grid=tuple(range(MAX_DELAY_TICKS + 1)))
+
+
 EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
+    "measurement_delay": measurement_delay,
     "coulomb_friction": coulomb,
     "viscous_friction": viscous,
     "stribeck_friction": stribeck,

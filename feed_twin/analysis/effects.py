@@ -94,6 +94,12 @@ def motion_from_position(
     )
 
 
+def _rate(y: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Time derivative by a 5-sample quadratic Savitzky-Golay filter (smooths the sample noise)."""
+    h = float((t[-1] - t[0]) / (len(t) - 1))
+    return sps.savgol_filter(np.asarray(y, dtype=float), 5, 2, deriv=1, delta=h)
+
+
 def _sign(m: Motion) -> np.ndarray:
     return np.tanh(m.v_m_s / m.speed_eps)
 
@@ -256,10 +262,12 @@ LIBRARY: tuple[Effect, ...] = (
     ),
     Effect(
         name="measurement_delay",
-        domain="position",
-        component="sensor sample delay",
-        words="the measured position lags by a constant time: an error proportional to speed",
-        signature=lambda m: {"v": m.v_m_s},
+        domain="effort",
+        component="Encoder/LinearScale.delay_ticks",
+        words="the loop acts on a position measured late: the effort follows the twin's "
+        "effort shifted in time (sensor sample delay, slow fieldbus)",
+        needs=("effort_sim",),
+        signature=lambda m: {"effort_rate": _rate(m.effort_sim, m.t_s)},
     ),
     Effect(
         name="lead_error",

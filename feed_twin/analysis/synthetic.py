@@ -128,6 +128,13 @@ def _gain(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     return doc.set(slot, p["gain"])
 
 
+def _delay(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    sensors = doc.of_type("Encoder") + doc.of_type("LinearScale")
+    for name in sensors:
+        doc = doc.set(f"{name}.delay_ticks", int(p["delay_ticks"]))
+    return doc
+
+
 HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "coulomb_friction": _coulomb,
     "viscous_friction": _viscous,
@@ -136,6 +143,7 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "constant_force": _constant,
     "mass_error": _mass,
     "torque_constant_error": _gain,
+    "measurement_delay": _delay,
 }
 
 

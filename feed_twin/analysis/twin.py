@@ -140,7 +140,11 @@ class ModelDoc:
         new = self._copy()
         for member in self.tie_members(slot):
             comp, _, field_name = member.partition(".")
-            new.component(comp)["params"][field_name] = float(value)
+            params = new.component(comp)["params"]
+            old = params.get(field_name)
+            # whole-number fields (counts, delays in ticks) stay whole numbers in the YAML
+            keep_int = isinstance(old, int) and not isinstance(old, bool)
+            params[field_name] = int(round(value)) if keep_int else float(value)
         return new
 
     def tie(self, name: str, members: tuple[str, ...]) -> ModelDoc:
