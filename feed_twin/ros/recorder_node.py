@@ -36,6 +36,7 @@ from feed_twin.ros.runtime import (
     init_context,
     spin_nodes,
 )
+from feed_twin.ros.summary import LiveFeed
 from feed_twin.ros.topics import RECORDER_NODE
 
 DRAIN_QUIET_S = 0.3
@@ -70,9 +71,12 @@ def _bag_qos(qos: QoSProfile) -> QosProfile:
 
 
 class RecorderNode(FeedTwinNode):
-    def __init__(self, options: NodeOptions, bag_path: Path, *, context=None) -> None:
+    def __init__(
+        self, options: NodeOptions, bag_path: Path, *, live_url: str | None = None, context=None
+    ) -> None:
         super().__init__(RECORDER_NODE, options, context=context)
         self.bag = BagWriter(bag_path)
+        self.live = LiveFeed(self.topics, live_url) if live_url else None
         self.bag_path = bag_path
         self._recorded: dict[str, object] = {}
         self._last_message = time.monotonic()
@@ -101,11 +105,15 @@ class RecorderNode(FeedTwinNode):
         # Heartbeats go on while peers live; only data counts when judging "quiet".
         counts = topic != self.topics.heartbeat
 
+        live = self.live if self.live is not None and self.live.wants(topic) else None
+
         def on_message(data: bytes, topic: str = topic) -> None:
             now = time.time_ns()
             if counts:
                 self._last_message = time.monotonic()
             write(topic, data, log_time_ns=now, publish_time_ns=now)
+            if live is not None:
+                live.feed(topic, data)
 
         self._recorded[topic] = self.create_subscription(
             message_class(type_name), topic, on_message, qos, raw=True
@@ -166,6 +174,8 @@ class RecorderNode(FeedTwinNode):
                 self.finish(EXIT_PEER_LOST, self._peer_lost)
 
     def on_shutdown(self, reason: str) -> None:
+        if self.live is not None:
+            self.live.close()
         info = self.bag.close()
         print(
             f"recorder: {info.message_count} messages on {len(info.topics)} topics -> "
@@ -180,6 +190,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--bag", required=True, type=Path, help="bag directory to create")
     parser.add_argument("--startup-timeout", type=float, default=60.0)
+    parser.add_argument("--live-url", default=None, help="Rerun gRPC URL to stream to")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -193,7 +204,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         startup_timeout_s=args.startup_timeout,
     )
     context = init_context()
-    node = RecorderNode(options, args.bag, context=context)
+    node = RecorderNode(options, args.bag, live_url=args.live_url, context=context)
     return spin_nodes([node], context)
 
 

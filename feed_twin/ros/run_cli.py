@@ -101,7 +101,10 @@ def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[s
     peers = ",".join(r for r in _roles(args) if r != role)
     common = ["--peers", peers, "--startup-timeout", str(args.startup_timeout)]
     if role == "recorder":
-        return ["--machine", ros.machine, "--axis", ros.axis, "--bag", str(out.bag), *common]
+        live = ["--live-url", args.live_url] if args.live_url else []
+        return [
+            "--machine", ros.machine, "--axis", ros.axis, "--bag", str(out.bag), *live, *common,
+        ]  # fmt: skip
     if role == "gcode":
         extra = ["--optional-stop"] if args.optional_stop else []
         return [
@@ -309,7 +312,7 @@ def _run_single_process(args: argparse.Namespace, ros, nc, out: Outputs) -> tupl
             **kw,
         )
 
-    recorder = RecorderNode(options("recorder"), out.bag, context=context)
+    recorder = RecorderNode(options("recorder"), out.bag, live_url=args.live_url, context=context)
     controller = ControllerNode(
         options("controller", input_timeout_s=args.input_timeout),
         controller_config,
@@ -391,21 +394,25 @@ def main(args: argparse.Namespace) -> int:
         return 1
     out = _outputs(args)
     viewer = None
+    args.live_url = None
     if args.live:
         from feed_twin.io.dashboard import LiveViewer
 
         viewer = LiveViewer()
-        print(f"live viewer: {viewer.web_url}", file=sys.stderr)
+        args.live_url = viewer.grpc_url
+        print(f"live viewer (127.0.0.1 only): {viewer.web_url}", file=sys.stderr)
     try:
         if args.single_process:
             code, reason, timing = _run_single_process(args, ros, nc, out)
         else:
             code, reason, timing = _run_processes(args, ros, out)
         summary, problem = _finish_outputs(args, ros, out)
-        if viewer is not None and out.rrd.exists():
-            _send_to_viewer(out.rrd, viewer)
+        if viewer is not None and sys.stdin.isatty():
+            print("the live viewer stays up; press Enter to stop it", file=sys.stderr)
+            with contextlib.suppress(KeyboardInterrupt, EOFError):
+                input()
     finally:
-        if viewer is not None and not args.live:
+        if viewer is not None:
             viewer.stop()
     if reason:
         print(f"feed-twin run: {reason}", file=sys.stderr)
@@ -433,12 +440,3 @@ def main(args: argparse.Namespace) -> int:
     if code == 0 and summary is None:
         return 1
     return code
-
-
-def _send_to_viewer(rrd: Path, viewer) -> None:
-    import rerun as rr
-
-    rec = rr.RecordingStream("feed_twin")
-    rec.connect_grpc(viewer.grpc_url)
-    rec.log_file_from_path(rrd)
-    rec.flush()

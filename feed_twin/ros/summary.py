@@ -158,3 +158,65 @@ def write_dashboard(
                 drive["header.stamp"], {"i_q_ref_A": drive["i_q"], "i_d_ref_A": drive["i_d"]}
             )
     return rrd_path
+
+
+class LiveFeed:
+    """Decimated live view of the raw per-exchange messages on a Rerun viewer (no rclpy).
+
+    The recorder hands it the CDR bytes it stores; every `decimation`-th message of each topic
+    is decoded (`cdr.FlatCodec`) and appended to a `Dashboard` that streams to `live_url`.
+    """
+
+    def __init__(self, topics: AxisTopics, live_url: str, *, decimation: int = 10) -> None:
+        from feed_twin.ros.cdr import FlatCodec
+
+        if decimation < 1:
+            raise ValueError(f"decimation = {decimation!r}: must be >= 1")
+        self.dashboard = Dashboard(rrd_path=None, live_url=live_url, batch=50)
+        self.decimation = decimation
+        self._count: dict[str, int] = {}
+        self._codecs = {
+            topics.state: FlatCodec("feed_twin_msgs/msg/AxisState"),
+            topics.command: FlatCodec("feed_twin_msgs/msg/AxisCommand"),
+            topics.feedback: FlatCodec("feed_twin_msgs/msg/AxisFeedback"),
+            topics.drive_command: FlatCodec("feed_twin_msgs/msg/DriveCommand"),
+        }
+        self._topics = topics
+        self._line = -2
+
+    def wants(self, topic: str) -> bool:
+        return topic in self._codecs
+
+    def feed(self, topic: str, data: bytes) -> None:
+        n = self._count.get(topic, 0)
+        self._count[topic] = n + 1
+        if n % self.decimation:
+            return
+        m = self._codecs[topic].decode_map(data)
+        t = m["header.stamp.sec"] + m["header.stamp.nanosec"] * 1e-9
+        topics = self._topics
+        if topic == topics.state:
+            values = {
+                "x_m": m["table_position"],
+                "following_error_m": m["following_error"],
+                "v_m_s": m["table_velocity"],
+                "i_q_A": m["i_q"],
+                "i_d_A": m["i_d"],
+                "u_d_V": m["u_d"],
+                "u_q_V": m["u_q"],
+                "u_dc_V": m["u_dc"],
+                "f_friction_N": m["friction_force"],
+            }
+        elif topic == topics.command:
+            values = {"x_cmd_m": m["position"], "v_cmd_m_s": m["velocity"]}
+            if m["line"] != self._line and m["line"] >= 1:
+                self.dashboard.log_gcode_line(t, m["line"], "")
+            self._line = m["line"]
+        elif topic == topics.feedback:
+            values = {"i_a_A": m["i_a"], "i_b_A": m["i_b"], "i_c_A": m["i_c"]}
+        else:
+            values = {"i_q_ref_A": m["i_q"], "i_d_ref_A": m["i_d"]}
+        self.dashboard.append(t, values)
+
+    def close(self) -> None:
+        self.dashboard.close()
