@@ -9,6 +9,7 @@ import pytest
 
 from feed_twin.control import signals as sig
 from feed_twin.plant.config import load_plant
+from feed_twin.plant.pmsm import CoggingHarmonic
 from feed_twin.sim.config import build_engine, load_axis_config
 from feed_twin.sim.engine import Engine
 
@@ -176,3 +177,15 @@ def test_currents_die_out_when_the_inverter_is_switched_off():
     assert i_on > 5.0
     after = np.hypot(res["motor.i_d"][on + 16 :], res["motor.i_q"][on + 16 :])
     assert np.max(after) < math.exp(-4.0) * i_on  # 1 ms = 5 decay times later
+
+
+def test_cogging_torque_makes_the_rotor_swing_at_its_detent_frequency():
+    """Near a detent, tau = A*sin(n*phi + pi) ~ -A*n*phi: omega = sqrt(A*n/J) with no current."""
+    order, amplitude, J = 36, 0.08, 3.1e-3 + 1.0e3
+    plant = _drive_plant(L_d=4e-3, L_q=4e-3).with_params(
+        motor={"cogging": (CoggingHarmonic(order=order, amplitude=amplitude, phase=math.pi),)}
+    )
+    names = ["motor.phi", "motor.omega"]
+    A = plant.linearize(plant.initial_state(), plant.nominal_params(), states=names)
+    omega = np.abs(np.linalg.eigvals(A).imag).max()
+    assert omega == pytest.approx(math.sqrt(amplitude * order / J), rel=1e-6)
