@@ -31,7 +31,7 @@ from feed_twin.shadow.standin import StandIn, record_bag
 
 T = 1e-3
 F_C = 20.3935
-SHADOW_FILE = "config/shadow_emps.yaml"
+SHADOW_FILE = "config/emps.yaml"
 DURATION_S = 14.0
 
 
@@ -204,10 +204,11 @@ def test_map_errors_name_the_problem(tmp_path, recording) -> None:
 
 def test_cli_reports_bad_input_on_stderr(recording, tmp_path, capsys) -> None:
     code = cli_main(
-        ["replay", str(recording["bag"]), "--config", "config/emps.yaml", "--out", str(tmp_path)]
-    )
+        ["replay", str(recording["bag"]), "--config", "config/emps_nominal.yaml",
+         "--out", str(tmp_path)]
+    )  # fmt: skip
     assert code == 2
-    assert "config/emps.yaml: missing required section shadow" in capsys.readouterr().err
+    assert "config/emps_nominal.yaml: missing required section shadow" in capsys.readouterr().err
 
 
 def test_fixed_layout_offsets_follow_the_strings() -> None:

@@ -210,7 +210,7 @@ SHADOW = {
 def test_shadow_config_loads_and_derives_sample_counts() -> None:
     cfg = load_shadow_config({"shadow": SHADOW}, source="s.yaml")
     assert (cfg.window_samples, cfg.baseline_samples, cfg.evaluate_samples) == (4000, 6000, 1000)
-    shipped = load_shadow_config("config/shadow_emps.yaml")
+    shipped = load_shadow_config("config/emps.yaml")
     assert shipped.sample_period_s == 1e-3
 
 

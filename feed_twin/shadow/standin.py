@@ -68,7 +68,11 @@ class StandIn:
                 f"sample_period_s = {sample_period_s!r}: must be a whole multiple of the truth "
                 f"model's base period {self.engine.h!r} s"
             )
-        self.noise_std = unmodelled.effort_noise_std
+        noise = getattr(unmodelled, "effort_noise_std", None)
+        # the synthetic generator's default: 0.3 N on a force, 0.01 A on a measured current
+        self.noise_std = (
+            noise if noise is not None else (0.01 if self.twin.effort_unit == "A" else 0.3)
+        )
         self._rng = np.random.default_rng(unmodelled.seed)
         drive = Drive(
             t_s=np.zeros(0),
