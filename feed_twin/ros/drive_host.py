@@ -127,7 +127,11 @@ class DriveHost:
         return self._sample(t_ns, row, sp)
 
     def _value(self, row: np.ndarray, name: str) -> float:
-        return float(row[self._index[name]]) if name else math.nan
+        if not name:
+            return math.nan
+        if name[0] == "-":
+            return -float(row[self._index[name[1:]]])
+        return float(row[self._index[name]])
 
     def _sample(self, t_ns: int, row: np.ndarray, sp: DriveSetpoint) -> ExchangeSample:
         meas = np.array([row[self._index[n]] for n in MEAS_RECORD])

@@ -61,11 +61,16 @@ def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
     axis = load_axis_config(config_path)
     if axis.controller is None:
         raise ConfigError(f"{config_path}: the sim node needs a controller section")
+    names = DriveHost.record_names(ros.signals)
+    probe = build_engine(axis, mode=ros.boundary, output_period_s=ros.exchange_period_s)
+    unknown = [n for n in names if n not in probe.all_names]
+    if unknown:
+        raise ConfigError(
+            f"{config_path}: ros.signals: {', '.join(unknown)}: not signals of this plant "
+            f"(for example {', '.join(probe.all_names[:6])}, ...)"
+        )
     engine = build_engine(
-        axis,
-        mode=ros.boundary,
-        record=DriveHost.record_names(ros.signals),
-        output_period_s=ros.exchange_period_s,
+        axis, mode=ros.boundary, record=names, output_period_s=ros.exchange_period_s
     )
     current = axis.controller.current
     return DriveHost(

@@ -51,7 +51,7 @@ class StateSignals:
     """Engine signal names behind the AxisState fields ("" where the plant has no such signal).
 
     The defaults name the components of config/axis_default.yaml; another plant sets its own
-    in the `ros.signals` section.
+    in the `ros.signals` section. A leading '-' negates the signal (sign conventions differ).
     """
 
     table_position: str = "table.s"
@@ -65,11 +65,12 @@ class StateSignals:
     u_dc: str = "bus.u_dc"
     i_dc: str = "bus.i_dc"
     torque_em: str = "motor.tau_e"
-    friction_force: str = "guides.force"
+    friction_force: str = "-guides.force"  # guides.force is F(v); the table receives -F
     screw_force: str = "backlash.force"
 
     def names(self) -> tuple[str, ...]:
-        return tuple(v for v in vars(self).values() if v)
+        """The engine signals to record (signs stripped)."""
+        return tuple(v.lstrip("-") for v in vars(self).values() if v)
 
 
 @dataclass(frozen=True, kw_only=True)

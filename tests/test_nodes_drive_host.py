@@ -1,0 +1,85 @@
+"""The sim node's core in-process: what AxisState reports obeys the plant's physics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from nodes_support import SHORT_PROGRAM, merged_config
+
+from feed_twin.gcode import load_nc_config, plan_program
+from feed_twin.ros.drive_host import Lockstep, nc_samples
+from feed_twin.ros.sim_node import build_drive_host
+from feed_twin.ros.split import ControllerCore, NodeSetConfig, load_node_set_config
+from feed_twin.sim.config import load_axis_config
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, np.ndarray]:
+    config = merged_config(tmp_path_factory.mktemp("host"))
+    ros = load_node_set_config(config)
+    axis = load_axis_config(config)
+    controller = ControllerCore(
+        axis.controller, boundary=ros.boundary, exchange_period_s=ros.exchange_period_s
+    )
+    host = build_drive_host(config, ros)
+    trajectory = plan_program(SHORT_PROGRAM, load_nc_config(config))
+    x, v, a = trajectory.axis("X")
+    samples = Lockstep(controller, host, ros).run(
+        nc_samples(trajectory.t_s, x - x[0], v, a, trajectory.line), until_ns=400_000_000
+    )
+    columns = {name: np.array([s.truth[name] for s in samples]) for name in samples[0].truth}
+    columns["t"] = np.array([s.t_ns for s in samples]) * 1e-9
+    columns["meas_x"] = np.array([s.meas[1] for s in samples])
+    return columns
+
+
+def test_exchange_grid_and_target(run: dict[str, np.ndarray]) -> None:
+    np.testing.assert_allclose(np.diff(run["t"]), 1e-3, rtol=0, atol=1e-12)
+    assert run["table_position"][-1] == pytest.approx(0.010, abs=2e-6)
+    # The linear scale reads the table (1e-8 m resolution, one tick of delay).
+    h = 62.5e-6
+    bound = np.abs(run["table_velocity"]) * h + 0.5 * np.abs(run["table_acceleration"]) * h**2
+    err = np.abs(run["meas_x"] - run["table_position"])
+    assert np.all(err <= 1.01 * bound + 1e-8)
+    assert np.max(err) > 0.5 * np.max(bound)  # the delay is there, not zero
+
+
+def test_torque_is_the_pmsm_law(run: dict[str, np.ndarray]) -> None:
+    # The PMSM with iron loss (config/axis_default.yaml: p = 4, psi_pm = 0.3167 V s,
+    # L_d = L_q = 4 mH, R_fe = 1500 ohm across the induced voltage e):
+    #   e_d = -w_e L_q i_q, e_q = w_e (L_d i_d + psi_pm), i_m = i - e / R_fe,
+    #   tau = 1.5 p (psi_d i_m,q - psi_q i_m,d).
+    p, psi, L, R_fe = 4, 0.3167, 4.0e-3, 1500.0
+    w_e = p * run["motor_velocity"]
+    i_d, i_q = run["i_d"], run["i_q"]
+    psi_d, psi_q = L * i_d + psi, L * i_q
+    i_md = i_d - (-w_e * psi_q) / R_fe
+    i_mq = i_q - (w_e * psi_d) / R_fe
+    expected = 1.5 * p * (psi_d * i_mq - psi_q * i_md)
+    np.testing.assert_allclose(run["torque_em"], expected, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(
+        run["mechanical_power"], run["torque_em"] * run["motor_velocity"], rtol=1e-12
+    )
+
+
+def test_friction_opposes_the_motion(run: dict[str, np.ndarray]) -> None:
+    # Guides: Coulomb 120 N + viscous 400 N s/m (Stribeck excess negligible at 50 mm/s),
+    # acting on the table against its velocity.
+    v = run["table_velocity"]
+    cruise = np.abs(v) > 0.04
+    assert cruise.sum() > 20
+    expected = -(120.0 + 400.0 * v[cruise]) * np.sign(v[cruise])
+    np.testing.assert_allclose(run["friction_force"][cruise], expected, rtol=0.02)
+
+
+def test_unknown_signal_names_are_reported(tmp_path: Path) -> None:
+    from feed_twin.ros.split import StateSignals
+
+    config = merged_config(tmp_path)
+    ros = NodeSetConfig(signals=StateSignals(table_position="carriage.s"))
+    with pytest.raises(ValueError, match=r"ros.signals: carriage.s: not signals of this plant"):
+        build_drive_host(config, ros)
