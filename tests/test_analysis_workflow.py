@@ -71,3 +71,19 @@ def test_two_simultaneous_effects_are_both_named(tmp_path):
     assert found["coulomb_friction"]["F_c_N"] == pytest.approx(15.0, rel=0.10)
     assert found["constant_force"]["f_0_N"] == pytest.approx(-20.0, rel=0.10)
     assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
+
+
+@pytest.mark.slow
+def test_cogging_is_found_on_the_machine_tool_axis(tmp_path):
+    """PMSM axis (16 kHz current loop, scale feedback): cogging is named, order and amplitude."""
+    nominal = ModelDoc.load(ROOT / "config" / "axis_default.yaml")
+    truth = {"order": 6, "amplitude_Nm": 0.3, "phase_rad": 0.5}
+    columns = generate(nominal, {"cogging_torque": truth}, start_m=0.3)
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
+    assert d.effects and d.effects[0].name == "cogging_torque", d.notes
+    found = d.effects[0].parameters
+    assert found["order"] == 6
+    assert found["amplitude_Nm"] == pytest.approx(0.3, rel=0.10)
+    assert found["phase_rad"] == pytest.approx(0.5, abs=0.1)
+    assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m

@@ -192,6 +192,33 @@ def gain_error(doc: ModelDoc, cand: Candidate) -> Edit:
     return _edit(doc, own, {"gain": lambda v: v[g]}, interacts=False)
 
 
+def cogging(doc: ModelDoc, cand: Candidate) -> Edit:
+    """A cogging harmonic of the order the signature found; amplitude and phase are fitted.
+
+    The drive must supply -tau_cog = -A sin(k phi + psi), so the current residual is
+    -(A/K_t) sin(k phi + psi): the weights (s, c) of (sin, cos) give A = K_t sqrt(s^2 + c^2)
+    and psi = atan2(-c, -s).
+    """
+    k_t = doc.torque_constant()
+    if k_t is None:
+        raise LookupError("the model has no Pmsm")
+    order = int(cand.variant.split()[1]) if cand.variant else 6
+    s_w, c_w = cand.coefficients.get("sin", 0.0), cand.coefficients.get("cos", 0.0)
+    amplitude = max(k_t * math.hypot(s_w, c_w), 1e-4)
+    phase = math.atan2(-c_w, -s_w)
+    doc, prefix = doc.with_cogging(order, amplitude, phase)
+    own = [
+        FreeParameter(name=f"{prefix}amplitude", initial=amplitude, scale=amplitude, lower=0.0),
+        FreeParameter(name=f"{prefix}phase", initial=phase, scale=1.0),
+    ]
+    report = {
+        "order": lambda v: float(order),
+        "amplitude_Nm": lambda v: v[f"{prefix}amplitude"],
+        "phase_rad": lambda v: v[f"{prefix}phase"],
+    }
+    return _edit(doc, own, report, interacts=False)
+
+
 MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
 
 
@@ -210,6 +237,7 @@ def measurement_delay(doc: ModelDoc, cand: Candidate) -> Edit:
 
 
 EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
+    "cogging_torque": cogging,
     "measurement_delay": measurement_delay,
     "coulomb_friction": coulomb,
     "viscous_friction": viscous,

@@ -73,13 +73,18 @@ nc:
 MAP = """\
 # column map of a synthetic run (written by feed_twin.analysis.synthetic)
 time: {{column: time_ms, unit: ms}}
-position_sensor: motor_encoder
+position_sensor: {sensor}
 signals:
   pos_cmd_m: {{column: x_cmd_mm, unit: mm}}
   pos_meas_m: {{column: x_act_mm, unit: mm}}
-  force_cmd_N: {{column: u_drive_V, unit: V, gain: {gain!r}}}
-plausibility: {{travel_m: 0.3, max_speed_m_s: 0.5}}
+  {effort}
+plausibility: {{travel_m: 1.0, max_speed_m_s: 0.5}}
 """
+EFFORT_COLUMNS = {
+    # canonical effort -> (file column, map entry with {gain})
+    "force_cmd_N": ("u_drive_V", "force_cmd_N: {{column: u_drive_V, unit: V, gain: {gain!r}}}"),
+    "current_q_A": ("i_q_A", "current_q_A: {{column: i_q_A, unit: A}}"),
+}
 
 
 def _friction(doc: ModelDoc) -> tuple[ModelDoc, str]:
@@ -144,6 +149,9 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "mass_error": _mass,
     "torque_constant_error": _gain,
     "measurement_delay": _delay,
+    "cogging_torque": lambda doc, p: doc.with_cogging(
+        int(p["order"]), p["amplitude_Nm"], p["phase_rad"]
+    )[0],
 }
 
 
@@ -151,8 +159,9 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
 class Unmodelled:
     """What the truth has beyond the hidden effects."""
 
-    current_lag_s: float = 2e-4  # [s] first-order lag of the drive's current loop
-    effort_noise_std: float = 0.3  # [effort unit] white noise on the recorded effort
+    current_lag_s: float = 2e-4  # [s] first-order lag of a force-source drive's current loop
+    coupling_stiffness_factor: float = 0.97  # truth/nominal torsional coupling stiffness [-]
+    effort_noise_std: float | None = None  # [effort unit]; None: 0.3 N or 0.01 A
     seed: int = 0
 
 
@@ -165,6 +174,9 @@ def truth_model(
     if unmodelled.current_lag_s > 0.0:
         for source in doc.of_type("EffortSource"):
             doc = doc.set(f"{source}.T_lag", unmodelled.current_lag_s)
+    for coupling in doc.of_type("Coupling"):
+        k = doc.get(f"{coupling}.k")
+        doc = doc.set(f"{coupling}.k", k * unmodelled.coupling_stiffness_factor)
     return doc
 
 
@@ -187,15 +199,19 @@ def generate(
     *,
     unmodelled: Unmodelled | None = None,
     program: str = PROGRAM,
+    start_m: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """The columns of a synthetic record in the file's own units (see MAP)."""
     um = unmodelled or Unmodelled()
     truth = truth_model(nominal, hidden, um)
     # the lag adds a fast pole: sub-steps keep explicit RK4 well inside its stability limit
     h = float(truth.data["controller"]["base_period_s"])
-    nsub = max(1, int(np.ceil(2.0 * h / um.current_lag_s))) if um.current_lag_s > 0 else 1
+    lagged = um.current_lag_s > 0 and truth.of_type("EffortSource")
+    nsub = max(1, int(np.ceil(2.0 * h / um.current_lag_s))) if lagged else 1
     twin = Twin.compile(truth, smooth_sensors=False, min_substeps=nsub)
     t, x_cmd = command(program)
+    x_cmd = x_cmd + start_m
+    h = float(t[1] - t[0])
     n = len(t)
     drive = Drive(
         t_s=t,
@@ -211,13 +227,16 @@ def generate(
     if not out.ok[0]:
         raise RuntimeError(f"the truth model {sorted(hidden)} diverged")
     rng = np.random.default_rng(um.seed)
-    gain = nominal.reference_gain or 1.0
-    effort = out.effort[0] + rng.normal(0.0, um.effort_noise_std, n)
+    current = twin.effort_name == "current_q_A"
+    std = um.effort_noise_std if um.effort_noise_std is not None else (0.01 if current else 0.3)
+    effort = out.effort[0] + rng.normal(0.0, std, n)
+    column = EFFORT_COLUMNS[twin.effort_name][0]
+    gain = 1.0 if current else (nominal.reference_gain or 1.0)
     return {
         "time_ms": t * 1e3,
         "x_cmd_mm": x_cmd * 1e3,
         "x_act_mm": out.x_m[0] * 1e3,
-        "u_drive_V": effort / gain,
+        column: effort / gain,
     }
 
 
@@ -228,5 +247,8 @@ def write_csv(path: str | Path, columns: Mapping[str, np.ndarray], nominal: Mode
     table = np.column_stack([columns[k] for k in names])
     np.savetxt(path, table, delimiter=",", header=",".join(names), comments="", fmt="%.12g")
     map_path = path.with_name(f"{path.stem}_map.yaml")
-    map_path.write_text(MAP.format(gain=nominal.reference_gain or 1.0))
+    effort = next(k for k, (col, _) in EFFORT_COLUMNS.items() if col in columns)
+    entry = EFFORT_COLUMNS[effort][1].format(gain=nominal.reference_gain or 1.0)
+    sensor = "linear_scale" if nominal.of_type("LinearScale") else "motor_encoder"
+    map_path.write_text(MAP.format(sensor=sensor, effort=entry))
     return map_path

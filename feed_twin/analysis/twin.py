@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,7 @@ from feed_twin.control import signals
 from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun
 
+_COGGING_SLOT = re.compile(r"^cog(\d+)_(order|amplitude|phase)$")  # Pmsm slots of a harmonic
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
 FIXED_SECTIONS = ("plant", "controller")
 
@@ -109,14 +111,22 @@ class ModelDoc:
             return True
         comp, _, field_name = slot.partition(".")
         try:
-            return field_name in self.component(comp)["params"]
+            params = self.component(comp)["params"]
         except LookupError:
             return False
+        harmonic = _COGGING_SLOT.match(field_name)
+        if harmonic is not None:
+            return int(harmonic.group(1)) < len(params.get("cogging", []))
+        return field_name in params
 
     def get(self, slot: str) -> float:
         first = self.tie_members(slot)[0]
         comp, _, field_name = first.partition(".")
         params = self.component(comp)["params"]
+        harmonic = _COGGING_SLOT.match(field_name)
+        if harmonic is not None:
+            n, key = int(harmonic.group(1)), harmonic.group(2)
+            return float(params.get("cogging", [])[n][key])
         if field_name not in params:
             pair = (f"{field_name}_pos", f"{field_name}_neg")
             if all(p in params for p in pair):
@@ -141,6 +151,12 @@ class ModelDoc:
         for member in self.tie_members(slot):
             comp, _, field_name = member.partition(".")
             params = new.component(comp)["params"]
+            harmonic = _COGGING_SLOT.match(field_name)
+            if harmonic is not None:
+                n, key = int(harmonic.group(1)), harmonic.group(2)
+                entry = params["cogging"][n]
+                entry[key] = int(round(value)) if key == "order" else float(value)
+                continue
             old = params.get(field_name)
             # whole-number fields (counts, delays in ticks) stay whole numbers in the YAML
             keep_int = isinstance(old, int) and not isinstance(old, bool)
@@ -196,6 +212,27 @@ class ModelDoc:
             },
         }
         return self.add_component(entry, self.table_port())
+
+    def with_cogging(self, order: int, amplitude: float, phase: float) -> tuple[ModelDoc, str]:
+        """Add a cogging harmonic to the (first) Pmsm; returns the doc and the slot prefix."""
+        motors = self.of_type("Pmsm")
+        if not motors:
+            raise LookupError(f"{self.source}: the model has no Pmsm to carry cogging")
+        new = self._copy()
+        params = new.component(motors[0])["params"]
+        harmonics = params.setdefault("cogging", [])
+        harmonics.append(
+            {"order": int(order), "amplitude": float(amplitude), "phase": float(phase)}
+        )
+        return new, f"{motors[0]}.cog{len(harmonics) - 1}_"
+
+    def torque_constant(self) -> float | None:
+        """K_t = 1.5 p psi_pm [N m/A] of the first Pmsm (amplitude-invariant dq)."""
+        motors = self.of_type("Pmsm")
+        if not motors:
+            return None
+        params = self.component(motors[0])["params"]
+        return 1.5 * float(params["p"]) * float(params["psi_pm"])
 
     def with_constant_force(self, f_0: float) -> tuple[ModelDoc, str]:
         existing = self.of_type("ConstantForce")
@@ -279,8 +316,10 @@ class Twin:
         controller = build_cascade(cfg)
         nominal = plant.nominal_params()
         if smooth_sensors:
-            for name in doc.of_type("Encoder") + doc.of_type("LinearScale"):
+            for name in doc.of_type("Encoder"):
                 nominal[plant.param_index[f"{name}.step"]] = SMOOTH_SENSOR_STEP
+            for name in doc.of_type("LinearScale"):
+                nominal[plant.param_index[f"{name}.resolution"]] = SMOOTH_SENSOR_STEP
         kinds = {e["type"] for e in doc.data["plant"]["components"]}
         if "Pmsm" in kinds or "DcMotor" in kinds:
             effort_name, unit = "current_q_A", "A"
