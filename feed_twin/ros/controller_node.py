@@ -30,8 +30,7 @@ from feed_twin.ros.runtime import (
     LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
-    init_context,
-    spin_nodes,
+    node_main,
 )
 from feed_twin.ros.split import (
     NS_PER_S,
@@ -41,7 +40,6 @@ from feed_twin.ros.split import (
     NcBuffer,
     NcSample,
     NodeLoopGains,
-    load_node_set_config,
 )
 from feed_twin.ros.topics import CONTROLLER_NODE
 
@@ -182,40 +180,23 @@ def load_node_controller_config(path: Path) -> ControllerConfig:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", required=True, type=Path)
-    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
-    parser.add_argument("--input-timeout", type=float, default=10.0)
-    parser.add_argument("--startup-timeout", type=float, default=60.0)
+    """The controller node has no options of its own."""
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="feed_twin.ros.controller_node")
-    configure(parser)
-    args = parser.parse_args(argv)
-    try:
-        ros = load_node_set_config(args.config)
-        controller = load_node_controller_config(args.config)
-    except (ConfigError, ValueError) as exc:
-        print(f"controller node: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    options = NodeOptions(
-        machine=ros.machine,
-        axis=ros.axis,
-        peers=tuple(p for p in args.peers.split(",") if p),
-        input_timeout_s=args.input_timeout,
-        startup_timeout_s=args.startup_timeout,
-    )
-    context = init_context()
-    node = ControllerNode(
+def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> ControllerNode:
+    return ControllerNode(
         options,
-        controller,
+        load_node_controller_config(args.config),
         boundary=ros.boundary,
         exchange_period_s=ros.exchange_period_s,
         axis_label=ros.axis.upper(),
         gains=ros.node_gains,
         context=context,
     )
-    return spin_nodes([node], context)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return node_main(argv, prog="controller node", configure=configure, build=build)
 
 
 if __name__ == "__main__":

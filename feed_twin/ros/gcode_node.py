@@ -33,7 +33,6 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_config, plan_program
-from feed_twin.io.config import ConfigError
 from feed_twin.ros.cdr import FlatCodec
 from feed_twin.ros.runtime import (
     DATA_QOS,
@@ -41,10 +40,9 @@ from feed_twin.ros.runtime import (
     LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
-    init_context,
-    spin_nodes,
+    node_main,
 )
-from feed_twin.ros.split import NS_PER_S, load_node_set_config
+from feed_twin.ros.split import NS_PER_S
 from feed_twin.ros.topics import GCODE_NODE
 
 AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
@@ -269,41 +267,25 @@ def program_lines(path: str | Path) -> dict[int, str]:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", required=True, type=Path)
     parser.add_argument("--program", default="")
     parser.add_argument("--autostart", action="store_true")
     parser.add_argument("--optional-stop", action="store_true")
-    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
-    parser.add_argument("--startup-timeout", type=float, default=60.0)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="feed_twin.ros.gcode_node")
-    configure(parser)
-    args = parser.parse_args(argv)
-    try:
-        ros = load_node_set_config(args.config)
-        nc = load_nc_config(args.config)
-    except (ConfigError, ValueError) as exc:
-        print(f"gcode node: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    options = NodeOptions(
-        machine=ros.machine,
-        axis=ros.axis,
-        peers=tuple(p for p in args.peers.split(",") if p),
-        startup_timeout_s=args.startup_timeout,
-    )
-    context = init_context()
-    node = GcodeNode(
+def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> GcodeNode:
+    return GcodeNode(
         options,
-        nc,
+        load_nc_config(args.config),
         lookahead=ros.lookahead,
         program=args.program,
         autostart=args.autostart,
         optional_stop=args.optional_stop,
         context=context,
     )
-    return spin_nodes([node], context)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return node_main(argv, prog="gcode node", configure=configure, build=build)
 
 
 if __name__ == "__main__":

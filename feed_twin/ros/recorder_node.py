@@ -33,8 +33,7 @@ from feed_twin.ros.runtime import (
     LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
-    init_context,
-    spin_nodes,
+    node_main,
 )
 from feed_twin.ros.summary import LiveFeed
 from feed_twin.ros.topics import RECORDER_NODE
@@ -185,27 +184,16 @@ class RecorderNode(FeedTwinNode):
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--machine", required=True)
-    parser.add_argument("--axis", required=True)
-    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--bag", required=True, type=Path, help="bag directory to create")
-    parser.add_argument("--startup-timeout", type=float, default=60.0)
     parser.add_argument("--live-url", default=None, help="Rerun gRPC URL to stream to")
 
 
+def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> RecorderNode:
+    return RecorderNode(options, args.bag, live_url=args.live_url, context=context)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="feed_twin.ros.recorder_node")
-    configure(parser)
-    args = parser.parse_args(argv)
-    options = NodeOptions(
-        machine=args.machine,
-        axis=args.axis,
-        peers=tuple(p for p in args.peers.split(",") if p),
-        startup_timeout_s=args.startup_timeout,
-    )
-    context = init_context()
-    node = RecorderNode(options, args.bag, live_url=args.live_url, context=context)
-    return spin_nodes([node], context)
+    return node_main(argv, prog="recorder node", configure=configure, build=build)
 
 
 if __name__ == "__main__":

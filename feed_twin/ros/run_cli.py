@@ -99,25 +99,25 @@ def _roles(args: argparse.Namespace) -> tuple[str, ...]:
 
 def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[str]:
     peers = ",".join(r for r in _roles(args) if r != role)
-    common = ["--peers", peers, "--startup-timeout", str(args.startup_timeout)]
+    argv = [
+        "--config", str(args.config), "--peers", peers,
+        "--startup-timeout", str(args.startup_timeout),
+        "--input-timeout", str(args.input_timeout),
+    ]  # fmt: skip
     if role == "recorder":
-        live = ["--live-url", args.live_url] if args.live_url else []
-        return [
-            "--machine", ros.machine, "--axis", ros.axis, "--bag", str(out.bag), *live, *common,
-        ]  # fmt: skip
-    if role == "gcode":
-        extra = ["--optional-stop"] if args.optional_stop else []
-        return [
-            "--config", str(args.config), "--program", str(args.program), "--autostart",
-            *extra, *common,
-        ]  # fmt: skip
-    timeout = ["--input-timeout", str(args.input_timeout)]
-    if role == "controller":
-        return ["--config", str(args.config), *timeout, *common]
-    extra = ["--realtime"] if args.realtime else []
-    if args.max_time is not None:
-        extra += ["--max-time", str(args.max_time)]
-    return ["--config", str(args.config), *timeout, *extra, *common]
+        argv += ["--bag", str(out.bag)]
+        if args.live_url:
+            argv += ["--live-url", args.live_url]
+    elif role == "gcode":
+        argv += ["--program", str(args.program), "--autostart"]
+        if args.optional_stop:
+            argv.append("--optional-stop")
+    elif role == "sim":
+        if args.realtime:
+            argv.append("--realtime")
+        if args.max_time is not None:
+            argv += ["--max-time", str(args.max_time)]
+    return argv
 
 
 class _Stop:
@@ -287,67 +287,21 @@ class _Progress:
             print(file=sys.stderr)
 
 
-def _run_single_process(args: argparse.Namespace, ros, nc, out: Outputs) -> tuple[int, str, dict]:
-    from feed_twin.control.cascade import load_controller_config
-    from feed_twin.io.config import load_yaml
-    from feed_twin.ros.controller_node import ControllerNode
-    from feed_twin.ros.gcode_node import GcodeNode
-    from feed_twin.ros.recorder_node import RecorderNode
-    from feed_twin.ros.runtime import NodeOptions, init_context, spin_nodes
-    from feed_twin.ros.sim_node import SimNode, build_drive_host
+def _run_single_process(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
+    """The same nodes, built by their own modules from the same arguments, in one executor."""
+    import importlib
 
-    host = build_drive_host(args.config, ros)
-    host.warm_up()
-    controller_config = load_controller_config(
-        load_yaml(args.config)["controller"], source=str(args.config)
-    )
+    from feed_twin.ros.runtime import init_context, node_options, node_parser, spin_nodes
+
     context = init_context()
-
-    def options(role: str, **kw) -> NodeOptions:
-        return NodeOptions(
-            machine=ros.machine,
-            axis=ros.axis,
-            peers=tuple(r for r in _roles(args) if r != role),
-            startup_timeout_s=args.startup_timeout,
-            **kw,
-        )
-
-    recorder = RecorderNode(options("recorder"), out.bag, live_url=args.live_url, context=context)
-    controller = ControllerNode(
-        options("controller", input_timeout_s=args.input_timeout),
-        controller_config,
-        boundary=ros.boundary,
-        exchange_period_s=ros.exchange_period_s,
-        axis_label=ros.axis.upper(),
-        gains=ros.node_gains,
-        context=context,
-    )
-    sim = SimNode(
-        options("sim", input_timeout_s=args.input_timeout),
-        host,
-        settle_s=ros.settle_s,
-        joint_name=ros.axis,
-        axis_label=ros.axis.upper(),
-        realtime=args.realtime,
-        max_time_s=args.max_time,
-        clock_divider=ros.clock_divider,
-        context=context,
-    )
-    nodes = [recorder, controller, sim]
-    if not args.no_gcode:
-        nodes.append(
-            GcodeNode(
-                options("gcode"),
-                nc,
-                lookahead=ros.lookahead,
-                program=str(args.program),
-                autostart=True,
-                optional_stop=args.optional_stop,
-                context=context,
-            )
-        )
+    nodes = []
+    for role in _roles(args):
+        module = importlib.import_module(NODE_MODULES[role])
+        node_args = node_parser(role, module.configure).parse_args(_node_args(role, args, ros, out))
+        nodes.append(module.build(node_args, ros, node_options(node_args, ros), context))
     code = spin_nodes(nodes, context, until_all_done=True)
     reason = next((n.exit_message for n in nodes if n.exit_code and n.exit_message), "")
+    sim = next(n for n in nodes if n.role == "sim")
     return code, reason, sim.timing_report()
 
 
@@ -403,7 +357,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"live viewer (127.0.0.1 only): {viewer.web_url}", file=sys.stderr)
     try:
         if args.single_process:
-            code, reason, timing = _run_single_process(args, ros, nc, out)
+            code, reason, timing = _run_single_process(args, ros, out)
         else:
             code, reason, timing = _run_processes(args, ros, out)
         summary, problem = _finish_outputs(args, ros, out)

@@ -16,12 +16,14 @@
 
 from __future__ import annotations
 
+import argparse
 import resource
 import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import rclpy
 from rclpy.clock import Clock, ClockType
@@ -334,3 +336,50 @@ def spin_nodes(
         context.try_shutdown()
         for s, handler in previous.items():
             signal.signal(s, handler)
+
+
+def node_parser(prog: str, configure: Callable[[argparse.ArgumentParser], None]):
+    """The command line of one node process: the common options, then the node's own."""
+    parser = argparse.ArgumentParser(prog=prog)
+    parser.add_argument("--config", required=True, type=Path, help="axis config (ros section)")
+    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
+    parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
+    parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
+    configure(parser)
+    return parser
+
+
+def node_options(args: argparse.Namespace, ros) -> NodeOptions:
+    return NodeOptions(
+        machine=ros.machine,
+        axis=ros.axis,
+        peers=tuple(p for p in args.peers.split(",") if p),
+        input_timeout_s=args.input_timeout,
+        startup_timeout_s=args.startup_timeout,
+    )
+
+
+def node_main(
+    argv: Sequence[str] | None,
+    *,
+    prog: str,
+    configure: Callable[[argparse.ArgumentParser], None],
+    build: Callable[..., FeedTwinNode],
+) -> int:
+    """Parse, load the config, build the node with `build(args, ros, options, context)` and
+    spin it; configuration errors print one line and return EXIT_ERROR."""
+    from feed_twin.io.config import ConfigError
+    from feed_twin.ros.split import load_node_set_config
+
+    args = node_parser(prog, configure).parse_args(argv)
+    context = None
+    try:
+        ros = load_node_set_config(args.config)
+        context = init_context()
+        node = build(args, ros, node_options(args, ros), context)
+    except (ConfigError, ValueError, KeyError, OSError) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        if context is not None:
+            context.try_shutdown()
+        return EXIT_ERROR
+    return spin_nodes([node], context)

@@ -43,10 +43,9 @@ from feed_twin.ros.runtime import (
     LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
-    init_context,
-    spin_nodes,
+    node_main,
 )
-from feed_twin.ros.split import NS_PER_S, DriveSetpoint, NodeSetConfig, load_node_set_config
+from feed_twin.ros.split import NS_PER_S, DriveSetpoint, NodeSetConfig
 from feed_twin.ros.topics import SIM_NODE
 
 STATUS_ENABLED = 1 | 2 | 4 | 16 | 32 | 512  # ready, switched on, operation enabled, voltage,
@@ -324,34 +323,14 @@ class SimNode(FeedTwinNode):
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", required=True, type=Path)
     parser.add_argument("--realtime", action="store_true")
     parser.add_argument("--max-time", type=float, default=None, help="simulated seconds at most")
-    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
-    parser.add_argument("--input-timeout", type=float, default=10.0)
-    parser.add_argument("--startup-timeout", type=float, default=60.0)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="feed_twin.ros.sim_node")
-    configure(parser)
-    args = parser.parse_args(argv)
-    try:
-        ros = load_node_set_config(args.config)
-        host = build_drive_host(args.config, ros)
-        host.warm_up()  # before the first heartbeat: a compiling node must not look dead
-    except (ConfigError, ValueError, KeyError) as exc:
-        print(f"sim node: {exc}", file=sys.stderr)
-        return EXIT_ERROR
-    options = NodeOptions(
-        machine=ros.machine,
-        axis=ros.axis,
-        peers=tuple(p for p in args.peers.split(",") if p),
-        input_timeout_s=args.input_timeout,
-        startup_timeout_s=args.startup_timeout,
-    )
-    context = init_context()
-    node = SimNode(
+def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNode:
+    host = build_drive_host(args.config, ros)
+    host.warm_up()  # before the first heartbeat: a compiling node must not look dead
+    return SimNode(
         options,
         host,
         settle_s=ros.settle_s,
@@ -362,7 +341,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         clock_divider=ros.clock_divider,
         context=context,
     )
-    return spin_nodes([node], context)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return node_main(argv, prog="sim node", configure=configure, build=build)
 
 
 if __name__ == "__main__":
