@@ -243,3 +243,32 @@ def test_shadow_config_needs_its_section(tmp_path) -> None:
     path.write_text("plant: {}\n")
     with pytest.raises(ConfigError, match=r"axis.yaml: missing required section shadow"):
         load_shadow_config(path)
+
+
+def test_rolling_rms_equals_the_window_rms_for_any_block_sizes() -> None:
+    from feed_twin.shadow.twin import _RollingRms
+
+    rng = np.random.default_rng(1)
+    values = rng.normal(0.0, 2.0, 5000)
+    rolling = _RollingRms(700)
+    got, i = [], 0
+    for size in rng.choice([1, 1, 1, 3, 100, 900], 400):
+        got.append(rolling(values[i : i + size]))
+        i += size
+        if i >= len(values):
+            break
+    got = np.concatenate(got)
+    want = [np.sqrt(np.mean(values[max(0, k - 699) : k + 1] ** 2)) for k in range(len(got))]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def test_health_window_ring_keeps_the_last_rows_in_order() -> None:
+    from feed_twin.shadow.health import _Ring
+
+    ring = _Ring(10, 1)
+    rows = np.arange(37.0)[:, None]
+    i = 0
+    for size in (3, 1, 12, 4, 9, 8):
+        ring.extend(rows[i : i + size])
+        i += size
+        np.testing.assert_array_equal(ring.data[:, 0], rows[max(0, i - 10) : i, 0])

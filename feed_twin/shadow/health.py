@@ -79,14 +79,29 @@ class Verdict:
 
 
 class _Ring:
-    """The last `size` rows of a few float columns (bounded memory)."""
+    """The last `size` rows of a few float columns (bounded memory, O(rows) to add)."""
 
     def __init__(self, size: int, width: int) -> None:
         self.size = size
-        self.data = np.zeros((0, width))
+        self.buf = np.zeros((size, width))
+        self.pos = 0
+        self.count = 0
 
     def extend(self, rows: np.ndarray) -> None:
-        self.data = np.concatenate([self.data, rows])[-self.size :]
+        rows = rows[-self.size :]
+        n = len(rows)
+        first = min(n, self.size - self.pos)
+        self.buf[self.pos : self.pos + first] = rows[:first]
+        self.buf[: n - first] = rows[first:]
+        self.pos = (self.pos + n) % self.size
+        self.count = min(self.count + n, self.size)
+
+    @property
+    def data(self) -> np.ndarray:
+        """The rows in arrival order (a copy)."""
+        if self.count < self.size:
+            return self.buf[: self.count].copy()
+        return np.concatenate([self.buf[self.pos :], self.buf[: self.pos]])
 
 
 class HealthMonitor:
@@ -118,6 +133,7 @@ class HealthMonitor:
         self._since_eval = 0
         self.verdicts: list[Verdict] = []  # every evaluation, most recent last
         self._naming: dict = {}
+        self._baseline_note = ""
         self._invalid_run = 0  # consecutive rows without a real measured sample
         self._t_last = math.nan
         self._named_at: float | None = None
@@ -162,7 +178,7 @@ class HealthMonitor:
 
     def evaluate(self, *, stale: bool = False) -> Verdict | None:
         """Judge the current window against the baseline (None before the baseline is set)."""
-        if self.baseline is None or not len(self._window.data):
+        if self.baseline is None or self._window.count == 0:
             return None
         w = self._window.data
         b = self.baseline
@@ -214,10 +230,13 @@ class HealthMonitor:
     # ------------------------------------------------------------------ baseline and naming
 
     def _motion(self, w: np.ndarray):
+        effort = w[:, 4]
+        # a constant twin effort has no shape: the effort-shaped signatures would be 0/0
+        has_shape = bool(np.all(np.isfinite(effort))) and float(np.ptp(effort)) > 0.0
         return motion_from_position(
             w[:, 0],
             w[:, 1],
-            effort_sim=w[:, 4],
+            effort_sim=effort if has_shape else None,
             lead_m=self.lead_m,
             pole_pairs=self.pole_pairs,
             travel_m=self.travel_m,
@@ -237,7 +256,11 @@ class HealthMonitor:
             return
         rows = _decimated(rows)
         motion = self._motion(rows)
-        ranked = rank(motion, effort_residual=rows[:, 3], position_residual=None)
+        try:
+            ranked = rank(motion, effort_residual=rows[:, 3], position_residual=None)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            self._baseline_note = f"baseline residual model not fitted: {exc}"
+            return
         chosen = [(c.name, c.variant) for c in ranked]
         columns, owners = self._regressors(motion, chosen)
         if not columns:
@@ -282,7 +305,11 @@ class HealthMonitor:
         w = _decimated(w)
         motion = self._motion(w)
         change = w[:, 3] - self.baseline_prediction(motion)
-        ranked = rank(motion, effort_residual=change, position_residual=None)
+        try:
+            ranked = rank(motion, effort_residual=change, position_residual=None)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            # a twin must never stop over its diagnosis: report and go on
+            return {"message": f"the effect ranking failed on this window ({exc})"}
         found = next((c for c in ranked if c.significant), None)
         if found is None:
             return {"message": "no effect of the library explains the change"}

@@ -71,21 +71,60 @@ class ResidualBlock:
 
 
 class _RollingRms:
-    """RMS of the last `size` values, per sample, across block boundaries."""
+    """RMS of the last `size` values, per sample, across block boundaries.
+
+    A running sum over a ring buffer costs O(1) a sample, which matters when the live twin
+    calls this once per 1 ms slot; it is re-summed exactly once per `size` samples so that
+    rounding does not accumulate. Long blocks (replay) go through cumulative sums.
+    """
 
     def __init__(self, size: int) -> None:
         self.size = size
-        self.tail = np.zeros(0)
+        self.ring = np.zeros(size)
+        self.pos = 0  # next write position
+        self.count = 0  # values seen, up to size
+        self.total = 0.0
+        self._since_resum = 0
 
     def __call__(self, values: np.ndarray) -> np.ndarray:
-        sq = np.concatenate([self.tail, np.asarray(values, dtype=float) ** 2])
-        cs = np.concatenate(([0.0], np.cumsum(sq)))
-        n_old = len(self.tail)
-        end = np.arange(n_old + 1, len(sq) + 1)
-        begin = np.maximum(end - self.size, 0)
-        mean = (cs[end] - cs[begin]) / (end - begin)
-        self.tail = sq[-self.size :]
-        return np.sqrt(np.maximum(mean, 0.0))
+        sq = np.square(np.asarray(values, dtype=float))
+        n = len(sq)
+        if n > 64:
+            tail = self._ordered()
+            all_sq = np.concatenate([tail, sq])
+            cs = np.concatenate(([0.0], np.cumsum(all_sq)))
+            end = np.arange(len(tail) + 1, len(all_sq) + 1)
+            begin = np.maximum(end - self.size, 0)
+            out = np.sqrt(np.maximum((cs[end] - cs[begin]) / (end - begin), 0.0))
+            keep = all_sq[-self.size :]
+            self.ring[: len(keep)] = keep
+            self.count = len(keep)
+            self.pos = len(keep) % self.size
+            self.total = float(np.sum(keep))
+            self._since_resum = 0
+            return out
+        out = np.empty(n)
+        ring, size = self.ring, self.size
+        for i, v in enumerate(sq.tolist()):
+            self.total += v - ring[self.pos]
+            ring[self.pos] = v
+            self.pos = (self.pos + 1) % size
+            self.count = min(self.count + 1, size)
+            self._since_resum += 1
+            if self._since_resum >= size:
+                self.total = float(np.sum(ring[: self.count]))
+                self._since_resum = 0
+            out[i] = math.sqrt(max(self.total / self.count, 0.0))
+        return out
+
+    def _ordered(self) -> np.ndarray:
+        if self.count < self.size:
+            return self.ring[: self.count].copy()
+        return np.concatenate([self.ring[self.pos :], self.ring[: self.pos]])
+
+
+def _finite_or_zero(a: np.ndarray) -> np.ndarray:
+    return a if np.isfinite(a).all() else np.where(np.isfinite(a), a, 0.0)
 
 
 class _Rows:
@@ -410,15 +449,15 @@ class ShadowTwin:
             effort_twin=tw[:, 3],
             fe_dev_m=fe_dev,
             effort_dev=effort_dev,
-            fe_dev_rms_m=self._fe_rms(np.nan_to_num(fe_dev)),
-            effort_dev_rms=self._eff_rms(np.nan_to_num(effort_dev)),
+            fe_dev_rms_m=self._fe_rms(_finite_or_zero(fe_dev)),
+            effort_dev_rms=self._eff_rms(_finite_or_zero(effort_dev)),
             measured_filled=me[:, 3].astype(bool),
             command_filled=tw[:, 4].astype(bool),
         )
         # filled measured samples and twin restarts are not evidence about the machine
         valid = np.isfinite(fe_dev) & ~block.measured_filled
         health_rows = np.column_stack(
-            [t, me[:, 1], fe_dev, np.nan_to_num(effort_dev), np.nan_to_num(tw[:, 3])]
+            [t, me[:, 1], fe_dev, _finite_or_zero(effort_dev), _finite_or_zero(tw[:, 3])]
         )
         self.new_verdicts = self.health.update(health_rows, valid=valid)
         return block
