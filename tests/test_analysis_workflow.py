@@ -87,3 +87,18 @@ def test_cogging_is_found_on_the_machine_tool_axis(tmp_path):
     assert found["amplitude_Nm"] == pytest.approx(0.3, rel=0.10)
     assert found["phase_rad"] == pytest.approx(0.5, abs=0.1)
     assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
+
+
+@pytest.mark.slow
+def test_position_only_record_still_names_a_missing_force(tmp_path):
+    """A scope that logged no effort: the loop's stiffness turns the FE deviation into force."""
+    nominal = ModelDoc.load(NOMINAL)
+    columns = generate(nominal, {"constant_force": {"f_0_N": -20.0}})
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    map_path.write_text(map_path.read_text().replace("  force_cmd_N", "  # force_cmd_N"))
+    run = load_measured(tmp_path / "run.csv", map_path)
+    assert run.effort_name is None
+    d = diagnose(run, nominal)[0]
+    assert [e.name for e in d.effects][:1] == ["constant_force"], d.notes
+    assert d.effects[0].parameters["f_0_N"] == pytest.approx(-20.0, rel=0.10)
+    assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m

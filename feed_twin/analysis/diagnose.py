@@ -82,6 +82,25 @@ class _Values(dict):
         return self.doc.get(name)
 
 
+def _loop_stiffness(twin: Twin, drive: Drive, out0: SimOutputs) -> float | None:
+    """Static stiffness [N/m] of the closed position loop, from the twin itself: the extra
+    effort per metre of extra following error when the mass is 20 % heavier (a load the
+    loop must carry), fitted over the record. None if the twin has no mass to change."""
+    m = twin.doc.mass_slot()
+    if m is None or out0.effort is None:
+        return None
+    p = twin.nominal.copy()
+    for i in twin.index[m]:
+        p[i] *= 1.2
+    out = twin.simulate(drive, p[None, :])
+    if not out.ok[0] or out.effort is None:
+        return None
+    df = out.effort[0] - out0.effort[0]
+    dx = out0.x_m[0] - out.x_m[0]
+    denom = float(np.dot(dx, dx))
+    return abs(float(np.dot(df, dx)) / denom) if denom > 0 else None
+
+
 def _unit(twin: Twin, cand: Candidate) -> str:
     return twin.effort_unit if cand.effect.domain == "effort" else "m"
 
@@ -290,13 +309,20 @@ def diagnose(
         pole_pairs=twin.pole_pairs,
     )
     state = _State(doc=nominal, twin=twin, outputs=out0, cost=cost_of(meas, out0))
+    stiffness = None if re0 is not None else _loop_stiffness(twin, drive, out0)
     excluded: list[str] = []
     ranking: list[Candidate] = []
     reports: list[dict] = []
     unfitted: list[dict] = []
     for round_no in range(1, opts.max_effects + 1):
         re, rp = _residuals(run, state.outputs)
-        ranking = rank(motion, effort_residual=re, position_residual=rp, exclude=tuple(excluded))
+        ranking = rank(
+            motion,
+            effort_residual=re,
+            position_residual=rp,
+            exclude=tuple(excluded),
+            loop_stiffness=stiffness,
+        )
         significant = [c for c in ranking if c.significant]
         if not significant:
             progress(f"round {round_no}: no effect of the library explains a significant part")

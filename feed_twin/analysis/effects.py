@@ -374,12 +374,20 @@ def rank(
     effort_residual: np.ndarray | None,
     position_residual: np.ndarray | None,
     exclude: tuple[str, ...] = (),
+    loop_stiffness: float | None = None,
 ) -> list[Candidate]:
     """Rank the library's effects on the residuals, most explaining first.
 
     Effort-domain effects are ranked on the effort residual, position-domain effects on the
-    position residual with the effort-driven part removed (see the module docstring).
+    position residual with the effort-driven part removed (see the module docstring). A record
+    without effort (a scope that logged positions only) ranks the effort-domain effects on
+    `loop_stiffness * position residual` [N/m * m]: a stiff position loop turns a missing force
+    d into a following-error change d / K, so that is the force the twin lacks.
     """
+    if effort_residual is None and position_residual is not None and loop_stiffness:
+        rp = np.asarray(position_residual, dtype=float)
+        effort_residual = loop_stiffness * rp
+        position_residual = None
     domains = set()
     # a constant position offset belongs to the alignment, not to any effect
     offset = np.ones_like(motion.t_s)
