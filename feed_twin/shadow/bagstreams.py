@@ -445,3 +445,41 @@ def _decode_generic(
         np.asarray(stamps, dtype=float),
         {name: np.asarray(v, dtype=float) for name, v in cols.items()},
     )
+
+
+class MessageFields:
+    """One message at a time (a live subscription): stamp [s] and the mapped signals in SI.
+
+    The byte layout of a message is computed once per message size (the strings, and so the
+    offsets, only change with it) and reused."""
+
+    def __init__(
+        self, type_name: str, signals: dict[str, tuple[str, ColumnSpec]], cmap: ColumnMap
+    ) -> None:
+        self.type_name = type_name
+        self._codec = None if type_name == JOINT_STATE else FlatCodec(type_name)
+        self._paths = {name: col.partition(":")[2] for name, (col, _) in signals.items()}
+        self._scale = {
+            name: float(_to_si(name, spec, np.ones(1), cmap.conversion)[0])
+            for name, (_, spec) in signals.items()
+        }
+        self._layouts: dict[int, dict[str, tuple[int, str]]] = {}
+
+    def __call__(self, data: bytes) -> tuple[float, dict[str, float]]:
+        where = self._layouts.get(len(data))
+        if where is None:
+            codec = self._codec
+            where = _joint_state(data)[1] if codec is None else flat_offsets(codec, data)
+            missing = [p for p in self._paths.values() if p not in where]
+            if missing:
+                raise MeasuredDataError(
+                    f"{self.type_name}: message has no numeric field {missing[0]!r}"
+                )
+            self._layouts[len(data)] = where
+        sec = struct.unpack_from("<i", data, where["header.stamp.sec"][0])[0]
+        nsec = struct.unpack_from("<I", data, where["header.stamp.nanosec"][0])[0]
+        values = {}
+        for name, path in self._paths.items():
+            offset, code = where[path]
+            values[name] = float(np.frombuffer(data, code, 1, offset)[0]) * self._scale[name]
+        return sec + nsec * 1e-9, values

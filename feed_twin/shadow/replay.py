@@ -237,56 +237,14 @@ def health_values(names: tuple[str, ...], v: Verdict, axis: str) -> list:
 
 
 def write_rerun(result: ReplayResult, path: Path) -> Path:
-    """Measured vs twin, residuals and health on the sim_time timeline of an .rrd file."""
-    import rerun as rr
-    import rerun.blueprint as rrb
+    """Machine vs twin, residuals and health (feed_twin.shadow.dashboard) in an .rrd file."""
+    from feed_twin.shadow.dashboard import ShadowDashboard
 
-    from feed_twin.io.dashboard import APPLICATION_ID, TIMELINE
-
-    s = result.samples
-    unit = result.effort_unit
-    rec = rr.RecordingStream(f"{APPLICATION_ID}_replay")
-    layout = rrb.Blueprint(
-        rrb.Grid(
-            rrb.TimeSeriesView(name="Following error [um]", origin="/following_error"),
-            rrb.TimeSeriesView(name=f"Effort [{unit}]", origin="/effort"),
-            rrb.TimeSeriesView(name="FE deviation [um]", origin="/fe_deviation"),
-            rrb.TimeSeriesView(name=f"Effort deviation [{unit}]", origin="/effort_deviation"),
-            rrb.TextLogView(name="Health", origin="/health"),
-            grid_columns=2,
-        ),
-        collapse_panels=True,
-    )
-    path.parent.mkdir(parents=True, exist_ok=True)
-    rec.save(str(path), default_blueprint=layout)
-    series = {
-        "/following_error/measured": 1e6 * (s.x_cmd_m - s.x_meas_m),
-        "/following_error/twin": 1e6 * (s.x_cmd_m - s.x_twin_m),
-        "/effort/measured": s.effort_meas,
-        "/effort/twin": s.effort_twin,
-        "/fe_deviation/sample": 1e6 * s.fe_dev_m,
-        "/fe_deviation/rolling_rms": 1e6 * s.fe_dev_rms_m,
-        "/effort_deviation/sample": s.effort_dev,
-        "/effort_deviation/rolling_rms": s.effort_dev_rms,
-    }
-    for entity, values in series.items():
-        keep = np.isfinite(values)
-        if not keep.any():
-            continue
-        rec.log(entity, rr.SeriesLines(names=[entity.rsplit("/", 1)[1]]), static=True)
-        rec.send_columns(
-            entity,
-            indexes=[rr.TimeColumn(TIMELINE, duration=s.t_s[keep] - s.t_s[0])],
-            columns=rr.Scalars.columns(scalars=values[keep]),
-        )
-    levels = {0: "INFO", 1: "WARN", 2: "ERROR", 3: "WARN"}
+    dash = ShadowDashboard(effort_unit=result.effort_unit, rrd_path=path)
+    dash.log_block(result.samples)
     for v in result.verdicts:
-        if v.level == 0:
-            continue
-        rec.set_time(TIMELINE, duration=v.t_s - s.t_s[0])
-        rec.log("/health", rr.TextLog(f"{v.level_name}: {v.message}", level=levels[v.level]))
-    rec.flush()
-    rec.disconnect()
+        dash.log_verdict(v)
+    dash.close()
     return path
 
 
