@@ -10,6 +10,7 @@ import tracemalloc
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 
 from feed_twin.gcode import (
@@ -285,40 +286,54 @@ def test_stream_validates_the_whole_program_before_the_first_chunk():
 
 
 def _long_program(path: Path, n: int) -> None:
+    """n chords of 0.05 mm around a 50 mm circle, again and again, at F6000."""
     with path.open("w") as handle:
-        handle.write("G21 G90 G64 G1 F6000\n")
-        for k in range(n):
-            handle.write(f"X{(k % 1000) * 0.05:.2f} Y{0.02 * (k % 2):.2f}\n")
+        handle.write("G21 G90 G64 G1 X50 Y0 F6000\n")
+        for k in range(1, n + 1):
+            angle = k * 0.001
+            handle.write(f"X{50 * math.cos(angle):.4f} Y{50 * math.sin(angle):.4f}\n")
         handle.write("M2\n")
 
 
-def _peak_memory_of_streaming(path: Path) -> tuple[int, int]:
-    tracemalloc.start()
-    samples = 0
-    for chunk in plan_program_stream(path, CONFIG):
-        samples += len(chunk)
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    return peak, samples
+def test_stream_chunks_stay_small_however_long_the_program(tmp_path):
+    path = tmp_path / "long.ngc"
+    _long_program(path, 6000)
+    config = dataclasses.replace(CONFIG, lookahead_segments=200)
+    sizes = [len(chunk) for chunk in plan_program_stream(path, config)]
+    # Each chunk is about the committed half of a window (100 chords): their number grows
+    # with the program, their size does not (the first one also holds the run-up from rest).
+    assert len(sizes) >= 6000 / 200
+    assert max(sizes[1:]) <= 1.5 * np.median(sizes)
 
 
+@pytest.mark.slow
 def test_streaming_memory_does_not_grow_with_program_length(tmp_path):
     short, long_ = tmp_path / "short.ngc", tmp_path / "long.ngc"
-    _long_program(short, 4000)
-    _long_program(long_, 40000)
-    peak_short, n_short = _peak_memory_of_streaming(short)
-    peak_long, n_long = _peak_memory_of_streaming(long_)
-    assert n_long > 8 * n_short
-    assert peak_long < 1.5 * peak_short + 2e6
+    _long_program(short, 2000)
+    _long_program(long_, 20000)
+    peaks, samples = [], []
+    for path in (short, long_):
+        tracemalloc.start()
+        samples.append(sum(len(chunk) for chunk in plan_program_stream(path, CONFIG)))
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    assert samples[1] > 8 * samples[0]
+    assert peaks[1] < 1.5 * peaks[0] + 2e6
 
 
 @pytest.mark.slow
 def test_million_line_program_streams_in_bounded_memory(tmp_path):
     path = tmp_path / "million.ngc"
     _long_program(path, 1_000_000)
-    peak, samples = _peak_memory_of_streaming(path)
-    assert samples > 1_000_000
-    assert peak < 50e6  # the samples alone would need > 200 MB
+    process = psutil.Process()
+    samples = 0
+    rss = []
+    for chunk in plan_program_stream(path, CONFIG):
+        samples += len(chunk)
+        rss.append(process.memory_info().rss)
+    # About 500 s of motion: keeping the samples (11 float64 a sample) would take > 40 MB.
+    assert samples > 450_000
+    assert max(rss) - rss[len(rss) // 10] < 20e6
 
 
 GOLDEN_PROGRAMS = sorted(p.name for p in FIXTURES.glob("*.ngc"))
