@@ -272,3 +272,17 @@ def test_summary_figures_from_columns() -> None:
     assert summary.velocity_peak_m_s == pytest.approx(0.1, rel=1e-4)
     with pytest.raises(ValueError, match=r"no /cnc/x/state messages: nothing was simulated"):
         summarise({topics.state: {}, topics.command: {}}, topics)
+
+
+def test_program_stream_pause_request_waits_for_standstill() -> None:
+    nc = load_nc_config(NC)
+    trajectory = plan_program("G21 G90 G54\nG1 X10 F3000\nG4 P0.1\nG1 X20\nM30\n", nc)
+    stream = ProgramStream(trajectory, "X", period_ns=10**6, t0_ns=0, optional_stop=False)
+    for _ in range(50):
+        stream.next_sample()
+    stream.pause_requested = True
+    while stream.paused is None:
+        last = stream.next_sample()
+    assert stream.paused == "by request" and abs(last[2]) < 1e-9
+    hold = stream.next_sample()
+    assert (hold[1], hold[2], hold[4]) == (last[1], 0.0, stream.paused_line)

@@ -5,7 +5,9 @@
   (`feed_twin.gcode.plan_program`), so a bad program stops before any motion, with the
   interpreter's `file:line:col: ...` message on `program_state` and in the log.
 - Services (std_srvs/Trigger) under the node: `start` (also resumes after a pause), `pause`,
-  `stop` (ends the program at the next standstill of the planned path, never mid-move).
+  `stop` (ends the program at the next standstill of the planned path, never mid-move; `pause`
+  likewise holds at the next standstill: a feed hold mid-move would need a new deceleration
+  profile, which the planner does not make).
 - M0 pauses; M1 pauses when the parameter `optional_stop` is true. While paused the NC holds the
   position (setpoints at standstill, as a real control does) and the program time stands still;
   `start` resumes.
@@ -74,16 +76,18 @@ class ProgramStream:
         self.t0_ns = t0_ns
         kinds = {"pause"} | ({"optional_pause"} if optional_stop else set())
         period_s = period_ns / NS_PER_S
-        self.pause_at: dict[int, str] = {}
+        self.pause_at: dict[int, tuple[int, str]] = {}
         for event in trajectory.events:
             if event.kind in kinds:
                 # The first sample at or after the event: the path is at rest there.
                 k = min(self.n - 1, math.ceil(event.t_s / period_s - 1e-6))
-                self.pause_at[k] = f"line {event.line} ({event.text})"
+                self.pause_at[k] = (event.line, f"line {event.line} ({event.text})")
         self.k = 0  # index of the next program sample
         self.published = 0  # samples published (program + hold)
         self.paused: str | None = None
+        self.paused_line = -1  # the M0/M1 line while paused, else of the last pause
         self.stop_requested = False
+        self.pause_requested = False
         self.stopped = False
 
     @property
@@ -99,13 +103,17 @@ class ProgramStream:
         self.published += 1
         if self.paused is not None:
             k = max(self.k - 1, 0)
-            return t_ns, float(self.x[k]), 0.0, 0.0, int(self.line[k])
+            return t_ns, float(self.x[k]), 0.0, 0.0, self.paused_line
         k = self.k
         self.k += 1
         if k in self.pause_at:
-            self.paused = self.pause_at.pop(k)
-        if self.stop_requested and abs(self.v[k]) < STANDSTILL_M_S and k > 0:
+            self.paused_line, self.paused = self.pause_at.pop(k)
+        at_rest = abs(self.v[k]) < STANDSTILL_M_S and k > 0
+        if self.stop_requested and at_rest:
             self.stopped = True
+        elif self.pause_requested and at_rest and self.paused is None:
+            self.pause_requested = False
+            self.paused_line, self.paused = int(self.line[k]), "by request"
         return t_ns, float(self.x[k]), float(self.v[k]), float(self.a[k]), int(self.line[k])
 
     @property
@@ -136,9 +144,9 @@ class GcodeNode(FeedTwinNode):
         self._pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
         self._state_pub = self.create_publisher(String, self.topics.program_state, LATCHED_QOS)
         self.create_subscription(Clock, "/clock", self._on_clock, DATA_QOS)
-        self.create_service(Trigger, "start", self._srv_start)
-        self.create_service(Trigger, "pause", self._srv_pause)
-        self.create_service(Trigger, "stop", self._srv_stop)
+        self.create_service(Trigger, "~/start", self._srv_start)
+        self.create_service(Trigger, "~/pause", self._srv_pause)
+        self.create_service(Trigger, "~/stop", self._srv_stop)
         self.declare_parameter("optional_stop", optional_stop)
         self.declare_parameter("program", "")
         self.add_on_set_parameters_callback(self._on_parameters)
@@ -151,6 +159,7 @@ class GcodeNode(FeedTwinNode):
 
     def _state(self, text: str) -> None:
         self._state_pub.publish(String(data=text))
+        self.get_logger().info(f"program: {text}")
 
     def load(self, program: str) -> bool:
         try:
@@ -245,9 +254,8 @@ class GcodeNode(FeedTwinNode):
         if self.stream is None or not self.running:
             response.success, response.message = False, "not running"
         else:
-            self.stream.paused = self.stream.paused or "by request"
-            self._state(f"paused {self.stream.paused}")
-            response.success, response.message = True, "paused"
+            self.stream.pause_requested = True
+            response.success, response.message = True, "pausing at the next standstill"
         return response
 
     def _srv_stop(self, request, response):

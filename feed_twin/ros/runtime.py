@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import resource
 import signal
 import sys
@@ -28,6 +29,7 @@ from pathlib import Path
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
+from rclpy.duration import Duration
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -43,6 +45,7 @@ EXIT_INPUT_TIMEOUT = 4  # an expected topic stayed silent
 EXIT_SIGNAL = 130  # stopped by SIGINT/SIGTERM (after a clean shutdown)
 
 HEARTBEAT_PERIOD_S = 0.1
+ACK_WAIT_S = 1.0  # [s] a stopping node waits for its readers to acknowledge its last messages
 SIGNAL_DRAIN_S = 30.0  # [s] nodes may take after SIGINT/SIGTERM to finish (recorder drain)
 PEER_TIMEOUT_S = 0.8  # noticed within 0.9 s; 0.6 s gave false alarms on a machine at load 9
 
@@ -316,6 +319,16 @@ def spin_nodes(
                 node.on_shutdown(reason)
             except Exception as exc:  # noqa: BLE001 - one node's cleanup must not skip another's
                 print(f"{node.role}: error while shutting down: {exc}", file=sys.stderr)
+        # Reliable data still in flight (the end-of-run message, the last samples) reaches the
+        # recorder only while the writers exist: wait for the acknowledgements, briefly.
+        deadline = time.monotonic() + ACK_WAIT_S
+        for node in nodes:
+            for publisher in node.publishers:
+                left = deadline - time.monotonic()
+                if left <= 0.0:
+                    break
+                with contextlib.suppress(Exception):
+                    publisher.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
         usage = resource.getrusage(resource.RUSAGE_SELF)
         roles = "+".join(n.role for n in nodes)
         print(

@@ -48,9 +48,15 @@ from feed_twin.ros.runtime import (
 from feed_twin.ros.split import NS_PER_S, DriveSetpoint, NodeSetConfig
 from feed_twin.ros.topics import SIM_NODE
 
-STATUS_ENABLED = 1 | 2 | 4 | 16 | 32 | 512  # ready, switched on, operation enabled, voltage,
-# quick stop inactive, remote (AxisFeedback.STATUS_*)
-STATUS_FAULT = 8
+STATUS_ENABLED = (
+    AxisFeedback.STATUS_READY_TO_SWITCH_ON
+    | AxisFeedback.STATUS_SWITCHED_ON
+    | AxisFeedback.STATUS_OPERATION_ENABLED
+    | AxisFeedback.STATUS_VOLTAGE_ENABLED
+    | AxisFeedback.STATUS_QUICK_STOP  # set = quick stop not active
+    | AxisFeedback.STATUS_REMOTE
+)
+STATUS_FAULT = AxisFeedback.STATUS_FAULT
 
 
 def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
