@@ -33,6 +33,7 @@ from feed_twin.plant.component import STAGES, Component, Emitter, check_name
 POSITION_LIMIT = 1.0e4  # |q| [m or rad] counted as a runaway
 VELOCITY_LIMIT = 1.0e5  # |dq/dt| [m/s or rad/s] counted as a runaway
 NOISE_CHANNELS_PER_COMPONENT = 8
+SENSE_STAGES = ("currents", "dc_current", "dc_voltage", "sense")
 
 
 class AssemblyError(ValueError):
@@ -274,6 +275,7 @@ class PlantModel:
     def _generate(self) -> None:
         gen = _Generator(self)
         for stage in STAGES:
+            gen.stage = stage
             for name, comp in self.components.items():
                 gen.current = name
                 comp.emit(stage, gen)
@@ -449,7 +451,9 @@ class _Generator(Emitter):
     def __init__(self, model: PlantModel) -> None:
         self.m = model
         self.current: str | None = None
-        self.lines: list[tuple[str, str]] = []  # (kind, code); kind: all, dx, aux, meas
+        # (kind, code, stage); kind: all, dx, aux, meas
+        self.lines: list[tuple[str, str, str]] = []
+        self.stage = STAGES[0]
         self.imports: dict[str, str] = {}
         self.energy_states: list[str] = []
         self.energy_kinds: dict[str, str] = {}
@@ -458,8 +462,12 @@ class _Generator(Emitter):
         self.meas_delays: dict[str, str] = {}
         self.signal_names: set[str] = set()
         self.node_scale: dict[int, str] = {}
+        self.noise_pairs: set[int] = set()
         self.comp_index = {n: i for i, n in enumerate(model.components)}
         self.n_core = len(model._core_states)
+
+    def _add(self, item: tuple[str, str]) -> None:
+        self.lines.append((item[0], item[1], self.stage))
 
     # -------------------------------------------------- Emitter
     def _name(self) -> str:
@@ -476,20 +484,20 @@ class _Generator(Emitter):
         return f"x[{_const('X_', f'{self._name()}.{state}')}]"
 
     def d(self, state: str, expr: str) -> None:
-        self.lines.append(("dx", f"dx[{_const('X_', f'{self._name()}.{state}')}] = {expr}"))
+        self._add(("dx", f"dx[{_const('X_', f'{self._name()}.{state}')}] = {expr}"))
 
     def local(self, name: str) -> str:
         return f"{self._name()}__{name}"
 
     def line(self, code: str) -> None:
-        self.lines.append(("all", code))
+        self._add(("all", code))
 
     def call(self, targets: tuple[str, ...], func: str, args: tuple[str, ...]) -> None:
         module, _, fname = func.rpartition(".")
         alias = f"_{module.rsplit('.', 1)[-1]}_{fname}"
         self.imports[alias] = f"from {module} import {fname} as {alias}"
         lhs = ", ".join(targets)
-        self.lines.append(("all", f"{lhs} = {alias}({', '.join(args)})"))
+        self._add(("all", f"{lhs} = {alias}({', '.join(args)})"))
 
     def _node(self, port: str) -> int:
         return self.m.node_of[f"{self._name()}.{port}"]
@@ -499,7 +507,7 @@ class _Generator(Emitter):
         return f"s_n{n}", f"v_n{n}"
 
     def apply(self, port: str, expr: str) -> None:
-        self.lines.append(("all", f"F_n{self._node(port)} += {expr}"))
+        self._add(("all", f"F_n{self._node(port)} += {expr}"))
 
     def node_force(self, port: str) -> str:
         return f"F_n{self._node(port)}"
@@ -523,21 +531,21 @@ class _Generator(Emitter):
     def aux(self, name: str, expr: str) -> None:
         full = f"{self._name()}.{name}"
         self.aux_names.append(full)
-        self.lines.append(("aux", f"aux[{_const('A_', full)}] = {expr}"))
+        self._add(("aux", f"aux[{_const('A_', full)}] = {expr}"))
 
     def power(self, kind: str, name: str, expr: str) -> None:
         full = f"energy.{self._name()}.{name}"
         self.energy_kinds[full] = kind
         if self.m.track_energy:
             self.energy_states.append(full)
-            self.lines.append(("dx", f"dx[{_const('X_', full)}] = {expr}"))
+            self._add(("dx", f"dx[{_const('X_', full)}] = {expr}"))
         self.aux(f"power.{name}", expr)
 
     def stored(self, name: str, expr: str) -> None:
         full = f"stored.{self._name()}.{name}"
         self.stored_names.append(full)
         self.aux_names.append(full)
-        self.lines.append(("aux", f"aux[{_const('A_', full)}] = {expr}"))
+        self._add(("aux", f"aux[{_const('A_', full)}] = {expr}"))
 
     def meas(self, slot: str, expr: str, delay: str = "0") -> None:
         if slot in self.meas_delays:
@@ -546,17 +554,31 @@ class _Generator(Emitter):
             )
         self.signal_names.add(slot)
         self.meas_delays[slot] = self._name()
-        self.lines.append(("meas", f"meas[{slot}] = {expr}"))
-        self.lines.append(("meas", f"mdelay[{slot}] = {delay}"))
+        self._add(("meas", f"meas[{slot}] = {expr}"))
+        self._add(("meas", f"mdelay[{slot}] = {delay}"))
         if "quantize_floor" in expr:
             self.imports["quantize_floor"] = "from feed_twin.plant.sensors import quantize_floor"
         if "adc(" in expr:
             self.imports["adc"] = "from feed_twin.plant.sensors import adc"
 
-    def noise(self, channel: int) -> str:
-        self.imports["standard_normal"] = "from feed_twin.plant.noise import standard_normal"
+    def noise(self, channel: int, scale: str) -> str:
+        # channels 2j and 2j+1 share one Box-Muller draw; the pair is drawn once per function
+        self.imports["standard_normal_pair"] = (
+            "from feed_twin.plant.noise import standard_normal_pair"
+        )
         base = self.comp_index[self._name()] * NOISE_CHANNELS_PER_COMPONENT
-        return f"standard_normal(seed, k, {base + channel})"
+        pair = (base + channel) // 2
+        names = (f"noise_{2 * pair}", f"noise_{2 * pair + 1}")
+        if pair not in self.noise_pairs:
+            self.noise_pairs.add(pair)
+            self._add(
+                (
+                    "meas",
+                    f"{names[0]}, {names[1]} = standard_normal_pair(seed, k, {pair}) "
+                    f"if {scale} != 0.0 else (0.0, 0.0)",
+                )
+            )
+        return f"{scale} * {names[(base + channel) % 2]}"
 
     # -------------------------------------------------- output
     def _constants(self) -> list[str]:
@@ -639,7 +661,11 @@ class _Generator(Emitter):
                 f"    p[{_const('P_', f'derived.inv_inertia.{c.name}')}]"
                 f" = 1.0 / ({' + '.join(terms)})"
             )
-        return ["@njit(cache=True)", "def fill_derived(p):"] + body + ["    return p"]
+        return (
+            ['@njit(cache=True, error_model="numpy")', "def fill_derived(p):"]
+            + body
+            + ["    return p"]
+        )
 
     def module_source(self) -> str:
         head = [
@@ -662,14 +688,23 @@ class _Generator(Emitter):
         coord_lines = self._coordinate_lines("")
         for name, args, kinds in specs:
             lines = list(body_all)
+            # sensors see positions, currents and the bus: `sense` skips the dynamics
+            stages = SENSE_STAGES if name == "sense" else STAGES
             # coordinate sums go after `dynamics`/`transmit` lines; `sense` lines come last
-            lines += [code for kind, code in self.lines if kind in kinds and kind != "meas"]
-            lines += [code for kind, code in coord_lines if kind in kinds]
-            lines += [code for kind, code in self.lines if kind == "meas" and "meas" in kinds]
+            lines += [
+                code
+                for kind, code, stage in self.lines
+                if kind in kinds and kind != "meas" and stage in stages
+            ]
+            if name != "sense":
+                lines += [code for kind, code in coord_lines if kind in kinds]
+            lines += [code for kind, code, _ in self.lines if kind == "meas" and "meas" in kinds]
             funcs.append("")
             # inlined into the loop: a call would pay numba's reference counting on every array
             # argument, several times the cost of the physics
-            funcs.append('@njit(cache=True, inline="always")')
+            # numpy error model: a division by zero gives inf/NaN (caught by the divergence
+            # check) instead of an exception, so unused calls are dead code LLVM can drop
+            funcs.append('@njit(cache=True, inline="always", error_model="numpy")')
             funcs.append(f"def {name}({args}):")
             funcs += [f"    {code}" for code in lines]
             funcs.append("    return None")

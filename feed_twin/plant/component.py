@@ -166,7 +166,9 @@ class Emitter:
     def meas(self, slot: str, expr: str) -> None:  # sensor sample into MEAS_* (before delay)
         raise NotImplementedError
 
-    def noise(self, channel: int) -> str:  # standard normal sample, seeded, per tick and channel
+    def noise(self, channel: int, scale: str) -> str:
+        """`scale` times a standard normal sample, seeded, per tick and channel (0 when the
+        scale is 0, without drawing)."""
         raise NotImplementedError
 
 

@@ -24,12 +24,12 @@ from feed_twin.plant.component import Component, Emitter
 MAX_DELAY_TICKS = 15  # the engine keeps the last 16 samples
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def quantize_floor(value: float, step: float) -> float:
     return math.floor(value / step) * step
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def adc(value: float, step: float, full_scale: float) -> float:
     clipped = min(max(value, -full_scale), full_scale - step)
     return math.floor(clipped / step + 0.5) * step
@@ -125,7 +125,7 @@ class CurrentSensor(Component):
         for n, x in enumerate(("a", "b", "c")):
             raw = (
                 f"{g.p('gain')} * {g.el('ac', f'i_{x}')} + {g.p('offset')}"
-                f" + {g.p('noise_std')} * {g.noise(n)}"
+                f" + {g.noise(n, g.p('noise_std'))}"
             )
             g.meas(
                 f"MEAS_I_{x.upper()}",
