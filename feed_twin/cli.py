@@ -62,6 +62,11 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
         help="run the shadow twin against a recorded bag; write a comparison bag, .rrd, report",
     ),
     Subcommand(
+        name="shadow",
+        module="feed_twin.ros.shadow_cli",
+        help="run the shadow twin node beside the stand-in machine node; report lag and health",
+    ),
+    Subcommand(
         name="msgs-check",
         module="feed_twin.ros.msgcheck",
         help="round-trip every message type over DDS and check every field",

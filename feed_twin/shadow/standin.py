@@ -99,6 +99,11 @@ class StandIn:
         x, effort = self.twin._measured_signals(_Rows(res), self.dec)
         return x[0], effort[0] + self._rng.normal(0.0, self.noise_std, n)
 
+    def friction_parameters(self) -> tuple[str, ...]:
+        """The Coulomb-friction parameters of the truth (both directions)."""
+        friction = self.doc.friction()
+        return () if friction is None else (f"{friction}.F_c_pos", f"{friction}.F_c_neg")
+
     def parameter(self, name: str) -> float:
         return float(self.engine.p[self.twin.plant.param_index[name]])
 
@@ -185,16 +190,21 @@ def record_bag(
                     encode_joint_state(stamp, ["x"], [float(xm[j])], [], [float(em[j])]),
                     log_time_ns=stamp,
                 )
-    map_path = path.with_name(f"{path.name}_map.yaml")
+    return write_map(path.with_name(f"{path.name}_map.yaml"), standin, namespace, travel_m)
+
+
+def write_map(path: str | Path, standin: StandIn, namespace: str, travel_m: float = 0.3) -> Path:
+    """The column map of the stand-in's topics (command and joint_states under `namespace`)."""
+    path = Path(path)
     effort = standin.twin.effort_name
-    map_path.write_text(
+    path.write_text(
         BAG_MAP.format(
-            command=command_topic,
-            joints=joints_topic,
+            command=f"{namespace}/command",
+            joints=f"{namespace}/joint_states",
             sensor="linear_scale" if standin.doc.of_type("LinearScale") else "motor_encoder",
             effort=effort,
             unit=_UNIT_OF[effort],
             travel=travel_m,
         )
     )
-    return map_path
+    return path

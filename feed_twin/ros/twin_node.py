@@ -1,0 +1,350 @@
+"""The shadow twin as a ROS 2 node, beside a real axis (or the stand-in node).
+
+Subscribes (raw CDR, decoded with feed_twin.shadow.bagstreams) to the machine's command and
+measured topics named by a column map, the same file the replay and the discrepancy workflow
+read (`<topic>:<field>` and units; command AxisCommand, measured JointState as ros2_control's
+joint_state_broadcaster publishes it, or AxisFeedback). Every message goes into the pure core
+`ShadowTwin` by the machine's stamp; after each message the twin advances over what is decided
+and publishes, per slot, under `--out-namespace` (default `<command namespace>/twin`):
+
+- `state` (AxisState): the twin's predicted position, setpoint and following error (and i_q
+  when the effort is a current);
+- `residual` (TwinResidual): measured vs twin following error and effort, deviations, rolling
+  RMS;
+- `health` (HealthStatus): every verdict; WARN/ERROR also go to the log with the named effect.
+
+`--rrd` / `--rerun-url` feed the shadow dashboard (feed_twin.shadow.dashboard). At the end of
+the run (run_state "done", a signal, or `--max-time`) the node processes what is left and
+prints `SHADOW {json}` on stderr: fault counts, the last verdict and the lag of its output
+behind the arrival of each measured sample (p50/p99/max, wall clock).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections import deque
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState, HealthStatus, TwinResidual
+from sensor_msgs.msg import JointState
+
+from feed_twin.analysis.twin import ModelDoc, Twin
+from feed_twin.io.measured import load_column_map
+from feed_twin.ros.cdr import FlatCodec
+from feed_twin.ros.runtime import (
+    DATA_QOS,
+    EXIT_ERROR,
+    EXIT_OK,
+    FeedTwinNode,
+    NodeOptions,
+    init_context,
+    spin_nodes,
+)
+from feed_twin.shadow.bagstreams import JOINT_STATE, MessageFields, plan
+from feed_twin.shadow.config import load_shadow_config
+from feed_twin.shadow.health import Verdict
+from feed_twin.shadow.replay import health_values, twin_namespace
+from feed_twin.shadow.twin import ResidualBlock, ShadowTwin
+
+MESSAGE_TYPES = {
+    "feed_twin_msgs/msg/AxisCommand": AxisCommand,
+    "feed_twin_msgs/msg/AxisFeedback": AxisFeedback,
+    JOINT_STATE: JointState,
+}
+DRAIN_QUIET_S = 0.5  # [s] without messages after the run's end before the node finishes
+LAG_SAMPLES = 600_000  # lags kept for the report (10 min at 1 kHz): bounded memory
+STATE = FlatCodec("feed_twin_msgs/msg/AxisState")
+RESIDUAL = FlatCodec("feed_twin_msgs/msg/TwinResidual")
+HEALTH = FlatCodec("feed_twin_msgs/msg/HealthStatus")
+
+
+def _rss_mb() -> float:
+    """Resident memory of this process [MiB] (Linux /proc)."""
+    import os
+
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+class TwinNode(FeedTwinNode):
+    def __init__(
+        self,
+        options: NodeOptions,
+        *,
+        shadow: ShadowTwin,
+        command: tuple[str, str, MessageFields],
+        measured: tuple[str, str, MessageFields],
+        out_namespace: str,
+        axis_label: str,
+        dashboard=None,
+        max_time_s: float | None = None,
+        context=None,
+    ) -> None:
+        super().__init__("twin", options, context=context)
+        self.shadow = shadow
+        self.axis_label = axis_label
+        self.dashboard = dashboard
+        self.max_time_s = max_time_s
+        self._cmd_fields = command[2]
+        self._meas_fields = measured[2]
+        self._effort_name = next(
+            (n for n in measured[2]._paths if n != "pos_meas_m"), None
+        )  # the measured stream's effort signal, if mapped
+        self._is_current = shadow.twin.effort_unit == "A"
+        self._state_pub = self.create_publisher(AxisState, f"{out_namespace}/state", DATA_QOS)
+        self._residual_pub = self.create_publisher(
+            TwinResidual, f"{out_namespace}/residual", DATA_QOS
+        )
+        self._health_pub = self.create_publisher(HealthStatus, f"{out_namespace}/health", DATA_QOS)
+        self.create_subscription(
+            MESSAGE_TYPES[command[1]], command[0], self._on_command, DATA_QOS, raw=True
+        )
+        self.create_subscription(
+            MESSAGE_TYPES[measured[1]], measured[0], self._on_measured, DATA_QOS, raw=True
+        )
+        self._seen_command = False
+        self.watch_input(measured[0], measured[1], armed=lambda: self._seen_command)
+        self._arrival: dict[int, float] = {}
+        self._draining_since: float | None = None
+        self._last_message = time.monotonic()
+        self.lags_ms: deque[float] = deque(maxlen=LAG_SAMPLES)
+        self.samples = 0
+        self.errors = 0
+        self._rss_start = _rss_mb()
+        self.start_heartbeat()
+
+    # -- input --------------------------------------------------------------------------------
+
+    def _on_command(self, data: bytes) -> None:
+        self._seen_command = True
+        self._last_message = time.monotonic()
+        try:
+            t, v = self._cmd_fields(data)
+        except ValueError as exc:
+            self._bad(exc)
+            return
+        # the twin advances when a measured sample arrives (nothing can be paired earlier);
+        # processing on commands too would double the per-cycle work for nothing
+        self.shadow.push_command(t, v["pos_cmd_m"], v.get("vel_cmd_m_s"))
+
+    def _on_measured(self, data: bytes) -> None:
+        arrived = time.perf_counter()
+        self._last_message = time.monotonic()
+        try:
+            t, v = self._meas_fields(data)
+        except ValueError as exc:
+            self._bad(exc)
+            return
+        effort = v.get(self._effort_name, math.nan) if self._effort_name else math.nan
+        outcome = self.shadow.push_measured(t, v["pos_meas_m"], effort)
+        if outcome in ("accepted", "reordered"):
+            self._arrival[self.shadow.measured.slot_of(t)[0]] = arrived
+        self._step()
+
+    def _bad(self, exc: Exception) -> None:
+        self.errors += 1
+        if self.errors <= 5:
+            self.get_logger().error(f"undecodable message dropped: {exc}")
+
+    # -- output -------------------------------------------------------------------------------
+
+    def _step(self, *, final: bool = False) -> None:
+        block = self.shadow.process(final=final)
+        if block is not None and len(block):
+            self._publish(block)
+        for verdict in self.shadow.new_verdicts:
+            self._verdict(verdict)
+        period = self.shadow.config.sample_period_s
+        if self.max_time_s is not None and self.samples * period >= self.max_time_s:
+            self.finish(EXIT_OK, f"twin: {self.max_time_s:g} s shadowed")
+
+    def _publish(self, b: ResidualBlock) -> None:
+        period = self.shadow.config.sample_period_s
+        t0 = self.shadow.commands.t0_s or 0.0
+        window = self.shadow.config.window_s
+        for k in range(len(b)):
+            t = float(b.t_s[k])
+            ns = round(t * 1e9)
+            sec, nsec = divmod(ns, 1_000_000_000)
+            fe_twin = float(b.x_cmd_m[k] - b.x_twin_m[k])
+            state = {
+                "header.stamp.sec": sec,
+                "header.stamp.nanosec": nsec,
+                "axis": self.axis_label,
+                "position_setpoint": float(b.x_cmd_m[k]),
+                "table_position": float(b.x_twin_m[k]),
+                "following_error": fe_twin,
+            }
+            if self._is_current:
+                state["i_q"] = float(b.effort_twin[k])
+            self._state_pub.publish(STATE.encode_map(state))
+            self._residual_pub.publish(
+                RESIDUAL.encode_map(
+                    {
+                        "header.stamp.sec": sec,
+                        "header.stamp.nanosec": nsec,
+                        "axis": self.axis_label,
+                        "following_error_measured": float(b.x_cmd_m[k] - b.x_meas_m[k]),
+                        "following_error_twin": fe_twin,
+                        "following_error_deviation": float(b.fe_dev_m[k]),
+                        "effort_measured": float(b.effort_meas[k]),
+                        "effort_twin": float(b.effort_twin[k]),
+                        "effort_deviation": float(b.effort_dev[k]),
+                        "rms_window": window,
+                        "following_error_deviation_rms": float(b.fe_dev_rms_m[k]),
+                        "effort_deviation_rms": float(b.effort_dev_rms[k]),
+                    }
+                )
+            )
+            arrived = self._arrival.pop(round((t - t0) / period), None)
+            if arrived is not None:
+                self.lags_ms.append((time.perf_counter() - arrived) * 1e3)
+        self.samples += len(b)
+        if self.dashboard is not None:
+            self.dashboard.log_block(b)
+
+    def _verdict(self, v: Verdict) -> None:
+        self._health_pub.publish(HEALTH.encode(health_values(HEALTH.names, v, self.axis_label)))
+        if v.level != 0:
+            log = self.get_logger().warning if v.level != 2 else self.get_logger().error
+            log(f"health {v.level_name} at t = {v.t_s:.3f} s: {v.message}")
+        if self.dashboard is not None:
+            self.dashboard.log_verdict(v)
+
+    def report(self) -> dict:
+        lags = np.asarray(self.lags_ms)
+        last = self.shadow.health.last
+        tenth = max(1, len(lags) // 6)
+        return {
+            "samples": self.samples,
+            "rss_mb": {"start": self._rss_start, "end": _rss_mb()},
+            # median lag over the first and the last sixth of the run: a twin that does not
+            # keep up shows a growing lag
+            "lag_ms_first_p50": float(np.median(lags[:tenth])) if lags.size else None,
+            "lag_ms_last_p50": float(np.median(lags[-tenth:])) if lags.size else None,
+            "faults": self.shadow.counts(),
+            "undecodable": self.errors,
+            "lag_ms": {
+                "p50": float(np.percentile(lags, 50)) if lags.size else None,
+                "p99": float(np.percentile(lags, 99)) if lags.size else None,
+                "max": float(lags.max()) if lags.size else None,
+                "count": int(lags.size),
+            },
+            "verdicts": len(self.shadow.health.verdicts),
+            "warnings": sum(1 for v in self.shadow.health.verdicts if v.level in (1, 2)),
+            "last": None
+            if last is None
+            else {
+                "t_s": last.t_s,
+                "level": last.level_name,
+                "effect": last.effect,
+                "relative_change": last.relative_change,
+                "message": last.message,
+            },
+        }
+
+    def on_run_done(self, text: str) -> None:
+        # run_state may overtake the last data messages: drain until the streams are quiet
+        self._draining_since = time.monotonic()
+
+    def poll(self) -> float | None:
+        if self._draining_since is not None and not self.done:
+            quiet = time.monotonic() - max(self._last_message, self._draining_since)
+            if quiet > DRAIN_QUIET_S:
+                self.finish(EXIT_OK, "")
+                return None
+            return DRAIN_QUIET_S / 4
+        return None
+
+    def on_shutdown(self, reason: str) -> None:
+        self._step(final=True)
+        if self.dashboard is not None:
+            self.dashboard.close()
+        print("SHADOW " + json.dumps(self.report()), file=sys.stderr, flush=True)
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", required=True, type=Path, help="model YAML with shadow:")
+    parser.add_argument("--map", required=True, type=Path, help="column map (topics, units)")
+    parser.add_argument("--command-type", default="feed_twin_msgs/msg/AxisCommand")
+    parser.add_argument("--measured-type", default=JOINT_STATE)
+    parser.add_argument("--out-namespace", help="default: <command namespace>/twin")
+    parser.add_argument("--machine", default="cnc", help="namespace of the node (machine)")
+    parser.add_argument("--axis", default="x", help="namespace of the node (axis)")
+    parser.add_argument("--rrd", type=Path, help="write the shadow dashboard here")
+    parser.add_argument("--rerun-url", help="stream the dashboard to this viewer")
+    parser.add_argument("--max-time", type=float, help="stop after this many shadowed seconds")
+    parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
+
+
+def build(args: argparse.Namespace, context) -> TwinNode:
+    cmap = load_column_map(args.map)
+    groups = plan(cmap)
+    doc = ModelDoc.load(args.config)
+    config = load_shadow_config(args.config)
+    twin = Twin.compile(doc)
+    shadow = ShadowTwin(
+        twin,
+        config,
+        command_velocity="vel_cmd_m_s" in groups["command"],
+        travel_m=cmap.plausibility.travel_m,
+    )
+    # compile before the first heartbeat: the engine's first advance loads the kernel
+    twin.engine.advance(1)
+    twin.engine.reset()
+    for kind, type_name in (("command", args.command_type), ("measured", args.measured_type)):
+        if type_name not in MESSAGE_TYPES:
+            raise ValueError(
+                f"--{kind}-type {type_name!r}: one of {', '.join(sorted(MESSAGE_TYPES))}"
+            )
+    topic_of = {k: next(iter(g.values()))[0].partition(":")[0] for k, g in groups.items()}
+    dashboard = None
+    if args.rrd is not None or args.rerun_url is not None:
+        from feed_twin.shadow.dashboard import ShadowDashboard
+
+        dashboard = ShadowDashboard(
+            effort_unit=twin.effort_unit, rrd_path=args.rrd, live_url=args.rerun_url
+        )
+    return TwinNode(
+        NodeOptions(machine=args.machine, axis=args.axis, peers=(),
+                    input_timeout_s=args.input_timeout),
+        shadow=shadow,
+        command=(topic_of["command"], args.command_type,
+                 MessageFields(args.command_type, groups["command"], cmap)),
+        measured=(topic_of["measured"], args.measured_type,
+                  MessageFields(args.measured_type, groups["measured"], cmap)),
+        out_namespace=args.out_namespace or twin_namespace(topic_of["command"]),
+        axis_label=args.axis.upper(),
+        dashboard=dashboard,
+        max_time_s=args.max_time,
+        context=context,
+    )  # fmt: skip
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from feed_twin.io.config import ConfigError
+    from feed_twin.io.measured import MeasuredDataError
+
+    parser = argparse.ArgumentParser(prog="twin node", description=__doc__.splitlines()[0])
+    configure(parser)
+    args = parser.parse_args(argv)
+    context = None
+    try:
+        context = init_context()
+        node = build(args, context)
+    except (ConfigError, MeasuredDataError, ValueError, KeyError, OSError) as exc:
+        print(f"twin node: {exc}", file=sys.stderr)
+        if context is not None:
+            context.try_shutdown()
+        return EXIT_ERROR
+    return spin_nodes([node], context)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
