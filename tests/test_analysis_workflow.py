@@ -102,3 +102,20 @@ def test_position_only_record_still_names_a_missing_force(tmp_path):
     assert [e.name for e in d.effects][:1] == ["constant_force"], d.notes
     assert d.effects[0].parameters["f_0_N"] == pytest.approx(-20.0, rel=0.10)
     assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
+
+
+@pytest.mark.slow
+def test_lead_error_is_found_by_the_linear_scale_of_a_semi_closed_loop(tmp_path):
+    """Loop closed on the motor encoder, table read by the scale: the scale sees the pitch error."""
+    nominal = ModelDoc.load(ROOT / "config" / "axis_default.yaml")
+    nominal.data["controller"]["position"]["feedback"] = "motor_encoder"
+    truth = {"amplitude_m": 3e-6, "phase_rad": 0.7}
+    columns = generate(nominal, {"lead_error": truth}, start_m=0.3)
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
+    assert d.effects and d.effects[0].name == "lead_error", d.notes
+    found = d.effects[0].parameters
+    assert found["amplitude_m"] == pytest.approx(3e-6, rel=0.10)
+    assert found["phase_rad"] == pytest.approx(0.7, abs=0.1)
+    assert found["period_m"] == pytest.approx(0.01)  # once per screw revolution
+    assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m

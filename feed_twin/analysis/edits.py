@@ -219,6 +219,38 @@ def cogging(doc: ModelDoc, cand: Candidate) -> Edit:
     return _edit(doc, own, report, interacts=False)
 
 
+def lead_error(doc: ModelDoc, cand: Candidate) -> Edit:
+    """A once-per-revolution lead error in the axial compliance; amplitude and phase fitted.
+
+    A linear scale reads the table at s + e(s), the twin at s: the position residual
+    (twin minus measured) is -A sin(2 pi s / P + psi), so (sin, cos) weights (s, c) give
+    A = hypot(s, c) and psi = atan2(-c, -s).
+    """
+    compliances = doc.of_type("AxialCompliance")
+    screws = doc.of_type("BallScrew")
+    if not compliances or not screws:
+        raise LookupError("the model has no AxialCompliance and BallScrew to carry a lead error")
+    name = compliances[0]
+    lead = doc.get(f"{screws[0]}.lead")
+    s_w, c_w = cand.coefficients.get("sin", 0.0), cand.coefficients.get("cos", 0.0)
+    amplitude = max(math.hypot(s_w, c_w), 1e-9)
+    phase = math.atan2(-c_w, -s_w)
+    doc = doc.set_raw(name, "lead_error_period", lead)
+    doc = doc.set(f"{name}.lead_error_amplitude", amplitude).set(f"{name}.lead_error_phase", phase)
+    own = [
+        FreeParameter(
+            name=f"{name}.lead_error_amplitude", initial=amplitude, scale=amplitude, lower=0.0
+        ),
+        FreeParameter(name=f"{name}.lead_error_phase", initial=phase, scale=1.0),
+    ]
+    report = {
+        "amplitude_m": lambda v: v[f"{name}.lead_error_amplitude"],
+        "phase_rad": lambda v: v[f"{name}.lead_error_phase"],
+        "period_m": lambda v: lead,
+    }
+    return _edit(doc, own, report, interacts=False)
+
+
 MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
 
 
@@ -238,6 +270,7 @@ def measurement_delay(doc: ModelDoc, cand: Candidate) -> Edit:
 
 EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
     "cogging_torque": cogging,
+    "lead_error": lead_error,
     "measurement_delay": measurement_delay,
     "coulomb_friction": coulomb,
     "viscous_friction": viscous,

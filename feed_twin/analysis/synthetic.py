@@ -140,6 +140,14 @@ def _delay(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     return doc
 
 
+def _lead_error(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    name = doc.of_type("AxialCompliance")[0]
+    lead = doc.get(f"{doc.of_type('BallScrew')[0]}.lead")
+    doc = doc.set_raw(name, "lead_error_period", lead)
+    doc = doc.set(f"{name}.lead_error_amplitude", p["amplitude_m"])
+    return doc.set(f"{name}.lead_error_phase", p["phase_rad"])
+
+
 HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "coulomb_friction": _coulomb,
     "viscous_friction": _viscous,
@@ -149,6 +157,7 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "mass_error": _mass,
     "torque_constant_error": _gain,
     "measurement_delay": _delay,
+    "lead_error": lambda doc, p: _lead_error(doc, p),
     "cogging_torque": lambda doc, p: doc.with_cogging(
         int(p["order"]), p["amplitude_Nm"], p["phase_rad"]
     )[0],

@@ -163,6 +163,12 @@ class ModelDoc:
             params[field_name] = int(round(value)) if keep_int else float(value)
         return new
 
+    def set_raw(self, component: str, field_name: str, value: Any) -> ModelDoc:
+        """Set a component field that is not a fitted slot (a period, a flag)."""
+        new = self._copy()
+        new.component(component)["params"][field_name] = value
+        return new
+
     def tie(self, name: str, members: tuple[str, ...]) -> ModelDoc:
         """Treat `members` as one parameter `name` (set to their mean now)."""
         if name in dict(self.ties):
