@@ -50,6 +50,7 @@ from feed_twin.shadow.standin import StandIn, program_command
 
 COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
 NS = 1_000_000_000
+LINGER_S = 1.0  # [s] the node stays after the last sample so that readers receive everything
 
 
 class StandInNode(FeedTwinNode):
@@ -83,6 +84,7 @@ class StandInNode(FeedTwinNode):
         self.declare_parameter("friction_scale", 1.0)
         self.add_on_set_parameters_callback(self._on_parameters)
         self.start: float | None = None
+        self._done_at: float | None = None
         self.lateness_s: list[float] = []
         self.start_heartbeat()
 
@@ -118,9 +120,14 @@ class StandInNode(FeedTwinNode):
             _, _, topic, data = heapq.heappop(self._queue)
             (self._cmd_pub if topic == "command" else self._js_pub).publish(data)
         if self.k >= n and not self._queue:
-            self._run_pub.publish(String(data="done: program finished"))
-            self.finish(EXIT_OK, "")
-            return None
+            if self._done_at is None:
+                self._run_pub.publish(String(data="done: program finished"))
+                self._done_at = now
+            # stay a moment: a writer that leaves at once can take unacknowledged samples along
+            if now - self._done_at > LINGER_S:
+                self.finish(EXIT_OK, "")
+                return None
+            return 0.05
         due = [self.start + self.k * self.period_s] if self.k < n else []
         if self._queue:
             due.append(self._queue[0][0])

@@ -109,7 +109,9 @@ class TwinNode(FeedTwinNode):
             MESSAGE_TYPES[measured[1]], measured[0], self._on_measured, DATA_QOS, raw=True
         )
         self._seen_command = False
-        self.watch_input(measured[0], measured[1], armed=lambda: self._seen_command)
+        self._measured_dog = self.watch_input(
+            measured[0], measured[1], armed=lambda: self._seen_command and not self.run_ended
+        )
         self._arrival: dict[int, float] = {}
         self._draining_since: float | None = None
         self._last_message = time.monotonic()
@@ -136,6 +138,7 @@ class TwinNode(FeedTwinNode):
     def _on_measured(self, data: bytes) -> None:
         arrived = time.perf_counter()
         self._last_message = time.monotonic()
+        self._measured_dog.feed()
         try:
             t, v = self._meas_fields(data)
         except ValueError as exc:

@@ -47,7 +47,12 @@ class ShadowDashboard:
     """Send residual blocks and verdicts to an .rrd file and/or a live viewer."""
 
     def __init__(
-        self, *, effort_unit: str, rrd_path: str | Path | None = None, live_url: str | None = None
+        self,
+        *,
+        effort_unit: str,
+        rrd_path: str | Path | None = None,
+        live_url: str | None = None,
+        batch: int = 250,
     ) -> None:
         if rrd_path is None and live_url is None:
             raise ValueError("ShadowDashboard needs an rrd_path, a live_url or both")
@@ -61,10 +66,25 @@ class ShadowDashboard:
         self._rec.set_sinks(*sinks, default_blueprint=blueprint(effort_unit))
         self._t0: float | None = None
         self._named: set[str] = set()
+        self.batch = batch
+        self._buffer: list[ResidualBlock] = []
+        self._buffered = 0
 
     def log_block(self, b: ResidualBlock) -> None:
+        """Buffer a block; the buffer is sent when it holds `batch` rows (a live twin hands
+        over one row per cycle, and each send costs about 0.1 ms per entity)."""
         if not len(b):
             return
+        self._buffer.append(b)
+        self._buffered += len(b)
+        if self._buffered >= self.batch:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self._buffer:
+            return
+        b = ResidualBlock.concat(self._buffer) if len(self._buffer) > 1 else self._buffer[0]
+        self._buffer, self._buffered = [], 0
         if self._t0 is None:
             self._t0 = float(b.t_s[0])
         t = b.t_s - self._t0
@@ -94,9 +114,11 @@ class ShadowDashboard:
     def log_verdict(self, v: Verdict) -> None:
         if v.level == 0:
             return
+        self.flush()
         self._rec.set_time(TIMELINE, duration=v.t_s - (self._t0 or 0.0))
         self._rec.log("/health", rr.TextLog(f"{v.level_name}: {v.message}", level=_LEVELS[v.level]))
 
     def close(self) -> None:
+        self.flush()
         self._rec.flush()
         self._rec.disconnect()
