@@ -19,6 +19,8 @@ from feed_twin.gcode import (
     plan_program,
     plan_program_stream,
 )
+from feed_twin.gcode.interpreter import Interpreter, Move
+from feed_twin.gcode.planner import iter_blocks
 
 FIXTURES = Path(__file__).parent / "fixtures" / "gcode"
 CONFIG = load_nc_config(FIXTURES / "nc_test.yaml")
@@ -471,3 +473,12 @@ def test_random_programs_hold_every_limit_with_any_look_ahead(seed):
     assert_limits(traj, config)
     whole = plan_program(program, config)
     np.testing.assert_allclose(traj.pos_m[-1], whole.pos_m[-1], atol=1e-15)
+    # Samples within the G64 tolerance of the moves the interpreter produced (chords); every
+    # 10th sample of a few programs keeps the brute-force distance affordable.
+    if seed >= 4:
+        return
+    file, blocks = iter_blocks(program, config)
+    moves = [i for i in Interpreter(config, file=file).run(blocks) if isinstance(i, Move)]
+    vertices = np.array([config.start_position_m] + [m.end_m for m in moves]) / MM
+    tolerance = float(program.splitlines()[0].split("P")[1]) * MM
+    assert polyline_distance(traj.pos_m[::10], vertices).max() <= tolerance * (1 + SLACK)
