@@ -57,6 +57,8 @@ def lead_error(
     s_a: float, amplitude: float, wavenumber: float, phase: float
 ) -> tuple[float, float]:
     """(e(s_a) [m], de/ds_a [-]) of a sinusoidal lead error."""
+    if amplitude == 0.0:  # the usual case: skip the trigonometry in the hot loop
+        return 0.0, 0.0
     arg = wavenumber * s_a + phase
     return amplitude * math.sin(arg), amplitude * wavenumber * math.cos(arg)
 
