@@ -175,7 +175,7 @@ def test_message_faults_are_counted_and_never_stall_the_twin(doc, config, clean)
 
 
 def test_a_silent_measurement_stream_makes_the_twin_stale(doc, config) -> None:
-    run = machine_run(doc, 6.0)
+    run = machine_run(doc, 7.0)
     stop = 5000  # the measurement stops after 5 s, the commands go on
     shadow = shadow_of(doc, config)
     blocks = []
@@ -186,7 +186,8 @@ def test_a_silent_measurement_stream_makes_the_twin_stale(doc, config) -> None:
         if k % 100 == 0 and (b := shadow.process()) is not None:
             blocks.append(b)
     got = ResidualBlock.concat(blocks)
-    lead = SHADOW["missing_flag_after"] + SHADOW["reorder_window"]
+    lead = shadow.silent_lead
+    assert lead == 500  # SILENT_AFTER_S at 1 kHz
     # the pairing keeps going: only the lead plus one processing step behind the commands
     assert len(got) >= len(run["t"]) - lead - 1 - 100 - 1
     assert shadow.health.last is not None and shadow.health.last.level == STALE

@@ -19,6 +19,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 NAMESPACE = "/cnc/x"
@@ -68,16 +69,17 @@ def run_shadow(args: argparse.Namespace) -> tuple[int, dict | None, str]:
     if args.raise_friction_at is not None:
         standin_cmd += ["--raise-friction-at", str(args.raise_friction_at)]
     procs: list[subprocess.Popen] = []
-    with reserve_domain_id() as domain:
+    logs = {name: out / f"{name}.log" for name in ("twin", "standin")}
+    with reserve_domain_id() as domain, ExitStack() as files:
         env = {**os.environ, **private_graph_env(domain.domain_id)}
         try:
-            twin = subprocess.Popen(twin_cmd, env=env, stderr=subprocess.PIPE, text=True)
-            procs.append(twin)
-            standin_proc = subprocess.Popen(standin_cmd, env=env, stderr=subprocess.PIPE, text=True)
-            procs.append(standin_proc)
+            for name, cmd in (("twin", twin_cmd), ("standin", standin_cmd)):
+                log = files.enter_context(open(logs[name], "w"))  # noqa: SIM115
+                procs.append(subprocess.Popen(cmd, env=env, stderr=log, stdout=log))
+            # the stand-in's program sets the run's length; start-up (numba) and drain on top
             deadline = time.monotonic() + args.duration + 120.0
-            _, twin_err = twin.communicate(timeout=max(1.0, deadline - time.monotonic()))
-            _, standin_err = standin_proc.communicate(timeout=30.0)
+            while any(p.poll() is None for p in procs) and time.monotonic() < deadline:
+                time.sleep(0.2)
         finally:
             for p in procs:
                 if p.poll() is None:
@@ -85,6 +87,9 @@ def run_shadow(args: argparse.Namespace) -> tuple[int, dict | None, str]:
                     p.wait(timeout=10.0)
             if viewer is not None:
                 viewer.stop()
+    twin, standin_proc = procs
+    twin_err = logs["twin"].read_text()
+    standin_err = logs["standin"].read_text()
     report = None
     for line in twin_err.splitlines():
         if line.startswith("SHADOW "):

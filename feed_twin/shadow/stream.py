@@ -23,8 +23,8 @@ a bounded buffer and never waiting for ever. The policy, per message:
   counted `missing`. At the start (no predecessor) the next sample is held backwards.
   `missing_run` counts the current run of consecutive missing slots;
 - stopped: a stream that stops altogether cannot run past its missing slots, so the twin
-  decides them from the other stream (`decide_through`): once it is `missing_flag_after +
-  window` slots ahead, the silent stream's slots are filled (held) and counted `missing`.
+  decides them from the other stream (`decide_through`, see ShadowTwin.silent_lead): they are
+  filled (held) and counted `missing`.
 
 Released values leave the buffer, so memory is bounded by `window` plus what arrives ahead.
 """

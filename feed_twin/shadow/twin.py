@@ -21,6 +21,11 @@ so the twin runs one slot behind the command stream (two when it also derives th
 Known disturbances (effort_add, external forces) of a recorded run are not part of a live
 machine's streams and are not applied.
 
+A stream that falls silent while the other goes on is decided from the other one: once that
+is `silent_lead` slots ahead (SILENT_AFTER_S, at least missing_flag_after + reorder_window),
+the silent stream's slots are filled and counted missing, so the twin never waits for ever and
+its queues stay bounded; a measurement silent for missing_flag_after slots makes health STALE.
+
 A divergence of the twin (NaN or runaway state) does not stop it: it is restarted at rest at the
 measured position of the slot and counted in `twin_restarts`.
 """
@@ -41,6 +46,7 @@ from feed_twin.shadow.stream import SlotStream
 from feed_twin.sim.engine import DivergenceError
 
 CMD_POS, CMD_VEL = 0, 1
+SILENT_AFTER_S = 0.5  # [s] a stream this far behind the other one is decided as missing
 MEAS_POS, MEAS_EFFORT = 0, 1
 
 
@@ -239,6 +245,12 @@ class ShadowTwin:
             travel_m=travel_m,
         )
         self.start_slot: int | None = None
+        # slots one stream may be ahead before the other counts as silent: at least the
+        # missing-sample flag, and SILENT_AFTER_S, because a busy node's executor may serve
+        # one subscription's backlog well before the other's
+        self.silent_lead = max(
+            config.missing_flag_after + config.reorder_window, round(SILENT_AFTER_S / h)
+        )
         self.twin_restarts = 0
         self.last_restart_message = ""
         self._fe_rms = _RollingRms(config.window_samples)
@@ -310,7 +322,7 @@ class ShadowTwin:
             return None
         # a stream that went silent is decided from the other one (see SlotStream), so neither
         # the twin nor the pairing waits for it and the queues stay bounded
-        lead = self.config.missing_flag_after + self.config.reorder_window
+        lead = self.silent_lead
         if self.commands.newest is not None:
             self.measured.decide_through(self.commands.newest - lead)
         if self.measured.newest is not None:
