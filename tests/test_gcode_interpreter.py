@@ -219,3 +219,19 @@ def test_validation_covers_the_whole_program_and_empty_files(tmp_path):
     with pytest.raises(GcodeError, match=r"empty.ngc: the program is empty \(no G-code blocks\)"):
         validate_program(empty, CONFIG)
     assert validate_program("G0 X1\nG1 Y1 F100\nG2 X2 Y0 R1", CONFIG) > 2
+
+
+def test_fast_path_for_plain_blocks_matches_the_general_path():
+    rng = np.random.default_rng(5)
+    # Absolute millimetres, and an incremental walk in inches that stays within the travel.
+    for mode, span in (("G90", 50.0), ("G91 G20", 0.4)):
+        values = rng.uniform([-span, -span, 100], [span, span, 5000], (200, 3))
+        body = [
+            f"{'G0' if k % 7 == 0 else 'G1'} X{x:.3f} Y{y:.3f}" + (f" F{f:.0f}" if k % 5 else "")
+            for k, (x, y, f) in enumerate(values)
+        ]
+        plain = f"{mode} F1000\n" + "\n".join(body)
+        # G94 (already active) sends every block through the general path.
+        general = f"{mode} F1000\n" + "\n".join(line + " G94" for line in body)
+        items = run(plain)
+        assert len(items) > 150 and items == run(general)
