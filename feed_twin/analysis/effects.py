@@ -166,10 +166,14 @@ def _electrical(m: Motion) -> dict[str, np.ndarray]:
 
 
 def _stiffness(m: Motion) -> dict[str, np.ndarray]:
-    # fixed-fixed screw: compliance ~ x (L - x) / L; the effort estimate is the load on the nut
+    # the table lags the nut by F * c(x): a screw held at one end (fixed-free) has c linear
+    # in the distance to the bearing, one held at both ends (fixed-fixed) c ~ x (L - x); a
+    # quadratic in the position covers both (the constant part: bearings and nut). The twin's
+    # effort stands for the axial load F.
     assert m.effort_sim is not None
-    s = np.clip(m.x_m - m.x_m.min(), 0.0, m.travel_m) / m.travel_m
-    return {"f_times_shape": m.effort_sim * s * (1.0 - s)}
+    s = (m.x_m - m.x_m.mean()) / max(float(np.ptp(m.x_m)), 1e-9)
+    f = m.effort_sim
+    return {"f": f, "f_x": f * s, "f_x2": f * s * s}
 
 
 LIBRARY: tuple[Effect, ...] = (
