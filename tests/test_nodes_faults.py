@@ -112,7 +112,7 @@ def test_killed_node_is_noticed_named_and_bag_readable(config: Path, victim: str
         match = re.search(r"is gone: no heartbeat for (\S+) s", text)
         assert float(match[1]) < 1.0
         # The recorder first records what is still in flight (it may lag on a loaded machine).
-        assert ended[role] < (30.0 if role == "recorder" else 3.0), (role, ended)
+        assert ended[role] < (30.0 if role == "recorder" else 5.0), (role, ended)
     bag = config.parent / "bags" / name
     summary = info(bag)  # finished by the recorder, or recovered by the runner
     counts = {t.name: t.message_count for t in summary.topics}

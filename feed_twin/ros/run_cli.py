@@ -34,7 +34,7 @@ NODE_MODULES = {
 }
 ROLES = ("recorder", "controller", "sim", "gcode")
 STOP_GRACE_S = 10.0  # [s] for nodes to finish after SIGTERM
-PEER_NOTICE_S = 2.0  # [s] for nodes to notice a lost peer before they are told to stop
+PEER_NOTICE_S = 5.0  # [s] for nodes to notice a lost peer (0.9 s) and finish before SIGTERM
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -221,7 +221,9 @@ def _wait_all(procs: dict[str, subprocess.Popen], grace_s: float) -> None:
 
 def _exit_text(role: str, code: int, log: Path) -> str:
     if code < 0:
-        return f"{role} node was killed by {signal.Signals(-code).name}"
+        said = _last_error(log)
+        tail = f" (it had said: {said})" if "[ERROR]" in said else ""
+        return f"{role} node was killed by {signal.Signals(-code).name}{tail}"
     return f"{role} node exited with code {code}: {_last_error(log)}"
 
 

@@ -21,6 +21,7 @@ import contextlib
 import resource
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -30,6 +31,7 @@ import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -45,7 +47,7 @@ EXIT_INPUT_TIMEOUT = 4  # an expected topic stayed silent
 EXIT_SIGNAL = 130  # stopped by SIGINT/SIGTERM (after a clean shutdown)
 
 HEARTBEAT_PERIOD_S = 0.1
-ACK_WAIT_S = 1.0  # [s] a stopping node waits for its readers to acknowledge its last messages
+ACK_WAIT_S = 0.5  # [s] a stopping node waits for its readers to acknowledge its last messages
 SIGNAL_DRAIN_S = 30.0  # [s] nodes may take after SIGINT/SIGTERM to finish (recorder drain)
 PEER_TIMEOUT_S = 0.8  # noticed within 0.9 s; 0.6 s gave false alarms on a machine at load 9
 
@@ -96,6 +98,72 @@ class NodeOptions:
         return AxisTopics(machine=self.machine, axis=self.axis)
 
 
+class Liveness:
+    """Heartbeats sent and watched from a thread with its own node and executor.
+
+    The data path of a node can be busy for a while (a backlog of messages in the recorder, a
+    slow callback on a loaded machine); liveness must not depend on it. A second, tiny node
+    (`<role>_liveness`) publishes the role every HEARTBEAT_PERIOD_S and records when each peer
+    was last heard, on a daemon thread. If that thread itself was not scheduled for a while it
+    cannot judge, so it forgives the gap (`max_own_gap_s`) instead of blaming the peers.
+    """
+
+    def __init__(self, role: str, options: NodeOptions, context: Context) -> None:
+        self.role = role
+        self.options = options
+        self.node = Node(f"{role}_liveness", namespace=options.topics.namespace, context=context)
+        self._pub = self.node.create_publisher(String, options.topics.heartbeat, HEARTBEAT_QOS)
+        self.node.create_subscription(
+            String, options.topics.heartbeat, self._on_heartbeat, HEARTBEAT_QOS
+        )
+        self._lock = threading.Lock()
+        self._seen: dict[str, float] = {}
+        self._beating = False
+        self._stop = threading.Event()
+        self._last_tick = time.monotonic()
+        self.max_own_gap_s = 0.3
+        self._executor = SingleThreadedExecutor(context=context)
+        self._executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._run, name=f"{role}-liveness", daemon=True)
+        self._thread.start()
+
+    def start_beating(self) -> None:
+        self._beating = True
+
+    def _on_heartbeat(self, msg: String) -> None:
+        if msg.data != self.role:
+            with self._lock:
+                self._seen[msg.data] = time.monotonic()
+
+    def _run(self) -> None:
+        next_beat = time.monotonic()
+        while not self._stop.is_set():
+            with contextlib.suppress(Exception):
+                self._executor.spin_once(timeout_sec=0.02)
+            now = time.monotonic()
+            gap = now - self._last_tick
+            self._last_tick = now
+            if gap > self.max_own_gap_s:
+                with self._lock:  # this thread slept: peers' silence is not evidence
+                    self._seen = dict.fromkeys(self._seen, now)
+            if self._beating and now >= next_beat:
+                next_beat = now + HEARTBEAT_PERIOD_S
+                with contextlib.suppress(Exception):
+                    self._pub.publish(String(data=self.role))
+
+    def seen(self) -> dict[str, float]:
+        with self._lock:
+            return dict(self._seen)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=0.5)
+        with contextlib.suppress(Exception):
+            self._executor.remove_node(self.node)
+            self.node.destroy_node()
+            self._executor.shutdown(timeout_sec=0.2)
+
+
 class FeedTwinNode(Node):
     """A node with a role, heartbeats, peer watching and a finish state the spin loop reads."""
 
@@ -113,12 +181,10 @@ class FeedTwinNode(Node):
         self.exit_message = ""
         self.wall = Clock(clock_type=ClockType.STEADY_TIME)
         self._created = time.monotonic()
-        self._peer_seen: dict[str, float] = {}
         self._watchdogs: list[_Watchdog] = []
-        self._heartbeat_pub = self.create_publisher(String, self.topics.heartbeat, HEARTBEAT_QOS)
+        self.liveness = Liveness(role, options, self.context)
         self._heartbeat_on = False
         self.run_ended = False
-        self.create_subscription(String, self.topics.heartbeat, self._on_heartbeat, HEARTBEAT_QOS)
         self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
         self.create_timer(HEARTBEAT_PERIOD_S, self._tick, clock=self.wall)
 
@@ -127,7 +193,7 @@ class FeedTwinNode(Node):
     def start_heartbeat(self) -> None:
         """Call at the end of set-up: peers start watching this node from its first beat."""
         self._heartbeat_on = True
-        self._heartbeat_pub.publish(String(data=self.role))
+        self.liveness.start_beating()
 
     def finish(self, code: int, message: str = "") -> None:
         """Ask the spin loop to stop this node; the first reason wins."""
@@ -189,18 +255,13 @@ class FeedTwinNode(Node):
         self._watchdogs.append(dog)
         return dog
 
-    def _on_heartbeat(self, msg: String) -> None:
-        if msg.data != self.role:
-            self._peer_seen[msg.data] = time.monotonic()
-
     def _tick(self) -> None:
         if self.done:
             return
         now = time.monotonic()
-        if self._heartbeat_on:
-            self._heartbeat_pub.publish(String(data=self.role))
+        heard = self.liveness.seen()
         for peer in () if self.run_ended else self.options.peers:
-            seen = self._peer_seen.get(peer)
+            seen = heard.get(peer)
             if seen is None:
                 if self._heartbeat_on and now - self._created > self.options.startup_timeout_s:
                     self.finish(
@@ -226,7 +287,8 @@ class FeedTwinNode(Node):
                 )
 
     def peers_alive(self) -> bool:
-        return all(p in self._peer_seen for p in self.options.peers)
+        heard = self.liveness.seen()
+        return all(p in heard for p in self.options.peers)
 
     def describe_silence(self, topic: str, type_name: str, timeout_s: float) -> str:
         """Why nothing arrives on `topic`: what the graph offers instead."""
@@ -342,11 +404,14 @@ def spin_nodes(
             return EXIT_SIGNAL
         return codes[0] if codes else EXIT_OK
     finally:
+        started = time.monotonic()
         for node in nodes:
+            node.liveness.stop()
             executor.remove_node(node)
             node.destroy_node()
-        executor.shutdown()
+        executor.shutdown(timeout_sec=0.2)
         context.try_shutdown()
+        print(f"teardown {time.monotonic() - started:.2f} s", file=sys.stderr, flush=True)
         for s, handler in previous.items():
             signal.signal(s, handler)
 
