@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -70,3 +71,14 @@ def test_emps_diagnosis_names_the_benchmark_effects_and_validates(tmp_path, caps
     assert "ConstantForce" in types
     md = (out / "report.md").read_text()
     assert "## Validation on" in md and "coulomb_friction" in md
+    # round trip: the written model, run by `feed-twin simulate`, gives the validation figure
+    traces = tmp_path / "traces.csv"
+    emps_map = str(ROOT / "config" / "emps_map.yaml")
+    assert main(["simulate", "--config", str(out / "model.yaml"), "--measured",
+                 str(EMPS / "DATA_EMPS_PULSES.csv"), "--map", emps_map,
+                 "--out", str(traces)]) == 0  # fmt: skip
+    header = traces.read_text().splitlines()[0].split(",")
+    data = np.loadtxt(traces, delimiter=",", skiprows=1)
+    f, f_sim = data[:, header.index("force_cmd_N")], data[:, header.index("sim_force_cmd_N")]
+    rel = 100 * np.linalg.norm(f - f_sim) / np.linalg.norm(f)
+    assert rel == pytest.approx(v["effort_rel_err_pct"], rel=1e-3)
