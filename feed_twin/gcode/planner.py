@@ -160,6 +160,7 @@ class _StreamPlanner:
         self.entries: dict[int, list[Event | Stop]] = {}  # global node -> events and dwells
         self.v_first = 0.0
         self.w_first = 0.0  # blend half-width at the first node of the next window
+        self.first_stop = False  # whether the path stops there
         self.t_s = 0.0
         self.k_next = 0
         self.last_line = 0
@@ -254,6 +255,8 @@ class _StreamPlanner:
                 self._corner_cost(cap[inner], w[inner], V, A, J)
                 >= self._corner_cost(0.0 * cap[inner], 0.0 * w[inner], V, A, J)
             )
+        if self.has_context:
+            stop[first] = self.first_stop  # decided when it was committed; must not change
         # Sharp corners, corners with events and forced breaks are blended alone (BLEND_SHARE
         # of each move, and their neighbours keep off: NEIGHBOUR_SHARE). Elsewhere neighbouring
         # blends may reach each other and overlap into chains, so that a finely divided curve
@@ -516,6 +519,7 @@ class _StreamPlanner:
             self.g0 += keep
             self.has_context = True
             self.w_first = float(w[end_node])
+            self.first_stop = bool(stop[end_node])
             self.stops = {node for node in self.stops if node >= self.g0 + 1}
         return chunk
 
