@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from feed_twin.gcode import GcodeError, load_nc_config
+from feed_twin.gcode import GcodeError, load_nc_config, plan_program
 from feed_twin.gcode.interpreter import Event, Interpreter, Move, Stop
 from feed_twin.gcode.planner import iter_blocks, validate_program
 
@@ -193,6 +193,16 @@ def test_comments_case_and_line_numbers_are_ignored():
         ("G4", "<text>:1:1: word 'G4': G4 dwell needs a P (or X) word"),
         ("G92", "<text>:1:1: word 'G92': G92 needs at least one axis word"),
         ("T1.5", "<text>:1:1: word 'T1.5': tool number must be a whole number >= 0"),
+        ("G1.55 X1", "<text>:1:1: word 'G1.55': unknown G-code"),
+        ("S-100 M3", "<text>:1:1: word 'S-100': spindle speed must be >= 0"),
+        ("G64 P0", "<text>:1:5: word 'P0': G64 P tolerance must be > 0"),
+        ("G53 G2 X1 Y0 R1 F100", "<text>:1:1: word 'G53': G53 needs G0 or G1"),
+        ("G53", "<text>:1:1: word 'G53': G53 without axis words"),
+        ("G1 X1 F100 P2", "<text>:1:12: word 'P2': P word without G4, G64 or an arc"),
+        ("G4 G1 P1", "<text>:1:1: word 'G4': G4 cannot share a block with a motion code"),
+        ("G4 P-1", "<text>:1:4: word 'P-1': dwell time must be >= 0"),
+        ("G2 X0 Y0 I5 P1.5 F100", "<text>:1:13: word 'P1.5': arc turn count P must be a whole"),
+        ("G2 X5 Y0 I0 J0 F100", "<text>:1:10: word 'I0': arc centre coincides with the start"),
     ],
 )
 def test_bad_programs_name_file_line_column_and_word(program, message):
@@ -219,6 +229,8 @@ def test_validation_covers_the_whole_program_and_empty_files(tmp_path):
     with pytest.raises(GcodeError, match=r"empty.ngc: the program is empty \(no G-code blocks\)"):
         validate_program(empty, CONFIG)
     assert validate_program("G0 X1\nG1 Y1 F100\nG2 X2 Y0 R1", CONFIG) > 2
+    with pytest.raises(GcodeError, match=r"<text>: the program is empty \(no G-code blocks\)"):
+        plan_program("(only a comment)\n%\n", CONFIG)
 
 
 def test_fast_path_for_plain_blocks_matches_the_general_path():

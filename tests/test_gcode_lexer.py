@@ -61,6 +61,8 @@ def test_sinumerik_items_become_notes_and_axis_assignment_is_a_word():
         ("G1 X[1+2]", "p.ngc:7:4: word 'X[1+2]': expressions [...] are not supported"),
         ("G1 X", "p.ngc:7:4: word 'X': word has no number"),
         ("G1 X5 $", "p.ngc:7:7: word '$': unexpected character"),
+        ("=5 G1", "p.ngc:7:1: word '=': assignment without a name"),
+        ('G1 "X"', "p.ngc:7:4: word '\"': string outside an assignment"),
     ],
 )
 def test_lexer_errors_name_file_line_column_and_word(text, message):
