@@ -86,6 +86,8 @@ def test_binary_file_is_rejected_with_a_clear_message(tmp_path):
 def test_missing_file_and_text_source(tmp_path):
     with pytest.raises(GcodeError, match="nothere.ngc: no such G-code file"):
         iter_source_lines(tmp_path / "nothere.ngc")
+    with pytest.raises(GcodeError, match=r"^part\.MPF: no such G-code file$"):
+        iter_source_lines("part.MPF")
     file, lines = iter_source_lines("G0 X1\nG1 Y2 F100")
     assert file == "<text>"
     assert list(lines) == [(1, "G0 X1"), (2, "G1 Y2 F100")]

@@ -130,7 +130,9 @@ def iter_source_lines(source: str | Path) -> tuple[str, Iterator[tuple[int, str]
     """(file name for messages, iterator of (line number, text)) for a path or program text.
 
     A `Path`, or a string that names an existing file, is read lazily line by line (bounded
-    memory); any other string is the program text itself. Binary data raises a `GcodeError`.
+    memory); a one-line string with a program file suffix (.ngc, .nc, .mpf, ...) that names no
+    file is an error; any other string is the program text itself. Binary data raises a
+    `GcodeError`.
     """
     if isinstance(source, Path) or (
         isinstance(source, str) and "\n" not in source and _is_file(source)
@@ -141,7 +143,13 @@ def iter_source_lines(source: str | Path) -> tuple[str, Iterator[tuple[int, str]
         return str(path), _file_lines(path)
     if not isinstance(source, str):
         raise TypeError(f"expected a path or program text, got {type(source).__name__}")
+    if "\n" not in source and Path(source).suffix.lower() in _PROGRAM_SUFFIXES:
+        raise GcodeError("no such G-code file", file=source)
     return "<text>", _text_lines(source, "<text>")
+
+
+# A one-line string ending like this is a file name, never a program.
+_PROGRAM_SUFFIXES = (".ngc", ".nc", ".gcode", ".cnc", ".tap", ".mpf", ".spf", ".iso", ".txt")
 
 
 def _is_file(text: str) -> bool:
