@@ -175,3 +175,18 @@ def test_command_from_the_program_that_ran(tmp_path):
     truth = generate(nominal, {})["x_cmd_mm"][start:] * 1e-3
     # aligned to a fraction of a sample: the setpoint error stays below v_max * 0.1 ms
     assert np.max(np.abs(with_cmd["pos_cmd_m"] - truth)) < 0.12 * 1e-4
+
+
+def test_record_period_that_does_not_fit_the_model_is_explained(tmp_path, capsys):
+    raw = np.genfromtxt(EMPS / "DATA_EMPS.csv", delimiter=",", skip_header=1)[:2000]
+    raw[:, 0] *= 1.5  # a 1.5 ms record against the bench's 1 ms controller
+    csv = tmp_path / "slow.csv"
+    np.savetxt(csv, raw, delimiter=",", header="t_s,qg_ref_m,qm_meas_m,vir_ctrl_V,force_motor_N",
+               comments="")  # fmt: skip
+    code = main(["simulate", "--config", str(NOMINAL), "--measured", str(csv), "--map", str(MAP),
+                 "--out", str(tmp_path / "t.csv")])  # fmt: skip
+    assert code == 2
+    err = capsys.readouterr().err
+    assert (
+        "sample period 0.0015" in err and "not a whole multiple of the model's base period" in err
+    )

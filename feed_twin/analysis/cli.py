@@ -86,9 +86,13 @@ def main_diagnose(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     model_path = out / "model.yaml"
-    diagnosis, final_doc, motion = diagnose(
-        run, doc, validate=other, progress=progress, model_path=str(model_path)
-    )
+    try:
+        diagnosis, final_doc, motion = diagnose(
+            run, doc, validate=other, progress=progress, model_path=str(model_path)
+        )
+    except (MeasuredDataError, ConfigError) as exc:
+        print(f"feed-twin diagnose: {exc}", file=sys.stderr)
+        return 2
     write_model(final_doc, model_path, diagnosis.effects)
     written = write_report(diagnosis, out, v_m_s=motion.v_m_s)
     progress(diagnosis.verdict)
@@ -149,7 +153,11 @@ def main_simulate(args: argparse.Namespace) -> int:
     except (MeasuredDataError, ConfigError) as exc:
         print(f"feed-twin simulate: {exc}", file=sys.stderr)
         return 2
-    columns = simulate_traces(run, doc)
+    try:
+        columns = simulate_traces(run, doc)
+    except (MeasuredDataError, ConfigError) as exc:
+        print(f"feed-twin simulate: {exc}", file=sys.stderr)
+        return 2
     names = list(columns)
     table = np.column_stack([columns[n] for n in names])
     out = Path(args.out)
