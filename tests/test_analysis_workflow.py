@@ -119,3 +119,18 @@ def test_lead_error_is_found_by_the_linear_scale_of_a_semi_closed_loop(tmp_path)
     assert found["phase_rad"] == pytest.approx(0.7, abs=0.1)
     assert found["period_m"] == pytest.approx(0.01)  # once per screw revolution
     assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
+
+
+@pytest.mark.slow
+def test_fit_that_does_not_converge_says_so_and_keeps_the_last_good_model(tmp_path):
+    from feed_twin.analysis.diagnose import Options
+
+    nominal = ModelDoc.load(NOMINAL)
+    columns = generate(nominal, {"coulomb_friction": {"F_c_N": 15.0}})
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    run = load_measured(tmp_path / "run.csv", map_path)
+    d, final, _ = diagnose(run, nominal, options=Options(max_evaluations=1))
+    assert any("coulomb_friction did not converge" in n and "kept the last good model" in n
+               for n in d.notes), d.notes  # fmt: skip
+    assert "coulomb_friction" not in [e.name for e in d.effects]
+    assert final.data == nominal.data  # nothing unconverged was adopted
