@@ -72,6 +72,7 @@ def test_rigid_body_through_the_screw_accelerates_as_force_over_reflected_mass()
     t = res.t
     np.testing.assert_allclose(res["table.s"], 0.5 * force / M * t**2, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(res["table.v"], force / M * t, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(res["table.a"], force / M, rtol=1e-12)
 
 
 def _conservative_axis():

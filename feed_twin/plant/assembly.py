@@ -60,6 +60,11 @@ class Coordinate:
     velocity_state: str
 
 
+def _acceleration(c: Coordinate) -> str:
+    """Name of a coordinate's acceleration output: `<body>.a` [m/s^2] or `<body>.alpha`."""
+    return f"{c.name}.{'alpha' if c.kind == 'rotational' else 'a'}"
+
+
 def _const(prefix: str, name: str) -> str:
     return prefix + re.sub(r"[^A-Za-z0-9]", "_", name).upper()
 
@@ -291,7 +296,10 @@ class PlantModel:
         self.state_index = {n: i for i, n in enumerate(self.state_names)}
         self.energy_kinds: dict[str, str] = dict(gen.energy_kinds)
         kinetic = [f"stored.{c.name}.kinetic" for c in self.coordinates]
-        self.aux_names: tuple[str, ...] = tuple(gen.aux_names) + tuple(kinetic)
+        accelerations = [_acceleration(c) for c in self.coordinates]
+        self.aux_names: tuple[str, ...] = (
+            tuple(gen.aux_names) + tuple(kinetic) + tuple(accelerations)
+        )
         self.stored_names: tuple[str, ...] = tuple(gen.stored_names) + tuple(kinetic)
         self.meas_delay_slots = dict(gen.meas_delays)
         self.switching_inverter = next(
@@ -592,7 +600,7 @@ class _Generator(Emitter):
         out.append(f"N_P = {len(m.param_names)}")
         out.append("# auxiliary outputs")
         kinetic = [f"stored.{c.name}.kinetic" for c in m.coordinates]
-        aux = self.aux_names + kinetic
+        aux = self.aux_names + kinetic + [_acceleration(c) for c in m.coordinates]
         out += [f"{_const('A_', n)} = {i}" for i, n in enumerate(aux)]
         out.append(f"N_A = {len(aux)}")
         out.append("# external inputs")
@@ -642,6 +650,9 @@ class _Generator(Emitter):
                     f"aux[{_const('A_', f'stored.{c.name}.kinetic')}]"
                     f" = 0.5 * w{c.index} ** 2 / {inv}",
                 )
+            )
+            lines.append(
+                ("aux", f"aux[{_const('A_', _acceleration(c))}] = ({' + '.join(terms)}) * {inv}")
             )
         return lines
 
