@@ -190,3 +190,18 @@ def test_record_period_that_does_not_fit_the_model_is_explained(tmp_path, capsys
     assert (
         "sample period 0.0015" in err and "not a whole multiple of the model's base period" in err
     )
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"max_effects": 0}, r"max_effects = 0: must be a whole number >= 1"),
+        ({"max_evaluations": 2.5}, r"max_evaluations = 2.5: must be a whole number >= 1"),
+        ({"rival_ratio": 0.0}, r"rival_ratio = 0.0: must lie in \(0, 1\]"),
+    ],
+)
+def test_bad_workflow_options_are_named(change, message):
+    from feed_twin.analysis.diagnose import Options
+
+    with pytest.raises(ValueError, match=message):
+        Options(**change)

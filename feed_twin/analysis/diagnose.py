@@ -5,9 +5,10 @@
       -> align (time shift, position offset) and metrics "before"
       -> locate the residual (direction, speed, position, phases, spectrum)
       -> repeat: rank the effect library on the current residual; for the leading significant
-         candidates add the effect to the model and fit it (with the nominal parameters it
-         interacts with) by simulation-based least squares; keep the candidate whose fit
-         removes the most cost, if that reduction is itself significant
+         candidates add the effect to the model and fit its own parameters (and those of the
+         effects found before) by simulation-based least squares; keep the candidate that
+         removes the most cost per added degree of freedom
+      -> re-fit all found effects jointly with the nominal parameters they interact with
       -> metrics "after", optional validation on a second run, report.
 
 Significance: a candidate is fitted only if its signature passed the ranking's statistical test
@@ -59,6 +60,14 @@ class Options:
     rival_ratio: float = 0.5  # fit a rival only if it explains this share of the leader's part
     max_evaluations: int = 30  # least-squares function evaluations per fit
     fit_samples: int = 6000  # cost samples per channel (the record is strided down to this)
+
+    def __post_init__(self) -> None:
+        for name in ("max_effects", "candidates_per_round", "max_evaluations", "fit_samples"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} = {value!r}: must be a whole number >= 1")
+        if not 0.0 < self.rival_ratio <= 1.0:
+            raise ValueError(f"rival_ratio = {self.rival_ratio!r}: must lie in (0, 1]")
 
 
 @dataclass
