@@ -205,3 +205,26 @@ def test_bad_workflow_options_are_named(change, message):
 
     with pytest.raises(ValueError, match=message):
         Options(**change)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"scale": 0.0}, r"a: scale = 0.0: must be > 0"),
+        ({"lower": 2.0, "upper": 1.0}, r"a: bounds \[2.0, 1.0\]: lower must be < upper"),
+        ({"initial": float("nan")}, r"a: initial = nan: must be finite"),
+    ],
+)
+def test_bad_free_parameter_is_named(kwargs, message):
+    spec = {"name": "a", "initial": 1.0, "scale": 1.0} | kwargs
+    with pytest.raises(ValueError, match=message):
+        FreeParameter(**spec)
+
+
+def test_bad_unmodelled_dynamics_are_named():
+    from feed_twin.analysis.synthetic import Unmodelled
+
+    with pytest.raises(ValueError, match=r"current_lag_s = -1.0: must be >= 0"):
+        Unmodelled(current_lag_s=-1.0)
+    with pytest.raises(ValueError, match=r"effort_noise_std = -0.1: must be >= 0"):
+        Unmodelled(effort_noise_std=-0.1)

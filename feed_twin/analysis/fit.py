@@ -45,6 +45,16 @@ class FreeParameter:
     lower: float = -np.inf
     upper: float = np.inf
 
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.scale) and self.scale > 0.0):
+            raise ValueError(f"{self.name}: scale = {self.scale!r}: must be > 0")
+        if not self.lower < self.upper:
+            raise ValueError(
+                f"{self.name}: bounds [{self.lower!r}, {self.upper!r}]: lower must be < upper"
+            )
+        if not np.isfinite(self.initial):
+            raise ValueError(f"{self.name}: initial = {self.initial!r}: must be finite")
+
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class FitResult:

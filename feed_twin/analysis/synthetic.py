@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
+from feed_twin.io.config import require_nonnegative, require_positive
 
 # A program with moves of several lengths and feeds, reversals and dwells on one axis (X).
 PROGRAM = """\
@@ -172,6 +173,12 @@ class Unmodelled:
     coupling_stiffness_factor: float = 0.97  # truth/nominal torsional coupling stiffness [-]
     effort_noise_std: float | None = None  # [effort unit]; None: 0.3 N or 0.01 A
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        require_nonnegative("current_lag_s", self.current_lag_s)
+        require_positive("coupling_stiffness_factor", self.coupling_stiffness_factor)
+        if self.effort_noise_std is not None:
+            require_nonnegative("effort_noise_std", self.effort_noise_std)
 
 
 def truth_model(
