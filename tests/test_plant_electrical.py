@@ -98,10 +98,16 @@ def test_steady_state_torque_accelerates_the_rotor_as_the_dq_formula_says(L_d, L
     assert res["motor.i_q"][-1] == pytest.approx(i_q, abs=2e-3 * i_scale)
     assert res["motor.i_d"][-1] == pytest.approx(i_d, abs=2e-3 * i_scale)
     i_d_sim, i_q_sim = res["motor.i_d"][-1], res["motor.i_q"][-1]
+    omega = res["motor.omega"]
     torque = 1.5 * p * (psi * i_q_sim + (L_d - L_q) * i_d_sim * i_q_sim)
     assert res["motor.tau_e"][-1] == pytest.approx(torque, rel=1e-12)
+    # the terminal power is copper loss + mechanical power + the change of magnetic energy, and
+    # the last is of order 1e-4 here (the stator voltage turns slowly in the rotor frame)
+    copper = 1.5 * R_s * (i_d_sim**2 + i_q_sim**2)
+    p_mech = res["motor.p_mech"][-1]
+    assert p_mech == pytest.approx(torque * omega[-1], rel=1e-12)
+    assert res["motor.p_elec"][-1] == pytest.approx(copper + p_mech, rel=2e-4)
     J = 3.1e-3 + 1.0e3
-    omega = res["motor.omega"]
     accel = (omega[-1] - omega[-401]) / (400 * h)
     assert accel == pytest.approx(torque / J, rel=2e-3)
 

@@ -231,6 +231,8 @@ class Pmsm(Component):
             g.aux("tau_e", tau_e)
             g.aux("u_d", u_d)
             g.aux("u_q", u_q)
+            g.aux("p_elec", f"1.5 * ({u_d} * {g.x('i_d')} + {u_q} * {g.x('i_q')})")
+            g.aux("p_mech", f"{tau_e} * {omega}")
             for x in ("a", "b", "c"):
                 g.aux(f"i_{x}", g.el("ac", f"i_{x}"))
             g.power("loss", "copper", p_cu)
