@@ -42,7 +42,7 @@ MIN_SPEED_M_S = 1e-4  # [m/s] below this peak speed in a window nothing can be a
 # Ranking works on the window decimated to at most this many samples: the signatures of
 # friction, mass and force effects are smooth functions of the motion, and ranking a 4000-sample
 # window costs about 0.1 s, which a live twin cannot spend every few seconds.
-NAMING_SAMPLES = 1000
+NAMING_SAMPLES = 500
 
 
 @dataclass(frozen=True, kw_only=True)
