@@ -5,7 +5,8 @@
   stays silent for `peer_timeout_s` (0.8 s) is gone: the node names it and stops with exit code
   `EXIT_PEER_LOST`. A peer never seen within `startup_timeout_s` is reported as not started.
   Heartbeats begin only after a node's set-up (numba compilation included), so a slow start is
-  not mistaken for a crash.
+  not mistaken for a crash, and they are sent and received by a separate small node on its own
+  thread (`Liveness`), so a backlog on the data path does not look like a dead peer.
 - Input watchdogs: a node that waits for messages on a topic reports, after a timeout, what the
   graph offers instead (the same type on other topics, or the topic with another type), which
   is what goes wrong when a real command stream is wired to the wrong namespace.
@@ -139,7 +140,7 @@ class Liveness:
         next_beat = time.monotonic()
         while not self._stop.is_set():
             with contextlib.suppress(Exception):
-                self._executor.spin_once(timeout_sec=0.02)
+                self._executor.spin_once(timeout_sec=0.05)
             now = time.monotonic()
             gap = now - self._last_tick
             self._last_tick = now
