@@ -247,3 +247,9 @@ def test_fast_path_for_plain_blocks_matches_the_general_path():
         general = f"{mode} F1000\n" + "\n".join(line + " G94" for line in body)
         items = run(plain)
         assert len(items) > 150 and items == run(general)
+
+
+def test_percent_delimited_program_ends_at_the_second_percent():
+    assert len(ends("%\nG0 X1\n%\nG0 X2 Q7 (not read)")) == 1
+    # Without a leading '%', a '%' line is only skipped.
+    assert len(ends("G0 X1\n%\nG0 X2")) == 2

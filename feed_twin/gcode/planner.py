@@ -52,12 +52,25 @@ COLLINEAR = 1e-12  # |u_out - u_in| below this is a straight joint, not a corner
 
 
 def iter_blocks(source: str | Path, config: NcConfig) -> tuple[str, Iterator[Block]]:
-    """(file name, lazily lexed blocks) of a program path or text."""
+    """(file name, lazily lexed blocks) of a program path or text.
+
+    A program that opens with a `%` line ends at the next `%` line (RS274/NGC); what follows
+    is not read.
+    """
     file, lines = iter_source_lines(source)
 
     def blocks() -> Iterator[Block]:
         block_delete = config.block_delete
+        opened = None  # whether the first non-blank line was '%'
         for number, text in lines:
+            stripped = text.strip()
+            if stripped.startswith("%"):
+                if opened:
+                    return
+                opened = opened is None
+                continue
+            if stripped and opened is None:
+                opened = False
             block = lex_line(text, number, file=file, block_delete=block_delete)
             if block is not None:
                 yield block
