@@ -399,12 +399,16 @@ class Twin:
             ext[:, 0] = hold(drive.force_ext_N, dec)
         return ref, ext, n, dec
 
-    def _x0(self, drive: Drive, p: np.ndarray) -> np.ndarray:
+    def initial_state(self, x0_m: float, p: np.ndarray) -> np.ndarray:
+        """Plant state at rest with the table at x0_m [m] for the parameter vector p."""
         table = self.doc.table_port()
         node = self.plant.node_of[table]
         coord = self.plant.coordinates[self.plant.coordinate_of[node]]
         ratio = float(p[self.plant.param_index[f"derived.ratio_n{node}"]])
-        return self.plant.initial_state({coord.name: drive.x0_m / ratio})
+        return self.plant.initial_state({coord.name: x0_m / ratio})
+
+    def _x0(self, drive: Drive, p: np.ndarray) -> np.ndarray:
+        return self.initial_state(drive.x0_m, p)
 
     def simulate(self, drive: Drive, params: np.ndarray) -> SimOutputs:
         """Simulate each row of `params` (full parameter vectors) on the drive's command."""
@@ -436,6 +440,12 @@ class Twin:
         return SimOutputs(x_m=x, effort=effort, ok=ok)
 
     def _measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:
+        return self.measured_signals(res, dec)
+
+    def measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:
+        """(position as the measurement system reports it [m], drive effort in SI) of an
+        engine result `res` (indexable by recorded signal name, rows = sets), every dec-th
+        base tick."""
         sel = slice(None, None, dec)
         if "meas.x_scale_m" in res.names and self.doc.of_type("LinearScale"):
             pos = res["meas.x_scale_m"][:, sel]
