@@ -83,6 +83,7 @@ def test_replay_equals_the_offline_simulation_on_the_same_bag(recording, doc, co
         assert getattr(result.metrics, name) == pytest.approx(value, rel=1e-9), name
 
 
+@pytest.mark.slow
 def test_replay_cli_writes_comparison_bag_rrd_and_report(recording, tmp_path, config) -> None:
     out = tmp_path / "out"
     code = cli_main(
