@@ -235,3 +235,27 @@ def test_command_velocity_is_required_when_configured(doc, config) -> None:
     shadow = shadow_of(doc, config)
     with pytest.raises(ValueError, match="push_command: this twin takes the command velocity"):
         shadow.push_command(0.0, 0.0)
+
+
+def test_a_diverging_twin_is_restarted_not_stopped(doc, config, clean) -> None:
+    from feed_twin.sim.engine import DivergenceError
+
+    shadow = shadow_of(doc, config)
+    real_advance = shadow.engine.advance
+    calls = {"n": 0}
+
+    def advance(n_ticks, **inputs):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise DivergenceError("simulation diverged at t = 0.1 s (test)")
+        return real_advance(n_ticks, **inputs)
+
+    shadow.engine.advance = advance
+    got = stream_through(shadow, clean)
+    assert len(got) == len(clean["t"])
+    assert shadow.twin_restarts == 1
+    assert "diverged" in shadow.last_restart_message
+    lost = ~np.isfinite(got.x_twin_m)
+    assert 0 < lost.sum() <= 37 + 1  # the block that diverged, no more
+    # restarted at the measured position, the twin follows the machine again
+    assert np.max(np.abs(got.fe_dev_m[-1000:])) < 1e-5
