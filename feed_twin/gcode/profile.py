@@ -16,7 +16,11 @@ sigma = s - s_c in [-w, w]:
 with h' a triangle (0 -> 1/w -> 0), so h runs 0 -> 1 and G(w) = w (the blend rejoins the
 second line exactly). The largest distance from the corner is |dU|*w/6. Along a cruise piece
 the axis acceleration is dU_i * h' * v^2 <= |dU_i| v^2 / w and the jerk is |dU_i| v^3 / w^2,
-which is how the planner sizes w and the corner speed. Acceleration is continuous everywhere.
+which is how the planner sizes w and the corner speed. Blends of neighbouring corners may
+overlap (chains): on a move they simply add, x(s) = P0 + u*sigma + dU_start*(G - sigma) +
+dU_end*G, and the sum stays within the larger of the two deviations, because each term is
+convex and vanishes at the other end. In general a = x'(s) s'' + x''(s) s'^2, which
+`evaluate_path` evaluates. Acceleration is continuous everywhere.
 """
 
 from __future__ import annotations
