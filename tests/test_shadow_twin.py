@@ -259,3 +259,24 @@ def test_a_diverging_twin_is_restarted_not_stopped(doc, config, clean) -> None:
     assert 0 < lost.sum() <= 37 + 1  # the block that diverged, no more
     # restarted at the measured position, the twin follows the machine again
     assert np.max(np.abs(got.fe_dev_m[-1000:])) < 1e-5
+
+
+def test_without_measured_effort_the_fe_deviation_warns_and_a_position_effect_is_named(
+    doc, config
+) -> None:
+    from feed_twin.analysis.effects import BY_NAME
+
+    run = machine_run(doc, 14.0, raise_at_s=7.0)
+    run["em"] = np.full_like(run["em"], np.nan)  # the machine reports no effort
+    shadow = ShadowTwin(
+        Twin.compile(doc), config, command_velocity=True, travel_m=0.3, measured_effort=False
+    )
+    got = stream_through(shadow, run)
+    assert np.isnan(got.effort_dev).all()
+    verdicts = shadow.health.verdicts
+    assert all(v.level == OK for v in verdicts if v.t_s < 7.0)
+    settled = [v for v in verdicts if v.t_s >= 7.0 + SHADOW["window_s"] + 0.5]
+    assert settled and all(v.level == WARN for v in settled)
+    # more friction makes the table lag behind the twin in the direction of motion
+    assert all(BY_NAME[v.effect].domain == "position" for v in settled), settled[-1].message
+    assert settled[-1].message.endswith("um, effort deviation RMS +0 N since start")

@@ -118,8 +118,10 @@ class HealthMonitor:
         lead_m: float | None,
         pole_pairs: int | None,
         travel_m: float,
+        has_effort: bool = True,
     ) -> None:
         self.config = config
+        self.has_effort = has_effort  # False: the machine sends no effort, name by position
         self.physical = {p.effect: p for p in physical}
         self.effort_unit = effort_unit
         self.lead_m = lead_m
@@ -252,7 +254,7 @@ class HealthMonitor:
             "fe_dev_rms_m": float(np.sqrt(np.mean(rows[:, 2] ** 2))),
             "effort_dev_rms": float(np.sqrt(np.mean(rows[:, 3] ** 2))),
         }
-        if not self._moving(rows):
+        if not self._moving(rows) or not self.has_effort:
             return
         rows = _decimated(rows)
         motion = self._motion(rows)
@@ -304,9 +306,15 @@ class HealthMonitor:
             return {"message": "the axis did not move enough to name an effect"}
         w = _decimated(w)
         motion = self._motion(w)
-        change = w[:, 3] - self.baseline_prediction(motion)
+        unit = self.effort_unit
         try:
-            ranked = rank(motion, effort_residual=change, position_residual=None)
+            if self.has_effort:
+                change = w[:, 3] - self.baseline_prediction(motion)
+                ranked = rank(motion, effort_residual=change, position_residual=None)
+            else:
+                # no measured effort: the position-domain signatures on the FE deviation
+                unit = "m"
+                ranked = rank(motion, effort_residual=None, position_residual=w[:, 2])
         except (np.linalg.LinAlgError, ValueError) as exc:
             # a twin must never stop over its diagnosis: report and go on
             return {"message": f"the effect ranking failed on this window ({exc})"}
@@ -318,7 +326,7 @@ class HealthMonitor:
             weights = ", ".join(f"{k} {v:+.3g}" for k, v in found.coefficients.items())
             return {
                 "effect": found.name,
-                "message": f"{found.name} changed since start ({weights} [{self.effort_unit}])",
+                "message": f"{found.name} changed since start ({weights} [{unit}])",
             }
         start = phys.nominal
         now = start + phys.per_effort * found.coefficients[phys.regressor]

@@ -215,6 +215,7 @@ class ShadowTwin:
         *,
         command_velocity: bool,
         travel_m: float,
+        measured_effort: bool = True,
     ) -> None:
         self.twin = twin
         self.config = config
@@ -243,6 +244,7 @@ class ShadowTwin:
             lead_m=twin.lead_m,
             pole_pairs=twin.pole_pairs,
             travel_m=travel_m,
+            has_effort=measured_effort,
         )
         self.start_slot: int | None = None
         # slots one stream may be ahead before the other counts as silent: at least the
