@@ -18,6 +18,9 @@ with ITSELF at the start of the run:
   against the model's value: "coulomb_friction +35 % since start";
 - STALE when the measured stream has lost `missing_flag_after` samples in a row.
 
+A machine that reports no effort (`has_effort=False`) is judged on the FE deviation alone, and
+the position-domain signatures of the library are ranked on it (weights in m, no parameter).
+
 In a `Verdict`, `nominal_value` is the model's value of the parameter, `estimated_value` that
 value plus the change since the start, and `relative_change` the change over |nominal_value|
 (as HealthStatus defines it). The change is referred to the model's value, not to a baseline
