@@ -2,11 +2,11 @@
 against the `gcodeparser` package (PyPI) on the same file in the same run.
 
 The program is CAM-like: a wavy closed contour of 0.03-0.1 mm segments, one `G1 X.. Y..` block
-each, in config/nc_default.yaml. numba compilation is timed separately (first call) and
-excluded; each figure is the best of three runs. The machine is shared by several engineers,
-so rates are given from this process's CPU time (what the code costs) and from wall time
-(what it cost today, with the neighbours); single-threaded, the two agree on an idle machine.
-Last printed line: one JSON object of the figures.
+each, in the nc: section of config/axis_default.yaml. numba compilation is timed separately
+(first call) and excluded; each figure is the best of three runs. The machine is shared by
+several engineers, so rates are given from this process's CPU time (what the code costs) and
+from wall time (what it cost today, with the neighbours); single-threaded, the two agree on an
+idle machine. Last printed line: one JSON object of the figures.
 
     .venv/bin/python benchmarks/gcode_speed.py
 """
@@ -52,7 +52,7 @@ def best_of(fn) -> tuple[float, float, object]:
 
 
 def main() -> None:
-    config = load_nc_config(ROOT / "config" / "nc_default.yaml")
+    config = load_nc_config(ROOT / "config" / "axis_default.yaml")
     with tempfile.TemporaryDirectory() as tmp:
         program = Path(tmp) / "bench.ngc"
         write_program(program, N_MOVES)

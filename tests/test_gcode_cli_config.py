@@ -57,7 +57,7 @@ def test_plan_reports_program_and_config_errors_with_exit_code_2(tmp_path, capsy
 
 
 def test_default_config_is_a_valid_machining_centre():
-    config = load_nc_config(ROOT / "config" / "nc_default.yaml")
+    config = load_nc_config(ROOT / "config" / "axis_default.yaml")
     assert config.axis_names == ("X", "Y", "Z")
     assert config.twin_axis == "X" and config.profile == "jerk"
     assert config.interpolation_period_s == 1e-3

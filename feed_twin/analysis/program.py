@@ -1,13 +1,13 @@
 """The command of a record that has none, from the G-code program that ran.
 
 Many drive scopes record only actual values. The program is planned with feed_twin.gcode
-(`plan_program`, the NC section of the model or config/nc_default.yaml) and its axis setpoints
-are placed on the record's clock: the time offset is the shift that best aligns the planned
-velocity with the measured one (cross-correlation over the whole record, refined below one
-sample, see analysis.compare), and the position offset is the median difference after the
-shift (a different encoder zero). Because an axis follows its command late, the estimate is
-refined once with the nominal twin's response to the placed command. Both numbers are reported
-as a warning of the run.
+(`plan_program`, the NC section of the model or, failing that, of config/axis_default.yaml) and
+its axis setpoints are placed on the record's clock: the time offset is the shift that best
+aligns the planned velocity with the measured one (cross-correlation over the whole record,
+refined below one sample, see analysis.compare), and the position offset is the median
+difference after the shift (a different encoder zero). Because an axis follows its command
+late, the estimate is refined once with the nominal twin's response to the placed command. Both
+numbers are reported as a warning of the run.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from feed_twin.analysis.compare import align
 from feed_twin.io.config import load_yaml
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun
 
-DEFAULT_NC = Path(__file__).resolve().parents[2] / "config" / "nc_default.yaml"
+DEFAULT_NC = Path(__file__).resolve().parents[2] / "config" / "axis_default.yaml"
 
 
 def _nc_config(nc: dict[str, Any] | None, source: str):
