@@ -432,7 +432,7 @@ class PlantModel:
             jac[:, j] = (f_hi[idx] - f_lo[idx]) / (2.0 * step)
         return jac
 
-    def with_params(self, **changes: Mapping[str, float]) -> PlantModel:
+    def with_params(self, **changes: Mapping[str, object]) -> PlantModel:
         """A model whose components are replaced by `dataclasses.replace(component, **fields)`."""
         comps = [
             (n, dataclasses.replace(c, **changes[n]) if n in changes else c)
@@ -627,7 +627,7 @@ class _Generator(Emitter):
                 lines.append(f"F_n{n} = 0.0")
         return lines
 
-    def _coordinate_lines(self, kind: str) -> list[tuple[str, str]]:
+    def _coordinate_lines(self) -> list[tuple[str, str]]:
         m = self.m
         lines: list[tuple[str, str]] = []
         for c in m.coordinates:
@@ -696,7 +696,7 @@ class _Generator(Emitter):
             ("outputs", "t, x, p, out, ext, sw, aux", {"all", "aux"}),
             ("sense", "t, x, p, out, ext, sw, k, seed, meas, mdelay", {"all", "meas"}),
         )
-        coord_lines = self._coordinate_lines("")
+        coord_lines = self._coordinate_lines()
         for name, args, kinds in specs:
             lines = list(body_all)
             # sensors see positions, currents and the bus: `sense` skips the dynamics

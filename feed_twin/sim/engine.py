@@ -11,7 +11,8 @@ sets at once. Inputs per tick: `ref` (n, REF_SIZE) for the controller, `drive` (
 open loop (prescribed duties / effort, OUT_ENABLED = 1 to switch the power stage on), `ext`
 (n, number of ExternalForce components) [N].
 Recorded signals: every state, every plant auxiliary (`<component>.<signal>`, powers
-`<component>.power.<name>` [W], stored energies `stored.<component>.<name>` [J]), the sensor
+`<component>.power.<name>` [W], stored energies `stored.<component>.<name>` [J], coordinate
+accelerations `<body>.a` [m/s^2] or `<body>.alpha` [rad/s^2]), the sensor
 samples as the controller saw them (`meas.<MEAS name>`), the controller outputs
 (`out.<OUT name>`) and the controller state (`ctrl.<name>`), at every `output_period_s`.
 """
