@@ -195,3 +195,13 @@ def test_cogging_torque_makes_the_rotor_swing_at_its_detent_frequency():
     A = plant.linearize(plant.initial_state(), plant.nominal_params(), states=names)
     omega = np.abs(np.linalg.eigvals(A).imag).max()
     assert omega == pytest.approx(math.sqrt(amplitude * order / J), rel=1e-6)
+
+
+def test_switching_inverter_needs_one_pwm_period_per_tick():
+    plant = _drive_plant(L_d=4e-3, L_q=4e-3, model="switching")
+    with pytest.raises(
+        ValueError,
+        match=r"^drive: plant.inverter.f_pwm = 16000.0: the switching inverter needs one PWM "
+        r"period per base tick, 1/base_period_s = 8000.0 Hz$",
+    ):
+        Engine(plant, base_period_s=1.25e-4)

@@ -116,6 +116,14 @@ class Engine:
             )
         self.p = model.nominal_params() if params is None else np.array(params, dtype=float)
         check_step(model, self.p, self.h, self.nsub)
+        if model.switching_inverter is not None:
+            f_pwm = self.p[model.param_index[f"{model.switching_inverter}.f_pwm"]]
+            if abs(f_pwm * self.h - 1.0) > 1e-9:
+                raise ValueError(
+                    f"{model.source}: plant.{model.switching_inverter}.f_pwm = {float(f_pwm)!r}: "
+                    f"the switching inverter needs one PWM period per base tick, "
+                    f"1/base_period_s = {1.0 / self.h!r} Hz"
+                )
         self.kernel = load_kernel(model, closed_loop=controller is not None)
         ctrl_names = tuple(controller.state_names) if controller is not None else ()
         self.all_names = (
