@@ -18,23 +18,14 @@ test: setup
 test-fast: setup
 	@bash tools/run_tests.sh -m "not slow" $(PYTEST_ARGS)
 
-# The demo runs a G-code program through the ROS 2 node set once the axis configuration has
-# an `nc:` section for the G-code node; until then it shows what already runs end to end.
+# The demo: a G-code program through the three ROS 2 nodes, recorded to bags/ (MCAP + .rrd).
 DEMO_CONFIG ?= config/axis_default.yaml
 DEMO_PROGRAM ?= tests/fixtures/gcode/sample.ngc
 
 demo: setup
-	@if grep -q '^nc:' "$(DEMO_CONFIG)"; then \
-		echo "demo: $(DEMO_PROGRAM) through the ROS 2 node set (G-code node -> controller"; \
-		echo "demo: node -> simulated axis, three processes), recorded to bags/ with a Rerun .rrd"; \
-		$(BIN)/feed-twin run "$(DEMO_PROGRAM)" --config "$(DEMO_CONFIG)"; \
-	else \
-		echo "demo: $(DEMO_CONFIG) has no nc: section yet, so the node set cannot run a program;"; \
-		echo "demo: this shows the installation and sends every feed_twin message type over DDS,"; \
-		echo "demo: between two nodes in one process and from a child process, checking every"; \
-		echo "demo: field on arrival."; \
-		$(BIN)/feed-twin info && $(BIN)/feed-twin msgs-check; \
-	fi
+	@echo "demo: $(DEMO_PROGRAM) through the ROS 2 node set (G-code node -> controller"
+	@echo "demo: node -> simulated axis, three processes), recorded to bags/ with a Rerun .rrd"
+	@$(BIN)/feed-twin run "$(DEMO_PROGRAM)" --config "$(DEMO_CONFIG)"
 
 # benchmarks/_*.py are helpers that a benchmark runs itself (e.g. under another interpreter).
 bench: setup
