@@ -134,3 +134,17 @@ def test_fit_that_does_not_converge_says_so_and_keeps_the_last_good_model(tmp_pa
                for n in d.notes), d.notes  # fmt: skip
     assert "coulomb_friction" not in [e.name for e in d.effects]
     assert final.data == nominal.data  # nothing unconverged was adopted
+
+
+@pytest.mark.slow
+def test_thermal_drift_is_found_by_the_linear_scale_of_a_semi_closed_loop(tmp_path):
+    """The screw warms as it travels and lengthens: a linear scale sees the table drift away."""
+    nominal = ModelDoc.load(ROOT / "config" / "axis_default.yaml")
+    nominal.data["controller"]["position"]["feedback"] = "motor_encoder"
+    truth = {"heating_K_m": 2.0}
+    columns = generate(nominal, {"thermal_drift": truth}, start_m=0.3)
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
+    assert d.effects and d.effects[0].name == "thermal_drift", d.notes
+    assert d.effects[0].parameters["heating_K_m"] == pytest.approx(2.0, rel=0.10)
+    assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m

@@ -251,6 +251,17 @@ def lead_error(doc: ModelDoc, cand: Candidate) -> Edit:
     return _edit(doc, own, report, interacts=False)
 
 
+def thermal_drift(doc: ModelDoc, cand: Candidate) -> Edit:
+    """Thermal growth of the screw (analysis.thermal); its heating rate [K/m] is fitted."""
+    from feed_twin.analysis.thermal import initial_heating, with_thermal_growth
+
+    heating = initial_heating(cand)
+    doc, slot = with_thermal_growth(doc, heating)
+    own = [FreeParameter(name=slot, initial=heating, scale=heating, lower=0.0)]
+    report = {"heating_K_m": lambda v: v[slot]}
+    return _edit(doc, own, report, interacts=False)
+
+
 MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
 
 
@@ -279,4 +290,5 @@ EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
     "constant_force": constant_force,
     "mass_error": mass_error,
     "torque_constant_error": gain_error,
+    "thermal_drift": thermal_drift,
 }

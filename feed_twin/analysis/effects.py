@@ -176,6 +176,15 @@ def _stiffness(m: Motion) -> dict[str, np.ndarray]:
     return {"f": f, "f_x": f * s, "f_x2": f * s * s}
 
 
+def _thermal(m: Motion) -> dict[str, np.ndarray]:
+    # a screw still far from thermal equilibrium warms in proportion to the distance travelled
+    # D(t); its heated length from the fixed bearing is x_0 + x with x_0 unknown here, so the
+    # elongation alpha dT (x_0 + x) is a combination of D x and D
+    dt = np.diff(m.t_s, prepend=m.t_s[0])
+    travelled = np.cumsum(np.abs(m.v_m_s) * dt)
+    return {"x_D": m.x_m * travelled, "D": travelled}
+
+
 LIBRARY: tuple[Effect, ...] = (
     Effect(
         name="coulomb_friction",
@@ -287,10 +296,10 @@ LIBRARY: tuple[Effect, ...] = (
     Effect(
         name="thermal_drift",
         domain="position",
-        component="BallScrew.thermal_growth",
-        words="a position error that grows slowly with time and with distance from the fixed "
-        "bearing: the screw heats up and lengthens",
-        signature=lambda m: {"x_t": (m.x_m - m.x_m.min()) * (m.t_s - m.t_s[0])},
+        component="ThermalGrowth.heating",
+        words="a position error that grows slowly with the distance travelled and with the "
+        "distance from the fixed bearing: the screw heats up and lengthens",
+        signature=_thermal,
     ),
     Effect(
         name="position_dependent_stiffness",

@@ -149,6 +149,12 @@ def _lead_error(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     return doc.set(f"{name}.lead_error_phase", p["phase_rad"])
 
 
+def _thermal(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    from feed_twin.analysis.thermal import with_thermal_growth
+
+    return with_thermal_growth(doc, p["heating_K_m"])[0]
+
+
 HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "coulomb_friction": _coulomb,
     "viscous_friction": _viscous,
@@ -159,6 +165,7 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "torque_constant_error": _gain,
     "measurement_delay": _delay,
     "lead_error": lambda doc, p: _lead_error(doc, p),
+    "thermal_drift": lambda doc, p: _thermal(doc, p),
     "cogging_torque": lambda doc, p: doc.with_cogging(
         int(p["order"]), p["amplitude_Nm"], p["phase_rad"]
     )[0],

@@ -19,6 +19,7 @@ from feed_twin.plant.mass import Mass
 from feed_twin.plant.pmsm import Pmsm
 from feed_twin.plant.screw_shaft import ScrewShaft
 from feed_twin.plant.sensors import CurrentSensor, Encoder, LinearScale
+from feed_twin.plant.thermal_growth import ThermalGrowth
 
 COMPONENT_TYPES: dict[str, type[Component]] = {
     cls.TYPE: cls
@@ -42,5 +43,6 @@ COMPONENT_TYPES: dict[str, type[Component]] = {
         Mass,
         Pmsm,
         ScrewShaft,
+        ThermalGrowth,
     )
 }
