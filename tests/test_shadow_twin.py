@@ -280,3 +280,19 @@ def test_without_measured_effort_the_fe_deviation_warns_and_a_position_effect_is
     # more friction makes the table lag behind the twin in the direction of motion
     assert all(BY_NAME[v.effect].domain == "position" for v in settled), settled[-1].message
     assert settled[-1].message.endswith("um, effort deviation RMS +0 N since start")
+
+
+def test_a_measurement_that_never_comes_neither_stalls_nor_grows(doc, config, clean) -> None:
+    shadow = shadow_of(doc, config)
+    rows = 0
+    for k in range(len(clean["t"])):
+        shadow.push_command(clean["t"][k], clean["x"][k], clean["v"][k])
+        if k % 100 == 0 and (b := shadow.process()) is not None:
+            rows += len(b)
+            assert np.isnan(b.x_meas_m).all() and b.measured_filled.all()
+            assert np.isfinite(b.x_twin_m).all()  # started at the commanded position
+    # only the silent lead (plus one processing step) behind the commands, nothing buffered
+    assert rows >= len(clean["t"]) - shadow.silent_lead - 100 - 2
+    assert shadow.commands.pending_count <= shadow.lookahead + 100
+    assert shadow.health.baseline is None  # nothing to judge the machine by
+    assert shadow.health.last is not None and shadow.health.last.level == STALE

@@ -182,13 +182,15 @@ class HealthMonitor:
         return out
 
     def evaluate(self, *, stale: bool = False) -> Verdict | None:
-        """Judge the current window against the baseline (None before the baseline is set)."""
-        if self.baseline is None or self._window.count == 0:
+        """Judge the current window against the baseline (None before the baseline is set,
+        unless the measurement is stale: that is said at any time)."""
+        empty = self._window.count == 0
+        if (self.baseline is None or empty) and not stale:
             return None
         w = self._window.data
-        b = self.baseline
-        fe_rms = float(np.sqrt(np.mean(w[:, 2] ** 2)))
-        eff_rms = float(np.sqrt(np.mean(w[:, 3] ** 2)))
+        b = self.baseline or {"fe_dev_rms_m": math.nan, "effort_dev_rms": math.nan}
+        fe_rms = math.nan if empty else float(np.sqrt(np.mean(w[:, 2] ** 2)))
+        eff_rms = math.nan if empty else float(np.sqrt(np.mean(w[:, 3] ** 2)))
         common = dict(
             t_s=self._t_last if stale else float(w[-1, 0]),
             fe_dev_rms_m=fe_rms,

@@ -77,7 +77,7 @@ def replay(bag: str | Path, doc: ModelDoc, cmap: ColumnMap, config: ShadowConfig
     blocks: list[ResidualBlock] = []
     verdicts: list[Verdict] = []
     first = cmd if cmd.log_time_ns[0] <= meas.log_time_ns[0] else meas
-    shadow._origin(float(first.stamp_s[0]))
+    shadow.set_origin(float(first.stamp_s[0]))
     ic = im = 0
     for edge in range(start + step, end + step + 1, step):
         jc = int(np.searchsorted(cmd.log_time_ns, edge, side="left"))

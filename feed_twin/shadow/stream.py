@@ -20,7 +20,8 @@ a bounded buffer and never waiting for ever. The policy, per message:
 - missing: once the stream has run `window` slots past a slot that never arrived, that slot is
   final: it is filled by linear interpolation between its released predecessor and its next
   received sample (`fill = "interpolate"`) or by holding the predecessor (`fill = "hold"`), and
-  counted `missing`. At the start (no predecessor) the next sample is held backwards.
+  counted `missing`. At the start (no predecessor) the next sample is held backwards; a
+  stream that never delivered anything is filled with NaN.
   `missing_run` counts the current run of consecutive missing slots;
 - stopped: a stream that stops altogether cannot run past its missing slots, so the twin
   decides them from the other stream (`decide_through`, see ShadowTwin.silent_lead): they are
@@ -31,6 +32,7 @@ Released values leave the buffer, so memory is bounded by `window` plus what arr
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Literal
 
@@ -179,7 +181,7 @@ class SlotStream:
     def decide_through(self, slot: int) -> None:
         """Treat every slot up to `slot` as decided although this stream has not run past it
         (the twin calls this when the OTHER stream is far ahead: this one has stopped)."""
-        if self.newest is not None and slot > self._final_through:
+        if slot > self._final_through:
             self._final_through = int(slot)
 
     def start(self, slot: int) -> None:
@@ -193,12 +195,13 @@ class SlotStream:
     def release(self, *, final: bool = False, limit: int | None = None) -> Released | None:
         """Every slot that is decided: received, or final because the stream ran `window` past
         it (with `final`, every slot up to the newest). At most `limit` slots."""
-        if self.next_slot is None or self.newest is None:
+        if self.next_slot is None:
             return None
-        horizon = self.newest if final else self._final_through
+        newest = self.newest if self.newest is not None else self.next_slot - 1
+        horizon = max(newest, self._final_through) if final else self._final_through
         k = self.next_slot
         # a stream decided from the other one (decide_through) fills beyond its newest slot
-        last = max(self.newest, horizon)
+        last = max(newest, horizon)
         if limit is not None:
             last = min(last, k + limit - 1)
         if last < k:
@@ -257,7 +260,7 @@ class SlotStream:
                 following = (min(ahead), self._pending[min(ahead)])
         if self._last is None:
             if following is None:
-                raise RuntimeError(f"{self.name}: nothing to fill slot {k} from")
+                return [math.nan] * self.width  # the stream never delivered anything
             return list(following[1])
         if self.fill == "hold" or following is None:
             return list(self._last)

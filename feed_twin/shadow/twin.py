@@ -269,14 +269,15 @@ class ShadowTwin:
 
     # ------------------------------------------------------------------ input
 
-    def _origin(self, t_s: float) -> None:
+    def set_origin(self, t_s: float) -> None:
+        """Put slot 0 of both streams at machine time t_s (the first stamp seen, by default)."""
         if self.commands.t0_s is None:
             self.commands.set_origin(t_s)
             self.measured.set_origin(t_s)
 
     def push_command(self, t_s: float, pos_m: float, vel_m_s: float | None = None) -> str:
         """One NC sample of the machine; returns the policy's outcome (FaultCounts field)."""
-        self._origin(t_s)
+        self.set_origin(t_s)
         if self.command_velocity:
             if vel_m_s is None:
                 raise ValueError("push_command: this twin takes the command velocity; none given")
@@ -285,7 +286,7 @@ class ShadowTwin:
 
     def push_measured(self, t_s: float, pos_m: float, effort: float = math.nan) -> str:
         """One measured sample: position [m] as the feedback sensor reports it, drive effort."""
-        self._origin(t_s)
+        self.set_origin(t_s)
         return self.measured.push(t_s, (pos_m, effort))
 
     def push_commands(
@@ -294,7 +295,7 @@ class ShadowTwin:
         """Several NC samples in arrival order (the same policy as push_command)."""
         if len(t_s) == 0:
             return
-        self._origin(float(t_s[0]))
+        self.set_origin(float(t_s[0]))
         if self.command_velocity:
             if vel_m_s is None:
                 raise ValueError("push_commands: this twin takes the command velocity; none given")
@@ -308,7 +309,7 @@ class ShadowTwin:
         """Several measured samples in arrival order (the same policy as push_measured)."""
         if len(t_s) == 0:
             return
-        self._origin(float(t_s[0]))
+        self.set_origin(float(t_s[0]))
         eff = np.full(len(t_s), math.nan) if effort is None else np.asarray(effort, dtype=float)
         self.measured.push_many(t_s, np.column_stack([pos_m, eff]))
 
@@ -340,7 +341,12 @@ class ShadowTwin:
         if not self._engine_started:
             if not self._meas_q:
                 return None
-            self._restart(float(self._meas_q[0][0, 1]))
+            x0 = float(self._meas_q[0][0, 1])
+            if not math.isfinite(x0):
+                # no measurement at the start (a silent stream): start where the NC commands
+                start_cmd = self.commands._pending.get(self.start_slot)
+                x0 = float(start_cmd[CMD_POS]) if start_cmd is not None else 0.0
+            self._restart(x0)
             self._engine_started = True
         c = self.commands.release(final=final)
         if c is not None:
