@@ -715,7 +715,12 @@ class _Generator(Emitter):
             # argument, several times the cost of the physics
             # numpy error model: a division by zero gives inf/NaN (caught by the divergence
             # check) instead of an exception, so unused calls are dead code LLVM can drop
-            funcs.append('@njit(cache=True, inline="always", error_model="numpy")')
+            # arcp/contract: divisions by parameters become multiplications, products fuse;
+            # NaN and inf keep their meaning (divergence checks)
+            funcs.append(
+                '@njit(cache=True, inline="always", error_model="numpy", '
+                'fastmath={"arcp", "contract"})'
+            )
             funcs.append(f"def {name}({args}):")
             funcs += [f"    {code}" for code in lines]
             funcs.append("    return None")

@@ -35,9 +35,10 @@ _LOOP = '''
 
 RING = {ring}
 SWITCHING = {switching}
+FASTMATH = {{"arcp", "contract"}}
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def rk4_step(t, hs, x, p, out, ext, sw, k1, k2, k3, k4, xt):
     rhs(t, x, p, out, ext, sw, k1)
     for i in range(N_X):
@@ -54,7 +55,7 @@ def rk4_step(t, hs, x, p, out, ext, sw, k1, k2, k3, k4, xt):
         x[i] += c * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=FASTMATH)
 def leg_state(tau, duty, t_dead, period):
     """Switch state of a centre-aligned PWM leg at tau in [0, period): 1, 0 or -1 (both off)."""
     if duty >= 1.0:
@@ -74,7 +75,7 @@ def leg_state(tau, duty, t_dead, period):
     return 0.0
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def integrate_tick(t0, h, nsub, x, p, out, ext, sw, k1, k2, k3, k4, xt, edges):
     hs = h / nsub
     if not SWITCHING or out[OUT_ENABLED] < 0.5:
@@ -123,7 +124,7 @@ def work_size(n_cs):
     return 5 * N_X + 16 + 3 + 3 * MEAS_SIZE + N_A + (N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs)
 
 
-@njit(cache=True, _nrt=False, nogil=True, error_model="numpy")
+@njit(cache=True, _nrt=False, nogil=True, error_model="numpy", fastmath=FASTMATH)
 def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec, sel, rec,
             xlim, status, work):
     """Advance n ticks from tick k0; returns the number of ticks done (< n on divergence).
