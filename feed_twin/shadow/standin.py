@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.analysis.synthetic import PROGRAM, Unmodelled, command, truth_model
-from feed_twin.analysis.twin import Drive, ModelDoc, Twin
+from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.control import signals
 from feed_twin.shadow.twin import _Rows
 
@@ -74,17 +74,7 @@ class StandIn:
             noise if noise is not None else (0.01 if self.twin.effort_unit == "A" else 0.3)
         )
         self._rng = np.random.default_rng(unmodelled.seed)
-        drive = Drive(
-            t_s=np.zeros(0),
-            pos_ref_m=np.zeros(0),
-            vel_ref_m_s=np.zeros(0),
-            acc_ref_m_s2=np.zeros(0),
-            effort_add=None,
-            force_ext_N=None,
-            x0_m=x0_m,
-            sensor="",
-        )
-        self.engine.reset(x0=self.twin._x0(drive, self.engine.p))
+        self.engine.reset(x0=self.twin.initial_state(x0_m, self.engine.p))
 
     def step(
         self, x_m: np.ndarray, v_m_s: np.ndarray, a_m_s2: np.ndarray
@@ -96,7 +86,7 @@ class StandIn:
         ref[:, signals.REF_VEL_M_S] = np.repeat(v_m_s, self.dec)
         ref[:, signals.REF_ACC_M_S2] = np.repeat(a_m_s2, self.dec)
         res = self.engine.advance(n * self.dec, ref=ref)
-        x, effort = self.twin._measured_signals(_Rows(res), self.dec)
+        x, effort = self.twin.measured_signals(_Rows(res), self.dec)
         return x[0], effort[0] + self._rng.normal(0.0, self.noise_std, n)
 
     def friction_parameters(self) -> tuple[str, ...]:

@@ -13,8 +13,8 @@ twin sample with the machine's measured sample of the same slot:
 plus their RMS over the last `window_s` and the health verdicts of `HealthMonitor`.
 
 Identity with the offline workflow (feed_twin.analysis.twin.Twin.simulate): the same compiled
-twin (H6's `Twin`: smooth sensors, the same sub-steps), the same start (at rest at the measured
-position of the first slot), commands held over the slot's base ticks, the velocity (when the
+twin (smooth sensors, the same sub-steps), the same start (at rest at the measured position of
+the first slot), commands held over the slot's base ticks, the velocity (when the
 machine sends none) and the acceleration from `numpy.gradient` over the command samples (central
 differences inside, one-sided at both ends). Central differences need the next command sample,
 so the twin runs one slot behind the command stream (two when it also derives the velocity).
@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from feed_twin.analysis.twin import Drive, Twin
+from feed_twin.analysis.twin import Twin
 from feed_twin.control import signals
 from feed_twin.shadow.config import ShadowConfig
 from feed_twin.shadow.health import HealthMonitor, PhysicalEffect, Verdict
@@ -370,18 +370,7 @@ class ShadowTwin:
         return True
 
     def _restart(self, x0_m: float) -> None:
-        p = self.engine.p
-        drive = Drive(
-            t_s=np.zeros(0),
-            pos_ref_m=np.zeros(0),
-            vel_ref_m_s=np.zeros(0),
-            acc_ref_m_s2=np.zeros(0),
-            effort_add=None,
-            force_ext_N=None,
-            x0_m=x0_m,
-            sensor="",
-        )
-        self.engine.reset(x0=self.twin._x0(drive, p))
+        self.engine.reset(x0=self.twin.initial_state(x0_m, self.engine.p))
 
     def _derived(self, final: bool) -> tuple[np.ndarray, np.ndarray] | None:
         """(rows [pos, vel, acc], filled) of the slots whose derivatives are decided."""
@@ -419,7 +408,7 @@ class ShadowTwin:
         slots = np.arange(self._next_sim, self._next_sim + n)
         try:
             res = self.engine.advance(n * self.dec, ref=ref)
-            x, eff = self.twin._measured_signals(_Rows(res), self.dec)
+            x, eff = self.twin.measured_signals(_Rows(res), self.dec)
             x_twin, eff_twin = x[0], eff[0]
         except DivergenceError as exc:
             self.twin_restarts += 1
