@@ -107,7 +107,12 @@ def test_every_plot_panel_shows_curves(tmp_path: Path) -> None:
         dash.log_gcode_line(1.0, 2, "G1 X0")
     with Dashboard(rrd_path=tmp_path / "empty.rrd"):
         pass
-    full = cells(render(tmp_path / "run.rrd", tmp_path / "run.png"))
+    # The viewer takes its screenshot after a fixed number of frames; on a busy machine the
+    # recording may still be loading then ("Loading..."), so a blank first render is retried.
+    for attempt in range(3):
+        full = cells(render(tmp_path / "run.rrd", tmp_path / f"run{attempt}.png"))
+        if saturated_fraction(full[0]) > 0.0:
+            break
     empty = cells(render(tmp_path / "empty.rrd", tmp_path / "empty.png"))
     for panel, with_data, without in zip(PANELS, full, empty, strict=False):
         # A curve across a cell covers more than 0.05 % of it (a flat one about 0.1 %); a
