@@ -148,3 +148,16 @@ def test_thermal_drift_is_found_by_the_linear_scale_of_a_semi_closed_loop(tmp_pa
     assert d.effects and d.effects[0].name == "thermal_drift", d.notes
     assert d.effects[0].parameters["heating_K_m"] == pytest.approx(2.0, rel=0.10)
     assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
+
+
+@pytest.mark.slow
+def test_backlash_is_found_as_lost_motion_at_reversals(tmp_path):
+    """Semi-closed loop: after each reversal the scale sees the table a half gap behind the nut."""
+    nominal = ModelDoc.load(ROOT / "config" / "axis_default.yaml")
+    nominal.data["controller"]["position"]["feedback"] = "motor_encoder"
+    columns = generate(nominal, {"backlash": {"gap_m": 10e-6}}, start_m=0.3)
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
+    assert d.effects and d.effects[0].name == "backlash", d.notes
+    assert d.effects[0].parameters["gap_m"] == pytest.approx(10e-6, rel=0.10)
+    assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m

@@ -87,3 +87,24 @@ def test_invalid_parameters_are_refused_with_the_field_named(field, value, messa
     params = {"alpha": ALPHA_STEEL, "heating": 1.0, "tau": 1800.0, **GEOMETRY, field: value}
     with pytest.raises(ValueError, match=message.replace("(", r"\(")):
         ThermalGrowth(**params)
+
+
+def test_backlash_edit_needs_a_backlash_component():
+    from feed_twin.analysis.edits import backlash
+    from feed_twin.analysis.effects import BY_NAME, Candidate
+
+    cand = Candidate(
+        effect=BY_NAME["backlash"],
+        variant="",
+        explained_fraction=0.9,
+        f_statistic=100.0,
+        p_value=0.0,
+        n_eff=100.0,
+        coefficients={"last_direction": 4e-6},
+        significant=True,
+    )
+    with pytest.raises(LookupError, match="no Backlash between a nut mass and the table"):
+        backlash(ModelDoc.load("config/emps_nominal.yaml"), cand)
+    edit = backlash(ModelDoc.load("config/axis_default.yaml"), cand)
+    # nominal gap 2 um plus twice the half-gap weight
+    assert edit.doc.get("backlash.gap") == pytest.approx(2e-6 + 8e-6)

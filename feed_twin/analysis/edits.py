@@ -262,6 +262,25 @@ def thermal_drift(doc: ModelDoc, cand: Candidate) -> Edit:
     return _edit(doc, own, report, interacts=False)
 
 
+def backlash(doc: ModelDoc, cand: Candidate) -> Edit:
+    """The gap of the model's Backlash (lost motion between nut and table) is fitted.
+
+    A move in +x leaves the table b = gap/2 behind the nut, a move in -x b ahead, so the
+    position residual (twin minus measured) is (gap_true - gap_model)/2 * last direction.
+    """
+    found = doc.of_type("Backlash")
+    if not found:
+        raise LookupError(
+            "the model has no Backlash between a nut mass and the table to carry the gap"
+        )
+    slot = f"{found[0]}.gap"
+    nominal = doc.get(slot)
+    guess = max(nominal + 2.0 * cand.coefficients.get("last_direction", 0.0), 1e-7)
+    doc = doc.set(slot, guess)
+    own = [FreeParameter(name=slot, initial=guess, scale=guess, lower=0.0)]
+    return _edit(doc, own, {"gap_m": lambda v: v[slot]}, interacts=False)
+
+
 MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
 
 
@@ -291,4 +310,5 @@ EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
     "mass_error": mass_error,
     "torque_constant_error": gain_error,
     "thermal_drift": thermal_drift,
+    "backlash": backlash,
 }

@@ -176,6 +176,21 @@ def _stiffness(m: Motion) -> dict[str, np.ndarray]:
     return {"f": f, "f_x": f * s, "f_x2": f * s * s}
 
 
+def _last_direction(m: Motion) -> np.ndarray:
+    """Direction of the last motion, held through stops: +1, -1, or 0 before the first move.
+
+    Lost motion at a reversal leaves the table behind the nut by the half gap on the trailing
+    side, and it stays there while the axis stands still (friction holds the table), so the
+    position error follows the direction of the LAST move, not sign(v), which is 0 at rest.
+    """
+    moving = np.abs(m.v_m_s) > 5.0 * m.speed_eps
+    direction = np.where(moving, np.sign(m.v_m_s), 0.0)
+    last = np.maximum.accumulate(np.where(moving, np.arange(len(direction)), 0))
+    held = direction[last]
+    held[: int(np.argmax(moving))] = 0.0  # no move yet: the contact state is unknown
+    return held
+
+
 def _thermal(m: Motion) -> dict[str, np.ndarray]:
     # a screw still far from thermal equilibrium warms in proportion to the distance travelled
     # D(t); its heated length from the fixed bearing is x_0 + x with x_0 unknown here, so the
@@ -271,7 +286,7 @@ LIBRARY: tuple[Effect, ...] = (
         component="Backlash.gap",
         words="lost motion at every reversal: the table stays behind by a fixed gap when the "
         "direction changes",
-        signature=lambda m: {"sign_v": _sign(m)},
+        signature=lambda m: {"last_direction": _last_direction(m)},
     ),
     Effect(
         name="measurement_delay",

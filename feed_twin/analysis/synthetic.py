@@ -166,6 +166,7 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "measurement_delay": _delay,
     "lead_error": lambda doc, p: _lead_error(doc, p),
     "thermal_drift": lambda doc, p: _thermal(doc, p),
+    "backlash": lambda doc, p: doc.set(f"{doc.of_type('Backlash')[0]}.gap", p["gap_m"]),
     "cogging_torque": lambda doc, p: doc.with_cogging(
         int(p["order"]), p["amplitude_Nm"], p["phase_rad"]
     )[0],
