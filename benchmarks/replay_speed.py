@@ -12,6 +12,9 @@ Figures (last printed line, one JSON object):
   stand-in's samples are precomputed so that only the twin's work is timed), 60 s; lag = wall
   time from the arrival of a slot's measured sample to the twin's residual for that slot. It
   includes the one-slot look-ahead the central-difference feed-forward needs (1 ms).
+- shadow_dds_p99_lag_ms, shadow_dds_p50_lag_ms: the same lag measured in the twin node over
+  DDS, beside the stand-in node in its own process (`feed-twin shadow`, 30 s, 0.2 ms send
+  jitter): from a JointState's arrival in the twin node to the TwinResidual of its slot.
 - shadow_naming_ms: the cost of one health evaluation that names an effect (ranking the
   effect library on the window), which a live twin pays at most once per window.
 
@@ -104,6 +107,20 @@ def paced_lag(duration_s: float) -> tuple[np.ndarray, int]:
     return (done[ok] - arrival[ok]) * 1e3, len(shadow.health.verdicts)
 
 
+def dds_lag(duration_s: float) -> dict:
+    from feed_twin.ros.shadow_cli import run_shadow
+
+    with tempfile.TemporaryDirectory() as tmp:
+        args = argparse.Namespace(
+            config=CONFIG, duration=duration_s, raise_friction_at=None, friction_scale=1.0,
+            jitter=2e-4, out=Path(tmp), live=False,
+        )  # fmt: skip
+        code, report, err = run_shadow(args)
+    if code != 0 or report is None:
+        raise RuntimeError(f"feed-twin shadow failed (exit {code}):\n{err[-2000:]}")
+    return report["lag_ms"]
+
+
 def naming_ms() -> float:
     from feed_twin.shadow.health import HealthMonitor
     from feed_twin.shadow.twin import physical_effects
@@ -145,6 +162,9 @@ def main() -> None:
     p50, p99, worst = np.percentile(lag, 50), np.percentile(lag, 99), float(np.max(lag))
     print(f"shadow lag at 1 kHz ({len(lag)} slots, {verdicts} verdicts): p50 {p50:.3f} ms, "
           f"p99 {p99:.3f} ms, max {worst:.3f} ms")  # fmt: skip
+    dds = dds_lag(min(args.duration, 30.0))
+    print(f"shadow lag over DDS: p50 {dds['p50']:.3f} ms, p99 {dds['p99']:.3f} ms, "
+          f"max {dds['max']:.3f} ms")  # fmt: skip
     naming = naming_ms()
     print(f"one naming evaluation: {naming:.1f} ms")
     print(
@@ -154,6 +174,8 @@ def main() -> None:
                 "replay_cli_s": round(cli, 2),
                 "shadow_p99_lag_ms": round(float(p99), 3),
                 "shadow_max_lag_ms": round(worst, 3),
+                "shadow_dds_p50_lag_ms": round(dds["p50"], 3),
+                "shadow_dds_p99_lag_ms": round(dds["p99"], 3),
                 "shadow_naming_ms": round(naming, 1),
                 "duration_s": args.duration,
             }
