@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from nodes_support import ROOT, merged_config, node_env, run, start_run
+from nodes_support import ROOT, last_json, merged_config, node_env, run, start_run
 
 from feed_twin.io.bag import BagReader, info
 from feed_twin.ros.domain import reserve_domain_id
@@ -160,11 +160,12 @@ def test_gcode_error_stops_before_motion(config: Path, tmp_path: Path) -> None:
     program.write_text("G21 G90\nG1 X10 F3000\nG93 G1 X20 F2\n")
     with reserve_domain_id() as domain:
         code, out, err = run(
-            [str(program), "--config", str(config), "--out", str(tmp_path / "bags")],
+            [str(program), "--config", str(config), "--out", str(tmp_path / "bags"), "--json"],
             domain.domain_id,
         )
     assert code == 1
     assert re.search(r"G-code error, nothing was started: .*bad\.ngc:3:1: word 'G93'", err), err
+    assert last_json(out)["reason"] in err
     assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
 
 

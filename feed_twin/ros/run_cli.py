@@ -343,11 +343,9 @@ def main(args: argparse.Namespace) -> int:
     try:
         ros, nc = _check_inputs(args)
     except GcodeError as exc:
-        print(f"feed-twin run: G-code error, nothing was started: {exc}", file=sys.stderr)
-        return 1
+        return _early_error(args, f"G-code error, nothing was started: {exc}")
     except (ConfigError, ValueError, OSError) as exc:
-        print(f"feed-twin run: {exc}", file=sys.stderr)
-        return 1
+        return _early_error(args, str(exc))
     out = _outputs(args)
     viewer = None
     args.live_url = None
@@ -396,3 +394,10 @@ def main(args: argparse.Namespace) -> int:
     if code == 0 and summary is None:
         return 1
     return code
+
+
+def _early_error(args: argparse.Namespace, message: str) -> int:
+    print(f"feed-twin run: {message}", file=sys.stderr)
+    if args.json:
+        print(json.dumps({"exit_code": 1, "reason": message}))
+    return 1
