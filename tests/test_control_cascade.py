@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from feed_twin.control import cascade as cc
+from feed_twin.control import config as ccfg
 from feed_twin.control import signals as sig
 from feed_twin.control.loops import (
     Cascade,
@@ -24,9 +25,9 @@ FIXTURES = Path(__file__).parent / "fixtures"
 U_DC = 560.0
 
 
-def _config(name: str, **changes) -> cc.ControllerConfig:
+def _config(name: str, **changes) -> ccfg.ControllerConfig:
     path = FIXTURES / name
-    config = cc.load_controller_config(load_yaml(path)["controller"], source=str(path))
+    config = ccfg.load_controller_config(load_yaml(path)["controller"], source=str(path))
     return dataclasses.replace(config, **changes)
 
 
@@ -37,7 +38,7 @@ EMPS = _config("controller_emps.yaml")
 class Rig:
     """Drives cascade_tick by hand with settable ref and meas vectors."""
 
-    def __init__(self, config: cc.ControllerConfig) -> None:
+    def __init__(self, config: ccfg.ControllerConfig) -> None:
         self.cascade = cc.build_cascade(config)
         self.cs = self.cascade.initial_state()
         self.ref = np.zeros(sig.REF_SIZE)
@@ -307,7 +308,7 @@ def test_fir_velocity_estimate_is_exact_on_a_ramp(taps):
     config = dataclasses.replace(
         EMPS,
         velocity=dataclasses.replace(
-            EMPS.velocity, estimator=cc.VelocityEstimatorConfig(fir_taps=taps)
+            EMPS.velocity, estimator=ccfg.VelocityEstimatorConfig(fir_taps=taps)
         ),
     )
     loop = VelocityLoop(config)
@@ -339,7 +340,7 @@ def test_estimator_lowpass_is_first_order_with_its_corner_frequency():
         EMPS,
         velocity=dataclasses.replace(
             EMPS.velocity,
-            estimator=cc.VelocityEstimatorConfig(fir_taps=(1.0,), lowpass_hz=f_c),
+            estimator=ccfg.VelocityEstimatorConfig(fir_taps=(1.0,), lowpass_hz=f_c),
         ),
     )
     loop = VelocityLoop(config)
@@ -360,10 +361,10 @@ def test_notch_on_the_current_setpoint_attenuates_at_its_centre(depth):
     plain = dataclasses.replace(
         EMPS,
         velocity=dataclasses.replace(
-            EMPS.velocity, estimator=cc.VelocityEstimatorConfig(fir_taps=(1.0,))
+            EMPS.velocity, estimator=ccfg.VelocityEstimatorConfig(fir_taps=(1.0,))
         ),
     )
-    notch = cc.NotchConfig(frequency_hz=f0, bandwidth_hz=40.0, depth=depth)
+    notch = ccfg.NotchConfig(frequency_hz=f0, bandwidth_hz=40.0, depth=depth)
     notched = dataclasses.replace(plain, velocity=dataclasses.replace(plain.velocity, notch=notch))
     amplitudes = []
     for config in (plain, notched):

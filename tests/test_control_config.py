@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from feed_twin.control import cascade as cc
+from feed_twin.control import config as ccfg
 from feed_twin.io.config import ConfigError
 
 SOURCE = "config/test.yaml"
@@ -44,7 +45,7 @@ PMSM = {
 
 
 def _load(mapping):
-    return cc.load_controller_config(mapping, SOURCE)
+    return ccfg.load_controller_config(mapping, SOURCE)
 
 
 def _with(path: str, value):
@@ -222,19 +223,19 @@ def test_source_digest_names_the_kernel_sources():
     ("build", "message"),
     [
         (
-            lambda: cc.VelocityEstimatorConfig(fir_taps=(1.0 / 17,) * 17),
+            lambda: ccfg.VelocityEstimatorConfig(fir_taps=(1.0 / 17,) * 17),
             "fir_taps = [",
         ),
         (
-            lambda: cc.CurrentLoopConfig(**{**PMSM["current"], "pole_pairs": 2.0}),
+            lambda: ccfg.CurrentLoopConfig(**{**PMSM["current"], "pole_pairs": 2.0}),
             "pole_pairs = 2.0: must be a whole number",
         ),
         (
-            lambda: cc.PositionLoopConfig(period_s=1e-3, Kv_1_s=10.0, feedback="tacho"),
+            lambda: ccfg.PositionLoopConfig(period_s=1e-3, Kv_1_s=10.0, feedback="tacho"),
             "feedback = 'tacho': must be one of 'motor_encoder', 'linear_scale'",
         ),
         (
-            lambda: cc.NotchConfig(frequency_hz=100.0, bandwidth_hz=10.0, depth=1.5),
+            lambda: ccfg.NotchConfig(frequency_hz=100.0, bandwidth_hz=10.0, depth=1.5),
             "depth = 1.5: must lie in [0.0, 1.0]",
         ),
     ],
@@ -254,5 +255,5 @@ def test_with_mode_rejects_an_unknown_mode():
 
 def test_too_many_fir_taps_message():
     with pytest.raises(ValueError) as err:
-        cc.VelocityEstimatorConfig(fir_taps=(1.0 / 17,) * 17)
+        ccfg.VelocityEstimatorConfig(fir_taps=(1.0 / 17,) * 17)
     assert str(err.value).endswith(": must have 1 to 16 entries")

@@ -13,7 +13,7 @@ from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState, DriveComman
 from rclpy.serialization import serialize_message
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from feed_twin.control.cascade import load_controller_config
+from feed_twin.control.config import load_controller_config
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag_schema import message_definition
 from feed_twin.io.config import ConfigError

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from feed_twin.control.cascade import load_controller_config
+from feed_twin.control.config import load_controller_config
 from feed_twin.control.tuning import LoadMode, tune_config
 from feed_twin.io.config import ConfigError, load_yaml
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
-from feed_twin.control.cascade import ControllerConfig
+from feed_twin.control.config import ControllerConfig
 
 TWO_PI = 2.0 * math.pi
 TransferFunction = Callable[[np.ndarray], np.ndarray]  # s (complex array) -> L(s)

@@ -21,7 +21,7 @@ from feed_twin_msgs.msg import AxisCommand, AxisFeedback, DriveCommand
 from std_msgs.msg import String
 
 from feed_twin.control import signals as sig
-from feed_twin.control.cascade import ControllerConfig, load_controller_config
+from feed_twin.control.config import ControllerConfig, load_controller_config
 from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.ros.cdr import FlatCodec
 from feed_twin.ros.runtime import (

@@ -32,7 +32,7 @@ from typing import Literal
 import numpy as np
 
 from feed_twin.control import signals as sig
-from feed_twin.control.cascade import ControllerConfig
+from feed_twin.control.config import ControllerConfig
 from feed_twin.control.loops import PositionLoop, VelocityLoop, VelocitySetpoint
 from feed_twin.io.config import from_mapping, load_yaml, require_positive
 from feed_twin.ros.topics import AxisTopics

@@ -1,5 +1,5 @@
 """One axis YAML, all sections: `plant:` (feed_twin.plant.config), `engine:` (here),
-`controller:` (feed_twin.control.cascade.load_controller_config), and `nc:`, `shadow:` and `ros:`
+`controller:` (feed_twin.control.config.load_controller_config), and `nc:`, `shadow:` and `ros:`
 (kept as mappings for the G-code stage, the shadow twin and the node set, which load them).
 
     axis = load_axis_config("config/axis_default.yaml")      # or a parsed mapping
@@ -55,7 +55,7 @@ class AxisConfig:
     source: str
     plant: PlantModel
     engine: EngineConfig
-    controller: Any  # feed_twin.control.cascade.ControllerConfig, or None
+    controller: Any  # feed_twin.control.config.ControllerConfig, or None
     nc: Mapping[str, Any] | None
     shadow: Mapping[str, Any] | None
     ros: Mapping[str, Any] | None
@@ -85,7 +85,7 @@ def load_axis_config(
     engine = from_mapping(EngineConfig, data["engine"], source=source, path="engine")
     controller = None
     if data.get("controller") is not None:
-        from feed_twin.control.cascade import load_controller_config
+        from feed_twin.control.config import load_controller_config
 
         controller = load_controller_config(data["controller"], source=source)
         if abs(controller.base_period_s - engine.base_period_s) > 1e-12 * engine.base_period_s:
