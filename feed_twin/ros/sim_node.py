@@ -192,8 +192,9 @@ class SimNode(FeedTwinNode):
             self._pending = {t: s for t, s in self._pending.items() if t > t_ns}
             self._exchange(setpoint)
             return 0.0
-        # Block on DDS events until shortly before the deadline, then poll finely.
-        return max(deadline - now - 0.0003, 0.0) if deadline - now > 0.0005 else 0.0
+        # Block on DDS events until the deadline: the executor's timed wait is precise to tens
+        # of microseconds, and a busy poll would take the CPU the controller needs.
+        return max(deadline - now, 0.0)
 
     def _subscribers_ready(self) -> bool:
         return self._feedback_pub.get_subscription_count() >= 1 and (
