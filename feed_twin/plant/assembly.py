@@ -570,7 +570,7 @@ class _Generator(Emitter):
             self.imports["adc"] = "from feed_twin.plant.sensors import adc"
 
     def noise(self, channel: int, scale: str) -> str:
-        # channels 2j and 2j+1 share one Box-Muller draw; the pair is drawn once per function
+        # channels 2j and 2j+1 share one polar-method draw; the pair is drawn once per function
         self.imports["standard_normal_pair"] = (
             "from feed_twin.plant.noise import standard_normal_pair"
         )
