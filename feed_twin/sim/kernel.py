@@ -159,11 +159,15 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
     row = work[o:o + N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs]
     for i in range(3):
         sw[i] = 0.0
+    # the parameters as a tuple of scalars: numba's arrays may alias, so every store to x or dx
+    # would force the loop to reload p[...] and redo each division by a parameter; a tuple is
+    # immutable, and LLVM hoists what depends on parameters alone out of the loop
+    pt = {ptuple}
     r = 0
     for j in range(n):
         k = k0 + j
         t = k * h
-        sense(t, x, p, out, ext[j], sw, k, seed, mraw, mdelay)
+        sense(t, x, pt, out, ext[j], sw, k, seed, mraw, mdelay)
         slot = k % RING
         for m in range(MEAS_SIZE):
             ring[slot, m] = mraw[m]
@@ -172,7 +176,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
             meas[m] = ring[(k - back) % RING, m]
 {controller}
         if k % dec == 0:
-            outputs(t, x, p, out, ext[j], sw, aux)
+            outputs(t, x, pt, out, ext[j], sw, aux)
             for i in range(N_X):
                 row[i] = x[i]
             for i in range(N_A):
@@ -186,7 +190,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
             for i in range(sel.shape[0]):
                 rec[r, i] = row[sel[i]]
             r += 1
-        integrate_tick(t, h, nsub, x, p, out, ext[j], sw, k1, k2, k3, k4, xt, edges)
+        integrate_tick(t, h, nsub, x, pt, out, ext[j], sw, k1, k2, k3, k4, xt, edges)
         for i in range(N_X):
             if not abs(x[i]) <= xlim[i]:
                 status[0] = 1.0
@@ -218,6 +222,7 @@ def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
         ring=RING,
         switching=bool(switching),
         t_dead_slot=t_dead_slot,
+        ptuple="(" + ", ".join(f"p[{i}]" for i in range(len(model.param_names))) + ",)",
         controller=_CLOSED if closed_loop else _OPEN,
     )
     head = "from feed_twin.control.signals import OUT_DUTY_A\n"
