@@ -12,7 +12,8 @@ The assembler
    effective inertias), each slot with a name and a named constant in the generated source;
 4. asks each component to emit its glue stage by stage and writes three functions from the same
    lines: `rhs` (derivatives), `outputs` (auxiliary signals, powers, stored energies) and `sense`
-   (sensor samples), plus `fill_derived(p)`. The engine (feed_twin.sim.kernel) adds the loop and
+   (sensor samples, reading the tick's standard normal samples that `draw_noise(p, seed, k,
+   noise)` drew), plus `fill_derived(p)`. The engine (feed_twin.sim.kernel) adds the loop and
    compiles the whole module once per structure.
 """
 
@@ -470,7 +471,7 @@ class _Generator(Emitter):
         self.meas_delays: dict[str, str] = {}
         self.signal_names: set[str] = set()
         self.node_scale: dict[int, str] = {}
-        self.noise_pairs: set[int] = set()
+        self.noise_pairs: dict[int, str] = {}  # pair -> scale that switches it on
         self.comp_index = {n: i for i, n in enumerate(model.components)}
         self.n_core = len(model._core_states)
 
@@ -570,23 +571,33 @@ class _Generator(Emitter):
             self.imports["adc"] = "from feed_twin.plant.sensors import adc"
 
     def noise(self, channel: int, scale: str) -> str:
-        # channels 2j and 2j+1 share one polar-method draw; the pair is drawn once per function
+        # channels 2j and 2j+1 share one polar-method draw; `draw_noise` fills the pairs of a
+        # tick into `noise`, which the loop does for a block of ticks ahead of `sense`
         self.imports["standard_normal_pair"] = (
             "from feed_twin.plant.noise import standard_normal_pair"
         )
         base = self.comp_index[self._name()] * NOISE_CHANNELS_PER_COMPONENT
         pair = (base + channel) // 2
-        names = (f"noise_{2 * pair}", f"noise_{2 * pair + 1}")
-        if pair not in self.noise_pairs:
-            self.noise_pairs.add(pair)
-            self._add(
-                (
-                    "meas",
-                    f"{names[0]}, {names[1]} = standard_normal_pair(seed, k, {pair}) "
-                    f"if {scale} != 0.0 else (0.0, 0.0)",
-                )
-            )
-        return f"{scale} * {names[(base + channel) % 2]}"
+        self.noise_pairs.setdefault(pair, scale)
+        index = 2 * list(self.noise_pairs).index(pair) + (base + channel) % 2
+        return f"{scale} * noise[{index}]"
+
+    def _draw_noise(self) -> list[str]:
+        lines = []
+        for i, (pair, scale) in enumerate(self.noise_pairs.items()):
+            lines += [
+                f"z0, z1 = standard_normal_pair(seed, k, {pair}) if {scale} != 0.0 else (0.0, 0.0)",
+                f"noise[{2 * i}] = z0",
+                f"noise[{2 * i + 1}] = z1",
+            ]
+        return [
+            "",
+            "# standard normal samples of one tick: (seed, tick, pair) alone determine them",
+            '@njit(cache=True, inline="always", error_model="numpy")',
+            "def draw_noise(p, seed, k, noise):",
+            *(f"    {code}" for code in lines),
+            "    return None",
+        ]
 
     # -------------------------------------------------- output
     def _constants(self) -> list[str]:
@@ -598,6 +609,7 @@ class _Generator(Emitter):
         out.append("# parameter slots")
         out += [f"{_const('P_', n)} = {i}" for i, n in enumerate(m.param_names)]
         out.append(f"N_P = {len(m.param_names)}")
+        out.append(f"N_NOISE = {2 * len(self.noise_pairs)}  # normal samples per tick")
         out.append("# auxiliary outputs")
         kinetic = [f"stored.{c.name}.kinetic" for c in m.coordinates]
         aux = self.aux_names + kinetic + [_acceleration(c) for c in m.coordinates]
@@ -694,7 +706,7 @@ class _Generator(Emitter):
         specs = (
             ("rhs", "t, x, p, out, ext, sw, dx", {"all", "dx"}),
             ("outputs", "t, x, p, out, ext, sw, aux", {"all", "aux"}),
-            ("sense", "t, x, p, out, ext, sw, k, seed, meas, mdelay", {"all", "meas"}),
+            ("sense", "t, x, p, out, ext, sw, noise, meas, mdelay", {"all", "meas"}),
         )
         coord_lines = self._coordinate_lines()
         for name, args, kinds in specs:
@@ -724,6 +736,7 @@ class _Generator(Emitter):
             funcs.append(f"def {name}({args}):")
             funcs += [f"    {code}" for code in lines]
             funcs.append("    return None")
+        funcs += self._draw_noise()
         return (
             "\n".join(head + [""] + self._constants() + [""] + self._fill_derived() + funcs) + "\n"
         )

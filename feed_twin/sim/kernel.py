@@ -5,7 +5,8 @@ feed_twin.plant.assembly, writes it into a cache directory under a name made of 
 text (so a structure compiles once and a cold process reuses numba's on-disk cache), imports it
 and returns the module. Per base tick k (period h) the loop
   1. samples the sensors (`sense`) into a ring of the last RING samples and reads each MEAS_*
-     slot with its own delay;
+     slot with its own delay (the sensor noise of NOISE_BLOCK ticks is drawn ahead in one go;
+     each sample depends on (seed, tick, channel) alone, so chunks and blocks never matter);
   2. runs the controller, `cascade_tick(cp, cs, k, ref[k], meas, out)`, or copies the prescribed
      open-loop row `drive[k]` into `out`;
   3. records the selected signals when k is a multiple of the decimation;
@@ -30,10 +31,12 @@ from types import ModuleType
 from feed_twin.plant.assembly import PlantModel, _const
 
 RING = 16  # sensor samples kept: delays up to RING - 1 ticks
+NOISE_BLOCK = 32  # ticks of sensor noise drawn ahead in one go
 
 _LOOP = '''
 
 RING = {ring}
+NOISE_BLOCK = {noise_block}
 SWITCHING = {switching}
 FASTMATH = {{"arcp", "contract"}}
 
@@ -121,7 +124,10 @@ def integrate_tick(t0, h, nsub, x, p, out, ext, sw, k1, k2, k3, k4, xt, edges):
 
 def work_size(n_cs):
     """Length of the scratch vector `advance` needs (it allocates nothing itself)."""
-    return 5 * N_X + 16 + 3 + 3 * MEAS_SIZE + N_A + (N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs)
+    return (
+        5 * N_X + 16 + 3 + 3 * MEAS_SIZE + N_A + (N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs)
+        + NOISE_BLOCK * N_NOISE
+    )
 
 
 @njit(cache=True, _nrt=False, nogil=True, error_model="numpy", fastmath=FASTMATH)
@@ -157,6 +163,8 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
     aux = work[o:o + N_A]
     o += N_A
     row = work[o:o + N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs]
+    o += N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs
+    noise = work[o:o + NOISE_BLOCK * N_NOISE]
     for i in range(3):
         sw[i] = 0.0
     # the parameters as a tuple of scalars: numba's arrays may alias, so every store to x or dx
@@ -167,7 +175,13 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
     for j in range(n):
         k = k0 + j
         t = k * h
-        sense(t, x, pt, out, ext[j], sw, k, seed, mraw, mdelay)
+        b = j % NOISE_BLOCK
+        if N_NOISE > 0 and b == 0:
+            # the draws of a block of ticks are independent of each other and of the state, so
+            # the core overlaps their logarithms and roots instead of waiting on each in turn
+            for i in range(min(NOISE_BLOCK, n - j)):
+                draw_noise(pt, seed, k + i, noise[i * N_NOISE:(i + 1) * N_NOISE])
+        sense(t, x, pt, out, ext[j], sw, noise[b * N_NOISE:(b + 1) * N_NOISE], mraw, mdelay)
         slot = k % RING
         for m in range(MEAS_SIZE):
             ring[slot, m] = mraw[m]
@@ -220,6 +234,7 @@ def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
     t_dead_slot = _const("P_", f"{switching}.t_dead") if switching else "0"
     loop = _LOOP.format(
         ring=RING,
+        noise_block=NOISE_BLOCK,
         switching=bool(switching),
         t_dead_slot=t_dead_slot,
         ptuple="(" + ", ".join(f"p[{i}]" for i in range(len(model.param_names))) + ",)",

@@ -34,7 +34,8 @@ def reference_run(
     if model.switching_inverter:
         raise ValueError("reference_run: the switching inverter is integrated by the kernel only")
     ns = model.namespace()
-    rhs, outputs, sense = ns["rhs"], ns["outputs"], ns["sense"]
+    rhs, outputs, sense, draw_noise = ns["rhs"], ns["outputs"], ns["sense"], ns["draw_noise"]
+    noise = np.zeros(ns["N_NOISE"])
     p = engine.p
     x = model.initial_state() if x0 is None else np.array(x0, dtype=float)
     ref = np.zeros((n_ticks, signals.REF_SIZE)) if ref is None else ref
@@ -53,7 +54,8 @@ def reference_run(
     h = engine.h
     for k in range(n_ticks):
         t = k * h
-        sense(t, x, p, out, ext[k], sw, k, engine.seed, mraw, mdelay)
+        draw_noise(p, engine.seed, k, noise)
+        sense(t, x, p, out, ext[k], sw, noise, mraw, mdelay)
         ring[k % RING] = mraw
         for m in range(signals.MEAS_SIZE):
             meas[m] = ring[(k - min(int(mdelay[m]), k)) % RING, m]
