@@ -281,6 +281,30 @@ def backlash(doc: ModelDoc, cand: Candidate) -> Edit:
     return _edit(doc, own, {"gap_m": lambda v: v[slot]}, interacts=False)
 
 
+def position_dependent_stiffness(doc: ModelDoc, cand: Candidate) -> Edit:
+    """The axial rigidity EA of the screw and the support-bearing stiffness are fitted.
+
+    The axial compliance is 1/k(x) = 1/k_bearing + c_screw(x)/EA + 1/k_nut (feed_twin.plant.
+    axial_compliance): the position-dependent part identifies EA, the constant part the
+    bearing (the nut's share stays nominal: a constant compliance cannot tell the two apart).
+    Both are fitted in the log (scaled to order 1 by their nominal values): the deflection goes
+    with their inverses and the truth may be a factor of several away, where a linear
+    parametrisation left the trust region crawling. The screw's root diameter stays fixed;
+    the document stores the fitted EA as Young's modulus.
+    """
+    compliances = doc.of_type("AxialCompliance")
+    if not compliances:
+        raise LookupError("the model has no AxialCompliance (screw) whose stiffness could vary")
+    name = compliances[0]
+    slots = (f"{name}.k_bearing", f"{name}.EA")
+    own = [
+        FreeParameter(name=slot, initial=doc.get(slot), scale=doc.get(slot), lower=0.0, log=True)
+        for slot in slots
+    ]
+    report = {"k_bearing_N_m": lambda v: v[slots[0]], "EA_N": lambda v: v[slots[1]]}
+    return _edit(doc, own, report, interacts=False)
+
+
 MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
 
 
@@ -311,4 +335,5 @@ EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
     "torque_constant_error": gain_error,
     "thermal_drift": thermal_drift,
     "backlash": backlash,
+    "position_dependent_stiffness": position_dependent_stiffness,
 }

@@ -44,10 +44,18 @@ class FreeParameter:
     scale: float  # typical magnitude, sets the finite-difference step and the solver scaling
     lower: float = -np.inf
     upper: float = np.inf
+    # fitted as z = ln(value / scale): for a positive quantity known only to a factor (a
+    # stiffness), whose effect goes with 1/value, so equal steps in z change the output alike
+    log: bool = False
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.scale) and self.scale > 0.0):
             raise ValueError(f"{self.name}: scale = {self.scale!r}: must be > 0")
+        if self.log and not (self.initial > 0.0 and self.lower >= 0.0):
+            raise ValueError(
+                f"{self.name}: initial = {self.initial!r}, lower = {self.lower!r}: a log "
+                f"parameter must start > 0 with lower >= 0"
+            )
         if not self.lower < self.upper:
             raise ValueError(
                 f"{self.name}: bounds [{self.lower!r}, {self.upper!r}]: lower must be < upper"
@@ -109,17 +117,27 @@ def fit(
     """
     slots = [index[p.name] for p in free]
     scale = np.array([p.scale for p in free], dtype=float)
-    lower = np.array([p.lower for p in free]) / scale
-    upper = np.array([p.upper for p in free]) / scale
-    z0 = np.clip(np.array([p.initial for p in free]) / scale, lower, upper)
+    is_log = np.array([p.log for p in free], dtype=bool)
+
+    def to_z(values: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore"):
+            return np.where(is_log, np.log(np.maximum(values, 0.0) / scale), values / scale)
+
+    def to_value(zs: np.ndarray) -> np.ndarray:
+        return np.where(is_log, np.exp(zs) * scale, zs * scale)
+
+    lower = to_z(np.array([p.lower for p in free], dtype=float))
+    upper = to_z(np.array([p.upper for p in free], dtype=float))
+    z0 = np.clip(to_z(np.array([p.initial for p in free], dtype=float)), lower, upper)
     counter = {"sets": 0}
     cache: dict[bytes, tuple[np.ndarray, SimOutputs]] = {}
 
     def params_of(zs: np.ndarray) -> np.ndarray:
         batch = np.repeat(base[None, :], len(zs), axis=0)
+        values = to_value(zs)
         for j, group in enumerate(slots):
             for i in group:
-                batch[:, i] = zs[:, j] * scale[j]
+                batch[:, i] = values[:, j]
         return batch
 
     def residuals_of(out: SimOutputs, n: int) -> list[np.ndarray]:
@@ -182,7 +200,7 @@ def fit(
         message = f"{message}; kept the initial values (the fit did not improve them)"
         fun(z)
         out = cache[z.tobytes()][1]
-    values = {p.name: float(v) for p, v in zip(free, z * scale, strict=True)}
+    values = {p.name: float(v) for p, v in zip(free, to_value(z), strict=True)}
     return FitResult(
         values=values,
         cost_initial=cost_initial,

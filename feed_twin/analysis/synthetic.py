@@ -155,6 +155,11 @@ def _thermal(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     return with_thermal_growth(doc, p["heating_K_m"])[0]
 
 
+def _stiffness(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    name = doc.of_type("AxialCompliance")[0]
+    return doc.set(f"{name}.k_bearing", p["k_bearing_N_m"]).set(f"{name}.EA", p["EA_N"])
+
+
 HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "coulomb_friction": _coulomb,
     "viscous_friction": _viscous,
@@ -167,6 +172,7 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "lead_error": lambda doc, p: _lead_error(doc, p),
     "thermal_drift": lambda doc, p: _thermal(doc, p),
     "backlash": lambda doc, p: doc.set(f"{doc.of_type('Backlash')[0]}.gap", p["gap_m"]),
+    "position_dependent_stiffness": _stiffness,
     "cogging_torque": lambda doc, p: doc.with_cogging(
         int(p["order"]), p["amplitude_Nm"], p["phase_rad"]
     )[0],
@@ -223,6 +229,7 @@ def generate(
     *,
     unmodelled: Unmodelled | None = None,
     program: str = PROGRAM,
+    nc_config: str = NC_CONFIG,
     start_m: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """The columns of a synthetic record in the file's own units (see MAP)."""
@@ -233,7 +240,7 @@ def generate(
     lagged = um.current_lag_s > 0 and truth.of_type("EffortSource")
     nsub = max(1, int(np.ceil(2.0 * h / um.current_lag_s))) if lagged else 1
     twin = Twin.compile(truth, smooth_sensors=False, min_substeps=nsub)
-    t, x_cmd = command(program)
+    t, x_cmd = command(program, nc_config)
     x_cmd = x_cmd + start_m
     h = float(t[1] - t[0])
     n = len(t)

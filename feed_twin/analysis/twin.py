@@ -15,7 +15,8 @@ Why the diagnosis twin measures without quantisation: with the encoder's real co
 simulated position, and through the loop the effort, are piecewise constant in the parameters,
 so finite-difference Jacobians of an output-error fit are zero or random. The twin used for
 fitting sets the step of every Encoder and LinearScale to 1e-12 of a revolution or metre (the
-quantisation noise is in the measurement, not in what the model should explain).
+quantisation noise is in the measurement, not in what the model should explain). The same holds
+for the phase-current ADC: the fitting twin's CurrentSensor has neither rounding nor noise.
 """
 
 from __future__ import annotations
@@ -36,6 +37,9 @@ from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun
 
 _COGGING_SLOT = re.compile(r"^cog(\d+)_(order|amplitude|phase)$")  # Pmsm slots of a harmonic
+# an axial compliance's engine slot EA is stored in the document as E with the root diameter
+# fixed: fitting EA (one number) is what the position-dependent stiffness identifies
+_AXIAL_RIGIDITY = "EA"
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
 FIXED_SECTIONS = ("plant", "controller")
 
@@ -117,6 +121,8 @@ class ModelDoc:
         harmonic = _COGGING_SLOT.match(field_name)
         if harmonic is not None:
             return int(harmonic.group(1)) < len(params.get("cogging", []))
+        if field_name == _AXIAL_RIGIDITY:
+            return "E" in params and "d_root" in params
         return field_name in params
 
     def get(self, slot: str) -> float:
@@ -127,6 +133,8 @@ class ModelDoc:
         if harmonic is not None:
             n, key = int(harmonic.group(1)), harmonic.group(2)
             return float(params.get("cogging", [])[n][key])
+        if field_name == _AXIAL_RIGIDITY and "E" in params and "d_root" in params:
+            return float(params["E"]) * math.pi * float(params["d_root"]) ** 2 / 4.0
         if field_name not in params:
             pair = (f"{field_name}_pos", f"{field_name}_neg")
             if all(p in params for p in pair):
@@ -156,6 +164,9 @@ class ModelDoc:
                 n, key = int(harmonic.group(1)), harmonic.group(2)
                 entry = params["cogging"][n]
                 entry[key] = int(round(value)) if key == "order" else float(value)
+                continue
+            if field_name == _AXIAL_RIGIDITY and "E" in params and "d_root" in params:
+                params["E"] = float(value) / (math.pi * float(params["d_root"]) ** 2 / 4.0)
                 continue
             old = params.get(field_name)
             # whole-number fields (counts, delays in ticks) stay whole numbers in the YAML
@@ -327,6 +338,11 @@ class Twin:
                 nominal[plant.param_index[f"{name}.step"]] = SMOOTH_SENSOR_STEP
             for name in doc.of_type("LinearScale"):
                 nominal[plant.param_index[f"{name}.resolution"]] = SMOOTH_SENSOR_STEP
+            # the current ADC likewise: its rounding and noise made the effort, and through the
+            # current loop the position, jump between nearby parameter sets
+            for name in doc.of_type("CurrentSensor"):
+                nominal[plant.param_index[f"{name}.step"]] = SMOOTH_SENSOR_STEP
+                nominal[plant.param_index[f"{name}.noise_std"]] = 0.0
         kinds = {e["type"] for e in doc.data["plant"]["components"]}
         if "Pmsm" in kinds or "DcMotor" in kinds:
             effort_name, unit = "current_q_A", "A"

@@ -1,0 +1,140 @@
+"""position_dependent_stiffness (and its pieces) of the discrepancy workflow, blind.
+
+The machine-tool axis (PMSM, 16 kHz current loop, position loop closed on the linear scale)
+runs a program over most of its travel with machine-tool accelerations, so that the axial load
+(mostly m*a) deflects the screw by F/k(x) at many distances from the fixed bearing.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from feed_twin.analysis.diagnose import diagnose
+from feed_twin.analysis.edits import position_dependent_stiffness
+from feed_twin.analysis.effects import BY_NAME, Candidate
+from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, fit
+from feed_twin.analysis.synthetic import NC_CONFIG, generate, write_csv
+from feed_twin.analysis.twin import ModelDoc, Twin
+from feed_twin.io.measured import load_measured
+
+ROOT = Path(__file__).resolve().parents[1]
+AXIS = ROOT / "config" / "axis_default.yaml"
+
+LONG_PROGRAM = """\
+(moves over most of the travel, reversals, dwells)
+G21 G90 G94 G54 G64
+G1 X250 F7200
+G4 P0.1
+G1 X20 F6000
+G1 X200 F4800
+G4 P0.1
+G1 X120 F3000
+G1 X280 F7200
+G1 X0 F7200
+G4 P0.1
+M30
+"""
+# a machine tool accelerates at metres per second squared: the inertial load dominates friction
+MACHINE_TOOL_NC = NC_CONFIG.replace("a_max_m_s2: 0.8", "a_max_m_s2: 3.0").replace(
+    "j_max_m_s3: 40.0", "j_max_m_s3: 100.0"
+)
+
+
+def _candidate(name: str) -> Candidate:
+    return Candidate(
+        effect=BY_NAME[name],
+        variant="",
+        explained_fraction=0.5,
+        f_statistic=100.0,
+        p_value=0.0,
+        n_eff=100.0,
+        coefficients={},
+        significant=True,
+    )
+
+
+def test_axial_rigidity_is_a_slot_of_the_document_stored_as_youngs_modulus():
+    doc = ModelDoc.load(AXIS)
+    params = doc.component("axial")["params"]
+    area = math.pi * params["d_root"] ** 2 / 4.0
+    assert doc.has_slot("axial.EA")
+    assert doc.get("axial.EA") == pytest.approx(params["E"] * area, rel=1e-12)
+    softer = doc.set("axial.EA", 1.2e8)
+    assert softer.component("axial")["params"]["E"] == pytest.approx(1.2e8 / area, rel=1e-12)
+    assert softer.get("axial.EA") == pytest.approx(1.2e8, rel=1e-12)
+    assert doc.get("axial.EA") == pytest.approx(params["E"] * area)  # the original is untouched
+    # the compiled twin's engine slot carries the same value
+    twin = Twin.compile(softer)
+    assert twin.nominal[twin.index["axial.EA"][0]] == pytest.approx(1.2e8, rel=1e-12)
+
+
+def test_stiffness_edit_frees_bearing_and_rigidity_in_the_log():
+    doc = ModelDoc.load(AXIS)
+    edit = position_dependent_stiffness(doc, _candidate("position_dependent_stiffness"))
+    assert [p.name for p in edit.own] == ["axial.k_bearing", "axial.EA"]
+    assert all(p.log and p.initial == p.scale for p in edit.own)
+    assert edit.added == 2
+    assert edit.free == edit.own  # no rigid-body re-fit: a stiffness does not trade with them
+    values = {"axial.k_bearing": 4e8, "axial.EA": 1.2e8}
+    assert edit.report["k_bearing_N_m"](values) == 4e8
+    assert edit.report["EA_N"](values) == 1.2e8
+
+
+def test_stiffness_edit_needs_an_axial_compliance():
+    doc = ModelDoc.load(ROOT / "config" / "emps_nominal.yaml")
+    with pytest.raises(LookupError, match="no AxialCompliance \\(screw\\) whose stiffness"):
+        position_dependent_stiffness(doc, _candidate("position_dependent_stiffness"))
+
+
+def test_log_parameter_must_start_positive_with_a_nonnegative_bound():
+    with pytest.raises(ValueError, match="k: initial = -1.0, lower = 0.0: a log parameter"):
+        FreeParameter(name="k", initial=-1.0, scale=1.0, lower=0.0, log=True)
+    with pytest.raises(ValueError, match="k: initial = 1.0, lower = -inf: a log parameter"):
+        FreeParameter(name="k", initial=1.0, scale=1.0, log=True)
+
+
+def test_log_parameter_fits_a_compliance_a_factor_of_three_away():
+    """y = F / k: the truth k = 3e8 from 9e8 (a factor 3), in the log, to solver precision."""
+    force = np.linspace(-500.0, 800.0, 200)
+    truth = 3e8
+
+    def simulate(params: np.ndarray) -> SimOutputs:
+        return SimOutputs(
+            x_m=force[None, :] / params[:, :1], effort=None, ok=np.ones(len(params), bool)
+        )
+
+    meas = Measured(x_m=force / truth, effort=None, scale_x=1e-6, scale_effort=1.0)
+    free = [FreeParameter(name="k", initial=9e8, scale=9e8, lower=0.0, log=True)]
+    result = fit(simulate, np.array([9e8]), {"k": (0,)}, free, meas)
+    assert result.converged, result.message
+    assert result.values["k"] == pytest.approx(truth, rel=1e-6)
+
+
+def test_fitting_twin_reads_phase_currents_without_rounding_or_noise():
+    twin = Twin.compile(ModelDoc.load(AXIS))
+    assert twin.nominal[twin.index["current_sensor.step"][0]] == pytest.approx(1e-12)
+    assert twin.nominal[twin.index["current_sensor.noise_std"][0]] == 0.0
+
+
+@pytest.mark.slow
+def test_position_dependent_stiffness_is_found_in_closed_loop_on_the_linear_scale(tmp_path):
+    nominal = ModelDoc.load(AXIS)
+    assert nominal.data["controller"]["position"]["feedback"] == "linear_scale"
+    truth = {"k_bearing_N_m": 4.0e8, "EA_N": 1.2e8}  # nominal 7.5e8 and 1.91e8
+    columns = generate(
+        nominal,
+        {"position_dependent_stiffness": truth},
+        program=LONG_PROGRAM,
+        nc_config=MACHINE_TOOL_NC,
+    )
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
+    assert d.effects and d.effects[0].name == "position_dependent_stiffness", d.notes
+    found = d.effects[0].parameters
+    for name, value in truth.items():
+        assert found[name] == pytest.approx(value, rel=0.10), found
+    assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
