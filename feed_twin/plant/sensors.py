@@ -5,9 +5,13 @@ the sample by `delay_ticks` whole base periods before the controller sees it.
 - Encoder on a rotational flange: theta = floor(phi / q) * q with q = 2*pi / counts_per_rev
   (an incremental count, so it truncates towards -inf like a counter does).
 - LinearScale on a translational flange: x = floor(s / q) * q with q = resolution.
-- CurrentSensor on the ac3 node: for each phase, y = gain*i + offset + noise_std*n (n standard
-  normal, seeded: see feed_twin.plant.noise), clipped to the ADC range [-range_A, range_A) and
-  rounded to the ADC step 2*range_A / 2^adc_bits.
+- CurrentSensor on the ac3 node: for each phase x in a, b, c, y = gain*i_x + offset + offset_x
+  + noise_std*n (n standard normal, seeded: see feed_twin.plant.noise), clipped to the ADC range
+  [-range_A, range_A) and rounded to the ADC step 2*range_A / 2^adc_bits. The common `offset`
+  cancels in the Clarke transform; per-phase offsets do not: they give a measured i_alpha,
+  i_beta offset of (2/3)(o_a - (o_b + o_c)/2), (o_b - o_c)/sqrt(3), which the rotating Park
+  transform turns into a d/q ripple once per electrical revolution (a torque ripple in closed
+  loop).
 Ports: `flange` (rotational or translational, reads only) or `ac` (ac3, reads the currents).
 """
 
@@ -99,10 +103,15 @@ class CurrentSensor(Component):
     adc_bits: int  # ADC resolution [bit]
     range_A: float  # ADC full scale, +/- [A]
     delay_ticks: int  # sample delay in base periods
+    offset_a: float = 0.0  # offset of phase a alone, on top of `offset` [A]
+    offset_b: float = 0.0  # offset of phase b alone [A]
+    offset_c: float = 0.0  # offset of phase c alone [A]
 
     def __post_init__(self) -> None:
         require_positive("gain", self.gain)
         require_finite("offset", self.offset)
+        for name in ("offset_a", "offset_b", "offset_c"):
+            require_finite(name, getattr(self, name))
         require_nonnegative("noise_std", self.noise_std)
         if not 2 <= self.adc_bits <= 24:
             raise ValueError(f"adc_bits = {self.adc_bits!r}: must lie in [2, 24]")
@@ -117,6 +126,9 @@ class CurrentSensor(Component):
             "step": 2.0 * self.range_A / 2.0**self.adc_bits,
             "range_A": self.range_A,
             "delay_ticks": float(self.delay_ticks),
+            "offset_a": self.offset_a,
+            "offset_b": self.offset_b,
+            "offset_c": self.offset_c,
         }
 
     def emit(self, stage: str, g: Emitter) -> None:
@@ -125,7 +137,7 @@ class CurrentSensor(Component):
         for n, x in enumerate(("a", "b", "c")):
             raw = (
                 f"{g.p('gain')} * {g.el('ac', f'i_{x}')} + {g.p('offset')}"
-                f" + {g.noise(n, g.p('noise_std'))}"
+                f" + {g.p(f'offset_{x}')} + {g.noise(n, g.p('noise_std'))}"
             )
             g.meas(
                 f"MEAS_I_{x.upper()}",
