@@ -582,6 +582,32 @@ class _Generator(Emitter):
         index = 2 * list(self.noise_pairs).index(pair) + (base + channel) % 2
         return f"{scale} * noise[{index}]"
 
+    def _rhs_tuple(self, rhs_lines: list[str]) -> list[str]:
+        """`rhs` again from the same lines, the derivatives returned as a tuple instead of stored.
+
+        The compiled loop keeps the state and the RK4 stages in registers with it: numba's arrays
+        may alias, so with dx and stage vectors in memory LLVM reloaded them around every store.
+        """
+        slots = [_const("X_", s) for s, _, _ in self.m._core_states] + [
+            _const("X_", s) for s in self.energy_states
+        ]
+        lines, assigned = [], set()
+        for code in rhs_lines:
+            match = re.fullmatch(r"dx\[(X_\w+)\] = (.*)", code)
+            if match:
+                assigned.add(match.group(1))
+                code = f"d_{match.group(1)} = {match.group(2)}"
+            lines.append(code)
+        lines = [f"d_{slot} = 0.0" for slot in slots if slot not in assigned] + lines
+        return [
+            "",
+            '@njit(cache=True, inline="always", error_model="numpy", '
+            'fastmath={"arcp", "contract"})',
+            "def rhs_tuple(t, x, p, out, ext, sw):",
+            *(f"    {code}" for code in lines),
+            f"    return ({', '.join(f'd_{slot}' for slot in slots)},)",
+        ]
+
     def _draw_noise(self) -> list[str]:
         lines = []
         for i, (pair, scale) in enumerate(self.noise_pairs.items()):
@@ -736,6 +762,8 @@ class _Generator(Emitter):
             funcs.append(f"def {name}({args}):")
             funcs += [f"    {code}" for code in lines]
             funcs.append("    return None")
+            if name == "rhs":
+                funcs += self._rhs_tuple(lines)
         funcs += self._draw_noise()
         return (
             "\n".join(head + [""] + self._constants() + [""] + self._fill_derived() + funcs) + "\n"

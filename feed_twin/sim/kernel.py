@@ -42,20 +42,17 @@ FASTMATH = {{"arcp", "contract"}}
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
-def rk4_step(t, hs, x, p, out, ext, sw, k1, k2, k3, k4, xt):
-    rhs(t, x, p, out, ext, sw, k1)
-    for i in range(N_X):
-        xt[i] = x[i] + 0.5 * hs * k1[i]
-    rhs(t + 0.5 * hs, xt, p, out, ext, sw, k2)
-    for i in range(N_X):
-        xt[i] = x[i] + 0.5 * hs * k2[i]
-    rhs(t + 0.5 * hs, xt, p, out, ext, sw, k3)
-    for i in range(N_X):
-        xt[i] = x[i] + hs * k3[i]
-    rhs(t + hs, xt, p, out, ext, sw, k4)
+def rk4_step(t, hs, x, p, out, ext, sw):
+    """One classical RK4 step of the state tuple x; returns the new tuple."""
+    k1 = rhs_tuple(t, x, p, out, ext, sw)
+    xt = {stage_k1}
+    k2 = rhs_tuple(t + 0.5 * hs, xt, p, out, ext, sw)
+    xt = {stage_k2}
+    k3 = rhs_tuple(t + 0.5 * hs, xt, p, out, ext, sw)
+    xt = {stage_k3}
+    k4 = rhs_tuple(t + hs, xt, p, out, ext, sw)
     c = hs / 6.0
-    for i in range(N_X):
-        x[i] += c * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    return {combine}
 
 
 @njit(cache=True, error_model="numpy", fastmath=FASTMATH)
@@ -79,12 +76,12 @@ def leg_state(tau, duty, t_dead, period):
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
-def integrate_tick(t0, h, nsub, x, p, out, ext, sw, k1, k2, k3, k4, xt, edges):
+def integrate_tick(t0, h, nsub, x, p, out, ext, sw, edges):
     hs = h / nsub
     if not SWITCHING or out[OUT_ENABLED] < 0.5:
         for i in range(nsub):
-            rk4_step(t0 + i * hs, hs, x, p, out, ext, sw, k1, k2, k3, k4, xt)
-        return
+            x = rk4_step(t0 + i * hs, hs, x, p, out, ext, sw)
+        return x
     t_dead = p[{t_dead_slot}]
     n = 0
     edges[n] = 0.0
@@ -119,13 +116,14 @@ def integrate_tick(t0, h, nsub, x, p, out, ext, sw, k1, k2, k3, k4, xt, edges):
         m = int(math.ceil((b - a) / hs - 1e-9))
         step = (b - a) / m
         for s in range(m):
-            rk4_step(t0 + a + s * step, step, x, p, out, ext, sw, k1, k2, k3, k4, xt)
+            x = rk4_step(t0 + a + s * step, step, x, p, out, ext, sw)
+    return x
 
 
 def work_size(n_cs):
     """Length of the scratch vector `advance` needs (it allocates nothing itself)."""
     return (
-        5 * N_X + 16 + 3 + 3 * MEAS_SIZE + N_A + (N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs)
+        16 + 3 + 3 * MEAS_SIZE + N_A + (N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs)
         + NOISE_BLOCK * N_NOISE
     )
 
@@ -140,16 +138,6 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
     """
     n_cs = cs.shape[0]
     o = 0
-    k1 = work[o:o + N_X]
-    o += N_X
-    k2 = work[o:o + N_X]
-    o += N_X
-    k3 = work[o:o + N_X]
-    o += N_X
-    k4 = work[o:o + N_X]
-    o += N_X
-    xt = work[o:o + N_X]
-    o += N_X
     edges = work[o:o + 16]
     o += 16
     sw = work[o:o + 3]
@@ -171,6 +159,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
     # would force the loop to reload p[...] and redo each division by a parameter; a tuple is
     # immutable, and LLVM hoists what depends on parameters alone out of the loop
     pt = {ptuple}
+    xs = {xtuple}
     r = 0
     for j in range(n):
         k = k0 + j
@@ -181,7 +170,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
             # the core overlaps their logarithms and roots instead of waiting on each in turn
             for i in range(min(NOISE_BLOCK, n - j)):
                 draw_noise(pt, seed, k + i, noise[i * N_NOISE:(i + 1) * N_NOISE])
-        sense(t, x, pt, out, ext[j], sw, noise[b * N_NOISE:(b + 1) * N_NOISE], mraw, mdelay)
+        sense(t, xs, pt, out, ext[j], sw, noise[b * N_NOISE:(b + 1) * N_NOISE], mraw, mdelay)
         slot = k % RING
         for m in range(MEAS_SIZE):
             ring[slot, m] = mraw[m]
@@ -190,7 +179,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
             meas[m] = ring[(k - back) % RING, m]
 {controller}
         if k % dec == 0:
-            outputs(t, x, pt, out, ext[j], sw, aux)
+            outputs(t, xs, pt, out, ext[j], sw, aux)
             for i in range(N_X):
                 row[i] = x[i]
             for i in range(N_A):
@@ -204,7 +193,8 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
             for i in range(sel.shape[0]):
                 rec[r, i] = row[sel[i]]
             r += 1
-        integrate_tick(t, h, nsub, x, pt, out, ext[j], sw, k1, k2, k3, k4, xt, edges)
+        xs = integrate_tick(t, h, nsub, xs, pt, out, ext[j], sw, edges)
+{store_x}
         for i in range(N_X):
             if not abs(x[i]) <= xlim[i]:
                 status[0] = 1.0
@@ -220,6 +210,10 @@ _OPEN = """        for i in range(OUT_SIZE):
             out[i] = drive[j, i]"""
 
 
+def _tuple(items) -> str:
+    return "(" + ", ".join(items) + ",)"
+
+
 def cache_dir() -> Path:
     """Where generated kernels live: $FEED_TWIN_CACHE or ~/.cache/feed_twin/kernels."""
     root = os.environ.get("FEED_TWIN_CACHE")
@@ -231,13 +225,22 @@ def cache_dir() -> Path:
 def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
     """The full module text: plant functions, loop and batch loop."""
     switching = model.switching_inverter
+    n_x = len(model.state_names)
     t_dead_slot = _const("P_", f"{switching}.t_dead") if switching else "0"
     loop = _LOOP.format(
         ring=RING,
         noise_block=NOISE_BLOCK,
         switching=bool(switching),
         t_dead_slot=t_dead_slot,
-        ptuple="(" + ", ".join(f"p[{i}]" for i in range(len(model.param_names))) + ",)",
+        ptuple=_tuple(f"p[{i}]" for i in range(len(model.param_names))),
+        xtuple=_tuple(f"x[{i}]" for i in range(n_x)),
+        stage_k1=_tuple(f"x[{i}] + 0.5 * hs * k1[{i}]" for i in range(n_x)),
+        stage_k2=_tuple(f"x[{i}] + 0.5 * hs * k2[{i}]" for i in range(n_x)),
+        stage_k3=_tuple(f"x[{i}] + hs * k3[{i}]" for i in range(n_x)),
+        combine=_tuple(
+            f"x[{i}] + c * (k1[{i}] + 2.0 * k2[{i}] + 2.0 * k3[{i}] + k4[{i}])" for i in range(n_x)
+        ),
+        store_x="\n".join(f"        x[{i}] = xs[{i}]" for i in range(n_x)),
         controller=_CLOSED if closed_loop else _OPEN,
     )
     head = "from feed_twin.control.signals import OUT_DUTY_A\n"
