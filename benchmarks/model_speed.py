@@ -7,7 +7,9 @@ Figures (last printed line, one JSON object):
   per second of process CPU time, which other jobs on shared cores do not inflate
   (load_average_1min says how shared they were).
 - batch_axis_seconds_per_second: 1000 parameter sets of the same axis (table mass varied),
-  0.2 s of the same move each, advanced in parallel (numba prange over all cores).
+  0.2 s of the same move each, advanced in parallel (run_batch: one thread per usable core, the
+  kernel releases the GIL); batch_axis_seconds_per_cpu_second: the same per CPU second of all
+  threads (equal to the wall-clock rate when only one core was free).
 - solve_ivp_ratio: wall time of feed_twin.sim.reference (the same generated plant functions,
   un-jitted, under scipy solve_ivp DOP853 per controller tick) over the kernel's, per simulated
   second, on 20 ms of the move.
