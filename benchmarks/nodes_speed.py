@@ -22,8 +22,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-import yaml
-
 from feed_twin.ros.domain import private_graph_env, reserve_domain_id
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,12 +38,8 @@ def program(seconds: float) -> str:
 
 
 def config(directory: Path) -> Path:
-    data = yaml.safe_load((ROOT / "config" / "axis_default.yaml").read_text())
-    if "nc" not in data:
-        data["nc"] = yaml.safe_load((ROOT / "config" / "nc_default.yaml").read_text())["nc"]
-    path = directory / "axis.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    del directory  # the axis config carries its nc: and ros: sections
+    return ROOT / "config" / "axis_default.yaml"
 
 
 def run(directory: Path, name: str, seconds: float, realtime: bool) -> dict:

@@ -1,4 +1,4 @@
-"""Shared helpers of the node-set tests: a merged axis config, private domains, the runner."""
+"""Shared helpers of the node-set tests: the axis config, private domains, the runner."""
 
 from __future__ import annotations
 
@@ -8,22 +8,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import yaml
-
 from feed_twin.ros.domain import private_graph_env
 
 ROOT = Path(__file__).resolve().parents[1]
+AXIS_CONFIG = ROOT / "config" / "axis_default.yaml"  # with its nc: and ros: sections
 SHORT_PROGRAM = "%\nG21 G90 G54 G64\nG1 X10 F3000\nM30\n%\n"
-
-
-def merged_config(directory: Path) -> Path:
-    """config/axis_default.yaml with an `nc:` section (from nc_default.yaml if it has none)."""
-    data = yaml.safe_load((ROOT / "config" / "axis_default.yaml").read_text())
-    if "nc" not in data:
-        data["nc"] = yaml.safe_load((ROOT / "config" / "nc_default.yaml").read_text())["nc"]
-    path = directory / "axis.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
 
 
 def node_env(domain_id: int) -> dict[str, str]:

@@ -38,7 +38,7 @@ from feed_twin.ros.topics import AxisTopics
 
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "config" / "axis_default.yaml"
-NC = ROOT / "config" / "nc_default.yaml"
+NC = ROOT / "config" / "axis_default.yaml"
 HOT_TYPES = {
     "feed_twin_msgs/msg/AxisCommand": AxisCommand,
     "feed_twin_msgs/msg/DriveCommand": DriveCommand,
@@ -217,11 +217,11 @@ def test_program_stream_pauses_holds_and_resumes() -> None:
     samples = []
     while stream.paused is None:
         samples.append(stream.next_sample())
-    # Setpoints are relative to the NC start; the first move goes 10 mm in +X.
-    assert samples[0][1] == 0.0
+    # Machine coordinates: the program starts at X = 0.4 m and G54 X10 is 0.41 m.
+    assert samples[0][1] == pytest.approx(0.4, abs=1e-12)
     # The pause takes the first sample at or after the stop instant; the planner does not wait
     # at M0, so the grid point may lie a fraction of a period into the next move (< 1 nm here).
-    assert samples[-1][1] == pytest.approx(0.010, abs=1e-9)
+    assert samples[-1][1] == pytest.approx(0.410, abs=1e-9)
     assert "line 3" in stream.paused
     holds = [stream.next_sample() for _ in range(5)]
     assert all(h[1] == samples[-1][1] and h[2] == 0.0 for h in holds)
@@ -231,7 +231,7 @@ def test_program_stream_pauses_holds_and_resumes() -> None:
     rest = []
     while not stream.finished:
         rest.append(stream.next_sample())
-    assert rest[-1][1] == pytest.approx(0.0, abs=1e-12)
+    assert rest[-1][1] == pytest.approx(0.4, abs=1e-12)
     assert len(samples) + len(rest) == len(trajectory)
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from nodes_support import SHORT_PROGRAM, merged_config
+from nodes_support import AXIS_CONFIG, SHORT_PROGRAM
 
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.ros.drive_host import Lockstep, nc_samples
@@ -19,7 +19,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, np.ndarray]:
-    config = merged_config(tmp_path_factory.mktemp("host"))
+    config = AXIS_CONFIG
     ros = load_node_set_config(config)
     axis = load_axis_config(config)
     controller = ControllerCore(
@@ -29,7 +29,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, np.ndarray]:
     trajectory = plan_program(SHORT_PROGRAM, load_nc_config(config))
     x, v, a = trajectory.axis("X")
     samples = Lockstep(controller, host, ros).run(
-        nc_samples(trajectory.t_s, x - x[0], v, a, trajectory.line), until_ns=400_000_000
+        nc_samples(trajectory.t_s, x, v, a, trajectory.line), until_ns=400_000_000
     )
     columns = {name: np.array([s.truth[name] for s in samples]) for name in samples[0].truth}
     columns["t"] = np.array([s.t_ns for s in samples]) * 1e-9
@@ -39,7 +39,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, np.ndarray]:
 
 def test_exchange_grid_and_target(run: dict[str, np.ndarray]) -> None:
     np.testing.assert_allclose(np.diff(run["t"]), 1e-3, rtol=0, atol=1e-12)
-    assert run["table_position"][-1] == pytest.approx(0.010, abs=2e-6)
+    assert run["table_position"][-1] == pytest.approx(0.410, abs=2e-6)  # G54 X10 from X 0.4
     # The linear scale reads the table (1e-8 m resolution, one tick of delay).
     h = 62.5e-6
     bound = np.abs(run["table_velocity"]) * h + 0.5 * np.abs(run["table_acceleration"]) * h**2
@@ -79,7 +79,7 @@ def test_friction_opposes_the_motion(run: dict[str, np.ndarray]) -> None:
 def test_unknown_signal_names_are_reported(tmp_path: Path) -> None:
     from feed_twin.ros.split import StateSignals
 
-    config = merged_config(tmp_path)
+    config = AXIS_CONFIG
     ros = NodeSetConfig(signals=StateSignals(table_position="carriage.s"))
     with pytest.raises(ValueError, match=r"ros.signals: carriage.s: not signals of this plant"):
         build_drive_host(config, ros)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from nodes_support import ROOT, last_json, merged_config, node_env, run, start_run
+from nodes_support import AXIS_CONFIG, ROOT, last_json, node_env, run, start_run
 
 from feed_twin.io.bag import BagReader, info
 from feed_twin.ros.domain import reserve_domain_id
@@ -24,7 +24,7 @@ ROLES = ("sim", "controller", "gcode", "recorder")
 
 @pytest.fixture(scope="module")
 def config(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return merged_config(tmp_path_factory.mktemp("faults"))
+    return AXIS_CONFIG
 
 
 def node_pids(config: Path) -> dict[str, int]:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from nodes_support import last_json, merged_config, start_run
+from nodes_support import AXIS_CONFIG, last_json, start_run
 from std_srvs.srv import Trigger
 
 from feed_twin.io.bag import BagReader
@@ -31,7 +31,7 @@ def wait_for(path: Path, pattern: str, proc, timeout_s: float = 120.0) -> None:
 
 
 def test_m0_pauses_and_the_start_service_resumes(tmp_path: Path, ros_domain_id: int) -> None:
-    config = merged_config(tmp_path)
+    config = AXIS_CONFIG
     program = tmp_path / "pause.ngc"
     program.write_text(PAUSING)
     logs = tmp_path / "bags" / "pause.logs"
@@ -69,13 +69,13 @@ def test_m0_pauses_and_the_start_service_resumes(tmp_path: Path, ros_domain_id: 
     # Held at the end of the first move for the whole pause (more than half a second of
     # simulated time, since the node paused within ~0.1 s and was resumed 1 s later).
     assert held.sum() > 500
-    np.testing.assert_allclose(command["position"][held], 0.010, atol=1e-9)
+    np.testing.assert_allclose(command["position"][held], 0.410, atol=1e-9)  # machine X
     state = BagReader(record["bag"]).columns("/cnc/x/state", ["table_position"])
-    assert state["table_position"][-1] == pytest.approx(0.0, abs=2e-6)
+    assert state["table_position"][-1] == pytest.approx(0.4, abs=2e-6)
 
 
 def test_realtime_mode_paces_and_reports_lateness(tmp_path: Path, ros_domain_id: int) -> None:
-    config = merged_config(tmp_path)
+    config = AXIS_CONFIG
     program = tmp_path / "short.ngc"
     program.write_text("%\nG21 G90 G54\nG1 X5 F3000\nG4 P1.0\nM30\n%\n")
     proc = start_run(

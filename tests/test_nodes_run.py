@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from nodes_support import SHORT_PROGRAM, last_json, merged_config, run
+from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, last_json, run
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -21,7 +21,7 @@ from feed_twin.ros.split import NS_PER_S, ControllerCore, load_node_set_config
 from feed_twin.sim.config import load_axis_config
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
-TARGET_M = 0.010  # the program moves X by +10 mm
+TARGET_M = 0.410  # the program moves X by +10 mm from the NC start X = 0.4 m (machine coordinates)
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +29,7 @@ def setup(tmp_path_factory: pytest.TempPathFactory) -> dict:
     directory = tmp_path_factory.mktemp("run")
     program = directory / "move.ngc"
     program.write_text(SHORT_PROGRAM)
-    return {"dir": directory, "config": merged_config(directory), "program": program}
+    return {"dir": directory, "config": AXIS_CONFIG, "program": program}
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +57,7 @@ def in_process_positions(setup: dict, until_ns: int) -> dict[int, float]:
     host = build_drive_host(config, ros)
     trajectory = plan_program(setup["program"], load_nc_config(config))
     x, v, a = trajectory.axis("X")
-    commands = nc_samples(trajectory.t_s, x - x[0], v, a, trajectory.line)
+    commands = nc_samples(trajectory.t_s, x, v, a, trajectory.line)
     samples = Lockstep(controller, host, ros).run(commands, until_ns=until_ns)
     return {s.t_ns: s.truth["table_position"] for s in samples}
 

@@ -123,6 +123,11 @@ class NcConfig:
     def axis_index(self, name: str) -> int:
         return self.axis_names.index(name)
 
+    @property
+    def twin_start_position_m(self) -> float:
+        """Machine position of the twin axis when a program starts [m]."""
+        return self.start_position_m[self.axis_index(self.twin_axis)]
+
 
 def nc_config_from_mapping(data: object, *, source: str) -> NcConfig:
     """Build an `NcConfig` from the mapping under `nc:`; errors read `source: nc.field ...`."""

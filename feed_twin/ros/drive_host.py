@@ -59,6 +59,7 @@ class DriveHost:
         signals: StateSignals,
         pole_pairs: int = 0,
         encoder_offset_rad: float = 0.0,
+        start_position_m: float = 0.0,
     ) -> None:
         self.engine = engine
         ticks = exchange_period_s / engine.h
@@ -95,7 +96,10 @@ class DriveHost:
         self._ref = np.zeros((self.ticks, sig.REF_SIZE))
         self._row = np.zeros(sig.REF_SIZE)
         self._prev_v: float | None = None
-        self.setpoint = DriveSetpoint(t_ns=0, mode=MODE_CST, enable=True)
+        # Until the first command arrives the drive holds where the table stands.
+        self.setpoint = DriveSetpoint(
+            t_ns=0, mode=MODE_CST, enable=True, position_m=start_position_m
+        )
         self.k = 0
 
     def warm_up(self) -> None:

@@ -67,9 +67,8 @@ class ProgramStream:
         t0_ns: int,
         optional_stop: bool,
     ) -> None:
-        x, self.v, self.a = trajectory.axis(axis)
-        # The plant starts at rest at its position 0: setpoints are relative to the NC start.
-        self.x = x - x[0]
+        # Machine coordinates: the sim node starts the table at the NC start position.
+        self.x, self.v, self.a = trajectory.axis(axis)
         self.line = trajectory.line
         self.n = len(trajectory)
         self.period_ns = period_ns

@@ -77,6 +77,15 @@ def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
     engine = build_engine(
         axis, mode=ros.boundary, record=names, output_period_s=ros.exchange_period_s
     )
+    # The table coordinate is the machine coordinate of the twin axis: the plant starts at
+    # rest where the NC program starts (position-dependent screw stiffness needs the real place).
+    start = 0.0
+    if axis.nc is not None:
+        from feed_twin.gcode.config import nc_config_from_mapping
+
+        start = nc_config_from_mapping(axis.nc, source=str(config_path)).twin_start_position_m
+        body = ros.signals.table_position.lstrip("-").split(".")[0]
+        engine.reset(positions={body: start})
     current = axis.controller.current
     return DriveHost(
         engine,
@@ -85,6 +94,7 @@ def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
         signals=ros.signals,
         pole_pairs=current.pole_pairs if current is not None else 0,
         encoder_offset_rad=current.encoder_offset_rad if current is not None else 0.0,
+        start_position_m=start,
     )
 
 
