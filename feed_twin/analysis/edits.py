@@ -305,6 +305,38 @@ def position_dependent_stiffness(doc: ModelDoc, cand: Candidate) -> Edit:
     return _edit(doc, own, report, interacts=False)
 
 
+def current_offset(doc: ModelDoc, cand: Candidate) -> Edit:
+    """The three per-phase offsets of the CurrentSensor are fitted.
+
+    The offsets read as alpha/beta errors (2/3)(o_a - (o_b + o_c)/2), (o_b - o_c)/sqrt(3) (a
+    part common to the three phases cancels there); the current loop makes the true i_q differ
+    from the measured by -q = alpha sin(theta_e) - beta cos(theta_e), and the velocity loop
+    adds that back to its i_q command, so the effort residual is about -alpha sin + beta cos:
+    the (sin, cos) weights (s, c) give the initial guess alpha = -s, beta = c with no common
+    part. The common part is fitted too: the drive's dead-time compensation switches on the
+    sign of each measured phase current, so a phase offset also shifts where that happens.
+    """
+    sensors = doc.of_type("CurrentSensor")
+    if not sensors:
+        raise LookupError("the model has no CurrentSensor whose phase offsets could be fitted")
+    name = sensors[0]
+    params = doc.component(name)["params"]
+    alpha, beta = -cand.coefficients.get("sin", 0.0), cand.coefficients.get("cos", 0.0)
+    guesses = (alpha, -0.5 * alpha + 0.5 * math.sqrt(3.0) * beta)
+    guesses += (-guesses[0] - guesses[1],)
+    # scaled by the ADC full scale: the finite-difference step (1e-3 of the scale) is then about
+    # two counts of a 12-bit converter, large enough to average over the loop's sharp local
+    # sensitivity at slow moves (stick-slip), small next to the offsets (the response is
+    # close to linear in them)
+    scale = float(params["range_A"])
+    slots = tuple(f"{name}.offset_{x}" for x in "abc")
+    for slot, guess in zip(slots, guesses, strict=True):
+        doc = doc.set(slot, float(params.get(slot.split(".")[1], 0.0)) + guess)
+    own = [FreeParameter(name=slot, initial=doc.get(slot), scale=scale) for slot in slots]
+    report = {f"{slot.split('.')[1]}_A": (lambda s: lambda v: v[s])(slot) for slot in slots}
+    return _edit(doc, own, report, interacts=False)
+
+
 MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
 
 
@@ -336,4 +368,5 @@ EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
     "thermal_drift": thermal_drift,
     "backlash": backlash,
     "position_dependent_stiffness": position_dependent_stiffness,
+    "current_offset": current_offset,
 }

@@ -156,7 +156,10 @@ def _cogging_choices(m: Motion) -> list[tuple[str, Signature]]:
             "cos": np.cos(k * _motor_angle(mm)),
         }
 
-    return [(f"order {k} per motor revolution", make(k)) for k in COGGING_ORDERS]
+    # once per electrical revolution (order = pole pairs) is current_offset's signature: a
+    # cogging torque repeats lcm(slots, 2 p) times per revolution, never p times
+    orders = [k for k in COGGING_ORDERS if k != m.pole_pairs]
+    return [(f"order {k} per motor revolution", make(k)) for k in orders]
 
 
 def _electrical(m: Motion) -> dict[str, np.ndarray]:
@@ -265,7 +268,7 @@ LIBRARY: tuple[Effect, ...] = (
     Effect(
         name="current_offset",
         domain="effort",
-        component="CurrentSensor.offset",
+        component="CurrentSensor.offset_a, offset_b, offset_c",
         words="a force ripple once per electrical revolution: an offset in a phase-current "
         "measurement",
         needs=("lead_m", "pole_pairs"),

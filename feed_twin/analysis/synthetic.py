@@ -160,6 +160,15 @@ def _stiffness(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     return doc.set(f"{name}.k_bearing", p["k_bearing_N_m"]).set(f"{name}.EA", p["EA_N"])
 
 
+def _current_offset(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    name = doc.of_type("CurrentSensor")[0]
+    for phase in ("a", "b", "c"):
+        key = f"offset_{phase}_A"
+        if key in p:
+            doc = doc.set(f"{name}.offset_{phase}", p[key])
+    return doc
+
+
 HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "coulomb_friction": _coulomb,
     "viscous_friction": _viscous,
@@ -173,6 +182,7 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "thermal_drift": lambda doc, p: _thermal(doc, p),
     "backlash": lambda doc, p: doc.set(f"{doc.of_type('Backlash')[0]}.gap", p["gap_m"]),
     "position_dependent_stiffness": _stiffness,
+    "current_offset": _current_offset,
     "cogging_torque": lambda doc, p: doc.with_cogging(
         int(p["order"]), p["amplitude_Nm"], p["phase_rad"]
     )[0],
