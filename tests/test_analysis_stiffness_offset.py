@@ -182,3 +182,16 @@ def test_current_offset_is_found_as_a_ripple_once_per_electrical_revolution(tmp_
     nominal = ModelDoc.load(AXIS)
     truth = {"offset_a_A": 0.3, "offset_b_A": -0.25, "offset_c_A": 0.15}  # ADC step 0.024 A
     _named_first_fitted_and_gap_closed(tmp_path, nominal, "current_offset", truth)
+
+
+def test_augmented_model_with_both_edits_is_written_and_compiles_again(tmp_path):
+    doc = ModelDoc.load(AXIS)
+    doc = doc.set("axial.EA", 1.2e8).set("axial.k_bearing", 4e8)
+    for phase, value in zip("abc", (0.3, -0.25, 0.15), strict=True):
+        doc = doc.set(f"current_sensor.offset_{phase}", value)
+    doc.dump(tmp_path / "model.yaml", ["augmented"])
+    twin = Twin.compile(ModelDoc.load(tmp_path / "model.yaml"))
+    assert twin.nominal[twin.index["axial.EA"][0]] == pytest.approx(1.2e8, rel=1e-12)
+    assert twin.nominal[twin.index["axial.k_bearing"][0]] == 4e8
+    offsets = [twin.nominal[twin.index[f"current_sensor.offset_{x}"][0]] for x in "abc"]
+    assert offsets == [0.3, -0.25, 0.15]
