@@ -195,3 +195,33 @@ def test_augmented_model_with_both_edits_is_written_and_compiles_again(tmp_path)
     assert twin.nominal[twin.index["axial.k_bearing"][0]] == 4e8
     offsets = [twin.nominal[twin.index[f"current_sensor.offset_{x}"][0]] for x in "abc"]
     assert offsets == [0.3, -0.25, 0.15]
+
+
+@pytest.mark.slow
+def test_machine_tool_run_without_hidden_effect_names_nothing(tmp_path):
+    """The two new fittable effects raise no false alarm on the lag, quantisation and noise."""
+    nominal = ModelDoc.load(AXIS)
+    columns = generate(nominal, {}, program=LONG_PROGRAM, nc_config=MACHINE_TOOL_NC)
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
+    assert d.effects == (), [(e.name, e.parameters) for e in d.effects]
+    assert d.verdict.startswith("no significant missing effect")
+
+
+@pytest.mark.slow
+def test_stiffness_and_current_offset_hidden_together_are_both_named(tmp_path):
+    """About 40 s: each effect is fitted in its own round, then both jointly."""
+    nominal = ModelDoc.load(AXIS)
+    hidden = {
+        "current_offset": {"offset_a_A": 0.3, "offset_b_A": -0.25, "offset_c_A": 0.15},
+        "position_dependent_stiffness": {"k_bearing_N_m": 4.0e8, "EA_N": 1.2e8},
+    }
+    columns = generate(nominal, hidden, program=LONG_PROGRAM, nc_config=MACHINE_TOOL_NC)
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
+    found = {e.name: e.parameters for e in d.effects}
+    assert set(list(found)[:2]) == set(hidden), d.notes
+    for effect, truth in hidden.items():
+        for name, value in truth.items():
+            assert found[effect][name] == pytest.approx(value, rel=0.10), found
+    assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
