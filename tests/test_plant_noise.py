@@ -10,7 +10,7 @@ from feed_twin.plant.noise import standard_normal_pair
 N_PAIRS = 100_000
 
 
-@njit(cache=True)
+@njit  # no cache: numba would not notice a change of the callee
 def _draw(seed: int, n: int, pair: int) -> np.ndarray:
     out = np.empty((n, 2))
     for k in range(n):

@@ -601,8 +601,7 @@ class _Generator(Emitter):
         lines = [f"d_{slot} = 0.0" for slot in slots if slot not in assigned] + lines
         return [
             "",
-            '@njit(cache=True, inline="always", error_model="numpy", '
-            'fastmath={"arcp", "contract"})',
+            '@njit(cache=True, inline="always", error_model="numpy")',
             "def rhs_tuple(t, x, p, out, ext, sw):",
             *(f"    {code}" for code in lines),
             f"    return ({', '.join(f'd_{slot}' for slot in slots)},)",
@@ -753,12 +752,9 @@ class _Generator(Emitter):
             # argument, several times the cost of the physics
             # numpy error model: a division by zero gives inf/NaN (caught by the divergence
             # check) instead of an exception, so unused calls are dead code LLVM can drop
-            # arcp/contract: divisions by parameters become multiplications, products fuse;
-            # NaN and inf keep their meaning (divergence checks)
-            funcs.append(
-                '@njit(cache=True, inline="always", error_model="numpy", '
-                'fastmath={"arcp", "contract"})'
-            )
+            # no fast-math: reciprocals and fused products would change results in the last bits,
+            # and with them depend on the CPU that compiled the kernel
+            funcs.append('@njit(cache=True, inline="always", error_model="numpy")')
             funcs.append(f"def {name}({args}):")
             funcs += [f"    {code}" for code in lines]
             funcs.append("    return None")

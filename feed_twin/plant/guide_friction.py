@@ -29,7 +29,7 @@ from feed_twin.plant.smooth import smooth_sign
 STRIBECK_CUTOFF = 50.0  # (v/v_s)^2 beyond which exp(-(v/v_s)^2) < 2e-22 is taken as 0
 
 
-@njit(cache=True, error_model="numpy", fastmath={"arcp", "contract"})
+@njit(cache=True, error_model="numpy")
 def friction_force(
     v: float,
     F_c_pos: float,

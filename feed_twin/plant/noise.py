@@ -23,14 +23,14 @@ _M2 = np.uint64(0x94D049BB133111EB)
 _TWO_POW_M52 = 1.0 / 4503599627370496.0
 
 
-@njit(cache=True, error_model="numpy", fastmath={"arcp", "contract"})
+@njit(cache=True, error_model="numpy")
 def _mix(z: np.uint64) -> np.uint64:
     z = (z ^ (z >> np.uint64(30))) * _M1
     z = (z ^ (z >> np.uint64(27))) * _M2
     return z ^ (z >> np.uint64(31))
 
 
-@njit(cache=True, error_model="numpy", fastmath={"arcp", "contract"})
+@njit(cache=True, error_model="numpy")
 def standard_normal_pair(seed: int, tick: int, pair: int) -> tuple[float, float]:
     """Two independent standard normal samples determined by (seed, tick, pair) alone.
 

@@ -28,12 +28,12 @@ from feed_twin.plant.component import Component, Emitter
 MAX_DELAY_TICKS = 15  # the engine keeps the last 16 samples
 
 
-@njit(cache=True, error_model="numpy", fastmath={"arcp", "contract"})
+@njit(cache=True, error_model="numpy")
 def quantize_floor(value: float, step: float) -> float:
     return math.floor(value / step) * step
 
 
-@njit(cache=True, error_model="numpy", fastmath={"arcp", "contract"})
+@njit(cache=True, error_model="numpy")
 def adc(value: float, step: float, full_scale: float) -> float:
     clipped = min(max(value, -full_scale), full_scale - step)
     return math.floor(clipped / step + 0.5) * step

@@ -17,7 +17,7 @@ from numba import njit
 _SATURATED = 1e8  # beyond this |x|, sgn(x) = +/-1 to double precision; also avoids x*x overflow
 
 
-@njit(cache=True, inline="always", error_model="numpy", fastmath={"arcp", "contract"})
+@njit(cache=True, inline="always", error_model="numpy")
 def smooth_sign(x: float) -> float:
     """x / sqrt(1 + x^2): a smooth, odd sign function with unit slope at 0."""
     if x > _SATURATED:

@@ -38,7 +38,7 @@ _LOOP = '''
 RING = {ring}
 NOISE_BLOCK = {noise_block}
 SWITCHING = {switching}
-FASTMATH = {{"arcp", "contract"}}
+FASTMATH = False  # exact IEEE arithmetic: results must not depend on the CPU's FMA
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
