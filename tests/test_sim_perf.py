@@ -26,3 +26,21 @@ def test_noisy_axis_in_chunks_across_noise_blocks_is_bit_identical_to_one_run():
     # noise standard deviation 0.02 A (plus the 100 A / 4096 ADC step), not by zero
     error = one["meas.i_a_meas_A"] - one["motor.i_a"]
     assert 0.01 < np.std(error) < 0.04
+
+
+def test_tuple_rhs_of_the_loop_equals_the_array_rhs_with_energy_states():
+    axis = load_axis_config("config/axis_default.yaml")
+    model = axis.plant.with_energy_tracking()
+    ns = model.namespace()
+    x = model.initial_state().copy()
+    x[: len(x)] += np.linspace(0.01, 0.2, len(x))  # every state off its rest value
+    p = model.nominal_params()
+    out = np.zeros(sig.OUT_SIZE)
+    out[sig.OUT_ENABLED] = 1.0
+    out[sig.OUT_DUTY_A], out[sig.OUT_DUTY_B], out[sig.OUT_DUTY_C] = 0.6, 0.45, 0.4
+    ext = np.array([150.0])
+    dx = np.full(len(x), np.nan)
+    ns["rhs"](0.0, x, p, out, ext, np.zeros(3), dx)
+    derivatives = ns["rhs_tuple"](0.0, tuple(x), tuple(p), out, ext, np.zeros(3))
+    assert len(model.state_names) > 12  # energy accumulators included
+    assert np.array_equal(np.array(derivatives), dx)
