@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,7 +25,11 @@ ROLES = ("sim", "controller", "gcode", "recorder")
 
 @pytest.fixture(scope="module")
 def config(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return AXIS_CONFIG
+    """A private copy of the axis config: its path tells this run's processes apart, and the
+    bags land beside it (never in the repository)."""
+    path = tmp_path_factory.mktemp("faults") / "axis.yaml"
+    shutil.copyfile(AXIS_CONFIG, path)
+    return path
 
 
 def node_pids(config: Path) -> dict[str, int]:
