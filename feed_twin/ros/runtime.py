@@ -27,6 +27,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import rclpy
 from rclpy.clock import Clock, ClockType
@@ -438,6 +439,22 @@ def node_options(args: argparse.Namespace, ros) -> NodeOptions:
     )
 
 
+def start_node(prog: str, make: Callable[[Any], FeedTwinNode]) -> int:
+    """Create the ROS context, build one node with `make(context)` and spin it; a bad
+    configuration or input (a ValueError, KeyError or OSError) prints one line naming `prog`
+    and returns EXIT_ERROR."""
+    context = None
+    try:
+        context = init_context()
+        node = make(context)
+    except (ValueError, KeyError, OSError) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        if context is not None:
+            context.try_shutdown()
+        return EXIT_ERROR
+    return spin_nodes([node], context)
+
+
 def node_main(
     argv: Sequence[str] | None,
     *,
@@ -446,19 +463,13 @@ def node_main(
     build: Callable[..., FeedTwinNode],
 ) -> int:
     """Parse, load the config, build the node with `build(args, ros, options, context)` and
-    spin it; configuration errors print one line and return EXIT_ERROR."""
-    from feed_twin.io.config import ConfigError
+    spin it (`start_node`)."""
     from feed_twin.ros.split import load_node_set_config
 
     args = node_parser(prog, configure).parse_args(argv)
-    context = None
-    try:
+
+    def make(context) -> FeedTwinNode:
         ros = load_node_set_config(args.config)
-        context = init_context()
-        node = build(args, ros, node_options(args, ros), context)
-    except (ConfigError, ValueError, KeyError, OSError) as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        if context is not None:
-            context.try_shutdown()
-        return EXIT_ERROR
-    return spin_nodes([node], context)
+        return build(args, ros, node_options(args, ros), context)
+
+    return start_node(prog, make)

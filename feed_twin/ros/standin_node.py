@@ -37,13 +37,11 @@ from feed_twin.analysis.twin import ModelDoc
 from feed_twin.ros.cdr import FlatCodec
 from feed_twin.ros.runtime import (
     DATA_QOS,
-    EXIT_ERROR,
     EXIT_OK,
     LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
-    init_context,
-    spin_nodes,
+    start_node,
 )
 from feed_twin.shadow.bagstreams import encode_joint_state
 from feed_twin.shadow.standin import StandIn, program_command
@@ -221,21 +219,10 @@ def build(args: argparse.Namespace, context) -> StandInNode:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from feed_twin.io.config import ConfigError
-
     parser = argparse.ArgumentParser(prog="standin node", description=__doc__.splitlines()[0])
     configure(parser)
     args = parser.parse_args(argv)
-    context = None
-    try:
-        context = init_context()
-        node = build(args, context)
-    except (ConfigError, ValueError, KeyError, OSError) as exc:
-        print(f"standin node: {exc}", file=sys.stderr)
-        if context is not None:
-            context.try_shutdown()
-        return EXIT_ERROR
-    return spin_nodes([node], context)
+    return start_node("standin node", lambda context: build(args, context))
 
 
 if __name__ == "__main__":

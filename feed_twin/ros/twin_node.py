@@ -39,12 +39,10 @@ from feed_twin.io.measured import load_column_map
 from feed_twin.ros.cdr import FlatCodec
 from feed_twin.ros.runtime import (
     DATA_QOS,
-    EXIT_ERROR,
     EXIT_OK,
     FeedTwinNode,
     NodeOptions,
-    init_context,
-    spin_nodes,
+    start_node,
 )
 from feed_twin.shadow.bagstreams import JOINT_STATE, MessageFields, plan
 from feed_twin.shadow.config import load_shadow_config
@@ -332,22 +330,10 @@ def build(args: argparse.Namespace, context) -> TwinNode:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from feed_twin.io.config import ConfigError
-    from feed_twin.io.measured import MeasuredDataError
-
     parser = argparse.ArgumentParser(prog="twin node", description=__doc__.splitlines()[0])
     configure(parser)
     args = parser.parse_args(argv)
-    context = None
-    try:
-        context = init_context()
-        node = build(args, context)
-    except (ConfigError, MeasuredDataError, ValueError, KeyError, OSError) as exc:
-        print(f"twin node: {exc}", file=sys.stderr)
-        if context is not None:
-            context.try_shutdown()
-        return EXIT_ERROR
-    return spin_nodes([node], context)
+    return start_node("twin node", lambda context: build(args, context))
 
 
 if __name__ == "__main__":
