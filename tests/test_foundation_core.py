@@ -1,5 +1,6 @@
-"""The core never touches ROS: no module outside feed_twin/ros/ imports rclpy or a generated
-message package, neither in its source (AST scan) nor at import time (sys.modules check)."""
+"""The core never touches ROS: no module outside feed_twin/ros/ imports rclpy, a generated
+message package or feed_twin.ros, neither in its source (AST scan) nor at import time
+(sys.modules check)."""
 
 from __future__ import annotations
 
@@ -18,8 +19,9 @@ import feed_twin
 PACKAGE_DIR = Path(feed_twin.__file__).resolve().parent
 ROS_DIR = PACKAGE_DIR / "ros"
 
-# rclpy and its C layers, the rosidl machinery, and every generated interface package.
-_ROS_MODULE = re.compile(r"^(rclpy|rcl|rmw|rosidl\w*|\w+_msgs|\w+_interfaces)(\.|$)")
+# rclpy and its C layers, the rosidl machinery, every generated interface package, and the
+# node shells themselves (the core may not depend on feed_twin.ros, even on a pure module there).
+_ROS_MODULE = re.compile(r"^(rclpy|rcl|rmw|rosidl\w*|\w+_msgs|\w+_interfaces|feed_twin\.ros)(\.|$)")
 
 
 def _core_files() -> list[Path]:

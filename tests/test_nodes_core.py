@@ -16,10 +16,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from feed_twin.control.config import load_controller_config
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag_schema import message_definition
+from feed_twin.io.cdr import FlatCodec, NotFlatError
 from feed_twin.io.config import ConfigError
-from feed_twin.ros.cdr import FlatCodec, NotFlatError
-from feed_twin.ros.gcode_node import ProgramStream
-from feed_twin.ros.split import (
+from feed_twin.nodeset.split import (
     MODE_CSP,
     MODE_CST,
     MODE_CSV,
@@ -33,8 +32,9 @@ from feed_twin.ros.split import (
     drive_reference,
     load_node_set_config,
 )
-from feed_twin.ros.summary import summarise
-from feed_twin.ros.topics import AxisTopics
+from feed_twin.nodeset.summary import summarise
+from feed_twin.nodeset.topics import AxisTopics
+from feed_twin.ros.gcode_node import ProgramStream
 
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "config" / "axis_default.yaml"

@@ -151,7 +151,7 @@ def test_joint_state_codec_matches_the_generic_decoder(tmp_path) -> None:
 
 def test_streams_keep_arrival_order_and_machine_stamps(tmp_path) -> None:
     """A message logged late keeps its stamp; the replay sees it where it really arrived."""
-    from feed_twin.ros.cdr import FlatCodec
+    from feed_twin.io.cdr import FlatCodec
 
     codec = FlatCodec("feed_twin_msgs/msg/AxisCommand")
     bag = tmp_path / "b"
@@ -213,7 +213,7 @@ def test_cli_reports_bad_input_on_stderr(recording, tmp_path, capsys) -> None:
 
 
 def test_fixed_layout_offsets_follow_the_strings() -> None:
-    from feed_twin.ros.cdr import FlatCodec
+    from feed_twin.io.cdr import FlatCodec
     from feed_twin.shadow.bagstreams import flat_offsets
 
     codec = FlatCodec("feed_twin_msgs/msg/AxisCommand")

@@ -22,17 +22,9 @@ from std_msgs.msg import String
 
 from feed_twin.control import signals as sig
 from feed_twin.control.config import ControllerConfig, load_controller_config
+from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError, load_yaml
-from feed_twin.ros.cdr import FlatCodec
-from feed_twin.ros.runtime import (
-    DATA_QOS,
-    EXIT_ERROR,
-    LATCHED_QOS,
-    FeedTwinNode,
-    NodeOptions,
-    node_main,
-)
-from feed_twin.ros.split import (
+from feed_twin.nodeset.split import (
     NS_PER_S,
     Boundary,
     ControllerCore,
@@ -41,7 +33,15 @@ from feed_twin.ros.split import (
     NcSample,
     NodeLoopGains,
 )
-from feed_twin.ros.topics import CONTROLLER_NODE
+from feed_twin.nodeset.topics import CONTROLLER_NODE
+from feed_twin.ros.runtime import (
+    DATA_QOS,
+    EXIT_ERROR,
+    LATCHED_QOS,
+    FeedTwinNode,
+    NodeOptions,
+    node_main,
+)
 
 AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
 AXIS_FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")

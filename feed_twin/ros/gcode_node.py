@@ -35,7 +35,9 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_config, plan_program
-from feed_twin.ros.cdr import FlatCodec
+from feed_twin.io.cdr import FlatCodec
+from feed_twin.nodeset.split import NS_PER_S
+from feed_twin.nodeset.topics import GCODE_NODE
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_ERROR,
@@ -44,8 +46,6 @@ from feed_twin.ros.runtime import (
     NodeOptions,
     node_main,
 )
-from feed_twin.ros.split import NS_PER_S
-from feed_twin.ros.topics import GCODE_NODE
 
 AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
 STANDSTILL_M_S = 1e-9  # |v| below which the planned path is at rest [m/s]

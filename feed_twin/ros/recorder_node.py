@@ -24,6 +24,8 @@ from pathlib import Path
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from feed_twin.io.bag import BagWriter, QosProfile
+from feed_twin.nodeset.summary import LiveFeed
+from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_OK,
@@ -35,8 +37,6 @@ from feed_twin.ros.runtime import (
     NodeOptions,
     node_main,
 )
-from feed_twin.ros.summary import LiveFeed
-from feed_twin.ros.topics import RECORDER_NODE
 
 DRAIN_QUIET_S = 0.3
 DRAIN_MAX_S = 30.0  # a recorder starved of CPU may lag seconds behind the graph

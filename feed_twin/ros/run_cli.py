@@ -77,7 +77,7 @@ def _outputs(args: argparse.Namespace) -> Outputs:
 def _check_inputs(args: argparse.Namespace):
     """Config sections and the whole program, before any node starts."""
     from feed_twin.gcode import load_nc_config, validate_program
-    from feed_twin.ros.split import load_node_set_config
+    from feed_twin.nodeset.split import load_node_set_config
 
     ros = load_node_set_config(args.config)
     nc = load_nc_config(args.config)
@@ -309,9 +309,9 @@ def _run_single_process(args: argparse.Namespace, ros, out: Outputs) -> tuple[in
 
 def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
     from feed_twin.io.bag import BagError, info, recover
+    from feed_twin.nodeset.summary import read_run, summarise, write_dashboard
+    from feed_twin.nodeset.topics import AxisTopics
     from feed_twin.ros.gcode_node import program_lines
-    from feed_twin.ros.summary import read_run, summarise, write_dashboard
-    from feed_twin.ros.topics import AxisTopics
 
     if not out.bag.exists():
         return None, "no bag was written"

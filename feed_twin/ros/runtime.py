@@ -40,7 +40,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 
-from feed_twin.ros.topics import AxisTopics
+from feed_twin.nodeset.topics import AxisTopics
 
 EXIT_OK = 0
 EXIT_ERROR = 1  # a configuration, program or runtime error; the message says which
@@ -464,7 +464,7 @@ def node_main(
 ) -> int:
     """Parse, load the config, build the node with `build(args, ros, options, context)` and
     spin it (`start_node`)."""
-    from feed_twin.ros.split import load_node_set_config
+    from feed_twin.nodeset.split import load_node_set_config
 
     args = node_parser(prog, configure).parse_args(argv)
 

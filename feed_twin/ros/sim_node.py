@@ -33,9 +33,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from feed_twin.control import signals as sig
+from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError
-from feed_twin.ros.cdr import FlatCodec
-from feed_twin.ros.drive_host import DriveHost, ExchangeSample
+from feed_twin.nodeset.drive_host import DriveHost, ExchangeSample
+from feed_twin.nodeset.split import NS_PER_S, DriveSetpoint, NodeSetConfig
+from feed_twin.nodeset.topics import SIM_NODE
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_ERROR,
@@ -45,8 +47,6 @@ from feed_twin.ros.runtime import (
     NodeOptions,
     node_main,
 )
-from feed_twin.ros.split import NS_PER_S, DriveSetpoint, NodeSetConfig
-from feed_twin.ros.topics import SIM_NODE
 
 STATUS_ENABLED = (
     AxisFeedback.STATUS_READY_TO_SWITCH_ON

@@ -34,7 +34,7 @@ from std_msgs.msg import String
 
 from feed_twin.analysis.synthetic import Unmodelled
 from feed_twin.analysis.twin import ModelDoc
-from feed_twin.ros.cdr import FlatCodec
+from feed_twin.io.cdr import FlatCodec
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_OK,

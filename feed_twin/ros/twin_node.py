@@ -35,8 +35,8 @@ from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState, HealthStatu
 from sensor_msgs.msg import JointState
 
 from feed_twin.analysis.twin import ModelDoc, Twin
+from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.measured import load_column_map
-from feed_twin.ros.cdr import FlatCodec
 from feed_twin.ros.runtime import (
     DATA_QOS,
     EXIT_OK,

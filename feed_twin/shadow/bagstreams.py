@@ -9,7 +9,7 @@ machine's messages really arrived, and its stamp: `header.stamp` (the machine's 
 when the type has a header, else the log time.
 
 Decoding: flat types (AxisCommand, AxisFeedback, ...) with the node set's struct codec
-(feed_twin.ros.cdr), sensor_msgs/JointState with a small CDR reader here (both are about 100x
+(feed_twin.io.cdr), sensor_msgs/JointState with a small CDR reader here (both are about 100x
 faster than a generic decoder), anything else with the bag reader's generic decoder.
 """
 
@@ -23,8 +23,8 @@ import numpy as np
 from mcap.reader import make_reader
 
 from feed_twin.io.bag import BagReader, info
+from feed_twin.io.cdr import FlatCodec, NotFlatError
 from feed_twin.io.measured import ColumnMap, ColumnSpec, MeasuredDataError, _to_si
-from feed_twin.ros.cdr import FlatCodec, NotFlatError
 
 COMMAND_SIGNALS = ("pos_cmd_m", "vel_cmd_m_s")
 MEASURED_SIGNALS = ("pos_meas_m", "force_cmd_N", "torque_cmd_Nm", "current_q_A")

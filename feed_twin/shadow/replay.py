@@ -142,7 +142,7 @@ def write_comparison_bag(bag: str | Path, result: ReplayResult, out: Path, axis:
     from mcap.reader import make_reader
 
     from feed_twin.io.bag import BagWriter, info
-    from feed_twin.ros.cdr import FlatCodec
+    from feed_twin.io.cdr import FlatCodec
 
     ns = twin_namespace(result.streams["command"].topic)
     topics = {

@@ -138,7 +138,7 @@ def record_bag(
     (time [s], parameter, value) applied to the truth during the run. Writes the column map
     `<bag name>_map.yaml` next to the bag and returns its path."""
     from feed_twin.io.bag import BagWriter
-    from feed_twin.ros.cdr import FlatCodec
+    from feed_twin.io.cdr import FlatCodec
     from feed_twin.shadow.bagstreams import encode_joint_state
 
     path = Path(path)

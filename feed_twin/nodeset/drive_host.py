@@ -20,7 +20,7 @@ import numpy as np
 from feed_twin.control import signals as sig
 from feed_twin.control.cascade import disable, enable
 from feed_twin.control.transforms import clarke, park
-from feed_twin.ros.split import (
+from feed_twin.nodeset.split import (
     MODE_CST,
     NS_PER_S,
     ControllerCore,

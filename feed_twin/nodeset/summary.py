@@ -21,7 +21,7 @@ import numpy as np
 
 from feed_twin.io.bag import BagReader
 from feed_twin.io.dashboard import Dashboard
-from feed_twin.ros.topics import AxisTopics
+from feed_twin.nodeset.topics import AxisTopics
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -168,7 +168,7 @@ class LiveFeed:
     """
 
     def __init__(self, topics: AxisTopics, live_url: str, *, decimation: int = 10) -> None:
-        from feed_twin.ros.cdr import FlatCodec
+        from feed_twin.io.cdr import FlatCodec
 
         if decimation < 1:
             raise ValueError(f"decimation = {decimation!r}: must be >= 1")

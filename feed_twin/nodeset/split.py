@@ -35,7 +35,7 @@ from feed_twin.control import signals as sig
 from feed_twin.control.config import ControllerConfig
 from feed_twin.control.loops import PositionLoop, VelocityLoop, VelocitySetpoint
 from feed_twin.io.config import from_mapping, load_yaml, require_positive
-from feed_twin.ros.topics import AxisTopics
+from feed_twin.nodeset.topics import AxisTopics
 
 Boundary = Literal["torque", "velocity", "position"]
 # CiA 402 modes of operation, as in feed_twin_msgs/DriveCommand.
