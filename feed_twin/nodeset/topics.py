@@ -1,8 +1,8 @@
 """Names of the node set's topics, services and nodes, and the message type of each topic.
 
 Every axis lives under its own namespace `/<machine>/<axis>/`, so several axes and machines run
-side by side on one ROS graph. `/clock` is global, as ROS tools expect it. This module does not
-import rclpy: the runner and the recorder's type table use it too.
+side by side on one ROS graph. `/clock` is global, as ROS tools expect it. Plain Python (no ROS
+imports): the runner and the recorder's type table use it too.
 """
 
 from __future__ import annotations
