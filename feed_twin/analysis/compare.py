@@ -10,7 +10,9 @@ Alignment estimates two numbers:
 
 Metrics follow the issue's definitions: the following-error deviation `e_meas - e_sim` (with
 e = commanded - measured position, this equals `x_sim - x_meas`) as RMS and maximum, and the
-relative error `100 * ||y - y_sim|| / ||y||` in percent for position and effort.
+relative error `100 * ||y - y_sim|| / ||y||` in percent for position and effort, and, when the
+record has the current controller's q-axis voltage, the RMS of its residual (the channel in
+which an inverter dead time shows; analysis.effects).
 """
 
 from __future__ import annotations
@@ -117,6 +119,7 @@ class Metrics:
     effort_rel_err_pct: float | None  # [%] same for the drive effort, when measured
     effort_rms_N: float | None  # [N, N m or A] RMS of the effort residual
     samples: int
+    voltage_q_rms_V: float | None = None  # [V] RMS of the commanded q-voltage residual
 
     def as_dict(self) -> dict[str, float | int | None]:
         return asdict(self)
@@ -127,9 +130,15 @@ def compute_metrics(
     x_sim: np.ndarray,
     effort_meas: np.ndarray | None = None,
     effort_sim: np.ndarray | None = None,
+    voltage_meas: np.ndarray | None = None,
+    voltage_sim: np.ndarray | None = None,
 ) -> Metrics:
-    """Metrics between measured and simulated position (and effort) on a common time base."""
+    """Metrics between measured and simulated position (effort, q-voltage) on one time base."""
     dev = np.asarray(x_sim, dtype=float) - np.asarray(x_meas, dtype=float)
+    voltage_rms = None
+    if voltage_meas is not None and voltage_sim is not None:
+        du = np.asarray(voltage_meas, dtype=float) - np.asarray(voltage_sim, dtype=float)
+        voltage_rms = float(np.sqrt(np.mean(du**2)))
     effort_rel = effort_rms = None
     if effort_meas is not None and effort_sim is not None:
         effort_rel = relative_error_pct(effort_meas, effort_sim)
@@ -141,4 +150,5 @@ def compute_metrics(
         effort_rel_err_pct=effort_rel,
         effort_rms_N=effort_rms,
         samples=len(dev),
+        voltage_q_rms_V=voltage_rms,
     )

@@ -50,6 +50,8 @@ from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.io.measured import MeasuredRun
 
+VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
+
 Progress = Callable[[str], None]
 
 
@@ -111,7 +113,7 @@ def _loop_stiffness(twin: Twin, drive: Drive, out0: SimOutputs) -> float | None:
 
 
 def _unit(twin: Twin, cand: Candidate) -> str:
-    return twin.effort_unit if cand.effect.domain == "effort" else "m"
+    return {"effort": twin.effort_unit, "voltage": "V"}.get(cand.residual_domain, "m")
 
 
 def _noop(_: str) -> None:
@@ -128,8 +130,16 @@ def _residuals(run: MeasuredRun, out: SimOutputs, row: int = 0):
     return re, rp
 
 
+def _voltage_residual(run: MeasuredRun, out: SimOutputs, row: int = 0) -> np.ndarray | None:
+    """Measured minus twin q-voltage [V] of the current controller, when both have it."""
+    if VOLTAGE_Q not in run or out.voltage_q is None:
+        return None
+    return run[VOLTAGE_Q] - out.voltage_q[row]
+
+
 def _measured(run: MeasuredRun, out: SimOutputs, stride: int) -> Measured:
     re, rp = _residuals(run, out)
+    ru = _voltage_residual(run, out)
     name = run.effort_name
     return Measured(
         x_m=run["pos_meas_m"],
@@ -137,14 +147,22 @@ def _measured(run: MeasuredRun, out: SimOutputs, stride: int) -> Measured:
         scale_x=max(float(np.sqrt(np.mean(rp**2))), 1e-9),
         scale_effort=1.0 if re is None else max(float(np.sqrt(np.mean(re**2))), 1e-9),
         stride=stride,
+        voltage_q=None if ru is None else run[VOLTAGE_Q],
+        scale_voltage=1.0 if ru is None else max(float(np.sqrt(np.mean(ru**2))), 1e-6),
     )
 
 
 def _metrics(run: MeasuredRun, out: SimOutputs, row: int = 0) -> Metrics:
     name = run.effort_name
     effort_sim = None if out.effort is None or name is None else out.effort[row]
+    has_u = _voltage_residual(run, out, row) is not None
     return compute_metrics(
-        run["pos_meas_m"], out.x_m[row], None if name is None else run[name], effort_sim
+        run["pos_meas_m"],
+        out.x_m[row],
+        None if name is None else run[name],
+        effort_sim,
+        run[VOLTAGE_Q] if has_u else None,
+        out.voltage_q[row] if has_u and out.voltage_q is not None else None,
     )
 
 
@@ -218,6 +236,7 @@ def _grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitRes
         x_m=out.x_m[best : best + 1],
         effort=None if out.effort is None else out.effort[best : best + 1],
         ok=out.ok[best : best + 1],
+        voltage_q=None if out.voltage_q is None else out.voltage_q[best : best + 1],
     )
     return FitResult(
         values={param.name: float(edit.grid[best])},
@@ -305,6 +324,7 @@ def diagnose(
         lead_m=twin.lead_m,
         pole_pairs=twin.pole_pairs,
         travel_m=max(float(np.ptp(run["pos_meas_m"])), 1e-6),
+        current_q_A=run.signals.get("current_q_A"),
     )
     re0, rp0 = _residuals(run, out0)
     location = locate(
@@ -331,6 +351,7 @@ def diagnose(
             position_residual=rp,
             exclude=tuple(excluded),
             loop_stiffness=stiffness,
+            voltage_residual=_voltage_residual(run, state.outputs),
         )
         significant = [c for c in ranking if c.significant]
         if not significant:

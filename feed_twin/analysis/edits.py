@@ -337,6 +337,45 @@ def current_offset(doc: ModelDoc, cand: Candidate) -> Edit:
     return _edit(doc, own, report, interacts=False)
 
 
+def dead_time(doc: ModelDoc, cand: Candidate) -> Edit:
+    """The Inverter's dead time t_dead is fitted (the controller's compensation stays as it is).
+
+    Averaged inverter: the fitted engine slot is dead_fraction = t_dead f_pwm (stored as t_dead).
+    Ranked on the q-voltage residual, the weight c of the signature is the extra voltage the
+    controller must command, u_dc Delta t_dead f_pwm (analysis.effects), so the guess is
+    dead_fraction + c / u_dc; ranked on the effort (no voltage recorded) the weight is in amperes
+    and says nothing about the size, so the fit starts at the nominal value. The device drop u_f
+    stays nominal: it has the same sgn(i) shape and cannot be told apart from the dead time.
+    """
+    inverters = doc.of_type("Inverter")
+    if not inverters:
+        raise LookupError("the model has no Inverter whose dead time could be fitted")
+    name = inverters[0]
+    params = doc.component(name)["params"]
+    f_pwm = float(params["f_pwm"])
+    switching = params.get("model") == "switching"
+    slot = f"{name}.t_dead" if switching else f"{name}.dead_fraction"
+    per_fraction = 1.0 / f_pwm if switching else 1.0  # slot units per unit of dead fraction
+    fraction = doc.get(f"{name}.t_dead") * f_pwm
+    u_dc = doc.bus_voltage()
+    if cand.residual_domain == "voltage" and u_dc:
+        fraction = fraction + cand.coefficients.get("sgn_i_q", 0.0) / u_dc
+    # the Inverter accepts t_dead up to 10 % of the PWM period
+    fraction = min(max(fraction, 1e-4), 0.09)
+    doc = doc.set(slot, fraction * per_fraction)
+    own = [
+        FreeParameter(
+            name=slot,
+            initial=fraction * per_fraction,
+            scale=fraction * per_fraction,
+            lower=0.0,
+            upper=0.099 * per_fraction,
+        )
+    ]
+    to_seconds = 1.0 if switching else 1.0 / f_pwm
+    return _edit(doc, own, {"t_dead_s": lambda v: v[slot] * to_seconds}, interacts=False)
+
+
 MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
 
 
@@ -369,4 +408,5 @@ EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
     "backlash": backlash,
     "position_dependent_stiffness": position_dependent_stiffness,
     "current_offset": current_offset,
+    "dead_time": dead_time,
 }

@@ -20,7 +20,23 @@ Domains: force-like effects act on the drive effort; position-like effects (sens
 error, backlash with a linear scale, thermal growth) act on the measured position. A missing
 force also moves the following error through the closed loop, so before position-domain
 effects are ranked, the part of the position residual that the effort residual explains
-(through a low-pass, the loop's disturbance compliance) is removed.
+(through a low-pass, the loop's disturbance compliance) is removed. The inverter's dead time
+acts on the voltage: it is ranked on the q-axis voltage the current controller commands, when
+the record has it, and falls back to the effort otherwise (see below).
+
+Dead time. A two-level inverter leg with interlock time T_d at PWM period T_s loses about
+u_dc T_d / T_s of its pole voltage while its phase current i_x flows out of the leg and gains
+it while the current flows in: an error -u_dc (T_d/T_s) sgn(i_x) per phase (the device drop
+u_f sgn(i_x) has the same shape and is not told apart from it; the feed_twin Inverter smooths
+sgn over the PWM current ripple i_reg). The Park transform of these three square waves at
+i_d ~ 0 is a voltage along the current vector of mean (4/pi) u_dc T_d/T_s sgn(i_q) with a ripple
+at six times the electrical frequency. A drive's PI current loop (and its dead-time
+compensation, tuned for the nominal T_d) supplies the missing voltage within a few current-loop
+periods, so the current, and through it the effort and the following error, keep only a small
+trace; the voltage the controller commands carries the whole error. The signature is that
+Park transform computed from the measured q-current at the electrical angle p 2 pi x / lead (x
+the table position, direct drive), over a grid of sign-smoothing currents i_reg; its weight is
+u_dc Delta T_d / T_s, the extra volts the controller must command.
 """
 
 from __future__ import annotations
@@ -39,8 +55,11 @@ MIN_EXPLAINED = 0.05  # an effect must explain at least 5 % of the residual's en
 STRIBECK_SPEEDS_M_S = (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03)
 COGGING_ORDERS = tuple(range(1, 25))  # harmonics per motor revolution searched for cogging
 SMOOTH_VELOCITY_S = 0.005  # [s] smoothing window for velocity and acceleration estimates
+# [A] sign-smoothing currents searched for the dead time (PWM current ripple of small to large
+# drives): below i_reg the inverter's voltage error grows linearly with the phase current
+DEAD_TIME_CURRENT_SCALES_A = (0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0)
 
-Domain = Literal["effort", "position"]
+Domain = Literal["effort", "position", "voltage"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -55,6 +74,7 @@ class Motion:
     lead_m: float | None  # [m/rev] screw lead (motor angle = 2 pi x / lead for a direct drive)
     pole_pairs: int | None
     travel_m: float  # [m] stroke of the axis (for stiffness that depends on position)
+    current_q_A: np.ndarray | None = None  # measured q-current (or its command) [A]
 
     @property
     def speed_eps(self) -> float:
@@ -70,6 +90,7 @@ def motion_from_position(
     lead_m: float | None,
     pole_pairs: int | None,
     travel_m: float,
+    current_q_A: np.ndarray | None = None,
 ) -> Motion:
     """Velocity and acceleration from a measured position by Savitzky-Golay differentiation.
 
@@ -91,6 +112,7 @@ def motion_from_position(
         lead_m=lead_m,
         pole_pairs=pole_pairs,
         travel_m=travel_m,
+        current_q_A=None if current_q_A is None else np.asarray(current_q_A, dtype=float),
     )
 
 
@@ -121,6 +143,9 @@ class Effect:
     words: str  # what a machine-tool engineer calls it
     needs: tuple[str, ...] = ()  # Motion fields that must be known: lead_m, pole_pairs, ...
     signature: Signature | None = field(default=None, repr=False)
+    # the domain ranked when the record lacks this effect's own residual (dead time without
+    # voltages: the effort, where the current loop leaves only a trace of it)
+    fallback: Domain | None = None
     # variants over a nonlinear parameter (Stribeck speed, cogging order); the best one is used
     choices: Callable[[Motion], list[tuple[str, Signature]]] | None = field(
         default=None, repr=False
@@ -166,6 +191,40 @@ def _electrical(m: Motion) -> dict[str, np.ndarray]:
     assert m.pole_pairs is not None
     theta = m.pole_pairs * _motor_angle(m)
     return {"sin": np.sin(theta), "cos": np.cos(theta)}
+
+
+def dead_time_voltage(
+    i_q_A: np.ndarray, theta_e_rad: np.ndarray, i_reg_A: float
+) -> dict[str, np.ndarray]:
+    """d/q components of the three phases' smooth sgn(i_x / i_reg) at i_d = 0 (see module doc).
+
+    Amplitude-invariant Clarke and Park, as the drive's controller uses them: for |i_q| >> i_reg
+    the q component averages (4/pi) sgn(i_q) over an electrical revolution and ripples at six
+    times the electrical frequency.
+    """
+    i_alpha = -np.sin(theta_e_rad) * i_q_A
+    i_beta = np.cos(theta_e_rad) * i_q_A
+    half = 0.5 * math.sqrt(3.0) * i_beta
+    phases = (i_alpha, -0.5 * i_alpha + half, -0.5 * i_alpha - half)
+    s_a, s_b, s_c = (x / np.sqrt(i_reg_A * i_reg_A + x * x) for x in phases)
+    s_alpha = (2.0 / 3.0) * (s_a - 0.5 * (s_b + s_c))
+    s_beta = (s_b - s_c) / math.sqrt(3.0)
+    return {
+        "d": np.cos(theta_e_rad) * s_alpha + np.sin(theta_e_rad) * s_beta,
+        "q": -np.sin(theta_e_rad) * s_alpha + np.cos(theta_e_rad) * s_beta,
+    }
+
+
+def _dead_time_choices(m: Motion) -> list[tuple[str, Signature]]:
+    def make(i_reg: float) -> Signature:
+        def signature(mm: Motion) -> dict[str, np.ndarray]:
+            assert mm.current_q_A is not None and mm.pole_pairs is not None
+            theta_e = mm.pole_pairs * _motor_angle(mm)
+            return {"sgn_i_q": dead_time_voltage(mm.current_q_A, theta_e, i_reg)["q"]}
+
+        return signature
+
+    return [(f"i_reg = {i:g} A", make(i)) for i in DEAD_TIME_CURRENT_SCALES_A]
 
 
 def _stiffness(m: Motion) -> dict[str, np.ndarray]:
@@ -276,12 +335,14 @@ LIBRARY: tuple[Effect, ...] = (
     ),
     Effect(
         name="dead_time",
-        domain="effort",
-        component="Inverter.dead_time",
-        words="an effort error that flips with the sign of the current: inverter dead time "
-        "eats part of the voltage at every current reversal",
-        needs=("effort_sim",),
-        signature=lambda m: {"sign_effort": np.tanh(m.effort_sim / (0.02 * np.ptp(m.effort_sim)))},
+        domain="voltage",
+        fallback="effort",
+        component="Inverter.t_dead",
+        words="the current controller commands a voltage that flips with the sign of the "
+        "current and ripples six times per electrical revolution: the inverter's dead time "
+        "eats part of every phase voltage",
+        needs=("current_q_A", "lead_m", "pole_pairs"),
+        choices=_dead_time_choices,
     ),
     Effect(
         name="backlash",
@@ -344,10 +405,15 @@ class Candidate:
     n_eff: float  # effective number of independent samples behind the test
     coefficients: dict[str, float]  # regressor name -> least-squares coefficient
     significant: bool
+    domain: str = ""  # the residual ranked ("": the effect's own domain)
 
     @property
     def name(self) -> str:
         return self.effect.name
+
+    @property
+    def residual_domain(self) -> str:
+        return self.domain or self.effect.domain
 
 
 def _effective_samples(e: np.ndarray) -> float:
@@ -393,8 +459,17 @@ def test_regressors(
 test_regressors.__test__ = False  # a library function, not a pytest test
 
 
+def domain_of(effect: Effect, domains: set[str]) -> str | None:
+    """The residual an effect is ranked on: its own domain, else its fallback, else None."""
+    if effect.domain in domains:
+        return effect.domain
+    if effect.fallback is not None and effect.fallback in domains:
+        return effect.fallback
+    return None
+
+
 def available(effect: Effect, motion: Motion, domains: set[str]) -> bool:
-    if effect.domain not in domains:
+    if domain_of(effect, domains) is None:
         return False
     return all(getattr(motion, need) is not None for need in effect.needs)
 
@@ -406,11 +481,13 @@ def rank(
     position_residual: np.ndarray | None,
     exclude: tuple[str, ...] = (),
     loop_stiffness: float | None = None,
+    voltage_residual: np.ndarray | None = None,
 ) -> list[Candidate]:
     """Rank the library's effects on the residuals, most explaining first.
 
     Effort-domain effects are ranked on the effort residual, position-domain effects on the
-    position residual with the effort-driven part removed (see the module docstring). A record
+    position residual with the effort-driven part removed (see the module docstring),
+    voltage-domain effects on the q-voltage residual [V] (or their fallback domain). A record
     without effort (a scope that logged positions only) ranks the effort-domain effects on
     `loop_stiffness * position residual` [N/m * m]: a stiff position loop turns a missing force
     d into a following-error change d / K, so that is the force the twin lacks.
@@ -434,12 +511,17 @@ def rank(
             _, _, _, _, coef = test_regressors(rp, coupled, offset)
             rp = rp - coef["effort_residual"] * coupled["effort_residual"]
         residual_of["position"] = rp
-    best_of: list[tuple[Effect, str, dict[str, np.ndarray], tuple, int]] = []
+    if voltage_residual is not None:
+        domains.add("voltage")
+        residual_of["voltage"] = np.asarray(voltage_residual, dtype=float)
+    best_of: list[tuple[Effect, str, dict[str, np.ndarray], tuple, int, str]] = []
     for effect in LIBRARY:
         if effect.name in exclude or not available(effect, motion, domains):
             continue
-        r = residual_of[effect.domain]
-        nuisance = offset if effect.domain == "position" else None
+        domain = domain_of(effect, domains)
+        assert domain is not None
+        r = residual_of[domain]
+        nuisance = offset if domain == "position" else None
         variants = effect.variants(motion)
         best = None
         for label, sig in variants:
@@ -448,22 +530,22 @@ def rank(
             if best is None or result[0] > best[2][0]:
                 best = (label, regs, result)
         assert best is not None
-        best_of.append((effect, best[0], best[1], best[2], len(variants)))
+        best_of.append((effect, best[0], best[1], best[2], len(variants), domain))
     noise = {
         d: _noise_level(
             residual_of[d],
-            [b for b in best_of if b[0].domain == d],
+            [b for b in best_of if b[5] == d],
             offset if d == "position" else None,
         )
         for d in domains
     }
     out: list[Candidate] = []
-    for effect, label, regs, result, n_variants in best_of:
+    for effect, label, regs, result, n_variants, domain in best_of:
         explained, _, _, _, coef = result
-        r = residual_of[effect.domain]
-        if effect.domain == "position":
+        r = residual_of[domain]
+        if domain == "position":
             r = r - r.mean()
-        rss_full, n_eff, p_full = noise[effect.domain]
+        rss_full, n_eff, p_full = noise[domain]
         p = len(regs)
         ess = explained * float(np.dot(r, r))
         # see the module docstring: the noise level and its effective sample count come from
@@ -484,6 +566,7 @@ def rank(
                 n_eff=n_eff,
                 coefficients=coef,
                 significant=p_adj < ALPHA and explained >= MIN_EXPLAINED,
+                domain=domain,
             )
         )
     out.sort(key=lambda c: (c.significant, c.explained_fraction), reverse=True)
@@ -519,7 +602,7 @@ def evidence(candidate: Candidate, unit: str) -> str:
     verdict = "significant" if c.significant else "not significant"
     return (
         f"{c.effect.words}{variant}: its signature explains "
-        f"{100 * c.explained_fraction:.1f} % of the {c.effect.domain} residual "
+        f"{100 * c.explained_fraction:.1f} % of the {c.residual_domain} residual "
         f"(F = {c.f_statistic:.3g} on about {c.n_eff:.0f} independent samples, "
         f"p = {c.p_value:.2g}, {verdict}); least-squares weights {coefs} [{unit}]"
     )

@@ -5,12 +5,15 @@ command and known disturbances,
 
     J(theta) = sum_k [(e_meas(k) - e_sim(k; theta)) / s_e]^2
                + [(x_meas(k) - x_sim(k; theta)) / s_x]^2
+               + [(u_meas(k) - u_sim(k; theta)) / s_u]^2
 
-over a decimated time base, with e the drive effort and x the measured position. s_e and s_x
-normalise the two channels by the nominal model's residual RMS, so each starts with the same
-weight. scipy's trust-region reflective solver minimises it; its Jacobian comes from forward
-differences evaluated as ONE batch of P perturbed parameter sets, which is what the engine's
-batch mode is for. A step whose simulation diverges returns a large finite residual, so the
+over a decimated time base, with e the drive effort, x the measured position and u the q-axis
+voltage the current controller commands (only when the record carries it: the one channel in
+which an inverter's dead time shows, see analysis.effects). s_e, s_x and s_u normalise the
+channels by the nominal model's residual RMS, so each starts with the same weight. scipy's
+trust-region reflective solver minimises it; its Jacobian comes from forward differences
+evaluated as ONE batch of P perturbed parameter sets, which is what the engine's batch mode is
+for. A step whose simulation diverges returns a large finite residual, so the
 solver backs off instead of failing.
 """
 
@@ -32,6 +35,7 @@ class SimOutputs:
     x_m: np.ndarray  # (N, T) position as the measurement system reports it
     effort: np.ndarray | None  # (N, T) drive effort in the measured effort's unit, or None
     ok: np.ndarray  # (N,) False where the simulation diverged
+    voltage_q: np.ndarray | None = None  # (N, T) commanded q-axis voltage [V], or None
 
 
 BatchSimulator = Callable[[np.ndarray], SimOutputs]  # params (N, P) -> outputs
@@ -84,20 +88,33 @@ class Measured:
     scale_x: float  # [m] normalisation of the position channel
     scale_effort: float  # normalisation of the effort channel
     stride: int = 1  # use every stride-th sample
+    voltage_q: np.ndarray | None = None  # [V] commanded q-axis voltage, when recorded
+    scale_voltage: float = 1.0  # [V] normalisation of the voltage channel
 
 
-def residual_vector(meas: Measured, x_sim: np.ndarray, effort_sim: np.ndarray | None) -> np.ndarray:
+def residual_vector(
+    meas: Measured,
+    x_sim: np.ndarray,
+    effort_sim: np.ndarray | None,
+    voltage_sim: np.ndarray | None = None,
+) -> np.ndarray:
     s = slice(None, None, meas.stride)
     parts = [(meas.x_m[s] - x_sim[s]) / meas.scale_x]
     if meas.effort is not None and effort_sim is not None:
         parts.append((meas.effort[s] - effort_sim[s]) / meas.scale_effort)
+    if meas.voltage_q is not None and voltage_sim is not None:
+        parts.append((meas.voltage_q[s] - voltage_sim[s]) / meas.scale_voltage)
     return np.concatenate(parts)
+
+
+def _row(signal: np.ndarray | None, row: int) -> np.ndarray | None:
+    return None if signal is None else signal[row]
 
 
 def cost_of(meas: Measured, out: SimOutputs, row: int = 0) -> float:
     if not out.ok[row]:
         return np.inf
-    r = residual_vector(meas, out.x_m[row], None if out.effort is None else out.effort[row])
+    r = residual_vector(meas, out.x_m[row], _row(out.effort, row), _row(out.voltage_q, row))
     return float(np.dot(r, r))
 
 
@@ -144,14 +161,13 @@ def fit(
         rows = []
         for i in range(n):
             if out.ok[i]:
-                e = None if out.effort is None else out.effort[i]
-                r = residual_vector(meas, out.x_m[i], e)
+                r = residual_vector(meas, out.x_m[i], _row(out.effort, i), _row(out.voltage_q, i))
                 rows.append(np.where(np.isfinite(r), r, DIVERGED_RESIDUAL))
             else:
                 rows.append(None)
         length = next((len(r) for r in rows if r is not None), None)
         if length is None:
-            length = len(residual_vector(meas, meas.x_m, meas.effort))
+            length = len(residual_vector(meas, meas.x_m, meas.effort, meas.voltage_q))
         return [np.full(length, DIVERGED_RESIDUAL) if r is None else r for r in rows]
 
     def fun(z: np.ndarray) -> np.ndarray:

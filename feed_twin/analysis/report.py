@@ -109,7 +109,8 @@ def _fmt(value: float | None, scale: float = 1.0, digits: int = 4) -> str:
 def _metrics_rows(label: str, m: Metrics) -> str:
     return (
         f"| {label} | {_fmt(m.fe_dev_rms_m, 1e6)} | {_fmt(m.fe_dev_max_m, 1e6)} | "
-        f"{_fmt(m.pos_rel_err_pct)} | {_fmt(m.effort_rel_err_pct)} |"
+        f"{_fmt(m.pos_rel_err_pct)} | {_fmt(m.effort_rel_err_pct)} | "
+        f"{_fmt(m.voltage_q_rms_V)} |"
     )
 
 
@@ -146,8 +147,8 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         "## Before and after",
         "",
         "| model | FE deviation RMS [um] | FE deviation max [um] | position rel. err [%] "
-        "| effort rel. err [%] |",
-        "|---|---|---|---|---|",
+        "| effort rel. err [%] | u_q residual RMS [V] |",
+        "|---|---|---|---|---|---|",
         _metrics_rows("nominal", d.before),
         _metrics_rows("augmented", d.after),
     ]
@@ -157,8 +158,8 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
             f"## Validation on `{d.validation['measured']}`",
             "",
             "| model | FE deviation RMS [um] | FE deviation max [um] | position rel. err [%] "
-            "| effort rel. err [%] |",
-            "|---|---|---|---|---|",
+            "| effort rel. err [%] | u_q residual RMS [V] |",
+            "|---|---|---|---|---|---|",
             _metrics_rows("nominal", Metrics(**d.validation["before"])),
             _metrics_rows("augmented", Metrics(**d.validation["after"])),
         ]

@@ -7,6 +7,8 @@ A truth model is the nominal model document plus
 - the real sensor: the encoder with its true count (quantisation), not the fitting twin's
   smooth one,
 - sensor noise on the recorded effort (a measured current is never clean).
+A PMSM axis's record also carries the q-axis voltage its current controller commanded (as a
+drive scope records it, with the loop's response to the truth's current-sensor noise in it).
 It runs on the same engine as the twin (no second copy of the physics), driven by a G-code
 program planned by feed_twin.gcode, and is written as a CSV in a machine's own units (ms, mm,
 volts) with a column map, exactly as a user would bring real data. The workflow is never told
@@ -78,7 +80,7 @@ position_sensor: {sensor}
 signals:
   pos_cmd_m: {{column: x_cmd_mm, unit: mm}}
   pos_meas_m: {{column: x_act_mm, unit: mm}}
-  {effort}
+  {effort}{voltage}
 plausibility: {{travel_m: 1.0, max_speed_m_s: 0.5}}
 """
 EFFORT_COLUMNS = {
@@ -86,6 +88,7 @@ EFFORT_COLUMNS = {
     "force_cmd_N": ("u_drive_V", "force_cmd_N: {{column: u_drive_V, unit: V, gain: {gain!r}}}"),
     "current_q_A": ("i_q_A", "current_q_A: {{column: i_q_A, unit: A}}"),
 }
+VOLTAGE_COLUMN = "u_q_V"  # the commanded q-axis voltage of a PMSM drive [V]
 
 
 def _friction(doc: ModelDoc) -> tuple[ModelDoc, str]:
@@ -169,6 +172,11 @@ def _current_offset(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     return doc
 
 
+def _dead_time(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
+    # the controller's dead-time compensation stays tuned for the nominal dead time
+    return doc.set(f"{doc.of_type('Inverter')[0]}.t_dead", p["t_dead_s"])
+
+
 HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "coulomb_friction": _coulomb,
     "viscous_friction": _viscous,
@@ -183,6 +191,7 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "backlash": lambda doc, p: doc.set(f"{doc.of_type('Backlash')[0]}.gap", p["gap_m"]),
     "position_dependent_stiffness": _stiffness,
     "current_offset": _current_offset,
+    "dead_time": _dead_time,
     "cogging_torque": lambda doc, p: doc.with_cogging(
         int(p["order"]), p["amplitude_Nm"], p["phase_rad"]
     )[0],
@@ -273,12 +282,15 @@ def generate(
     effort = out.effort[0] + rng.normal(0.0, std, n)
     column = EFFORT_COLUMNS[twin.effort_name][0]
     gain = 1.0 if current else (nominal.reference_gain or 1.0)
-    return {
+    columns = {
         "time_ms": t * 1e3,
         "x_cmd_mm": x_cmd * 1e3,
         "x_act_mm": out.x_m[0] * 1e3,
         column: effort / gain,
     }
+    if out.voltage_q is not None:
+        columns[VOLTAGE_COLUMN] = out.voltage_q[0]
+    return columns
 
 
 def write_csv(path: str | Path, columns: Mapping[str, np.ndarray], nominal: ModelDoc) -> Path:
@@ -291,5 +303,10 @@ def write_csv(path: str | Path, columns: Mapping[str, np.ndarray], nominal: Mode
     effort = next(k for k, (col, _) in EFFORT_COLUMNS.items() if col in columns)
     entry = EFFORT_COLUMNS[effort][1].format(gain=nominal.reference_gain or 1.0)
     sensor = "linear_scale" if nominal.of_type("LinearScale") else "motor_encoder"
-    map_path.write_text(MAP.format(sensor=sensor, effort=entry))
+    voltage = (
+        f"\n  voltage_q_V: {{column: {VOLTAGE_COLUMN}, unit: V}}"
+        if VOLTAGE_COLUMN in columns
+        else ""
+    )
+    map_path.write_text(MAP.format(sensor=sensor, effort=entry, voltage=voltage))
     return map_path

@@ -8,8 +8,9 @@ return new documents; the nominal file is never touched.
 `Twin` compiles a document once (H3's assembler and engine, H4's cascade) and simulates N
 parameter sets at once with `run_batch`, driven by a measured run's command and known
 disturbances. What it returns is what the measurement system of the real axis reports: the
-position as the controller's feedback sensor sees it and the drive effort in the measured
-effort's SI unit.
+position as the controller's feedback sensor sees it, the drive effort in the measured
+effort's SI unit and, for a PMSM axis, the q-axis voltage the current controller commands
+(`out.u_q_ref_V`, before the dead-time compensation: what a drive scope records as u_q).
 
 Why the diagnosis twin measures without quantisation: with the encoder's real count the
 simulated position, and through the loop the effort, are piecewise constant in the parameters,
@@ -40,6 +41,9 @@ _COGGING_SLOT = re.compile(r"^cog(\d+)_(order|amplitude|phase)$")  # Pmsm slots 
 # an axial compliance's engine slot EA is stored in the document as E with the root diameter
 # fixed: fitting EA (one number) is what the position-dependent stiffness identifies
 _AXIAL_RIGIDITY = "EA"
+# an averaged Inverter's engine slot dead_fraction = t_dead * f_pwm (the duty the dead time
+# removes) is stored in the document as t_dead: fitting it moves the averaged model's voltage
+_DEAD_FRACTION = "dead_fraction"
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
 FIXED_SECTIONS = ("plant", "controller")
 
@@ -123,6 +127,8 @@ class ModelDoc:
             return int(harmonic.group(1)) < len(params.get("cogging", []))
         if field_name == _AXIAL_RIGIDITY:
             return "E" in params and "d_root" in params
+        if field_name == _DEAD_FRACTION:
+            return "t_dead" in params and "f_pwm" in params
         return field_name in params
 
     def get(self, slot: str) -> float:
@@ -135,6 +141,8 @@ class ModelDoc:
             return float(params.get("cogging", [])[n][key])
         if field_name == _AXIAL_RIGIDITY and "E" in params and "d_root" in params:
             return float(params["E"]) * math.pi * float(params["d_root"]) ** 2 / 4.0
+        if field_name == _DEAD_FRACTION and "t_dead" in params and "f_pwm" in params:
+            return float(params["t_dead"]) * float(params["f_pwm"])
         if field_name not in params:
             pair = (f"{field_name}_pos", f"{field_name}_neg")
             if all(p in params for p in pair):
@@ -167,6 +175,9 @@ class ModelDoc:
                 continue
             if field_name == _AXIAL_RIGIDITY and "E" in params and "d_root" in params:
                 params["E"] = float(value) / (math.pi * float(params["d_root"]) ** 2 / 4.0)
+                continue
+            if field_name == _DEAD_FRACTION and "t_dead" in params and "f_pwm" in params:
+                params["t_dead"] = float(value) / float(params["f_pwm"])
                 continue
             old = params.get(field_name)
             # whole-number fields (counts, delays in ticks) stay whole numbers in the YAML
@@ -242,6 +253,11 @@ class ModelDoc:
             {"order": int(order), "amplitude": float(amplitude), "phase": float(phase)}
         )
         return new, f"{motors[0]}.cog{len(harmonics) - 1}_"
+
+    def bus_voltage(self) -> float | None:
+        """No-load DC-bus voltage u_0 [V] of the (first) DcBus, None without one."""
+        buses = self.of_type("DcBus")
+        return float(self.component(buses[0])["params"]["u_0"]) if buses else None
 
     def torque_constant(self) -> float | None:
         """K_t = 1.5 p psi_pm [N m/A] of the first Pmsm (amplitude-invariant dq)."""
@@ -320,6 +336,7 @@ class Twin:
     pole_pairs: int | None
     effort_name: str
     effort_unit: str
+    has_voltage: bool = False  # the controller has a current loop whose u_q is recorded
     _cache: dict = field(default_factory=dict)
 
     @classmethod
@@ -344,6 +361,7 @@ class Twin:
                 nominal[plant.param_index[f"{name}.step"]] = SMOOTH_SENSOR_STEP
                 nominal[plant.param_index[f"{name}.noise_std"]] = 0.0
         kinds = {e["type"] for e in doc.data["plant"]["components"]}
+        has_voltage = "Pmsm" in kinds
         if "Pmsm" in kinds or "DcMotor" in kinds:
             effort_name, unit = "current_q_A", "A"
         else:
@@ -359,7 +377,7 @@ class Twin:
             substeps=nsub,
             controller=controller,
             params=nominal,
-            record=_recorded(plant),
+            record=_recorded(has_voltage),
         )
         index = {name: (i,) for i, name in enumerate(plant.param_names)}
         for name, members in doc.ties:
@@ -381,6 +399,7 @@ class Twin:
             pole_pairs=pole_pairs,
             effort_name=effort_name,
             effort_unit=unit,
+            has_voltage=has_voltage,
         )
 
     @property
@@ -447,14 +466,17 @@ class Twin:
         T = len(drive.t_s)
         x = np.full((len(P), T), np.nan)
         effort = np.full((len(P), T), np.nan)
+        u_q = np.full((len(P), T), np.nan) if self.has_voltage else None
         if len(rows):
             x0 = self._x0(drive, P[rows[0]])
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0)
             pos, eff = self._measured_signals(res, dec)
             x[rows] = pos[:, :T]
             effort[rows] = eff[:, :T]
+            if u_q is not None:
+                u_q[rows] = res["out.u_q_ref_V"][:, ::dec][:, :T]
             ok[rows] = ~res.diverged
-        return SimOutputs(x_m=x, effort=effort, ok=ok)
+        return SimOutputs(x_m=x, effort=effort, ok=ok, voltage_q=u_q)
 
     def _measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:
         return self.measured_signals(res, dec)
@@ -483,9 +505,9 @@ class Twin:
         return float(lead)
 
 
-def _recorded(plant: Any) -> list[str]:
+def _recorded(has_voltage: bool) -> list[str]:
     names = ["meas.theta_enc_rad", "meas.x_scale_m", "out.effort_cmd", "out.i_q_ref_A"]
-    return names
+    return names + (["out.u_q_ref_V"] if has_voltage else [])
 
 
 def _substeps(plant: Any, p: np.ndarray, h: float) -> int:

@@ -4,7 +4,11 @@ A measured file (CSV, or a rosbag2 recording when `feed_twin.io.bag` is availabl
 own column names and units. A small YAML column map ties them to the canonical signals
 
     t_s, pos_cmd_m, vel_cmd_m_s, pos_meas_m, vel_meas_m_s, force_cmd_N, torque_cmd_Nm,
-    current_q_A, current_d_A, disturbance_<what>_<N|Nm|A>
+    current_q_A, current_d_A, voltage_d_V, voltage_q_V, disturbance_<what>_<N|Nm|A>
+
+(`voltage_d_V`/`voltage_q_V`: the d/q voltages the drive's current controller commands, as
+drive scopes record them; a column in V mapped to an effort needs the drive gain, one mapped to
+a voltage does not)
 
 and every unit conversion (mm, mm/min, degrees, encoder counts, volts with a drive gain) happens
 once, here, at the edge. Everything downstream works in SI.
@@ -96,9 +100,12 @@ _CANONICAL_DIMENSION: dict[str, str] = {
     "torque_cmd_Nm": "torque",
     "current_q_A": "current",
     "current_d_A": "current",
+    "voltage_d_V": "voltage",
+    "voltage_q_V": "voltage",
 }
 _DISTURBANCE_SUFFIX = {"_N": "force", "_Nm": "torque", "_A": "current"}
 EFFORT_SIGNALS = ("force_cmd_N", "torque_cmd_Nm", "current_q_A")
+VOLTAGE_SIGNALS = ("voltage_d_V", "voltage_q_V")  # the current controller's voltage commands
 
 
 class MeasuredDataError(ValueError):
@@ -125,7 +132,8 @@ class ColumnSpec:
 
     column: str  # the file's own column name (CSV header) or topic field path (bag)
     unit: str  # one of UNITS
-    gain: float | None = None  # [target SI unit per column unit]; required for V, else a scale
+    # [target SI unit per column unit]; required for V mapped to an effort, else a scale
+    gain: float | None = None
     optional: bool = False  # a missing column is skipped instead of an error
 
     def __post_init__(self) -> None:
@@ -133,10 +141,6 @@ class ColumnSpec:
             raise ValueError(f"unit = {self.unit!r}: must be one of {', '.join(UNITS)}")
         if self.gain is not None:
             require_positive("gain", self.gain)
-        if self.unit == "V" and self.gain is None:
-            raise ValueError(
-                "gain = None: a column in V needs the drive gain (e.g. N/V) to become SI"
-            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -193,7 +197,14 @@ class ColumnMap:
 def _check_convertible(name: str, spec: ColumnSpec, conv: Conversion) -> None:
     target = canonical_dimension(name)
     dim = _UNITS[spec.unit][0]
-    if dim == target or (dim == "voltage" and target in ("force", "torque", "current")):
+    if dim == target:
+        return
+    if dim == "voltage" and target in ("force", "torque", "current"):
+        if spec.gain is None:
+            raise ValueError(
+                f"signals.{name}.gain = None: a column in V needs the drive gain (e.g. N/V) "
+                f"to give {name}"
+            )
         return
     if dim == "angle" and target == "length" or dim == "angular_velocity" and target == "velocity":
         if conv.lead_m is None:
