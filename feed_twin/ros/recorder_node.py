@@ -129,8 +129,10 @@ class RecorderNode(FeedTwinNode):
             if not publishers:
                 continue
             offered = publishers[0].qos_profile
+            # discovery does not carry the writer's history depth (it reads 0): a reader as
+            # deep as the data topics', or a burst (the twin's output) overflows it and is lost
             qos = QoSProfile(
-                depth=max(10, int(offered.depth)),
+                depth=max(DATA_QOS.depth, int(offered.depth)),
                 reliability=offered.reliability,
                 durability=offered.durability,
             )
