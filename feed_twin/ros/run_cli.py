@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import signal
 import subprocess
@@ -31,8 +32,12 @@ NODE_MODULES = {
     "controller": "feed_twin.ros.controller_node",
     "sim": "feed_twin.ros.sim_node",
     "gcode": "feed_twin.ros.gcode_node",
+    "twin": "feed_twin.ros.twin_node",
+    "standin": "feed_twin.ros.standin_node",
 }
 ROLES = ("recorder", "controller", "sim", "gcode")
+# --shadow: the stand-in plays the real machine (drive and axis), the twin shadows it
+SHADOW_ROLES = ("recorder", "twin", "standin", "gcode")
 STOP_GRACE_S = 10.0  # [s] for nodes to finish after SIGTERM
 PEER_NOTICE_S = 5.0  # [s] for nodes to notice a lost peer (0.9 s) and finish before SIGTERM
 
@@ -53,6 +58,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--startup-timeout", type=float, default=120.0)
     parser.add_argument(
+        "--shadow",
+        action="store_true",
+        help="the stand-in machine follows the program and the shadow twin runs beside it "
+        "(the config's shadow: section)",
+    )
+    parser.add_argument(
         "--no-gcode",
         action="store_true",
         help="start no G-code node: the command stream comes from outside (a real NC)",
@@ -64,6 +75,7 @@ class Outputs:
     bag: Path
     rrd: Path
     logs: Path
+    map: Path  # --shadow: the column map of the machine's topics in the bag
 
 
 def _outputs(args: argparse.Namespace) -> Outputs:
@@ -71,7 +83,12 @@ def _outputs(args: argparse.Namespace) -> Outputs:
     name = args.name or f"{stem}_{time.strftime('%Y%m%d_%H%M%S')}"
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
-    return Outputs(bag=out / name, rrd=out / f"{name}.rrd", logs=out / f"{name}.logs")
+    return Outputs(
+        bag=out / name,
+        rrd=out / f"{name}.rrd",
+        logs=out / f"{name}.logs",
+        map=out / f"{name}_map.yaml",
+    )
 
 
 def _check_inputs(args: argparse.Namespace):
@@ -90,11 +107,42 @@ def _check_inputs(args: argparse.Namespace):
         )
     if args.program is not None:
         validate_program(args.program, nc)
+    if args.shadow:
+        from feed_twin.shadow.config import load_shadow_config
+
+        shadow = load_shadow_config(args.config)
+        if abs(shadow.sample_period_s - nc.interpolation_period_s) > 1e-12:
+            raise ConfigError(
+                f"{args.config}: shadow.sample_period_s = {shadow.sample_period_s!r}: must equal "
+                f"nc.interpolation_period_s = {nc.interpolation_period_s!r} (the twin shadows "
+                "the NC's command stream)"
+            )
     return ros, nc
 
 
 def _roles(args: argparse.Namespace) -> tuple[str, ...]:
-    return tuple(r for r in ROLES if not (r == "gcode" and args.no_gcode))
+    roles = SHADOW_ROLES if args.shadow else ROLES
+    return tuple(r for r in roles if not (r == "gcode" and args.no_gcode))
+
+
+def _clock_role(args: argparse.Namespace) -> str:
+    """The node that sets the pace and reports PROGRESS and TIMING."""
+    return "standin" if args.shadow else "sim"
+
+
+def _write_shadow_map(args: argparse.Namespace, ros, nc, out: Outputs) -> None:
+    """The column map of the machine's topics (the twin node reads it; so can `replay`)."""
+    from feed_twin.analysis.twin import ModelDoc, Twin
+    from feed_twin.nodeset.topics import AxisTopics
+    from feed_twin.shadow.standin import write_map
+
+    axis = next(a for a in nc.axes if a.name == nc.twin_axis)
+    write_map(
+        out.map,
+        Twin.compile(ModelDoc.load(args.config)),
+        AxisTopics(machine=ros.machine, axis=ros.axis).namespace,
+        travel_m=axis.travel_max_m - axis.travel_min_m,
+    )
 
 
 def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[str]:
@@ -106,7 +154,7 @@ def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[s
     ]  # fmt: skip
     if role == "recorder":
         argv += ["--bag", str(out.bag)]
-        if args.live_url:
+        if args.live_url and not args.shadow:
             argv += ["--live-url", args.live_url]
     elif role == "gcode":
         argv += ["--program", str(args.program), "--autostart"]
@@ -117,6 +165,15 @@ def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[s
             argv.append("--realtime")
         if args.max_time is not None:
             argv += ["--max-time", str(args.max_time)]
+    elif role == "standin":
+        argv += ["--follow", "--machine", ros.machine, "--axis", ros.axis]
+        if args.realtime:
+            argv.append("--realtime")
+    elif role == "twin":
+        argv += ["--map", str(out.map), "--machine", ros.machine, "--axis", ros.axis]
+        argv += ["--rrd", str(out.rrd)]
+        if args.live_url:
+            argv += ["--rerun-url", args.live_url]
     return argv
 
 
@@ -129,29 +186,65 @@ class _Stop:
 
 
 def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
-    out.logs.mkdir(parents=True, exist_ok=True)
+    commands = {
+        role: [sys.executable, "-m", NODE_MODULES[role], *_node_args(role, args, ros, out)]
+        for role in _roles(args)
+    }
+    env = dict(os.environ)
+    # Discovery stays on this host unless the user chose otherwise.
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    clock = _clock_role(args)
+    result = launch(commands, out.logs, env=env, progress_role=clock, show_progress=not args.json)
+    return result.code, result.reason, _timing(result.logs[clock])
+
+
+@dataclass
+class Launched:
+    code: int  # the run's exit code (130 after SIGINT/SIGTERM)
+    reason: str  # why it ended, naming the node(s); empty for a normal end
+    logs: dict[str, Path]  # role -> log file (stdout and stderr of the node)
+    returncodes: dict[str, int | None]
+
+
+def launch(
+    commands: dict[str, list[str]],
+    logs_dir: Path,
+    *,
+    env: dict[str, str],
+    progress_role: str | None = None,
+    show_progress: bool = False,
+    deadline_s: float | None = None,
+) -> Launched:
+    """Start one process per role, watch them until all have ended, and say why they did.
+
+    A node that exits with an error ends the run (the others notice its missing heartbeat and
+    stop within a second, else they are told to); SIGINT/SIGTERM to this process is passed to
+    the producers first and to the recorder last, so that it records what they sent;
+    `deadline_s` [s wall] bounds the whole run (the nodes are then terminated). Every process is
+    gone when this returns.
+    """
+    logs_dir.mkdir(parents=True, exist_ok=True)
     procs: dict[str, subprocess.Popen] = {}
     logs: dict[str, Path] = {}
     stop = _Stop()
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     code, reason = 0, ""
-    env = dict(os.environ)
-    # Discovery stays on this host unless the user chose otherwise.
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    first_failure: str | None = None
+    timed_out = False
+    started = time.monotonic()
     try:
-        for role in _roles(args):
-            logs[role] = out.logs / f"{role}.log"
+        for role, argv in commands.items():
+            logs[role] = logs_dir / f"{role}.log"
             with open(logs[role], "wb") as log:
                 procs[role] = subprocess.Popen(
-                    [sys.executable, "-m", NODE_MODULES[role], *_node_args(role, args, ros, out)],
+                    argv,
                     stdin=subprocess.DEVNULL,
                     stdout=log,
                     stderr=subprocess.STDOUT,
                     env=env,
                     start_new_session=True,  # a terminal's Ctrl-C reaches the runner only
                 )
-        progress = _Progress(ros, enabled=not args.json)
-        first_failure: str | None = None
+        progress = _Progress(enabled=show_progress)
         while any(p.poll() is None for p in procs.values()):
             if stop.signum is not None:
                 reason = f"stopped by {signal.Signals(stop.signum).name}"
@@ -176,7 +269,12 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
                 # heartbeat); the others (it died while starting) are told to stop.
                 _wait_all(procs, PEER_NOTICE_S)
                 break
-            progress.update(logs["sim"])
+            if deadline_s is not None and time.monotonic() - started > deadline_s:
+                timed_out = True
+                _wait_all(procs, 0.0)
+                break
+            if progress_role is not None:
+                progress.update(logs[progress_role])
             time.sleep(0.05)
         progress.close()
     finally:
@@ -188,6 +286,9 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
             signal.signal(s, handler)
     if stop.signum is not None:
         code = 130
+    elif timed_out:
+        code = 1
+        reason = f"the run took longer than {deadline_s:g} s; every node was stopped"
     elif first_failure is None:
         failed = {r: p.returncode for r, p in procs.items() if p.returncode}
         if failed:
@@ -201,8 +302,12 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
             for role, p in procs.items()
             if role != first_failure and p.returncode
         )
-    timing = _timing(logs["sim"])
-    return code, reason, timing
+    return Launched(
+        code=code,
+        reason=reason,
+        logs=logs,
+        returncodes={r: p.returncode for r, p in procs.items()},
+    )
 
 
 def _wait_all(procs: dict[str, subprocess.Popen], grace_s: float) -> None:
@@ -243,19 +348,24 @@ def _last_error(log: Path) -> str:
 
 
 def _timing(log: Path) -> dict:
+    return _log_record(log, "TIMING") or {}
+
+
+def _log_record(log: Path, prefix: str) -> dict | None:
+    """The last `PREFIX {json}` line a node printed."""
     try:
         for line in reversed(log.read_text(errors="replace").splitlines()):
-            if line.startswith("TIMING "):
-                return json.loads(line[len("TIMING ") :])
+            if line.startswith(f"{prefix} "):
+                return json.loads(line[len(prefix) + 1 :])
     except (OSError, ValueError):
         pass
-    return {}
+    return None
 
 
 class _Progress:
-    """Simulated time on stderr (a terminal only), from the sim node's PROGRESS log lines."""
+    """Simulated time on stderr (a terminal only), from a node's PROGRESS log lines."""
 
-    def __init__(self, ros, *, enabled: bool) -> None:
+    def __init__(self, *, enabled: bool) -> None:
         self.enabled = enabled and sys.stderr.isatty()
         self.start = time.monotonic()
         self.last = 0.0
@@ -323,6 +433,8 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
         except BagError as exc:
             return None, f"the bag is unreadable: {exc}"
     topics = AxisTopics(machine=ros.machine, axis=ros.axis)
+    if args.shadow:
+        return _finish_shadow(args, topics, out)
     run = read_run(out.bag, topics)
     lines = program_lines(args.program) if args.program is not None else None
     write_dashboard(run, topics, out.rrd, program_lines=lines)
@@ -330,6 +442,44 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
         return summarise(run, topics), ""
     except ValueError as exc:
         return None, str(exc)
+
+
+def _finish_shadow(args: argparse.Namespace, topics, out: Outputs):
+    """The machine's run figures and the shadow figures (the twin node wrote the .rrd)."""
+    from feed_twin.shadow.replay import twin_namespace
+    from feed_twin.shadow.summary import summarise_shadow
+
+    report = _log_record(out.logs / "twin.log", "SHADOW") or {}
+    lag = (report.get("lag_ms") or {}).get("p99")
+    try:
+        run, figures = summarise_shadow(
+            out.bag,
+            command_topic=topics.command,
+            twin_namespace=twin_namespace(topics.command),
+            effort_unit=report.get("effort_unit") or _effort_unit(args.config),
+            lag_p99_ms=float(lag) if lag is not None else math.nan,
+        )
+    except ValueError as exc:
+        return None, str(exc)
+    return _ShadowSummary(run, figures), ""
+
+
+def _effort_unit(config: Path) -> str:
+    from feed_twin.analysis.twin import ModelDoc, Twin
+
+    return Twin.compile(ModelDoc.load(config)).effort_unit
+
+
+@dataclass
+class _ShadowSummary:
+    run: object  # feed_twin.nodeset.summary.RunSummary of the machine
+    figures: object  # feed_twin.shadow.summary.ShadowFigures
+
+    def format(self) -> str:
+        return f"{self.run.format()}\n{self.figures.format()}"
+
+    def as_dict(self) -> dict:
+        return {**self.run.as_dict(), **self.figures.as_dict()}
 
 
 def main(args: argparse.Namespace) -> int:
@@ -340,6 +490,12 @@ def main(args: argparse.Namespace) -> int:
             "feed-twin run: a PROGRAM is needed (or --no-gcode for an external NC)", file=sys.stderr
         )
         return 2
+    if args.shadow and (args.single_process or args.no_gcode):
+        return _early_error(
+            args,
+            "--shadow runs the G-code node, the stand-in machine and the twin as separate "
+            "processes: it cannot be combined with --single-process or --no-gcode",
+        )
     try:
         ros, nc = _check_inputs(args)
     except GcodeError as exc:
@@ -347,6 +503,11 @@ def main(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError, OSError) as exc:
         return _early_error(args, str(exc))
     out = _outputs(args)
+    if args.shadow:
+        try:
+            _write_shadow_map(args, ros, nc, out)
+        except (ConfigError, ValueError, OSError) as exc:
+            return _early_error(args, str(exc))
     viewer = None
     args.live_url = None
     if args.live:

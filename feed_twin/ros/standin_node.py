@@ -1,38 +1,55 @@
-"""A "real machine" for the shadow twin: the stand-in truth model, paced by the wall clock.
+"""A "real machine" for the shadow twin: the stand-in truth model as a ROS 2 node.
 
-Plays the repeated synthetic program (feed_twin.shadow.standin) as the machine's NC would, one
-sample every `--period` of wall-clock time, runs the truth model on it and publishes, stamped
-with the machine's cycle time (t_k = k * period):
+The truth (feed_twin.shadow.standin.StandIn: the model with hidden effects, a current-loop lag,
+the real sensor quantisation, effort noise; `shadow.standin` of the config) answers each NC
+sample with a measured sample and publishes it, stamped with the NC sample's stamp, on
+`<ns>/joint_states` (sensor_msgs/JointState, as joint_state_broadcaster publishes it): the
+measured position [m] and the drive effort (N, or A for a PMSM model). Two command sources:
 
-- `<ns>/command` (AxisCommand): the NC setpoint (position, velocity, acceleration);
-- `<ns>/joint_states` (sensor_msgs/JointState, as joint_state_broadcaster publishes it): the
-  measured position [m] and the drive effort (N, or A for a PMSM model).
+- built-in (`feed-twin shadow`): the repeated synthetic program of feed_twin.shadow.standin,
+  one sample every `--period` of wall-clock time (t_k = k * period); the node publishes the
+  NC setpoints on `<ns>/command` (AxisCommand) itself.
+- `--follow` (`feed-twin run PROGRAM --shadow`): the G-code node's AxisCommand stream on
+  `<ns>/command`. The node publishes `/clock` (the machine time reached, every
+  `ros.clock_divider` samples), which paces the G-code node's lookahead, as the sim node does.
+  Lockstep (default): a sample is played as soon as its command is there, at most
+  `LOCKSTEP_WINDOW` samples ahead of the twin's published state (`<ns>/twin/state`), so a slow
+  twin is never flooded and the run is as fast as the twin. `--realtime`: sample k is played at
+  wall time start + k * period whatever the twin does, as a machine would; a command that has
+  not arrived by then is replaced by the last one (counted as `late_commands`). The program's
+  end (`finished`/`stopped` on program_state) ends the run: `done: program finished` on
+  run_state, so every node of the set finishes.
 
-Realistic transport: each message leaves after a random delay, uniform in [0, `--jitter`],
-on top of the scheduler's own jitter (stamps stay on the cycle); one topic's messages keep
-their order, as one writer's do. The truth's Coulomb friction is
-the nominal one times the parameter `friction_scale` (default 1.0), which can be set while the
-node runs (`ros2 param set /cnc/x/standin friction_scale 1.35`, or the parameter service), or
-scheduled with `--raise-friction-at T --friction-scale S`. At the end it publishes
-`done: program finished` on run_state, so the twin node finishes too.
+Realistic transport (real time only): each message leaves after a random delay, uniform in
+[0, jitter], on top of the scheduler's own jitter (stamps stay on the cycle); one topic's
+messages keep their order, as one writer's do. The truth's Coulomb friction is its start value
+times the parameter `friction_scale` (default 1.0), which can be set while the node runs
+(`ros2 param set /cnc/x/standin friction_scale 1.35`, or the parameter service), or scheduled
+(`shadow.standin.friction_steps`, or `--raise-friction-at T --friction-scale S`; machine time
+since the first command). Stderr: `PROGRESS <machine time>` lines and, at the end,
+`TIMING {json}` (samples, real-time factor; in real time the lateness of the samples and the
+samples played more than one period late, `missed_steps`).
 """
 
 from __future__ import annotations
 
 import argparse
 import heapq
+import json
+import math
 import sys
 import time
+from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from feed_twin_msgs.msg import AxisCommand
+from feed_twin_msgs.msg import AxisCommand, AxisState
 from rcl_interfaces.msg import SetParametersResult
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from feed_twin.analysis.synthetic import Unmodelled
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.ros.runtime import (
@@ -44,11 +61,16 @@ from feed_twin.ros.runtime import (
     start_node,
 )
 from feed_twin.shadow.bagstreams import encode_joint_state
+from feed_twin.shadow.config import load_shadow_config
+from feed_twin.shadow.replay import twin_namespace
 from feed_twin.shadow.standin import StandIn, program_command
 
 COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
 NS = 1_000_000_000
 LINGER_S = 1.0  # [s] the node stays after the last sample so that readers receive everything
+LOCKSTEP_WINDOW = 100  # samples the stand-in may be ahead of the twin's output in lockstep
+BURST = 50  # samples played per spin turn at most (lockstep), so callbacks are served
+PROGRESS_PERIOD_S = 0.5
 
 
 class StandInNode(FeedTwinNode):
@@ -57,18 +79,24 @@ class StandInNode(FeedTwinNode):
         options: NodeOptions,
         *,
         standin: StandIn,
-        duration_s: float,
         period_s: float,
         jitter_s: float,
+        program: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+        realtime: bool = True,
+        clock_divider: int = 10,
         schedule: Sequence[tuple[float, float]] = (),
         seed: int = 0,
         context=None,
     ) -> None:
+        """`program`: (t, x, v, a) of the built-in program; None follows `<ns>/command`."""
         super().__init__("standin", options, context=context)
         self.standin = standin
         self.period_s = period_s
-        self.jitter_s = jitter_s
-        self.t, self.x, self.v, self.a = program_command(duration_s, period_s)
+        self.period_ns = round(period_s * NS)
+        self.follow = program is None
+        self.realtime = realtime or not self.follow
+        self.jitter_s = jitter_s if self.realtime else 0.0
+        self.clock_divider = clock_divider
         self.k = 0
         self._rng = np.random.default_rng(seed)
         self._schedule = sorted(schedule)
@@ -76,15 +104,66 @@ class StandInNode(FeedTwinNode):
         self._seq = 0
         self._last_release: dict[str, float] = {}
         self._friction = {name: standin.parameter(name) for name in standin.friction_parameters()}
-        self._cmd_pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
         self._js_pub = self.create_publisher(JointState, self.topics.joint_states, DATA_QOS)
         self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
+        self._cmd_pub = None
+        # NC samples still to play: (stamp [ns], x, v, a)
+        self._commands: deque[tuple[int, float, float, float]] = deque()
+        self._t0_ns: int | None = None
+        self._end_ns: int | None = None
+        self._last_cmd: tuple[int, float, float, float] | None = None
+        self._twin_count = 0
+        self.late_commands = 0
+        if self.follow:
+            self.create_subscription(AxisCommand, self.topics.command, self._on_command, DATA_QOS)
+            self.create_subscription(
+                String, self.topics.program_state, self._on_program_state, LATCHED_QOS
+            )
+            self.create_subscription(
+                AxisState,
+                f"{twin_namespace(self.topics.command)}/state",
+                self._on_twin_state,
+                DATA_QOS,
+                raw=True,
+            )
+            self._clock_pub = self.create_publisher(Clock, "/clock", DATA_QOS)
+            self._clock_msg = Clock()
+            self._waiting = False
+            self.watch_input(
+                self.topics.command,
+                "feed_twin_msgs/msg/AxisCommand",
+                armed=lambda: self._waiting and not self.run_ended,
+            )
+        else:
+            t, x, v, a = program
+            self._commands.extend(
+                (round(float(t[k]) * NS), float(x[k]), float(v[k]), float(a[k]))
+                for k in range(len(t))
+            )
+            self._end_ns = self._commands[-1][0]
+            self._cmd_pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
         self.declare_parameter("friction_scale", 1.0)
         self.add_on_set_parameters_callback(self._on_parameters)
         self.start: float | None = None
+        self.wall_end: float | None = None
         self._done_at: float | None = None
+        self._progress_at = 0.0
         self.lateness_s: list[float] = []
         self.start_heartbeat()
+
+    # -- inputs -------------------------------------------------------------------------------
+
+    def _on_command(self, msg: AxisCommand) -> None:
+        stamp = msg.header.stamp.sec * NS + msg.header.stamp.nanosec
+        self._commands.append((stamp, msg.position, msg.velocity, msg.acceleration))
+
+    def _on_program_state(self, msg: String) -> None:
+        word, _, rest = msg.data.partition(" ")
+        if word in ("finished", "stopped"):
+            self._end_ns = int(rest.split()[0])
+
+    def _on_twin_state(self, data: bytes) -> None:
+        self._twin_count += 1
 
     def _on_parameters(self, params) -> SetParametersResult:
         for p in params:
@@ -100,25 +179,39 @@ class StandInNode(FeedTwinNode):
     def _scale_friction(self, scale: float) -> None:
         for name, nominal in self._friction.items():
             self.standin.set_parameter(name, nominal * scale)
-        self.get_logger().info(f"truth friction x{scale:g} from t = {self.k * self.period_s:.3f} s")
+        self.get_logger().info(f"truth friction x{scale:g} from t = {self._machine_time():.3f} s")
+
+    def _machine_time(self) -> float:
+        """[s] since the first command, of the next sample."""
+        return self.k * self.period_s
+
+    # -- pacing -------------------------------------------------------------------------------
 
     def poll(self) -> float | None:
         if self.done:
             return None
         now = time.perf_counter()
+        if now - self._progress_at > PROGRESS_PERIOD_S and self.start is not None:
+            self._progress_at = now
+            print(f"PROGRESS {self._machine_time():.3f}", file=sys.stderr, flush=True)
         if self.start is None:
-            # wait until someone listens to the measurement (the twin node), then start
-            if self._js_pub.get_subscription_count() == 0:
+            # begin when the set is up and someone listens to the measurement (the twin node)
+            ready = self.peers_alive() and self._js_pub.get_subscription_count() > 0
+            if not (ready and self._commands):
                 return 0.01
-            self.start = now + 0.05
-        n = len(self.t)
-        while self.k < n and now >= self.start + self.k * self.period_s:
-            self._sample(now)
+            self.start = now + (0.05 if self.realtime else 0.0)
+            self._t0_ns = self._commands[0][0]
+            self.standin.reset(self._commands[0][1])
+        if not self._ended():
+            wait = self._play_realtime(now) if self.realtime else self._play_lockstep()
+        else:
+            wait = None
         while self._queue and self._queue[0][0] <= now:
             _, _, topic, data = heapq.heappop(self._queue)
             (self._cmd_pub if topic == "command" else self._js_pub).publish(data)
-        if self.k >= n and not self._queue:
+        if self._ended() and not self._queue:
             if self._done_at is None:
+                self.wall_end = now
                 self._run_pub.publish(String(data="done: program finished"))
                 self._done_at = now
             # stay a moment: a writer that leaves at once can take unacknowledged samples along
@@ -126,52 +219,127 @@ class StandInNode(FeedTwinNode):
                 self.finish(EXIT_OK, "")
                 return None
             return 0.05
-        due = [self.start + self.k * self.period_s] if self.k < n else []
+        due = [] if wait is None else [wait]
         if self._queue:
-            due.append(self._queue[0][0])
-        return max(0.0, min(due) - time.perf_counter())
+            due.append(self._queue[0][0] - time.perf_counter())
+        return max(0.0, min(due)) if due else None
 
-    def _sample(self, now: float) -> None:
-        k = self.k
-        t_k = k * self.period_s
-        while self._schedule and self._schedule[0][0] <= t_k:
+    def _ended(self) -> bool:
+        if self._end_ns is None or self._t0_ns is None:
+            return False
+        return self._t0_ns + self.k * self.period_ns > self._end_ns
+
+    def _play_realtime(self, now: float) -> float:
+        assert self.start is not None and self._t0_ns is not None
+        while not self._ended() and now >= self.start + self.k * self.period_s:
+            t_ns = self._t0_ns + self.k * self.period_ns
+            while self._commands and self._commands[0][0] < t_ns:
+                self._commands.popleft()  # arrived after its slot was played: too late
+            if self._commands and self._commands[0][0] == t_ns:
+                command = self._commands.popleft()
+            elif self._last_cmd is not None and (self.follow or not self._commands):
+                self.late_commands += 1
+                command = (t_ns, *self._last_cmd[1:])
+            else:
+                command = self._commands.popleft()
+            self.lateness_s.append(now - (self.start + self.k * self.period_s))
+            self._sample(command, now)
+        return self.start + self.k * self.period_s - time.perf_counter()
+
+    def _play_lockstep(self) -> float | None:
+        played = 0
+        while (
+            self._commands
+            and not self._ended()
+            and self.k - self._twin_count < LOCKSTEP_WINDOW
+            and played < BURST
+        ):
+            self._sample(self._commands.popleft(), time.perf_counter())
+            played += 1
+        self._waiting = not self._commands and not self._ended()
+        return 0.0 if played == BURST else None
+
+    def _sample(self, command: tuple[int, float, float, float], now: float) -> None:
+        t_ns, x, v, a = command
+        t_rel = self._machine_time()
+        while self._schedule and self._schedule[0][0] <= t_rel + 1e-12:
             _, scale = self._schedule.pop(0)
             self.set_parameters([_param("friction_scale", scale)])
-        self.lateness_s.append(now - (self.start + t_k))
-        sl = slice(k, k + 1)
-        xm, em = self.standin.step(self.x[sl], self.v[sl], self.a[sl])
-        stamp = round(t_k * NS)
-        sec, nsec = divmod(stamp, NS)
-        command = COMMAND.encode_map(
-            {
-                "header.stamp.sec": sec,
-                "header.stamp.nanosec": nsec,
-                "axis": self.topics.axis.upper(),
-                "position": float(self.x[k]),
-                "velocity": float(self.v[k]),
-                "acceleration": float(self.a[k]),
-                "line": -1,
-            }
-        )
-        joints = encode_joint_state(stamp, [self.topics.axis], [float(xm[0])], [], [float(em[0])])
-        for topic, data in (("command", command), ("joints", joints)):
-            delay = self._rng.uniform(0.0, self.jitter_s) if self.jitter_s > 0 else 0.0
-            # one writer's messages stay in order (as on a fieldbus or one DDS writer)
-            release = max(now + delay, self._last_release.get(topic, 0.0))
-            self._last_release[topic] = release
-            heapq.heappush(self._queue, (release, self._seq, topic, data))
-            self._seq += 1
+        xm, em = self.standin.step(np.array([x]), np.array([v]), np.array([a]))
+        sec, nsec = divmod(t_ns, NS)
+        joints = encode_joint_state(t_ns, [self.topics.axis], [float(xm[0])], [], [float(em[0])])
+        out = [("joints", joints)]
+        if self._cmd_pub is not None:
+            out.append(
+                (
+                    "command",
+                    COMMAND.encode_map(
+                        {
+                            "header.stamp.sec": sec,
+                            "header.stamp.nanosec": nsec,
+                            "axis": self.topics.axis.upper(),
+                            "position": x,
+                            "velocity": v,
+                            "acceleration": a,
+                            "line": -1,
+                        }
+                    ),
+                )
+            )
+        for topic, data in out:
+            if self.jitter_s > 0:
+                delay = self._rng.uniform(0.0, self.jitter_s)
+                # one writer's messages stay in order (as on a fieldbus or one DDS writer)
+                release = max(now + delay, self._last_release.get(topic, 0.0))
+                self._last_release[topic] = release
+                heapq.heappush(self._queue, (release, self._seq, topic, data))
+                self._seq += 1
+            else:
+                (self._cmd_pub if topic == "command" else self._js_pub).publish(data)
+        self._last_cmd = command
         self.k += 1
+        if self.follow and self.k % self.clock_divider == 0:
+            # the machine time reached: the G-code node publishes its lookahead beyond it
+            self._clock_msg.clock.sec, self._clock_msg.clock.nanosec = divmod(
+                t_ns + self.period_ns, NS
+            )
+            self._clock_pub.publish(self._clock_msg)
+
+    def on_run_done(self, text: str) -> None:
+        # this node announces the end itself and leaves after LINGER_S (poll)
+        if self._done_at is None:
+            self.finish(EXIT_OK, "")
+
+    def timing_report(self) -> dict[str, float | int | None]:
+        wall = (self.wall_end or time.perf_counter()) - (self.start or time.perf_counter())
+        sim_s = self.k * self.period_s
+        report: dict[str, float | int | None] = {
+            "steps": self.k,
+            "sim_time_s": sim_s,
+            "wall_time_s": wall,
+            "realtime_factor": sim_s / wall if wall > 0 else None,
+        }
+        if self.realtime:
+            late = np.asarray(self.lateness_s) * 1e3
+            report.update(
+                lateness_p50_ms=float(np.percentile(late, 50)) if late.size else math.nan,
+                lateness_p99_ms=float(np.percentile(late, 99)) if late.size else math.nan,
+                lateness_max_ms=float(late.max()) if late.size else math.nan,
+                missed_steps=int(np.count_nonzero(late > self.period_s * 1e3)),
+                late_commands=self.late_commands,
+            )
+        return report
 
     def on_shutdown(self, reason: str) -> None:
-        late = np.asarray(self.lateness_s) * 1e3
-        if late.size:
+        report = self.timing_report()
+        if self.realtime and self.lateness_s:
             print(
-                f"STANDIN samples {self.k}, lateness p50 {np.percentile(late, 50):.3f} ms, "
-                f"p99 {np.percentile(late, 99):.3f} ms, max {late.max():.3f} ms",
+                f"STANDIN samples {self.k}, lateness p50 {report['lateness_p50_ms']:.3f} ms, "
+                f"p99 {report['lateness_p99_ms']:.3f} ms, max {report['lateness_max_ms']:.3f} ms",
                 file=sys.stderr,
                 flush=True,
             )
+        print("TIMING " + json.dumps(report), file=sys.stderr, flush=True)
 
 
 def _param(name: str, value: float):
@@ -181,39 +349,76 @@ def _param(name: str, value: float):
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", required=True, type=Path, help="nominal model YAML")
-    parser.add_argument("--duration", type=float, default=60.0, help="[s] of program to play")
+    parser.add_argument("--config", required=True, type=Path, help="model YAML with shadow:")
+    parser.add_argument(
+        "--follow",
+        action="store_true",
+        help="play the G-code node's command stream (the config's ros: and nc: sections)",
+    )
+    parser.add_argument("--realtime", action="store_true", help="--follow: pace by wall clock")
+    parser.add_argument("--duration", type=float, default=60.0, help="[s] of built-in program")
     parser.add_argument("--period", type=float, default=1e-3, help="[s] machine cycle")
-    parser.add_argument("--jitter", type=float, default=2e-4, help="[s] largest send delay")
+    parser.add_argument("--jitter", type=float, help="[s] largest send delay (shadow.standin)")
     parser.add_argument("--raise-friction-at", type=float, help="[s] machine time")
     parser.add_argument("--friction-scale", type=float, default=1.35)
     parser.add_argument("--machine", default="cnc")
     parser.add_argument("--axis", default="x")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, help="noise and jitter seed (shadow.standin)")
+    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
+    parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
+    parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
 
 
 def build(args: argparse.Namespace, context) -> StandInNode:
+    from dataclasses import replace
+
     doc = ModelDoc.load(args.config)
+    config = load_shadow_config(args.config).standin
+    if args.seed is not None:
+        config = replace(config, seed=args.seed)
+    jitter = config.jitter_s if args.jitter is None else args.jitter
+    if not jitter >= 0.0:
+        raise ValueError(f"--jitter {jitter!r}: must be >= 0")
 
     def make() -> StandIn:
-        return StandIn(
-            doc, hidden={}, unmodelled=Unmodelled(seed=args.seed), sample_period_s=args.period,
-            x0_m=0.0,
-        )  # fmt: skip
+        return StandIn.from_config(doc, config, sample_period_s=args.period, x0_m=0.0)
 
     make().step(np.zeros(1), np.zeros(1), np.zeros(1))  # compile before the first heartbeat
     standin = make()
-    schedule = []
+    schedule = [(s.at_s, s.scale) for s in config.friction_steps]
     if args.raise_friction_at is not None:
         schedule.append((args.raise_friction_at, args.friction_scale))
+    machine, axis, divider, program = args.machine, args.axis, 10, None
+    if args.follow:
+        from feed_twin.gcode import load_nc_config
+        from feed_twin.nodeset.split import load_node_set_config
+
+        ros = load_node_set_config(args.config)
+        nc = load_nc_config(args.config)
+        if abs(nc.interpolation_period_s - args.period) > 1e-12:
+            raise ValueError(
+                f"{args.config}: nc.interpolation_period_s = {nc.interpolation_period_s!r}: "
+                f"the stand-in plays one NC sample per machine cycle ({args.period!r} s)"
+            )
+        machine, axis, divider = ros.machine, ros.axis, ros.clock_divider
+    else:
+        program = program_command(args.duration, args.period)
     return StandInNode(
-        NodeOptions(machine=args.machine, axis=args.axis, peers=()),
+        NodeOptions(
+            machine=machine,
+            axis=axis,
+            peers=tuple(p for p in args.peers.split(",") if p),
+            startup_timeout_s=args.startup_timeout,
+            input_timeout_s=args.input_timeout,
+        ),
         standin=standin,
-        duration_s=args.duration,
         period_s=args.period,
-        jitter_s=args.jitter,
+        jitter_s=jitter,
+        program=program,
+        realtime=args.realtime,
+        clock_divider=divider,
         schedule=schedule,
-        seed=args.seed,
+        seed=config.seed,
         context=context,
     )
 

@@ -56,6 +56,7 @@ MESSAGE_TYPES = {
     JOINT_STATE: JointState,
 }
 DRAIN_QUIET_S = 0.5  # [s] without messages after the run's end before the node finishes
+FINAL_AFTER_S = 0.1  # [s] without messages after the run's end: the streams have ended
 LAG_SAMPLES = 600_000  # lags kept for the report (10 min at 1 kHz): bounded memory
 STATE = FlatCodec("feed_twin_msgs/msg/AxisState")
 RESIDUAL = FlatCodec("feed_twin_msgs/msg/TwinResidual")
@@ -112,9 +113,11 @@ class TwinNode(FeedTwinNode):
         )
         self._arrival: dict[int, float] = {}
         self._draining_since: float | None = None
+        self._final_done = False
         self._last_message = time.monotonic()
         self.lags_ms: deque[float] = deque(maxlen=LAG_SAMPLES)
         self.samples = 0
+        self._waiting_for_command = False  # measured samples are there, not yet paired
         self.errors = 0
         self._rss_start = _rss_mb()
         self.start_heartbeat()
@@ -130,8 +133,12 @@ class TwinNode(FeedTwinNode):
             self._bad(exc)
             return
         # the twin advances when a measured sample arrives (nothing can be paired earlier);
-        # processing on commands too would double the per-cycle work for nothing
+        # processing on every command too would double the per-cycle work for nothing, but a
+        # measured sample that came before its command (transport jitter, a late-joining
+        # command stream) waits for this one
         self.shadow.push_command(t, v["pos_cmd_m"], v.get("vel_cmd_m_s"))
+        if self._waiting_for_command:
+            self._step()
 
     def _on_measured(self, data: bytes) -> None:
         arrived = time.perf_counter()
@@ -159,6 +166,7 @@ class TwinNode(FeedTwinNode):
         block = self.shadow.process(final=final)
         if block is not None and len(block):
             self._publish(block)
+        self._waiting_for_command = self.samples < self.shadow.measured.counts.accepted
         for verdict in self.shadow.new_verdicts:
             self._verdict(verdict)
         period = self.shadow.config.sample_period_s
@@ -224,6 +232,7 @@ class TwinNode(FeedTwinNode):
         tenth = max(1, len(lags) // 6)
         return {
             "samples": self.samples,
+            "effort_unit": self.shadow.twin.effort_unit,
             "rss_mb": {"start": self._rss_start, "end": _rss_mb()},
             # median lag over the first and the last sixth of the run: a twin that does not
             # keep up shows a growing lag
@@ -257,14 +266,20 @@ class TwinNode(FeedTwinNode):
     def poll(self) -> float | None:
         if self._draining_since is not None and not self.done:
             quiet = time.monotonic() - max(self._last_message, self._draining_since)
+            if quiet > FINAL_AFTER_S and not self._final_done:
+                # the streams have ended: the last slots (whose command differences wait for a
+                # next sample) are decided now, while the recorder still drains
+                self._final_done = True
+                self._step(final=True)
             if quiet > DRAIN_QUIET_S:
                 self.finish(EXIT_OK, "")
                 return None
-            return DRAIN_QUIET_S / 4
+            return 0.05
         return None
 
     def on_shutdown(self, reason: str) -> None:
-        self._step(final=True)
+        if not self._final_done:
+            self._step(final=True)
         if self.dashboard is not None:
             self.dashboard.close()
         print("SHADOW " + json.dumps(self.report()), file=sys.stderr, flush=True)
@@ -282,6 +297,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rerun-url", help="stream the dashboard to this viewer")
     parser.add_argument("--max-time", type=float, help="stop after this many shadowed seconds")
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
+    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
+    parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
 
 
 def build(args: argparse.Namespace, context) -> TwinNode:
@@ -314,8 +331,9 @@ def build(args: argparse.Namespace, context) -> TwinNode:
             effort_unit=twin.effort_unit, rrd_path=args.rrd, live_url=args.rerun_url
         )
     return TwinNode(
-        NodeOptions(machine=args.machine, axis=args.axis, peers=(),
-                    input_timeout_s=args.input_timeout),
+        NodeOptions(machine=args.machine, axis=args.axis,
+                    peers=tuple(p for p in args.peers.split(",") if p),
+                    input_timeout_s=args.input_timeout, startup_timeout_s=args.startup_timeout),
         shadow=shadow,
         command=(topic_of["command"], args.command_type,
                  MessageFields(args.command_type, groups["command"], cmap)),

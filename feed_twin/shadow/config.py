@@ -13,26 +13,104 @@
       fe_dev_rms_error_m: 2.0e-5  # ... that is an error [m]
       effort_dev_rms_warn: 2.0    # effort-deviation RMS rise that warns [effort unit]
       effort_dev_rms_error: 20.0  # ... that is an error [effort unit]
+      standin:                    # the real-axis stand-in (optional; these are the defaults)
+        jitter_s: 2.0e-4          # largest extra send delay of a message, real time only [s]
+        current_lag_s: 2.0e-4     # the truth drive's current-loop lag, not in the twin [s]
+        coupling_stiffness_factor: 0.97  # truth / model torsional coupling stiffness [1]
+        effort_noise_std: null    # white noise on the reported effort [effort unit];
+                                  # null: 0.3 N (force) or 0.01 A (current)
+        seed: 0                   # of the effort noise and the send jitter
+        hidden: {}                # hidden effects from the start: effect -> parameters, as
+                                  # feed_twin.analysis.synthetic.HIDDEN takes them, e.g.
+                                  # {coulomb_friction: {F_c_N: 150.0}}
+        friction_steps: []        # during the run: [{at_s: 3.0, scale: 2.0}] sets the truth's
+                                  # Coulomb friction to scale x its start value at machine time
+                                  # at_s (seconds after the first command)
 
 The effort unit is the measured effort's SI unit (N, N m or A), as in the discrepancy workflow.
+The stand-in (feed_twin.shadow.standin, feed_twin.ros.standin_node) plays the real machine in
+`feed-twin shadow` and `feed-twin run PROGRAM --shadow`; the twin never reads `standin`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, Literal
 
 from feed_twin.io.config import (
     ConfigError,
     from_mapping,
     load_yaml,
+    require_nonnegative,
     require_positive,
     require_range,
 )
 
 SECTION = "shadow"
+
+
+@dataclass(frozen=True, kw_only=True)
+class FrictionStep:
+    at_s: float  # [s] machine time after the first command
+    scale: float  # [1] truth Coulomb friction / its value at the start
+
+    def __post_init__(self) -> None:
+        require_nonnegative("at_s", self.at_s)
+        require_positive("scale", self.scale)
+
+
+@dataclass(frozen=True, kw_only=True)
+class StandInConfig:
+    """What makes the stand-in's truth differ from the model (module docstring)."""
+
+    jitter_s: float = 2.0e-4  # [s] largest extra send delay of a message (real-time runs)
+    current_lag_s: float = 2.0e-4  # [s] first-order lag of the truth drive's current loop
+    coupling_stiffness_factor: float = 0.97  # [1] truth / model coupling stiffness
+    effort_noise_std: float | None = None  # [effort unit]; None: 0.3 N or 0.01 A
+    seed: int = 0
+    hidden: Any = field(default_factory=dict)  # effect -> {parameter: value}
+    friction_steps: tuple[FrictionStep, ...] = ()
+
+    def __post_init__(self) -> None:
+        from feed_twin.analysis.synthetic import HIDDEN
+
+        require_nonnegative("jitter_s", self.jitter_s)
+        if not isinstance(self.hidden, Mapping):
+            raise ValueError(
+                f"hidden = {self.hidden!r}: must be a mapping effect -> {{parameter: value}}"
+            )
+        for effect, params in self.hidden.items():
+            if effect not in HIDDEN:
+                raise ValueError(
+                    f"hidden.{effect}: unknown effect; one of {', '.join(sorted(HIDDEN))}"
+                )
+            if not isinstance(params, Mapping) or not all(
+                isinstance(v, int | float) and not isinstance(v, bool) for v in params.values()
+            ):
+                raise ValueError(
+                    f"hidden.{effect} = {params!r}: must be a mapping parameter -> number"
+                )
+        frozen = {e: MappingProxyType(dict(p)) for e, p in self.hidden.items()}
+        object.__setattr__(self, "hidden", MappingProxyType(frozen))
+        times = [s.at_s for s in self.friction_steps]
+        if times != sorted(times):
+            raise ValueError(f"friction_steps: at_s = {times!r}: must be in increasing order")
+        # the rest (lag, stiffness factor, noise) is checked by Unmodelled
+        self.unmodelled()
+
+    def unmodelled(self):
+        """The synthetic generator's `Unmodelled` of this stand-in."""
+        from feed_twin.analysis.synthetic import Unmodelled
+
+        return Unmodelled(
+            current_lag_s=self.current_lag_s,
+            coupling_stiffness_factor=self.coupling_stiffness_factor,
+            effort_noise_std=self.effort_noise_std,
+            seed=self.seed,
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -49,6 +127,7 @@ class ShadowConfig:
     fe_dev_rms_error_m: float  # [m] ... ERROR
     effort_dev_rms_warn: float  # [effort unit] rise of the rolling effort deviation RMS: WARN
     effort_dev_rms_error: float  # [effort unit] ... ERROR
+    standin: StandInConfig = field(default_factory=StandInConfig)
 
     def __post_init__(self) -> None:
         require_positive("sample_period_s", self.sample_period_s)

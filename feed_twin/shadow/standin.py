@@ -19,6 +19,7 @@ import numpy as np
 from feed_twin.analysis.synthetic import PROGRAM, Unmodelled, command, truth_model
 from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.control import signals
+from feed_twin.shadow.config import StandInConfig
 from feed_twin.shadow.twin import _Rows
 
 
@@ -74,6 +75,23 @@ class StandIn:
             noise if noise is not None else (0.01 if self.twin.effort_unit == "A" else 0.3)
         )
         self._rng = np.random.default_rng(unmodelled.seed)
+        self.reset(x0_m)
+
+    @classmethod
+    def from_config(
+        cls, nominal: ModelDoc, config: StandInConfig, *, sample_period_s: float, x0_m: float
+    ) -> StandIn:
+        """The stand-in the `shadow.standin` section describes (hidden effects, unmodelled)."""
+        return cls(
+            nominal,
+            hidden=config.hidden,
+            unmodelled=config.unmodelled(),
+            sample_period_s=sample_period_s,
+            x0_m=x0_m,
+        )
+
+    def reset(self, x0_m: float) -> None:
+        """At rest with the table at x0_m [m] (the truth's parameters stay as they are)."""
         self.engine.reset(x0=self.twin.initial_state(x0_m, self.engine.p))
 
     def step(
@@ -120,6 +138,11 @@ signals:
 plausibility: {{travel_m: {travel!r}, max_speed_m_s: 0.5}}
 """
 _UNIT_OF = {"force_cmd_N": "N", "torque_cmd_Nm": "Nm", "current_q_A": "A"}
+
+
+def _feedback_sensor(doc: ModelDoc) -> str:
+    """The sensor whose reading the stand-in publishes (Twin.measured_signals' choice)."""
+    return "linear_scale" if doc.of_type("LinearScale") else "motor_encoder"
 
 
 def record_bag(
@@ -180,18 +203,19 @@ def record_bag(
                     encode_joint_state(stamp, ["x"], [float(xm[j])], [], [float(em[j])]),
                     log_time_ns=stamp,
                 )
-    return write_map(path.with_name(f"{path.name}_map.yaml"), standin, namespace, travel_m)
+    return write_map(path.with_name(f"{path.name}_map.yaml"), standin.twin, namespace, travel_m)
 
 
-def write_map(path: str | Path, standin: StandIn, namespace: str, travel_m: float = 0.3) -> Path:
-    """The column map of the stand-in's topics (command and joint_states under `namespace`)."""
+def write_map(path: str | Path, twin: Twin, namespace: str, travel_m: float = 0.3) -> Path:
+    """The column map of the stand-in's topics (command and joint_states under `namespace`)
+    for a model `twin` (the stand-in's truth or the nominal twin: the same effort signal)."""
     path = Path(path)
-    effort = standin.twin.effort_name
+    effort = twin.effort_name
     path.write_text(
         BAG_MAP.format(
             command=f"{namespace}/command",
             joints=f"{namespace}/joint_states",
-            sensor="linear_scale" if standin.doc.of_type("LinearScale") else "motor_encoder",
+            sensor=_feedback_sensor(twin.doc),
             effort=effort,
             unit=_UNIT_OF[effort],
             travel=travel_m,
