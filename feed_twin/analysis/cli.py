@@ -131,6 +131,8 @@ def simulate_traces(run: MeasuredRun, doc) -> dict[str, np.ndarray]:
     simulated = {"pos_meas_m": out.x_m[0], "pos_cmd_m": drive.pos_ref_m}
     if out.effort is not None:
         simulated[twin.effort_name] = out.effort[0]
+    if out.voltage_q is not None:
+        simulated["voltage_q_V"] = out.voltage_q[0]
     for name in run:
         if name.startswith("disturbance_"):
             simulated[name] = run[name]  # known inputs: the twin gets exactly these
