@@ -231,9 +231,10 @@ class BagWriter:
         return tuple(self._topics)
 
     def add_topic(
-        self, name: str, type_name: str, *, qos: Sequence[QosProfile] = (QosProfile(),)
+        self, name: str, type_name: str, *, qos: Sequence[QosProfile] | str = (QosProfile(),)
     ) -> None:
-        """Register `name` with message type `pkg/msg/Type` before writing to it."""
+        """Register `name` with message type `pkg/msg/Type` before writing to it. `qos`: the
+        offered profiles, or rosbag2's YAML text of them, kept verbatim (copied from a bag)."""
         if not name.startswith("/"):
             raise BagError(f"topic {name!r}: must be an absolute name starting with '/'")
         definition = message_definition(type_name)
@@ -254,7 +255,7 @@ class BagWriter:
                     data=definition.schema_text.encode("utf-8"),
                 )
                 self._schemas[type_name] = schema_id
-            qos_text = qos_yaml(qos)
+            qos_text = qos if isinstance(qos, str) else qos_yaml(qos)
             channel_id = self._writer.register_channel(
                 topic=name,
                 message_encoding=MESSAGE_ENCODING,
