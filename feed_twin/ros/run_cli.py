@@ -348,10 +348,10 @@ def _last_error(log: Path) -> str:
 
 
 def _timing(log: Path) -> dict:
-    return _log_record(log, "TIMING") or {}
+    return log_record(log, "TIMING") or {}
 
 
-def _log_record(log: Path, prefix: str) -> dict | None:
+def log_record(log: Path, prefix: str) -> dict | None:
     """The last `PREFIX {json}` line a node printed."""
     try:
         for line in reversed(log.read_text(errors="replace").splitlines()):
@@ -449,7 +449,7 @@ def _finish_shadow(args: argparse.Namespace, topics, out: Outputs):
     from feed_twin.shadow.replay import twin_namespace
     from feed_twin.shadow.summary import summarise_shadow
 
-    report = _log_record(out.logs / "twin.log", "SHADOW") or {}
+    report = log_record(out.logs / "twin.log", "SHADOW") or {}
     lag = (report.get("lag_ms") or {}).get("p99")
     try:
         run, figures = summarise_shadow(

@@ -8,7 +8,8 @@ metrics of the discrepancy workflow (feed_twin.analysis.compare.compute_metrics)
 samples. On a bag without message faults these equal `feed-twin simulate` on the same bag.
 
 `write_outputs` writes, into the output directory:
-- `comparison/`: a rosbag2 bag with every original topic (the same bytes and times) plus the
+- `comparison/`: a rosbag2 bag with every original topic (the same bytes, times and recorded
+  QoS metadata, `offered_qos_profiles`) plus the
   twin's `<ns>/twin/state` (AxisState: the predicted state), `<ns>/twin/residual`
   (TwinResidual) and `<ns>/twin/health` (HealthStatus), where `<ns>` is the command topic's
   namespace; the twin's log times are the slot stamps shifted by the measured stream's median
@@ -31,6 +32,7 @@ import numpy as np
 
 from feed_twin.analysis.compare import Metrics, compute_metrics
 from feed_twin.analysis.twin import ModelDoc, Twin
+from feed_twin.io.bag import QosProfile
 from feed_twin.io.measured import ColumnMap, MeasuredDataError
 from feed_twin.shadow.bagstreams import Stream, read_streams
 from feed_twin.shadow.config import ShadowConfig
@@ -38,6 +40,11 @@ from feed_twin.shadow.health import LEVEL_NAMES, Verdict
 from feed_twin.shadow.twin import ResidualBlock, ShadowTwin
 
 CHUNK_S = 1.0  # [s] of arrivals fed between two process() calls
+# what the live twin node offers on its topics (feed_twin.ros.runtime.DATA_QOS), so that the
+# comparison bag's twin topics read as a recording of the live twin would
+TWIN_QOS = QosProfile(
+    history="keep_last", depth=5000, reliability="reliable", durability="transient_local"
+)
 NS = 1_000_000_000
 
 
@@ -156,7 +163,9 @@ def write_comparison_bag(bag: str | Path, result: ReplayResult, out: Path, axis:
     path = out / "comparison"
     with BagWriter(path, flush_period_s=None) as writer:
         for t in source.topics:
-            writer.add_topic(t.name, t.type_name)
+            # the QoS the machine's publishers offered, as recorded (a bag from a tool that
+            # stored none gets rosbag2's default)
+            writer.add_topic(t.name, t.type_name, qos=t.offered_qos_profiles or (QosProfile(),))
         with open(source.mcap_path, "rb") as f:
             for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
                 writer.write(
@@ -166,7 +175,7 @@ def write_comparison_bag(bag: str | Path, result: ReplayResult, out: Path, axis:
                     publish_time_ns=message.publish_time,
                 )
         for name, type_name in topics.values():
-            writer.add_topic(name, type_name)
+            writer.add_topic(name, type_name, qos=(TWIN_QOS,))
         s = result.samples
         state = FlatCodec(topics["state"][1])
         resid = FlatCodec(topics["residual"][1])

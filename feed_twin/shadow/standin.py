@@ -19,6 +19,7 @@ import numpy as np
 from feed_twin.analysis.synthetic import PROGRAM, Unmodelled, command, truth_model
 from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.control import signals
+from feed_twin.io.bag import QosProfile
 from feed_twin.shadow.config import StandInConfig
 from feed_twin.shadow.twin import _Rows
 
@@ -154,11 +155,13 @@ def record_bag(
     namespace: str = "/cnc/x",
     changes: Sequence[tuple[float, str, float]] = (),
     travel_m: float = 0.3,
+    qos: Mapping[str, Sequence[QosProfile]] | None = None,
 ) -> Path:
     """Run the stand-in on the repeated program and record it as a machine would publish it:
     AxisCommand on `<namespace>/command`, sensor_msgs/JointState (position [m], effort in the
     model's effort unit) on `<namespace>/joint_states`, log time = stamp. `changes` are
-    (time [s], parameter, value) applied to the truth during the run. Writes the column map
+    (time [s], parameter, value) applied to the truth during the run; `qos` the offered QoS
+    recorded for "command" and "joint_states" (rosbag2's default otherwise). Writes the column map
     `<bag name>_map.yaml` next to the bag and returns its path."""
     from feed_twin.io.bag import BagWriter
     from feed_twin.io.cdr import FlatCodec
@@ -171,8 +174,17 @@ def record_bag(
     pending = sorted(changes)
     chunk = max(1, round(0.1 / period_s))
     with BagWriter(path, flush_period_s=None) as writer:
-        writer.add_topic(command_topic, "feed_twin_msgs/msg/AxisCommand")
-        writer.add_topic(joints_topic, "sensor_msgs/msg/JointState")
+        offered = {} if qos is None else {k: tuple(v) for k, v in qos.items()}
+        unknown = sorted(set(offered) - {"command", "joint_states"})
+        if unknown:
+            raise ValueError(f"qos: unknown topic(s) {unknown}; use 'command', 'joint_states'")
+        default = (QosProfile(),)
+        writer.add_topic(
+            command_topic, "feed_twin_msgs/msg/AxisCommand", qos=offered.get("command", default)
+        )
+        writer.add_topic(
+            joints_topic, "sensor_msgs/msg/JointState", qos=offered.get("joint_states", default)
+        )
         for k0 in range(0, len(t), chunk):
             while pending and pending[0][0] <= t[k0]:
                 _, name, value = pending.pop(0)
