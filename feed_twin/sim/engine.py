@@ -336,20 +336,18 @@ def run_batch(
     drive2 = _as_2d(drive, n_ticks, signals.OUT_SIZE, "drive")
     ext2 = _as_2d(ext, n_ticks, engine.n_ext, "ext")
     works = np.zeros((N, engine.work.size))
-    advance = engine.kernel.advance
+    n_threads = max(1, min(threads or default_threads(), N))
 
-    def run_set(b: int) -> None:
-        if status[b, 0] != 0.0:
-            return
-        advance(
-            X[b], P[b], CP[b], CS[b], 0, n_ticks, ref2, drive2, ext2, int(seeds_arr[b]),
-            rings[b], outs[b], engine.h, engine.nsub, engine.dec, engine.sel, rec[b],
-            engine.model.state_limits, status[b], works[b],
+    def run_stride(first: int) -> None:
+        engine.kernel.advance_sets(
+            first, n_threads, X, P, CP, CS, n_ticks, ref2, drive2, ext2, seeds_arr, rings, outs,
+            engine.h, engine.nsub, engine.dec, engine.sel, rec, engine.model.state_limits,
+            status, works,
         )  # fmt: skip
 
     # the kernel releases the GIL: one Python thread per core runs sets side by side
-    with ThreadPoolExecutor(max_workers=threads or default_threads()) as pool:
-        list(pool.map(run_set, range(N)))
+    with ThreadPoolExecutor(max_workers=n_threads) as pool:
+        list(pool.map(run_stride, range(n_threads)))
     diverged = status[:, 0] != 0.0
     messages = []
     for b in range(N):
