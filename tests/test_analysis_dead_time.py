@@ -261,6 +261,14 @@ def test_hidden_dead_time_is_named_fitted_and_closes_the_gap(tmp_path, voltage):
     assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
     if voltage:
         assert d.after.voltage_q_rms_V <= 0.3 * d.before.voltage_q_rms_V
+        # `feed-twin simulate` writes the twin's voltage beside the measured one
+        from feed_twin.analysis.cli import simulate_traces
+
+        traces = simulate_traces(run, final)
+        du = traces["voltage_q_V"] - traces["sim_voltage_q_V"]
+        assert float(np.sqrt(np.mean(du**2))) == pytest.approx(d.after.voltage_q_rms_V, rel=1e-6)
+    else:
+        assert d.after.voltage_q_rms_V is None
     # the fitted model carries it as the inverter's dead time, with the compensation unchanged
     fitted = final.component("inverter")["params"]["t_dead"]
     assert fitted == pytest.approx(d.effects[0].parameters["t_dead_s"], rel=1e-9)
