@@ -16,7 +16,9 @@ measured position [m] and the drive effort (N, or A for a PMSM model). Two comma
   `LOCKSTEP_WINDOW` samples ahead of the twin's published state (`<ns>/twin/state`), so a slow
   twin is never flooded and the run is as fast as the twin. `--realtime`: sample k is played at
   wall time start + k * period whatever the twin does, as a machine would; a command that has
-  not arrived by then is replaced by the last one (counted as `late_commands`). The program's
+  not arrived `COMMAND_GRACE_S` after that instant (a stalled process finds it waiting in the
+  middleware) is extrapolated from the last one at its velocity (counted as `late_commands`;
+  the command itself is dropped when it comes). The program's
   end (`finished`/`stopped` on program_state) ends the run: `done: program finished` on
   run_state, so every node of the set finishes.
 
@@ -70,6 +72,8 @@ NS = 1_000_000_000
 LINGER_S = 1.0  # [s] the node stays after the last sample so that readers receive everything
 LOCKSTEP_WINDOW = 100  # samples the stand-in may be ahead of the twin's output in lockstep
 BURST = 50  # samples played per spin turn at most (lockstep), so callbacks are served
+COMMAND_GRACE_S = 0.02  # [s] past its instant a command still absent counts as missing
+SPIN_SLICE_S = 2e-4  # [s] executor turn while a due command may still be in the middleware
 PROGRESS_PERIOD_S = 0.5
 
 
@@ -119,13 +123,14 @@ class StandInNode(FeedTwinNode):
             self.create_subscription(
                 String, self.topics.program_state, self._on_program_state, LATCHED_QOS
             )
-            self.create_subscription(
-                AxisState,
-                f"{twin_namespace(self.topics.command)}/state",
-                self._on_twin_state,
-                DATA_QOS,
-                raw=True,
-            )
+            if not self.realtime:  # lockstep paces itself by the twin's output
+                self.create_subscription(
+                    AxisState,
+                    f"{twin_namespace(self.topics.command)}/state",
+                    self._on_twin_state,
+                    DATA_QOS,
+                    raw=True,
+                )
             self._clock_pub = self.create_publisher(Clock, "/clock", DATA_QOS)
             self._clock_msg = Clock()
             self._waiting = False
@@ -231,20 +236,30 @@ class StandInNode(FeedTwinNode):
 
     def _play_realtime(self, now: float) -> float:
         assert self.start is not None and self._t0_ns is not None
-        while not self._ended() and now >= self.start + self.k * self.period_s:
+        while not self._ended() and now >= self._due():
             t_ns = self._t0_ns + self.k * self.period_ns
             while self._commands and self._commands[0][0] < t_ns:
                 self._commands.popleft()  # arrived after its slot was played: too late
             if self._commands and self._commands[0][0] == t_ns:
                 command = self._commands.popleft()
-            elif self._last_cmd is not None and (self.follow or not self._commands):
-                self.late_commands += 1
-                command = (t_ns, *self._last_cmd[1:])
+            elif self._last_cmd is None or now - self._due() < COMMAND_GRACE_S:
+                # after a stall of this process the command may wait in the middleware: let
+                # the executor deliver it (a zero timeout would not) before calling it missing
+                return SPIN_SLICE_S
             else:
-                command = self._commands.popleft()
-            self.lateness_s.append(now - (self.start + self.k * self.period_s))
+                # a missing setpoint is extrapolated at the last velocity, as a drive does on a
+                # lost fieldbus telegram (holding the position would jerk the axis to a stop)
+                self.late_commands += 1
+                _, x, v, _ = self._last_cmd
+                command = (t_ns, x + v * self.period_s, v, 0.0)
+            self.lateness_s.append(now - self._due())
             self._sample(command, now)
-        return self.start + self.k * self.period_s - time.perf_counter()
+        return self._due() - time.perf_counter()
+
+    def _due(self) -> float:
+        """Wall-clock instant [perf_counter s] of the next sample (real time)."""
+        assert self.start is not None
+        return self.start + self.k * self.period_s
 
     def _play_lockstep(self) -> float | None:
         played = 0
@@ -380,14 +395,6 @@ def build(args: argparse.Namespace, context) -> StandInNode:
     if not jitter >= 0.0:
         raise ValueError(f"--jitter {jitter!r}: must be >= 0")
 
-    def make() -> StandIn:
-        return StandIn.from_config(doc, config, sample_period_s=args.period, x0_m=0.0)
-
-    make().step(np.zeros(1), np.zeros(1), np.zeros(1))  # compile before the first heartbeat
-    standin = make()
-    schedule = [(s.at_s, s.scale) for s in config.friction_steps]
-    if args.raise_friction_at is not None:
-        schedule.append((args.raise_friction_at, args.friction_scale))
     machine, axis, divider, program = args.machine, args.axis, 10, None
     if args.follow:
         from feed_twin.gcode import load_nc_config
@@ -403,6 +410,15 @@ def build(args: argparse.Namespace, context) -> StandInNode:
         machine, axis, divider = ros.machine, ros.axis, ros.clock_divider
     else:
         program = program_command(args.duration, args.period)
+    schedule = [(s.at_s, s.scale) for s in config.friction_steps]
+    if args.raise_friction_at is not None:
+        schedule.append((args.raise_friction_at, args.friction_scale))
+
+    def make() -> StandIn:
+        return StandIn.from_config(doc, config, sample_period_s=args.period, x0_m=0.0)
+
+    make().step(np.zeros(1), np.zeros(1), np.zeros(1))  # compile before the first heartbeat
+    standin = make()
     return StandInNode(
         NodeOptions(
             machine=machine,
