@@ -10,6 +10,7 @@ import pytest
 
 from feed_twin.control import cascade as cc
 from feed_twin.control import config as ccfg
+from feed_twin.control import layout as lay
 from feed_twin.control import signals as sig
 from feed_twin.control.loops import (
     Cascade,
@@ -39,7 +40,7 @@ class Rig:
     """Drives cascade_tick by hand with settable ref and meas vectors."""
 
     def __init__(self, config: ccfg.ControllerConfig) -> None:
-        self.cascade = cc.build_cascade(config)
+        self.cascade = lay.build_cascade(config)
         self.cs = self.cascade.initial_state()
         self.ref = np.zeros(sig.REF_SIZE)
         self.meas = np.zeros(sig.MEAS_SIZE)
@@ -82,11 +83,11 @@ def test_park_angle_is_encoder_times_pole_pairs_and_decoupling_feeds_forward():
     rig.meas[sig.MEAS_I_A : sig.MEAS_I_C + 1] = inverse_clarke(*inverse_park(i_d, i_q, theta_e))
     rig.ref[sig.REF_I_Q_EXT_A] = i_q
     v_load = 0.05  # m/s
-    rig.cs[cc.S_INITIALISED] = 1.0
-    rig.cs[cc.S_VEL_EST] = v_load
-    rig.cs[cc.S_ENC_POS_PREV] = theta_m * config.drive.lead_m / (2 * math.pi)
-    rig.cs[cc.S_FIR_HIST : cc.S_FIR_HIST + 2] = v_load
-    rig.cs[cc.S_ENC_POS_PREV] -= v_load * config.velocity.period_s
+    rig.cs[lay.S_INITIALISED] = 1.0
+    rig.cs[lay.S_VEL_EST] = v_load
+    rig.cs[lay.S_ENC_POS_PREV] = theta_m * config.drive.lead_m / (2 * math.pi)
+    rig.cs[lay.S_FIR_HIST : lay.S_FIR_HIST + 2] = v_load
+    rig.cs[lay.S_ENC_POS_PREV] -= v_load * config.velocity.period_s
     out = rig.tick(0)
     omega_e = cur.pole_pairs * v_load * 2 * math.pi / config.drive.lead_m
     u_d_expected = cur.Kp_d_V_A * (0.0 - i_d) - omega_e * cur.L_q_H * i_q
@@ -106,10 +107,10 @@ def test_angle_advance_rotates_the_output_vector():
     for config in (base, advanced):
         rig = Rig(config)
         rig.ref[sig.REF_I_Q_EXT_A] = 1.0
-        rig.cs[cc.S_INITIALISED] = 1.0
-        rig.cs[cc.S_VEL_EST] = 0.2
-        rig.cs[cc.S_FIR_HIST : cc.S_FIR_HIST + 2] = 0.2
-        rig.cs[cc.S_ENC_POS_PREV] = -0.2 * config.velocity.period_s
+        rig.cs[lay.S_INITIALISED] = 1.0
+        rig.cs[lay.S_VEL_EST] = 0.2
+        rig.cs[lay.S_FIR_HIST : lay.S_FIR_HIST + 2] = 0.2
+        rig.cs[lay.S_ENC_POS_PREV] = -0.2 * config.velocity.period_s
         outs.append(rig.tick(0))
     omega_e = 4 * 0.2 * 2 * math.pi / 0.01
     angle = 1.5 * omega_e * 62.5e-6
@@ -127,7 +128,7 @@ def test_voltage_is_limited_to_the_inverter_circle_and_integrator_holds():
         assert u == pytest.approx(0.95 * U_DC / SQRT3, rel=1e-9)
         assert min(out[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1]) >= 0.0
         assert max(out[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1]) <= 1.0
-    assert rig.cs[cc.S_I_Q_INT] == 0.0
+    assert rig.cs[lay.S_I_Q_INT] == 0.0
 
 
 def test_torque_mode_clamps_to_the_current_limit():
@@ -137,8 +138,8 @@ def test_torque_mode_clamps_to_the_current_limit():
 
 
 def test_loops_run_at_their_own_rates():
-    base = cc.build_cascade(AXIS)
-    divs = {n: base.params[i] for n, i in (("pos", cc.P_POS_DIV), ("vel", cc.P_VEL_DIV))}
+    base = lay.build_cascade(AXIS)
+    divs = {n: base.params[i] for n, i in (("pos", lay.P_POS_DIV), ("vel", lay.P_VEL_DIV))}
     assert divs == {"pos": 4, "vel": 2}
     rig = Rig(AXIS)
     rig.ref[sig.REF_POS_M] = 0.0
@@ -191,7 +192,7 @@ def test_position_loop_law_with_feed_forward():
     out = rig.tick(0)
     assert out[sig.OUT_FOLLOWING_ERROR_M] == pytest.approx(x_ref - x_meas)
     assert out[sig.OUT_VEL_REF_M_S] == pytest.approx(50.0 * 1e-4 + v_ref)
-    assert rig.cs[cc.S_EFFORT_FF] == pytest.approx(a_ref * 2 * math.pi / 0.01 * 5.8e-3 / 1.9)
+    assert rig.cs[lay.S_EFFORT_FF] == pytest.approx(a_ref * 2 * math.pi / 0.01 * 5.8e-3 / 1.9)
 
 
 def test_emps_velocity_mode_takes_the_external_setpoint():
@@ -213,11 +214,11 @@ def test_following_error_trips_latches_and_clears():
     rig.ref[sig.REF_POS_M] = 2e-3
     out = rig.tick(1)
     assert out[sig.OUT_FAULT] == sig.FAULT_FOLLOWING_ERROR
-    assert cc.fault_reason(out[sig.OUT_FAULT]) == "following error limit exceeded"
+    assert lay.fault_reason(out[sig.OUT_FAULT]) == "following error limit exceeded"
     assert out[sig.OUT_ENABLED] == 0.0 and out[sig.OUT_EFFORT_CMD] == 0.0
     rig.ref[sig.REF_POS_M] = 0.0
     assert rig.tick(2)[sig.OUT_FAULT] == sig.FAULT_FOLLOWING_ERROR  # latched
-    cc.clear_fault(rig.cs)
+    lay.clear_fault(rig.cs)
     out = rig.tick(3)
     assert out[sig.OUT_FAULT] == sig.FAULT_NONE and out[sig.OUT_ENABLED] == 1.0
 
@@ -229,7 +230,7 @@ def test_overcurrent_trips_and_the_power_stage_goes_to_zero_voltage():
     out = rig.tick(1)
     assert out[sig.OUT_FAULT] == sig.FAULT_OVERCURRENT
     assert list(out[sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1]) == [0.5, 0.5, 0.5]
-    assert rig.cs[cc.S_I_Q_INT] == 0.0 and rig.cs[cc.S_VEL_INT] == 0.0
+    assert rig.cs[lay.S_I_Q_INT] == 0.0 and rig.cs[lay.S_VEL_INT] == 0.0
 
 
 def test_disable_clears_integrators_and_enable_resumes():
@@ -237,12 +238,12 @@ def test_disable_clears_integrators_and_enable_resumes():
     rig.ref[sig.REF_VEL_EXT_M_S] = 0.005  # 12.8 A: inside the current limit
     for k in range(10):
         rig.tick(k)
-    assert rig.cs[cc.S_VEL_INT] > 0.0
-    cc.disable(rig.cs)
+    assert rig.cs[lay.S_VEL_INT] > 0.0
+    lay.disable(rig.cs)
     out = rig.tick(10)
     assert out[sig.OUT_FAULT] == sig.FAULT_DISABLED and out[sig.OUT_ENABLED] == 0.0
-    assert rig.cs[cc.S_VEL_INT] == 0.0 and out[sig.OUT_I_Q_REF_A] == 0.0
-    cc.enable(rig.cs)
+    assert rig.cs[lay.S_VEL_INT] == 0.0 and out[sig.OUT_I_Q_REF_A] == 0.0
+    lay.enable(rig.cs)
     out = rig.tick(12)
     assert out[sig.OUT_FAULT] == sig.FAULT_NONE and out[sig.OUT_ENABLED] == 1.0
     assert out[sig.OUT_I_Q_REF_A] > 0.0

@@ -7,6 +7,7 @@ import pytest
 
 from feed_twin.control import cascade as cc
 from feed_twin.control import config as ccfg
+from feed_twin.control import layout as lay
 from feed_twin.io.config import ConfigError
 
 SOURCE = "config/test.yaml"
@@ -59,7 +60,7 @@ def _with(path: str, value):
 
 
 def test_machine_tool_config_flattens_to_named_slots():
-    cascade = cc.build_cascade(_load(PMSM))
+    cascade = lay.build_cascade(_load(PMSM))
     p = dict(zip(cascade.param_names, cascade.params, strict=True))
     assert cascade.base_period_s == 62.5e-6
     assert (p["nc_div"], p["pos_div"], p["vel_div"], p["cur_div"]) == (16, 4, 2, 1)
@@ -71,16 +72,16 @@ def test_machine_tool_config_flattens_to_named_slots():
     assert not cascade.params.flags.writeable
     # acceleration feed-forward is off unless configured; on, it is J*(2 pi/lead)/K_t per m/s^2
     assert p["acc_ff_gain"] == 0.0
-    on = cc.build_cascade(_load(_with("position.acceleration_ff", 1.0)))
+    on = lay.build_cascade(_load(_with("position.acceleration_ff", 1.0)))
     gain = dict(zip(on.param_names, on.params, strict=True))["acc_ff_gain"]
     assert gain == pytest.approx(0.005 * 2 * np.pi / 0.01 / 1.8)
 
 
 def test_with_mode_switches_the_boundary():
-    cascade = cc.build_cascade(_load(PMSM))
-    torque = cc.with_mode(cascade, "torque")
-    assert torque.params[cc.P_MODE] == cc.MODE_TORQUE
-    assert torque.params[cc.P_KV] == cascade.params[cc.P_KV]
+    cascade = lay.build_cascade(_load(PMSM))
+    torque = lay.with_mode(cascade, "torque")
+    assert torque.params[lay.P_MODE] == cc.MODE_TORQUE
+    assert torque.params[lay.P_KV] == cascade.params[lay.P_KV]
 
 
 @pytest.mark.parametrize(
@@ -208,9 +209,9 @@ def test_position_loop_needs_a_velocity_loop():
 
 
 def test_fault_reason_texts():
-    assert cc.fault_reason(1.0) == "following error limit exceeded"
+    assert lay.fault_reason(1.0) == "following error limit exceeded"
     with pytest.raises(ValueError, match=r"fault code = 9.0: unknown; known: \[0, 1, 2, 3\]"):
-        cc.fault_reason(9.0)
+        lay.fault_reason(9.0)
 
 
 def test_source_digest_names_the_kernel_sources():
@@ -247,9 +248,9 @@ def test_direct_construction_errors(build, message):
 
 
 def test_with_mode_rejects_an_unknown_mode():
-    cascade = cc.build_cascade(_load(PMSM))
+    cascade = lay.build_cascade(_load(PMSM))
     with pytest.raises(ValueError) as err:
-        cc.with_mode(cascade, "homing")
+        lay.with_mode(cascade, "homing")
     assert str(err.value) == "mode = 'homing': must be one of 'position', 'velocity', 'torque'"
 
 

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from feed_twin.control import signals as sig
-from feed_twin.control.cascade import build_cascade, cascade_tick
+from feed_twin.control.cascade import cascade_tick
 from feed_twin.control.config import load_controller_config
+from feed_twin.control.layout import build_cascade
 from feed_twin.io.config import load_yaml
 
 DATA = Path("/work/shared/data/emps")

@@ -341,8 +341,8 @@ class Twin:
 
     @classmethod
     def compile(cls, doc: ModelDoc, *, smooth_sensors: bool = True, min_substeps: int = 1) -> Twin:
-        from feed_twin.control.cascade import build_cascade
         from feed_twin.control.config import load_controller_config
+        from feed_twin.control.layout import build_cascade
         from feed_twin.plant.config import load_plant
         from feed_twin.sim.engine import Engine
 

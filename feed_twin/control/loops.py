@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from feed_twin.control import cascade as cc
+from feed_twin.control import layout as lay
 from feed_twin.control import signals as sig
 
 
@@ -59,14 +60,14 @@ class _SampledController:
         keep: tuple[str, ...],
         computation_delay: bool = False,
     ) -> None:
-        self._cascade = cc.build_cascade(
+        self._cascade = lay.build_cascade(
             dataclasses.replace(config, mode=mode, computation_delay=computation_delay)
         )
         params = self._cascade.params.copy()
         for loop, slot in (
-            ("position", cc.P_HAS_POSITION),
-            ("velocity", cc.P_HAS_VELOCITY),
-            ("current", cc.P_HAS_CURRENT),
+            ("position", lay.P_HAS_POSITION),
+            ("velocity", lay.P_HAS_VELOCITY),
+            ("current", lay.P_HAS_CURRENT),
         ):
             if loop not in keep:
                 params[slot] = 0.0
@@ -91,7 +92,7 @@ class _SampledController:
     @property
     def fault(self) -> int:
         """Latched FAULT_* code, 0 when none."""
-        return int(self._cs[cc.S_FAULT])
+        return int(self._cs[lay.S_FAULT])
 
     def reset(self) -> None:
         """Back to the initial state; the next update may start at any grid time."""
@@ -99,13 +100,13 @@ class _SampledController:
         self._last_k: int | None = None
 
     def enable(self) -> None:
-        cc.enable(self._cs)
+        lay.enable(self._cs)
 
     def disable(self) -> None:
-        cc.disable(self._cs)
+        lay.disable(self._cs)
 
     def clear_fault(self) -> None:
-        cc.clear_fault(self._cs)
+        lay.clear_fault(self._cs)
 
     def _step(self, t: float, ref: np.ndarray, measurement: np.ndarray) -> np.ndarray:
         meas = self._vector("measurement", measurement, sig.MEAS_SIZE)
@@ -162,7 +163,7 @@ class PositionLoop(_SampledController):
         out = self._step(t, ref, measurement)
         return PositionCommand(
             vel_ref_m_s=float(out[sig.OUT_VEL_REF_M_S]),
-            effort_ff=float(self._cs[cc.S_EFFORT_FF]),
+            effort_ff=float(self._cs[lay.S_EFFORT_FF]),
             pos_ref_m=float(out[sig.OUT_POS_REF_M]),
             following_error_m=float(out[sig.OUT_FOLLOWING_ERROR_M]),
         )
@@ -183,7 +184,7 @@ class VelocityLoop(_SampledController):
 
     @property
     def velocity_estimate_m_s(self) -> float:
-        return float(self._cs[cc.S_VEL_EST])
+        return float(self._cs[lay.S_VEL_EST])
 
 
 class CurrentLoop(_SampledController):
@@ -205,7 +206,7 @@ class CurrentLoop(_SampledController):
         )
 
     def set_velocity_estimate(self, vel_m_s: float) -> None:
-        self._cs[cc.S_VEL_EST] = vel_m_s
+        self._cs[lay.S_VEL_EST] = vel_m_s
 
     def update(
         self, t: float, reference: float, measurement: np.ndarray

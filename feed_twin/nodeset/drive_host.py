@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from feed_twin.control import signals as sig
-from feed_twin.control.cascade import disable, enable
+from feed_twin.control.layout import disable, enable
 from feed_twin.control.transforms import clarke, park
 from feed_twin.nodeset.split import (
     MODE_CST,

@@ -265,7 +265,7 @@ class SimNode(FeedTwinNode):
         self._publish(sample)
         fault = int(sample.out[sig.OUT_FAULT])
         if fault:
-            from feed_twin.control.cascade import fault_reason
+            from feed_twin.control.layout import fault_reason
 
             self.get_logger().error(
                 f"drive fault at t = {sample.t_ns * 1e-9:.6f} s: {fault_reason(fault)}"

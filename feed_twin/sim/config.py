@@ -120,7 +120,7 @@ def build_engine(
     if closed_loop:
         if axis.controller is None:
             raise ConfigError(f"{axis.source}: closed loop needs a controller section")
-        from feed_twin.control.cascade import build_cascade, with_mode
+        from feed_twin.control.layout import build_cascade, with_mode
 
         cascade = build_cascade(axis.controller)
         if mode is not None:

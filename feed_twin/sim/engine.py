@@ -89,7 +89,7 @@ class Engine:
         substeps: int = 1,
         output_period_s: float | None = None,
         seed: int = 0,
-        controller=None,  # feed_twin.control.cascade.CompiledCascade, None for open loop
+        controller=None,  # feed_twin.control.layout.CompiledCascade, None for open loop
         params: np.ndarray | None = None,
         record: Sequence[str] | None = None,
     ) -> None:
