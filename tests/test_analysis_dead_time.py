@@ -255,7 +255,7 @@ def test_hidden_dead_time_is_named_fitted_and_closes_the_gap(tmp_path, voltage):
         map_path.write_text(map_path.read_text().replace("  voltage_q_V", "  # voltage_q_V"))
     run = load_measured(tmp_path / "run.csv", map_path)
     assert ("voltage_q_V" in run) == voltage
-    d, final, _ = diagnose(run, nominal)
+    d, final, motion = diagnose(run, nominal)
     assert d.effects and d.effects[0].name == "dead_time", (d.notes, d.ranking[:3])
     assert d.effects[0].parameters["t_dead_s"] == pytest.approx(TRUTH_T_DEAD_S, rel=0.10)
     assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
@@ -267,6 +267,15 @@ def test_hidden_dead_time_is_named_fitted_and_closes_the_gap(tmp_path, voltage):
         traces = simulate_traces(run, final)
         du = traces["voltage_q_V"] - traces["sim_voltage_q_V"]
         assert float(np.sqrt(np.mean(du**2))) == pytest.approx(d.after.voltage_q_rms_V, rel=1e-6)
+        # the report shows the voltage residual before and after
+        from feed_twin.analysis.report import write_report
+
+        write_report(d, tmp_path / "out", v_m_s=motion.v_m_s)
+        text = (tmp_path / "out" / "report.md").read_text()
+        assert "| u_q residual RMS [V] |" in text
+        assert f"| {d.before.voltage_q_rms_V:.4g} |" in text
+        assert f"| {d.after.voltage_q_rms_V:.4g} |" in text
+        assert (tmp_path / "out" / "identification.png").stat().st_size > 10_000
     else:
         assert d.after.voltage_q_rms_V is None
     # the fitted model carries it as the inverter's dead time, with the compensation unchanged

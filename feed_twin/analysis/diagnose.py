@@ -168,6 +168,7 @@ def _metrics(run: MeasuredRun, out: SimOutputs, row: int = 0) -> Metrics:
 
 def _trace(label: str, run: MeasuredRun, drive: Drive, out: SimOutputs) -> Trace:
     name = run.effort_name
+    has_u = _voltage_residual(run, out) is not None
     return Trace(
         label=label,
         t_s=run.t_s,
@@ -177,6 +178,8 @@ def _trace(label: str, run: MeasuredRun, drive: Drive, out: SimOutputs) -> Trace
         effort_meas=None if name is None else run[name],
         effort_sim=None if out.effort is None or name is None else out.effort[0],
         effort_name=name,
+        u_q_meas_V=run[VOLTAGE_Q] if has_u else None,
+        u_q_sim_V=out.voltage_q[0] if has_u and out.voltage_q is not None else None,
     )
 
 

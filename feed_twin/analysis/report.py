@@ -36,6 +36,8 @@ class Trace:
     effort_meas: np.ndarray | None
     effort_sim: np.ndarray | None
     effort_name: str | None  # canonical name, e.g. force_cmd_N
+    u_q_meas_V: np.ndarray | None = None  # the current controller's q-voltage, when recorded
+    u_q_sim_V: np.ndarray | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -192,9 +194,11 @@ def _effort_axis_label(name: str | None) -> str:
 
 
 def plot_traces(before: Trace, after: Trace, path: Path, title: str) -> None:
-    """Measured vs twin (before and after): following error, effort, and their residuals."""
+    """Measured vs twin (before and after): following error, effort, q-voltage, residuals."""
     t = before.t_s
     rows = 4 if before.effort_meas is not None else 2
+    has_u = before.u_q_meas_V is not None and before.u_q_sim_V is not None
+    rows += 1 if has_u else 0
     fig, axes = plt.subplots(rows, 1, figsize=(11, 2.6 * rows), sharex=True)
     fe_meas = (before.pos_cmd_m - before.x_meas_m) * 1e6
     ax = axes[0]
@@ -222,6 +226,13 @@ def plot_traces(before: Trace, after: Trace, path: Path, title: str) -> None:
         if after.effort_sim is not None:
             ax.plot(t, after.effort_meas - after.effort_sim, lw=0.6, label="augmented")
         ax.set_ylabel(f"residual {label}")
+        ax.legend(loc="upper right", fontsize=8)
+    if has_u:
+        ax = axes[-1]
+        ax.plot(t, before.u_q_meas_V - before.u_q_sim_V, lw=0.6, label="nominal")
+        if after.u_q_meas_V is not None and after.u_q_sim_V is not None:
+            ax.plot(t, after.u_q_meas_V - after.u_q_sim_V, lw=0.6, label="augmented")
+        ax.set_ylabel("residual u_q [V]")
         ax.legend(loc="upper right", fontsize=8)
     axes[-1].set_xlabel("time [s]")
     fig.suptitle(title)
@@ -281,6 +292,9 @@ def write_rerun(d: Diagnosis, path: Path) -> None:
                 series[f"{run}/effort/augmented"] = after.effort_sim
                 series[f"{run}/effort_residual/augmented"] = after.effort_meas - after.effort_sim
             series[f"{run}/effort_residual/nominal"] = before.effort_meas - before.effort_sim
+        for label, trace in (("nominal", before), ("augmented", after)):
+            if trace.u_q_meas_V is not None and trace.u_q_sim_V is not None:
+                series[f"{run}/u_q_residual_V/{label}"] = trace.u_q_meas_V - trace.u_q_sim_V
         for entity, values in series.items():
             rec.send_columns(
                 entity, indexes=[times], columns=rr.Scalars.columns(scalars=np.asarray(values))
