@@ -288,3 +288,13 @@ def test_hidden_dead_time_is_named_fitted_and_closes_the_gap(tmp_path, voltage):
 def test_candidate_domain_defaults_to_the_effects_own():
     cand = dataclasses.replace(_candidate("voltage", {}), domain="")
     assert cand.residual_domain == "voltage"
+
+
+def test_metrics_report_the_q_voltage_residual_rms():
+    from feed_twin.analysis.compare import compute_metrics
+
+    x = np.linspace(0.0, 0.1, 500)
+    u = 40.0 * np.sin(np.linspace(0.0, 6.0, 500))
+    m = compute_metrics(x, x, voltage_meas=u + 3.0, voltage_sim=u)
+    assert m.voltage_q_rms_V == pytest.approx(3.0, rel=1e-12)
+    assert compute_metrics(x, x).voltage_q_rms_V is None

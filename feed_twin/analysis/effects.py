@@ -36,7 +36,8 @@ periods, so the current, and through it the effort and the following error, keep
 trace; the voltage the controller commands carries the whole error. The signature is that
 Park transform computed from the measured q-current at the electrical angle p 2 pi x / lead (x
 the table position, direct drive), over a grid of sign-smoothing currents i_reg; its weight is
-u_dc Delta T_d / T_s, the extra volts the controller must command.
+u_dc Delta T_d / T_s, the extra volts the controller must command. (A recorded d-voltage,
+`voltage_d_V`, is not used: at i_d ~ 0 the d part of the error is only the 6th-harmonic ripple.)
 """
 
 from __future__ import annotations
