@@ -36,6 +36,10 @@ STAGES = ("currents", "dc_current", "dc_voltage", "voltages", "dynamics", "trans
 NAME_PATTERN = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
+class AssemblyError(ValueError):
+    """The components and connections do not form a valid plant."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class StateSpec:
     """One state a component owns (not the mechanical coordinates, which the assembler owns)."""

@@ -29,7 +29,8 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-from feed_twin.plant.assembly import PlantModel, _const
+from feed_twin.plant.assembly import PlantModel
+from feed_twin.plant.codegen import const_name
 
 RING = 16  # sensor samples kept: delays up to RING - 1 ticks
 NOISE_BLOCK = 32  # ticks of sensor noise drawn ahead in one go
@@ -242,7 +243,7 @@ def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
     """The full module text: plant functions, loop and batch loop."""
     switching = model.switching_inverter
     n_x = len(model.state_names)
-    t_dead_slot = _const("P_", f"{switching}.t_dead") if switching else "0"
+    t_dead_slot = const_name("P_", f"{switching}.t_dead") if switching else "0"
     loop = _LOOP.format(
         ring=RING,
         noise_block=NOISE_BLOCK,

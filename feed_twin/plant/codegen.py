@@ -1,0 +1,348 @@
+"""Generation of a plant's glue code from what its components emit.
+
+`Generator` is the Emitter the assembler (feed_twin.plant.assembly) hands to every component,
+stage by stage. From the collected lines it writes one Python module: the slot constants, three
+functions from the same lines, `rhs` (derivatives; also as `rhs_tuple`, derivatives returned),
+`outputs` (auxiliary signals, powers, stored energies) and `sense` (sensor samples, reading the
+tick's standard normal samples that `draw_noise(p, seed, k, noise)` drew), plus
+`fill_derived(p)`.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import TYPE_CHECKING
+
+from feed_twin.plant.component import STAGES, AssemblyError, Emitter
+
+if TYPE_CHECKING:
+    from feed_twin.plant.assembly import Coordinate, PlantModel
+
+NOISE_CHANNELS_PER_COMPONENT = 8
+SENSE_STAGES = ("currents", "dc_current", "dc_voltage", "sense")
+
+
+def acceleration_name(c: Coordinate) -> str:
+    """Name of a coordinate's acceleration output: `<body>.a` [m/s^2] or `<body>.alpha`."""
+    return f"{c.name}.{'alpha' if c.kind == 'rotational' else 'a'}"
+
+
+def const_name(prefix: str, name: str) -> str:
+    """The generated source's constant for a slot name: P_MOTOR_R_S for motor.R_s."""
+    return prefix + re.sub(r"[^A-Za-z0-9]", "_", name).upper()
+
+
+class Generator(Emitter):
+    """Collects the lines of the generated functions while components emit."""
+
+    def __init__(self, model: PlantModel) -> None:
+        self.m = model
+        self.current: str | None = None
+        # (kind, code, stage); kind: all, dx, aux, meas
+        self.lines: list[tuple[str, str, str]] = []
+        self.stage = STAGES[0]
+        self.imports: dict[str, str] = {}
+        self.energy_states: list[str] = []
+        self.energy_kinds: dict[str, str] = {}
+        self.aux_names: list[str] = []
+        self.stored_names: list[str] = []
+        self.meas_delays: dict[str, str] = {}
+        self.signal_names: set[str] = set()
+        self.node_scale: dict[int, str] = {}
+        self.noise_pairs: dict[int, str] = {}  # pair -> scale that switches it on
+        self.comp_index = {n: i for i, n in enumerate(model.components)}
+        self.n_core = len(model._core_states)
+
+    def _add(self, item: tuple[str, str]) -> None:
+        self.lines.append((item[0], item[1], self.stage))
+
+    # -------------------------------------------------- Emitter
+    def _name(self) -> str:
+        assert self.current is not None
+        return self.current
+
+    def p(self, slot: str) -> str:
+        full = f"{self._name()}.{slot}"
+        if full not in self.m.param_index:
+            raise KeyError(f"{full}: no such parameter slot")
+        return f"p[{const_name('P_', full)}]"
+
+    def x(self, state: str) -> str:
+        return f"x[{const_name('X_', f'{self._name()}.{state}')}]"
+
+    def d(self, state: str, expr: str) -> None:
+        self._add(("dx", f"dx[{const_name('X_', f'{self._name()}.{state}')}] = {expr}"))
+
+    def local(self, name: str) -> str:
+        return f"{self._name()}__{name}"
+
+    def line(self, code: str) -> None:
+        self._add(("all", code))
+
+    def call(self, targets: tuple[str, ...], func: str, args: tuple[str, ...]) -> None:
+        module, _, fname = func.rpartition(".")
+        alias = f"_{module.rsplit('.', 1)[-1]}_{fname}"
+        self.imports[alias] = f"from {module} import {fname} as {alias}"
+        lhs = ", ".join(targets)
+        self._add(("all", f"{lhs} = {alias}({', '.join(args)})"))
+
+    def _node(self, port: str) -> int:
+        return self.m.node_of[f"{self._name()}.{port}"]
+
+    def across(self, port: str) -> tuple[str, str]:
+        n = self._node(port)
+        return f"s_n{n}", f"v_n{n}"
+
+    def apply(self, port: str, expr: str) -> None:
+        self._add(("all", f"F_n{self._node(port)} += {expr}"))
+
+    def node_force(self, port: str) -> str:
+        return f"F_n{self._node(port)}"
+
+    def scale_node(self, port: str, expr: str) -> None:
+        self.node_scale[self._node(port)] = expr
+
+    def el(self, port: str, var: str) -> str:
+        return f"e{self._node(port)}_{var}"
+
+    def drive(self, slot: str) -> str:
+        self.signal_names.add(slot)
+        return f"out[{slot}]"
+
+    def switch(self, phase: int) -> str:
+        return f"sw[{phase}]"
+
+    def ext(self) -> str:
+        return f"ext[{const_name('EXT_', self._name())}]"
+
+    def aux(self, name: str, expr: str) -> None:
+        full = f"{self._name()}.{name}"
+        self.aux_names.append(full)
+        self._add(("aux", f"aux[{const_name('A_', full)}] = {expr}"))
+
+    def power(self, kind: str, name: str, expr: str) -> None:
+        full = f"energy.{self._name()}.{name}"
+        self.energy_kinds[full] = kind
+        if self.m.track_energy:
+            self.energy_states.append(full)
+            self._add(("dx", f"dx[{const_name('X_', full)}] = {expr}"))
+        self.aux(f"power.{name}", expr)
+
+    def stored(self, name: str, expr: str) -> None:
+        full = f"stored.{self._name()}.{name}"
+        self.stored_names.append(full)
+        self.aux_names.append(full)
+        self._add(("aux", f"aux[{const_name('A_', full)}] = {expr}"))
+
+    def meas(self, slot: str, expr: str, delay: str = "0") -> None:
+        if slot in self.meas_delays:
+            raise AssemblyError(
+                f"{self.m.source}: plant.{self._name()}: a second sensor for {slot}"
+            )
+        self.signal_names.add(slot)
+        self.meas_delays[slot] = self._name()
+        self._add(("meas", f"meas[{slot}] = {expr}"))
+        self._add(("meas", f"mdelay[{slot}] = {delay}"))
+        if "quantize_floor" in expr:
+            self.imports["quantize_floor"] = "from feed_twin.plant.sensors import quantize_floor"
+        if "adc(" in expr:
+            self.imports["adc"] = "from feed_twin.plant.sensors import adc"
+
+    def noise(self, channel: int, scale: str) -> str:
+        # channels 2j and 2j+1 share one polar-method draw; `draw_noise` fills the pairs of a
+        # tick into `noise`, which the loop does for a block of ticks ahead of `sense`
+        self.imports["standard_normal_pair"] = (
+            "from feed_twin.plant.noise import standard_normal_pair"
+        )
+        base = self.comp_index[self._name()] * NOISE_CHANNELS_PER_COMPONENT
+        pair = (base + channel) // 2
+        self.noise_pairs.setdefault(pair, scale)
+        index = 2 * list(self.noise_pairs).index(pair) + (base + channel) % 2
+        return f"{scale} * noise[{index}]"
+
+    def _rhs_tuple(self, rhs_lines: list[str]) -> list[str]:
+        """`rhs` again from the same lines, the derivatives returned as a tuple instead of stored.
+
+        The compiled loop keeps the state and the RK4 stages in registers with it: numba's arrays
+        may alias, so with dx and stage vectors in memory LLVM reloaded them around every store.
+        """
+        slots = [const_name("X_", s) for s, _, _ in self.m._core_states] + [
+            const_name("X_", s) for s in self.energy_states
+        ]
+        lines, assigned = [], set()
+        for code in rhs_lines:
+            match = re.fullmatch(r"dx\[(X_\w+)\] = (.*)", code)
+            if match:
+                assigned.add(match.group(1))
+                code = f"d_{match.group(1)} = {match.group(2)}"
+            lines.append(code)
+        lines = [f"d_{slot} = 0.0" for slot in slots if slot not in assigned] + lines
+        return [
+            "",
+            '@njit(cache=True, inline="always", error_model="numpy")',
+            "def rhs_tuple(t, x, p, out, ext, sw):",
+            *(f"    {code}" for code in lines),
+            f"    return ({', '.join(f'd_{slot}' for slot in slots)},)",
+        ]
+
+    def _draw_noise(self) -> list[str]:
+        lines = []
+        for i, (pair, scale) in enumerate(self.noise_pairs.items()):
+            lines += [
+                f"z0, z1 = standard_normal_pair(seed, k, {pair}) if {scale} != 0.0 else (0.0, 0.0)",
+                f"noise[{2 * i}] = z0",
+                f"noise[{2 * i + 1}] = z1",
+            ]
+        return [
+            "",
+            "# standard normal samples of one tick: (seed, tick, pair) alone determine them",
+            '@njit(cache=True, inline="always", error_model="numpy")',
+            "def draw_noise(p, seed, k, noise):",
+            *(f"    {code}" for code in lines),
+            "    return None",
+        ]
+
+    # -------------------------------------------------- output
+    def _constants(self) -> list[str]:
+        m = self.m
+        out = ["# state slots"]
+        names = [s for s, _, _ in m._core_states] + self.energy_states
+        out += [f"{const_name('X_', n)} = {i}" for i, n in enumerate(names)]
+        out.append(f"N_X = {len(names)}")
+        out.append("# parameter slots")
+        out += [f"{const_name('P_', n)} = {i}" for i, n in enumerate(m.param_names)]
+        out.append(f"N_P = {len(m.param_names)}")
+        out.append(f"N_NOISE = {2 * len(self.noise_pairs)}  # normal samples per tick")
+        out.append("# auxiliary outputs")
+        kinetic = [f"stored.{c.name}.kinetic" for c in m.coordinates]
+        aux = self.aux_names + kinetic + [acceleration_name(c) for c in m.coordinates]
+        out += [f"{const_name('A_', n)} = {i}" for i, n in enumerate(aux)]
+        out.append(f"N_A = {len(aux)}")
+        out.append("# external inputs")
+        out += [f"{const_name('EXT_', n)} = {i}" for i, n in enumerate(m.ext_names)]
+        out.append(f"N_EXT = {max(len(m.ext_names), 1)}")
+        return out
+
+    def _preamble(self) -> list[str]:
+        m = self.m
+        lines = []
+        for c in m.coordinates:
+            q = f"x[{const_name('X_', c.position_state)}]"
+            w = f"x[{const_name('X_', c.velocity_state)}]"
+            lines.append(f"q{c.index} = {q}")
+            lines.append(f"w{c.index} = {w}")
+            for n in c.nodes:
+                if c.ratios[n] == "1.0":
+                    lines.append(f"s_n{n} = q{c.index}")
+                    lines.append(f"v_n{n} = w{c.index}")
+                else:
+                    r = f"p[{const_name('P_', f'derived.ratio_n{n}')}]"
+                    lines.append(f"s_n{n} = {r} * q{c.index}")
+                    lines.append(f"v_n{n} = {r} * w{c.index}")
+                lines.append(f"F_n{n} = 0.0")
+        return lines
+
+    def _coordinate_lines(self) -> list[tuple[str, str]]:
+        m = self.m
+        lines: list[tuple[str, str]] = []
+        for c in m.coordinates:
+            terms = []
+            for n in c.nodes:
+                f = f"F_n{n}"
+                if n in self.node_scale:
+                    f = f"{f} * {self.node_scale[n]}"
+                if c.ratios[n] != "1.0":
+                    f = f"{f} * p[{const_name('P_', f'derived.ratio_n{n}')}]"
+                terms.append(f)
+            inv = f"p[{const_name('P_', f'derived.inv_inertia.{c.name}')}]"
+            lines.append(("dx", f"dx[{const_name('X_', c.position_state)}] = w{c.index}"))
+            lines.append(
+                ("dx", f"dx[{const_name('X_', c.velocity_state)}] = ({' + '.join(terms)}) * {inv}")
+            )
+            lines.append(
+                (
+                    "aux",
+                    f"aux[{const_name('A_', f'stored.{c.name}.kinetic')}]"
+                    f" = 0.5 * w{c.index} ** 2 / {inv}",
+                )
+            )
+            lines.append(
+                (
+                    "aux",
+                    f"aux[{const_name('A_', acceleration_name(c))}]"
+                    f" = ({' + '.join(terms)}) * {inv}",
+                )
+            )
+        return lines
+
+    def _fill_derived(self) -> list[str]:
+        m = self.m
+        body = []
+        for c in m.coordinates:
+            for n in c.nodes:
+                expr = c.ratios[n]
+                body.append(f"    p[{const_name('P_', f'derived.ratio_n{n}')}] = {expr}")
+            terms = []
+            for n in c.nodes:
+                for comp, slot, factor in m.inertia_nodes.get(n, []):
+                    r = f"p[{const_name('P_', f'derived.ratio_n{n}')}]"
+                    terms.append(f"{factor!r} * p[{const_name('P_', f'{comp}.{slot}')}] * {r} ** 2")
+            body.append(
+                f"    p[{const_name('P_', f'derived.inv_inertia.{c.name}')}]"
+                f" = 1.0 / ({' + '.join(terms)})"
+            )
+        return (
+            ['@njit(cache=True, error_model="numpy")', "def fill_derived(p):"]
+            + body
+            + ["    return p"]
+        )
+
+    def module_source(self) -> str:
+        head = [
+            f'"""Generated by feed_twin.plant.assembly for {self.m.source}; do not edit."""',
+            "import math",
+            "import numpy as np",
+            "from numba import njit",
+            "from feed_twin.control.signals import MEAS_SIZE, OUT_SIZE, REF_SIZE",
+        ]
+        sig_names = sorted(self.signal_names | {"OUT_ENABLED"})
+        head.append(f"from feed_twin.control.signals import {', '.join(sig_names)}")
+        head += sorted(set(self.imports.values()))
+        body_all = self._preamble()
+        funcs = []
+        specs = (
+            ("rhs", "t, x, p, out, ext, sw, dx", {"all", "dx"}),
+            ("outputs", "t, x, p, out, ext, sw, aux", {"all", "aux"}),
+            ("sense", "t, x, p, out, ext, sw, noise, meas, mdelay", {"all", "meas"}),
+        )
+        coord_lines = self._coordinate_lines()
+        for name, args, kinds in specs:
+            lines = list(body_all)
+            # sensors see positions, currents and the bus: `sense` skips the dynamics
+            stages = SENSE_STAGES if name == "sense" else STAGES
+            # coordinate sums go after `dynamics`/`transmit` lines; `sense` lines come last
+            lines += [
+                code
+                for kind, code, stage in self.lines
+                if kind in kinds and kind != "meas" and stage in stages
+            ]
+            if name != "sense":
+                lines += [code for kind, code in coord_lines if kind in kinds]
+            lines += [code for kind, code, _ in self.lines if kind == "meas" and "meas" in kinds]
+            funcs.append("")
+            # inlined into the loop: a call would pay numba's reference counting on every array
+            # argument, several times the cost of the physics
+            # numpy error model: a division by zero gives inf/NaN (caught by the divergence
+            # check) instead of an exception, so unused calls are dead code LLVM can drop
+            # no fast-math: reciprocals and fused products would change results in the last bits,
+            # and with them depend on the CPU that compiled the kernel
+            funcs.append('@njit(cache=True, inline="always", error_model="numpy")')
+            funcs.append(f"def {name}({args}):")
+            funcs += [f"    {code}" for code in lines]
+            funcs.append("    return None")
+            if name == "rhs":
+                funcs += self._rhs_tuple(lines)
+        funcs += self._draw_noise()
+        return (
+            "\n".join(head + [""] + self._constants() + [""] + self._fill_derived() + funcs) + "\n"
+        )
