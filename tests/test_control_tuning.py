@@ -157,7 +157,7 @@ def test_tune_subcommand_reports_config_errors(tmp_path, capsys):
     bad.write_text("plant: {}\n")
     args = argparse.Namespace(config=str(bad), load_mode_hz=None, load_mode_zeta=0.03)
     assert tune_cli.main(args) == 2
-    assert capsys.readouterr().err == f"error: {bad}: no controller section\n"
+    assert capsys.readouterr().err == f"feed-twin tune: {bad}: no controller section\n"
 
 
 def test_load_mode_limits_kv_to_its_damping_with_the_asked_gain_margin():
@@ -194,7 +194,7 @@ def test_tune_subcommand_with_a_load_mode(capsys):
     assert "(limited by load mode)" in capsys.readouterr().out
     args.load_mode_hz = -3.0
     assert tune_cli.main(args) == 2
-    assert capsys.readouterr().err == "error: frequency_hz = -3.0: must be > 0\n"
+    assert capsys.readouterr().err == "feed-twin tune: frequency_hz = -3.0: must be > 0\n"
 
 
 def test_velocity_tuning_input_errors():

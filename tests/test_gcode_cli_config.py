@@ -48,7 +48,10 @@ def test_plan_reports_program_and_config_errors_with_exit_code_2(tmp_path, capsy
     out = tmp_path / "never.csv"
     assert cli_main(["plan", str(bad), "--config", str(CONFIG_FILE), "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.strip() == f"error: {bad}:2:1: word 'G93': unsupported mode (inverse-time feed)"
+    assert (
+        err.strip()
+        == f"feed-twin plan: {bad}:2:1: word 'G93': unsupported mode (inverse-time feed)"
+    )
     assert not out.exists()
     config = tmp_path / "axis.yaml"
     config.write_text("plant: {}\n")

@@ -36,7 +36,7 @@ def main(args: argparse.Namespace) -> int:
         if args.load_mode_hz is not None:
             load_mode = LoadMode(frequency_hz=args.load_mode_hz, zeta=args.load_mode_zeta)
     except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"feed-twin tune: {exc}", file=sys.stderr)
         return 2
     print(f"{args.config}: mode {config.mode}, base period {config.base_period_s * 1e6:g} us")
     for line in tune_config(config, load_mode=load_mode).lines():

@@ -40,7 +40,7 @@ def main(args: argparse.Namespace) -> int:
         config = load_nc_config(args.config)
         chunks = plan_program_stream(args.program, config)
     except (ConfigError, GcodeError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"feed-twin plan: {exc}", file=sys.stderr)
         return 2
     axes = config.axis_names
     n_axes = len(axes)
