@@ -8,7 +8,7 @@ from feed_twin.cli import main
 
 
 def test_model_lists_coordinates_and_the_axial_mode_falling_with_position(capsys):
-    assert main(["model", "config/axis_default.yaml", "--positions", "0.0", "0.8"]) == 0
+    assert main(["model", "--config", "config/axis_default.yaml", "--positions", "0.0", "0.8"]) == 0
     text = capsys.readouterr().out
     assert "config/axis_default.yaml: 17 components, 12 states" in text
     assert re.search(r"coordinate table +200 kg +backlash.b, cutting.flange", text)
@@ -19,7 +19,7 @@ def test_model_lists_coordinates_and_the_axial_mode_falling_with_position(capsys
 
 
 def test_model_of_a_rigid_body_has_no_modes(capsys):
-    assert main(["model", "config/emps.yaml"]) == 0
+    assert main(["model", "--config", "config/emps.yaml"]) == 0
     text = capsys.readouterr().out
     assert re.search(r"coordinate table +95.11 kg", text)
     assert "modes at +0.000 m: \n" in text

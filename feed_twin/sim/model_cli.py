@@ -1,4 +1,4 @@
-"""`feed-twin model CONFIG`: the assembled plant of an axis YAML and its natural frequencies.
+"""`feed-twin model --config CONFIG`: the assembled plant of an axis YAML and its modes.
 
 Prints the generalized coordinates (which bodies move together, effective inertia), the state
 and parameter layout sizes, and the eigenfrequencies and damping ratios of the mechanical chain
@@ -18,7 +18,7 @@ from feed_twin.sim.config import load_axis_config
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("config", help="axis YAML (plant: and engine: sections)")
+    parser.add_argument("--config", required=True, help="axis YAML (plant: and engine: sections)")
     parser.add_argument(
         "--positions",
         type=float,
