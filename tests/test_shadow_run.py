@@ -7,16 +7,22 @@ health baseline (1.5 s) and window (1 s) of the config have motion in them.
 
 from __future__ import annotations
 
+import os
+import re
+import signal
 import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from nodes_support import AXIS_CONFIG, last_json, run
+from nodes_support import AXIS_CONFIG, last_json, run, start_run
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from test_nodes_faults import alive, wait_for_progress
 
+from feed_twin.io.bag import BagReader, info
 from feed_twin.io.dashboard import rerun_binary
 from feed_twin.ros.domain import reserve_domain_id
 
@@ -42,21 +48,45 @@ V_PEAK_M_S = 0.1  # F6000
 NC_PERIOD_S = 1e-3
 
 
-def shadow_run(directory: Path, name: str, friction_steps: list[dict]) -> dict:
+SHADOW_ROLES = ("recorder", "twin", "standin", "gcode")
+
+
+def write_inputs(directory: Path, name: str, friction_steps: list[dict]) -> list[str]:
+    """A private config copy (its path tells this run's processes apart) and the program;
+    the `feed-twin run` arguments of a shadow run writing to directory/out."""
     data = yaml.safe_load(AXIS_CONFIG.read_text())
     data["shadow"]["standin"]["friction_steps"] = friction_steps
     config = directory / f"{name}.yaml"
     config.write_text(yaml.safe_dump(data, sort_keys=False))
     program = directory / "shuttle.ngc"
     program.write_text(SHUTTLE)
+    return [str(program), "--config", str(config), "--shadow", "--out", str(directory / "out"),
+            "--name", name, "--json"]  # fmt: skip
+
+
+def shadow_run(directory: Path, name: str, friction_steps: list[dict]) -> dict:
     with reserve_domain_id() as domain:
-        code, out, err = run(
-            [str(program), "--config", str(config), "--shadow", "--out", str(directory / "out"),
-             "--name", name, "--json"],
-            domain.domain_id,
-        )  # fmt: skip
+        code, out, err = run(write_inputs(directory, name, friction_steps), domain.domain_id)
     assert code == 0, err[-4000:]
     return last_json(out)
+
+
+def shadow_pids(directory: Path) -> dict[str, int]:
+    """PIDs of the node processes whose command line names a file under `directory`."""
+    found: dict[str, int] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = [
+                a.decode(errors="replace") for a in (entry / "cmdline").read_bytes().split(b"\0")
+            ]
+        except OSError:
+            continue
+        for role in SHADOW_ROLES:
+            if f"feed_twin.ros.{role}_node" in argv and any(str(directory) in a for a in argv):
+                found[role] = int(entry.name)
+    return found
 
 
 def read_bag(bag: str) -> dict:
@@ -150,3 +180,63 @@ def test_raised_friction_is_named_in_the_health_topic(worn) -> None:
     assert "coulomb_friction +" in j["shadow_last_warning"]
     # the machine moved as before: the truth's drive makes up the extra friction
     assert j["following_error_max_m"] == pytest.approx(V_PEAK_M_S * NC_PERIOD_S, rel=0.1)
+
+
+def test_killed_twin_is_noticed_named_and_the_bag_readable(tmp_path) -> None:
+    args = write_inputs(tmp_path, "kill_twin", [])
+    logs = tmp_path / "out" / "kill_twin.logs"
+    with reserve_domain_id() as domain:
+        proc = start_run(args, domain.domain_id)
+        try:
+            wait_for_progress(proc, logs / "standin.log", 1.0)
+            pids = shadow_pids(tmp_path)
+            assert set(pids) == set(SHADOW_ROLES), pids
+            os.kill(pids["twin"], signal.SIGKILL)
+            out, err = proc.communicate(timeout=90)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)
+    assert proc.returncode != 0
+    assert "twin node was killed by SIGKILL" in err
+    gone = "node '/cnc/x/twin' is gone"
+    for role in ("standin", "gcode", "recorder"):
+        text = (logs / f"{role}.log").read_text(errors="replace")
+        assert gone in text, role
+        assert float(re.search(r"is gone: no heartbeat for (\S+) s", text)[1]) < 1.0
+        assert not alive(pids[role])
+    bag = tmp_path / "out" / "kill_twin"
+    counts = {t.name: t.message_count for t in info(bag).topics}
+    assert counts["/cnc/x/joint_states"] > 500  # the machine's samples up to the kill
+    residual = BagReader(bag).columns("/cnc/x/twin/residual", ["header.stamp"])["header.stamp"]
+    np.testing.assert_allclose(np.diff(residual), NC_PERIOD_S, atol=1e-9)  # no gap
+
+
+def test_sigint_stops_the_shadow_run_and_finalises_the_bag(tmp_path) -> None:
+    args = write_inputs(tmp_path, "sigint", [])
+    logs = tmp_path / "out" / "sigint.logs"
+    with reserve_domain_id() as domain:
+        proc = start_run(args, domain.domain_id)
+        try:
+            wait_for_progress(proc, logs / "standin.log", 1.0)
+            pids = shadow_pids(tmp_path)
+            started = time.monotonic()
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=90)
+            took = time.monotonic() - started
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)
+    assert proc.returncode == 130, err[-3000:]
+    assert "stopped by SIGINT" in err
+    assert took < 30.0
+    assert not any(alive(pid) for pid in pids.values())
+    bag = tmp_path / "out" / "sigint"
+    assert (bag / "metadata.yaml").exists()  # closed by the recorder, not recovered
+    counts = {t.name: t.message_count for t in info(bag).topics}
+    # nothing lost up to the stop: every sample the stand-in played is in the bag
+    steps = int(re.search(r'"steps": (\d+)', (logs / "standin.log").read_text())[1])
+    assert counts["/cnc/x/joint_states"] == steps > 500
+    assert 0 < counts["/cnc/x/twin/residual"] <= steps
+    assert last_json(out)["exit_code"] == 130
