@@ -339,9 +339,9 @@ LIBRARY: tuple[Effect, ...] = (
         domain="voltage",
         fallback="effort",
         component="Inverter.t_dead",
-        words="the current controller commands a voltage that flips with the sign of the "
-        "current and ripples six times per electrical revolution: the inverter's dead time "
-        "eats part of every phase voltage",
+        words="a voltage error that flips with the sign of the phase currents and ripples six "
+        "times per electrical revolution: the inverter's dead time eats part of every phase "
+        "voltage, and the current controller must command the missing volts",
         needs=("current_q_A", "lead_m", "pole_pairs"),
         choices=_dead_time_choices,
     ),
