@@ -29,7 +29,9 @@ def axis_with(tmp_path: Path, edit) -> Path:
 
 
 def test_standin_section_is_optional_and_read_when_given() -> None:
-    emps = load_shadow_config(ROOT / "config" / "emps.yaml").standin  # no standin: defaults
+    data = yaml.safe_load((ROOT / "config" / "emps.yaml").read_text())
+    del data["shadow"]["standin"]
+    emps = load_shadow_config(data, source="emps.yaml").standin  # no standin: the defaults
     assert (emps.jitter_s, emps.current_lag_s, emps.coupling_stiffness_factor) == (
         2e-4, 2e-4, 0.97,
     )  # fmt: skip
