@@ -16,8 +16,9 @@ import pytest
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.edits import dead_time
-from feed_twin.analysis.effects import BY_NAME, Candidate, dead_time_voltage, rank
+from feed_twin.analysis.effects import BY_NAME, dead_time_voltage
 from feed_twin.analysis.effects import motion_from_position as motion_of
+from feed_twin.analysis.ranking import Candidate, rank
 from feed_twin.analysis.synthetic import generate, write_csv
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 from feed_twin.io.measured import load_measured

@@ -7,14 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from feed_twin.analysis.effects import (
-    BY_NAME,
-    LIBRARY,
-    Effect,
-    evidence,
-    motion_from_position,
-    rank,
-)
+from feed_twin.analysis.effects import BY_NAME, LIBRARY, Effect, motion_from_position
+from feed_twin.analysis.ranking import evidence, rank
 
 H = 1e-3
 REQUIRED = {

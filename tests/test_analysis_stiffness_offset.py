@@ -17,8 +17,9 @@ import pytest
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.edits import current_offset, position_dependent_stiffness
-from feed_twin.analysis.effects import BY_NAME, Candidate
+from feed_twin.analysis.effects import BY_NAME
 from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, fit
+from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.synthetic import NC_CONFIG, generate, write_csv
 from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.io.measured import load_measured

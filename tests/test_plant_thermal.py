@@ -91,7 +91,8 @@ def test_invalid_parameters_are_refused_with_the_field_named(field, value, messa
 
 def test_backlash_edit_needs_a_backlash_component():
     from feed_twin.analysis.edits import backlash
-    from feed_twin.analysis.effects import BY_NAME, Candidate
+    from feed_twin.analysis.effects import BY_NAME
+    from feed_twin.analysis.ranking import Candidate
 
     cand = Candidate(
         effect=BY_NAME["backlash"],

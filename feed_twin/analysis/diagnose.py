@@ -29,14 +29,7 @@ import numpy as np
 
 from feed_twin.analysis.compare import Metrics, align, compute_metrics
 from feed_twin.analysis.edits import EDITS, Edit, interacting
-from feed_twin.analysis.effects import (
-    MIN_EXPLAINED,
-    Candidate,
-    Motion,
-    evidence,
-    motion_from_position,
-    rank,
-)
+from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.fit import (
     FitResult,
     FreeParameter,
@@ -46,6 +39,7 @@ from feed_twin.analysis.fit import (
     fit,
 )
 from feed_twin.analysis.locate import locate
+from feed_twin.analysis.ranking import MIN_EXPLAINED, Candidate, evidence, rank
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.io.measured import MeasuredRun

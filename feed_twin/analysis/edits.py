@@ -16,8 +16,8 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from feed_twin.analysis.effects import Candidate
 from feed_twin.analysis.fit import FreeParameter
+from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.twin import ModelDoc
 
 

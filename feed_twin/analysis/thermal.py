@@ -12,7 +12,7 @@ time constant is not identifiable from it and stays at its documented default.
 
 from __future__ import annotations
 
-from feed_twin.analysis.effects import Candidate
+from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.plant.thermal_growth import ALPHA_STEEL
 

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from feed_twin.analysis.effects import BY_NAME, motion_from_position, rank
+from feed_twin.analysis.effects import BY_NAME, motion_from_position
+from feed_twin.analysis.ranking import rank
 from feed_twin.shadow.config import ShadowConfig
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3

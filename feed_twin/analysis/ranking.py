@@ -1,0 +1,249 @@
+"""Ranking the effects of the library (feed_twin.analysis.effects) on a twin's residuals.
+
+Ranking projects a residual onto each effect's regressors (ordinary least squares): the
+explained fraction is `||P r||^2 / ||r||^2`, and a partial F-test on an effective sample count
+tells whether it is more than chance.
+
+The noise an effect is tested against is what remains after ALL signatures of the domain are
+fitted at once (so the structure of a second hidden effect does not count as noise). Residuals
+of a 1 kHz record are strongly correlated from sample to sample, so n samples carry far fewer
+than n independent observations: with the lag-1 autocorrelation rho of that remaining residual,
+an AR(1) process has `n_eff = n (1 - rho) / (1 + rho)` (Bartlett's correction), and projecting
+such noise onto p regressors gives about (n / n_eff) times the white-noise energy. Hence
+`F = (ESS / p) * n_eff / RSS_all` against F(p, n_eff - p_all). An effect counts as found only if
+the test rejects at `ALPHA` *and* it explains at least `MIN_EXPLAINED` of the residual, so a huge
+record cannot make a negligible effect significant.
+
+A missing force also moves the following error through the closed loop, so before
+position-domain effects are ranked, the part of the position residual that the effort residual
+explains (through a low-pass, the loop's disturbance compliance) is removed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal as sps
+from scipy import stats
+
+from feed_twin.analysis.effects import LIBRARY, Effect, Motion
+
+ALPHA = 1e-3  # false-alarm probability of the partial F-test per effect
+MIN_EXPLAINED = 0.05  # an effect must explain at least 5 % of the residual's energy
+
+
+@dataclass(frozen=True, kw_only=True)
+class Candidate:
+    """How well one effect's signature explains a residual."""
+
+    effect: Effect
+    variant: str  # the chosen nonlinear parameter, "" if none
+    explained_fraction: float  # [1] share of the residual energy the regressors explain
+    f_statistic: float
+    p_value: float
+    n_eff: float  # effective number of independent samples behind the test
+    coefficients: dict[str, float]  # regressor name -> least-squares coefficient
+    significant: bool
+    domain: str = ""  # the residual ranked ("": the effect's own domain)
+
+    @property
+    def name(self) -> str:
+        return self.effect.name
+
+    @property
+    def residual_domain(self) -> str:
+        return self.domain or self.effect.domain
+
+
+def _effective_samples(e: np.ndarray) -> float:
+    e = e - e.mean()
+    denom = float(np.dot(e, e))
+    rho = float(np.dot(e[1:], e[:-1]) / denom) if denom > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.9999)
+    return len(e) * (1.0 - rho) / (1.0 + rho)
+
+
+def test_regressors(
+    r: np.ndarray, regressors: dict[str, np.ndarray], nuisance: np.ndarray | None = None
+) -> tuple:
+    """Least squares of r on the regressors; (explained, F, p, n_eff, coefficients).
+
+    `nuisance` columns (e.g. a constant for a position offset that alignment owns) are projected
+    out of r and the regressors first (Frisch-Waugh), so they neither count as explained nor
+    bias the weights.
+    """
+    names = list(regressors)
+    Z = np.column_stack([np.asarray(regressors[k], dtype=float) for k in names])
+    if nuisance is not None:
+        q, _ = np.linalg.qr(nuisance.reshape(len(r), -1))
+        r = r - q @ (q.T @ r)
+        Z = Z - q @ (q.T @ Z)
+    scale = np.linalg.norm(Z, axis=0)
+    scale[scale == 0.0] = 1.0
+    coef, *_ = np.linalg.lstsq(Z / scale, r, rcond=None)
+    coef = coef / scale
+    fitted = Z @ coef
+    e = r - fitted
+    total = float(np.dot(r, r))
+    rss = float(np.dot(e, e))
+    explained = 0.0 if total == 0.0 else max(0.0, 1.0 - rss / total)
+    p = len(names)
+    n_eff = max(_effective_samples(e), p + 2.0)
+    dof = n_eff - p
+    f_stat = ((total - rss) / p) / (rss / dof) if rss > 0 else math.inf
+    p_value = float(stats.f.sf(f_stat, p, dof)) if math.isfinite(f_stat) else 0.0
+    return explained, f_stat, p_value, n_eff, dict(zip(names, map(float, coef), strict=True))
+
+
+test_regressors.__test__ = False  # a library function, not a pytest test
+
+
+def domain_of(effect: Effect, domains: set[str]) -> str | None:
+    """The residual an effect is ranked on: its own domain, else its fallback, else None."""
+    if effect.domain in domains:
+        return effect.domain
+    if effect.fallback is not None and effect.fallback in domains:
+        return effect.fallback
+    return None
+
+
+def available(effect: Effect, motion: Motion, domains: set[str]) -> bool:
+    if domain_of(effect, domains) is None:
+        return False
+    return all(getattr(motion, need) is not None for need in effect.needs)
+
+
+def rank(
+    motion: Motion,
+    *,
+    effort_residual: np.ndarray | None,
+    position_residual: np.ndarray | None,
+    exclude: tuple[str, ...] = (),
+    loop_stiffness: float | None = None,
+    voltage_residual: np.ndarray | None = None,
+) -> list[Candidate]:
+    """Rank the library's effects on the residuals, most explaining first.
+
+    Effort-domain effects are ranked on the effort residual, position-domain effects on the
+    position residual with the effort-driven part removed (see the module docstring),
+    voltage-domain effects on the q-voltage residual [V] (or their fallback domain). A record
+    without effort (a scope that logged positions only) ranks the effort-domain effects on
+    `loop_stiffness * position residual` [N/m * m]: a stiff position loop turns a missing force
+    d into a following-error change d / K, so that is the force the twin lacks.
+    """
+    if effort_residual is None and position_residual is not None and loop_stiffness:
+        rp = np.asarray(position_residual, dtype=float)
+        effort_residual = loop_stiffness * rp
+        position_residual = None
+    domains = set()
+    # a constant position offset belongs to the alignment, not to any effect
+    offset = np.ones_like(motion.t_s)
+    residual_of: dict[str, np.ndarray] = {}
+    if effort_residual is not None:
+        domains.add("effort")
+        residual_of["effort"] = np.asarray(effort_residual, dtype=float)
+    if position_residual is not None:
+        domains.add("position")
+        rp = np.asarray(position_residual, dtype=float)
+        if effort_residual is not None:
+            coupled = {"effort_residual": _lowpass(residual_of["effort"], motion)}
+            _, _, _, _, coef = test_regressors(rp, coupled, offset)
+            rp = rp - coef["effort_residual"] * coupled["effort_residual"]
+        residual_of["position"] = rp
+    if voltage_residual is not None:
+        domains.add("voltage")
+        residual_of["voltage"] = np.asarray(voltage_residual, dtype=float)
+    best_of: list[tuple[Effect, str, dict[str, np.ndarray], tuple, int, str]] = []
+    for effect in LIBRARY:
+        if effect.name in exclude or not available(effect, motion, domains):
+            continue
+        domain = domain_of(effect, domains)
+        assert domain is not None
+        r = residual_of[domain]
+        nuisance = offset if domain == "position" else None
+        variants = effect.variants(motion)
+        best = None
+        for label, sig in variants:
+            regs = sig(motion)
+            result = test_regressors(r, regs, nuisance)
+            if best is None or result[0] > best[2][0]:
+                best = (label, regs, result)
+        assert best is not None
+        best_of.append((effect, best[0], best[1], best[2], len(variants), domain))
+    noise = {
+        d: _noise_level(
+            residual_of[d],
+            [b for b in best_of if b[5] == d],
+            offset if d == "position" else None,
+        )
+        for d in domains
+    }
+    out: list[Candidate] = []
+    for effect, label, regs, result, n_variants, domain in best_of:
+        explained, _, _, _, coef = result
+        r = residual_of[domain]
+        if domain == "position":
+            r = r - r.mean()
+        rss_full, n_eff, p_full = noise[domain]
+        p = len(regs)
+        ess = explained * float(np.dot(r, r))
+        # see the module docstring: the noise level and its effective sample count come from
+        # the residual of all signatures together, so another effect's structure is not noise
+        f_stat = (ess / p) * n_eff / rss_full if rss_full > 0 else math.inf
+        dof = max(n_eff - p_full, 1.0)
+        p_value = float(stats.f.sf(f_stat, p, dof)) if math.isfinite(f_stat) else 0.0
+        # the variant search is one more free parameter, which the F-test's p does not see;
+        # Bonferroni over the variants keeps the false-alarm rate at ALPHA
+        p_adj = min(1.0, p_value * n_variants)
+        out.append(
+            Candidate(
+                effect=effect,
+                variant=label,
+                explained_fraction=explained,
+                f_statistic=f_stat,
+                p_value=p_adj,
+                n_eff=n_eff,
+                coefficients=coef,
+                significant=p_adj < ALPHA and explained >= MIN_EXPLAINED,
+                domain=domain,
+            )
+        )
+    out.sort(key=lambda c: (c.significant, c.explained_fraction), reverse=True)
+    return out
+
+
+def _noise_level(r: np.ndarray, entries: list, nuisance: np.ndarray | None):
+    """(RSS, effective samples, parameters) of r after all the domain's signatures at once."""
+    columns = [np.asarray(v, dtype=float) for e in entries for v in e[2].values()]
+    if nuisance is not None:
+        columns.append(nuisance)
+    if not columns:
+        return float(np.dot(r, r)), _effective_samples(r), 0
+    Z = np.column_stack(columns)
+    scale = np.linalg.norm(Z, axis=0)
+    scale[scale == 0.0] = 1.0
+    coef, _, rank_z, _ = np.linalg.lstsq(Z / scale, r, rcond=None)
+    e = r - (Z / scale) @ coef
+    return float(np.dot(e, e)), _effective_samples(e), int(rank_z)
+
+
+def _lowpass(r: np.ndarray, motion: Motion) -> np.ndarray:
+    h = float((motion.t_s[-1] - motion.t_s[0]) / (len(motion.t_s) - 1))
+    window = max(5, int(round(0.02 / h)) | 1)
+    return sps.savgol_filter(r, window, 1)
+
+
+def evidence(candidate: Candidate, unit: str) -> str:
+    """The finding in plain machine-tool words, with the numbers behind it."""
+    c = candidate
+    variant = f" ({c.variant})" if c.variant else ""
+    coefs = ", ".join(f"{k} {v:+.4g}" for k, v in c.coefficients.items())
+    verdict = "significant" if c.significant else "not significant"
+    return (
+        f"{c.effect.words}{variant}: its signature explains "
+        f"{100 * c.explained_fraction:.1f} % of the {c.residual_domain} residual "
+        f"(F = {c.f_statistic:.3g} on about {c.n_eff:.0f} independent samples, "
+        f"p = {c.p_value:.2g}, {verdict}); least-squares weights {coefs} [{unit}]"
+    )
