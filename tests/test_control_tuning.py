@@ -8,12 +8,10 @@ import numpy as np
 import pytest
 
 from feed_twin.control import tune_cli
+from feed_twin.control.loop_response import closed, closed_loop_bandwidth, loop_margins
 from feed_twin.control.tuning import (
     LoadMode,
-    closed,
-    closed_loop_bandwidth,
     estimator_delay,
-    loop_margins,
     tune_current_loop,
     tune_position_loop,
     tune_velocity_loop,

@@ -17,159 +17,31 @@ Position loop: the Kv that gives a target phase margin (default 70 deg) around t
 velocity loop, and, closed on a linear scale, at most 2 zeta w0 / 2 of the load's first mode
 (the mode's resonance peak 1/(2 zeta) must not lift |L| to 1 at -180 deg).
 
-Margins come from the frequency response of the linearised open loop L(j w) on a logarithmic
-grid, refined with Brent's method: phase margin 180 deg + arg L at |L| = 1, gain margin
--20 log10 |L| where arg L first reaches -180 deg.
+The loops, their margins and bandwidths are in feed_twin.control.loop_response.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import brentq
 
 from feed_twin.control.config import ControllerConfig
-
-TWO_PI = 2.0 * math.pi
-TransferFunction = Callable[[np.ndarray], np.ndarray]  # s (complex array) -> L(s)
-
-
-@dataclass(frozen=True, kw_only=True)
-class Margins:
-    phase_margin_deg: float  # [deg]; inf when |L| never crosses 1
-    crossover_rad_s: float  # gain crossover [rad/s]; nan when none
-    gain_margin_db: float  # [dB]; inf when the phase never reaches -180 deg
-    phase_crossover_rad_s: float  # [rad/s]; nan when none
-
-
-def frequency_response(loop: TransferFunction, omega: np.ndarray) -> np.ndarray:
-    """L(j w) at the angular frequencies omega [rad/s]."""
-    return np.asarray(loop(1j * np.asarray(omega, dtype=np.float64)), dtype=np.complex128)
-
-
-def _unwrapped_phase(loop: TransferFunction, omega: np.ndarray) -> np.ndarray:
-    return np.unwrap(np.angle(frequency_response(loop, omega)))
-
-
-def loop_margins(
-    loop: TransferFunction, *, omega_min: float = 1e-1, omega_max: float = 1e6, points: int = 4000
-) -> Margins:
-    """Phase and gain margins of the open loop `loop` (first crossings from low frequency)."""
-    omega = np.geomspace(omega_min, omega_max, points)
-    response = frequency_response(loop, omega)
-    log_mag = np.log(np.abs(response))
-    phase = np.unwrap(np.angle(response))
-    crossover, pm = math.nan, math.inf
-    down = np.nonzero((log_mag[:-1] >= 0.0) & (log_mag[1:] < 0.0))[0]
-    if down.size:
-        i = down[0]
-        crossover = brentq(
-            lambda w: math.log(abs(complex(loop(np.array([1j * w]))[0]))), omega[i], omega[i + 1]
-        )
-        pm = 180.0 + math.degrees(_phase_at(loop, crossover, omega[i], phase[i]))
-    phase_crossover, gm = math.nan, math.inf
-    below = np.nonzero((phase[:-1] > -math.pi) & (phase[1:] <= -math.pi))[0]
-    if below.size:
-        i = below[0]
-        phase_crossover = brentq(
-            lambda w: _phase_at(loop, w, omega[i], phase[i]) + math.pi, omega[i], omega[i + 1]
-        )
-        gm = -20.0 * math.log10(abs(complex(loop(np.array([1j * phase_crossover]))[0])))
-    return Margins(
-        phase_margin_deg=pm,
-        crossover_rad_s=crossover,
-        gain_margin_db=gm,
-        phase_crossover_rad_s=phase_crossover,
-    )
-
-
-def _phase_at(loop: TransferFunction, w: float, w_ref: float, phase_ref: float) -> float:
-    """Continuous phase at w, on the branch of the unwrapped phase at the nearby w_ref."""
-    ratio = complex(loop(np.array([1j * w]))[0]) / complex(loop(np.array([1j * w_ref]))[0])
-    return phase_ref + math.atan2(ratio.imag, ratio.real)
-
-
-def closed_loop_bandwidth(
-    closed_loop: TransferFunction, *, omega_min: float = 1e-1, omega_max: float = 1e6
-) -> float:
-    """-3 dB frequency [rad/s] of a closed loop T(s) with T(0) = 1 (first crossing of 1/sqrt 2)."""
-    omega = np.geomspace(omega_min, omega_max, 4000)
-    mag = np.abs(frequency_response(closed_loop, omega))
-    target = 1.0 / math.sqrt(2.0)
-    idx = np.nonzero((mag[:-1] >= target) & (mag[1:] < target))[0]
-    if not idx.size:
-        return math.nan
-    i = idx[0]
-    return brentq(
-        lambda w: abs(complex(closed_loop(np.array([1j * w]))[0])) - target, omega[i], omega[i + 1]
-    )
-
-
-# ---------------------------------------------------------------------------------------------
-# Linearised loops
-
-
-def pi_controller(Kp: float, Ti_s: float | None) -> TransferFunction:
-    """C(s) = Kp (1 + 1/(s Ti)); P only when Ti is None."""
-    if Ti_s is None:
-        return lambda s: Kp + 0.0 * s
-    return lambda s: Kp * (1.0 + 1.0 / (s * Ti_s))
-
-
-def current_open_loop(
-    *, Kp: float, Ti_s: float, R_s: float, L: float, T_sigma_s: float
-) -> TransferFunction:
-    """L_i(s) = PI(s) e^{-s T_sigma} / (R_s + s L)."""
-    pi = pi_controller(Kp, Ti_s)
-    return lambda s: pi(s) * np.exp(-s * T_sigma_s) / (R_s + s * L)
-
-
-def dead_time(T_s: float) -> TransferFunction:
-    return lambda s: np.exp(-s * T_s)
-
-
-def velocity_forward(
-    *,
-    Kp: float,
-    Ti_s: float | None,
-    m_eq_kg: float,
-    force_per_unit: float,
-    T_hold_s: float,
-    current_closed_loop: TransferFunction | None,
-) -> TransferFunction:
-    """Forward path PI(s) G_ci(s) F/(m s) e^{-s T_hold} from velocity error to true velocity,
-    load side; the estimator delay belongs to the feedback path (see `closed`)."""
-    pi = pi_controller(Kp, Ti_s)
-    inner = current_closed_loop or (lambda s: 1.0 + 0.0 * s)
-    return lambda s: pi(s) * inner(s) * force_per_unit / (m_eq_kg * s) * np.exp(-s * T_hold_s)
-
-
-def series(*parts: TransferFunction) -> TransferFunction:
-    def product(s: np.ndarray) -> np.ndarray:
-        result = np.ones_like(s)
-        for part in parts:
-            result = result * part(s)
-        return result
-
-    return product
-
-
-def closed(forward: TransferFunction, feedback: TransferFunction | None = None) -> TransferFunction:
-    """Setpoint to output: F/(1 + F H); the output is the true one, before the sensor path H."""
-    if feedback is None:
-        return lambda s: forward(s) / (1.0 + forward(s))
-    return lambda s: forward(s) / (1.0 + forward(s) * feedback(s))
-
-
-def position_open_loop(
-    *, Kv_1_s: float, velocity_closed_loop: TransferFunction, T_delay_s: float
-) -> TransferFunction:
-    """L_p(s) = Kv/s * T_v(s) e^{-s T_delay}."""
-    return lambda s: Kv_1_s / s * velocity_closed_loop(s) * np.exp(-s * T_delay_s)
-
+from feed_twin.control.loop_response import (
+    TWO_PI,
+    Margins,
+    TransferFunction,
+    closed,
+    closed_loop_bandwidth,
+    current_open_loop,
+    dead_time,
+    loop_margins,
+    position_open_loop,
+    series,
+    velocity_forward,
+)
 
 # ---------------------------------------------------------------------------------------------
 # Designs
