@@ -220,9 +220,12 @@ class TwinNode(FeedTwinNode):
 
     def _verdict(self, v: Verdict) -> None:
         self._health_pub.publish(HEALTH.encode(health_values(HEALTH.names, v, self.axis_label)))
-        if v.level != 0:
-            log = self.get_logger().warning if v.level != 2 else self.get_logger().error
-            log(f"health {v.level_name} at t = {v.t_s:.3f} s: {v.message}")
+        text = f"health {v.level_name} at t = {v.t_s:.3f} s: {v.message}"
+        # one call site per severity: rclpy refuses a call site whose severity changes
+        if v.level == 2:
+            self.get_logger().error(text)
+        elif v.level != 0:
+            self.get_logger().warning(text)
         if self.dashboard is not None:
             self.dashboard.log_verdict(v)
 
