@@ -240,3 +240,35 @@ def test_sigint_stops_the_shadow_run_and_finalises_the_bag(tmp_path) -> None:
     assert counts["/cnc/x/joint_states"] == steps > 500
     assert 0 < counts["/cnc/x/twin/residual"] <= steps
     assert last_json(out)["exit_code"] == 130
+
+
+def test_another_command_publisher_on_the_domain_stops_the_run(tmp_path) -> None:
+    """A second run (or any node) publishing the same command topic on the same ROS domain
+    would feed its setpoints into this run: the stand-in refuses to start and says why."""
+    import rclpy
+    from feed_twin_msgs.msg import AxisCommand
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    args = write_inputs(tmp_path, "crowded", [])
+    with reserve_domain_id() as domain:
+        context = Context()
+        rclpy.init(
+            context=context,
+            domain_id=domain.domain_id,
+            signal_handler_options=SignalHandlerOptions.NO,
+        )
+        try:
+            intruder = rclpy.create_node("other_gcode", namespace="/cnc/x", context=context)
+            intruder.create_publisher(AxisCommand, "/cnc/x/command", 10)
+            code, out, err = run(args, domain.domain_id)
+            intruder.destroy_node()
+        finally:
+            context.try_shutdown()
+    assert code != 0
+    assert "standin node exited with code 1" in err, err[-3000:]
+    assert (
+        f"/cnc/x/command has 2 publishers, not 1: another run on ROS domain {domain.domain_id}? "
+        "Stop it, or run this one in another domain (ROS_DOMAIN_ID)"
+    ) in err
+    assert last_json(out)["exit_code"] == 1

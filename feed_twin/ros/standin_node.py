@@ -39,6 +39,7 @@ import argparse
 import heapq
 import json
 import math
+import os
 import sys
 import time
 from collections import deque
@@ -56,6 +57,7 @@ from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.ros.runtime import (
     DATA_QOS,
+    EXIT_ERROR,
     EXIT_OK,
     LATCHED_QOS,
     FeedTwinNode,
@@ -199,11 +201,20 @@ class StandInNode(FeedTwinNode):
         if now - self._progress_at > PROGRESS_PERIOD_S and self.start is not None:
             self._progress_at = now
             print(f"PROGRESS {self._machine_time():.3f}", file=sys.stderr, flush=True)
+            # discovery may bring another run's node in at any time, not only before the start
+            crowded = self._crowded_topics()
+            if crowded:
+                self.finish(EXIT_ERROR, crowded)
+                return None
         if self.start is None:
             # begin when the set is up and someone listens to the measurement (the twin node)
             ready = self.peers_alive() and self._js_pub.get_subscription_count() > 0
             if not (ready and self._commands):
                 return 0.01
+            crowded = self._crowded_topics()
+            if crowded:
+                self.finish(EXIT_ERROR, crowded)
+                return None
             self.start = now + (0.05 if self.realtime else 0.0)
             self._t0_ns = self._commands[0][0]
             self.standin.reset(self._commands[0][1])
@@ -228,6 +239,25 @@ class StandInNode(FeedTwinNode):
         if self._queue:
             due.append(self._queue[0][0] - time.perf_counter())
         return max(0.0, min(due)) if due else None
+
+    def _crowded_topics(self) -> str:
+        """Why the run cannot start: another run's node on the same topics (the same ROS
+        domain and machine/axis names) would feed its samples into this one."""
+        if not self.follow:
+            return ""
+        mine = {self.topics.command: 1, self.topics.joint_states: 1}
+        lines = [
+            f"{topic} has {self.count_publishers(topic)} publishers, not {n}"
+            for topic, n in mine.items()
+            if self.count_publishers(topic) > n
+        ]
+        if not lines:
+            return ""
+        domain = os.environ.get("ROS_DOMAIN_ID", "0")
+        return (
+            "; ".join(lines) + f": another run on ROS domain {domain}? Stop it, or run this one "
+            "in another domain (ROS_DOMAIN_ID) or under other ros.machine/ros.axis names"
+        )
 
     def _ended(self) -> bool:
         if self._end_ns is None or self._t0_ns is None:
