@@ -34,6 +34,42 @@ from feed_twin.nodeset.split import (
 
 MEAS_RECORD = tuple(f"meas.{n}" for n in sig.MEAS_NAMES)
 OUT_RECORD = tuple(f"out.{n}" for n in sig.OUT_NAMES)
+# The AxisState numbers after its header and axis label, in message order.
+TRUTH_FIELDS = (
+    "position_setpoint",
+    "table_position",
+    "table_velocity",
+    "table_acceleration",
+    "following_error",
+    "motor_angle",
+    "motor_velocity",
+    "i_d",
+    "i_q",
+    "u_d",
+    "u_q",
+    "u_dc",
+    "torque_em",
+    "friction_force",
+    "screw_force",
+    "electrical_power",
+    "mechanical_power",
+)
+# StateSignals fields read from the engine row, in the order `DriveHost.truth` unpacks them.
+_SIGNAL_FIELDS = (
+    "table_position",
+    "table_velocity",
+    "motor_angle",
+    "motor_velocity",
+    "i_d",
+    "i_q",
+    "u_d",
+    "u_q",
+    "u_dc",
+    "i_dc",
+    "torque_em",
+    "friction_force",
+    "screw_force",
+)
 
 
 @dataclass
@@ -93,6 +129,16 @@ class DriveHost:
             if n.endswith(".step") and n.split(".")[0] in ("encoder",)
         ]
         self.encoder_step_rad = float(counts[0]) if counts else 0.0
+        self._meas_idx = np.array([self._index[n] for n in MEAS_RECORD])
+        self._i_fault = self._index[f"out.{sig.OUT_NAMES[sig.OUT_FAULT]}"]
+        self._i_enabled = self._index[f"out.{sig.OUT_NAMES[sig.OUT_ENABLED]}"]
+        # One fancy-index and one multiply give every AxisState signal; a signal the plant does
+        # not have reads slot 0 times NaN.
+        names = [getattr(signals, f) for f in _SIGNAL_FIELDS]
+        self._signal_idx = np.array([self._index[n.lstrip("-")] if n else 0 for n in names])
+        self._signal_sign = np.array(
+            [math.nan if not n else (-1.0 if n[0] == "-" else 1.0) for n in names]
+        )
         self._ref = np.zeros((self.ticks, sig.REF_SIZE))
         self._row = np.zeros(sig.REF_SIZE)
         self._prev_v: float | None = None
@@ -116,8 +162,9 @@ class DriveHost:
     def t_ns(self) -> int:
         return self.k * self.exchange_ns
 
-    def step(self, setpoint: DriveSetpoint | None) -> ExchangeSample:
-        """Hold `setpoint` (None: keep the previous one) over one exchange; sample at its start."""
+    def advance(self, setpoint: DriveSetpoint | None) -> tuple[int, np.ndarray]:
+        """Hold `setpoint` (None: keep the previous one) over one exchange; returns the exchange
+        instant t_k [ns] and the engine row recorded there (names: `engine.record_names`)."""
         if setpoint is not None:
             self.setpoint = setpoint
         sp = self.setpoint
@@ -125,62 +172,58 @@ class DriveHost:
         drive_reference(sp, self.K_t, self._row)
         self._ref[:] = self._row
         result = self.engine.advance(self.ticks, self._ref)
-        row = result.data[0]
         t_ns = self.t_ns
         self.k += 1
-        return self._sample(t_ns, row, sp)
+        return t_ns, result.data[0]
 
-    def _value(self, row: np.ndarray, name: str) -> float:
-        if not name:
-            return math.nan
-        if name[0] == "-":
-            return -float(row[self._index[name[1:]]])
-        return float(row[self._index[name]])
+    def feedback(self, row: np.ndarray) -> tuple[list[float], int, float, float, float]:
+        """What the drive reports at a row: (MEAS_* values, encoder counts, i_d [A], i_q [A],
+        following error setpoint - scale [m]); i_d, i_q are NaN without a current loop."""
+        meas = row[self._meas_idx].tolist()
+        theta = meas[sig.MEAS_THETA_ENC_RAD]
+        counts = round(theta / self.encoder_step_rad) if self.encoder_step_rad > 0.0 else 0
+        if self.pole_pairs:
+            theta_e = self.pole_pairs * theta + self.encoder_offset_rad
+            alpha, beta = clarke(meas[sig.MEAS_I_A], meas[sig.MEAS_I_B], meas[sig.MEAS_I_C])
+            i_d, i_q = park(alpha, beta, theta_e)
+            i_d, i_q = float(i_d), float(i_q)
+        else:
+            i_d = i_q = math.nan
+        error = self.setpoint.position_m - meas[sig.MEAS_X_SCALE_M]
+        return meas, counts, i_d, i_q, error
 
-    def _sample(self, t_ns: int, row: np.ndarray, sp: DriveSetpoint) -> ExchangeSample:
-        meas = np.array([row[self._index[n]] for n in MEAS_RECORD])
-        out = np.array([row[self._index[n]] for n in OUT_RECORD])
-        s = self.signals
-        v = self._value(row, s.table_velocity)
-        period = self.exchange_ns / NS_PER_S
-        acc = 0.0 if self._prev_v is None else (v - self._prev_v) / period
+    def fault(self, row: np.ndarray) -> tuple[int, bool]:
+        """(FAULT_* code, power stage enabled) of the drive at a row."""
+        return int(row[self._i_fault]), bool(row[self._i_enabled] > 0.5)
+
+    def truth(self, row: np.ndarray) -> list[float]:
+        """The AxisState numbers (TRUTH_FIELDS order) of the row of this exchange.
+
+        Call once per exchange, in order: the acceleration is the difference quotient of the
+        table velocity over the exchange period.
+        """
+        (x, v, phi, omega, i_d, i_q, u_d, u_q, u_dc, i_dc, tau, f_friction, f_screw) = (
+            row[self._signal_idx] * self._signal_sign
+        ).tolist()
+        acc = 0.0 if self._prev_v is None else (v - self._prev_v) * NS_PER_S / self.exchange_ns
         self._prev_v = v
-        x = self._value(row, s.table_position)
-        tau = self._value(row, s.torque_em)
-        omega = self._value(row, s.motor_velocity)
-        u_dc = self._value(row, s.u_dc)
-        truth = {
-            "position_setpoint": sp.position_m,
-            "table_position": x,
-            "table_velocity": v,
-            "table_acceleration": acc,
-            "following_error": sp.position_m - x,
-            "motor_angle": self._value(row, s.motor_angle),
-            "motor_velocity": omega,
-            "i_d": self._value(row, s.i_d),
-            "i_q": self._value(row, s.i_q),
-            "u_d": self._value(row, s.u_d),
-            "u_q": self._value(row, s.u_q),
-            "u_dc": u_dc,
-            "torque_em": tau,
-            "friction_force": self._value(row, s.friction_force),
-            "screw_force": self._value(row, s.screw_force),
-            "electrical_power": u_dc * self._value(row, s.i_dc),
-            "mechanical_power": tau * omega,
-        }
-        theta = float(meas[sig.MEAS_THETA_ENC_RAD])
-        theta_e = self.pole_pairs * theta + self.encoder_offset_rad
-        alpha, beta = clarke(meas[sig.MEAS_I_A], meas[sig.MEAS_I_B], meas[sig.MEAS_I_C])
-        i_d, i_q = park(alpha, beta, theta_e)
-        feedback = {
-            "encoder_counts": (
-                round(theta / self.encoder_step_rad) if self.encoder_step_rad > 0.0 else 0
-            ),
-            "i_d": float(i_d) if self.pole_pairs else math.nan,
-            "i_q": float(i_q) if self.pole_pairs else math.nan,
-            "following_error": sp.position_m - float(meas[sig.MEAS_X_SCALE_M]),
-        }
-        return ExchangeSample(t_ns=t_ns, meas=meas, out=out, truth=truth, feedback=feedback)
+        x_r = self.setpoint.position_m
+        return [
+            x_r, x, v, acc, x_r - x, phi, omega, i_d, i_q, u_d, u_q, u_dc, tau,
+            f_friction, f_screw, u_dc * i_dc, tau * omega,
+        ]  # fmt: skip
+
+    def step(self, setpoint: DriveSetpoint | None) -> ExchangeSample:
+        """`advance`, then everything the sim publishes for that exchange as one sample."""
+        t_ns, row = self.advance(setpoint)
+        meas, counts, i_d, i_q, error = self.feedback(row)
+        return ExchangeSample(
+            t_ns=t_ns,
+            meas=np.array(meas),
+            out=np.array([row[self._index[n]] for n in OUT_RECORD]),
+            truth=dict(zip(TRUTH_FIELDS, self.truth(row), strict=True)),
+            feedback={"encoder_counts": counts, "i_d": i_d, "i_q": i_q, "following_error": error},
+        )
 
 
 def nc_samples(

@@ -157,6 +157,8 @@ class DriveSetpoint:
     torque_Nm: float = 0.0
     i_q_A: float = 0.0
     i_d_A: float = 0.0
+    u_d_V: float = 0.0  # d-axis voltage (MODE_VOLTAGE) [V]
+    u_q_V: float = 0.0  # q-axis voltage (MODE_VOLTAGE) [V]
     following_error_m: float = math.nan  # the controller's view, for the record [m]
 
 

@@ -48,45 +48,62 @@ AXIS_FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")
 DRIVE_COMMAND = FlatCodec("feed_twin_msgs/msg/DriveCommand")
 
 
-def nc_sample(data: bytes) -> NcSample:
-    m = AXIS_COMMAND.decode_map(data)
-    return NcSample(
-        t_ns=m["header.stamp.sec"] * NS_PER_S + m["header.stamp.nanosec"],
-        position_m=m["position"],
-        velocity_m_s=m["velocity"],
-        acceleration_m_s2=m["acceleration"],
-        line=m["line"],
-    )
+class MessageIO:
+    """The controller node's message conversions, fast for its axis label (any label decodes)."""
+
+    def __init__(self, axis_label: str) -> None:
+        self.command = AXIS_COMMAND.fixed({"axis": axis_label})
+        self.feedback = AXIS_FEEDBACK.fixed({"axis": axis_label})
+        self.drive = DRIVE_COMMAND.fixed({"axis": axis_label})
+        self._nc = [
+            self.command.index(n)
+            for n in (
+                "header.stamp.sec", "header.stamp.nanosec", "position", "velocity",
+                "acceleration", "line",
+            )
+        ]  # fmt: skip
+        self._fb = [
+            self.feedback.index(n)
+            for n in ("header.stamp.sec", "header.stamp.nanosec", *_MEAS_FIELDS)
+        ]
+        expected = (
+            "header.stamp.sec", "header.stamp.nanosec", "mode", "enable", "position",
+            "velocity", "torque", "i_q", "i_d", "u_d", "u_q", "effort",
+        )  # fmt: skip
+        if self.drive.numbers != expected:
+            raise ValueError(f"DriveCommand fields {self.drive.numbers} != {expected}")
+
+    def nc_sample(self, data: bytes) -> NcSample:
+        values = self.command.decode(data)
+        sec, nsec, x, v, a, line = (values[i] for i in self._nc)
+        return NcSample(
+            t_ns=sec * NS_PER_S + nsec,
+            position_m=x,
+            velocity_m_s=v,
+            acceleration_m_s2=a,
+            line=line,
+        )
+
+    def feedback_sample(self, data: bytes, out: np.ndarray) -> int:
+        """Fill the MEAS_* vector from AxisFeedback bytes; returns the stamp [ns]."""
+        values = self.feedback.decode(data)
+        sec, nsec, *meas = (values[i] for i in self._fb)
+        out[:] = meas
+        return sec * NS_PER_S + nsec
+
+    def drive_command(self, sp: DriveSetpoint) -> bytes:
+        sec, nsec = divmod(sp.t_ns, NS_PER_S)
+        return self.drive.encode(
+            (
+                sec, nsec, sp.mode, sp.enable, sp.position_m, sp.velocity_m_s, sp.torque_Nm,
+                sp.i_q_A, sp.i_d_A, sp.u_d_V, sp.u_q_V, 0.0,
+            )
+        )  # fmt: skip
 
 
-def feedback_sample(data: bytes, out: np.ndarray) -> int:
-    """Fill the MEAS_* vector from AxisFeedback bytes; returns the stamp [ns]."""
-    m = AXIS_FEEDBACK.decode_map(data)
-    out[sig.MEAS_THETA_ENC_RAD] = m["encoder_angle"]
-    out[sig.MEAS_X_SCALE_M] = m["scale_position"]
-    out[sig.MEAS_I_A] = m["i_a"]
-    out[sig.MEAS_I_B] = m["i_b"]
-    out[sig.MEAS_I_C] = m["i_c"]
-    out[sig.MEAS_U_DC_V] = m["u_dc"]
-    return m["header.stamp.sec"] * NS_PER_S + m["header.stamp.nanosec"]
-
-
-def drive_command(setpoint: DriveSetpoint, axis: str) -> bytes:
-    sec, nsec = divmod(setpoint.t_ns, NS_PER_S)
-    return DRIVE_COMMAND.encode_map(
-        {
-            "header.stamp.sec": sec,
-            "header.stamp.nanosec": nsec,
-            "axis": axis,
-            "mode": setpoint.mode,
-            "enable": setpoint.enable,
-            "position": setpoint.position_m,
-            "velocity": setpoint.velocity_m_s,
-            "torque": setpoint.torque_Nm,
-            "i_q": setpoint.i_q_A,
-            "i_d": setpoint.i_d_A,
-        }
-    )
+# AxisFeedback fields of the MEAS_* slots, in slot order.
+_MEAS_FIELDS = ("encoder_angle", "scale_position", "i_a", "i_b", "i_c", "u_dc")
+assert len(_MEAS_FIELDS) == sig.MEAS_SIZE
 
 
 class ControllerNode(FeedTwinNode):
@@ -110,6 +127,7 @@ class ControllerNode(FeedTwinNode):
         self.core.warm_up()
         self.axis_label = axis_label
         self.exchange_ns = round(exchange_period_s * NS_PER_S)
+        self.io = MessageIO(axis_label)
         self.nc = NcBuffer()
         self._pending: collections.deque[bytes] = collections.deque()
         self._paused = False
@@ -139,7 +157,7 @@ class ControllerNode(FeedTwinNode):
         self.start_heartbeat()
 
     def _on_command(self, data: bytes) -> None:
-        self.nc.add(nc_sample(data))
+        self.nc.add(self.io.nc_sample(data))
         self._command_dog.feed()
         self._serve()
 
@@ -158,7 +176,7 @@ class ControllerNode(FeedTwinNode):
     def _serve(self) -> None:
         while self._pending:
             # Feedback latched at t_k sets the setpoint the drive applies from t_k+1 (drive_host).
-            t_ns = feedback_sample(self._pending[0], self._meas) + self.exchange_ns
+            t_ns = self.io.feedback_sample(self._pending[0], self._meas) + self.exchange_ns
             nc = self.nc.for_time(t_ns)
             if nc is None:
                 return
@@ -168,7 +186,7 @@ class ControllerNode(FeedTwinNode):
             except ValueError as exc:
                 self.finish(EXIT_ERROR, f"controller: at t = {t_ns * 1e-9:.6f} s: {exc}")
                 return
-            self._pub.publish(drive_command(setpoint, self.axis_label))
+            self._pub.publish(self.io.drive_command(setpoint))
             self.steps += 1
 
 

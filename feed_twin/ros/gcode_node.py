@@ -48,6 +48,7 @@ from feed_twin.ros.runtime import (
 )
 
 AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
+CLOCK = FlatCodec("rosgraph_msgs/msg/Clock").fixed({})
 STANDSTILL_M_S = 1e-9  # |v| below which the planned path is at rest [m/s]
 
 
@@ -140,9 +141,10 @@ class GcodeNode(FeedTwinNode):
         self.trajectory: SampledTrajectory | None = None
         self.running = False
         self._clock_ns = 0
+        self._command = AXIS_COMMAND.fixed({"axis": nc.twin_axis})
         self._pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
         self._state_pub = self.create_publisher(String, self.topics.program_state, LATCHED_QOS)
-        self.create_subscription(Clock, "/clock", self._on_clock, DATA_QOS)
+        self.create_subscription(Clock, "/clock", self._on_clock, DATA_QOS, raw=True)
         self.create_service(Trigger, "~/start", self._srv_start)
         self.create_service(Trigger, "~/pause", self._srv_pause)
         self.create_service(Trigger, "~/stop", self._srv_stop)
@@ -205,19 +207,7 @@ class GcodeNode(FeedTwinNode):
         while not stream.finished and stream.next_t_ns <= horizon:
             t_ns, x, v, a, line = stream.next_sample()
             sec, nsec = divmod(t_ns, NS_PER_S)
-            self._pub.publish(
-                AXIS_COMMAND.encode_map(
-                    {
-                        "header.stamp.sec": sec,
-                        "header.stamp.nanosec": nsec,
-                        "axis": self.nc.twin_axis,
-                        "position": x,
-                        "velocity": v,
-                        "acceleration": a,
-                        "line": line,
-                    }
-                )
-            )
+            self._pub.publish(self._command.encode((sec, nsec, x, v, a, line)))
             if stream.paused is not None and was_paused is None:
                 self._state(f"paused {stream.paused}")
                 was_paused = stream.paused
@@ -228,8 +218,9 @@ class GcodeNode(FeedTwinNode):
 
     # -- callbacks ----------------------------------------------------------------------------
 
-    def _on_clock(self, msg: Clock) -> None:
-        self._clock_ns = msg.clock.sec * NS_PER_S + msg.clock.nanosec
+    def _on_clock(self, data: bytes) -> None:
+        sec, nsec = CLOCK.decode(data)
+        self._clock_ns = sec * NS_PER_S + nsec
         self._publish_ahead()
 
     def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:

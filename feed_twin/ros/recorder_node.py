@@ -1,11 +1,19 @@
 """The recorder node: every topic of the axis, as exact wire bytes, into a rosbag2 MCAP bag.
 
-It subscribes with `raw=True`, so the stored bytes are what DDS delivered (no deserialisation,
-no re-serialisation padding), and writes them through `feed_twin.io.bag.BagWriter`. Besides the
-node set's own topics (subscribed at start, so the first messages are not missed) it scans the
-graph every 0.2 s and adds any other topic under the axis namespace, plus /clock and /rosout,
-with the QoS its publisher offers. Log time and publish time are the wall-clock receive time in
-ns (rclpy's EventsExecutor cannot hand raw callbacks the message info with the send time).
+It takes the serialised messages (`raw=True`), so the stored bytes are what DDS delivered (no
+deserialisation, no re-serialisation padding), and writes them through
+`feed_twin.io.bag.BagWriter`. Besides the node set's own topics (subscribed at start, so the
+first messages are not missed) it scans the graph every 0.2 s and adds any other topic under the
+axis namespace, plus /clock and /rosout, with the QoS its publisher offers. Log time is the
+receive time and publish time the writer's source timestamp (ns, system clock), as rosbag2
+records them.
+
+The data subscriptions belong to a second node that no executor spins: the recorder drains
+their queues every DRAIN_PERIOD_S (`take_message` until empty) instead of waking once per
+message. A lockstep run sends four or five messages per exchange at several thousand exchanges
+per second; a callback per message would make the recorder the largest CPU user of the node set
+and steal the cores the controller and the sim wait for. The subscriptions' history (DATA_QOS
+depth) holds what arrives between two drains.
 
 The run ends when the sim node announces it on `run_state`; the recorder then drains what is
 still in flight (until 0.3 s without a message, at most 30 s) and closes the bag. On SIGINT,
@@ -21,6 +29,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from feed_twin.io.bag import BagWriter, QosProfile
@@ -41,6 +50,7 @@ from feed_twin.ros.runtime import (
 DRAIN_QUIET_S = 0.3
 DRAIN_MAX_S = 30.0  # a recorder starved of CPU may lag seconds behind the graph
 SCAN_PERIOD_S = 0.2
+DRAIN_PERIOD_S = 0.005  # [s] between two drains of the data subscriptions
 EXTRA_GLOBAL_TOPICS = ("/rosout",)
 
 
@@ -78,6 +88,12 @@ class RecorderNode(FeedTwinNode):
         self.live = LiveFeed(self.topics, live_url) if live_url else None
         self.bag_path = bag_path
         self._recorded: dict[str, object] = {}
+        # Spun by nobody: `_drain` takes its messages (see the module docstring).
+        self._data_node = Node(
+            f"{RECORDER_NODE}_data", namespace=self.topics.namespace, context=self.context
+        )
+        self._takers: list[tuple[str, object, bool, object]] = []
+        self._next_drain = 0.0
         self._last_message = time.monotonic()
         self._ending_since: float | None = None
         self.end_reason = ""
@@ -99,24 +115,50 @@ class RecorderNode(FeedTwinNode):
         if topic in self._recorded:
             return
         self.bag.add_topic(topic, type_name, qos=(_bag_qos(qos),))
-        write = self.bag.write
-
+        subscription = self._data_node.create_subscription(
+            message_class(type_name), topic, _never_called, qos, raw=True
+        )
+        self._recorded[topic] = subscription
         # Heartbeats go on while peers live; only data counts when judging "quiet".
         counts = topic != self.topics.heartbeat
-
         live = self.live if self.live is not None and self.live.wants(topic) else None
+        self._takers.append((topic, subscription, counts, live))
 
-        def on_message(data: bytes, topic: str = topic) -> None:
-            now = time.time_ns()
-            if counts:
+    def poll(self) -> float | None:
+        now = time.monotonic()
+        if now >= self._next_drain:
+            self._next_drain = now + DRAIN_PERIOD_S
+            self._drain()
+        return DRAIN_PERIOD_S
+
+    def _drain(self) -> int:
+        """Write every message waiting in the data subscriptions; returns how many."""
+        write = self.bag.write
+        total = 0
+        for topic, subscription, counts, live in self._takers:
+            handle = subscription.handle
+            msg_type = subscription.msg_type
+            n = 0
+            with handle:
+                while True:
+                    taken = handle.take_message(msg_type, True)
+                    if taken is None:
+                        break
+                    data, info = taken
+                    received = info["received_timestamp"]
+                    write(
+                        topic,
+                        data,
+                        log_time_ns=received,
+                        publish_time_ns=info["source_timestamp"] or received,
+                    )
+                    if live is not None:
+                        live.feed(topic, data)
+                    n += 1
+            if n and counts:
                 self._last_message = time.monotonic()
-            write(topic, data, log_time_ns=now, publish_time_ns=now)
-            if live is not None:
-                live.feed(topic, data)
-
-        self._recorded[topic] = self.create_subscription(
-            message_class(type_name), topic, on_message, qos, raw=True
-        )
+            total += n
+        return total
 
     def _scan(self) -> None:
         prefix = self.topics.namespace + "/"
@@ -175,6 +217,7 @@ class RecorderNode(FeedTwinNode):
                 self.finish(EXIT_PEER_LOST, self._peer_lost)
 
     def on_shutdown(self, reason: str) -> None:
+        self._drain()
         if self.live is not None:
             self.live.close()
         info = self.bag.close()
@@ -183,6 +226,14 @@ class RecorderNode(FeedTwinNode):
             f"{self.bag_path}",
             file=sys.stderr,
         )
+
+    def destroy_node(self) -> None:
+        self._data_node.destroy_node()
+        super().destroy_node()
+
+
+def _never_called(data: bytes) -> None:
+    """The data subscriptions are drained, not spun."""
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -35,7 +35,7 @@ from std_msgs.msg import String
 from feed_twin.control import signals as sig
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError
-from feed_twin.nodeset.drive_host import DriveHost, ExchangeSample
+from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost
 from feed_twin.nodeset.split import NS_PER_S, DriveSetpoint, NodeSetConfig
 from feed_twin.nodeset.topics import SIM_NODE
 from feed_twin.ros.runtime import (
@@ -101,20 +101,66 @@ def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
 DRIVE_COMMAND = FlatCodec("feed_twin_msgs/msg/DriveCommand")
 AXIS_FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")
 AXIS_STATE = FlatCodec("feed_twin_msgs/msg/AxisState")
+# The AxisFeedback numbers as `_exchange` packs them (the MEAS_* slots 0..4 are in this order).
+FEEDBACK_NUMBERS = (
+    "header.stamp.sec",
+    "header.stamp.nanosec",
+    "encoder_counts",
+    "encoder_angle",
+    "scale_position",
+    "i_a",
+    "i_b",
+    "i_c",
+    "i_d",
+    "i_q",
+    "u_dc",
+    "following_error",
+    "mode",
+    "status_word",
+    "fault_code",
+)
+_COMMAND_FIELDS = (
+    "header.stamp.sec",
+    "header.stamp.nanosec",
+    "mode",
+    "enable",
+    "position",
+    "velocity",
+    "torque",
+    "i_q",
+    "i_d",
+    "u_d",
+    "u_q",
+)
+
+
+class CommandReader:
+    """DriveCommand bytes -> DriveSetpoint, fast for the axis label this node expects."""
+
+    def __init__(self, axis_label: str) -> None:
+        self.layout = DRIVE_COMMAND.fixed({"axis": axis_label})
+        self._pick = [self.layout.index(n) for n in _COMMAND_FIELDS]
+
+    def __call__(self, data: bytes) -> DriveSetpoint:
+        values = self.layout.decode(data)
+        sec, nsec, mode, enable, x, v, tau, i_q, i_d, u_d, u_q = (values[i] for i in self._pick)
+        return DriveSetpoint(
+            t_ns=sec * NS_PER_S + nsec,
+            mode=mode,
+            enable=enable,
+            position_m=x,
+            velocity_m_s=v,
+            torque_Nm=tau,
+            i_q_A=i_q,
+            i_d_A=i_d,
+            u_d_V=u_d,
+            u_q_V=u_q,
+        )
 
 
 def setpoint_from(data: bytes) -> DriveSetpoint:
-    m = DRIVE_COMMAND.decode_map(data)
-    return DriveSetpoint(
-        t_ns=m["header.stamp.sec"] * NS_PER_S + m["header.stamp.nanosec"],
-        mode=m["mode"],
-        enable=m["enable"],
-        position_m=m["position"],
-        velocity_m_s=m["velocity"],
-        torque_Nm=m["torque"],
-        i_q_A=m["i_q"],
-        i_d_A=m["i_d"],
-    )
+    """A DriveSetpoint from DriveCommand bytes of any axis label."""
+    return CommandReader("")(data)
 
 
 class SimNode(FeedTwinNode):
@@ -170,6 +216,16 @@ class SimNode(FeedTwinNode):
         )
         self._joint = JointState(name=[joint_name], position=[0.0], velocity=[0.0], effort=[0.0])
         self._clock = Clock()
+        self._read_command = CommandReader(axis_label)
+        self._feedback_layout = AXIS_FEEDBACK.fixed({"axis": axis_label})
+        self._state_layout = AXIS_STATE.fixed({"axis": axis_label})
+        if self._feedback_layout.numbers != FEEDBACK_NUMBERS:
+            raise ValueError(f"AxisFeedback fields {self._feedback_layout.numbers} changed")
+        if self._state_layout.numbers[2:] != TRUTH_FIELDS:
+            raise ValueError(f"AxisState fields {self._state_layout.numbers} != {TRUTH_FIELDS}")
+        self._i_position = TRUTH_FIELDS.index("table_position")
+        self._i_velocity = TRUTH_FIELDS.index("table_velocity")
+        self._i_screw = TRUTH_FIELDS.index("screw_force")
         self.start_heartbeat()
 
     # -- start and end ------------------------------------------------------------------------
@@ -233,7 +289,7 @@ class SimNode(FeedTwinNode):
     # -- exchanges ----------------------------------------------------------------------------
 
     def _on_command(self, data: bytes) -> None:
-        setpoint = setpoint_from(data)
+        setpoint = self._read_command(data)
         self._command_dog.feed()
         if self.realtime:
             self._pending[setpoint.t_ns] = setpoint
@@ -256,58 +312,45 @@ class SimNode(FeedTwinNode):
         if self.max_ns is not None and self.host.t_ns > self.max_ns:
             self._end(EXIT_OK, f"done time limit at {self.host.t_ns} ns")
             return
+        host = self.host
         try:
-            sample = self.host.step(setpoint)
+            t_ns, row = host.advance(setpoint)
         except Exception as exc:  # noqa: BLE001 - a diverged plant ends the run with its message
             self._end(EXIT_ERROR, f"done error: {exc}")
             return
         self.steps += 1
-        self._publish(sample)
-        fault = int(sample.out[sig.OUT_FAULT])
+        # The controller waits for the feedback: it goes out first, the record messages after.
+        sec, nsec = divmod(t_ns, NS_PER_S)
+        meas, counts, i_d, i_q, error = host.feedback(row)
+        fault, enabled = host.fault(row)
+        self._feedback_pub.publish(
+            self._feedback_layout.encode(
+                (
+                    sec, nsec, counts, *meas[: sig.MEAS_U_DC_V], i_d, i_q,
+                    meas[sig.MEAS_U_DC_V], error, host.setpoint.mode,
+                    (STATUS_ENABLED if enabled else 0) | (STATUS_FAULT if fault else 0), fault,
+                )
+            )
+        )  # fmt: skip
+        truth = host.truth(row)
+        self._state_pub.publish(self._state_layout.encode((sec, nsec, *truth)))
         if fault:
-            from feed_twin.control.layout import fault_reason
+            from feed_twin.control.cascade import fault_reason
 
             self.get_logger().error(
-                f"drive fault at t = {sample.t_ns * 1e-9:.6f} s: {fault_reason(fault)}"
+                f"drive fault at t = {t_ns * 1e-9:.6f} s: {fault_reason(fault)}",
+                throttle_duration_sec=1.0,
             )
-
-    def _publish(self, s: ExchangeSample) -> None:
-        sec, nsec = divmod(s.t_ns, NS_PER_S)
-        meas = s.meas
-        fault = int(s.out[sig.OUT_FAULT])
-        enabled = s.out[sig.OUT_ENABLED] > 0.5
-        feedback = {
-            "header.stamp.sec": sec,
-            "header.stamp.nanosec": nsec,
-            "axis": self.axis_label,
-            "encoder_counts": int(s.feedback["encoder_counts"]),
-            "encoder_angle": float(meas[sig.MEAS_THETA_ENC_RAD]),
-            "scale_position": float(meas[sig.MEAS_X_SCALE_M]),
-            "i_a": float(meas[sig.MEAS_I_A]),
-            "i_b": float(meas[sig.MEAS_I_B]),
-            "i_c": float(meas[sig.MEAS_I_C]),
-            "i_d": s.feedback["i_d"],
-            "i_q": s.feedback["i_q"],
-            "u_dc": float(meas[sig.MEAS_U_DC_V]),
-            "following_error": s.feedback["following_error"],
-            "mode": self.host.setpoint.mode,
-            "status_word": (STATUS_ENABLED if enabled else 0) | (STATUS_FAULT if fault else 0),
-            "fault_code": fault,
-        }
-        state = {"header.stamp.sec": sec, "header.stamp.nanosec": nsec, "axis": self.axis_label}
-        state.update(s.truth)
-        self._feedback_pub.publish(AXIS_FEEDBACK.encode_map(feedback))
-        self._state_pub.publish(AXIS_STATE.encode_map(state))
-        if (self.host.k - 1) % self.clock_divider:
+        if (host.k - 1) % self.clock_divider:
             return
         # Tools get joint states and the clock at a lower rate; every message carries its stamp.
         js = self._joint
         js.header.stamp.sec, js.header.stamp.nanosec = sec, nsec
-        js.position[0] = s.truth["table_position"]
-        js.velocity[0] = s.truth["table_velocity"]
-        js.effort[0] = s.truth["screw_force"]
+        js.position[0] = truth[self._i_position]
+        js.velocity[0] = truth[self._i_velocity]
+        js.effort[0] = truth[self._i_screw]
         # The clock reads the time the simulation has reached: the end of this exchange.
-        csec, cnsec = divmod(s.t_ns + self.host.exchange_ns, NS_PER_S)
+        csec, cnsec = divmod(t_ns + host.exchange_ns, NS_PER_S)
         self._clock.clock.sec, self._clock.clock.nanosec = csec, cnsec
         self._joint_pub.publish(js)
         self._clock_pub.publish(self._clock)
