@@ -104,6 +104,9 @@ class NodeSetConfig:
     settle_s: float = 0.2  # simulated time after the program's end [s]
     lookahead: int = 50  # NC setpoints published ahead of the simulation clock [-]
     clock_divider: int = 10  # /clock and joint_states every this many exchanges [-]
+    # Scheduling of the two lockstep partners (sim and controller node), where the OS allows it:
+    exchange_cpu: int = -1  # CPU both run on (-1: anywhere) [-]
+    realtime_priority: int = 0  # SCHED_FIFO priority of both in real-time mode (0: normal) [-]
     signals: StateSignals = dataclasses.field(default_factory=StateSignals)
     node_gains: NodeLoopGains = dataclasses.field(default_factory=NodeLoopGains)
 
@@ -128,6 +131,11 @@ class NodeSetConfig:
                 f"clock_divider = {self.clock_divider!r}: must lie in [1, lookahead - 1] "
                 f"= [1, {self.lookahead - 1}] so the NC stays ahead of the clock"
             )
+
+        for name, low, high in (("exchange_cpu", -1, 1023), ("realtime_priority", 0, 99)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise ValueError(f"{name} = {value!r}: must be a whole number in [{low}, {high}]")
 
     @property
     def exchange_ns(self) -> int:

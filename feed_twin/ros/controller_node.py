@@ -40,6 +40,7 @@ from feed_twin.ros.runtime import (
     LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
+    apply_scheduling,
     node_main,
 )
 
@@ -116,6 +117,7 @@ class ControllerNode(FeedTwinNode):
         exchange_period_s: float,
         axis_label: str,
         gains: NodeLoopGains | None = None,
+        exchange_cpu: int = -1,
         context=None,
     ) -> None:
         super().__init__(CONTROLLER_NODE, options, context=context)
@@ -154,7 +156,15 @@ class ControllerNode(FeedTwinNode):
             "feed_twin_msgs/msg/AxisFeedback",
             armed=lambda: self.peers_alive() and self.nc.latest_ns is not None and not self.steps,
         )
+        for note in apply_scheduling(cpu=exchange_cpu):
+            self.get_logger().info(f"scheduling: {note}")
         self.start_heartbeat()
+
+    def on_run_state(self, text: str) -> None:
+        word, _, priority = text.partition(" priority ")
+        if word == "realtime" and priority.isdigit() and int(priority) > 0:
+            for note in apply_scheduling(priority=int(priority)):
+                self.get_logger().info(f"scheduling: {note}")
 
     def _on_command(self, data: bytes) -> None:
         self.nc.add(self.io.nc_sample(data))
@@ -209,6 +219,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> Contr
         exchange_period_s=ros.exchange_period_s,
         axis_label=ros.axis.upper(),
         gains=ros.node_gains,
+        exchange_cpu=ros.exchange_cpu,
         context=context,
     )
 

@@ -17,12 +17,20 @@
   completes, with the nodes' `poll()` deadline as its timeout: callbacks are dispatched inside
   one call until the timeout; between calls it handles SIGINT/SIGTERM itself, letting every
   node finish cleanly (the recorder closes its bag).
+- Scheduling (`apply_scheduling`): a lockstep exchange is a ping-pong between the sim and the
+  controller process, and on a virtual machine a wake-up across cores costs several times one on
+  the same core, so `ros.exchange_cpu` pins both to one CPU (measured: both on one CPU beat one
+  each). In real-time mode `ros.realtime_priority` runs both under SCHED_FIFO, which bounds the
+  lateness by the kernel's wake-up latency instead of by whatever else the machine runs. Both
+  apply to every thread of the process (the DDS receive threads deliver the messages); where
+  the OS refuses (no CAP_SYS_NICE, no such CPU) the node logs why and runs unpinned/normal.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import resource
 import signal
 import sys
@@ -223,8 +231,13 @@ class FeedTwinNode(Node):
         """The sim node announced the end of the run; by default the node stops cleanly."""
         self.finish(EXIT_OK, "")
 
+    def on_run_state(self, text: str) -> None:
+        """Any other run_state announcement (the sim's "realtime" at the start); default: none."""
+
     def _on_run_state(self, msg: String) -> None:
-        if msg.data.startswith("done") and not self.run_ended:
+        if not msg.data.startswith("done"):
+            self.on_run_state(msg.data)
+        elif not self.run_ended:
             self.run_ended = True  # peers leave from now on: that is no longer a fault
             self.get_logger().info(f"run state: {msg.data}")
             self.on_run_done(msg.data)
@@ -331,6 +344,30 @@ class _SignalFlag:
 
     def __call__(self, signum: int, frame: object) -> None:
         self.received = signum
+
+
+def apply_scheduling(*, cpu: int = -1, priority: int = 0) -> list[str]:
+    """Pin every thread of this process to `cpu` (-1: leave) and run it under SCHED_FIFO at
+    `priority` (0: leave); returns one note per setting, saying what took effect or why not."""
+    notes: list[str] = []
+    threads = (
+        [int(t) for t in os.listdir("/proc/self/task")] if os.path.isdir("/proc/self/task") else [0]
+    )
+    if cpu >= 0:
+        try:
+            for tid in threads:
+                os.sched_setaffinity(tid, {cpu})
+            notes.append(f"pinned to CPU {cpu}")
+        except (OSError, AttributeError) as exc:
+            notes.append(f"not pinned to CPU {cpu}: {exc}")
+    if priority > 0:
+        try:
+            for tid in threads:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            notes.append(f"SCHED_FIFO priority {priority}")
+        except (OSError, AttributeError) as exc:
+            notes.append(f"normal scheduling, SCHED_FIFO priority {priority} refused: {exc}")
+    return notes
 
 
 def init_context(args: Sequence[str] | None = None) -> Context:

@@ -45,6 +45,7 @@ from feed_twin.ros.runtime import (
     LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
+    apply_scheduling,
     node_main,
 )
 
@@ -175,6 +176,8 @@ class SimNode(FeedTwinNode):
         realtime: bool = False,
         max_time_s: float | None = None,
         clock_divider: int = 1,
+        exchange_cpu: int = -1,
+        realtime_priority: int = 0,
         context=None,
     ) -> None:
         super().__init__(SIM_NODE, options, context=context)
@@ -226,6 +229,13 @@ class SimNode(FeedTwinNode):
         self._i_position = TRUTH_FIELDS.index("table_position")
         self._i_velocity = TRUTH_FIELDS.index("table_velocity")
         self._i_screw = TRUTH_FIELDS.index("screw_force")
+        for note in apply_scheduling(
+            cpu=exchange_cpu, priority=realtime_priority if realtime else 0
+        ):
+            self.get_logger().info(f"scheduling: {note}")
+        if realtime:
+            # The controller raises its own priority on this announcement (latched).
+            self._run_pub.publish(String(data=f"realtime priority {realtime_priority}"))
         self.start_heartbeat()
 
     # -- start and end ------------------------------------------------------------------------
@@ -399,6 +409,8 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNo
         realtime=args.realtime,
         max_time_s=args.max_time,
         clock_divider=ros.clock_divider,
+        exchange_cpu=ros.exchange_cpu,
+        realtime_priority=ros.realtime_priority,
         context=context,
     )
 
