@@ -296,3 +296,38 @@ def test_a_measurement_that_never_comes_neither_stalls_nor_grows(doc, config, cl
     assert shadow.commands.pending_count <= shadow.lookahead + 100
     assert shadow.health.baseline is None  # nothing to judge the machine by
     assert shadow.health.last is not None and shadow.health.last.level == STALE
+
+
+def test_verdicts_do_not_depend_on_how_the_rows_are_grouped(doc, config) -> None:
+    """The live twin hands health one row per cycle, the replay a second of rows at a time:
+    both must give the same verdicts (none before the baseline is complete)."""
+    from feed_twin.shadow.health import HealthMonitor
+    from feed_twin.shadow.twin import physical_effects
+
+    twin = Twin.compile(doc)
+    t, x, v, a = program_command(9.0, T)
+    rng = np.random.default_rng(3)
+    effort_twin = 95.0 * a + 203.5 * v + F_C * np.tanh(v / 1e-3)
+    rows = np.column_stack(
+        [t, x, 1e-8 * rng.standard_normal(len(t)), 0.5 * rng.standard_normal(len(t)), effort_twin]
+    )
+    valid = np.ones(len(t), dtype=bool)
+    valid[1000:1040] = False  # filled samples inside the baseline
+
+    def verdicts(chunk: int) -> list[tuple[float, int]]:
+        health = HealthMonitor(
+            config, physical=physical_effects(twin), effort_unit="N", lead_m=twin.lead_m,
+            pole_pairs=None, travel_m=0.3,
+        )  # fmt: skip
+        out = []
+        for k in range(0, len(t), chunk):
+            out += health.update(rows[k : k + chunk], valid=valid[k : k + chunk])
+        return [(round(v.t_s, 9), v.level) for v in out]
+
+    one_by_one = verdicts(1)
+    # judged every 0.5 s of rows; the baseline (4000 valid rows) completes at row 4039, so the
+    # evaluation at row 3999 says nothing and the first verdict comes at 4.5 s
+    assert one_by_one[0][0] == pytest.approx(4.5 - T)
+    assert [v[0] for v in one_by_one] == pytest.approx(list(np.arange(4.5, 9.01, 0.5) - T))
+    for chunk in (7, 250, 1000, len(t)):
+        assert verdicts(chunk) == one_by_one, chunk

@@ -154,6 +154,9 @@ class HealthMonitor:
         count for the evaluation period and the run of invalid ones makes the twin STALE);
         return the verdicts evaluated on the way."""
         out: list[Verdict] = []
+        # rows before this index came before the baseline was complete: an evaluation there
+        # says nothing, as it would not have with the rows handed over one at a time
+        baseline_ready_at = 0
         if self.baseline is None:
             good = rows[valid]
             need = self.config.baseline_samples - self._baseline_count
@@ -162,6 +165,9 @@ class HealthMonitor:
             if self._baseline_count >= self.config.baseline_samples:
                 self._set_baseline(np.concatenate(self._baseline_rows))
                 self._baseline_rows = []
+                baseline_ready_at = int(np.flatnonzero(valid)[need - 1]) + 1
+            else:
+                baseline_ready_at = len(rows) + 1
         start, n = 0, len(rows)
         while start < n:
             stop = start + self.config.evaluate_samples - self._since_eval
@@ -177,6 +183,8 @@ class HealthMonitor:
             if self._since_eval >= self.config.evaluate_samples:
                 self._since_eval = 0
                 stale = self._invalid_run >= self.config.missing_flag_after
+                if start < baseline_ready_at and not stale:
+                    continue
                 verdict = self.evaluate(stale=stale)
                 if verdict is not None:
                     out.append(verdict)
