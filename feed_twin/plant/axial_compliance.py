@@ -40,11 +40,13 @@ def axial_stiffness(
         lo, hi = x_min, L
     clamped = x < lo or x > hi
     xc = min(max(x, lo), hi)
+    # products with reciprocals of parameters: the compiled loop computes those once
     if fixed_fixed > 0.5:
-        compliance_screw = xc * (L - xc) / (EA * L)
-        dcompliance = (L - 2.0 * xc) / (EA * L)
+        inv_EAL = 1.0 / (EA * L)
+        compliance_screw = xc * (L - xc) * inv_EAL
+        dcompliance = (L - 2.0 * xc) * inv_EAL
     else:
-        compliance_screw = xc / EA
+        compliance_screw = xc * (1.0 / EA)
         dcompliance = 1.0 / EA
     if clamped:
         dcompliance = 0.0

@@ -49,7 +49,7 @@ class Generator(Emitter):
         self.meas_delays: dict[str, str] = {}
         self.signal_names: set[str] = set()
         self.node_scale: dict[int, str] = {}
-        self.noise_pairs: dict[int, str] = {}  # pair -> scale that switches it on
+        self.noise_channels: dict[int, str] = {}  # channel key -> scale that switches it on
         self.comp_index = {n: i for i, n in enumerate(model.components)}
         self.n_core = len(model._core_states)
 
@@ -149,16 +149,12 @@ class Generator(Emitter):
             self.imports["adc"] = "from feed_twin.plant.sensors import adc"
 
     def noise(self, channel: int, scale: str) -> str:
-        # channels 2j and 2j+1 share one polar-method draw; `draw_noise` fills the pairs of a
-        # tick into `noise`, which the loop does for a block of ticks ahead of `sense`
-        self.imports["standard_normal_pair"] = (
-            "from feed_twin.plant.noise import standard_normal_pair"
-        )
-        base = self.comp_index[self._name()] * NOISE_CHANNELS_PER_COMPONENT
-        pair = (base + channel) // 2
-        self.noise_pairs.setdefault(pair, scale)
-        index = 2 * list(self.noise_pairs).index(pair) + (base + channel) % 2
-        return f"{scale} * noise[{index}]"
+        # `draw_noise` fills the tick's samples into `noise`, which the loop does for a block of
+        # ticks ahead of `sense`; the key of a channel depends on its component's position only
+        self.imports["standard_normal"] = "from feed_twin.plant.noise import standard_normal"
+        key = self.comp_index[self._name()] * NOISE_CHANNELS_PER_COMPONENT + channel
+        self.noise_channels.setdefault(key, scale)
+        return f"{scale} * noise[{list(self.noise_channels).index(key)}]"
 
     def _rhs_tuple(self, rhs_lines: list[str]) -> list[str]:
         """`rhs` again from the same lines, the derivatives returned as a tuple instead of stored.
@@ -187,15 +183,11 @@ class Generator(Emitter):
 
     def _draw_noise(self) -> list[str]:
         lines = []
-        for i, (pair, scale) in enumerate(self.noise_pairs.items()):
-            lines += [
-                f"z0, z1 = standard_normal_pair(seed, k, {pair}) if {scale} != 0.0 else (0.0, 0.0)",
-                f"noise[{2 * i}] = z0",
-                f"noise[{2 * i + 1}] = z1",
-            ]
+        for i, (key, scale) in enumerate(self.noise_channels.items()):
+            lines.append(f"noise[{i}] = standard_normal(seed, k, {key}) if {scale} != 0.0 else 0.0")
         return [
             "",
-            "# standard normal samples of one tick: (seed, tick, pair) alone determine them",
+            "# standard normal samples of one tick: (seed, tick, channel) alone determine them",
             '@njit(cache=True, inline="always", error_model="numpy")',
             "def draw_noise(p, seed, k, noise):",
             *(f"    {code}" for code in lines),
@@ -212,7 +204,7 @@ class Generator(Emitter):
         out.append("# parameter slots")
         out += [f"{const_name('P_', n)} = {i}" for i, n in enumerate(m.param_names)]
         out.append(f"N_P = {len(m.param_names)}")
-        out.append(f"N_NOISE = {2 * len(self.noise_pairs)}  # normal samples per tick")
+        out.append(f"N_NOISE = {len(self.noise_channels)}  # normal samples per tick")
         out.append("# auxiliary outputs")
         kinetic = [f"stored.{c.name}.kinetic" for c in m.coordinates]
         aux = self.aux_names + kinetic + [acceleration_name(c) for c in m.coordinates]

@@ -41,10 +41,12 @@ def friction_force(
     v_reg: float,
 ) -> float:
     """Friction force magnitude-with-sign F(v) [N]; the flange receives -F(v)."""
-    sgn = smooth_sign(v / v_reg)
+    # reciprocals of parameters, which the compiled loop computes once (a division per call
+    # would not leave the loop)
+    sgn = smooth_sign(v * (1.0 / v_reg))
     F_c = 0.5 * (F_c_pos + F_c_neg) + 0.5 * (F_c_pos - F_c_neg) * sgn
     F_v = 0.5 * (F_v_pos + F_v_neg) + 0.5 * (F_v_pos - F_v_neg) * sgn
-    r2 = (v / v_s) ** 2
+    r2 = (v * (1.0 / v_s)) ** 2
     # exp underflows far outside the Stribeck range, and libm's underflow path is slow
     stribeck = dF_s * math.exp(-r2) if dF_s != 0.0 and r2 < STRIBECK_CUTOFF else 0.0
     return (F_c + stribeck) * sgn + F_v * v

@@ -76,7 +76,7 @@ def pmsm_dq(
 ) -> tuple[float, float, float, float, float, float, float]:
     """(di_d/dt, di_q/dt, tau_e, copper loss, iron loss, u_d, u_q) of the dq machine."""
     u_alpha = (2.0 / 3.0) * (u_a - 0.5 * u_b - 0.5 * u_c)
-    u_beta = (u_b - u_c) / SQRT3
+    u_beta = (u_b - u_c) * (1.0 / SQRT3)
     u_d = c * u_alpha + s * u_beta
     u_q = -s * u_alpha + c * u_beta
     omega_e = p * omega
@@ -88,11 +88,12 @@ def pmsm_dq(
     i_mq = i_q - G_fe * e_q
     tau_e = 1.5 * p * (psi_d * i_mq - psi_q * i_md)
     if enabled < 0.5:
-        di_d = -i_d / T_open
-        di_q = -i_q / T_open
+        di_d = -i_d * (1.0 / T_open)
+        di_q = -i_q * (1.0 / T_open)
     else:
-        di_d = (u_d - R_s * i_d - e_d) / L_d
-        di_q = (u_q - R_s * i_q - e_q) / L_q
+        # reciprocals of parameters: the compiled loop hoists them, divisions would stay
+        di_d = (u_d - R_s * i_d - e_d) * (1.0 / L_d)
+        di_q = (u_q - R_s * i_q - e_q) * (1.0 / L_q)
     return (
         di_d,
         di_q,
