@@ -43,6 +43,7 @@ M30
 %
 """
 RAISE_AT_S = 2.5  # [s] machine time when the worn stand-in's guide friction doubles
+WINDOW_S = 1.0  # [s] shadow.window_s of axis_default
 SCALE_RESOLUTION_M = 1e-8  # axis_default's linear scale
 V_PEAK_M_S = 0.1  # F6000
 NC_PERIOD_S = 1e-3
@@ -190,7 +191,14 @@ def test_raised_friction_is_named_in_the_health_topic(worn) -> None:
     assert flagged, [m.message for m in health]
     # nothing before the change (the rolling window needs motion with the new friction in it)
     assert flagged[0][0] > RAISE_AT_S
-    assert all(m.effect == "coulomb_friction" for _, m in flagged)
+    # while the 1 s window straddles the change, its residual is a step in time as much as a
+    # friction signature, and the ranking may prefer another friction effect; once the window
+    # holds only doubled friction, the verdict is Coulomb friction
+    assert all(m.effect.endswith("_friction") for _, m in flagged), [m.message for _, m in flagged]
+    settled = [m for ti, m in flagged if ti > RAISE_AT_S + WINDOW_S]
+    assert settled and all(m.effect == "coulomb_friction" for m in settled), [
+        m.message for m in settled
+    ]
     last = flagged[-1][1]
     assert last.parameter.endswith(".F_c") and last.unit == "N"
     assert last.nominal_value == pytest.approx(120.0)
