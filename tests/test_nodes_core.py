@@ -196,8 +196,11 @@ def test_drive_reference_per_mode() -> None:
         ref,
     )
     assert (ref[0], ref[1]) == (0.3, 0.1)
-    with pytest.raises(ValueError, match=r"DriveCommand mode = -1: not one of 8, 9, 10"):
-        drive_reference(DriveSetpoint(t_ns=0, mode=-1, enable=True), 1.9, ref)
+    # MODE_VOLTAGE bypasses the cascade (the modulator takes u_d/u_q): no reference at all.
+    drive_reference(DriveSetpoint(t_ns=0, mode=-1, enable=True, u_q_V=5.0), 1.9, ref)
+    assert not ref.any()
+    with pytest.raises(ValueError, match=r"DriveCommand mode = 7: not one of -1, 8, 9, 10"):
+        drive_reference(DriveSetpoint(t_ns=0, mode=7, enable=True), 1.9, ref)
     with pytest.raises(ValueError, match=r"boundary = 'current': must be one of"):
         ControllerCore(None, boundary="current", exchange_period_s=1e-3)
 

@@ -10,6 +10,14 @@ node runs the current loop and the inverter with the plant. `boundary` chooses t
 | torque    | position + velocity loops       | i_q (CST)                   | current loop       |
 | velocity  | position loop                   | velocity + torque FF (CSV)  | velocity + current |
 | position  | nothing (passes NC setpoints)   | position + velocity (CSP)   | all loops          |
+| voltage   | position + velocity + current   | u_d, u_q (MODE_VOLTAGE)     | modulation only    |
+
+`voltage` is the full cascade outside the drive: the controller node also runs the FOC current
+loop, at the exchange period (a loop cannot run faster than the messages that carry its
+measurement), re-tuned by the technical optimum for the exchange's delay, and sends the d/q
+voltage. The drive rotates that voltage with the rotor angle at every PWM period and modulates
+it (SVPWM); its engine runs open loop. A 1 kHz current loop is far slower than a drive's, so
+this mode shows what the drive's inner loop buys, it is not how a servo axis is run.
 
 Loops that run in the controller node run at the exchange period: a loop cannot run faster than
 the messages that carry its measurement. `controller_node_config` derives that configuration from
@@ -33,16 +41,22 @@ import numpy as np
 
 from feed_twin.control import signals as sig
 from feed_twin.control.config import ControllerConfig
-from feed_twin.control.loops import PositionLoop, VelocityLoop, VelocitySetpoint
+from feed_twin.control.loops import Cascade, PositionLoop, VelocityLoop, VelocitySetpoint
 from feed_twin.io.config import from_mapping, load_yaml, require_positive
 from feed_twin.nodeset.topics import AxisTopics
 
-Boundary = Literal["torque", "velocity", "position"]
+Boundary = Literal["torque", "velocity", "position", "voltage"]
 # CiA 402 modes of operation, as in feed_twin_msgs/DriveCommand.
 MODE_CSP = 8
 MODE_CSV = 9
 MODE_CST = 10
-BOUNDARY_MODES = {"position": MODE_CSP, "velocity": MODE_CSV, "torque": MODE_CST}
+MODE_VOLTAGE = -1
+BOUNDARY_MODES = {
+    "position": MODE_CSP,
+    "velocity": MODE_CSV,
+    "torque": MODE_CST,
+    "voltage": MODE_VOLTAGE,
+}
 NS_PER_S = 1_000_000_000
 
 
@@ -174,18 +188,31 @@ def controller_node_config(
     config: ControllerConfig,
     exchange_period_s: float,
     gains: NodeLoopGains | None = None,
+    *,
+    with_current: bool = False,
 ) -> tuple[ControllerConfig, list[str]]:
     """The controller section the controller node runs: loops at least one exchange period.
 
     A loop faster than the exchange runs at the exchange period. The velocity loop then sees
     the exchange's delays (one period of transport, the hold, the estimator), so unless `gains`
     gives its gains it is re-tuned by the symmetric optimum (a = 2) for those delays and the
-    position gain is capped at a quarter of its closed-loop bandwidth. Returns the
-    derived configuration and one note per change, for the node's log.
+    position gain is capped at a quarter of its closed-loop bandwidth. With `with_current` (the
+    full cascade) the current loop runs at the exchange period too, re-tuned by the technical
+    optimum for 1.5 periods of delay (one of transport, half of hold), without the computation
+    delay (the transport is that delay) and without dead-time compensation (a per-phase
+    correction the drive's modulator would do). Returns the derived configuration and one note
+    per change, for the node's log.
     """
     gains = gains or NodeLoopGains()
     notes: list[str] = []
     replace: dict[str, object] = {"base_period_s": exchange_period_s, "current": None}
+    current = config.current if with_current else None
+    if with_current:
+        if current is None:
+            raise ValueError("boundary = 'voltage': the controller has no current section")
+        replace["current"], note = _node_current_loop(current, exchange_period_s)
+        replace["computation_delay"] = False
+        notes.append(note)
     slowed: set[str] = set()
     for name in ("position", "velocity"):
         loop = getattr(config, name)
@@ -216,7 +243,9 @@ def controller_node_config(
     if velocity is not None:
         Kp, Ti, Kv_cap = velocity.Kp, velocity.Ti_s, None
         if "velocity" in slowed and gains.velocity_Kp is None:
-            Kp, Ti, Kv_cap = _retune_velocity(config, velocity, exchange_period_s)
+            Kp, Ti, Kv_cap = _retune_velocity(
+                config, velocity, exchange_period_s, replace["current"] or config.current
+            )
             notes.append(
                 f"velocity loop re-tuned for the exchange: Kp {velocity.Kp:g} -> {Kp:.4g}, "
                 f"Ti {velocity.Ti_s!r} -> {Ti:.4g} s"
@@ -242,11 +271,39 @@ def controller_node_config(
     return derived, notes
 
 
-def _retune_velocity(config, velocity, exchange_period_s: float) -> tuple[float, float, float]:
+def _node_current_loop(current, exchange_period_s: float):
+    from feed_twin.control.tuning import tune_current_loop
+
+    if current.period_s > exchange_period_s * (1.0 + 1e-9):
+        raise ValueError(
+            f"controller.current.period_s = {current.period_s!r}: longer than the exchange "
+            f"period {exchange_period_s!r} s"
+        )
+    d = tune_current_loop(R_s=current.R_s_ohm, L=current.L_d_H, period_s=exchange_period_s)
+    q = tune_current_loop(R_s=current.R_s_ohm, L=current.L_q_H, period_s=exchange_period_s)
+    derived = dataclasses.replace(
+        current,
+        period_s=exchange_period_s,
+        Kp_d_V_A=d.Kp_V_A,
+        Ti_d_s=d.Ti_s,
+        Kp_q_V_A=q.Kp_V_A,
+        Ti_q_s=q.Ti_s,
+        angle_advance_periods=0.0,
+        dead_time_comp_V=0.0,
+    )
+    note = (
+        f"current loop at the exchange period {exchange_period_s!r} s, re-tuned: Kp_q "
+        f"{current.Kp_q_V_A:g} -> {q.Kp_V_A:.4g} V/A, bandwidth about {q.bandwidth_hz:.0f} Hz"
+    )
+    return derived, note
+
+
+def _retune_velocity(
+    config, velocity, exchange_period_s: float, current
+) -> tuple[float, float, float]:
     from feed_twin.control.tuning import estimator_delay, tune_velocity_loop
 
     drive = config.drive
-    current = config.current
     # The closed current loop lags by about 2 T_sigma_i = 3 T_i (technical optimum).
     T_current = 3.0 * current.period_s if current is not None else 0.0
     est = velocity.estimator
@@ -289,8 +346,16 @@ class ControllerCore:
         self.notes: list[str] = []
         self._position: PositionLoop | None = None
         self._velocity: VelocityLoop | None = None
+        self._cascade: Cascade | None = None
         self._ref = np.zeros(sig.REF_SIZE)
-        if boundary != "position":
+        if boundary == "voltage":
+            node_config, self.notes = controller_node_config(
+                config, exchange_period_s, gains, with_current=True
+            )
+            if node_config.position is None:
+                raise ValueError(f"boundary = {boundary!r}: the controller has no position loop")
+            self._cascade = Cascade(dataclasses.replace(node_config, mode="position"))
+        elif boundary != "position":
             node_config, self.notes = controller_node_config(config, exchange_period_s, gains)
             if node_config.position is None:
                 raise ValueError(f"boundary = {boundary!r}: the controller has no position loop")
@@ -317,8 +382,25 @@ class ControllerCore:
                 position_m=nc.position_m,
                 velocity_m_s=nc.velocity_m_s,
             )
-        assert self._position is not None
         ref = self._ref
+        if self._cascade is not None:
+            ref[sig.REF_POS_M] = nc.position_m
+            ref[sig.REF_VEL_M_S] = nc.velocity_m_s
+            ref[sig.REF_ACC_M_S2] = nc.acceleration_m_s2
+            out = self._cascade.update(t, ref, meas)
+            return DriveSetpoint(
+                t_ns=t_ns,
+                mode=self.mode,
+                enable=True,
+                position_m=float(out[sig.OUT_POS_REF_M]),
+                velocity_m_s=float(out[sig.OUT_VEL_REF_M_S]),
+                i_q_A=float(out[sig.OUT_I_Q_REF_A]),
+                i_d_A=float(out[sig.OUT_I_D_REF_A]),
+                u_d_V=float(out[sig.OUT_U_D_REF_V]),
+                u_q_V=float(out[sig.OUT_U_Q_REF_V]),
+                following_error_m=float(out[sig.OUT_FOLLOWING_ERROR_M]),
+            )
+        assert self._position is not None
         ref[sig.REF_POS_M] = nc.position_m
         ref[sig.REF_VEL_M_S] = nc.velocity_m_s
         ref[sig.REF_ACC_M_S2] = nc.acceleration_m_s2
@@ -360,8 +442,8 @@ def drive_reference(setpoint: DriveSetpoint, K_t: float, out: np.ndarray) -> Non
         out[sig.REF_POS_M] = setpoint.position_m
         out[sig.REF_VEL_M_S] = setpoint.velocity_m_s
         out[sig.REF_EFFORT_ADD] = setpoint.torque_Nm / K_t
-    else:
-        raise ValueError(f"DriveCommand mode = {setpoint.mode!r}: not one of 8, 9, 10")
+    elif setpoint.mode != MODE_VOLTAGE:  # the voltage goes to the modulator, not the cascade
+        raise ValueError(f"DriveCommand mode = {setpoint.mode!r}: not one of -1, 8, 9, 10")
 
 
 def load_node_set_config(path: str | Path) -> NodeSetConfig:

@@ -36,7 +36,7 @@ from feed_twin.control import signals as sig
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost
-from feed_twin.nodeset.split import NS_PER_S, DriveSetpoint, NodeSetConfig
+from feed_twin.nodeset.split import BOUNDARY_MODES, NS_PER_S, DriveSetpoint, NodeSetConfig
 from feed_twin.nodeset.topics import SIM_NODE
 from feed_twin.ros.runtime import (
     DATA_QOS,
@@ -68,7 +68,10 @@ def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
     if axis.controller is None:
         raise ConfigError(f"{config_path}: the sim node needs a controller section")
     names = DriveHost.record_names(ros.signals)
-    probe = build_engine(axis, mode=ros.boundary, output_period_s=ros.exchange_period_s)
+    # The full cascade leaves the drive only its modulator: the engine runs open loop.
+    closed = ros.boundary != "voltage"
+    mode = ros.boundary if closed else None
+    probe = build_engine(axis, closed_loop=closed, mode=mode, output_period_s=ros.exchange_period_s)
     unknown = [n for n in names if n not in probe.all_names]
     if unknown:
         raise ConfigError(
@@ -76,7 +79,11 @@ def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
             f"(for example {', '.join(probe.all_names[:6])}, ...)"
         )
     engine = build_engine(
-        axis, mode=ros.boundary, record=names, output_period_s=ros.exchange_period_s
+        axis,
+        closed_loop=closed,
+        mode=mode,
+        record=names,
+        output_period_s=ros.exchange_period_s,
     )
     # The table coordinate is the machine coordinate of the twin axis: the plant starts at
     # rest where the NC program starts (position-dependent screw stiffness needs the real place).
@@ -96,6 +103,9 @@ def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
         pole_pairs=current.pole_pairs if current is not None else 0,
         encoder_offset_rad=current.encoder_offset_rad if current is not None else 0.0,
         start_position_m=start,
+        dead_time_comp_V=current.dead_time_comp_V if current is not None else 0.0,
+        dead_time_comp_band_A=current.dead_time_comp_band_A if current is not None else 0.5,
+        mode=BOUNDARY_MODES[ros.boundary],
     )
 
 
@@ -345,7 +355,7 @@ class SimNode(FeedTwinNode):
         truth = host.truth(row)
         self._state_pub.publish(self._state_layout.encode((sec, nsec, *truth)))
         if fault:
-            from feed_twin.control.cascade import fault_reason
+            from feed_twin.control.layout import fault_reason
 
             self.get_logger().error(
                 f"drive fault at t = {t_ns * 1e-9:.6f} s: {fault_reason(fault)}",
