@@ -9,6 +9,14 @@
 4. Afterwards: the bag (recovered if the recorder was killed), the `.rrd` next to it, and the
    summary (cycle time, max/RMS following error, peak current, peak velocity); `--json` makes
    the last line one JSON object with these figures, the timing and the output paths.
+
+`--shadow` (the config's shadow: section): the G-code, stand-in (the "real machine", following
+the G-code node's commands; feed_twin.ros.standin_node --follow), twin and recorder nodes, as
+separate processes. The runner writes the column map `<run>_map.yaml` of the machine's topics
+first; the twin node writes the `.rrd` (the shadow dashboard; `--live` streams it); the summary
+is the machine's (following error x_setpoint - x_measured, peak measured current) plus the
+shadow figures (feed_twin.shadow.summary). Processes are started and watched by `launch`, which
+`feed-twin shadow` uses too.
 """
 
 from __future__ import annotations
