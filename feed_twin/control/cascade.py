@@ -42,7 +42,6 @@ code until `clear_fault`; while disabled or faulted all integrators are held at 
 from __future__ import annotations
 
 import hashlib
-import math
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +65,7 @@ from feed_twin.control.transforms import (
     limit_voltage_circle,
     svpwm_phase_duties,
 )
+from feed_twin.plant.trig import sincos
 
 # ---------------------------------------------------------------------------------------------
 # Kernels. Only `cascade_tick` touches the arrays; the laws below take and return scalars, which
@@ -74,8 +74,13 @@ from feed_twin.control.transforms import (
 
 @njit(cache=True)
 def due(k: int, div: float) -> bool:
-    """A loop with period div (in base ticks) samples at tick k."""
-    return k % int(div) == 0
+    """A loop with period div (in base ticks) samples at tick k >= 0."""
+    d = int(div)
+    if d & (d - 1) == 0:
+        # the usual rates are the base rate over a power of two: a mask instead of an integer
+        # division, of which the tick would otherwise pay four
+        return k & (d - 1) == 0
+    return k % d == 0
 
 
 @njit(cache=True)
@@ -137,8 +142,7 @@ def current_law(
     """
     # one sin/cos pair serves Park and inverse Park (the advance rotates it): trigonometric
     # calls are the dearest part of the tick
-    cos_e = math.cos(theta_e)
-    sin_e = math.sin(theta_e)
+    cos_e, sin_e = sincos(theta_e)
     i_alpha, i_beta = clarke(i_a, i_b, i_c)
     i_d = cos_e * i_alpha + sin_e * i_beta
     i_q = -sin_e * i_alpha + cos_e * i_beta
@@ -149,14 +153,13 @@ def current_law(
     ff_q = dec * cp[lay.P_L_D] * i_d + cp[lay.P_BACK_EMF_FF] * omega_e * cp[lay.P_PSI_PM]
     u_d = cp[lay.P_KP_D] * e_d + x_d + ff_d
     u_q = cp[lay.P_KP_Q] * e_q + x_q + ff_q
-    u_max = cp[lay.P_VOLTAGE_MARGIN] * max(u_dc, 0.0) / SQRT3
+    u_max = cp[lay.P_VOLTAGE_MARGIN] * max(u_dc, 0.0) * (1.0 / SQRT3)
     u_d_lim, u_q_lim = limit_voltage_circle(u_d, u_q, u_max)
     x_d = pi_integrate(x_d, e_d, cp[lay.P_KI_T_D], u_d, u_d_lim)
     x_q = pi_integrate(x_q, e_q, cp[lay.P_KI_T_Q], u_q, u_q_lim)
     advance = cp[lay.P_ANGLE_ADVANCE] * omega_e * cp[lay.P_CUR_PERIOD]
     if advance != 0.0:
-        cos_a = math.cos(advance)
-        sin_a = math.sin(advance)
+        cos_a, sin_a = sincos(advance)
         cos_e, sin_e = cos_e * cos_a - sin_e * sin_a, sin_e * cos_a + cos_e * sin_a
     u_alpha = cos_e * u_d_lim - sin_e * u_q_lim
     u_beta = sin_e * u_d_lim + cos_e * u_q_lim
@@ -165,10 +168,10 @@ def current_law(
     u_a, u_b, u_c = inverse_clarke(u_alpha, u_beta)
     comp = cp[lay.P_DEAD_TIME_COMP]
     if comp > 0.0:
-        band = cp[lay.P_DEAD_TIME_BAND]
-        u_a += comp * min(max(i_a / band, -1.0), 1.0)
-        u_b += comp * min(max(i_b / band, -1.0), 1.0)
-        u_c += comp * min(max(i_c / band, -1.0), 1.0)
+        inv_band = 1.0 / cp[lay.P_DEAD_TIME_BAND]
+        u_a += comp * min(max(i_a * inv_band, -1.0), 1.0)
+        u_b += comp * min(max(i_b * inv_band, -1.0), 1.0)
+        u_c += comp * min(max(i_c * inv_band, -1.0), 1.0)
     d_a, d_b, d_c = svpwm_phase_duties(u_a, u_b, u_c, u_dc)
     return d_a, d_b, d_c, u_d_lim, u_q_lim, x_d, x_q
 
@@ -374,4 +377,5 @@ def source_digest() -> str:
         "signals.py",
     ):
         digest.update((here / name).read_bytes())
+    digest.update((here.parent / "plant" / "trig.py").read_bytes())
     return digest.hexdigest()[:20]

@@ -33,6 +33,7 @@ from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader, StateSpec
+from feed_twin.plant.trig import sincos
 
 SQRT3 = math.sqrt(3.0)
 
@@ -42,8 +43,7 @@ def phase_currents(
     i_d: float, i_q: float, theta_e: float
 ) -> tuple[float, float, float, float, float]:
     """(i_a, i_b, i_c, cos(theta_e), sin(theta_e)) from the rotor-frame currents."""
-    c = math.cos(theta_e)
-    s = math.sin(theta_e)
+    c, s = sincos(theta_e)
     i_alpha = c * i_d - s * i_q
     i_beta = s * i_d + c * i_q
     return (

@@ -24,4 +24,7 @@ def smooth_sign(x: float) -> float:
         return 1.0
     if x < -_SATURATED:
         return -1.0
-    return x / math.sqrt(1.0 + x * x)
+    d = 1.0 + x * x
+    # x * sqrt(d) / d rather than x / sqrt(d): the root and the division run side by side
+    # instead of one after the other, and these signs sit on the current loop's critical path
+    return (x / d) * math.sqrt(d)

@@ -79,11 +79,15 @@ def leg_state(tau, duty, t_dead, period):
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
 def integrate_tick(t0, h, nsub, x, p, out, ext, sw, edges):
-    hs = h / nsub
     if not SWITCHING or out[OUT_ENABLED] < 0.5:
+        if nsub == 1:
+            # the usual case, without the loop: LLVM then schedules the step with the tick
+            return rk4_step(t0, h, x, p, out, ext, sw)
+        hs = h / nsub
         for i in range(nsub):
             x = rk4_step(t0 + i * hs, hs, x, p, out, ext, sw)
         return x
+    hs = h / nsub
     t_dead = p[{t_dead_slot}]
     n = 0
     edges[n] = 0.0
@@ -163,6 +167,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
     pt = {ptuple}
     xs = {xtuple}
     r = 0
+    phase = k0 % dec  # ticks since the last recorded one: no integer division per tick
     for j in range(n):
         k = k0 + j
         t = k * h
@@ -180,7 +185,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
             back = min(int(mdelay[m]), k)
             meas[m] = ring[(k - back) % RING, m]
 {controller}
-        if k % dec == 0:
+        if phase == 0:
             outputs(t, xs, pt, out, ext[j], sw, aux)
             for i in range(N_X):
                 row[i] = x[i]
@@ -195,6 +200,9 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
             for i in range(sel.shape[0]):
                 rec[r, i] = row[sel[i]]
             r += 1
+        phase += 1
+        if phase == dec:
+            phase = 0
         xs = integrate_tick(t, h, nsub, xs, pt, out, ext[j], sw, edges)
 {store_x}
         for i in range(N_X):
