@@ -5,10 +5,13 @@
   over the wall time from the first to the last exchange (target >= 4).
 - realtime_p99_lateness_ms, realtime_lateness_p50/max_ms, missed_steps: `--realtime`, 1 kHz,
   a 60 s program (target p99 <= 0.5 ms, 0 missed steps).
-Also reported: the machine's load average at the start, since the figures depend on it, and
-the CPU seconds of each node process.
+Also reported: the machine's load average at the start and the end, since the figures depend
+on it, and per node process its CPU seconds after set-up (numba compilation and DDS discovery
+excluded) and those per exchange, which stay comparable on a busy machine where the wall-clock
+figures do not.
 
     .venv/bin/python benchmarks/nodes_speed.py [--realtime-seconds 60] [--lockstep-seconds 10]
+        [--config config/axis_default.yaml]
 """
 
 from __future__ import annotations
@@ -37,17 +40,12 @@ def program(seconds: float) -> str:
     return "\n".join(lines)
 
 
-def config(directory: Path) -> Path:
-    del directory  # the axis config carries its nc: and ros: sections
-    return ROOT / "config" / "axis_default.yaml"
-
-
-def run(directory: Path, name: str, seconds: float, realtime: bool) -> dict:
+def run(directory: Path, config: Path, name: str, seconds: float, realtime: bool) -> dict:
     prog = directory / f"{name}.ngc"
     prog.write_text(program(seconds))
     args = [
         sys.executable, "-m", "feed_twin.cli", "run", str(prog),
-        "--config", str(config(directory)), "--out", str(directory / "bags"),
+        "--config", str(config), "--out", str(directory / "bags"),
         "--name", name, "--json",
     ]  # fmt: skip
     if realtime:
@@ -61,10 +59,14 @@ def run(directory: Path, name: str, seconds: float, realtime: bool) -> dict:
     record = json.loads(proc.stdout.strip().splitlines()[-1])
     cpu = {}
     for log in (directory / "bags" / f"{name}.logs").glob("*.log"):
-        match = re.search(r"^CPU (\S+) ([\d.]+) s", log.read_text(), re.MULTILINE)
+        match = re.search(
+            r"^CPU (\S+) [\d.]+ s, ([\d.]+) s after set-up", log.read_text(), re.MULTILINE
+        )
         if match:
             cpu[match[1]] = float(match[2])
     record["cpu_s"] = cpu
+    steps = record["timing_steps"]
+    record["cpu_us_per_exchange"] = {k: round(v / steps * 1e6, 1) for k, v in cpu.items()}
     return record
 
 
@@ -72,22 +74,25 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--lockstep-seconds", type=float, default=10.0)
     parser.add_argument("--realtime-seconds", type=float, default=60.0)
+    parser.add_argument("--config", type=Path, default=ROOT / "config" / "axis_default.yaml")
     args = parser.parse_args()
     load = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="nodes_speed_") as tmp:
         directory = Path(tmp)
-        lockstep = run(directory, "lockstep", args.lockstep_seconds, realtime=False)
+        lockstep = run(directory, args.config, "lockstep", args.lockstep_seconds, False)
         print(
             f"lockstep: {lockstep['timing_sim_time_s']:.2f} s simulated in "
             f"{lockstep['timing_wall_time_s']:.2f} s, realtime factor "
-            f"{lockstep['timing_realtime_factor']:.2f}; CPU {lockstep['cpu_s']}"
+            f"{lockstep['timing_realtime_factor']:.2f}; CPU per exchange [us] "
+            f"{lockstep['cpu_us_per_exchange']}"
         )
-        realtime = run(directory, "realtime", args.realtime_seconds, realtime=True)
+        realtime = run(directory, args.config, "realtime", args.realtime_seconds, True)
         print(
             f"realtime: lateness p50 {realtime['timing_lateness_p50_ms']:.3f} ms, p99 "
             f"{realtime['timing_lateness_p99_ms']:.3f} ms, max "
             f"{realtime['timing_lateness_max_ms']:.3f} ms, missed steps "
-            f"{realtime['timing_missed_steps']}; CPU {realtime['cpu_s']}"
+            f"{realtime['timing_missed_steps']}; CPU per exchange [us] "
+            f"{realtime['cpu_us_per_exchange']}"
         )
     print(
         json.dumps(
@@ -95,12 +100,15 @@ def main() -> None:
                 "lockstep_realtime_factor": lockstep["timing_realtime_factor"],
                 "lockstep_sim_time_s": lockstep["timing_sim_time_s"],
                 "lockstep_cpu_s": lockstep["cpu_s"],
+                "lockstep_cpu_us_per_exchange": lockstep["cpu_us_per_exchange"],
                 "realtime_p99_lateness_ms": realtime["timing_lateness_p99_ms"],
                 "realtime_lateness_p50_ms": realtime["timing_lateness_p50_ms"],
                 "realtime_lateness_max_ms": realtime["timing_lateness_max_ms"],
                 "missed_steps": realtime["timing_missed_steps"],
                 "realtime_sim_time_s": realtime["timing_sim_time_s"],
+                "realtime_cpu_us_per_exchange": realtime["cpu_us_per_exchange"],
                 "load_average_1min_at_start": load[0],
+                "load_average_1min_at_end": os.getloadavg()[0],
                 "cores": os.cpu_count(),
             }
         )

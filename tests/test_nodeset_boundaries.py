@@ -11,6 +11,7 @@ transport, not arithmetic.
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -31,9 +32,10 @@ TARGET_M = 0.410  # G54 X10 from the NC start X = 0.4 m
 
 def config_with_boundary(directory: Path, boundary: str) -> Path:
     text = AXIS_CONFIG.read_text(encoding="utf-8")
-    assert "\n  boundary: torque\n" in text
+    text, count = re.subn(r"\n  boundary: torque\b", f"\n  boundary: {boundary}", text)
+    assert count == 1
     path = directory / f"axis_{boundary}.yaml"
-    path.write_text(text.replace("\n  boundary: torque\n", f"\n  boundary: {boundary}\n"))
+    path.write_text(text)
     return path
 
 

@@ -98,6 +98,7 @@ class RecorderNode(FeedTwinNode):
         self._ending_since: float | None = None
         self.end_reason = ""
         self._peer_lost: str | None = None
+        self._peers_lost: set[str] = set()
         self._signal: str | None = None
         known = self.topics.types()
         qos_for = {
@@ -200,6 +201,10 @@ class RecorderNode(FeedTwinNode):
         # flight first, then decide.
         if self._peer_lost is None:
             self._peer_lost = message
+        peer = message.split("'")[1] if message.count("'") >= 2 else message
+        if peer not in self._peers_lost:
+            # every lost peer is named: after a stall of this node several may be due at once
+            self._peers_lost.add(peer)
             self.get_logger().warning(f"{message}; recording what is still in flight")
         if self._ending_since is None:
             self._ending_since = time.monotonic()

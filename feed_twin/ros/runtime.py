@@ -17,6 +17,9 @@
   completes, with the nodes' `poll()` deadline as its timeout: callbacks are dispatched inside
   one call until the timeout; between calls it handles SIGINT/SIGTERM itself, letting every
   node finish cleanly (the recorder closes its bag).
+- DDS: `init_context` points Fast DDS at `fastdds_profiles.xml` (unless
+  FASTRTPS_DEFAULT_PROFILES_FILE is set): periodic heartbeats instead of one piggybacked on
+  every sample, which saves a fifth of the CPU of a lockstep exchange (see the file).
 - Scheduling (`apply_scheduling`): a lockstep exchange is a ping-pong between the sim and the
   controller process, and on a virtual machine a wake-up across cores costs several times one on
   the same core, so `ros.exchange_cpu` pins both to one CPU (measured: both on one CPU beat one
@@ -61,6 +64,7 @@ EXIT_PEER_LOST = 3  # another node of the set disappeared
 EXIT_INPUT_TIMEOUT = 4  # an expected topic stayed silent
 EXIT_SIGNAL = 130  # stopped by SIGINT/SIGTERM (after a clean shutdown)
 
+FASTDDS_PROFILES = Path(__file__).with_name("fastdds_profiles.xml")
 HEARTBEAT_PERIOD_S = 0.1
 ACK_WAIT_S = 0.5  # [s] a stopping node waits for its readers to acknowledge its last messages
 ACK_WAIT_ALIVE_S = 10.0  # [s] ... when the recorder is alive (it may lag behind on a busy host)
@@ -192,6 +196,7 @@ class FeedTwinNode(Node):
         self._watchdogs: list[_Watchdog] = []
         self.liveness = Liveness(role, options, self.context)
         self._heartbeat_on = False
+        self.setup_cpu_s = 0.0  # CPU time of this process when set-up ended [s]
         self.run_ended = False
         self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
         self.create_timer(HEARTBEAT_PERIOD_S, self._tick, clock=self.wall)
@@ -200,6 +205,7 @@ class FeedTwinNode(Node):
 
     def start_heartbeat(self) -> None:
         """Call at the end of set-up: peers start watching this node from its first beat."""
+        self.setup_cpu_s = _cpu_seconds()
         self._heartbeat_on = True
         self.liveness.start_beating()
 
@@ -370,8 +376,15 @@ def apply_scheduling(*, cpu: int = -1, priority: int = 0) -> list[str]:
     return notes
 
 
+def _cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
 def init_context(args: Sequence[str] | None = None) -> Context:
     """A fresh rclpy context without rclpy's own signal handlers (spin_nodes handles them)."""
+    # Fast DDS reads its default profiles when the first participant is created.
+    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILES))
     context = Context()
     rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
     return context
@@ -436,10 +449,11 @@ def spin_nodes(
             waited = time.monotonic() - started
             if waited > ACK_WAIT_S and not any(n.recorder_alive() for n in nodes):
                 break
-        usage = resource.getrusage(resource.RUSAGE_SELF)
+        total = _cpu_seconds()
+        setup = max(n.setup_cpu_s for n in nodes)
         roles = "+".join(n.role for n in nodes)
         print(
-            f"CPU {roles} {usage.ru_utime + usage.ru_stime:.2f} s; ended: "
+            f"CPU {roles} {total:.2f} s, {total - setup:.2f} s after set-up; ended: "
             f"{reason or 'run done'}; codes {[n.exit_code for n in nodes]}",
             file=sys.stderr,
             flush=True,

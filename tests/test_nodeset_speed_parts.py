@@ -1,0 +1,132 @@
+"""The node set's fast paths: fixed-layout CDR packing, scheduling settings, the full cascade's
+controller configuration and the drive's mode check (no ROS graph needed)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from nodes_support import AXIS_CONFIG
+
+from feed_twin.io.cdr import FlatCodec
+from feed_twin.nodeset.split import (
+    MODE_CST,
+    MODE_VOLTAGE,
+    DriveSetpoint,
+    NodeSetConfig,
+    controller_node_config,
+    load_node_set_config,
+)
+from feed_twin.sim.config import load_axis_config
+
+FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")
+
+
+def _feedback_values() -> dict:
+    return {
+        "header.stamp.sec": 12,
+        "header.stamp.nanosec": 345_000_000,
+        "axis": "X",
+        "encoder_counts": -7,
+        "encoder_angle": 0.25,
+        "scale_position": 0.4001,
+        "i_a": 1.5,
+        "i_b": -0.5,
+        "i_c": -1.0,
+        "i_d": 0.01,
+        "i_q": 1.7,
+        "u_dc": 560.0,
+        "following_error": 2e-6,
+        "mode": 10,
+        "status_word": 567,
+        "fault_code": 0,
+    }
+
+
+def test_fixed_layout_packs_the_same_bytes_as_the_general_codec() -> None:
+    values = _feedback_values()
+    layout = FEEDBACK.fixed({"axis": "X"})
+    numbers = tuple(values[n] for n in layout.numbers)
+    data = layout.encode(numbers)
+    assert data == FEEDBACK.encode_map(values)
+    assert len(data) == layout.size
+    assert layout.decode(data) == numbers
+    assert layout.numbers[layout.index("i_q")] == "i_q"
+
+
+def test_fixed_layout_reads_a_message_with_other_strings() -> None:
+    values = _feedback_values() | {"axis": "X2", "header.frame_id": "drive"}
+    layout = FEEDBACK.fixed({"axis": "X"})
+    decoded = layout.decode(FEEDBACK.encode_map(values))
+    assert decoded == tuple(values[n] for n in layout.numbers)
+
+
+def test_fixed_layout_errors_name_the_message_and_field() -> None:
+    layout = FEEDBACK.fixed({"axis": "X"})
+    with pytest.raises(ValueError, match=r"AxisFeedback: 2 values given, 15 number fields"):
+        layout.encode((1, 2))
+    with pytest.raises(KeyError, match=r"AxisFeedback has no string field\(s\) label"):
+        FEEDBACK.fixed({"label": "X"})
+    with pytest.raises(KeyError, match=r"AxisFeedback has no number field 'axis'"):
+        layout.index("axis")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("exchange_cpu", -2, r"exchange_cpu = -2: must be a whole number in \[-1, 1023\]"),
+        ("exchange_cpu", 1.0, r"exchange_cpu = 1.0: must be a whole number in \[-1, 1023\]"),
+        ("realtime_priority", 100, r"realtime_priority = 100: must be a whole number in \[0, 99\]"),
+        ("realtime_priority", True, r"realtime_priority = True: must be a whole number"),
+    ],
+)
+def test_scheduling_settings_are_checked(field: str, value: object, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        NodeSetConfig(**{field: value})
+
+
+def test_scheduling_that_the_os_refuses_is_reported_not_raised() -> None:
+    from feed_twin.ros.runtime import apply_scheduling
+
+    assert apply_scheduling() == []  # nothing asked, nothing done
+    notes = apply_scheduling(cpu=1023)  # no machine here has 1024 CPUs
+    assert len(notes) == 1 and notes[0].startswith("not pinned to CPU 1023: ")
+
+
+def test_full_cascade_runs_the_current_loop_at_the_exchange_period() -> None:
+    controller = load_axis_config(AXIS_CONFIG).controller
+    derived, notes = controller_node_config(controller, 1e-3, with_current=True)
+    current = derived.current
+    assert current.period_s == 1e-3 and derived.base_period_s == 1e-3
+    # Technical optimum for 1.5 periods of delay: Kp = L / (2 * 1.5 T), Ti = L / R.
+    assert current.Kp_q_V_A == pytest.approx(4.0e-3 / 3.0e-3, rel=1e-12)
+    assert current.Ti_q_s == pytest.approx(4.0e-3 / 0.35, rel=1e-12)
+    assert not derived.computation_delay and current.dead_time_comp_V == 0.0
+    assert any(n.startswith("current loop at the exchange period") for n in notes)
+    without, _ = controller_node_config(controller, 1e-3)
+    assert without.current is None
+    with pytest.raises(ValueError, match=r"boundary = 'voltage': the controller has no current"):
+        controller_node_config(
+            dataclasses.replace(controller, current=None), 1e-3, with_current=True
+        )
+
+
+def test_drive_refuses_a_command_of_the_other_kind() -> None:
+    from feed_twin.ros.sim_node import build_drive_host
+
+    ros = load_node_set_config(AXIS_CONFIG)
+    host = build_drive_host(AXIS_CONFIG, ros)
+    assert host.setpoint.mode == MODE_CST and not host.modulator
+    with pytest.raises(ValueError, match=r"mode = -1: this drive takes modes 8, 9, 10"):
+        host.advance(DriveSetpoint(t_ns=0, mode=MODE_VOLTAGE, enable=True))
+    modulator = build_drive_host(AXIS_CONFIG, dataclasses.replace(ros, boundary="voltage"))
+    assert modulator.modulator and modulator.setpoint.mode == MODE_VOLTAGE
+    with pytest.raises(ValueError, match=r"mode = 10: this drive takes only MODE_VOLTAGE"):
+        modulator.advance(DriveSetpoint(t_ns=0, mode=MODE_CST, enable=True))
+    # Zero voltage while enabled: duties 1/2, stage on; the truth is at rest at the start.
+    t_ns, row = modulator.advance(None)
+    truth = modulator.truth(row)
+    assert t_ns == 0 and math.isclose(truth[1], 0.4, abs_tol=1e-12)
+    assert np.isfinite(truth).all()
