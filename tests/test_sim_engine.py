@@ -10,7 +10,7 @@ import pytest
 from feed_twin.control import signals as sig
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.config import build_engine, load_axis_config
-from feed_twin.sim.engine import DivergenceError, Engine, run_batch
+from feed_twin.sim.engine import DivergenceError, Engine, check_step, check_steps, run_batch
 
 
 def _emps_ref(n: int) -> np.ndarray:
@@ -78,6 +78,31 @@ def test_batch_equals_single_runs_and_flags_a_refused_set(emps):
         single = build_engine(emps, record=record, params=plant.param_vector({"table.m": m}))
         res = single.run(n, ref=ref)
         assert np.array_equal(batch.data[b], res.data)
+
+
+def test_check_steps_gives_check_step_verdict_and_message_for_every_row():
+    axis = load_axis_config("config/axis_default.yaml")
+    plant = axis.plant
+    h = axis.engine.base_period_s
+    rows = [
+        {},
+        {"table.m": 170.0},
+        {"guides.v_reg": 1e-9},  # guide friction far too sharp for the step
+        {"motor.omega_reg": 1e-9, "table.m": 170.0},  # and the motor bearing's
+        {"guides.v_reg": 1e-9},
+        {"table.m": 1e-6, "guides.v_reg": 2e-4},  # a vanishing table: the friction slope wins
+    ]
+    P = np.array([plant.param_vector(r) for r in rows])
+    expected = []
+    for row in P:
+        try:
+            check_step(plant, row, h, 1)
+            expected.append("")
+        except ValueError as exc:
+            expected.append(str(exc))
+    assert [bool(m) for m in expected] == [False, False, True, True, True, True]
+    assert check_steps(plant, P, h, 1) == expected
+    assert check_steps(plant, P[:0], h, 1) == []
 
 
 def _unstable_axis():

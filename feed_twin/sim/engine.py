@@ -255,6 +255,61 @@ def check_step(model: PlantModel, p: np.ndarray, h: float, nsub: int) -> None:
                 )
 
 
+def check_steps(model: PlantModel, P: np.ndarray, h: float, nsub: int) -> list[str]:
+    """`check_step` for every row of P: "" for a row that may run, else its error message.
+
+    The damping slopes are evaluated once per distinct value of the slots each component reads
+    and the stability ratios for all rows at once (the same floating-point operations as
+    `check_step`, so the same verdicts); only refused rows go through `check_step` itself, for
+    its message. A per-row Python loop cost about 30 ms per 1000 sets, 5-8 % of a batch.
+    """
+    hs = h / nsub
+    refused = np.zeros(len(P), dtype=bool)
+    for name, comp in model.components.items():
+        read: list[str] = []
+
+        def probe(field: str, name: str = name, read: list[str] = read) -> float:
+            if field not in read:
+                read.append(field)
+            return float(P[0, model.param_index[f"{name}.{field}"]])
+
+        if len(P) == 0:
+            break
+        comp.damping_bounds(probe)
+        if read:
+            cols = [model.param_index[f"{name}.{f}"] for f in read]
+            groups, which = np.unique(P[:, cols], axis=0, return_inverse=True)
+        else:
+            groups, which = np.zeros((1, 0)), np.zeros(len(P), dtype=np.int64)
+        for g, values in enumerate(groups):
+            known = dict(zip(read, values.tolist(), strict=True))
+            try:
+                bounds = comp.damping_bounds(lambda f, known=known: known[f])
+            except KeyError:  # this group's values take another branch: check its rows one by one
+                rows = np.flatnonzero(which.ravel() == g)
+                for b in rows:
+                    try:
+                        check_step(model, P[b], h, nsub)
+                    except ValueError:
+                        refused[b] = True
+                continue
+            mine = which.ravel() == g
+            for port, c in bounds.items():
+                node = model.node_of[f"{name}.{port}"]
+                coord = model.coordinates[model.coordinate_of[node]]
+                r = P[:, model.param_index[f"derived.ratio_n{node}"]]
+                inv = P[:, model.param_index[f"derived.inv_inertia.{coord.name}"]]
+                rate = hs * c * r * r * inv
+                refused |= mine & (rate >= RK4_STABILITY_MARGIN)
+    messages = [""] * len(P)
+    for b in np.flatnonzero(refused):
+        try:
+            check_step(model, P[b], h, nsub)
+        except ValueError as exc:
+            messages[b] = str(exc)
+    return messages
+
+
 def default_threads() -> int:
     """Threads of the batch mode: the cores this process may use."""
     try:
@@ -310,13 +365,8 @@ def run_batch(
         )
     N = P.shape[0]
     status = np.zeros((N, 4))
-    refused = [""] * N
-    for b, row in enumerate(P):
-        try:
-            check_step(engine.model, row, engine.h, engine.nsub)
-        except ValueError as exc:
-            refused[b] = str(exc)
-            status[b, 0] = 2.0  # not run: the kernel skips sets whose status is set
+    refused = check_steps(engine.model, P, engine.h, engine.nsub)
+    status[[bool(m) for m in refused], 0] = 2.0  # not run: the kernel skips sets with a status
     engine.reset()
     X = np.tile(engine.x if x0 is None else np.asarray(x0, float), (N, 1))
     CS = np.tile(engine.cs, (N, 1)) if engine.cs.size else np.zeros((N, 0))
