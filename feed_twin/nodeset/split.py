@@ -30,7 +30,6 @@ below (used by the cross-check test) computes exactly what the node set computes
 from __future__ import annotations
 
 import collections
-import copy
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -364,13 +363,19 @@ class ControllerCore:
                 self._velocity = VelocityLoop(node_config)
 
     def warm_up(self) -> None:
-        """Compile (or load from numba's cache) the loop kernels on a throw-away copy, so that
-        the first exchange does not stall the node for seconds."""
+        """Compile (or load from numba's cache) the loop kernels, so that the first exchange
+        does not stall the node: one step on these loops, then back to their initial state.
+
+        (A deep copy would not do: its parameter vectors are writable where the loops' own are
+        read-only, a different numba signature, and the first real step compiled for ~10 ms.)
+        """
         if self.boundary == "position":
             return
-        spare = copy.deepcopy(self)
         nc = NcSample(t_ns=0, position_m=0.0, velocity_m_s=0.0, acceleration_m_s2=0.0, line=-1)
-        spare.step(0, nc, np.zeros(sig.MEAS_SIZE))
+        self.step(0, nc, np.zeros(sig.MEAS_SIZE))
+        for loop in (self._position, self._velocity, self._cascade):
+            if loop is not None:
+                loop.reset()
 
     def step(self, t_ns: int, nc: NcSample, meas: np.ndarray) -> DriveSetpoint:
         t = t_ns / NS_PER_S

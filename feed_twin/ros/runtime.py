@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import os
 import resource
 import signal
@@ -48,7 +49,6 @@ import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
 from rclpy.duration import Duration
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -66,6 +66,7 @@ EXIT_SIGNAL = 130  # stopped by SIGINT/SIGTERM (after a clean shutdown)
 
 FASTDDS_PROFILES = Path(__file__).with_name("fastdds_profiles.xml")
 HEARTBEAT_PERIOD_S = 0.1
+LIVENESS_POLL_S = 0.02  # [s] the liveness thread takes heartbeats this often
 ACK_WAIT_S = 0.5  # [s] a stopping node waits for its readers to acknowledge its last messages
 ACK_WAIT_ALIVE_S = 10.0  # [s] ... when the recorder is alive (it may lag behind on a busy host)
 SIGNAL_DRAIN_S = 30.0  # [s] nodes may take after SIGINT/SIGTERM to finish (recorder drain)
@@ -119,12 +120,16 @@ class NodeOptions:
 
 
 class Liveness:
-    """Heartbeats sent and watched from a thread with its own node and executor.
+    """Heartbeats sent and watched from a thread with its own node, without an executor.
 
     The data path of a node can be busy for a while (a backlog of messages in the recorder, a
     slow callback on a loaded machine); liveness must not depend on it. A second, tiny node
     (`<role>_liveness`) publishes the role every HEARTBEAT_PERIOD_S and records when each peer
-    was last heard, on a daemon thread.
+    was last heard, on a daemon thread that wakes every LIVENESS_POLL_S and takes the waiting
+    heartbeats itself. No executor: a default executor's Python bookkeeping held the GIL for a
+    fraction of a millisecond per heartbeat and delayed the data thread's exchanges (about ten
+    missed real-time steps per second), and a second EventsExecutor in the process lost
+    heartbeats.
     """
 
     def __init__(self, role: str, options: NodeOptions, context: Context) -> None:
@@ -132,31 +137,36 @@ class Liveness:
         self.options = options
         self.node = Node(f"{role}_liveness", namespace=options.topics.namespace, context=context)
         self._pub = self.node.create_publisher(String, options.topics.heartbeat, HEARTBEAT_QOS)
-        self.node.create_subscription(
-            String, options.topics.heartbeat, self._on_heartbeat, HEARTBEAT_QOS
+        self._sub = self.node.create_subscription(
+            String, options.topics.heartbeat, _never_called, HEARTBEAT_QOS
         )
         self._lock = threading.Lock()
         self._seen: dict[str, float] = {}
         self._beating = False
         self._stop = threading.Event()
-        self._executor = SingleThreadedExecutor(context=context)
-        self._executor.add_node(self.node)
         self._thread = threading.Thread(target=self._run, name=f"{role}-liveness", daemon=True)
         self._thread.start()
 
     def start_beating(self) -> None:
         self._beating = True
 
-    def _on_heartbeat(self, msg: String) -> None:
-        if msg.data != self.role:
-            with self._lock:
-                self._seen[msg.data] = time.monotonic()
+    def _take(self) -> None:
+        handle = self._sub.handle
+        with handle:
+            while True:
+                taken = handle.take_message(String, False)
+                if taken is None:
+                    return
+                peer = taken[0].data
+                if peer != self.role:
+                    with self._lock:
+                        self._seen[peer] = time.monotonic()
 
     def _run(self) -> None:
         next_beat = time.monotonic()
-        while not self._stop.is_set():
+        while not self._stop.wait(LIVENESS_POLL_S):
             with contextlib.suppress(Exception):
-                self._executor.spin_once(timeout_sec=0.05)
+                self._take()
             now = time.monotonic()
             if self._beating and now >= next_beat:
                 next_beat = now + HEARTBEAT_PERIOD_S
@@ -171,9 +181,11 @@ class Liveness:
         self._stop.set()
         self._thread.join(timeout=0.5)
         with contextlib.suppress(Exception):
-            self._executor.remove_node(self.node)
             self.node.destroy_node()
-            self._executor.shutdown(timeout_sec=0.2)
+
+
+def _never_called(msg: object) -> None:
+    """Subscriptions that are taken from directly, never spun."""
 
 
 class FeedTwinNode(Node):
@@ -206,6 +218,11 @@ class FeedTwinNode(Node):
     def start_heartbeat(self) -> None:
         """Call at the end of set-up: peers start watching this node from its first beat."""
         self.setup_cpu_s = _cpu_seconds()
+        # What set-up built (numba dispatchers, message types, the plant) lives to the end:
+        # moved out of the collector's generations, a full collection no longer walks it and
+        # cannot stall an exchange for milliseconds.
+        gc.collect()
+        gc.freeze()
         self._heartbeat_on = True
         self.liveness.start_beating()
 
