@@ -130,3 +130,24 @@ def test_drive_refuses_a_command_of_the_other_kind() -> None:
     truth = modulator.truth(row)
     assert t_ns == 0 and math.isclose(truth[1], 0.4, abs_tol=1e-12)
     assert np.isfinite(truth).all()
+
+
+def test_pacing_report_figures() -> None:
+    from feed_twin.nodeset.pacing import pacing_report
+
+    lockstep = pacing_report(steps=4000, period_s=1e-3, wall_s=2.0)
+    assert lockstep == {
+        "steps": 4000,
+        "sim_time_s": 4.0,
+        "wall_time_s": 2.0,
+        "realtime_factor": 2.0,
+    }
+    assert pacing_report(steps=0, period_s=1e-3, wall_s=0.0)["realtime_factor"] is None
+    # 100 steps 0.1 ms late and one 3 ms late: p50 0.1 ms, max 3 ms, one step beyond a period.
+    late = [1e-4] * 100 + [3e-3]
+    report = pacing_report(steps=101, period_s=1e-3, wall_s=0.101, lateness_s=late)
+    assert report["lateness_p50_ms"] == pytest.approx(0.1)
+    assert report["lateness_max_ms"] == pytest.approx(3.0)
+    assert report["missed_steps"] == 1
+    given = pacing_report(steps=1, period_s=1e-3, wall_s=1.0, lateness_s=[], missed_steps=7)
+    assert math.isnan(given["lateness_p99_ms"]) and given["missed_steps"] == 7

@@ -20,13 +20,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import math
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
 from feed_twin_msgs.msg import AxisFeedback, AxisState, DriveCommand
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -36,6 +34,7 @@ from feed_twin.control import signals as sig
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost
+from feed_twin.nodeset.pacing import pacing_report
 from feed_twin.nodeset.split import BOUNDARY_MODES, NS_PER_S, DriveSetpoint, NodeSetConfig
 from feed_twin.nodeset.topics import SIM_NODE
 from feed_twin.ros.runtime import (
@@ -382,22 +381,13 @@ class SimNode(FeedTwinNode):
 
     def timing_report(self) -> dict[str, float | int | None]:
         wall = (self.wall_end or time.monotonic()) - (self.wall_start or time.monotonic())
-        sim_s = self.steps * self.host.exchange_ns / NS_PER_S
-        report: dict[str, float | int | None] = {
-            "steps": self.steps,
-            "sim_time_s": sim_s,
-            "wall_time_s": wall,
-            "realtime_factor": sim_s / wall if wall > 0 else None,
-        }
-        if self.realtime:
-            late = np.asarray(self.lateness_s) * 1e3
-            report.update(
-                lateness_p50_ms=float(np.percentile(late, 50)) if late.size else math.nan,
-                lateness_p99_ms=float(np.percentile(late, 99)) if late.size else math.nan,
-                lateness_max_ms=float(late.max()) if late.size else math.nan,
-                missed_steps=self.missed_steps,
-            )
-        return report
+        return pacing_report(
+            steps=self.steps,
+            period_s=self.host.exchange_ns / NS_PER_S,
+            wall_s=wall,
+            lateness_s=self.lateness_s if self.realtime else None,
+            missed_steps=self.missed_steps,
+        )
 
     def on_shutdown(self, reason: str) -> None:
         if not self.done or self.exit_code != EXIT_OK:

@@ -1,0 +1,44 @@
+"""The timing report of a node that steps a simulation: how fast, and how late in real time.
+
+steps * period_s simulated over wall_s seconds of wall time: realtime_factor = sim / wall.
+In real-time mode every step k is due at wall t0 + k * period_s; lateness is how much after
+that it started, reported as p50/p99/max in ms, with the steps counted as missed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+
+def pacing_report(
+    *,
+    steps: int,
+    period_s: float,
+    wall_s: float,
+    lateness_s: Sequence[float] | None = None,
+    missed_steps: int | None = None,
+) -> dict[str, float | int | None]:
+    """steps, sim_time_s, wall_time_s, realtime_factor (None for no wall time); with
+    `lateness_s` (real-time mode) also lateness_p50/p99/max_ms (NaN without samples) and
+    missed_steps (given, or the steps later than one period)."""
+    sim_s = steps * period_s
+    report: dict[str, float | int | None] = {
+        "steps": steps,
+        "sim_time_s": sim_s,
+        "wall_time_s": wall_s,
+        "realtime_factor": sim_s / wall_s if wall_s > 0 else None,
+    }
+    if lateness_s is not None:
+        late = np.asarray(lateness_s, dtype=float) * 1e3
+        if missed_steps is None:
+            missed_steps = int(np.count_nonzero(late > period_s * 1e3))
+        report.update(
+            lateness_p50_ms=float(np.percentile(late, 50)) if late.size else math.nan,
+            lateness_p99_ms=float(np.percentile(late, 99)) if late.size else math.nan,
+            lateness_max_ms=float(late.max()) if late.size else math.nan,
+            missed_steps=missed_steps,
+        )
+    return report
