@@ -75,16 +75,21 @@ def test_two_simultaneous_effects_are_both_named(tmp_path):
 
 @pytest.mark.slow
 def test_cogging_is_found_on_the_machine_tool_axis(tmp_path):
-    """PMSM axis (16 kHz current loop, scale feedback): cogging is named, order and amplitude."""
+    """PMSM axis (16 kHz current loop, scale feedback): cogging is named, order and amplitude.
+
+    0.6 N m is about 4 % of the motor's rated torque. The effect-free FE residual of this run is
+    33 nm (sensor noise and quantisation through the loop); 0.3 N m of cogging adds only 161 nm
+    RMS, so even a perfect fit could not remove 80 % of it.
+    """
     nominal = ModelDoc.load(ROOT / "config" / "axis_default.yaml")
-    truth = {"order": 6, "amplitude_Nm": 0.3, "phase_rad": 0.5}
+    truth = {"order": 6, "amplitude_Nm": 0.6, "phase_rad": 0.5}
     columns = generate(nominal, {"cogging_torque": truth}, start_m=0.3)
     map_path = write_csv(tmp_path / "run.csv", columns, nominal)
     d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
     assert d.effects and d.effects[0].name == "cogging_torque", d.notes
     found = d.effects[0].parameters
     assert found["order"] == 6
-    assert found["amplitude_Nm"] == pytest.approx(0.3, rel=0.10)
+    assert found["amplitude_Nm"] == pytest.approx(0.6, rel=0.10)
     assert found["phase_rad"] == pytest.approx(0.5, abs=0.1)
     assert d.after.fe_dev_rms_m <= 0.2 * d.before.fe_dev_rms_m
 
