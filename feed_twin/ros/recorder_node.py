@@ -81,7 +81,13 @@ def _bag_qos(qos: QoSProfile) -> QosProfile:
 
 class RecorderNode(FeedTwinNode):
     def __init__(
-        self, options: NodeOptions, bag_path: Path, *, live_url: str | None = None, context=None
+        self,
+        options: NodeOptions,
+        bag_path: Path,
+        *,
+        live_url: str | None = None,
+        twin_namespace: str | None = None,
+        context=None,
     ) -> None:
         super().__init__(RECORDER_NODE, options, context=context)
         self.bag = BagWriter(bag_path)
@@ -106,6 +112,16 @@ class RecorderNode(FeedTwinNode):
             self.topics.run_state: LATCHED_QOS,
             self.topics.heartbeat: HEARTBEAT_QOS,
         }
+        if twin_namespace is not None:
+            # a shadow run: the twin's output is known in advance, so it is recorded from its
+            # first message instead of from whenever the graph scan finds it (late under load)
+            known.update(
+                {
+                    f"{twin_namespace}/state": "feed_twin_msgs/msg/AxisState",
+                    f"{twin_namespace}/residual": "feed_twin_msgs/msg/TwinResidual",
+                    f"{twin_namespace}/health": "feed_twin_msgs/msg/HealthStatus",
+                }
+            )
         for topic, type_name in known.items():
             self._record(topic, type_name, qos_for.get(topic, DATA_QOS))
         self.create_timer(SCAN_PERIOD_S, self._scan, clock=self.wall)
@@ -244,10 +260,22 @@ def _never_called(data: bytes) -> None:
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bag", required=True, type=Path, help="bag directory to create")
     parser.add_argument("--live-url", default=None, help="Rerun gRPC URL to stream to")
+    parser.add_argument(
+        "--twin-namespace",
+        default=None,
+        help="record a shadow twin's state, residual and health topics under this namespace "
+        "from the start (other topics of the machine's namespace are found by a graph scan)",
+    )
 
 
 def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> RecorderNode:
-    return RecorderNode(options, args.bag, live_url=args.live_url, context=context)
+    return RecorderNode(
+        options,
+        args.bag,
+        live_url=args.live_url,
+        twin_namespace=args.twin_namespace,
+        context=context,
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -164,6 +164,12 @@ def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[s
         argv += ["--bag", str(out.bag)]
         if args.live_url and not args.shadow:
             argv += ["--live-url", args.live_url]
+        if args.shadow:
+            from feed_twin.nodeset.topics import AxisTopics
+            from feed_twin.shadow.replay import twin_namespace
+
+            command = AxisTopics(machine=ros.machine, axis=ros.axis).command
+            argv += ["--twin-namespace", twin_namespace(command)]
     elif role == "gcode":
         argv += ["--program", str(args.program), "--autostart"]
         if args.optional_stop:
