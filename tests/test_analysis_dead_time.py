@@ -27,20 +27,7 @@ from feed_twin.plant.inverter import leg_duty
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "config" / "axis_default.yaml"
 # the long program and machine-tool NC of the stiffness tests: moves over most of the travel
-LONG_PROGRAM = """\
-(moves over most of the travel, reversals, dwells)
-G21 G90 G94 G54 G64
-G1 X250 F7200
-G4 P0.1
-G1 X20 F6000
-G1 X200 F4800
-G4 P0.1
-G1 X120 F3000
-G1 X280 F7200
-G1 X0 F7200
-G4 P0.1
-M30
-"""
+LONG_PROGRAM = (ROOT / "tests" / "fixtures" / "gcode" / "long_travel.ngc").read_text()
 TRUTH_T_DEAD_S = 2.0e-6  # the compensation assumes the nominal 1 us
 
 

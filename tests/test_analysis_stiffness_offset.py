@@ -27,20 +27,7 @@ from feed_twin.io.measured import load_measured
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "config" / "axis_default.yaml"
 
-LONG_PROGRAM = """\
-(moves over most of the travel, reversals, dwells)
-G21 G90 G94 G54 G64
-G1 X250 F7200
-G4 P0.1
-G1 X20 F6000
-G1 X200 F4800
-G4 P0.1
-G1 X120 F3000
-G1 X280 F7200
-G1 X0 F7200
-G4 P0.1
-M30
-"""
+LONG_PROGRAM = (ROOT / "tests" / "fixtures" / "gcode" / "long_travel.ngc").read_text()
 # a machine tool accelerates at metres per second squared: the inertial load dominates friction
 MACHINE_TOOL_NC = NC_CONFIG.replace("a_max_m_s2: 0.8", "a_max_m_s2: 3.0").replace(
     "j_max_m_s3: 40.0", "j_max_m_s3: 100.0"
