@@ -129,9 +129,7 @@ class Liveness:
     heartbeats itself. No executor: a default executor's Python bookkeeping held the GIL for a
     fraction of a millisecond per heartbeat and delayed the data thread's exchanges (about ten
     missed real-time steps per second), and a second EventsExecutor in the process lost
-    heartbeats. The thread also notices a watched peer's silence the moment it passes
-    `peer_timeout_s` (`silences()`), so the node reports when the peer went quiet even if its
-    own data path was stalled at that time.
+    heartbeats.
     """
 
     def __init__(self, role: str, options: NodeOptions, context: Context) -> None:
@@ -144,7 +142,6 @@ class Liveness:
         )
         self._lock = threading.Lock()
         self._seen: dict[str, float] = {}
-        self._silent: dict[str, float] = {}  # peer -> its silence [s] when first over the limit
         self._beating = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"{role}-liveness", daemon=True)
@@ -164,18 +161,6 @@ class Liveness:
                 if peer != self.role:
                     with self._lock:
                         self._seen[peer] = time.monotonic()
-                        self._silent.pop(peer, None)
-
-    def _notice(self, now: float) -> None:
-        with self._lock:
-            for peer in self.options.peers:
-                seen = self._seen.get(peer)
-                if (
-                    seen is not None
-                    and peer not in self._silent
-                    and now - seen > self.options.peer_timeout_s
-                ):
-                    self._silent[peer] = now - seen
 
     def _run(self) -> None:
         next_beat = time.monotonic()
@@ -183,7 +168,6 @@ class Liveness:
             with contextlib.suppress(Exception):
                 self._take()
             now = time.monotonic()
-            self._notice(now)
             if self._beating and now >= next_beat:
                 next_beat = now + HEARTBEAT_PERIOD_S
                 with contextlib.suppress(Exception):
@@ -192,11 +176,6 @@ class Liveness:
     def seen(self) -> dict[str, float]:
         with self._lock:
             return dict(self._seen)
-
-    def silences(self) -> dict[str, float]:
-        """Peers silent beyond the limit, with their silence [s] when the thread noticed it."""
-        with self._lock:
-            return dict(self._silent)
 
     def stop(self) -> None:
         self._stop.set()
@@ -317,7 +296,6 @@ class FeedTwinNode(Node):
             return
         now = time.monotonic()
         heard = self.liveness.seen()
-        silences = self.liveness.silences()
         for peer in () if self.run_ended else self.options.peers:
             seen = heard.get(peer)
             if seen is None:
@@ -327,12 +305,10 @@ class FeedTwinNode(Node):
                         f"node '{self.topics.namespace}/{peer}' did not start within "
                         f"{self.options.startup_timeout_s:g} s",
                     )
-            elif peer in silences or now - seen > self.options.peer_timeout_s:
-                # the silence when the liveness thread noticed it, not when this tick ran
-                silence = silences.get(peer, now - seen)
+            elif now - seen > self.options.peer_timeout_s:
                 self.on_peer_lost(
                     f"node '{self.topics.namespace}/{peer}' is gone: no heartbeat for "
-                    f"{silence:.2f} s"
+                    f"{now - seen:.2f} s"
                 )
         for dog in self._watchdogs:
             if not dog.armed():
