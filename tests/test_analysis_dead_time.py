@@ -27,7 +27,7 @@ from feed_twin.plant.inverter import leg_duty
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "config" / "axis_default.yaml"
 # the long program and machine-tool NC of the stiffness tests: moves over most of the travel
-LONG_PROGRAM = (ROOT / "tests" / "fixtures" / "gcode" / "long_travel.ngc").read_text()
+LONG_PROGRAM = (ROOT / "tests" / "fixtures" / "analysis" / "long_travel.ngc").read_text()
 TRUTH_T_DEAD_S = 2.0e-6  # the compensation assumes the nominal 1 us
 
 

@@ -27,7 +27,7 @@ from feed_twin.io.measured import load_measured
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "config" / "axis_default.yaml"
 
-LONG_PROGRAM = (ROOT / "tests" / "fixtures" / "gcode" / "long_travel.ngc").read_text()
+LONG_PROGRAM = (ROOT / "tests" / "fixtures" / "analysis" / "long_travel.ngc").read_text()
 # a machine tool accelerates at metres per second squared: the inertial load dominates friction
 MACHINE_TOOL_NC = NC_CONFIG.replace("a_max_m_s2: 0.8", "a_max_m_s2: 3.0").replace(
     "j_max_m_s3: 40.0", "j_max_m_s3: 100.0"
