@@ -17,9 +17,11 @@
   completes, with the nodes' `poll()` deadline as its timeout: callbacks are dispatched inside
   one call until the timeout; between calls it handles SIGINT/SIGTERM itself, letting every
   node finish cleanly (the recorder closes its bag).
-- DDS: `init_context` points Fast DDS at `fastdds_profiles.xml` (unless
-  FASTRTPS_DEFAULT_PROFILES_FILE is set): periodic heartbeats instead of one piggybacked on
-  every sample, which saves a fifth of the CPU of a lockstep exchange (see the file).
+- DDS: `init_context` points Fast DDS at `fastdds_profiles.xml` (or its loopback twin when
+  discovery is limited to this host; unless the user named a profile): UDP only, because a node
+  killed while holding the lock of a shared-memory port froze every node that sent to it for
+  1-2 s, and periodic heartbeats instead of one piggybacked on every sample, which saves a
+  fifth of the CPU of a lockstep exchange (see the file).
 - Scheduling (`apply_scheduling`): a lockstep exchange is a ping-pong between the sim and the
   controller process, and on a virtual machine a wake-up across cores costs several times one on
   the same core, so `ros.exchange_cpu` pins both to one CPU (measured: both on one CPU beat one
@@ -33,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import faulthandler
 import gc
 import os
 import resource
@@ -40,7 +43,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -65,12 +68,17 @@ EXIT_INPUT_TIMEOUT = 4  # an expected topic stayed silent
 EXIT_SIGNAL = 130  # stopped by SIGINT/SIGTERM (after a clean shutdown)
 
 FASTDDS_PROFILES = Path(__file__).with_name("fastdds_profiles.xml")
+FASTDDS_PROFILES_LOCALHOST = Path(__file__).with_name("fastdds_profiles_localhost.xml")
 HEARTBEAT_PERIOD_S = 0.1
 LIVENESS_POLL_S = 0.02  # [s] the liveness thread takes heartbeats this often
 ACK_WAIT_S = 0.5  # [s] a stopping node waits for its readers to acknowledge its last messages
 ACK_WAIT_ALIVE_S = 10.0  # [s] ... when the recorder is alive (it may lag behind on a busy host)
 SIGNAL_DRAIN_S = 30.0  # [s] nodes may take after SIGINT/SIGTERM to finish (recorder drain)
 PEER_TIMEOUT_S = 0.8  # noticed within 0.9 s; 0.6 s gave false alarms on a machine at load 9
+# Diagnosis: with FEED_TWIN_STALL_DUMP_S=0.5 in its environment, a node whose spin loop does not
+# come back within 0.5 s prints every thread's Python stack to its log (faulthandler: it works
+# while a C call holds the GIL). It found the shared-memory lock wait (fastdds_profiles.xml).
+STALL_DUMP_ENV = "FEED_TWIN_STALL_DUMP_S"
 
 # Data topics: reliable and in order. Transient-local history lets a subscriber that matched a
 # few milliseconds late (the recorder, usually) still receive the first messages. The depth
@@ -398,10 +406,43 @@ def _cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+def dds_environment(env: Mapping[str, str]) -> dict[str, str | None]:
+    """The variables to change in `env` (None: remove) so that this process's participant uses
+    feed_twin's Fast DDS profile (UDP only; fastdds_profiles.xml says why not shared memory).
+
+    A profile the user named (FASTRTPS_/FASTDDS_DEFAULT_PROFILES_FILE) is kept as it is. With
+    discovery limited to this host, rmw_fastrtps would impose shared memory, so the range goes to
+    the loopback profile and rmw is told SYSTEM_DEFAULT (the profile then decides).
+    """
+    ours = {str(FASTDDS_PROFILES), str(FASTDDS_PROFILES_LOCALHOST)}  # inherited from a parent
+    named = {env.get(f"{v}_DEFAULT_PROFILES_FILE") for v in ("FASTRTPS", "FASTDDS")}
+    if named - ours - {None, ""}:
+        return {}
+    scope = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper()
+    local = (
+        scope == "LOCALHOST"
+        or env.get("ROS_LOCALHOST_ONLY") == "1"
+        # a parent process that made this decision already passed it on
+        or (str(FASTDDS_PROFILES_LOCALHOST) in named and scope in ("", "SYSTEM_DEFAULT"))
+    )
+    if not local:
+        return {"FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES)}
+    return {
+        "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES_LOCALHOST),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
+        "ROS_LOCALHOST_ONLY": None,  # deprecated; rcl warns whenever it is set
+    }
+
+
 def init_context(args: Sequence[str] | None = None) -> Context:
     """A fresh rclpy context without rclpy's own signal handlers (spin_nodes handles them)."""
-    # Fast DDS reads its default profiles when the first participant is created.
-    os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILES))
+    # Fast DDS reads its default profiles when the first participant is created, rmw the
+    # discovery range at every init.
+    for name, value in dds_environment(os.environ).items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
     context = Context()
     rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
     return context
@@ -425,6 +466,7 @@ def spin_nodes(
     for node in nodes:
         executor.add_node(node)
     never = Future()  # spin_until_future_complete then returns at its timeout
+    stall_dump_s = float(os.environ.get(STALL_DUMP_ENV) or 0.0)
     signalled_at: float | None = None
     try:
         while True:
@@ -443,7 +485,11 @@ def spin_nodes(
             elif any(n.done for n in nodes):
                 break
             waits = [w for w in (n.poll() for n in nodes) if w is not None]
+            if stall_dump_s > 0.0:
+                faulthandler.dump_traceback_later(stall_dump_s, repeat=True)
             executor.spin_until_future_complete(never, timeout_sec=min([poll_s, *waits]))
+            if stall_dump_s > 0.0:
+                faulthandler.cancel_dump_traceback_later()
         reason = (
             f"stopped by {signal.Signals(flag.received).name}"
             if flag.received is not None

@@ -1,0 +1,81 @@
+"""The nodes' DDS transport: UDP only, so that a killed node cannot freeze the others.
+
+A node killed while holding the lock of its Fast DDS shared-memory port froze every node that
+sent to it for 1-2 s (fastdds_profiles.xml says how); the kill tests in test_nodes_faults.py and
+test_shadow_run.py check the consequence, these check the cause is configured away.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from nodes_support import node_env
+
+from feed_twin.ros.domain import reserve_domain_id
+from feed_twin.ros.runtime import FASTDDS_PROFILES, FASTDDS_PROFILES_LOCALHOST, dds_environment
+
+
+def test_host_only_discovery_goes_to_the_loopback_profile() -> None:
+    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": "5"}
+    assert dds_environment(env) == {
+        "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES_LOCALHOST),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
+        "ROS_LOCALHOST_ONLY": None,
+    }
+    assert dds_environment({"ROS_LOCALHOST_ONLY": "1"})["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(
+        FASTDDS_PROFILES_LOCALHOST
+    )
+
+
+def test_network_discovery_uses_the_udp_profile_and_a_user_profile_is_kept() -> None:
+    assert dds_environment({}) == {"FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES)}
+    assert dds_environment({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}) == {
+        "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES)
+    }
+    mine = {"FASTDDS_DEFAULT_PROFILES_FILE": "/etc/my_dds.xml", "ROS_LOCALHOST_ONLY": "1"}
+    assert dds_environment(mine) == {}
+    # our own file inherited from a parent process is not a user's choice: decided again
+    inherited = {
+        "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+    }
+    assert dds_environment(inherited)["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(
+        FASTDDS_PROFILES_LOCALHOST
+    )
+
+
+PROBE = """
+import glob, os, time
+import rclpy
+from std_msgs.msg import String
+from feed_twin.ros.runtime import init_context
+context = init_context()
+node = rclpy.create_node("probe", context=context)
+node.create_publisher(String, "probe", 10)
+time.sleep(0.3)
+names = {open(p).read().strip() for p in glob.glob(f"/proc/{os.getpid()}/task/*/comm")}
+print(" ".join(sorted(n for n in names if n.startswith("dds."))))
+"""
+
+
+def test_a_node_process_on_a_host_only_graph_runs_no_shared_memory_transport() -> None:
+    with reserve_domain_id() as domain:
+        out = subprocess.run(
+            [sys.executable, "-c", PROBE],
+            env=node_env(domain.domain_id),
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=True,
+        ).stdout.split()
+    assert any(n.startswith("dds.udp") for n in out), out  # Fast DDS names its threads so
+    assert not any(n.startswith("dds.shm") for n in out), out
+
+
+def test_a_child_of_a_host_only_process_stays_host_only() -> None:
+    parent = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    applied = {k: v for k, v in dds_environment(parent).items() if v is not None}
+    assert dds_environment(applied)["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(
+        FASTDDS_PROFILES_LOCALHOST
+    )
