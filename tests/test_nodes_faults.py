@@ -176,7 +176,7 @@ def test_gcode_error_stops_before_motion(config: Path, tmp_path: Path) -> None:
 
 WRONG_STREAM = """
 import sys, time
-from feed_twin.ros.runtime import init_context
+from feed_twin.ros.dds import init_context
 from rclpy.node import Node
 from rclpy.experimental import EventsExecutor
 from {module} import {cls}

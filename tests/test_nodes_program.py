@@ -13,7 +13,7 @@ from nodes_support import AXIS_CONFIG, last_json, start_run
 from std_srvs.srv import Trigger
 
 from feed_twin.io.bag import BagReader
-from feed_twin.ros.runtime import init_context
+from feed_twin.ros.dds import init_context
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 PAUSING = "%\nG21 G90 G54 G64\nG1 X10 F3000\nM0\nG1 X0\nM30\n%\n"

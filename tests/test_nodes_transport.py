@@ -12,8 +12,8 @@ import sys
 
 from nodes_support import node_env
 
+from feed_twin.ros.dds import FASTDDS_PROFILES, FASTDDS_PROFILES_LOCALHOST, dds_environment
 from feed_twin.ros.domain import reserve_domain_id
-from feed_twin.ros.runtime import FASTDDS_PROFILES, FASTDDS_PROFILES_LOCALHOST, dds_environment
 
 
 def test_host_only_discovery_goes_to_the_loopback_profile() -> None:
@@ -49,7 +49,7 @@ PROBE = """
 import glob, os, time
 import rclpy
 from std_msgs.msg import String
-from feed_twin.ros.runtime import init_context
+from feed_twin.ros.dds import init_context
 context = init_context()
 node = rclpy.create_node("probe", context=context)
 node.create_publisher(String, "probe", 10)

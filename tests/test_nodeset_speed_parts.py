@@ -88,7 +88,7 @@ def test_scheduling_settings_are_checked(field: str, value: object, message: str
 
 
 def test_scheduling_that_the_os_refuses_is_reported_not_raised() -> None:
-    from feed_twin.ros.runtime import apply_scheduling
+    from feed_twin.ros.dds import apply_scheduling
 
     assert apply_scheduling() == []  # nothing asked, nothing done
     notes = apply_scheduling(cpu=1023)  # no machine here has 1024 CPUs

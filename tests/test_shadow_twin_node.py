@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from feed_twin.analysis.twin import ModelDoc, Twin
-from feed_twin.ros.runtime import init_context
+from feed_twin.ros.dds import init_context
 from feed_twin.shadow.health import ERROR, OK, WARN, Verdict
 from feed_twin.shadow.standin import write_map
 

@@ -34,15 +34,8 @@ from feed_twin.nodeset.split import (
     NodeLoopGains,
 )
 from feed_twin.nodeset.topics import CONTROLLER_NODE
-from feed_twin.ros.runtime import (
-    DATA_QOS,
-    EXIT_ERROR,
-    LATCHED_QOS,
-    FeedTwinNode,
-    NodeOptions,
-    apply_scheduling,
-    node_main,
-)
+from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
+from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, node_main
 
 AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
 AXIS_FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")

@@ -38,14 +38,8 @@ from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_con
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.nodeset.split import NS_PER_S
 from feed_twin.nodeset.topics import GCODE_NODE
-from feed_twin.ros.runtime import (
-    DATA_QOS,
-    EXIT_ERROR,
-    LATCHED_QOS,
-    FeedTwinNode,
-    NodeOptions,
-    node_main,
-)
+from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
+from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, node_main
 
 AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
 CLOCK = FlatCodec("rosgraph_msgs/msg/Clock").fixed({})

@@ -35,13 +35,11 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from feed_twin.io.bag import BagWriter, QosProfile
 from feed_twin.nodeset.summary import LiveFeed
 from feed_twin.nodeset.topics import RECORDER_NODE
+from feed_twin.ros.dds import DATA_QOS, HEARTBEAT_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import (
-    DATA_QOS,
     EXIT_OK,
     EXIT_PEER_LOST,
     EXIT_SIGNAL,
-    HEARTBEAT_QOS,
-    LATCHED_QOS,
     FeedTwinNode,
     NodeOptions,
     node_main,

@@ -417,7 +417,8 @@ def _run_single_process(args: argparse.Namespace, ros, out: Outputs) -> tuple[in
     """The same nodes, built by their own modules from the same arguments, in one executor."""
     import importlib
 
-    from feed_twin.ros.runtime import init_context, node_options, node_parser, spin_nodes
+    from feed_twin.ros.dds import init_context
+    from feed_twin.ros.runtime import node_options, node_parser, spin_nodes
 
     context = init_context()
     nodes = []

@@ -37,16 +37,8 @@ from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost
 from feed_twin.nodeset.pacing import pacing_report
 from feed_twin.nodeset.split import BOUNDARY_MODES, NS_PER_S, DriveSetpoint, NodeSetConfig
 from feed_twin.nodeset.topics import SIM_NODE
-from feed_twin.ros.runtime import (
-    DATA_QOS,
-    EXIT_ERROR,
-    EXIT_OK,
-    LATCHED_QOS,
-    FeedTwinNode,
-    NodeOptions,
-    apply_scheduling,
-    node_main,
-)
+from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
+from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, node_main
 
 STATUS_ENABLED = (
     AxisFeedback.STATUS_READY_TO_SWITCH_ON

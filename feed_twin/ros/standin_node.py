@@ -55,15 +55,8 @@ from std_msgs.msg import String
 
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io.cdr import FlatCodec
-from feed_twin.ros.runtime import (
-    DATA_QOS,
-    EXIT_ERROR,
-    EXIT_OK,
-    LATCHED_QOS,
-    FeedTwinNode,
-    NodeOptions,
-    start_node,
-)
+from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
+from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import encode_joint_state
 from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.replay import twin_namespace

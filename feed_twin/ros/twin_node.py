@@ -37,13 +37,8 @@ from sensor_msgs.msg import JointState
 from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.measured import load_column_map
-from feed_twin.ros.runtime import (
-    DATA_QOS,
-    EXIT_OK,
-    FeedTwinNode,
-    NodeOptions,
-    start_node,
-)
+from feed_twin.ros.dds import DATA_QOS
+from feed_twin.ros.runtime import EXIT_OK, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import JOINT_STATE, MessageFields, plan
 from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.health import Verdict

@@ -40,7 +40,7 @@ from feed_twin.shadow.health import LEVEL_NAMES, Verdict
 from feed_twin.shadow.twin import ResidualBlock, ShadowTwin
 
 CHUNK_S = 1.0  # [s] of arrivals fed between two process() calls
-# what the live twin node offers on its topics (feed_twin.ros.runtime.DATA_QOS), so that the
+# what the live twin node offers on its topics (feed_twin.ros.dds.DATA_QOS), so that the
 # comparison bag's twin topics read as a recording of the live twin would
 TWIN_QOS = QosProfile(
     history="keep_last", depth=5000, reliability="reliable", durability="transient_local"

@@ -1,0 +1,119 @@
+"""DDS and process set-up shared by the feed_twin nodes: the Fast DDS profile, QoS, scheduling.
+
+- Transport and writers: `init_context` points Fast DDS at `fastdds_profiles.xml` (or its
+  loopback twin when discovery is limited to this host; unless the user named a profile): UDP
+  only, because a node killed while holding the lock of a shared-memory port froze every node
+  that sent to it for 1-2 s, and periodic heartbeats instead of one piggybacked on every sample,
+  which saves a fifth of the CPU of a lockstep exchange (see the file).
+- Scheduling (`apply_scheduling`): a lockstep exchange is a ping-pong between the sim and the
+  controller process, and on a virtual machine a wake-up across cores costs several times one on
+  the same core, so `ros.exchange_cpu` pins both to one CPU (measured: both on one CPU beat one
+  each). In real-time mode `ros.realtime_priority` runs both under SCHED_FIFO, which bounds the
+  lateness by the kernel's wake-up latency instead of by whatever else the machine runs. Both
+  apply to every thread of the process (the DDS receive threads deliver the messages); where
+  the OS refuses (no CAP_SYS_NICE, no such CPU) the node logs why and runs unpinned/normal.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import rclpy
+from rclpy.context import Context
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+FASTDDS_PROFILES = Path(__file__).with_name("fastdds_profiles.xml")
+FASTDDS_PROFILES_LOCALHOST = Path(__file__).with_name("fastdds_profiles_localhost.xml")
+
+# Data topics: reliable and in order. Transient-local history lets a subscriber that matched a
+# few milliseconds late (the recorder, usually) still receive the first messages. The depth
+# (5 s at 1 kHz) is what a reliable writer keeps for a reader that falls behind: a recorder
+# descheduled on a loaded machine must not lose samples (a 200-deep history did).
+DATA_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=5000,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+# Program/run state: the latest value matters, also for late joiners.
+LATCHED_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+HEARTBEAT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+
+def dds_environment(env: Mapping[str, str]) -> dict[str, str | None]:
+    """The variables to change in `env` (None: remove) so that this process's participant uses
+    feed_twin's Fast DDS profile (UDP only; fastdds_profiles.xml says why not shared memory).
+
+    A profile the user named (FASTRTPS_/FASTDDS_DEFAULT_PROFILES_FILE) is kept as it is. With
+    discovery limited to this host, rmw_fastrtps would impose shared memory, so the range goes to
+    the loopback profile and rmw is told SYSTEM_DEFAULT (the profile then decides).
+    """
+    ours = {str(FASTDDS_PROFILES), str(FASTDDS_PROFILES_LOCALHOST)}  # inherited from a parent
+    named = {env.get(f"{v}_DEFAULT_PROFILES_FILE") for v in ("FASTRTPS", "FASTDDS")}
+    if named - ours - {None, ""}:
+        return {}
+    scope = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").upper()
+    local = (
+        scope == "LOCALHOST"
+        or env.get("ROS_LOCALHOST_ONLY") == "1"
+        # a parent process that made this decision already passed it on
+        or (str(FASTDDS_PROFILES_LOCALHOST) in named and scope in ("", "SYSTEM_DEFAULT"))
+    )
+    if not local:
+        return {"FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES)}
+    return {
+        "FASTRTPS_DEFAULT_PROFILES_FILE": str(FASTDDS_PROFILES_LOCALHOST),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
+        "ROS_LOCALHOST_ONLY": None,  # deprecated; rcl warns whenever it is set
+    }
+
+
+def init_context(args: Sequence[str] | None = None) -> Context:
+    """A fresh rclpy context without rclpy's own signal handlers (spin_nodes handles them)."""
+    # Fast DDS reads its default profiles when the first participant is created, rmw the
+    # discovery range at every init.
+    for name, value in dds_environment(os.environ).items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
+    context = Context()
+    rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    return context
+
+
+def apply_scheduling(*, cpu: int = -1, priority: int = 0) -> list[str]:
+    """Pin every thread of this process to `cpu` (-1: leave) and run it under SCHED_FIFO at
+    `priority` (0: leave); returns one note per setting, saying what took effect or why not."""
+    notes: list[str] = []
+    threads = (
+        [int(t) for t in os.listdir("/proc/self/task")] if os.path.isdir("/proc/self/task") else [0]
+    )
+    if cpu >= 0:
+        try:
+            for tid in threads:
+                os.sched_setaffinity(tid, {cpu})
+            notes.append(f"pinned to CPU {cpu}")
+        except (OSError, AttributeError) as exc:
+            notes.append(f"not pinned to CPU {cpu}: {exc}")
+    if priority > 0:
+        try:
+            for tid in threads:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            notes.append(f"SCHED_FIFO priority {priority}")
+        except (OSError, AttributeError) as exc:
+            notes.append(f"normal scheduling, SCHED_FIFO priority {priority} refused: {exc}")
+    return notes
