@@ -388,10 +388,10 @@ class ControllerCore:
                 velocity_m_s=nc.velocity_m_s,
             )
         ref = self._ref
+        ref[sig.REF_POS_M] = nc.position_m
+        ref[sig.REF_VEL_M_S] = nc.velocity_m_s
+        ref[sig.REF_ACC_M_S2] = nc.acceleration_m_s2
         if self._cascade is not None:
-            ref[sig.REF_POS_M] = nc.position_m
-            ref[sig.REF_VEL_M_S] = nc.velocity_m_s
-            ref[sig.REF_ACC_M_S2] = nc.acceleration_m_s2
             out = self._cascade.update(t, ref, meas)
             return DriveSetpoint(
                 t_ns=t_ns,
@@ -406,9 +406,6 @@ class ControllerCore:
                 following_error_m=float(out[sig.OUT_FOLLOWING_ERROR_M]),
             )
         assert self._position is not None
-        ref[sig.REF_POS_M] = nc.position_m
-        ref[sig.REF_VEL_M_S] = nc.velocity_m_s
-        ref[sig.REF_ACC_M_S2] = nc.acceleration_m_s2
         pos = self._position.update(t, ref, meas)
         if self._velocity is None:
             return DriveSetpoint(
