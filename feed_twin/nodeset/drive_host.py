@@ -154,6 +154,10 @@ class DriveHost:
         self._meas_idx = np.array([self._index[n] for n in MEAS_RECORD])
         self._i_fault = self._index[f"out.{sig.OUT_NAMES[sig.OUT_FAULT]}"]
         self._i_enabled = self._index[f"out.{sig.OUT_NAMES[sig.OUT_ENABLED]}"]
+        self._i_u_ref = (
+            self._index[f"out.{sig.OUT_NAMES[sig.OUT_U_D_REF_V]}"],
+            self._index[f"out.{sig.OUT_NAMES[sig.OUT_U_Q_REF_V]}"],
+        )
         # One fancy-index and one multiply give every AxisState signal; a signal the plant does
         # not have reads slot 0 times NaN.
         names = [getattr(signals, f) for f in _SIGNAL_FIELDS]
@@ -271,6 +275,14 @@ class DriveHost:
         error = self.setpoint.position_m - meas[sig.MEAS_X_SCALE_M]
         return meas, counts, i_d, i_q, error
 
+    def voltage_refs(self, row: np.ndarray) -> tuple[float, float]:
+        """(u_d, u_q) [V] the drive's current controller commands at a row (a drive scope's
+        voltage references: the dead time and the device drop are what the inverter then takes
+        off them); NaN for a drive without a current loop (force/torque source)."""
+        if not self.pole_pairs:
+            return math.nan, math.nan
+        return float(row[self._i_u_ref[0]]), float(row[self._i_u_ref[1]])
+
     def fault(self, row: np.ndarray) -> tuple[int, bool]:
         """(FAULT_* code, power stage enabled) of the drive at a row."""
         return int(row[self._i_fault]), bool(row[self._i_enabled] > 0.5)
@@ -296,12 +308,20 @@ class DriveHost:
         """`advance`, then everything the sim publishes for that exchange as one sample."""
         t_ns, row = self.advance(setpoint)
         meas, counts, i_d, i_q, error = self.feedback(row)
+        u_d_ref, u_q_ref = self.voltage_refs(row)
         return ExchangeSample(
             t_ns=t_ns,
             meas=np.array(meas),
             out=np.array([row[self._index[n]] for n in OUT_RECORD]),
             truth=dict(zip(TRUTH_FIELDS, self.truth(row), strict=True)),
-            feedback={"encoder_counts": counts, "i_d": i_d, "i_q": i_q, "following_error": error},
+            feedback={
+                "encoder_counts": counts,
+                "i_d": i_d,
+                "i_q": i_q,
+                "u_d_ref": u_d_ref,
+                "u_q_ref": u_q_ref,
+                "following_error": error,
+            },
         )
 
 

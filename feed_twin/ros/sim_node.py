@@ -116,6 +116,8 @@ FEEDBACK_NUMBERS = (
     "i_d",
     "i_q",
     "u_dc",
+    "u_d_ref",
+    "u_q_ref",
     "following_error",
     "mode",
     "status_word",
@@ -338,12 +340,13 @@ class SimNode(FeedTwinNode):
         # The controller waits for the feedback: it goes out first, the record messages after.
         sec, nsec = divmod(t_ns, NS_PER_S)
         meas, counts, i_d, i_q, error = host.feedback(row)
+        u_d_ref, u_q_ref = host.voltage_refs(row)
         fault, enabled = host.fault(row)
         self._feedback_pub.publish(
             self._feedback_layout.encode(
                 (
                     sec, nsec, counts, *meas[: sig.MEAS_U_DC_V], i_d, i_q,
-                    meas[sig.MEAS_U_DC_V], error, host.setpoint.mode,
+                    meas[sig.MEAS_U_DC_V], u_d_ref, u_q_ref, error, host.setpoint.mode,
                     (STATUS_ENABLED if enabled else 0) | (STATUS_FAULT if fault else 0), fault,
                 )
             )
