@@ -9,11 +9,22 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 
+import rclpy
 from nodes_support import node_env
+from rclpy.executors import SingleThreadedExecutor
+from std_msgs.msg import String
 
-from feed_twin.ros.dds import FASTDDS_PROFILES, FASTDDS_PROFILES_LOCALHOST, dds_environment
+from feed_twin.ros.dds import (
+    DATA_QOS,
+    FASTDDS_PROFILES,
+    FASTDDS_PROFILES_LOCALHOST,
+    dds_environment,
+    init_context,
+)
 from feed_twin.ros.domain import reserve_domain_id
+from feed_twin.ros.runtime import FeedTwinNode, NodeOptions
 
 
 def test_host_only_discovery_goes_to_the_loopback_profile() -> None:
@@ -79,3 +90,44 @@ def test_a_child_of_a_host_only_process_stays_host_only() -> None:
     assert dds_environment(applied)["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(
         FASTDDS_PROFILES_LOCALHOST
     )
+
+
+def test_a_node_beats_only_once_the_recorder_listens_to_its_outputs() -> None:
+    """The twin's first heartbeat (which lets the stand-in start the run) waits for the
+    recorder's readers: a run stopped a second after its start once lost all the twin's output
+    to a recorder that matched the twin's writers only after the twin had gone."""
+    context = init_context()
+    nodes = []
+    try:
+        options = NodeOptions(machine="cnc", axis="x", peers=("recorder",))
+        node = FeedTwinNode("twin", options, context=context)
+        nodes.append(node)
+        pub = node.create_publisher(String, "/cnc/x/twin/residual", DATA_QOS)
+        node.start_heartbeat(when=lambda: node.recorder_listens([pub]))
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+
+        def spin(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end and not node.liveness.beating:
+                executor.spin_once(timeout_sec=0.05)
+
+        spin(0.5)
+        assert not node.liveness.beating
+        recorder = rclpy.create_node("recorder_data", namespace="/cnc/x", context=context)
+        nodes.append(recorder)
+        recorder.create_subscription(String, "/cnc/x/twin/residual", lambda m: None, DATA_QOS)
+        spin(5.0)
+        assert node.liveness.beating
+        # without a recorder among the peers there is nothing to wait for
+        alone = FeedTwinNode(
+            "gcode", NodeOptions(machine="cnc", axis="x", peers=()), context=context
+        )
+        nodes.append(alone)
+        assert alone.recorder_listens([pub])
+    finally:
+        for n in nodes:
+            if isinstance(n, FeedTwinNode):
+                n.liveness.stop()
+            n.destroy_node()
+        context.try_shutdown()

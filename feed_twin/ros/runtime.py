@@ -45,7 +45,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 from std_msgs.msg import String
 
-from feed_twin.nodeset.topics import AxisTopics
+from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
 from feed_twin.ros.dds import HEARTBEAT_QOS, LATCHED_QOS, init_context
 
 EXIT_OK = 0
@@ -119,6 +119,10 @@ class Liveness:
     def start_beating(self) -> None:
         self._beating = True
 
+    @property
+    def beating(self) -> bool:
+        return self._beating
+
     def _take(self) -> None:
         handle = self._sub.handle
         with handle:
@@ -177,6 +181,7 @@ class FeedTwinNode(Node):
         self._watchdogs: list[_Watchdog] = []
         self.liveness = Liveness(role, options, self.context)
         self._heartbeat_on = False
+        self._beat_when: Callable[[], bool] | None = None
         self.setup_cpu_s = 0.0  # CPU time of this process when set-up ended [s]
         self.run_ended = False
         self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
@@ -184,8 +189,13 @@ class FeedTwinNode(Node):
 
     # -- life cycle ---------------------------------------------------------------------------
 
-    def start_heartbeat(self) -> None:
-        """Call at the end of set-up: peers start watching this node from its first beat."""
+    def start_heartbeat(self, *, when: Callable[[], bool] | None = None) -> None:
+        """Call at the end of set-up: peers start watching this node from its first beat.
+
+        With `when`, the first beat waits until when() holds (checked with every liveness
+        tick): a producer starts the run only once every peer beats, so a node can hold the
+        run back until, for example, the recorder listens to its outputs (`recorder_listens`).
+        """
         self.setup_cpu_s = _cpu_seconds()
         # What set-up built (numba dispatchers, message types, the plant) lives to the end:
         # moved out of the collector's generations, a full collection no longer walks it and
@@ -193,7 +203,25 @@ class FeedTwinNode(Node):
         gc.collect()
         gc.freeze()
         self._heartbeat_on = True
-        self.liveness.start_beating()
+        self._beat_when = when
+        if when is None or when():
+            self._beat_when = None
+            self.liveness.start_beating()
+
+    def recorder_listens(self, publishers: Sequence[Any]) -> bool:
+        """The recorder's reader is in the graph on every one of `publishers`' topics (True
+        when the recorder is not a peer of this node). Its transient-local history would give a
+        late reader the samples anyway, but not once this node is gone: a run stopped within a
+        second of its start lost the twin's whole output that way."""
+        if "recorder" not in self.options.peers:
+            return True
+        return all(
+            any(
+                info.node_name.startswith(RECORDER_NODE)  # recorder, recorder_data
+                for info in self.get_subscriptions_info_by_topic(pub.topic_name)
+            )
+            for pub in publishers
+        )
 
     def finish(self, code: int, message: str = "") -> None:
         """Ask the spin loop to stop this node; the first reason wins."""
@@ -263,6 +291,9 @@ class FeedTwinNode(Node):
     def _tick(self) -> None:
         if self.done:
             return
+        if self._beat_when is not None and self._beat_when():
+            self._beat_when = None
+            self.liveness.start_beating()
         now = time.monotonic()
         heard = self.liveness.seen()
         for peer in () if self.run_ended else self.options.peers:

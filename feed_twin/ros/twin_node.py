@@ -115,7 +115,8 @@ class TwinNode(FeedTwinNode):
         self._waiting_for_command = False  # measured samples are there, not yet paired
         self.errors = 0
         self._rss_start = _rss_mb()
-        self.start_heartbeat()
+        outputs = (self._state_pub, self._residual_pub, self._health_pub)
+        self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
     # -- input --------------------------------------------------------------------------------
 
