@@ -38,6 +38,8 @@ def _feedback_values() -> dict:
         "i_d": 0.01,
         "i_q": 1.7,
         "u_dc": 560.0,
+        "u_d_ref": -1.25,
+        "u_q_ref": 12.5,
         "following_error": 2e-6,
         "mode": 10,
         "status_word": 567,
@@ -65,7 +67,7 @@ def test_fixed_layout_reads_a_message_with_other_strings() -> None:
 
 def test_fixed_layout_errors_name_the_message_and_field() -> None:
     layout = FEEDBACK.fixed({"axis": "X"})
-    with pytest.raises(ValueError, match=r"AxisFeedback: 2 values given, 15 number fields"):
+    with pytest.raises(ValueError, match=r"AxisFeedback: 2 values given, 17 number fields"):
         layout.encode((1, 2))
     with pytest.raises(KeyError, match=r"AxisFeedback has no string field\(s\) label"):
         FEEDBACK.fixed({"label": "X"})
