@@ -151,7 +151,7 @@ class ControllerNode(FeedTwinNode):
         )
         for note in apply_scheduling(cpu=exchange_cpu):
             self.get_logger().info(f"scheduling: {note}")
-        self.start_heartbeat()
+        self.start_heartbeat(when=lambda: self.recorder_listens((self._pub,)))
 
     def on_run_state(self, text: str) -> None:
         word, _, priority = text.partition(" priority ")

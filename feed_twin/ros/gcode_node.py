@@ -148,7 +148,7 @@ class GcodeNode(FeedTwinNode):
         self.autostart = autostart
         if program:
             self.set_parameters([Parameter("program", value=program)])
-        self.start_heartbeat()
+        self.start_heartbeat(when=lambda: self.recorder_listens((self._pub,)))
 
     # -- program ------------------------------------------------------------------------------
 

@@ -210,8 +210,8 @@ class FeedTwinNode(Node):
 
     def recorder_listens(self, publishers: Sequence[Any]) -> bool:
         """The recorder's reader is in the graph on every one of `publishers`' topics (True
-        when the recorder is not a peer of this node). Its transient-local history would give a
-        late reader the samples anyway, but not once this node is gone: a run stopped within a
+        when the recorder is not a peer of this node). Transient-local history gives a late
+        reader the samples anyway, but not once this node is gone: a run stopped within a
         second of its start lost the twin's whole output that way."""
         if "recorder" not in self.options.peers:
             return True

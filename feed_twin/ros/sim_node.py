@@ -239,7 +239,8 @@ class SimNode(FeedTwinNode):
         if realtime:
             # The controller raises its own priority on this announcement (latched).
             self._run_pub.publish(String(data=f"realtime priority {realtime_priority}"))
-        self.start_heartbeat()
+        outputs = (self._feedback_pub, self._state_pub, self._joint_pub)
+        self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
     # -- start and end ------------------------------------------------------------------------
 

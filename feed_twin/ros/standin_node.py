@@ -149,7 +149,7 @@ class StandInNode(FeedTwinNode):
         self._done_at: float | None = None
         self._progress_at = 0.0
         self.lateness_s: list[float] = []
-        self.start_heartbeat()
+        self.start_heartbeat(when=lambda: self.recorder_listens((self._js_pub,)))
 
     # -- inputs -------------------------------------------------------------------------------
 
