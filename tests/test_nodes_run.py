@@ -74,7 +74,7 @@ def test_run_summary_and_outputs(multi: dict) -> None:
     subprocess.run([str(rerun_binary()), "rrd", "verify", multi["rrd"]], check=True, timeout=60)
 
 
-def test_bag_read_back_by_rosbags(multi: dict) -> None:
+def test_bag_read_back_by_rosbags(setup: dict, multi: dict) -> None:
     store = get_typestore(Stores.EMPTY)
     positions: list[tuple[int, float]] = []
     with Reader(multi["bag"]) as reader:
@@ -94,6 +94,10 @@ def test_bag_read_back_by_rosbags(multi: dict) -> None:
     # Nothing lost: one state, feedback and drive command per exchange.
     assert counts["/cnc/x/state"] == counts["/cnc/x/feedback"] == steps
     assert counts["/cnc/x/drive_command"] == steps
+    # every setpoint of the program, though the G-code node had sent them all and left within a
+    # second (it starts only once the recorder listens: a run once recorded none of them)
+    planned = plan_program(setup["program"], load_nc_config(setup["config"])).t_s.size
+    assert counts["/cnc/x/command"] == planned
     stamps = np.array([t for t, _ in positions])
     np.testing.assert_array_equal(np.diff(stamps), 1_000_000)
     # At rest on the target after the settle time (integral action removes the friction offset).
