@@ -131,3 +131,27 @@ def test_a_node_beats_only_once_the_recorder_listens_to_its_outputs() -> None:
                 n.liveness.stop()
             n.destroy_node()
         context.try_shutdown()
+
+
+def test_a_node_whose_outputs_the_recorder_never_takes_says_so() -> None:
+    context = init_context()
+    node = None
+    try:
+        options = NodeOptions(machine="cnc", axis="x", peers=("recorder",), startup_timeout_s=0.3)
+        node = FeedTwinNode("sim", options, context=context)
+        pub = node.create_publisher(String, "/cnc/x/state_probe", DATA_QOS)
+        node.start_heartbeat(when=lambda: node.recorder_listens([pub]))
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end and not node.done:
+            executor.spin_once(timeout_sec=0.05)
+        assert node.done and not node.liveness.beating
+        assert "recorder did not subscribe to this node's data topics within 0.3 s" in (
+            node.exit_message
+        )
+    finally:
+        if node is not None:
+            node.liveness.stop()
+            node.destroy_node()
+        context.try_shutdown()

@@ -213,7 +213,7 @@ class FeedTwinNode(Node):
         when the recorder is not a peer of this node). Transient-local history gives a late
         reader the samples anyway, but not once this node is gone: a run stopped within a
         second of its start lost the twin's whole output that way."""
-        if "recorder" not in self.options.peers:
+        if RECORDER_NODE not in self.options.peers:
             return True
         return all(
             any(
@@ -291,9 +291,18 @@ class FeedTwinNode(Node):
     def _tick(self) -> None:
         if self.done:
             return
-        if self._beat_when is not None and self._beat_when():
-            self._beat_when = None
-            self.liveness.start_beating()
+        if self._beat_when is not None:
+            if self._beat_when():
+                self._beat_when = None
+                self.liveness.start_beating()
+            elif time.monotonic() - self._created > self.options.startup_timeout_s:
+                self.finish(
+                    EXIT_PEER_LOST,
+                    f"{self.role} node: the recorder did not subscribe to this node's data "
+                    f"topics within {self.options.startup_timeout_s:g} s (it records a topic "
+                    "only when it has one type), so the node never joined the run",
+                )
+                return
         now = time.monotonic()
         heard = self.liveness.seen()
         for peer in () if self.run_ended else self.options.peers:
