@@ -1,12 +1,14 @@
-"""What every feed_twin node shares: liveness, input watchdogs, QoS, and the spin loop.
+"""What every feed_twin node shares: liveness, input watchdogs, and the spin loop.
 
 - Liveness: each node publishes a heartbeat (its role) every 0.1 s of wall time on
   `/<machine>/<axis>/heartbeat` and watches its peers' heartbeats. A peer that was seen and then
   stays silent for `peer_timeout_s` (0.8 s) is gone: the node names it and stops with exit code
   `EXIT_PEER_LOST`. A peer never seen within `startup_timeout_s` is reported as not started.
   Heartbeats begin only after a node's set-up (numba compilation included), so a slow start is
-  not mistaken for a crash, and they are sent and received by a separate small node on its own
-  thread (`Liveness`), so a backlog on the data path does not look like a dead peer.
+  not mistaken for a crash, and (with `start_heartbeat(when=...)`) only once the recorder
+  listens to the node's data topics, so that no run starts before its bag can hold everything.
+  They are sent and received by a separate small node on its own thread (`Liveness`), so a
+  backlog on the data path does not look like a dead peer.
 - Input watchdogs: a node that waits for messages on a topic reports, after a timeout, what the
   graph offers instead (the same type on other topics, or the topic with another type), which
   is what goes wrong when a real command stream is wired to the wrong namespace.
