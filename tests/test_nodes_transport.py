@@ -10,6 +10,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+import xml.etree.ElementTree as ET
 
 import rclpy
 from nodes_support import node_env
@@ -54,6 +55,26 @@ def test_network_discovery_uses_the_udp_profile_and_a_user_profile_is_kept() -> 
     assert dds_environment(inherited)["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(
         FASTDDS_PROFILES_LOCALHOST
     )
+
+
+def _writer_times(path) -> dict[str, float]:
+    ns = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+    times = ET.parse(path).getroot().find("p:data_writer/p:times", ns)
+    return {
+        child.tag.split("}")[1]: int(child.find("p:sec", ns).text)
+        + int(child.find("p:nanosec", ns).text) * 1e-9
+        for child in times
+    }
+
+
+def test_writers_repair_losses_at_the_next_heartbeat_without_an_event_per_sample() -> None:
+    """Both profiles: periodic heartbeats, and a NACK-suppression window that is not zero (a
+    zero window woke the event thread for every sample to every reader) but shorter than the
+    heartbeat period, so a lost sample is still repaired at the next heartbeat."""
+    for path in (FASTDDS_PROFILES, FASTDDS_PROFILES_LOCALHOST):
+        times = _writer_times(path)
+        assert times == _writer_times(FASTDDS_PROFILES), path
+        assert 0.0 < times["nackSupressionDuration"] < times["heartbeatPeriod"] <= 0.5, times
 
 
 PROBE = """
