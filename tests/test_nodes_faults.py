@@ -20,7 +20,10 @@ from feed_twin.ros.domain import reserve_domain_id
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 SAMPLE = ROOT / "tests" / "fixtures" / "gcode" / "sample.ngc"  # about 7 s of motion
-ROLES = ("sim", "controller", "gcode", "recorder")
+# Processes of a run: by default the recorder records inside the sim's process
+# (ros.recorder_host: sim, feed_twin/ros/host.py); with "own" it has a process of its own.
+PROCESSES = ("sim", "controller", "gcode")
+PROCESSES_OWN_RECORDER = (*PROCESSES, "recorder")
 
 
 @pytest.fixture(scope="module")
@@ -32,8 +35,18 @@ def config(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.fixture(scope="module")
+def config_own_recorder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("faults_own") / "axis.yaml"
+    text = AXIS_CONFIG.read_text()
+    assert "recorder_host: sim " in text
+    path.write_text(text.replace("recorder_host: sim ", "recorder_host: own "))
+    return path
+
+
 def node_pids(config: Path) -> dict[str, int]:
-    """PIDs of this run's node processes (found by their module and this test's config path)."""
+    """PIDs of this run's node processes by name (found by their module, or the first role a
+    node host runs, and this test's config path)."""
     found: dict[str, int] = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -43,12 +56,13 @@ def node_pids(config: Path) -> dict[str, int]:
         except OSError:
             continue
         text = [a.decode(errors="replace") for a in argv]
-        for role in ROLES:
-            module = f"feed_twin.ros.{role}_node"
-            if module in text and (str(config) in text or role == "recorder"):
-                if role == "recorder" and not any(str(config.parent) in a for a in text):
-                    continue
-                found[role] = int(entry.name)
+        if str(config) not in text:
+            continue
+        for i, arg in enumerate(text):
+            if arg == "feed_twin.ros.host" and i + 1 < len(text):
+                found[text[i + 1]] = int(entry.name)
+            elif arg.startswith("feed_twin.ros.") and arg.endswith("_node"):
+                found[arg.removeprefix("feed_twin.ros.").removesuffix("_node")] = int(entry.name)
     return found
 
 
@@ -84,16 +98,25 @@ def start_sample_run(config: Path, name: str, domain_id: int) -> subprocess.Pope
     )
 
 
-@pytest.mark.parametrize("victim", ROLES)
-def test_killed_node_is_noticed_named_and_bag_readable(config: Path, victim: str) -> None:
+@pytest.mark.parametrize("victim", PROCESSES_OWN_RECORDER)
+def test_killed_node_is_noticed_named_and_bag_readable(
+    config: Path, config_own_recorder: Path, victim: str
+) -> None:
+    """Kill one process: every other notices within a second and names the node(s) it lost.
+    The recorder-only victim runs with the recorder in a process of its own; killing the sim's
+    process kills the recorder in it too, and the runner recovers the bag."""
+    if victim == "recorder":
+        config = config_own_recorder
+    processes = PROCESSES_OWN_RECORDER if victim == "recorder" else PROCESSES
     name = f"kill_{victim}"
     logs = config.parent / "bags" / f"{name}.logs"
     with reserve_domain_id() as domain:
         proc = start_sample_run(config, name, domain.domain_id)
         try:
-            wait_for_progress(proc, logs / "sim.log", 0.5)
+            # the sim's process holds the recorder: let it flush a few times before the kill
+            wait_for_progress(proc, logs / "sim.log", 3.0 if victim == "sim" else 0.5)
             pids = node_pids(config)
-            assert set(pids) == set(ROLES), pids
+            assert set(pids) == set(processes), pids
             os.kill(pids[victim], signal.SIGKILL)
             killed_at = time.monotonic()
             others = {r: p for r, p in pids.items() if r != victim}
@@ -111,10 +134,12 @@ def test_killed_node_is_noticed_named_and_bag_readable(config: Path, victim: str
     assert proc.returncode != 0
     gone = f"node '/cnc/x/{victim}' is gone"
     assert gone in err
-    # Every other node noticed by itself (no heartbeat for 0.6 s) and ended promptly.
+    # Every other node noticed by itself (no heartbeat for 0.8 s) and ended promptly.
     for role in others:
         text = (logs / f"{role}.log").read_text(errors="replace")
         assert gone in text, role
+        if victim == "sim":  # the recorder in its process is named with it
+            assert "node '/cnc/x/recorder' is gone" in text, role
         match = re.search(r"is gone: no heartbeat for (\S+) s", text)
         assert float(match[1]) < 1.0
         # The recorder first records what is still in flight (it may lag on a loaded machine).
@@ -151,7 +176,8 @@ def test_signal_stops_every_node_and_finalises_the_bag(config: Path, signum: int
     assert not any(alive(pid) for pid in pids.values())
     bag = config.parent / "bags" / name
     assert (bag / "metadata.yaml").exists()  # closed by the recorder, not recovered
-    recorder_log = (logs / "recorder.log").read_text()
+    recorder_log = (logs / "sim.log").read_text()  # the recorder runs in the sim's process
+    assert "recorder: " in recorder_log
     assert f"stopped by {signal.Signals(signum).name}" in recorder_log
     summary = info(bag)
     counts = {t.name: t.message_count for t in summary.topics}

@@ -82,6 +82,7 @@ def test_fixed_layout_errors_name_the_message_and_field() -> None:
         ("exchange_cpu", 1.0, r"exchange_cpu = 1.0: must be a whole number in \[-1, 1023\]"),
         ("realtime_priority", 100, r"realtime_priority = 100: must be a whole number in \[0, 99\]"),
         ("realtime_priority", True, r"realtime_priority = True: must be a whole number"),
+        ("recorder_host", "controller", r"recorder_host = 'controller': must be one of sim, own"),
     ],
 )
 def test_scheduling_settings_are_checked(field: str, value: object, message: str) -> None:

@@ -45,6 +45,8 @@ from feed_twin.io.config import from_mapping, load_yaml, require_positive
 from feed_twin.nodeset.topics import AxisTopics
 
 Boundary = Literal["torque", "velocity", "position", "voltage"]
+RecorderHost = Literal["sim", "own"]
+RECORDER_HOSTS: tuple[RecorderHost, ...] = ("sim", "own")
 # CiA 402 modes of operation, as in feed_twin_msgs/DriveCommand.
 MODE_CSP = 8
 MODE_CSV = 9
@@ -120,6 +122,9 @@ class NodeSetConfig:
     # Scheduling of the two lockstep partners (sim and controller node), where the OS allows it:
     exchange_cpu: int = -1  # CPU both run on (-1: anywhere) [-]
     realtime_priority: int = 0  # SCHED_FIFO priority of both in real-time mode (0: normal) [-]
+    # "sim": the recorder runs in the sim node's process (no socket between them, see
+    # feed_twin/ros/host.py); "own": a process of its own
+    recorder_host: RecorderHost = "sim"
     signals: StateSignals = dataclasses.field(default_factory=StateSignals)
     node_gains: NodeLoopGains = dataclasses.field(default_factory=NodeLoopGains)
 
@@ -145,6 +150,11 @@ class NodeSetConfig:
                 f"= [1, {self.lookahead - 1}] so the NC stays ahead of the clock"
             )
 
+        if self.recorder_host not in RECORDER_HOSTS:
+            raise ValueError(
+                f"recorder_host = {self.recorder_host!r}: must be one of "
+                f"{', '.join(RECORDER_HOSTS)}"
+            )
         for name, low, high in (("exchange_cpu", -1, 1023), ("realtime_priority", 0, 99)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:

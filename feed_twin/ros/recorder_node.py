@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 import time
 from collections.abc import Sequence
@@ -215,10 +216,10 @@ class RecorderNode(FeedTwinNode):
         # flight first, then decide.
         if self._peer_lost is None:
             self._peer_lost = message
-        peer = message.split("'")[1] if message.count("'") >= 2 else message
-        if peer not in self._peers_lost:
+        peers = set(re.findall(r"node '([^']+)' is gone", message)) or {message}
+        if peers - self._peers_lost:
             # every lost peer is named: after a stall of this node several may be due at once
-            self._peers_lost.add(peer)
+            self._peers_lost |= peers
             self.get_logger().warning(f"{message}; recording what is still in flight")
         if self._ending_since is None:
             self._ending_since = time.monotonic()

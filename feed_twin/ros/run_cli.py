@@ -2,8 +2,9 @@
 
 1. Checks the config and the program in-process first: a G-code error stops the run before any
    node starts, with the interpreter's `file:line:col: ...` message.
-2. Starts the four nodes as separate processes (default) or in this process
-   (`--single-process`), in the current ROS domain, and shows progress (simulated time).
+2. Starts the four nodes in three processes (default: the recorder records inside the sim's
+   process, `ros.recorder_host`, feed_twin/ros/host.py), four (`recorder_host: own`) or this
+   one (`--single-process`), in the current ROS domain, and shows progress (simulated time).
 3. Watches them: a node that exits with an error ends the run; the others notice a killed node
    by its missing heartbeat within 1 s and stop too. SIGINT/SIGTERM stop every node cleanly.
 4. Afterwards: the bag (recovered if the recorder was killed), the `.rrd` next to it, and the
@@ -34,16 +35,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from feed_twin.io.config import ConfigError
+from feed_twin.nodeset.topics import RECORDER_NODE
+from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
 
-NODE_MODULES = {
-    "recorder": "feed_twin.ros.recorder_node",
-    "controller": "feed_twin.ros.controller_node",
-    "sim": "feed_twin.ros.sim_node",
-    "gcode": "feed_twin.ros.gcode_node",
-    "twin": "feed_twin.ros.twin_node",
-    "standin": "feed_twin.ros.standin_node",
-}
-ROLES = ("recorder", "controller", "sim", "gcode")
+ROLES = (RECORDER_NODE, "controller", "sim", "gcode")
 # --shadow: the stand-in plays the real machine (drive and axis), the twin shadows it
 SHADOW_ROLES = ("recorder", "twin", "standin", "gcode")
 STOP_GRACE_S = 10.0  # [s] for nodes to finish after SIGTERM
@@ -199,11 +194,28 @@ class _Stop:
         self.signum = signum
 
 
-def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
-    commands = {
-        role: [sys.executable, "-m", NODE_MODULES[role], *_node_args(role, args, ros, out)]
-        for role in _roles(args)
+def _processes(args: argparse.Namespace, ros) -> dict[str, tuple[str, ...]]:
+    """Process name (its log file) -> the roles it hosts: one each, except the recorder
+    recording inside the sim's process with `ros.recorder_host: sim` (feed_twin.ros.host)."""
+    roles = _roles(args)
+    if args.shadow or ros.recorder_host == "own":
+        return {role: (role,) for role in roles}
+    return {
+        role: (role, RECORDER_NODE) if role == "sim" else (role,)
+        for role in roles
+        if role != RECORDER_NODE
     }
+
+
+def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
+    commands = {}
+    for name, roles in _processes(args, ros).items():
+        if len(roles) == 1:
+            module, node_argv = NODE_MODULES[name], _node_args(name, args, ros, out)
+        else:
+            module = "feed_twin.ros.host"
+            node_argv = host_argv([(r, _node_args(r, args, ros, out)) for r in roles])
+        commands[name] = [sys.executable, "-m", module, *node_argv]
     env = dict(os.environ)
     # Discovery stays on this host unless the user chose otherwise.
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -415,17 +427,11 @@ class _Progress:
 
 def _run_single_process(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
     """The same nodes, built by their own modules from the same arguments, in one executor."""
-    import importlib
-
     from feed_twin.ros.dds import init_context
-    from feed_twin.ros.runtime import node_options, node_parser, spin_nodes
+    from feed_twin.ros.runtime import spin_nodes
 
     context = init_context()
-    nodes = []
-    for role in _roles(args):
-        module = importlib.import_module(NODE_MODULES[role])
-        node_args = node_parser(role, module.configure).parse_args(_node_args(role, args, ros, out))
-        nodes.append(module.build(node_args, ros, node_options(node_args, ros), context))
+    nodes = build_nodes([(r, _node_args(r, args, ros, out)) for r in _roles(args)], context)
     code = spin_nodes(nodes, context, until_all_done=True)
     reason = next((n.exit_message for n in nodes if n.exit_code and n.exit_message), "")
     sim = next(n for n in nodes if n.role == "sim")

@@ -153,6 +153,9 @@ class Liveness:
             return dict(self._seen)
 
     def stop(self) -> None:
+        """Stop beating and listening (idempotent); `seen` keeps the last times heard."""
+        if self._stop.is_set():
+            return
         self._stop.set()
         self._thread.join(timeout=0.5)
         with contextlib.suppress(Exception):
@@ -307,6 +310,7 @@ class FeedTwinNode(Node):
                 return
         now = time.monotonic()
         heard = self.liveness.seen()
+        silent: dict[str, float] = {}
         for peer in () if self.run_ended else self.options.peers:
             seen = heard.get(peer)
             if seen is None:
@@ -316,11 +320,18 @@ class FeedTwinNode(Node):
                         f"node '{self.topics.namespace}/{peer}' did not start within "
                         f"{self.options.startup_timeout_s:g} s",
                     )
-            elif now - seen > self.options.peer_timeout_s:
-                self.on_peer_lost(
-                    f"node '{self.topics.namespace}/{peer}' is gone: no heartbeat for "
-                    f"{now - seen:.2f} s"
+            else:
+                silent[peer] = now - seen
+        if any(s > self.options.peer_timeout_s for s in silent.values()):
+            # Peers that went silent together (nodes sharing a process, feed_twin.ros.host) are
+            # named together: the others beat every 0.1 s, so half the timeout tells them apart.
+            self.on_peer_lost(
+                "; ".join(
+                    f"node '{self.topics.namespace}/{peer}' is gone: no heartbeat for {s:.2f} s"
+                    for peer, s in sorted(silent.items(), key=lambda item: -item[1])
+                    if s > 0.5 * self.options.peer_timeout_s
                 )
+            )
         for dog in self._watchdogs:
             if not dog.armed():
                 dog.last = now
@@ -437,6 +448,10 @@ def spin_nodes(
                 node.on_shutdown(reason)
             except Exception as exc:  # noqa: BLE001 - one node's cleanup must not skip another's
                 print(f"{node.role}: error while shutting down: {exc}", file=sys.stderr)
+        # A finished node stops beating: a recorder sharing this process has closed its bag, and
+        # the ack wait below (here and in other processes) must not take it for alive.
+        for node in nodes:
+            node.liveness.stop()
         # Reliable data still in flight (the end-of-run message, the last samples) reaches the
         # recorder only while the writers exist: wait for the acknowledgements while the
         # recorder is alive (it may lag behind on a busy host), briefly once it is gone.
@@ -496,20 +511,23 @@ def node_options(args: argparse.Namespace, ros) -> NodeOptions:
     )
 
 
-def start_node(prog: str, make: Callable[[Any], FeedTwinNode]) -> int:
-    """Create the ROS context, build one node with `make(context)` and spin it; a bad
+def start_node(prog: str, make: Callable[[Any], FeedTwinNode | Sequence[FeedTwinNode]]) -> int:
+    """Create the ROS context, build the node (or the nodes sharing this process, which then
+    runs until all of them have finished) with `make(context)` and spin it; a bad
     configuration or input (a ValueError, KeyError or OSError) prints one line naming `prog`
     and returns EXIT_ERROR."""
     context = None
     try:
         context = init_context()
-        node = make(context)
+        made = make(context)
     except (ValueError, KeyError, OSError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         if context is not None:
             context.try_shutdown()
         return EXIT_ERROR
-    return spin_nodes([node], context)
+    if isinstance(made, FeedTwinNode):
+        return spin_nodes([made], context)
+    return spin_nodes(made, context, until_all_done=True)
 
 
 def node_main(

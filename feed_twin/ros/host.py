@@ -1,0 +1,96 @@
+"""One process hosting several feed_twin nodes: one ROS context, so one DDS participant.
+
+Fast DDS hands a sample to a reader in the same process by a function call, and a writer in
+another process sends one datagram to a participant however many of its readers want the
+sample. `feed-twin run` therefore starts the recorder inside the sim node's process
+(`ros.recorder_host: sim`), as a rosbag2 recorder is loaded into a component container next to
+a high-rate publisher: the sim's feedback and state reach the recorder without a socket, and
+the controller's DriveCommand is one datagram for both. On this 2-core virtual machine a
+datagram that wakes a thread on the other core costs the sender about 18 us (the wake-up's
+inter-processor interrupt), and the recorder process woke several thousand times a second:
+lockstep went from 3.4x to 4.4x real time on a quiet host, and from 2.4x to 3.0x when the host
+was busy (interleaved A/B, benchmarks/nodes_speed.py). The price: killing
+this process ends both nodes, and the runner recovers the bag (at most one flush period, 0.5 s,
+is lost).
+
+    python -m feed_twin.ros.host ROLE [NODE ARGS...] [--and ROLE [NODE ARGS...]]...
+
+Each role takes the arguments of its own node module; the process runs until every node in it
+has finished and exits with the first non-zero code.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from collections.abc import Sequence
+
+NODE_MODULES = {
+    "recorder": "feed_twin.ros.recorder_node",
+    "controller": "feed_twin.ros.controller_node",
+    "sim": "feed_twin.ros.sim_node",
+    "gcode": "feed_twin.ros.gcode_node",
+    "twin": "feed_twin.ros.twin_node",
+    "standin": "feed_twin.ros.standin_node",
+}
+AND = "--and"  # separates the nodes on the command line
+HOSTABLE = ("recorder", "controller", "sim", "gcode")  # built by node_main's configure/build
+
+
+def host_argv(nodes: Sequence[tuple[str, Sequence[str]]]) -> list[str]:
+    """The command line of `main` for (role, node arguments) pairs."""
+    argv: list[str] = []
+    for role, args in nodes:
+        argv += ([AND] if argv else []) + [role, *args]
+    return argv
+
+
+def split_argv(argv: Sequence[str]) -> list[tuple[str, list[str]]]:
+    """(role, node arguments) pairs of a host command line; ValueError names what is wrong."""
+    groups: list[list[str]] = [[]]
+    for arg in argv:
+        if arg == AND:
+            groups.append([])
+        else:
+            groups[-1].append(arg)
+    nodes: list[tuple[str, list[str]]] = []
+    for group in groups:
+        if not group:
+            raise ValueError(f"an empty node between '{AND}' separators in {list(argv)}")
+        role, *args = group
+        if role not in HOSTABLE:
+            raise ValueError(f"node role {role!r}: must be one of {', '.join(HOSTABLE)}")
+        if any(role == r for r, _ in nodes):
+            raise ValueError(f"node role {role!r} given twice")
+        nodes.append((role, args))
+    return nodes
+
+
+def build_nodes(nodes: Sequence[tuple[str, Sequence[str]]], context) -> list:
+    """Build each node with its module's own argument parser and `build`, in `context`."""
+    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.ros.runtime import node_options, node_parser
+
+    built = []
+    for role, args in nodes:
+        module = importlib.import_module(NODE_MODULES[role])
+        parsed = node_parser(f"{role} node", module.configure).parse_args(list(args))
+        ros = load_node_set_config(parsed.config)
+        built.append(module.build(parsed, ros, node_options(parsed, ros), context))
+    return built
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from feed_twin.ros.runtime import EXIT_ERROR, start_node
+
+    try:
+        nodes = split_argv(sys.argv[1:] if argv is None else argv)
+    except ValueError as exc:
+        print(f"node host: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    prog = "node host (" + " + ".join(role for role, _ in nodes) + ")"
+    return start_node(prog, lambda context: build_nodes(nodes, context))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

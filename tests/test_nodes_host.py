@@ -1,0 +1,60 @@
+"""Several nodes in one process (feed_twin/ros/host.py) and the run's process layout."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import subprocess
+import sys
+
+import pytest
+from nodes_support import AXIS_CONFIG
+
+from feed_twin.nodeset.split import load_node_set_config
+from feed_twin.ros.host import host_argv, split_argv
+from feed_twin.ros.run_cli import _processes
+
+
+def test_a_host_command_line_names_each_node_with_its_own_arguments() -> None:
+    nodes = [("sim", ["--config", "a.yaml", "--realtime"]), ("recorder", ["--bag", "b"])]
+    assert split_argv(host_argv(nodes)) == nodes
+    assert host_argv(nodes) == ["sim", "--config", "a.yaml", "--realtime", "--and", "recorder",
+                                "--bag", "b"]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["sim", "--and"], r"an empty node between '--and' separators"),
+        (["planner", "--config", "a.yaml"], r"node role 'planner': must be one of recorder, "),
+        (["sim", "--and", "sim"], r"node role 'sim' given twice"),
+        ([], r"an empty node"),
+    ],
+)
+def test_a_bad_host_command_line_says_what_is_wrong(argv: list[str], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        split_argv(argv)
+
+
+def test_a_bad_host_command_line_exits_with_one_line() -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "feed_twin.ros.host", "planner"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines() == [
+        "node host: node role 'planner': must be one of recorder, controller, sim, gcode"
+    ]
+
+
+def test_the_recorder_records_in_the_sims_process_unless_configured_otherwise() -> None:
+    ros = load_node_set_config(AXIS_CONFIG)
+    assert ros.recorder_host == "sim"
+    args = argparse.Namespace(shadow=False, no_gcode=False)
+    assert _processes(args, ros) == {
+        "controller": ("controller",), "sim": ("sim", "recorder"), "gcode": ("gcode",),
+    }  # fmt: skip
+    own = dataclasses.replace(ros, recorder_host="own")
+    assert _processes(args, own) == {r: (r,) for r in ("recorder", "controller", "sim", "gcode")}
+    shadow = argparse.Namespace(shadow=True, no_gcode=False)
+    assert _processes(shadow, ros) == {r: (r,) for r in ("recorder", "twin", "standin", "gcode")}
