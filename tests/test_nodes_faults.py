@@ -21,7 +21,7 @@ from feed_twin.ros.domain import reserve_domain_id
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 SAMPLE = ROOT / "tests" / "fixtures" / "gcode" / "sample.ngc"  # about 7 s of motion
 # Processes of a run: by default the recorder records inside the sim's process
-# (ros.recorder_host: sim, feed_twin/ros/host.py); with "own" it has a process of its own.
+# (ros.recorder_host: auto in lockstep, feed_twin/ros/host.py); with "own" it has its own.
 PROCESSES = ("sim", "controller", "gcode")
 PROCESSES_OWN_RECORDER = (*PROCESSES, "recorder")
 
@@ -39,8 +39,8 @@ def config(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def config_own_recorder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("faults_own") / "axis.yaml"
     text = AXIS_CONFIG.read_text()
-    assert "recorder_host: sim " in text
-    path.write_text(text.replace("recorder_host: sim ", "recorder_host: own "))
+    assert "recorder_host: auto " in text
+    path.write_text(text.replace("recorder_host: auto ", "recorder_host: own "))
     return path
 
 

@@ -47,14 +47,16 @@ def test_a_bad_host_command_line_exits_with_one_line() -> None:
     ]
 
 
-def test_the_recorder_records_in_the_sims_process_unless_configured_otherwise() -> None:
+def test_the_recorder_records_in_the_sims_process_in_lockstep_unless_configured_otherwise() -> None:
     ros = load_node_set_config(AXIS_CONFIG)
-    assert ros.recorder_host == "sim"
-    args = argparse.Namespace(shadow=False, no_gcode=False)
-    assert _processes(args, ros) == {
-        "controller": ("controller",), "sim": ("sim", "recorder"), "gcode": ("gcode",),
-    }  # fmt: skip
-    own = dataclasses.replace(ros, recorder_host="own")
-    assert _processes(args, own) == {r: (r,) for r in ("recorder", "controller", "sim", "gcode")}
-    shadow = argparse.Namespace(shadow=True, no_gcode=False)
+    assert ros.recorder_host == "auto"
+    lockstep = argparse.Namespace(shadow=False, no_gcode=False, realtime=False)
+    realtime = argparse.Namespace(shadow=False, no_gcode=False, realtime=True)
+    shadow = argparse.Namespace(shadow=True, no_gcode=False, realtime=False)
+    together = {"controller": ("controller",), "sim": ("sim", "recorder"), "gcode": ("gcode",)}
+    apart = {r: (r,) for r in ("recorder", "controller", "sim", "gcode")}
+    assert _processes(lockstep, ros) == together
+    assert _processes(realtime, ros) == apart  # the sim must not wait for bag writing
+    assert _processes(lockstep, dataclasses.replace(ros, recorder_host="own")) == apart
+    assert _processes(realtime, dataclasses.replace(ros, recorder_host="sim")) == together
     assert _processes(shadow, ros) == {r: (r,) for r in ("recorder", "twin", "standin", "gcode")}

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import sys
 
 import numpy as np
 import pytest
@@ -82,7 +84,12 @@ def test_fixed_layout_errors_name_the_message_and_field() -> None:
         ("exchange_cpu", 1.0, r"exchange_cpu = 1.0: must be a whole number in \[-1, 1023\]"),
         ("realtime_priority", 100, r"realtime_priority = 100: must be a whole number in \[0, 99\]"),
         ("realtime_priority", True, r"realtime_priority = True: must be a whole number"),
-        ("recorder_host", "controller", r"recorder_host = 'controller': must be one of sim, own"),
+        ("cpu_latency_us", -2, r"cpu_latency_us = -2: must be a whole number"),
+        (
+            "recorder_host",
+            "controller",
+            r"recorder_host = 'controller': must be one of auto, sim, own",
+        ),
     ],
 )
 def test_scheduling_settings_are_checked(field: str, value: object, message: str) -> None:
@@ -96,6 +103,27 @@ def test_scheduling_that_the_os_refuses_is_reported_not_raised() -> None:
     assert apply_scheduling() == []  # nothing asked, nothing done
     notes = apply_scheduling(cpu=1023)  # no machine here has 1024 CPUs
     assert len(notes) == 1 and notes[0].startswith("not pinned to CPU 1023: ")
+
+
+def test_a_cpu_latency_request_is_held_open_or_its_refusal_reported(tmp_path) -> None:
+    from feed_twin.ros import dds
+
+    missing = tmp_path / "no_such_device"
+    assert dds.request_cpu_latency(0, missing) == (
+        f"CPU wake-up latency 0 us not requested: {missing}: No such file or directory"
+    )
+    device = tmp_path / "cpu_dma_latency"  # a stand-in file: what the kernel reads is an s32
+    device.write_bytes(b"")
+    try:
+        note = dds.request_cpu_latency(20, device)
+        assert note == f"CPU wake-up latency at most 20 us (PM QoS, {device})"
+        assert int.from_bytes(device.read_bytes(), sys.byteorder, signed=True) == 20
+        assert len(dds._cpu_latency_request) == 1  # held open: the request lasts while it is
+        dds.request_cpu_latency(0, device)
+        assert len(dds._cpu_latency_request) == 1  # the second replaced the first
+    finally:
+        while dds._cpu_latency_request:
+            os.close(dds._cpu_latency_request.pop())
 
 
 def test_full_cascade_runs_the_current_loop_at_the_exchange_period() -> None:

@@ -45,8 +45,8 @@ from feed_twin.io.config import from_mapping, load_yaml, require_positive
 from feed_twin.nodeset.topics import AxisTopics
 
 Boundary = Literal["torque", "velocity", "position", "voltage"]
-RecorderHost = Literal["sim", "own"]
-RECORDER_HOSTS: tuple[RecorderHost, ...] = ("sim", "own")
+RecorderHost = Literal["auto", "sim", "own"]
+RECORDER_HOSTS: tuple[RecorderHost, ...] = ("auto", "sim", "own")
 # CiA 402 modes of operation, as in feed_twin_msgs/DriveCommand.
 MODE_CSP = 8
 MODE_CSV = 9
@@ -122,9 +122,12 @@ class NodeSetConfig:
     # Scheduling of the two lockstep partners (sim and controller node), where the OS allows it:
     exchange_cpu: int = -1  # CPU both run on (-1: anywhere) [-]
     realtime_priority: int = 0  # SCHED_FIFO priority of both in real-time mode (0: normal) [-]
+    # PM QoS CPU wake-up latency the sim process requests for the run (-1: none) [us]
+    cpu_latency_us: int = -1
     # "sim": the recorder runs in the sim node's process (no socket between them, see
-    # feed_twin/ros/host.py); "own": a process of its own
-    recorder_host: RecorderHost = "sim"
+    # feed_twin/ros/host.py); "own": a process of its own; "auto": with the sim in lockstep,
+    # its own in real time (there the sim must not wait while the recorder writes its bag)
+    recorder_host: RecorderHost = "auto"
     signals: StateSignals = dataclasses.field(default_factory=StateSignals)
     node_gains: NodeLoopGains = dataclasses.field(default_factory=NodeLoopGains)
 
@@ -155,7 +158,11 @@ class NodeSetConfig:
                 f"recorder_host = {self.recorder_host!r}: must be one of "
                 f"{', '.join(RECORDER_HOSTS)}"
             )
-        for name, low, high in (("exchange_cpu", -1, 1023), ("realtime_priority", 0, 99)):
+        for name, low, high in (
+            ("exchange_cpu", -1, 1023),
+            ("realtime_priority", 0, 99),
+            ("cpu_latency_us", -1, 1_000_000),
+        ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
                 raise ValueError(f"{name} = {value!r}: must be a whole number in [{low}, {high}]")

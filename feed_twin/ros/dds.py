@@ -12,11 +12,20 @@
   lateness by the kernel's wake-up latency instead of by whatever else the machine runs. Both
   apply to every thread of the process (the DDS receive threads deliver the messages); where
   the OS refuses (no CAP_SYS_NICE, no such CPU) the node logs why and runs unpinned/normal.
+  `ros.cpu_latency_us` (the sim node, for the whole run) asks the kernel's PM QoS
+  (`/dev/cpu_dma_latency`, held open for the life of the process, as cyclictest does) to keep
+  idle CPUs in states that wake within that many microseconds: at 0 an idle CPU polls instead
+  of halting. On this virtual machine waking a halted CPU goes through the host (a UDP send
+  that wakes a thread on the other core cost 18 us instead of 2.4 us): lockstep went from 2.8x
+  to 5.2x real time, and missed real-time steps from 286 to 125 in 60 s
+  (benchmarks/nodes_speed.py, interleaved A/B). The price is an idle CPU that keeps spinning
+  while a run lasts. Needs root; refused, it is logged and skipped.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -95,10 +104,36 @@ def init_context(args: Sequence[str] | None = None) -> Context:
     return context
 
 
-def apply_scheduling(*, cpu: int = -1, priority: int = 0) -> list[str]:
-    """Pin every thread of this process to `cpu` (-1: leave) and run it under SCHED_FIFO at
-    `priority` (0: leave); returns one note per setting, saying what took effect or why not."""
+CPU_LATENCY_DEVICE = Path("/dev/cpu_dma_latency")
+_cpu_latency_request: list[int] = []  # the open PM QoS file: the request lasts while it is open
+
+
+def request_cpu_latency(latency_us: int, device: Path = CPU_LATENCY_DEVICE) -> str:
+    """Ask PM QoS for idle states that wake within `latency_us` for the rest of this process's
+    life (a second call replaces the first); returns a note saying what took effect or why
+    not."""
+    try:
+        fd = os.open(device, os.O_WRONLY)
+    except OSError as exc:
+        return f"CPU wake-up latency {latency_us} us not requested: {device}: {exc.strerror}"
+    try:
+        os.write(fd, latency_us.to_bytes(4, sys.byteorder, signed=True))
+    except OSError as exc:
+        os.close(fd)
+        return f"CPU wake-up latency {latency_us} us not requested: {device}: {exc.strerror}"
+    while _cpu_latency_request:
+        os.close(_cpu_latency_request.pop())
+    _cpu_latency_request.append(fd)
+    return f"CPU wake-up latency at most {latency_us} us (PM QoS, {device})"
+
+
+def apply_scheduling(*, cpu: int = -1, priority: int = 0, cpu_latency_us: int = -1) -> list[str]:
+    """Pin every thread of this process to `cpu` (-1: leave), run it under SCHED_FIFO at
+    `priority` (0: leave) and request CPU wake-up latency `cpu_latency_us` (-1: leave); returns
+    one note per setting, saying what took effect or why not."""
     notes: list[str] = []
+    if cpu_latency_us >= 0:
+        notes.append(request_cpu_latency(cpu_latency_us))
     threads = (
         [int(t) for t in os.listdir("/proc/self/task")] if os.path.isdir("/proc/self/task") else [0]
     )

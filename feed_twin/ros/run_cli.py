@@ -196,9 +196,11 @@ class _Stop:
 
 def _processes(args: argparse.Namespace, ros) -> dict[str, tuple[str, ...]]:
     """Process name (its log file) -> the roles it hosts: one each, except the recorder
-    recording inside the sim's process with `ros.recorder_host: sim` (feed_twin.ros.host)."""
+    recording inside the sim's process with `ros.recorder_host` sim, or auto in lockstep
+    (feed_twin.ros.host)."""
     roles = _roles(args)
-    if args.shadow or ros.recorder_host == "own":
+    own = ros.recorder_host == "own" or (ros.recorder_host == "auto" and args.realtime)
+    if args.shadow or own:
         return {role: (role,) for role in roles}
     return {
         role: (role, RECORDER_NODE) if role == "sim" else (role,)

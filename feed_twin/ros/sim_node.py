@@ -181,6 +181,7 @@ class SimNode(FeedTwinNode):
         clock_divider: int = 1,
         exchange_cpu: int = -1,
         realtime_priority: int = 0,
+        cpu_latency_us: int = -1,
         context=None,
     ) -> None:
         super().__init__(SIM_NODE, options, context=context)
@@ -233,7 +234,9 @@ class SimNode(FeedTwinNode):
         self._i_velocity = TRUTH_FIELDS.index("table_velocity")
         self._i_screw = TRUTH_FIELDS.index("screw_force")
         for note in apply_scheduling(
-            cpu=exchange_cpu, priority=realtime_priority if realtime else 0
+            cpu=exchange_cpu,
+            priority=realtime_priority if realtime else 0,
+            cpu_latency_us=cpu_latency_us,
         ):
             self.get_logger().info(f"scheduling: {note}")
         if realtime:
@@ -412,6 +415,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNo
         clock_divider=ros.clock_divider,
         exchange_cpu=ros.exchange_cpu,
         realtime_priority=ros.realtime_priority,
+        cpu_latency_us=ros.cpu_latency_us,
         context=context,
     )
 
