@@ -2,16 +2,14 @@
 
 Fast DDS hands a sample to a reader in the same process by a function call, and a writer in
 another process sends one datagram to a participant however many of its readers want the
-sample. `feed-twin run` therefore starts the recorder inside the sim node's process
-(`ros.recorder_host: sim`), as a rosbag2 recorder is loaded into a component container next to
-a high-rate publisher: the sim's feedback and state reach the recorder without a socket, and
-the controller's DriveCommand is one datagram for both. On this 2-core virtual machine a
-datagram that wakes a thread on the other core costs the sender about 18 us (the wake-up's
-inter-processor interrupt), and the recorder process woke several thousand times a second:
-lockstep went from 3.4x to 4.4x real time on a quiet host, and from 2.4x to 3.0x when the host
-was busy (interleaved A/B, benchmarks/nodes_speed.py). The price: killing
-this process ends both nodes, and the runner recovers the bag (at most one flush period, 0.5 s,
-is lost).
+sample. In lockstep `feed-twin run` therefore starts the recorder inside the sim node's
+process (`ros.recorder_host: auto` or `sim`), as a rosbag2 recorder is loaded into a component
+container next to a high-rate publisher: the sim's feedback and state reach the recorder
+without a socket, and the controller's DriveCommand is one datagram for both. On this 2-core
+virtual machine a datagram that wakes a thread on the other core costs the sender about 18 us,
+and the recorder process woke several thousand times a second: lockstep went from 2.4x to
+3.0x real time (interleaved A/B, benchmarks/nodes_speed.py). The price: killing this process
+ends both nodes, and the runner recovers the bag (at most one flush period, 0.5 s, is lost).
 
     python -m feed_twin.ros.host ROLE [NODE ARGS...] [--and ROLE [NODE ARGS...]]...
 
