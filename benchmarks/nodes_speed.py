@@ -8,10 +8,15 @@
 Also reported: the machine's load average at the start and the end, since the figures depend
 on it, and per node process its CPU seconds after set-up (numba compilation and DDS discovery
 excluded) and those per exchange, which stay comparable on a busy machine where the wall-clock
-figures do not.
+figures do not. And what the platform itself allows (`probe_*`, `--probe-seconds`, 0 to
+skip): a process with nothing to do but wake up every 1 ms, under the sim node's real-time
+settings (SCHED_FIFO 50, PM QoS wake-up latency 0), counts the wake-ups that came more than
+1 ms late, i.e. the steps that no node could have made. On this virtual machine such stalls
+come about every few seconds, on a 100 ms grid, with no other process running: the vCPU does
+not run (the guest sees the sleeping task "running" for the whole stall).
 
     .venv/bin/python benchmarks/nodes_speed.py [--realtime-seconds 60] [--lockstep-seconds 10]
-        [--config config/axis_default.yaml]
+        [--probe-seconds 30] [--config config/axis_default.yaml]
 """
 
 from __future__ import annotations
@@ -70,13 +75,51 @@ def run(directory: Path, config: Path, name: str, seconds: float, realtime: bool
     return record
 
 
+PROBE = """
+import json, sys, time
+from feed_twin.ros.dds import apply_scheduling
+notes = apply_scheduling(priority=50, cpu_latency_us=0)
+seconds, period = float(sys.argv[1]), 1e-3
+late = []
+deadline = time.monotonic() + period
+end = deadline + seconds
+while deadline < end:
+    time.sleep(max(0.0, deadline - time.monotonic()))
+    late.append(time.monotonic() - deadline)
+    deadline += period
+late.sort()
+print(json.dumps({"steps": len(late), "over_1ms": sum(x > 1e-3 for x in late),
+                  "p99_ms": late[int(0.99 * len(late))] * 1e3, "max_ms": late[-1] * 1e3,
+                  "scheduling": notes}))
+"""
+
+
+def probe(seconds: float) -> dict:
+    """The platform's own wake-up lateness at 1 kHz under the sim's real-time settings."""
+    proc = subprocess.run(
+        [sys.executable, "-c", PROBE, str(seconds)],
+        capture_output=True, text=True, timeout=seconds + 60,
+    )  # fmt: skip
+    if proc.returncode != 0:
+        raise SystemExit(f"probe failed ({proc.returncode}):\n{proc.stderr}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--lockstep-seconds", type=float, default=10.0)
     parser.add_argument("--realtime-seconds", type=float, default=60.0)
+    parser.add_argument("--probe-seconds", type=float, default=30.0)
     parser.add_argument("--config", type=Path, default=ROOT / "config" / "axis_default.yaml")
     args = parser.parse_args()
     load = os.getloadavg()
+    platform = probe(args.probe_seconds) if args.probe_seconds > 0 else {}
+    if platform:
+        print(
+            f"platform: {platform['steps']} wake-ups at 1 kHz with nothing else to do, "
+            f"{platform['over_1ms']} more than 1 ms late, p99 {platform['p99_ms']:.3f} ms, "
+            f"max {platform['max_ms']:.3f} ms ({'; '.join(platform['scheduling'])})"
+        )
     with tempfile.TemporaryDirectory(prefix="nodes_speed_") as tmp:
         directory = Path(tmp)
         lockstep = run(directory, args.config, "lockstep", args.lockstep_seconds, False)
@@ -107,6 +150,9 @@ def main() -> None:
                 "missed_steps": realtime["timing_missed_steps"],
                 "realtime_sim_time_s": realtime["timing_sim_time_s"],
                 "realtime_cpu_us_per_exchange": realtime["cpu_us_per_exchange"],
+                "probe_steps": platform.get("steps"),
+                "probe_late_over_1ms": platform.get("over_1ms"),
+                "probe_lateness_max_ms": platform.get("max_ms"),
                 "load_average_1min_at_start": load[0],
                 "load_average_1min_at_end": os.getloadavg()[0],
                 "cores": os.cpu_count(),
