@@ -1,4 +1,4 @@
-"""`run_cli.launch`, the process launcher of `feed-twin run`, `run --shadow` and `feed-twin
+"""`launch.launch`, the process launcher of `feed-twin run`, `run --shadow` and `feed-twin
 shadow`, with plain processes (no ROS): a failing process ends the run and is named with its
 last error, and a deadline stops processes that would run for ever."""
 
@@ -8,7 +8,7 @@ import os
 import sys
 import time
 
-from feed_twin.ros.run_cli import launch
+from feed_twin.ros.launch import launch
 
 PY = sys.executable
 

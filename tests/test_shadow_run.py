@@ -107,7 +107,7 @@ def read_bag(bag: str) -> dict:
 
 def twin_report(record: dict) -> dict:
     """The twin node's `SHADOW {json}` report (its log in the run's logs directory)."""
-    from feed_twin.ros.run_cli import log_record
+    from feed_twin.ros.launch import log_record
 
     report = log_record(Path(record["logs"]) / "twin.log", "SHADOW")
     assert report is not None, "the twin node printed no SHADOW report"

@@ -4,7 +4,7 @@
                      [--jitter 2e-4] [--out DIR] [--live]
 
 Starts `twin_node` and `standin_node` (built-in program, real time) in a private ROS domain
-(feed_twin.ros.domain) through `feed-twin run`'s launcher (feed_twin.ros.run_cli.launch: a
+(feed_twin.ros.domain) through the launcher of `feed-twin run` (feed_twin.ros.launch: a
 node that dies is noticed by the other within a second, SIGINT/SIGTERM stop both cleanly),
 waits for the stand-in's program to end, and prints the twin's report: samples, message faults,
 the lag of its output behind each measured sample, and the health verdict (the named effect
@@ -42,7 +42,7 @@ def run_shadow(args: argparse.Namespace) -> tuple[int, dict | None, str]:
     """Run both nodes; (exit code, the twin's report, the twin's and the stand-in's logs)."""
     from feed_twin.analysis.twin import ModelDoc, Twin
     from feed_twin.ros.domain import private_graph_env, reserve_domain_id
-    from feed_twin.ros.run_cli import launch, log_record
+    from feed_twin.ros.launch import launch, log_record
     from feed_twin.shadow.standin import write_map
 
     out = args.out or Path(tempfile.mkdtemp(prefix="feed_twin_shadow_"))

@@ -1,0 +1,227 @@
+"""Start node processes, watch them until all have ended, and say why they did.
+
+`launch` is the process supervisor of `feed-twin run`, `run --shadow` and `feed-twin shadow`:
+one process per name (a node, or a node host running several: feed_twin/ros/host.py), each
+with its log file; a failed process ends the run, SIGINT/SIGTERM reach the producers first and
+the recorder last, a deadline bounds the whole run. `log_record` reads the `PREFIX {json}` lines
+the nodes print (TIMING, SHADOW).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+STOP_GRACE_S = 10.0  # [s] for nodes to finish after SIGTERM
+PEER_NOTICE_S = 5.0  # [s] for nodes to notice a lost peer (0.9 s) and finish before SIGTERM
+
+
+class _Stop:
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def __call__(self, signum: int, frame: object) -> None:
+        self.signum = signum
+
+
+@dataclass
+class Launched:
+    code: int  # the run's exit code (130 after SIGINT/SIGTERM)
+    reason: str  # why it ended, naming the node(s); empty for a normal end
+    logs: dict[str, Path]  # role -> log file (stdout and stderr of the node)
+    returncodes: dict[str, int | None]
+
+
+def launch(
+    commands: dict[str, list[str]],
+    logs_dir: Path,
+    *,
+    env: dict[str, str],
+    progress_role: str | None = None,
+    show_progress: bool = False,
+    deadline_s: float | None = None,
+) -> Launched:
+    """Start one process per role, watch them until all have ended, and say why they did.
+
+    A node that exits with an error ends the run (the others notice its missing heartbeat and
+    stop within a second, else they are told to); SIGINT/SIGTERM to this process is passed to
+    the producers first and to the recorder last, so that it records what they sent;
+    `deadline_s` [s wall] bounds the whole run (the nodes are then terminated). Every process is
+    gone when this returns.
+    """
+    logs_dir.mkdir(parents=True, exist_ok=True)
+    procs: dict[str, subprocess.Popen] = {}
+    logs: dict[str, Path] = {}
+    stop = _Stop()
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    code, reason = 0, ""
+    first_failure: str | None = None
+    timed_out = False
+    started = time.monotonic()
+    try:
+        for role, argv in commands.items():
+            logs[role] = logs_dir / f"{role}.log"
+            with open(logs[role], "wb") as log:
+                procs[role] = subprocess.Popen(
+                    argv,
+                    stdin=subprocess.DEVNULL,
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                    env=env,
+                    start_new_session=True,  # a terminal's Ctrl-C reaches the runner only
+                )
+        progress = _Progress(enabled=show_progress)
+        while any(p.poll() is None for p in procs.values()):
+            if stop.signum is not None:
+                reason = f"stopped by {signal.Signals(stop.signum).name}"
+                # Producers first, the recorder last, so that it records everything they sent.
+                producers = {r: p for r, p in procs.items() if r != "recorder"}
+                for p in producers.values():
+                    if p.poll() is None:
+                        p.send_signal(stop.signum)
+                _wait_all(producers, STOP_GRACE_S)
+                if "recorder" in procs and procs["recorder"].poll() is None:
+                    procs["recorder"].send_signal(stop.signum)
+                _wait_all(procs, STOP_GRACE_S)
+                break
+            for role, p in procs.items():
+                rc = p.poll()
+                if rc not in (None, 0) and first_failure is None:
+                    first_failure = role
+                    code = rc
+                    reason = ""
+            if first_failure is not None:
+                # Nodes that had seen the failed one stop on their own within a second (lost
+                # heartbeat); the others (it died while starting) are told to stop.
+                _wait_all(procs, PEER_NOTICE_S)
+                break
+            if deadline_s is not None and time.monotonic() - started > deadline_s:
+                timed_out = True
+                _wait_all(procs, 0.0)
+                break
+            if progress_role is not None:
+                progress.update(logs[progress_role])
+            time.sleep(0.05)
+        progress.close()
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.kill()
+                p.wait(timeout=10)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    if stop.signum is not None:
+        code = 130
+    elif timed_out:
+        code = 1
+        reason = f"the run took longer than {deadline_s:g} s; every node was stopped"
+    elif first_failure is None:
+        failed = {r: p.returncode for r, p in procs.items() if p.returncode}
+        if failed:
+            role, code = next(iter(failed.items()))
+            reason = _exit_text(role, code, logs[role])
+    else:
+        reason = _exit_text(first_failure, code, logs[first_failure])
+        # What the others said: they name the node they lost.
+        reason += "".join(
+            f"\n  {_exit_text(role, p.returncode, logs[role])}"
+            for role, p in procs.items()
+            if role != first_failure and p.returncode
+        )
+    return Launched(
+        code=code,
+        reason=reason,
+        logs=logs,
+        returncodes={r: p.returncode for r, p in procs.items()},
+    )
+
+
+def _wait_all(procs: dict[str, subprocess.Popen], grace_s: float) -> None:
+    deadline = time.monotonic() + grace_s
+    for p in procs.values():
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+    for p in procs.values():
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + STOP_GRACE_S
+    for p in procs.values():
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+
+
+def _exit_text(role: str, code: int, log: Path) -> str:
+    if code < 0:
+        said = _last_error(log)
+        tail = f" (it had said: {said})" if "[ERROR]" in said else ""
+        return f"{role} node was killed by {signal.Signals(-code).name}{tail}"
+    return f"{role} node exited with code {code}: {_last_error(log)}"
+
+
+def _last_error(log: Path) -> str:
+    """The node's last error record, continuation lines included, else its last lines."""
+    try:
+        lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return "(no log)"
+    lines = [ln for ln in lines if not ln.startswith(("PROGRESS ", "TIMING ", "CPU "))]
+    starts = [i for i, ln in enumerate(lines) if "[ERROR]" in ln or "Error" in ln]
+    if not starts:
+        return " | ".join(lines[-3:]) or "(empty log)"
+    block = [lines[starts[-1]]]
+    block += [ln for ln in lines[starts[-1] + 1 :] if ln.startswith("  ")][:6]
+    return "\n    ".join(block)
+
+
+def log_record(log: Path, prefix: str) -> dict | None:
+    """The last `PREFIX {json}` line a node printed."""
+    try:
+        for line in reversed(log.read_text(errors="replace").splitlines()):
+            if line.startswith(f"{prefix} "):
+                return json.loads(line[len(prefix) + 1 :])
+    except (OSError, ValueError):
+        pass
+    return None
+
+
+class _Progress:
+    """Simulated time on stderr (a terminal only), from a node's PROGRESS log lines."""
+
+    def __init__(self, *, enabled: bool) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.start = time.monotonic()
+        self.last = 0.0
+        self.offset = 0
+
+    def update(self, sim_log: Path) -> None:
+        now = time.monotonic()
+        if not self.enabled or now - self.last < 0.5:
+            return
+        self.last = now
+        sim_s = None
+        try:
+            with open(sim_log, "rb") as f:
+                f.seek(self.offset)
+                chunk = f.read()
+        except OSError:
+            return
+        self.offset += len(chunk)
+        for line in chunk.decode(errors="replace").splitlines():
+            if line.startswith("PROGRESS "):
+                sim_s = line.split()[1]
+        if sim_s is not None:
+            print(
+                f"\rsimulated {float(sim_s):8.3f} s, wall {now - self.start:6.1f} s",
+                end="",
+                file=sys.stderr,
+            )
+
+    def close(self) -> None:
+        if self.enabled:
+            print(file=sys.stderr)
