@@ -17,7 +17,7 @@
   idle CPUs in states that wake within that many microseconds: at 0 an idle CPU polls instead
   of halting. On this virtual machine waking a halted CPU goes through the host (a UDP send
   that wakes a thread on the other core cost 18 us instead of 2.4 us): lockstep went from 2.8x
-  to 5.2x real time, and missed real-time steps from 286 to 125 in 60 s
+  to 5.0x real time, and missed real-time steps from 286 to 125 in 60 s
   (benchmarks/nodes_speed.py, interleaved A/B). The price is an idle CPU that keeps spinning
   while a run lasts. Needs root; refused, it is logged and skipped.
 """
