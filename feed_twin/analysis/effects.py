@@ -35,6 +35,8 @@ from typing import Literal
 import numpy as np
 from scipy import signal as sps
 
+from feed_twin.plant.smooth import smooth_sign_array
+
 STRIBECK_SPEEDS_M_S = (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03)
 COGGING_ORDERS = tuple(range(1, 25))  # harmonics per motor revolution searched for cogging
 SMOOTH_VELOCITY_S = 0.005  # [s] smoothing window for velocity and acceleration estimates
@@ -189,7 +191,7 @@ def dead_time_voltage(
     i_beta = np.cos(theta_e_rad) * i_q_A
     half = 0.5 * math.sqrt(3.0) * i_beta
     phases = (i_alpha, -0.5 * i_alpha + half, -0.5 * i_alpha - half)
-    s_a, s_b, s_c = (x / np.sqrt(i_reg_A * i_reg_A + x * x) for x in phases)
+    s_a, s_b, s_c = (smooth_sign_array(x, i_reg_A) for x in phases)
     s_alpha = (2.0 / 3.0) * (s_a - 0.5 * (s_b + s_c))
     s_beta = (s_b - s_c) / math.sqrt(3.0)
     return {

@@ -33,7 +33,7 @@ def efficiency_factor(force: float, velocity: float, eta: float) -> tuple[float,
     power = force * velocity
     mean = 0.5 * (1.0 / eta + eta)
     half = 0.5 * (1.0 / eta - eta)
-    c = mean + half * smooth_sign(-power * (1.0 / P_REG))
+    c = mean + half * smooth_sign(-power, P_REG)
     return c, (1.0 - c) * power
 
 

@@ -3,7 +3,8 @@
 Equation: the force into the flange is f = -F(v) with
     F(v) = [F_c(v) + dF_s * exp(-(v/v_s)^2)] * sgn(v/v_reg) + F_v(v) * v,
     F_c(v) = (F_c_pos + F_c_neg)/2 + (F_c_pos - F_c_neg)/2 * sgn(v/v_reg), likewise F_v(v),
-with sgn the smooth sign function of feed_twin.plant.smooth (x/sqrt(1+x^2)),
+with sgn the smooth sign function of feed_twin.plant.smooth (a C2 quintic, exactly +/-1 for
+|v| >= 15/8 v_reg) and exp(-x) written out (feed_twin.plant.expneg, no libm call in the loop),
 so positive and negative motion can have their own Coulomb and viscous values (worn screws and
 the EMPS bench are asymmetric) while F stays smooth. dF_s is the Stribeck excess of the breakaway
 force over the Coulomb level, v_s its velocity scale.
@@ -17,16 +18,14 @@ Port: `flange` (translational: s [m], v [m/s], f [N] into the flange).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
+from feed_twin.plant.expneg import exp_neg
 from feed_twin.plant.smooth import smooth_sign
-
-STRIBECK_CUTOFF = 50.0  # (v/v_s)^2 beyond which exp(-(v/v_s)^2) < 2e-22 is taken as 0
 
 
 @njit(cache=True, error_model="numpy")
@@ -41,14 +40,13 @@ def friction_force(
     v_reg: float,
 ) -> float:
     """Friction force magnitude-with-sign F(v) [N]; the flange receives -F(v)."""
-    # reciprocals of parameters, which the compiled loop computes once (a division per call
-    # would not leave the loop)
-    sgn = smooth_sign(v * (1.0 / v_reg))
+    sgn = smooth_sign(v, v_reg)
     F_c = 0.5 * (F_c_pos + F_c_neg) + 0.5 * (F_c_pos - F_c_neg) * sgn
     F_v = 0.5 * (F_v_pos + F_v_neg) + 0.5 * (F_v_pos - F_v_neg) * sgn
+    # times the reciprocal of a parameter, which the compiled loop computes once (a division per
+    # call would not leave the loop)
     r2 = (v * (1.0 / v_s)) ** 2
-    # exp underflows far outside the Stribeck range, and libm's underflow path is slow
-    stribeck = dF_s * math.exp(-r2) if dF_s != 0.0 and r2 < STRIBECK_CUTOFF else 0.0
+    stribeck = dF_s * exp_neg(r2) if dF_s != 0.0 else 0.0
     return (F_c + stribeck) * sgn + F_v * v
 
 

@@ -43,8 +43,7 @@ def leg_duty(
 
     command < 0 marks a dead-time interval of the switching model (both switches off).
     """
-    # times the reciprocal: the loop computes 1/i_reg once, a division costs every call
-    sgn = smooth_sign(i * (1.0 / i_reg))
+    sgn = smooth_sign(i, i_reg)
     if enabled < 0.5 or command < 0.0:
         return 0.5 * (1.0 - sgn), sgn
     return command - dead_fraction * sgn, sgn
