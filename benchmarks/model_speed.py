@@ -11,8 +11,8 @@ Figures (last printed line, one JSON object):
   kernel releases the GIL); batch_axis_seconds_per_cpu_second: the same per CPU second of all
   threads (equal to the wall-clock rate when only one core was free).
 - solve_ivp_ratio: wall time of feed_twin.sim.reference (the same generated plant functions,
-  un-jitted, under scipy solve_ivp DOP853 per controller tick) over the kernel's, per simulated
-  second, on 20 ms of the move.
+  called from Python under scipy solve_ivp DOP853 per controller tick, after a warm-up) over the
+  kernel's, per simulated second, on 20 ms of the move.
 - first_run_s: a fresh Python process that loads the config, builds the engine and simulates
   1 s, with numba's on-disk cache warm (the script runs it twice and reports the second).
 - motulator_ratio: motulator (PyPI, Python 3.12, in its own venv under the cache directory)
@@ -109,6 +109,8 @@ def solve_ivp_ratio(axis) -> float:
     ref = trapezoid(n, engine.h)
     engine.run(n, ref=ref)
     fast = best_of(lambda: engine.run(n, ref=ref), 3)
+    # warm-up: the plant laws are compiled in process (not disk-cached), once per process
+    reference_run(engine, 2, ref=ref[:2], rtol=1e-8, atol=1e-10)
     t0 = time.perf_counter()
     reference_run(engine, n, ref=ref, rtol=1e-8, atol=1e-10)
     slow = time.perf_counter() - t0

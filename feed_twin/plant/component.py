@@ -7,6 +7,15 @@ that call its equations with the right node variables and parameter slots. The g
 are the only place where components meet, so the physics exists once, as numba functions, and
 both the compiled kernel and its un-jitted `py_func` (the reference integration) run it.
 
+Component equations (and the controller's laws in feed_twin.control) are compiled without
+numba's on-disk cache (`@njit(error_model="numpy")`, no `cache=True`): numba caches a function as
+machine code only, and a kernel compiled later can then call it but LLVM cannot inline it. With
+the laws cached from an earlier process the engine ran at 350 ns per tick instead of 300
+(benchmarks/model_speed.py). Compiled in the kernel's own process, their LLVM IR is linked into
+the kernel and inlined; the kernel itself is cached, with them inside
+(tests/test_sim_perf.py::test_the_laws_the_kernel_calls_are_not_disk_cached). Small helpers that
+must vanish into their callers (smooth_sign, sincos, exp_neg) are `inline="always"` as well.
+
 Port kinds and their variables (SI):
 - `rotational`: across angle phi [rad] and speed omega [rad/s]; through torque tau [N m],
   positive into the flange.
