@@ -89,7 +89,7 @@ def lowpass1_alpha(frequency_hz: float, period_s: float) -> float:
     return 1.0 - math.exp(-2.0 * math.pi * frequency_hz * period_s)
 
 
-@njit
+@njit(forceinline=True)
 def pi_integrate(x_i: float, e: float, ki_T: float, u_unsat: float, u_sat: float) -> float:
     """Next integrator value under conditional integration (see module docstring)."""
     excess = u_unsat - u_sat
@@ -98,7 +98,7 @@ def pi_integrate(x_i: float, e: float, ki_T: float, u_unsat: float, u_sat: float
     return x_i + ki_T * e
 
 
-@njit
+@njit(forceinline=True)
 def pi_update(
     x_i: float, e: float, kp: float, ki_T: float, u_ff: float, lo: float, hi: float
 ) -> tuple[float, float]:
@@ -108,7 +108,7 @@ def pi_update(
     return u_sat, pi_integrate(x_i, e, ki_T, u, u_sat)
 
 
-@njit
+@njit(forceinline=True)
 def biquad_update(
     b0: float, b1: float, b2: float, a1: float, a2: float, s1: float, s2: float, x: float
 ) -> tuple[float, float, float]:

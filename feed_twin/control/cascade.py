@@ -72,7 +72,7 @@ from feed_twin.plant.trig import sincos
 # keeps numba from reference-counting array arguments on every call inside the hot loop.
 
 
-@njit
+@njit(forceinline=True)
 def due(k: int, div: float) -> bool:
     """A loop with period div (in base ticks) samples at tick k >= 0."""
     d = int(div)
@@ -83,7 +83,7 @@ def due(k: int, div: float) -> bool:
     return k % d == 0
 
 
-@njit
+@njit(forceinline=True)
 def interpolate(
     method: int,
     frac: float,
@@ -106,7 +106,7 @@ def interpolate(
     return (cur[0] + cur[1] * dt + 0.5 * cur[2] * dt * dt, cur[1] + cur[2] * dt, cur[2])
 
 
-@njit
+@njit(forceinline=True)
 def position_law(
     x_r: float,
     v_r: float,
@@ -123,7 +123,7 @@ def position_law(
     return v_cmd, acc_ff_gain * a_r, e
 
 
-@njit(_nrt=False)
+@njit(_nrt=False, forceinline=True)
 def current_law(
     i_a: float,
     i_b: float,

@@ -30,13 +30,13 @@ SQRT3 = math.sqrt(3.0)
 POWER_FACTOR_AMPLITUDE_INVARIANT = 1.5
 
 
-@njit
+@njit(forceinline=True)
 def clarke(x_a: float, x_b: float, x_c: float) -> tuple[float, float]:
     """Phase quantities -> (alpha, beta); any zero-sequence part is discarded."""
     return (2.0 / 3.0) * (x_a - 0.5 * x_b - 0.5 * x_c), (x_b - x_c) / SQRT3
 
 
-@njit
+@njit(forceinline=True)
 def inverse_clarke(x_alpha: float, x_beta: float) -> tuple[float, float, float]:
     """(alpha, beta) -> phase quantities without zero-sequence part."""
     x_a = x_alpha
@@ -45,7 +45,7 @@ def inverse_clarke(x_alpha: float, x_beta: float) -> tuple[float, float, float]:
     return x_a, x_b, x_c
 
 
-@njit
+@njit(forceinline=True)
 def park(x_alpha: float, x_beta: float, theta_e: float) -> tuple[float, float]:
     """(alpha, beta) -> (d, q) in the frame at electrical angle theta_e [rad]."""
     c = math.cos(theta_e)
@@ -53,7 +53,7 @@ def park(x_alpha: float, x_beta: float, theta_e: float) -> tuple[float, float]:
     return c * x_alpha + s * x_beta, -s * x_alpha + c * x_beta
 
 
-@njit
+@njit(forceinline=True)
 def inverse_park(x_d: float, x_q: float, theta_e: float) -> tuple[float, float]:
     """(d, q) at electrical angle theta_e [rad] -> (alpha, beta)."""
     c = math.cos(theta_e)
@@ -61,7 +61,7 @@ def inverse_park(x_d: float, x_q: float, theta_e: float) -> tuple[float, float]:
     return c * x_d - s * x_q, s * x_d + c * x_q
 
 
-@njit
+@njit(forceinline=True)
 def limit_voltage_circle(u_d: float, u_q: float, u_max: float) -> tuple[float, float]:
     """Limit (u_d, u_q) to the circle of radius u_max with d-axis priority.
 
@@ -74,7 +74,7 @@ def limit_voltage_circle(u_d: float, u_q: float, u_max: float) -> tuple[float, f
     return u_d_lim, u_q_lim
 
 
-@njit
+@njit(forceinline=True)
 def svpwm_phase_duties(
     u_a: float, u_b: float, u_c: float, u_dc: float
 ) -> tuple[float, float, float]:
@@ -91,7 +91,7 @@ def svpwm_phase_duties(
     return d_a, d_b, d_c
 
 
-@njit
+@njit(forceinline=True)
 def svpwm_duties(u_alpha: float, u_beta: float, u_dc: float) -> tuple[float, float, float]:
     """Duty cycles in [0, 1] for a two-level inverter from the (alpha, beta) voltage [V]."""
     u_a, u_b, u_c = inverse_clarke(u_alpha, u_beta)

@@ -29,7 +29,7 @@ from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def axial_stiffness(
     x: float, L: float, EA: float, k_bearing: float, k_nut: float, fixed_fixed: float, x_min: float
 ) -> tuple[float, float]:
@@ -54,7 +54,7 @@ def axial_stiffness(
     return k, -k * k * dcompliance
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def lead_error(
     s_a: float, amplitude: float, wavenumber: float, phase: float
 ) -> tuple[float, float]:
@@ -65,7 +65,7 @@ def lead_error(
     return amplitude * math.sin(arg), amplitude * wavenumber * math.cos(arg)
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def axial_force(
     delta: float,
     delta_rate: float,

@@ -20,7 +20,7 @@ from feed_twin.plant.component import Component, Emitter, SlotReader
 from feed_twin.plant.coupling import emit_two_port
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def backlash_force(
     delta: float, delta_rate: float, gap: float, k: float, d: float
 ) -> tuple[float, float, float]:

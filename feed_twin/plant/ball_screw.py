@@ -27,7 +27,7 @@ from feed_twin.plant.smooth import smooth_sign
 P_REG = 1e-3  # power scale of the smooth direction switch [W]
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def efficiency_factor(force: float, velocity: float, eta: float) -> tuple[float, float]:
     """(factor c applied to the force, loss power [W]) for a transformer of efficiency eta."""
     power = force * velocity

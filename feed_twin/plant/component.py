@@ -8,13 +8,16 @@ are the only place where components meet, so the physics exists once, as numba f
 both the compiled kernel and its un-jitted `py_func` (the reference integration) run it.
 
 Component equations (and the controller's laws in feed_twin.control) are compiled without
-numba's on-disk cache (`@njit(error_model="numpy")`, no `cache=True`): numba caches a function as
-machine code only, and a kernel compiled later can then call it but LLVM cannot inline it. With
-the laws cached from an earlier process the engine ran at 350 ns per tick instead of 300
-(benchmarks/model_speed.py). Compiled in the kernel's own process, their LLVM IR is linked into
-the kernel and inlined; the kernel itself is cached, with them inside
-(tests/test_sim_perf.py::test_the_laws_the_kernel_calls_are_not_disk_cached). Small helpers that
-must vanish into their callers (smooth_sign, sincos, exp_neg) are `inline="always"` as well.
+numba's on-disk cache (`@njit(error_model="numpy", forceinline=True)`, no `cache=True`): numba
+caches a function as machine code only, and a kernel compiled later can then call it but LLVM
+cannot inline it. With the laws cached from an earlier process the engine ran at 350 ns per tick
+instead of 300 (benchmarks/model_speed.py). Compiled in the kernel's own process, their LLVM IR
+is linked into the kernel; `forceinline` marks them alwaysinline for LLVM, which inlined a few
+that its cost model had left as calls (another 7 % per tick, at no compile time, where numba's
+own `inline="always"` took the cold compile from 12 s to 95 s). The kernel itself is cached,
+with them inside (tests/test_sim_perf.py::test_the_laws_the_kernel_calls_are_not_disk_cached).
+Small helpers that must vanish into their callers (smooth_sign, sincos, exp_neg) are
+`inline="always"`.
 
 Port kinds and their variables (SI):
 - `rotational`: across angle phi [rad] and speed omega [rad/s]; through torque tau [N m],

@@ -17,7 +17,7 @@ from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def spring_damper(
     delta: float, delta_rate: float, k: float, d: float
 ) -> tuple[float, float, float]:

@@ -17,7 +17,7 @@ from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader, StateSpec
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def dc_motor(
     effort: float,
     enabled: float,

@@ -28,7 +28,7 @@ from feed_twin.plant.expneg import exp_neg
 from feed_twin.plant.smooth import smooth_sign
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def friction_force(
     v: float,
     F_c_pos: float,

@@ -35,7 +35,7 @@ DUTY_SLOTS = ("OUT_DUTY_A", "OUT_DUTY_B", "OUT_DUTY_C")
 BOTH_OFF = -1.0  # switch-state marker of a dead-time interval in the switching model
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def leg_duty(
     command: float, i: float, dead_fraction: float, i_reg: float, enabled: float
 ) -> tuple[float, float]:

@@ -85,20 +85,20 @@ def _tables() -> tuple[np.ndarray, np.ndarray]:
 X_EDGE, F_EDGE = _tables()
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def _mix(z: np.uint64) -> np.uint64:
     z = (z ^ (z >> np.uint64(30))) * _M1
     z = (z ^ (z >> np.uint64(27))) * _M2
     return z ^ (z >> np.uint64(31))
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def _uniform_open(bits: np.uint64) -> float:
     """A uniform in (0, 1] from the top 53 bits (never 0, so its logarithm is finite)."""
     return ((bits >> np.uint64(11)) + np.uint64(1)) * _TWO_POW_M53
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=False)
 def _slow_path(key: np.uint64, layer: int, z: float) -> tuple[float, np.uint64]:
     """The ~1 % of draws outside a strip's inner rectangle: (accepted |x| or -1.0, key)."""
     if layer == 0:
@@ -117,7 +117,7 @@ def _slow_path(key: np.uint64, layer: int, z: float) -> tuple[float, np.uint64]:
     return -1.0, key
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def standard_normal(seed: int, tick: int, channel: int) -> float:
     """One standard normal sample determined by (seed, tick, channel) alone."""
     key = np.uint64(seed) * _GOLDEN + np.uint64(tick) * _M1 + np.uint64(channel) * _M2

@@ -38,7 +38,7 @@ from feed_twin.plant.trig import sincos
 SQRT3 = math.sqrt(3.0)
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def phase_currents(
     i_d: float, i_q: float, theta_e: float
 ) -> tuple[float, float, float, float, float]:
@@ -55,7 +55,7 @@ def phase_currents(
     )
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def pmsm_dq(
     u_a: float,
     u_b: float,
@@ -105,7 +105,7 @@ def pmsm_dq(
     )
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def cogging(phi: float, order: float, amplitude: float, phase: float) -> tuple[float, float]:
     """(torque [N m], potential [J]) of one cogging harmonic."""
     arg = order * phi + phase

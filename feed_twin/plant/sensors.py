@@ -28,12 +28,12 @@ from feed_twin.plant.component import Component, Emitter
 MAX_DELAY_TICKS = 15  # the engine keeps the last 16 samples
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def quantize_floor(value: float, step: float) -> float:
     return math.floor(value * (1.0 / step)) * step  # the loop hoists 1/step
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def adc(value: float, step: float, full_scale: float) -> float:
     clipped = min(max(value, -full_scale), full_scale - step)
     return math.floor(clipped * (1.0 / step) + 0.5) * step  # the loop hoists 1/step

@@ -35,13 +35,13 @@ TEMPERATURE_LIMIT_K = 500.0  # |dT| above this is a runaway
 STIFFNESS_SLOTS = ("L", "EA", "x_0", "x_min", "k_bearing", "k_nut", "fixed_fixed")
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def temperature_rate(dT: float, v: float, heating: float, tau: float) -> float:
     """d(dT)/dt [K/s] of the screw's temperature rise at travel speed v [m/s]."""
     return heating * abs(v) - dT / tau
 
 
-@njit(error_model="numpy")
+@njit(error_model="numpy", forceinline=True)
 def elongation(dT: float, x: float, alpha: float) -> float:
     """Thermal elongation [m] of the heated length x [m] at temperature rise dT [K]."""
     return alpha * dT * x
