@@ -56,7 +56,6 @@ from feed_twin.control.config import (
     MODE_POSITION,
     MODE_TORQUE,
     MODE_VELOCITY,
-    TWO_PI,
 )
 from feed_twin.control.transforms import (
     SQRT3,
@@ -186,7 +185,7 @@ def cascade_tick(
     cycles within the same tick (plus the configured computation delay).
     """
     mode = int(cp[lay.P_MODE])
-    m_per_rad = cp[lay.P_LEAD] / TWO_PI
+    m_per_rad = cp[lay.P_M_PER_RAD]
     x_enc = meas[sig.MEAS_THETA_ENC_RAD] * m_per_rad
     has_position = cp[lay.P_HAS_POSITION] > 0.5
     has_velocity = cp[lay.P_HAS_VELOCITY] > 0.5
@@ -224,7 +223,7 @@ def cascade_tick(
         n_taps = int(cp[lay.P_FIR_N])
         for i in range(n_taps - 1, 0, -1):
             cs[lay.S_FIR_HIST + i] = cs[lay.S_FIR_HIST + i - 1]
-        cs[lay.S_FIR_HIST] = (x_enc - cs[lay.S_ENC_POS_PREV]) / cp[lay.P_VEL_PERIOD]
+        cs[lay.S_FIR_HIST] = (x_enc - cs[lay.S_ENC_POS_PREV]) * cp[lay.P_VEL_RATE]
         cs[lay.S_ENC_POS_PREV] = x_enc
         v_raw = 0.0
         for i in range(n_taps):
@@ -234,7 +233,7 @@ def cascade_tick(
     if has_position and due(k, cp[lay.P_POS_DIV]):
         x_r, v_r, a_r = interpolate(
             int(cp[lay.P_INTERPOLATION]),
-            (k - cs[lay.S_NC_TICK]) / nc_div,
+            (k - cs[lay.S_NC_TICK]) * cp[lay.P_NC_DIV_INV],
             nc_div * cp[lay.P_BASE_PERIOD],
             (cs[lay.S_NC_PREV_POS], cs[lay.S_NC_PREV_VEL], cs[lay.S_NC_PREV_ACC]),
             (cs[lay.S_NC_POS], cs[lay.S_NC_VEL], cs[lay.S_NC_ACC]),
@@ -313,7 +312,7 @@ def cascade_tick(
                 meas[sig.MEAS_I_B],
                 meas[sig.MEAS_I_C],
                 p * meas[sig.MEAS_THETA_ENC_RAD] + cp[lay.P_ENCODER_OFFSET],
-                p * cs[lay.S_VEL_EST] / m_per_rad,
+                p * cs[lay.S_VEL_EST] * cp[lay.P_RAD_PER_M],
                 cs[lay.S_EFFORT_CMD],
                 meas[sig.MEAS_U_DC_V],
                 cs[lay.S_I_D_INT],

@@ -85,6 +85,10 @@ PARAM_NAMES = (
     "i_trip_A",
     "dead_time_comp_V",
     "dead_time_comp_band_A",
+    "m_per_rad",
+    "rad_per_m",
+    "vel_rate_1_s",
+    "nc_div_inv",
 )
 (
     P_BASE_PERIOD,
@@ -138,6 +142,10 @@ PARAM_NAMES = (
     P_I_TRIP,
     P_DEAD_TIME_COMP,
     P_DEAD_TIME_BAND,
+    P_M_PER_RAD,
+    P_RAD_PER_M,
+    P_VEL_RATE,
+    P_NC_DIV_INV,
 ) = range(len(PARAM_NAMES))
 P_FIR_TAPS = len(PARAM_NAMES)  # the FIR taps follow the fixed slots
 
@@ -252,6 +260,10 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
     p[P_COMPUTATION_DELAY] = float(config.computation_delay)
     p[P_NC_DIV] = round(config.nc_period_s / base)
     p[P_LEAD] = drive.lead_m
+    # reciprocals the tick would otherwise divide by: a division is 13 cycles on its path
+    p[P_M_PER_RAD] = drive.lead_m / TWO_PI
+    p[P_RAD_PER_M] = TWO_PI / drive.lead_m
+    p[P_NC_DIV_INV] = 1.0 / p[P_NC_DIV]
     p[P_EFFORT_LIMIT] = drive.effort_limit
     p[P_V_LIMIT] = math.inf
     p[P_FE_LIMIT] = math.inf
@@ -282,6 +294,7 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
         p[P_HAS_VELOCITY] = 1.0
         p[P_VEL_DIV] = round(T_v / base)
         p[P_VEL_PERIOD] = T_v
+        p[P_VEL_RATE] = 1.0 / T_v
         p[P_VEL_KP] = vel.Kp
         p[P_VEL_KI_T] = 0.0 if vel.Ti_s is None else vel.Kp * T_v / vel.Ti_s
         if vel.estimator.lowpass_hz is not None:

@@ -27,13 +27,14 @@ import math
 from numba import njit
 
 SQRT3 = math.sqrt(3.0)
+INV_SQRT3 = 1.0 / SQRT3
 POWER_FACTOR_AMPLITUDE_INVARIANT = 1.5
 
 
 @njit(forceinline=True)
 def clarke(x_a: float, x_b: float, x_c: float) -> tuple[float, float]:
     """Phase quantities -> (alpha, beta); any zero-sequence part is discarded."""
-    return (2.0 / 3.0) * (x_a - 0.5 * x_b - 0.5 * x_c), (x_b - x_c) / SQRT3
+    return (2.0 / 3.0) * (x_a - 0.5 * x_b - 0.5 * x_c), (x_b - x_c) * INV_SQRT3
 
 
 @njit(forceinline=True)
@@ -69,7 +70,10 @@ def limit_voltage_circle(u_d: float, u_q: float, u_max: float) -> tuple[float, f
     the current vector under control; the q axis gets what remains of the circle.
     """
     u_d_lim = min(max(u_d, -u_max), u_max)
-    u_q_room = math.sqrt(max(u_max * u_max - u_d_lim * u_d_lim, 0.0))
+    room2 = u_max * u_max - u_d_lim * u_d_lim
+    if u_q * u_q <= room2:
+        return u_d_lim, u_q  # inside the circle: no root on the usual path
+    u_q_room = math.sqrt(max(room2, 0.0))
     u_q_lim = min(max(u_q, -u_q_room), u_q_room)
     return u_d_lim, u_q_lim
 
