@@ -57,6 +57,10 @@ EXIT_INPUT_TIMEOUT = 4  # an expected topic stayed silent
 EXIT_SIGNAL = 130  # stopped by SIGINT/SIGTERM (after a clean shutdown)
 
 HEARTBEAT_PERIOD_S = 0.1
+# Before reporting that nobody offers a silent topic's type, the graph is re-read for up to this
+# long: a participant whose first announcements were missed is found at its next periodic one
+# (Fast DDS: every 3 s), and the report would otherwise miss the publisher it should name.
+GRAPH_SETTLE_S = 3.0
 LIVENESS_POLL_S = 0.02  # [s] the liveness thread takes heartbeats this often
 ACK_WAIT_S = 0.5  # [s] a stopping node waits for its readers to acknowledge its last messages
 ACK_WAIT_ALIVE_S = 10.0  # [s] ... when the recorder is alive (it may lag behind on a busy host)
@@ -356,10 +360,16 @@ class FeedTwinNode(Node):
     def describe_silence(self, topic: str, type_name: str, timeout_s: float) -> str:
         """Why nothing arrives on `topic`: what the graph offers instead."""
         lines = [f"no {type_name} message on {topic} for {timeout_s:g} s ({self.role} node)"]
-        offered = [
-            (name, types) for name, types in self.get_topic_names_and_types() if name != topic
-        ]
-        same = [i.topic_type for i in self.get_publishers_info_by_topic(topic)]
+        deadline = time.monotonic() + GRAPH_SETTLE_S
+        while True:
+            offered = [
+                (name, types) for name, types in self.get_topic_names_and_types() if name != topic
+            ]
+            same = [i.topic_type for i in self.get_publishers_info_by_topic(topic)]
+            found = same or any(type_name in types for _, types in offered)
+            if found or time.monotonic() >= deadline:
+                break
+            time.sleep(0.05)  # the graph cache fills from the DDS discovery thread
         mistyped = sorted({t for t in same if t != type_name})
         if mistyped:
             lines.append(f"  {topic} is published with type {', '.join(mistyped)} instead")
