@@ -5,20 +5,22 @@
 ln 2 is split into a 32-bit head and a tail (Cody and Waite), so n * head is exact for n < 2^21
 and r carries no error beyond its last bit. exp(-r) is its Taylor polynomial of degree 13 in
 Estrin's form (truncation below 5e-18 relative on |r| <= 0.347); 2^-n comes from a table of
-exact powers of two. Within 2 units in the last place of libm (tests/test_plant_expneg.py).
+exact powers of two. Within 2 units in the last place of libm (tests/test_plant_smooth.py).
 Beyond x = 708 (the last normal double) it returns 0; NaN gives NaN.
 
 Why not math.exp: a libm call in the derivative function makes the compiler spill every live
 floating-point register around it, on the hot path or not, and cannot be scheduled with the
-rest of the derivative. Written out in IEEE double arithmetic without fused multiply-adds (no
-fast-math), the result does not depend on the CPU either, where libm picks an FMA or a non-FMA
-variant at run time.
+rest of the derivative. Written out in IEEE double arithmetic whose fused multiply-adds are
+explicit (feed_twin.plant.fma, rounded once on every CPU; no fast-math), the result does not
+depend on the CPU either, where libm picks an FMA or a non-FMA variant at run time.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from feed_twin.plant.fma import fma
 
 X_MAX = 708.0  # exp(-708) = 3.3e-308, the smallest normal range; beyond it the result is 0
 _INV_LN2 = 1.44269504088896338700e00
@@ -44,12 +46,12 @@ def exp_neg(x: float) -> float:
     r8 = r4 * r4
     # Estrin: pairs (c_k + c_k+1 r), then powers r^2, r^4, r^8 combine them
     p01 = 1.0 + r
-    p23 = _F2 + _F3 * r
-    p45 = _F4 + _F5 * r
-    p67 = _F6 + _F7 * r
-    p89 = _F8 + _F9 * r
-    p1011 = _F10 + _F11 * r
-    p1213 = _F12 + _F13 * r
-    low = (p01 + r2 * p23) + r4 * (p45 + r2 * p67)
-    high = (p89 + r2 * p1011) + r4 * p1213
-    return (low + r8 * high) * _POW2_NEG[int(n)]
+    p23 = fma(_F3, r, _F2)
+    p45 = fma(_F5, r, _F4)
+    p67 = fma(_F7, r, _F6)
+    p89 = fma(_F9, r, _F8)
+    p1011 = fma(_F11, r, _F10)
+    p1213 = fma(_F13, r, _F12)
+    low = fma(r4, fma(r2, p67, p45), fma(r2, p23, p01))
+    high = fma(r4, p1213, fma(r2, p1011, p89))
+    return fma(r8, high, low) * _POW2_NEG[int(n)]

@@ -6,21 +6,24 @@ The angle is reduced to r = theta - n*pi/2, |r| <= pi/4, with pi/2 split into a 
 a 33-bit middle and a tail (Cody and Waite), so that n*head and n*middle are exact for
 |n| < 2^20 (|theta| < 1.6e6 rad); beyond that the reduction error grows like the rounding of
 theta itself (|theta| * 1e-16), which no evaluation can undo. sin(r) and cos(r) are fdlibm's
-minimax polynomials (Sun Microsystems 1993) evaluated in Estrin's form, and n mod 4 swaps and
-signs them: within two units in the last place of libm (tests/test_plant_trig.py). NaN and inf
-give NaN.
+minimax polynomials (Sun Microsystems 1993) evaluated in Estrin's form with fused multiply-adds,
+and n mod 4 swaps and signs them: within two units in the last place of libm
+(tests/test_plant_trig.py). NaN and inf give NaN.
 
 Why not math.sin and math.cos: the machine's Park angle is evaluated six times per tick of the
 16 kHz loop (four RK4 stages, the current sensors, the controller), and libm's sincos call was a
 third of the cost of a derivative evaluation: a call makes the compiler spill every live
 floating-point register around it and cannot be scheduled with the rest. Written out here, in
-IEEE double arithmetic without fused multiply-adds (no fast-math), the result does not depend on
-the CPU either, where libm picks an FMA or a non-FMA variant at run time.
+IEEE double arithmetic whose fused multiply-adds are explicit (feed_twin.plant.fma, rounded once
+on every CPU; no fast-math), the result does not depend on the CPU either, where libm picks an
+FMA or a non-FMA variant at run time.
 """
 
 from __future__ import annotations
 
 from numba import njit
+
+from feed_twin.plant.fma import fma
 
 _TWO_OVER_PI = 0.63661977236758134308
 _PIO2_HEAD = 1.57079632673412561417e00  # first 33 bits of pi/2
@@ -56,12 +59,12 @@ def sincos(theta: float) -> tuple[float, float]:
     z = r * r
     z2 = z * z
     z4 = z2 * z2
-    ps = (_S1 + z * _S2) + z2 * (_S3 + z * _S4) + z4 * (_S5 + z * _S6)
-    pc = (_C1 + z * _C2) + z2 * (_C3 + z * _C4) + z4 * (_C5 + z * _C6)
-    s = r + (z * r) * ps
+    ps = fma(z4, fma(z, _S6, _S5), fma(z2, fma(z, _S4, _S3), fma(z, _S2, _S1)))
+    pc = fma(z4, fma(z, _C6, _C5), fma(z2, fma(z, _C4, _C3), fma(z, _C2, _C1)))
+    s = fma(z * r, ps, r)
     hz = 0.5 * z
     w = 1.0 - hz
-    c = w + (((1.0 - w) - hz) + z2 * pc)
+    c = w + fma(z2, pc, (1.0 - w) - hz)
     q = int(n) & 3
     if q & 1:
         c, s = -s, c

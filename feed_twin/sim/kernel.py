@@ -259,16 +259,18 @@ def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
         t_dead_slot=t_dead_slot,
         ptuple=_tuple(f"p[{i}]" for i in range(len(model.param_names))),
         xtuple=_tuple(f"x[{i}]" for i in range(n_x)),
-        stage_k1=_tuple(f"x[{i}] + 0.5 * hs * k1[{i}]" for i in range(n_x)),
-        stage_k2=_tuple(f"x[{i}] + 0.5 * hs * k2[{i}]" for i in range(n_x)),
-        stage_k3=_tuple(f"x[{i}] + hs * k3[{i}]" for i in range(n_x)),
+        # the stage sums as fused multiply-adds (feed_twin.plant.fma): one rounding, CPU-independent
+        stage_k1=_tuple(f"fma(0.5 * hs, k1[{i}], x[{i}])" for i in range(n_x)),
+        stage_k2=_tuple(f"fma(0.5 * hs, k2[{i}], x[{i}])" for i in range(n_x)),
+        stage_k3=_tuple(f"fma(hs, k3[{i}], x[{i}])" for i in range(n_x)),
         combine=_tuple(
-            f"x[{i}] + c * (k1[{i}] + 2.0 * k2[{i}] + 2.0 * k3[{i}] + k4[{i}])" for i in range(n_x)
+            f"fma(c, fma(2.0, k3[{i}], fma(2.0, k2[{i}], k1[{i}])) + k4[{i}], x[{i}])"
+            for i in range(n_x)
         ),
         store_x="\n".join(f"        x[{i}] = xs[{i}]" for i in range(n_x)),
         controller=_CLOSED if closed_loop else _OPEN,
     )
-    head = "from feed_twin.control.signals import OUT_DUTY_A\n"
+    head = "from feed_twin.control.signals import OUT_DUTY_A\nfrom feed_twin.plant.fma import fma\n"
     if closed_loop:
         head += "from feed_twin.control.cascade import cascade_tick\n"
     return model.source_code + head + loop
