@@ -41,6 +41,8 @@ def smooth_sign(x: float, scale: float) -> float:
     return u * fma(z, fma(0.375, z, -1.25), 1.875)
 
 
+# cached: its key is this file, so an edit of smooth_sign recompiles it (an edit of plant/fma.py
+# would not: clear the cache then)
 @njit(cache=True, error_model="numpy")
 def _smooth_sign_flat(x: np.ndarray, scale: float) -> np.ndarray:
     out = np.empty_like(x)
