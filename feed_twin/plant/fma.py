@@ -6,7 +6,7 @@ way the result is the exactly rounded a*b + c, so it does not depend on the CPU;
 fast-math's `contract` could not promise, where the compiler fuses or not as the target allows.
 
 The RK4 stage updates and the polynomials of the hot loop (sincos, exp_neg, smooth_sign) use it:
-one operation instead of two, 310 -> 286 ns per tick of axis_default (docs/architecture.md,
+one operation instead of two, 310 -> 287 ns per tick of axis_default (docs/architecture.md,
 "Engine performance").
 
 Called from Python (the reference integration runs the laws' un-jitted `py_func`) it is the
