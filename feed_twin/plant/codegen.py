@@ -5,7 +5,12 @@ stage by stage. From the collected lines it writes one Python module: the slot c
 functions from the same lines, `rhs` (derivatives; also as `rhs_tuple`, derivatives returned),
 `outputs` (auxiliary signals, powers, stored energies) and `sense` (sensor samples, reading the
 tick's standard normal samples that `draw_noise(p, seed, k, noise)` drew), plus
-`fill_derived(p)`.
+`fill_derived(p)` and `angles(t, x, p)`.
+
+Angles (`Emitter.angle`): `angles` returns (theta, cos, sin) of every declared angle at a state,
+flat in one tuple `trig`. `rhs` and `outputs` take sine and cosine of their own state; `sense`
+reads them from the `trig` of the same state, which the loop evaluates once per tick; `rhs_tuple`,
+the RK4 stages' derivative, rotates the tick's pair by the increment (`sincos_near`).
 """
 
 from __future__ import annotations
@@ -50,6 +55,7 @@ class Generator(Emitter):
         self.signal_names: set[str] = set()
         self.node_scale: dict[int, str] = {}
         self.noise_channels: dict[int, str] = {}  # channel key -> scale that switches it on
+        self.angles: list[tuple[str, str]] = []  # (expression, local prefix) of each angle
         self.comp_index = {n: i for i, n in enumerate(model.components)}
         self.n_core = len(model._core_states)
 
@@ -156,6 +162,69 @@ class Generator(Emitter):
         self.noise_channels.setdefault(key, scale)
         return f"{scale} * noise[{list(self.noise_channels).index(key)}]"
 
+    def angle(self, expr: str) -> tuple[str, str]:
+        if any(prefix == self.local("") for _, prefix in self.angles):
+            raise AssemblyError(f"{self.m.source}: plant.{self._name()}: a second angle")
+        self.angles.append((expr, self.local("")))
+        self.imports["sincos"] = "from feed_twin.plant.trig import sincos, sincos_near"
+        self._add(("angle", str(len(self.angles) - 1)))
+        return self.local("cos"), self.local("sin")
+
+    def _angle_lines(self, function: str, i: int) -> list[str]:
+        """The lines that set angle i's <prefix>cos and <prefix>sin in one generated function."""
+        expr, prefix = self.angles[i]
+        theta, pair = f"{prefix}theta", f"{prefix}cos, {prefix}sin"
+        if function == "sense":  # the loop's trig is of the same state
+            return [f"{pair} = trig[{3 * i + 1}], trig[{3 * i + 2}]"]
+        if function == "rhs_tuple":  # an RK4 stage: the tick's pair, rotated
+            ref = ", ".join(f"trig[{3 * i + k}]" for k in range(3))
+            return [f"{theta} = {expr}", f"{pair} = sincos_near({theta}, {ref})"]
+        return [f"{theta} = {expr}", f"{pair} = sincos({theta})"]
+
+    def _angles(self) -> list[str]:
+        """`angles(t, x, p)`: (theta, cos, sin) of each declared angle, flat; (0.0,) for none."""
+        lines = list(self._preamble())
+        items = []
+        for i, (_, prefix) in enumerate(self.angles):
+            lines += self._angle_lines("angles", i)
+            items += [f"{prefix}theta", f"{prefix}cos", f"{prefix}sin"]
+        return [
+            "",
+            "# the Park angles at the start of a tick: `sense` and the RK4 stages start from them",
+            '@njit(cache=True, inline="always", error_model="numpy")',
+            "def angles(t, x, p):",
+            *(f"    {code}" for code in lines),
+            f"    return ({', '.join(items or ['0.0'])},)",
+        ]
+
+    def _reexpand(self, lines: list[str], function: str) -> list[str]:
+        """`lines` of `rhs` with each angle's lines as `function` writes them."""
+        full = {self._angle_lines("rhs", i)[1]: i for i in range(len(self.angles))}
+        out = []
+        for code in lines:
+            if code in full:
+                out += self._angle_lines(function, full[code])[1:]
+            else:
+                out.append(code)
+        return out
+
+    @staticmethod
+    def _first_forces(lines: list[str]) -> list[str]:
+        """`F_n = 0.0 ... F_n += a` written as `F_n = a`: IEEE arithmetic may not drop the
+        addition of 0.0 itself (it turns -0.0 into +0.0), so each node would pay one per call."""
+        out = list(lines)
+        for i, code in enumerate(lines):
+            match = re.fullmatch(r"(F_n\d+) = 0\.0", code)
+            if not match:
+                continue
+            name = match.group(1)
+            token = re.compile(rf"\b{name}\b")
+            first = next((j for j in range(i + 1, len(lines)) if token.search(lines[j])), None)
+            if first is not None and lines[first].startswith(f"{name} += "):
+                out[i] = ""
+                out[first] = f"{name} = {lines[first][len(name) + 4 :]}"
+        return [code for code in out if code]
+
     def _rhs_tuple(self, rhs_lines: list[str]) -> list[str]:
         """`rhs` again from the same lines, the derivatives returned as a tuple instead of stored.
 
@@ -176,7 +245,7 @@ class Generator(Emitter):
         return [
             "",
             '@njit(cache=True, inline="always", error_model="numpy")',
-            "def rhs_tuple(t, x, p, out, ext, sw):",
+            "def rhs_tuple(t, x, p, out, ext, sw, trig):",
             *(f"    {code}" for code in lines),
             f"    return ({', '.join(f'd_{slot}' for slot in slots)},)",
         ]
@@ -305,7 +374,7 @@ class Generator(Emitter):
         specs = (
             ("rhs", "t, x, p, out, ext, sw, dx", {"all", "dx"}),
             ("outputs", "t, x, p, out, ext, sw, aux", {"all", "aux"}),
-            ("sense", "t, x, p, out, ext, sw, noise, meas, mdelay", {"all", "meas"}),
+            ("sense", "t, x, p, out, ext, sw, trig, noise, meas, mdelay", {"all", "meas"}),
         )
         coord_lines = self._coordinate_lines()
         for name, args, kinds in specs:
@@ -313,14 +382,15 @@ class Generator(Emitter):
             # sensors see positions, currents and the bus: `sense` skips the dynamics
             stages = SENSE_STAGES if name == "sense" else STAGES
             # coordinate sums go after `dynamics`/`transmit` lines; `sense` lines come last
-            lines += [
-                code
-                for kind, code, stage in self.lines
-                if kind in kinds and kind != "meas" and stage in stages
-            ]
+            for kind, code, stage in self.lines:
+                if kind == "angle" and stage in stages:
+                    lines += self._angle_lines(name, int(code))
+                elif kind in kinds and kind != "meas" and stage in stages:
+                    lines.append(code)
             if name != "sense":
                 lines += [code for kind, code in coord_lines if kind in kinds]
             lines += [code for kind, code, _ in self.lines if kind == "meas" and "meas" in kinds]
+            lines = self._first_forces(lines)
             funcs.append("")
             # inlined into the loop: a call would pay numba's reference counting on every array
             # argument, several times the cost of the physics
@@ -333,7 +403,8 @@ class Generator(Emitter):
             funcs += [f"    {code}" for code in lines]
             funcs.append("    return None")
             if name == "rhs":
-                funcs += self._rhs_tuple(lines)
+                funcs += self._rhs_tuple(self._reexpand(lines, "rhs_tuple"))
+        funcs += self._angles()
         funcs += self._draw_noise()
         return (
             "\n".join(head + [""] + self._constants() + [""] + self._fill_derived() + funcs) + "\n"

@@ -187,6 +187,17 @@ class Emitter:
         scale is 0, without drawing)."""
         raise NotImplementedError
 
+    def angle(self, expr: str) -> tuple[str, str]:
+        """(cos, sin) of an angle [rad] made of states, across variables and parameters only
+        (a machine's electrical rotor angle, for its Park transform): the emitting component's
+        locals `cos` and `sin`, so later stages name them with `local`. One per component.
+
+        The compiled loop evaluates the pair once per tick, at the tick's start state; each
+        derivative call inside the tick rotates it by the angle's increment since
+        (`feed_twin.plant.trig.sincos_near`, a quarter of the work of a sine and a cosine).
+        """
+        raise NotImplementedError
+
 
 def check_name(name: str) -> None:
     if not NAME_PATTERN.match(name):

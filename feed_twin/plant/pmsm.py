@@ -33,25 +33,19 @@ from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader, StateSpec
-from feed_twin.plant.trig import sincos
 
 SQRT3 = math.sqrt(3.0)
 
 
 @njit(error_model="numpy", forceinline=True)
-def phase_currents(
-    i_d: float, i_q: float, theta_e: float
-) -> tuple[float, float, float, float, float]:
-    """(i_a, i_b, i_c, cos(theta_e), sin(theta_e)) from the rotor-frame currents."""
-    c, s = sincos(theta_e)
+def phase_currents(i_d: float, i_q: float, c: float, s: float) -> tuple[float, float, float]:
+    """(i_a, i_b, i_c) from the rotor-frame currents; (c, s) = (cos, sin) of theta_e."""
     i_alpha = c * i_d - s * i_q
     i_beta = s * i_d + c * i_q
     return (
         i_alpha,
         -0.5 * i_alpha + 0.5 * SQRT3 * i_beta,
         -0.5 * i_alpha - 0.5 * SQRT3 * i_beta,
-        c,
-        s,
     )
 
 
@@ -190,12 +184,15 @@ class Pmsm(Component):
 
     def emit(self, stage: str, g: Emitter) -> None:
         phi, omega = g.across("flange")
-        c, s = g.local("cos"), g.local("sin")
+        c, s = g.local("cos"), g.local("sin")  # the pair g.angle declares, for later stages
         if stage == "currents":
+            # the electrical angle, for both Park transforms of the call (the loop rotates its
+            # pair from the tick's start instead of evaluating it anew: Emitter.angle)
+            c, s = g.angle(f"{g.p('p')} * {phi}")
             g.call(
-                (g.el("ac", "i_a"), g.el("ac", "i_b"), g.el("ac", "i_c"), c, s),
+                (g.el("ac", "i_a"), g.el("ac", "i_b"), g.el("ac", "i_c")),
                 "feed_twin.plant.pmsm.phase_currents",
-                (g.x("i_d"), g.x("i_q"), f"{g.p('p')} * {phi}"),
+                (g.x("i_d"), g.x("i_q"), c, s),
             )
         elif stage == "dynamics":
             di_d, di_q, tau_e, p_cu, p_fe, u_d, u_q = (

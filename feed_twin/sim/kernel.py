@@ -4,9 +4,10 @@
 feed_twin.plant.assembly, writes it into a cache directory under a name made of the hash of its
 text (so a structure compiles once and a cold process reuses numba's on-disk cache), imports it
 and returns the module. Per base tick k (period h) the loop
-  1. samples the sensors (`sense`) into a ring of the last RING samples and reads each MEAS_*
-     slot with its own delay (the sensor noise of NOISE_BLOCK ticks is drawn ahead in one go;
-     each sample depends on (seed, tick, channel) alone, so chunks and blocks never matter);
+  1. evaluates the Park angles of the tick's start state (`angles`), samples the sensors
+     (`sense`) into a ring of the last RING samples and reads each MEAS_* slot with its own
+     delay (the sensor noise of NOISE_BLOCK ticks is drawn ahead in one go; each sample depends
+     on (seed, tick, channel) alone, so chunks and blocks never matter);
   2. runs the controller, `cascade_tick(cp, cs, k, ref[k], meas, out)`, or copies the prescribed
      open-loop row `drive[k]` into `out`;
   3. records the selected signals when k is a multiple of the decimation;
@@ -44,15 +45,22 @@ FASTMATH = False  # exact IEEE arithmetic: results must not depend on the CPU's 
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
-def rk4_step(t, hs, x, p, out, ext, sw):
-    """One classical RK4 step of the state tuple x; returns the new tuple."""
-    k1 = rhs_tuple(t, x, p, out, ext, sw)
+def rk4_step(t, hs, x, p, out, ext, sw, trig):
+    """One classical RK4 step of the state tuple x; returns the new tuple.
+
+    `trig` holds the Park angles of the tick's start (`angles`), which each stage rotates. The
+    weighted sum k1 + 2 k2 + 2 k3 is accumulated as the stages come (the same operations in the
+    same order): k1 and k2 need not stay live, fewer registers spill.
+    """
+    k1 = rhs_tuple(t, x, p, out, ext, sw, trig)
     xt = {stage_k1}
-    k2 = rhs_tuple(t + 0.5 * hs, xt, p, out, ext, sw)
+    k2 = rhs_tuple(t + 0.5 * hs, xt, p, out, ext, sw, trig)
+    acc = {acc_k2}
     xt = {stage_k2}
-    k3 = rhs_tuple(t + 0.5 * hs, xt, p, out, ext, sw)
+    k3 = rhs_tuple(t + 0.5 * hs, xt, p, out, ext, sw, trig)
+    acc = {acc_k3}
     xt = {stage_k3}
-    k4 = rhs_tuple(t + hs, xt, p, out, ext, sw)
+    k4 = rhs_tuple(t + hs, xt, p, out, ext, sw, trig)
     c = hs / 6.0
     return {combine}
 
@@ -78,14 +86,14 @@ def leg_state(tau, duty, t_dead, period):
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
-def integrate_tick(t0, h, nsub, x, p, out, ext, sw, edges):
+def integrate_tick(t0, h, nsub, x, p, out, ext, sw, edges, trig):
     if not SWITCHING or out[OUT_ENABLED] < 0.5:
         if nsub == 1:
             # the usual case, without the loop: LLVM then schedules the step with the tick
-            return rk4_step(t0, h, x, p, out, ext, sw)
+            return rk4_step(t0, h, x, p, out, ext, sw, trig)
         hs = h / nsub
         for i in range(nsub):
-            x = rk4_step(t0 + i * hs, hs, x, p, out, ext, sw)
+            x = rk4_step(t0 + i * hs, hs, x, p, out, ext, sw, trig)
         return x
     hs = h / nsub
     t_dead = p[{t_dead_slot}]
@@ -122,7 +130,7 @@ def integrate_tick(t0, h, nsub, x, p, out, ext, sw, edges):
         m = int(math.ceil((b - a) / hs - 1e-9))
         step = (b - a) / m
         for s in range(m):
-            x = rk4_step(t0 + a + s * step, step, x, p, out, ext, sw)
+            x = rk4_step(t0 + a + s * step, step, x, p, out, ext, sw, trig)
     return x
 
 
@@ -177,7 +185,9 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
             # the core overlaps their logarithms and roots instead of waiting on each in turn
             for i in range(min(NOISE_BLOCK, n - j)):
                 draw_noise(pt, seed, k + i, noise[i * N_NOISE:(i + 1) * N_NOISE])
-        sense(t, xs, pt, out, ext[j], sw, noise[b * N_NOISE:(b + 1) * N_NOISE], mraw, mdelay)
+        # the Park angles of this state, once: the sensors read them, the RK4 stages rotate them
+        trig = angles(t, xs, pt)
+        sense(t, xs, pt, out, ext[j], sw, trig, noise[b * N_NOISE:(b + 1) * N_NOISE], mraw, mdelay)
         slot = k % RING
         for m in range(MEAS_SIZE):
             ring[slot, m] = mraw[m]
@@ -203,7 +213,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
         phase += 1
         if phase == dec:
             phase = 0
-        xs = integrate_tick(t, h, nsub, xs, pt, out, ext[j], sw, edges)
+        xs = integrate_tick(t, h, nsub, xs, pt, out, ext[j], sw, edges, trig)
 {store_x}
         for i in range(N_X):
             if not abs(x[i]) <= xlim[i]:
@@ -263,10 +273,9 @@ def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
         stage_k1=_tuple(f"fma(0.5 * hs, k1[{i}], x[{i}])" for i in range(n_x)),
         stage_k2=_tuple(f"fma(0.5 * hs, k2[{i}], x[{i}])" for i in range(n_x)),
         stage_k3=_tuple(f"fma(hs, k3[{i}], x[{i}])" for i in range(n_x)),
-        combine=_tuple(
-            f"fma(c, fma(2.0, k3[{i}], fma(2.0, k2[{i}], k1[{i}])) + k4[{i}], x[{i}])"
-            for i in range(n_x)
-        ),
+        acc_k2=_tuple(f"fma(2.0, k2[{i}], k1[{i}])" for i in range(n_x)),
+        acc_k3=_tuple(f"fma(2.0, k3[{i}], acc[{i}])" for i in range(n_x)),
+        combine=_tuple(f"fma(c, acc[{i}] + k4[{i}], x[{i}])" for i in range(n_x)),
         store_x="\n".join(f"        x[{i}] = xs[{i}]" for i in range(n_x)),
         controller=_CLOSED if closed_loop else _OPEN,
     )

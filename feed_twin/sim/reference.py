@@ -35,6 +35,7 @@ def reference_run(
         raise ValueError("reference_run: the switching inverter is integrated by the kernel only")
     ns = model.namespace()
     rhs, outputs, sense, draw_noise = ns["rhs"], ns["outputs"], ns["sense"], ns["draw_noise"]
+    angles = ns["angles"]
     noise = np.zeros(ns["N_NOISE"])
     p = engine.p
     x = model.initial_state() if x0 is None else np.array(x0, dtype=float)
@@ -55,7 +56,7 @@ def reference_run(
     for k in range(n_ticks):
         t = k * h
         draw_noise(p, engine.seed, k, noise)
-        sense(t, x, p, out, ext[k], sw, noise, mraw, mdelay)
+        sense(t, x, p, out, ext[k], sw, angles(t, x, p), noise, mraw, mdelay)
         ring[k % RING] = mraw
         for m in range(signals.MEAS_SIZE):
             meas[m] = ring[(k - min(int(mdelay[m]), k)) % RING, m]
