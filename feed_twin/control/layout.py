@@ -184,6 +184,9 @@ STATE_NAMES = (
     "duty_c",
     "effort_next",
     "effort_out",
+    "park_anchor_rad",
+    "park_anchor_cos",
+    "park_anchor_sin",
 )
 (
     S_INITIALISED,
@@ -220,6 +223,9 @@ STATE_NAMES = (
     S_DUTY_C,
     S_EFFORT_NEXT,
     S_EFFORT_OUT,
+    S_PARK_ANCHOR,  # the last electrical angle whose sine and cosine were evaluated in full
+    _S_PARK_ANCHOR_COS,  # and that pair (feed_twin.plant.trig.sincos_anchored)
+    _S_PARK_ANCHOR_SIN,
 ) = range(len(STATE_NAMES))
 S_FIR_HIST = len(STATE_NAMES)  # the FIR difference history follows the fixed slots
 
@@ -243,6 +249,7 @@ class CompiledCascade:
         cs = np.zeros(len(self.state_names))
         cs[S_ENABLE_CMD] = 1.0 if self.config.enabled_at_start else 0.0
         cs[S_DUTY_NEXT_A : S_DUTY_C + 1] = 0.5
+        cs[S_PARK_ANCHOR : S_PARK_ANCHOR + 3] = 0.0, 1.0, 0.0  # the angle 0 and its exact pair
         return cs
 
     def state_view(self, cs: np.ndarray) -> dict[str, float]:
