@@ -49,9 +49,17 @@ def test_tuple_rhs_of_the_loop_equals_the_array_rhs_with_energy_states():
     dx = np.full(len(x), np.nan)
     ns["rhs"](0.0, x, p, out, ext, np.zeros(3), dx)
     trig = ns["angles"](0.0, x, p)  # of the same state: the tick's first RK4 stage
-    derivatives = ns["rhs_tuple"](0.0, tuple(x), tuple(p), out, ext, np.zeros(3), trig)
+    derivatives = ns["rhs_tuple_start"](0.0, tuple(x), tuple(p), out, ext, np.zeros(3), trig)
     assert len(model.state_names) > 12  # energy accumulators included
     assert np.array_equal(np.array(derivatives), dx)
+    # a later stage: the rotor has turned 0.2 rad (electrical) since the tick's start, and the
+    # pair is rotated from there, to within rounding of the sine and cosine evaluated anew
+    later = x.copy()
+    later[model.state_index["motor.phi"]] += 0.2 / p[model.param_index["motor.p"]]
+    ns["rhs"](0.0, later, p, out, ext, np.zeros(3), dx)
+    derivatives = ns["rhs_tuple"](0.0, tuple(later), tuple(p), out, ext, np.zeros(3), trig)
+    np.testing.assert_allclose(np.array(derivatives), dx, rtol=1e-12, atol=1e-12)
+    assert not np.array_equal(np.array(derivatives), dx)  # rotated, not evaluated anew
 
 
 def test_the_laws_the_kernel_calls_are_not_disk_cached():

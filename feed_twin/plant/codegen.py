@@ -203,7 +203,7 @@ class Generator(Emitter):
         out = []
         for code in lines:
             if code in full:
-                out += self._angle_lines(function, full[code])[1:]
+                out += self._angle_lines(function, full[code])[-1:]
             else:
                 out.append(code)
         return out
@@ -225,7 +225,7 @@ class Generator(Emitter):
                 out[first] = f"{name} = {lines[first][len(name) + 4 :]}"
         return [code for code in out if code]
 
-    def _rhs_tuple(self, rhs_lines: list[str]) -> list[str]:
+    def _rhs_tuple(self, rhs_lines: list[str], name: str) -> list[str]:
         """`rhs` again from the same lines, the derivatives returned as a tuple instead of stored.
 
         The compiled loop keeps the state and the RK4 stages in registers with it: numba's arrays
@@ -245,7 +245,7 @@ class Generator(Emitter):
         return [
             "",
             '@njit(cache=True, inline="always", error_model="numpy")',
-            "def rhs_tuple(t, x, p, out, ext, sw, trig):",
+            f"def {name}(t, x, p, out, ext, sw, trig):",
             *(f"    {code}" for code in lines),
             f"    return ({', '.join(f'd_{slot}' for slot in slots)},)",
         ]
@@ -403,7 +403,10 @@ class Generator(Emitter):
             funcs += [f"    {code}" for code in lines]
             funcs.append("    return None")
             if name == "rhs":
-                funcs += self._rhs_tuple(self._reexpand(lines, "rhs_tuple"))
+                funcs += self._rhs_tuple(self._reexpand(lines, "rhs_tuple"), "rhs_tuple")
+                # the first stage of a tick's first step is at the state `angles` saw: no rotation,
+                # and LLVM finds the phase currents and their signs `sense` computed from it
+                funcs += self._rhs_tuple(self._reexpand(lines, "sense"), "rhs_tuple_start")
         funcs += self._angles()
         funcs += self._draw_noise()
         return (

@@ -45,14 +45,18 @@ FASTMATH = False  # exact IEEE arithmetic: results must not depend on the CPU's 
 
 
 @njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
-def rk4_step(t, hs, x, p, out, ext, sw, trig):
+def rk4_step(t, hs, x, p, out, ext, sw, trig, at_trig):
     """One classical RK4 step of the state tuple x; returns the new tuple.
 
-    `trig` holds the Park angles of the tick's start (`angles`), which each stage rotates. The
-    weighted sum k1 + 2 k2 + 2 k3 is accumulated as the stages come (the same operations in the
-    same order): k1 and k2 need not stay live, fewer registers spill.
+    `trig` holds the Park angles of the tick's start (`angles`), which each stage rotates;
+    `at_trig` says x is that state (the tick's first step), whose first stage takes them as they
+    are. The weighted sum k1 + 2 k2 + 2 k3 is accumulated as the stages come (the same operations
+    in the same order): k1 and k2 need not stay live, fewer registers spill.
     """
-    k1 = rhs_tuple(t, x, p, out, ext, sw, trig)
+    if at_trig:
+        k1 = rhs_tuple_start(t, x, p, out, ext, sw, trig)
+    else:
+        k1 = rhs_tuple(t, x, p, out, ext, sw, trig)
     xt = {stage_k1}
     k2 = rhs_tuple(t + 0.5 * hs, xt, p, out, ext, sw, trig)
     acc = {acc_k2}
@@ -90,10 +94,10 @@ def integrate_tick(t0, h, nsub, x, p, out, ext, sw, edges, trig):
     if not SWITCHING or out[OUT_ENABLED] < 0.5:
         if nsub == 1:
             # the usual case, without the loop: LLVM then schedules the step with the tick
-            return rk4_step(t0, h, x, p, out, ext, sw, trig)
+            return rk4_step(t0, h, x, p, out, ext, sw, trig, True)
         hs = h / nsub
         for i in range(nsub):
-            x = rk4_step(t0 + i * hs, hs, x, p, out, ext, sw, trig)
+            x = rk4_step(t0 + i * hs, hs, x, p, out, ext, sw, trig, i == 0)
         return x
     hs = h / nsub
     t_dead = p[{t_dead_slot}]
@@ -130,7 +134,7 @@ def integrate_tick(t0, h, nsub, x, p, out, ext, sw, edges, trig):
         m = int(math.ceil((b - a) / hs - 1e-9))
         step = (b - a) / m
         for s in range(m):
-            x = rk4_step(t0 + a + s * step, step, x, p, out, ext, sw, trig)
+            x = rk4_step(t0 + a + s * step, step, x, p, out, ext, sw, trig, False)
     return x
 
 
