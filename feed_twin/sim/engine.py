@@ -397,16 +397,22 @@ def run_batch(
     works = np.zeros((N, engine.work.size))
     n_threads = max(1, min(threads or default_threads(), N))
 
-    def run_stride(first: int) -> None:
+    # each thread a contiguous block of sets: dealt out in turn, the sets running at once would
+    # have neighbouring rows in X, CS, outs and works, which are written every tick, and share
+    # the cache lines at their boundaries
+    bounds = np.linspace(0, N, n_threads + 1).round().astype(int)
+
+    def run_block(i: int) -> None:
+        b = slice(bounds[i], bounds[i + 1])
         engine.kernel.advance_sets(
-            first, n_threads, X, P, CP, CS, n_ticks, ref2, drive2, ext2, seeds_arr, rings, outs,
-            engine.h, engine.nsub, engine.dec, engine.sel, rec, engine.model.state_limits,
-            status, works,
+            0, 1, X[b], P[b], CP[b], CS[b], n_ticks, ref2, drive2, ext2, seeds_arr[b], rings[b],
+            outs[b], engine.h, engine.nsub, engine.dec, engine.sel, rec[b],
+            engine.model.state_limits, status[b], works[b],
         )  # fmt: skip
 
     # the kernel releases the GIL: one Python thread per core runs sets side by side
     with ThreadPoolExecutor(max_workers=n_threads) as pool:
-        list(pool.map(run_stride, range(n_threads)))
+        list(pool.map(run_block, range(n_threads)))
     diverged = status[:, 0] != 0.0
     messages = []
     for b in range(N):
