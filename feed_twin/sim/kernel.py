@@ -25,10 +25,13 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import math
 import os
 import sys
 from pathlib import Path
 from types import ModuleType
+
+import numpy as np
 
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.codegen import const_name
@@ -177,6 +180,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
     # would force the loop to reload p[...] and redo each division by a parameter; a tuple is
     # immutable, and LLVM hoists what depends on parameters alone out of the loop
     pt = {ptuple}
+    cpt = {cptuple}
     xs = {xtuple}
     r = 0
     phase = k0 % dec  # ticks since the last recorded one: no integer division per tick
@@ -244,13 +248,29 @@ def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, rings, 
     return 0
 '''
 
-_CLOSED = """        cascade_tick(cp, cs, k, ref[j], meas, out)"""
+_CLOSED = """        cascade_tick(cpt, cs, k, ref[j], meas, out)"""
 _OPEN = """        for i in range(OUT_SIZE):
             out[i] = drive[j, i]"""
 
 
 def _tuple(items) -> str:
     return "(" + ", ".join(items) + ",)"
+
+
+def _literal(value: float) -> str:
+    """A float as source text that reads back to the same bits (repr does, inf and nan aside)."""
+    if math.isnan(value):
+        return "math.nan"
+    if math.isinf(value):
+        return "math.inf" if value > 0 else "-math.inf"
+    return repr(float(value))
+
+
+def _values(name: str, values: np.ndarray | None, n: int) -> str:
+    """The tuple the loop reads a parameter vector through: the array's slots, or literals."""
+    if values is None:
+        return _tuple(f"{name}[{i}]" for i in range(n))
+    return _tuple(_literal(v) for v in np.asarray(values, dtype=float))
 
 
 def cache_dir() -> Path:
@@ -261,8 +281,21 @@ def cache_dir() -> Path:
     return path
 
 
-def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
-    """The full module text: plant functions, loop and batch loop."""
+def kernel_source(
+    model: PlantModel,
+    *,
+    closed_loop: bool,
+    inline: tuple[np.ndarray, np.ndarray | None] | None = None,
+) -> str:
+    """The full module text: plant functions, loop and batch loop.
+
+    `inline`: the plant and controller parameter values (p, cp) to compile into the loop as
+    literals (Engine's inline_parameters): LLVM then folds what they decide (flags, zero terms,
+    unit gains, the controller's mode and loop rates) and inlines the controller's tick, about
+    10 % per tick on axis_default (docs/architecture.md, "Engine performance"). The `p` and
+    `cp` arguments are then not read. Without it the loop reads them, and one kernel serves
+    every parameter set of a structure.
+    """
     switching = model.switching_inverter
     n_x = len(model.state_names)
     t_dead_slot = const_name("P_", f"{switching}.t_dead") if switching else "0"
@@ -271,7 +304,8 @@ def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
         noise_block=NOISE_BLOCK,
         switching=bool(switching),
         t_dead_slot=t_dead_slot,
-        ptuple=_tuple(f"p[{i}]" for i in range(len(model.param_names))),
+        ptuple=_values("p", None if inline is None else inline[0], len(model.param_names)),
+        cptuple="cp" if inline is None or inline[1] is None else _values("cp", inline[1], 0),
         xtuple=_tuple(f"x[{i}]" for i in range(n_x)),
         # the stage sums as fused multiply-adds (feed_twin.plant.fma): one rounding, CPU-independent
         stage_k1=_tuple(f"fma(0.5 * hs, k1[{i}], x[{i}])" for i in range(n_x)),
@@ -284,7 +318,14 @@ def kernel_source(model: PlantModel, *, closed_loop: bool) -> str:
         controller=_CLOSED if closed_loop else _OPEN,
     )
     head = "from feed_twin.control.signals import OUT_DUTY_A\nfrom feed_twin.plant.fma import fma\n"
-    if closed_loop:
+    if closed_loop and inline is not None:
+        # a tick whose parameters are constants belongs inside the loop: LLVM folds them there
+        head += (
+            "from feed_twin.control.cascade import cascade_tick as _cascade_tick\n"
+            "cascade_tick = njit(forceinline=True, _nrt=False, error_model='numpy')"
+            "(_cascade_tick.py_func)\n"
+        )
+    elif closed_loop:
         head += "from feed_twin.control.cascade import cascade_tick\n"
     return model.source_code + head + loop
 
@@ -307,9 +348,15 @@ def _callee_digest() -> str:
     return digest.hexdigest()
 
 
-def load_kernel(model: PlantModel, *, closed_loop: bool) -> ModuleType:
-    """Import (writing it first if new) the compiled-loop module for this plant structure."""
-    text = kernel_source(model, closed_loop=closed_loop)
+def load_kernel(
+    model: PlantModel,
+    *,
+    closed_loop: bool,
+    inline: tuple[np.ndarray, np.ndarray | None] | None = None,
+) -> ModuleType:
+    """Import (writing it first if new) the compiled-loop module for this plant structure (and,
+    with `inline`, these parameter values: see `kernel_source`)."""
+    text = kernel_source(model, closed_loop=closed_loop, inline=inline)
     digest = hashlib.sha256((text + _callee_digest()).encode()).hexdigest()[:20]
     if digest in _LOADED:
         return _LOADED[digest]
