@@ -9,8 +9,9 @@ tick's standard normal samples that `draw_noise(p, seed, k, noise)` drew), plus
 
 Angles (`Emitter.angle`): `angles` returns (theta, cos, sin) of every declared angle at a state,
 flat in one tuple `trig`. `rhs` and `outputs` take sine and cosine of their own state; `sense`
-reads them from the `trig` of the same state, which the loop evaluates once per tick; `rhs_tuple`,
-the RK4 stages' derivative, rotates the tick's pair by the increment (`sincos_near`).
+reads them from the `trig` of the same state, which the loop evaluates once per tick; of the RK4
+stages' derivatives, `rhs_tuple_start` (the tick's first stage, at that state) does too, and
+`rhs_tuple` rotates the tick's pair by the increment (`sincos_near`).
 """
 
 from __future__ import annotations
@@ -164,7 +165,10 @@ class Generator(Emitter):
 
     def angle(self, expr: str) -> tuple[str, str]:
         if any(prefix == self.local("") for _, prefix in self.angles):
-            raise AssemblyError(f"{self.m.source}: plant.{self._name()}: a second angle")
+            raise AssemblyError(
+                f"{self.m.source}: plant.{self._name()}: declares a second angle "
+                "(a component has at most one: its locals cos and sin)"
+            )
         self.angles.append((expr, self.local("")))
         self.imports["sincos"] = "from feed_twin.plant.trig import sincos, sincos_near"
         self._add(("angle", str(len(self.angles) - 1)))

@@ -266,13 +266,6 @@ def _literal(value: float) -> str:
     return repr(float(value))
 
 
-def _values(name: str, values: np.ndarray | None, n: int) -> str:
-    """The tuple the loop reads a parameter vector through: the array's slots, or literals."""
-    if values is None:
-        return _tuple(f"{name}[{i}]" for i in range(n))
-    return _tuple(_literal(v) for v in np.asarray(values, dtype=float))
-
-
 def cache_dir() -> Path:
     """Where generated kernels live: $FEED_TWIN_CACHE or ~/.cache/feed_twin/kernels."""
     root = os.environ.get("FEED_TWIN_CACHE")
@@ -304,8 +297,12 @@ def kernel_source(
         noise_block=NOISE_BLOCK,
         switching=bool(switching),
         t_dead_slot=t_dead_slot,
-        ptuple=_values("p", None if inline is None else inline[0], len(model.param_names)),
-        cptuple="cp" if inline is None or inline[1] is None else _values("cp", inline[1], 0),
+        ptuple=(
+            _tuple(f"p[{i}]" for i in range(len(model.param_names)))
+            if inline is None
+            else _tuple(_literal(v) for v in inline[0])
+        ),
+        cptuple="cp" if inline is None or inline[1] is None else _tuple(map(_literal, inline[1])),
         xtuple=_tuple(f"x[{i}]" for i in range(n_x)),
         # the stage sums as fused multiply-adds (feed_twin.plant.fma): one rounding, CPU-independent
         stage_k1=_tuple(f"fma(0.5 * hs, k1[{i}], x[{i}])" for i in range(n_x)),
