@@ -12,8 +12,9 @@ Figures (last printed line, one JSON object):
   parameter values compiled into the kernel: what a long run of one parameter set can choose).
 - batch_axis_seconds_per_second: 1000 parameter sets of the same axis (table mass varied),
   0.2 s of the same move each, advanced in parallel (run_batch: one thread per usable core, the
-  kernel releases the GIL); batch_axis_seconds_per_cpu_second: the same per CPU second of all
-  threads (equal to the wall-clock rate when only one core was free).
+  kernel releases the GIL), best of two runs (the first is also the warm-up);
+  batch_axis_seconds_per_cpu_second: the same per CPU second of all threads (equal to the
+  wall-clock rate when only one core was free).
 - solve_ivp_ratio: wall time of feed_twin.sim.reference (the same generated plant functions,
   called from Python under scipy solve_ivp DOP853 per controller tick, after a warm-up) over the
   kernel's, per simulated second, on 20 ms of the move.
@@ -109,12 +110,15 @@ def batch_rate(axis, n_sets: int = 1000, duration: float = 0.2) -> tuple[float, 
     P[:, plant.param_index["table.m"]] = masses
     plant.fill_derived(P)
     run_batch(engine, P[:4], 16, ref=ref[:16])  # compile
-    t0, c0 = time.perf_counter(), time.process_time()
-    res = run_batch(engine, P, n, ref=ref)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    if res.diverged.any():
-        raise RuntimeError(f"batch: {res.diverged.sum()} sets diverged: {res.messages[0]}")
-    return n_sets * duration / wall, n_sets * duration / cpu
+    best_wall, best_cpu = float("inf"), float("inf")
+    for _ in range(2):  # the first run of the 1000 sets is also their warm-up (about 10 % slower)
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = run_batch(engine, P, n, ref=ref)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        if res.diverged.any():
+            raise RuntimeError(f"batch: {res.diverged.sum()} sets diverged: {res.messages[0]}")
+        best_wall, best_cpu = min(best_wall, wall), min(best_cpu, cpu)
+    return n_sets * duration / best_wall, n_sets * duration / best_cpu
 
 
 def solve_ivp_ratio(axis) -> float:
