@@ -41,8 +41,8 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.control import signals as sig
+from feed_twin.sim.batch import run_batch
 from feed_twin.sim.config import build_engine, load_axis_config
-from feed_twin.sim.engine import run_batch
 from feed_twin.sim.kernel import cache_dir
 from feed_twin.sim.reference import reference_run
 

@@ -9,8 +9,9 @@ import pytest
 
 from feed_twin.control import signals as sig
 from feed_twin.plant.config import load_plant
+from feed_twin.sim.batch import check_steps, run_batch
 from feed_twin.sim.config import build_engine, load_axis_config
-from feed_twin.sim.engine import DivergenceError, Engine, check_step, check_steps, run_batch
+from feed_twin.sim.engine import DivergenceError, Engine, check_step
 
 
 def _emps_ref(n: int) -> np.ndarray:

@@ -9,8 +9,8 @@ import pytest
 
 from feed_twin.control import signals as sig
 from feed_twin.io.config import ConfigError
+from feed_twin.sim.batch import run_batch
 from feed_twin.sim.config import build_engine, load_axis_config
-from feed_twin.sim.engine import run_batch
 from feed_twin.sim.kernel import _literal
 
 AXIS = "config/axis_default.yaml"

@@ -448,7 +448,8 @@ class Twin:
 
     def simulate(self, drive: Drive, params: np.ndarray) -> SimOutputs:
         """Simulate each row of `params` (full parameter vectors) on the drive's command."""
-        from feed_twin.sim.engine import check_step, run_batch
+        from feed_twin.sim.batch import run_batch
+        from feed_twin.sim.engine import check_step
 
         key = id(drive)
         if self._cache.get("key") != key:
