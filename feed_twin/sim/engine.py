@@ -7,9 +7,9 @@
 State (plant states, controller state, sensor ring, held controller output, tick counter) lives
 in arrays on the engine between calls, so `advance` in chunks gives bit-identical results to one
 long call (the ROS lockstep node calls it once per message). `feed_twin.sim.batch.run_batch`
-advances N parameter sets at once. Inputs per tick: `ref` (n, REF_SIZE) for the controller, `drive` (n, OUT_SIZE) for
-open loop (prescribed duties / effort, OUT_ENABLED = 1 to switch the power stage on), `ext`
-(n, number of ExternalForce components) [N].
+advances N parameter sets at once. Inputs per tick: `ref` (n, REF_SIZE) for the controller,
+`drive` (n, OUT_SIZE) for open loop (prescribed duties / effort, OUT_ENABLED = 1 to switch the
+power stage on), `ext` (n, number of ExternalForce components) [N].
 Recorded signals: every state, every plant auxiliary (`<component>.<signal>`, powers
 `<component>.power.<name>` [W], stored energies `stored.<component>.<name>` [J], coordinate
 accelerations `<body>.a` [m/s^2] or `<body>.alpha` [rad/s^2]), the sensor
