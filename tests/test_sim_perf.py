@@ -68,12 +68,12 @@ def test_the_laws_the_kernel_calls_are_not_disk_cached():
     plant and the controller is either compiled in process (no cache) and marked `forceinline`
     (LLVM's alwaysinline: 7 % faster again, no compile-time cost) or inlined by numba itself;
     only `cascade_tick`, called once per tick and from the controller node, is cached, and the
-    noise's rare ziggurat fallback stays out of line."""
+    rare fallbacks (the noise's ziggurat tail, sincos_near's full evaluation) stay out of line."""
     entry_points = {
         "feed_twin.control.cascade.cascade_tick",
         "feed_twin.plant.smooth._smooth_sign_flat",  # the analysis code's, not the kernel's
     }
-    out_of_line = {"feed_twin.plant.noise._slow_path"}
+    out_of_line = {"feed_twin.plant.noise._slow_path", "feed_twin.plant.trig._sincos_far"}
     seen = []
     for pkg in (feed_twin.plant, feed_twin.control):
         for info in pkgutil.iter_modules(pkg.__path__):

@@ -88,7 +88,14 @@ _TS3, _TS5, _TS7, _TS9 = -1 / 6, 1 / 120, -1 / 5040, 1 / 362880
 _TS11, _TS13 = -1 / 39916800, 1 / 6227020800
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@njit(error_model="numpy", forceinline=False)
+def _sincos_far(theta: float) -> tuple[float, float]:
+    """`sincos` out of line: sincos_near's rare fallback. Inlined there, every RK4 stage of the
+    compiled loop carried a second copy of sincos, and the kernel took twice as long to compile."""
+    return sincos(theta)
+
+
+@njit(error_model="numpy", forceinline=True)
 def sincos_near(theta: float, theta0: float, c0: float, s0: float) -> tuple[float, float]:
     """(cos(theta), sin(theta)) from (c0, s0) = sincos(theta0) of a nearby angle theta0.
 
@@ -102,7 +109,7 @@ def sincos_near(theta: float, theta0: float, c0: float, s0: float) -> tuple[floa
     """
     d = theta - theta0
     if not abs(d) <= NEAR:
-        return sincos(theta)
+        return _sincos_far(theta)
     z = d * d
     z2 = z * z
     z4 = z2 * z2
