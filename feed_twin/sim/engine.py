@@ -92,7 +92,7 @@ class Engine:
         inline_parameters: bool = False,
     ) -> None:
         """`inline_parameters`: compile the plant and controller parameter values into the
-        kernel (about 10 % faster per tick; one kernel per parameter set, about 11 s to compile
+        kernel (about 10 % faster per tick; one kernel per parameter set, about 18 s to compile
         and then cached on disk); `p` and `cp` are then fixed for the engine's life, and a
         batch run, whose sets differ, uses the kernel that reads them."""
         if not base_period_s > 0.0:
