@@ -83,3 +83,19 @@ def test_literals_read_back_to_the_same_bits():
         assert np.array(back).tobytes() == np.array(v).tobytes() or (
             math.isnan(v) and math.isnan(back)
         )
+
+
+def test_parameter_vectors_of_the_wrong_length_are_refused(engines):
+    tunable, _ = engines
+    n = len(tunable.model.param_names)
+    with pytest.raises(ValueError, match=rf"^p: shape \({n - 1},\) given, expected \({n},\)$"):
+        tunable.p = tunable.p[:-1]
+    with pytest.raises(ValueError, match=r"^cp: shape \(3,\) given, expected"):
+        tunable.cp = np.zeros(3)
+    axis = load_axis_config(AXIS)
+    with pytest.raises(ValueError, match=rf"^params: shape \(2,\) given, expected \({n},\)$"):
+        build_engine(axis, params=np.zeros(2))
+    open_loop = build_engine(axis, closed_loop=False)
+    with pytest.raises(ValueError, match="open loop, it has no controller parameters"):
+        open_loop.cp = np.zeros(3)
+    tunable.p = tunable.p.copy()  # the right length is taken

@@ -178,7 +178,7 @@ class Generator(Emitter):
         """The lines that set angle i's <prefix>cos and <prefix>sin in one generated function."""
         expr, prefix = self.angles[i]
         theta, pair = f"{prefix}theta", f"{prefix}cos, {prefix}sin"
-        if function == "sense":  # the loop's trig is of the same state
+        if function in ("sense", "rhs_tuple_start"):  # the loop's trig is of the same state
             return [f"{pair} = trig[{3 * i + 1}], trig[{3 * i + 2}]"]
         if function == "rhs_tuple":  # an RK4 stage: the tick's pair, rotated
             ref = ", ".join(f"trig[{3 * i + k}]" for k in range(3))
@@ -410,7 +410,8 @@ class Generator(Emitter):
                 funcs += self._rhs_tuple(self._reexpand(lines, "rhs_tuple"), "rhs_tuple")
                 # the first stage of a tick's first step is at the state `angles` saw: no rotation,
                 # and LLVM finds the phase currents and their signs `sense` computed from it
-                funcs += self._rhs_tuple(self._reexpand(lines, "sense"), "rhs_tuple_start")
+                start = self._reexpand(lines, "rhs_tuple_start")
+                funcs += self._rhs_tuple(start, "rhs_tuple_start")
         funcs += self._angles()
         funcs += self._draw_noise()
         return (

@@ -66,6 +66,15 @@ class SimResult:
         )
 
 
+def _vector(name: str, value: np.ndarray, owner) -> np.ndarray:
+    """A parameter vector as the kernel reads it: float64, one value per slot of `owner` (the
+    PlantModel's `param_names`, or the compiled controller's)."""
+    a = np.array(value, dtype=float)
+    if a.shape != (len(owner.param_names),):
+        raise ValueError(f"{name}: shape {a.shape} given, expected ({len(owner.param_names)},)")
+    return a
+
+
 def _as_2d(array: np.ndarray, n: int, width: int, what: str) -> np.ndarray:
     a = np.ascontiguousarray(array, dtype=np.float64)
     if a.ndim == 1 and width == 1:
@@ -117,10 +126,7 @@ class Engine:
                 f"{controller.base_period_s!r}"
             )
         self.inline_parameters = bool(inline_parameters)
-        p = model.nominal_params() if params is None else np.array(params, dtype=float)
-        if p.shape != (len(model.param_names),):
-            raise ValueError(f"params: shape {p.shape} given, expected ({len(model.param_names)},)")
-        self._p = p
+        self._p = _vector("params", model.nominal_params() if params is None else params, model)
         check_step(model, self.p, self.h, self.nsub)
         if model.switching_inverter is not None:
             f_pwm = self.p[model.param_index[f"{model.switching_inverter}.f_pwm"]]
@@ -166,7 +172,7 @@ class Engine:
     @p.setter
     def p(self, value: np.ndarray) -> None:
         self._settable("p")
-        self._p = np.array(value, dtype=float)
+        self._p = _vector("p", value, self.model)
 
     @property
     def cp(self) -> np.ndarray:
@@ -176,7 +182,9 @@ class Engine:
     @cp.setter
     def cp(self, value: np.ndarray) -> None:
         self._settable("cp")
-        self._cp = np.array(value, dtype=float)
+        if self.controller is None:
+            raise ValueError("cp: this engine runs open loop, it has no controller parameters")
+        self._cp = _vector("cp", value, self.controller)
 
     def _settable(self, name: str) -> None:
         if self.inline_parameters:
