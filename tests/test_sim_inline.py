@@ -1,5 +1,12 @@
-"""Inlined parameters (engine.inline_parameters): the parameter values compiled into the kernel
-give the same bits as the kernel that reads them, and cannot be changed behind its back."""
+"""Parameter values compiled into the kernel.
+
+- Inlined parameters (engine.inline_parameters): every value compiled in gives the same bits as
+  the kernel that reads them, and cannot be changed behind its back.
+- The controller's structure (layout.STRUCTURE_SLOTS), compiled into the default kernel: the
+  same bits as the kernel that reads every slot; a structure changed in `cp` (assigned or in
+  place) runs on its own kernel; a batch whose sets differ in structure runs each on the right
+  one.
+"""
 
 import dataclasses
 import math
@@ -7,11 +14,12 @@ import math
 import numpy as np
 import pytest
 
+from feed_twin.control import layout as lay
 from feed_twin.control import signals as sig
 from feed_twin.io.config import ConfigError
 from feed_twin.sim.batch import run_batch
 from feed_twin.sim.config import build_engine, load_axis_config
-from feed_twin.sim.kernel import _literal
+from feed_twin.sim.kernel import _literal, kernel_source, load_kernel
 
 AXIS = "config/axis_default.yaml"
 
@@ -99,3 +107,79 @@ def test_parameter_vectors_of_the_wrong_length_are_refused(engines):
     with pytest.raises(ValueError, match="open loop, it has no controller parameters"):
         open_loop.cp = np.zeros(3)
     tunable.p = tunable.p.copy()  # the right length is taken
+
+
+@pytest.fixture(scope="module")
+def axis():
+    return load_axis_config(AXIS)
+
+
+@pytest.fixture(scope="module")
+def without_delay(axis):
+    """The same axis with the computation delay off: another controller structure."""
+    controller = dataclasses.replace(axis.controller, computation_delay=False)
+    return build_engine(dataclasses.replace(axis, controller=controller))
+
+
+def test_the_structure_is_compiled_in_and_nothing_else(axis):
+    engine = build_engine(axis)
+    text = kernel_source(
+        engine.model,
+        closed_loop=True,
+        cp_slots=[float(v) if i in lay.STRUCTURE_SLOTS else None for i, v in enumerate(engine.cp)],
+    )
+    cpt = next(line for line in text.splitlines() if line.strip().startswith("cpt = "))
+    read = [i for i in range(engine.cp.size) if f"cp[{i}]" in cpt]
+    assert read == [i for i in range(engine.cp.size) if i not in lay.STRUCTURE_SLOTS]
+    pt = next(line for line in text.splitlines() if line.strip().startswith("pt = "))
+    assert pt.count("p[") == len(engine.model.param_names)  # the plant's values are all read
+
+
+def test_the_structured_kernel_gives_the_bits_of_the_kernel_that_reads_every_slot(axis):
+    engine = build_engine(axis)
+    n = round(0.05 / engine.h)
+    ref = _ramp(n, engine.h)
+    a = engine.run(n, ref=ref)
+    engine.kernel_for(engine.cp)  # the structured kernel, compiled
+    generic = load_kernel(engine.model, closed_loop=True)  # reads every slot of p and cp
+    assert generic is not engine.kernel
+    engine._kernels[tuple(engine.cp[list(lay.STRUCTURE_SLOTS)].tolist())] = generic
+    b = engine.run(n, ref=ref)
+    assert np.array_equal(a.data, b.data)
+    assert np.max(np.abs(a["table.v"])) > 0.05  # the axis moved: every loop ran
+
+
+def test_a_structure_changed_in_cp_runs_on_its_own_kernel(axis, without_delay):
+    n = round(0.02 / without_delay.h)
+    ref = _ramp(n, without_delay.h)
+    expected = without_delay.run(n, ref=ref)
+    slot = lay.P_COMPUTATION_DELAY
+    assigned = build_engine(axis)
+    delayed = assigned.run(n, ref=ref)
+    kernel = assigned.kernel
+    cp = assigned.cp.copy()
+    cp[slot] = without_delay.cp[slot]
+    assert np.array_equal(cp, without_delay.cp)
+    assigned.cp = cp
+    assert assigned.kernel is not kernel
+    assert np.array_equal(assigned.run(n, ref=ref).data, expected.data)
+    assert not np.array_equal(delayed.data, expected.data)  # the delay shows in the signals
+
+    in_place = build_engine(axis)
+    in_place.cp[slot] = without_delay.cp[slot]  # behind the engine's back
+    assert np.array_equal(in_place.run(n, ref=ref).data, expected.data)
+
+
+def test_a_batch_runs_each_set_on_the_kernel_of_its_structure(axis, without_delay):
+    engine = build_engine(axis, record=["table.s", "out.duty_a"])
+    n = round(0.02 / engine.h)
+    ref = _ramp(n, engine.h)
+    CP = np.array([engine.cp, without_delay.cp, engine.cp])
+    P = np.tile(engine.p, (3, 1))
+    res = run_batch(engine, P, n, ref=ref, controller_params=CP, threads=2)
+    assert not res.diverged.any()
+    for b, cp in enumerate(CP):
+        engine.cp = cp
+        single = engine.run(n, ref=ref)
+        assert np.array_equal(res.data[b], single.data)
+    assert not np.array_equal(res.data[0], res.data[1])

@@ -149,6 +149,28 @@ PARAM_NAMES = (
 ) = range(len(PARAM_NAMES))
 P_FIR_TAPS = len(PARAM_NAMES)  # the FIR taps follow the fixed slots
 
+# The cascade's structure: its mode, which loops exist and at what rates, the feedback source,
+# the interpolation, the FIR's length and the computation delay. The engine compiles these slots
+# into its kernel as constants (one kernel per structure, as a Modelica tool evaluates structural
+# parameters), so the tick has no branch on them; every other slot is read as the loop runs.
+STRUCTURE_NAMES = (
+    "base_period_s",
+    "mode",
+    "computation_delay",
+    "nc_div",
+    "nc_div_inv",
+    "has_position",
+    "pos_div",
+    "feedback_scale",
+    "interpolation",
+    "has_velocity",
+    "vel_div",
+    "fir_n",
+    "has_current",
+    "cur_div",
+)
+STRUCTURE_SLOTS = tuple(PARAM_NAMES.index(n) for n in STRUCTURE_NAMES)
+
 STATE_NAMES = (
     "initialised",
     "enable_cmd",

@@ -14,6 +14,8 @@ Periodic lead error: the screw's thread deviates from the ideal helix by
 e(s_a) = A*sin(2*pi*s_a/P + phase) (P = the lead for the once-per-revolution error of the
 accuracy classes, s_a = r*phi the ideal nut travel), so the spring sees delta = s_a + e(s_a) - s_b,
 and the screw side receives -f*(1 + e'(s_a)) (virtual work: still conservative).
+The bearing arrangement is structure, not a parameter: the generated code passes the law a
+constant (`fixed_fixed_flag`), so the compiled loop has no branch on it.
 Ports: `a`, `b` (translational: s [m], v [m/s], f [N]).
 """
 
@@ -27,6 +29,11 @@ from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
+
+
+def fixed_fixed_flag(arrangement: str) -> str:
+    """The `fixed_fixed` argument of `axial_stiffness` for an arrangement, as generated code."""
+    return "1.0" if arrangement == "fixed-fixed" else "0.0"
 
 
 @njit(error_model="numpy", forceinline=True)
@@ -138,7 +145,6 @@ class AxialCompliance(Component):
             "x_min": self.x_min,
             "k_bearing": self.k_bearing,
             "k_nut": self.k_nut,
-            "fixed_fixed": 1.0 if self.arrangement == "fixed-fixed" else 0.0,
             "d": self.d,
             "lead_error_amplitude": self.lead_error_amplitude,
             "lead_error_wavenumber": (
@@ -156,13 +162,16 @@ class AxialCompliance(Component):
             slots["EA"],
             self.k_bearing,
             self.k_nut,
-            slots["fixed_fixed"],
+            float(fixed_fixed_flag(self.arrangement)),
             self.x_min,
         )
         return k
 
     def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
         return {"a": slot("d"), "b": slot("d")}
+
+    def structure(self) -> tuple:
+        return (self.arrangement,)
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage != "dynamics":
@@ -192,7 +201,7 @@ class AxialCompliance(Component):
                 g.p("EA"),
                 g.p("k_bearing"),
                 g.p("k_nut"),
-                g.p("fixed_fixed"),
+                fixed_fixed_flag(self.arrangement),
                 g.p("x_min"),
                 g.p("d"),
             ),

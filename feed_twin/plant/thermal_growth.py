@@ -26,13 +26,13 @@ from typing import Literal
 from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
-from feed_twin.plant.axial_compliance import AxialCompliance
+from feed_twin.plant.axial_compliance import AxialCompliance, fixed_fixed_flag
 from feed_twin.plant.component import Component, Emitter, StateSpec
 
 ALPHA_STEEL = 11.5e-6  # [1/K] linear thermal expansion of screw steel
 TEMPERATURE_LIMIT_K = 500.0  # |dT| above this is a runaway
 # slots of the accompanying compliance that its stiffness k(x) is computed from
-STIFFNESS_SLOTS = ("L", "EA", "x_0", "x_min", "k_bearing", "k_nut", "fixed_fixed")
+STIFFNESS_SLOTS = ("L", "EA", "x_0", "x_min", "k_bearing", "k_nut")
 
 
 @njit(error_model="numpy", forceinline=True)
@@ -93,6 +93,9 @@ class ThermalGrowth(Component):
         own = {"alpha": self.alpha, "heating": self.heating, "tau": self.tau}
         return own | {k: geometry[k] for k in STIFFNESS_SLOTS}
 
+    def structure(self) -> tuple:
+        return (self.arrangement,)
+
     def states(self) -> tuple[StateSpec, ...]:
         return (StateSpec(name="dT", unit="K", limit=TEMPERATURE_LIMIT_K),)
 
@@ -114,7 +117,11 @@ class ThermalGrowth(Component):
             "feed_twin.plant.thermal_growth.elongation",
             (dT, f"{g.p('x_0')} + {s_a}", g.p("alpha")),
         )
-        stiffness_args = (g.p(n) for n in ("L", "EA", "k_bearing", "k_nut", "fixed_fixed", "x_min"))
+        stiffness_args = (
+            *(g.p(n) for n in ("L", "EA", "k_bearing", "k_nut")),
+            fixed_fixed_flag(self.arrangement),
+            g.p("x_min"),
+        )
         g.call(
             (k, dk),
             "feed_twin.plant.axial_compliance.axial_stiffness",

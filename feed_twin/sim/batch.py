@@ -4,8 +4,9 @@
     result["table.s"]                                  # (N, recorded samples)
 
 Every set starts from the engine's initial state (or `x0`) and a fresh controller, shares the
-inputs, and runs in the engine's compiled loop (the kernel that reads its parameters, also for an
-engine that inlines them) on one thread per usable core; the kernel releases the GIL. Sets whose
+inputs, and runs in the compiled loop that reads its parameters (`Engine.kernel_for` its
+controller structure, also for an engine that inlines its own values) on one thread per usable
+core; the kernel releases the GIL. Sets whose
 regularised friction is too sharp for the step are refused before anything runs (`check_steps`,
 the same verdicts and messages as `check_step` set by set); a set that diverges is marked and the
 others run on.
@@ -16,10 +17,13 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from types import ModuleType
+from typing import NamedTuple
 
 import numpy as np
 
 from feed_twin.control import signals
+from feed_twin.control.layout import STRUCTURE_SLOTS
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.sim.engine import (
     RK4_STABILITY_MARGIN,
@@ -112,6 +116,64 @@ class BatchResult:
             ) from None
 
 
+class _Sets(NamedTuple):
+    """The per-set arrays of a batch (one row per set)."""
+
+    X: np.ndarray
+    P: np.ndarray
+    CP: np.ndarray
+    CS: np.ndarray
+    seeds: np.ndarray
+    rings: np.ndarray
+    outs: np.ndarray
+    rec: np.ndarray
+    status: np.ndarray
+    works: np.ndarray
+
+    def take(self, rows: np.ndarray) -> _Sets:
+        return _Sets(*(a[rows] for a in self))  # copies (fancy indexing)
+
+
+def _structures(engine: Engine, CP: np.ndarray) -> list[np.ndarray]:
+    """The rows of each controller structure among the sets (usually one group of all):
+    each runs on the kernel compiled for it (`Engine.kernel_for`)."""
+    if engine.controller is None:
+        return [np.arange(len(CP))]
+    keys = CP[:, list(STRUCTURE_SLOTS)]
+    _, which = np.unique(keys, axis=0, return_inverse=True)
+    which = which.ravel()
+    return [np.flatnonzero(which == g) for g in range(which.max(initial=-1) + 1)]
+
+
+def _advance_blocks(
+    kernel: ModuleType,
+    engine: Engine,
+    n_ticks: int,
+    inputs: tuple[np.ndarray, np.ndarray, np.ndarray],
+    sets: _Sets,
+    n_threads: int,
+) -> None:
+    """Advance the sets from tick 0 on `kernel`, a contiguous block of sets per thread."""
+    X, P, CP, CS, seeds, rings, outs, rec, status, works = sets
+    ref, drive, ext = inputs
+    # each thread a contiguous block of sets: dealt out in turn, the sets running at once would
+    # have neighbouring rows in X, CS, outs and works, which are written every tick, and share
+    # the cache lines at their boundaries
+    bounds = np.linspace(0, len(X), min(n_threads, len(X)) + 1).round().astype(int)
+
+    def run_block(i: int) -> None:
+        b = slice(bounds[i], bounds[i + 1])
+        kernel.advance_sets(
+            0, 1, X[b], P[b], CP[b], CS[b], n_ticks, ref, drive, ext, seeds[b], rings[b],
+            outs[b], engine.h, engine.nsub, engine.dec, engine.sel, rec[b],
+            engine.model.state_limits, status[b], works[b],
+        )  # fmt: skip
+
+    # the kernel releases the GIL: one Python thread per core runs sets side by side
+    with ThreadPoolExecutor(max_workers=len(bounds) - 1) as pool:
+        list(pool.map(run_block, range(len(bounds) - 1)))
+
+
 def run_batch(
     engine: Engine,
     params: np.ndarray,
@@ -161,25 +223,15 @@ def run_batch(
     drive2 = engine._input(drive, n_ticks, signals.OUT_SIZE, "drive")
     ext2 = engine._input(ext, n_ticks, engine.n_ext, "ext")
     works = np.zeros((N, engine.work.size))
-    kernel = engine.tunable_kernel  # the sets' parameters differ: they are read, not inlined
     n_threads = max(1, min(threads or default_threads(), N))
-
-    # each thread a contiguous block of sets: dealt out in turn, the sets running at once would
-    # have neighbouring rows in X, CS, outs and works, which are written every tick, and share
-    # the cache lines at their boundaries
-    bounds = np.linspace(0, N, n_threads + 1).round().astype(int)
-
-    def run_block(i: int) -> None:
-        b = slice(bounds[i], bounds[i + 1])
-        kernel.advance_sets(
-            0, 1, X[b], P[b], CP[b], CS[b], n_ticks, ref2, drive2, ext2, seeds_arr[b], rings[b],
-            outs[b], engine.h, engine.nsub, engine.dec, engine.sel, rec[b],
-            engine.model.state_limits, status[b], works[b],
-        )  # fmt: skip
-
-    # the kernel releases the GIL: one Python thread per core runs sets side by side
-    with ThreadPoolExecutor(max_workers=n_threads) as pool:
-        list(pool.map(run_block, range(n_threads)))
+    sets = _Sets(X, P, CP, CS, seeds_arr, rings, outs, rec, status, works)
+    for rows in _structures(engine, CP):
+        whole = len(rows) == N
+        group = sets if whole else sets.take(rows)
+        kernel = engine.kernel_for(CP[rows[0]])
+        _advance_blocks(kernel, engine, n_ticks, (ref2, drive2, ext2), group, n_threads)
+        if not whole:
+            rec[rows], status[rows] = group.rec, group.status
     diverged = status[:, 0] != 0.0
     messages = []
     for b in range(N):

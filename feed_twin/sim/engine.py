@@ -26,6 +26,7 @@ from types import ModuleType
 import numpy as np
 
 from feed_twin.control import signals
+from feed_twin.control.layout import STRUCTURE_SLOTS
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.sim.kernel import RING, load_kernel
 
@@ -103,7 +104,8 @@ class Engine:
         """`inline_parameters`: compile the plant and controller parameter values into the
         kernel (about 10 % faster per tick; one kernel per parameter set, about 18 s to compile
         and then cached on disk); `p` and `cp` are then fixed for the engine's life, and a
-        batch run, whose sets differ, uses the kernel that reads them."""
+        batch run, whose sets differ, uses the kernel that reads them. Without it the kernel
+        reads them, all but the controller's structure (see `kernel_for`)."""
         if not base_period_s > 0.0:
             raise ValueError(f"base_period_s = {base_period_s!r}: must be > 0")
         if substeps < 1:
@@ -138,12 +140,17 @@ class Engine:
                 )
         cp = np.array(controller.params, dtype=float) if controller is not None else np.zeros(1)
         self._cp = cp
-        inline = None
+        self._kernels: dict[tuple[float, ...], ModuleType] = {}  # by controller structure
+        self._inlined: ModuleType | None = None
         if self.inline_parameters:
             self._p.flags.writeable = False  # the kernel has the values, not the array
             self._cp.flags.writeable = False
-            inline = (self._p, self._cp if controller is not None else None)
-        self.kernel = load_kernel(model, closed_loop=controller is not None, inline=inline)
+            self._inlined = load_kernel(
+                model,
+                closed_loop=controller is not None,
+                p_slots=self._p.tolist(),
+                cp_slots=self._cp.tolist() if controller is not None else None,
+            )
         ctrl_names = tuple(controller.state_names) if controller is not None else ()
         self.all_names = (
             model.state_names
@@ -194,11 +201,35 @@ class Engine:
             )
 
     @property
-    def tunable_kernel(self) -> ModuleType:
-        """The kernel that reads `p` and `cp` (the engine's own unless it inlines them)."""
-        if not self.inline_parameters:
-            return self.kernel
-        return load_kernel(self.model, closed_loop=self.controller is not None)
+    def kernel(self) -> ModuleType:
+        """The compiled loop `advance` runs: the one with this engine's parameter values inlined,
+        or else `kernel_for(cp)`."""
+        if self._inlined is not None:
+            return self._inlined
+        return self.kernel_for(self._cp)
+
+    def kernel_for(self, cp: np.ndarray) -> ModuleType:
+        """The kernel that reads `p` and `cp`, compiled for the controller structure of `cp`
+        (the slots feed_twin.control.layout.STRUCTURE_SLOTS: mode, loops, rates, ...).
+
+        Looked up at every `advance`, so a structure changed in `cp`, even in place, runs on its
+        own kernel; a new structure compiles once (about 16 s for axis_default, then cached on
+        disk)."""
+        if self.controller is None:
+            key: tuple[float, ...] = ()
+        else:
+            key = tuple(cp[list(STRUCTURE_SLOTS)].tolist())
+        kernel = self._kernels.get(key)
+        if kernel is None:
+            cp_slots = None
+            if self.controller is not None:
+                fixed = dict(zip(STRUCTURE_SLOTS, key, strict=True))
+                cp_slots = [fixed.get(i) for i in range(len(cp))]
+            kernel = load_kernel(
+                self.model, closed_loop=self.controller is not None, cp_slots=cp_slots
+            )
+            self._kernels[key] = kernel
+        return kernel
 
     def reset(
         self,

@@ -28,10 +28,9 @@ import importlib.util
 import math
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
-
-import numpy as np
 
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.codegen import const_name
@@ -274,20 +273,34 @@ def cache_dir() -> Path:
     return path
 
 
+Slots = Sequence[float | None]  # per parameter slot: a value compiled in, or None (read)
+
+
+def _slot_tuple(vector: str, slots: Slots | None, size: int) -> str:
+    """The loop's tuple of a parameter vector's values: literals where `slots` fixes them."""
+    fixed = [None] * size if slots is None else list(slots)
+    return _tuple(f"{vector}[{i}]" if v is None else _literal(v) for i, v in enumerate(fixed))
+
+
 def kernel_source(
     model: PlantModel,
     *,
     closed_loop: bool,
-    inline: tuple[np.ndarray, np.ndarray | None] | None = None,
+    p_slots: Slots | None = None,
+    cp_slots: Slots | None = None,
 ) -> str:
     """The full module text: plant functions, loop and batch loop.
 
-    `inline`: the plant and controller parameter values (p, cp) to compile into the loop as
-    literals (Engine's inline_parameters): LLVM then folds what they decide (flags, zero terms,
-    unit gains, the controller's mode and loop rates) and inlines the controller's tick, about
-    10 % per tick on axis_default (docs/architecture.md, "Engine performance"). The `p` and
-    `cp` arguments are then not read. Without it the loop reads them, and one kernel serves
-    every parameter set of a structure.
+    `p_slots`, `cp_slots`: one entry per slot of the plant's and the controller's parameter
+    vector, a value to compile into the loop as an exact literal or None for a slot the loop
+    reads from `p` or `cp` (at each call of `advance`). LLVM folds what the literals decide.
+    - The engine's default kernel fixes the controller's structure (feed_twin.control.layout
+      STRUCTURE_SLOTS: mode, loops, rates, ...), so one kernel serves every parameter set of a
+      plant and cascade structure: 2-4 % per tick on axis_default against reading every slot.
+    - With engine.inline_parameters every slot is fixed: about 10 % per tick
+      (docs/architecture.md, "Engine performance"), one kernel per parameter set.
+    With `cp_slots` the controller's tick is inlined into the loop; without (None) the loop
+    passes `cp` to the tick compiled on its own.
     """
     switching = model.switching_inverter
     n_x = len(model.state_names)
@@ -297,12 +310,8 @@ def kernel_source(
         noise_block=NOISE_BLOCK,
         switching=bool(switching),
         t_dead_slot=t_dead_slot,
-        ptuple=(
-            _tuple(f"p[{i}]" for i in range(len(model.param_names)))
-            if inline is None
-            else _tuple(_literal(v) for v in inline[0])
-        ),
-        cptuple="cp" if inline is None or inline[1] is None else _tuple(map(_literal, inline[1])),
+        ptuple=_slot_tuple("p", p_slots, len(model.param_names)),
+        cptuple="cp" if cp_slots is None else _slot_tuple("cp", cp_slots, len(cp_slots)),
         xtuple=_tuple(f"x[{i}]" for i in range(n_x)),
         # the stage sums as fused multiply-adds (feed_twin.plant.fma): one rounding, CPU-independent
         stage_k1=_tuple(f"fma(0.5 * hs, k1[{i}], x[{i}])" for i in range(n_x)),
@@ -315,8 +324,8 @@ def kernel_source(
         controller=_CLOSED if closed_loop else _OPEN,
     )
     head = "from feed_twin.control.signals import OUT_DUTY_A\nfrom feed_twin.plant.fma import fma\n"
-    if closed_loop and inline is not None:
-        # a tick whose parameters are constants belongs inside the loop: LLVM folds them there
+    if closed_loop and cp_slots is not None:
+        # a tick with constants belongs inside the loop: LLVM folds them there
         head += (
             "from feed_twin.control.cascade import cascade_tick as _cascade_tick\n"
             "cascade_tick = njit(forceinline=True, _nrt=False, error_model='numpy')"
@@ -349,11 +358,12 @@ def load_kernel(
     model: PlantModel,
     *,
     closed_loop: bool,
-    inline: tuple[np.ndarray, np.ndarray | None] | None = None,
+    p_slots: Slots | None = None,
+    cp_slots: Slots | None = None,
 ) -> ModuleType:
-    """Import (writing it first if new) the compiled-loop module for this plant structure (and,
-    with `inline`, these parameter values: see `kernel_source`)."""
-    text = kernel_source(model, closed_loop=closed_loop, inline=inline)
+    """Import (writing it first if new) the compiled-loop module for this plant structure and
+    these compiled-in parameter values (see `kernel_source`)."""
+    text = kernel_source(model, closed_loop=closed_loop, p_slots=p_slots, cp_slots=cp_slots)
     digest = hashlib.sha256((text + _callee_digest()).encode()).hexdigest()[:20]
     if digest in _LOADED:
         return _LOADED[digest]
