@@ -89,6 +89,9 @@ def check_steps(model: PlantModel, P: np.ndarray, h: float, nsub: int) -> list[s
     return messages
 
 
+BLOCKS_PER_THREAD = 16  # blocks of sets a batch thread takes from the queue, on average
+
+
 def default_threads() -> int:
     """Threads of the batch mode: the cores this process may use."""
     try:
@@ -153,25 +156,28 @@ def _advance_blocks(
     sets: _Sets,
     n_threads: int,
 ) -> None:
-    """Advance the sets from tick 0 on `kernel`, a contiguous block of sets per thread."""
+    """Advance the sets from tick 0 on `kernel`: `n_threads` threads take contiguous blocks of
+    sets from a queue, BLOCKS_PER_THREAD blocks per thread."""
     X, P, CP, CS, seeds, rings, outs, rec, status, works = sets
     ref, drive, ext = inputs
-    # each thread a contiguous block of sets: dealt out in turn, the sets running at once would
-    # have neighbouring rows in X, CS, outs and works, which are written every tick, and share
-    # the cache lines at their boundaries
-    bounds = np.linspace(0, len(X), min(n_threads, len(X)) + 1).round().astype(int)
+    # Blocks of neighbouring sets: sets running at once on two threads would otherwise have
+    # neighbouring rows in X, CS, outs and works, written every tick, and share the cache lines
+    # at their boundaries. Several blocks per thread, taken in turn as threads get free: a fixed
+    # half each left one core idle for as long as the host had slowed the other.
+    n_blocks = min(n_threads * BLOCKS_PER_THREAD, len(X))
+    bounds = np.linspace(0, len(X), n_blocks + 1).round().astype(int)
 
     def run_block(i: int) -> None:
         b = slice(bounds[i], bounds[i + 1])
         kernel.advance_sets(
             0, 1, X[b], P[b], CP[b], CS[b], n_ticks, ref, drive, ext, seeds[b], rings[b],
-            outs[b], engine.h, engine.nsub, engine.dec, engine.sel, rec[b],
+            outs[b], engine.h, engine.dec, engine.sel, rec[b],
             engine.model.state_limits, status[b], works[b],
         )  # fmt: skip
 
     # the kernel releases the GIL: one Python thread per core runs sets side by side
-    with ThreadPoolExecutor(max_workers=len(bounds) - 1) as pool:
-        list(pool.map(run_block, range(len(bounds) - 1)))
+    with ThreadPoolExecutor(max_workers=n_threads) as pool:
+        list(pool.map(run_block, range(n_blocks)))
 
 
 def run_batch(
