@@ -148,6 +148,7 @@ class Engine:
             self._inlined = load_kernel(
                 model,
                 closed_loop=controller is not None,
+                substeps=self.nsub,
                 p_slots=self._p.tolist(),
                 cp_slots=self._cp.tolist() if controller is not None else None,
             )
@@ -226,7 +227,10 @@ class Engine:
                 fixed = dict(zip(STRUCTURE_SLOTS, key, strict=True))
                 cp_slots = [fixed.get(i) for i in range(len(cp))]
             kernel = load_kernel(
-                self.model, closed_loop=self.controller is not None, cp_slots=cp_slots
+                self.model,
+                closed_loop=self.controller is not None,
+                substeps=self.nsub,
+                cp_slots=cp_slots,
             )
             self._kernels[key] = kernel
         return kernel
@@ -279,7 +283,6 @@ class Engine:
             self.ring,
             self.out,
             self.h,
-            self.nsub,
             self.dec,
             self.sel,
             rec,

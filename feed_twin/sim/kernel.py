@@ -11,7 +11,7 @@ and returns the module. Per base tick k (period h) the loop
   2. runs the controller, `cascade_tick(cp, cs, k, ref[k], meas, out)`, or copies the prescribed
      open-loop row `drive[k]` into `out`;
   3. records the selected signals when k is a multiple of the decimation;
-  4. integrates the plant over [k h, (k+1) h] with `out` held: `nsub` classical RK4 steps, or,
+  4. integrates the plant over [k h, (k+1) h] with `out` held: SUBSTEPS classical RK4 steps, or,
      with a switching inverter, RK4 piecewise between the edges of centre-aligned PWM (PWM period
      = h) with dead-time intervals in which both switches of a leg are off;
   5. stops with a status (tick, state index) if a state is NaN, infinite or beyond its limit.
@@ -42,7 +42,7 @@ _LOOP = '''
 
 RING = {ring}
 NOISE_BLOCK = {noise_block}
-SWITCHING = {switching}
+SUBSTEPS = {substeps}  # RK4 steps per tick (engine.substeps)
 FASTMATH = False  # exact IEEE arithmetic: results must not depend on the CPU's FMA
 
 
@@ -71,74 +71,7 @@ def rk4_step(t, hs, x, p, out, ext, sw, trig, at_trig):
     return {combine}
 
 
-@njit(cache=True, error_model="numpy", fastmath=FASTMATH)
-def leg_state(tau, duty, t_dead, period):
-    """Switch state of a centre-aligned PWM leg at tau in [0, period): 1, 0 or -1 (both off)."""
-    if duty >= 1.0:
-        return 1.0
-    if duty <= 0.0:
-        return 0.0
-    t_on = 0.5 * (1.0 - duty) * period
-    t_off = 0.5 * (1.0 + duty) * period
-    if tau < t_on:
-        return 0.0
-    if tau < t_on + t_dead:
-        return -1.0
-    if tau < t_off:
-        return 1.0
-    if tau < t_off + t_dead:
-        return -1.0
-    return 0.0
-
-
-@njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
-def integrate_tick(t0, h, nsub, x, p, out, ext, sw, edges, trig):
-    if not SWITCHING or out[OUT_ENABLED] < 0.5:
-        if nsub == 1:
-            # the usual case, without the loop: LLVM then schedules the step with the tick
-            return rk4_step(t0, h, x, p, out, ext, sw, trig, True)
-        hs = h / nsub
-        for i in range(nsub):
-            x = rk4_step(t0 + i * hs, hs, x, p, out, ext, sw, trig, i == 0)
-        return x
-    hs = h / nsub
-    t_dead = p[{t_dead_slot}]
-    n = 0
-    edges[n] = 0.0
-    n += 1
-    edges[n] = h
-    n += 1
-    for leg in range(3):
-        duty = out[OUT_DUTY_A + leg]
-        if 0.0 < duty < 1.0:
-            t_on = 0.5 * (1.0 - duty) * h
-            t_off = 0.5 * (1.0 + duty) * h
-            for e in (t_on, t_on + t_dead, t_off, t_off + t_dead):
-                if 0.0 < e < h:
-                    edges[n] = e
-                    n += 1
-    # insertion sort: at most 14 edges
-    for i in range(1, n):
-        v = edges[i]
-        j = i - 1
-        while j >= 0 and edges[j] > v:
-            edges[j + 1] = edges[j]
-            j -= 1
-        edges[j + 1] = v
-    for i in range(n - 1):
-        a = edges[i]
-        b = edges[i + 1]
-        if b - a <= 1e-12 * h:
-            continue
-        mid = 0.5 * (a + b)
-        for leg in range(3):
-            sw[leg] = leg_state(mid, out[OUT_DUTY_A + leg], t_dead, h)
-        m = int(math.ceil((b - a) / hs - 1e-9))
-        step = (b - a) / m
-        for s in range(m):
-            x = rk4_step(t0 + a + s * step, step, x, p, out, ext, sw, trig, False)
-    return x
-
+{integrate_tick}
 
 def work_size(n_cs):
     """Length of the scratch vector `advance` needs (it allocates nothing itself)."""
@@ -149,7 +82,7 @@ def work_size(n_cs):
 
 
 @njit(cache=True, _nrt=False, nogil=True, error_model="numpy", fastmath=FASTMATH)
-def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec, sel, rec,
+def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, dec, sel, rec,
             xlim, status, work):
     """Advance n ticks from tick k0; returns the number of ticks done (< n on divergence).
 
@@ -220,7 +153,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
         phase += 1
         if phase == dec:
             phase = 0
-        xs = integrate_tick(t, h, nsub, xs, pt, out, ext[j], sw, edges, trig)
+        xs = integrate_tick(t, h, xs, pt, out, ext[j], sw, edges, trig)
 {store_x}
         for i in range(N_X):
             if not abs(x[i]) <= xlim[i]:
@@ -233,8 +166,8 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, nsub, dec,
 
 
 @njit(cache=True, _nrt=False, nogil=True, error_model="numpy", fastmath=FASTMATH)
-def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, rings, outs, h, nsub,
-                 dec, sel, rec, xlim, status, works):
+def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, rings, outs, h, dec,
+                 sel, rec, xlim, status, works):
     """`advance` from tick 0 for the sets first, first + stride, ... of the batch arrays.
 
     One call per thread: a Python-level call per set cost about 0.1 ms of dispatch, as much as
@@ -243,9 +176,92 @@ def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, rings, 
     for b in range(first, X.shape[0], stride):
         if status[b, 0] == 0.0:
             advance(X[b], P[b], CP[b], CS[b], 0, n, ref, drive, ext, seeds[b], rings[b], outs[b],
-                    h, nsub, dec, sel, rec[b], xlim, status[b], works[b])
+                    h, dec, sel, rec[b], xlim, status[b], works[b])
     return 0
 '''
+
+# Integration over one tick with the controller output held. The first RK4 step starts from the
+# tick's Park pair (`at_trig`); with one sub-step, the usual case, it is the whole tick and no
+# loop surrounds it, so LLVM schedules it with the rest of the tick. Only a switching inverter's
+# kernel gets the piecewise integration between PWM edges: each further inlined copy of the RK4
+# step costs every kernel compile time.
+_AVERAGED_TICK = """
+@njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
+def integrate_tick(t0, h, x, p, out, ext, sw, edges, trig):
+    hs = h / SUBSTEPS
+    x = rk4_step(t0, hs, x, p, out, ext, sw, trig, True)
+{more_steps}    return x
+"""
+_MORE_STEPS = """    for i in range(1, SUBSTEPS):
+        x = rk4_step(t0 + i * hs, hs, x, p, out, ext, sw, trig, False)
+"""
+
+_SWITCHING_TICK = """
+@njit(cache=True, error_model="numpy", fastmath=FASTMATH)
+def leg_state(tau, duty, t_dead, period):
+    # switch state of a centre-aligned PWM leg at tau in [0, period): 1, 0 or -1 (both off)
+    if duty >= 1.0:
+        return 1.0
+    if duty <= 0.0:
+        return 0.0
+    t_on = 0.5 * (1.0 - duty) * period
+    t_off = 0.5 * (1.0 + duty) * period
+    if tau < t_on:
+        return 0.0
+    if tau < t_on + t_dead:
+        return -1.0
+    if tau < t_off:
+        return 1.0
+    if tau < t_off + t_dead:
+        return -1.0
+    return 0.0
+
+
+@njit(cache=True, inline="always", error_model="numpy", fastmath=FASTMATH)
+def integrate_tick(t0, h, x, p, out, ext, sw, edges, trig):
+    hs = h / SUBSTEPS
+    if out[OUT_ENABLED] < 0.5:  # power stage off: no switching, as the averaged kernel
+        x = rk4_step(t0, hs, x, p, out, ext, sw, trig, True)
+        for i in range(1, SUBSTEPS):
+            x = rk4_step(t0 + i * hs, hs, x, p, out, ext, sw, trig, False)
+        return x
+    t_dead = p[{t_dead_slot}]
+    n = 0
+    edges[n] = 0.0
+    n += 1
+    edges[n] = h
+    n += 1
+    for leg in range(3):
+        duty = out[OUT_DUTY_A + leg]
+        if 0.0 < duty < 1.0:
+            t_on = 0.5 * (1.0 - duty) * h
+            t_off = 0.5 * (1.0 + duty) * h
+            for e in (t_on, t_on + t_dead, t_off, t_off + t_dead):
+                if 0.0 < e < h:
+                    edges[n] = e
+                    n += 1
+    # insertion sort: at most 14 edges
+    for i in range(1, n):
+        v = edges[i]
+        j = i - 1
+        while j >= 0 and edges[j] > v:
+            edges[j + 1] = edges[j]
+            j -= 1
+        edges[j + 1] = v
+    for i in range(n - 1):
+        a = edges[i]
+        b = edges[i + 1]
+        if b - a <= 1e-12 * h:
+            continue
+        mid = 0.5 * (a + b)
+        for leg in range(3):
+            sw[leg] = leg_state(mid, out[OUT_DUTY_A + leg], t_dead, h)
+        m = int(math.ceil((b - a) / hs - 1e-9))
+        step = (b - a) / m
+        for s in range(m):
+            x = rk4_step(t0 + a + s * step, step, x, p, out, ext, sw, trig, False)
+    return x
+"""
 
 _CLOSED = """        cascade_tick(cpt, cs, k, ref[j], meas, out)"""
 _OPEN = """        for i in range(OUT_SIZE):
@@ -282,14 +298,23 @@ def _slot_tuple(vector: str, slots: Slots | None, size: int) -> str:
     return _tuple(f"{vector}[{i}]" if v is None else _literal(v) for i, v in enumerate(fixed))
 
 
+def _substeps(substeps: int) -> int:
+    if int(substeps) != substeps or substeps < 1:
+        raise ValueError(f"substeps = {substeps!r}: must be an integer >= 1")
+    return int(substeps)
+
+
 def kernel_source(
     model: PlantModel,
     *,
     closed_loop: bool,
+    substeps: int = 1,
     p_slots: Slots | None = None,
     cp_slots: Slots | None = None,
 ) -> str:
-    """The full module text: plant functions, loop and batch loop.
+    """The full module text: plant functions, loop and batch loop, for `substeps` RK4 steps per
+    tick (a constant: with one, the usual case, the kernel holds no sub-step loop, whose inlined
+    copy of the step cost a third of the compile time).
 
     `p_slots`, `cp_slots`: one entry per slot of the plant's and the controller's parameter
     vector, a value to compile into the loop as an exact literal or None for a slot the loop
@@ -304,12 +329,15 @@ def kernel_source(
     """
     switching = model.switching_inverter
     n_x = len(model.state_names)
-    t_dead_slot = const_name("P_", f"{switching}.t_dead") if switching else "0"
     loop = _LOOP.format(
         ring=RING,
         noise_block=NOISE_BLOCK,
-        switching=bool(switching),
-        t_dead_slot=t_dead_slot,
+        substeps=_substeps(substeps),
+        integrate_tick=(
+            _SWITCHING_TICK.format(t_dead_slot=const_name("P_", f"{switching}.t_dead"))
+            if switching
+            else _AVERAGED_TICK.format(more_steps=_MORE_STEPS if substeps > 1 else "")
+        ),
         ptuple=_slot_tuple("p", p_slots, len(model.param_names)),
         cptuple="cp" if cp_slots is None else _slot_tuple("cp", cp_slots, len(cp_slots)),
         xtuple=_tuple(f"x[{i}]" for i in range(n_x)),
@@ -358,12 +386,15 @@ def load_kernel(
     model: PlantModel,
     *,
     closed_loop: bool,
+    substeps: int = 1,
     p_slots: Slots | None = None,
     cp_slots: Slots | None = None,
 ) -> ModuleType:
-    """Import (writing it first if new) the compiled-loop module for this plant structure and
-    these compiled-in parameter values (see `kernel_source`)."""
-    text = kernel_source(model, closed_loop=closed_loop, p_slots=p_slots, cp_slots=cp_slots)
+    """Import (writing it first if new) the compiled-loop module for this plant structure, this
+    number of RK4 steps per tick and these compiled-in parameter values (see `kernel_source`)."""
+    text = kernel_source(
+        model, closed_loop=closed_loop, substeps=substeps, p_slots=p_slots, cp_slots=cp_slots
+    )
     digest = hashlib.sha256((text + _callee_digest()).encode()).hexdigest()[:20]
     if digest in _LOADED:
         return _LOADED[digest]
