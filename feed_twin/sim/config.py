@@ -36,7 +36,7 @@ class EngineConfig:
     output_period_s: float  # recording period [s], an integer multiple of the base period
     seed: int  # seed of the sensor noise
     # compile the parameter values into the kernel: about 10 % faster per tick, one kernel
-    # (about 18 s, then cached) per parameter set, which is then fixed (Engine)
+    # (about 12 s, then cached) per parameter set, which is then fixed (Engine)
     inline_parameters: bool = False
 
     def __post_init__(self) -> None:

@@ -102,7 +102,7 @@ class Engine:
         inline_parameters: bool = False,
     ) -> None:
         """`inline_parameters`: compile the plant and controller parameter values into the
-        kernel (about 10 % faster per tick; one kernel per parameter set, about 18 s to compile
+        kernel (about 10 % faster per tick; one kernel per parameter set, about 12 s to compile
         and then cached on disk); `p` and `cp` are then fixed for the engine's life, and a
         batch run, whose sets differ, uses the kernel that reads them. Without it the kernel
         reads them, all but the controller's structure (see `kernel_for`)."""
@@ -214,7 +214,7 @@ class Engine:
         (the slots feed_twin.control.layout.STRUCTURE_SLOTS: mode, loops, rates, ...).
 
         Looked up at every `advance`, so a structure changed in `cp`, even in place, runs on its
-        own kernel; a new structure compiles once (about 16 s for axis_default, then cached on
+        own kernel; a new structure compiles once (about 12 s for axis_default, then cached on
         disk)."""
         if self.controller is None:
             key: tuple[float, ...] = ()
