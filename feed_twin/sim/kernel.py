@@ -16,7 +16,7 @@ and returns the module. Per base tick k (period h) the loop
      = h) with dead-time intervals in which both switches of a leg are off;
   5. stops with a status (tick, state index) if a state is NaN, infinite or beyond its limit.
 `advance` releases the GIL, so the engine's batch mode runs parameter sets on several threads,
-each calling `advance_sets` once for its block of sets (a numba prange over sets measured 2-3x
+calling `advance_sets` once per block of sets it takes (a numba prange over sets measured 2-3x
 slower per set than the plain call, even on one thread); sets are independent, so a diverged set
 only flags its own status.
 """
