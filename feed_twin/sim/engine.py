@@ -30,6 +30,7 @@ from feed_twin.control.layout import STRUCTURE_SLOTS
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.sim.kernel import RING, load_kernel
 
+_STRUCTURE_INDEX = np.array(STRUCTURE_SLOTS)  # cp's structural slots, as a fancy index
 RK4_STABILITY_MARGIN = 2.5  # explicit RK4 is stable for h*|lambda| < 2.78 on the real axis
 
 
@@ -219,7 +220,7 @@ class Engine:
         if self.controller is None:
             key: tuple[float, ...] = ()
         else:
-            key = tuple(cp[list(STRUCTURE_SLOTS)].tolist())
+            key = tuple(cp[_STRUCTURE_INDEX].tolist())
         kernel = self._kernels.get(key)
         if kernel is None:
             cp_slots = None
