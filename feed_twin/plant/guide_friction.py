@@ -8,6 +8,12 @@ with sgn the smooth sign function of feed_twin.plant.smooth (a C2 quintic, exact
 so positive and negative motion can have their own Coulomb and viscous values (worn screws and
 the EMPS bench are asymmetric) while F stays smooth. dF_s is the Stribeck excess of the breakaway
 force over the Coulomb level, v_s its velocity scale.
+Where the Stribeck term cannot change a bit it is not evaluated: for (v/v_s)^2 > CUT_X = 41
+and dF_s < CUT_RATIO * min(F_c_pos, F_c_neg) = 16 min(...), dF_s exp(-(v/v_s)^2) < 2.6e-17 F_c,
+below half a unit in the last place of F_c (>= 2^-54 F_c = 5.6e-17 F_c), so F_c + that term
+rounds to F_c and the force is the same to the bit (tests/test_plant_friction_cut.py). Above
+|v| = 6.4 v_s the exponential's polynomial is then skipped in every RK4 stage: 6 % of a tick of
+axis_default on the batch benchmark's 50 mm/s move (docs/architecture.md).
 Why it is stable at the step size: near v = 0 the law is a damper of slope
 c0 = (F_c + dF_s)/v_reg + F_v; an explicit RK4 step h on a body of effective mass m is stable for
 h*c0/m < 2.78. `damping_bounds` reports c0 and the engine refuses a step that violates h*c0/m <
@@ -26,6 +32,11 @@ from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
 from feed_twin.plant.expneg import exp_neg
 from feed_twin.plant.smooth import smooth_sign
+
+# beyond x = (v/v_s)^2 > CUT_X the Stribeck term is below the last bit of F_c, provided that
+# dF_s < CUT_RATIO * F_c: exp(-41) * 16 = 2.5e-17 < 2^-54 = 5.6e-17 (module docstring)
+CUT_X = 41.0
+CUT_RATIO = 16.0
 
 
 @njit(error_model="numpy", forceinline=True)
@@ -46,7 +57,11 @@ def friction_force(
     # times the reciprocal of a parameter, which the compiled loop computes once (a division per
     # call would not leave the loop)
     r2 = (v * (1.0 / v_s)) ** 2
-    stribeck = dF_s * exp_neg(r2) if dF_s != 0.0 else 0.0
+    # the second test depends on parameters alone: the compiled loop evaluates it once
+    if dF_s == 0.0 or (r2 > CUT_X and dF_s < CUT_RATIO * min(F_c_pos, F_c_neg)):
+        stribeck = 0.0  # exactly what adding dF_s * exp(-r2) to F_c would leave
+    else:
+        stribeck = dF_s * exp_neg(r2)
     return (F_c + stribeck) * sgn + F_v * v
 
 
