@@ -9,6 +9,7 @@ import pytest
 
 from feed_twin.control import signals as sig
 from feed_twin.plant.config import load_plant
+from feed_twin.sim import batch as batch_module
 from feed_twin.sim.batch import check_steps, run_batch
 from feed_twin.sim.config import build_engine, load_axis_config
 from feed_twin.sim.engine import DivergenceError, Engine, check_step
@@ -79,6 +80,40 @@ def test_batch_equals_single_runs_and_flags_a_refused_set(emps):
         single = build_engine(emps, record=record, params=plant.param_vector({"table.m": m}))
         res = single.run(n, ref=ref)
         assert np.array_equal(batch.data[b], res.data)
+
+
+def test_batch_noise_tables_shared_by_a_seed_give_the_single_runs_bits(monkeypatch):
+    """Sets of one seed read one table of standard normals drawn ahead; a set alone with its
+    seed, or beyond the tables' memory budget, draws its own. Either way its bits are those of
+    a single run with that seed, also for a sensor whose noise is switched off."""
+    axis = load_axis_config("config/axis_default.yaml")
+    plant = axis.plant
+    n = 160
+    ref = np.zeros((n, sig.REF_SIZE))
+    ref[:, sig.REF_POS_M] = 1e-4
+    record = ["meas.i_a_meas_A", "meas.i_c_meas_A", "motor.i_q"]
+    engine = build_engine(axis, record=record, output_period_s=axis.engine.base_period_s)
+    seeds = np.array([1, 2, 2, 3, 3, 3, 3])
+    P = np.tile(plant.nominal_params(), (len(seeds), 1))
+    P[4, plant.param_index["current_sensor.noise_std"]] = 0.0
+    plant.fill_derived(P)
+
+    tables, table_of = batch_module._shared_normals(engine.kernel, seeds, n)
+    assert tables.shape == (2, n, engine.kernel.N_NOISE)
+    assert list(table_of) == [-1, 1, 1, 0, 0, 0, 0]  # the most shared seed first
+    # room for one table only: seed 2's sets draw their own
+    monkeypatch.setattr(batch_module, "SHARED_NORMALS_BYTES", n * engine.kernel.N_NOISE * 8)
+    assert list(batch_module._shared_normals(engine.kernel, seeds, n)[1]) == [-1] * 3 + [0] * 4
+
+    for budget in (64 * 2**20, 0):
+        monkeypatch.setattr(batch_module, "SHARED_NORMALS_BYTES", budget)
+        batch = run_batch(engine, P, n, ref=ref, seeds=seeds)
+        for b, seed in enumerate(seeds):
+            engine.p = P[b]
+            engine.seed = int(seed)
+            assert np.array_equal(batch.data[b], engine.run(n, ref=ref).data), (budget, b)
+    quiet = batch["meas.i_a_meas_A"][4] - batch["meas.i_a_meas_A"][3]
+    assert np.any(quiet != 0.0)  # the set without noise differs from its noisy twin
 
 
 def test_check_steps_gives_check_step_verdict_and_message_for_every_row():

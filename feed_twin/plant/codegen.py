@@ -4,8 +4,8 @@
 stage by stage. From the collected lines it writes one Python module: the slot constants, three
 functions from the same lines, `rhs` (derivatives; also as `rhs_tuple`, derivatives returned),
 `outputs` (auxiliary signals, powers, stored energies) and `sense` (sensor samples, reading the
-tick's standard normal samples that `draw_noise(p, seed, k, noise)` drew), plus
-`fill_derived(p)` and `angles(t, x, p)`.
+tick's standard normal samples that `draw_noise(p, seed, k, noise)` drew, or `pick_noise` took
+from a row of `standard_normals`), plus `fill_derived(p)` and `angles(t, x, p)`.
 
 Angles (`Emitter.angle`): `angles` returns (theta, cos, sin) of every declared angle at a state,
 flat in one tuple `trig`. `rhs` and `outputs` take sine and cosine of their own state; `sense`
@@ -255,15 +255,41 @@ class Generator(Emitter):
         ]
 
     def _draw_noise(self) -> list[str]:
-        lines = []
-        for i, (key, scale) in enumerate(self.noise_channels.items()):
-            lines.append(f"noise[{i}] = standard_normal(seed, k, {key}) if {scale} != 0.0 else 0.0")
+        """`draw_noise(p, seed, k, noise)`: the tick's samples, a channel switched off (its scale
+        0) giving 0; `standard_normals(seed, k0, n, table)`: the standard normal samples of n
+        ticks, parameters aside (run_batch draws them once for the sets that share a seed);
+        `pick_noise(p, row, noise)`: a tick's samples from such a row, the same doubles as
+        `draw_noise`."""
+        channels = list(self.noise_channels.items())
+        draw = [
+            f"noise[{i}] = standard_normal(seed, k, {key}) if {scale} != 0.0 else 0.0"
+            for i, (key, scale) in enumerate(channels)
+        ]
+        table = [
+            f"table[j, {i}] = standard_normal(seed, k0 + j, {key})"
+            for i, (key, _) in enumerate(channels)
+        ]
+        pick = [
+            f"noise[{i}] = row[{i}] if {scale} != 0.0 else 0.0"
+            for i, (_, scale) in enumerate(channels)
+        ]
         return [
             "",
             "# standard normal samples of one tick: (seed, tick, channel) alone determine them",
             '@njit(cache=True, inline="always", error_model="numpy")',
             "def draw_noise(p, seed, k, noise):",
-            *(f"    {code}" for code in lines),
+            *(f"    {code}" for code in draw),
+            "    return None",
+            "",
+            '@njit(cache=True, error_model="numpy")',
+            "def standard_normals(seed, k0, n, table):",
+            "    for j in range(n):",
+            *(f"        {code}" for code in table or ["pass"]),
+            "    return None",
+            "",
+            '@njit(cache=True, inline="always", error_model="numpy")',
+            "def pick_noise(p, row, noise):",
+            *(f"    {code}" for code in pick),
             "    return None",
         ]
 

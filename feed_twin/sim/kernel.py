@@ -6,8 +6,9 @@ text (so a structure compiles once and a cold process reuses numba's on-disk cac
 and returns the module. Per base tick k (period h) the loop
   1. evaluates the Park angles of the tick's start state (`angles`), samples the sensors
      (`sense`) into a ring of the last RING samples and reads each MEAS_* slot with its own
-     delay (the sensor noise of NOISE_BLOCK ticks is drawn ahead in one go; each sample depends
-     on (seed, tick, channel) alone, so chunks and blocks never matter);
+     delay (the sensor noise of NOISE_BLOCK ticks is drawn ahead in one go, or taken from a
+     table a batch drew once for all sets of a seed; each sample depends on (seed, tick, channel)
+     alone, so chunks, blocks and tables never matter);
   2. runs the controller, `cascade_tick(cp, cs, k, ref[k], meas, out)`, or copies the prescribed
      open-loop row `drive[k]` into `out`;
   3. records the selected signals when k is a multiple of the decimation;
@@ -82,9 +83,13 @@ def work_size(n_cs):
 
 
 @njit(cache=True, _nrt=False, nogil=True, error_model="numpy", fastmath=FASTMATH)
-def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, dec, sel, rec,
+def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, dec, sel, rec,
             xlim, status, work):
     """Advance n ticks from tick k0; returns the number of ticks done (< n on divergence).
+
+    `normals`: the standard normal samples of ticks 0 .. m-1 for `seed`, drawn ahead
+    (`standard_normals`; run_batch draws them once for all sets of a seed), or m = 0 rows: the
+    loop draws them itself when they do not cover ticks k0 .. k0+n-1. The same doubles either way.
 
     Compiled without numba's reference counting (no allocation here: `work` is the scratch):
     every array argument passed to an inner call would otherwise cost atomic counts.
@@ -108,6 +113,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, dec, sel, 
     noise = work[o:o + NOISE_BLOCK * N_NOISE]
     for i in range(3):
         sw[i] = 0.0
+    drawn = normals.shape[0] >= k0 + n
     # the parameters as a tuple of scalars: numba's arrays may alias, so every store to x or dx
     # would force the loop to reload p[...] and redo each division by a parameter; a tuple is
     # immutable, and LLVM hoists what depends on parameters alone out of the loop
@@ -119,12 +125,15 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, dec, sel, 
     for j in range(n):
         k = k0 + j
         t = k * h
-        b = j % NOISE_BLOCK
-        if N_NOISE > 0 and b == 0:
-            # the draws of a block of ticks are independent of each other and of the state, so
-            # the core overlaps their logarithms and roots instead of waiting on each in turn
-            for i in range(min(NOISE_BLOCK, n - j)):
-                draw_noise(pt, seed, k + i, noise[i * N_NOISE:(i + 1) * N_NOISE])
+        b = 0 if drawn else j % NOISE_BLOCK
+        if N_NOISE > 0:
+            if drawn:
+                pick_noise(pt, normals[k], noise)
+            elif b == 0:
+                # the draws of a block of ticks are independent of each other and of the state,
+                # so the core overlaps their hashes instead of waiting on each in turn
+                for i in range(min(NOISE_BLOCK, n - j)):
+                    draw_noise(pt, seed, k + i, noise[i * N_NOISE:(i + 1) * N_NOISE])
         # the Park angles of this state, once: the sensors read them, the RK4 stages rotate them
         trig = angles(t, xs, pt)
         sense(t, xs, pt, out, ext[j], sw, trig, noise[b * N_NOISE:(b + 1) * N_NOISE], mraw, mdelay)
@@ -166,17 +175,23 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, ring, out, h, dec, sel, 
 
 
 @njit(cache=True, _nrt=False, nogil=True, error_model="numpy", fastmath=FASTMATH)
-def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, rings, outs, h, dec,
-                 sel, rec, xlim, status, works):
+def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, tables, table_of,
+                 rings, outs, h, dec, sel, rec, xlim, status, works):
     """`advance` from tick 0 for the sets first, first + stride, ... of the batch arrays.
+
+    Set b takes its standard normal samples from `tables[table_of[b]]` (n rows), or draws them
+    itself where table_of[b] < 0.
 
     One call per thread: a Python-level call per set cost about 0.1 ms of dispatch, as much as
     simulating 0.3 ms of a set.
     """
     for b in range(first, X.shape[0], stride):
         if status[b, 0] == 0.0:
-            advance(X[b], P[b], CP[b], CS[b], 0, n, ref, drive, ext, seeds[b], rings[b], outs[b],
-                    h, dec, sel, rec[b], xlim, status[b], works[b])
+            normals = tables[max(table_of[b], 0)]
+            if table_of[b] < 0:
+                normals = normals[:0]
+            advance(X[b], P[b], CP[b], CS[b], 0, n, ref, drive, ext, seeds[b], normals, rings[b],
+                    outs[b], h, dec, sel, rec[b], xlim, status[b], works[b])
     return 0
 '''
 
