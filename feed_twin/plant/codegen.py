@@ -4,8 +4,9 @@
 stage by stage. From the collected lines it writes one Python module: the slot constants, three
 functions from the same lines, `rhs` (derivatives; also as `rhs_tuple`, derivatives returned),
 `outputs` (auxiliary signals, powers, stored energies) and `sense` (sensor samples, reading the
-tick's standard normal samples that `draw_noise(p, seed, k, noise)` drew, or `pick_noise` took
-from a row of `standard_normals`), plus `fill_derived(p)` and `angles(t, x, p)`.
+tick's standard normal samples, the tuple `noise` that `draw_noise(p, seed, k)` drew or
+`pick_noise(p, row)` took from a row of `standard_normals`), plus `fill_derived(p)` and
+`angles(t, x, p)`.
 
 Angles (`Emitter.angle`): `angles` returns (theta, cos, sin) of every declared angle at a state,
 flat in one tuple `trig`. `rhs` and `outputs` take sine and cosine of their own state; `sense`
@@ -156,8 +157,8 @@ class Generator(Emitter):
             self.imports["adc"] = "from feed_twin.plant.sensors import adc"
 
     def noise(self, channel: int, scale: str) -> str:
-        # `draw_noise` fills the tick's samples into `noise`, which the loop does for a block of
-        # ticks ahead of `sense`; the key of a channel depends on its component's position only
+        # `draw_noise` returns the tick's samples, the tuple `noise` the loop hands to `sense`;
+        # the key of a channel depends on its component's position only
         self.imports["standard_normal"] = "from feed_twin.plant.noise import standard_normal"
         key = self.comp_index[self._name()] * NOISE_CHANNELS_PER_COMPONENT + channel
         self.noise_channels.setdefault(key, scale)
@@ -255,31 +256,27 @@ class Generator(Emitter):
         ]
 
     def _draw_noise(self) -> list[str]:
-        """`draw_noise(p, seed, k, noise)`: the tick's samples, a channel switched off (its scale
-        0) giving 0; `standard_normals(seed, k0, n, table)`: the standard normal samples of n
-        ticks, parameters aside (run_batch draws them once for the sets that share a seed);
-        `pick_noise(p, row, noise)`: a tick's samples from such a row, the same doubles as
-        `draw_noise`."""
+        """`draw_noise(p, seed, k)`: the tick's samples as a tuple, a channel switched off (its
+        scale 0) giving 0; `standard_normals(seed, k0, n, table)`: the standard normal samples of
+        n ticks, parameters aside (run_batch draws them once for the sets that share a seed);
+        `pick_noise(p, row)`: a tick's samples from such a row, the same doubles as
+        `draw_noise`. A tuple, not an array: the loop stores nothing that could alias the
+        arrays it reads."""
         channels = list(self.noise_channels.items())
         draw = [
-            f"noise[{i}] = standard_normal(seed, k, {key}) if {scale} != 0.0 else 0.0"
-            for i, (key, scale) in enumerate(channels)
+            f"standard_normal(seed, k, {key}) if {scale} != 0.0 else 0.0" for key, scale in channels
         ]
+        pick = [f"row[{i}] if {scale} != 0.0 else 0.0" for i, (_, scale) in enumerate(channels)]
         table = [
             f"table[j, {i}] = standard_normal(seed, k0 + j, {key})"
             for i, (key, _) in enumerate(channels)
-        ]
-        pick = [
-            f"noise[{i}] = row[{i}] if {scale} != 0.0 else 0.0"
-            for i, (_, scale) in enumerate(channels)
         ]
         return [
             "",
             "# standard normal samples of one tick: (seed, tick, channel) alone determine them",
             '@njit(cache=True, inline="always", error_model="numpy")',
-            "def draw_noise(p, seed, k, noise):",
-            *(f"    {code}" for code in draw),
-            "    return None",
+            "def draw_noise(p, seed, k):",
+            f"    return {'(' + ''.join(f'{d}, ' for d in draw).rstrip() + ')'}",
             "",
             '@njit(cache=True, error_model="numpy")',
             "def standard_normals(seed, k0, n, table):",
@@ -288,9 +285,8 @@ class Generator(Emitter):
             "    return None",
             "",
             '@njit(cache=True, inline="always", error_model="numpy")',
-            "def pick_noise(p, row, noise):",
-            *(f"    {code}" for code in pick),
-            "    return None",
+            "def pick_noise(p, row):",
+            f"    return {'(' + ''.join(f'{d}, ' for d in pick).rstrip() + ')'}",
         ]
 
     # -------------------------------------------------- output

@@ -6,9 +6,9 @@ text (so a structure compiles once and a cold process reuses numba's on-disk cac
 and returns the module. Per base tick k (period h) the loop
   1. evaluates the Park angles of the tick's start state (`angles`), samples the sensors
      (`sense`) into a ring of the last RING samples and reads each MEAS_* slot with its own
-     delay (the sensor noise of NOISE_BLOCK ticks is drawn ahead in one go, or taken from a
-     table a batch drew once for all sets of a seed; each sample depends on (seed, tick, channel)
-     alone, so chunks, blocks and tables never matter);
+     delay (the tick's sensor noise is drawn, or taken from a table a batch drew once for all
+     sets of a seed; each sample depends on (seed, tick, channel) alone, so chunks and tables
+     never matter);
   2. runs the controller, `cascade_tick(cp, cs, k, ref[k], meas, out)`, or copies the prescribed
      open-loop row `drive[k]` into `out`;
   3. records the selected signals when k is a multiple of the decimation;
@@ -37,12 +37,10 @@ from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.codegen import const_name
 
 RING = 16  # sensor samples kept: delays up to RING - 1 ticks
-NOISE_BLOCK = 32  # ticks of sensor noise drawn ahead in one go
 
 _LOOP = '''
 
 RING = {ring}
-NOISE_BLOCK = {noise_block}
 SUBSTEPS = {substeps}  # RK4 steps per tick (engine.substeps)
 FASTMATH = False  # exact IEEE arithmetic: results must not depend on the CPU's FMA
 
@@ -78,7 +76,6 @@ def work_size(n_cs):
     """Length of the scratch vector `advance` needs (it allocates nothing itself)."""
     return (
         16 + 3 + 3 * MEAS_SIZE + N_A + (N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs)
-        + NOISE_BLOCK * N_NOISE
     )
 
 
@@ -109,8 +106,6 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
     aux = work[o:o + N_A]
     o += N_A
     row = work[o:o + N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs]
-    o += N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs
-    noise = work[o:o + NOISE_BLOCK * N_NOISE]
     for i in range(3):
         sw[i] = 0.0
     drawn = normals.shape[0] >= k0 + n
@@ -125,18 +120,15 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
     for j in range(n):
         k = k0 + j
         t = k * h
-        b = 0 if drawn else j % NOISE_BLOCK
-        if N_NOISE > 0:
-            if drawn:
-                pick_noise(pt, normals[k], noise)
-            elif b == 0:
-                # the draws of a block of ticks are independent of each other and of the state,
-                # so the core overlaps their hashes instead of waiting on each in turn
-                for i in range(min(NOISE_BLOCK, n - j)):
-                    draw_noise(pt, seed, k + i, noise[i * N_NOISE:(i + 1) * N_NOISE])
+        # a tuple: drawn into the scratch vector 32 ticks ahead, a tick of axis_default took 7 ns
+        # longer (stores that may alias every array the loop reads)
+        if drawn:
+            noise = pick_noise(pt, normals[k])
+        else:
+            noise = draw_noise(pt, seed, k)
         # the Park angles of this state, once: the sensors read them, the RK4 stages rotate them
         trig = angles(t, xs, pt)
-        sense(t, xs, pt, out, ext[j], sw, trig, noise[b * N_NOISE:(b + 1) * N_NOISE], mraw, mdelay)
+        sense(t, xs, pt, out, ext[j], sw, trig, noise, mraw, mdelay)
         slot = k % RING
         for m in range(MEAS_SIZE):
             ring[slot, m] = mraw[m]
@@ -346,7 +338,6 @@ def kernel_source(
     n_x = len(model.state_names)
     loop = _LOOP.format(
         ring=RING,
-        noise_block=NOISE_BLOCK,
         substeps=_substeps(substeps),
         integrate_tick=(
             _SWITCHING_TICK.format(t_dead_slot=const_name("P_", f"{switching}.t_dead"))

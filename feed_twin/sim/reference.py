@@ -36,7 +36,6 @@ def reference_run(
     ns = model.namespace()
     rhs, outputs, sense, draw_noise = ns["rhs"], ns["outputs"], ns["sense"], ns["draw_noise"]
     angles = ns["angles"]
-    noise = np.zeros(ns["N_NOISE"])
     p = engine.p
     x = model.initial_state() if x0 is None else np.array(x0, dtype=float)
     ref = np.zeros((n_ticks, signals.REF_SIZE)) if ref is None else ref
@@ -55,7 +54,7 @@ def reference_run(
     h = engine.h
     for k in range(n_ticks):
         t = k * h
-        draw_noise(p, engine.seed, k, noise)
+        noise = draw_noise(p, engine.seed, k)
         sense(t, x, p, out, ext[k], sw, angles(t, x, p), noise, mraw, mdelay)
         ring[k % RING] = mraw
         for m in range(signals.MEAS_SIZE):
