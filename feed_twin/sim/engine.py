@@ -171,7 +171,7 @@ class Engine:
         self.n_ext = max(len(model.ext_names), 1)
         self.work = np.zeros(self.kernel.work_size(len(ctrl_names)))
         # no noise drawn ahead: the kernel draws a run's own (run_batch shares tables)
-        self.no_normals = np.zeros((0, self.kernel.N_NOISE))
+        self._no_normals = np.zeros((0, self.kernel.N_NOISE))
         self._zeros: dict[tuple[int, int], np.ndarray] = {}  # absent inputs (the kernel reads)
         self.reset()
 
@@ -283,7 +283,7 @@ class Engine:
             drive2,
             ext2,
             self.seed,
-            self.no_normals,
+            self._no_normals,
             self.ring,
             self.out,
             self.h,
