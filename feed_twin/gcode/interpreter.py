@@ -99,7 +99,7 @@ _UNSUPPORTED_G.update({c: "unsupported (spindle-synchronised motion)" for c in (
 
 _M_KNOWN = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30}
 _CENTRE_LETTERS = ("I", "J", "K")
-_OTHER_LETTERS = frozenset("FSTIJKRP")
+_OTHER_LETTERS = frozenset("FSTIJKRPQ")
 # Plane -> (first axis, second axis, normal axis, first centre letter, second centre letter)
 _PLANE_AXES = {
     17: ("X", "Y", "Z", "I", "J"),
@@ -283,6 +283,16 @@ class Interpreter:
                     self.tolerance = p_word.value * self.length_unit
                 else:
                     self.tolerance = self.config.path_tolerance_m
+                # LinuxCNC's naive-CAM tolerance: it may merge nearly collinear G1 moves into one
+                # within Q. This planner follows every vertex, which that tolerance allows.
+                q_word = other.pop("Q", None)
+                if q_word is not None:
+                    if p_word is None:
+                        raise self.error(
+                            "G64 Q needs a P tolerance in the same block", q_word, line
+                        )
+                    if q_word.value < 0.0:
+                        raise self.error("G64 Q tolerance must be >= 0", q_word, line)
         wcs = g_words.get("work offset")
         if wcs is not None:
             self.work_offset = list(getattr(self.config.work_offsets_m, f"G{wcs[0] // 10}"))
@@ -329,6 +339,9 @@ class Interpreter:
             raise self.error(
                 "arc word without an arc move (G2, G3 with axis words)", leftover[0], line
             )
+        q_left = other.get("Q")
+        if q_left is not None:
+            raise self.error("Q word without G64 P", q_left, line)
         p_left = other.get("P")
         if (
             p_left is not None
