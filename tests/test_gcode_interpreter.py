@@ -184,7 +184,7 @@ def test_comments_case_and_line_numbers_are_ignored():
         ("G0 X600", "<text>:1:4: word 'X600': X = 600 mm (machine) is outside the travel"),
         (
             "G1 X0 F100\nG2 X0 Y0 I290",
-            "<text>:2:1: word 'G2': X = 500.692 mm (machine) is outside the travel [-500, 500]",
+            "<text>:2:1: word 'G2': X = 501.069 mm (machine) is outside the travel [-500, 500]",
         ),
         ("G0 G1 X1 F1", "<text>:1:4: word 'G1': conflicts with G0 (both in the motion group)"),
         ("G0 X1 X2", "<text>:1:7: word 'X2': repeats X1 in the same block"),
