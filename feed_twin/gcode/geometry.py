@@ -87,4 +87,3 @@ def programmed_path(source: str | Path, config: NcConfig) -> tuple[PathSegment, 
         elif segments and (type(item) is Stop or (type(item) is Event and item.stops)):
             segments[-1] = replace(segments[-1], stops_after=True)
     return tuple(segments)
-
