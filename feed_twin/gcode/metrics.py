@@ -68,6 +68,9 @@ class TrajectoryFigures:
 
     @property
     def corner_dev_max_m(self) -> float:
+        """[m] the largest corner deviation; nan when a corner had no samples near it."""
+        if any(math.isnan(d) for d in self.corner_dev_m):
+            return math.nan
         return max(self.corner_dev_m, default=0.0)
 
 
