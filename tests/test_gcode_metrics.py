@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -190,3 +191,18 @@ def test_too_short_and_empty_inputs_are_named():
         trajectory_figures(trajectory(np.zeros((3, 3))), segments)
     with pytest.raises(ValueError, match="segments = \\(\\): the program has no moves"):
         trajectory_figures(trajectory(np.zeros((4, 3))), ())
+
+
+@pytest.mark.parametrize("program", sorted((FIXTURES / "peer").glob("*.ngc")), ids=lambda p: p.name)
+def test_corpus_arcs_come_back_whole_and_the_path_is_continuous(program):
+    axis_config = load_nc_config(Path(__file__).parent.parent / "config" / "axis_default.yaml")
+    segments = programmed_path(program, axis_config)
+    blocks = program.read_text().splitlines()
+    arc_lines = [n for n, text in enumerate(blocks, 1) if re.search(r"\bG0?[23]\b", text)]
+    assert [s.line for s in segments if s.arc is not None] == arc_lines
+    for before, after in zip(segments[:-1], segments[1:], strict=True):
+        assert before.end_m == after.start_m
+    for s in segments:
+        if s.arc is not None:  # the arc's own formula meets its programmed end points
+            ends = s.point_at(np.array([0.0, 1.0]))
+            np.testing.assert_allclose(ends, [s.start_m, s.end_m], rtol=0, atol=1e-9)
