@@ -87,5 +87,6 @@ def side_summary(side: Side) -> dict:
         "peak_vel_m_s": [round(v, 6) for v in f.peak_vel_m_s],
         "peak_acc_m_s2": [round(a, 4) for a in f.peak_acc_m_s2],
         "peak_jerk_m_s3": [round(j, 1) for j in f.peak_jerk_m_s3],
-        "failures": list(side.failures),
+        "failures": len(side.failures),
+        "first_failure": side.failures[0] if side.failures else None,
     }
