@@ -25,7 +25,9 @@ import argparse
 import dataclasses
 import json
 import math
+import re
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -40,8 +42,8 @@ from feed_twin.gcode.peer import (
     time_ratio,
 )
 from feed_twin.linuxcnc.host import LinuxcncError
-from feed_twin.linuxcnc.machine import HalServo, machine_for_config
-from feed_twin.linuxcnc.runner import run_program
+from feed_twin.linuxcnc.machine import INI_NAME, HalServo, machine_for_config, write_machine
+from feed_twin.linuxcnc.runner import RunOptions, run_program
 
 ROOT = Path(__file__).resolve().parent.parent
 CORPUS = ROOT / "tests" / "fixtures" / "gcode" / "peer"
@@ -56,9 +58,38 @@ def ours(program: Path, nc: NcConfig) -> SampledTrajectory | str:
         return str(exc)
 
 
-def linuxcnc(program: Path, nc: NcConfig, servo: HalServo) -> SampledTrajectory | str:
+def peer_machine(directory: Path, nc: NcConfig, servo: HalServo) -> Path:
+    """The generated LinuxCNC machine with [TRAJ]'s vector limits lifted out of the way.
+
+    [TRAJ] MAX_LINEAR_VELOCITY/ACCELERATION cap the speed and acceleration along the path; the
+    generated machine sets them to the largest axis limit, so a diagonal rapid runs at 0.5 m/s
+    on LinuxCNC and at 0.5 sqrt(2) m/s on feed_twin.gcode, which limits each axis only. At
+    sqrt(3) times the largest axis limit only the per-axis limits bind, on both sides.
+    """
+    write_machine(directory, nc, servo)
+    ini = directory / INI_NAME
+    lift = math.sqrt(3.0) * 1e3  # [mm/m] LinuxCNC's units are mm
+    limits = {
+        "VELOCITY": lift * max(a.rapid_m_s for a in nc.axes),
+        "ACCELERATION": lift * max(a.a_max_m_s2 for a in nc.axes),
+    }
+    text = ini.read_text(encoding="utf-8")
+    for kind, value in limits.items():
+        text, count = re.subn(
+            rf"^((?:MAX|DEFAULT)_LINEAR_{kind}) = .*$", rf"\1 = {value:.3f}", text, flags=re.M
+        )
+        if count != 2:
+            raise RuntimeError(f"{ini}: expected MAX_ and DEFAULT_LINEAR_{kind}, found {count}")
+    ini.write_text(text, encoding="utf-8")
+    return directory
+
+
+def linuxcnc(
+    program: Path, nc: NcConfig, servo: HalServo, machine: Path
+) -> SampledTrajectory | str:
     try:
-        result = run_program(program, nc=nc, servo=servo, say=lambda text: None)
+        options = RunOptions(machine_dir=machine)
+        result = run_program(program, nc=nc, servo=servo, options=options, say=lambda text: None)
     except LinuxcncError as exc:
         return str(exc)
     if result.trace.samples_lost or result.overruns:
@@ -76,10 +107,10 @@ def linuxcnc(program: Path, nc: NcConfig, servo: HalServo) -> SampledTrajectory 
     )
 
 
-def run_one(program: Path, nc: NcConfig, servo: HalServo) -> dict:
+def run_one(program: Path, nc: NcConfig, servo: HalServo, machine: Path) -> dict:
     """The three sides of one program, measured, with the requirements and the time ratios."""
     results = {
-        "linuxcnc": linuxcnc(program, nc, servo),
+        "linuxcnc": linuxcnc(program, nc, servo, machine),
         "jerk": ours(program, dataclasses.replace(nc, profile="jerk")),
         "trapezoid": ours(program, dataclasses.replace(nc, profile="trapezoid")),
     }
@@ -170,8 +201,9 @@ def main(argv: list[str] | None = None) -> int:
     report: dict[str, dict] = {}
     failed: list[str] = []
     started = time.monotonic()
+    machine = peer_machine(Path(tempfile.mkdtemp(prefix="feed_twin-peer-")), nc, servo)
     for program in programs:
-        outcome = run_one(program, nc, servo)
+        outcome = run_one(program, nc, servo, machine)
         name = str(program.relative_to(CORPUS))
         print_program(name, outcome)
         expected_mismatch = program.parent.name == "disagree"

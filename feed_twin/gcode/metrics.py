@@ -29,7 +29,7 @@ from feed_twin.gcode.trajectory import SampledTrajectory
 MOVING_STEP_M = 1e-12  # [m] a step between samples above this is motion
 CORNER_MIN_RAD = math.radians(0.5)  # junctions turning less are tangent, not corners
 LINE_WINDOW = 2  # segments before and after the sample's line's segment that are searched
-REASSIGN_DISTANCE_M = 1e-4  # [m] a sample this far from its line's segments is searched globally
+REASSIGN_DISTANCE_M = 2e-6  # [m] a sample this far from its line's segments is searched globally
 HERMITE_POINTS = 33  # points per sample interval where the closest approach is refined
 ZONE_FACTOR = 1.5  # margin on the reach of a corner blend (samples nearer are the corner's)
 # The closest approach to a corner is read from 1 kHz samples: our planner's corners measure
