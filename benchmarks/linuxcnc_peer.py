@@ -38,6 +38,7 @@ from feed_twin.gcode.peer import (
     Side,
     acceptance_mismatch,
     measure_side,
+    servo_trajectory,
     side_summary,
     time_ratio,
 )
@@ -102,15 +103,7 @@ def linuxcnc(
         return f"{result.trace.samples_lost + result.overruns} servo periods lost from the record"
     # From the program's first motion to its last (before it: HAL start-up and homing).
     trace = result.trace.cut(result.trace.program_span())
-    return SampledTrajectory(
-        t_s=trace.t_s,
-        axes=nc.axis_names,
-        pos_m=trace.pos_cmd_m,
-        vel_m_s=trace.vel_cmd_m_s,
-        acc_m_s2=trace.acc_cmd_m_s2,
-        line=trace.program_line,
-        events=(),
-    )
+    return servo_trajectory(trace, nc.axis_names)
 
 
 def run_one(program: Path, nc: NcConfig, servo: HalServo, machine: Path) -> dict:
