@@ -45,6 +45,7 @@ def test_every_message_type_round_trips_over_dds_with_every_field(ros_domain_id)
         "feed_twin_msgs/msg/AxisState",
         "feed_twin_msgs/msg/TwinResidual",
         "feed_twin_msgs/msg/HealthStatus",
+        "feed_twin_msgs/msg/ServoSample",
         "sensor_msgs/msg/JointState",
         "rosgraph_msgs/msg/Clock",
     ]

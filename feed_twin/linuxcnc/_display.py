@@ -19,6 +19,7 @@ Two threads:
 import contextlib
 import json
 import os
+import select
 import struct
 import sys
 import threading
@@ -32,6 +33,7 @@ except ImportError:  # imported, not run, outside Debian's Python (the core's im
 
 PREFIX = "feed_twin-display: "
 READER_SLEEP_S = 0.0002
+CLOCK_TICK_PIN = "feedtwin-clock.0.tick"
 STATUS_POLL_S = 0.002
 
 
@@ -57,8 +59,10 @@ class Reader(threading.Thread):
             self.twin = hal.stream(comp, hal.streamer_base, "f")
             self.twin_in = os.open(run["twin_fifo"], os.O_RDONLY | os.O_NONBLOCK)
             self.twin_buf = b""
-            self.twin_skip = 0
-            self.twin_underruns = 0
+            self.twin_late = 0  # values that came after their period had run (dropped)
+            self.twin_written = 0
+            self.twin_last = None
+        self.twin_fed = False
         self.stop = threading.Event()
         self.last_tick = -1
         self.rows = 0
@@ -68,7 +72,11 @@ class Reader(threading.Thread):
         try:
             while not self.stop.is_set():
                 self.pump()
-                time.sleep(READER_SLEEP_S)
+                if self.twin is None:
+                    time.sleep(READER_SLEEP_S)
+                else:
+                    # wake as soon as the twin answers: its value must beat the next period
+                    select.select([self.twin_in], [], [], READER_SLEEP_S)
             self.pump()
         except Exception as exc:  # reported by the main thread, which stops the machine
             self.failure = f"{type(exc).__name__}: {exc}"
@@ -76,8 +84,6 @@ class Reader(threading.Thread):
             os.close(self.out)
 
     def pump(self):
-        if self.twin is not None:
-            self.feed_twin()
         chunk = []
         stream = self.stream
         backlog = stream.depth
@@ -96,27 +102,43 @@ class Reader(threading.Thread):
         if chunk:
             self.rows += len(chunk)
             os.write(self.out, b"".join(chunk))
+        if self.twin is not None:
+            self.feed_twin()
+
+    def twin_counts(self):
+        """(values written in time, values dropped as late) so far; None without a twin."""
+        return None if self.twin is None else [self.twin_written, self.twin_late]
 
     def feed_twin(self):
-        """Encoder values of the twin, in order, one per servo period. A period that found the
-        streamer empty (an underrun: LinuxCNC reused the previous feedback) drops the value
-        that was meant for it, so the next value lands in its own period again."""
+        """The twin's (period, encoder value) pairs, in order, into the streamer, which hands
+        out one value per period. A value whose period has started, or that would come out
+        after its period because more values wait before it, is dropped (LinuxCNC keeps the
+        previous feedback: a missed period); where values before it were dropped, the last
+        value fills their places, so every value comes out in its own period."""
         try:
             data = os.read(self.twin_in, 65536)
         except BlockingIOError:
             data = b""
         self.twin_buf += data
-        underruns = self.twin.num_underruns
-        if underruns > self.twin_underruns:
-            self.twin_skip += underruns - self.twin_underruns
-            self.twin_underruns = underruns
-        while len(self.twin_buf) >= 8:
-            (value,) = struct.unpack_from("<d", self.twin_buf)
-            self.twin_buf = self.twin_buf[8:]
-            if self.twin_skip:
-                self.twin_skip -= 1
+        whole = len(self.twin_buf) - len(self.twin_buf) % 16
+        pairs = list(struct.iter_unpack("<dd", self.twin_buf[:whole]))
+        self.twin_buf = self.twin_buf[whole:]
+        for period, value in pairs:
+            # the period running now: feedtwin_clock sets it first in each period, before the
+            # streamer hands out that period's value
+            now = hal.get_value(CLOCK_TICK_PIN)
+            ahead = int(period) - now - 1  # values that must come out before this one
+            queued = self.twin.depth
+            if ahead < queued:
+                self.twin_late += 1
                 continue
+            held = value if self.twin_last is None else self.twin_last
+            for _ in range(ahead - queued):
+                self.twin.write((held,))
             self.twin.write((value,))
+            self.twin_last = value
+            self.twin_written += 1
+            self.twin_fed = True
 
 
 class StopRequestedError(Exception):
@@ -154,8 +176,12 @@ def check_errors(errors, reader, run):
         raise RuntimeError("the sample reader stopped")
 
 
-def start_machine(command, stat, run):
+def start_machine(command, stat, run, reader):
     wait_for(stat, lambda s: s.task_state != 0, 10.0, "the task controller", run)
+    if reader.twin is not None:
+        # homing takes the feedback as it is: the twin's, not the streamer's initial 0
+        wait_for(stat, lambda s: reader.twin_fed, 10.0, "the twin's first feedback", run)
+        time.sleep(0.01)
     command.state(linuxcnc.STATE_ESTOP_RESET)
     command.state(linuxcnc.STATE_ON)
     wait_for(stat, lambda s: s.task_state == linuxcnc.STATE_ON, 5.0, "machine on", run)
@@ -177,7 +203,7 @@ def run_program(command, stat, errors, reader, run):
     wait_for(stat, lambda s: s.task_mode == linuxcnc.MODE_AUTO, 5.0, "AUTO mode", run)
     command.program_open(run["program"])
     command.auto(linuxcnc.AUTO_RUN, 0)
-    emit("started", tick=reader.last_tick)
+    emit("started", tick=reader.last_tick, twin=reader.twin_counts())
     deadline = time.monotonic() + run["timeout_s"]
     started = False
     while True:
@@ -193,7 +219,7 @@ def run_program(command, stat, errors, reader, run):
             raise RuntimeError(f"the program did not end within {run['timeout_s']:.1f} s")
         time.sleep(STATUS_POLL_S)
     check_errors(errors, reader, run)
-    emit("program_done", tick=reader.last_tick)
+    emit("program_done", tick=reader.last_tick, twin=reader.twin_counts())
 
 
 def main(argv):
@@ -206,7 +232,7 @@ def main(argv):
     command, stat, errors = linuxcnc.command(), linuxcnc.stat(), linuxcnc.error_channel()
     status = 0
     try:
-        start_machine(command, stat, run)
+        start_machine(command, stat, run, reader)
         run_program(command, stat, errors, reader, run)
         # the periods after the end: the servo loops settle
         end = reader.last_tick + run["settle_ticks"]
@@ -226,13 +252,12 @@ def main(argv):
             command.abort()
     reader.stop.set()
     reader.join(2.0)
-    twin_underruns = reader.twin.num_underruns if reader.twin is not None else None
     emit(
         "end",
         status=status,
         rows=reader.rows,
         overruns=reader.stream.num_overruns,
-        twin_underruns=twin_underruns,
+        twin=reader.twin_counts(),
     )
     return status
 

@@ -101,12 +101,12 @@ def leftover_processes() -> list[tuple[int, str]]:
         except OSError:
             continue
         # (a killed process whose parent is gone stays a zombie where init does not reap)
-        if name in _LINUXCNC_PROCESSES and _owner(int(entry.name)) is not None:
+        if name in _LINUXCNC_PROCESSES and process_owner(int(entry.name)) is not None:
             found.append((int(entry.name), name))
     return found
 
 
-def _owner(pid: int) -> int | None:
+def process_owner(pid: int) -> int | None:
     """The real uid of a live process (None once it exited, also while it is a zombie); the
     real one, since rtapi_app is set-uid root."""
     try:
@@ -141,12 +141,12 @@ def remove_leftovers(user: str | None) -> None:
     pid), its SysV shared memory and /tmp/linuxcnc.lock. Under the host lock no other run
     can be using them."""
     uid = pwd.getpwnam(user).pw_uid if user is not None else os.getuid()
-    stale = [pid for pid, _ in leftover_processes() if _owner(pid) == uid]
+    stale = [pid for pid, _ in leftover_processes() if process_owner(pid) == uid]
     for pid in stale:
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
     deadline = time.monotonic() + 2.0
-    while any(_owner(pid) == uid for pid in stale) and time.monotonic() < deadline:
+    while any(process_owner(pid) == uid for pid in stale) and time.monotonic() < deadline:
         time.sleep(0.01)
     for key in leftover_shared_memory():
         subprocess.run(["ipcrm", "-M", key], capture_output=True, check=False)
@@ -157,3 +157,14 @@ def remove_leftovers(user: str | None) -> None:
         for path in Path("/tmp").glob("linuxcnc.[dp][er][bi]*.*"):
             if _owner_of(path) == uid:
                 path.unlink(missing_ok=True)
+
+
+def leftovers(say: Callable[[str], None] = lambda text: None) -> list[str]:
+    """What a LinuxCNC run left on this host (processes, shared memory, its lock file), looked
+    at under the host lock, so that a run in progress elsewhere is not mistaken for one."""
+    with host_lock(say):
+        found = [f"process {name} ({pid})" for pid, name in leftover_processes()]
+        found += [f"shared memory {key}" for key in leftover_shared_memory()]
+        if LINUXCNC_LOCKFILE.exists():
+            found.append(str(LINUXCNC_LOCKFILE))
+    return found

@@ -225,12 +225,15 @@ def render_hal(nc: NcConfig, servo: HalServo, *, twin_joint: int | None = None) 
         f"loadrt sampler depth={servo.sample_depth} cfg={layout.hal_cfg}",
         "",
         "addf feedtwin-clock.0 servo-thread",
+    ]
+    if twin_joint is not None:
+        # before motion: the feedback the twin latched at the start of the previous period,
+        # a fieldbus drive's one-cycle delay
+        lines.append("addf streamer.0 servo-thread")
+    lines += [
         "addf motion-command-handler servo-thread",
         "addf motion-controller servo-thread",
     ]
-    if twin_joint is not None:
-        # the twin's encoder of the previous period: a fieldbus drive's one-cycle delay
-        lines.append("addf streamer.0 servo-thread")
     for j, n in enumerate(names):
         lines.append(f"addf pid.{n}.do-pid-calcs servo-thread")
         if j != twin_joint:

@@ -40,12 +40,14 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.gcode.config import NcConfig
+from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.linuxcnc.check import rejection_in
 from feed_twin.linuxcnc.host import (
     LinuxcncError,
     check_installed,
     host_lock,
     leftover_processes,
+    process_owner,
     remove_leftovers,
     run_user,
 )
@@ -56,6 +58,7 @@ EVENT_PREFIX = "feed_twin-display: "
 _DISPLAY_SOURCE = Path(__file__).with_name("_display.py")
 _PIPE_SIZE = 1 << 20  # the largest pipe an unprivileged process may ask for
 GRACEFUL_S = 3.0  # [s] LinuxCNC's own shutdown takes 0.3-0.9 s
+DEATH_CHECK_S = 0.05  # [s] without rows before the runner looks whether rtapi_app still lives
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -66,10 +69,24 @@ class RunOptions:
     settle_s: float = 0.1  # [s] periods recorded after the program's end
     start_timeout_s: float = 30.0  # [s] LinuxCNC start-up until the machine is homed
     max_lag_s: float = 1.0  # [s] a row older than this when it arrives is a fault
-    stall_s: float = 0.5  # [s] no servo period for this long while running is a fault
+    # [s] no servo period for this long while running is a fault (LinuxCNC alive but stalled:
+    # a loaded host without a realtime kernel stalls its threads for a few hundred ms)
+    stall_s: float = 3.0
     twin_joint: int | None = None  # joint whose plant is the caller (virtual commissioning)
+    twin_delay: int = 1  # [periods] the twin's answer to period k is the feedback of k + this
     # a machine directory of one's own (machine.ini and its files) instead of the generated one
     machine_dir: Path | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("timeout_s", "start_timeout_s", "max_lag_s", "stall_s"):
+            require_positive(name, getattr(self, name))
+        require_nonnegative("settle_s", self.settle_s)
+        if isinstance(self.twin_delay, bool) or not isinstance(self.twin_delay, int):
+            raise ValueError(f"twin_delay = {self.twin_delay!r}: must be an int")
+        if not 1 <= self.twin_delay <= 1000:
+            raise ValueError(f"twin_delay = {self.twin_delay!r}: must lie in [1, 1000]")
+        if self.twin_joint not in (None, 0, 1, 2):
+            raise ValueError(f"twin_joint = {self.twin_joint!r}: must be None, 0, 1 or 2")
 
 
 @dataclass
@@ -92,17 +109,24 @@ class LinuxcncRun:
         nc: NcConfig,
         servo: HalServo,
         options: RunOptions = RunOptions(),
+        twin: Callable[[np.ndarray], np.ndarray] | None = None,
         say: Callable[[str], None] = print,
     ) -> None:
         self.program = Path(program)
+        if (twin is None) != (options.twin_joint is None):
+            raise ValueError("twin and options.twin_joint go together (virtual commissioning)")
+        # rows -> the twin joint's feedback [m] for the next period of each (commissioning)
+        self.twin = twin
         if not self.program.is_file():
             raise LinuxcncError(f"{self.program}: no such G-code program")
         self.nc, self.servo, self.options, self.say = nc, servo, options, say
         self.layout = sample_layout()
+        self._tick_column = self.layout.index("tick")
         self.row_bytes = 8 * self.layout.row_width
         self.state = RunState()
         self._events: queue.Queue = queue.Queue()
         self._chunks: list[np.ndarray] = []
+        self._delivered = 0  # chunks poll() has handed out
         self._partial = b""
         self._stack = contextlib.ExitStack()
         self._proc: subprocess.Popen | None = None
@@ -111,6 +135,8 @@ class LinuxcncRun:
         self.started_wall = 0.0
         self.ended = False
         self._dead = False  # LinuxCNC's servo thread or script died: no graceful shutdown
+        self._closing = False  # shutting down: rows are only kept
+        self._rt: list[int] = []  # pids of rtapi_app (the servo thread's process)
         self.fault_wall: float | None = None
 
     # -- start-up ---------------------------------------------------------------------------
@@ -225,6 +251,8 @@ class LinuxcncRun:
             self._handle_events(timeout=0.01)
             if time.monotonic() > deadline:
                 self._fail(f"LinuxCNC did not start within {self.options.start_timeout_s} s")
+        # the servo thread's process, watched while rows do not come
+        self._rt = [pid for pid, name in leftover_processes() if name == "rtapi_app"]
 
     # -- while running ----------------------------------------------------------------------
     def poll(self, timeout: float = 0.01) -> np.ndarray:
@@ -233,9 +261,11 @@ class LinuxcncRun:
         Raises LinuxcncError on any fault (the machine is stopped by then)."""
         if self.ended:
             return np.empty((0, self.layout.row_width))
-        ready, _, _ = select.select([self._samples_fd], [], [], timeout)
+        select.select([self._samples_fd], [], [], timeout)
         rows = self._drain_samples()
         self._handle_events(timeout=0.0)
+        new = self._chunks[self._delivered :]
+        self._delivered = len(self._chunks)
         now = time.monotonic()
         if rows.size:
             self._last_row_wall = now
@@ -248,21 +278,36 @@ class LinuxcncRun:
                 )
         elif self.state.end is not None:
             self._check_alive()
-        elif now - getattr(self, "_last_row_wall", now) > self.options.stall_s:
-            self._check_alive()
-            self._dead = True
-            self._fail(
-                f"LinuxCNC stopped mid-run: no servo period for {self.options.stall_s:.1f} s "
-                f"(last tick {self._last_tick}, {self._where()})"
-            )
-        return rows
+        else:
+            silent = now - getattr(self, "_last_row_wall", now)
+            if silent > DEATH_CHECK_S and not all(
+                process_owner(pid) is not None for pid in self._rt
+            ):
+                self._dead = True
+                self._fail(
+                    f"LinuxCNC died mid-run: its realtime process rtapi_app is gone (last tick "
+                    f"{self._last_tick}, {self._where()})"
+                )
+            if silent > self.options.stall_s:
+                self._check_alive()
+                self._dead = True
+                self._fail(
+                    f"LinuxCNC stopped mid-run: no servo period for {self.options.stall_s:.1f} s "
+                    f"(last tick {self._last_tick}, {self._where()})"
+                )
+        if not new:
+            return np.empty((0, self.layout.row_width))
+        return new[0] if len(new) == 1 else np.concatenate(new)
 
-    def send_twin(self, positions_m: np.ndarray) -> None:
-        """Feedback positions [m] of the twin joint, one per servo period, in order."""
-        data = (np.asarray(positions_m, dtype="<f8") * MM_PER_M).tobytes()
+    def send_twin(self, periods: np.ndarray, positions_m: np.ndarray) -> None:
+        """Feedback positions [m] of the twin joint for the servo periods `periods`, in order."""
+        pairs = np.stack([periods, np.asarray(positions_m) * MM_PER_M], axis=1)
+        data = pairs.astype("<f8").tobytes()
         while data:
             try:
                 written = os.write(self._twin_fd, data)
+            except BrokenPipeError:
+                return  # the display program has ended: the run's end or fault says why
             except BlockingIOError:
                 written = 0
                 self._check_alive()
@@ -297,6 +342,10 @@ class LinuxcncRun:
         rows = np.frombuffer(data[:whole], dtype="<f8").reshape(-1, self.layout.row_width)
         if rows.size:
             self._chunks.append(rows)
+            if self.twin is not None and not (self._dead or self._closing):
+                # row k's answer is the feedback of period k + delay
+                periods = rows[:, len(ROW_HEADER) + self._tick_column] + self.options.twin_delay
+                self.send_twin(periods, self.twin(rows))
         return rows
 
     def _handle_events(self, timeout: float) -> None:
@@ -370,6 +419,7 @@ class LinuxcncRun:
         second); when LinuxCNC's realtime part died, or the script is not done within
         GRACEFUL_S, its processes are killed and their shared memory and lock file removed."""
         self._request_stop()
+        self._closing = True
         proc = self._proc
         assert proc is not None
         if not self._dead:
@@ -415,7 +465,7 @@ class RunResult:
     startup_s: float  # [s] from start to the machine homed and ready
     wall_s: float  # [s] the whole run, start-up and shutdown included
     overruns: int  # sampler FIFO overruns LinuxCNC counted (lost rows)
-    twin_underruns: int | None  # streamer underruns (virtual commissioning): missed periods
+    twin: list[int] | None  # commissioning: [feedback values in time, values too late]
 
 
 def run_program(
@@ -442,5 +492,5 @@ def run_program(
         startup_s=startup,
         wall_s=time.monotonic() - t0,
         overruns=int(end.get("overruns", 0)),
-        twin_underruns=end.get("twin_underruns"),
+        twin=end.get("twin"),
     )

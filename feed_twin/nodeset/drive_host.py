@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -35,7 +36,9 @@ from feed_twin.control.transforms import (
     park,
     svpwm_phase_duties,
 )
+from feed_twin.io.config import ConfigError
 from feed_twin.nodeset.split import (
+    BOUNDARY_MODES,
     MODE_CST,
     MODE_VOLTAGE,
     NS_PER_S,
@@ -369,3 +372,52 @@ class Lockstep:
                 raise ValueError(f"no NC setpoint for t = {t_next} ns (before the program)")
             setpoint = self.controller.step(t_next, nc, sample.meas)
         return samples
+
+
+def build_drive_host(config_path: str | Path, ros: NodeSetConfig) -> DriveHost:
+    """The engine of the axis config at the drive's CiA 402 mode, wrapped for exchanges."""
+    from feed_twin.sim.config import build_engine, load_axis_config
+
+    axis = load_axis_config(config_path)
+    if axis.controller is None:
+        raise ConfigError(f"{config_path}: the sim node needs a controller section")
+    names = DriveHost.record_names(ros.signals)
+    # The full cascade leaves the drive only its modulator: the engine runs open loop.
+    closed = ros.boundary != "voltage"
+    mode = ros.boundary if closed else None
+    probe = build_engine(axis, closed_loop=closed, mode=mode, output_period_s=ros.exchange_period_s)
+    unknown = [n for n in names if n not in probe.all_names]
+    if unknown:
+        raise ConfigError(
+            f"{config_path}: ros.signals: {', '.join(unknown)}: not signals of this plant "
+            f"(for example {', '.join(probe.all_names[:6])}, ...)"
+        )
+    engine = build_engine(
+        axis,
+        closed_loop=closed,
+        mode=mode,
+        record=names,
+        output_period_s=ros.exchange_period_s,
+    )
+    # The table coordinate is the machine coordinate of the twin axis: the plant starts at
+    # rest where the NC program starts (position-dependent screw stiffness needs the real place).
+    start = 0.0
+    if axis.nc is not None:
+        from feed_twin.gcode.config import nc_config_from_mapping
+
+        start = nc_config_from_mapping(axis.nc, source=str(config_path)).twin_start_position_m
+        body = ros.signals.table_position.lstrip("-").split(".")[0]
+        engine.reset(positions={body: start})
+    current = axis.controller.current
+    return DriveHost(
+        engine,
+        exchange_period_s=ros.exchange_period_s,
+        K_t=axis.controller.drive.K_t,
+        signals=ros.signals,
+        pole_pairs=current.pole_pairs if current is not None else 0,
+        encoder_offset_rad=current.encoder_offset_rad if current is not None else 0.0,
+        start_position_m=start,
+        dead_time_comp_V=current.dead_time_comp_V if current is not None else 0.0,
+        dead_time_comp_band_A=current.dead_time_comp_band_A if current is not None else 0.5,
+        mode=BOUNDARY_MODES[ros.boundary],
+    )

@@ -30,6 +30,7 @@ NODE_MODULES = {
     "gcode": "feed_twin.ros.gcode_node",
     "twin": "feed_twin.ros.twin_node",
     "standin": "feed_twin.ros.standin_node",
+    "linuxcnc": "feed_twin.ros.linuxcnc_node",
 }
 AND = "--and"  # separates the nodes on the command line
 HOSTABLE = ("recorder", "controller", "sim", "gcode")  # built by node_main's configure/build

@@ -33,6 +33,7 @@ from feed_twin_msgs.msg import (
     AxisState,
     DriveCommand,
     HealthStatus,
+    ServoSample,
     TwinResidual,
 )
 from rclpy.context import Context
@@ -50,6 +51,7 @@ FEED_TWIN_MESSAGE_TYPES: tuple[type, ...] = (
     AxisState,
     TwinResidual,
     HealthStatus,
+    ServoSample,
 )
 # Standard messages the node set publishes alongside its own.
 STANDARD_MESSAGE_TYPES: tuple[type, ...] = (JointState, Clock)

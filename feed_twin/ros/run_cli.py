@@ -40,6 +40,8 @@ from feed_twin.ros.launch import launch, log_record
 ROLES = (RECORDER_NODE, "controller", "sim", "gcode")
 # --shadow: the stand-in plays the real machine (drive and axis), the twin shadows it
 SHADOW_ROLES = ("recorder", "twin", "standin", "gcode")
+# --nc linuxcnc --shadow: LinuxCNC is the NC and the machine (feed_twin/ros/linuxcnc_node.py)
+LINUXCNC_ROLES = ("recorder", "twin", "linuxcnc")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -62,6 +64,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the stand-in machine follows the program and the shadow twin runs beside it "
         "(the config's shadow: section)",
+    )
+    parser.add_argument(
+        "--nc",
+        choices=("feed_twin", "linuxcnc"),
+        default="feed_twin",
+        help="the NC: feed_twin's G-code node, or LinuxCNC running the program headless with "
+        "its simulated servos (with --shadow; feed_twin.linuxcnc)",
     )
     parser.add_argument(
         "--no-gcode",
@@ -121,12 +130,16 @@ def _check_inputs(args: argparse.Namespace):
 
 
 def _roles(args: argparse.Namespace) -> tuple[str, ...]:
+    if args.nc == "linuxcnc":
+        return LINUXCNC_ROLES
     roles = SHADOW_ROLES if args.shadow else ROLES
     return tuple(r for r in roles if not (r == "gcode" and args.no_gcode))
 
 
 def _clock_role(args: argparse.Namespace) -> str:
     """The node that sets the pace and reports PROGRESS and TIMING."""
+    if args.nc == "linuxcnc":
+        return "linuxcnc"
     return "standin" if args.shadow else "sim"
 
 
@@ -137,6 +150,12 @@ def _write_shadow_map(args: argparse.Namespace, ros, nc, out: Outputs) -> None:
     from feed_twin.shadow.standin import write_map
 
     axis = next(a for a in nc.axes if a.name == nc.twin_axis)
+    if args.nc == "linuxcnc":
+        from feed_twin.linuxcnc.summary import write_linuxcnc_map
+
+        namespace = AxisTopics(machine=ros.machine, axis=ros.axis).namespace
+        write_linuxcnc_map(out.map, config=args.config, namespace=namespace, axis=axis)
+        return
     write_map(
         out.map,
         Twin.compile(ModelDoc.load(args.config)),
@@ -175,6 +194,8 @@ def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[s
         argv += ["--follow", "--machine", ros.machine, "--axis", ros.axis]
         if args.realtime:
             argv.append("--realtime")
+    elif role == "linuxcnc":
+        argv += ["--program", str(args.program)]
     elif role == "twin":
         argv += ["--map", str(out.map), "--machine", ros.machine, "--axis", ros.axis]
         argv += ["--rrd", str(out.rrd)]
@@ -276,7 +297,14 @@ def _finish_shadow(args: argparse.Namespace, topics, out: Outputs):
         )
     except ValueError as exc:
         return None, str(exc)
-    return _ShadowSummary(run, figures), ""
+    extra = None
+    if args.nc == "linuxcnc":
+        from feed_twin.linuxcnc.summary import linuxcnc_figures
+
+        report = log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}
+        namespace = twin_namespace(topics.command)
+        extra = linuxcnc_figures(out.bag, twin_namespace=namespace, report=report)
+    return _ShadowSummary(run, figures, extra), ""
 
 
 def _effort_unit(config: Path) -> str:
@@ -289,12 +317,15 @@ def _effort_unit(config: Path) -> str:
 class _ShadowSummary:
     run: object  # feed_twin.nodeset.summary.RunSummary of the machine
     figures: object  # feed_twin.shadow.summary.ShadowFigures
+    extra: object = None  # feed_twin.linuxcnc.summary.LinuxcncFigures with --nc linuxcnc
 
     def format(self) -> str:
-        return f"{self.run.format()}\n{self.figures.format()}"
+        text = f"{self.run.format()}\n{self.figures.format()}"
+        return text if self.extra is None else f"{text}\n{self.extra.format()}"
 
     def as_dict(self) -> dict:
-        return {**self.run.as_dict(), **self.figures.as_dict()}
+        extra = {} if self.extra is None else self.extra.as_dict()
+        return {**self.run.as_dict(), **self.figures.as_dict(), **extra}
 
 
 def main(args: argparse.Namespace) -> int:
@@ -311,6 +342,10 @@ def main(args: argparse.Namespace) -> int:
             "--shadow runs the G-code node, the stand-in machine and the twin as separate "
             "processes: it cannot be combined with --single-process or --no-gcode",
         )
+    if args.nc == "linuxcnc":
+        problem = _linuxcnc_precheck(args)
+        if problem:
+            return _early_error(args, problem)
     try:
         ros, nc = _check_inputs(args)
     except GcodeError as exc:
@@ -344,6 +379,9 @@ def main(args: argparse.Namespace) -> int:
     finally:
         if viewer is not None:
             viewer.stop()
+    if reason and args.nc == "linuxcnc":
+        # the bridge's own line for a LinuxCNC fault, without the log record's prefix
+        reason = (log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}).get("fault") or reason
     if reason:
         print(f"feed-twin run: {reason}", file=sys.stderr)
     if summary is not None:
@@ -370,6 +408,20 @@ def main(args: argparse.Namespace) -> int:
     if code == 0 and summary is None:
         return 1
     return code
+
+
+def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:
+    """Why `--nc linuxcnc` cannot run: options, LinuxCNC missing, one interpreter only."""
+    if not args.shadow or args.program is None:
+        return "--nc linuxcnc runs a PROGRAM on LinuxCNC with the twin beside it: add --shadow"
+    from feed_twin.linuxcnc.host import LinuxcncError, check_installed
+    from feed_twin.linuxcnc.summary import sides_disagree
+
+    try:
+        check_installed()
+        return sides_disagree(args.program, args.config)
+    except (LinuxcncError, ConfigError, ValueError, OSError) as exc:
+        return str(exc)
 
 
 def _early_error(args: argparse.Namespace, message: str) -> int:

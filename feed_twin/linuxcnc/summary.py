@@ -1,0 +1,138 @@
+"""`feed-twin run PROGRAM --nc linuxcnc --shadow`: its pre-check, column map and figures.
+
+- Before anything starts, both interpreters read the program: one that only LinuxCNC or only
+  feed_twin's G-code interpreter accepts is reported, not run on one side (`sides_disagree`).
+- The twin node reads the machine through a column map (feed_twin.io.measured): LinuxCNC's
+  command and its feedback, no effort (the HAL servo has none).
+- The figures: LinuxCNC's program time and largest following error of the twin's joint (from
+  the bridge's `LINUXCNC {json}` report), the twin's largest following error (its residuals in
+  the bag), the samples received and lost, the bridge latency servo tick -> published and the
+  latency servo tick -> the twin's output back at the bridge.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from feed_twin.gcode.config import NcAxis
+from feed_twin.io.bag import BagReader
+
+LINUXCNC_MAP = """\
+# column map of LinuxCNC's topics as the bridge publishes them (feed_twin/ros/linuxcnc_node.py)
+time: {{column: "{command}:header.stamp", unit: s}}
+position_sensor: {sensor}
+signals:
+  pos_cmd_m: {{column: "{command}:position", unit: m}}
+  vel_cmd_m_s: {{column: "{command}:velocity", unit: m/s}}
+  pos_meas_m: {{column: "{joints}:position[0]", unit: m}}
+plausibility: {{travel_m: {travel!r}, max_speed_m_s: {speed!r}}}
+"""
+
+
+def write_linuxcnc_map(path: Path, *, config: Path, namespace: str, axis: NcAxis) -> Path:
+    """The map of the bridge's topics under `namespace`; the feedback is the sensor the twin
+    of `config` closes its position loop on (the scale, else the motor encoder)."""
+    from feed_twin.analysis.twin import ModelDoc
+
+    doc = ModelDoc.load(config)
+    path.write_text(
+        LINUXCNC_MAP.format(
+            command=f"{namespace}/command",
+            joints=f"{namespace}/joint_states",
+            sensor="linear_scale" if doc.of_type("LinearScale") else "motor_encoder",
+            travel=axis.travel_max_m - axis.travel_min_m,
+            # LinuxCNC's rapids reach the axis velocity limit; leave room above it
+            speed=1.5 * axis.rapid_m_s,
+        )
+    )
+    return path
+
+
+def sides_disagree(program: Path, config: Path) -> str | None:
+    """A one-line report when exactly one of the two interpreters rejects `program`."""
+    from feed_twin.gcode import GcodeError, load_nc_config, validate_program
+    from feed_twin.linuxcnc.check import linuxcnc_rejects
+    from feed_twin.linuxcnc.machine import machine_for_config
+
+    nc, servo = machine_for_config(config)
+    theirs = linuxcnc_rejects(program, nc, servo)
+    try:
+        validate_program(program, load_nc_config(config))
+        ours = None
+    except GcodeError as exc:
+        ours = str(exc)
+    if theirs is not None and ours is None:
+        return f"feed_twin's interpreter accepts the program but {theirs}; nothing was started"
+    if ours is not None and theirs is None:
+        return (
+            f"LinuxCNC accepts the program but feed_twin's interpreter rejects it: {ours}; "
+            "nothing was started"
+        )
+    if theirs is not None:
+        return f"{theirs}; feed_twin's interpreter rejects it too: {ours}"
+    return None
+
+
+@dataclass(frozen=True, kw_only=True)
+class LinuxcncFigures:
+    program_time_s: float  # [s] LinuxCNC's, first to last motion of the program
+    linuxcnc_following_error_max_m: float  # [m] the twin joint's, over the program
+    twin_following_error_max_m: float  # [m] the twin's over the shadowed samples
+    samples_received: int  # servo periods the bridge received
+    samples_lost: int  # servo periods missing (gaps in LinuxCNC's tick count)
+    bridge_latency_p50_ms: float  # [ms] servo tick -> its samples published to the twin
+    bridge_latency_p99_ms: float  # [ms]
+    twin_output_latency_p50_ms: float  # [ms] servo tick -> the twin's output back at the bridge
+    twin_output_latency_p99_ms: float  # [ms]
+    startup_s: float  # [s] LinuxCNC start-up to the machine homed
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+    def format(self) -> str:
+        return "\n".join(
+            [
+                f"LinuxCNC program time: {self.program_time_s:.3f} s",
+                f"max following error:  LinuxCNC {self.linuxcnc_following_error_max_m * 1e6:.3f}"
+                f" um, twin {self.twin_following_error_max_m * 1e6:.3f} um",
+                f"servo samples:         {self.samples_received} received, "
+                f"{self.samples_lost} lost",
+                f"bridge latency:        p50 {self.bridge_latency_p50_ms:.3f} ms, "
+                f"p99 {self.bridge_latency_p99_ms:.3f} ms (servo tick -> published)",
+                f"twin output latency:   p50 {self.twin_output_latency_p50_ms:.3f} ms, "
+                f"p99 {self.twin_output_latency_p99_ms:.3f} ms (servo tick -> twin's residual)",
+            ]
+        )
+
+
+def linuxcnc_figures(bag: Path, *, twin_namespace: str, report: dict) -> LinuxcncFigures:
+    """The figures from the bag and the bridge's report (module docstring)."""
+    reader = BagReader(bag)
+    residual = f"{twin_namespace}/residual"
+    present = {t.name for t in reader.info.topics if t.message_count > 0}
+    twin_fe = math.nan
+    if residual in present:
+        fe = reader.columns(residual, ("following_error_twin",))["following_error_twin"]
+        fe = fe[np.isfinite(fe)]
+        twin_fe = float(np.max(np.abs(fe))) if fe.size else math.nan
+
+    def number(key: str) -> float:
+        value = report.get(key)
+        return math.nan if value is None else float(value)
+
+    return LinuxcncFigures(
+        program_time_s=number("program_time_s"),
+        linuxcnc_following_error_max_m=number("linuxcnc_following_error_max_m"),
+        twin_following_error_max_m=twin_fe,
+        samples_received=int(report.get("samples_received") or 0),
+        samples_lost=int(report.get("samples_lost") or 0),
+        bridge_latency_p50_ms=number("bridge_latency_p50_ms"),
+        bridge_latency_p99_ms=number("bridge_latency_p99_ms"),
+        twin_output_latency_p50_ms=number("twin_output_latency_p50_ms"),
+        twin_output_latency_p99_ms=number("twin_output_latency_p99_ms"),
+        startup_s=number("startup_s"),
+    )

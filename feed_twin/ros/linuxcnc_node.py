@@ -1,0 +1,264 @@
+"""LinuxCNC as the NC and the machine of the shadow twin: the bridge node.
+
+Runs one program on LinuxCNC (feed_twin.linuxcnc.runner: headless, every 1 kHz servo period)
+once its peers are up and the twin listens, and publishes each period (stamps and pairing:
+feed_twin.linuxcnc.bridge):
+
+- `<ns>/command` (AxisCommand): LinuxCNC's commanded position, velocity, acceleration and
+  program line of the twin's joint, as the G-code node would publish them;
+- `<ns>/joint_states` (JointState, position only): that joint's feedback, stamped with the
+  period it belongs to, as the stand-in machine publishes it: the twin node shadows LinuxCNC
+  unchanged (the HAL servo has no effort, so there is no effort residual);
+- `<ns>/linuxcnc/servo` (ServoSample): every joint's command, feedback, following error and
+  PID output, for the bag.
+
+Latency (feed_twin.linuxcnc.bridge): servo tick -> published, and servo tick -> the twin's
+`<ns>/twin/residual` for that period back at the bridge. At the
+program's end it announces `done: program finished` on run_state; a LinuxCNC fault (a program it
+rejects, LinuxCNC dying, the bridge falling behind) ends the run with `done: LinuxCNC fault` and
+the fault's one line as the node's exit message, so the twin and the recorder finish and the bag
+stays readable. Stderr: `PROGRESS <program time>` and at the end `LINUXCNC {json}` (counts,
+latency, LinuxCNC's program time and following error, start-up).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import struct
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from feed_twin_msgs.msg import AxisCommand, ServoSample, TwinResidual
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+
+from feed_twin.io.cdr import FlatCodec
+from feed_twin.linuxcnc.bridge import BridgeBatch, ServoBridge
+from feed_twin.linuxcnc.host import LinuxcncError
+from feed_twin.linuxcnc.machine import machine_for_config
+from feed_twin.linuxcnc.runner import LinuxcncRun, RunOptions
+from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
+from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, start_node
+from feed_twin.shadow.bagstreams import encode_joint_state
+from feed_twin.shadow.replay import twin_namespace
+
+COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
+LINGER_S = 1.0  # [s] after the end, so that readers receive everything
+PROGRESS_PERIOD_S = 0.5
+_STAMP = struct.Struct("<iI")  # header.stamp right after the 4-byte CDR encapsulation
+
+
+class LinuxcncNode(FeedTwinNode):
+    def __init__(
+        self,
+        options: NodeOptions,
+        *,
+        start_run,
+        joint: int,
+        period_s: float,
+        context=None,
+    ) -> None:
+        super().__init__("linuxcnc", options, context=context)
+        self._start_run = start_run
+        self.joint = joint
+        self.period_s = period_s
+        self._label = options.axis.upper()
+        self._cmd_pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
+        self._js_pub = self.create_publisher(JointState, self.topics.joint_states, DATA_QOS)
+        self._servo_pub = self.create_publisher(
+            ServoSample, f"{self.topics.namespace}/linuxcnc/servo", DATA_QOS
+        )
+        self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
+        self.create_subscription(
+            TwinResidual,
+            f"{twin_namespace(self.topics.command)}/residual",
+            self._on_twin_output,
+            DATA_QOS,
+            raw=True,
+        )
+        self._command = COMMAND.fixed({"header.frame_id": "", "axis": self._label})
+        if self._command.numbers != _COMMAND_ORDER:
+            raise ValueError(f"AxisCommand's numbers are {self._command.numbers}")
+        self.run: LinuxcncRun | None = None
+        self.bridge: ServoBridge | None = None
+        self.report: dict = {}
+        self._done_at: float | None = None
+        self._progress_at = 0.0
+        self._t_start = 0.0
+        publishers = (self._cmd_pub, self._js_pub, self._servo_pub)
+        self.start_heartbeat(when=lambda: self.recorder_listens(publishers))
+
+    def poll(self) -> float | None:
+        if self.done:
+            return None
+        now = time.monotonic()
+        if self._done_at is not None:
+            if now - self._done_at > LINGER_S:
+                self.finish(*self._ending)
+                return None
+            return 0.05
+        if self.run is None:
+            if not (self.peers_alive() and self._js_pub.get_subscription_count() > 0):
+                return 0.01
+            self._t_start = now
+            try:
+                self.run = self._start_run()
+            except LinuxcncError as exc:
+                self._end(EXIT_ERROR, str(exc))
+                return 0.05
+            self.bridge = ServoBridge(self.run.layout, period_s=self.period_s, joint=self.joint)
+            self.report["startup_s"] = time.monotonic() - now
+        try:
+            rows = self.run.poll(0.0)
+        except LinuxcncError as exc:
+            self._end(EXIT_ERROR, str(exc))
+            return 0.05
+        batch = self.bridge.take(rows, now_s=time.monotonic())
+        if batch is not None:
+            self._publish(batch)
+            self.bridge.mark_published(batch, now_s=time.monotonic())
+        if now - self._progress_at > PROGRESS_PERIOD_S and batch is not None:
+            self._progress_at = now
+            print(f"PROGRESS {batch.stamp_ns[-1] * 1e-9:.3f}", file=sys.stderr, flush=True)
+        if self.run.ended:
+            self._end(EXIT_OK, "")
+            return 0.05
+        return 0.001
+
+    def _publish(self, b: BridgeBatch) -> None:
+        j = self.joint
+        for i in range(len(b)):
+            sec, nsec = divmod(int(b.stamp_ns[i]), 1_000_000_000)
+            values = (sec, nsec, float(b.pos_cmd_m[i, j]), float(b.vel_cmd_m_s[i, j]),
+                      float(b.acc_cmd_m_s2[i, j]), int(b.line[i]))  # fmt: skip
+            self._cmd_pub.publish(self._command.encode(values))
+            self._servo_pub.publish(_servo_sample(b, i, sec, nsec, self._label))
+        for stamp, x in zip(b.measured_stamp_ns.tolist(), b.measured_pos_m.tolist(), strict=True):
+            self._js_pub.publish(encode_joint_state(stamp, [self._label.lower()], [x], [], []))
+
+    def on_run_done(self, text: str) -> None:
+        """This node announces the end itself (and hears its own announcement): it finishes
+        after LINGER_S with the code of its run, not at the announcement."""
+
+    def _on_twin_output(self, data: bytes) -> None:
+        if self.bridge is not None:
+            sec, nsec = _STAMP.unpack_from(data, 4)
+            self.bridge.twin_output(sec * 1_000_000_000 + nsec, now_s=time.monotonic())
+
+    def _end(self, code: int, message: str) -> None:
+        """Stop LinuxCNC, announce the end of the run, stay LINGER_S, then finish."""
+        self._close_run()
+        self._run_pub.publish(
+            String(data="done: program finished" if code == EXIT_OK else "done: LinuxCNC fault")
+        )
+        self._ending = (code, message)
+        self._done_at = time.monotonic()
+        if message:
+            self.report["fault"] = message
+
+    def _close_run(self) -> None:
+        run, self.run = self.run, _ENDED
+        if run is None or run is _ENDED:
+            return
+        fault_at = run.fault_wall
+        run.__exit__(None, None, None)
+        trace = run.trace()
+        span = trace.program_span()
+        program = trace.cut(span)
+        self.report.update(
+            program_time_s=program.program_time_s,
+            linuxcnc_following_error_max_m=(
+                float(np.max(np.abs(program.f_error_m[:, self.joint]))) if program.samples else None
+            ),
+            sampler_overruns=int((run.state.end or {}).get("overruns", 0)),
+            samples_lost_total=trace.samples_lost,
+            stop_s=None if fault_at is None else time.monotonic() - fault_at,
+        )
+        reader = program.reader_latency_s * 1e3
+        if reader.size:
+            self.report.update(
+                reader_latency_p50_ms=float(np.percentile(reader, 50)),
+                reader_latency_p99_ms=float(np.percentile(reader, 99)),
+            )
+
+    def on_shutdown(self, reason: str) -> None:
+        self._close_run()
+        if self.bridge is not None:
+            self.report.update(self.bridge.report())
+        self.report["wall_s"] = time.monotonic() - self._t_start if self._t_start else None
+        print("LINUXCNC " + json.dumps(self.report), file=sys.stderr, flush=True)
+
+
+_ENDED = object()  # the run attribute once LinuxCNC has been stopped
+_COMMAND_ORDER = (
+    "header.stamp.sec", "header.stamp.nanosec", "position", "velocity", "acceleration", "line",
+)  # fmt: skip
+
+
+def _servo_sample(b: BridgeBatch, i: int, sec: int, nsec: int, axis: str) -> ServoSample:
+    msg = ServoSample()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nsec
+    msg.axis = axis
+    msg.tick = int(b.tick[i])
+    msg.tick_time = float(b.tick_time_s[i])
+    msg.line = max(0, int(b.line[i]))
+    msg.joints = ["X", "Y", "Z"]
+    msg.position_command = b.pos_cmd_m[i].tolist()
+    msg.velocity_command = b.vel_cmd_m_s[i].tolist()
+    msg.acceleration_command = b.acc_cmd_m_s2[i].tolist()
+    msg.position_feedback = b.pos_fb_m[i].tolist()
+    msg.following_error = b.f_error_m[i].tolist()
+    msg.servo_output = b.pid_output_m_s[i].tolist()
+    return msg
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", required=True, type=Path, help="axis config (nc:, ros:)")
+    parser.add_argument("--program", required=True, type=Path, help="G-code program")
+    parser.add_argument("--timeout", type=float, default=3600.0, help="[s] program run at most")
+    parser.add_argument("--max-lag", type=float, default=1.0, help="[s] bridge lag at most")
+    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
+    parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
+    parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
+
+
+def build(args: argparse.Namespace, context) -> LinuxcncNode:
+    from feed_twin.nodeset.split import load_node_set_config
+
+    ros = load_node_set_config(args.config)
+    nc, servo = machine_for_config(args.config)
+    options = RunOptions(timeout_s=args.timeout, max_lag_s=args.max_lag)
+
+    def start_run() -> LinuxcncRun:
+        run = LinuxcncRun(args.program, nc=nc, servo=servo, options=options,
+                          say=lambda text: print(text, file=sys.stderr, flush=True))  # fmt: skip
+        return run.__enter__()
+
+    return LinuxcncNode(
+        NodeOptions(
+            machine=ros.machine,
+            axis=ros.axis,
+            peers=tuple(p for p in args.peers.split(",") if p),
+            startup_timeout_s=args.startup_timeout,
+            input_timeout_s=args.input_timeout,
+        ),
+        start_run=start_run,
+        joint=nc.axis_index(nc.twin_axis),
+        period_s=servo.servo_period_s,
+        context=context,
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="linuxcnc node", description=__doc__.splitlines()[0])
+    configure(parser)
+    args = parser.parse_args(argv)
+    return start_node("linuxcnc node", lambda context: build(args, context))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
