@@ -118,9 +118,10 @@ class ServoBridge:
         if tick_time is not None:
             self.twin_latency_s.append(now_s - tick_time)
 
-    def mark_published(self, batch: BridgeBatch, *, now_s: float) -> None:
-        """`batch` was handed to DDS by `now_s` (CLOCK_MONOTONIC)."""
-        self.publish_latency_s.append(now_s - batch.tick_time_s)
+    def mark_published(self, tick_time_s: np.ndarray, *, now_s: float) -> None:
+        """The periods starting at `tick_time_s` were handed to DDS by `now_s` (both
+        CLOCK_MONOTONIC)."""
+        self.publish_latency_s.append(now_s - tick_time_s)
 
     def report(self) -> dict[str, float | int | None]:
         publish = (

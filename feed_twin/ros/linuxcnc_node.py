@@ -28,6 +28,7 @@ import json
 import struct
 import sys
 import time
+from collections import deque
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -48,6 +49,7 @@ from feed_twin.shadow.replay import twin_namespace
 
 COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
 LINGER_S = 1.0  # [s] after the end, so that readers receive everything
+WINDOW = 100  # periods published ahead of the twin's output at most
 PROGRESS_PERIOD_S = 0.5
 _STAMP = struct.Struct("<iI")  # header.stamp right after the 4-byte CDR encapsulation
 
@@ -87,6 +89,9 @@ class LinuxcncNode(FeedTwinNode):
         self.bridge: ServoBridge | None = None
         self.report: dict = {}
         self._done_at: float | None = None
+        self._backlog: deque[list] = deque()  # [batch, first row not yet published]
+        self._twin_ns = -1  # stamp of the twin's latest output [ns]
+        self._sent_ns: int | None = None  # stamp of the latest published period [ns]
         self._progress_at = 0.0
         self._t_start = 0.0
         publishers = (self._cmd_pub, self._js_pub, self._servo_pub)
@@ -112,33 +117,60 @@ class LinuxcncNode(FeedTwinNode):
                 return 0.05
             self.bridge = ServoBridge(self.run.layout, period_s=self.period_s, joint=self.joint)
             self.report["startup_s"] = time.monotonic() - now
-        try:
-            rows = self.run.poll(0.0)
-        except LinuxcncError as exc:
-            self._end(EXIT_ERROR, str(exc))
-            return 0.05
-        batch = self.bridge.take(rows, now_s=time.monotonic())
-        if batch is not None:
-            self._publish(batch)
-            self.bridge.mark_published(batch, now_s=time.monotonic())
-        if now - self._progress_at > PROGRESS_PERIOD_S and batch is not None:
+        if self.run is not _ENDED:
+            try:
+                rows = self.run.poll(0.0)
+            except LinuxcncError as exc:
+                self._end(EXIT_ERROR, str(exc))
+                return 0.05
+            batch = self.bridge.take(rows, now_s=time.monotonic())
+            if batch is not None:
+                self._backlog.append([batch, 0])
+            if self.run.ended:
+                self._close_run()  # LinuxCNC is done; what it sent may still be waiting here
+        self._publish_window()
+        if now - self._progress_at > PROGRESS_PERIOD_S and self._sent_ns is not None:
             self._progress_at = now
-            print(f"PROGRESS {batch.stamp_ns[-1] * 1e-9:.3f}", file=sys.stderr, flush=True)
-        if self.run.ended:
+            print(f"PROGRESS {self._sent_ns * 1e-9:.3f}", file=sys.stderr, flush=True)
+        if self.run is _ENDED and not self._backlog:
             self._end(EXIT_OK, "")
             return 0.05
         return 0.001
 
-    def _publish(self, b: BridgeBatch) -> None:
+    def _publish_window(self) -> None:
+        """Publish what waits, at most WINDOW periods ahead of the twin's output: LinuxCNC
+        does not wait for a slow twin, this node does (DDS would drop what the twin's reader
+        cannot hold), so the twin shadows every period, late if it must."""
+        window_end = self._twin_ns + round(WINDOW * self.period_s * 1e9)
+        while self._backlog:
+            batch, start = self._backlog[0]
+            stop = start
+            while stop < len(batch) and batch.stamp_ns[stop] <= window_end:
+                stop += 1
+            if stop == start:
+                return
+            self._publish(batch, start, stop)
+            self.bridge.mark_published(batch.tick_time_s[start:stop], now_s=time.monotonic())
+            self._sent_ns = int(batch.stamp_ns[stop - 1])
+            if stop == len(batch):
+                self._backlog.popleft()
+            else:
+                self._backlog[0][1] = stop
+
+    def _publish(self, b: BridgeBatch, start: int, stop: int) -> None:
         j = self.joint
-        for i in range(len(b)):
-            sec, nsec = divmod(int(b.stamp_ns[i]), 1_000_000_000)
+        period_ns = round(self.period_s * 1e9)
+        joint = [self._label.lower()]
+        for i in range(start, stop):
+            stamp = int(b.stamp_ns[i])
+            sec, nsec = divmod(stamp, 1_000_000_000)
             values = (sec, nsec, float(b.pos_cmd_m[i, j]), float(b.vel_cmd_m_s[i, j]),
                       float(b.acc_cmd_m_s2[i, j]), int(b.line[i]))  # fmt: skip
             self._cmd_pub.publish(self._command.encode(values))
             self._servo_pub.publish(_servo_sample(b, i, sec, nsec, self._label))
-        for stamp, x in zip(b.measured_stamp_ns.tolist(), b.measured_pos_m.tolist(), strict=True):
-            self._js_pub.publish(encode_joint_state(stamp, [self._label.lower()], [x], [], []))
+            if stamp > 0:  # row k's feedback is period k - 1's (feed_twin.linuxcnc.bridge)
+                fb = float(b.pos_fb_m[i, j])
+                self._js_pub.publish(encode_joint_state(stamp - period_ns, joint, [fb], [], []))
 
     def on_run_done(self, text: str) -> None:
         """This node announces the end itself (and hears its own announcement): it finishes
@@ -147,7 +179,9 @@ class LinuxcncNode(FeedTwinNode):
     def _on_twin_output(self, data: bytes) -> None:
         if self.bridge is not None:
             sec, nsec = _STAMP.unpack_from(data, 4)
-            self.bridge.twin_output(sec * 1_000_000_000 + nsec, now_s=time.monotonic())
+            stamp = sec * 1_000_000_000 + nsec
+            self._twin_ns = max(self._twin_ns, stamp)
+            self.bridge.twin_output(stamp, now_s=time.monotonic())
 
     def _end(self, code: int, message: str) -> None:
         """Stop LinuxCNC, announce the end of the run, stay LINGER_S, then finish."""
