@@ -161,3 +161,32 @@ def test_program_span_and_cut() -> None:
     cut = trace.cut(trace.program_span())
     assert cut.tick.tolist() == [0, 1, 2, 3, 4, 5]
     assert cut.pos_cmd_m[0, 0] == pytest.approx(0.403)
+
+
+def test_the_bridge_stamps_pairs_and_counts() -> None:
+    from feed_twin.linuxcnc.bridge import ServoBridge
+
+    layout = sample_layout()
+    line = len(ROW_HEADER) + layout.index("program_line")
+    fb = len(ROW_HEADER) + layout.index("x.pos_fb")
+    rows = _rows(list(range(100, 110)))
+    rows[:3, line] = 0  # the program's first motion is tick 103
+    rows[:, fb] = 400.0 + np.arange(10)  # mm
+    bridge = ServoBridge(layout, period_s=1e-3, joint=0)
+    assert bridge.take(rows[:2], now_s=0.0) is None  # nothing to publish before the program
+    first = bridge.take(rows[2:6], now_s=0.0)
+    assert first.tick.tolist() == [103, 104, 105]
+    assert first.stamp_ns.tolist() == [0, 1_000_000, 2_000_000]
+    assert first.line.tolist() == [7, 7, 7]
+    # row k's feedback is period k - 1's: tick 104's row answers stamp 0
+    assert first.measured_stamp_ns.tolist() == [0, 1_000_000]
+    assert first.measured_pos_m == pytest.approx([0.404, 0.405])
+    # a gap of two ticks (107, 108 missing) is counted, the stamps keep the tick count
+    second = bridge.take(rows[[6, 9]], now_s=0.0)
+    assert second.stamp_ns.tolist() == [3_000_000, 6_000_000]
+    assert (bridge.received, bridge.lost, bridge.published) == (8, 2, 5)
+    bridge.twin_output(3_000_000, now_s=100.0 + 106e-3 + 5e-3)
+    bridge.mark_published(second.tick_time_s, now_s=100.2)
+    report = bridge.report()
+    assert report["twin_output_latency_p50_ms"] == pytest.approx(5.0)
+    assert report["bridge_latency_max_ms"] == pytest.approx((100.2 - 100.106) * 1e3)

@@ -220,3 +220,17 @@ def test_missing_linuxcnc_is_one_line(monkeypatch: pytest.MonkeyPatch, tmp_path:
         check_installed()
     with pytest.raises(LinuxcncError, match="LinuxCNC is not installed"):
         run_program(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO)
+
+
+def test_a_program_only_one_interpreter_accepts_is_named_either_way() -> None:
+    from feed_twin.linuxcnc.summary import sides_disagree
+
+    sinumerik = REPO / "tests" / "fixtures" / "gcode" / "sinumerik_style.ngc"
+    assert sides_disagree(sinumerik, CONFIG) == (
+        f"feed_twin's interpreter accepts the program but {sinumerik}:2: LinuxCNC rejects "
+        "'N10 G71 G17 G90 G54 G64': G7x.x  requires a Q word; nothing was started"
+    )
+    assert sides_disagree(PROGRAMS / "params.ngc", CONFIG).startswith(
+        "LinuxCNC accepts the program but feed_twin's interpreter rejects it: "
+    )
+    assert sides_disagree(PROGRAMS / "x_line.ngc", CONFIG) is None
