@@ -1,9 +1,7 @@
-"""`feed-twin run PROGRAM --nc linuxcnc --shadow`: its pre-check, column map and figures.
+"""`feed-twin run PROGRAM --nc linuxcnc --shadow`: its pre-check and its figures.
 
 - Before anything starts, both interpreters read the program: one that only LinuxCNC or only
   feed_twin's G-code interpreter accepts is reported, not run on one side (`sides_disagree`).
-- The twin node reads the machine through a column map (feed_twin.io.measured): LinuxCNC's
-  command and its feedback, no effort (the HAL servo has none).
 - The figures: LinuxCNC's program time and largest following error of the twin's joint (from
   the bridge's `LINUXCNC {json}` report), the twin's largest following error (its residuals in
   the bag), the samples received and lost, the bridge latency servo tick -> published and the
@@ -18,38 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.gcode.config import NcAxis
 from feed_twin.io.bag import BagReader
-
-LINUXCNC_MAP = """\
-# column map of LinuxCNC's topics as the bridge publishes them (feed_twin/ros/linuxcnc_node.py)
-time: {{column: "{command}:header.stamp", unit: s}}
-position_sensor: {sensor}
-signals:
-  pos_cmd_m: {{column: "{command}:position", unit: m}}
-  vel_cmd_m_s: {{column: "{command}:velocity", unit: m/s}}
-  pos_meas_m: {{column: "{joints}:position[0]", unit: m}}
-plausibility: {{travel_m: {travel!r}, max_speed_m_s: {speed!r}}}
-"""
-
-
-def write_linuxcnc_map(path: Path, *, config: Path, namespace: str, axis: NcAxis) -> Path:
-    """The map of the bridge's topics under `namespace`; the feedback is the sensor the twin
-    of `config` closes its position loop on (the scale, else the motor encoder)."""
-    from feed_twin.analysis.twin import ModelDoc
-
-    doc = ModelDoc.load(config)
-    path.write_text(
-        LINUXCNC_MAP.format(
-            command=f"{namespace}/command",
-            joints=f"{namespace}/joint_states",
-            sensor="linear_scale" if doc.of_type("LinearScale") else "motor_encoder",
-            travel=axis.travel_max_m - axis.travel_min_m,
-            # LinuxCNC's rapids reach the axis velocity limit; leave room above it
-            speed=1.5 * axis.rapid_m_s,
-        )
-    )
-    return path
 
 
 def sides_disagree(program: Path, config: Path) -> str | None:

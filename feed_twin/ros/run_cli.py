@@ -150,17 +150,15 @@ def _write_shadow_map(args: argparse.Namespace, ros, nc, out: Outputs) -> None:
     from feed_twin.shadow.standin import write_map
 
     axis = next(a for a in nc.axes if a.name == nc.twin_axis)
-    if args.nc == "linuxcnc":
-        from feed_twin.linuxcnc.summary import write_linuxcnc_map
-
-        namespace = AxisTopics(machine=ros.machine, axis=ros.axis).namespace
-        write_linuxcnc_map(out.map, config=args.config, namespace=namespace, axis=axis)
-        return
+    # LinuxCNC's HAL servo reports no effort; its rapids reach the axis velocity limit
+    linuxcnc = args.nc == "linuxcnc"
     write_map(
         out.map,
         Twin.compile(ModelDoc.load(args.config)),
         AxisTopics(machine=ros.machine, axis=ros.axis).namespace,
         travel_m=axis.travel_max_m - axis.travel_min_m,
+        with_effort=not linuxcnc,
+        max_speed_m_s=1.5 * axis.rapid_m_s if linuxcnc else 0.5,
     )
 
 

@@ -128,15 +128,16 @@ class StandIn:
 
 
 BAG_MAP = """\
-# column map of a stand-in recording (feed_twin.shadow.standin.record_bag)
+# column map of a machine's command and joint_states topics (feed_twin.shadow.standin.write_map)
 time: {{column: "{command}:header.stamp", unit: s}}
 position_sensor: {sensor}
 signals:
   pos_cmd_m: {{column: "{command}:position", unit: m}}
   vel_cmd_m_s: {{column: "{command}:velocity", unit: m/s}}
   pos_meas_m: {{column: "{joints}:position[0]", unit: m}}
-  {effort}: {{column: "{joints}:effort[0]", unit: {unit}}}
-plausibility: {{travel_m: {travel!r}, max_speed_m_s: 0.5}}
+{effort_line}plausibility: {{travel_m: {travel!r}, max_speed_m_s: {speed!r}}}
+"""
+EFFORT_LINE = """  {effort}: {{column: "{joints}:effort[0]", unit: {unit}}}
 """
 _UNIT_OF = {"force_cmd_N": "N", "torque_cmd_Nm": "Nm", "current_q_A": "A"}
 
@@ -218,19 +219,30 @@ def record_bag(
     return write_map(path.with_name(f"{path.name}_map.yaml"), standin.twin, namespace, travel_m)
 
 
-def write_map(path: str | Path, twin: Twin, namespace: str, travel_m: float = 0.3) -> Path:
+def write_map(
+    path: str | Path,
+    twin: Twin,
+    namespace: str,
+    travel_m: float = 0.3,
+    *,
+    with_effort: bool = True,
+    max_speed_m_s: float = 0.5,
+) -> Path:
     """The column map of the stand-in's topics (command and joint_states under `namespace`)
-    for a model `twin` (the stand-in's truth or the nominal twin: the same effort signal)."""
+    for a model `twin` (the stand-in's truth or the nominal twin: the same effort signal);
+    `with_effort=False` for a machine that reports no effort (LinuxCNC's HAL servo)."""
     path = Path(path)
+    joints = f"{namespace}/joint_states"
     effort = twin.effort_name
+    effort_line = EFFORT_LINE.format(effort=effort, joints=joints, unit=_UNIT_OF[effort])
     path.write_text(
         BAG_MAP.format(
             command=f"{namespace}/command",
-            joints=f"{namespace}/joint_states",
+            joints=joints,
             sensor=_feedback_sensor(twin.doc),
-            effort=effort,
-            unit=_UNIT_OF[effort],
+            effort_line=effort_line if with_effort else "",
             travel=travel_m,
+            speed=max_speed_m_s,
         )
     )
     return path
