@@ -6,14 +6,18 @@
 
 Flags: -O3 and IEEE arithmetic as numba's kernel has it (-ffp-contract=off: the compiler fuses
 no multiply-add the source does not spell `fma`; no fast-math), -fwrapv (int64 wraps, as in
-numba), and -mfma where the CPU has it, so that `fma` is one instruction instead of a call
-into the C library (correctly rounded either way: the same doubles).
+numba), and -march=native, as numba compiles for the CPU it runs on: `fma` is then one
+instruction instead of a call into the C library (correctly rounded either way: the same
+doubles), and AVX-512's 32 registers spill less (254 -> 225 ns per tick of axis_default).
+-fno-trapping-math (no FP exception ever traps here) lets divisions by parameters leave the
+loop; -fno-tree-vectorize: the vectorised copies were slower (225 -> 217 ns).
 """
 
 from __future__ import annotations
 
 import ctypes
 import hashlib
+import platform
 import shutil
 import subprocess
 from pathlib import Path
@@ -24,7 +28,16 @@ from feed_twin.native.emit import CKernel, c_kernel
 from feed_twin.sim.kernel import cache_dir
 
 CC_PACKAGE = "gcc"  # Debian package of the system C compiler `cc`
-FLAGS = ("-O3", "-ffp-contract=off", "-fwrapv", "-fno-math-errno", "-fPIC", "-std=gnu11")
+FLAGS = (
+    "-O3",
+    "-ffp-contract=off",
+    "-fwrapv",
+    "-fno-math-errno",
+    "-fno-trapping-math",
+    "-fno-tree-vectorize",
+    "-fPIC",
+    "-std=gnu11",
+)
 
 
 class CompilerMissingError(RuntimeError):
@@ -42,13 +55,8 @@ def find_cc(name: str = "cc") -> str:
 
 
 def cpu_flags() -> tuple[str, ...]:
-    """-mfma when this CPU executes fused multiply-adds (Linux /proc/cpuinfo)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return ()
-    flags = next((line for line in text.splitlines() if line.startswith("flags")), "")
-    return ("-mfma",) if " fma" in flags else ()
+    """-march=native on x86-64 (numba too compiles for the CPU it runs on)."""
+    return ("-march=native",) if platform.machine() in ("x86_64", "AMD64") else ()
 
 
 def write_sources(kernel: CKernel, directory: Path, stem: str = "feed_twin_axis") -> Path:
