@@ -79,15 +79,17 @@ def compile_kernel(kernel: CKernel, *, cc: str = "cc", extra: tuple[str, ...] = 
         return library
     c_path = write_sources(kernel, directory)
     tmp = directory / f"feed_twin_axis.tmp{id(kernel)}.so"
-    result = subprocess.run(
-        [compiler, *flags, "-shared", "-o", str(tmp), str(c_path), "-lm"],
-        capture_output=True,
-        text=True,
-    )
-    if result.returncode != 0:
-        raise RuntimeError(f"{c_path}: {compiler} failed:\n{result.stderr[-4000:]}")
+    run_cc(compiler, [*flags, "-shared"], [c_path], tmp)
     tmp.replace(library)
     return library
+
+
+def run_cc(compiler: str, flags: list[str], sources: list[Path], output: Path) -> None:
+    """Compile and link `sources` into `output`; the compiler's complaint on failure."""
+    command = [compiler, *flags, "-o", str(output), *map(str, sources), "-lm"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        raise RuntimeError(f"{sources[0]}: {compiler} failed:\n{result.stderr[-4000:]}")
 
 
 def c_kernel_for_axis(axis, *, closed_loop: bool = True) -> CKernel:

@@ -69,6 +69,10 @@ int ft_set_ctrl_param(ft_model *m, int i, double value)
 }}
 
 double ft_param(const ft_model *m, int i) {{ return (i >= 0 && i < FT_N_P) ? m->p[i] : NAN; }}
+double ft_ctrl_param(const ft_model *m, int i)
+{{
+    return (i >= 0 && i < FT_N_CP) ? m->cp[i] : NAN;
+}}
 void ft_set_states(ft_model *m, const double *x) {{ memcpy(m->x, x, sizeof m->x); }}
 void ft_set_ref(ft_model *m, const double *ref) {{ memcpy(m->ref, ref, sizeof m->ref); }}
 void ft_set_drive(ft_model *m, const double *d) {{ memcpy(m->drive, d, sizeof m->drive); }}

@@ -69,6 +69,7 @@ const char *ft_name(int what, int i); /* NULL past the end */
 int ft_set_param(ft_model *m, int i, double value);      /* 0, or -1: no such slot */
 int ft_set_ctrl_param(ft_model *m, int i, double value); /* -1: no such slot, -2: structure */
 double ft_param(const ft_model *m, int i);
+double ft_ctrl_param(const ft_model *m, int i);
 void ft_set_states(ft_model *m, const double *x); /* FT_N_X values */
 void ft_set_ref(ft_model *m, const double *ref);     /* FT_REF_SIZE values, held */
 void ft_set_drive(ft_model *m, const double *drive); /* FT_OUT_SIZE values (open loop), held */
