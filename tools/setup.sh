@@ -103,6 +103,18 @@ optional_packages() {
     fi
 }
 
+# halcompile, for the twin as a LinuxCNC HAL component (tests/test_native_hal.py); the package
+# pulls linuxcnc-uspace (halrun) in with it.
+hal_dev_package() {
+    command -v halcompile >/dev/null 2>&1 && return 0
+    if may_auto_install; then
+        say "installing Debian package for the HAL component tests: linuxcnc-uspace-dev"
+        apt_install linuxcnc-uspace-dev
+    else
+        say "note: not installing linuxcnc-uspace-dev (not root); the HAL component tests need it"
+    fi
+}
+
 # Everything the set-up result depends on; a change in any of these reruns the set-up.
 inputs_hash() {
     (
@@ -165,7 +177,7 @@ main() {
         return 0
     fi
     # apt-get (disk, one core) overlaps with pip (network first) instead of adding to it.
-    optional_packages &
+    { optional_packages && hal_dev_package; } &
     local optional_pid=$!
 
     if [[ -e "$venv" ]] && ! "$venv/bin/python" -c 'import sys; assert sys.version_info[:2] == (3, 11)' \

@@ -82,6 +82,7 @@ const double *ft_states(const ft_model *m) {{ return m->x; }}
 const double *ft_meas(const ft_model *m) {{ return m->meas; }}
 const double *ft_out(const ft_model *m) {{ return m->out; }}
 const double *ft_ctrl_states(const ft_model *m) {{ return m->cs; }}
+const double *ft_ctrl_params(const ft_model *m) {{ return m->cp; }}
 const double *ft_status(const ft_model *m) {{ return m->status; }}
 
 const double *ft_aux(ft_model *m)

@@ -84,6 +84,7 @@ const double *ft_states(const ft_model *m);
 const double *ft_meas(const ft_model *m);
 const double *ft_out(const ft_model *m);
 const double *ft_ctrl_states(const ft_model *m);
+const double *ft_ctrl_params(const ft_model *m);
 const double *ft_aux(ft_model *m);    /* evaluated at the current state */
 /* 0, or after a runaway: 1 and (tick, state index, value) in status[1..3] */
 const double *ft_status(const ft_model *m);

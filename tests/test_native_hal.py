@@ -1,0 +1,133 @@
+"""The twin as a LinuxCNC realtime HAL component, in a bare `halrun` (LinuxCNC's own threads).
+
+A 1 ms servo thread runs a sine position command (siggen, with its velocity and acceleration
+as feed-forward), the component and a sampler, for 3 s. Every call steps exactly 16 base ticks
+(the `ticks` pin advances by 16 in every sampled period: no period missed or doubled), and the
+feedback equals the numba engine's, driven by the sampled commands: the same plant and drive
+computed in LinuxCNC's thread. A thread of another period is refused with a message in the log.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+from native_support import ROOT
+
+from feed_twin.cli import main as cli_main
+from feed_twin.control import signals
+from feed_twin.native.hal import HalcompileMissingError, find_halcompile
+from feed_twin.native.halrun import hal_session
+from feed_twin.sim.config import build_engine, load_axis_config
+
+AXIS = ROOT / "config" / "axis_default.yaml"
+N_SAMPLES = 3000  # servo periods of 1 ms
+OMEGA = 2.0 * math.pi  # [rad/s] of the 10 mm sine
+AMPLITUDE, OFFSET = 10.0, 400.0  # [mm]
+
+SINE = f"""
+loadrt threads name1=servo-thread period1=1000000
+loadrt feed_twin_axis
+loadrt siggen
+loadrt scale count=2
+loadrt sampler depth=8000 cfg=fffffbss
+addf siggen.0.update servo-thread
+addf scale.0 servo-thread
+addf scale.1 servo-thread
+addf feed-twin-axis servo-thread
+addf sampler.0 servo-thread
+setp siggen.0.amplitude {AMPLITUDE}
+setp siggen.0.frequency 1.0
+setp siggen.0.offset {OFFSET}
+setp scale.0.gain {OMEGA!r}
+setp scale.0.offset {-OMEGA * OFFSET!r}
+setp scale.1.gain {-(OMEGA**2)!r}
+setp scale.1.offset {OMEGA**2 * OFFSET!r}
+setp feed-twin-axis.start-pos {OFFSET}
+net pos-cmd siggen.0.sine => feed-twin-axis.pos-cmd sampler.0.pin.0 scale.1.in
+net cos siggen.0.cosine => scale.0.in
+net vel-cmd scale.0.out => feed-twin-axis.vel-cmd sampler.0.pin.1
+net acc-cmd scale.1.out => feed-twin-axis.acc-cmd sampler.0.pin.2
+net pos-fb feed-twin-axis.pos-fb => sampler.0.pin.3
+net fe feed-twin-axis.following-error => sampler.0.pin.4
+net period-error feed-twin-axis.period-error => sampler.0.pin.5
+net ticks feed-twin-axis.ticks => sampler.0.pin.6
+net fault feed-twin-axis.fault => sampler.0.pin.7
+start
+loadusr -w sh sample.sh
+stop
+"""
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    """The component of axis_default for a 1 ms servo period, in LinuxCNC's module directory."""
+    out = tmp_path_factory.mktemp("hal")
+    assert os.geteuid() == 0, "installing a HAL component into /usr/lib/linuxcnc needs root"
+    args = ["hal", "--config", str(AXIS), "--out", str(out), "--servo-period", "1e-3", "--install"]
+    assert cli_main(args) == 0
+    return out
+
+
+def test_servo_thread_steps_the_twin_one_period_per_call_as_the_engine(installed):
+    sampler = f"halsampler -n {N_SAMPLES} > samples.txt\n"
+    with hal_session(SINE, files={"sample.sh": sampler}) as (log, workdir):
+        path = workdir / "samples.txt"
+        assert path.exists(), log
+        rows = np.loadtxt(path)
+    assert rows.shape == (N_SAMPLES, 8), log  # the 8 pins, one row per servo period
+    pos_cmd, vel_cmd, acc_cmd, pos_fb, fe = (rows[:, i] for i in range(5))
+    period_error, ticks, fault = rows[:, 5], rows[:, 6], rows[:, 7]
+    assert not period_error.any() and not fault.any()
+    # one call per servo period, 16 base ticks each, none missed: 16, 32, 48, ...
+    assert np.array_equal(ticks, 16.0 * np.arange(1, N_SAMPLES + 1))
+    # the sine starts at full speed (63 mm/s from rest): the drive catches up within its 2 mm
+    # limit, then follows with full feed-forward within 10 um (the reversals: friction)
+    assert np.abs(fe).max() < 0.5
+    assert np.abs(fe[500:]).max() < 0.01
+    # the engine driven by the sampled commands (printed to 1e-6 mm) gives the same feedback
+    axis = load_axis_config(AXIS)
+    engine = build_engine(axis, output_period_s=axis.engine.base_period_s)
+    engine.reset(x0=axis.plant.initial_state({"table": 1.0}) * (OFFSET / 1000.0))
+    ref = np.zeros((16 * N_SAMPLES, signals.REF_SIZE))
+    for slot, values in ((signals.REF_POS_M, pos_cmd), (signals.REF_VEL_M_S, vel_cmd)):
+        ref[:, slot] = np.repeat(values / 1000.0, 16)
+    ref[:, signals.REF_ACC_M_S2] = np.repeat(acc_cmd / 1000.0, 16)
+    result = engine.advance(len(ref), ref=ref)
+    expected = result["meas.x_scale_m"][15::16] * 1000.0
+    assert np.abs(pos_fb - expected).max() < 1e-4  # [mm]: 0.1 um
+
+
+def test_a_thread_of_another_period_is_refused_with_a_message_in_the_log(installed):
+    script = """
+loadrt threads name1=servo-thread period1=500000
+loadrt feed_twin_axis
+addf feed-twin-axis servo-thread
+start
+loadusr -w sleep 0.3
+show pin feed-twin-axis.period-error
+show pin feed-twin-axis.ticks
+stop
+"""
+    with hal_session(script) as (log, _):
+        pass
+    assert (
+        "feed_twin_axis: thread period 500000 ns, but built for a servo period of 1000000 ns "
+        "(16 ticks of 62500 ns): not stepping (rebuild with feed-twin hal --servo-period)"
+    ) in log
+    assert log.count("feed_twin_axis: thread period") == 1  # said once, not every period
+    pins = {line.split()[-1]: line.split()[-2] for line in log.splitlines() if "feed-twin" in line}
+    assert pins["feed-twin-axis.period-error"] == "TRUE"
+    assert pins["feed-twin-axis.ticks"] == "0"
+
+
+def test_missing_halcompile_names_the_debian_package():
+    with pytest.raises(
+        HalcompileMissingError,
+        match=r"^no `no-halcompile` on the PATH: install "
+        r"the Debian package linuxcnc-uspace-dev \(apt-get install "
+        r"linuxcnc-uspace-dev; tools/setup.sh does as root\)$",
+    ):
+        find_halcompile("no-halcompile")
