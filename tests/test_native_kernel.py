@@ -22,7 +22,7 @@ from feed_twin.native.build import (
     compile_kernel,
     find_cc,
 )
-from feed_twin.native.cexpr import DOUBLE, ArrayKind
+from feed_twin.native.ckinds import DOUBLE, ArrayKind
 from feed_twin.native.translate import Source, TranslationError, Translator
 from feed_twin.sim.config import build_engine, load_axis_config
 

@@ -24,7 +24,7 @@ import numpy as np
 from feed_twin.control import signals
 from feed_twin.control.layout import STRUCTURE_SLOTS
 from feed_twin.native.capi import LOOP_C
-from feed_twin.native.cexpr import PRELUDE, ArrayKind, Scalar, TupleKind, literal
+from feed_twin.native.ckinds import PRELUDE, ArrayKind, Scalar, TupleKind, literal
 from feed_twin.native.translate import Source, Translator
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.sim.kernel import RING, load_kernel

@@ -33,8 +33,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba.core.registry import CPUDispatcher
 
-from feed_twin.native import cexpr as cx
-from feed_twin.native.cexpr import ArrayKind, Scalar, TranslationError, TupleKind, Val
+from feed_twin.native import ckinds as cx
+from feed_twin.native.cexpr import Expressions
+from feed_twin.native.ckinds import ArrayKind, Scalar, TranslationError, TupleKind, Val
 
 __all__ = ["ArrayKind", "Scalar", "TranslationError", "Translator", "TupleKind"]
 
@@ -186,7 +187,7 @@ class _Body:
     def __init__(self, tr: Translator, fn: _Function, globs: dict, line0: int) -> None:
         self.tr, self.fn, self.globs, self.line0 = tr, fn, globs, line0
         self.out: list[str] = []
-        self.expr = cx.Expressions(self)
+        self.expr = Expressions(self)
 
     def fail(self, node: ast.AST, what: str) -> TranslationError:
         line = self.line0 + getattr(node, "lineno", 1) - 1
