@@ -9,7 +9,6 @@ computed in LinuxCNC's thread. A thread of another period is refused with a mess
 
 from __future__ import annotations
 
-import math
 import os
 
 import numpy as np
@@ -19,46 +18,12 @@ from native_support import ROOT
 from feed_twin.cli import main as cli_main
 from feed_twin.control import signals
 from feed_twin.native.hal import HalcompileMissingError, find_halcompile
-from feed_twin.native.halrun import hal_session
+from feed_twin.native.halrun import hal_session, sine_loop
 from feed_twin.sim.config import build_engine, load_axis_config
 
 AXIS = ROOT / "config" / "axis_default.yaml"
 N_SAMPLES = 3000  # servo periods of 1 ms
-OMEGA = 2.0 * math.pi  # [rad/s] of the 10 mm sine
-AMPLITUDE, OFFSET = 10.0, 400.0  # [mm]
-
-SINE = f"""
-loadrt threads name1=servo-thread period1=1000000
-loadrt feed_twin_axis
-loadrt siggen
-loadrt scale count=2
-loadrt sampler depth=8000 cfg=fffffbss
-addf siggen.0.update servo-thread
-addf scale.0 servo-thread
-addf scale.1 servo-thread
-addf feed-twin-axis servo-thread
-addf sampler.0 servo-thread
-setp siggen.0.amplitude {AMPLITUDE}
-setp siggen.0.frequency 1.0
-setp siggen.0.offset {OFFSET}
-setp scale.0.gain {OMEGA!r}
-setp scale.0.offset {-OMEGA * OFFSET!r}
-setp scale.1.gain {-(OMEGA**2)!r}
-setp scale.1.offset {OMEGA**2 * OFFSET!r}
-setp feed-twin-axis.start-pos {OFFSET}
-net pos-cmd siggen.0.sine => feed-twin-axis.pos-cmd sampler.0.pin.0 scale.1.in
-net cos siggen.0.cosine => scale.0.in
-net vel-cmd scale.0.out => feed-twin-axis.vel-cmd sampler.0.pin.1
-net acc-cmd scale.1.out => feed-twin-axis.acc-cmd sampler.0.pin.2
-net pos-fb feed-twin-axis.pos-fb => sampler.0.pin.3
-net fe feed-twin-axis.following-error => sampler.0.pin.4
-net period-error feed-twin-axis.period-error => sampler.0.pin.5
-net ticks feed-twin-axis.ticks => sampler.0.pin.6
-net fault feed-twin-axis.fault => sampler.0.pin.7
-start
-loadusr -w sh sample.sh
-stop
-"""
+OFFSET = 400.0  # [mm] the sine's centre; 10 mm amplitude at 1 Hz
 
 
 @pytest.fixture(scope="module")
@@ -72,14 +37,10 @@ def installed(tmp_path_factory):
 
 
 def test_servo_thread_steps_the_twin_one_period_per_call_as_the_engine(installed):
-    sampler = f"halsampler -n {N_SAMPLES} > samples.txt\n"
-    with hal_session(SINE, files={"sample.sh": sampler}) as (log, workdir):
-        path = workdir / "samples.txt"
-        assert path.exists(), log
-        rows = np.loadtxt(path)
-    assert rows.shape == (N_SAMPLES, 8), log  # the 8 pins, one row per servo period
-    pos_cmd, vel_cmd, acc_cmd, pos_fb, fe = (rows[:, i] for i in range(5))
-    period_error, ticks, fault = rows[:, 5], rows[:, 6], rows[:, 7]
+    run = sine_loop(N_SAMPLES, offset=OFFSET)
+    pos_cmd, vel_cmd, acc_cmd = run["pos_cmd"], run["vel_cmd"], run["acc_cmd"]
+    pos_fb, fe = run["pos_fb"], run["following_error"]
+    period_error, ticks, fault = run["period_error"], run["ticks"], run["fault"]
     assert not period_error.any() and not fault.any()
     # one call per servo period, 16 base ticks each, none missed: 16, 32, 48, ...
     assert np.array_equal(ticks, 16.0 * np.arange(1, N_SAMPLES + 1))

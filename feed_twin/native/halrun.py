@@ -9,6 +9,7 @@ runs take the host-wide lock that feed_twin's LinuxCNC runner takes too
 from __future__ import annotations
 
 import fcntl
+import math
 import os
 import pwd
 import shutil
@@ -17,6 +18,8 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+import numpy as np
 
 LOCK_PATH = Path("/tmp/feed_twin-linuxcnc.lock")
 RUN_USER = "feedtwin"
@@ -91,3 +94,77 @@ def _run(script: str, workdir: Path, timeout: float) -> str:
         fcntl.flock(fd, fcntl.LOCK_UN)
         os.close(fd)
     return result.stdout + result.stderr
+
+
+SINE_PINS = (
+    ("pos_cmd", "f"),
+    ("vel_cmd", "f"),
+    ("acc_cmd", "f"),
+    ("pos_fb", "f"),
+    ("following_error", "f"),
+    ("period_error", "b"),
+    ("ticks", "s"),
+    ("fault", "s"),
+    ("time", "s"),
+)
+
+
+def sine_loop(
+    n_periods: int,
+    *,
+    amplitude: float = 10.0,
+    offset: float = 400.0,
+    frequency_hz: float = 1.0,
+    servo_period_ns: int = 1_000_000,
+) -> dict[str, np.ndarray]:
+    """The installed feed_twin_axis in a servo thread of its own with a sine position command
+    [machine units] from siggen, its velocity and acceleration as feed-forward (scale), every
+    period of `SINE_PINS` recorded by a sampler in the same thread; `time` is the component's
+    execution time per call (LinuxCNC's `<function>.time` pin, CPU clocks)."""
+    w = 2.0 * math.pi * frequency_hz
+    nets = "\n".join(
+        [
+            "net pos-cmd siggen.0.sine => feed-twin-axis.pos-cmd sampler.0.pin.0 scale.1.in",
+            "net cos siggen.0.cosine => scale.0.in",
+            "net vel-cmd scale.0.out => feed-twin-axis.vel-cmd sampler.0.pin.1",
+            "net acc-cmd scale.1.out => feed-twin-axis.acc-cmd sampler.0.pin.2",
+            *(
+                f"net {name} feed-twin-axis.{name.replace('_', '-')} => sampler.0.pin.{i}"
+                for i, (name, _) in enumerate(SINE_PINS)
+                if i >= 3
+            ),
+        ]
+    )
+    script = f"""
+loadrt threads name1=servo-thread period1={servo_period_ns}
+loadrt feed_twin_axis
+loadrt siggen
+loadrt scale count=2
+loadrt sampler depth={n_periods + 1000} cfg={"".join(kind for _, kind in SINE_PINS)}
+addf siggen.0.update servo-thread
+addf scale.0 servo-thread
+addf scale.1 servo-thread
+addf feed-twin-axis servo-thread
+addf sampler.0 servo-thread
+setp siggen.0.amplitude {amplitude!r}
+setp siggen.0.frequency {frequency_hz!r}
+setp siggen.0.offset {offset!r}
+setp scale.0.gain {w!r}
+setp scale.0.offset {-w * offset!r}
+setp scale.1.gain {-w * w!r}
+setp scale.1.offset {w * w * offset!r}
+setp feed-twin-axis.start-pos {offset!r}
+{nets}
+start
+loadusr -w sh sample.sh
+stop
+"""
+    sampler = f"halsampler -n {n_periods} > samples.txt\n"
+    with hal_session(script, files={"sample.sh": sampler}) as (log, workdir):
+        path = workdir / "samples.txt"
+        if not path.exists():
+            raise RuntimeError(f"the HAL session recorded nothing:\n{log}")
+        rows = np.loadtxt(path, ndmin=2)
+    if rows.shape != (n_periods, len(SINE_PINS)):
+        raise RuntimeError(f"the sampler gave {rows.shape}, not ({n_periods}, {len(SINE_PINS)})")
+    return {name: rows[:, i] for i, (name, _) in enumerate(SINE_PINS)}
