@@ -77,7 +77,7 @@ def test_fmpy_simulation_equals_the_engine(axis_fmu):
     assert np.ptp(result["table.s"]) > 0.03
 
 
-def _slave(fmu, messages):
+def _slave(fmu, messages, parameters=None):
     md = read_model_description(str(fmu))
     slave = FMU2Slave(
         guid=md.guid,
@@ -97,8 +97,11 @@ def _slave(fmu, messages):
     slave.instantiate(callbacks=callbacks)
     slave.setupExperiment(startTime=0.0)
     slave.enterInitializationMode()
+    refs = {v.name: v.valueReference for v in md.modelVariables}
+    for name, value in (parameters or {}).items():
+        slave.setReal([refs[name]], [value])
     slave.exitInitializationMode()
-    return slave, {v.name: v.valueReference for v in md.modelVariables}
+    return slave, refs
 
 
 @pytest.mark.parametrize("value", [float("nan"), float("inf")])
@@ -132,3 +135,22 @@ def test_a_step_the_model_does_not_allow_is_an_fmi_error(axis_fmu, step, message
 def test_fmu_cli_names_a_bad_output_name(tmp_path, capsys):
     assert cli_main(["fmu", "--config", str(AXIS), "--out", str(tmp_path / "axis.zip")]) == 2
     assert capsys.readouterr().err.strip().endswith("axis.zip: must end in .fmu")
+
+
+def test_a_runaway_state_is_an_fmi_error_naming_the_state(axis_fmu):
+    # a coupling 1e5 times stiffer than configured: RK4 at 62.5 us is unstable for it
+    messages: list[str] = []
+    slave, vr = _slave(axis_fmu, messages, {"coupling.k": 1e12})
+    with pytest.raises(Exception, match="fmi2DoStep failed with status 3"):
+        slave.doStep(0.0, 1e-3)
+    assert messages[-1].startswith("fmi2DoStep: the state motor.omega ran away at t = ")
+    slave.freeInstance()
+
+
+def test_a_fixed_parameter_is_refused_after_initialisation(axis_fmu):
+    messages: list[str] = []
+    slave, vr = _slave(axis_fmu, messages)
+    with pytest.raises(Exception, match="fmi2SetReal failed with status 3"):
+        slave.setReal([vr["table.m"]], [150.0])
+    assert messages[-1] == "fmi2SetReal: table.m is a fixed parameter, set before initialisation"
+    slave.freeInstance()
