@@ -116,3 +116,19 @@ def test_missing_compiler_is_named_with_its_debian_package():
         r"install the Debian package gcc \(apt-get install gcc\)$",
     ):
         find_cc("no-such-cc")
+
+
+def test_open_loop_c_kernel_equals_numba():
+    # EMPS driven by a prescribed effort (the drive rows), no controller in either kernel
+    axis = load_axis_config(ROOT / "config" / "emps.yaml")
+    n = 3000
+    drive = np.zeros((n, signals.OUT_SIZE))
+    drive[:, signals.OUT_ENABLED] = 1.0
+    drive[:, signals.OUT_EFFORT_CMD] = 2.0 * np.sin(np.arange(n) * 2e-3)
+    engine = build_engine(axis, closed_loop=False, output_period_s=axis.engine.base_period_s)
+    expected = engine.run(n, drive=drive)
+    kernel = c_kernel_for_axis(axis, closed_loop=False)
+    got = CModel(compile_kernel(kernel), kernel).run(n, drive=drive)
+    assert kernel.record_names == expected.names
+    assert np.array_equal(got, expected.data)
+    assert np.ptp(expected["table.s"]) > 1e-3
