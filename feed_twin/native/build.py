@@ -59,6 +59,20 @@ def cpu_flags() -> tuple[str, ...]:
     return ("-march=native",) if platform.machine() in ("x86_64", "AMD64") else ()
 
 
+def portable_flags() -> tuple[str, ...]:
+    """For a binary that leaves this machine (the FMU): x86-64-v3 (AVX2 and FMA: Haswell, Zen
+    and later) when this CPU has it, else the x86-64 baseline, whose `fma` is libm's (the same
+    doubles, about half the speed)."""
+    if platform.machine() not in ("x86_64", "AMD64"):
+        return ()
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return ()
+    flags = set(next((ln for ln in text.splitlines() if ln.startswith("flags")), "").split())
+    return ("-march=x86-64-v3",) if {"avx2", "fma", "bmi2", "movbe"} <= flags else ()
+
+
 def write_sources(kernel: CKernel, directory: Path, stem: str = "feed_twin_axis") -> Path:
     """`<stem>.c` and `feed_twin_axis.h` in `directory`; returns the .c path."""
     directory.mkdir(parents=True, exist_ok=True)

@@ -32,7 +32,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from feed_twin.control import signals
-from feed_twin.native.build import FLAGS, cpu_flags, find_cc, run_cc
+from feed_twin.native.build import FLAGS, find_cc, portable_flags, run_cc
 from feed_twin.native.emit import CKernel, c_kernel
 from feed_twin.native.fmi2 import GLUE_C
 
@@ -244,7 +244,7 @@ def build_fmu(axis, out: Path, *, cc: str = "cc") -> Path:
     library = build / f"{MODEL_IDENTIFIER}.so"
     run_cc(
         compiler,
-        [*FLAGS, *cpu_flags(), "-I", str(fmi_headers()), "-I", str(build), "-shared"],
+        [*FLAGS, *portable_flags(), "-I", str(fmi_headers()), "-I", str(build), "-shared"],
         [build / "feed_twin_axis.c", build / "fmu_glue.c"],
         library,
     )
