@@ -51,10 +51,6 @@ def var(name: str) -> str:
     return f"v_{name}"
 
 
-def kind_key(kind) -> object:
-    return kind
-
-
 def describe(kind) -> str:
     if isinstance(kind, Scalar):
         return {"int": "bool"}.get(kind.ctype, kind.ctype)

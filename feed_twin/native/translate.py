@@ -25,9 +25,7 @@ from __future__ import annotations
 
 import ast
 import inspect
-import math
 import textwrap
-import types
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,7 +47,6 @@ class _Function:
     kinds: dict[str, object] = field(default_factory=dict)  # local name -> kind
     params: set[str] = field(default_factory=set)
     ret: object = None  # kind of the returned value (None: nothing returned yet)
-    returns_none: bool = False
 
 
 class Translator:
@@ -68,7 +65,7 @@ class Translator:
     def function(self, func, kinds: tuple) -> tuple[str, object]:
         """The C name and return kind of `func` specialised for argument `kinds`."""
         py = func.py_func if isinstance(func, CPUDispatcher) else func
-        key = (py, tuple(cx.kind_key(k) for k in kinds))
+        key = (py, tuple(kinds))
         if key in self._specs:
             return self._specs[key]
         tree, where, line0 = _parse(py)
@@ -356,7 +353,6 @@ class _Body:
 
     def ret(self, s: ast.Return, d: int) -> None:
         if s.value is None or (isinstance(s.value, ast.Constant) and s.value.value is None):
-            self.fn.returns_none = True
             self.emit("return;", d)
             return
         value = self.expr.value(s.value, d)
@@ -387,13 +383,3 @@ def _as_load(target: ast.expr) -> ast.expr:
     node = ast.fix_missing_locations(ast.parse(ast.unparse(target), mode="eval").body)
     ast.copy_location(node, target)
     return node
-
-
-def is_module(obj) -> bool:
-    return isinstance(obj, types.ModuleType)
-
-
-def finite_literal(value: float) -> str:
-    if not math.isfinite(value):
-        raise TranslationError(f"{value!r}: not a finite number")
-    return cx.literal(value)
