@@ -109,6 +109,19 @@ def test_translator_refuses_what_it_cannot_translate_with_the_place(body, messag
         _translate(f"def f(x, a):\n{body}")
 
 
+def _recursive(x):
+    return _recursive(x - 1.0)
+
+
+def test_translator_refuses_recursion():
+    with pytest.raises(
+        TranslationError,
+        match=r"_recursive \(.*test_native_kernel.py:\d+\): a "
+        r"recursive call does not translate to C$",
+    ):
+        Translator().function(_recursive, (DOUBLE,))
+
+
 def test_missing_compiler_is_named_with_its_debian_package():
     with pytest.raises(
         CompilerMissingError,

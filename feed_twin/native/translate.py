@@ -59,6 +59,7 @@ class Translator:
         self._specs: dict[tuple, tuple[str, object]] = {}  # key -> (C name, return kind)
         self._table_names: dict[int, str] = {}
         self._names: set[str] = set()
+        self._active: set[tuple] = set()  # specialisations being translated
         self._tmp = 0
 
     # ------------------------------------------------------------------ public
@@ -69,6 +70,9 @@ class Translator:
         if key in self._specs:
             return self._specs[key]
         tree, where, line0 = _parse(py)
+        if key in self._active:
+            raise TranslationError(f"{where}: a recursive call does not translate to C")
+        self._active.add(key)
         args = tree.args
         if args.vararg or args.kwarg or args.kwonlyargs or args.defaults:
             raise TranslationError(f"{where}: only plain positional parameters translate to C")
@@ -94,6 +98,7 @@ class Translator:
         else:  # pragma: no cover - widening settles within a few passes
             raise TranslationError(f"{where}: the types of the locals do not settle")
         final = fn
+        self._active.discard(key)
         self._specs[key] = (cname, final.ret)
         self.functions.append(_definition(final, names, kinds, body))
         return cname, final.ret
