@@ -86,6 +86,18 @@ check_tools() {
     die "missing Debian package(s) ${missing[*]}: run 'sudo apt-get install ${missing[*]}'"
 }
 
+# halcompile, for the twin as a LinuxCNC HAL component (tests/test_native_hal.py); the package
+# pulls linuxcnc-uspace (halrun) in with it.
+hal_dev_package() {
+    command -v halcompile >/dev/null 2>&1 && return 0
+    if may_auto_install; then
+        say "installing Debian package for the HAL component tests: linuxcnc-uspace-dev"
+        apt_install linuxcnc-uspace-dev
+    else
+        say "note: not installing linuxcnc-uspace-dev (not root); the HAL component tests need it"
+    fi
+}
+
 # Nice to have for the tests (Rerun's headless screenshots render with Vulkan on lavapipe).
 optional_packages() {
     local -a want=(mesa-vulkan-drivers) absent=()
@@ -100,18 +112,6 @@ optional_packages() {
         apt_install "${absent[@]}"
     else
         say "note: not installing ${absent[*]} (not root); headless Rerun screenshots need it"
-    fi
-}
-
-# halcompile, for the twin as a LinuxCNC HAL component (tests/test_native_hal.py); the package
-# pulls linuxcnc-uspace (halrun) in with it.
-hal_dev_package() {
-    command -v halcompile >/dev/null 2>&1 && return 0
-    if may_auto_install; then
-        say "installing Debian package for the HAL component tests: linuxcnc-uspace-dev"
-        apt_install linuxcnc-uspace-dev
-    else
-        say "note: not installing linuxcnc-uspace-dev (not root); the HAL component tests need it"
     fi
 }
 
