@@ -14,6 +14,11 @@ Figures (last printed line, one JSON object):
   0.5 s, RMS), the periods in which the component did not advance exactly 16 ticks
   (hal_missed_periods, 0 expected), and the component's execution time per call (LinuxCNC's
   `time` pin in CPU clocks, divided by the clock rate /proc/cpuinfo states: median, p99, max).
+- linuxcnc_*: sample.ngc on a whole LinuxCNC machine (feed_twin.linuxcnc, 1 ms servo thread),
+  once with LinuxCNC's simulated X joint (PID, drive lowpass, integrator) and once with the HAL
+  component closing X's loop instead: LinuxCNC's following error of X over the program
+  (joint.0.f-error: max and RMS, um) and the servo periods lost (the thread's tick counter) and
+  sampler overruns of each run; null with the reason when the LinuxCNC runner is absent.
 
     .venv/bin/python benchmarks/native_loops.py      (as root: installs the HAL component)
 """
@@ -111,6 +116,26 @@ def hal_figures(axis) -> dict:
     }
 
 
+def linuxcnc_figures() -> dict:
+    try:
+        import feed_twin.linuxcnc  # noqa: F401
+
+        from feed_twin.native.linuxcnc_loop import compare_runs
+    except ImportError as exc:
+        return {"linuxcnc": None, "linuxcnc_reason": f"no LinuxCNC runner ({exc})"}
+    with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
+        Path(tmp).chmod(0o777)
+        runs = compare_runs(SAMPLE, AXIS, Path(tmp))
+    out = {}
+    for name, f in runs.items():
+        out[f"linuxcnc_{name}_f_error_max_um"] = round(f.f_error_max_m * 1e6, 2)
+        out[f"linuxcnc_{name}_f_error_rms_um"] = round(f.f_error_rms_m * 1e6, 2)
+        out[f"linuxcnc_{name}_samples_lost"] = f.samples_lost
+        out[f"linuxcnc_{name}_overruns"] = f.overruns
+        out[f"linuxcnc_{name}_periods"] = f.periods
+    return out
+
+
 def main() -> int:
     axis = load_axis_config(AXIS)
     figures = fmu_figures(axis)
@@ -120,6 +145,7 @@ def main() -> int:
         f"HAL: {figures['hal_missed_periods']} missed of {figures['hal_periods']} periods, "
         f"following error max {figures['hal_following_error_max_um']} um"
     )
+    figures.update(linuxcnc_figures())
     print(json.dumps(figures))
     return 0
 

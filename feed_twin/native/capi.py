@@ -83,6 +83,13 @@ const double *ft_meas(const ft_model *m) {{ return m->meas; }}
 const double *ft_out(const ft_model *m) {{ return m->out; }}
 const double *ft_ctrl_states(const ft_model *m) {{ return m->cs; }}
 const double *ft_ctrl_params(const ft_model *m) {{ return m->cp; }}
+
+int ft_set_ctrl_state(ft_model *m, int i, double value)
+{{
+    if (i < 0 || i >= {n_cs_real}) return -1;
+    m->cs[i] = value;
+    return 0;
+}}
 const double *ft_status(const ft_model *m) {{ return m->status; }}
 
 const double *ft_aux(ft_model *m)

@@ -85,6 +85,8 @@ const double *ft_meas(const ft_model *m);
 const double *ft_out(const ft_model *m);
 const double *ft_ctrl_states(const ft_model *m);
 const double *ft_ctrl_params(const ft_model *m);
+/* a controller state slot (enable command, fault latch, ...): 0, or -1: no such slot */
+int ft_set_ctrl_state(ft_model *m, int i, double value);
 const double *ft_aux(ft_model *m);    /* evaluated at the current state */
 /* 0, or after a runaway: 1 and (tick, state index, value) in status[1..3] */
 const double *ft_status(const ft_model *m);

@@ -24,8 +24,11 @@ Pins at the configured boundary (controller mode), in machine units (`units-per-
 - out: `pos-fb` (the feedback the drive uses: encoder through the lead, or the linear scale),
   `enc-pos-fb`, `scale-pos-fb`, `vel-fb` (the drive's estimate), `following-error` (the drive's),
   `current-q` [A] (commanded), `fault` (FAULT_* code), `period-error`, `ticks`.
-`start-pos` (param, machine units) is the table position the twin starts from, at rest, taken at
-the first call.
+`enable` (in, default on) switches the drive's power stage, as LinuxCNC's joint.N.amp-enable-out
+does a real amplifier's (a rising edge also acknowledges a latched fault, as a drive's fault
+reset on re-enable): before LinuxCNC is on and homed its position command is not yet the
+machine's, and a drive enabled then would latch a following-error fault. `start-pos` (param,
+machine units) is the table position the twin starts from, at rest, taken at the first call.
 """
 
 from __future__ import annotations
@@ -67,6 +70,8 @@ pin out float current_q "commanded q current [A]";
 pin out s32 fault "FAULT_* code of the drive (0: none, 3: disabled)";
 pin out bit period_error "the thread's period is not the servo period this was built for";
 pin out s32 ticks "base ticks simulated (wraps)";
+pin in bit enable = 1 "power stage on (e.g. joint.N.amp-enable-out); a rising edge clears a \
+latched fault";
 param rw float units_per_m = 1000.0 "machine units per metre";
 param rw float start_pos = 0.0 "table position at the start [machine units]";
 function _ fp "advance the twin by one servo period";
@@ -96,7 +101,7 @@ _REF = {
 }
 _BODY = """
 static ft_model *model;
-static int started, refused;
+static int started, refused, was_enabled;
 static const double start_map[FT_N_X] = {{{start_map}}}; /* state per metre of table position */
 
 EXTRA_SETUP()
@@ -125,6 +130,9 @@ FUNCTION(_)
         ft_set_states(model, x);
         started = 1;
     }}
+    if (enable && !was_enabled) ft_set_ctrl_state(model, {s_fault}, 0.0); /* fault reset */
+    ft_set_ctrl_state(model, {s_enable}, enable ? 1.0 : 0.0);
+    was_enabled = enable;
 {ref}
     ft_set_ref(model, ref);
     ft_step(model, {ticks});
@@ -182,6 +190,8 @@ def comp_source(axis, servo_period_s: float) -> str:
         out_fe=signals.OUT_FOLLOWING_ERROR_M,
         out_iq=signals.OUT_I_Q_REF_A,
         out_fault=signals.OUT_FAULT,
+        s_fault=layout.S_FAULT,
+        s_enable=layout.S_ENABLE_CMD,
     )
     # halcompile compiles one file: the header's declarations go in front of the kernel
     header = kernel.header.replace("#include <stdint.h>", "#include <stdint.h>\n#include <errno.h>")
