@@ -43,8 +43,18 @@ _MODE_INPUTS = {
     "velocity": ("vel_ext_m_s",),
     "torque": ("i_q_ext_A",),
 }
-_SUFFIX_UNITS = (("_m_s2", "m/s2"), ("_m_s", "m/s"), ("_m", "m"), ("_rad", "rad"), ("_A", "A"))
-_SUFFIX_UNITS += (("_V", "V"),)
+_SUFFIX_UNITS = (
+    ("_m_s2", "m/s2"),
+    ("_m_s", "m/s"),
+    ("_1_s", "1/s"),
+    ("_period_s", "s"),
+    ("_m", "m"),
+    ("_rad", "rad"),
+    ("_A", "A"),
+    ("_V", "V"),
+    ("_Vs", "V s"),
+    ("_H", "H"),
+)
 K_PARAM, K_CTRL_PARAM, K_REF, K_EXT, K_START, K_MAX_STEP, K_STATE, K_MEAS, K_OUT = range(9)
 
 
@@ -60,7 +70,11 @@ class Variable:
 
 
 def signal_unit(name: str) -> str:
-    """The unit a signal name's suffix states (pos_ref_m -> m), "" for none."""
+    """The unit a signal's or controller slot's name states in its suffix (pos_ref_m -> m,
+    Kv_1_s -> 1/s), "" for none."""
+    ratio = re.fullmatch(r"(m|rad)_per_(m|rad)", name)
+    if ratio:
+        return f"{ratio.group(1)}/{ratio.group(2)}"
     return next((unit for suffix, unit in _SUFFIX_UNITS if name.endswith(suffix)), "")
 
 
@@ -94,7 +108,10 @@ def variables(axis, kernel: CKernel) -> list[Variable]:
         for i, name in enumerate(cascade.param_names):
             if i not in STRUCTURE_SLOTS:
                 value = float(cascade.params[i])
-                out.append(Variable(f"controller.{name}", K_CTRL_PARAM, i, "parameter", value, ""))
+                unit = signal_unit(name)
+                out.append(
+                    Variable(f"controller.{name}", K_CTRL_PARAM, i, "parameter", value, unit)
+                )
         mode = axis.controller.mode
         inputs = _MODE_INPUTS[mode] + ("effort_add",)
     else:
