@@ -37,6 +37,9 @@ def test_fmpy_validates_the_model_description(axis_fmu):
     assert by_name["ref.pos_ref_m"].causality == "input"
     assert by_name["table.m"].causality == "parameter" and by_name["table.m"].unit == "kg"
     assert float(by_name["table.m"].start) == 200.0
+    assert by_name["controller.Kv_1_s"].unit == "1/s"
+    assert float(by_name["controller.Kv_1_s"].start) == 30.0
+    assert by_name["controller.m_per_rad"].unit == "m/rad"
 
 
 def test_fmpy_simulation_equals_the_engine(axis_fmu):
