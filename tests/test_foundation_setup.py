@@ -4,6 +4,7 @@ step gives the relevant lines and the log path; the stamp makes a repeated set-u
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import subprocess
@@ -54,13 +55,18 @@ def test_missing_everything_names_all_debian_packages_in_one_line(tmp_path):
     assert result.stdout == ""
     assert result.stderr.splitlines() == [
         "setup: error: missing Debian package(s) python3.11 python3.11-venv python3.11-dev "
-        "cmake g++ make: run 'sudo apt-get install python3.11 python3.11-venv python3.11-dev "
-        "cmake g++ make'"
+        "cmake g++ make linuxcnc-uspace linuxcnc-uspace-dev: run 'sudo apt-get install "
+        "python3.11 python3.11-venv python3.11-dev cmake g++ make linuxcnc-uspace "
+        "linuxcnc-uspace-dev'"
     ]
 
 
+def _linuxcnc() -> dict[str, str]:
+    return {"linuxcnc": _real("linuxcnc"), "halcompile": _real("halcompile")}
+
+
 def test_missing_cmake_and_gxx_are_named(tmp_path):
-    tools = _tool_dir(tmp_path, {"python3.11": _python311(), "make": _real("make")})
+    tools = _tool_dir(tmp_path, {"python3.11": _python311(), "make": _real("make"), **_linuxcnc()})
     result = _run([str(SETUP), "--check"], tools, FEED_TWIN_NO_AUTO_INSTALL="1")
     assert result.returncode == 1
     assert result.stderr.splitlines() == [
@@ -77,6 +83,7 @@ def test_all_tools_present_passes_the_check(tmp_path):
             "cmake": _real("cmake"),
             "g++": _real("g++"),
             "make": _real("make"),
+            **_linuxcnc(),
         },
     )
     result = _run([str(SETUP), "--check"], tools, FEED_TWIN_NO_AUTO_INSTALL="1")
@@ -101,7 +108,7 @@ def _fake_apt_get(tools: Path, log: Path, provides: dict[str, str]) -> None:
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="auto-install only runs as root")
 def test_as_root_missing_tools_are_installed_with_apt_get(tmp_path):
-    tools = _tool_dir(tmp_path, {"python3.11": _python311(), "make": _real("make")})
+    tools = _tool_dir(tmp_path, {"python3.11": _python311(), "make": _real("make"), **_linuxcnc()})
     log = tmp_path / "apt.log"
     _fake_apt_get(tools, log, {"cmake": _real("cmake"), "g++": _real("g++")})
     result = _run([str(SETUP), "--check"], tools)
@@ -118,7 +125,7 @@ def test_as_root_missing_tools_are_installed_with_apt_get(tmp_path):
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="auto-install only runs as root")
 def test_as_root_a_package_that_does_not_provide_the_tool_is_reported(tmp_path):
-    tools = _tool_dir(tmp_path, {"python3.11": _python311(), "make": _real("make")})
+    tools = _tool_dir(tmp_path, {"python3.11": _python311(), "make": _real("make"), **_linuxcnc()})
     _fake_apt_get(tools, tmp_path / "apt.log", {"cmake": _real("cmake")})
     result = _run([str(SETUP), "--check"], tools)
     assert result.returncode == 1
@@ -147,11 +154,17 @@ def test_the_stamp_decides_whether_a_set_up_is_needed(tmp_path):
     digest = _run([str(SETUP), "--hash"], path, **env).stdout.strip()
     assert len(digest) == 64
     (venv / "feed_twin-setup.stamp").write_text(digest + "\n")
+    # LinuxCNC's clock component counts too: installed, and the stamp names its source
+    assert _run([str(SETUP), "--status"], path, **env).stdout == f"setup: set-up needed ({venv})\n"
+    comp = REPO / "config" / "linuxcnc" / "feedtwin_clock.comp"
+    (venv / "feed_twin-linuxcnc.stamp").write_text(hashlib.sha256(comp.read_bytes()).hexdigest())
     assert _run([str(SETUP), "--status"], path, **env).stdout == f"setup: up to date ({venv})\n"
     # The full set-up with an unchanged stamp is a no-op that touches nothing. Its PATH holds
     # only what the stamp check uses: were the stamp stale, it would stop at the tool check
     # instead of installing into the fake venv.
-    hashing = {name: _real(name) for name in ("cat", "find", "sort", "xargs", "sha256sum", "cut")}
+    hashing = {
+        name: _real(name) for name in ("cat", "find", "sort", "xargs", "sha256sum", "cut", "id")
+    }
     result = _run([str(SETUP)], _tool_dir(tmp_path, hashing), **env)
     assert (result.returncode, result.stdout) == (0, f"setup: up to date ({venv})\n")
     # Another interpreter changes the inputs, so the stamp no longer matches.
@@ -261,7 +274,7 @@ def test_a_failed_cmake_step_shows_the_relevant_lines_and_the_log(tmp_path):
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="auto-install only runs as root")
 def test_as_root_a_failing_apt_get_is_reported_with_its_last_line(tmp_path):
-    tools = _tool_dir(tmp_path, {"python3.11": _python311(), "make": _real("make")})
+    tools = _tool_dir(tmp_path, {"python3.11": _python311(), "make": _real("make"), **_linuxcnc()})
     _fake_apt_get(tools, tmp_path / "apt.log", {})
     (tools / "apt-get").write_text(
         f"#!{BASH}\n"

@@ -148,10 +148,10 @@ def test_dwell_units_and_fanuc_x_dwell():
 
 
 def test_path_control_modes_and_tolerance():
-    items = run("G1 X1 F100\nG61 X2\nG64 P0.005 X3\nX4 G9\nG64 X5")
-    assert [i.exact_stop for i in items] == [False, True, False, True, False]
+    items = run("G1 X1 F100\nG61 X2\nG64 P0.005 X3\nX4 G9\nG64 X5\nG64 P0.003 Q0.001 X6")
+    assert [i.exact_stop for i in items] == [False, True, False, True, False, False]
     assert [i.tolerance_m for i in items] == pytest.approx(
-        [2e-5, 2e-5, 5e-6, 5e-6, CONFIG.path_tolerance_m]
+        [2e-5, 2e-5, 5e-6, 5e-6, CONFIG.path_tolerance_m, 3e-6]
     )
 
 
@@ -163,7 +163,9 @@ def test_comments_case_and_line_numbers_are_ignored():
 @pytest.mark.parametrize(
     ("program", "message"),
     [
-        ("G1 X1 F100 Q2", "<text>:1:12: word 'Q2': unknown word"),
+        ("G1 X1 F100 Q2", "<text>:1:12: word 'Q2': Q word without G64 P"),
+        ("G64 Q0.01", "<text>:1:5: word 'Q0.01': G64 Q needs a P tolerance in the same block"),
+        ("G64 P0.01 Q-1", "<text>:1:11: word 'Q-1': G64 Q tolerance must be >= 0"),
         ("G1 A5 F100", "<text>:1:4: word 'A5': unknown word (axis A is not configured)"),
         ("O100 G0 X1", "<text>:1:1: word 'O100': unknown word (O-word subroutines are not"),
         ("G93 G1 X1 F2", "<text>:1:1: word 'G93': unsupported mode (inverse-time feed)"),
@@ -182,7 +184,7 @@ def test_comments_case_and_line_numbers_are_ignored():
         ("G0 X600", "<text>:1:4: word 'X600': X = 600 mm (machine) is outside the travel"),
         (
             "G1 X0 F100\nG2 X0 Y0 I290",
-            "<text>:2:1: word 'G2': X = 500.692 mm (machine) is outside the travel [-500, 500]",
+            "<text>:2:1: word 'G2': X = 501.069 mm (machine) is outside the travel [-500, 500]",
         ),
         ("G0 G1 X1 F1", "<text>:1:4: word 'G1': conflicts with G0 (both in the motion group)"),
         ("G0 X1 X2", "<text>:1:7: word 'X2': repeats X1 in the same block"),

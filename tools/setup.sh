@@ -61,6 +61,9 @@ sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Pyth
     command -v cmake >/dev/null 2>&1 || pkgs+=(cmake)
     command -v g++ >/dev/null 2>&1 || pkgs+=(g++)
     command -v make >/dev/null 2>&1 || pkgs+=(make)
+    # LinuxCNC 2.9 (feed_twin/linuxcnc): the controller, and halcompile for feedtwin_clock
+    command -v linuxcnc >/dev/null 2>&1 || pkgs+=(linuxcnc-uspace)
+    command -v halcompile >/dev/null 2>&1 || pkgs+=(linuxcnc-uspace-dev)
     printf '%s\n' "${pkgs[@]}"
 }
 
@@ -115,6 +118,45 @@ optional_packages() {
     fi
 }
 
+# LinuxCNC's rtapi_app refuses to run as root: feed_twin runs LinuxCNC as this system user when
+# it is started as root (feed_twin/linuxcnc/runner.py; FEED_TWIN_LINUXCNC_USER names another).
+lcnc_user="${FEED_TWIN_LINUXCNC_USER:-feedtwin}"
+lcnc_comp="$repo/config/linuxcnc/feedtwin_clock.comp"
+lcnc_module="/usr/lib/linuxcnc/modules/feedtwin_clock.so"
+lcnc_stamp="$venv/feed_twin-linuxcnc.stamp"
+
+lcnc_hash() { sha256sum "$lcnc_comp" | cut -d' ' -f1; }
+
+linuxcnc_ready() {
+    [[ -f "$lcnc_module" && -f "$lcnc_stamp" && "$(cat "$lcnc_stamp")" == "$(lcnc_hash)" ]] &&
+        { ! is_root || id -u "$lcnc_user" >/dev/null 2>&1; }
+}
+
+# The servo thread's clock component (a HAL realtime module) goes where `loadrt` finds it, which
+# needs root; so does the unprivileged user.
+setup_linuxcnc() {
+    linuxcnc_ready && return 0
+    if ! is_root; then
+        [[ -f "$lcnc_module" ]] ||
+            die "LinuxCNC lacks the HAL component feedtwin_clock: run 'sudo tools/setup.sh' once"
+        lcnc_hash >"$lcnc_stamp"
+        return 0
+    fi
+    if ! id -u "$lcnc_user" >/dev/null 2>&1; then
+        say "creating the system user $lcnc_user that runs LinuxCNC (rtapi_app refuses root)"
+        useradd --system --create-home --home-dir "/var/lib/$lcnc_user" \
+            --shell /usr/sbin/nologin "$lcnc_user" || die "useradd $lcnc_user failed"
+    fi
+    local tmp
+    tmp="$(mktemp -d)"
+    cp "$lcnc_comp" "$tmp/"
+    (cd "$tmp" && halcompile --install feedtwin_clock.comp) >"$tmp/halcompile.log" 2>&1 ||
+        die "halcompile --install $lcnc_comp failed: $(tail -n 1 "$tmp/halcompile.log")"
+    rm -rf "$tmp"
+    lcnc_hash >"$lcnc_stamp"
+    say "installed LinuxCNC's HAL component feedtwin_clock"
+}
+
 # Everything the set-up result depends on; a change in any of these reruns the set-up.
 inputs_hash() {
     (
@@ -125,11 +167,13 @@ inputs_hash() {
     ) | sha256sum | cut -d' ' -f1
 }
 
-up_to_date() {
+venv_up_to_date() {
     [[ -f "$stamp" && -x "$venv/bin/python" && -x "$venv/bin/feed-twin" ]] &&
         [[ -f "$venv/share/feed_twin_msgs/package.xml" ]] &&
         [[ "$(cat "$stamp")" == "$(inputs_hash)" ]]
 }
+
+up_to_date() { venv_up_to_date && linuxcnc_ready; }
 
 run_logged() {
     local log="$1"
@@ -162,6 +206,11 @@ main() {
         return 0
     fi
     check_tools
+    if venv_up_to_date; then
+        setup_linuxcnc
+        say "up to date ($venv)"
+        return 0
+    fi
 
     # Several shells may run `make test` in one tree at once: one set-up at a time, and the
     # ones that waited find it done.
@@ -223,6 +272,7 @@ main() {
     "$venv/bin/rerun" analytics disable >/dev/null 2>&1 || say "note: 'rerun analytics disable' failed"
 
     wait "$optional_pid" || say "note: the optional Debian packages were not installed (see above)"
+    setup_linuxcnc
 
     inputs_hash >"$stamp"
     say "done in $((SECONDS - t0)) s (pip $((SECONDS - t_pip - t_msgs)) s, msgs/ $t_msgs s)"

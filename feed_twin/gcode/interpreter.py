@@ -29,6 +29,22 @@ from feed_twin.gcode.lexer import Block, Word
 
 MM = 1e-3  # [m] per millimetre
 INCH = 25.4e-3  # [m] per inch
+CHORD_SAGITTA_SHARE = 0.75  # largest chord sagitta, as a share of the chord tolerance
+
+
+class Arc(NamedTuple):
+    """The programmed circle (or helix) of a G2/G3 block, shared by all of its chords.
+
+    At the fraction f of the sweep the point is centre + r(f) (cos, sin)(theta0 + f sweep) in
+    the plane, r(f) = r_start + (r_end - r_start) f; every other axis moves linearly in f.
+    """
+
+    plane_axes: tuple[int, int, int]  # axis indices: first, second and normal axis of the plane
+    centre_m: tuple[float, float]  # [m] centre in machine coordinates (first, second axis)
+    r_start_m: float  # [m] radius at the start point
+    r_end_m: float  # [m] radius at the end point (differs within arc_radius_tolerance_m)
+    theta0_rad: float  # [rad] angle of the start point, from the first axis towards the second
+    sweep_rad: float  # [rad] signed sweep, > 0 counter-clockwise (G3), full turns included
 
 
 class Move(NamedTuple):
@@ -38,6 +54,7 @@ class Move(NamedTuple):
     feed_m_s: float  # [m/s] programmed path feed (0 for rapids)
     tolerance_m: float  # [m] allowed corner deviation at the end of this move (G64)
     exact_stop: bool  # stop at the end of this move (G61, G9)
+    arc: Arc | None = None  # the programmed arc this move is a chord of
 
 
 class Stop(NamedTuple):
@@ -99,7 +116,7 @@ _UNSUPPORTED_G.update({c: "unsupported (spindle-synchronised motion)" for c in (
 
 _M_KNOWN = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30}
 _CENTRE_LETTERS = ("I", "J", "K")
-_OTHER_LETTERS = frozenset("FSTIJKRP")
+_OTHER_LETTERS = frozenset("FSTIJKRPQ")
 # Plane -> (first axis, second axis, normal axis, first centre letter, second centre letter)
 _PLANE_AXES = {
     17: ("X", "Y", "Z", "I", "J"),
@@ -283,6 +300,16 @@ class Interpreter:
                     self.tolerance = p_word.value * self.length_unit
                 else:
                     self.tolerance = self.config.path_tolerance_m
+                # LinuxCNC's naive-CAM tolerance: it may merge nearly collinear G1 moves into one
+                # within Q. This planner follows every vertex, which that tolerance allows.
+                q_word = other.pop("Q", None)
+                if q_word is not None:
+                    if p_word is None:
+                        raise self.error(
+                            "G64 Q needs a P tolerance in the same block", q_word, line
+                        )
+                    if q_word.value < 0.0:
+                        raise self.error("G64 Q tolerance must be >= 0", q_word, line)
         wcs = g_words.get("work offset")
         if wcs is not None:
             self.work_offset = list(getattr(self.config.work_offsets_m, f"G{wcs[0] // 10}"))
@@ -329,6 +356,9 @@ class Interpreter:
             raise self.error(
                 "arc word without an arc move (G2, G3 with axis words)", leftover[0], line
             )
+        q_left = other.get("Q")
+        if q_left is not None:
+            raise self.error("Q word without G64 P", q_left, line)
         p_left = other.get("P")
         if (
             p_left is not None
@@ -550,12 +580,16 @@ class Interpreter:
             sweep = -2.0 * math.pi if clockwise else 2.0 * math.pi
         sweep += math.copysign(2.0 * math.pi * (turns - 1), sweep)
         radius = max(r0, r1)
-        eps = self.config.chord_tolerance_m
+        # The planner's chained blends round each chord vertex inwards by up to 4/3 of the
+        # sagitta (|dU| w/6 with w up to a chord length: (2/3)(1 + cos(step/4)) sagittas), so
+        # the chords keep 3/4 of the tolerance and the blended path stays within all of it.
+        eps = CHORD_SAGITTA_SHARE * self.config.chord_tolerance_m
         step = 2.0 * math.acos(1.0 - eps / radius) if eps < radius else math.pi / 2
         n = max(1, math.ceil(abs(sweep) / min(step, math.pi / 2)))
         n0 = start[i_n]
         n1 = target[i_n]
         exact_end = self.exact_stop_mode or "non-modal 90" in g_words
+        arc = Arc((i1, i2, i_n), (ca, cb), r0, r1, theta0, sweep)
         items: list[Item] = []
         feed = self.feed
         for k in range(1, n + 1):
@@ -574,7 +608,7 @@ class Interpreter:
                         point[j] = start[j] + (target[j] - start[j]) * f
             self._check_travel(point, axis_words if k == n else {}, blame, line)
             items.append(
-                Move(line, tuple(point), False, feed, self.tolerance, exact_end and k == n)
+                Move(line, tuple(point), False, feed, self.tolerance, exact_end and k == n, arc)
             )
         self.position = list(target)
         return items

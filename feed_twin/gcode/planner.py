@@ -46,7 +46,7 @@ from feed_twin.gcode.trajectory import NcEvent, SampledTrajectory
 BLEND_SHARE = 0.4  # largest part of a move a corner blended alone may use
 NEIGHBOUR_SHARE = 0.55  # the same for its neighbours, so that a straight piece stays between
 CHAIN_SHARE = 1.0  # elsewhere: blends may reach the neighbouring corner and overlap
-CHAIN_CUT = 1.5  # a chain is cut where its local speed cap changes by more than this factor
+CHAIN_CUT = 1.3  # a chain is cut where its local speed cap changes by more than this factor
 SHARP_CORNER = 0.25  # |u_out - u_in| above this (about 14 degrees) is a corner, not a curve
 COLLINEAR = 1e-12  # |u_out - u_in| below this is a straight joint, not a corner
 
