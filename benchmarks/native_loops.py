@@ -18,7 +18,7 @@ Figures (last printed line, one JSON object):
   once with LinuxCNC's simulated X joint (PID, drive lowpass, integrator) and once with the HAL
   component closing X's loop instead: LinuxCNC's following error of X over the program
   (joint.0.f-error: max and RMS, um) and the servo periods lost (the thread's tick counter) and
-  sampler overruns of each run; null with the reason when the LinuxCNC runner is absent.
+  sampler overruns of each run.
 
     .venv/bin/python benchmarks/native_loops.py      (as root: installs the HAL component)
 """
@@ -119,7 +119,6 @@ def hal_figures(axis) -> dict:
 def linuxcnc_figures() -> dict:
     try:
         import feed_twin.linuxcnc  # noqa: F401
-
         from feed_twin.native.linuxcnc_loop import compare_runs
     except ImportError as exc:
         return {"linuxcnc": None, "linuxcnc_reason": f"no LinuxCNC runner ({exc})"}

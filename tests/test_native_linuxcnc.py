@@ -3,22 +3,17 @@
 
 from __future__ import annotations
 
-import pytest
 from native_support import ROOT
 
 from feed_twin.cli import main as cli_main
-
-linuxcnc = pytest.importorskip("feed_twin.linuxcnc", reason="the LinuxCNC runner (issue 17)")
+from feed_twin.linuxcnc.runner import RunOptions, run_program
+from feed_twin.native.linuxcnc_loop import figures, twin_machine
 
 AXIS = ROOT / "config" / "axis_default.yaml"
 PROGRAM = ROOT / "tests" / "fixtures" / "gcode" / "square_metric_abs.ngc"
 
 
 def test_a_program_runs_with_the_twin_in_the_servo_loop(tmp_path):
-    from feed_twin.linuxcnc.runner import RunOptions, run_program
-
-    from feed_twin.native.linuxcnc_loop import figures, twin_machine
-
     args = ["hal", "--config", str(AXIS), "--out", str(tmp_path / "hal"), "--install"]
     assert cli_main(args) == 0
     machine = tmp_path / "machine"

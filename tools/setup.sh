@@ -89,18 +89,6 @@ check_tools() {
     die "missing Debian package(s) ${missing[*]}: run 'sudo apt-get install ${missing[*]}'"
 }
 
-# halcompile, for the twin as a LinuxCNC HAL component (tests/test_native_hal.py); the package
-# pulls linuxcnc-uspace (halrun) in with it.
-hal_dev_package() {
-    command -v halcompile >/dev/null 2>&1 && return 0
-    if may_auto_install; then
-        say "installing Debian package for the HAL component tests: linuxcnc-uspace-dev"
-        apt_install linuxcnc-uspace-dev
-    else
-        say "note: not installing linuxcnc-uspace-dev (not root); the HAL component tests need it"
-    fi
-}
-
 # Nice to have for the tests (Rerun's headless screenshots render with Vulkan on lavapipe).
 optional_packages() {
     local -a want=(mesa-vulkan-drivers) absent=()
@@ -226,7 +214,7 @@ main() {
         return 0
     fi
     # apt-get (disk, one core) overlaps with pip (network first) instead of adding to it.
-    { optional_packages && hal_dev_package; } &
+    optional_packages &
     local optional_pid=$!
 
     if [[ -e "$venv" ]] && ! "$venv/bin/python" -c 'import sys; assert sys.version_info[:2] == (3, 11)' \

@@ -1,17 +1,14 @@
 """Running a HAL script in a bare `halrun`, as LinuxCNC needs it run on this kind of host.
 
-`rtapi_app` refuses root, so as root the script runs as an unprivileged system user (created
-if missing, with a home for rtapi's socket); only one realtime session can run on a host, so
-runs take the host-wide lock that feed_twin's LinuxCNC runner takes too
-(/tmp/feed_twin-linuxcnc.lock, an exclusive flock) and `halrun -U` cleans up after a failed one.
+`rtapi_app` refuses root, so as root the script runs as feed_twin.linuxcnc's unprivileged
+system user; only one realtime session can run on a host, so runs take the host-wide lock of
+feed_twin.linuxcnc's runner, and `halrun -U` cleans up after a failed one.
 """
 
 from __future__ import annotations
 
-import fcntl
 import math
 import os
-import pwd
 import shutil
 import subprocess
 import tempfile
@@ -21,33 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-LOCK_PATH = Path("/tmp/feed_twin-linuxcnc.lock")
-RUN_USER = "feedtwin"
+from feed_twin.linuxcnc.host import host_lock, run_user
+
 HAL_RUN_PACKAGE = "linuxcnc-uspace"
-
-
-def run_user() -> str | None:
-    """The user a HAL session runs as: None (this one) unless root."""
-    if os.geteuid() != 0:
-        return None
-    try:
-        pwd.getpwnam(RUN_USER)
-    except KeyError:
-        subprocess.run(
-            [
-                "useradd",
-                "--system",
-                "--create-home",
-                "--home-dir",
-                f"/var/lib/{RUN_USER}",
-                "--shell",
-                "/usr/sbin/nologin",
-                RUN_USER,
-            ],
-            check=True,
-            capture_output=True,
-        )
-    return RUN_USER
 
 
 @contextmanager
@@ -78,9 +51,7 @@ def _run(script: str, workdir: Path, timeout: float) -> str:
         os.chmod(workdir, 0o777)
         path.chmod(0o644)
     prefix = ["runuser", "-u", user, "--"] if user else []
-    fd = os.open(LOCK_PATH, os.O_RDWR | os.O_CREAT, 0o666)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
+    with host_lock(lambda message: None):
         result = subprocess.run(
             [*prefix, halrun, "-f", str(path)],
             cwd=workdir,
@@ -90,9 +61,6 @@ def _run(script: str, workdir: Path, timeout: float) -> str:
         )
         if result.returncode != 0:
             subprocess.run([*prefix, halrun, "-U"], capture_output=True, timeout=30)
-    finally:
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        os.close(fd)
     return result.stdout + result.stderr
 
 
