@@ -55,9 +55,9 @@ def twin_hal(hal_text: str, axis_name: str, start_mm: float) -> str:
             ]
         ),
     )
-    return text.replace(
-        sampler, f"addf feed-twin-axis servo-thread\n{sampler}", 1
-    ).replace("loadrt feedtwin_clock", f"loadrt feedtwin_clock\nloadrt {MODULE}", 1)
+    return text.replace(sampler, f"addf feed-twin-axis servo-thread\n{sampler}", 1).replace(
+        "loadrt feedtwin_clock", f"loadrt feedtwin_clock\nloadrt {MODULE}", 1
+    )
 
 
 def twin_machine(config: str | Path, directory: Path):
