@@ -145,3 +145,13 @@ def test_open_loop_c_kernel_equals_numba():
     assert kernel.record_names == expected.names
     assert np.array_equal(got, expected.data)
     assert np.ptp(expected["table.s"]) > 1e-3
+
+
+def test_a_runaway_stops_the_c_kernel_with_the_state_named():
+    axis = load_axis_config(ROOT / "config" / "axis_default.yaml")
+    kernel = c_kernel_for_axis(axis)
+    model = CModel(compile_kernel(kernel), kernel)
+    model.set_param("coupling.k", 1e12)  # RK4 at 62.5 us is unstable for this coupling
+    with pytest.raises(RuntimeError, match=r"^state motor.omega ran away at tick \d+ \(value "):
+        model.run(100)
+    assert 0 < model.tick() < 100

@@ -193,7 +193,11 @@ class CModel:
             if rec is not None:
                 rows.append(rec[:done:every])
             if done < m:
-                break
+                _, tick, state, value = self.status()
+                raise RuntimeError(
+                    f"state {self.kernel.state_names[int(state)]} ran away at tick {int(tick)} "
+                    f"(value {value!r})"
+                )
         return np.concatenate(rows) if rows else np.zeros((0, width))
 
     def _vector(self, name: str, size: int) -> np.ndarray:
@@ -207,4 +211,5 @@ class CModel:
         return self._vector("ft_status", 4)
 
     def tick(self) -> int:
+        """Ticks simulated since the last reset."""
         return int(self.lib.ft_tick(self.handle))

@@ -195,12 +195,6 @@ def _xs_double(value: float) -> str:
     return repr(float(value))
 
 
-def _c_literal(value: float) -> str:
-    if np.isinf(value):
-        return "INFINITY" if value > 0 else "-INFINITY"
-    return "NAN" if np.isnan(value) else repr(float(value))
-
-
 def _c_list(items) -> str:
     return ", ".join(items) or "0"
 
@@ -274,8 +268,3 @@ def build_fmu(axis, out: Path, *, cc: str = "cc") -> Path:
         path.unlink()
     build.rmdir()
     return out
-
-
-def start_state(axis, start: float) -> np.ndarray:
-    """The plant state the FMU starts from at `start.<body>` = start."""
-    return axis.plant.initial_state({axis.plant.coordinates[-1].name: start})
