@@ -17,6 +17,9 @@ from native_support import ROOT
 
 from feed_twin.cli import main as cli_main
 from feed_twin.control import signals
+from feed_twin.control.layout import build_cascade, with_mode
+from feed_twin.native.build import CModel, compile_kernel
+from feed_twin.native.emit import c_kernel
 from feed_twin.native.hal import HalcompileMissingError, find_halcompile
 from feed_twin.native.halrun import hal_session, sine_loop
 from feed_twin.sim.config import build_engine, load_axis_config
@@ -92,3 +95,52 @@ def test_missing_halcompile_names_the_debian_package():
         r"linuxcnc-uspace-dev; tools/setup.sh does as root\)$",
     ):
         find_halcompile("no-halcompile")
+
+
+TORQUE = """
+loadrt threads name1=servo-thread period1=1000000
+loadrt feed_twin_axis_cst
+loadrt sampler depth=2000 cfg=ffs
+addf feed-twin-axis-cst servo-thread
+addf sampler.0 servo-thread
+setp feed-twin-axis-cst.start-pos 400
+setp feed-twin-axis-cst.current-cmd 2.0
+net fb feed-twin-axis-cst.pos-fb => sampler.0.pin.0
+net iq feed-twin-axis-cst.current-q => sampler.0.pin.1
+net ticks feed-twin-axis-cst.ticks => sampler.0.pin.2
+start
+loadusr -w sh sample.sh
+stop
+"""
+
+
+def test_at_a_torque_boundary_the_current_command_pin_drives_the_twin_as_the_engine(tmp_path):
+    # the pin LinuxCNC's PID output drives (as q-current setpoint): 2 A held for 0.3 s
+    args = ["hal", "--config", str(AXIS), "--out", str(tmp_path), "--mode", "torque"]
+    assert cli_main([*args, "--module", "feed_twin_axis_cst", "--install"]) == 0
+    n = 300
+    with hal_session(TORQUE, files={"sample.sh": f"halsampler -n {n} > s.txt\n"}) as (log, d):
+        assert (d / "s.txt").exists(), log
+        rows = np.loadtxt(d / "s.txt")
+    pos_fb, i_q, ticks = rows[:, 0], rows[:, 1], rows[:, 2]
+    assert np.array_equal(ticks, 16.0 * np.arange(1, n + 1))
+    assert np.all(i_q == 2.0)
+    # the C kernel of the same torque-boundary drive in this process (equal to the numba
+    # engine's, tests/test_native_kernel.py; its numba kernel would compile for 12 s here)
+    axis = load_axis_config(AXIS)
+    cascade = with_mode(build_cascade(axis.controller), "torque")
+    kernel = c_kernel(
+        axis.plant,
+        base_period_s=axis.engine.base_period_s,
+        controller=cascade,
+        seed=axis.engine.seed,
+    )
+    model = CModel(compile_kernel(kernel), kernel)
+    model.set_states(axis.plant.initial_state({"table": 1.0}) * 0.4)
+    ref = np.zeros((16 * n, signals.REF_SIZE))
+    ref[:, signals.REF_I_Q_EXT_A] = 2.0
+    rows = model.run(len(ref), ref=ref)
+    scale = kernel.record_names.index("meas.x_scale_m")
+    expected = rows[15::16, scale] * 1000.0
+    assert np.abs(pos_fb - expected).max() < 1e-5  # [mm]: the samples are printed to 1 nm
+    assert pos_fb[-1] - pos_fb[0] > 30.0  # [mm] it accelerated

@@ -33,6 +33,7 @@ machine units) is the table position the twin starts from, at rest, taken at the
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -149,10 +150,16 @@ FUNCTION(_)
 """
 
 
-def comp_source(axis, servo_period_s: float) -> str:
-    """The .comp text of `axis` (feed_twin.sim.config.AxisConfig) for this servo period."""
-    from feed_twin.control.layout import build_cascade
+def comp_source(
+    axis, servo_period_s: float, *, mode: str | None = None, module: str = MODULE
+) -> str:
+    """The .comp text of `axis` (feed_twin.sim.config.AxisConfig) for this servo period, at
+    the configured boundary or at `mode` (position, velocity, torque), as HAL module `module`
+    (its pins and function are named after it: feed_twin_axis -> feed-twin-axis.*)."""
+    from feed_twin.control.layout import build_cascade, with_mode
 
+    if not re.fullmatch(r"[a-z][a-z0-9_]*", module):
+        raise ValueError(f"module = {module!r}: a HAL module name is [a-z][a-z0-9_]*")
     if axis.controller is None:
         raise ValueError(f"{axis.source}: the HAL component needs a controller section")
     h = axis.engine.base_period_s
@@ -162,25 +169,28 @@ def comp_source(axis, servo_period_s: float) -> str:
             f"servo period {servo_period_s!r} s: must be a whole number of base periods "
             f"(engine.base_period_s = {h!r} s of {axis.source})"
         )
+    cascade = build_cascade(axis.controller)
+    if mode is not None:
+        cascade = with_mode(cascade, mode)
+    mode = cascade.config.mode
     kernel: CKernel = c_kernel(
         axis.plant,
         base_period_s=h,
-        controller=build_cascade(axis.controller),
+        controller=cascade,
         substeps=axis.engine.substeps,
         seed=axis.engine.seed,
     )
-    mode = axis.controller.mode
     load = axis.plant.coordinates[-1]
     start_map = axis.plant.initial_state({load.name: 1.0})
     head = _HEAD.format(
-        module=MODULE, source=axis.source, ticks=ticks, h_us=h * 1e6, pins=_PINS[mode]
+        module=module, source=axis.source, ticks=ticks, h_us=h * 1e6, pins=_PINS[mode]
     )
     body = _BODY.format(
         start_map=", ".join(repr(float(v)) for v in start_map),
         period_ns=round(servo_period_s * 1e9),
         h_ns=round(h * 1e9),
         ticks=ticks,
-        module=MODULE,
+        module=module,
         ref=_REF[mode],
         meas_theta=signals.MEAS_THETA_ENC_RAD,
         meas_scale=signals.MEAS_X_SCALE_M,
@@ -199,10 +209,12 @@ def comp_source(axis, servo_period_s: float) -> str:
     return head + source + body
 
 
-def write_comp(axis, out_dir: Path, servo_period_s: float) -> Path:
+def write_comp(
+    axis, out_dir: Path, servo_period_s: float, *, mode: str | None = None, module: str = MODULE
+) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"{MODULE}.comp"
-    path.write_text(comp_source(axis, servo_period_s))
+    path = out_dir / f"{module}.comp"
+    path.write_text(comp_source(axis, servo_period_s, mode=mode, module=module))
     return path
 
 

@@ -16,6 +16,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--servo-period", type=float, default=1e-3, help="LinuxCNC's servo period [s] (1e-3)"
     )
     parser.add_argument(
+        "--mode",
+        choices=("position", "velocity", "torque"),
+        default=None,
+        help="CiA 402 boundary of the pins (default: the config's controller.mode)",
+    )
+    parser.add_argument(
+        "--module", default="feed_twin_axis", help="HAL module name (default feed_twin_axis)"
+    )
+    parser.add_argument(
         "--install",
         action="store_true",
         help="halcompile --install (root): into /usr/lib/linuxcnc/modules for loadrt",
@@ -30,7 +39,9 @@ def main(args: argparse.Namespace) -> int:
 
     try:
         axis = load_axis_config(args.config)
-        comp = write_comp(axis, Path(args.out), args.servo_period)
+        comp = write_comp(
+            axis, Path(args.out), args.servo_period, mode=args.mode, module=args.module
+        )
         print(f"{comp}: HAL component of {args.config}, servo period {args.servo_period:g} s")
         if args.install or args.compile:
             module = halcompile(comp, install=args.install)
