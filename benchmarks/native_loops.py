@@ -18,7 +18,9 @@ Figures (last printed line, one JSON object):
   once with LinuxCNC's simulated X joint (PID, drive lowpass, integrator) and once with the HAL
   component closing X's loop instead: LinuxCNC's following error of X over the program
   (joint.0.f-error: max and RMS, um) and the servo periods lost (the thread's tick counter) and
-  sampler overruns of each run.
+  sampler overruns of each run; linuxcnc_twin_pid_*: the same with the component at the torque
+  boundary, LinuxCNC's pid (PD at 25 Hz with acceleration feed-forward, no integral) closing the
+  position loop through the twin's q-current input.
 
     .venv/bin/python benchmarks/native_loops.py      (as root: installs the HAL component)
 """

@@ -27,3 +27,20 @@ def test_a_program_runs_with_the_twin_in_the_servo_loop(tmp_path):
     # the twin's drive follows LinuxCNC's command with full feed-forward: micrometres, far
     # inside LinuxCNC's FERROR (2 mm) and the drive's own limit (2 mm)
     assert got.f_error_max_m < 50e-6
+
+
+def test_linuxcnc_pid_closes_the_position_loop_through_the_twins_current_input(tmp_path):
+    # torque boundary: LinuxCNC's pid (PD at 25 Hz, acceleration feed-forward) drives the q
+    # current of the twin's drive, whose scale is the joint's feedback
+    args = ["hal", "--config", str(AXIS), "--out", str(tmp_path / "hal"), "--mode", "torque"]
+    assert cli_main([*args, "--install"]) == 0
+    machine = tmp_path / "machine"
+    nc, servo = twin_machine(AXIS, machine, boundary="torque")
+    hal = (machine / "machine.hal").read_text()
+    assert "net x-output => feed-twin-axis.current-cmd" in hal
+    result = run_program(PROGRAM, nc=nc, servo=servo, options=RunOptions(machine_dir=machine))
+    got = figures(result, 0)
+    assert got.samples_lost == 0 and got.overruns == 0
+    # a PD loop without integral: friction leaves an error of its current over Pgain, inside
+    # LinuxCNC's FERROR of 2 mm
+    assert got.f_error_max_m < 1e-3
