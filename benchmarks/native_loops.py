@@ -119,14 +119,18 @@ def hal_figures(axis) -> dict:
 
 
 def linuxcnc_figures() -> dict:
-    try:
-        import feed_twin.linuxcnc  # noqa: F401
-        from feed_twin.native.linuxcnc_loop import compare_runs
-    except ImportError as exc:
-        return {"linuxcnc": None, "linuxcnc_reason": f"no LinuxCNC runner ({exc})"}
+    from feed_twin.linuxcnc.runner import RunOptions, run_program
+    from feed_twin.native.linuxcnc_loop import compare_runs, figures, twin_machine
+
     with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
         Path(tmp).chmod(0o777)
         runs = compare_runs(SAMPLE, AXIS, Path(tmp))
+        comp = write_comp(load_axis_config(AXIS), Path(tmp), 1e-3, mode="torque")
+        halcompile(comp, install=True)
+        machine = Path(tmp) / "machine_pid"
+        nc, servo = twin_machine(AXIS, machine, boundary="torque")
+        result = run_program(SAMPLE, nc=nc, servo=servo, options=RunOptions(machine_dir=machine))
+        runs["twin_pid"] = figures(result, [a.name for a in nc.axes].index(nc.twin_axis))
     out = {}
     for name, f in runs.items():
         out[f"linuxcnc_{name}_f_error_max_um"] = round(f.f_error_max_m * 1e6, 2)
