@@ -119,8 +119,7 @@ def hal_figures(axis) -> dict:
 
 
 def linuxcnc_figures() -> dict:
-    from feed_twin.linuxcnc.runner import RunOptions, run_program
-    from feed_twin.native.linuxcnc_loop import compare_runs, figures, twin_machine
+    from feed_twin.native.linuxcnc_loop import compare_runs, figures, run, twin_machine
 
     with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
         Path(tmp).chmod(0o777)
@@ -129,7 +128,7 @@ def linuxcnc_figures() -> dict:
         halcompile(comp, install=True)
         machine = Path(tmp) / "machine_pid"
         nc, servo = twin_machine(AXIS, machine, boundary="torque")
-        result = run_program(SAMPLE, nc=nc, servo=servo, options=RunOptions(machine_dir=machine))
+        result = run(SAMPLE, nc, servo, machine)
         runs["twin_pid"] = figures(result, [a.name for a in nc.axes].index(nc.twin_axis))
     out = {}
     for name, f in runs.items():

@@ -6,8 +6,7 @@ from __future__ import annotations
 from native_support import ROOT
 
 from feed_twin.cli import main as cli_main
-from feed_twin.linuxcnc.runner import RunOptions, run_program
-from feed_twin.native.linuxcnc_loop import figures, twin_machine
+from feed_twin.native.linuxcnc_loop import figures, run, twin_machine
 
 AXIS = ROOT / "config" / "axis_default.yaml"
 PROGRAM = ROOT / "tests" / "fixtures" / "gcode" / "square_metric_abs.ngc"
@@ -20,7 +19,7 @@ def test_a_program_runs_with_the_twin_in_the_servo_loop(tmp_path):
     nc, servo = twin_machine(AXIS, machine)
     hal = (machine / "machine.hal").read_text()
     assert "net x-twin-fb feed-twin-axis.pos-fb => joint.0.motor-pos-fb" in hal
-    result = run_program(PROGRAM, nc=nc, servo=servo, options=RunOptions(machine_dir=machine))
+    result = run(PROGRAM, nc, servo, machine)
     got = figures(result, 0)
     assert got.samples_lost == 0 and got.overruns == 0
     assert got.periods > 4000  # the 4.7 s program, every 1 ms servo period recorded
@@ -38,7 +37,7 @@ def test_linuxcnc_pid_closes_the_position_loop_through_the_twins_current_input(t
     nc, servo = twin_machine(AXIS, machine, boundary="torque")
     hal = (machine / "machine.hal").read_text()
     assert "net x-output => feed-twin-axis.current-cmd" in hal
-    result = run_program(PROGRAM, nc=nc, servo=servo, options=RunOptions(machine_dir=machine))
+    result = run(PROGRAM, nc, servo, machine)
     got = figures(result, 0)
     assert got.samples_lost == 0 and got.overruns == 0
     # a PD loop without integral: friction leaves an error of its current over Pgain, inside

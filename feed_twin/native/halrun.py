@@ -21,6 +21,9 @@ import numpy as np
 from feed_twin.linuxcnc.host import host_lock, run_user
 
 HAL_RUN_PACKAGE = "linuxcnc-uspace"
+# what halrun says when rtapi_app did not come up, which happens now and then right after
+# another session exited
+_NOT_STARTED = ("exited without becoming ready", "waitpid failed")
 
 
 @contextmanager
@@ -35,7 +38,10 @@ def hal_session(
         (workdir / name).write_text(text)
         (workdir / name).chmod(0o644)
     try:
-        yield _run(script, workdir, timeout), workdir
+        log = _run(script, workdir, timeout)
+        if any(sign in log for sign in _NOT_STARTED):
+            log = _run(script, workdir, timeout)  # rtapi_app did not come up: once more
+        yield log, workdir
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
 
