@@ -9,6 +9,8 @@ multiply-adds the source does not spell: the results are bit-identical, and the 
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 import pytest
 from native_support import ROOT, SAMPLE, program_ref
@@ -16,13 +18,15 @@ from native_support import ROOT, SAMPLE, program_ref
 from feed_twin.control import signals
 from feed_twin.io.config import load_yaml
 from feed_twin.native.build import (
+    FLAGS,
     CModel,
     CompilerMissingError,
     c_kernel_for_axis,
     compile_kernel,
     find_cc,
+    run_cc,
 )
-from feed_twin.native.ckinds import DOUBLE, ArrayKind
+from feed_twin.native.ckinds import DOUBLE, INT, PRELUDE, ArrayKind
 from feed_twin.native.translate import Source, TranslationError, Translator
 from feed_twin.sim.config import build_engine, load_axis_config
 
@@ -120,6 +124,32 @@ def test_translator_refuses_recursion():
         r"recursive call does not translate to C$",
     ):
         Translator().function(_recursive, (DOUBLE,))
+
+
+def test_integer_modulo_is_pythons_floor_modulo_also_by_a_power_of_two(tmp_path):
+    # a literal power-of-two divisor compiles to a mask (the delay ring's index): the same values
+    tr = Translator()
+    divisors = (16, 6, -8, 1)
+    names = [
+        tr.function(Source(f"def f(a):\n    return a % {d}\n", "f", {}), (INT,))[0]
+        for d in divisors
+    ]
+    wrappers = "".join(
+        f"int64_t mod_{i}(int64_t a) {{ return {name}(a); }}\n" for i, name in enumerate(names)
+    )
+    c_path = tmp_path / "mod.c"
+    c_path.write_text(
+        "#include <math.h>\n#include <stdint.h>\n" + PRELUDE + tr.source() + "\n" + wrappers
+    )
+    library = tmp_path / "mod.so"
+    run_cc(find_cc(), [*FLAGS, "-shared"], [c_path], library)
+    lib = ctypes.CDLL(str(library))
+    values = [-(2**63), -(2**63) + 1, -17, -16, -15, -1, 0, 1, 15, 16, 17, 2**63 - 1]
+    values += [int(v) for v in np.random.default_rng(3).integers(-(10**12), 10**12, 200)]
+    for i, d in enumerate(divisors):
+        fn = getattr(lib, f"mod_{i}")
+        fn.restype, fn.argtypes = ctypes.c_int64, [ctypes.c_int64]
+        assert [fn(v) for v in values] == [v % d for v in values], d
 
 
 def test_missing_compiler_is_named_with_its_debian_package():
