@@ -10,6 +10,12 @@ Figures (last printed line, one JSON object):
   to several seconds at a time, whatever runs in the guest (docs/architecture.md).
 - realtime_factor_inlined (and _cpu, _median): the same with engine.inline_parameters (the
   parameter values compiled into the kernel: what a long run of one parameter set can choose).
+- c_realtime_factor (and _median, _cpu): the C kernel (feed_twin.native: the same plant and
+  controller translated from the numba kernel's functions, compiled with the system cc) on the
+  same move, each repeat right after a numba repeat (c_numba_realtime_factor: numba's best of
+  those same interleaved repeats, so that both saw the same load); the two end in the same state,
+  bit for bit (checked); c_numba_realtime_factor_median and _cpu: numba's median and best per
+  CPU second in those repeats. `--native-only` measures only this pair.
 - batch_axis_seconds_per_second: 1000 parameter sets of the same axis (table mass varied),
   0.2 s of the same move each, advanced in parallel (run_batch: one thread per usable core, the
   kernel releases the GIL), best of two runs (the first is also the warm-up);
@@ -98,6 +104,40 @@ def realtime_factor(axis, *, inline: bool = False) -> tuple[float, float, float,
         walls.append(time.perf_counter() - t0)
     cpu = best_cpu_of(lambda: engine.run(n, ref=ref), REPEATS)
     return 1.0 / min(walls), min(walls), 1.0 / float(np.median(walls)), 1.0 / cpu
+
+
+def c_realtime_factor(axis) -> dict[str, float]:
+    """C and numba, interleaved: best wall rate, median wall rate, best CPU rate of each."""
+    from feed_twin.native.build import CModel, c_kernel_for_axis, compile_kernel
+
+    kernel = c_kernel_for_axis(axis)
+    model = CModel(compile_kernel(kernel), kernel)
+    engine = build_engine(axis)
+    n = round(1.0 / engine.h)
+    ref = trapezoid(n, engine.h)
+    engine.run(n, ref=ref)
+
+    def c_run() -> None:
+        model.reset()
+        model.run(n, ref=ref, every=0)
+
+    c_run()
+    if not np.array_equal(model.states(), engine.x):
+        raise RuntimeError("the C kernel ended in another state than the numba kernel")
+    c_walls, numba_walls, c_cpu, numba_cpu = [], [], float("inf"), float("inf")
+    for _ in range(REPEATS):
+        numba_walls.append(best_of(lambda: engine.run(n, ref=ref), 1))
+        c_walls.append(best_of(c_run, 1))
+        numba_cpu = min(numba_cpu, best_cpu_of(lambda: engine.run(n, ref=ref), 1))
+        c_cpu = min(c_cpu, best_cpu_of(c_run, 1))
+    return {
+        "c_realtime_factor": 1.0 / min(c_walls),
+        "c_realtime_factor_median": 1.0 / float(np.median(c_walls)),
+        "c_realtime_factor_cpu": 1.0 / c_cpu,
+        "c_numba_realtime_factor": 1.0 / min(numba_walls),
+        "c_numba_realtime_factor_median": 1.0 / float(np.median(numba_walls)),
+        "c_numba_realtime_factor_cpu": 1.0 / numba_cpu,
+    }
 
 
 def batch_rate(axis, n_sets: int = 1000, duration: float = 0.2) -> tuple[float, float]:
@@ -203,8 +243,22 @@ def motulator_wall() -> tuple[float | None, str]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--skip-motulator", action="store_true")
+    parser.add_argument("--native-only", action="store_true", help="only C next to numba")
     args = parser.parse_args()
     axis = load_axis_config(AXIS)
+    native = {key: round(value, 2) for key, value in c_realtime_factor(axis).items()}
+    print(
+        f"C kernel {native['c_realtime_factor']:.1f} (median "
+        f"{native['c_realtime_factor_median']:.1f}, {native['c_realtime_factor_cpu']:.1f} per CPU "
+        f"second), numba {native['c_numba_realtime_factor']:.1f} (median "
+        f"{native['c_numba_realtime_factor_median']:.1f}, "
+        f"{native['c_numba_realtime_factor_cpu']:.1f} per CPU second) in the same interleaved "
+        "repeats"
+    )
+    if args.native_only:
+        native["load_average_1min"] = round(os.getloadavg()[0], 2)
+        print(json.dumps(native))
+        return 0
     rtf, wall_1s, rtf_median, rtf_cpu = realtime_factor(axis)
     print(
         f"realtime factor {rtf:.1f} (1 s in {wall_1s * 1e3:.1f} ms; median {rtf_median:.1f}), "
@@ -230,6 +284,7 @@ def main() -> int:
         "realtime_factor_inlined": round(inl, 2),
         "realtime_factor_inlined_median": round(inl_median, 2),
         "realtime_factor_inlined_cpu": round(inl_cpu, 2),
+        **native,
         "batch_axis_seconds_per_second": round(batch, 2),
         "batch_axis_seconds_per_cpu_second": round(batch_cpu, 2),
         "load_average_1min": round(os.getloadavg()[0], 2),

@@ -67,6 +67,16 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
         help="run the shadow twin node beside the stand-in machine node; report lag and health",
     ),
     Subcommand(
+        name="fmu",
+        module="feed_twin.native.fmu_cli",
+        help="export an axis config as an FMI 2.0 co-simulation FMU (C kernel inside)",
+    ),
+    Subcommand(
+        name="hal",
+        module="feed_twin.native.hal_cli",
+        help="build the axis twin as a LinuxCNC realtime HAL component (halcompile)",
+    ),
+    Subcommand(
         name="msgs-check",
         module="feed_twin.ros.msgcheck",
         help="round-trip every message type over DDS and check every field",

@@ -43,6 +43,12 @@ fail() {
 # the venv prefix only; a sourced ROS installation would mix two ROS builds.
 export AMENT_PREFIX_PATH="$venv"
 export CMAKE_PREFIX_PATH="$venv"
+# the system's cmake (Debian's, which setup.sh installs): FMPy's dependencies put a cmake wheel
+# of another major version into the venv's bin, first on the PATH below
+cmake="$(PATH="${PATH//"$venv/bin:"/}" type -P cmake)" || {
+    printf 'build_msgs: no cmake on the PATH; install the Debian package cmake\n' >&2
+    exit 1
+}
 export PATH="$venv/bin:$PATH"
 
 if ! "$venv/bin/python" "$repo/tools/check_msgs.py" "$src" "$venv" 2>"$log"; then
@@ -62,13 +68,13 @@ if [[ -f "$cache" ]] &&
 fi
 
 jobs="$(nproc 2>/dev/null || echo 2)"
-cmake -S "$src" -B "$build" \
+"$cmake" -S "$src" -B "$build" \
     -DCMAKE_INSTALL_PREFIX="$venv" \
     -DCMAKE_BUILD_TYPE=Release \
     -DBUILD_TESTING=OFF \
     -DPython3_EXECUTABLE="$venv/bin/python" \
     >>"$log" 2>&1 || fail "cmake configure"
-cmake --build "$build" -j "$jobs" >>"$log" 2>&1 || fail "cmake build"
+"$cmake" --build "$build" -j "$jobs" >>"$log" 2>&1 || fail "cmake build"
 
 # Remove what a previous build installed, so a renamed or deleted message leaves nothing behind.
 manifest="$build/install_manifest.txt"
@@ -79,4 +85,4 @@ if [[ -f "$manifest" ]]; then
         esac
     done <"$manifest"
 fi
-cmake --install "$build" >>"$log" 2>&1 || fail "cmake install"
+"$cmake" --install "$build" >>"$log" 2>&1 || fail "cmake install"

@@ -1,0 +1,270 @@
+"""FMU export: the axis as an FMI 2.0 co-simulation FMU with the C kernel compiled inside.
+
+    feed-twin fmu --config config/axis_default.yaml --out axis.fmu
+
+The FMU holds `modelDescription.xml`, `binaries/linux64/feed_twin_axis.so` (the C kernel of
+feed_twin.native.emit and the FMI glue of feed_twin.native.fmi2, compiled with the system cc
+against the FMI headers FMPy ships) and `sources/` (the same C files, to rebuild elsewhere:
+`python -m fmpy compile axis.fmu`).
+
+Variables (SI; units from the components' field comments and the signal names):
+- parameters (fixed, set before initialisation): every plant slot `<component>.<slot>`, the
+  controller's slots `controller.<slot>` (its structure slots are compiled in and refused),
+  `start.<body>` (the start position of the load coordinate; the others follow at rest) and
+  `max_step` (the longest communication step accepted);
+- inputs: at the configured boundary (CiA 402 mode) `ref.pos_ref_m`, `ref.vel_ref_m_s`,
+  `ref.acc_ref_m_s2` (position), `ref.vel_ext_m_s` (velocity) or `ref.i_q_ext_A` (torque),
+  plus `ref.effort_add` and `F_ext.<component>` [N] for each external force;
+- outputs: every state, every sensor sample `meas.*` and controller output `out.*`, with the
+  following error `out.following_error_m`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import uuid
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from feed_twin.control import signals
+from feed_twin.native.build import FLAGS, find_cc, portable_flags, run_cc
+from feed_twin.native.emit import CKernel, c_kernel
+from feed_twin.native.fmi2 import GLUE_C
+
+MODEL_IDENTIFIER = "feed_twin_axis"
+MAX_STEP_S = 1.0  # [s] default longest communication step (the inputs are held over a step)
+_MODE_INPUTS = {
+    "position": ("pos_ref_m", "vel_ref_m_s", "acc_ref_m_s2"),
+    "velocity": ("vel_ext_m_s",),
+    "torque": ("i_q_ext_A",),
+}
+_SUFFIX_UNITS = (
+    ("_m_s2", "m/s2"),
+    ("_m_s", "m/s"),
+    ("_1_s", "1/s"),
+    ("_period_s", "s"),
+    ("_m", "m"),
+    ("_rad", "rad"),
+    ("_A", "A"),
+    ("_V", "V"),
+    ("_Vs", "V s"),
+    ("_H", "H"),
+)
+K_PARAM, K_CTRL_PARAM, K_REF, K_EXT, K_START, K_MAX_STEP, K_STATE, K_MEAS, K_OUT = range(9)
+
+
+@dataclass(frozen=True)
+class Variable:
+    name: str
+    kind: int
+    index: int
+    causality: str  # parameter, input, output
+    start: float | None
+    unit: str
+    description: str = ""
+
+
+def signal_unit(name: str) -> str:
+    """The unit a signal's or controller slot's name states in its suffix (pos_ref_m -> m,
+    Kv_1_s -> 1/s), "" for none."""
+    ratio = re.fullmatch(r"(m|rad)_per_(m|rad)", name)
+    if ratio:
+        return f"{ratio.group(1)}/{ratio.group(2)}"
+    return next((unit for suffix, unit in _SUFFIX_UNITS if name.endswith(suffix)), "")
+
+
+def slot_units(model) -> dict[str, str]:
+    """`<component>.<slot>` -> unit, from the `# ... [unit]` comment of each dataclass field."""
+    import inspect
+
+    units: dict[str, str] = {}
+    for name, comp in model.components.items():
+        try:
+            text = inspect.getsource(type(comp))
+        except (OSError, TypeError):
+            continue
+        for field, unit in re.findall(r"^\s+(\w+): \w+[^#\n]*#[^\n\[]*\[([^\]]+)\]", text, re.M):
+            units[f"{name}.{field}"] = unit
+    return units
+
+
+def variables(axis, kernel: CKernel) -> list[Variable]:
+    model = axis.plant
+    units = slot_units(model)
+    out: list[Variable] = []
+    p0 = model.nominal_params()
+    for i, name in enumerate(model.param_names):
+        if not name.startswith("derived."):
+            out.append(Variable(name, K_PARAM, i, "parameter", float(p0[i]), units.get(name, "")))
+    if axis.controller is not None:
+        from feed_twin.control.layout import STRUCTURE_SLOTS, build_cascade
+
+        cascade = build_cascade(axis.controller)
+        for i, name in enumerate(cascade.param_names):
+            if i not in STRUCTURE_SLOTS:
+                value = float(cascade.params[i])
+                unit = signal_unit(name)
+                out.append(
+                    Variable(f"controller.{name}", K_CTRL_PARAM, i, "parameter", value, unit)
+                )
+        mode = axis.controller.mode
+        inputs = _MODE_INPUTS[mode] + ("effort_add",)
+    else:
+        inputs = ()
+    load = model.coordinates[-1]
+    out.append(Variable(f"start.{load.name}", K_START, 0, "parameter", 0.0, _coord_unit(load)))
+    out.append(Variable("max_step", K_MAX_STEP, 0, "parameter", MAX_STEP_S, "s"))
+    for name in inputs:
+        i = signals.REF_NAMES.index(name)
+        out.append(Variable(f"ref.{name}", K_REF, i, "input", 0.0, signal_unit(name)))
+    for i, name in enumerate(model.ext_names):
+        out.append(Variable(f"F_ext.{name}", K_EXT, i, "input", 0.0, "N"))
+    for i, (name, unit) in enumerate(zip(model.state_names, model.state_units, strict=True)):
+        out.append(Variable(name, K_STATE, i, "output", None, unit))
+    for i, name in enumerate(signals.MEAS_NAMES):
+        out.append(Variable(f"meas.{name}", K_MEAS, i, "output", None, signal_unit(name)))
+    for i, name in enumerate(signals.OUT_NAMES):
+        out.append(Variable(f"out.{name}", K_OUT, i, "output", None, signal_unit(name)))
+    return out
+
+
+def _coord_unit(coord) -> str:
+    return "rad" if coord.kind == "rotational" else "m"
+
+
+def model_description(axis, kernel: CKernel, variables_: list[Variable], guid: str) -> str:
+    units = sorted({v.unit for v in variables_ if v.unit})
+    rows = []
+    for vr, v in enumerate(variables_):
+        variability = "fixed" if v.causality == "parameter" else "continuous"
+        real = "<Real"
+        if v.unit:
+            real += f" unit={quoteattr(v.unit)}"
+        if v.start is not None:
+            real += f' start="{_xs_double(v.start)}"'
+        rows.append(
+            f'    <ScalarVariable name={quoteattr(v.name)} valueReference="{vr}" '
+            f'causality="{v.causality}" variability="{variability}">{real}/></ScalarVariable>'
+        )
+    outputs = [i + 1 for i, v in enumerate(variables_) if v.causality == "output"]
+    unknowns = "\n".join(f'      <Unknown index="{i}"/>' for i in outputs)
+    sources = "".join(f'<File name="{n}"/>' for n in ("feed_twin_axis.c", "fmu_glue.c"))
+    return "\n".join(
+        [
+            '<?xml version="1.0" encoding="UTF-8"?>',
+            f'<fmiModelDescription fmiVersion="2.0" modelName={quoteattr(MODEL_IDENTIFIER)} '
+            f'guid="{guid}" description={quoteattr(f"feed_twin axis twin of {axis.source}")} '
+            'generationTool="feed_twin" variableNamingConvention="flat" '
+            'numberOfEventIndicators="0">',
+            f'  <CoSimulation modelIdentifier="{MODEL_IDENTIFIER}" '
+            'canHandleVariableCommunicationStepSize="true" canNotUseMemoryManagementFunctions='
+            f'"true"><SourceFiles>{sources}</SourceFiles></CoSimulation>',
+            "  <UnitDefinitions>",
+            *(f"    <Unit name={quoteattr(u)}/>" for u in units),
+            "  </UnitDefinitions>",
+            '  <LogCategories><Category name="logStatusError"/></LogCategories>',
+            f'  <DefaultExperiment startTime="0.0" stepSize="{kernel.base_period_s!r}"/>',
+            "  <ModelVariables>",
+            *rows,
+            "  </ModelVariables>",
+            "  <ModelStructure>",
+            "    <Outputs>",
+            unknowns,
+            "    </Outputs>",
+            "    <InitialUnknowns>",
+            unknowns,
+            "    </InitialUnknowns>",
+            "  </ModelStructure>",
+            "</fmiModelDescription>",
+            "",
+        ]
+    )
+
+
+def _xs_double(value: float) -> str:
+    """A float as XML Schema writes a double (INF, -INF, NaN)."""
+    if np.isnan(value):
+        return "NaN"
+    if np.isinf(value):
+        return "INF" if value > 0 else "-INF"
+    return repr(float(value))
+
+
+def _c_list(items) -> str:
+    return ", ".join(items) or "0"
+
+
+def glue_source(axis, kernel: CKernel, variables_: list[Variable], guid: str) -> str:
+    model = axis.plant
+    load = model.coordinates[-1]
+    unit_x = model.initial_state({load.name: 1.0})
+    return GLUE_C.format(
+        source=axis.source,
+        kinds=_c_list(str(v.kind) for v in variables_),
+        indices=_c_list(str(v.index) for v in variables_),
+        names=_c_list(f'"{v.name}"' for v in variables_),
+        n_vr=len(variables_),
+        start_map=_c_list(repr(float(x)) for x in unit_x),
+        guid=guid,
+        max_step=repr(MAX_STEP_S),
+        start=0.0,
+    )
+
+
+def fmi_headers() -> Path:
+    """The FMI headers FMPy ships (fmpy/c-code)."""
+    try:
+        import fmpy
+    except ImportError:
+        raise RuntimeError(
+            "FMU export needs the FMI headers of FMPy: pip install fmpy (requirements.txt)"
+        ) from None
+    return Path(fmpy.__file__).resolve().parent / "c-code"
+
+
+def build_fmu(axis, out: Path, *, cc: str = "cc") -> Path:
+    """Write the FMU of `axis` (feed_twin.sim.config.AxisConfig) to `out`; returns `out`."""
+    compiler = find_cc(cc)
+    controller = None
+    if axis.controller is not None:
+        from feed_twin.control.layout import build_cascade
+
+        controller = build_cascade(axis.controller)
+    kernel = c_kernel(
+        axis.plant,
+        base_period_s=axis.engine.base_period_s,
+        controller=controller,
+        substeps=axis.engine.substeps,
+        seed=axis.engine.seed,
+    )
+    vars_ = variables(axis, kernel)
+    digest = hashlib.sha256(kernel.source.encode() + repr(vars_).encode()).hexdigest()
+    guid = "{" + str(uuid.UUID(digest[:32])) + "}"
+    glue = glue_source(axis, kernel, vars_, guid)
+    build = out.parent / f".{out.name}.build"
+    build.mkdir(parents=True, exist_ok=True)
+    files = {"feed_twin_axis.c": kernel.source, "feed_twin_axis.h": kernel.header}
+    files["fmu_glue.c"] = glue
+    for name, text in files.items():
+        (build / name).write_text(text)
+    library = build / f"{MODEL_IDENTIFIER}.so"
+    run_cc(
+        compiler,
+        [*FLAGS, *portable_flags(), "-I", str(fmi_headers()), "-I", str(build), "-shared"],
+        [build / "feed_twin_axis.c", build / "fmu_glue.c"],
+        library,
+    )
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("modelDescription.xml", model_description(axis, kernel, vars_, guid))
+        z.write(library, f"binaries/linux64/{MODEL_IDENTIFIER}.so")
+        for name, text in files.items():
+            z.writestr(f"sources/{name}", text)
+    for path in build.iterdir():
+        path.unlink()
+    build.rmdir()
+    return out

@@ -1,0 +1,29 @@
+"""A G-code program as the engine's per-tick setpoints, for the runs that compare backends."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from feed_twin.control import signals
+from feed_twin.gcode.config import nc_config_from_mapping
+from feed_twin.gcode.planner import plan_program
+from feed_twin.io.config import load_yaml
+
+DEFAULT_NC = Path(__file__).resolve().parents[2] / "config" / "axis_default.yaml"
+
+
+def program_ref(program: Path, base_period_s: float, nc_config: Path = DEFAULT_NC) -> np.ndarray:
+    """(n, REF_SIZE): the program's twin-axis setpoints planned with the nc: section of
+    `nc_config`, each NC sample held for the base ticks of its period."""
+    nc = load_yaml(nc_config)["nc"]
+    cfg = nc_config_from_mapping(nc, source=str(nc_config))
+    traj = plan_program(program, cfg)
+    x, v, a = traj.axis(cfg.twin_axis)
+    dec = round((traj.t_s[1] - traj.t_s[0]) / base_period_s)
+    ref = np.zeros((len(x) * dec, signals.REF_SIZE))
+    ref[:, signals.REF_POS_M] = np.repeat(x, dec)
+    ref[:, signals.REF_VEL_M_S] = np.repeat(v, dec)
+    ref[:, signals.REF_ACC_M_S2] = np.repeat(a, dec)
+    return ref
