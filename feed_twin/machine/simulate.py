@@ -29,11 +29,14 @@ from feed_twin.gcode.trajectory import SampledTrajectory
 from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.contour import ContourError, contour_error
+from feed_twin.nodeset.split import StateSignals
 from feed_twin.sim.config import build_engine
 from feed_twin.sim.engine import Engine
 
 TABLE_BODY = "table"
 TABLE_POSITION = "table.s"
+# what the drive reports beside the plant's truth (AxisState's setpoint and following error)
+DRIVE_SIGNALS = ("out.pos_ref_m", "out.following_error_m")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -49,6 +52,7 @@ class MachineRun:
     contour: ContourError
     engine_wall_s: float  # [s] wall-clock time the engines took, all axes
     engine_cpu_s: float  # [s] process CPU time they took (what other jobs on the core do not add)
+    signals: dict[str, dict[str, np.ndarray]]  # axis -> engine signal -> (n,) at the samples
 
     def following_error(self, axis: str) -> np.ndarray:
         """[m] command minus the twin's position, per sample."""
@@ -92,7 +96,10 @@ def axis_engines(machine: MachineConfig, *, preroll_s: float = 0.5) -> dict[str,
     period = machine.nc.interpolation_period_s
     engines = {}
     for name, axis in machine.axes.items():
-        engine = build_engine(axis, record=[TABLE_POSITION], output_period_s=period)
+        known = build_engine(axis, output_period_s=period).all_names
+        wanted = (TABLE_POSITION, *DRIVE_SIGNALS, *StateSignals().names(), "table.a")
+        record = list(dict.fromkeys(n for n in wanted if n in known))
+        engine = build_engine(axis, record=record, output_period_s=period)
         start = machine.nc.start_position[machine.nc.axis_index(name)]
         try:
             engine.reset(positions={TABLE_BODY: start})
@@ -105,15 +112,16 @@ def axis_engines(machine: MachineConfig, *, preroll_s: float = 0.5) -> dict[str,
     return engines
 
 
-def follow(engine: Engine, traj: SampledTrajectory, axis: str) -> np.ndarray:
-    """The engine's table position at every NC sample of `traj`, following its `axis` column."""
+def follow(engine: Engine, traj: SampledTrajectory, axis: str) -> dict[str, np.ndarray]:
+    """The engine's recorded signals at every NC sample of `traj`, following its `axis`
+    column."""
     pos, vel, acc = traj.axis(axis)
     dec = engine.dec
     ref = np.zeros((len(pos) * dec, signals.REF_SIZE))
     ref[:, signals.REF_POS_M] = np.repeat(pos, dec)
     ref[:, signals.REF_VEL_M_S] = np.repeat(vel, dec)
     ref[:, signals.REF_ACC_M_S2] = np.repeat(acc, dec)
-    return engine.advance(len(ref), ref=ref)[TABLE_POSITION]
+    return engine.advance(len(ref), ref=ref).as_dict()
 
 
 def simulate_machine(
@@ -125,8 +133,10 @@ def simulate_machine(
     engines = axis_engines(machine, preroll_s=preroll_s)
     actual = traj.pos_m.copy()
     began, began_cpu = time.perf_counter(), time.process_time()
+    recorded = {}
     for name, engine in engines.items():
-        actual[:, nc.axis_index(name)] = follow(engine, traj, name)
+        recorded[name] = follow(engine, traj, name)
+        actual[:, nc.axis_index(name)] = recorded[name][TABLE_POSITION]
     wall, cpu = time.perf_counter() - began, time.process_time() - began_cpu
     n_linear = len(nc.axes)
     contour = contour_error(
@@ -148,4 +158,5 @@ def simulate_machine(
         contour=contour,
         engine_wall_s=wall,
         engine_cpu_s=cpu,
+        signals=recorded,
     )
