@@ -140,3 +140,21 @@ def test_rotary_axis_config_errors_name_the_field():
         nc(rotary=({**B_AXIS, "start_deg": 150.0},))
     with pytest.raises(ConfigError, match=r"rotary_axes = \('B', 'B'\): axis names must be unique"):
         nc(rotary=(B_AXIS, B_AXIS))
+
+
+def test_plan_cli_reads_a_machine_config_and_names_rotary_columns_in_radians(tmp_path, capsys):
+    from pathlib import Path
+
+    from feed_twin.cli import main as cli_main
+
+    machine = Path(__file__).resolve().parents[1] / "config" / "machine_default.yaml"
+    program = tmp_path / "p.ngc"
+    program.write_text("G1 B0\nG91 G1 X30 B40 F3000\nM2\n")
+    out = tmp_path / "p.csv"
+    assert cli_main(["plan", str(program), "--config", str(machine), "--out", str(out)]) == 0
+    header = out.read_text().splitlines()[0].split(",")
+    assert header[-4:] == ["b_rad", "vb_rad_s", "ab_rad_s2", "line"]
+    last = np.array(out.read_text().splitlines()[-1].split(","), dtype=float)
+    assert last[header.index("b_rad")] == pytest.approx(40 * DEG)
+    # the path length is the tool's: X alone, 30 mm
+    assert "path length  30.000 mm" in capsys.readouterr().out

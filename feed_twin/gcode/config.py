@@ -106,7 +106,9 @@ class NcConfig:
     """Everything the interpreter and planner need to turn a program into setpoints."""
 
     axes: tuple[NcAxis, ...]  # the machine's linear axes; X, Y and Z are required
-    twin_axis: str  # name of the axis the twin models; the others are still planned
+    # the axis a single-axis twin models (the others are still planned); a machine config
+    # (feed_twin.machine) simulates several and leaves this at its first simulated axis
+    twin_axis: str = "X"
     work_offsets_m: WorkOffsets  # [m] G54-G59 origins
     start_position_m: tuple[float, ...]  # [m] machine position when the program starts
     path_tolerance_m: float  # [m] G64 corner blending: largest deviation from the corner
