@@ -89,7 +89,11 @@ def main(args: argparse.Namespace) -> int:
     print(f"events       {n_events}")
     print(f"{'axis':<6}{'peak |v| [m/s]':>16}{'[m/min]':>10}{'peak |a| [m/s^2]':>18}")
     for i, name in enumerate(axes):
-        print(f"{name:<6}{peak_v[i]:>16.5f}{peak_v[i] * 60.0:>10.3f}{peak_a[i]:>18.4f}")
+        if name in ROTARY_AXIS_NAMES:  # degrees at this edge: [deg/s], [deg/min], [deg/s^2]
+            v, a = np.degrees(peak_v[i]), np.degrees(peak_a[i])
+            print(f"{name:<6}{v:>12.5f} deg{v * 60.0:>10.3f}{a:>14.4f} deg")
+        else:
+            print(f"{name:<6}{peak_v[i]:>16.5f}{peak_v[i] * 60.0:>10.3f}{peak_a[i]:>18.4f}")
     if args.out is not None:
         print(f"wrote        {args.out}")
     return 0

@@ -35,7 +35,7 @@ from feed_twin.io.config import (
 )
 from feed_twin.sim.config import AxisConfig, load_axis_config
 
-MACHINE_SECTIONS = ("machine", "nc", "axes", "ros")
+MACHINE_SECTIONS = ("machine", "nc", "axes")
 AXIS_ENTRY_KEYS = ("include", "plant", "engine", "controller", "vertical")
 STANDARD_GRAVITY = 9.80665  # [m/s^2]
 
@@ -89,7 +89,6 @@ class MachineConfig:
     nc: NcConfig
     axes: dict[str, AxisConfig]  # NC axis name -> its plant, engine and controller
     verticals: dict[str, Vertical]  # the vertical axes among them
-    ros: Mapping[str, Any] | None
 
     @property
     def simulated(self) -> tuple[str, ...]:
@@ -115,7 +114,6 @@ class MachineConfig:
             nc=self.nc,
             axes={a: self.axes[a] for a in order},
             verticals={a: v for a, v in self.verticals.items() if a in chosen},
-            ros=self.ros,
         )
 
 
@@ -167,10 +165,7 @@ def load_machine_config(path: str | Path) -> MachineConfig:
                 f"{source}: axes.{key}: the NC has no axis {key} "
                 f"(nc.axes: {', '.join(nc.axis_names)})"
             )
-    ros = data.get("ros")
-    if ros is not None and not isinstance(ros, Mapping):
-        raise ConfigError(f"{source}: ros: expected a mapping, got {ros!r}")
-    return MachineConfig(source=source, name=name, nc=nc, axes=axes, verticals=verticals, ros=ros)
+    return MachineConfig(source=source, name=name, nc=nc, axes=axes, verticals=verticals)
 
 
 def _axis_entry(

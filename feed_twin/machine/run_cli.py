@@ -71,7 +71,7 @@ def _state_fields(signals: dict[str, np.ndarray], command: np.ndarray) -> dict[s
     }
 
 
-def write_machine_bag(run: MachineRun, machine: MachineConfig, traj_vel, traj_acc, path: Path):
+def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Path:
     """The run as a rosbag2 MCAP bag (module docstring); returns the bag's info."""
     stamps = np.round(run.t_s * NS_PER_S).astype(np.int64)
     command = FlatCodec("feed_twin_msgs/msg/AxisCommand")
@@ -89,8 +89,8 @@ def write_machine_bag(run: MachineRun, machine: MachineConfig, traj_vel, traj_ac
                     "header.frame_id": "",
                     "axis": axis,
                     "position": float(run.command[k, i]),
-                    "velocity": float(traj_vel[k, i]),
-                    "acceleration": float(traj_acc[k, i]),
+                    "velocity": float(run.command_vel[k, i]),
+                    "acceleration": float(run.command_acc[k, i]),
                     "line": int(run.line[k]),
                 }
                 bag.write(topic, command.encode_map(values), log_time_ns=int(t_ns))
@@ -122,9 +122,8 @@ def run_machine(args: argparse.Namespace) -> int:
     """The `feed-twin run` of a machine config (module docstring)."""
     from feed_twin.gcode import GcodeError
     from feed_twin.gcode.geometry import programmed_path
-    from feed_twin.gcode.planner import plan_program, validate_program
+    from feed_twin.gcode.planner import validate_program
     from feed_twin.machine.dashboard import write_machine_dashboard
-    from feed_twin.machine.simulate import with_settle
 
     refused = [f"--{o.replace('_', '-')}" for o in NODE_SET_OPTIONS if getattr(args, o, False)]
     if refused:
@@ -148,8 +147,7 @@ def run_machine(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     bag_path, rrd_path = args.out / name, args.out / f"{name}.rrd"
     run = simulate_machine(machine, args.program, settle_s=args.settle)
-    traj = with_settle(plan_program(args.program, machine.nc), args.settle)
-    write_machine_bag(run, machine, traj.vel_m_s, traj.acc_m_s2, bag_path)
+    write_machine_bag(run, machine, bag_path)
     write_machine_dashboard(run, programmed_path(args.program, machine.nc), rrd_path)
     summary = run.summary()
     fe = ", ".join(f"{a} {v * 1e6:.2f} um" for a, v in summary["following_error_max_m"].items())

@@ -48,6 +48,8 @@ class MachineRun:
     t_s: np.ndarray  # (n,) [s]
     line: np.ndarray  # (n,) program line of the command
     command: np.ndarray  # (n, axes) [m or rad] the NC's positions
+    command_vel: np.ndarray  # (n, axes) [m/s or rad/s] the NC's velocities
+    command_acc: np.ndarray  # (n, axes) [m/s^2 or rad/s^2] the NC's accelerations
     actual: np.ndarray  # (n, axes) [m or rad] the twins' table positions; commands elsewhere
     contour: ContourError
     engine_wall_s: float  # [s] wall-clock time the engines took, all axes
@@ -154,6 +156,8 @@ def simulate_machine(
         t_s=traj.t_s,
         line=traj.line,
         command=traj.pos_m,
+        command_vel=traj.vel_m_s,
+        command_acc=traj.acc_m_s2,
         actual=actual,
         contour=contour,
         engine_wall_s=wall,
