@@ -70,7 +70,7 @@ def test_axes_subset_simulates_only_those(tmp_path, capsys):
         ((), "G1 X1 A5 F100\n", MACHINE,
          r"G-code error, nothing was started: .*part.ngc:1:7: word 'A5': unknown word \(axis A"),
         (("--axes", "X,B"), PROGRAM, MACHINE, r"--axes X,B: axis B has no plant"),
-        (("--shadow",), PROGRAM, MACHINE, r"--shadow: not available for a machine config"),
+        (("--realtime",), PROGRAM, MACHINE, r"--realtime: not available for a machine config"),
         (("--axes", "X"), PROGRAM, AXIS, r"--axes needs a machine config; .*axis_default.yaml is"),
     ],
 )  # fmt: skip

@@ -9,11 +9,13 @@
         vertical: {flange: table.flange, m_kg: 200.0,
                    counterbalance: {type: constant_force, f_N: 1500.0}}
 
-An axis entry either includes an axis file by reference (its `plant:`, `engine:` and
-`controller:` sections; its `nc:`, `ros:` and `shadow:` are the single-axis run's and are not
-read) or holds those sections inline. `vertical:` adds the axis's weight (plant.gravity) and a
-counterbalance to the plant, so one drive file serves a horizontal and a vertical axis. Axes of
-the NC without an entry (rotary axes, for one) are planned and recorded as commands only.
+An axis entry either includes an axis file by reference (its `plant:`, `engine:`,
+`controller:` and `shadow:` sections; its `nc:` and `ros:` are the single-axis run's and are not
+read) or holds those sections inline; an entry's own `shadow:` replaces the included one (the
+stand-in of that axis, its hidden effects, the shadow twin's limits). `vertical:` adds the
+axis's weight (plant.gravity) and a counterbalance to the plant, so one drive file serves a
+horizontal and a vertical axis. Axes of the NC without an entry (rotary axes, for one) are
+planned and recorded as commands only.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from feed_twin.io.config import (
 from feed_twin.sim.config import AxisConfig, load_axis_config
 
 MACHINE_SECTIONS = ("machine", "nc", "axes")
-AXIS_ENTRY_KEYS = ("include", "plant", "engine", "controller", "vertical")
+AXIS_ENTRY_KEYS = ("include", "plant", "engine", "controller", "shadow", "vertical")
 STANDARD_GRAVITY = 9.80665  # [m/s^2]
 
 
@@ -197,11 +199,13 @@ def _axis_entry(
             raw = load_yaml(included)
         except ConfigError as exc:
             raise ConfigError(f"{where}.include: {exc}") from None
-        sections = {k: raw[k] for k in ("plant", "engine", "controller") if k in raw}
+        sections = {k: raw[k] for k in ("plant", "engine", "controller", "shadow") if k in raw}
         axis_source = f"{included} (axes.{key} of {source})"
     else:
         sections = inline
         axis_source = f"{source}: axes.{key}"
+    if entry.get("shadow") is not None:
+        sections = {**sections, "shadow": entry["shadow"]}
     vertical = None
     if entry.get("vertical") is not None:
         vertical = from_mapping(

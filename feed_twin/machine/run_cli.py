@@ -13,9 +13,11 @@ anything moves. Outputs:
   error beside per-axis following error;
 - the summary, and with `--json` one JSON object last (contour_error_max_m, contour_error_rms_m,
   following_error_max_m per axis, the engine's realtime factor, the paths).
-The ROS 2 node set of a machine (a sim and controller node per axis in its own process) is not
-built yet: the node-set options (--shadow, --realtime, --single-process, --live, --no-gcode)
-are refused for a machine config.
+`--shadow` adds the shadow twin of every simulated axis beside its stand-in
+(feed_twin.machine.shadow): residuals and health per axis in the summary and under "shadow" in
+the JSON line. The ROS 2 node set of a machine (a sim and controller node per axis in its own
+process) is not built yet: the node-set options (--realtime, --single-process, --live,
+--no-gcode) are refused for a machine config.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from feed_twin.machine.config import MachineConfig, load_machine_config
 from feed_twin.machine.simulate import MachineRun, simulate_machine
 from feed_twin.nodeset.split import NS_PER_S, StateSignals
 
-NODE_SET_OPTIONS = ("shadow", "realtime", "single_process", "live", "no_gcode")
+NODE_SET_OPTIONS = ("realtime", "single_process", "live", "no_gcode")
 
 
 def _state_fields(signals: dict[str, np.ndarray], command: np.ndarray) -> dict[str, np.ndarray]:
@@ -167,6 +169,9 @@ def run_machine(args: argparse.Namespace) -> int:
     print(f"following error max: {fe}")
     factor = summary["simulated_s"] / run.engine_wall_s if run.engine_wall_s > 0 else 0.0
     print(f"engine: {factor:.1f}x real time (all axes, one thread)")
+    shadow = _shadow(args, machine) if args.shadow else None
+    if isinstance(shadow, str):
+        return _error(args, shadow)
     print(f"bag: {bag_path}\nrerun: {rrd_path}")
     if args.json:
         record = {
@@ -177,8 +182,29 @@ def run_machine(args: argparse.Namespace) -> int:
             **summary,
             "realtime_factor": factor,
         }
+        if shadow is not None:
+            record["shadow"] = shadow
         print(json.dumps(record))
     return 0
+
+
+def _shadow(args: argparse.Namespace, machine: MachineConfig) -> dict | str:
+    """Every axis's shadow twin beside its stand-in (feed_twin.machine.shadow): the per-axis
+    figures, printed; or the reason it cannot run."""
+    from feed_twin.machine.shadow import shadow_machine
+
+    try:
+        result = shadow_machine(machine, args.program, settle_s=args.settle)
+    except (ConfigError, ValueError) as exc:
+        return f"--shadow: {exc}"
+    figures = {axis.lower(): r.summary() for axis, r in result.items()}
+    for axis, f in figures.items():
+        said = f" from {f['first_warning_s']:.3f} s: {f['message']}" if f["first_warning_s"] else ""
+        print(
+            f"shadow {axis}: FE deviation RMS {f['fe_dev_rms_m'] * 1e6:.3f} um, effort deviation "
+            f"RMS {f['effort_dev_rms']:.4f} {f['effort_unit']}, health {f['health']}{said}"
+        )
+    return figures
 
 
 def _error(args: argparse.Namespace, message: str) -> int:
