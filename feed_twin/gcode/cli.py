@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.gcode.config import load_nc_config
+from feed_twin.gcode.config import ROTARY_AXIS_NAMES, load_nc_config
 from feed_twin.gcode.errors import GcodeError
 from feed_twin.gcode.planner import plan_program_stream
 from feed_twin.io.config import ConfigError
@@ -31,7 +31,8 @@ def csv_header(axes: tuple[str, ...]) -> list[str]:
     columns = ["t_s"]
     for name in axes:
         a = name.lower()
-        columns += [f"{a}_m", f"v{a}_m_s", f"a{a}_m_s2"]
+        unit = "rad" if name in ROTARY_AXIS_NAMES else "m"
+        columns += [f"{a}_{unit}", f"v{a}_{unit}_s", f"a{a}_{unit}_s2"]
     return columns + ["line"]
 
 
@@ -62,7 +63,9 @@ def main(args: argparse.Namespace) -> int:
             peak_v = np.maximum(peak_v, np.abs(chunk.vel_m_s).max(axis=0))
             peak_a = np.maximum(peak_a, np.abs(chunk.acc_m_s2).max(axis=0))
             pos = chunk.pos_m if last_pos is None else np.vstack((last_pos, chunk.pos_m))
-            path_length += float(np.sum(np.linalg.norm(np.diff(pos, axis=0), axis=1)))
+            # the tool path: linear axes only (a rotary axis turns the part)
+            step = np.diff(pos[:, : len(config.axes)], axis=0)
+            path_length += float(np.sum(np.linalg.norm(step, axis=1)))
             last_pos = chunk.pos_m[-1:]
             t_end = float(chunk.t_s[-1])
             n_samples += len(chunk)
@@ -86,7 +89,11 @@ def main(args: argparse.Namespace) -> int:
     print(f"events       {n_events}")
     print(f"{'axis':<6}{'peak |v| [m/s]':>16}{'[m/min]':>10}{'peak |a| [m/s^2]':>18}")
     for i, name in enumerate(axes):
-        print(f"{name:<6}{peak_v[i]:>16.5f}{peak_v[i] * 60.0:>10.3f}{peak_a[i]:>18.4f}")
+        if name in ROTARY_AXIS_NAMES:  # degrees at this edge: [deg/s], [deg/min], [deg/s^2]
+            v, a = np.degrees(peak_v[i]), np.degrees(peak_a[i])
+            print(f"{name:<6}{v:>12.5f} deg{v * 60.0:>10.3f}{a:>14.4f} deg")
+        else:
+            print(f"{name:<6}{peak_v[i]:>16.5f}{peak_v[i] * 60.0:>10.3f}{peak_a[i]:>18.4f}")
     if args.out is not None:
         print(f"wrote        {args.out}")
     return 0

@@ -65,7 +65,7 @@ def programmed_path(source: str | Path, config: NcConfig) -> tuple[PathSegment, 
     file, blocks = iter_blocks(source, config)
     interpreter = Interpreter(config, file=file)
     segments: list[PathSegment] = []
-    position = tuple(config.start_position_m)
+    position = config.start_position
     for item in interpreter.run(blocks):
         if type(item) is Move:
             previous = segments[-1] if segments else None

@@ -14,7 +14,15 @@ Within a block the words act in this order: units, F, S, T, M6, M3-M5, M7-M9, G4
 work offset, G92/G53, motion, then M0/M1/M2/M30. Units come before F (unlike RS274/NGC) so
 that `G20 F10` means 10 in/min, which is what people who write it mean.
 
-Millimetres and inches exist only here: every number that leaves is SI.
+Millimetres, inches and degrees exist only here: every number that leaves is SI (rotary axes
+A, B, C in radians, after the linear axes).
+
+Feed of moves with rotary axes (RS274/NGC, as LinuxCNC does it): when X, Y or Z move, F is the
+speed along their path and the other axes arrive with them; otherwise when U, V or W move, the
+same along theirs; a move of rotary axes alone runs at F degrees per minute along the rotary
+path. Sinumerik's default (FGROUP(X, Y, Z)) is the same rule; an FGROUP that includes a rotary
+axis is not modelled. The planner parameterises a move by the length over all its axes, so a
+move's `feed_m_s` is that rule's duration expressed along that length.
 """
 
 from __future__ import annotations
@@ -28,6 +36,7 @@ from feed_twin.gcode.errors import GcodeError
 from feed_twin.gcode.lexer import Block, Word
 
 MM = 1e-3  # [m] per millimetre
+DEG = math.pi / 180.0  # [rad] per degree
 INCH = 25.4e-3  # [m] per inch
 CHORD_SAGITTA_SHARE = 0.75  # largest chord sagitta, as a share of the chord tolerance
 
@@ -51,7 +60,8 @@ class Move(NamedTuple):
     line: int
     end_m: tuple[float, ...]  # [m] machine coordinates, one per configured axis
     rapid: bool  # G0: per-axis rapid rates; otherwise the programmed feed
-    feed_m_s: float  # [m/s] programmed path feed (0 for rapids)
+    feed_m_s: float  # programmed feed (0 for rapids) along the move's length over all axes
+    # (m and rad): the F of XYZ moves; see the module's note on rotary axes
     tolerance_m: float  # [m] allowed corner deviation at the end of this move (G64)
     exact_stop: bool  # stop at the end of this move (G61, G9)
     arc: Arc | None = None  # the programmed arc this move is a chord of
@@ -137,8 +147,15 @@ class Interpreter:
         self.axis_letters = frozenset(self.axis_names)
         self.allowed = self.axis_letters | _OTHER_LETTERS
         self.index = {name: i for i, name in enumerate(self.axis_names)}
-        self.travel = [(a.travel_min_m, a.travel_max_m) for a in config.axes]
-        self.position = list(config.start_position_m)
+        self.travel = list(config.travel)
+        self.position = list(config.start_position)
+        self.rotary = [config.axis_kind(name) == "rotary" for name in self.axis_names]
+        self.n_linear = self.rotary.count(False)
+        # RS274/NGC feed groups: XYZ, else UVW (else rotary): indices of each among the axes
+        self.feed_groups = [
+            [i for i, name in enumerate(self.axis_names) if name in group]
+            for group in ("XYZ", "UVW", "ABC")
+        ]
         self.motion: int | None = None
         self.plane = 17
         self.length_unit = MM
@@ -147,9 +164,10 @@ class Interpreter:
         self.arc_absolute = False
         self.exact_stop_mode = False
         self.tolerance = config.path_tolerance_m
-        self.work_offset = list(config.work_offsets_m.G54)
+        self.work_offset = self._offset("G54")
         self.g92 = [0.0] * self.n_axes
         self.feed: float | None = None
+        self.feed_per_min = 0.0  # the F word as written (units or degrees per minute)
         self.spindle_rpm = 0.0
         self.tool = 0.0
         self.ended = False
@@ -249,6 +267,7 @@ class Interpreter:
             if f_word.value <= 0.0:
                 raise self.error("feed must be > 0", f_word, line)
             self.feed = f_word.value * self.feed_unit / 60.0
+            self.feed_per_min = f_word.value
         s_word = other.pop("S", None)
         if s_word is not None:
             if s_word.value < 0.0:
@@ -312,7 +331,7 @@ class Interpreter:
                         raise self.error("G64 Q tolerance must be >= 0", q_word, line)
         wcs = g_words.get("work offset")
         if wcs is not None:
-            self.work_offset = list(getattr(self.config.work_offsets_m, f"G{wcs[0] // 10}"))
+            self.work_offset = self._offset(f"G{wcs[0] // 10}")
 
         motion = g_words.get("motion")
         if motion is not None:
@@ -329,7 +348,7 @@ class Interpreter:
                 raise self.error("G92 needs at least one axis word", g92[1], line)
             for letter, w in axis_words.items():
                 i = self.index[letter]
-                self.g92[i] = self.position[i] - self.work_offset[i] - w.value * self.length_unit
+                self.g92[i] = self.position[i] - self.work_offset[i] - w.value * self._unit(i)
             axis_words = {}
         elif axis_words:
             if self.motion is None:
@@ -341,9 +360,14 @@ class Interpreter:
                 if not self.absolute:
                     raise self.error("G53 is not allowed in incremental mode (G91)", g53[1], line)
             blame = motion_word or min(axis_words.values(), key=lambda w: w.column)
-            if self.motion != 0 and self.feed is None:
-                raise self.error("feed move before any F word", blame, line)
             target = self._target(axis_words, machine=g53 is not None, line=line)
+            # a G1 to where the axes stand (a Sinumerik program's opening `G1 B0`) moves nothing
+            # and needs no feed; an arc to its start point is a full circle and does
+            stays = self.motion == 1 and all(
+                abs(a - b) <= 1e-12 for a, b in zip(target, self.position, strict=True)
+            )
+            if self.motion != 0 and self.feed is None and not stays:
+                raise self.error("feed move before any F word", blame, line)
             if self.motion in (0, 1):
                 self._check_travel(target, axis_words, blame, line)
                 out.extend(self._line_move(target, line, g_words))
@@ -397,6 +421,8 @@ class Interpreter:
             seen.add(letter)
             i = index.get(letter)
             if i is not None:
+                if i >= self.n_linear:
+                    return None
                 if absolute:
                     target[i] = w.value * unit + self.work_offset[i] + self.g92[i]
                 else:
@@ -419,6 +445,7 @@ class Interpreter:
                 return None
         if feed is not None:
             self.feed = feed * self.feed_unit / 60.0
+            self.feed_per_min = feed
         self.motion = motion
         return self._line_move(target, block.line, {})
 
@@ -444,10 +471,9 @@ class Interpreter:
 
     def _target(self, axis_words: dict[str, Word], *, machine: bool, line: int) -> list[float]:
         target = list(self.position)
-        unit = self.length_unit
         for letter, w in axis_words.items():
             i = self.index[letter]
-            value = w.value * unit
+            value = w.value * self._unit(i)
             if machine:
                 target[i] = value
             elif self.absolute:
@@ -463,9 +489,10 @@ class Interpreter:
             low, high = self.travel[i]
             if not low - 1e-12 <= x <= high + 1e-12:
                 name = self.axis_names[i]
+                unit, text = (DEG, "deg") if self.rotary[i] else (MM, "mm")
                 raise self.error(
-                    f"{name} = {x / MM:.6g} mm (machine) is outside the travel "
-                    f"[{low / MM:.6g}, {high / MM:.6g}] mm",
+                    f"{name} = {x / unit:.6g} {text} (machine) is outside the travel "
+                    f"[{low / unit:.6g}, {high / unit:.6g}] {text}",
                     axis_words.get(name, blame),
                     line,
                 )
@@ -476,6 +503,7 @@ class Interpreter:
                 break
         else:
             return []
+        start = self.position
         self.position = target
         rapid = self.motion == 0
         return [
@@ -483,7 +511,7 @@ class Interpreter:
                 line,
                 tuple(target),
                 rapid,
-                0.0 if rapid else self.feed,
+                0.0 if rapid else self._path_feed(start, target),
                 self.tolerance,
                 self.exact_stop_mode or "non-modal 90" in g_words,
             )
@@ -591,7 +619,7 @@ class Interpreter:
         exact_end = self.exact_stop_mode or "non-modal 90" in g_words
         arc = Arc((i1, i2, i_n), (ca, cb), r0, r1, theta0, sweep)
         items: list[Item] = []
-        feed = self.feed
+        previous = start
         for k in range(1, n + 1):
             if k == n:
                 point = list(target)
@@ -607,8 +635,31 @@ class Interpreter:
                     if j not in (i1, i2, i_n):
                         point[j] = start[j] + (target[j] - start[j]) * f
             self._check_travel(point, axis_words if k == n else {}, blame, line)
+            feed = self._path_feed(previous, point)
+            previous = point
             items.append(
                 Move(line, tuple(point), False, feed, self.tolerance, exact_end and k == n, arc)
             )
         self.position = list(target)
         return items
+
+    def _unit(self, i: int) -> float:
+        """SI value of one unit of axis i's word: degrees for rotary axes, else mm or inch."""
+        return DEG if self.rotary[i] else self.length_unit
+
+    def _offset(self, code: str) -> list[float]:
+        """The work offset of G54-G59 for every axis (rotary axes: none)."""
+        linear = list(getattr(self.config.work_offsets_m, code))
+        return linear + [0.0] * (self.n_axes - len(linear))
+
+    def _path_feed(self, start: list[float], end: list[float]) -> float:
+        """The feed along the move's length over all axes under the RS274/NGC rule: F along
+        the first feed group that moves (XYZ, UVW), rotary axes in step; rotary-only: deg/min."""
+        total2 = sum((b - a) ** 2 for a, b in zip(start, end, strict=True))
+        for group, feed in zip(self.feed_groups, (self.feed, self.feed, None), strict=True):
+            moved2 = sum((end[i] - start[i]) ** 2 for i in group)
+            if moved2 > 0.0:
+                if feed is None:  # rotary axes alone: F in degrees per minute
+                    return self.feed_per_min * DEG / 60.0
+                return feed * math.sqrt(total2 / moved2)
+        return self.feed

@@ -153,16 +153,16 @@ class _StreamPlanner:
     def __init__(self, config: NcConfig) -> None:
         self.config = config
         self.axes = config.axis_names
-        self.v_max = np.array([a.v_max_m_s for a in config.axes])
-        self.rapid = np.array([a.rapid_m_s for a in config.axes])
-        self.a_max = np.array([a.a_max_m_s2 for a in config.axes])
-        self.j_max = np.array([a.j_max_m_s3 for a in config.axes])
+        self.v_max = np.array(config.v_max)
+        self.rapid = np.array(config.rapid)
+        self.a_max = np.array(config.a_max)
+        self.j_max = np.array(config.j_max)
         self.jerk = config.profile == "jerk"
         self.period = config.interpolation_period_s
         self.forced = max(2, config.lookahead_segments // 4)
         # Listed moves: the not yet committed ones, preceded by one committed context move
         # (its end blend reaches into the next chunk) once anything was committed.
-        self.points: list[tuple[float, ...]] = [tuple(config.start_position_m)]
+        self.points: list[tuple[float, ...]] = [config.start_position]
         self.lines: list[int] = []
         self.rapids: list[bool] = []
         self.feeds: list[float] = []

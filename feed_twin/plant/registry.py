@@ -11,6 +11,7 @@ from feed_twin.plant.dc_bus import DcBus
 from feed_twin.plant.dc_motor import DcMotor
 from feed_twin.plant.effort_source import EffortSource
 from feed_twin.plant.external_force import ConstantForce, ExternalForce
+from feed_twin.plant.gas_spring import GasSpring
 from feed_twin.plant.gravity import Gravity
 from feed_twin.plant.guide_friction import GuideFriction
 from feed_twin.plant.inertia import Inertia
@@ -35,6 +36,7 @@ COMPONENT_TYPES: dict[str, type[Component]] = {
         EffortSource,
         Encoder,
         ExternalForce,
+        GasSpring,
         Gravity,
         GuideFriction,
         Inertia,

@@ -77,6 +77,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="start no G-code node: the command stream comes from outside (a real NC)",
     )
+    parser.add_argument(
+        "--axes", default=None, help="machine config: the simulated axes, e.g. X,Z (default all)"
+    )
+    parser.add_argument(
+        "--settle", type=float, default=0.2, help="machine config: simulated after the end [s]"
+    )
 
 
 @dataclass
@@ -329,6 +335,12 @@ class _ShadowSummary:
 def main(args: argparse.Namespace) -> int:
     from feed_twin.gcode import GcodeError
 
+    if _is_machine_config(args.config):
+        from feed_twin.machine.run_cli import run_machine
+
+        return run_machine(args)
+    if args.axes is not None:
+        return _early_error(args, f"--axes needs a machine config; {args.config} is one axis")
     if args.program is None and not args.no_gcode:
         print(
             "feed-twin run: a PROGRAM is needed (or --no-gcode for an external NC)", file=sys.stderr
@@ -420,6 +432,17 @@ def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:
         return sides_disagree(args.program, args.config)
     except (LinuxcncError, ConfigError, ValueError, OSError) as exc:
         return str(exc)
+
+
+def _is_machine_config(path: Path) -> bool:
+    """A machine YAML (feed_twin.machine.config) rather than one axis's; unreadable: no."""
+    from feed_twin.io.config import load_yaml
+    from feed_twin.machine.config import is_machine_config
+
+    try:
+        return is_machine_config(load_yaml(path))
+    except ConfigError:
+        return False
 
 
 def _early_error(args: argparse.Namespace, message: str) -> int:

@@ -1,0 +1,2 @@
+"""The machine twin: every simulated axis of one machine under one NC (config, simulation,
+contour error)."""

@@ -1,0 +1,214 @@
+"""`feed-twin run PROGRAM --config MACHINE.yaml [--axes X,Z]`: the machine twin in-process.
+
+A machine config (feed_twin.machine.config) runs every simulated axis of the machine on the
+engine in this process (feed_twin.machine.simulate), in lockstep on the NC's sample grid; the
+program and the config are checked first and a bad one stops the run with one line before
+anything moves. Outputs:
+- the bag `<out>/<name>` (rosbag2 MCAP): per NC axis `/<machine>/<axis>/command` (AxisCommand;
+  a rotary axis's position in rad), per simulated axis `/<machine>/<axis>/state` (AxisState from
+  the engine's signals: setpoint, table truth, motor, currents, voltages, forces), and the
+  contour error `/<machine>/contour_error` and its along-path lag `/<machine>/contour_lag`
+  (std_msgs/Float64 [m], log time = simulation time);
+- the `.rrd` dashboard (feed_twin.machine.dashboard): XY and XZ paths coloured by contour
+  error beside per-axis following error;
+- the summary, and with `--json` one JSON object last (contour_error_max_m, contour_error_rms_m,
+  following_error_max_m per axis, the engine's realtime factor, the paths).
+`--shadow` adds the shadow twin of every simulated axis beside its stand-in
+(feed_twin.machine.shadow): residuals and health per axis in the summary and under "shadow" in
+the JSON line. The ROS 2 node set of a machine (a sim and controller node per axis in its own
+process) is not built yet: the node-set options (--realtime, --single-process, --live,
+--no-gcode) are refused for a machine config.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from feed_twin.io.bag import BagWriter
+from feed_twin.io.cdr import FlatCodec
+from feed_twin.io.config import ConfigError
+from feed_twin.machine.config import MachineConfig, load_machine_config
+from feed_twin.machine.simulate import MachineRun, simulate_machine
+from feed_twin.nodeset.split import NS_PER_S, StateSignals
+
+NODE_SET_OPTIONS = ("realtime", "single_process", "live", "no_gcode")
+
+
+def _state_fields(signals: dict[str, np.ndarray], command: np.ndarray) -> dict[str, np.ndarray]:
+    """AxisState fields from the engine's signals (NaN where the plant has no such signal)."""
+    nan = np.full(len(command), np.nan)
+    names = StateSignals()
+
+    def get(name: str) -> np.ndarray:
+        sign = -1.0 if name.startswith("-") else 1.0
+        values = signals.get(name.lstrip("-"))
+        return nan if values is None else sign * values
+
+    u_dc, i_dc = get(names.u_dc), get(names.i_dc)
+    torque, omega = get(names.torque_em), get(names.motor_velocity)
+    return {
+        "position_setpoint": get("out.pos_ref_m"),
+        "table_position": get(names.table_position),
+        "table_velocity": get(names.table_velocity),
+        "table_acceleration": get("table.a"),
+        "following_error": get("out.following_error_m"),
+        "motor_angle": get(names.motor_angle),
+        "motor_velocity": omega,
+        "i_d": get(names.i_d),
+        "i_q": get(names.i_q),
+        "u_d": get(names.u_d),
+        "u_q": get(names.u_q),
+        "u_dc": u_dc,
+        "torque_em": torque,
+        "friction_force": get(names.friction_force),
+        "screw_force": get(names.screw_force),
+        "electrical_power": u_dc * i_dc,
+        "mechanical_power": torque * omega,
+    }
+
+
+def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Path:
+    """The run as a rosbag2 MCAP bag (module docstring); returns the bag's info."""
+    stamps = np.round(run.t_s * NS_PER_S).astype(np.int64)
+    command = FlatCodec("feed_twin_msgs/msg/AxisCommand")
+    state = FlatCodec("feed_twin_msgs/msg/AxisState")
+    scalar = FlatCodec("std_msgs/msg/Float64")
+    root = f"/{machine.name}"
+    with BagWriter(path) as bag:
+        for i, axis in enumerate(run.axes):
+            topic = f"{root}/{axis.lower()}/command"
+            bag.add_topic(topic, "feed_twin_msgs/msg/AxisCommand")
+            for k, t_ns in enumerate(stamps):
+                values = {
+                    "header.stamp.sec": int(t_ns // NS_PER_S),
+                    "header.stamp.nanosec": int(t_ns % NS_PER_S),
+                    "header.frame_id": "",
+                    "axis": axis,
+                    "position": float(run.command[k, i]),
+                    "velocity": float(run.command_vel[k, i]),
+                    "acceleration": float(run.command_acc[k, i]),
+                    "line": int(run.line[k]),
+                }
+                bag.write(topic, command.encode_map(values), log_time_ns=int(t_ns))
+        for axis in run.simulated:
+            topic = f"{root}/{axis.lower()}/state"
+            bag.add_topic(topic, "feed_twin_msgs/msg/AxisState")
+            fields = _state_fields(run.signals[axis], run.command[:, run.axes.index(axis)])
+            for k, t_ns in enumerate(stamps):
+                values = {name: float(column[k]) for name, column in fields.items()}
+                values.update({
+                    "header.stamp.sec": int(t_ns // NS_PER_S),
+                    "header.stamp.nanosec": int(t_ns % NS_PER_S),
+                    "header.frame_id": "",
+                    "axis": axis,
+                })  # fmt: skip
+                bag.write(topic, state.encode_map(values), log_time_ns=int(t_ns))
+        for name, column in (("contour_error", run.contour.normal_m),
+                             ("contour_lag", run.contour.lag_m)):  # fmt: skip
+            topic = f"{root}/{name}"
+            bag.add_topic(topic, "std_msgs/msg/Float64")
+            for k, t_ns in enumerate(stamps):
+                bag.write(
+                    topic, scalar.encode_map({"data": float(column[k])}), log_time_ns=int(t_ns)
+                )
+    return path
+
+
+def run_machine(args: argparse.Namespace) -> int:
+    """The `feed-twin run` of a machine config (module docstring)."""
+    from feed_twin.gcode import GcodeError
+    from feed_twin.gcode.geometry import programmed_path
+    from feed_twin.gcode.planner import validate_program
+    from feed_twin.machine.dashboard import write_machine_dashboard
+
+    refused = [f"--{o.replace('_', '-')}" for o in NODE_SET_OPTIONS if getattr(args, o, False)]
+    if refused:
+        return _error(
+            args,
+            f"{', '.join(refused)}: not available for a machine config ({args.config}): the "
+            "machine runs in-process (the machine's ROS node set is not built yet)",
+        )
+    if args.program is None:
+        return _error(args, "a PROGRAM is needed")
+    try:
+        machine = load_machine_config(args.config)
+        if args.axes:
+            machine = machine.select(args.axes.split(","))
+        validate_program(args.program, machine.nc)
+    except GcodeError as exc:
+        return _error(args, f"G-code error, nothing was started: {exc}")
+    except (ConfigError, ValueError, OSError) as exc:
+        return _error(args, str(exc))
+    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    args.out.mkdir(parents=True, exist_ok=True)
+    bag_path, rrd_path = args.out / name, args.out / f"{name}.rrd"
+    run = simulate_machine(machine, args.program, settle_s=args.settle)
+    write_machine_bag(run, machine, bag_path)
+    write_machine_dashboard(run, programmed_path(args.program, machine.nc), rrd_path)
+    summary = run.summary()
+    fe = ", ".join(f"{a} {v * 1e6:.2f} um" for a, v in summary["following_error_max_m"].items())
+    print(
+        f"machine {machine.name}: {len(run.t_s)} samples ({summary['simulated_s']:.3f} s), "
+        f"axes {', '.join(run.simulated)} simulated, "
+        f"{', '.join(a for a in run.axes if a not in run.simulated) or 'none'} as commands"
+    )
+    where = (
+        f"t = {summary.get('contour_error_max_t_s', 0.0):.3f} s "
+        f"(line {summary.get('contour_error_max_line', 0)})"
+    )
+    print(
+        f"contour error: max {summary['contour_error_max_m'] * 1e6:.3f} um at {where}, "
+        f"RMS {summary['contour_error_rms_m'] * 1e6:.3f} um"
+    )
+    print(f"following error max: {fe}")
+    factor = summary["simulated_s"] / run.engine_wall_s if run.engine_wall_s > 0 else 0.0
+    print(f"engine: {factor:.1f}x real time (all axes, one thread)")
+    shadow = _shadow(args, machine) if args.shadow else None
+    if isinstance(shadow, str):
+        return _error(args, shadow)
+    print(f"bag: {bag_path}\nrerun: {rrd_path}")
+    if args.json:
+        record = {
+            "exit_code": 0,
+            "reason": "",
+            "bag": str(bag_path),
+            "rrd": str(rrd_path),
+            **summary,
+            "realtime_factor": factor,
+        }
+        if shadow is not None:
+            record["shadow"] = shadow
+        print(json.dumps(record))
+    return 0
+
+
+def _shadow(args: argparse.Namespace, machine: MachineConfig) -> dict | str:
+    """Every axis's shadow twin beside its stand-in (feed_twin.machine.shadow): the per-axis
+    figures, printed; or the reason it cannot run."""
+    from feed_twin.machine.shadow import shadow_machine
+
+    try:
+        result = shadow_machine(machine, args.program, settle_s=args.settle)
+    except (ConfigError, ValueError) as exc:
+        return f"--shadow: {exc}"
+    figures = {axis.lower(): r.summary() for axis, r in result.items()}
+    for axis, f in figures.items():
+        said = f" from {f['first_warning_s']:.3f} s: {f['message']}" if f["first_warning_s"] else ""
+        print(
+            f"shadow {axis}: FE deviation RMS {f['fe_dev_rms_m'] * 1e6:.3f} um, effort deviation "
+            f"RMS {f['effort_dev_rms']:.4f} {f['effort_unit']}, health {f['health']}{said}"
+        )
+    return figures
+
+
+def _error(args: argparse.Namespace, message: str) -> int:
+    print(f"feed-twin run: {message}", file=sys.stderr)
+    if getattr(args, "json", False):
+        print(json.dumps({"exit_code": 1, "reason": message}))
+    return 1

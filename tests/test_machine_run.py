@@ -1,0 +1,85 @@
+"""`feed-twin run PROGRAM --config MACHINE.yaml`: the machine twin in-process, its bag (read back
+by an independent reader), dashboard, summary and --json line, and its one-line refusals."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from feed_twin.cli import main as cli_main
+from feed_twin.io.bag import BagError, BagReader
+from feed_twin.io.dashboard import rerun_binary
+from feed_twin.machine.config import load_machine_config
+from feed_twin.machine.simulate import simulate_machine
+
+ROOT = Path(__file__).resolve().parents[1]
+MACHINE = ROOT / "config" / "machine_default.yaml"
+AXIS = ROOT / "config" / "axis_default.yaml"
+PROGRAM = "G90 G54 G17\nG1 B0\nG1 X10 Y5 Z-5 F3000\nG2 X20 Y5 I5 J0 B15\nG0 X0 Y0 Z0\nM2\n"
+
+
+def run(tmp_path: Path, capsys, *extra: str, program: str = PROGRAM, config: Path = MACHINE):
+    path = tmp_path / "part.ngc"
+    path.write_text(program)
+    argv = ["run", str(path), "--config", str(config), "--out", str(tmp_path), "--name", "m"]
+    code = cli_main([*argv, "--json", "--settle", "0.05", *extra])
+    out, err = capsys.readouterr()
+    return code, json.loads(out.strip().splitlines()[-1]), err
+
+
+def test_machine_run_records_every_axis_and_the_contour_error(tmp_path, capsys):
+    code, record, _ = run(tmp_path, capsys)
+    assert code == 0, record
+    assert record["axes"] == ["x", "y", "z"]
+    expected = simulate_machine(load_machine_config(MACHINE), tmp_path / "part.ngc", settle_s=0.05)
+    assert record["contour_error_max_m"] == pytest.approx(expected.summary()["contour_error_max_m"])
+    assert set(record["following_error_max_m"]) == {"x", "y", "z"}
+    # an independent reader (mcap_ros2) gives back what the run computed
+    reader = BagReader(record["bag"])
+    contour = reader.columns("/cnc/contour_error", ["data"])
+    assert np.allclose(contour["data"], expected.contour.normal_m, rtol=0, atol=1e-15)
+    assert np.allclose(contour["log_time_s"], expected.t_s, atol=1e-9)
+    state = reader.columns("/cnc/z/state", ["table_position", "following_error", "i_q"])
+    assert np.allclose(state["table_position"], expected.actual[:, 2], atol=1e-15)
+    # at the start Z holds its weight minus the counterbalance, 0.405 A (test_machine_config),
+    # within the current sensor's noise (0.02 A) and its control ripple
+    assert state["i_q"][0] == pytest.approx(0.405, abs=0.06)
+    b = reader.columns("/cnc/b/command", ["position"])["position"]
+    assert b[-1] == pytest.approx(np.radians(15.0))
+    subprocess.run([str(rerun_binary()), "rrd", "verify", record["rrd"]], check=True, timeout=60)
+
+
+def test_axes_subset_simulates_only_those(tmp_path, capsys):
+    code, record, _ = run(tmp_path, capsys, "--axes", "X,z")
+    assert code == 0, record
+    assert record["axes"] == ["x", "z"]
+    reader = BagReader(record["bag"])
+    assert len(reader.columns("/cnc/y/command", ["position"])["position"]) > 0
+    with pytest.raises(BagError, match="no topic ./cnc/y/state. in the bag"):
+        reader.columns("/cnc/y/state", ["table_position"])
+
+
+@pytest.mark.parametrize(
+    ("extra", "program", "config", "message"),
+    [
+        ((), "G1 X1 A5 F100\n", MACHINE,
+         r"G-code error, nothing was started: .*part.ngc:1:7: word 'A5': unknown word \(axis A"),
+        (("--axes", "X,B"), PROGRAM, MACHINE, r"--axes X,B: axis B has no plant"),
+        (("--realtime",), PROGRAM, MACHINE, r"--realtime: not available for a machine config"),
+        (("--axes", "X"), PROGRAM, AXIS, r"--axes needs a machine config; .*axis_default.yaml is"),
+    ],
+)  # fmt: skip
+def test_refusals_are_one_line_before_anything_runs(
+    tmp_path, capsys, extra, program, config, message
+):
+    code, record, err = run(tmp_path, capsys, *extra, program=program, config=config)
+    assert code == 1
+    assert record["exit_code"] == 1
+    assert len(err.strip().splitlines()) == 1
+    assert re.search(message, record["reason"]), record["reason"]
+    assert not (tmp_path / "m").exists()
