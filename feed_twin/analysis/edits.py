@@ -113,8 +113,10 @@ def _edit(
 def coulomb(doc: ModelDoc, cand: Candidate) -> Edit:
     doc = _symmetric(doc.with_friction())
     fr = _friction_name(doc)
-    fc = max(abs(cand.coefficients.get("sign_v", 0.0)), 1e-3)
-    doc = doc.tie(f"{fr}.F_c", (f"{fr}.F_c_pos", f"{fr}.F_c_neg")).set(f"{fr}.F_c", fc)
+    doc = doc.tie(f"{fr}.F_c", (f"{fr}.F_c_pos", f"{fr}.F_c_neg"))
+    # the weight is the friction the twin lacks (measured minus twin), on top of what it has
+    fc = max(doc.get(f"{fr}.F_c") + cand.coefficients.get("sign_v", 0.0), 1e-3)
+    doc = doc.set(f"{fr}.F_c", fc)
     own = [_param(doc, f"{fr}.F_c", fc)]
     return _edit(doc, own, {"F_c_N": lambda v: v[f"{fr}.F_c"]})
 
@@ -133,7 +135,7 @@ def stribeck(doc: ModelDoc, cand: Candidate) -> Edit:
     doc = _symmetric(doc.with_friction())
     fr = _friction_name(doc)
     vs = float(cand.variant.split("=")[1].split()[0]) if cand.variant else 0.005
-    ds = max(abs(cand.coefficients.get("stribeck", 0.0)), 1e-3)
+    ds = max(doc.get(f"{fr}.dF_s") + cand.coefficients.get("stribeck", 0.0), 1e-3)
     doc = doc.set(f"{fr}.dF_s", ds).set(f"{fr}.v_s", vs)
     own = [_param(doc, f"{fr}.dF_s"), _param(doc, f"{fr}.v_s", lower=1e-4, floor=1e-3)]
     report = {"dF_s_N": lambda v: v[f"{fr}.dF_s"], "v_s_m_s": lambda v: v[f"{fr}.v_s"]}
