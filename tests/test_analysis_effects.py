@@ -27,6 +27,7 @@ REQUIRED = {
     "dead_time",
     "thermal_drift",
     "measurement_delay",
+    "stiction",
 }
 
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from feed_twin.analysis.fit import FreeParameter
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.twin import ModelDoc
+from feed_twin.plant.registry import OWNED_EFFECTS
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -108,6 +109,16 @@ def _edit(
         report=report,
         grid=grid,
     )
+
+
+def added_component(
+    doc: ModelDoc,
+    own: list[FreeParameter],
+    report: dict[str, Callable[[dict[str, float]], float]],
+) -> Edit:
+    """The edit of an effect that adds a component (a component's own OwnedEffect.edit): its
+    parameters are re-fitted with the rigid-body ones it trades off against."""
+    return _edit(doc, own, report)
 
 
 def coulomb(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -396,6 +407,7 @@ def measurement_delay(doc: ModelDoc, cand: Candidate) -> Edit:
 
 
 EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
+    **{effect.name: effect.edit for effect in OWNED_EFFECTS},
     "cogging_torque": cogging,
     "lead_error": lead_error,
     "measurement_delay": measurement_delay,

@@ -25,6 +25,7 @@ import numpy as np
 
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.plant.registry import OWNED_EFFECTS
 
 # A program with moves of several lengths and feeds, reversals and dwells on one axis (X).
 PROGRAM = """\
@@ -178,6 +179,7 @@ def _dead_time(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
 
 
 HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
+    **{effect.name: effect.truth for effect in OWNED_EFFECTS},
     "coulomb_friction": _coulomb,
     "viscous_friction": _viscous,
     "stribeck_friction": _stribeck,

@@ -267,6 +267,15 @@ class ModelDoc:
         params = self.component(motors[0])["params"]
         return 1.5 * float(params["p"]) * float(params["psi_pm"])
 
+    def with_table_component(
+        self, base: str, kind: str, params: dict[str, Any]
+    ) -> tuple[ModelDoc, str]:
+        """The document with a component of type `kind` on the table's node (its single port
+        connected there), named `base` or `base2`, ...; returns the document and the name."""
+        name = self._free_name(base)
+        entry = {"name": name, "type": kind, "params": dict(params)}
+        return self.add_component(entry, self.table_port()), name
+
     def with_constant_force(self, f_0: float) -> tuple[ModelDoc, str]:
         existing = self.of_type("ConstantForce")
         if existing:
