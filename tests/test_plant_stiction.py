@@ -101,4 +101,4 @@ def test_stiction_is_named_and_takes_over_the_coulomb_friction_found_first(tmp_p
     assert [e.name for e in d.effects] == ["stiction"], d.notes
     assert d.effects[0].parameters["F_hold_N"] == pytest.approx(F_HOLD, rel=0.05)
     assert any("coulomb_friction was dropped" in n and "collapsed" in n for n in d.notes), d.notes
-    assert d.after.effort_rms_N < 0.05 * d.before.effort_rms_N
+    assert d.after.effort_rms < 0.05 * d.before.effort_rms

@@ -1,8 +1,9 @@
 """`feed-twin diagnose` and `feed-twin simulate`: the discrepancy workflow from the shell.
 
     feed-twin diagnose MEASURED --config NOMINAL [--map MAP] [--program PROGRAM]
-                       [--validate OTHER] --out DIR
-    feed-twin simulate --config MODEL --measured MEASURED [--map MAP] --out traces.csv
+                       [--validate OTHER] [--segment T0:T1] --out DIR
+    feed-twin simulate --config MODEL --measured MEASURED [--map MAP] [--program PROGRAM]
+                       [--segment T0:T1] --out traces.csv
 
 Without --map, a file `<MEASURED stem>_map.yaml` next to the data is used if it exists.
 `diagnose` writes DIR/report.md, DIR/report.json, DIR/model.yaml, PNG plots and DIR/diagnose.rrd
@@ -20,7 +21,21 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.io.config import ConfigError
-from feed_twin.io.measured import MeasuredDataError, MeasuredRun, load_measured
+from feed_twin.io.measured import (
+    MeasuredDataError,
+    MeasuredRun,
+    load_measured,
+    parse_segment,
+    segment,
+)
+
+
+def _check_out(out: Path, *, directory: bool) -> None:
+    """An --out that names the wrong kind of thing is refused before any work is done."""
+    if directory and out.exists() and not out.is_dir():
+        raise MeasuredDataError(f"--out {out}: is an existing file; name a directory")
+    if not directory and out.is_dir():
+        raise MeasuredDataError(f"--out {out}: is a directory; name the CSV file to write")
 
 
 def _map_for(measured: Path, given: str | None) -> Path:
@@ -35,10 +50,16 @@ def _map_for(measured: Path, given: str | None) -> Path:
 
 
 def _load(
-    measured: str, map_path: str | None, program: str | None = None, model=None
+    measured: str,
+    map_path: str | None,
+    program: str | None = None,
+    model=None,
+    window: str | None = None,
 ) -> MeasuredRun:
     path = Path(measured)
     run = load_measured(path, _map_for(path, map_path))
+    if window is not None:
+        run = segment(run, *parse_segment(window))
     if program is not None:
         from feed_twin.analysis.program import command_from_program
 
@@ -61,6 +82,9 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", help="column map YAML (default: <measured stem>_map.yaml)")
     parser.add_argument("--program", help="G-code that ran, when the record has no command")
     parser.add_argument("--validate", help="a second measured run to validate the result on")
+    parser.add_argument(
+        "--segment", help="identify on the part t0:t1 [s] of the record only (e.g. 2.5:14)"
+    )
     parser.add_argument("--out", required=True, help="output directory")
 
 
@@ -75,8 +99,9 @@ def main_diagnose(args: argparse.Namespace) -> int:
     from feed_twin.gcode.errors import GcodeError
 
     try:
+        _check_out(Path(args.out), directory=True)
         doc = ModelDoc.load(args.config)
-        run = _load(args.measured, args.map, args.program, doc)
+        run = _load(args.measured, args.map, args.program, doc, args.segment)
         for w in run.warnings:
             progress(f"warning: {w}")
         other = _load(args.validate, args.map, args.program, doc) if args.validate else None
@@ -116,6 +141,8 @@ def configure_simulate(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, help="model YAML")
     parser.add_argument("--measured", required=True, help="measured run: CSV or rosbag2 dir")
     parser.add_argument("--map", help="column map YAML (default: <measured stem>_map.yaml)")
+    parser.add_argument("--program", help="G-code that ran, when the record has no command")
+    parser.add_argument("--segment", help="simulate the part t0:t1 [s] of the record only")
     parser.add_argument("--out", required=True, help="CSV file to write")
 
 
@@ -148,11 +175,13 @@ def simulate_traces(run: MeasuredRun, doc) -> dict[str, np.ndarray]:
 
 def main_simulate(args: argparse.Namespace) -> int:
     from feed_twin.analysis.twin import ModelDoc
+    from feed_twin.gcode.errors import GcodeError
 
     try:
-        run = _load(args.measured, args.map)
+        _check_out(Path(args.out), directory=False)
         doc = ModelDoc.load(args.config)
-    except (MeasuredDataError, ConfigError) as exc:
+        run = _load(args.measured, args.map, args.program, doc, args.segment)
+    except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin simulate: {exc}", file=sys.stderr)
         return 2
     try:

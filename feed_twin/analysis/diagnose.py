@@ -54,7 +54,7 @@ from feed_twin.analysis.rounds import (
     weighted_channels,
 )
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
-from feed_twin.io.measured import MeasuredRun
+from feed_twin.io.measured import EFFORT_UNITS, MeasuredDataError, MeasuredRun
 
 __all__ = ["Options", "diagnose", "write_model"]
 
@@ -89,6 +89,7 @@ def _metrics(run: MeasuredRun, out: SimOutputs, row: int = 0) -> Metrics:
         effort_sim,
         run[VOLTAGE_Q] if has_u else None,
         out.voltage_q[row] if has_u and out.voltage_q is not None else None,
+        effort_unit=None if name is None else EFFORT_UNITS[name],
     )
 
 
@@ -131,6 +132,7 @@ def diagnose(
     if not out0.ok[0]:
         raise RuntimeError(f"the nominal model {nominal.source} diverged on {run.source}")
     timings["nominal_s"] = time.perf_counter() - clock
+    check_effort_sign(run, out0)
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
     before = _metrics(run, out0)
     stride = max(1, len(run.t_s) // opts.fit_samples)
@@ -251,6 +253,27 @@ def diagnose(
         timings_s=timings,
     )
     return diagnosis, state.doc, motion
+
+
+REVERSED_CORRELATION = -0.5  # measured vs nominal effort at or below this: the sign is reversed
+
+
+def check_effort_sign(run: MeasuredRun, out: SimOutputs) -> None:
+    """Raise if the measured effort runs against the nominal twin's (a current recorded with the
+    opposite sign convention): the workflow would blame every effect but the sign."""
+    name = run.effort_name
+    if name is None or out.effort is None:
+        return
+    measured, twin = run[name], out.effort[0]
+    spread = float(np.std(measured) * np.std(twin))
+    if spread == 0.0:
+        return
+    r = float(np.mean((measured - measured.mean()) * (twin - twin.mean())) / spread)
+    if r <= REVERSED_CORRELATION:
+        raise MeasuredDataError(
+            f"{run.source}: the measured {name} runs against the nominal twin's (correlation "
+            f"{r:.2f}): its sign looks reversed; give its column a negative gain in the map"
+        )
 
 
 def write_model(doc: ModelDoc, path: Path, found: tuple[FoundEffect, ...]) -> None:

@@ -59,6 +59,8 @@ MIN_DURATION_S = 0.2
 MIN_COMMAND_TRAVEL_M = 1e-6  # below one micrometre of commanded travel nothing can be identified
 GAP_FACTOR = 1.5  # a time step longer than this many median periods is a gap
 MAX_NAN_FRACTION = 0.2  # more missing than this is not repaired
+MAX_PERIOD_S = 0.1  # [s] a drive trace is sampled at 10 Hz or faster
+MAX_GRID_FACTOR = 2.0  # filling the gaps may at most double the samples
 
 Dimension = Literal["time", "length", "velocity", "force", "torque", "current", "voltage"]
 
@@ -105,6 +107,7 @@ _CANONICAL_DIMENSION: dict[str, str] = {
 }
 _DISTURBANCE_SUFFIX = {"_N": "force", "_Nm": "torque", "_A": "current"}
 EFFORT_SIGNALS = ("force_cmd_N", "torque_cmd_Nm", "current_q_A")
+EFFORT_UNITS = {"force_cmd_N": "N", "torque_cmd_Nm": "N m", "current_q_A": "A"}
 VOLTAGE_SIGNALS = ("voltage_d_V", "voltage_q_V")  # the current controller's voltage commands
 
 
@@ -132,15 +135,36 @@ class ColumnSpec:
 
     column: str  # the file's own column name (CSV header) or topic field path (bag)
     unit: str  # one of UNITS
-    # [target SI unit per column unit]; required for V mapped to an effort, else a scale
+    # [target SI unit per column unit]: the drive gain of a column in V mapped to an effort, the
+    # force (torque) constant [N/A, N m/A] of a current mapped to a force (torque), else a scale;
+    # negative where the machine counts the other way (a current whose sign opposes the motion)
     gain: float | None = None
+    offset: float = 0.0  # [column unit] the reading at zero, subtracted first
+    # a current column as the drive shows it: "peak" phase current (the q-current of an
+    # amplitude-invariant transform) or its "rms" (sqrt(2) times smaller)
+    amplitude: Literal["peak", "rms"] = "peak"
     optional: bool = False  # a missing column is skipped instead of an error
 
     def __post_init__(self) -> None:
         if self.unit not in _UNITS:
             raise ValueError(f"unit = {self.unit!r}: must be one of {', '.join(UNITS)}")
-        if self.gain is not None:
-            require_positive("gain", self.gain)
+        if self.gain is not None and not (math.isfinite(self.gain) and self.gain != 0.0):
+            raise ValueError(f"gain = {self.gain!r}: must be a finite number other than 0")
+        if not math.isfinite(self.offset):
+            raise ValueError(f"offset = {self.offset!r}: must be finite")
+        if self.amplitude not in ("peak", "rms"):
+            raise ValueError(f"amplitude = {self.amplitude!r}: must be 'peak' or 'rms'")
+        if self.amplitude == "rms" and _UNITS[self.unit][0] != "current":
+            raise ValueError(
+                f"amplitude = 'rms' with unit = {self.unit!r}: only a current has an RMS reading"
+            )
+
+    def to_si(self, raw: np.ndarray) -> np.ndarray:
+        """The column in SI for a dimension that needs no machine data (not angles)."""
+        factor = _UNITS[self.unit][1] * (1.0 if self.gain is None else self.gain)
+        if self.amplitude == "rms":
+            factor *= math.sqrt(2.0)
+        return (raw - self.offset) * factor
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -206,6 +230,13 @@ def _check_convertible(name: str, spec: ColumnSpec, conv: Conversion) -> None:
                 f"to give {name}"
             )
         return
+    if dim == "current" and target in ("force", "torque"):
+        if spec.gain is None:
+            raise ValueError(
+                f"signals.{name}.gain = None: a current gives {name} only through the drive's "
+                f"{'force constant [N/A]' if target == 'force' else 'torque constant [N m/A]'}"
+            )
+        return
     if dim == "angle" and target == "length" or dim == "angular_velocity" and target == "velocity":
         if conv.lead_m is None:
             raise ValueError(
@@ -238,6 +269,10 @@ def load_column_map(path: str | Path) -> ColumnMap:
         )
     if _UNITS[raw.time.unit][0] != "time":
         raise ConfigError(f"{source}: time.unit = {raw.time.unit!r}: must be a time unit")
+    if raw.time.gain is not None and raw.time.gain < 0.0:
+        raise ConfigError(
+            f"{source}: time.gain = {raw.time.gain!r}: must be > 0 (time runs forwards)"
+        )
     try:
         return ColumnMap(
             time=raw.time,
@@ -249,6 +284,39 @@ def load_column_map(path: str | Path) -> ColumnMap:
         )
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
+
+
+def segment(run: MeasuredRun, t0_s: float, t1_s: float) -> MeasuredRun:
+    """The part of `run` with t0 <= t <= t1 [s] (a record's own time stamps)."""
+    t = run.t_s
+    if not (t0_s < t1_s):
+        raise MeasuredDataError(f"{run.source}: segment {t0_s:g}:{t1_s:g}: t0 must be < t1")
+    half = 0.5 * run.sample_period_s  # a bound on a sample belongs to the segment
+    keep = (t >= t0_s - half) & (t <= t1_s + half)
+    if int(keep.sum()) < MIN_SAMPLES:
+        raise MeasuredDataError(
+            f"{run.source}: segment {t0_s:g}:{t1_s:g} holds {int(keep.sum())} samples (the "
+            f"record runs {t[0]:.6g} to {t[-1]:.6g} s); need at least {MIN_SAMPLES}"
+        )
+    return dataclasses.replace(
+        run,
+        t_s=t[keep],
+        signals={k: v[keep] for k, v in run.signals.items()},
+        source=f"{run.source} [{t0_s:g} s to {t1_s:g} s]",
+    )
+
+
+def parse_segment(text: str) -> tuple[float, float]:
+    """`t0:t1` [s] -> (t0, t1); raises MeasuredDataError naming the text."""
+    t0, sep, t1 = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return float(t0), float(t1)
+    except ValueError:
+        raise MeasuredDataError(
+            f"--segment {text!r}: expected t0:t1 in seconds, e.g. 2.5:14"
+        ) from None
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -302,20 +370,36 @@ def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Header and float64 table of a CSV file; empty or non-numeric cells become NaN."""
     path = Path(path)
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            header = next(csv.reader(fh), None)
+        text = path.read_bytes()
     except FileNotFoundError:
         raise MeasuredDataError(f"{path}: no such measured file") from None
+    except IsADirectoryError:
+        raise MeasuredDataError(f"{path}: is a directory, not a CSV file or a bag") from None
+    zero = text.find(b"\0", 0, 65536)
+    if zero >= 0:
+        raise MeasuredDataError(
+            f"{path}: is not a text CSV (binary data at byte {zero}); export the record as CSV"
+        )
+    try:
+        lines = text.decode("utf-8").splitlines()
+    except UnicodeDecodeError as exc:
+        raise MeasuredDataError(
+            f"{path}: is not a UTF-8 text CSV (byte {exc.start} cannot be decoded)"
+        ) from None
+    header = next(csv.reader(lines[:1]), None)
     if not header:
         raise MeasuredDataError(f"{path}: the file is empty (no header line)")
     header = [h.strip() for h in header]
-    table = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
+    for number, line in enumerate(lines[1:], start=2):
+        cells = line.count(",") + 1
+        if line.strip() and cells != len(header):
+            raise MeasuredDataError(
+                f"{path}: line {number} has {cells} cells but the header has {len(header)} "
+                "columns (a ragged or truncated file)"
+            )
+    table = np.genfromtxt(lines[1:], delimiter=",", dtype=float, ndmin=2)
     if table.size == 0:
         table = np.empty((0, len(header)))
-    if table.shape[1] != len(header):
-        raise MeasuredDataError(
-            f"{path}: the header has {len(header)} columns but the rows have {table.shape[1]}"
-        )
     return header, table
 
 
@@ -396,7 +480,7 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
         )
     present = [(name, spec) for name, spec in wanted if spec.column in index]
 
-    t_raw = table[:, index[cmap.time.column]] * _UNITS[cmap.time.unit][1]
+    t_raw = cmap.time.to_si(table[:, index[cmap.time.column]])
     tcol = cmap.time.column
     if np.isnan(t_raw).any():
         row = int(np.flatnonzero(np.isnan(t_raw))[0])
@@ -419,6 +503,18 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
             f"(t = {t_raw[row]!r} s after {t_raw[row - 1]!r} s); sort the file or fix the clock"
         )
     period = float(np.median(dt))
+    if period > MAX_PERIOD_S:
+        raise MeasuredDataError(
+            f"{source}: time column {tcol!r} (declared in {cmap.time.unit}) gives a sample "
+            f"period of {period:.4g} s, slower than any drive trace (> {MAX_PERIOD_S:g} s); is "
+            "the time unit wrong (ms declared as s)?"
+        )
+    if (t_raw[-1] - t_raw[0]) / period > MAX_GRID_FACTOR * n:
+        raise MeasuredDataError(
+            f"{source}: time column {tcol!r}: a gap of {float(dt.max()):.4g} s in a record "
+            f"sampled every {period:.4g} s would take {int((t_raw[-1] - t_raw[0]) / period)} "
+            f"samples to fill; cut the record at the gap (--segment t0:t1)"
+        )
 
     columns: dict[str, np.ndarray] = {}
     for name, spec in present[1:]:
@@ -468,20 +564,28 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
 
 def _to_si(name: str, spec: ColumnSpec, raw: np.ndarray, conv: Conversion) -> np.ndarray:
     dim, factor = _UNITS[spec.unit]
+    if dim not in ("angle", "angular_velocity"):
+        return spec.to_si(raw)
     gain = 1.0 if spec.gain is None else spec.gain
-    if dim in ("angle", "angular_velocity"):
-        assert conv.lead_m is not None  # checked when the map was built
-        if spec.unit == "counts":
-            assert conv.counts_per_rev is not None
-            factor = 2.0 * math.pi / conv.counts_per_rev
-        factor *= conv.lead_m / (2.0 * math.pi)
-    return raw * (factor * gain)
+    assert conv.lead_m is not None  # checked when the map was built
+    if spec.unit == "counts":
+        assert conv.counts_per_rev is not None
+        factor = 2.0 * math.pi / conv.counts_per_rev
+    factor *= conv.lead_m / (2.0 * math.pi)
+    return (raw - spec.offset) * (factor * gain)
 
 
 def _check_plausible(run: MeasuredRun, cmap: ColumnMap) -> None:
     lim = cmap.plausibility
     h = run.sample_period_s
     spec_of = dict(cmap.signals)
+    for name in ("pos_meas_m", *EFFORT_SIGNALS, *VOLTAGE_SIGNALS):
+        if name in run and float(np.ptp(run[name])) == 0.0:
+            raise MeasuredDataError(
+                f"{run.source}: column {spec_of[name].column!r} ({name}) holds one value "
+                f"({run[name][0]:.6g} in SI) all along; a frozen or unconnected channel "
+                "carries nothing to compare"
+            )
     for name in ("pos_cmd_m", "pos_meas_m"):
         if name not in run:
             continue
