@@ -302,6 +302,20 @@ class Drive:
     force_ext_N: np.ndarray | None  # known external force on the table [N]
     x0_m: float  # measured position at the start
     sensor: str  # motor_encoder or linear_scale
+    v0_m_s: float = 0.0  # measured velocity at the start (a record that begins mid-motion)
+
+
+START_FIT_SAMPLES = 7  # samples of the quadratic whose slope at t_0 is the start velocity
+
+
+def start_velocity(t_s: np.ndarray, x_m: np.ndarray) -> float:
+    """Velocity [m/s] at the first sample: the slope at t_0 of a quadratic through the first
+    START_FIT_SAMPLES samples (one quantisation step over the window is all it must resolve)."""
+    n = min(START_FIT_SAMPLES, len(t_s))
+    if n < 3:
+        return 0.0
+    coef = np.polyfit(t_s[:n] - t_s[0], x_m[:n] - x_m[0], 2)
+    return float(coef[1])
 
 
 def drive_from_run(run: MeasuredRun) -> Drive:
@@ -328,6 +342,7 @@ def drive_from_run(run: MeasuredRun) -> Drive:
         force_ext_N=sum(run[n] for n in forces) if forces else None,
         x0_m=float(run["pos_meas_m"][0]),
         sensor=run.position_sensor,
+        v0_m_s=start_velocity(run.t_s, run["pos_meas_m"]),
     )
 
 
@@ -453,7 +468,38 @@ class Twin:
         return self.plant.initial_state({coord.name: x0_m / ratio})
 
     def _x0(self, drive: Drive, p: np.ndarray) -> np.ndarray:
-        return self.initial_state(drive.x0_m, p)
+        x = self.initial_state(drive.x0_m, p)
+        if drive.v0_m_s != 0.0:
+            # every coordinate moves with the table (springs relaxed): its speed scales with
+            # the table's as its position does, so the position map gives the velocities
+            moving = self.initial_state(drive.v0_m_s, p)
+            for c in self.plant.coordinates:
+                i = self.plant.state_index[c.position_state]
+                x[self.plant.state_index[c.velocity_state]] = moving[i]
+        return x
+
+    def start_controller(self, drive: Drive, ref: np.ndarray) -> np.ndarray | None:
+        """The controller's state at the record's first sample, as if it had been running:
+        interpolator at the first setpoint, velocity estimator (its last encoder sample and
+        FIR history) at the measured start velocity. None for a record that starts at rest
+        (a fresh controller is right there). A PI velocity loop's integrator stays at zero:
+        what it held is not in the record."""
+        if drive.v0_m_s == 0.0:
+            return None
+        from feed_twin.control import layout as lay
+
+        cs = self.controller.initial_state()
+        cs[lay.S_INITIALISED] = 1.0
+        for i in range(3):
+            cs[lay.S_NC_PREV_POS + i] = ref[0, signals.REF_POS_M + i]
+            cs[lay.S_NC_POS + i] = ref[0, signals.REF_POS_M + i]
+        cs[lay.S_NC_TICK] = 0.0
+        period = float(self.controller.params[lay.P_VEL_PERIOD])
+        cs[lay.S_ENC_POS_PREV] = drive.x0_m - drive.v0_m_s * period
+        fir = len(self.controller.state_names) - lay.S_FIR_HIST
+        cs[lay.S_FIR_HIST : lay.S_FIR_HIST + fir] = drive.v0_m_s
+        cs[lay.S_VEL_EST] = drive.v0_m_s
+        return cs
 
     def simulate(self, drive: Drive, params: np.ndarray) -> SimOutputs:
         """Simulate each row of `params` (full parameter vectors) on the drive's command."""
@@ -479,7 +525,8 @@ class Twin:
         u_q = np.full((len(P), T), np.nan) if self.has_voltage else None
         if len(rows):
             x0 = self._x0(drive, P[rows[0]])
-            res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0)
+            cs0 = self.start_controller(drive, ref)
+            res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, dec)
             x[rows] = pos[:, :T]
             effort[rows] = eff[:, :T]
