@@ -44,7 +44,7 @@ def command_from_program(
 ) -> MeasuredRun:
     """`run` with pos_cmd_m and vel_cmd_m_s from the planned program, aligned to its clock.
 
-    With `model` (an analysis.twin.ModelDoc) the alignment is refined once against the twin's
+    With `model` (an analysis.twin.ModelDoc) the alignment is refined twice against the twin's
     simulated response instead of the bare command.
     """
     from feed_twin.gcode.planner import plan_program
