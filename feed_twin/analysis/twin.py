@@ -306,16 +306,21 @@ class Drive:
 
 
 START_FIT_SAMPLES = 7  # samples of the quadratic whose slope at t_0 is the start velocity
+# [m] a start velocity that moves the table less than this over the fit window is a start at
+# rest: a record that begins as the axis sets off (a shadow twin's bag) starts exactly at rest
+START_TRAVEL_M = 1e-6
 
 
 def start_velocity(t_s: np.ndarray, x_m: np.ndarray) -> float:
     """Velocity [m/s] at the first sample: the slope at t_0 of a quadratic through the first
-    START_FIT_SAMPLES samples (one quantisation step over the window is all it must resolve)."""
+    START_FIT_SAMPLES samples (one quantisation step over the window is all it must resolve),
+    0 for a record that starts at rest (START_TRAVEL_M)."""
     n = min(START_FIT_SAMPLES, len(t_s))
     if n < 3:
         return 0.0
     coef = np.polyfit(t_s[:n] - t_s[0], x_m[:n] - x_m[0], 2)
-    return float(coef[1])
+    v0 = float(coef[1])
+    return v0 if abs(v0) * (t_s[n - 1] - t_s[0]) > START_TRAVEL_M else 0.0
 
 
 def drive_from_run(run: MeasuredRun) -> Drive:
