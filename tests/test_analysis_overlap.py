@@ -97,3 +97,25 @@ def test_clean_record_names_nothing(tmp_path):
     d = _diagnose(tmp_path, ModelDoc.load(EMPS), {})
     assert d.effects == (), d.notes
     assert d.verdict.startswith("no significant missing effect"), d.verdict
+
+
+@pytest.mark.slow
+def test_stiffness_and_coulomb_friction_are_both_named(tmp_path):
+    """Machine-tool axis, loop on the linear scale: a softer screw and more Coulomb friction
+    (160 N where the model has 120 N); about a minute. Before the edits started from the
+    model's friction, a viscous term took the friction's place and collapsed in the joint
+    re-fit, and the collapsed term stayed in the report."""
+    truth = {"k_bearing_N_m": 4.0e8, "EA_N": 1.2e8}
+    hidden = {"position_dependent_stiffness": truth, "coulomb_friction": {"F_c_N": 160.0}}
+    d = _diagnose(
+        tmp_path,
+        ModelDoc.load(AXIS),
+        hidden,
+        program=LONG_PROGRAM,
+        nc_config=MACHINE_TOOL_NC,
+    )
+    found = _found(d)
+    assert set(found) == set(hidden), d.notes
+    for name, value in truth.items():
+        assert found["position_dependent_stiffness"][name] == pytest.approx(value, rel=0.10)
+    assert found["coulomb_friction"]["F_c_N"] == pytest.approx(160.0, rel=0.05)
