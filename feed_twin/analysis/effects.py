@@ -279,14 +279,6 @@ LIBRARY: tuple[Effect, ...] = (
         signature=lambda m: {"abs_v": np.abs(m.v_m_s), "moving": moving(m)},
     ),
     Effect(
-        name="constant_force",
-        domain="effort",
-        component="ConstantForce.f",
-        words="a constant force in one direction (gravity on a vertical axis, an unbalanced "
-        "counterweight, an offset in the force measurement)",
-        signature=lambda m: {"one": np.ones_like(m.t_s)},
-    ),
-    Effect(
         name="mass_error",
         domain="effort",
         component="Mass.m",
@@ -329,14 +321,6 @@ LIBRARY: tuple[Effect, ...] = (
         "voltage, and the current controller must command the missing volts",
         needs=("current_q_A", "lead_m", "pole_pairs"),
         choices=_dead_time_choices,
-    ),
-    Effect(
-        name="backlash",
-        domain="position",
-        component="Backlash.gap",
-        words="lost motion at every reversal: the table stays behind by a fixed gap when the "
-        "direction changes",
-        signature=lambda m: {"last_direction": last_direction(m)},
     ),
     Effect(
         name="measurement_delay",

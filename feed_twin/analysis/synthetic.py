@@ -122,10 +122,6 @@ def _asymmetric(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     return doc
 
 
-def _constant(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    return doc.with_constant_force(p["f_0_N"])[0]
-
-
 def _mass(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     slot = doc.mass_slot()
     assert slot is not None
@@ -184,13 +180,11 @@ HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
     "viscous_friction": _viscous,
     "stribeck_friction": _stribeck,
     "asymmetric_friction": _asymmetric,
-    "constant_force": _constant,
     "mass_error": _mass,
     "torque_constant_error": _gain,
     "measurement_delay": _delay,
     "lead_error": lambda doc, p: _lead_error(doc, p),
     "thermal_drift": lambda doc, p: _thermal(doc, p),
-    "backlash": lambda doc, p: doc.set(f"{doc.of_type('Backlash')[0]}.gap", p["gap_m"]),
     "position_dependent_stiffness": _stiffness,
     "current_offset": _current_offset,
     "dead_time": _dead_time,

@@ -71,7 +71,7 @@ def _held(m: Any) -> dict[str, np.ndarray]:
 def _edit(doc: Any, cand: Any) -> Any:
     """Add StictionFriction on the table; it takes over the Coulomb part of the guide friction
     (the common part of both directions), so that the sliding force stays what it was."""
-    from feed_twin.analysis.edits import FreeParameter, added_component
+    from feed_twin.analysis.edits import FreeParameter, make_edit
 
     fr = doc.friction()
     coulomb = 0.0
@@ -91,7 +91,8 @@ def _edit(doc: Any, cand: Any) -> Any:
     doc, name = doc.with_table_component("stiction", StictionFriction.TYPE, params)
     slot = f"{name}.F_hold"
     own = [FreeParameter(name=slot, initial=f_hold, scale=f_hold, lower=0.0)]
-    return added_component(doc, own, {"F_hold_N": lambda v: v[slot]})
+    # re-fitted with the rigid-body parameters it trades off against (mass, friction)
+    return make_edit(doc, own, {"F_hold_N": lambda v: v[slot]})
 
 
 def _truth(doc: Any, p: Mapping[str, float]) -> Any:
