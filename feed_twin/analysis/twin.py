@@ -46,6 +46,10 @@ _AXIAL_RIGIDITY = "EA"
 _DEAD_FRACTION = "dead_fraction"
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
 FIXED_SECTIONS = ("plant", "controller")
+# the section the workflow writes beside a fitted model, and its key: the drive gain the
+# measured effort was converted with (the nominal one), which a fitted gain must not replace
+ANALYSIS_SECTION = "analysis"
+REFERENCE_GAIN_KEY = "effort_reference_gain"
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -68,9 +72,16 @@ class ModelDoc:
                 raise ConfigError(f"{path}: missing required section {key}")
         doc = cls(data=data, source=str(path))
         g = doc.gain_slot()
-        return ModelDoc(
-            data=data, source=str(path), reference_gain=None if g is None else doc.get(g)
-        )
+        reference = None if g is None else doc.get(g)
+        written = (data.get(ANALYSIS_SECTION) or {}).get(REFERENCE_GAIN_KEY)
+        if written is not None:
+            if not (isinstance(written, (int, float)) and math.isfinite(written) and written):
+                raise ConfigError(
+                    f"{path}: {ANALYSIS_SECTION}.{REFERENCE_GAIN_KEY} = {written!r}: must be a "
+                    "finite number other than 0"
+                )
+            reference = float(written)
+        return ModelDoc(data=data, source=str(path), reference_gain=reference)
 
     # ---------------------------------------------------------------- lookup
 
@@ -285,8 +296,14 @@ class ModelDoc:
         return self.add_component(entry, self.table_port()), f"{name}.f_0"
 
     def dump(self, path: str | Path, header: list[str]) -> None:
+        """Write the model YAML; a drive gain the fit changed keeps the gain the record's
+        effort was converted with (the map's), so the written model reproduces the fit."""
+        data = self.data
+        g = self.gain_slot()
+        if g is not None and self.reference_gain is not None and self.get(g) != self.reference_gain:
+            data = {**data, ANALYSIS_SECTION: {REFERENCE_GAIN_KEY: self.reference_gain}}
         text = "".join(f"# {line}\n" for line in header)
-        text += yaml.safe_dump(self.data, sort_keys=False, default_flow_style=None, width=100)
+        text += yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
         Path(path).write_text(text)
 
 
