@@ -97,6 +97,8 @@ def test_clean_record_names_nothing(tmp_path):
     d = _diagnose(tmp_path, ModelDoc.load(EMPS), {})
     assert d.effects == (), d.notes
     assert d.verdict.startswith("no significant missing effect"), d.verdict
+    # what is left is named against the sample noise, not called noise
+    assert "effort residual RMS" in d.verdict and "x its sample noise" in d.verdict
 
 
 @pytest.mark.slow

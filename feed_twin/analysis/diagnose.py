@@ -44,6 +44,7 @@ from feed_twin.analysis.rounds import (
     Progress,
     State,
     Values,
+    channel_residuals,
     drop_collapsed,
     final_joint,
     noise_floors,
@@ -206,7 +207,7 @@ def diagnose(
         names = ", ".join(u["name"] for u in unfitted)
         verdict = f"the residual carries the signature of {names}, which could not be fitted"
     else:
-        verdict = "no significant missing effect: the residuals are at the noise level"
+        verdict = "no significant missing effect: " + _left_over(run, state.outputs, floors)
     validation = None
     validation_traces = None
     if validate is not None:
@@ -253,6 +254,23 @@ def diagnose(
         timings_s=timings,
     )
     return diagnosis, state.doc, motion
+
+
+def _left_over(run: MeasuredRun, out: SimOutputs, floors: dict[str, float]) -> str:
+    """What is left when nothing was found, against each channel's sample noise (not claimed
+    to be noise: a delay between recorded channels or a lag the model lacks leaves structure
+    that no library effect explains)."""
+    units = {"effort": EFFORT_UNITS.get(run.effort_name or "", ""), "position": "m", "voltage": "V"}
+    parts = []
+    for name, r in channel_residuals(run, out).items():
+        rms = float(np.sqrt(np.mean(r**2)))
+        parts.append(
+            f"{name} residual RMS {rms:.3g} {units[name]} = {rms / floors[name]:.3g} x its "
+            "sample noise"
+        )
+    return "no effect of the library explains a significant part of what is left (" + (
+        "; ".join(parts) + ")"
+    )
 
 
 REVERSED_CORRELATION = -0.5  # measured vs nominal effort at or below this: the sign is reversed
