@@ -28,6 +28,7 @@ REQUIRED = {
     "thermal_drift",
     "measurement_delay",
     "stiction",
+    "channel_delay",
 }
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from feed_twin.analysis.diagnose import diagnose
@@ -121,3 +122,21 @@ def test_stiffness_and_coulomb_friction_are_both_named(tmp_path):
     for name, value in truth.items():
         assert found["position_dependent_stiffness"][name] == pytest.approx(value, rel=0.10)
     assert found["coulomb_friction"]["F_c_N"] == pytest.approx(160.0, rel=0.05)
+
+
+@pytest.mark.slow
+def test_a_delay_between_recorded_channels_is_named_and_measured(tmp_path):
+    """The recorder stamps the effort 3 ms after the position (trace side, not in the loop):
+    named channel_delay with its size, not a sensor delay in the loop, which would move the
+    following error too."""
+    nominal = ModelDoc.load(EMPS)
+    columns = generate(nominal, {"coulomb_friction": {"F_c_N": 15.0}})
+    late = 3
+    effort = columns["u_drive_V"]
+    columns["u_drive_V"] = np.concatenate((np.full(late, effort[0]), effort[:-late]))
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
+    found = _found(d)
+    assert set(found) == {"coulomb_friction", "channel_delay"}, d.notes
+    assert found["channel_delay"]["delay_s"] == pytest.approx(3e-3, abs=0.25e-3)
+    assert found["coulomb_friction"]["F_c_N"] == pytest.approx(15.0, rel=0.05)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 from feed_twin.analysis.fit import FreeParameter
 from feed_twin.analysis.ranking import Candidate
-from feed_twin.analysis.twin import ModelDoc
+from feed_twin.analysis.twin import EFFORT_DELAY_SLOT, ModelDoc
 from feed_twin.plant.registry import OWNED_EFFECTS
 
 
@@ -359,6 +359,23 @@ def dead_time(doc: ModelDoc, cand: Candidate) -> Edit:
 
 
 MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
+# delays of the recorded effort behind the position searched for channel_delay: +/- this many
+# base periods in half steps (a trace recorder's channels drift by milliseconds)
+CHANNEL_DELAY_PERIODS = 20
+
+
+def channel_delay(doc: ModelDoc, cand: Candidate) -> Edit:
+    """The record's effort is stamped later than its position (or earlier): not a change of
+    the machine, a shift of the twin's effort before it is compared (analysis.twin.delayed),
+    searched over a grid and kept in the model's `analysis` section."""
+    period = float(doc.data["controller"]["base_period_s"])
+    grid = tuple(
+        0.5 * period * k for k in range(-2 * CHANNEL_DELAY_PERIODS, 2 * CHANNEL_DELAY_PERIODS + 1)
+    )
+    doc = doc.set(EFFORT_DELAY_SLOT, doc.get(EFFORT_DELAY_SLOT))
+    own = [FreeParameter(name=EFFORT_DELAY_SLOT, initial=0.0, scale=period)]
+    report = {"delay_s": lambda v: v[EFFORT_DELAY_SLOT]}
+    return make_edit(doc, own, report, interacts=False, grid=grid)
 
 
 def measurement_delay(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -380,6 +397,7 @@ EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
     "cogging_torque": cogging,
     "lead_error": lead_error,
     "measurement_delay": measurement_delay,
+    "channel_delay": channel_delay,
     "coulomb_friction": coulomb,
     "viscous_friction": viscous,
     "stribeck_friction": stribeck,

@@ -332,6 +332,15 @@ LIBRARY: tuple[Effect, ...] = (
         signature=lambda m: {"effort_rate": _rate(m.effort_sim, m.t_s)},
     ),
     Effect(
+        name="channel_delay",
+        domain="effort",
+        component="the record: analysis.effort_delay_s (trace side, outside every loop)",
+        words="the recorder stamps the effort later (or earlier) than the position: the "
+        "effort follows the twin's shifted in time while the following error does not move",
+        needs=("effort_sim",),
+        signature=lambda m: {"effort_rate": _rate(m.effort_sim, m.t_s)},
+    ),
+    Effect(
         name="lead_error",
         domain="position",
         component="BallScrew.lead_error",

@@ -29,7 +29,7 @@ from feed_twin.analysis.ranking import Candidate, evidence, rank
 from feed_twin.analysis.reexamine import Found, collapsed, neutral_values, removable, without
 from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import compare, sample_noise
-from feed_twin.analysis.twin import Drive, ModelDoc, Twin
+from feed_twin.analysis.twin import EFFORT_DELAY_SLOT, Drive, ModelDoc, Twin, delayed
 from feed_twin.io.measured import MeasuredRun
 
 VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
@@ -206,13 +206,17 @@ def _try(
 
 
 def _grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
-    """Whole-number parameter (a delay in ticks): every grid value in one batch, best kept."""
+    """A searched parameter (a delay in ticks, a recorded channel's delay): every grid value
+    in one batch, best kept. A record slot (analysis.*) changes no simulation: the twin runs
+    once and its output is shifted for each value."""
     (param,) = edit.own
-    slots = twin.index[param.name]
-    batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
-    for i in slots:
-        batch[:, i] = edit.grid
-    out = twin.simulate(drive, batch)
+    if param.name == EFFORT_DELAY_SLOT:
+        out = _effort_delays(twin, edit, drive)
+    else:
+        batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
+        for i in twin.index[param.name]:
+            batch[:, i] = edit.grid
+        out = twin.simulate(drive, batch)
     costs = np.array([cost_of(meas, out, row) for row in range(len(edit.grid))])
     best = int(np.argmin(costs))
     start = int(np.argmin(np.abs(np.asarray(edit.grid) - param.initial)))
@@ -230,6 +234,23 @@ def _grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitRes
         message=f"grid search over {len(edit.grid)} values",
         evaluations=len(edit.grid),
         outputs=row,
+    )
+
+
+def _effort_delays(twin: Twin, edit: Edit, drive: Drive) -> SimOutputs:
+    """The twin's outputs once, its effort shifted by every grid delay (one row each)."""
+    if twin.doc.get(EFFORT_DELAY_SLOT) != 0.0:
+        twin = Twin.compile(twin.doc.set(EFFORT_DELAY_SLOT, 0.0))
+    once = twin.simulate(drive, twin.nominal[None, :])
+    n = len(edit.grid)
+    effort = None
+    if once.effort is not None:
+        effort = np.vstack([delayed(once.effort, drive.t_s, d) for d in edit.grid])
+    return SimOutputs(
+        x_m=np.repeat(once.x_m, n, axis=0),
+        effort=effort,
+        ok=np.repeat(once.ok, n),
+        voltage_q=None if once.voltage_q is None else np.repeat(once.voltage_q, n, axis=0),
     )
 
 

@@ -50,6 +50,10 @@ FIXED_SECTIONS = ("plant", "controller")
 # measured effort was converted with (the nominal one), which a fitted gain must not replace
 ANALYSIS_SECTION = "analysis"
 REFERENCE_GAIN_KEY = "effort_reference_gain"
+# the record's own slots (not the machine's): `analysis.effort_delay_s`, how much later than the
+# position the recorder stamps the effort (trace side, outside every loop)
+RECORD_SLOTS = ("effort_delay_s",)
+EFFORT_DELAY_SLOT = f"{ANALYSIS_SECTION}.effort_delay_s"
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -129,6 +133,8 @@ class ModelDoc:
         if slot in self.tie_names():
             return True
         comp, _, field_name = slot.partition(".")
+        if comp == ANALYSIS_SECTION:
+            return field_name in (self.data.get(ANALYSIS_SECTION) or {})
         try:
             params = self.component(comp)["params"]
         except LookupError:
@@ -145,6 +151,8 @@ class ModelDoc:
     def get(self, slot: str) -> float:
         first = self.tie_members(slot)[0]
         comp, _, field_name = first.partition(".")
+        if comp == ANALYSIS_SECTION and field_name in RECORD_SLOTS:
+            return float((self.data.get(ANALYSIS_SECTION) or {}).get(field_name, 0.0))
         params = self.component(comp)["params"]
         harmonic = _COGGING_SLOT.match(field_name)
         if harmonic is not None:
@@ -177,6 +185,9 @@ class ModelDoc:
         new = self._copy()
         for member in self.tie_members(slot):
             comp, _, field_name = member.partition(".")
+            if comp == ANALYSIS_SECTION and field_name in RECORD_SLOTS:
+                new.data.setdefault(ANALYSIS_SECTION, {})[field_name] = float(value)
+                continue
             params = new.component(comp)["params"]
             harmonic = _COGGING_SLOT.match(field_name)
             if harmonic is not None:
@@ -338,6 +349,12 @@ def start_velocity(t_s: np.ndarray, x_m: np.ndarray) -> float:
     coef = np.polyfit(t_s[:n] - t_s[0], x_m[:n] - x_m[0], 2)
     v0 = float(coef[1])
     return v0 if abs(v0) * (t_s[n - 1] - t_s[0]) > START_TRAVEL_M else 0.0
+
+
+def delayed(rows: np.ndarray, t_s: np.ndarray, delay_s: float) -> np.ndarray:
+    """Each row as a recorder that stamps it `delay_s` late sees it: y(t - delay), linearly
+    interpolated between samples, the first (last) value held outside the record."""
+    return np.array([np.interp(t_s - delay_s, t_s, row) for row in np.atleast_2d(rows)])
 
 
 def drive_from_run(run: MeasuredRun) -> Drive:
@@ -555,6 +572,9 @@ class Twin:
             if u_q is not None:
                 u_q[rows] = res["out.u_q_ref_V"][:, ::dec][:, :T]
             ok[rows] = ~res.diverged
+        delay = self.doc.get(EFFORT_DELAY_SLOT)
+        if delay != 0.0:
+            effort = delayed(effort, drive.t_s, delay)
         return SimOutputs(x_m=x, effort=effort, ok=ok, voltage_q=u_q)
 
     def _measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:
