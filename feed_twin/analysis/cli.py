@@ -1,7 +1,7 @@
 """`feed-twin diagnose` and `feed-twin simulate`: the discrepancy workflow from the shell.
 
     feed-twin diagnose MEASURED --config NOMINAL [--map MAP] [--program PROGRAM]
-                       [--validate OTHER] [--segment T0:T1] --out DIR
+                       [--validate OTHER | --repetitions] [--segment T0:T1] --out DIR
     feed-twin simulate --config MODEL --measured MEASURED [--map MAP] [--program PROGRAM]
                        [--segment T0:T1] --out traces.csv
 
@@ -85,6 +85,12 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--segment", help="identify on the part t0:t1 [s] of the record only (e.g. 2.5:14)"
     )
+    parser.add_argument(
+        "--repetitions",
+        action="store_true",
+        help="the record holds the program several times: identify on the first, validate on "
+        "the others",
+    )
     parser.add_argument("--out", required=True, help="output directory")
 
 
@@ -105,6 +111,9 @@ def main_diagnose(args: argparse.Namespace) -> int:
         for w in run.warnings:
             progress(f"warning: {w}")
         other = _load(args.validate, args.map, args.program, doc) if args.validate else None
+        more: list[MeasuredRun] = []
+        if args.repetitions:
+            run, other, more = _repetitions(run, other, progress)
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
         return 2
@@ -118,6 +127,8 @@ def main_diagnose(args: argparse.Namespace) -> int:
     except (MeasuredDataError, ConfigError) as exc:
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
         return 2
+    if more:
+        diagnosis = _validate_more(diagnosis, final_doc, more, progress)
     write_model(final_doc, model_path, diagnosis.effects)
     written = write_report(diagnosis, out, v_m_s=motion.v_m_s)
     progress(diagnosis.verdict)
@@ -135,6 +146,58 @@ def main_diagnose(args: argparse.Namespace) -> int:
         )
     progress("wrote " + ", ".join(str(p) for p in written + [model_path]))
     return 0
+
+
+def _repetitions(run: MeasuredRun, other: MeasuredRun | None, progress):
+    """(identification run, validation run, further runs) of a record with repetitions."""
+    from feed_twin.analysis.repetitions import find_period, split_repetitions
+
+    if other is not None:
+        raise MeasuredDataError(
+            "--repetitions validates on the record's own repetitions; leave out --validate"
+        )
+    found = find_period(run)
+    parts = split_repetitions(run)
+    if found is None or len(parts) < 2:
+        raise MeasuredDataError(
+            f"{run.source}: --repetitions: no repetition of the program found (no peak of the "
+            "velocity's autocorrelation >= 0.8 past a fifth of the record)"
+        )
+    period, r = found
+    progress(
+        f"found {len(parts)} repetitions of about {period:.3f} s (correlation {r:.3f}); "
+        f"identifying on the first ({parts[0].t_s[0]:.3f} to {parts[0].t_s[-1]:.3f} s), "
+        "validating on the others"
+    )
+    return parts[0], parts[1], parts[2:]
+
+
+def _validate_more(diagnosis, doc, runs: list[MeasuredRun], progress):
+    """The validation metrics of the fitted model on further runs, as notes of the report."""
+    import dataclasses
+
+    from feed_twin.analysis.compare import compute_metrics
+    from feed_twin.analysis.twin import Twin, drive_from_run
+
+    twin = Twin.compile(doc)
+    notes = []
+    for run in runs:
+        out = twin.simulate(drive_from_run(run), twin.nominal[None, :])
+        name = run.effort_name
+        m = compute_metrics(
+            run["pos_meas_m"],
+            out.x_m[0],
+            None if name is None else run[name],
+            None if name is None or out.effort is None else out.effort[0],
+        )
+        effort = "n/a" if m.effort_rel_err_pct is None else f"{m.effort_rel_err_pct:.3f}"
+        note = (
+            f"validation on {run.source}: position {m.pos_rel_err_pct:.4g} %, effort "
+            f"{effort} %, FE deviation RMS {m.fe_dev_rms_m * 1e6:.3f} um"
+        )
+        progress(note)
+        notes.append(note)
+    return dataclasses.replace(diagnosis, notes=diagnosis.notes + tuple(notes))
 
 
 def configure_simulate(parser: argparse.ArgumentParser) -> None:
