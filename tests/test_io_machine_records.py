@@ -217,3 +217,26 @@ def test_report_json_keeps_the_efforts_unit(tmp_path):
     assert report["before"]["effort_unit"] == "N"
     assert report["after"]["effort_rms"] < report["before"]["effort_rms"]
     assert "effort_rms_N" not in report["before"]
+
+
+def test_trace_filter_is_read_from_the_map_and_kept_by_a_segment(tmp_path):
+    cols = _record()
+    text = MAP.replace("position_sensor: motor_encoder", "position_sensor: motor_encoder\n"
+                       "trace_filter: mean")  # fmt: skip
+    run = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", text))
+    assert run.trace_filter == "mean"
+    assert segment(run, 0.1, 0.9).trace_filter == "mean"
+    bad = text.replace("trace_filter: mean", "trace_filter: median")
+    with pytest.raises(ConfigError, match=r"trace_filter"):
+        load_column_map(_write(tmp_path, "bad.yaml", bad))
+
+
+def test_window_mean_is_the_mean_over_the_period_ending_at_each_sample():
+    from feed_twin.analysis.twin import window_mean
+
+    ticks = np.arange(60, dtype=float)[None, :] ** 2
+    out = window_mean(ticks, 20)
+    assert out.shape == (1, 3)
+    assert out[0, 0] == 0.0  # the first sample: itself
+    assert out[0, 1] == pytest.approx(np.mean(np.arange(1, 21) ** 2))
+    assert out[0, 2] == pytest.approx(np.mean(np.arange(21, 41) ** 2))

@@ -331,9 +331,11 @@ class Drive:
     x0_m: float  # measured position at the start
     sensor: str  # motor_encoder or linear_scale
     v0_m_s: float = 0.0  # measured velocity at the start (a record that begins mid-motion)
+    trace_mean: bool = False  # each record sample is the mean over its period (a drive trace)
 
 
 START_FIT_SAMPLES = 7  # samples of the quadratic whose slope at t_0 is the start velocity
+START_FIT_S = 0.006  # [s] the longest span of that quadratic
 # [m] a start velocity that moves the table less than this over the fit window is a start at
 # rest: a record that begins as the axis sets off (a shadow twin's bag) starts exactly at rest
 START_TRAVEL_M = 1e-6
@@ -343,7 +345,9 @@ def start_velocity(t_s: np.ndarray, x_m: np.ndarray) -> float:
     """Velocity [m/s] at the first sample: the slope at t_0 of a quadratic through the first
     START_FIT_SAMPLES samples (one quantisation step over the window is all it must resolve),
     0 for a record that starts at rest (START_TRAVEL_M)."""
-    n = min(START_FIT_SAMPLES, len(t_s))
+    # over at most START_FIT_S (at least 3 samples): a slow trace's 7 samples span a move
+    h = float(t_s[1] - t_s[0]) if len(t_s) > 1 else 1.0
+    n = min(START_FIT_SAMPLES, max(3, int(START_FIT_S / h) + 1), len(t_s))
     if n < 3:
         return 0.0
     coef = np.polyfit(t_s[:n] - t_s[0], x_m[:n] - x_m[0], 2)
@@ -355,6 +359,16 @@ def delayed(rows: np.ndarray, t_s: np.ndarray, delay_s: float) -> np.ndarray:
     """Each row as a recorder that stamps it `delay_s` late sees it: y(t - delay), linearly
     interpolated between samples, the first (last) value held outside the record."""
     return np.array([np.interp(t_s - delay_s, t_s, row) for row in np.atleast_2d(rows)])
+
+
+def window_mean(rows: np.ndarray, dec: int) -> np.ndarray:
+    """Every dec-th column of `rows` replaced by the mean of the dec columns ending there (the
+    first: itself), as a trace that averages a fast signal over its sample period records it."""
+    rows = np.atleast_2d(rows)
+    c = np.concatenate((np.zeros((len(rows), 1)), np.cumsum(rows, axis=1)), axis=1)
+    ends = np.arange(0, rows.shape[1], dec)
+    starts = np.maximum(ends - dec + 1, 0)
+    return (c[:, ends + 1] - c[:, starts]) / (ends - starts + 1)
 
 
 def drive_from_run(run: MeasuredRun) -> Drive:
@@ -382,6 +396,7 @@ def drive_from_run(run: MeasuredRun) -> Drive:
         x0_m=float(run["pos_meas_m"][0]),
         sensor=run.position_sensor,
         v0_m_s=start_velocity(run.t_s, run["pos_meas_m"]),
+        trace_mean=run.trace_filter == "mean",
     )
 
 
@@ -479,11 +494,27 @@ class Twin:
                 f"model's base period {h!r} s"
             )
         n = len(drive.t_s) * dec
-        hold = np.repeat  # commands are held between record samples (NC-sample hold)
+        hold = np.repeat  # known inputs are held between record samples
         ref = np.zeros((n, signals.REF_SIZE))
-        ref[:, signals.REF_POS_M] = hold(drive.pos_ref_m, dec)
-        ref[:, signals.REF_VEL_M_S] = hold(drive.vel_ref_m_s, dec)
-        ref[:, signals.REF_ACC_M_S2] = hold(drive.acc_ref_m_s2, dec)
+        if dec == 1:
+            ref[:, signals.REF_POS_M] = drive.pos_ref_m
+            ref[:, signals.REF_VEL_M_S] = drive.vel_ref_m_s
+            ref[:, signals.REF_ACC_M_S2] = drive.acc_ref_m_s2
+        else:
+            # a trace slower than the controller (a 50 Hz machine trace of a 1 kHz NC): the NC's
+            # setpoints ran smoothly between the samples, so they are interpolated, not held (a
+            # held position would step by v * period, millimetres at machine feeds)
+            fine = drive.t_s[0] + h * np.arange(n)
+            # a trace's mean over the period ending at its stamp is the value half a period
+            # (less one tick) earlier for a signal smooth over the period: the command's own
+            # time
+            stamps = drive.t_s - (0.5 * (dec - 1) * h if drive.trace_mean else 0.0)
+            for slot, values in (
+                (signals.REF_POS_M, drive.pos_ref_m),
+                (signals.REF_VEL_M_S, drive.vel_ref_m_s),
+                (signals.REF_ACC_M_S2, drive.acc_ref_m_s2),
+            ):
+                ref[:, slot] = np.interp(fine, stamps, values)
         if drive.effort_add is not None:
             gain = self.doc.reference_gain or 1.0
             ref[:, signals.REF_EFFORT_ADD] = hold(drive.effort_add / gain, dec)
@@ -566,11 +597,17 @@ class Twin:
             x0 = self._x0(drive, P[rows[0]])
             cs0 = self.start_controller(drive, ref)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
-            pos, eff = self._measured_signals(res, dec)
+            if drive.trace_mean and dec > 1:
+                # the record's trace averages each channel over its sample period
+                pos, eff = (window_mean(s, dec) for s in self._measured_signals(res, 1))
+                voltage = window_mean(res["out.u_q_ref_V"], dec) if u_q is not None else None
+            else:
+                pos, eff = self._measured_signals(res, dec)
+                voltage = res["out.u_q_ref_V"][:, ::dec] if u_q is not None else None
             x[rows] = pos[:, :T]
             effort[rows] = eff[:, :T]
-            if u_q is not None:
-                u_q[rows] = res["out.u_q_ref_V"][:, ::dec][:, :T]
+            if u_q is not None and voltage is not None:
+                u_q[rows] = voltage[:, :T]
             ok[rows] = ~res.diverged
         delay = self.doc.get(EFFORT_DELAY_SLOT)
         if delay != 0.0:

@@ -200,6 +200,7 @@ class _MapFile:
     signals: Any  # name -> ColumnSpec mapping, parsed by load_column_map
     plausibility: Plausibility
     conversion: Conversion = field(default_factory=Conversion)
+    trace_filter: Literal["none", "mean"] = "none"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -212,6 +213,9 @@ class ColumnMap:
     plausibility: Plausibility
     conversion: Conversion
     source: str = "<map>"
+    # how the recorder made a sample: "none", the signal at the stamp; "mean", its mean over the
+    # sample period ending at the stamp (a drive's trace of a faster loop)
+    trace_filter: Literal["none", "mean"] = "none"
 
     def __post_init__(self) -> None:
         for name, spec in self.signals:
@@ -281,6 +285,7 @@ def load_column_map(path: str | Path) -> ColumnMap:
             plausibility=raw.plausibility,
             conversion=raw.conversion,
             source=source,
+            trace_filter=raw.trace_filter,
         )
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
@@ -332,6 +337,7 @@ class MeasuredRun:
     signals: Mapping[str, np.ndarray]
     position_sensor: str
     warnings: tuple[str, ...] = ()
+    trace_filter: Literal["none", "mean"] = "none"  # see ColumnMap.trace_filter
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
@@ -557,6 +563,7 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
         signals=columns,
         position_sensor=cmap.position_sensor,
         warnings=tuple(notes),
+        trace_filter=cmap.trace_filter,
     )
     _check_plausible(run, cmap)
     return run
