@@ -424,12 +424,18 @@ def load_measured(path: str | Path, column_map: ColumnMap | str | Path) -> Measu
 def _read_bag_table(path: Path, column_map: ColumnMap) -> tuple[list[str], np.ndarray]:
     """Bag columns named `<topic>:<field>` (dotted field path, or `log_time_s`).
 
-    Topics other than the time column's are resampled onto its time stamps by their own
-    receive times (linear interpolation), so signals from several topics share one time base.
+    Topics other than the time column's are resampled onto its time stamps (linear
+    interpolation), so signals from several topics share one time base: by the same stamp field
+    as the time column's (`header.stamp`) where their messages have it, else by receive times.
+    Stamps, not receive times, where they exist: a lockstep run of the node set publishes in
+    simulation time while the recorder logs wall-clock arrivals in bursts, and lining topics up
+    by arrival gave the command jumps of metres per second.
     """
     from feed_twin.io.bag import BagError, BagReader
 
     specs = [column_map.time] + [spec for _, spec in column_map.signals]
+    time_topic, _, time_field = column_map.time.column.partition(":")
+    stamp = None if time_field == "log_time_s" else time_field
     by_topic: dict[str, list[str]] = {}
     for spec in specs:
         topic, sep, name = spec.column.partition(":")
@@ -452,21 +458,41 @@ def _read_bag_table(path: Path, column_map: ColumnMap) -> tuple[list[str], np.nd
                     f"{path}: the map names topic {topic!r}, which the bag lacks; it has "
                     f"{', '.join(sorted(known))}"
                 )
-            data[topic] = reader.columns(topic, fields)
+            data[topic] = _stamped_columns(reader, topic, fields, stamp)
     except BagError as exc:
         raise MeasuredDataError(str(exc)) from None
-    time_topic = column_map.time.column.partition(":")[0]
-    base = data[time_topic]["log_time_s"]
+
+    def axis(columns: dict[str, np.ndarray], other: dict[str, np.ndarray]) -> str:
+        stamped = stamp is not None and stamp in columns and stamp in other
+        # stamps left at zero (a publisher that does not set them) do not order anything
+        if stamped and np.all(np.diff(columns[stamp]) > 0):
+            return stamp
+        return "log_time_s"
+
+    base = data[time_topic]
     header: list[str] = []
     cols: list[np.ndarray] = []
     for topic, columns in data.items():
         for name, values in columns.items():
             values = np.asarray(values, dtype=float)
             if topic != time_topic:
-                values = np.interp(base, columns["log_time_s"], values)
+                by = axis(columns, base)
+                values = np.interp(base[by], columns[by], values)
             header.append(f"{topic}:{name}")
             cols.append(values)
     return header, np.column_stack(cols)
+
+
+def _stamped_columns(reader, topic: str, fields: list[str], stamp: str | None):
+    """The topic's fields, with the stamp field too where its messages carry one."""
+    from feed_twin.io.bag import BagError
+
+    if stamp is None or stamp in fields:
+        return reader.columns(topic, fields)
+    try:
+        return reader.columns(topic, [*fields, stamp])
+    except BagError:
+        return reader.columns(topic, fields)
 
 
 def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap) -> MeasuredRun:
