@@ -74,7 +74,7 @@ def test_metrics_follow_their_definitions():
     assert m.fe_dev_max_m == pytest.approx(0.3)
     assert m.pos_rel_err_pct == pytest.approx(100 * math.sqrt(0.12) / math.sqrt(30))
     assert m.effort_rel_err_pct == pytest.approx(10.0)
-    assert m.effort_rms_N == pytest.approx(1.0)
+    assert m.effort_rms == pytest.approx(1.0)
     assert compute_metrics(x, x_sim).effort_rel_err_pct is None
 
 

@@ -213,7 +213,7 @@ def test_twin_records_the_commanded_q_voltage_of_a_constant_speed_move():
 
 def test_voltage_columns_need_no_drive_gain(tmp_path):
     t = np.arange(400) * 1e-3
-    table = np.column_stack([t, 0.1 * t, 0.1 * t, 0.2 + 0 * t, 50.0 + t])
+    table = np.column_stack([t, 0.1 * t, 0.1 * t, 0.2 + 0.1 * t, 50.0 + t])
     np.savetxt(tmp_path / "run.csv", table, delimiter=",", header="t,xc,x,iq,uq", comments="")
     (tmp_path / "map.yaml").write_text(
         "time: {column: t, unit: s}\nposition_sensor: linear_scale\nsignals:\n"

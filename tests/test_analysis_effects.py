@@ -27,6 +27,8 @@ REQUIRED = {
     "dead_time",
     "thermal_drift",
     "measurement_delay",
+    "stiction",
+    "channel_delay",
 }
 
 

@@ -199,7 +199,7 @@ def test_missing_file_and_empty_file(tmp_path):
     ("old", "new", "message"),
     [
         ("unit: mm/min", "unit: furlong", r"signals.vel_cmd_m_s.unit = 'furlong': must be one of"),
-        ("gain: 20.0", "gain: -2.0", r"signals.force_cmd_N.gain = -2.0: must be > 0"),
+        ("gain: 20.0", "gain: 0", r"signals.force_cmd_N.gain = 0.0: must be a finite number oth"),
         (", gain: 20.0", "", r"signals.force_cmd_N.gain = None: a column in V needs the drive"),
         ("  pos_cmd_m:", "  pos_cmd_mm:", r"signals.pos_cmd_mm: 'pos_cmd_mm' is not a canonical"),
         ("{column: feed, unit: mm/min}", "{column: feed, unit: N}", r"a force unit cannot give"),

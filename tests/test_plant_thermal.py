@@ -90,7 +90,7 @@ def test_invalid_parameters_are_refused_with_the_field_named(field, value, messa
 
 
 def test_backlash_edit_needs_a_backlash_component():
-    from feed_twin.analysis.edits import backlash
+    from feed_twin.analysis.edits import EDITS
     from feed_twin.analysis.effects import BY_NAME
     from feed_twin.analysis.ranking import Candidate
 
@@ -105,7 +105,7 @@ def test_backlash_edit_needs_a_backlash_component():
         significant=True,
     )
     with pytest.raises(LookupError, match="no Backlash between a nut mass and the table"):
-        backlash(ModelDoc.load("config/emps_nominal.yaml"), cand)
-    edit = backlash(ModelDoc.load("config/axis_default.yaml"), cand)
+        EDITS["backlash"](ModelDoc.load("config/emps_nominal.yaml"), cand)
+    edit = EDITS["backlash"](ModelDoc.load("config/axis_default.yaml"), cand)
     # nominal gap 2 um plus twice the half-gap weight
     assert edit.doc.get("backlash.gap") == pytest.approx(2e-6 + 8e-6)

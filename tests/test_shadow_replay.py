@@ -68,7 +68,11 @@ def test_replay_equals_the_offline_simulation_on_the_same_bag(recording, doc, co
     run = load_measured(recording["bag"], cmap)
     columns = simulate_traces(run, doc)  # what `feed-twin simulate` writes
     offline = compute_metrics(
-        run["pos_meas_m"], columns["sim_pos_meas_m"], run["force_cmd_N"], columns["sim_force_cmd_N"]
+        run["pos_meas_m"],
+        columns["sim_pos_meas_m"],
+        run["force_cmd_N"],
+        columns["sim_force_cmd_N"],
+        effort_unit="N",
     )
     s = result.samples
     assert len(s) == len(run.t_s) == round(DURATION_S / T)
@@ -82,6 +86,8 @@ def test_replay_equals_the_offline_simulation_on_the_same_bag(recording, doc, co
     for name, value in offline.as_dict().items():
         if value is None:  # a channel the record does not have (the voltages here)
             assert getattr(result.metrics, name) is None, name
+        elif isinstance(value, str):  # the effort's unit
+            assert getattr(result.metrics, name) == value, name
         else:
             assert getattr(result.metrics, name) == pytest.approx(value, rel=1e-9), name
 

@@ -1,8 +1,9 @@
 """`feed-twin diagnose` and `feed-twin simulate`: the discrepancy workflow from the shell.
 
     feed-twin diagnose MEASURED --config NOMINAL [--map MAP] [--program PROGRAM]
-                       [--validate OTHER] --out DIR
-    feed-twin simulate --config MODEL --measured MEASURED [--map MAP] --out traces.csv
+                       [--validate OTHER | --repetitions] [--segment T0:T1] --out DIR
+    feed-twin simulate --config MODEL --measured MEASURED [--map MAP] [--program PROGRAM]
+                       [--segment T0:T1] --out traces.csv
 
 Without --map, a file `<MEASURED stem>_map.yaml` next to the data is used if it exists.
 `diagnose` writes DIR/report.md, DIR/report.json, DIR/model.yaml, PNG plots and DIR/diagnose.rrd
@@ -20,7 +21,21 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.io.config import ConfigError
-from feed_twin.io.measured import MeasuredDataError, MeasuredRun, load_measured
+from feed_twin.io.measured import (
+    MeasuredDataError,
+    MeasuredRun,
+    load_measured,
+    parse_segment,
+    segment,
+)
+
+
+def _check_out(out: Path, *, directory: bool) -> None:
+    """An --out that names the wrong kind of thing is refused before any work is done."""
+    if directory and out.exists() and not out.is_dir():
+        raise MeasuredDataError(f"--out {out}: is an existing file; name a directory")
+    if not directory and out.is_dir():
+        raise MeasuredDataError(f"--out {out}: is a directory; name the CSV file to write")
 
 
 def _map_for(measured: Path, given: str | None) -> Path:
@@ -35,10 +50,16 @@ def _map_for(measured: Path, given: str | None) -> Path:
 
 
 def _load(
-    measured: str, map_path: str | None, program: str | None = None, model=None
+    measured: str,
+    map_path: str | None,
+    program: str | None = None,
+    model=None,
+    window: str | None = None,
 ) -> MeasuredRun:
     path = Path(measured)
     run = load_measured(path, _map_for(path, map_path))
+    if window is not None:
+        run = segment(run, *parse_segment(window))
     if program is not None:
         from feed_twin.analysis.program import command_from_program
 
@@ -61,6 +82,15 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", help="column map YAML (default: <measured stem>_map.yaml)")
     parser.add_argument("--program", help="G-code that ran, when the record has no command")
     parser.add_argument("--validate", help="a second measured run to validate the result on")
+    parser.add_argument(
+        "--segment", help="identify on the part t0:t1 [s] of the record only (e.g. 2.5:14)"
+    )
+    parser.add_argument(
+        "--repetitions",
+        action="store_true",
+        help="the record holds the program several times: identify on the first, validate on "
+        "the others",
+    )
     parser.add_argument("--out", required=True, help="output directory")
 
 
@@ -75,11 +105,15 @@ def main_diagnose(args: argparse.Namespace) -> int:
     from feed_twin.gcode.errors import GcodeError
 
     try:
+        _check_out(Path(args.out), directory=True)
         doc = ModelDoc.load(args.config)
-        run = _load(args.measured, args.map, args.program, doc)
+        run = _load(args.measured, args.map, args.program, doc, args.segment)
         for w in run.warnings:
             progress(f"warning: {w}")
         other = _load(args.validate, args.map, args.program, doc) if args.validate else None
+        more: list[MeasuredRun] = []
+        if args.repetitions:
+            run, other, more = _repetitions(run, other, progress)
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
         return 2
@@ -93,6 +127,8 @@ def main_diagnose(args: argparse.Namespace) -> int:
     except (MeasuredDataError, ConfigError) as exc:
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
         return 2
+    if more:
+        diagnosis = _validate_more(diagnosis, final_doc, more, progress)
     write_model(final_doc, model_path, diagnosis.effects)
     written = write_report(diagnosis, out, v_m_s=motion.v_m_s)
     progress(diagnosis.verdict)
@@ -112,10 +148,64 @@ def main_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _repetitions(run: MeasuredRun, other: MeasuredRun | None, progress):
+    """(identification run, validation run, further runs) of a record with repetitions."""
+    from feed_twin.analysis.repetitions import find_period, split_repetitions
+
+    if other is not None:
+        raise MeasuredDataError(
+            "--repetitions validates on the record's own repetitions; leave out --validate"
+        )
+    found = find_period(run)
+    parts = split_repetitions(run)
+    if found is None or len(parts) < 2:
+        raise MeasuredDataError(
+            f"{run.source}: --repetitions: no repetition of the program found (no peak of the "
+            "velocity's autocorrelation >= 0.8 past a fifth of the record)"
+        )
+    period, r = found
+    progress(
+        f"found {len(parts)} repetitions of about {period:.3f} s (correlation {r:.3f}); "
+        f"identifying on the first ({parts[0].t_s[0]:.3f} to {parts[0].t_s[-1]:.3f} s), "
+        "validating on the others"
+    )
+    return parts[0], parts[1], parts[2:]
+
+
+def _validate_more(diagnosis, doc, runs: list[MeasuredRun], progress):
+    """The validation metrics of the fitted model on further runs, as notes of the report."""
+    import dataclasses
+
+    from feed_twin.analysis.compare import compute_metrics
+    from feed_twin.analysis.twin import Twin, drive_from_run
+
+    twin = Twin.compile(doc)
+    notes = []
+    for run in runs:
+        out = twin.simulate(drive_from_run(run), twin.nominal[None, :])
+        name = run.effort_name
+        m = compute_metrics(
+            run["pos_meas_m"],
+            out.x_m[0],
+            None if name is None else run[name],
+            None if name is None or out.effort is None else out.effort[0],
+        )
+        effort = "n/a" if m.effort_rel_err_pct is None else f"{m.effort_rel_err_pct:.3f}"
+        note = (
+            f"validation on {run.source}: position {m.pos_rel_err_pct:.4g} %, effort "
+            f"{effort} %, FE deviation RMS {m.fe_dev_rms_m * 1e6:.3f} um"
+        )
+        progress(note)
+        notes.append(note)
+    return dataclasses.replace(diagnosis, notes=diagnosis.notes + tuple(notes))
+
+
 def configure_simulate(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, help="model YAML")
     parser.add_argument("--measured", required=True, help="measured run: CSV or rosbag2 dir")
     parser.add_argument("--map", help="column map YAML (default: <measured stem>_map.yaml)")
+    parser.add_argument("--program", help="G-code that ran, when the record has no command")
+    parser.add_argument("--segment", help="simulate the part t0:t1 [s] of the record only")
     parser.add_argument("--out", required=True, help="CSV file to write")
 
 
@@ -148,11 +238,13 @@ def simulate_traces(run: MeasuredRun, doc) -> dict[str, np.ndarray]:
 
 def main_simulate(args: argparse.Namespace) -> int:
     from feed_twin.analysis.twin import ModelDoc
+    from feed_twin.gcode.errors import GcodeError
 
     try:
-        run = _load(args.measured, args.map)
+        _check_out(Path(args.out), directory=False)
         doc = ModelDoc.load(args.config)
-    except (MeasuredDataError, ConfigError) as exc:
+        run = _load(args.measured, args.map, args.program, doc, args.segment)
+    except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin simulate: {exc}", file=sys.stderr)
         return 2
     try:

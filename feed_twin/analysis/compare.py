@@ -117,9 +117,10 @@ class Metrics:
     fe_dev_max_m: float  # [m] largest |e_meas - e_sim|
     pos_rel_err_pct: float  # [%] 100 ||x - x_sim|| / ||x||
     effort_rel_err_pct: float | None  # [%] same for the drive effort, when measured
-    effort_rms_N: float | None  # [N, N m or A] RMS of the effort residual
+    effort_rms: float | None  # [effort_unit] RMS of the effort residual
     samples: int
     voltage_q_rms_V: float | None = None  # [V] RMS of the commanded q-voltage residual
+    effort_unit: str | None = None  # "N", "N m" or "A": the measured effort's own unit
 
     def as_dict(self) -> dict[str, float | int | None]:
         return asdict(self)
@@ -132,6 +133,8 @@ def compute_metrics(
     effort_sim: np.ndarray | None = None,
     voltage_meas: np.ndarray | None = None,
     voltage_sim: np.ndarray | None = None,
+    *,
+    effort_unit: str | None = None,
 ) -> Metrics:
     """Metrics between measured and simulated position (effort, q-voltage) on one time base."""
     dev = np.asarray(x_sim, dtype=float) - np.asarray(x_meas, dtype=float)
@@ -148,7 +151,8 @@ def compute_metrics(
         fe_dev_max_m=float(np.max(np.abs(dev))),
         pos_rel_err_pct=relative_error_pct(x_meas, x_sim),
         effort_rel_err_pct=effort_rel,
-        effort_rms_N=effort_rms,
+        effort_rms=effort_rms,
         samples=len(dev),
         voltage_q_rms_V=voltage_rms,
+        effort_unit=None if effort_rms is None else effort_unit,
     )

@@ -12,79 +12,52 @@
       -> metrics "after", optional validation on a second run, report.
 
 Significance: a candidate is fitted only if its signature passed the ranking's statistical test
-(partial F-test against the noise left by all signatures, see analysis.effects); the fitted
-effect is kept only if the simulation confirms it, removing at least MIN_EXPLAINED of the cost.
-A fit that does not converge is reported and its model discarded; the last good model stays.
+(partial F-test against the noise left by all signatures, see analysis.ranking); the fitted
+effect is kept only if the simulation confirms it by the likelihood-ratio test of
+analysis.significance (corrected for the candidates searched, and removing at least
+MIN_EXPLAINED of one channel's residual). The channels' weights are estimated again from the
+current model before every round (analysis.significance). After each addition the effects found
+before are re-examined jointly (analysis.reexamine): those whose parameters collapsed or whose
+removal costs nothing are dropped. A fit that does not converge within its budget but improved
+the cost is resumed once from where it stopped; one that still does not converge is reported and
+its model discarded: the last good model stays.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from feed_twin.analysis.compare import Metrics, align, compute_metrics
-from feed_twin.analysis.edits import EDITS, Edit, interacting
 from feed_twin.analysis.effects import Motion, motion_from_position
-from feed_twin.analysis.fit import (
-    FitResult,
-    FreeParameter,
-    Measured,
-    SimOutputs,
-    cost_of,
-    fit,
-)
+from feed_twin.analysis.fit import SimOutputs, cost_of
 from feed_twin.analysis.locate import locate
-from feed_twin.analysis.ranking import MIN_EXPLAINED, Candidate, evidence, rank
+from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
+from feed_twin.analysis.rounds import (
+    VOLTAGE_Q,
+    Context,
+    Options,
+    Progress,
+    State,
+    Values,
+    channel_residuals,
+    drop_collapsed,
+    final_joint,
+    noise_floors,
+    noop,
+    residuals,
+    run_round,
+    voltage_residual,
+    weighted_channels,
+)
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
-from feed_twin.io.measured import MeasuredRun
+from feed_twin.io.measured import EFFORT_UNITS, MeasuredDataError, MeasuredRun
 
-VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
-
-Progress = Callable[[str], None]
-
-
-@dataclass(frozen=True, kw_only=True)
-class Options:
-    max_effects: int = 5  # rounds of add-and-fit at most
-    candidates_per_round: int = 3  # significant candidates fitted by simulation per round
-    rival_ratio: float = 0.5  # fit a rival only if it explains this share of the leader's part
-    max_evaluations: int = 30  # least-squares function evaluations per fit
-    fit_samples: int = 6000  # cost samples per channel (the record is strided down to this)
-
-    def __post_init__(self) -> None:
-        for name in ("max_effects", "candidates_per_round", "max_evaluations", "fit_samples"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} = {value!r}: must be a whole number >= 1")
-        if not 0.0 < self.rival_ratio <= 1.0:
-            raise ValueError(f"rival_ratio = {self.rival_ratio!r}: must lie in (0, 1]")
-
-
-@dataclass
-class _State:
-    doc: ModelDoc
-    twin: Twin
-    outputs: SimOutputs
-    cost: float
-    found: list[FoundEffect] = field(default_factory=list)
-    found_free: list[FreeParameter] = field(default_factory=list)
-
-
-class _Values(dict):
-    """Fitted values read from a model document on demand (for the reported parameters)."""
-
-    def __init__(self, doc: ModelDoc) -> None:
-        super().__init__()
-        self.doc = doc
-
-    def __missing__(self, name: str) -> float:
-        return self.doc.get(name)
+__all__ = ["Options", "diagnose", "write_model"]
 
 
 def _loop_stiffness(twin: Twin, drive: Drive, out0: SimOutputs) -> float | None:
@@ -106,50 +79,10 @@ def _loop_stiffness(twin: Twin, drive: Drive, out0: SimOutputs) -> float | None:
     return abs(float(np.dot(df, dx)) / denom) if denom > 0 else None
 
 
-def _unit(twin: Twin, cand: Candidate) -> str:
-    return {"effort": twin.effort_unit, "voltage": "V"}.get(cand.residual_domain, "m")
-
-
-def _noop(_: str) -> None:
-    pass
-
-
-def _residuals(run: MeasuredRun, out: SimOutputs, row: int = 0):
-    x = run["pos_meas_m"]
-    rp = out.x_m[row] - x
-    re = None
-    name = run.effort_name
-    if name is not None and out.effort is not None:
-        re = run[name] - out.effort[row]
-    return re, rp
-
-
-def _voltage_residual(run: MeasuredRun, out: SimOutputs, row: int = 0) -> np.ndarray | None:
-    """Measured minus twin q-voltage [V] of the current controller, when both have it."""
-    if VOLTAGE_Q not in run or out.voltage_q is None:
-        return None
-    return run[VOLTAGE_Q] - out.voltage_q[row]
-
-
-def _measured(run: MeasuredRun, out: SimOutputs, stride: int) -> Measured:
-    re, rp = _residuals(run, out)
-    ru = _voltage_residual(run, out)
-    name = run.effort_name
-    return Measured(
-        x_m=run["pos_meas_m"],
-        effort=None if name is None or out.effort is None else run[name],
-        scale_x=max(float(np.sqrt(np.mean(rp**2))), 1e-9),
-        scale_effort=1.0 if re is None else max(float(np.sqrt(np.mean(re**2))), 1e-9),
-        stride=stride,
-        voltage_q=None if ru is None else run[VOLTAGE_Q],
-        scale_voltage=1.0 if ru is None else max(float(np.sqrt(np.mean(ru**2))), 1e-6),
-    )
-
-
 def _metrics(run: MeasuredRun, out: SimOutputs, row: int = 0) -> Metrics:
     name = run.effort_name
     effort_sim = None if out.effort is None or name is None else out.effort[row]
-    has_u = _voltage_residual(run, out, row) is not None
+    has_u = voltage_residual(run, out, row) is not None
     return compute_metrics(
         run["pos_meas_m"],
         out.x_m[row],
@@ -157,12 +90,13 @@ def _metrics(run: MeasuredRun, out: SimOutputs, row: int = 0) -> Metrics:
         effort_sim,
         run[VOLTAGE_Q] if has_u else None,
         out.voltage_q[row] if has_u and out.voltage_q is not None else None,
+        effort_unit=None if name is None else EFFORT_UNITS[name],
     )
 
 
 def _trace(label: str, run: MeasuredRun, drive: Drive, out: SimOutputs) -> Trace:
     name = run.effort_name
-    has_u = _voltage_residual(run, out) is not None
+    has_u = voltage_residual(run, out) is not None
     return Trace(
         label=label,
         t_s=run.t_s,
@@ -177,123 +111,13 @@ def _trace(label: str, run: MeasuredRun, drive: Drive, out: SimOutputs) -> Trace
     )
 
 
-def _try(
-    state: _State, cand: Candidate, drive: Drive, meas: Measured, opts: Options
-) -> tuple[Edit, Twin, FitResult] | str:
-    if cand.name not in EDITS:
-        return (
-            f"{cand.name}: named by its signature, but the workflow cannot add "
-            f"{cand.effect.component} to a model yet; not fitted"
-        )
-    try:
-        edit = EDITS[cand.name](state.doc, cand)
-    except LookupError as exc:
-        return f"{cand.name}: cannot be added to this model ({exc}); not fitted"
-    # the effects found before interact with the new one (a constant force fitted alone has
-    # absorbed part of a Coulomb force found later): their parameters are fitted again with it
-    names = {p.name for p in edit.own}
-    again = []
-    for p in () if edit.grid else state.found_free:
-        if p.name in names:
-            continue
-        if not edit.doc.has_slot(p.name):
-            continue  # the parameter was split or replaced by the new effect
-        again.append(dataclasses.replace(p, initial=edit.doc.get(p.name)))
-        names.add(p.name)
-    own = edit.own + again
-    edit = dataclasses.replace(
-        edit, own=own, free=own + [p for p in edit.free if p.name not in names]
-    )
-    twin = Twin.compile(edit.doc)
-    if edit.grid:
-        return edit, twin, _grid_search(twin, edit, drive, meas)
-    result = fit(
-        lambda params: twin.simulate(drive, params),
-        twin.nominal,
-        twin.index,
-        edit.own,
-        meas,
-        max_evaluations=opts.max_evaluations,
-    )
-    return edit, twin, result
-
-
-def _grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
-    """Whole-number parameter (a delay in ticks): every grid value in one batch, best kept."""
-    (param,) = edit.own
-    slots = twin.index[param.name]
-    batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
-    for i in slots:
-        batch[:, i] = edit.grid
-    out = twin.simulate(drive, batch)
-    costs = np.array([cost_of(meas, out, row) for row in range(len(edit.grid))])
-    best = int(np.argmin(costs))
-    start = int(np.argmin(np.abs(np.asarray(edit.grid) - param.initial)))
-    row = SimOutputs(
-        x_m=out.x_m[best : best + 1],
-        effort=None if out.effort is None else out.effort[best : best + 1],
-        ok=out.ok[best : best + 1],
-        voltage_q=None if out.voltage_q is None else out.voltage_q[best : best + 1],
-    )
-    return FitResult(
-        values={param.name: float(edit.grid[best])},
-        cost_initial=float(costs[start]),
-        cost=float(costs[best]),
-        converged=bool(np.isfinite(costs[best])),
-        message=f"grid search over {len(edit.grid)} values",
-        evaluations=len(edit.grid),
-        outputs=row,
-    )
-
-
-def _final_joint(state: _State, drive: Drive, meas: Measured, opts: Options) -> str | None:
-    """Re-fit all found effects together with the nominal parameters they interact with.
-
-    Done once, at the end: re-estimating the mass or the viscous coefficient in every round
-    would let them absorb the signature of an effect that is found later. If the joint fit
-    does not converge or is not better, the effect-by-effect model stays and the note says so.
-    """
-    free = []
-    for p in state.found_free:
-        if not state.doc.has_slot(p.name):
-            continue  # a tie split by a later effect (Coulomb by asymmetric friction)
-        free.append(dataclasses.replace(p, initial=state.doc.get(p.name)))
-    names = {p.name for p in free}
-    gain = state.doc.gain_slot()
-    if gain not in names:
-        # with a fitted drive gain the mass and friction would be degenerate (the gain scales
-        # every force), so they are re-estimated only when the gain is not
-        free += [p for p in interacting(state.doc) if p.name not in names]
-    twin = Twin.compile(state.doc)
-    joint = fit(
-        lambda params: twin.simulate(drive, params),
-        twin.nominal,
-        twin.index,
-        free,
-        meas,
-        max_evaluations=opts.max_evaluations,
-    )
-    if not joint.converged or joint.cost > state.cost:
-        return (
-            f"the joint re-fit of the found effects and the nominal parameters did not "
-            f"converge or improve ({joint.message}); kept the effect-by-effect fit"
-        )
-    doc = state.doc
-    for name, value in joint.values.items():
-        doc = doc.set(name, value)
-    state.doc = doc
-    state.twin = Twin.compile(doc)
-    state.outputs, state.cost = joint.outputs, joint.cost
-    return None
-
-
 def diagnose(
     run: MeasuredRun,
     nominal: ModelDoc,
     *,
     validate: MeasuredRun | None = None,
     options: Options | None = None,
-    progress: Progress = _noop,
+    progress: Progress = noop,
     model_path: str = "model.yaml",
 ) -> tuple[Diagnosis, ModelDoc, Motion]:
     """Run the workflow on `run`; returns the diagnosis, the final model and the motion used."""
@@ -309,10 +133,12 @@ def diagnose(
     if not out0.ok[0]:
         raise RuntimeError(f"the nominal model {nominal.source} diverged on {run.source}")
     timings["nominal_s"] = time.perf_counter() - clock
+    check_effort_sign(run, out0)
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
     before = _metrics(run, out0)
     stride = max(1, len(run.t_s) // opts.fit_samples)
-    meas = _measured(run, out0, stride)
+    floors = noise_floors(run, out0)
+    meas = weighted_channels(run, out0, stride, floors)
     effort_name = run.effort_name
     motion = motion_from_position(
         run.t_s,
@@ -323,7 +149,7 @@ def diagnose(
         travel_m=max(float(np.ptp(run["pos_meas_m"])), 1e-6),
         current_q_A=run.signals.get("current_q_A"),
     )
-    re0, rp0 = _residuals(run, out0)
+    re0, rp0 = residuals(run, out0)
     location = locate(
         run.t_s,
         re0 if re0 is not None else rp0,
@@ -334,128 +160,54 @@ def diagnose(
         lead_m=twin.lead_m,
         pole_pairs=twin.pole_pairs,
     )
-    state = _State(doc=nominal, twin=twin, outputs=out0, cost=cost_of(meas, out0))
-    stiffness = None if re0 is not None else _loop_stiffness(twin, drive, out0)
+    state = State(doc=nominal, twin=twin, outputs=out0, cost=cost_of(meas, out0))
+    context = Context(
+        run=run,
+        drive=drive,
+        opts=opts,
+        stride=stride,
+        floors=floors,
+        motion=motion,
+        stiffness=None if re0 is not None else _loop_stiffness(twin, drive, out0),
+        unit_twin=twin,
+        progress=progress,
+        notes=notes,
+    )
     excluded: list[str] = []
     ranking: list[Candidate] = []
-    reports: list[dict] = []
     unfitted: list[dict] = []
     for round_no in range(1, opts.max_effects + 1):
-        re, rp = _residuals(run, state.outputs)
-        ranking = rank(
-            motion,
-            effort_residual=re,
-            position_residual=rp,
-            exclude=tuple(excluded),
-            loop_stiffness=stiffness,
-            voltage_residual=_voltage_residual(run, state.outputs),
-        )
-        significant = [c for c in ranking if c.significant]
-        if not significant:
-            progress(f"round {round_no}: no effect of the library explains a significant part")
+        ranking, more = run_round(round_no, state, context, excluded, unfitted)
+        if not more:
             break
-        lead = significant[0]
-        rivals = [
-            c
-            for c in significant[: opts.candidates_per_round]
-            if c.explained_fraction >= opts.rival_ratio * lead.explained_fraction
-        ]
-        progress(
-            f"round {round_no}: fitting {', '.join(c.name for c in rivals)} "
-            "(signature explains "
-            + ", ".join(f"{100 * c.explained_fraction:.0f} %" for c in rivals)
-            + ")"
-        )
-        trials = []
-        for cand in rivals:
-            tried = _try(state, cand, drive, meas, opts)
-            if isinstance(tried, str):
-                notes.append(tried)
-                unfitted.append(
-                    {
-                        "name": cand.name,
-                        "evidence": evidence(cand, _unit(twin, cand)),
-                        "reason": tried,
-                    }
-                )
-                excluded.append(cand.name)
-                continue
-            edit, new_twin, result = tried
-            progress(
-                f"  {cand.name}: cost {result.cost_initial:.4g} -> {result.cost:.4g} "
-                f"({result.evaluations} simulations, "
-                + ("converged)" if result.converged else "not converged)")
-            )
-            if not result.converged:
-                notes.append(
-                    f"the fit of {cand.name} did not converge ({result.message}); "
-                    "kept the last good model"
-                )
-                excluded.append(cand.name)
-                continue
-            trials.append((cand, edit, new_twin, result))
-        if not trials:
-            continue
-        # the winner removes the most cost per added degree of freedom relative to what is
-        # left (the partial F statistic up to the common effective sample count), so a
-        # two-parameter effect must do twice the work of a one-parameter one
-        cand, edit, new_twin, result = max(
-            trials,
-            key=lambda t: (state.cost - t[3].cost) / t[1].added / max(t[3].cost, 1e-300),
-        )
-        explained = (state.cost - result.cost) / state.cost if state.cost > 0 else 0.0
-        if explained < MIN_EXPLAINED:
-            notes.append(
-                f"{cand.name} was fitted but removed only {100 * explained:.1f} % of the cost "
-                f"(less than {100 * MIN_EXPLAINED:.0f} %); not kept"
-            )
-            excluded.append(cand.name)
-            continue
-        doc = edit.doc
-        for name, value in result.values.items():
-            doc = doc.set(name, value)
-        params = {k: float(f(_Values(doc))) for k, f in edit.report.items()}
-        reports.append(edit.report)
-        state.found.append(
-            FoundEffect(
-                name=cand.name,
-                evidence=evidence(cand, _unit(twin, cand)),
-                parameters=params,
-                explained_fraction=explained,
-                component=cand.effect.component,
-            )
-        )
-        if not edit.grid:  # searched whole numbers stay out of the least-squares re-fits
-            state.found_free.extend(p for p in edit.own if p not in state.found_free)
-        state.doc, state.twin, state.outputs, state.cost = (
-            doc,
-            new_twin,
-            result.outputs,
-            result.cost,
-        )
-        excluded.append(cand.name)
-        progress(f"  added {cand.name}: {params}; it removed {100 * explained:.1f} % of the cost")
     if state.found:
         progress("re-fitting the found effects together with the nominal parameters")
-        note = _final_joint(state, drive, meas, opts)
+        meas = weighted_channels(run, state.outputs, stride, context.floors)
+        state.cost = cost_of(meas, state.outputs)
+        note = final_joint(state, drive, meas, opts)
         if note is not None:
             notes.append(note)
+        drop_collapsed(state, context, "after the joint re-fit")
         state.found = [
             dataclasses.replace(
-                e, parameters={k: float(f(_Values(state.doc))) for k, f in r.items()}
+                f,
+                effect=dataclasses.replace(
+                    f.effect,
+                    parameters={k: float(g(Values(state.doc))) for k, g in f.report.items()},
+                ),
             )
-            for e, r in zip(state.found, reports, strict=True)
+            for f in state.found
         ]
     timings["identify_s"] = time.perf_counter() - clock
     after = _metrics(run, state.outputs)
     if state.found:
-        names = ", ".join(e.name for e in state.found)
+        names = ", ".join(f.name for f in state.found)
         verdict = f"the nominal model misses {names}; with them the gap shrinks as shown"
     elif unfitted:
         names = ", ".join(u["name"] for u in unfitted)
         verdict = f"the residual carries the signature of {names}, which could not be fitted"
     else:
-        verdict = "no significant missing effect: the residuals are at the noise level"
+        verdict = "no significant missing effect: " + _left_over(run, state.outputs, floors)
     validation = None
     validation_traces = None
     if validate is not None:
@@ -483,7 +235,7 @@ def diagnose(
         after=after,
         before_trace=_trace("nominal", run, drive, out0),
         after_trace=_trace("augmented", run, drive, state.outputs),
-        effects=tuple(state.found),
+        effects=tuple(f.effect for f in state.found),
         verdict=verdict,
         location=location,
         ranking=tuple(
@@ -502,6 +254,44 @@ def diagnose(
         timings_s=timings,
     )
     return diagnosis, state.doc, motion
+
+
+def _left_over(run: MeasuredRun, out: SimOutputs, floors: dict[str, float]) -> str:
+    """What is left when nothing was found, against each channel's sample noise (not claimed
+    to be noise: a delay between recorded channels or a lag the model lacks leaves structure
+    that no library effect explains)."""
+    units = {"effort": EFFORT_UNITS.get(run.effort_name or "", ""), "position": "m", "voltage": "V"}
+    parts = []
+    for name, r in channel_residuals(run, out).items():
+        rms = float(np.sqrt(np.mean(r**2)))
+        parts.append(
+            f"{name} residual RMS {rms:.3g} {units[name]} = {rms / floors[name]:.3g} x its "
+            "sample noise"
+        )
+    return "no effect of the library explains a significant part of what is left (" + (
+        "; ".join(parts) + ")"
+    )
+
+
+REVERSED_CORRELATION = -0.5  # measured vs nominal effort at or below this: the sign is reversed
+
+
+def check_effort_sign(run: MeasuredRun, out: SimOutputs) -> None:
+    """Raise if the measured effort runs against the nominal twin's (a current recorded with the
+    opposite sign convention): the workflow would blame every effect but the sign."""
+    name = run.effort_name
+    if name is None or out.effort is None:
+        return
+    measured, twin = run[name], out.effort[0]
+    spread = float(np.std(measured) * np.std(twin))
+    if spread == 0.0:
+        return
+    r = float(np.mean((measured - measured.mean()) * (twin - twin.mean())) / spread)
+    if r <= REVERSED_CORRELATION:
+        raise MeasuredDataError(
+            f"{run.source}: the measured {name} runs against the nominal twin's (correlation "
+            f"{r:.2f}): its sign looks reversed; give its column a negative gain in the map"
+        )
 
 
 def write_model(doc: ModelDoc, path: Path, found: tuple[FoundEffect, ...]) -> None:

@@ -6,8 +6,11 @@ parameters freed, plus the free parameters and the nominal ones that interact wi
 are re-estimated together: adding Coulomb friction changes the best viscous coefficient and
 mass). The original document is never modified.
 
-Effects whose component the integrated model does not (yet) offer have no edit; the workflow
-still names them with their evidence but cannot fit them, and says so.
+Effects declared by their components (plant.component.OwnedEffect: constant_force in
+external_force.py, backlash in backlash.py, stiction in stiction_friction.py) bring their own
+edit, built with `make_edit`, `free_parameter` and `symmetric` from here. Effects whose
+component the integrated model does not (yet) offer have no edit; the workflow still names them
+with their evidence but cannot fit them, and says so.
 """
 
 from __future__ import annotations
@@ -18,7 +21,8 @@ from dataclasses import dataclass
 
 from feed_twin.analysis.fit import FreeParameter
 from feed_twin.analysis.ranking import Candidate
-from feed_twin.analysis.twin import ModelDoc
+from feed_twin.analysis.twin import EFFORT_DELAY_SLOT, ModelDoc
+from feed_twin.plant.registry import OWNED_EFFECTS
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -33,7 +37,7 @@ class Edit:
     report: dict[str, Callable[[dict[str, float]], float]]
 
 
-def _symmetric(doc: ModelDoc) -> ModelDoc:
+def symmetric(doc: ModelDoc) -> ModelDoc:
     """Tie forward/backward friction values that are equal, so they stay one parameter."""
     fr = doc.friction()
     if fr is None or doc.ties_of(fr) == "asymmetric":
@@ -44,7 +48,7 @@ def _symmetric(doc: ModelDoc) -> ModelDoc:
     return doc
 
 
-def _param(
+def free_parameter(
     doc: ModelDoc,
     name: str,
     initial: float | None = None,
@@ -69,16 +73,16 @@ def interacting(doc: ModelDoc) -> list[FreeParameter]:
         for tied, pos, neg in (("F_c", "F_c_pos", "F_c_neg"), ("F_v", "F_v_pos", "F_v_neg")):
             if f"{fr}.{tied}" in doc.tie_names():
                 if doc.get(f"{fr}.{tied}") > 0.0:
-                    free.append(_param(doc, f"{fr}.{tied}"))
+                    free.append(free_parameter(doc, f"{fr}.{tied}"))
             else:
                 for name in (pos, neg):
                     if doc.get(f"{fr}.{name}") > 0.0 or doc.ties_of(fr) == "asymmetric":
-                        free.append(_param(doc, f"{fr}.{name}"))
+                        free.append(free_parameter(doc, f"{fr}.{name}"))
         if doc.get(f"{fr}.dF_s") > 0.0:
-            free.append(_param(doc, f"{fr}.dF_s"))
-            free.append(_param(doc, f"{fr}.v_s", lower=1e-4, floor=1e-3))
+            free.append(free_parameter(doc, f"{fr}.dF_s"))
+            free.append(free_parameter(doc, f"{fr}.v_s", lower=1e-4, floor=1e-3))
     for name in doc.of_type("ConstantForce"):
-        free.append(_param(doc, f"{name}.f_0", lower=-math.inf))
+        free.append(free_parameter(doc, f"{name}.f_0", lower=-math.inf))
     return free
 
 
@@ -89,7 +93,7 @@ def _friction_name(doc: ModelDoc) -> str:
     return fr
 
 
-def _edit(
+def make_edit(
     doc: ModelDoc,
     own: list[FreeParameter],
     report: dict[str, Callable[[dict[str, float]], float]],
@@ -111,33 +115,38 @@ def _edit(
 
 
 def coulomb(doc: ModelDoc, cand: Candidate) -> Edit:
-    doc = _symmetric(doc.with_friction())
+    doc = symmetric(doc.with_friction())
     fr = _friction_name(doc)
-    fc = max(abs(cand.coefficients.get("sign_v", 0.0)), 1e-3)
-    doc = doc.tie(f"{fr}.F_c", (f"{fr}.F_c_pos", f"{fr}.F_c_neg")).set(f"{fr}.F_c", fc)
-    own = [_param(doc, f"{fr}.F_c", fc)]
-    return _edit(doc, own, {"F_c_N": lambda v: v[f"{fr}.F_c"]})
+    doc = doc.tie(f"{fr}.F_c", (f"{fr}.F_c_pos", f"{fr}.F_c_neg"))
+    # the weight is the friction the twin lacks (measured minus twin), on top of what it has
+    fc = max(doc.get(f"{fr}.F_c") + cand.coefficients.get("sign_v", 0.0), 1e-3)
+    doc = doc.set(f"{fr}.F_c", fc)
+    own = [free_parameter(doc, f"{fr}.F_c", fc)]
+    return make_edit(doc, own, {"F_c_N": lambda v: v[f"{fr}.F_c"]})
 
 
 def viscous(doc: ModelDoc, cand: Candidate) -> Edit:
-    doc = _symmetric(doc.with_friction())
+    doc = symmetric(doc.with_friction())
     fr = _friction_name(doc)
     doc = doc.tie(f"{fr}.F_v", (f"{fr}.F_v_pos", f"{fr}.F_v_neg"))
     guess = max(doc.get(f"{fr}.F_v") + cand.coefficients.get("v", 0.0), 0.0)
     doc = doc.set(f"{fr}.F_v", guess)
-    own = [_param(doc, f"{fr}.F_v", guess)]
-    return _edit(doc, own, {"F_v_N_s_m": lambda v: v[f"{fr}.F_v"]})
+    own = [free_parameter(doc, f"{fr}.F_v", guess)]
+    return make_edit(doc, own, {"F_v_N_s_m": lambda v: v[f"{fr}.F_v"]})
 
 
 def stribeck(doc: ModelDoc, cand: Candidate) -> Edit:
-    doc = _symmetric(doc.with_friction())
+    doc = symmetric(doc.with_friction())
     fr = _friction_name(doc)
     vs = float(cand.variant.split("=")[1].split()[0]) if cand.variant else 0.005
-    ds = max(abs(cand.coefficients.get("stribeck", 0.0)), 1e-3)
+    ds = max(doc.get(f"{fr}.dF_s") + cand.coefficients.get("stribeck", 0.0), 1e-3)
     doc = doc.set(f"{fr}.dF_s", ds).set(f"{fr}.v_s", vs)
-    own = [_param(doc, f"{fr}.dF_s"), _param(doc, f"{fr}.v_s", lower=1e-4, floor=1e-3)]
+    own = [
+        free_parameter(doc, f"{fr}.dF_s"),
+        free_parameter(doc, f"{fr}.v_s", lower=1e-4, floor=1e-3),
+    ]
     report = {"dF_s_N": lambda v: v[f"{fr}.dF_s"], "v_s_m_s": lambda v: v[f"{fr}.v_s"]}
-    return _edit(doc, own, report)
+    return make_edit(doc, own, report)
 
 
 def asymmetric(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -148,40 +157,32 @@ def asymmetric(doc: ModelDoc, cand: Candidate) -> Edit:
     has_coulomb = doc.get(f"{fr}.F_c_pos") > 0.0 or doc.get(f"{fr}.F_c_neg") > 0.0
     doc = doc.untie().mark_asymmetric(fr)
     names = ("F_v_pos", "F_v_neg") + (("F_c_pos", "F_c_neg") if has_coulomb else ())
-    own = [_param(doc, f"{fr}.{n}") for n in names]
+    own = [free_parameter(doc, f"{fr}.{n}") for n in names]
     report = {
         name: (lambda n: lambda v: v[f"{fr}.{n}"])(name)
         for name in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg")
     }
     # one more value per direction-split term than the symmetric model had
-    return _edit(doc, own, report, added=len(names) // 2)
-
-
-def constant_force(doc: ModelDoc, cand: Candidate) -> Edit:
-    # the residual is measured minus twin: a force the drive must supply is a load of -f_0
-    f0 = -cand.coefficients.get("one", 0.0)
-    doc, slot = _symmetric(doc).with_constant_force(f0)
-    own = [_param(doc, slot, f0, lower=-math.inf)]
-    return _edit(doc, own, {"f_0_N": lambda v: v[slot]})
+    return make_edit(doc, own, report, added=len(names) // 2)
 
 
 def mass_error(doc: ModelDoc, cand: Candidate) -> Edit:
     m = doc.mass_slot()
     if m is None:
         raise LookupError("the model has no Mass component")
-    doc = _symmetric(doc)
+    doc = symmetric(doc)
     value = doc.get(m)
     guess = max(value + cand.coefficients.get("a", 0.0), 0.2 * value)
     doc = doc.set(m, guess)
     own = [FreeParameter(name=m, initial=guess, scale=value, lower=0.2 * value)]
-    return _edit(doc, own, {"m_kg": lambda v: v[m]})
+    return make_edit(doc, own, {"m_kg": lambda v: v[m]})
 
 
 def gain_error(doc: ModelDoc, cand: Candidate) -> Edit:
     g = doc.gain_slot()
     if g is None:
         raise LookupError("the model has no EffortSource component")
-    doc = _symmetric(doc)
+    doc = symmetric(doc)
     value = doc.get(g)
     # measured effort = K_nom/K_true * needed effort: weight c = K_nom/K_true - 1
     guess = value / (1.0 + cand.coefficients.get("effort", 0.0))
@@ -189,7 +190,7 @@ def gain_error(doc: ModelDoc, cand: Candidate) -> Edit:
     own = [FreeParameter(name=g, initial=guess, scale=abs(value))]
     # the gain scales every force of the model at once: fitted together with the mass and
     # friction it would be degenerate, so it is fitted alone
-    return _edit(doc, own, {"gain": lambda v: v[g]}, interacts=False)
+    return make_edit(doc, own, {"gain": lambda v: v[g]}, interacts=False)
 
 
 def cogging(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -216,7 +217,7 @@ def cogging(doc: ModelDoc, cand: Candidate) -> Edit:
         "amplitude_Nm": lambda v: v[f"{prefix}amplitude"],
         "phase_rad": lambda v: v[f"{prefix}phase"],
     }
-    return _edit(doc, own, report, interacts=False)
+    return make_edit(doc, own, report, interacts=False)
 
 
 def lead_error(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -248,7 +249,7 @@ def lead_error(doc: ModelDoc, cand: Candidate) -> Edit:
         "phase_rad": lambda v: v[f"{name}.lead_error_phase"],
         "period_m": lambda v: lead,
     }
-    return _edit(doc, own, report, interacts=False)
+    return make_edit(doc, own, report, interacts=False)
 
 
 def thermal_drift(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -259,26 +260,7 @@ def thermal_drift(doc: ModelDoc, cand: Candidate) -> Edit:
     doc, slot = with_thermal_growth(doc, heating)
     own = [FreeParameter(name=slot, initial=heating, scale=heating, lower=0.0)]
     report = {"heating_K_m": lambda v: v[slot]}
-    return _edit(doc, own, report, interacts=False)
-
-
-def backlash(doc: ModelDoc, cand: Candidate) -> Edit:
-    """The gap of the model's Backlash (lost motion between nut and table) is fitted.
-
-    A move in +x leaves the table b = gap/2 behind the nut, a move in -x b ahead, so the
-    position residual (twin minus measured) is (gap_true - gap_model)/2 * last direction.
-    """
-    found = doc.of_type("Backlash")
-    if not found:
-        raise LookupError(
-            "the model has no Backlash between a nut mass and the table to carry the gap"
-        )
-    slot = f"{found[0]}.gap"
-    nominal = doc.get(slot)
-    guess = max(nominal + 2.0 * cand.coefficients.get("last_direction", 0.0), 1e-7)
-    doc = doc.set(slot, guess)
-    own = [FreeParameter(name=slot, initial=guess, scale=guess, lower=0.0)]
-    return _edit(doc, own, {"gap_m": lambda v: v[slot]}, interacts=False)
+    return make_edit(doc, own, report, interacts=False)
 
 
 def position_dependent_stiffness(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -302,7 +284,7 @@ def position_dependent_stiffness(doc: ModelDoc, cand: Candidate) -> Edit:
         for slot in slots
     ]
     report = {"k_bearing_N_m": lambda v: v[slots[0]], "EA_N": lambda v: v[slots[1]]}
-    return _edit(doc, own, report, interacts=False)
+    return make_edit(doc, own, report, interacts=False)
 
 
 def current_offset(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -334,7 +316,7 @@ def current_offset(doc: ModelDoc, cand: Candidate) -> Edit:
         doc = doc.set(slot, float(params.get(slot.split(".")[1], 0.0)) + guess)
     own = [FreeParameter(name=slot, initial=doc.get(slot), scale=scale) for slot in slots]
     report = {f"{slot.split('.')[1]}_A": (lambda s: lambda v: v[s])(slot) for slot in slots}
-    return _edit(doc, own, report, interacts=False)
+    return make_edit(doc, own, report, interacts=False)
 
 
 def dead_time(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -373,10 +355,27 @@ def dead_time(doc: ModelDoc, cand: Candidate) -> Edit:
         )
     ]
     to_seconds = 1.0 if switching else 1.0 / f_pwm
-    return _edit(doc, own, {"t_dead_s": lambda v: v[slot] * to_seconds}, interacts=False)
+    return make_edit(doc, own, {"t_dead_s": lambda v: v[slot] * to_seconds}, interacts=False)
 
 
 MAX_DELAY_TICKS = 8  # sample delays searched for measurement_delay [base periods]
+# delays of the recorded effort behind the position searched for channel_delay: +/- this many
+# base periods in half steps (a trace recorder's channels drift by milliseconds)
+CHANNEL_DELAY_PERIODS = 20
+
+
+def channel_delay(doc: ModelDoc, cand: Candidate) -> Edit:
+    """The record's effort is stamped later than its position (or earlier): not a change of
+    the machine, a shift of the twin's effort before it is compared (analysis.twin.delayed),
+    searched over a grid and kept in the model's `analysis` section."""
+    period = float(doc.data["controller"]["base_period_s"])
+    grid = tuple(
+        0.5 * period * k for k in range(-2 * CHANNEL_DELAY_PERIODS, 2 * CHANNEL_DELAY_PERIODS + 1)
+    )
+    doc = doc.set(EFFORT_DELAY_SLOT, doc.get(EFFORT_DELAY_SLOT))
+    own = [FreeParameter(name=EFFORT_DELAY_SLOT, initial=0.0, scale=period)]
+    report = {"delay_s": lambda v: v[EFFORT_DELAY_SLOT]}
+    return make_edit(doc, own, report, interacts=False, grid=grid)
 
 
 def measurement_delay(doc: ModelDoc, cand: Candidate) -> Edit:
@@ -390,22 +389,22 @@ def measurement_delay(doc: ModelDoc, cand: Candidate) -> Edit:
     own = [FreeParameter(name=name, initial=doc.get(name), scale=1.0, lower=0.0)]
     report = {"delay_ticks": lambda v: v[name], "delay_s": lambda v: v[name] * period}
     # a delay in whole sensor samples: searched, not differentiated
-    return _edit(doc, own, report, interacts=False, grid=tuple(range(MAX_DELAY_TICKS + 1)))
+    return make_edit(doc, own, report, interacts=False, grid=tuple(range(MAX_DELAY_TICKS + 1)))
 
 
 EDITS: dict[str, Callable[[ModelDoc, Candidate], Edit]] = {
+    **{effect.name: effect.edit for effect in OWNED_EFFECTS},
     "cogging_torque": cogging,
     "lead_error": lead_error,
     "measurement_delay": measurement_delay,
+    "channel_delay": channel_delay,
     "coulomb_friction": coulomb,
     "viscous_friction": viscous,
     "stribeck_friction": stribeck,
     "asymmetric_friction": asymmetric,
-    "constant_force": constant_force,
     "mass_error": mass_error,
     "torque_constant_error": gain_error,
     "thermal_drift": thermal_drift,
-    "backlash": backlash,
     "position_dependent_stiffness": position_dependent_stiffness,
     "current_offset": current_offset,
     "dead_time": dead_time,

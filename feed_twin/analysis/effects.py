@@ -35,6 +35,7 @@ from typing import Literal
 import numpy as np
 from scipy import signal as sps
 
+from feed_twin.plant.registry import OWNED_EFFECTS, OWNER_OF
 from feed_twin.plant.smooth import smooth_sign_array
 
 STRIBECK_SPEEDS_M_S = (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03)
@@ -111,7 +112,7 @@ def _sign(m: Motion) -> np.ndarray:
     return np.tanh(m.v_m_s / m.speed_eps)
 
 
-def _moving(m: Motion) -> np.ndarray:
+def moving(m: Motion) -> np.ndarray:
     return np.abs(_sign(m))
 
 
@@ -223,7 +224,7 @@ def _stiffness(m: Motion) -> dict[str, np.ndarray]:
     return {"f": f, "f_x": f * s, "f_x2": f * s * s}
 
 
-def _last_direction(m: Motion) -> np.ndarray:
+def last_direction(m: Motion) -> np.ndarray:
     """Direction of the last motion, held through stops: +1, -1, or 0 before the first move.
 
     Lost motion at a reversal leaves the table behind the nut by the half gap on the trailing
@@ -265,7 +266,7 @@ LIBRARY: tuple[Effect, ...] = (
     Effect(
         name="stribeck_friction",
         domain="effort",
-        component="GuideFriction.F_s, v_s",
+        component="GuideFriction.dF_s, v_s",
         words="extra break-away friction at low speed that fades as speed rises (stick-slip)",
         choices=_stribeck_choices,
     ),
@@ -275,15 +276,7 @@ LIBRARY: tuple[Effect, ...] = (
         component="GuideFriction (separate forward/backward F_c, F_v)",
         words="friction that differs between the two directions of travel (worn or fatigued "
         "screw, uneven preload)",
-        signature=lambda m: {"abs_v": np.abs(m.v_m_s), "moving": _moving(m)},
-    ),
-    Effect(
-        name="constant_force",
-        domain="effort",
-        component="ConstantForce.f",
-        words="a constant force in one direction (gravity on a vertical axis, an unbalanced "
-        "counterweight, an offset in the force measurement)",
-        signature=lambda m: {"one": np.ones_like(m.t_s)},
+        signature=lambda m: {"abs_v": np.abs(m.v_m_s), "moving": moving(m)},
     ),
     Effect(
         name="mass_error",
@@ -330,19 +323,20 @@ LIBRARY: tuple[Effect, ...] = (
         choices=_dead_time_choices,
     ),
     Effect(
-        name="backlash",
-        domain="position",
-        component="Backlash.gap",
-        words="lost motion at every reversal: the table stays behind by a fixed gap when the "
-        "direction changes",
-        signature=lambda m: {"last_direction": _last_direction(m)},
-    ),
-    Effect(
         name="measurement_delay",
         domain="effort",
         component="Encoder/LinearScale.delay_ticks",
         words="the loop acts on a position measured late: the effort follows the twin's "
         "effort shifted in time (sensor sample delay, slow fieldbus)",
+        needs=("effort_sim",),
+        signature=lambda m: {"effort_rate": _rate(m.effort_sim, m.t_s)},
+    ),
+    Effect(
+        name="channel_delay",
+        domain="effort",
+        component="the record: analysis.effort_delay_s (trace side, outside every loop)",
+        words="the recorder stamps the effort later (or earlier) than the position: the "
+        "effort follows the twin's shifted in time while the following error does not move",
         needs=("effort_sim",),
         signature=lambda m: {"effort_rate": _rate(m.effort_sim, m.t_s)},
     ),
@@ -374,5 +368,17 @@ LIBRARY: tuple[Effect, ...] = (
         needs=("effort_sim",),
         signature=_stiffness,
     ),
+)
+# the effects declared by their components (feed_twin.plant.component.OwnedEffect)
+LIBRARY += tuple(
+    Effect(
+        name=owned.name,
+        domain=owned.domain,
+        component=f"{OWNER_OF[owned.name]}.{owned.parameters}",
+        words=owned.words,
+        needs=owned.needs,
+        signature=owned.signature,
+    )
+    for owned in OWNED_EFFECTS
 )
 BY_NAME = {e.name: e for e in LIBRARY}

@@ -29,9 +29,7 @@ from scipy import signal as sps
 from scipy import stats
 
 from feed_twin.analysis.effects import LIBRARY, Effect, Motion
-
-ALPHA = 1e-3  # false-alarm probability of the partial F-test per effect
-MIN_EXPLAINED = 0.05  # an effect must explain at least 5 % of the residual's energy
+from feed_twin.analysis.significance import ALPHA, MIN_EXPLAINED
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -47,6 +45,7 @@ class Candidate:
     coefficients: dict[str, float]  # regressor name -> least-squares coefficient
     significant: bool
     domain: str = ""  # the residual ranked ("": the effect's own domain)
+    searched: int = 1  # variants the best one was chosen from (p_value is corrected for them)
 
     @property
     def name(self) -> str:
@@ -58,6 +57,9 @@ class Candidate:
 
 
 def _effective_samples(e: np.ndarray) -> float:
+    """Bartlett's AR(1) count (module docstring): conservative for smooth residuals, which
+    keeps the model error of a clean record (a lag the twin lacks) from passing as an effect;
+    the simulation's test (analysis.significance) then uses the integrated time."""
     e = e - e.mean()
     denom = float(np.dot(e, e))
     rho = float(np.dot(e[1:], e[:-1]) / denom) if denom > 0 else 0.0
@@ -208,6 +210,7 @@ def rank(
                 coefficients=coef,
                 significant=p_adj < ALPHA and explained >= MIN_EXPLAINED,
                 domain=domain,
+                searched=n_variants,
             )
         )
     out.sort(key=lambda c: (c.significant, c.explained_fraction), reverse=True)

@@ -132,7 +132,7 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         "",
     ]
     if not d.effects:
-        lines.append("No significant missing effect: the residuals are at the noise level.")
+        lines.append(d.verdict[:1].upper() + d.verdict[1:] + ".")
     for i, e in enumerate(d.effects, 1):
         params = ", ".join(f"{k} = {v:.5g}" for k, v in e.parameters.items())
         lines += [

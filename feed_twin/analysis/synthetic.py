@@ -25,6 +25,7 @@ import numpy as np
 
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.plant.registry import OWNED_EFFECTS
 
 # A program with moves of several lengths and feeds, reversals and dwells on one axis (X).
 PROGRAM = """\
@@ -121,10 +122,6 @@ def _asymmetric(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     return doc
 
 
-def _constant(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    return doc.with_constant_force(p["f_0_N"])[0]
-
-
 def _mass(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
     slot = doc.mass_slot()
     assert slot is not None
@@ -178,17 +175,16 @@ def _dead_time(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
 
 
 HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
+    **{effect.name: effect.truth for effect in OWNED_EFFECTS},
     "coulomb_friction": _coulomb,
     "viscous_friction": _viscous,
     "stribeck_friction": _stribeck,
     "asymmetric_friction": _asymmetric,
-    "constant_force": _constant,
     "mass_error": _mass,
     "torque_constant_error": _gain,
     "measurement_delay": _delay,
     "lead_error": lambda doc, p: _lead_error(doc, p),
     "thermal_drift": lambda doc, p: _thermal(doc, p),
-    "backlash": lambda doc, p: doc.set(f"{doc.of_type('Backlash')[0]}.gap", p["gap_m"]),
     "position_dependent_stiffness": _stiffness,
     "current_offset": _current_offset,
     "dead_time": _dead_time,

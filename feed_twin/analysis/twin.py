@@ -46,6 +46,14 @@ _AXIAL_RIGIDITY = "EA"
 _DEAD_FRACTION = "dead_fraction"
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
 FIXED_SECTIONS = ("plant", "controller")
+# the section the workflow writes beside a fitted model, and its key: the drive gain the
+# measured effort was converted with (the nominal one), which a fitted gain must not replace
+ANALYSIS_SECTION = "analysis"
+REFERENCE_GAIN_KEY = "effort_reference_gain"
+# the record's own slots (not the machine's): `analysis.effort_delay_s`, how much later than the
+# position the recorder stamps the effort (trace side, outside every loop)
+RECORD_SLOTS = ("effort_delay_s",)
+EFFORT_DELAY_SLOT = f"{ANALYSIS_SECTION}.effort_delay_s"
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -68,9 +76,16 @@ class ModelDoc:
                 raise ConfigError(f"{path}: missing required section {key}")
         doc = cls(data=data, source=str(path))
         g = doc.gain_slot()
-        return ModelDoc(
-            data=data, source=str(path), reference_gain=None if g is None else doc.get(g)
-        )
+        reference = None if g is None else doc.get(g)
+        written = (data.get(ANALYSIS_SECTION) or {}).get(REFERENCE_GAIN_KEY)
+        if written is not None:
+            if not (isinstance(written, (int, float)) and math.isfinite(written) and written):
+                raise ConfigError(
+                    f"{path}: {ANALYSIS_SECTION}.{REFERENCE_GAIN_KEY} = {written!r}: must be a "
+                    "finite number other than 0"
+                )
+            reference = float(written)
+        return ModelDoc(data=data, source=str(path), reference_gain=reference)
 
     # ---------------------------------------------------------------- lookup
 
@@ -118,6 +133,8 @@ class ModelDoc:
         if slot in self.tie_names():
             return True
         comp, _, field_name = slot.partition(".")
+        if comp == ANALYSIS_SECTION:
+            return field_name in (self.data.get(ANALYSIS_SECTION) or {})
         try:
             params = self.component(comp)["params"]
         except LookupError:
@@ -134,6 +151,8 @@ class ModelDoc:
     def get(self, slot: str) -> float:
         first = self.tie_members(slot)[0]
         comp, _, field_name = first.partition(".")
+        if comp == ANALYSIS_SECTION and field_name in RECORD_SLOTS:
+            return float((self.data.get(ANALYSIS_SECTION) or {}).get(field_name, 0.0))
         params = self.component(comp)["params"]
         harmonic = _COGGING_SLOT.match(field_name)
         if harmonic is not None:
@@ -166,6 +185,9 @@ class ModelDoc:
         new = self._copy()
         for member in self.tie_members(slot):
             comp, _, field_name = member.partition(".")
+            if comp == ANALYSIS_SECTION and field_name in RECORD_SLOTS:
+                new.data.setdefault(ANALYSIS_SECTION, {})[field_name] = float(value)
+                continue
             params = new.component(comp)["params"]
             harmonic = _COGGING_SLOT.match(field_name)
             if harmonic is not None:
@@ -267,6 +289,15 @@ class ModelDoc:
         params = self.component(motors[0])["params"]
         return 1.5 * float(params["p"]) * float(params["psi_pm"])
 
+    def with_table_component(
+        self, base: str, kind: str, params: dict[str, Any]
+    ) -> tuple[ModelDoc, str]:
+        """The document with a component of type `kind` on the table's node (its single port
+        connected there), named `base` or `base2`, ...; returns the document and the name."""
+        name = self._free_name(base)
+        entry = {"name": name, "type": kind, "params": dict(params)}
+        return self.add_component(entry, self.table_port()), name
+
     def with_constant_force(self, f_0: float) -> tuple[ModelDoc, str]:
         existing = self.of_type("ConstantForce")
         if existing:
@@ -276,8 +307,14 @@ class ModelDoc:
         return self.add_component(entry, self.table_port()), f"{name}.f_0"
 
     def dump(self, path: str | Path, header: list[str]) -> None:
+        """Write the model YAML; a drive gain the fit changed keeps the gain the record's
+        effort was converted with (the map's), so the written model reproduces the fit."""
+        data = self.data
+        g = self.gain_slot()
+        if g is not None and self.reference_gain is not None and self.get(g) != self.reference_gain:
+            data = {**data, ANALYSIS_SECTION: {REFERENCE_GAIN_KEY: self.reference_gain}}
         text = "".join(f"# {line}\n" for line in header)
-        text += yaml.safe_dump(self.data, sort_keys=False, default_flow_style=None, width=100)
+        text += yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
         Path(path).write_text(text)
 
 
@@ -293,6 +330,45 @@ class Drive:
     force_ext_N: np.ndarray | None  # known external force on the table [N]
     x0_m: float  # measured position at the start
     sensor: str  # motor_encoder or linear_scale
+    v0_m_s: float = 0.0  # measured velocity at the start (a record that begins mid-motion)
+    trace_mean: bool = False  # each record sample is the mean over its period (a drive trace)
+
+
+START_FIT_SAMPLES = 7  # samples of the quadratic whose slope at t_0 is the start velocity
+START_FIT_S = 0.006  # [s] the longest span of that quadratic
+# [m] a start velocity that moves the table less than this over the fit window is a start at
+# rest: a record that begins as the axis sets off (a shadow twin's bag) starts exactly at rest
+START_TRAVEL_M = 1e-6
+
+
+def start_velocity(t_s: np.ndarray, x_m: np.ndarray) -> float:
+    """Velocity [m/s] at the first sample: the slope at t_0 of a quadratic through the first
+    START_FIT_SAMPLES samples (one quantisation step over the window is all it must resolve),
+    0 for a record that starts at rest (START_TRAVEL_M)."""
+    # over at most START_FIT_S (at least 3 samples): a slow trace's 7 samples span a move
+    h = float(t_s[1] - t_s[0]) if len(t_s) > 1 else 1.0
+    n = min(START_FIT_SAMPLES, max(3, int(START_FIT_S / h) + 1), len(t_s))
+    if n < 3:
+        return 0.0
+    coef = np.polyfit(t_s[:n] - t_s[0], x_m[:n] - x_m[0], 2)
+    v0 = float(coef[1])
+    return v0 if abs(v0) * (t_s[n - 1] - t_s[0]) > START_TRAVEL_M else 0.0
+
+
+def delayed(rows: np.ndarray, t_s: np.ndarray, delay_s: float) -> np.ndarray:
+    """Each row as a recorder that stamps it `delay_s` late sees it: y(t - delay), linearly
+    interpolated between samples, the first (last) value held outside the record."""
+    return np.array([np.interp(t_s - delay_s, t_s, row) for row in np.atleast_2d(rows)])
+
+
+def window_mean(rows: np.ndarray, dec: int) -> np.ndarray:
+    """Every dec-th column of `rows` replaced by the mean of the dec columns ending there (the
+    first: itself), as a trace that averages a fast signal over its sample period records it."""
+    rows = np.atleast_2d(rows)
+    c = np.concatenate((np.zeros((len(rows), 1)), np.cumsum(rows, axis=1)), axis=1)
+    ends = np.arange(0, rows.shape[1], dec)
+    starts = np.maximum(ends - dec + 1, 0)
+    return (c[:, ends + 1] - c[:, starts]) / (ends - starts + 1)
 
 
 def drive_from_run(run: MeasuredRun) -> Drive:
@@ -319,6 +395,8 @@ def drive_from_run(run: MeasuredRun) -> Drive:
         force_ext_N=sum(run[n] for n in forces) if forces else None,
         x0_m=float(run["pos_meas_m"][0]),
         sensor=run.position_sensor,
+        v0_m_s=start_velocity(run.t_s, run["pos_meas_m"]),
+        trace_mean=run.trace_filter == "mean",
     )
 
 
@@ -416,11 +494,27 @@ class Twin:
                 f"model's base period {h!r} s"
             )
         n = len(drive.t_s) * dec
-        hold = np.repeat  # commands are held between record samples (NC-sample hold)
+        hold = np.repeat  # known inputs are held between record samples
         ref = np.zeros((n, signals.REF_SIZE))
-        ref[:, signals.REF_POS_M] = hold(drive.pos_ref_m, dec)
-        ref[:, signals.REF_VEL_M_S] = hold(drive.vel_ref_m_s, dec)
-        ref[:, signals.REF_ACC_M_S2] = hold(drive.acc_ref_m_s2, dec)
+        if dec == 1:
+            ref[:, signals.REF_POS_M] = drive.pos_ref_m
+            ref[:, signals.REF_VEL_M_S] = drive.vel_ref_m_s
+            ref[:, signals.REF_ACC_M_S2] = drive.acc_ref_m_s2
+        else:
+            # a trace slower than the controller (a 50 Hz machine trace of a 1 kHz NC): the NC's
+            # setpoints ran smoothly between the samples, so they are interpolated, not held (a
+            # held position would step by v * period, millimetres at machine feeds)
+            fine = drive.t_s[0] + h * np.arange(n)
+            # a trace's mean over the period ending at its stamp is the value half a period
+            # (less one tick) earlier for a signal smooth over the period: the command's own
+            # time
+            stamps = drive.t_s - (0.5 * (dec - 1) * h if drive.trace_mean else 0.0)
+            for slot, values in (
+                (signals.REF_POS_M, drive.pos_ref_m),
+                (signals.REF_VEL_M_S, drive.vel_ref_m_s),
+                (signals.REF_ACC_M_S2, drive.acc_ref_m_s2),
+            ):
+                ref[:, slot] = np.interp(fine, stamps, values)
         if drive.effort_add is not None:
             gain = self.doc.reference_gain or 1.0
             ref[:, signals.REF_EFFORT_ADD] = hold(drive.effort_add / gain, dec)
@@ -444,7 +538,38 @@ class Twin:
         return self.plant.initial_state({coord.name: x0_m / ratio})
 
     def _x0(self, drive: Drive, p: np.ndarray) -> np.ndarray:
-        return self.initial_state(drive.x0_m, p)
+        x = self.initial_state(drive.x0_m, p)
+        if drive.v0_m_s != 0.0:
+            # every coordinate moves with the table (springs relaxed): its speed scales with
+            # the table's as its position does, so the position map gives the velocities
+            moving = self.initial_state(drive.v0_m_s, p)
+            for c in self.plant.coordinates:
+                i = self.plant.state_index[c.position_state]
+                x[self.plant.state_index[c.velocity_state]] = moving[i]
+        return x
+
+    def start_controller(self, drive: Drive, ref: np.ndarray) -> np.ndarray | None:
+        """The controller's state at the record's first sample, as if it had been running:
+        interpolator at the first setpoint, velocity estimator (its last encoder sample and
+        FIR history) at the measured start velocity. None for a record that starts at rest
+        (a fresh controller is right there). A PI velocity loop's integrator stays at zero:
+        what it held is not in the record."""
+        if drive.v0_m_s == 0.0:
+            return None
+        from feed_twin.control import layout as lay
+
+        cs = self.controller.initial_state()
+        cs[lay.S_INITIALISED] = 1.0
+        for i in range(3):
+            cs[lay.S_NC_PREV_POS + i] = ref[0, signals.REF_POS_M + i]
+            cs[lay.S_NC_POS + i] = ref[0, signals.REF_POS_M + i]
+        cs[lay.S_NC_TICK] = 0.0
+        period = float(self.controller.params[lay.P_VEL_PERIOD])
+        cs[lay.S_ENC_POS_PREV] = drive.x0_m - drive.v0_m_s * period
+        fir = len(self.controller.state_names) - lay.S_FIR_HIST
+        cs[lay.S_FIR_HIST : lay.S_FIR_HIST + fir] = drive.v0_m_s
+        cs[lay.S_VEL_EST] = drive.v0_m_s
+        return cs
 
     def simulate(self, drive: Drive, params: np.ndarray) -> SimOutputs:
         """Simulate each row of `params` (full parameter vectors) on the drive's command."""
@@ -470,13 +595,23 @@ class Twin:
         u_q = np.full((len(P), T), np.nan) if self.has_voltage else None
         if len(rows):
             x0 = self._x0(drive, P[rows[0]])
-            res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0)
-            pos, eff = self._measured_signals(res, dec)
+            cs0 = self.start_controller(drive, ref)
+            res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
+            if drive.trace_mean and dec > 1:
+                # the record's trace averages each channel over its sample period
+                pos, eff = (window_mean(s, dec) for s in self._measured_signals(res, 1))
+                voltage = window_mean(res["out.u_q_ref_V"], dec) if u_q is not None else None
+            else:
+                pos, eff = self._measured_signals(res, dec)
+                voltage = res["out.u_q_ref_V"][:, ::dec] if u_q is not None else None
             x[rows] = pos[:, :T]
             effort[rows] = eff[:, :T]
-            if u_q is not None:
-                u_q[rows] = res["out.u_q_ref_V"][:, ::dec][:, :T]
+            if u_q is not None and voltage is not None:
+                u_q[rows] = voltage[:, :T]
             ok[rows] = ~res.diverged
+        delay = self.doc.get(EFFORT_DELAY_SLOT)
+        if delay != 0.0:
+            effort = delayed(effort, drive.t_s, delay)
         return SimOutputs(x_m=x, effort=effort, ok=ok, voltage_q=u_q)
 
     def _measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:

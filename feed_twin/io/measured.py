@@ -41,17 +41,24 @@ import csv
 import dataclasses
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
-from feed_twin.io.config import (
-    ConfigError,
-    from_mapping,
-    load_yaml,
-    require_positive,
+from feed_twin.io.column_map import (  # noqa: F401  (the map's names, re-exported)
+    _UNITS,
+    EFFORT_SIGNALS,
+    EFFORT_UNITS,
+    UNITS,
+    VOLTAGE_SIGNALS,
+    ColumnMap,
+    ColumnSpec,
+    Conversion,
+    Plausibility,
+    canonical_dimension,
+    load_column_map,
 )
 
 MIN_SAMPLES = 200
@@ -59,196 +66,45 @@ MIN_DURATION_S = 0.2
 MIN_COMMAND_TRAVEL_M = 1e-6  # below one micrometre of commanded travel nothing can be identified
 GAP_FACTOR = 1.5  # a time step longer than this many median periods is a gap
 MAX_NAN_FRACTION = 0.2  # more missing than this is not repaired
-
-Dimension = Literal["time", "length", "velocity", "force", "torque", "current", "voltage"]
-
-# unit -> (dimension, factor to SI). Angles and counts are handled separately through the lead.
-_UNITS: dict[str, tuple[str, float]] = {
-    "s": ("time", 1.0),
-    "ms": ("time", 1e-3),
-    "us": ("time", 1e-6),
-    "m": ("length", 1.0),
-    "mm": ("length", 1e-3),
-    "um": ("length", 1e-6),
-    "m/s": ("velocity", 1.0),
-    "mm/s": ("velocity", 1e-3),
-    "mm/min": ("velocity", 1e-3 / 60.0),
-    "m/min": ("velocity", 1.0 / 60.0),
-    "N": ("force", 1.0),
-    "kN": ("force", 1e3),
-    "Nm": ("torque", 1.0),
-    "mNm": ("torque", 1e-3),
-    "A": ("current", 1.0),
-    "mA": ("current", 1e-3),
-    "V": ("voltage", 1.0),
-    # motor-side angles, converted to table travel through the lead
-    "rad": ("angle", 1.0),
-    "deg": ("angle", math.pi / 180.0),
-    "rev": ("angle", 2.0 * math.pi),
-    "counts": ("angle", math.nan),  # 2*pi / counts_per_rev, known only from the map
-    "rad/s": ("angular_velocity", 1.0),
-    "rpm": ("angular_velocity", 2.0 * math.pi / 60.0),
-}
-UNITS = tuple(_UNITS)
-
-_CANONICAL_DIMENSION: dict[str, str] = {
-    "pos_cmd_m": "length",
-    "vel_cmd_m_s": "velocity",
-    "pos_meas_m": "length",
-    "vel_meas_m_s": "velocity",
-    "force_cmd_N": "force",
-    "torque_cmd_Nm": "torque",
-    "current_q_A": "current",
-    "current_d_A": "current",
-    "voltage_d_V": "voltage",
-    "voltage_q_V": "voltage",
-}
-_DISTURBANCE_SUFFIX = {"_N": "force", "_Nm": "torque", "_A": "current"}
-EFFORT_SIGNALS = ("force_cmd_N", "torque_cmd_Nm", "current_q_A")
-VOLTAGE_SIGNALS = ("voltage_d_V", "voltage_q_V")  # the current controller's voltage commands
+MAX_PERIOD_S = 0.1  # [s] a drive trace is sampled at 10 Hz or faster
+MAX_GRID_FACTOR = 2.0  # filling the gaps may at most double the samples
 
 
 class MeasuredDataError(ValueError):
     """The measured data cannot be used as it is; the message names the column and the problem."""
 
 
-def canonical_dimension(name: str) -> str:
-    """The physical dimension a canonical signal carries, or raise naming the allowed names."""
-    if name in _CANONICAL_DIMENSION:
-        return _CANONICAL_DIMENSION[name]
-    if name.startswith("disturbance_"):
-        for suffix in ("_Nm", "_N", "_A"):
-            if name.endswith(suffix) and len(name) > len("disturbance_") + len(suffix):
-                return _DISTURBANCE_SUFFIX[suffix]
-    allowed = ", ".join(_CANONICAL_DIMENSION)
-    raise ValueError(
-        f"{name!r} is not a canonical signal; use one of {allowed} or disturbance_<what>_<N|Nm|A>"
-    )
-
-
-@dataclass(frozen=True, kw_only=True)
-class ColumnSpec:
-    """Where one canonical signal comes from in the file."""
-
-    column: str  # the file's own column name (CSV header) or topic field path (bag)
-    unit: str  # one of UNITS
-    # [target SI unit per column unit]; required for V mapped to an effort, else a scale
-    gain: float | None = None
-    optional: bool = False  # a missing column is skipped instead of an error
-
-    def __post_init__(self) -> None:
-        if self.unit not in _UNITS:
-            raise ValueError(f"unit = {self.unit!r}: must be one of {', '.join(UNITS)}")
-        if self.gain is not None:
-            require_positive("gain", self.gain)
-
-
-@dataclass(frozen=True, kw_only=True)
-class Conversion:
-    """Machine data needed to turn motor angles and encoder counts into table travel."""
-
-    lead_m: float | None = None  # [m/rev] screw lead
-    counts_per_rev: float | None = None  # [1] encoder counts per motor revolution
-
-    def __post_init__(self) -> None:
-        if self.lead_m is not None:
-            require_positive("lead_m", self.lead_m)
-        if self.counts_per_rev is not None:
-            require_positive("counts_per_rev", self.counts_per_rev)
-
-
-@dataclass(frozen=True, kw_only=True)
-class Plausibility:
-    """What the axis can physically do; used to catch unit mistakes such as mm declared as m."""
-
-    travel_m: float  # [m] longest stroke of the axis
-    max_speed_m_s: float  # [m/s] fastest speed the axis can reach
-
-    def __post_init__(self) -> None:
-        require_positive("travel_m", self.travel_m)
-        require_positive("max_speed_m_s", self.max_speed_m_s)
-
-
-@dataclass(frozen=True, kw_only=True)
-class _MapFile:
-    time: ColumnSpec
-    position_sensor: Literal["motor_encoder", "linear_scale"]
-    signals: Any  # name -> ColumnSpec mapping, parsed by load_column_map
-    plausibility: Plausibility
-    conversion: Conversion = field(default_factory=Conversion)
-
-
-@dataclass(frozen=True, kw_only=True)
-class ColumnMap:
-    """A parsed column map: the time column, the mapped signals, and the machine data."""
-
-    time: ColumnSpec
-    position_sensor: Literal["motor_encoder", "linear_scale"]
-    signals: tuple[tuple[str, ColumnSpec], ...]
-    plausibility: Plausibility
-    conversion: Conversion
-    source: str = "<map>"
-
-    def __post_init__(self) -> None:
-        for name, spec in self.signals:
-            _check_convertible(name, spec, self.conversion)
-
-
-def _check_convertible(name: str, spec: ColumnSpec, conv: Conversion) -> None:
-    target = canonical_dimension(name)
-    dim = _UNITS[spec.unit][0]
-    if dim == target:
-        return
-    if dim == "voltage" and target in ("force", "torque", "current"):
-        if spec.gain is None:
-            raise ValueError(
-                f"signals.{name}.gain = None: a column in V needs the drive gain (e.g. N/V) "
-                f"to give {name}"
-            )
-        return
-    if dim == "angle" and target == "length" or dim == "angular_velocity" and target == "velocity":
-        if conv.lead_m is None:
-            raise ValueError(
-                f"signals.{name}.unit = {spec.unit!r}: converting a motor angle to table travel "
-                "needs conversion.lead_m"
-            )
-        if spec.unit == "counts" and conv.counts_per_rev is None:
-            raise ValueError(f"signals.{name}.unit = 'counts': needs conversion.counts_per_rev")
-        return
-    raise ValueError(
-        f"signals.{name}.unit = {spec.unit!r}: a {dim} unit cannot give {name}, which is a {target}"
-    )
-
-
-def load_column_map(path: str | Path) -> ColumnMap:
-    """Read a column-map YAML; errors read `file: field = value: reason`."""
-    source = str(path)
-    data = load_yaml(path)
-    raw = from_mapping(_MapFile, data, source=source)
-    if not isinstance(raw.signals, dict) or not raw.signals:
-        raise ConfigError(f"{source}: signals = {raw.signals!r}: expected a non-empty mapping")
-    signals = []
-    for name, spec in raw.signals.items():
-        try:
-            canonical_dimension(str(name))
-        except ValueError as exc:
-            raise ConfigError(f"{source}: signals.{name}: {exc}") from None
-        signals.append(
-            (str(name), from_mapping(ColumnSpec, spec, source=source, path=f"signals.{name}"))
+def segment(run: MeasuredRun, t0_s: float, t1_s: float) -> MeasuredRun:
+    """The part of `run` with t0 <= t <= t1 [s] (a record's own time stamps)."""
+    t = run.t_s
+    if not (t0_s < t1_s):
+        raise MeasuredDataError(f"{run.source}: segment {t0_s:g}:{t1_s:g}: t0 must be < t1")
+    half = 0.5 * run.sample_period_s  # a bound on a sample belongs to the segment
+    keep = (t >= t0_s - half) & (t <= t1_s + half)
+    if int(keep.sum()) < MIN_SAMPLES:
+        raise MeasuredDataError(
+            f"{run.source}: segment {t0_s:g}:{t1_s:g} holds {int(keep.sum())} samples (the "
+            f"record runs {t[0]:.6g} to {t[-1]:.6g} s); need at least {MIN_SAMPLES}"
         )
-    if _UNITS[raw.time.unit][0] != "time":
-        raise ConfigError(f"{source}: time.unit = {raw.time.unit!r}: must be a time unit")
+    return dataclasses.replace(
+        run,
+        t_s=t[keep],
+        signals={k: v[keep] for k, v in run.signals.items()},
+        source=f"{run.source} [{t0_s:g} s to {t1_s:g} s]",
+    )
+
+
+def parse_segment(text: str) -> tuple[float, float]:
+    """`t0:t1` [s] -> (t0, t1); raises MeasuredDataError naming the text."""
+    t0, sep, t1 = text.partition(":")
     try:
-        return ColumnMap(
-            time=raw.time,
-            position_sensor=raw.position_sensor,
-            signals=tuple(signals),
-            plausibility=raw.plausibility,
-            conversion=raw.conversion,
-            source=source,
-        )
-    except ValueError as exc:
-        raise ConfigError(f"{source}: {exc}") from None
+        if not sep:
+            raise ValueError
+        return float(t0), float(t1)
+    except ValueError:
+        raise MeasuredDataError(
+            f"--segment {text!r}: expected t0:t1 in seconds, e.g. 2.5:14"
+        ) from None
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -264,6 +120,7 @@ class MeasuredRun:
     signals: Mapping[str, np.ndarray]
     position_sensor: str
     warnings: tuple[str, ...] = ()
+    trace_filter: Literal["none", "mean"] = "none"  # see ColumnMap.trace_filter
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
@@ -302,20 +159,36 @@ def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Header and float64 table of a CSV file; empty or non-numeric cells become NaN."""
     path = Path(path)
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            header = next(csv.reader(fh), None)
+        text = path.read_bytes()
     except FileNotFoundError:
         raise MeasuredDataError(f"{path}: no such measured file") from None
+    except IsADirectoryError:
+        raise MeasuredDataError(f"{path}: is a directory, not a CSV file or a bag") from None
+    zero = text.find(b"\0", 0, 65536)
+    if zero >= 0:
+        raise MeasuredDataError(
+            f"{path}: is not a text CSV (binary data at byte {zero}); export the record as CSV"
+        )
+    try:
+        lines = text.decode("utf-8").splitlines()
+    except UnicodeDecodeError as exc:
+        raise MeasuredDataError(
+            f"{path}: is not a UTF-8 text CSV (byte {exc.start} cannot be decoded)"
+        ) from None
+    header = next(csv.reader(lines[:1]), None)
     if not header:
         raise MeasuredDataError(f"{path}: the file is empty (no header line)")
     header = [h.strip() for h in header]
-    table = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
+    for number, line in enumerate(lines[1:], start=2):
+        cells = line.count(",") + 1
+        if line.strip() and cells != len(header):
+            raise MeasuredDataError(
+                f"{path}: line {number} has {cells} cells but the header has {len(header)} "
+                "columns (a ragged or truncated file)"
+            )
+    table = np.genfromtxt(lines[1:], delimiter=",", dtype=float, ndmin=2)
     if table.size == 0:
         table = np.empty((0, len(header)))
-    if table.shape[1] != len(header):
-        raise MeasuredDataError(
-            f"{path}: the header has {len(header)} columns but the rows have {table.shape[1]}"
-        )
     return header, table
 
 
@@ -334,12 +207,18 @@ def load_measured(path: str | Path, column_map: ColumnMap | str | Path) -> Measu
 def _read_bag_table(path: Path, column_map: ColumnMap) -> tuple[list[str], np.ndarray]:
     """Bag columns named `<topic>:<field>` (dotted field path, or `log_time_s`).
 
-    Topics other than the time column's are resampled onto its time stamps by their own
-    receive times (linear interpolation), so signals from several topics share one time base.
+    Topics other than the time column's are resampled onto its time stamps (linear
+    interpolation), so signals from several topics share one time base: by the same stamp field
+    as the time column's (`header.stamp`) where their messages have it, else by receive times.
+    Stamps, not receive times, where they exist: a lockstep run of the node set publishes in
+    simulation time while the recorder logs wall-clock arrivals in bursts, and lining topics up
+    by arrival gave the command jumps of metres per second.
     """
     from feed_twin.io.bag import BagError, BagReader
 
     specs = [column_map.time] + [spec for _, spec in column_map.signals]
+    time_topic, _, time_field = column_map.time.column.partition(":")
+    stamp = None if time_field == "log_time_s" else time_field
     by_topic: dict[str, list[str]] = {}
     for spec in specs:
         topic, sep, name = spec.column.partition(":")
@@ -362,21 +241,41 @@ def _read_bag_table(path: Path, column_map: ColumnMap) -> tuple[list[str], np.nd
                     f"{path}: the map names topic {topic!r}, which the bag lacks; it has "
                     f"{', '.join(sorted(known))}"
                 )
-            data[topic] = reader.columns(topic, fields)
+            data[topic] = _stamped_columns(reader, topic, fields, stamp)
     except BagError as exc:
         raise MeasuredDataError(str(exc)) from None
-    time_topic = column_map.time.column.partition(":")[0]
-    base = data[time_topic]["log_time_s"]
+
+    def axis(columns: dict[str, np.ndarray], other: dict[str, np.ndarray]) -> str:
+        stamped = stamp is not None and stamp in columns and stamp in other
+        # stamps left at zero (a publisher that does not set them) do not order anything
+        if stamped and np.all(np.diff(columns[stamp]) > 0):
+            return stamp
+        return "log_time_s"
+
+    base = data[time_topic]
     header: list[str] = []
     cols: list[np.ndarray] = []
     for topic, columns in data.items():
         for name, values in columns.items():
             values = np.asarray(values, dtype=float)
             if topic != time_topic:
-                values = np.interp(base, columns["log_time_s"], values)
+                by = axis(columns, base)
+                values = np.interp(base[by], columns[by], values)
             header.append(f"{topic}:{name}")
             cols.append(values)
     return header, np.column_stack(cols)
+
+
+def _stamped_columns(reader, topic: str, fields: list[str], stamp: str | None):
+    """The topic's fields, with the stamp field too where its messages carry one."""
+    from feed_twin.io.bag import BagError
+
+    if stamp is None or stamp in fields:
+        return reader.columns(topic, fields)
+    try:
+        return reader.columns(topic, [*fields, stamp])
+    except BagError:
+        return reader.columns(topic, fields)
 
 
 def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap) -> MeasuredRun:
@@ -396,7 +295,7 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
         )
     present = [(name, spec) for name, spec in wanted if spec.column in index]
 
-    t_raw = table[:, index[cmap.time.column]] * _UNITS[cmap.time.unit][1]
+    t_raw = cmap.time.to_si(table[:, index[cmap.time.column]])
     tcol = cmap.time.column
     if np.isnan(t_raw).any():
         row = int(np.flatnonzero(np.isnan(t_raw))[0])
@@ -419,6 +318,18 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
             f"(t = {t_raw[row]!r} s after {t_raw[row - 1]!r} s); sort the file or fix the clock"
         )
     period = float(np.median(dt))
+    if period > MAX_PERIOD_S:
+        raise MeasuredDataError(
+            f"{source}: time column {tcol!r} (declared in {cmap.time.unit}) gives a sample "
+            f"period of {period:.4g} s, slower than any drive trace (> {MAX_PERIOD_S:g} s); is "
+            "the time unit wrong (ms declared as s)?"
+        )
+    if (t_raw[-1] - t_raw[0]) / period > MAX_GRID_FACTOR * n:
+        raise MeasuredDataError(
+            f"{source}: time column {tcol!r}: a gap of {float(dt.max()):.4g} s in a record "
+            f"sampled every {period:.4g} s would take {int((t_raw[-1] - t_raw[0]) / period)} "
+            f"samples to fill; cut the record at the gap (--segment t0:t1)"
+        )
 
     columns: dict[str, np.ndarray] = {}
     for name, spec in present[1:]:
@@ -461,6 +372,7 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
         signals=columns,
         position_sensor=cmap.position_sensor,
         warnings=tuple(notes),
+        trace_filter=cmap.trace_filter,
     )
     _check_plausible(run, cmap)
     return run
@@ -468,20 +380,28 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
 
 def _to_si(name: str, spec: ColumnSpec, raw: np.ndarray, conv: Conversion) -> np.ndarray:
     dim, factor = _UNITS[spec.unit]
+    if dim not in ("angle", "angular_velocity"):
+        return spec.to_si(raw)
     gain = 1.0 if spec.gain is None else spec.gain
-    if dim in ("angle", "angular_velocity"):
-        assert conv.lead_m is not None  # checked when the map was built
-        if spec.unit == "counts":
-            assert conv.counts_per_rev is not None
-            factor = 2.0 * math.pi / conv.counts_per_rev
-        factor *= conv.lead_m / (2.0 * math.pi)
-    return raw * (factor * gain)
+    assert conv.lead_m is not None  # checked when the map was built
+    if spec.unit == "counts":
+        assert conv.counts_per_rev is not None
+        factor = 2.0 * math.pi / conv.counts_per_rev
+    factor *= conv.lead_m / (2.0 * math.pi)
+    return (raw - spec.offset) * (factor * gain)
 
 
 def _check_plausible(run: MeasuredRun, cmap: ColumnMap) -> None:
     lim = cmap.plausibility
     h = run.sample_period_s
     spec_of = dict(cmap.signals)
+    for name in ("pos_meas_m", *EFFORT_SIGNALS, *VOLTAGE_SIGNALS):
+        if name in run and float(np.ptp(run[name])) == 0.0:
+            raise MeasuredDataError(
+                f"{run.source}: column {spec_of[name].column!r} ({name}) holds one value "
+                f"({run[name][0]:.6g} in SI) all along; a frozen or unconnected channel "
+                "carries nothing to compare"
+            )
     for name in ("pos_cmd_m", "pos_meas_m"):
         if name not in run:
             continue

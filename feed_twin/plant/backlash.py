@@ -11,12 +11,14 @@ Ports: `a`, `b` (translational: s [m], v [m/s], f [N]).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from numba import njit
 
 from feed_twin.io.config import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, SlotReader
+from feed_twin.plant.component import Component, Emitter, OwnedEffect, SlotReader
 from feed_twin.plant.coupling import emit_two_port
 
 
@@ -37,10 +39,53 @@ def backlash_force(
     return f, 0.5 * f_e * f_e / k, (f - f_e) * delta_rate
 
 
+def _last_direction(m: Any) -> dict[str, Any]:
+    from feed_twin.analysis.effects import last_direction
+
+    return {"last_direction": last_direction(m)}
+
+
+def _gap_edit(doc: Any, cand: Any) -> Any:
+    """The gap of the model's Backlash (lost motion between nut and table) is fitted.
+
+    A move in +x leaves the table b = gap/2 behind the nut, a move in -x b ahead, so the
+    position residual (twin minus measured) is (gap_true - gap_model)/2 * last direction.
+    """
+    from feed_twin.analysis.edits import FreeParameter, make_edit
+
+    found = doc.of_type(Backlash.TYPE)
+    if not found:
+        raise LookupError(
+            "the model has no Backlash between a nut mass and the table to carry the gap"
+        )
+    slot = f"{found[0]}.gap"
+    nominal = doc.get(slot)
+    guess = max(nominal + 2.0 * cand.coefficients.get("last_direction", 0.0), 1e-7)
+    doc = doc.set(slot, guess)
+    own = [FreeParameter(name=slot, initial=guess, scale=guess, lower=0.0)]
+    return make_edit(doc, own, {"gap_m": lambda v: v[slot]}, interacts=False)
+
+
+def _gap_truth(doc: Any, p: Mapping[str, float]) -> Any:
+    return doc.set(f"{doc.of_type(Backlash.TYPE)[0]}.gap", p["gap_m"])
+
+
 @dataclass(frozen=True, kw_only=True)
 class Backlash(Component):
     TYPE = "Backlash"
     PORTS = {"a": "translational", "b": "translational"}
+    EFFECTS = (
+        OwnedEffect(
+            name="backlash",
+            domain="position",
+            words="lost motion at every reversal: the table stays behind by a fixed gap when "
+            "the direction changes",
+            parameters="gap",
+            signature=_last_direction,
+            edit=_gap_edit,
+            truth=_gap_truth,
+        ),
+    )
 
     gap: float  # total clearance [m]
     k: float  # contact stiffness [N/m]

@@ -38,9 +38,9 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 PortKind = Literal["rotational", "translational", "dc", "ac3"]
 SlotReader = Callable[[str], float]  # parameter slot name of the component -> its value
@@ -70,6 +70,27 @@ class InertiaSpec:
     factor: float = 1.0  # share of the slot value at this port (a shaft puts half at each end)
 
 
+@dataclass(frozen=True, kw_only=True)
+class OwnedEffect:
+    """An effect a component carries, as the discrepancy workflow (feed_twin.analysis) sees it.
+
+    A component lists its effects in `EFFECTS`; analysis.effects, analysis.edits and
+    analysis.synthetic collect them from the registry (feed_twin.plant.registry), so a new law
+    is its component file plus one registry line. The callables take the analysis types
+    (analysis.effects.Motion, analysis.twin.ModelDoc, analysis.ranking.Candidate), imported
+    inside them: the plant never imports the analysis at load time.
+    """
+
+    name: str  # the effect's identifier in reports
+    domain: Literal["effort", "position", "voltage"]  # the residual its signature explains
+    words: str  # what a machine-tool engineer calls it
+    parameters: str  # the component's slots it sets, for the report ("F_hold")
+    signature: Callable[[Any], dict[str, Any]]  # Motion -> regressor name -> array
+    edit: Callable[[Any, Any], Any]  # (ModelDoc, Candidate) -> analysis.edits.Edit
+    truth: Callable[[Any, Mapping[str, float]], Any]  # (ModelDoc, parameters) -> ModelDoc
+    needs: tuple[str, ...] = ()  # Motion fields the signature needs
+
+
 class Component:
     """Base of every plant component; subclasses are frozen keyword-only dataclasses.
 
@@ -80,6 +101,7 @@ class Component:
 
     TYPE: ClassVar[str]
     PORTS: ClassVar[dict[str, PortKind]]
+    EFFECTS: ClassVar[tuple[OwnedEffect, ...]] = ()  # effects the workflow may add with it
 
     def ports(self) -> dict[str, PortKind]:
         return self.PORTS

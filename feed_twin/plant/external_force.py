@@ -8,10 +8,15 @@ Port: `flange` (translational: s [m], v [m/s], f [N]).
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
 
 from feed_twin.io.config import require_finite
-from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.component import Component, Emitter, OwnedEffect
 
 
 def _emit_force(g: Emitter, f: str) -> None:
@@ -32,10 +37,37 @@ class ExternalForce(Component):
             _emit_force(g, g.ext())
 
 
+def _constant_edit(doc: Any, cand: Any) -> Any:
+    """A ConstantForce on the table (or the model's own) with f_0 fitted."""
+    from feed_twin.analysis.edits import free_parameter, make_edit, symmetric
+
+    # the residual is measured minus twin: a force the drive must supply is a load of -f_0
+    f0 = -cand.coefficients.get("one", 0.0)
+    doc, slot = symmetric(doc).with_constant_force(f0)
+    own = [free_parameter(doc, slot, f0, lower=-math.inf)]
+    return make_edit(doc, own, {"f_0_N": lambda v: v[slot]})
+
+
+def _constant_truth(doc: Any, p: Mapping[str, float]) -> Any:
+    return doc.with_constant_force(p["f_0_N"])[0]
+
+
 @dataclass(frozen=True, kw_only=True)
 class ConstantForce(Component):
     TYPE = "ConstantForce"
     PORTS = {"flange": "translational"}
+    EFFECTS = (
+        OwnedEffect(
+            name="constant_force",
+            domain="effort",
+            words="a constant force in one direction (gravity on a vertical axis, an unbalanced "
+            "counterweight, an offset in the force measurement)",
+            parameters="f_0",
+            signature=lambda m: {"one": np.ones_like(m.t_s)},
+            edit=_constant_edit,
+            truth=_constant_truth,
+        ),
+    )
 
     f_0: float  # force into the flange [N]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from feed_twin.plant.axial_compliance import AxialCompliance
 from feed_twin.plant.backlash import Backlash
 from feed_twin.plant.ball_screw import BallScrew
-from feed_twin.plant.component import Component
+from feed_twin.plant.component import Component, OwnedEffect
 from feed_twin.plant.coupling import Coupling
 from feed_twin.plant.dc_bus import DcBus
 from feed_twin.plant.dc_motor import DcMotor
@@ -20,6 +20,7 @@ from feed_twin.plant.mass import Mass
 from feed_twin.plant.pmsm import Pmsm
 from feed_twin.plant.screw_shaft import ScrewShaft
 from feed_twin.plant.sensors import CurrentSensor, Encoder, LinearScale
+from feed_twin.plant.stiction_friction import StictionFriction
 from feed_twin.plant.thermal_growth import ThermalGrowth
 
 COMPONENT_TYPES: dict[str, type[Component]] = {
@@ -45,6 +46,14 @@ COMPONENT_TYPES: dict[str, type[Component]] = {
         Mass,
         Pmsm,
         ScrewShaft,
+        StictionFriction,
         ThermalGrowth,
     )
+}
+# the effects the discrepancy workflow may add, each with the component that carries it
+OWNED_EFFECTS: tuple[OwnedEffect, ...] = tuple(
+    effect for cls in COMPONENT_TYPES.values() for effect in cls.EFFECTS
+)
+OWNER_OF: dict[str, str] = {
+    effect.name: cls.TYPE for cls in COMPONENT_TYPES.values() for effect in cls.EFFECTS
 }

@@ -118,6 +118,7 @@ def replay(bag: str | Path, doc: ModelDoc, cmap: ColumnMap, config: ShadowConfig
         samples.x_twin_m[ok],
         samples.effort_meas[ok] if has_effort else None,
         samples.effort_twin[ok] if has_effort else None,
+        effort_unit=twin.effort_unit,
     )
     return ReplayResult(
         samples=samples,
@@ -301,7 +302,7 @@ def report_markdown(d: dict[str, Any]) -> str:
         "|---|---|---|---|---|",
         f"| {_fmt(m['fe_dev_rms_m'], 1e6)} | {_fmt(m['fe_dev_max_m'], 1e6)} | "
         f"{_fmt(m['pos_rel_err_pct'])} | {_fmt(m['effort_rel_err_pct'])} | "
-        f"{_fmt(m['effort_rms_N'])} {d['effort_unit']} |",
+        f"{_fmt(m['effort_rms'])} {d['effort_unit']} |",
         "",
         "## Message faults",
         "",

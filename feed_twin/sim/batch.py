@@ -222,10 +222,12 @@ def run_batch(
     controller_params: np.ndarray | None = None,
     seeds: np.ndarray | None = None,
     threads: int | None = None,
+    cs0: np.ndarray | None = None,
 ) -> BatchResult:
     """Run N parameter sets (rows of `params`, e.g. from `model.param_vector`) from tick 0.
 
-    Every set starts from `x0` (default: the engine's initial state) and a fresh controller; the
+    Every set starts from `x0` (default: the engine's initial state) and the controller state
+    `cs0` (default: a fresh controller); the
     inputs are shared; sets run on `threads` threads (default: the usable cores). A set that
     diverges is marked in `diverged`, its signals after the
     divergence are NaN, and the others run on; a set whose friction is too sharp for the step
@@ -242,7 +244,8 @@ def run_batch(
     status[[bool(m) for m in refused], 0] = 2.0  # not run: the kernel skips sets with a status
     engine.reset()
     X = np.tile(engine.x if x0 is None else np.asarray(x0, float), (N, 1))
-    CS = np.tile(engine.cs, (N, 1)) if engine.cs.size else np.zeros((N, 0))
+    cs = engine.cs if cs0 is None else np.asarray(cs0, dtype=float)
+    CS = np.tile(cs, (N, 1)) if cs.size else np.zeros((N, 0))
     if controller_params is None:
         CP = np.tile(engine.cp, (N, 1))
     else:

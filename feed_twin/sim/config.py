@@ -26,7 +26,8 @@ from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.engine import Engine
 
-SECTIONS = ("plant", "engine", "controller", "nc", "shadow", "ros")
+# `analysis`: what the discrepancy workflow writes beside a fitted model (analysis.twin.ModelDoc)
+SECTIONS = ("plant", "engine", "controller", "nc", "shadow", "ros", "analysis")
 
 
 @dataclass(frozen=True, kw_only=True)

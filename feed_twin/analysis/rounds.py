@@ -1,0 +1,483 @@
+"""The rounds of the discrepancy workflow (analysis.diagnose): its channels and their
+weights, one round of rank-fit-test-keep, the re-examination of earlier effects, the final
+joint re-fit.
+
+The fit's channels are the recorded effort, position and q-voltage residuals (measured minus
+twin); their weights are re-estimated from the current model before every round
+(analysis.significance). See analysis.diagnose for the workflow as a whole.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from feed_twin.analysis.edits import EDITS, Edit, interacting
+from feed_twin.analysis.effects import Motion
+from feed_twin.analysis.fit import (
+    FitResult,
+    FreeParameter,
+    Measured,
+    SimOutputs,
+    cost_of,
+    fit,
+)
+from feed_twin.analysis.ranking import Candidate, evidence, rank
+from feed_twin.analysis.reexamine import Found, collapsed, neutral_values, removable, without
+from feed_twin.analysis.report import FoundEffect
+from feed_twin.analysis.significance import compare, sample_noise
+from feed_twin.analysis.twin import EFFORT_DELAY_SLOT, Drive, ModelDoc, Twin, delayed
+from feed_twin.io.measured import MeasuredRun
+
+VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True, kw_only=True)
+class Options:
+    max_effects: int = 5  # rounds of add-and-fit at most
+    candidates_per_round: int = 3  # significant candidates fitted by simulation per round
+    rival_ratio: float = 0.5  # fit a rival only if it explains this share of the leader's part
+    max_evaluations: int = 30  # least-squares function evaluations per fit
+    fit_samples: int = 6000  # cost samples per channel (the record is strided down to this)
+
+    def __post_init__(self) -> None:
+        for name in ("max_effects", "candidates_per_round", "max_evaluations", "fit_samples"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} = {value!r}: must be a whole number >= 1")
+        if not 0.0 < self.rival_ratio <= 1.0:
+            raise ValueError(f"rival_ratio = {self.rival_ratio!r}: must lie in (0, 1]")
+
+
+@dataclass
+class State:
+    doc: ModelDoc
+    twin: Twin
+    outputs: SimOutputs
+    cost: float
+    found: list[Found] = field(default_factory=list)
+
+    def found_free(self) -> list[FreeParameter]:
+        return [p for f in self.found for p in f.own]
+
+
+class Values(dict):
+    """Fitted values read from a model document on demand (for the reported parameters)."""
+
+    def __init__(self, doc: ModelDoc) -> None:
+        super().__init__()
+        self.doc = doc
+
+    def __missing__(self, name: str) -> float:
+        return self.doc.get(name)
+
+
+def unit_of(twin: Twin, cand: Candidate) -> str:
+    return {"effort": twin.effort_unit, "voltage": "V"}.get(cand.residual_domain, "m")
+
+
+def noop(_: str) -> None:
+    pass
+
+
+def residuals(run: MeasuredRun, out: SimOutputs, row: int = 0):
+    x = run["pos_meas_m"]
+    rp = out.x_m[row] - x
+    re = None
+    name = run.effort_name
+    if name is not None and out.effort is not None:
+        re = run[name] - out.effort[row]
+    return re, rp
+
+
+def voltage_residual(run: MeasuredRun, out: SimOutputs, row: int = 0) -> np.ndarray | None:
+    """Measured minus twin q-voltage [V] of the current controller, when both have it."""
+    if VOLTAGE_Q not in run or out.voltage_q is None:
+        return None
+    return run[VOLTAGE_Q] - out.voltage_q[row]
+
+
+def channel_residuals(run: MeasuredRun, out: SimOutputs, row: int = 0) -> dict[str, np.ndarray]:
+    """Each recorded channel's residual (measured minus twin) on the record's time base."""
+    re, rp = residuals(run, out, row)
+    ru = voltage_residual(run, out, row)
+    found = {"effort": re, "position": -rp, "voltage": ru}
+    return {k: v for k, v in found.items() if v is not None}
+
+
+def noise_floors(run: MeasuredRun, out: SimOutputs) -> dict[str, float]:
+    """Each channel's sample noise: the least its weight's noise level can be (see
+    analysis.significance), never below the smallest step that means anything in its unit."""
+    least = {"effort": 1e-9, "position": 1e-12, "voltage": 1e-6}
+    return {k: max(sample_noise(r), least[k]) for k, r in channel_residuals(run, out).items()}
+
+
+def weighted_channels(
+    run: MeasuredRun, out: SimOutputs, stride: int, floors: dict[str, float]
+) -> Measured:
+    """The fit's channels, each weighted by its noise level estimated at the model `out`: the
+    RMS of its residual there, floored by its sample noise (analysis.significance)."""
+    sigma = {
+        k: max(float(np.sqrt(np.mean(r**2))), floors[k])
+        for k, r in channel_residuals(run, out).items()
+    }
+    name = run.effort_name
+    return Measured(
+        x_m=run["pos_meas_m"],
+        effort=None if name is None or out.effort is None else run[name],
+        scale_x=sigma["position"],
+        scale_effort=sigma.get("effort", 1.0),
+        stride=stride,
+        voltage_q=run[VOLTAGE_Q] if "voltage" in sigma else None,
+        scale_voltage=sigma.get("voltage", 1.0),
+    )
+
+
+def _fit_resumed(
+    twin: Twin, drive: Drive, free: list[FreeParameter], meas: Measured, opts: Options
+) -> FitResult:
+    """Least squares; resumed once from where it stopped if the budget ran out on the way down
+    (a friction fit through stick-slip needs more steps than a mass), so that a fit which was
+    still improving is not thrown away for its budget alone."""
+    result = fit(
+        lambda params: twin.simulate(drive, params),
+        twin.nominal,
+        twin.index,
+        free,
+        meas,
+        max_evaluations=opts.max_evaluations,
+    )
+    if result.converged or not result.cost < result.cost_initial:
+        return result
+    resumed = fit(
+        lambda params: twin.simulate(drive, params),
+        twin.nominal,
+        twin.index,
+        [dataclasses.replace(p, initial=result.values[p.name]) for p in free],
+        meas,
+        max_evaluations=opts.max_evaluations,
+    )
+    return dataclasses.replace(
+        resumed,
+        cost_initial=result.cost_initial,
+        evaluations=result.evaluations + resumed.evaluations,
+    )
+
+
+def _try(
+    state: State, cand: Candidate, drive: Drive, meas: Measured, opts: Options
+) -> tuple[Edit, list[FreeParameter], Twin, FitResult] | str:
+    """Add the candidate to the model and fit it (with the effects found before); returns the
+    edit, the effect's own parameters, the compiled twin and the fit, or why it was not fitted."""
+    if cand.name not in EDITS:
+        return (
+            f"{cand.name}: named by its signature, but the workflow cannot add "
+            f"{cand.effect.component} to a model yet; not fitted"
+        )
+    try:
+        edit = EDITS[cand.name](state.doc, cand)
+    except LookupError as exc:
+        return f"{cand.name}: cannot be added to this model ({exc}); not fitted"
+    # the effects found before interact with the new one (a constant force fitted alone has
+    # absorbed part of a Coulomb force found later): their parameters are fitted again with it
+    names = {p.name for p in edit.own}
+    alone = list(edit.own)
+    again = []
+    for p in () if edit.grid else state.found_free():
+        if p.name in names:
+            continue
+        if not edit.doc.has_slot(p.name):
+            continue  # the parameter was split or replaced by the new effect
+        again.append(dataclasses.replace(p, initial=edit.doc.get(p.name)))
+        names.add(p.name)
+    own = edit.own + again
+    edit = dataclasses.replace(
+        edit, own=own, free=own + [p for p in edit.free if p.name not in names]
+    )
+    twin = Twin.compile(edit.doc)
+    if edit.grid:
+        return edit, alone, twin, _grid_search(twin, edit, drive, meas)
+    return edit, alone, twin, _fit_resumed(twin, drive, edit.own, meas, opts)
+
+
+def _grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
+    """A searched parameter (a delay in ticks, a recorded channel's delay): every grid value
+    in one batch, best kept. A record slot (analysis.*) changes no simulation: the twin runs
+    once and its output is shifted for each value."""
+    (param,) = edit.own
+    if param.name == EFFORT_DELAY_SLOT:
+        out = _effort_delays(twin, edit, drive)
+    else:
+        batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
+        for i in twin.index[param.name]:
+            batch[:, i] = edit.grid
+        out = twin.simulate(drive, batch)
+    costs = np.array([cost_of(meas, out, row) for row in range(len(edit.grid))])
+    best = int(np.argmin(costs))
+    start = int(np.argmin(np.abs(np.asarray(edit.grid) - param.initial)))
+    row = SimOutputs(
+        x_m=out.x_m[best : best + 1],
+        effort=None if out.effort is None else out.effort[best : best + 1],
+        ok=out.ok[best : best + 1],
+        voltage_q=None if out.voltage_q is None else out.voltage_q[best : best + 1],
+    )
+    return FitResult(
+        values={param.name: float(edit.grid[best])},
+        cost_initial=float(costs[start]),
+        cost=float(costs[best]),
+        converged=bool(np.isfinite(costs[best])),
+        message=f"grid search over {len(edit.grid)} values",
+        evaluations=len(edit.grid),
+        outputs=row,
+    )
+
+
+def _effort_delays(twin: Twin, edit: Edit, drive: Drive) -> SimOutputs:
+    """The twin's outputs once, its effort shifted by every grid delay (one row each)."""
+    if twin.doc.get(EFFORT_DELAY_SLOT) != 0.0:
+        twin = Twin.compile(twin.doc.set(EFFORT_DELAY_SLOT, 0.0))
+    once = twin.simulate(drive, twin.nominal[None, :])
+    n = len(edit.grid)
+    effort = None
+    if once.effort is not None:
+        effort = np.vstack([delayed(once.effort, drive.t_s, d) for d in edit.grid])
+    return SimOutputs(
+        x_m=np.repeat(once.x_m, n, axis=0),
+        effort=effort,
+        ok=np.repeat(once.ok, n),
+        voltage_q=None if once.voltage_q is None else np.repeat(once.voltage_q, n, axis=0),
+    )
+
+
+def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> str | None:
+    """Re-fit all found effects together with the nominal parameters they interact with.
+
+    Done once, at the end: re-estimating the mass or the viscous coefficient in every round
+    would let them absorb the signature of an effect that is found later. If the joint fit
+    does not converge or is not better, the effect-by-effect model stays and the note says so.
+    """
+    free = []
+    for p in state.found_free():
+        if not state.doc.has_slot(p.name):
+            continue  # a tie split by a later effect (Coulomb by asymmetric friction)
+        free.append(dataclasses.replace(p, initial=state.doc.get(p.name)))
+    names = {p.name for p in free}
+    gain = state.doc.gain_slot()
+    if gain not in names:
+        # with a fitted drive gain the mass and friction would be degenerate (the gain scales
+        # every force), so they are re-estimated only when the gain is not
+        free += [p for p in interacting(state.doc) if p.name not in names]
+    twin = Twin.compile(state.doc)
+    joint = fit(
+        lambda params: twin.simulate(drive, params),
+        twin.nominal,
+        twin.index,
+        free,
+        meas,
+        max_evaluations=opts.max_evaluations,
+    )
+    if not joint.converged or joint.cost > state.cost:
+        return (
+            f"the joint re-fit of the found effects and the nominal parameters did not "
+            f"converge or improve ({joint.message}); kept the effect-by-effect fit"
+        )
+    doc = state.doc
+    for name, value in joint.values.items():
+        doc = doc.set(name, value)
+    state.doc = doc
+    state.twin = Twin.compile(doc)
+    state.outputs, state.cost = joint.outputs, joint.cost
+    return None
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Context:
+    """What every round of the workflow works on."""
+
+    run: MeasuredRun
+    drive: Drive
+    opts: Options
+    stride: int
+    floors: dict[str, float]  # each channel's sample noise (floors)
+    motion: Motion
+    stiffness: float | None  # the loop's stiffness for a record without effort
+    unit_twin: Twin  # the nominal twin (for the evidence's units)
+    progress: Progress
+    notes: list[str]
+
+    def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
+        return channel_residuals(self.run, out)
+
+
+def run_round(
+    round_no: int, state: State, ctx: Context, excluded: list[str], unfitted: list[dict]
+) -> tuple[list[Candidate], bool]:
+    """One round: rank, fit the leading candidates, keep the best one if the test passes, then
+    re-examine the effects found before. Returns the ranking and whether to go on."""
+    run, opts, progress = ctx.run, ctx.opts, ctx.progress
+    re, rp = residuals(run, state.outputs)
+    ranking = rank(
+        ctx.motion,
+        effort_residual=re,
+        position_residual=rp,
+        exclude=tuple(excluded),
+        loop_stiffness=ctx.stiffness,
+        voltage_residual=voltage_residual(run, state.outputs),
+    )
+    significant = [c for c in ranking if c.significant]
+    if not significant:
+        progress(f"round {round_no}: no effect of the library explains a significant part")
+        return ranking, False
+    # the weights of this round: each channel's noise level at the current model
+    meas = weighted_channels(run, state.outputs, ctx.stride, ctx.floors)
+    state.cost = cost_of(meas, state.outputs)
+    lead = significant[0]
+    rivals = [
+        c
+        for c in significant[: opts.candidates_per_round]
+        if c.explained_fraction >= opts.rival_ratio * lead.explained_fraction
+    ]
+    progress(
+        f"round {round_no}: fitting {', '.join(c.name for c in rivals)} "
+        "(signature explains "
+        + ", ".join(f"{100 * c.explained_fraction:.0f} %" for c in rivals)
+        + ")"
+    )
+    trials = []
+    for cand in rivals:
+        tried = _try(state, cand, ctx.drive, meas, opts)
+        if isinstance(tried, str):
+            ctx.notes.append(tried)
+            unfitted.append(
+                {
+                    "name": cand.name,
+                    "evidence": evidence(cand, unit_of(ctx.unit_twin, cand)),
+                    "reason": tried,
+                }
+            )
+            excluded.append(cand.name)
+            continue
+        edit, alone, new_twin, result = tried
+        progress(
+            f"  {cand.name}: cost {result.cost_initial:.4g} -> {result.cost:.4g} "
+            f"({result.evaluations} simulations, "
+            + ("converged)" if result.converged else "not converged)")
+        )
+        if not result.converged:
+            ctx.notes.append(
+                f"the fit of {cand.name} did not converge ({result.message}); "
+                "kept the last good model"
+            )
+            excluded.append(cand.name)
+            continue
+        trials.append((cand, edit, alone, new_twin, result))
+    if not trials:
+        return ranking, True
+    # the winner removes the most cost per added degree of freedom relative to what is
+    # left (the partial F statistic up to the common effective sample count), so a
+    # two-parameter effect must do twice the work of a one-parameter one
+    cand, edit, alone, new_twin, result = max(
+        trials,
+        key=lambda t: (state.cost - t[4].cost) / t[1].added / max(t[4].cost, 1e-300),
+    )
+    excluded.append(cand.name)
+    # the search behind it: the signature's variants (or the grid of a whole number) and the
+    # rivals it was chosen from
+    searched = max(cand.searched, len(edit.grid), 1) * len(trials)
+    verdict = compare(
+        ctx.channels(state.outputs),
+        ctx.channels(result.outputs),
+        added=edit.added,
+        searched=searched,
+    )
+    if not verdict.significant:
+        ctx.notes.append(
+            f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
+        )
+        return ranking, True
+    _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
+    _reexamine(state, ctx, meas)
+    return ranking, True
+
+
+def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
+    """Adopt the fitted effect into the state."""
+    before = state.doc
+    doc = edit.doc
+    for name, value in result.values.items():
+        doc = doc.set(name, value)
+    explained = (state.cost - result.cost) / state.cost if state.cost > 0 else 0.0
+    params = {k: float(f(Values(doc))) for k, f in edit.report.items()}
+    slots = tuple(p.name for p in alone)
+    state.found.append(
+        Found(
+            effect=FoundEffect(
+                name=cand.name,
+                evidence=evidence(cand, unit_of(ctx.unit_twin, cand)),
+                parameters=params,
+                explained_fraction=explained,
+                component=cand.effect.component,
+            ),
+            # searched whole numbers stay out of the least-squares re-fits
+            own=() if edit.grid else tuple(alone),
+            neutral=neutral_values(before, doc, slots),
+            at_discovery={s: doc.get(s) for s in slots},
+            report=edit.report,
+            added=edit.added,
+        )
+    )
+    state.doc, state.twin, state.outputs, state.cost = doc, new_twin, result.outputs, result.cost
+    shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in explained_by.items())
+    ctx.progress(f"  added {cand.name}: {params}; it removed {shares} residual energy")
+
+
+def drop_collapsed(state: State, ctx: Context, when: str) -> None:
+    """Remove the effects whose fitted parameters fell back to their neutral values."""
+    for f in [f for f in state.found if collapsed(f, state.doc)]:
+        doc = state.doc
+        for slot, value in f.neutral.items():
+            doc = doc.set(slot, value)
+        state.doc = doc
+        state.found.remove(f)
+        ctx.notes.append(
+            f"{f.name} was dropped {when}: its fitted parameters collapsed to the values "
+            f"without it ({', '.join(f'{k} = {state.doc.get(k):.4g}' for k in f.neutral)})"
+        )
+    state.twin = Twin.compile(state.doc)
+    state.outputs = state.twin.simulate(ctx.drive, state.twin.nominal[None, :])
+
+
+def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
+    """Examine the effects found before the newest one jointly (analysis.reexamine)."""
+    if len(state.found) < 2:
+        return
+    if any(collapsed(f, state.doc) for f in state.found[:-1]):
+        drop_collapsed(state, ctx, "once a later effect was in the model")
+    for target in list(state.found[:-1]):
+        if not removable([target], state.doc) or target.own == ():
+            continue
+        others = [f for f in state.found if f is not target]
+        gone = without(
+            target,
+            others,
+            state.doc,
+            state.outputs,
+            drive=ctx.drive,
+            meas=meas,
+            channels=ctx.channels,
+            max_evaluations=ctx.opts.max_evaluations,
+        )
+        if gone is None or gone.verdict.significant:
+            continue
+        state.found.remove(target)
+        state.doc, state.twin, state.outputs = gone.doc, gone.twin, gone.outputs
+        ctx.notes.append(
+            f"{target.name} was dropped once a later effect was in the model: removing it "
+            f"costs nothing significant (with it the model {gone.verdict.words()})"
+        )
+        ctx.progress(f"  dropped {target.name}: removing it costs nothing significant")

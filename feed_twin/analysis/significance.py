@@ -1,0 +1,134 @@
+"""Channel weights and the test an added effect must pass, made to hold on real records.
+
+Weights. The fit's cost sums the squared residuals of up to three channels (effort, position,
+q-voltage), each divided by its noise level sigma_c. With the sigma_c unknown, the maximum-
+likelihood estimate of each is the RMS of that channel's residual at the current model (the
+concentrated likelihood is sum_c n_c/2 ln RSS_c, whose gradient weighs channel c by 1/RSS_c),
+so the weights are estimated again from the current model before every round, floored by the
+channel's own sample noise (`sample_noise`): what no model can remove. Weights fixed at the
+nominal model's residual, as before, let a channel that one large effect explained (the current
+of a vertical axis, once the weight is found) carry 1 % of the cost, and the noise of another
+channel then decided the rest.
+
+Test. An effect with `added` free parameters, found by a search over `searched` alternatives
+(cogging orders, Stribeck speeds, delays, the rivals of one round), is kept when the likelihood
+ratio
+    LR = sum_c n_eff,c ln(RSS_c,before / RSS_c,after)
+exceeds the chi^2(added) quantile at ALPHA / searched (Bonferroni: the best of m alternatives
+is as likely to pass by chance as any of m tests), and it removes at least MIN_EXPLAINED of one
+channel's residual energy (so that a huge record cannot make a negligible effect count). An
+effect that halves one channel's residual RMS removes 75 % of that channel's energy: no other
+channel can veto it, unless that one gets worse by as much in likelihood.
+
+Effective samples. Residuals of filtered records are correlated over many samples; n samples
+then carry n / tau independent observations, tau the integrated autocorrelation time
+1 + 2 sum_k rho_k (summed up to Sokal's window, the first M >= 5 tau(M)): the spectrum at low
+frequencies, where the signatures live, over the variance. The AR(1) value
+(1 + rho_1) / (1 - rho_1), which the ranking's screen keeps on purpose (analysis.ranking), is
+3.5 times too large for the noise of a second-order trace filter
+(tests/test_analysis_significance.py): here it would make real effects of filtered records
+look like chance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal as sps
+from scipy import stats
+
+ALPHA = 1e-3  # false-alarm probability of one test
+MIN_EXPLAINED = 0.05  # share of one channel's residual energy an effect must remove
+NOISE_WINDOW = 7  # samples of the local cubic that sample_noise removes
+SOKAL_C = 5.0  # window factor of the integrated autocorrelation time
+
+
+def sample_noise(y: np.ndarray) -> float:
+    """Standard deviation of the sample-to-sample noise of a recorded signal.
+
+    The residual of a local cubic over NOISE_WINDOW samples keeps white noise with the variance
+    sigma^2 (1 - s_0), s_0 the filter's centre weight (the filter is a projection), and keeps
+    little of a smooth motion; its median absolute value makes one glitch irrelevant.
+    """
+    y = np.asarray(y, dtype=float)
+    if len(y) < 2 * NOISE_WINDOW:
+        return 0.0
+    smooth = sps.savgol_filter(y, NOISE_WINDOW, 3)
+    centre = sps.savgol_coeffs(NOISE_WINDOW, 3)[NOISE_WINDOW // 2]
+    mad = float(np.median(np.abs(y - smooth)))
+    return 1.4826 * mad / math.sqrt(1.0 - centre)
+
+
+def effective_samples(e: np.ndarray) -> float:
+    """Independent observations behind n correlated residual samples (module docstring)."""
+    e = np.asarray(e, dtype=float)
+    e = e - e.mean()
+    n = len(e)
+    energy = float(np.dot(e, e))
+    if n < 3 or energy == 0.0:
+        return float(n)
+    size = 1 << int(np.ceil(np.log2(2 * n)))
+    spectrum = np.fft.rfft(e, size)
+    acf = np.fft.irfft(spectrum * np.conj(spectrum), size)[:n] / energy
+    tau_sum = 1.0 + 2.0 * np.cumsum(acf[1:])
+    lags = np.arange(1, n)
+    inside = lags < SOKAL_C * tau_sum
+    window = int(np.argmin(inside)) if not inside.all() else n - 2
+    return n / max(float(tau_sum[window]), 1.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Verdict:
+    """Whether one model explains the record significantly better than another."""
+
+    likelihood_ratio: float
+    p_value: float  # after the correction for the search
+    explained: dict[str, float]  # channel -> share of its residual energy removed
+    significant: bool
+
+    @property
+    def best_channel(self) -> str:
+        return max(self.explained, key=self.explained.__getitem__)
+
+    def words(self) -> str:
+        shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in self.explained.items())
+        return (
+            f"removes {shares} residual energy "
+            f"(LR = {self.likelihood_ratio:.3g}, p = {self.p_value:.2g})"
+        )
+
+
+def compare(
+    before: Mapping[str, np.ndarray],
+    after: Mapping[str, np.ndarray],
+    *,
+    added: int,
+    searched: int = 1,
+) -> Verdict:
+    """The likelihood-ratio test of `after` (added free parameters) against `before`.
+
+    Both map a channel name to its residual (measured minus model) on one time base.
+    """
+    if added < 1 or searched < 1:
+        raise ValueError(f"added = {added!r}, searched = {searched!r}: both must be >= 1")
+    lr = 0.0
+    explained: dict[str, float] = {}
+    for name, r_after in after.items():
+        rss_before = float(np.dot(before[name], before[name]))
+        rss_after = float(np.dot(r_after, r_after))
+        if rss_before <= 0.0:
+            continue
+        explained[name] = 1.0 - rss_after / rss_before
+        lr += effective_samples(r_after) * math.log(rss_before / max(rss_after, 1e-300))
+    p = float(stats.chi2.sf(lr, added)) if lr > 0.0 else 1.0
+    p = min(1.0, p * searched)
+    best = max(explained.values(), default=0.0)
+    return Verdict(
+        likelihood_ratio=lr,
+        p_value=p,
+        explained=explained,
+        significant=p < ALPHA and best >= MIN_EXPLAINED,
+    )

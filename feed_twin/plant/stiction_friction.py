@@ -1,0 +1,158 @@
+"""Stiction: a friction that holds the table at rest up to a holding force (elasto-plastic).
+
+A sliding friction regularised around v = 0 (GuideFriction's smooth sign) cannot hold a load:
+under any force below the Coulomb level the table creeps at a speed of order v_reg, so a
+position loop settles with nothing left on the drive, while a real drive stands still holding
+the current it had when the table stopped (the stiction band). This law holds it: the contact
+asperities are a spring of deflection z (the presliding displacement, a few micrometres) that
+follows the motion while the force they carry is below the holding force F_hold and slips
+beyond it (the elasto-plastic model of Dupont et al., without its presliding creep):
+    z_max = F_hold / k_s,
+    dz/dt = 0 if z v > 0 and |z| >= z_max (slipping: the asperities are dragged along),
+            v otherwise (stuck: they deflect with the table),
+            minus r_slip (z - clip(z, -z_max, z_max)) (an RK4 stage that overshot falls back),
+    F = k_s clip(z, -z_max, z_max) + d_s v [while |z| < z_max],
+the flange receives -F. Sliding, F = F_hold sgn(v) (a Coulomb force); at rest F is whatever
+force the table needs to stay, up to F_hold, taken up by a deflection F / k_s. Nothing in the
+law is stiff: the switch costs no step size (only r_slip h < 2.78 for explicit RK4, r_slip h = 1
+is plenty), and k_s with the moving mass m must keep h sqrt(k_s / m) small (the stuck table is
+a mass on the asperity spring, damped by d_s).
+Stored energy k_s clip(z)^2 / 2; loss F v - k_s clip(z) d(clip z)/dt (F_hold |v| sliding,
+d_s v^2 stuck).
+Port: `flange` (translational: s [m], v [m/s], f [N] into the flange). State: `z` [m], 0 at
+the start (nothing held).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.plant.component import Component, Emitter, OwnedEffect, SlotReader, StateSpec
+
+DEFLECTION_LIMIT_M = 1e-2  # |z| above this is a runaway
+# presliding stiffness and damping ratio the workflow gives a stiction it adds: a deflection of
+# 10 um at a holding force of 100 N, an asperity spring damped at half the critical value
+ADDED_K_S_N_M = 1e7
+ADDED_DAMPING_RATIO = 0.5
+
+
+@njit(error_model="numpy", forceinline=True)
+def stiction_force(
+    z: float, v: float, F_hold: float, k_s: float, d_s: float, r_slip: float
+) -> tuple[float, float, float, float]:
+    """(friction force F [N], dz/dt [m/s], stored energy [J], loss power [W])."""
+    z_max = F_hold / k_s
+    z_c = min(max(z, -z_max), z_max)
+    stuck = abs(z) < z_max
+    # slipping: dragged along; stuck or backing off: deflecting with the table
+    rate = (0.0 if not stuck and z * v > 0.0 else v) - r_slip * (z - z_c)
+    damping = d_s * v if stuck else 0.0
+    f = k_s * z_c + damping
+    stored = 0.5 * k_s * z_c * z_c
+    loss = f * v - (k_s * z_c * rate if stuck else 0.0)
+    return f, rate, stored, loss
+
+
+def _held(m: Any) -> dict[str, np.ndarray]:
+    # at rest the stuck table keeps the force it had when it stopped: the loop stops it short of
+    # the command (or past it, the EMPS loop's proportional velocity law overshoots), the same
+    # way after every move of one direction, so the held force follows the last direction
+    from feed_twin.analysis.effects import last_direction, moving
+
+    return {"held": last_direction(m) * (1.0 - moving(m))}
+
+
+def _edit(doc: Any, cand: Any) -> Any:
+    """Add StictionFriction on the table; it takes over the Coulomb part of the guide friction
+    (the common part of both directions), so that the sliding force stays what it was."""
+    from feed_twin.analysis.edits import FreeParameter, make_edit
+
+    fr = doc.friction()
+    coulomb = 0.0
+    if fr is not None:
+        coulomb = min(doc.get(f"{fr}.F_c_pos"), doc.get(f"{fr}.F_c_neg"))
+        for side in ("F_c_pos", "F_c_neg"):
+            doc = doc.set(f"{fr}.{side}", doc.get(f"{fr}.{side}") - coulomb)
+    f_hold = coulomb if coulomb > 0.0 else max(abs(cand.coefficients.get("held", 0.0)), 1e-3)
+    mass = doc.get(doc.mass_slot()) if doc.mass_slot() is not None else 1.0
+    period = float(doc.data["controller"]["base_period_s"])
+    params = {
+        "F_hold": f_hold,
+        "k_s": ADDED_K_S_N_M,
+        "d_s": 2.0 * ADDED_DAMPING_RATIO * float(np.sqrt(ADDED_K_S_N_M * mass)),
+        "r_slip": 1.0 / period,
+    }
+    doc, name = doc.with_table_component("stiction", StictionFriction.TYPE, params)
+    slot = f"{name}.F_hold"
+    own = [FreeParameter(name=slot, initial=f_hold, scale=f_hold, lower=0.0)]
+    # re-fitted with the rigid-body parameters it trades off against (mass, friction)
+    return make_edit(doc, own, {"F_hold_N": lambda v: v[slot]})
+
+
+def _truth(doc: Any, p: Mapping[str, float]) -> Any:
+    mass = doc.get(doc.mass_slot()) if doc.mass_slot() is not None else 1.0
+    period = float(doc.data["controller"]["base_period_s"])
+    params = {
+        "F_hold": float(p["F_hold_N"]),
+        "k_s": ADDED_K_S_N_M,
+        "d_s": 2.0 * ADDED_DAMPING_RATIO * float(np.sqrt(ADDED_K_S_N_M * mass)),
+        "r_slip": 1.0 / period,
+    }
+    return doc.with_table_component("stiction", StictionFriction.TYPE, params)[0]
+
+
+@dataclass(frozen=True, kw_only=True)
+class StictionFriction(Component):
+    TYPE = "StictionFriction"
+    PORTS = {"flange": "translational"}
+    EFFECTS = (
+        OwnedEffect(
+            name="stiction",
+            domain="effort",
+            words="the drive keeps a holding force while the table stands still: friction "
+            "holds the table at rest (stiction band) instead of letting it creep",
+            parameters="F_hold",
+            signature=_held,
+            edit=_edit,
+            truth=_truth,
+        ),
+    )
+
+    F_hold: float  # holding (break-away) force, also the sliding force [N]
+    k_s: float  # presliding stiffness of the contact [N/m]
+    d_s: float  # presliding damping while stuck [N s/m]
+    r_slip: float  # rate at which an overshoot past the holding deflection falls back [1/s]
+
+    def __post_init__(self) -> None:
+        require_nonnegative("F_hold", self.F_hold)
+        require_positive("k_s", self.k_s)
+        require_nonnegative("d_s", self.d_s)
+        require_positive("r_slip", self.r_slip)
+
+    def states(self) -> tuple[StateSpec, ...]:
+        return (StateSpec(name="z", unit="m", limit=DEFLECTION_LIMIT_M),)
+
+    def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
+        return {"flange": slot("d_s")}
+
+    def emit(self, stage: str, g: Emitter) -> None:
+        if stage != "dynamics":
+            return
+        _, v = g.across("flange")
+        f, rate, e, loss = g.local("f"), g.local("rate"), g.local("e"), g.local("loss")
+        g.call(
+            (f, rate, e, loss),
+            "feed_twin.plant.stiction_friction.stiction_force",
+            (g.x("z"), v, g.p("F_hold"), g.p("k_s"), g.p("d_s"), g.p("r_slip")),
+        )
+        g.d("z", rate)
+        g.apply("flange", f"-{f}")
+        g.aux("force", f)
+        g.stored("asperities", e)
+        g.power("loss", "friction", loss)

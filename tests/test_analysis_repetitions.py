@@ -1,0 +1,91 @@
+"""Repetitions of the program in one record: found, cut at the rests, identify on one and
+validate on the others in one command."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from feed_twin.analysis.repetitions import find_period, split_repetitions
+from feed_twin.analysis.synthetic import PROGRAM, generate, write_csv
+from feed_twin.analysis.twin import ModelDoc
+from feed_twin.cli import main
+from feed_twin.io.measured import load_measured
+
+ROOT = Path(__file__).resolve().parents[1]
+NOMINAL = ROOT / "config" / "emps_nominal.yaml"
+HIDDEN = {"coulomb_friction": {"F_c_N": 15.0}}
+
+
+def _three_times() -> str:
+    """The synthetic program three times, with rests of 0.3 s and 0.5 s between the runs."""
+    lines = PROGRAM.splitlines()
+    moves = [ln for ln in lines[2:] if ln and ln != "M30"]
+    return "\n".join(lines[:2] + moves + ["G4 P0.3"] + moves + ["G4 P0.5"] + moves + ["M30", ""])
+
+
+@pytest.fixture(scope="module")
+def record(tmp_path_factory):
+    nominal = ModelDoc.load(NOMINAL)
+    tmp = tmp_path_factory.mktemp("reps")
+    once = generate(nominal, HIDDEN)
+    map_once = write_csv(tmp / "once.csv", once, nominal)
+    thrice = generate(nominal, HIDDEN, program=_three_times())
+    map_thrice = write_csv(tmp / "thrice.csv", thrice, nominal)
+    return {
+        "once": (tmp / "once.csv", map_once),
+        "thrice": (tmp / "thrice.csv", map_thrice),
+        "run_s": once["time_ms"][-1] * 1e-3,  # one run of the program
+    }
+
+
+def test_three_runs_are_found_and_cut_in_the_rests(record):
+    run = load_measured(*record["thrice"])
+    period, r = find_period(run)
+    one = record["run_s"]
+    # the period lies between one run plus the shorter and plus the longer rest
+    assert one + 0.3 - 0.05 < period < one + 0.5 + 0.05
+    assert r > 0.8
+    parts = split_repetitions(run)
+    assert len(parts) == 3
+    for part in parts:
+        assert part.t_s[-1] - part.t_s[0] == pytest.approx(period, abs=0.5)
+    # each cut lies in a rest: the command stands still on both sides of it
+    for before, after in zip(parts[:-1], parts[1:], strict=True):
+        assert abs(before["pos_cmd_m"][-1] - before["pos_cmd_m"][-2]) < 1e-12
+        assert abs(after["pos_cmd_m"][1] - after["pos_cmd_m"][0]) < 1e-12
+
+
+def test_a_single_run_has_no_repetitions(record):
+    run = load_measured(*record["once"])
+    assert find_period(run) is None
+    assert split_repetitions(run) == [run]
+
+
+def test_repetitions_flag_on_a_single_run_is_one_line(record, tmp_path, capsys):
+    csv, map_path = record["once"]
+    code = main(["diagnose", str(csv), "--config", str(NOMINAL), "--map", str(map_path),
+                 "--repetitions", "--out", str(tmp_path / "out")])  # fmt: skip
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "--repetitions: no repetition of the program found" in err
+
+
+@pytest.mark.slow
+def test_identify_on_the_first_run_and_validate_on_the_others(record, tmp_path, capsys):
+    csv, map_path = record["thrice"]
+    out = tmp_path / "out"
+    code = main(["diagnose", str(csv), "--config", str(NOMINAL), "--map", str(map_path),
+                 "--repetitions", "--out", str(out)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert "found 3 repetitions" in capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    assert [e["name"] for e in report["effects"]] == ["coulomb_friction"]
+    assert report["effects"][0]["parameters"]["F_c_N"] == pytest.approx(15.0, rel=0.05)
+    # the second run validates (report.json), the third is a note
+    assert report["validation"]["after"]["effort_rel_err_pct"] < 5.0
+    third = [n for n in report["notes"] if n.startswith("validation on")]
+    assert len(third) == 1 and "s to " in third[0]
