@@ -255,6 +255,12 @@ class FixedLayout:
             args[start:stop] = values[first:last]
         return ENCAPSULATION + self._struct.pack(*args)
 
+    def matches(self, data: bytes) -> bool:
+        """The message carries exactly this layout's strings (it takes the fast path)."""
+        return len(data) == self.size and all(
+            data[start:stop] == expected for start, stop, expected in self._checks
+        )
+
     def decode(self, data: bytes) -> tuple:
         """The numbers of a message (in `numbers` order)."""
         if len(data) == self.size:

@@ -33,11 +33,12 @@ from pathlib import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from feed_twin.io.bag import BagWriter, QosProfile
+from feed_twin.io.bag import BagError, BagWriter, QosProfile
 from feed_twin.nodeset.summary import LiveFeed
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros.dds import DATA_QOS, HEARTBEAT_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import (
+    EXIT_ERROR,
     EXIT_OK,
     EXIT_PEER_LOST,
     EXIT_SIGNAL,
@@ -225,6 +226,10 @@ class RecorderNode(FeedTwinNode):
             self._ending_since = time.monotonic()
 
     def _drain_check(self) -> None:
+        if self.bag.error is not None and not self.done:
+            # A full disk: stop here; the runner recovers what was flushed and says so.
+            self.finish(EXIT_ERROR, f"recorder: recording stopped: {self.bag.error}")
+            return
         if self._ending_since is None or self.done:
             return
         now = time.monotonic()
@@ -240,7 +245,11 @@ class RecorderNode(FeedTwinNode):
         self._drain()
         if self.live is not None:
             self.live.close()
-        info = self.bag.close()
+        try:
+            info = self.bag.close()
+        except BagError as exc:
+            print(f"recorder: {exc} ({self.bag.dropped} messages not written)", file=sys.stderr)
+            return
         print(
             f"recorder: {info.message_count} messages on {len(info.topics)} topics -> "
             f"{self.bag_path}",

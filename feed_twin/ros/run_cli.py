@@ -34,6 +34,7 @@ from pathlib import Path
 
 from feed_twin.io.config import ConfigError
 from feed_twin.nodeset.topics import RECORDER_NODE
+from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
 from feed_twin.ros.launch import launch, log_record
 
@@ -64,6 +65,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "(the config's shadow: section)",
     )
     parser.add_argument(
+        "--domain-id",
+        type=int,
+        default=None,
+        help="ROS domain of the run (default: ROS_DOMAIN_ID if set, else a free one reserved "
+        "for the run, so runs on one host never meet)",
+    )
+    parser.add_argument(
         "--no-gcode",
         action="store_true",
         help="start no G-code node: the command stream comes from outside (a real NC)",
@@ -76,13 +84,14 @@ class Outputs:
     rrd: Path
     logs: Path
     map: Path  # --shadow: the column map of the machine's topics in the bag
+    run: dict | None = None  # the bag's signals once read (feed_twin.nodeset.summary.read_run)
+    recovered: int | None = None  # messages kept when the bag had to be recovered
 
 
 def _outputs(args: argparse.Namespace) -> Outputs:
     stem = args.program.stem if args.program is not None else "external"
     name = args.name or f"{stem}_{time.strftime('%Y%m%d_%H%M%S')}"
     out = args.out
-    out.mkdir(parents=True, exist_ok=True)
     return Outputs(
         bag=out / name,
         rrd=out / f"{name}.rrd",
@@ -93,11 +102,9 @@ def _outputs(args: argparse.Namespace) -> Outputs:
 
 def _check_inputs(args: argparse.Namespace):
     """Config sections and the whole program, before any node starts."""
-    from feed_twin.gcode import load_nc_config, validate_program
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.gcode import validate_program
 
-    ros = load_node_set_config(args.config)
-    nc = load_nc_config(args.config)
+    ros, nc = preflight.check_run_config(args.config, shadow=args.shadow)
     if abs(nc.interpolation_period_s - ros.exchange_period_s) > 1e-12 and (
         nc.interpolation_period_s < ros.exchange_period_s
     ):
@@ -244,15 +251,19 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
         info(out.bag)
     except BagError:
         try:
-            recover(out.bag)
+            out.recovered = recover(out.bag).messages_recovered
         except BagError as exc:
             return None, f"the bag is unreadable: {exc}"
+        print(f"bag: the recording was incomplete; recovered {out.recovered} messages")
     topics = AxisTopics(machine=ros.machine, axis=ros.axis)
     if args.shadow:
         return _finish_shadow(args, topics, out)
-    run = read_run(out.bag, topics)
+    run = out.run = read_run(out.bag, topics)
     lines = program_lines(args.program) if args.program is not None else None
-    write_dashboard(run, topics, out.rrd, program_lines=lines)
+    try:
+        write_dashboard(run, topics, out.rrd, program_lines=lines)
+    except OSError as exc:
+        return None, f"the dashboard {out.rrd} could not be written: {exc.strerror}"
     try:
         return summarise(run, topics), ""
     except ValueError as exc:
@@ -313,11 +324,13 @@ def main(args: argparse.Namespace) -> int:
         )
     try:
         ros, nc = _check_inputs(args)
+        preflight.check_output_dir(args.out, preflight.estimate_run_bytes(args, ros, nc))
     except GcodeError as exc:
         return _early_error(args, f"G-code error, nothing was started: {exc}")
     except (ConfigError, ValueError, OSError) as exc:
         return _early_error(args, str(exc))
     out = _outputs(args)
+    reservation = preflight.run_environment(args, os.environ)
     if args.shadow:
         try:
             _write_shadow_map(args, ros, nc, out)
@@ -344,6 +357,12 @@ def main(args: argparse.Namespace) -> int:
     finally:
         if viewer is not None:
             viewer.stop()
+        if reservation is not None:
+            reservation.release()
+    code = 1 if code == 0 and summary is None else code
+    reason = preflight.explain(reason, out, ros, args.program)
+    if code == 130:
+        print("feed-twin run: interrupted: the figures below cover the run until the stop")
     if reason:
         print(f"feed-twin run: {reason}", file=sys.stderr)
     if summary is not None:
@@ -355,20 +374,22 @@ def main(args: argparse.Namespace) -> int:
         shown = ", ".join(f"{k} {timing[k]:.3f}" for k in keys if isinstance(timing.get(k), float))
         missed = timing.get("missed_steps")
         print(f"timing: {shown}" + (f", missed steps {missed}" if missed is not None else ""))
-    print(f"bag: {out.bag}\nrerun: {out.rrd}")
+    preflight.remove_incomplete_rrd(out.rrd)
+    bag, rrd = preflight.shown_output(out.bag), preflight.shown_output(out.rrd, rrd=True)
+    print(f"bag: {bag or '(none)'}\nrerun: {rrd or '(none)'}")
     if args.json:
         record = {
             "exit_code": code,
+            "interrupted": code == 130,
+            "bag_recovered_messages": out.recovered,
             "reason": reason,
-            "bag": str(out.bag),
-            "rrd": str(out.rrd),
+            "bag": bag,
+            "rrd": rrd,
             "logs": str(out.logs),
             **(summary.as_dict() if summary is not None else {}),
             **{f"timing_{k}": v for k, v in timing.items()},
         }
         print(json.dumps(record))
-    if code == 0 and summary is None:
-        return 1
     return code
 
 
