@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 RUN_TOKEN_ENV = "FEED_TWIN_RUN_TOKEN"
 OPEN_NC_ENV = "FEED_TWIN_OPEN_NC"  # "1": AxisCommand comes from outside (an external NC)
 MAX_TOKEN_CHARS = 64
+UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"  # rmw's name for a node not yet discovered
 
 # Magnitudes no feed-axis command reaches; beyond them a value is garbage, not a setpoint.
 ABSURD = {
@@ -104,7 +105,9 @@ class CommandGuard:
 
     def foreign(self, endpoints: Iterable[Endpoint]) -> list[Endpoint]:
         """Publishers not of the run, each returned once (the first time it is seen)."""
-        seen = list(endpoints)
+        # A participant's node names arrive after its endpoints: until then rmw reports
+        # _NODE_NAME_UNKNOWN_, which is judged at the next look, not taken for foreign.
+        seen = [e for e in endpoints if e.node_name != UNKNOWN_NODE_NAME]
         names = [e.node_name for e in seen if self._own(e)]
         found = []
         for e in seen:

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from feed_twin.io.config import ConfigError
+from feed_twin.nodeset.guard import RUN_TOKEN_ENV
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
@@ -258,7 +259,7 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
     topics = AxisTopics(machine=ros.machine, axis=ros.axis)
     if args.shadow:
         return _finish_shadow(args, topics, out)
-    run = out.run = read_run(out.bag, topics)
+    run = out.run = read_run(out.bag, topics, token=os.environ.get(RUN_TOKEN_ENV))
     lines = program_lines(args.program) if args.program is not None else None
     try:
         write_dashboard(run, topics, out.rrd, program_lines=lines)
