@@ -11,8 +11,9 @@ Publishers send the bytes with `publish(bytes)`; subscribers take them with `raw
 A test checks the bytes against rclpy's serialiser field by field.
 
 `FlatCodec.fixed(...)` gives a `FixedLayout` for the per-exchange hot path: the strings of a
-node's messages never change during a run (frame_id: the run token or '', the axis label), so the whole message is
-one precompiled `struct` and a message packs or unpacks in about 1 us, numbers only.
+node's messages never change during a run (frame_id: the run token or '', the axis label), so
+the whole message is one precompiled `struct` and a message packs or unpacks in about 1 us,
+numbers only.
 """
 
 from __future__ import annotations
