@@ -27,7 +27,8 @@ from feed_twin.io.config import ConfigError
 BAG_BYTES_PER_EXCHANGE = 500
 # The .rrd dashboard is about as large as the bag (2.42 MB for the same run); and some room.
 RRD_FRACTION = 1.0
-SPARE_BYTES = 16 * 1024 * 1024
+SPARE_BYTES = 4 * 1024 * 1024
+FULL_BYTES = 1024 * 1024  # free space below which a failed run's --out counts as full
 
 
 def check_run_config(config: Path, *, shadow: bool):
@@ -167,6 +168,10 @@ def explain(reason: str, out, ros, program: Path | None) -> str:
     from feed_twin.nodeset.protection import describe_trip
     from feed_twin.nodeset.topics import AxisTopics
 
+    if reason and shutil.disk_usage(out.bag.parent).free < FULL_BYTES:
+        # The nodes' logs live there too, so a node's own words may be lost: say it here.
+        free = shutil.disk_usage(out.bag.parent).free
+        reason = f"the file system of --out is full ({free // 1024} kB free); {reason}"
     if not reason or out.run is None:
         return reason
     lines = None
@@ -176,3 +181,17 @@ def explain(reason: str, out, ros, program: Path | None) -> str:
         lines = program_lines(program)
     command = AxisTopics(machine=ros.machine, axis=ros.axis).command
     return describe_trip(reason, out.run, command, lines)
+
+
+def dashboard_room(out) -> str:
+    """'' when the output directory has room for the run's .rrd (about the bag's size),
+    else why not: Rerun's file sink does not raise on a full disk, it blocks its flush."""
+    bag_bytes = sum(p.stat().st_size for p in out.bag.glob("*") if p.is_file())
+    need = int(bag_bytes * 1.2) + SPARE_BYTES // 4
+    free = shutil.disk_usage(out.bag.parent).free
+    if free < need:
+        return (
+            f"no room for the dashboard {out.rrd} ({free / 1e6:.1f} MB free, about "
+            f"{need / 1e6:.1f} MB needed); the bag has the whole recording"
+        )
+    return ""

@@ -261,10 +261,10 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
         return _finish_shadow(args, topics, out)
     run = out.run = read_run(out.bag, topics, token=os.environ.get(RUN_TOKEN_ENV))
     lines = program_lines(args.program) if args.program is not None else None
-    try:
+    if room := preflight.dashboard_room(out):
+        print(f"feed-twin run: {room}", file=sys.stderr)
+    else:
         write_dashboard(run, topics, out.rrd, program_lines=lines)
-    except OSError as exc:
-        return None, f"the dashboard {out.rrd} could not be written: {exc.strerror}"
     try:
         return summarise(run, topics), ""
     except ValueError as exc:
