@@ -326,3 +326,16 @@ def test_plan_into_a_closed_pipe_ends_quietly():
     done = subprocess.run(["bash", "-c", cmd], capture_output=True, text=True, timeout=120)
     assert done.stdout.splitlines()[-1] == "rc 141"
     assert "Traceback" not in done.stderr and "BrokenPipe" not in done.stderr
+
+
+def test_measured_csv_errors_are_one_line(tmp_path):
+    from feed_twin.io.measured import MeasuredDataError, read_csv_table
+
+    binary = tmp_path / "b.csv"
+    binary.write_bytes(b"t_s,x\n\x00\x01")
+    with pytest.raises(MeasuredDataError, match=r"b.csv: not a text CSV file \(NUL byte"):
+        read_csv_table(binary)
+    ragged = tmp_path / "r.csv"
+    ragged.write_text("t_s,x\n0,1\n1\n2,3\n")
+    with pytest.raises(MeasuredDataError, match=r"r.csv: Line #3 \(got 1 columns instead of 2\)$"):
+        read_csv_table(ragged)

@@ -40,6 +40,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -302,14 +303,29 @@ def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Header and float64 table of a CSV file; empty or non-numeric cells become NaN."""
     path = Path(path)
     try:
+        with path.open("rb") as fh:
+            if b"\0" in fh.read(4096):
+                raise MeasuredDataError(f"{path}: not a text CSV file (NUL byte: binary data)")
         with path.open(newline="", encoding="utf-8") as fh:
             header = next(csv.reader(fh), None)
     except FileNotFoundError:
         raise MeasuredDataError(f"{path}: no such measured file") from None
+    except UnicodeDecodeError as exc:
+        raise MeasuredDataError(f"{path}: not a UTF-8 text file (byte {exc.start})") from None
     if not header:
         raise MeasuredDataError(f"{path}: the file is empty (no header line)")
     header = [h.strip() for h in header]
-    table = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "Empty input file": a header alone is checked below
+            table = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
+    except ValueError as exc:
+        # genfromtxt lists every ragged row ("Line #102 (got 2 columns instead of 5)"): the
+        # first one names the problem.
+        rows = [ln.strip() for ln in str(exc).splitlines() if ln.strip().startswith("Line #")]
+        raise MeasuredDataError(
+            f"{path}: {rows[0] if rows else 'rows of different lengths'}"
+        ) from None
     if table.size == 0:
         table = np.empty((0, len(header)))
     if table.shape[1] != len(header):
@@ -405,18 +421,19 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
             "time stamps are not interpolated"
         )
     n = len(t_raw)
-    if n < MIN_SAMPLES or (n and t_raw[-1] - t_raw[0] < MIN_DURATION_S):
-        duration = float(t_raw[-1] - t_raw[0]) if n else 0.0
-        raise MeasuredDataError(
-            f"{source}: the record is too short ({n} samples, {duration:.3g} s); "
-            f"need at least {MIN_SAMPLES} samples and {MIN_DURATION_S} s"
-        )
     dt = np.diff(t_raw)
     if (dt <= 0).any():
         row = int(np.flatnonzero(dt <= 0)[0]) + 1
         raise MeasuredDataError(
             f"{source}: time column {tcol!r} does not increase at data row {row + 1} "
-            f"(t = {t_raw[row]!r} s after {t_raw[row - 1]!r} s); sort the file or fix the clock"
+            f"(t = {float(t_raw[row])!r} s after {float(t_raw[row - 1])!r} s); sort the file "
+            "or fix the clock"
+        )
+    if n < MIN_SAMPLES or (n and t_raw[-1] - t_raw[0] < MIN_DURATION_S):
+        duration = float(t_raw[-1] - t_raw[0]) if n else 0.0
+        raise MeasuredDataError(
+            f"{source}: the record is too short ({n} samples, {duration:.3g} s); "
+            f"need at least {MIN_SAMPLES} samples and {MIN_DURATION_S} s"
         )
     period = float(np.median(dt))
 
