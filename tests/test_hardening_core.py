@@ -26,6 +26,7 @@ from feed_twin.nodeset.guard import (
     check_values,
     parse_program_state,
     run_token,
+    sign_state,
 )
 from feed_twin.nodeset.protection import (
     FAULT_CURRENT_LIMIT,
@@ -186,10 +187,15 @@ def test_command_values_and_program_states():
     assert check_values({"position": 0.4, "velocity": -0.1}) is None
     assert check_values({"position": math.nan}) == "position = nan"
     assert check_values({"i_q": 2e4}) == "i_q = 20000.0 beyond +/-10000"
-    assert parse_program_state("finished 123") == ("finished", 123)
-    assert parse_program_state("running") == ("running", None)
+    assert parse_program_state("finished 123") == ("finished", 123, "finished 123")
+    assert parse_program_state("running") == ("running", None, "running")
     assert parse_program_state("finished notanumber") is None
     assert parse_program_state("launch missiles") is None
+    signed = sign_state("error p.ngc:3: bad", "ab12")
+    assert signed == "error p.ngc:3: bad #ab12"
+    assert parse_program_state(signed, "ab12") == ("error", None, "error p.ngc:3: bad")
+    assert parse_program_state("finished 5", "ab12") is None  # unsigned: another publisher's
+    assert parse_program_state("finished 5 #ffff", "ab12") is None
     assert run_token({"FEED_TWIN_RUN_TOKEN": "ab12"}) == "ab12"
     assert run_token({"FEED_TWIN_RUN_TOKEN": "a b"}) == ""
 

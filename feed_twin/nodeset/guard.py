@@ -4,8 +4,9 @@ Two independent checks, because rclpy (Jazzy) hands a subscription callback no p
 identity (its message info has timestamps and sequence numbers, not the writer's GID):
 - per message, a run token: `feed-twin run` draws a random token per run and gives it to its
   nodes in their environment (RUN_TOKEN_ENV, not on the command line); the G-code and controller
-  nodes put it in `header.frame_id` of AxisCommand and DriveCommand, and the receiving node
-  refuses a message without it. This keeps out another run, a replayed bag or a test tool that
+  nodes put it in `header.frame_id` of AxisCommand and DriveCommand and the G-code node as the
+  last word of its program_state texts (`... #token`), and the receiving node refuses a message
+  without it. This keeps out another run, a replayed bag or a test tool that
   publishes on the same topics; it is no defence against someone who reads the topic and copies
   the token (that needs DDS Security, see README);
 - per publisher, the graph: every second a guarded node lists the publishers of its command
@@ -61,10 +62,20 @@ def check_values(values: Mapping[str, float]) -> str | None:
     return None
 
 
-def parse_program_state(text: str) -> tuple[str, int | None] | None:
-    """(word, time [ns] or None) of a program_state text; None when it is malformed."""
+def sign_state(text: str, token: str) -> str:
+    """A program_state text as the run's G-code node sends it: the token as its last word."""
+    return f"{text} #{token}" if token else text
+
+
+def parse_program_state(text: str, token: str = "") -> tuple[str, int | None, str] | None:
+    """(word, time [ns] or None, text without the token) of a program_state message; None
+    when it is malformed or, with `token`, not signed with it (another publisher's)."""
     if len(text) > 4096:
         return None
+    if token:
+        text, mark, signed = text.rpartition(" #")
+        if not mark or signed != token:
+            return None
     word, _, rest = text.partition(" ")
     if word not in PROGRAM_WORDS:
         return None
@@ -72,8 +83,8 @@ def parse_program_state(text: str) -> tuple[str, int | None] | None:
         stamp = rest.split(" ", 1)[0]
         if not stamp.isdigit():
             return None
-        return word, int(stamp)
-    return word, None
+        return word, int(stamp), text
+    return word, None, text
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -25,7 +24,7 @@ from feed_twin.control import signals as sig
 from feed_twin.control.config import ControllerConfig, load_controller_config
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError, load_yaml
-from feed_twin.nodeset.guard import OPEN_NC_ENV, check_values, parse_program_state
+from feed_twin.nodeset.guard import check_values, parse_program_state
 from feed_twin.nodeset.split import (
     NS_PER_S,
     Boundary,
@@ -129,7 +128,7 @@ class ControllerNode(FeedTwinNode):
         self.exchange_ns = round(exchange_period_s * NS_PER_S)
         self._guard = InputGuard(self, (self.topics.command, self.topics.program_state), axis_label)
         token = self._guard.token
-        self._nc_token = "" if os.environ.get(OPEN_NC_ENV) == "1" else token
+        self._nc_token = self._guard.nc_token
         self.io = MessageIO(axis_label, token, self._nc_token)
         self.nc = NcBuffer()
         self._pending: collections.deque[bytes] = collections.deque()
@@ -197,10 +196,14 @@ class ControllerNode(FeedTwinNode):
         self._serve()
 
     def _on_program_state(self, msg: String) -> None:
-        if parse_program_state(msg.data) is None:
-            self._guard.refuse("program_state", self.topics.program_state, f"{msg.data[:80]!r}")
+        parsed = parse_program_state(msg.data, self._nc_token)
+        if parsed is None:
+            self._guard.refuse(
+                "program_state", self.topics.program_state,
+                f"{msg.data[:80]!r} (malformed, or not from this run's G-code node)",
+            )  # fmt: skip
             return
-        state = msg.data.split(" ", 1)[0]
+        state = parsed[0]
         self._paused = state == "paused"
         if state in ("finished", "stopped"):
             self.nc.finish()

@@ -11,7 +11,7 @@ import os
 
 from feed_twin_msgs.msg import HealthStatus
 
-from feed_twin.nodeset.guard import CommandGuard, Endpoint, run_token
+from feed_twin.nodeset.guard import OPEN_NC_ENV, CommandGuard, Endpoint, run_token
 from feed_twin.ros.dds import LATCHED_QOS
 
 # Node names of a run: the roles, the recorder's data node and each role's liveness node.
@@ -26,6 +26,9 @@ class InputGuard:
         self.topics = topics
         self.axis_label = axis_label
         self.token = run_token(os.environ)
+        # what the NC's messages (AxisCommand, program_state) must carry: nothing when they
+        # come from an external NC (`feed-twin run --no-gcode`)
+        self.nc_token = "" if os.environ.get(OPEN_NC_ENV) == "1" else self.token
         self.guard = CommandGuard(own_nodes=OWN_NODES, namespace=node.topics.namespace)
         self._health = node.create_publisher(HealthStatus, node.topics.health, LATCHED_QOS)
         node.create_timer(GRAPH_PERIOD_S, self.check_graph, clock=node.wall)

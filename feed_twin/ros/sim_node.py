@@ -317,16 +317,19 @@ class SimNode(FeedTwinNode):
         )
 
     def _on_program_state(self, msg: String) -> None:
-        parsed = parse_program_state(msg.data)
+        parsed = parse_program_state(msg.data, self._guard.nc_token)
         if parsed is None:
-            self._guard.refuse("program_state", self.topics.program_state, f"{msg.data[:80]!r}")
+            self._guard.refuse(
+                "program_state", self.topics.program_state,
+                f"{msg.data[:80]!r} (malformed, or not from this run's G-code node)",
+            )  # fmt: skip
             return
-        word, stamp_ns = parsed
+        word, stamp_ns, text = parsed
         if stamp_ns is not None and self.end_ns is None:
             self.end_ns = stamp_ns + self.settle_ns
             self.end_word = word
         elif word == "error":
-            self._end(EXIT_ERROR, f"done error: {msg.data.partition(' ')[2]}")
+            self._end(EXIT_ERROR, f"done error: {text.partition(' ')[2]}")
 
     def on_run_done(self, text: str) -> None:
         """Its own announcement comes back on the latched topic; _end has already finished."""
