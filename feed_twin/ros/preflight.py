@@ -163,6 +163,12 @@ def remove_incomplete_rrd(path: Path) -> None:
         path.unlink(missing_ok=True)
 
 
+def exit_status(code: int) -> int:
+    """The process exit status for a run's code: a node killed by signal N (code -N) is
+    128 + N, as a shell reports it, so that `--json`'s exit_code equals the process's."""
+    return 128 - code if code < 0 else code
+
+
 def explain(reason: str, out, ros, program: Path | None) -> str:
     """The run's end reason, with the program line of a drive fault added."""
     from feed_twin.nodeset.protection import describe_trip

@@ -360,7 +360,7 @@ def main(args: argparse.Namespace) -> int:
             viewer.stop()
         if reservation is not None:
             reservation.release()
-    code = 1 if code == 0 and summary is None else code
+    code = 1 if code == 0 and summary is None else preflight.exit_status(code)
     reason = preflight.explain(reason, out, ros, args.program)
     if code == 130:
         print("feed-twin run: interrupted: the figures below cover the run until the stop")
