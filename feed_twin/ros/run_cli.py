@@ -1,7 +1,9 @@
 """`feed-twin run PROGRAM --config CONFIG`: the G-code, controller, sim and recorder nodes.
 
-1. Checks the config and the program in-process first: a G-code error stops the run before any
-   node starts, with the interpreter's `file:line:col: ...` message.
+1. Checks the config, the program and the output directory in-process first
+   (feed_twin/ros/preflight.py: every section, the drive's reach of the NC's limits, room for
+   the bag): an error stops the run before any node starts, with one line. The run gets its
+   own ROS domain and run token (feed_twin/nodeset/guard.py) unless `--domain-id` names one.
 2. Starts the four nodes in three processes (default: the recorder records inside the sim's
    process, `ros.recorder_host`, feed_twin/ros/host.py), four (`recorder_host: own`) or this
    one (`--single-process`), in the current ROS domain, and shows progress (simulated time).
@@ -331,7 +333,10 @@ def main(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError, OSError) as exc:
         return _early_error(args, str(exc))
     out = _outputs(args)
-    reservation = preflight.run_environment(args, os.environ)
+    try:
+        reservation = preflight.run_environment(args, os.environ)
+    except (ValueError, RuntimeError) as exc:
+        return _early_error(args, str(exc))
     if args.shadow:
         try:
             _write_shadow_map(args, ros, nc, out)
