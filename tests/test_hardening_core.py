@@ -345,3 +345,24 @@ def test_measured_csv_errors_are_one_line(tmp_path):
     ragged.write_text("t_s,x\n0,1\n1\n2,3\n")
     with pytest.raises(MeasuredDataError, match=r"r.csv: Line #3 \(got 1 columns instead of 2\)$"):
         read_csv_table(ragged)
+
+
+def test_bag_info_gives_wall_and_simulated_duration(tmp_path, capsys):
+    import struct
+
+    bag = tmp_path / "clock_bag"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+        for k in range(21):  # stamps 0 .. 2 s, received over 0.1 s of wall time
+            data = bytes(4) + struct.pack("<iI", *divmod(k * 100_000_000, 1_000_000_000))
+            writer.write("/clock", data, log_time_ns=k * 5_000_000)
+    assert cli_main(["bag", "info", str(bag)]) == 0
+    out = capsys.readouterr().out
+    assert "duration:  0.100000 s wall clock (receive times)" in out
+    assert "simulated: 2.000000 s (/clock stamps)" in out
+
+
+def test_exit_status_of_a_killed_node():
+    from feed_twin.ros.preflight import exit_status
+
+    assert exit_status(-9) == 137 and exit_status(130) == 130 and exit_status(0) == 0
