@@ -366,3 +366,15 @@ def test_exit_status_of_a_killed_node():
     from feed_twin.ros.preflight import exit_status
 
     assert exit_status(-9) == 137 and exit_status(130) == 130 and exit_status(0) == 0
+
+
+def test_limits_of_the_default_config(tmp_path):
+    from feed_twin.nodeset.protection import protection_for_config
+    from feed_twin.nodeset.split import load_node_set_config
+
+    guard = protection_for_config(AXIS, load_node_set_config(AXIS), MS)
+    assert guard.limits == DriveLimits(
+        following_error_m=2e-3, current_A=30.0, current_time_s=0.5, speed_m_s=1.2 * 0.35
+    )
+    off = _axis_yaml(tmp_path, lambda d: d["ros"].update(protection={"enabled": False}))
+    assert protection_for_config(off, load_node_set_config(off), MS) is None

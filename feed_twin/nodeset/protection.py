@@ -155,6 +155,23 @@ def drive_limits(controller, protection: ProtectionConfig, nc_rapid_m_s: float |
     )
 
 
+def protection_for_config(config_path, ros, exchange_ns: int) -> DriveProtection | None:
+    """The drive's limit monitor for an axis config file and its `ros:` section (None:
+    `ros.protection.enabled` false)."""
+    from feed_twin.sim.config import load_axis_config
+
+    axis = load_axis_config(config_path)
+    rapid = None
+    if axis.nc is not None:
+        from feed_twin.gcode.config import nc_config_from_mapping
+
+        nc = nc_config_from_mapping(axis.nc, source=str(config_path))
+        spec = next(a for a in nc.axes if a.name == nc.twin_axis)
+        rapid = max(spec.rapid_m_s, spec.v_max_m_s)
+    limits = drive_limits(axis.controller, ros.protection, rapid)
+    return None if limits is None else DriveProtection(limits, exchange_ns=exchange_ns)
+
+
 def line_at(t_s: float, command_t_s, command_line) -> int | None:
     """The program line of the last NC setpoint at or before t_s (None: none yet)."""
     k = int(np.searchsorted(np.asarray(command_t_s), t_s + 1e-12, side="right")) - 1

@@ -38,7 +38,7 @@ from feed_twin.io.config import ConfigError
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost
 from feed_twin.nodeset.guard import check_values, parse_program_state
 from feed_twin.nodeset.pacing import pacing_report
-from feed_twin.nodeset.protection import DriveProtection, Trip, drive_limits
+from feed_twin.nodeset.protection import DriveProtection, Trip, protection_for_config
 from feed_twin.nodeset.split import BOUNDARY_MODES, NS_PER_S, DriveSetpoint, NodeSetConfig
 from feed_twin.nodeset.topics import SIM_NODE
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
@@ -103,22 +103,6 @@ def build_drive_host(config_path: Path, ros: NodeSetConfig) -> DriveHost:
         dead_time_comp_band_A=current.dead_time_comp_band_A if current is not None else 0.5,
         mode=BOUNDARY_MODES[ros.boundary],
     )
-
-
-def build_protection(config_path: Path, ros: NodeSetConfig, exchange_ns: int):
-    """The drive's limit monitor for the axis config (None: `ros.protection.enabled` false)."""
-    from feed_twin.sim.config import load_axis_config
-
-    axis = load_axis_config(config_path)
-    rapid = None
-    if axis.nc is not None:
-        from feed_twin.gcode.config import nc_config_from_mapping
-
-        nc = nc_config_from_mapping(axis.nc, source=str(config_path))
-        spec = next(a for a in nc.axes if a.name == nc.twin_axis)
-        rapid = max(spec.rapid_m_s, spec.v_max_m_s)
-    limits = drive_limits(axis.controller, ros.protection, rapid)
-    return None if limits is None else DriveProtection(limits, exchange_ns=exchange_ns)
 
 
 DRIVE_COMMAND = FlatCodec("feed_twin_msgs/msg/DriveCommand")
@@ -494,7 +478,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNo
         exchange_cpu=ros.exchange_cpu,
         realtime_priority=ros.realtime_priority,
         cpu_latency_us=ros.cpu_latency_us,
-        protection=build_protection(args.config, ros, host.exchange_ns),
+        protection=protection_for_config(args.config, ros, host.exchange_ns),
         context=context,
     )
 
