@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from dataclasses import dataclass
+
+EXIT_BROKEN_PIPE = 141  # what a shell reports for a process ended by SIGPIPE (128 + 13)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -109,7 +112,29 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=f"feed-twin {cmd.name}", description=cmd.help)
     module.configure(parser)
     args = parser.parse_args(argv[1:])
-    return int(module.main(args) or 0)
+    try:
+        return int(module.main(args) or 0)
+    except BrokenPipeError:
+        # The reader went away (`feed-twin plan ... | head`): nothing more to say to it. Point
+        # stdout at /dev/null so that the interpreter's final flush cannot fail again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
+    except KeyboardInterrupt:
+        print(f"feed-twin {cmd.name}: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError) as exc:
+        # Bad input (ConfigError, GcodeError, BagError are ValueErrors) or a file that cannot
+        # be read or written: one line naming it, never a traceback.
+        print(f"feed-twin {cmd.name}: {one_line(exc)}", file=sys.stderr)
+        return 2
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one line: its message's first line, or its type for an empty one."""
+    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror}"
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
 
 
 if __name__ == "__main__":

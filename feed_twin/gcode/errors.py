@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+MAX_WORD_SHOWN = 40  # characters of a word an error message quotes
+
 
 class GcodeError(ValueError):
     """A program cannot be run as written.
@@ -29,5 +31,9 @@ class GcodeError(ValueError):
             where += f":{line}"
             if column is not None:
                 where += f":{column}"
-        text = f"{where}: word {word!r}: {reason}" if word is not None else f"{where}: {reason}"
+        shown = word
+        if word is not None and len(word) > MAX_WORD_SHOWN:
+            # A runaway word (a whole line of digits) is not echoed: its start says enough.
+            shown = f"{word[:MAX_WORD_SHOWN]}... ({len(word)} characters)"
+        text = f"{where}: word {shown!r}: {reason}" if word is not None else f"{where}: {reason}"
         super().__init__(text)

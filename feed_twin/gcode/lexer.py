@@ -148,6 +148,10 @@ def iter_source_lines(source: str | Path) -> tuple[str, Iterator[tuple[int, str]
     return "<text>", _text_lines(source, "<text>")
 
 
+# Longest program line read [bytes]: generous for hand-written and CAM lines, and it bounds the
+# memory a line can take (a 10 MB line without breaks took 1.5 GB to lex).
+MAX_LINE_BYTES = 4096
+
 # A one-line string ending like this is a file name, never a program.
 _PROGRAM_SUFFIXES = (".ngc", ".nc", ".gcode", ".cnc", ".tap", ".mpf", ".spf", ".iso", ".txt")
 
@@ -169,8 +173,19 @@ def _check_text(text: str, number: int, file: str) -> None:
         )
 
 
+def _check_length(size: int, number: int, file: str) -> None:
+    if size > MAX_LINE_BYTES:
+        raise GcodeError(
+            f"the line is longer than {MAX_LINE_BYTES} bytes (G-code lines are short: LinuxCNC "
+            "reads at most 255 characters); a missing line break?",
+            file=file,
+            line=number,
+        )
+
+
 def _text_lines(text: str, file: str) -> Iterator[tuple[int, str]]:
     for number, line in enumerate(text.splitlines(), start=1):
+        _check_length(len(line.encode("utf-8")), number, file)
         _check_text(line, number, file)
         yield number, line
 
@@ -179,8 +194,9 @@ def _file_lines(path: Path) -> Iterator[tuple[int, str]]:
     file = str(path)
     number = 0
     with path.open("rb") as handle:
-        for raw in handle:
+        while raw := handle.readline(MAX_LINE_BYTES + 3):  # the line break may be \r\n
             number += 1
+            _check_length(len(raw.rstrip(b"\r\n")), number, file)
             try:
                 line = raw.decode("utf-8")
             except UnicodeDecodeError as exc:

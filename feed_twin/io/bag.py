@@ -17,6 +17,7 @@ analysis and the discrepancy workflow; `BagReader.columns` returns numpy arrays 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import threading
@@ -209,6 +210,10 @@ class BagWriter:
         self._end_ns = 0
         self._lock = threading.Lock()
         self._closed = False
+        # Set when the file system refused a write (a full disk): the bag stops growing, what
+        # was flushed before stays recoverable (`recover`), and the recorder reports it.
+        self.error: str | None = None
+        self.dropped = 0  # messages not written after the error
         self._stop = threading.Event()
         self._flusher: threading.Thread | None = None
         if flush_period_s is not None:
@@ -282,13 +287,20 @@ class BagWriter:
             entry = self._topics.get(topic)
             if entry is None:
                 raise BagError(f"topic {topic!r} is not registered; call add_topic first")
-            self._writer.add_message(
-                channel_id=entry.channel_id,
-                log_time=log_time_ns,
-                publish_time=log_time_ns if publish_time_ns is None else publish_time_ns,
-                data=bytes(data),
-                sequence=entry.count,
-            )
+            if self.error is not None:
+                self.dropped += 1
+                return
+            try:
+                self._writer.add_message(
+                    channel_id=entry.channel_id,
+                    log_time=log_time_ns,
+                    publish_time=log_time_ns if publish_time_ns is None else publish_time_ns,
+                    data=bytes(data),
+                    sequence=entry.count,
+                )
+            except OSError as exc:
+                self._fail(exc)
+                return
             entry.count += 1
             if self._start_ns is None or log_time_ns < self._start_ns:
                 self._start_ns = log_time_ns
@@ -297,8 +309,16 @@ class BagWriter:
     def flush(self) -> None:
         """Finish the open chunk and hand everything written so far to the OS."""
         with self._lock:
-            if not self._closed:
-                self._writer.flush()
+            if not self._closed and self.error is None:
+                try:
+                    self._writer.flush()
+                except OSError as exc:
+                    self._fail(exc)
+
+    def _fail(self, exc: OSError) -> None:
+        self.error = f"{exc.strerror or exc} writing {self.mcap_path}"
+        with contextlib.suppress(OSError):
+            self._file.close()
 
     def close(self) -> BagInfo:
         """Finish the MCAP file (summary, index, footer) and write metadata.yaml."""
@@ -306,6 +326,9 @@ class BagWriter:
         if self._flusher is not None:
             self._flusher.join(timeout=5.0)
         with self._lock:
+            if not self._closed and self.error is not None:
+                self._closed = True
+                raise BagError(f"{self.path}: recording stopped: {self.error}")
             if not self._closed:
                 topics = [
                     TopicInfo(
@@ -327,10 +350,14 @@ class BagWriter:
                 self._writer.add_metadata(
                     "rosbag2", {"serialized_metadata": text, "ROS_DISTRO": ROS_DISTRO}
                 )
-                self._writer.finish()
-                self._file.close()
-                _write_atomically(self.path / METADATA_FILE, text)
                 self._closed = True
+                try:
+                    self._writer.finish()
+                    self._file.close()
+                    _write_atomically(self.path / METADATA_FILE, text)
+                except OSError as exc:
+                    self._fail(exc)
+                    raise BagError(f"{self.path}: closing the recording: {self.error}") from None
         return info(self.path)
 
     def _check_open(self) -> None:
@@ -474,8 +501,35 @@ def recover(path: str | Path) -> RecoverResult:
     if not channels:
         raise BagError(f"{mcap_path}: nothing recoverable (no channel records)")
     tmp = mcap_path.with_name(mcap_path.name + ".recovering")
+    try:
+        text, counts = _write_recovered(tmp, schemas, channels, messages, mcap_path.name)
+        os.replace(tmp, mcap_path)
+    except OSError as exc:
+        # No room for a second copy (a full disk is how many recordings end): the messages are
+        # in memory, so the truncated original itself is rewritten.
+        tmp.unlink(missing_ok=True)
+        try:
+            text, counts = _write_recovered(mcap_path, schemas, channels, messages, mcap_path.name)
+        except OSError as again:
+            raise BagError(
+                f"{mcap_path}: cannot write the recovered recording ({again.strerror}; first "
+                f"{exc.strerror})"
+            ) from None
+    try:
+        _write_atomically(directory / METADATA_FILE, text)
+    except OSError as exc:
+        raise BagError(f"{directory / METADATA_FILE}: cannot write it ({exc.strerror})") from None
+    return RecoverResult(
+        info=info(directory),
+        messages_recovered=sum(counts.values()),
+        was_complete=complete,
+    )
+
+
+def _write_recovered(target: Path, schemas, channels, messages, mcap_name: str):
+    """Write the recovered records to `target` (synced); returns (metadata text, counts)."""
     counts: dict[int, int] = dict.fromkeys(channels, 0)
-    with open(tmp, "wb") as out:
+    with open(target, "wb") as out:
         writer = Writer(out, compression=CompressionType.ZSTD)
         writer.start(profile=PROFILE, library="feed_twin recover")
         schema_ids = {
@@ -506,18 +560,12 @@ def recover(path: str | Path) -> RecoverResult:
         topics = _topic_infos(channels, schemas, counts)
         start = messages[0].log_time if messages else 0
         end = messages[-1].log_time if messages else 0
-        text = metadata_yaml(mcap_name=mcap_path.name, start_ns=start, end_ns=end, topics=topics)
+        text = metadata_yaml(mcap_name=mcap_name, start_ns=start, end_ns=end, topics=topics)
         writer.add_metadata("rosbag2", {"serialized_metadata": text, "ROS_DISTRO": ROS_DISTRO})
         writer.finish()
         out.flush()
         os.fsync(out.fileno())
-    os.replace(tmp, mcap_path)
-    _write_atomically(directory / METADATA_FILE, text)
-    return RecoverResult(
-        info=info(directory),
-        messages_recovered=sum(counts.values()),
-        was_complete=complete,
-    )
+    return text, counts
 
 
 @dataclass(frozen=True, kw_only=True)

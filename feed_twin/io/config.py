@@ -19,6 +19,9 @@ from typing import Any, Literal, TypeVar
 import yaml
 
 T = TypeVar("T")
+# Largest config file read [bytes]: configs are a few kB, and a runaway file (a 100 MB list took
+# minutes and 2.4 GB to parse) is refused before YAML sees it.
+MAX_CONFIG_BYTES = 4_000_000
 
 
 class ConfigError(ValueError):
@@ -64,9 +67,20 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML file whose top level is a mapping; errors name the file (and line)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open("rb") as handle:
+            raw = handle.read(MAX_CONFIG_BYTES + 1)
+        if len(raw) > MAX_CONFIG_BYTES:
+            raise ConfigError(
+                f"{path}: larger than {MAX_CONFIG_BYTES // 1_000_000} MB; a configuration is a "
+                "few kB (is this the right file?)"
+            )
+        text = raw.decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, not a config file") from None
+    except PermissionError:
+        raise ConfigError(f"{path}: not readable (permission denied)") from None
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{path}: not a text file ({exc.reason} at byte {exc.start})") from None
     try:

@@ -304,18 +304,19 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
             "time stamps are not interpolated"
         )
     n = len(t_raw)
-    if n < MIN_SAMPLES or (n and t_raw[-1] - t_raw[0] < MIN_DURATION_S):
-        duration = float(t_raw[-1] - t_raw[0]) if n else 0.0
-        raise MeasuredDataError(
-            f"{source}: the record is too short ({n} samples, {duration:.3g} s); "
-            f"need at least {MIN_SAMPLES} samples and {MIN_DURATION_S} s"
-        )
     dt = np.diff(t_raw)
     if (dt <= 0).any():
         row = int(np.flatnonzero(dt <= 0)[0]) + 1
         raise MeasuredDataError(
             f"{source}: time column {tcol!r} does not increase at data row {row + 1} "
-            f"(t = {t_raw[row]!r} s after {t_raw[row - 1]!r} s); sort the file or fix the clock"
+            f"(t = {float(t_raw[row])!r} s after {float(t_raw[row - 1])!r} s); sort the file "
+            "or fix the clock"
+        )
+    if n < MIN_SAMPLES or (n and t_raw[-1] - t_raw[0] < MIN_DURATION_S):
+        duration = float(t_raw[-1] - t_raw[0]) if n else 0.0
+        raise MeasuredDataError(
+            f"{source}: the record is too short ({n} samples, {duration:.3g} s); "
+            f"need at least {MIN_SAMPLES} samples and {MIN_DURATION_S} s"
         )
     period = float(np.median(dt))
     if period > MAX_PERIOD_S:

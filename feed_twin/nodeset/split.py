@@ -42,6 +42,7 @@ from feed_twin.control import signals as sig
 from feed_twin.control.config import ControllerConfig
 from feed_twin.control.loops import Cascade, PositionLoop, VelocityLoop, VelocitySetpoint
 from feed_twin.io.config import from_mapping, load_yaml, require_positive
+from feed_twin.nodeset.protection import ProtectionConfig
 from feed_twin.nodeset.topics import AxisTopics
 
 Boundary = Literal["torque", "velocity", "position", "voltage"]
@@ -130,6 +131,8 @@ class NodeSetConfig:
     recorder_host: RecorderHost = "auto"
     signals: StateSignals = dataclasses.field(default_factory=StateSignals)
     node_gains: NodeLoopGains = dataclasses.field(default_factory=NodeLoopGains)
+    # the drive's following-error, current and speed trips (feed_twin/nodeset/protection.py)
+    protection: ProtectionConfig = dataclasses.field(default_factory=ProtectionConfig)
 
     def __post_init__(self) -> None:
         AxisTopics(machine=self.machine, axis=self.axis)  # names must be valid ROS names

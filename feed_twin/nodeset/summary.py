@@ -66,20 +66,33 @@ STATE_FIELDS = (
 )
 
 
-def read_run(bag: str | Path, topics: AxisTopics) -> dict[str, dict[str, np.ndarray]]:
-    """The columns the summary and dashboard need, per topic (empty dict for absent topics)."""
+def read_run(
+    bag: str | Path, topics: AxisTopics, *, token: str | None = None
+) -> dict[str, dict[str, np.ndarray]]:
+    """The columns the summary and dashboard need, per topic (empty dict for absent topics).
+
+    With `token` (the run's, feed_twin.nodeset.guard), commands that do not carry it in
+    header.frame_id are left out: the bag records a topic's every publisher, and a foreign
+    one's messages, refused by the run, are no part of its figures."""
     reader = BagReader(bag)
     present = {t.name for t in reader.info.topics if t.message_count > 0}
+    signed = ("header.frame_id",) if token else ()
     wanted = {
         topics.state: STATE_FIELDS,
-        topics.command: ("header.stamp", "position", "velocity", "line"),
+        topics.command: ("header.stamp", "position", "velocity", "line", *signed),
         topics.feedback: ("header.stamp", "i_a", "i_b", "i_c"),
-        topics.drive_command: ("header.stamp", "i_q", "i_d"),
+        topics.drive_command: ("header.stamp", "i_q", "i_d", *signed),
     }
-    return {
+    run = {
         name: reader.columns(name, fields) if name in present else {}
         for name, fields in wanted.items()
     }
+    for name in (topics.command, topics.drive_command):
+        columns = run[name]
+        if token and columns:
+            own = columns.pop("header.frame_id") == token
+            run[name] = {field: values[own] for field, values in columns.items()}
+    return run
 
 
 def summarise(run: dict[str, dict[str, np.ndarray]], topics: AxisTopics) -> RunSummary:

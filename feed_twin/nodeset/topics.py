@@ -69,6 +69,10 @@ class AxisTopics:
         return f"{self.namespace}/run_state"
 
     @property
+    def health(self) -> str:  # controller, sim -> operator: refused commands, foreign publishers
+        return f"{self.namespace}/health"
+
+    @property
     def heartbeat(self) -> str:  # every node -> every node: liveness
         return f"{self.namespace}/heartbeat"
 
@@ -85,6 +89,7 @@ class AxisTopics:
             self.program_state: "std_msgs/msg/String",
             self.run_state: "std_msgs/msg/String",
             self.heartbeat: "std_msgs/msg/String",
+            self.health: "feed_twin_msgs/msg/HealthStatus",
             self.clock: "rosgraph_msgs/msg/Clock",
         }
 

@@ -19,6 +19,7 @@ from typing import Any
 from feed_twin.io.config import ConfigError, from_mapping
 from feed_twin.plant.assembly import AssemblyError, PlantModel
 from feed_twin.plant.component import Component, check_name
+from feed_twin.plant.plausible import check_plausible
 from feed_twin.plant.registry import COMPONENT_TYPES
 
 _ENTRY_KEYS = ("name", "type", "params")
@@ -28,11 +29,16 @@ def load_plant(data: Any, *, source: str) -> PlantModel:
     """Assemble the PlantModel described by the `plant:` mapping `data`."""
     if not isinstance(data, Mapping):
         raise ConfigError(f"{source}: plant: expected a mapping, got {type(data).__name__}")
-    unknown = sorted(set(data) - {"components", "connect"})
+    unknown = sorted(set(data) - {"components", "connect", "unusual"})
     if unknown:
         raise ConfigError(
             f"{source}: plant: unknown key(s) {', '.join(map(str, unknown))}; "
-            "allowed: components, connect"
+            "allowed: components, connect, unusual"
+        )
+    unusual = data.get("unusual") or []
+    if not isinstance(unusual, list) or not all(isinstance(n, str) for n in unusual):
+        raise ConfigError(
+            f"{source}: plant.unusual = {unusual!r}: expected a list of component.parameter"
         )
     for key in ("components", "connect"):
         if key not in data:
@@ -52,6 +58,7 @@ def load_plant(data: Any, *, source: str) -> PlantModel:
                 "component.port]"
             )
         connections.append((pair[0], pair[1]))
+    check_plausible(dict(components), unusual, source)
     try:
         return PlantModel(components, connections, source=source)
     except AssemblyError as exc:

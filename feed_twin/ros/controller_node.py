@@ -24,6 +24,7 @@ from feed_twin.control import signals as sig
 from feed_twin.control.config import ControllerConfig, load_controller_config
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.nodeset.guard import check_values, parse_program_state
 from feed_twin.nodeset.split import (
     NS_PER_S,
     Boundary,
@@ -35,6 +36,7 @@ from feed_twin.nodeset.split import (
 )
 from feed_twin.nodeset.topics import CONTROLLER_NODE
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
+from feed_twin.ros.guarded import InputGuard
 from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, node_main
 
 AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
@@ -45,10 +47,12 @@ DRIVE_COMMAND = FlatCodec("feed_twin_msgs/msg/DriveCommand")
 class MessageIO:
     """The controller node's message conversions, fast for its axis label (any label decodes)."""
 
-    def __init__(self, axis_label: str) -> None:
-        self.command = AXIS_COMMAND.fixed({"axis": axis_label})
+    def __init__(self, axis_label: str, token: str = "", nc_token: str = "") -> None:
+        # token: the run's (feed_twin.nodeset.guard) in the DriveCommands this node sends;
+        # nc_token: the one the AxisCommands must carry ('' for an external NC)
+        self.command = AXIS_COMMAND.fixed({"axis": axis_label, "header.frame_id": nc_token})
         self.feedback = AXIS_FEEDBACK.fixed({"axis": axis_label})
-        self.drive = DRIVE_COMMAND.fixed({"axis": axis_label})
+        self.drive = DRIVE_COMMAND.fixed({"axis": axis_label, "header.frame_id": token})
         self._nc = [
             self.command.index(n)
             for n in (
@@ -122,7 +126,10 @@ class ControllerNode(FeedTwinNode):
         self.core.warm_up()
         self.axis_label = axis_label
         self.exchange_ns = round(exchange_period_s * NS_PER_S)
-        self.io = MessageIO(axis_label)
+        self._guard = InputGuard(self, (self.topics.command, self.topics.program_state), axis_label)
+        token = self._guard.token
+        self._nc_token = self._guard.nc_token
+        self.io = MessageIO(axis_label, token, self._nc_token)
         self.nc = NcBuffer()
         self._pending: collections.deque[bytes] = collections.deque()
         self._paused = False
@@ -160,7 +167,26 @@ class ControllerNode(FeedTwinNode):
                 self.get_logger().info(f"scheduling: {note}")
 
     def _on_command(self, data: bytes) -> None:
-        self.nc.add(self.io.nc_sample(data))
+        topic = self.topics.command
+        if self._nc_token and not self.io.command.matches(data):
+            self._guard.refuse("token", topic, "not from this run's G-code node (run token)")
+            return
+        try:
+            sample = self.io.nc_sample(data)
+        except Exception as exc:  # noqa: BLE001 - any undecodable message is dropped, not fatal
+            self._guard.refuse("malformed", topic, f"undecodable ({type(exc).__name__})")
+            return
+        bad = check_values(
+            {
+                "position": sample.position_m,
+                "velocity": sample.velocity_m_s,
+                "acceleration": sample.acceleration_m_s2,
+            }
+        )
+        if bad is not None:
+            self._guard.refuse("values", topic, bad)
+            return
+        self.nc.add(sample)
         self._command_dog.feed()
         self._serve()
 
@@ -170,7 +196,14 @@ class ControllerNode(FeedTwinNode):
         self._serve()
 
     def _on_program_state(self, msg: String) -> None:
-        state = msg.data.split(" ", 1)[0]
+        parsed = parse_program_state(msg.data, self._nc_token)
+        if parsed is None:
+            self._guard.refuse(
+                "program_state", self.topics.program_state,
+                f"{msg.data[:80]!r} (malformed, or not from this run's G-code node)",
+            )  # fmt: skip
+            return
+        state = parsed[0]
         self._paused = state == "paused"
         if state in ("finished", "stopped"):
             self.nc.finish()

@@ -76,3 +76,20 @@ def private_graph_env(domain_id: int) -> dict[str, str]:
             f"domain_id = {domain_id!r}: must lie in [{FIRST_DOMAIN_ID}, {LAST_DOMAIN_ID}]"
         )
     return {"ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+
+
+def run_domain(domain_id: int | None) -> tuple[DomainReservation | None, int]:
+    """The domain of one `feed-twin run`: `domain_id` when the user names one (also through
+    ROS_DOMAIN_ID in the environment), else a free one reserved for the run's life, so that
+    two runs on one host never hear each other. Returns (reservation or None, domain ID)."""
+    if domain_id is None:
+        named = os.environ.get("ROS_DOMAIN_ID", "")
+        if named.strip():
+            if not named.strip().isdigit() or not 0 <= int(named) <= 232:
+                raise ValueError(f"ROS_DOMAIN_ID = {named!r}: must be a whole number in [0, 232]")
+            return None, int(named)
+        reservation = reserve_domain_id()
+        return reservation, reservation.domain_id
+    if not 0 <= domain_id <= 232:
+        raise ValueError(f"--domain-id {domain_id}: must lie in [0, 232]")
+    return None, domain_id

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -36,6 +37,7 @@ from std_srvs.srv import Trigger
 
 from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_config, plan_program
 from feed_twin.io.cdr import FlatCodec
+from feed_twin.nodeset.guard import run_token, sign_state
 from feed_twin.nodeset.split import NS_PER_S
 from feed_twin.nodeset.topics import GCODE_NODE
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
@@ -135,7 +137,9 @@ class GcodeNode(FeedTwinNode):
         self.trajectory: SampledTrajectory | None = None
         self.running = False
         self._clock_ns = 0
-        self._command = AXIS_COMMAND.fixed({"axis": nc.twin_axis})
+        # The run's token (feed_twin.nodeset.guard) marks the commands as this run's.
+        self._token = run_token(os.environ)
+        self._command = AXIS_COMMAND.fixed({"axis": nc.twin_axis, "header.frame_id": self._token})
         self._pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
         self._state_pub = self.create_publisher(String, self.topics.program_state, LATCHED_QOS)
         self.create_subscription(Clock, "/clock", self._on_clock, DATA_QOS, raw=True)
@@ -153,7 +157,7 @@ class GcodeNode(FeedTwinNode):
     # -- program ------------------------------------------------------------------------------
 
     def _state(self, text: str) -> None:
-        self._state_pub.publish(String(data=text))
+        self._state_pub.publish(String(data=sign_state(text, self._token)))
         self.get_logger().info(f"program: {text}")
 
     def load(self, program: str) -> bool:

@@ -10,7 +10,9 @@ the nodes print (TIMING, SHADOW).
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -20,6 +22,18 @@ from pathlib import Path
 
 STOP_GRACE_S = 10.0  # [s] for nodes to finish after SIGTERM
 PEER_NOTICE_S = 5.0  # [s] for nodes to notice a lost peer (0.9 s) and finish before SIGTERM
+
+
+PARENT_PID_ENV = "FEED_TWIN_PARENT_PID"  # the runner's pid, which a node watches (runtime.py)
+_PR_SET_PDEATHSIG = 1  # prctl option, linux/prctl.h
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: the kernel sends SIGTERM when the runner dies, whatever
+    killed it (SIGKILL included), so no node outlives its run. The node's own watch of the
+    parent's pid (feed_twin.ros.runtime) covers the race of a runner that died before this."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
 
 
 class _Stop:
@@ -73,8 +87,9 @@ def launch(
                     stdin=subprocess.DEVNULL,
                     stdout=log,
                     stderr=subprocess.STDOUT,
-                    env=env,
+                    env={**env, PARENT_PID_ENV: str(os.getpid())},
                     start_new_session=True,  # a terminal's Ctrl-C reaches the runner only
+                    preexec_fn=_die_with_parent,
                 )
         progress = _Progress(enabled=show_progress)
         while any(p.poll() is None for p in procs.values()):

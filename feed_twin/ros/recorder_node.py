@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import re
 import sys
 import time
@@ -33,11 +34,13 @@ from pathlib import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from feed_twin.io.bag import BagWriter, QosProfile
+from feed_twin.io.bag import BagError, BagWriter, QosProfile
+from feed_twin.nodeset.guard import run_token
 from feed_twin.nodeset.summary import LiveFeed
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros.dds import DATA_QOS, HEARTBEAT_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import (
+    EXIT_ERROR,
     EXIT_OK,
     EXIT_PEER_LOST,
     EXIT_SIGNAL,
@@ -106,6 +109,13 @@ class RecorderNode(FeedTwinNode):
         self._peers_lost: set[str] = set()
         self._signal: str | None = None
         known = self.topics.types()
+        token = run_token(os.environ)
+        self._token = token.encode() if token else b""
+        self._signed_topics = {
+            self.topics.command,
+            self.topics.drive_command,
+            self.topics.program_state,
+        }
         qos_for = {
             self.topics.program_state: LATCHED_QOS,
             self.topics.run_state: LATCHED_QOS,
@@ -137,6 +147,10 @@ class RecorderNode(FeedTwinNode):
         self._recorded[topic] = subscription
         # Heartbeats go on while peers live; only data counts when judging "quiet".
         counts = topic != self.topics.heartbeat
+        if counts and self._token and topic in self._signed_topics:
+            # Only the run's own messages (signed with its token) count: a foreign publisher
+            # that goes on sending must not hold the recording open after the run.
+            counts = self._token
         live = self.live if self.live is not None and self.live.wants(topic) else None
         self._takers.append((topic, subscription, counts, live))
 
@@ -155,6 +169,7 @@ class RecorderNode(FeedTwinNode):
             handle = subscription.handle
             msg_type = subscription.msg_type
             n = 0
+            own = 0
             with handle:
                 while True:
                     taken = handle.take_message(msg_type, True)
@@ -171,7 +186,9 @@ class RecorderNode(FeedTwinNode):
                     if live is not None:
                         live.feed(topic, data)
                     n += 1
-            if n and counts:
+                    if counts is True or counts and counts in data:
+                        own += 1
+            if own:
                 self._last_message = time.monotonic()
             total += n
         return total
@@ -225,6 +242,10 @@ class RecorderNode(FeedTwinNode):
             self._ending_since = time.monotonic()
 
     def _drain_check(self) -> None:
+        if self.bag.error is not None and not self.done:
+            # A full disk: stop here; the runner recovers what was flushed and says so.
+            self.finish(EXIT_ERROR, f"recorder: recording stopped: {self.bag.error}")
+            return
         if self._ending_since is None or self.done:
             return
         now = time.monotonic()
@@ -240,7 +261,11 @@ class RecorderNode(FeedTwinNode):
         self._drain()
         if self.live is not None:
             self.live.close()
-        info = self.bag.close()
+        try:
+            info = self.bag.close()
+        except BagError as exc:
+            print(f"recorder: {exc} ({self.bag.dropped} messages not written)", file=sys.stderr)
+            return
         print(
             f"recorder: {info.message_count} messages on {len(info.topics)} topics -> "
             f"{self.bag_path}",

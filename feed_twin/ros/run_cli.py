@@ -1,7 +1,9 @@
 """`feed-twin run PROGRAM --config CONFIG`: the G-code, controller, sim and recorder nodes.
 
-1. Checks the config and the program in-process first: a G-code error stops the run before any
-   node starts, with the interpreter's `file:line:col: ...` message.
+1. Checks the config, the program and the output directory in-process first
+   (feed_twin/ros/preflight.py: every section, the drive's reach of the NC's limits, room for
+   the bag): an error stops the run before any node starts, with one line. The run gets its
+   own ROS domain and run token (feed_twin/nodeset/guard.py) unless `--domain-id` names one.
 2. Starts the four nodes in three processes (default: the recorder records inside the sim's
    process, `ros.recorder_host`, feed_twin/ros/host.py), four (`recorder_host: own`) or this
    one (`--single-process`), in the current ROS domain, and shows progress (simulated time).
@@ -33,7 +35,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from feed_twin.io.config import ConfigError
+from feed_twin.nodeset.guard import RUN_TOKEN_ENV
 from feed_twin.nodeset.topics import RECORDER_NODE
+from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
 from feed_twin.ros.launch import launch, log_record
 
@@ -73,6 +77,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "its simulated servos (with --shadow; feed_twin.linuxcnc)",
     )
     parser.add_argument(
+        "--domain-id",
+        type=int,
+        default=None,
+        help="ROS domain of the run (default: ROS_DOMAIN_ID if set, else a free one reserved "
+        "for the run, so runs on one host never meet)",
+    )
+    parser.add_argument(
         "--no-gcode",
         action="store_true",
         help="start no G-code node: the command stream comes from outside (a real NC)",
@@ -91,13 +102,14 @@ class Outputs:
     rrd: Path
     logs: Path
     map: Path  # --shadow: the column map of the machine's topics in the bag
+    run: dict | None = None  # the bag's signals once read (feed_twin.nodeset.summary.read_run)
+    recovered: int | None = None  # messages kept when the bag had to be recovered
 
 
 def _outputs(args: argparse.Namespace) -> Outputs:
     stem = args.program.stem if args.program is not None else "external"
     name = args.name or f"{stem}_{time.strftime('%Y%m%d_%H%M%S')}"
     out = args.out
-    out.mkdir(parents=True, exist_ok=True)
     return Outputs(
         bag=out / name,
         rrd=out / f"{name}.rrd",
@@ -108,11 +120,9 @@ def _outputs(args: argparse.Namespace) -> Outputs:
 
 def _check_inputs(args: argparse.Namespace):
     """Config sections and the whole program, before any node starts."""
-    from feed_twin.gcode import load_nc_config, validate_program
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.gcode import validate_program
 
-    ros = load_node_set_config(args.config)
-    nc = load_nc_config(args.config)
+    ros, nc = preflight.check_run_config(args.config, shadow=args.shadow)
     if abs(nc.interpolation_period_s - ros.exchange_period_s) > 1e-12 and (
         nc.interpolation_period_s < ros.exchange_period_s
     ):
@@ -269,15 +279,19 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
         info(out.bag)
     except BagError:
         try:
-            recover(out.bag)
+            out.recovered = recover(out.bag).messages_recovered
         except BagError as exc:
             return None, f"the bag is unreadable: {exc}"
+        print(f"bag: the recording was incomplete; recovered {out.recovered} messages")
     topics = AxisTopics(machine=ros.machine, axis=ros.axis)
     if args.shadow:
         return _finish_shadow(args, topics, out)
-    run = read_run(out.bag, topics)
+    run = out.run = read_run(out.bag, topics, token=os.environ.get(RUN_TOKEN_ENV))
     lines = program_lines(args.program) if args.program is not None else None
-    write_dashboard(run, topics, out.rrd, program_lines=lines)
+    if room := preflight.dashboard_room(out):
+        print(f"feed-twin run: {room}", file=sys.stderr)
+    else:
+        write_dashboard(run, topics, out.rrd, program_lines=lines)
     try:
         return summarise(run, topics), ""
     except ValueError as exc:
@@ -358,11 +372,16 @@ def main(args: argparse.Namespace) -> int:
             return _early_error(args, problem)
     try:
         ros, nc = _check_inputs(args)
+        preflight.check_output_dir(args.out, preflight.estimate_run_bytes(args, ros, nc))
     except GcodeError as exc:
         return _early_error(args, f"G-code error, nothing was started: {exc}")
     except (ConfigError, ValueError, OSError) as exc:
         return _early_error(args, str(exc))
     out = _outputs(args)
+    try:
+        reservation = preflight.run_environment(args, os.environ)
+    except (ValueError, RuntimeError) as exc:
+        return _early_error(args, str(exc))
     if args.shadow:
         try:
             _write_shadow_map(args, ros, nc, out)
@@ -389,6 +408,12 @@ def main(args: argparse.Namespace) -> int:
     finally:
         if viewer is not None:
             viewer.stop()
+        if reservation is not None:
+            reservation.release()
+    code = 1 if code == 0 and summary is None else preflight.exit_status(code)
+    reason = preflight.explain(reason, out, ros, args.program)
+    if code == 130:
+        print("feed-twin run: interrupted: the figures below cover the run until the stop")
     if reason and args.nc == "linuxcnc":
         # the bridge's own line for a LinuxCNC fault, without the log record's prefix
         reason = (log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}).get("fault") or reason
@@ -403,20 +428,22 @@ def main(args: argparse.Namespace) -> int:
         shown = ", ".join(f"{k} {timing[k]:.3f}" for k in keys if isinstance(timing.get(k), float))
         missed = timing.get("missed_steps")
         print(f"timing: {shown}" + (f", missed steps {missed}" if missed is not None else ""))
-    print(f"bag: {out.bag}\nrerun: {out.rrd}")
+    preflight.remove_incomplete_rrd(out.rrd)
+    bag, rrd = preflight.shown_output(out.bag), preflight.shown_output(out.rrd, rrd=True)
+    print(f"bag: {bag or '(none)'}\nrerun: {rrd or '(none)'}")
     if args.json:
         record = {
             "exit_code": code,
+            "interrupted": code == 130,
+            "bag_recovered_messages": out.recovered,
             "reason": reason,
-            "bag": str(out.bag),
-            "rrd": str(out.rrd),
+            "bag": bag,
+            "rrd": rrd,
             "logs": str(out.logs),
             **(summary.as_dict() if summary is not None else {}),
             **{f"timing_{k}": v for k, v in timing.items()},
         }
         print(json.dumps(record))
-    if code == 0 and summary is None:
-        return 1
     return code
 
 

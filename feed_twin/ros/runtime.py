@@ -70,6 +70,7 @@ PEER_TIMEOUT_S = 0.8  # noticed within 0.9 s; 0.6 s gave false alarms on a machi
 # come back within 0.5 s prints every thread's Python stack to its log (faulthandler: it works
 # while a C call holds the GIL). It found the shared-memory lock wait (fastdds_profiles.xml).
 STALL_DUMP_ENV = "FEED_TWIN_STALL_DUMP_S"
+PARENT_PID_ENV = "FEED_TWIN_PARENT_PID"  # set by launch: the runner, whose death ends the node
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -521,11 +522,28 @@ def node_options(args: argparse.Namespace, ros) -> NodeOptions:
     )
 
 
+def watch_parent(parent_pid: int, *, period_s: float = 0.2) -> threading.Thread:
+    """SIGTERM this process once `parent_pid` is no longer its parent (the runner died and the
+    process was re-parented): the clean shutdown then runs as for a stop by the runner."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(period_s)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    thread = threading.Thread(target=watch, name="parent-watch", daemon=True)
+    thread.start()
+    return thread
+
+
 def start_node(prog: str, make: Callable[[Any], FeedTwinNode | Sequence[FeedTwinNode]]) -> int:
     """Create the ROS context, build the node (or the nodes sharing this process, which then
     runs until all of them have finished) with `make(context)` and spin it; a bad
     configuration or input (a ValueError, KeyError or OSError) prints one line naming `prog`
     and returns EXIT_ERROR."""
+    parent = os.environ.get(PARENT_PID_ENV)
+    if parent is not None and parent.isdigit():
+        watch_parent(int(parent))
     context = None
     try:
         context = init_context()

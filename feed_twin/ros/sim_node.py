@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -32,10 +34,13 @@ from std_msgs.msg import String
 from feed_twin.control import signals as sig
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost, build_drive_host
+from feed_twin.nodeset.guard import check_values, parse_program_state
 from feed_twin.nodeset.pacing import pacing_report
+from feed_twin.nodeset.protection import DriveProtection, Trip, protection_for_config
 from feed_twin.nodeset.split import NS_PER_S, DriveSetpoint
 from feed_twin.nodeset.topics import SIM_NODE
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
+from feed_twin.ros.guarded import InputGuard
 from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, node_main
 
 STATUS_ENABLED = (
@@ -88,10 +93,11 @@ _COMMAND_FIELDS = (
 
 
 class CommandReader:
-    """DriveCommand bytes -> DriveSetpoint, fast for the axis label this node expects."""
+    """DriveCommand bytes -> DriveSetpoint, fast for the axis label (and run token in
+    header.frame_id, feed_twin.nodeset.guard) this node expects."""
 
-    def __init__(self, axis_label: str) -> None:
-        self.layout = DRIVE_COMMAND.fixed({"axis": axis_label})
+    def __init__(self, axis_label: str, token: str = "") -> None:
+        self.layout = DRIVE_COMMAND.fixed({"axis": axis_label, "header.frame_id": token})
         self._pick = [self.layout.index(n) for n in _COMMAND_FIELDS]
 
     def __call__(self, data: bytes) -> DriveSetpoint:
@@ -131,10 +137,12 @@ class SimNode(FeedTwinNode):
         exchange_cpu: int = -1,
         realtime_priority: int = 0,
         cpu_latency_us: int = -1,
+        protection: DriveProtection | None = None,
         context=None,
     ) -> None:
         super().__init__(SIM_NODE, options, context=context)
         self.host = host
+        self.protection = protection
         self.settle_ns = round(settle_s * NS_PER_S)
         self.axis_label = axis_label
         self.joint_name = joint_name
@@ -172,7 +180,10 @@ class SimNode(FeedTwinNode):
         )
         self._joint = JointState(name=[joint_name], position=[0.0], velocity=[0.0], effort=[0.0])
         self._clock = Clock()
-        self._read_command = CommandReader(axis_label)
+        self._guard = InputGuard(
+            self, (self.topics.drive_command, self.topics.program_state), axis_label
+        )
+        self._read_command = CommandReader(axis_label, self._guard.token)
         self._feedback_layout = AXIS_FEEDBACK.fixed({"axis": axis_label})
         self._state_layout = AXIS_STATE.fixed({"axis": axis_label})
         if self._feedback_layout.numbers != FEEDBACK_NUMBERS:
@@ -239,12 +250,19 @@ class SimNode(FeedTwinNode):
         )
 
     def _on_program_state(self, msg: String) -> None:
-        word, _, rest = msg.data.partition(" ")
-        if word in ("finished", "stopped") and self.end_ns is None:
-            self.end_ns = int(rest) + self.settle_ns
+        parsed = parse_program_state(msg.data, self._guard.nc_token)
+        if parsed is None:
+            self._guard.refuse(
+                "program_state", self.topics.program_state,
+                f"{msg.data[:80]!r} (malformed, or not from this run's G-code node)",
+            )  # fmt: skip
+            return
+        word, stamp_ns, text = parsed
+        if stamp_ns is not None and self.end_ns is None:
+            self.end_ns = stamp_ns + self.settle_ns
             self.end_word = word
         elif word == "error":
-            self._end(EXIT_ERROR, f"done error: {rest}")
+            self._end(EXIT_ERROR, f"done error: {text.partition(' ')[2]}")
 
     def on_run_done(self, text: str) -> None:
         """Its own announcement comes back on the latched topic; _end has already finished."""
@@ -260,7 +278,9 @@ class SimNode(FeedTwinNode):
     # -- exchanges ----------------------------------------------------------------------------
 
     def _on_command(self, data: bytes) -> None:
-        setpoint = self._read_command(data)
+        setpoint = self._admit(data)
+        if setpoint is None:
+            return
         self._command_dog.feed()
         if self.realtime:
             self._pending[setpoint.t_ns] = setpoint
@@ -275,6 +295,30 @@ class SimNode(FeedTwinNode):
             )
             return
         self._exchange(setpoint)
+
+    def _admit(self, data: bytes) -> DriveSetpoint | None:
+        """The setpoint of a DriveCommand of this run with usable values, else None (refused
+        with a warning: another publisher's message, garbage, NaN)."""
+        topic = self.topics.drive_command
+        if self._guard.token and not self._read_command.layout.matches(data):
+            self._guard.refuse("token", topic, "not from this run's controller (run token)")
+            return None
+        try:
+            setpoint = self._read_command(data)
+        except Exception as exc:  # noqa: BLE001 - any undecodable message is dropped, not fatal
+            self._guard.refuse("malformed", topic, f"undecodable ({type(exc).__name__})")
+            return None
+        bad = check_values(
+            {
+                "position": setpoint.position_m, "velocity": setpoint.velocity_m_s,
+                "torque": setpoint.torque_Nm, "i_q": setpoint.i_q_A, "i_d": setpoint.i_d_A,
+                "u_d": setpoint.u_d_V, "u_q": setpoint.u_q_V,
+            }
+        )  # fmt: skip
+        if bad is not None:
+            self._guard.refuse("values", topic, bad)
+            return None
+        return setpoint
 
     def _exchange(self, setpoint: DriveSetpoint | None) -> None:
         if self.end_ns is not None and self.host.t_ns > self.end_ns:
@@ -295,6 +339,13 @@ class SimNode(FeedTwinNode):
         meas, counts, i_d, i_q, error = host.feedback(row)
         u_d_ref, u_q_ref = host.voltage_refs(row)
         fault, enabled = host.fault(row)
+        truth = host.truth(row)
+        trip = self._protect(t_ns, fault, error, i_q, truth[self._i_velocity])
+        if trip is not None:
+            # Fault reaction (CiA 402 "disable voltage"): the power stage goes off, the status
+            # word shows the fault and its code, and the run ends naming the limit.
+            fault, enabled = trip.code, False
+            self.host.setpoint = dataclasses.replace(self.host.setpoint, enable=False)
         self._feedback_pub.publish(
             self._feedback_layout.encode(
                 (
@@ -304,8 +355,10 @@ class SimNode(FeedTwinNode):
                 )
             )
         )  # fmt: skip
-        truth = host.truth(row)
         self._state_pub.publish(self._state_layout.encode((sec, nsec, *truth)))
+        if trip is not None:
+            self._end(EXIT_ERROR, f"done error: {trip.text()}")
+            return
         if fault:
             from feed_twin.control.layout import fault_reason
 
@@ -326,6 +379,15 @@ class SimNode(FeedTwinNode):
         self._clock.clock.sec, self._clock.clock.nanosec = csec, cnsec
         self._joint_pub.publish(js)
         self._clock_pub.publish(self._clock)
+
+    def _protect(self, t_ns: int, fault: int, error: float, i_q: float, v: float):
+        """The drive's trip at this exchange (feed_twin.nodeset.protection), or None."""
+        if fault in (sig.FAULT_FOLLOWING_ERROR, sig.FAULT_OVERCURRENT):
+            # The drive's own loops tripped (the kernel latched it): end the run on it too.
+            return Trip(t_ns=t_ns, code=fault, value=math.nan, limit=math.nan, source="drive")
+        if self.protection is None:
+            return None
+        return self.protection.check(t_ns, error, i_q, v)
 
     def timing_report(self) -> dict[str, float | int | None]:
         wall = (self.wall_end or time.monotonic()) - (self.wall_start or time.monotonic())
@@ -365,6 +427,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNo
         exchange_cpu=ros.exchange_cpu,
         realtime_priority=ros.realtime_priority,
         cpu_latency_us=ros.cpu_latency_us,
+        protection=protection_for_config(args.config, ros, host.exchange_ns),
         context=context,
     )
 

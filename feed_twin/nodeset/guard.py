@@ -1,0 +1,134 @@
+"""Only the run's own nodes command the axis: admission of command messages.
+
+Two independent checks, because rclpy (Jazzy) hands a subscription callback no publisher
+identity (its message info has timestamps and sequence numbers, not the writer's GID):
+- per message, a run token: `feed-twin run` draws a random token per run and gives it to its
+  nodes in their environment (RUN_TOKEN_ENV, not on the command line); the G-code and controller
+  nodes put it in `header.frame_id` of AxisCommand and DriveCommand and the G-code node as the
+  last word of its program_state texts (`... #token`), and the receiving node refuses a message
+  without it. This keeps out another run, a replayed bag or a test tool that
+  publishes on the same topics; it is no defence against someone who reads the topic and copies
+  the token (that needs DDS Security, see README);
+- per publisher, the graph: every second a guarded node lists the publishers of its command
+  topics (node name, namespace, endpoint GID) and reports each one that is not a node of the
+  run, once, as a warning and a HealthStatus.
+Then every admitted message is checked for values a drive can take (finite, within absurdity
+bounds); a malformed message is dropped with a warning, never a crash.
+
+Pure: the ROS side (feed_twin.ros) passes decoded fields and graph entries in.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+RUN_TOKEN_ENV = "FEED_TWIN_RUN_TOKEN"
+OPEN_NC_ENV = "FEED_TWIN_OPEN_NC"  # "1": AxisCommand comes from outside (an external NC)
+MAX_TOKEN_CHARS = 64
+UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"  # rmw's name for a node not yet discovered
+
+# Magnitudes no feed-axis command reaches; beyond them a value is garbage, not a setpoint.
+ABSURD = {
+    "position": 1.0e3,  # [m]
+    "velocity": 1.0e2,  # [m/s]
+    "acceleration": 1.0e4,  # [m/s^2]
+    "torque": 1.0e5,  # [N m]
+    "i_q": 1.0e4,  # [A]
+    "i_d": 1.0e4,  # [A]
+    "u_d": 1.0e4,  # [V]
+    "u_q": 1.0e4,  # [V]
+}
+PROGRAM_WORDS = ("loaded", "running", "paused", "finished", "stopped", "error", "waiting")
+
+
+def run_token(environ: Mapping[str, str]) -> str:
+    """The run's token from the environment ('' when the node runs outside `feed-twin run`)."""
+    token = environ.get(RUN_TOKEN_ENV, "")
+    if len(token) > MAX_TOKEN_CHARS or not token.isalnum():
+        return ""
+    return token
+
+
+def check_values(values: Mapping[str, float]) -> str | None:
+    """Why a decoded command is not a usable setpoint (None: it is)."""
+    for name, value in values.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            return f"{name} = {value!r}"
+        bound = ABSURD.get(name)
+        if bound is not None and abs(value) > bound:
+            return f"{name} = {value!r} beyond +/-{bound:g}"
+    return None
+
+
+def sign_state(text: str, token: str) -> str:
+    """A program_state text as the run's G-code node sends it: the token as its last word."""
+    return f"{text} #{token}" if token else text
+
+
+def parse_program_state(text: str, token: str = "") -> tuple[str, int | None, str] | None:
+    """(word, time [ns] or None, text without the token) of a program_state message; None
+    when it is malformed or, with `token`, not signed with it (another publisher's)."""
+    if len(text) > 4096:
+        return None
+    if token:
+        text, mark, signed = text.rpartition(" #")
+        if not mark or signed != token:
+            return None
+    word, _, rest = text.partition(" ")
+    if word not in PROGRAM_WORDS:
+        return None
+    if word in ("finished", "stopped"):
+        stamp = rest.split(" ", 1)[0]
+        if not stamp.isdigit():
+            return None
+        return word, int(stamp), text
+    return word, None, text
+
+
+@dataclass(frozen=True, kw_only=True)
+class Endpoint:
+    """A publisher in the ROS graph."""
+
+    node_name: str
+    node_namespace: str
+    gid: str  # the endpoint GID as dotted hex
+
+    def describe(self) -> str:
+        ns = self.node_namespace.rstrip("/")
+        return f"node '{ns}/{self.node_name}' (publisher gid {self.gid})"
+
+
+@dataclass
+class CommandGuard:
+    """Counts what a node refused and finds foreign publishers on its command topics."""
+
+    own_nodes: frozenset[str]  # node names of the run (roles and their helper nodes)
+    namespace: str  # the run's namespace, e.g. /cnc/x
+    refused: dict[str, int] = field(default_factory=dict)  # reason kind -> count
+    reported: set[str] = field(default_factory=set)  # GIDs already reported
+
+    def refuse(self, kind: str) -> int:
+        """Count one refused message; returns the count of this kind so far."""
+        self.refused[kind] = self.refused.get(kind, 0) + 1
+        return self.refused[kind]
+
+    def foreign(self, endpoints: Iterable[Endpoint]) -> list[Endpoint]:
+        """Publishers not of the run, each returned once (the first time it is seen)."""
+        # A participant's node names arrive after its endpoints: until then rmw reports
+        # _NODE_NAME_UNKNOWN_, which is judged at the next look, not taken for foreign.
+        seen = [e for e in endpoints if e.node_name != UNKNOWN_NODE_NAME]
+        names = [e.node_name for e in seen if self._own(e)]
+        found = []
+        for e in seen:
+            # A node of the run's name twice (a second run, or a copy) is foreign too: the run
+            # has one publisher per node and topic.
+            own = self._own(e) and names.count(e.node_name) == 1
+            if not own and e.gid not in self.reported:
+                self.reported.add(e.gid)
+                found.append(e)
+        return found
+
+    def _own(self, e: Endpoint) -> bool:
+        return e.node_namespace.rstrip("/") == self.namespace and e.node_name in self.own_nodes

@@ -1,0 +1,193 @@
+"""Hardening of `feed-twin run` through the node set: the drive's fault reaction, foreign
+publishers refused, runs that do not meet, no orphans, errors before any node starts."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, last_json, node_env, run, start_run
+
+from feed_twin.io.bag import BagReader
+from feed_twin.ros.domain import reserve_domain_id
+
+pytestmark = [pytest.mark.ros]
+
+FAR_PROGRAM = "G21 G90 G54\nG0 X-200\nM30\n"  # a 200 mm rapid: the axis's largest following error
+
+INTRUDER = """
+import sys, time, rclpy
+from feed_twin_msgs.msg import AxisCommand
+from feed_twin.ros.dds import DATA_QOS
+rclpy.init()
+node = rclpy.create_node("intruder")
+pub = node.create_publisher(AxisCommand, "/cnc/x/command", DATA_QOS)
+end = time.monotonic() + float(sys.argv[1])
+k = 0
+while time.monotonic() < end:
+    # setpoints 100 mm away from the program's, alternating: a lethal stream if taken
+    pub.publish(AxisCommand(axis="X", position=0.3 + 0.2 * (k % 2), line=99))
+    k += 1
+    time.sleep(0.002)
+"""
+
+
+def config_with(tmp_path: Path, edit) -> Path:
+    data = yaml.safe_load(AXIS_CONFIG.read_text())
+    edit(data)
+    path = tmp_path / "axis.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_following_error_limit_stops_the_run_naming_limit_time_and_line(tmp_path):
+    tight = config_with(
+        tmp_path, lambda d: d["controller"]["position"].update(following_error_limit_m=2e-4)
+    )
+    program = tmp_path / "far.ngc"
+    program.write_text(FAR_PROGRAM)
+    with reserve_domain_id() as domain:
+        code, out, err = run(
+            [str(program), "--config", str(tight), "--out", str(tmp_path / "bags"),
+             "--name", "far", "--json"],
+            domain.domain_id,
+        )  # fmt: skip
+    record = last_json(out)
+    assert code == 1 and record["exit_code"] == 1, err
+    reason = record["reason"]
+    assert "drive fault 1 at t = 0.0" in reason
+    assert "exceeds the limit 0.200 mm (controller.position.following_error_limit_m)" in reason
+    assert reason.endswith("(program line 2: G0 X-200)")
+    feedback = BagReader(record["bag"]).columns(
+        "/cnc/x/feedback", ["following_error", "status_word", "fault_code"]
+    )
+    # The last exchange reports the fault: FAULT bit set, power stage off, fault code 1.
+    assert feedback["fault_code"][-1] == 1 and int(feedback["status_word"][-1]) & 8
+    assert not int(feedback["status_word"][-1]) & 4
+    assert abs(feedback["following_error"][-1]) > 2e-4
+    assert np.all(feedback["fault_code"][:-1] == 0)
+
+
+def test_foreign_command_publisher_is_refused(tmp_path):
+    program = tmp_path / "move.ngc"
+    program.write_text(SHORT_PROGRAM)
+    with reserve_domain_id() as domain:
+        intruder = subprocess.Popen(
+            [sys.executable, "-c", INTRUDER, "60"], env=node_env(domain.domain_id)
+        )
+        try:
+            code, out, err = run(
+                [str(program), "--out", str(tmp_path / "bags"), "--name", "mixed", "--json"],
+                domain.domain_id,
+            )
+        finally:
+            intruder.kill()
+            intruder.wait(timeout=10)
+    record = last_json(out)
+    assert code == 0, err
+    # The program moves 10 mm at 3 m/min: following error of a fraction of a millimetre, not
+    # the 100 mm the intruder's setpoints would give.
+    assert record["following_error_max_m"] < 5e-4
+    log = (Path(record["logs"]) / "controller.log").read_text()
+    assert "foreign publisher on /cnc/x/command: node '/intruder'" in log
+    assert "not from this run's G-code node (run token)" in log
+    health = BagReader(record["bag"]).columns("/cnc/x/health", ["message"])["message"]
+    assert any("foreign publisher" in m for m in health)
+
+
+def test_two_runs_on_one_host_do_not_meet(tmp_path):
+    program = tmp_path / "move.ngc"
+    program.write_text(SHORT_PROGRAM)
+    env = {k: v for k, v in os.environ.items() if k != "ROS_DOMAIN_ID"}
+    procs = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "feed_twin.cli",
+                "run",
+                str(program),
+                "--out",
+                str(tmp_path / "bags"),
+                "--name",
+                f"run{i}",
+                "--json",
+            ],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )  # fmt: skip
+        for i in range(2)
+    ]
+    results = [p.communicate(timeout=300) for p in procs]
+    records = [last_json(out) for out, _ in results]
+    for p, (_, err) in zip(procs, results, strict=True):
+        assert p.returncode == 0, err
+    # Each bag holds its own run only: one command stream, the same figures.
+    for record in records:
+        commands = BagReader(record["bag"]).columns("/cnc/x/command", ["header.stamp"])
+        stamps = commands["header.stamp"]
+        assert np.all(np.diff(stamps) > 0)
+    assert records[0]["following_error_max_m"] == pytest.approx(
+        records[1]["following_error_max_m"], rel=1e-9
+    )
+
+
+def test_no_node_outlives_a_killed_runner(tmp_path):
+    program = tmp_path / "move.ngc"
+    program.write_text(SHORT_PROGRAM)
+    with reserve_domain_id() as domain:
+        runner = start_run(
+            [str(program), "--out", str(tmp_path / "bags"), "--realtime"], domain.domain_id
+        )
+        deadline = time.monotonic() + 60
+        children: list[int] = []
+        while time.monotonic() < deadline and len(children) < 3:
+            time.sleep(0.2)
+            children = _children(runner.pid)
+        assert len(children) >= 3
+        runner.send_signal(signal.SIGKILL)
+        runner.communicate(timeout=10)
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and any(_alive(pid) for pid in children):
+            time.sleep(0.1)
+    assert not any(_alive(pid) for pid in children)
+
+
+def _children(pid: int) -> list[int]:
+    out = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout
+    return [int(p) for p in out.split()]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def test_config_errors_end_the_run_before_any_node_starts(tmp_path):
+    program = tmp_path / "move.ngc"
+    program.write_text(SHORT_PROGRAM)
+    fast_rapid = config_with(tmp_path, lambda d: d["nc"]["axes"][0].update(rapid_m_s=0.5))
+    started = time.monotonic()
+    with reserve_domain_id() as domain:
+        code, out, err = run(
+            [str(program), "--config", str(fast_rapid), "--out", str(tmp_path / "bags"),
+             "--json"],
+            domain.domain_id,
+        )  # fmt: skip
+    assert code == 1 and time.monotonic() - started < 30.0
+    assert err.strip().count("\n") == 0
+    assert "nc.axes[X].rapid_m_s = 0.5: the motor needs 401 V" in err
+    assert last_json(out) == {"exit_code": 1, "reason": err.strip().removeprefix("feed-twin run: ")}
+    assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())
