@@ -55,6 +55,8 @@ def _drive_plant(
                 },
                 {"name": "load", "type": "Inertia", "params": {"J": 1.0e3}},
             ],
+            # a flywheel that holds the speed while the torque is measured: no feed axis has it
+            "unusual": ["load.J"],
             "connect": [
                 ["bus.dc", "inverter.dc"],
                 ["inverter.ac", "motor.ac"],
