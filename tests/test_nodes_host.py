@@ -50,9 +50,9 @@ def test_a_bad_host_command_line_exits_with_one_line() -> None:
 def test_the_recorder_records_in_the_sims_process_in_lockstep_unless_configured_otherwise() -> None:
     ros = load_node_set_config(AXIS_CONFIG)
     assert ros.recorder_host == "auto"
-    lockstep = argparse.Namespace(shadow=False, no_gcode=False, realtime=False)
-    realtime = argparse.Namespace(shadow=False, no_gcode=False, realtime=True)
-    shadow = argparse.Namespace(shadow=True, no_gcode=False, realtime=False)
+    lockstep = argparse.Namespace(shadow=False, no_gcode=False, realtime=False, nc="feed_twin")
+    realtime = argparse.Namespace(shadow=False, no_gcode=False, realtime=True, nc="feed_twin")
+    shadow = argparse.Namespace(shadow=True, no_gcode=False, realtime=False, nc="feed_twin")
     together = {"controller": ("controller",), "sim": ("sim", "recorder"), "gcode": ("gcode",)}
     apart = {r: (r,) for r in ("recorder", "controller", "sim", "gcode")}
     assert _processes(lockstep, ros) == together
