@@ -4,6 +4,7 @@ disk handling and one-line errors (issue 19)."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import subprocess
 import sys
@@ -382,3 +383,18 @@ def test_limits_of_the_default_config(tmp_path):
     )
     off = _axis_yaml(tmp_path, lambda d: d["ros"].update(protection={"enabled": False}))
     assert protection_for_config(off, load_node_set_config(off), MS) is None
+
+
+def test_the_json_line_is_strict_json_with_null_for_a_figure_without_value():
+    from feed_twin.nodeset.summary import json_line
+
+    line = json_line({"current_peak_A": float("nan"), "x": [1.0, float("inf")], "n": {"y": 2}})
+
+    def refuse(name):
+        raise AssertionError(f"non-standard JSON constant {name}")
+
+    assert json.loads(line, parse_constant=refuse) == {
+        "current_peak_A": None,
+        "x": [1.0, None],
+        "n": {"y": 2},
+    }

@@ -33,8 +33,12 @@ def _command(program: Path, out: Path) -> list[str]:
     ]  # fmt: skip
 
 
+def _refuse_constant(name: str) -> float:
+    raise AssertionError(f"--json line is not strict JSON: {name}")
+
+
 def _last_json(stdout: str) -> dict:
-    return json.loads(stdout.strip().splitlines()[-1])
+    return json.loads(stdout.strip().splitlines()[-1], parse_constant=_refuse_constant)
 
 
 @pytest.mark.ros

@@ -184,7 +184,9 @@ def run_machine(args: argparse.Namespace) -> int:
         }
         if shadow is not None:
             record["shadow"] = shadow
-        print(json.dumps(record))
+        from feed_twin.nodeset.summary import json_line
+
+        print(json_line(record))
     return 0
 
 

@@ -14,6 +14,8 @@ Figures:
 
 from __future__ import annotations
 
+import json
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -233,3 +235,22 @@ class LiveFeed:
 
     def close(self) -> None:
         self.dashboard.close()
+
+
+def json_line(record: dict) -> str:
+    """`record` as one strict JSON line: a figure that has no value (NaN, inf) becomes null.
+
+    json.dumps writes NaN as a bare `NaN`, which strict parsers (jq, JavaScript) reject; a run
+    without a current (a LinuxCNC servo, the EMPS bench) has no peak current to report.
+    """
+
+    def clean(value):
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items()}
+        if isinstance(value, list | tuple):
+            return [clean(v) for v in value]
+        return value
+
+    return json.dumps(clean(record), allow_nan=False)

@@ -443,7 +443,9 @@ def main(args: argparse.Namespace) -> int:
             **(summary.as_dict() if summary is not None else {}),
             **{f"timing_{k}": v for k, v in timing.items()},
         }
-        print(json.dumps(record))
+        from feed_twin.nodeset.summary import json_line
+
+        print(json_line(record))
     return code
 
 
