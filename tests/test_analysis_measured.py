@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from measured_support import write_csv, write_file
 
 from feed_twin.io.config import ConfigError
 from feed_twin.io.measured import (
@@ -32,6 +31,12 @@ plausibility: {travel_m: 1.0, max_speed_m_s: 1.0}
 """
 
 
+def _write(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
 def _record(n: int = 1000, h_ms: float = 1.0) -> dict[str, np.ndarray]:
     t_ms = h_ms * np.arange(n)
     x_mm = 50.0 * (1.0 - np.cos(2.0 * math.pi * t_ms / (n * h_ms)))
@@ -44,9 +49,17 @@ def _record(n: int = 1000, h_ms: float = 1.0) -> dict[str, np.ndarray]:
     }
 
 
+def _csv(tmp_path: Path, cols: dict[str, np.ndarray], name: str = "run.csv") -> Path:
+    names = list(cols)
+    rows = np.column_stack([cols[k] for k in names])
+    lines = [",".join(names)] + [",".join(repr(float(v)) for v in row) for row in rows]
+    text = "\n".join(lines).replace("nan", "")
+    return _write(tmp_path, name, text + "\n")
+
+
 def test_units_converted_once_at_the_edge(tmp_path):
     cols = _record()
-    run = load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+    run = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
     assert run.position_sensor == "linear_scale"
     np.testing.assert_allclose(run.t_s, cols["time"] * 1e-3, rtol=0, atol=1e-12)
     np.testing.assert_allclose(run["pos_cmd_m"], cols["x_cmd"] * 1e-3, rtol=1e-12)
@@ -65,11 +78,11 @@ def test_encoder_counts_and_degrees_become_table_travel(tmp_path):
     text = MAP.replace("{column: x_act, unit: mm}", "{column: enc, unit: counts}").replace(
         "  vel_cmd_m_s", "  disturbance_motor_deg_N: {column: u, unit: N}\n  vel_cmd_m_s"
     )
-    run = load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", text))
+    run = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", text))
     # quantisation: one count is lead/cpr
     np.testing.assert_allclose(run["pos_meas_m"], cols["x_act"] * 1e-3, atol=lead / cpr)
     text2 = MAP.replace("{column: x_act, unit: mm}", "{column: deg, unit: deg}")
-    run2 = load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m2.yaml", text2))
+    run2 = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m2.yaml", text2))
     np.testing.assert_allclose(run2["pos_meas_m"], cols["x_act"] * 1e-3, rtol=1e-12)
 
 
@@ -88,7 +101,7 @@ def test_emps_map_reads_both_benchmark_files():
 def test_nan_cells_are_interpolated_with_a_warning(tmp_path):
     cols = _record()
     cols["x_act"][[100, 101, 102, 500]] = np.nan
-    run = load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+    run = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
     assert any("'x_act'" in w and "4 empty or NaN" in w for w in run.warnings)
     x = _record()["x_act"] * 1e-3
     # a linear bridge over a 4 ms hole misses by at most h^2/8 * max|x''| = 4e-6 m here
@@ -101,7 +114,7 @@ def test_time_gaps_are_resampled_with_a_warning(tmp_path):
     keep = np.ones(1000, bool)
     keep[300:310] = False
     cols = {k: v[keep] for k, v in cols.items()}
-    run = load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+    run = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
     assert len(run.t_s) == 1000
     assert any("1 gap(s)" in w and "10 sample(s) inserted" in w for w in run.warnings)
     np.testing.assert_allclose(np.diff(run.t_s), 1e-3, rtol=1e-9)
@@ -111,12 +124,12 @@ def test_missing_column_is_named(tmp_path):
     cols = _record()
     del cols["x_act"]
     with pytest.raises(MeasuredDataError, match=r"names column\(s\) 'x_act' \(for pos_meas_m\)"):
-        load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+        load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
 
 
 def test_optional_column_may_be_missing(tmp_path):
     text = MAP.replace("{column: u, unit: V, gain: 20.0}", "{column: zz, unit: N, optional: true}")
-    run = load_measured(write_csv(tmp_path, _record()), write_file(tmp_path, "m.yaml", text))
+    run = load_measured(_csv(tmp_path, _record()), _write(tmp_path, "m.yaml", text))
     assert "force_cmd_N" not in run
 
 
@@ -125,19 +138,19 @@ def test_mm_declared_as_m_is_caught(tmp_path):
     with pytest.raises(
         MeasuredDataError, match=r"'x_act' \(pos_meas_m, declared in m\) spans 100 m"
     ):
-        load_measured(write_csv(tmp_path, _record()), write_file(tmp_path, "m.yaml", text))
+        load_measured(_csv(tmp_path, _record()), _write(tmp_path, "m.yaml", text))
 
 
 def test_mm_min_declared_as_m_s_is_caught(tmp_path):
     text = MAP.replace("unit: mm/min", "unit: m/s")
     with pytest.raises(MeasuredDataError, match=r"'feed' \(vel_cmd_m_s, declared in m/s\) reaches"):
-        load_measured(write_csv(tmp_path, _record()), write_file(tmp_path, "m.yaml", text))
+        load_measured(_csv(tmp_path, _record()), _write(tmp_path, "m.yaml", text))
 
 
 def test_implausible_speed_is_caught(tmp_path):
     text = MAP.replace("max_speed_m_s: 1.0", "max_speed_m_s: 0.01")
     with pytest.raises(MeasuredDataError, match=r"'x_cmd' \(pos_cmd_m, declared in mm\) implies"):
-        load_measured(write_csv(tmp_path, _record()), write_file(tmp_path, "m.yaml", text))
+        load_measured(_csv(tmp_path, _record()), _write(tmp_path, "m.yaml", text))
 
 
 def test_non_monotonic_time_is_named(tmp_path):
@@ -146,40 +159,40 @@ def test_non_monotonic_time_is_named(tmp_path):
     with pytest.raises(
         MeasuredDataError, match=r"time column 'time' does not increase at data row 401"
     ):
-        load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+        load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
 
 
 def test_too_short_record(tmp_path):
     with pytest.raises(MeasuredDataError, match=r"too short \(150 samples"):
-        load_measured(write_csv(tmp_path, _record(n=150)), write_file(tmp_path, "m.yaml", MAP))
+        load_measured(_csv(tmp_path, _record(n=150)), _write(tmp_path, "m.yaml", MAP))
 
 
 def test_command_that_never_moves(tmp_path):
     cols = _record()
     cols["x_cmd"] = np.full(1000, 12.0)
     with pytest.raises(MeasuredDataError, match=r"'x_cmd' \(pos_cmd_m\) never moves"):
-        load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+        load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
 
 
 def test_mostly_empty_column_is_not_repaired(tmp_path):
     cols = _record()
     cols["u"][::2] = np.nan
     with pytest.raises(MeasuredDataError, match=r"'u' \(for force_cmd_N\) is 50 % empty"):
-        load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+        load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
 
 
 def test_nan_time_is_an_error(tmp_path):
     cols = _record()
     cols["time"][7] = np.nan
     with pytest.raises(MeasuredDataError, match=r"time column 'time' is empty .* data row 8"):
-        load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+        load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
 
 
 def test_missing_file_and_empty_file(tmp_path):
     with pytest.raises(MeasuredDataError, match=r"no such measured file"):
-        load_measured(tmp_path / "nope.csv", write_file(tmp_path, "m.yaml", MAP))
+        load_measured(tmp_path / "nope.csv", _write(tmp_path, "m.yaml", MAP))
     with pytest.raises(MeasuredDataError, match=r"the file is empty"):
-        load_measured(write_file(tmp_path, "e.csv", ""), write_file(tmp_path, "m.yaml", MAP))
+        load_measured(_write(tmp_path, "e.csv", ""), _write(tmp_path, "m.yaml", MAP))
 
 
 @pytest.mark.parametrize(
@@ -199,11 +212,11 @@ def test_missing_file_and_empty_file(tmp_path):
 def test_bad_maps_name_file_field_and_value(tmp_path, old, new, message):
     text = MAP.replace(old, new)
     assert text != MAP
-    path = write_file(tmp_path, "m.yaml", text)
+    path = _write(tmp_path, "m.yaml", text)
     if message is None:  # removing the lead alone is fine until an angle needs it
         load_column_map(path)
         text = text.replace("{column: x_act, unit: mm}", "{column: x_act, unit: deg}")
-        path = write_file(tmp_path, "m.yaml", text)
+        path = _write(tmp_path, "m.yaml", text)
         message = r"signals.pos_meas_m.unit = 'deg': converting a motor angle .*lead_m"
     with pytest.raises(ConfigError, match=message) as info:
         load_column_map(path)

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from measured_support import write_csv, write_file
 
 from feed_twin.cli import main
 from feed_twin.io.config import ConfigError
@@ -30,15 +29,28 @@ plausibility: {travel_m: 1.0, max_speed_m_s: 1.0}
 """
 
 
+def _write(tmp_path: Path, name: str, text: str) -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
 def _record(n: int = 1000, h_ms: float = 1.0) -> dict[str, np.ndarray]:
     t_ms = h_ms * np.arange(n)
     x_mm = 50.0 * (1.0 - np.cos(2.0 * math.pi * t_ms / (n * h_ms)))
     return {"time": t_ms, "x_cmd": x_mm, "x_act": x_mm - 0.01, "i_q": np.sin(t_ms / 100.0)}
 
 
+def _csv(tmp_path: Path, cols: dict[str, np.ndarray], name: str = "run.csv") -> Path:
+    names = list(cols)
+    rows = np.column_stack([cols[k] for k in names])
+    lines = [",".join(names)] + [",".join(repr(float(v)) for v in row) for row in rows]
+    return _write(tmp_path, name, "\n".join(lines) + "\n")
+
+
 def test_sign_offset_rms_and_force_constant_of_a_current_column(tmp_path):
     cols = _record()
-    run = load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+    run = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
     # force = K_F * sqrt(2) * (reading - offset), with K_F negative: the drive counts the
     # current against the motion
     expected = -40.0 * math.sqrt(2.0) * (cols["i_q"] - 0.25)
@@ -46,7 +58,7 @@ def test_sign_offset_rms_and_force_constant_of_a_current_column(tmp_path):
 
 
 def test_a_current_needs_the_force_constant_to_become_a_force(tmp_path):
-    path = write_file(tmp_path, "m.yaml", MAP.replace(", gain: -40.0", ""))
+    path = _write(tmp_path, "m.yaml", MAP.replace(", gain: -40.0", ""))
     with pytest.raises(ConfigError, match=r"force_cmd_N.gain = None: a current gives force_cmd_N"):
         load_column_map(path)
 
@@ -54,7 +66,7 @@ def test_a_current_needs_the_force_constant_to_become_a_force(tmp_path):
 def test_rms_is_only_for_currents(tmp_path):
     text = MAP.replace("{column: x_act, unit: mm}", "{column: x_act, unit: mm, amplitude: rms}")
     with pytest.raises(ConfigError, match=r"amplitude = 'rms' with unit = 'mm': only a current"):
-        load_column_map(write_file(tmp_path, "m.yaml", text))
+        load_column_map(_write(tmp_path, "m.yaml", text))
 
 
 def test_time_gain_is_honoured(tmp_path):
@@ -62,7 +74,7 @@ def test_time_gain_is_honoured(tmp_path):
     cols = _record()
     cols["time"] = np.arange(len(cols["time"]), dtype=float) + 7.0
     text = MAP.replace("{column: time, unit: ms}", "{column: time, unit: s, gain: 0.001}")
-    run = load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", text))
+    run = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", text))
     assert run.sample_period_s == pytest.approx(1e-3, rel=1e-12)
     assert run.t_s[0] == pytest.approx(7e-3, rel=1e-12)
 
@@ -70,26 +82,26 @@ def test_time_gain_is_honoured(tmp_path):
 def test_time_gain_must_be_positive(tmp_path):
     text = MAP.replace("{column: time, unit: ms}", "{column: time, unit: s, gain: -1.0}")
     with pytest.raises(ConfigError, match=r"time.gain = -1.0: must be > 0"):
-        load_column_map(write_file(tmp_path, "m.yaml", text))
+        load_column_map(_write(tmp_path, "m.yaml", text))
 
 
 def test_milliseconds_declared_as_seconds_are_caught_at_once(tmp_path):
     text = MAP.replace("{column: time, unit: ms}", "{column: time, unit: s}")
     with pytest.raises(MeasuredDataError, match=r"period of 1 s.*ms declared as s"):
-        load_measured(write_csv(tmp_path, _record()), write_file(tmp_path, "m.yaml", text))
+        load_measured(_csv(tmp_path, _record()), _write(tmp_path, "m.yaml", text))
 
 
 def test_a_long_gap_is_refused_instead_of_filled(tmp_path):
     cols = _record()
     cols["time"][500:] += 60_000.0  # one minute without samples in a 1 kHz record
     with pytest.raises(MeasuredDataError, match=r"a gap of 60 s .*\(--segment t0:t1\)"):
-        load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+        load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
 
 
 def test_a_short_gap_is_still_filled(tmp_path):
     cols = _record()
     cols = {k: np.delete(v, range(400, 405)) for k, v in cols.items()}
-    run = load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+    run = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
     assert len(run.t_s) == 1000
     assert any("1 gap(s)" in w for w in run.warnings)
 
@@ -99,27 +111,27 @@ def test_a_constant_channel_is_refused(tmp_path, column):
     cols = _record()
     cols[column] = np.full_like(cols[column], 3.0)
     with pytest.raises(MeasuredDataError, match=rf"column '{column}' .* holds one value"):
-        load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", MAP))
+        load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP))
 
 
 def test_a_binary_file_is_refused(tmp_path):
     path = tmp_path / "run.csv"
     path.write_bytes(b"time,x_cmd\n\x00\x01\x02\x03")
     with pytest.raises(MeasuredDataError, match=r"is not a text CSV \(binary data at byte 11\)"):
-        load_measured(path, write_file(tmp_path, "m.yaml", MAP))
+        load_measured(path, _write(tmp_path, "m.yaml", MAP))
 
 
 def test_a_ragged_file_names_the_line(tmp_path):
-    path = write_csv(tmp_path, _record())
+    path = _csv(tmp_path, _record())
     lines = path.read_text().splitlines()
     lines[7] = lines[7].rsplit(",", 1)[0]  # a row cut short
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(MeasuredDataError, match=r"line 8 has 3 cells but the header has 4"):
-        load_measured(path, write_file(tmp_path, "m.yaml", MAP))
+        load_measured(path, _write(tmp_path, "m.yaml", MAP))
 
 
 def test_segment_keeps_the_chosen_time_window(tmp_path):
-    run = load_measured(write_csv(tmp_path, _record()), write_file(tmp_path, "m.yaml", MAP))
+    run = load_measured(_csv(tmp_path, _record()), _write(tmp_path, "m.yaml", MAP))
     part = segment(run, 0.2, 0.7)
     assert part.t_s[0] == pytest.approx(0.2) and part.t_s[-1] == pytest.approx(0.7)
     np.testing.assert_array_equal(part["pos_meas_m"], run["pos_meas_m"][200:701])
@@ -155,7 +167,7 @@ def test_a_reversed_effort_sign_is_said_in_one_line(tmp_path, capsys):
 
 
 def test_out_naming_an_existing_file_is_refused(tmp_path, capsys):
-    taken = write_file(tmp_path, "report", "not a directory")
+    taken = _write(tmp_path, "report", "not a directory")
     code = main(["diagnose", "x.csv", "--config", str(NOMINAL), "--out", str(taken)])
     assert code == 2
     assert f"--out {taken}: is an existing file; name a directory" in capsys.readouterr().err
@@ -177,8 +189,8 @@ def test_simulate_from_the_program_on_a_segment(tmp_path, capsys):
         map_path.read_text().replace("  pos_cmd_m: {column: x_cmd_mm, unit: mm}\n", "")
     )
     model = yaml.safe_load(NOMINAL.read_text()) | yaml.safe_load(NC_CONFIG)
-    model_path = write_file(tmp_path, "model.yaml", yaml.safe_dump(model))
-    program = write_file(tmp_path, "part.ngc", PROGRAM)
+    model_path = _write(tmp_path, "model.yaml", yaml.safe_dump(model))
+    program = _write(tmp_path, "part.ngc", PROGRAM)
     out = tmp_path / "traces.csv"
     code = main(["simulate", "--config", str(model_path), "--measured", str(csv),
                  "--map", str(map_path), "--program", str(program), "--segment", "0:6",
@@ -211,12 +223,12 @@ def test_trace_filter_is_read_from_the_map_and_kept_by_a_segment(tmp_path):
     cols = _record()
     text = MAP.replace("position_sensor: motor_encoder", "position_sensor: motor_encoder\n"
                        "trace_filter: mean")  # fmt: skip
-    run = load_measured(write_csv(tmp_path, cols), write_file(tmp_path, "m.yaml", text))
+    run = load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", text))
     assert run.trace_filter == "mean"
     assert segment(run, 0.1, 0.9).trace_filter == "mean"
     bad = text.replace("trace_filter: mean", "trace_filter: median")
     with pytest.raises(ConfigError, match=r"trace_filter"):
-        load_column_map(write_file(tmp_path, "bad.yaml", bad))
+        load_column_map(_write(tmp_path, "bad.yaml", bad))
 
 
 def test_window_mean_is_the_mean_over_the_period_ending_at_each_sample():
