@@ -261,3 +261,21 @@ def test_missing_or_mistyped_command_stream_is_reported(
     assert code == 4, err
     assert "no feed_twin_msgs/msg/AxisCommand message on /cnc/x/command for 2 s" in err
     assert re.search(expected, err), err
+
+
+def test_a_hung_dds_teardown_ends_the_node_process_with_its_code() -> None:
+    """A node process whose DDS teardown blocks (a reliable writer whose reader was killed) ends
+    after the limit, with the code its nodes ended with and a line saying why."""
+    script = (
+        "import time\n"
+        "from feed_twin.ros.runtime import exit_if_teardown_hangs\n"
+        "exit_if_teardown_hangs(0.3, 3)\n"
+        "time.sleep(30.0)\n"
+    )
+    started = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=20.0
+    )
+    assert time.monotonic() - started < 15.0
+    assert done.returncode == 3
+    assert "teardown: DDS did not finish within 0.3 s; leaving" in done.stderr

@@ -65,6 +65,9 @@ LIVENESS_POLL_S = 0.02  # [s] the liveness thread takes heartbeats this often
 ACK_WAIT_S = 0.5  # [s] a stopping node waits for its readers to acknowledge its last messages
 ACK_WAIT_ALIVE_S = 10.0  # [s] ... when the recorder is alive (it may lag behind on a busy host)
 SIGNAL_DRAIN_S = 30.0  # [s] nodes may take after SIGINT/SIGTERM to finish (recorder drain)
+# A node process leaves without DDS's teardown after this long: deleting a reliable writer whose
+# reader was killed can block for many seconds, and by then outputs are closed and logged.
+TEARDOWN_LIMIT_S = 2.0
 PEER_TIMEOUT_S = 0.8  # noticed within 0.9 s; 0.6 s gave false alarms on a machine at load 9
 # Diagnosis: with FEED_TWIN_STALL_DUMP_S=0.5 in its environment, a node whose spin loop does not
 # come back within 0.5 s prints every thread's Python stack to its log (faulthandler: it works
@@ -413,11 +416,14 @@ def spin_nodes(
     *,
     until_all_done: bool = False,
     poll_s: float = 0.02,
+    teardown_limit_s: float | None = None,
 ) -> int:
     """Spin until one node finishes (or all, with until_all_done) or a signal arrives.
 
     Every node's `on_shutdown` runs before returning; returns the process exit code (the
-    first non-zero code of the nodes, EXIT_SIGNAL after SIGINT/SIGTERM).
+    first non-zero code of the nodes, EXIT_SIGNAL after SIGINT/SIGTERM). With
+    `teardown_limit_s` (a node process of its own, never a host program), a DDS teardown that
+    takes longer ends the process with that code instead.
     """
     flag = _SignalFlag()
     previous = {s: signal.signal(s, flag) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -427,6 +433,7 @@ def spin_nodes(
     never = Future()  # spin_until_future_complete then returns at its timeout
     stall_dump_s = float(os.environ.get(STALL_DUMP_ENV) or 0.0)
     signalled_at: float | None = None
+    code = EXIT_ERROR  # until the nodes have ended normally
     try:
         while True:
             if flag.received is not None and signalled_at is None:
@@ -485,11 +492,12 @@ def spin_nodes(
             flush=True,
         )
         codes = [n.exit_code for n in nodes if n.exit_code not in (None, EXIT_OK)]
-        if flag.received is not None:
-            return EXIT_SIGNAL
-        return codes[0] if codes else EXIT_OK
+        code = EXIT_SIGNAL if flag.received is not None else (codes[0] if codes else EXIT_OK)
+        return code
     finally:
         started = time.monotonic()
+        if teardown_limit_s is not None:
+            exit_if_teardown_hangs(teardown_limit_s, code)
         for node in nodes:
             node.liveness.stop()
             executor.remove_node(node)
@@ -499,6 +507,17 @@ def spin_nodes(
         print(f"teardown {time.monotonic() - started:.2f} s", file=sys.stderr, flush=True)
         for s, handler in previous.items():
             signal.signal(s, handler)
+
+
+def exit_if_teardown_hangs(limit_s: float, code: int) -> None:
+    def leave() -> None:
+        message = f"teardown: DDS did not finish within {limit_s} s; leaving"
+        print(message, file=sys.stderr, flush=True)
+        os._exit(code)
+
+    timer = threading.Timer(limit_s, leave)
+    timer.daemon = True
+    timer.start()
 
 
 def node_parser(prog: str, configure: Callable[[argparse.ArgumentParser], None]):
@@ -554,8 +573,8 @@ def start_node(prog: str, make: Callable[[Any], FeedTwinNode | Sequence[FeedTwin
             context.try_shutdown()
         return EXIT_ERROR
     if isinstance(made, FeedTwinNode):
-        return spin_nodes([made], context)
-    return spin_nodes(made, context, until_all_done=True)
+        return spin_nodes([made], context, teardown_limit_s=TEARDOWN_LIMIT_S)
+    return spin_nodes(made, context, until_all_done=True, teardown_limit_s=TEARDOWN_LIMIT_S)
 
 
 def node_main(
