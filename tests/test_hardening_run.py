@@ -31,6 +31,7 @@ node = rclpy.create_node("intruder")
 pub = node.create_publisher(AxisCommand, "/cnc/x/command", DATA_QOS)
 end = time.monotonic() + float(sys.argv[1])
 k = 0
+print("publishing", flush=True)
 while time.monotonic() < end:
     # setpoints 100 mm away from the program's, alternating: a lethal stream if taken
     pub.publish(AxisCommand(axis="X", position=0.3 + 0.2 * (k % 2), line=99))
@@ -80,9 +81,16 @@ def test_foreign_command_publisher_is_refused(tmp_path):
     program.write_text(SHORT_PROGRAM)
     with reserve_domain_id() as domain:
         intruder = subprocess.Popen(
-            [sys.executable, "-c", INTRUDER, "60"], env=node_env(domain.domain_id)
+            [sys.executable, "-c", INTRUDER, "60"],
+            env=node_env(domain.domain_id),
+            stdout=subprocess.PIPE,
+            text=True,
         )
         try:
+            # The run is short: it must start once the intruder publishes (its start-up takes
+            # seconds on a loaded host), or it may end before anyone could see the intruder.
+            assert intruder.stdout is not None
+            assert intruder.stdout.readline().strip() == "publishing"
             code, out, err = run(
                 [str(program), "--out", str(tmp_path / "bags"), "--name", "mixed", "--json"],
                 domain.domain_id,
