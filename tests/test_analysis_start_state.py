@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from pathlib import Path
 
@@ -85,3 +86,23 @@ def test_a_50_hz_averaged_trace_is_matched_by_averaging_the_twin_and_interpolati
     # 4.0 N against 16.0 N: what is left comes from the command rebuilt from its 50 Hz means
     # (the loop turns a micrometre of command into 1.4 N)
     assert err < 0.3 * err_point
+
+
+def test_a_new_drive_is_simulated_on_its_own_command_after_the_last_one_was_collected(tmp_path):
+    """The twin caches a drive's inputs: a drive made right after the previous one was
+    collected (as the program alignment's refinement loop does) can get its memory, and so its
+    id(), and must still be simulated on its own command."""
+    nominal = ModelDoc.load(EMPS)
+    columns = generate(nominal, {})
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    run = load_measured(tmp_path / "run.csv", map_path)
+    twin = Twin.compile(nominal)
+    shift_m = 2e-3
+    shifted = drive_from_run(run.with_signals(pos_cmd_m=run["pos_cmd_m"] + shift_m))
+    first = drive_from_run(run)
+    twin.simulate(first, twin.nominal[None, :])
+    del first
+    second = copy.copy(shifted)  # CPython hands it the block `first` had
+    got = twin.simulate(second, twin.nominal[None, :]).x_m[0]
+    # the table follows the shifted command: its end position moves with it
+    assert got[-1] - run["pos_meas_m"][-1] == pytest.approx(shift_m, abs=1e-4)

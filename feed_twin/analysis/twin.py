@@ -576,9 +576,10 @@ class Twin:
         from feed_twin.sim.batch import run_batch
         from feed_twin.sim.engine import check_step
 
-        key = id(drive)
-        if self._cache.get("key") != key:
-            self._cache = {"key": key, "inputs": self._inputs(drive)}
+        # keyed by the drive itself, which the cache keeps alive: an id() of a drive already
+        # collected can come back for the next one and return its stale inputs
+        if self._cache.get("drive") is not drive:
+            self._cache = {"drive": drive, "inputs": self._inputs(drive)}
         ref, ext, n, dec = self._cache["inputs"]
         P = np.array(params, dtype=float, ndmin=2)
         ok = np.ones(len(P), dtype=bool)
