@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import os
 import platform
 import shutil
 import subprocess
@@ -92,7 +93,7 @@ def compile_kernel(kernel: CKernel, *, cc: str = "cc", extra: tuple[str, ...] = 
     if library.exists():
         return library
     c_path = write_sources(kernel, directory)
-    tmp = directory / f"feed_twin_axis.tmp{id(kernel)}.so"
+    tmp = directory / f"feed_twin_axis.tmp{os.getpid()}.so"  # parallel builds never share one
     run_cc(compiler, [*flags, "-shared"], [c_path], tmp)
     tmp.replace(library)
     return library
