@@ -10,9 +10,12 @@ and turns each block into items for the planner:
   executes at standstill: M0, M1, M2, M30, M3-M6).
 - `Event`: something the recording shows (spindle, tool, coolant, pauses, warnings).
 
-Within a block the words act in this order: units, F, S, T, M6, M3-M5, M7-M9, G4, plane, modes,
-work offset, G92/G53, motion, then M0/M1/M2/M30. Units come before F (unlike RS274/NGC) so
-that `G20 F10` means 10 in/min, which is what people who write it mean.
+A block's words are first sorted and checked (`block_words.sort_words`: G-codes by name, at
+most one per modal group, see `codes`); then they act in this order: units, F, S, T, M6, M3-M5,
+M7-M9, G4, plane, distance modes, path control, work offset, motion mode, G92/G53 and the move,
+then M0/M1/M2/M30. Modal codes set the state through `MODE_ACTIONS`, a table keyed by the
+code's name. Units come before F (unlike RS274/NGC) so that `G20 F10` means 10 in/min, which is
+what people who write it mean. Arc geometry lives in `arcs`.
 
 Millimetres, inches and degrees exist only here: every number that leaves is SI (rotary axes
 A, B, C in radians, after the linear axes).
@@ -39,31 +42,26 @@ from feed_twin.gcode.arcs import (
     check_centre,
     chord_points,
 )
+from feed_twin.gcode.block_words import BlockWords, sort_words
 from feed_twin.gcode.codes import (
     ARC_DISTANCE,
     ARC_MOTIONS,
     CENTRE_LETTERS,
     DISTANCE,
-    GROUP_OF,
     LINE_MOTIONS,
     M_COOLANT,
-    M_KNOWN,
     M_PAUSES,
     M_SPINDLE,
     MM,
     MOTION,
-    NON_MODAL,
     OTHER_LETTERS,
     PATH_CONTROL,
     PLANE,
     PLANE_AXES,
     PLANE_NAMES,
-    TOOL_LENGTH_OFFSET,
     UNIT_CODES,
     UNITS,
-    UNSUPPORTED_G,
     WORK_OFFSET,
-    g_code_name,
 )
 from feed_twin.gcode.config import NcConfig
 from feed_twin.gcode.errors import GcodeError
@@ -97,16 +95,6 @@ class Event(NamedTuple):
 
 
 Item = Move | Stop | Event
-
-
-class _Words(NamedTuple):
-    """A block's words sorted by role."""
-
-    modal: dict[str, tuple[str, Word]]  # modal group -> (code name, word)
-    non_modal: dict[str, Word]  # code name -> word
-    m_codes: list[tuple[int, Word]]
-    other: dict[str, Word]  # letter -> word: axes, F S T I J K R P Q
-    notes: list[str]  # warnings to report
 
 
 class Interpreter:
@@ -163,7 +151,7 @@ class Interpreter:
             if simple is not None:
                 return simple
         line = block.line
-        words = self._sort_words(block)
+        words = sort_words(block, allowed=self.allowed, file=self.file)
         out: list[Item] = [Event(line, "warning", 0.0, text, False) for text in words.notes]
         # Units come before F, so that `G20 F10` is 10 in/min.
         self._apply_modes(words, (UNITS,), line)
@@ -185,92 +173,32 @@ class Interpreter:
                 self.ended = True
         return out
 
-    def _sort_words(self, block: Block) -> _Words:
-        """Sort the block's words by role; reject unknown, unsupported and conflicting ones."""
-        line = block.line
-        words = _Words({}, {}, [], {}, [])
-        words.notes.extend(
-            f"line {line}: controller-specific word {note.text} ignored" for note in block.notes
-        )
-        for w in block.words:
-            letter = w.letter
-            if letter == "G":
-                self._sort_g_word(w, words, line)
-            elif letter == "M":
-                code = round(w.value)
-                if abs(w.value - code) > 1e-9 or code not in M_KNOWN:
-                    raise self.error("unsupported M-code", w, line)
-                words.m_codes.append((code, w))
-            elif letter == "N":
-                continue
-            elif letter in ("D", "H"):
-                words.notes.append(f"line {line}: {w.text} ignored (tool offsets are not modelled)")
-            elif letter == "O" and len(block.words) == 1:
-                words.notes.append(f"line {line}: program number {w.text} ignored")
-            elif letter in self.allowed:
-                if letter in words.other:
-                    raise self.error(
-                        f"repeats {words.other[letter].text} in the same block", w, line
-                    )
-                words.other[letter] = w
-            else:
-                if letter in ("A", "B", "C", "U", "V", "W"):
-                    reason = f"unknown word (axis {letter} is not configured)"
-                elif letter == "O":
-                    reason = "unknown word (O-word subroutines are not supported)"
-                else:
-                    reason = "unknown word"
-                raise self.error(reason, w, line)
-        tool_length = words.modal.get(TOOL_LENGTH_OFFSET)
-        if tool_length is not None and tool_length[0] == "G43":
-            words.notes.append(
-                f"line {line}: {tool_length[1].text} tool length taken as 0 (no tool table)"
-            )
-        return words
-
-    def _sort_g_word(self, w: Word, words: _Words, line: int) -> None:
-        name = g_code_name(w.value)
-        if name is None:
-            raise self.error("unknown G-code", w, line)
-        if name in UNSUPPORTED_G:
-            raise self.error(UNSUPPORTED_G[name], w, line)
-        group = GROUP_OF.get(name)
-        if group is None:
-            raise self.error("unknown G-code", w, line)
-        if group == NON_MODAL:
-            words.non_modal[name] = w
-            return
-        if group in words.modal:
-            first = words.modal[group][1]
-            raise self.error(f"conflicts with {first.text} (both in the {group} group)", w, line)
-        words.modal[group] = (name, w)
-
-    def _apply_modes(self, words: _Words, groups: tuple[str, ...], line: int) -> None:
+    def _apply_modes(self, words: BlockWords, groups: tuple[str, ...], line: int) -> None:
         """Set the modal state of these groups from the block's codes (in this order)."""
         for group in groups:
             code = words.modal.get(group)
             if code is not None:
-                _MODE_ACTIONS[code[0]](self, code[0], words, line)
+                MODE_ACTIONS[code[0]](self, code[0], words, line)
 
-    def _set_units(self, name: str, words: _Words, line: int) -> None:
+    def _set_units(self, name: str, words: BlockWords, line: int) -> None:
         length_unit, feed_unit = UNIT_CODES[name]
         self.length_unit = length_unit
         if feed_unit is not None:
             self.feed_unit = feed_unit
 
-    def _set_plane(self, name: str, words: _Words, line: int) -> None:
+    def _set_plane(self, name: str, words: BlockWords, line: int) -> None:
         self.plane = name
 
-    def _set_distance(self, name: str, words: _Words, line: int) -> None:
+    def _set_distance(self, name: str, words: BlockWords, line: int) -> None:
         self.absolute = name == "G90"
 
-    def _set_arc_distance(self, name: str, words: _Words, line: int) -> None:
+    def _set_arc_distance(self, name: str, words: BlockWords, line: int) -> None:
         self.arc_absolute = name == "G90.1"
 
-    def _set_exact_stop(self, name: str, words: _Words, line: int) -> None:
+    def _set_exact_stop(self, name: str, words: BlockWords, line: int) -> None:
         self.exact_stop_mode = True
 
-    def _set_blending(self, name: str, words: _Words, line: int) -> None:
+    def _set_blending(self, name: str, words: BlockWords, line: int) -> None:
         """G64 [P tolerance] [Q tolerance]."""
         self.exact_stop_mode = False
         p_word = words.other.pop("P", None)
@@ -289,10 +217,10 @@ class Interpreter:
             if q_word.value < 0.0:
                 raise self.error("G64 Q tolerance must be >= 0", q_word, line)
 
-    def _set_work_offset(self, name: str, words: _Words, line: int) -> None:
+    def _set_work_offset(self, name: str, words: BlockWords, line: int) -> None:
         self.work_offset = self._offset(name)
 
-    def _set_motion(self, name: str, words: _Words, line: int) -> None:
+    def _set_motion(self, name: str, words: BlockWords, line: int) -> None:
         self.motion = None if name == "G80" else name
 
     def _feed_spindle_tool(self, other: dict[str, Word], out: list[Item], line: int) -> None:
@@ -335,7 +263,7 @@ class Interpreter:
                 stop_codes.append((code, w))
         return stop_codes
 
-    def _motion(self, words: _Words, out: list[Item], line: int) -> dict[str, Word]:
+    def _motion(self, words: BlockWords, out: list[Item], line: int) -> dict[str, Word]:
         """G92 offsets, G53 and the move of the block; returns the axis words it moved by."""
         non_modal = words.non_modal
         motion = words.modal.get(MOTION)
@@ -383,7 +311,7 @@ class Interpreter:
         return axis_words
 
     def _check_leftovers(
-        self, words: _Words, axis_words: dict[str, Word], line: int, *, dwell: bool, path: bool
+        self, words: BlockWords, axis_words: dict[str, Word], line: int, *, dwell: bool, path: bool
     ) -> None:
         """Words that no code of the block used."""
         other = words.other
@@ -447,7 +375,7 @@ class Interpreter:
         self.motion = motion
         return self._line_move(target, block.line, exact_stop=False)
 
-    def _dwell(self, g4: Word, words: _Words, line: int) -> list[Item]:
+    def _dwell(self, g4: Word, words: BlockWords, line: int) -> list[Item]:
         other = words.other
         if MOTION in words.modal:
             raise self.error("G4 cannot share a block with a motion code", g4, line)
@@ -625,12 +553,13 @@ class Interpreter:
                 if feed is None:  # rotary axes alone: F in degrees per minute
                     return self.feed_per_min * DEG / 60.0
                 return feed * math.sqrt(total2 / moved2)
-        return self.feed
+        # no axis moved: callers drop such moves (and check for an F word first)
+        return self.feed if self.feed is not None else 0.0
 
 
 # The modal codes that change the interpreter's state, and how (groups not listed here, such
 # as feed mode G94, cutter compensation G40 and tool length offset G43/G49, change nothing)
-_MODE_ACTIONS: dict[str, Callable[[Interpreter, str, _Words, int], None]] = {
+MODE_ACTIONS: dict[str, Callable[[Interpreter, str, BlockWords, int], None]] = {
     **dict.fromkeys(UNIT_CODES, Interpreter._set_units),
     **dict.fromkeys(PLANE_AXES, Interpreter._set_plane),
     **dict.fromkeys(("G90", "G91"), Interpreter._set_distance),

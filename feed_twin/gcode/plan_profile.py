@@ -149,7 +149,7 @@ def node_entries(
     for slot, node, entries in slots:
         offset = 0.0
         for i, entry in enumerate(entries):
-            if type(entry) is Stop:
+            if isinstance(entry, Stop):
                 key = PIECES_PER_NODE * slot - 0.5 + 0.5 * i / len(entries)
                 dwells.append(Dwell(key, entry.dwell_s, S[node], entry.line, node))
                 offset += entry.dwell_s

@@ -128,7 +128,9 @@ def _plan_chunks(source: str | Path, config: NcConfig) -> Iterator[SampledTrajec
                 yield chunk
     if counted.count == 0:
         raise GcodeError("the program is empty (no G-code blocks)", file=file)
-    yield planner.plan(final=True)
+    last = planner.plan(final=True)
+    if last is not None:  # always: the final plan samples the rest, at least its end point
+        yield last
 
 
 class _Counted:
@@ -176,7 +178,7 @@ class _StreamPlanner:
 
     def add(self, item: Move | Stop | Event) -> None:
         node = self.g0 + len(self.lines)
-        if type(item) is Move:
+        if isinstance(item, Move):
             self.points.append(item.end_m)
             self.lines.append(item.line)
             self.rapids.append(item.rapid)
@@ -186,7 +188,7 @@ class _StreamPlanner:
                 self.stops.add(node + 1)
             return
         self.entries.setdefault(node, []).append(item)
-        if type(item) is Stop or item.stops:
+        if isinstance(item, Stop) or item.stops:
             self.stops.add(node)
 
     def plan(self, *, final: bool) -> SampledTrajectory | None:
@@ -311,7 +313,7 @@ class _StreamPlanner:
         events = []
         spans: list[tuple[float, float, int]] = []
         for entry in entries:
-            if type(entry) is Stop:
+            if isinstance(entry, Stop):
                 spans.append((t, t + entry.dwell_s, entry.line))
                 t += entry.dwell_s
             else:
