@@ -9,7 +9,15 @@ import numpy as np
 import pytest
 
 from feed_twin.gcode import GcodeError, load_nc_config, plan_program
-from feed_twin.gcode.interpreter import Event, Interpreter, Move, Stop
+from feed_twin.gcode.codes import (
+    CUTTER_COMPENSATION,
+    FEED_MODE,
+    GROUP_OF,
+    NON_MODAL,
+    TOOL_LENGTH_OFFSET,
+    g_code_name,
+)
+from feed_twin.gcode.interpreter import MODE_ACTIONS, Event, Interpreter, Move, Stop
 from feed_twin.gcode.planner import iter_blocks, validate_program
 
 FIXTURES = Path(__file__).parent / "fixtures" / "gcode"
@@ -255,3 +263,23 @@ def test_percent_delimited_program_ends_at_the_second_percent():
     assert len(ends("%\nG0 X1\n%\nG0 X2 Q7 (not read)")) == 1
     # Without a leading '%', a '%' line is only skipped.
     assert len(ends("G0 X1\n%\nG0 X2")) == 2
+
+
+@pytest.mark.parametrize(
+    ("value", "name"),
+    [(0.0, "G0"), (1.0, "G1"), (90.1, "G90.1"), (64.0, "G64"), (700.0, "G700"), (38.2, "G38.2")],
+)
+def test_g_words_are_named_by_their_number_in_tenths(value, name):
+    assert g_code_name(value) == name
+
+
+def test_g_words_finer_than_tenths_have_no_name_and_are_unknown():
+    assert g_code_name(90.15) is None
+    with pytest.raises(GcodeError, match=r"<text>:1:1: word 'G90.15': unknown G-code"):
+        run("G90.15 X1")
+
+
+def test_every_stateful_modal_code_has_an_action_and_every_action_a_known_code():
+    stateless = {FEED_MODE, CUTTER_COMPENSATION, TOOL_LENGTH_OFFSET, NON_MODAL}
+    stateful = {name for name, group in GROUP_OF.items() if group not in stateless}
+    assert stateful == set(MODE_ACTIONS)

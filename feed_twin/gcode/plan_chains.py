@@ -1,0 +1,190 @@
+"""Planner stage 3, chains: the 1-D nodes of the speed profile and the bodies between them.
+
+Neighbouring corners whose blends meet leave no straight piece between them: they form a
+chain, which the speed profile treats as one body (or a few, cut where its local speed cap
+changes by more than CHAIN_CUT) with the axis limits shared between the curvature terms and
+s'' and s''' (`chain_limits`). A corner blended alone is a 1-D node crossed at constant speed
+over its blend. Collinear joints with equal limits are passed through.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from feed_twin.gcode.plan_blends import CHAIN_SHARE, CornerBlends, NodeFlags
+from feed_twin.gcode.plan_limits import AxisLimits, MoveLimits
+
+CHAIN_CUT = 1.3  # a chain is cut where its local speed cap changes by more than this factor
+
+# Kinds of 1-D node
+SINGLE = 0  # a corner blended alone (or a stop, or a passing point): cruise over its blend
+CHAIN_ENTRY = 1  # where a chain starts: the body after it runs along the chain
+CHAIN_EXIT = 2  # where a chain ends
+CHAIN_CUT_NODE = 3  # a cut inside a chain: bodies of the chain on both sides
+
+
+@dataclass(frozen=True, kw_only=True)
+class Bodies:
+    """1-D nodes q (arrays of m+1) and the bodies between consecutive ones (arrays of m)."""
+
+    node: np.ndarray  # (m+1,) polyline node of each 1-D node
+    kind: np.ndarray  # (m+1,) SINGLE, CHAIN_ENTRY, CHAIN_EXIT or CHAIN_CUT_NODE
+    S: np.ndarray  # (n+1,) [m] path parameter of every polyline node
+    sa: np.ndarray  # (m+1,) [m] where the 1-D node's blend starts (s)
+    sb: np.ndarray  # (m+1,) [m] where it ends and the next body starts
+    cap: np.ndarray  # (m+1,) [m/s] speed cap at the 1-D node
+    length: np.ndarray  # (m,) [m] body lengths
+    V: np.ndarray  # (m,) [m/s] speed cap of each body
+    A: np.ndarray  # (m,) [m/s^2] acceleration limit of s'' on each body
+    J: np.ndarray  # (m,) [m/s^3] jerk limit of s''' on each body
+
+
+def chain_bodies(
+    moves: MoveLimits,
+    blends: CornerBlends,
+    flags: NodeFlags,
+    limits: AxisLimits,
+    *,
+    first: int,
+    open_end: bool,
+) -> Bodies | None:
+    """Group the nodes from `first` on into 1-D nodes and bodies; None if fewer than two.
+
+    With `open_end` the window's last body stops short of the last move, where the next
+    window may put a blend: every speed planned now stays reachable later.
+    """
+    L, V, A, J = moves.L, moves.V, moves.A, moves.J
+    n = len(L)
+    w = blends.w
+    same_limits = np.zeros(n + 1, dtype=bool)
+    same_limits[1:n] = (V[:-1] == V[1:]) & (A[:-1] == A[1:]) & (J[:-1] == J[1:])
+    passing = ~blends.corner & same_limits & ~(blends.stop | flags.has_entries | flags.forced)
+    passing &= ~(w > 0.0)
+    passing[: first + 1] = False
+    nodes_b = np.flatnonzero(~passing)
+    nodes_b = nodes_b[nodes_b >= first]
+    pos_q, kind_q = _one_d_nodes(nodes_b, L, blends, limits)
+    node_q = nodes_b[pos_q]
+    S = np.concatenate(([0.0], np.cumsum(L)))
+    sa = np.where(kind_q == SINGLE, S[node_q] - w[node_q], S[node_q])
+    sa = np.where(kind_q == CHAIN_ENTRY, S[node_q] - w[node_q], sa)
+    sa = np.where(kind_q == CHAIN_EXIT, S[node_q] + w[node_q], sa)
+    sb = np.where(kind_q == SINGLE, S[node_q] + w[node_q], sa)
+    if len(node_q) < 2:
+        return None
+    in_chain = (kind_q[:-1] == CHAIN_ENTRY) | (kind_q[:-1] == CHAIN_CUT_NODE)
+    Vc, Ac, Jc = chain_limits(nodes_b, pos_q, blends, moves.u, V, limits)
+    cap = blends.cap
+    cap_q = cap[node_q].copy()
+    cap_q[1:] = np.where(in_chain, np.minimum(cap_q[1:], Vc), cap_q[1:])
+    cap_q[:-1] = np.where(in_chain, np.minimum(cap_q[:-1], Vc), cap_q[:-1])
+    cap_q = np.where(kind_q == SINGLE, cap[node_q], cap_q)
+    length = np.maximum(sa[1:] - sb[:-1], 0.0)
+    if open_end:
+        length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
+    pairs = np.column_stack((node_q[:-1], node_q[1:])).ravel()
+    pad = np.array([np.inf])
+    Vb = np.minimum.reduceat(np.concatenate((V, pad)), pairs)[::2]
+    Ab = np.minimum.reduceat(np.concatenate((A, pad)), pairs)[::2]
+    Jb = np.minimum.reduceat(np.concatenate((J, pad)), pairs)[::2]
+    return Bodies(
+        node=node_q,
+        kind=kind_q,
+        S=S,
+        sa=sa,
+        sb=sb,
+        cap=cap_q,
+        length=length,
+        V=np.where(in_chain, Vc, Vb),
+        A=np.where(in_chain, Ac, Ab),
+        J=np.where(in_chain, Jc, Jb),
+    )
+
+
+def _one_d_nodes(
+    nodes_b: np.ndarray, L: np.ndarray, blends: CornerBlends, limits: AxisLimits
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions within `nodes_b` of the 1-D nodes, and their kinds."""
+    n = len(L)
+    w = blends.w
+    alone = blends.alone
+    linked = (
+        (w[nodes_b[:-1]] > 0.0)
+        & (w[nodes_b[1:]] > 0.0)
+        & (nodes_b[1:] == nodes_b[:-1] + 1)
+        & (w[nodes_b[:-1]] + w[nodes_b[1:]] >= L[np.minimum(nodes_b[:-1], n - 1)])
+        & ~alone[nodes_b[:-1]]
+        & ~alone[nodes_b[1:]]
+    )
+    g_start = np.flatnonzero(np.concatenate(([True], ~linked)))
+    g_end = np.flatnonzero(np.concatenate((~linked, [True])))
+    in_group = np.arange(len(nodes_b))
+    first_of = np.repeat(g_start, g_end - g_start + 1)
+    last_of = np.repeat(g_end, g_end - g_start + 1)
+    chained = last_of > first_of
+    # A chain is cut where its local speed cap changes a lot (typically where the
+    # curvature ramps up at its ends), so that a slow end does not slow all of it.
+    local = limits.cruise_cap(blends.a_node[nodes_b], blends.j_node[nodes_b], 0.5, 1.0 / 3.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = local[1:] / local[:-1]  # inf/inf (straight stretches) gives nan: no cut
+    cut = np.zeros(len(nodes_b), dtype=bool)
+    cut[1:] = (ratio > CHAIN_CUT) | (ratio < 1.0 / CHAIN_CUT)
+    cut &= chained & (in_group > first_of) & (in_group < last_of)
+    emit = ~chained | (in_group == first_of) | (in_group == last_of) | cut
+    pos_q = np.flatnonzero(emit)
+    kind_q = np.where(
+        ~chained[pos_q],
+        SINGLE,
+        np.where(
+            in_group[pos_q] == first_of[pos_q],
+            CHAIN_ENTRY,
+            np.where(in_group[pos_q] == last_of[pos_q], CHAIN_EXIT, CHAIN_CUT_NODE),
+        ),
+    )
+    return pos_q, kind_q
+
+
+def chain_limits(
+    nodes_b: np.ndarray,
+    pos_q: np.ndarray,
+    blends: CornerBlends,
+    u: np.ndarray,
+    V: np.ndarray,
+    limits: AxisLimits,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Speed cap, acceleration and jerk [SI] of the body from each 1-D node to the next,
+    as if it ran along a chain of overlapping blends (used where it does).
+
+    Along a chain the axis motion is d(s) ds/dt with d a convex combination of the move
+    directions (|d_i| <= max |u_i|), and
+        a_i = d_i s'' + d'_i (s')^2,   j_i = d_i s''' + 3 d'_i s' s'' + d''_i (s')^3.
+    Half of each axis's acceleration goes to the curvature term (cap V) and half to s''
+    (A); a third of its jerk to each of the three jerk terms (V, then A, then J). The body
+    from node p to node q meets the blends of nodes p..q, hence the maxima over them.
+    """
+    absu = np.abs(u)
+    zero = np.zeros((1, absu.shape[1]))
+    u_node = np.maximum(np.vstack((zero, absu)), np.vstack((absu, zero)))
+    v_node = np.minimum(np.concatenate(([np.inf], V)), np.concatenate((V, [np.inf])))
+    pairs = np.column_stack((pos_q[:-1], pos_q[1:] + 1)).ravel()
+
+    def over_bodies(values: np.ndarray, reduce: np.ufunc) -> np.ndarray:
+        padded = np.concatenate((values[nodes_b], values[nodes_b][-1:]))
+        return reduce.reduceat(padded, pairs, axis=0)[::2]
+
+    a_g = over_bodies(blends.a_node, np.maximum)
+    j_g = over_bodies(blends.j_node, np.maximum)
+    u_g = over_bodies(u_node, np.maximum)
+    Vc = np.minimum(over_bodies(v_node, np.minimum), limits.cruise_cap(a_g, j_g, 0.5, 1.0 / 3.0))
+    a_max, j_max = limits.a_max, limits.j_max
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Ac = np.min(np.where(u_g > 0.0, 0.5 * a_max / u_g, np.inf), axis=1)
+        if limits.jerk:
+            cross = j_max / (9.0 * a_g * Vc[:, None])
+            Ac = np.minimum(Ac, np.min(np.where(a_g > 0.0, cross, np.inf), axis=1))
+            Jc = np.min(np.where(u_g > 0.0, j_max / (3.0 * u_g), np.inf), axis=1)
+        else:
+            Jc = np.full(len(Vc), np.inf)
+    return Vc, Ac, Jc

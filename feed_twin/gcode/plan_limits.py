@@ -1,0 +1,90 @@
+"""Planner stage 1, move limits: each straight move's length, direction and the speed,
+acceleration and jerk along it that keep every axis within its own limits.
+
+For a move with unit direction u (machine coordinates, all axes) the axis components are
+u_i * (ds/dt, d2s/dt2, d3s/dt3), so
+
+    V = min(F, min_i v_max_i/|u_i|)     (G0: min_i rapid_i/|u_i|)
+    A = min_i a_max_i/|u_i|,   J = min_i j_max_i/|u_i|
+
+An axis that does not move (u_i = 0) sets no limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from feed_twin.gcode.config import NcConfig
+
+
+@dataclass(frozen=True, kw_only=True)
+class AxisLimits:
+    """Per-axis limits of the configured machine (arrays over the axes, SI)."""
+
+    v_max: np.ndarray  # [m/s or rad/s] feed-move speed limit per axis
+    rapid: np.ndarray  # [m/s or rad/s] G0 speed per axis
+    a_max: np.ndarray  # [m/s^2 or rad/s^2]
+    j_max: np.ndarray  # [m/s^3 or rad/s^3]
+    jerk: bool  # jerk-limited S-curves; otherwise trapezoids (J infinite)
+
+    @classmethod
+    def of(cls, config: NcConfig) -> AxisLimits:
+        return cls(
+            v_max=np.array(config.v_max),
+            rapid=np.array(config.rapid),
+            a_max=np.array(config.a_max),
+            j_max=np.array(config.j_max),
+            jerk=config.profile == "jerk",
+        )
+
+    def cruise_cap(
+        self, a_coef: np.ndarray, j_coef: np.ndarray, a_share: float, j_share: float
+    ) -> np.ndarray:
+        """Highest speed v with coef*v^2 <= a_share*a_max and coef*v^3 <= j_share*j_max
+        on every axis (coefficients over the last dimension)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cap = np.min(
+                np.where(a_coef > 0.0, np.sqrt(a_share * self.a_max / a_coef), np.inf), axis=-1
+            )
+            if self.jerk:
+                j_cap = np.where(j_coef > 0.0, np.cbrt(j_share * self.j_max / j_coef), np.inf)
+                cap = np.minimum(cap, np.min(j_cap, axis=-1))
+        return cap
+
+
+@dataclass(frozen=True, kw_only=True)
+class MoveLimits:
+    """The polyline of the listed moves and the limits along each move k (arrays of n)."""
+
+    P: np.ndarray  # (n+1, n_axes) [m] vertices; move k runs from P[k] to P[k+1]
+    L: np.ndarray  # (n,) [m] move lengths over all axes
+    u: np.ndarray  # (n, n_axes) unit directions
+    V: np.ndarray  # (n,) [m/s] speed cap along the move (feed or rapid)
+    A: np.ndarray  # (n,) [m/s^2] acceleration of s'' that keeps every axis within a_max
+    J: np.ndarray  # (n,) [m/s^3] jerk of s''' that keeps every axis within j_max (inf: no limit)
+
+
+def move_limits(
+    points: list[tuple[float, ...]],
+    rapids: list[bool],
+    feeds: list[float],
+    limits: AxisLimits,
+) -> MoveLimits:
+    """Limits along the moves between consecutive `points` (one more point than moves)."""
+    n = len(rapids)
+    P = np.array(points)
+    delta = np.diff(P, axis=0)
+    L = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+    u = delta / L[:, None]
+    absu = np.abs(u)
+    with np.errstate(divide="ignore"):
+        v_feed = np.min(limits.v_max / absu, axis=1)
+        v_rapid = np.min(limits.rapid / absu, axis=1)
+        A = np.min(limits.a_max / absu, axis=1)
+        J = np.min(limits.j_max / absu, axis=1)
+    V = np.where(np.array(rapids), v_rapid, np.minimum(np.array(feeds), v_feed))
+    if not limits.jerk:
+        J = np.full(n, np.inf)
+    return MoveLimits(P=P, L=L, u=u, V=V, A=A, J=J)

@@ -1,0 +1,184 @@
+"""Planner stage 4, speed profile: boundary speeds of the bodies, then s(t) as pieces.
+
+The bodies' boundary speeds come from a backward pass of braking bounds and a forward pass
+(`profile.plan_speeds`), each body's peak speed and phase durations from `profile.body_profiles`.
+The profile is a list of pieces, three per 1-D node: a hold (dwells, standstill), a cruise over
+the node's blend at constant speed, and the body to the next 1-D node; a last hold at the end.
+Every piece starts and ends at zero acceleration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import NamedTuple
+
+import numpy as np
+
+from feed_twin.gcode.interpreter import Event, Stop
+from feed_twin.gcode.plan_chains import CHAIN_ENTRY, Bodies
+from feed_twin.gcode.profile import BODY, CRUISE, HOLD, body_profiles, plan_speeds
+
+PIECES_PER_NODE = 3  # hold, cruise, body
+HOLD_SLOT, CRUISE_SLOT, BODY_SLOT = 0, 1, 2  # position of each within a node's three
+
+
+@dataclass(frozen=True, kw_only=True)
+class SpeedProfile:
+    """Boundary speeds (m+1) and per-body peak speed and phase durations (m)."""
+
+    v: np.ndarray  # [m/s] speed at each 1-D node
+    vp: np.ndarray  # [m/s] peak speed of each body
+    t_up: np.ndarray  # [s] speed-up phase
+    t_cruise: np.ndarray  # [s] cruise at vp
+    t_down: np.ndarray  # [s] slow-down phase
+
+
+def speed_profile(bodies: Bodies, *, jerk: bool, v_first: float) -> SpeedProfile:
+    """The fastest profile within the bodies' limits that starts at v_first and ends at rest."""
+    v = plan_speeds(bodies.cap, bodies.length, bodies.A, bodies.J, jerk, v_first)
+    vp, t_up, t_cruise, t_down = body_profiles(v, bodies.length, bodies.V, bodies.A, bodies.J, jerk)
+    return SpeedProfile(v=v, vp=vp, t_up=t_up, t_cruise=t_cruise, t_down=t_down)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Pieces:
+    """The 1-D profile pieces in time order (arrays of one length; see `profile.sample_pieces`)."""
+
+    key: np.ndarray  # sort key: PIECES_PER_NODE * slot + position; holds of dwells in between
+    kind: np.ndarray  # BODY, CRUISE or HOLD
+    dur: np.ndarray  # [s]
+    s0: np.ndarray  # [m] path parameter at the start
+    v0: np.ndarray  # [m/s] speed at the start
+    vp: np.ndarray  # [m/s] peak speed (bodies)
+    v1: np.ndarray  # [m/s] speed at the end (bodies)
+    A: np.ndarray  # [m/s^2] acceleration limit (bodies; 1 elsewhere)
+    J: np.ndarray  # [m/s^3] jerk limit (bodies with jerk; 1 elsewhere)
+    t_up: np.ndarray  # [s] speed-up phase (bodies)
+    t_cruise: np.ndarray  # [s] cruise phase (bodies)
+    line: np.ndarray  # source line shown while the piece runs (-1: the move's own)
+    seg: np.ndarray  # first move the piece runs on
+
+
+def motion_pieces(
+    bodies: Bodies, speeds: SpeedProfile, *, q_commit: int, n_moves: int, jerk: bool
+) -> Pieces:
+    """Hold, cruise and body pieces of the 1-D nodes before `q_commit`, and a last hold."""
+    q = np.arange(q_commit)
+    nodes = bodies.node[: q_commit + 1]
+    v_node = speeds.v[: q_commit + 1]
+    sa, sb = bodies.sa, bodies.sb
+    n_pieces = PIECES_PER_NODE * q_commit + 1
+    kind = np.full(n_pieces, HOLD, dtype=np.int64)
+    dur = np.zeros(n_pieces)
+    s0 = np.zeros(n_pieces)
+    v0 = np.zeros(n_pieces)
+    vpk = np.zeros(n_pieces)
+    v1 = np.zeros(n_pieces)
+    Ak = np.ones(n_pieces)
+    Jk = np.ones(n_pieces)
+    tu = np.zeros(n_pieces)
+    tc = np.zeros(n_pieces)
+    # First move each piece runs on: a blend or a chain starts on the move before its node.
+    before = np.maximum(nodes[:-1] - 1, 0)
+    hold = PIECES_PER_NODE * q + HOLD_SLOT
+    cruise = PIECES_PER_NODE * q + CRUISE_SLOT
+    body = PIECES_PER_NODE * q + BODY_SLOT
+    seg = np.zeros(n_pieces, dtype=np.int64)
+    seg[hold] = before
+    seg[cruise] = before
+    kind_q = bodies.kind[:q_commit]
+    seg[body] = np.where(kind_q == CHAIN_ENTRY, before, np.minimum(nodes[:-1], n_moves - 1))
+    seg[-1] = n_moves - 1
+    kind[cruise] = CRUISE
+    span = sb[:q_commit] - sa[:q_commit]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dur[cruise] = np.where(span > 0.0, span / v_node[:-1], 0.0)
+    s0[cruise] = sa[:q_commit]
+    v0[cruise] = v_node[:-1]
+    s0[hold] = sa[:q_commit]
+    kind[body] = BODY
+    dur[body] = speeds.t_up[:q_commit] + speeds.t_cruise[:q_commit] + speeds.t_down[:q_commit]
+    s0[body] = sb[:q_commit]
+    v0[body] = v_node[:-1]
+    vpk[body] = speeds.vp[:q_commit]
+    v1[body] = v_node[1:]
+    Ak[body] = bodies.A[:q_commit]
+    Jk[body] = bodies.J[:q_commit] if jerk else 1.0
+    tu[body] = speeds.t_up[:q_commit]
+    tc[body] = speeds.t_cruise[:q_commit]
+    s0[-1] = sa[q_commit]
+    return Pieces(
+        key=np.arange(n_pieces, dtype=float),
+        kind=kind,
+        dur=dur,
+        s0=s0,
+        v0=v0,
+        vp=vpk,
+        v1=v1,
+        A=Ak,
+        J=Jk,
+        t_up=tu,
+        t_cruise=tc,
+        line=np.full(n_pieces, -1, dtype=np.int64),
+        seg=seg,
+    )
+
+
+class Dwell(NamedTuple):
+    """A hold piece for a dwell at a 1-D node."""
+
+    key: float  # sort key: just before the node's hold slot
+    dur: float  # [s]
+    s: float  # [m] path parameter of the node
+    line: int  # source line of the dwell
+    node: int  # polyline node
+
+
+class TimedEvent(NamedTuple):
+    slot: int  # 1-D node the event belongs to
+    offset: float  # [s] after the start of the node's dwells
+    event: Event
+
+
+def node_entries(
+    slots: list[tuple[int, int, list[Event | Stop]]], S: np.ndarray
+) -> tuple[list[Dwell], list[TimedEvent]]:
+    """Dwells and events of the 1-D nodes: `slots` holds (slot, polyline node, entries)."""
+    dwells: list[Dwell] = []
+    timed: list[TimedEvent] = []
+    for slot, node, entries in slots:
+        offset = 0.0
+        for i, entry in enumerate(entries):
+            if isinstance(entry, Stop):
+                key = PIECES_PER_NODE * slot - 0.5 + 0.5 * i / len(entries)
+                dwells.append(Dwell(key, entry.dwell_s, S[node], entry.line, node))
+                offset += entry.dwell_s
+            else:
+                timed.append(TimedEvent(slot, offset, entry))
+    return dwells, timed
+
+
+def with_dwells(pieces: Pieces, dwells: list[Dwell]) -> Pieces:
+    """The pieces with a hold for each dwell, in time order."""
+    if not dwells:
+        return pieces
+    extra_key = [d.key for d in dwells]
+    extra_node = [d.node for d in dwells]
+    zeros = np.zeros(len(extra_key))
+    joined = Pieces(
+        key=np.concatenate((pieces.key, extra_key)),
+        kind=np.concatenate((pieces.kind, np.full(len(extra_key), HOLD))),
+        dur=np.concatenate((pieces.dur, [d.dur for d in dwells])),
+        s0=np.concatenate((pieces.s0, [d.s for d in dwells])),
+        v0=np.concatenate((pieces.v0, zeros)),
+        vp=np.concatenate((pieces.vp, zeros)),
+        v1=np.concatenate((pieces.v1, zeros)),
+        A=np.concatenate((pieces.A, zeros + 1.0)),
+        J=np.concatenate((pieces.J, zeros + 1.0)),
+        t_up=np.concatenate((pieces.t_up, zeros)),
+        t_cruise=np.concatenate((pieces.t_cruise, zeros)),
+        line=np.concatenate((pieces.line, [d.line for d in dwells])),
+        seg=np.concatenate((pieces.seg, np.maximum(np.array(extra_node) - 1, 0))),
+    )
+    order = np.argsort(joined.key, kind="stable")
+    return replace(joined, **{f.name: getattr(joined, f.name)[order] for f in fields(Pieces)})

@@ -1,0 +1,101 @@
+"""Planner stage 5, sampling: the pieces' s(t) at t = k * period, mapped onto the blended path.
+
+`profile.sample_pieces` gives s, ds/dt, d2s/dt2 at the sample times; `profile.evaluate_path`
+turns them into axis position, velocity and acceleration on the polyline with its corner
+blends (x'(s) s' and x'(s) s'' + x''(s) s'^2). Events get the time of their node: the start of
+its dwells, or the middle of its blend.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from feed_twin.gcode.plan_limits import MoveLimits
+from feed_twin.gcode.plan_profile import CRUISE_SLOT, HOLD_SLOT, PIECES_PER_NODE, Pieces, TimedEvent
+from feed_twin.gcode.profile import evaluate_path, sample_pieces
+from feed_twin.gcode.trajectory import NcEvent
+
+END_SLACK = 1e-9  # [periods] a program's end this close past a sample time ends on that sample
+WINDOW_SLACK = 1e-12  # [periods] the same for a window's end (the next window goes on)
+
+
+def piece_starts(pieces: Pieces, t_s: float) -> tuple[np.ndarray, float]:
+    """Start time of every piece and the end time [s], the first piece starting at t_s."""
+    if not np.all(np.isfinite(pieces.dur)):
+        raise RuntimeError("planner error: a corner blend planned at rest (please report)")
+    t0 = t_s + np.concatenate(([0.0], np.cumsum(pieces.dur)[:-1]))
+    t_end = t_s + float(np.sum(pieces.dur))
+    return t0, t_end
+
+
+def event_times(
+    timed: list[TimedEvent], pieces: Pieces, t0: np.ndarray, t_end: float, q_commit: int
+) -> list[NcEvent]:
+    """Each event at its node's time: the start of its dwells, or the middle of its blend."""
+    key, dur = pieces.key, pieces.dur
+    events: list[NcEvent] = []
+    for slot, offset, entry in timed:
+        k_hold = int(np.searchsorted(key, PIECES_PER_NODE * slot + HOLD_SLOT - 0.5))
+        start = t0[k_hold] if k_hold < len(t0) else t_end
+        cruise_slot = int(np.searchsorted(key, PIECES_PER_NODE * slot + CRUISE_SLOT))
+        if slot < q_commit and dur[cruise_slot] > 0.0:
+            start = t0[cruise_slot] + 0.5 * dur[cruise_slot]
+        events.append(
+            NcEvent(float(start + offset), entry.line, entry.kind, entry.value, entry.text)
+        )
+    return events
+
+
+def sample_indices(k_next: int, t_end: float, period: float, *, final: bool) -> tuple[int, int]:
+    """Sample indices [k_next, k_stop) up to t_end; the last one at or after a program's end."""
+    if final:
+        return k_next, math.ceil(t_end / period - END_SLACK) + 1
+    return k_next, max(math.ceil(t_end / period - WINDOW_SLACK), k_next)
+
+
+def sample_path(
+    times: np.ndarray,
+    pieces: Pieces,
+    t0: np.ndarray,
+    moves: MoveLimits,
+    w: np.ndarray,
+    dU: np.ndarray,
+    *,
+    jerk: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(position, velocity, acceleration, piece, move) at each sample time."""
+    n = len(moves.L)
+    S = np.concatenate(([0.0], np.cumsum(moves.L)))
+    s, sd, sdd, piece = sample_pieces(
+        times,
+        pieces.kind,
+        t0,
+        pieces.dur,
+        pieces.s0,
+        pieces.v0,
+        pieces.vp,
+        pieces.v1,
+        pieces.A,
+        pieces.J,
+        pieces.t_up,
+        pieces.t_cruise,
+        jerk,
+    )
+    pos, vel, acc, seg = evaluate_path(
+        s,
+        sd,
+        sdd,
+        S[:-1],
+        moves.L,
+        moves.P[:-1],
+        moves.P[1:],
+        moves.u,
+        w[:n],
+        dU[:n],
+        w[1:],
+        dU[1:],
+        pieces.seg[piece],
+    )
+    return pos, vel, acc, piece, seg

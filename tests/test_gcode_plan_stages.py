@@ -1,0 +1,152 @@
+"""Each planner stage on its own: move limits, corner blends, chains + speed profile, sampling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from feed_twin.gcode.plan_blends import NodeFlags, corner_blends
+from feed_twin.gcode.plan_chains import chain_bodies
+from feed_twin.gcode.plan_limits import AxisLimits, move_limits
+from feed_twin.gcode.plan_profile import Pieces, motion_pieces, speed_profile
+from feed_twin.gcode.plan_sampling import piece_starts, sample_indices, sample_path
+from feed_twin.gcode.profile import evaluate_path, sample_pieces
+
+LIMITS = AxisLimits(
+    v_max=np.array([0.5, 0.25]),  # [m/s]
+    rapid=np.array([1.0, 0.4]),
+    a_max=np.array([2.0, 1.0]),  # [m/s^2]
+    j_max=np.array([20.0, 40.0]),  # [m/s^3]
+    jerk=True,
+)
+
+
+def _flags(n: int, tol: float) -> NodeFlags:
+    stop = np.zeros(n + 1, dtype=bool)
+    stop[0] = stop[n] = True
+    return NodeFlags(
+        tol=np.full(n + 1, tol),
+        stop=stop,
+        has_entries=np.zeros(n + 1, dtype=bool),
+        forced=np.zeros(n + 1, dtype=bool),
+    )
+
+
+def _pieces(points, feeds, limits: AxisLimits, tol: float = 2e-5):
+    n = len(feeds)
+    moves = move_limits(points, [False] * n, feeds, limits)
+    flags = _flags(n, tol)
+    blends = corner_blends(moves, flags, limits, None)
+    bodies = chain_bodies(moves, blends, flags, limits, first=0, open_end=False)
+    assert bodies is not None
+    speeds = speed_profile(bodies, jerk=limits.jerk, v_first=0.0)
+    pieces = motion_pieces(bodies, speeds, q_commit=len(bodies.length), n_moves=n, jerk=limits.jerk)
+    return moves, blends, bodies, pieces
+
+
+def _sample_s(pieces: Pieces, jerk: bool, dt: float):
+    t0, t_end = piece_starts(pieces, 0.0)
+    times = np.arange(0.0, t_end + dt, dt)
+    p = pieces
+    s, sd, sdd, _ = sample_pieces(
+        times, p.kind, t0, p.dur, p.s0, p.v0, p.vp, p.v1, p.A, p.J, p.t_up, p.t_cruise, jerk
+    )
+    return times, s, sd, sdd, t_end
+
+
+def test_move_limits_cap_each_axis_exactly_at_its_limit_on_a_diagonal():
+    # Direction (0.6, 0.8): Y limits speed and acceleration, X limits jerk.
+    moves = move_limits(
+        [(0.0, 0.0), (3e-3, 4e-3), (3e-3, 4e-3 + 5e-3)], [False, True], [1.0, 0.0], LIMITS
+    )
+    assert pytest.approx([5e-3, 5e-3], rel=1e-15) == moves.L
+    diagonal_axis = np.abs(moves.u[0])
+    assert diagonal_axis * moves.V[0] == pytest.approx([0.1875, 0.25], rel=1e-15)
+    assert diagonal_axis * moves.A[0] == pytest.approx([0.75, 1.0], rel=1e-15)
+    assert diagonal_axis * moves.J[0] == pytest.approx([20.0, 20.0 * 0.8 / 0.6], rel=1e-15)
+    # A rapid along Y alone runs at Y's rapid rate; X, which does not move, sets no limit.
+    assert (moves.V[1], moves.A[1], moves.J[1]) == (0.4, 1.0, 40.0)
+    # A programmed feed below the axis limits is the speed cap.
+    slow = move_limits([(0.0, 0.0), (3e-3, 4e-3)], [False], [0.01], LIMITS)
+    assert slow.V[0] == 0.01
+
+
+def test_trapezoid_limits_have_no_jerk_limit():
+    trapezoid = AxisLimits(**{**LIMITS.__dict__, "jerk": False})
+    assert move_limits([(0.0, 0.0), (1e-3, 0.0)], [False], [1.0], trapezoid).J[0] == np.inf
+
+
+def test_corner_blend_stays_within_the_tolerance_and_its_speed_within_the_axis_limits():
+    tol = 2e-4
+    points = [(0.0, 0.0), (0.02, 0.0), (0.04, 0.01), (0.06, 0.0)]  # turns of 27 and 53 degrees
+    moves, blends, _, _ = _pieces(points, [0.05, 0.05, 0.05], LIMITS, tol)
+    inner = slice(1, 3)
+    assert np.all(blends.w[inner] > 0.0) and not blends.stop[inner].any()
+    deviation = np.linalg.norm(blends.dU, axis=1) * blends.w / 6.0
+    assert np.all(deviation <= tol * (1.0 + 1e-12))
+    # The corner speed keeps every axis's curvature acceleration and jerk within its limits.
+    cap = blends.cap[inner, None]
+    assert np.all(blends.a_node[inner] * cap**2 <= LIMITS.a_max * (1.0 + 1e-12))
+    assert np.all(blends.j_node[inner] * cap**3 <= LIMITS.j_max * (1.0 + 1e-12))
+    # The blended path itself passes the corner vertex at |dU| w/6, within tol.
+    S = np.concatenate(([0.0], np.cumsum(moves.L)))
+    s = np.linspace(0.0, S[-1], 200001)
+    n = len(moves.L)
+    pos, _, _, _ = evaluate_path(
+        s, np.ones_like(s), np.zeros_like(s), S[:-1], moves.L, moves.P[:-1], moves.P[1:],
+        moves.u, blends.w[:n], blends.dU[:n], blends.w[1:], blends.dU[1:],
+        np.zeros(len(s), dtype=np.int64),
+    )  # fmt: skip
+    for k in (1, 2):
+        closest = np.min(np.linalg.norm(pos - moves.P[k], axis=1))
+        assert closest == pytest.approx(deviation[k], rel=1e-3)
+        assert closest <= tol * (1.0 + 1e-6)  # sampled s: at or just above the apex
+
+
+@pytest.mark.parametrize("jerk", [True, False])
+def test_speed_profile_keeps_v_a_j_within_limits_and_integrates_to_the_length(jerk):
+    limits = AxisLimits(**{**LIMITS.__dict__, "jerk": jerk})
+    points = [(0.0, 0.0), (0.03, 0.0), (0.03, 0.002)]
+    moves, _, bodies, pieces = _pieces(points, [0.3, 0.3], limits)
+    dt = 1e-5
+    _, s, sd, sdd, t_end = _sample_s(pieces, jerk, dt)
+    assert s[-1] == pytest.approx(float(np.sum(moves.L)), abs=1e-12)
+    # The speed integrates to the distance covered (trapezoid rule on a fine grid).
+    assert np.sum(0.5 * (sd[1:] + sd[:-1]) * dt) == pytest.approx(s[-1] - s[0], rel=1e-6)
+    assert np.all(sd >= -1e-15) and np.all(sd <= max(bodies.V) * (1.0 + 1e-12))
+    assert np.all(np.abs(sdd) <= max(bodies.A) * (1.0 + 1e-9))
+    if jerk:
+        assert np.max(np.abs(np.diff(sdd))) / dt <= max(bodies.J) * (1.0 + 1e-6)
+    assert sd[0] == 0.0 and sd[-1] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_sampler_positions_equal_the_analytic_trapezoid():
+    # X alone: V = 0.1 m/s, A = 1 m/s^2 over 20 mm: ramps of 0.1 s (5 mm), 0.1 s at cruise.
+    limits = AxisLimits(
+        v_max=np.array([0.1]), rapid=np.array([0.1]), a_max=np.array([1.0]),
+        j_max=np.array([100.0]), jerk=False,
+    )  # fmt: skip
+    moves = move_limits([(0.0,), (0.02,)], [False], [1.0], limits)
+    flags = _flags(1, 2e-5)
+    blends = corner_blends(moves, flags, limits, None)
+    bodies = chain_bodies(moves, blends, flags, limits, first=0, open_end=False)
+    assert bodies is not None
+    speeds = speed_profile(bodies, jerk=False, v_first=0.0)
+    pieces = motion_pieces(bodies, speeds, q_commit=1, n_moves=1, jerk=False)
+    t0, t_end = piece_starts(pieces, 0.0)
+    assert t_end == pytest.approx(0.3, rel=1e-12)
+    period = 1e-3
+    k0, k1 = sample_indices(0, t_end, period, final=True)
+    t = np.arange(k0, k1) * period
+    pos, vel, acc, _, _ = sample_path(t, pieces, t0, moves, blends.w, blends.dU, jerk=False)
+    tc = np.clip(t, 0.0, 0.3)
+    x = np.where(
+        tc < 0.1,
+        0.5 * tc**2,
+        np.where(tc < 0.2, 0.005 + 0.1 * (tc - 0.1), 0.02 - 0.5 * (0.3 - tc) ** 2),
+    )
+    v = np.where(tc < 0.1, tc, np.where(tc < 0.2, 0.1, 0.3 - tc))
+    assert pos[:, 0] == pytest.approx(x, abs=1e-12)
+    assert vel[:, 0] == pytest.approx(v, abs=1e-12)
+    assert t[-1] >= t_end and pos[-1, 0] == 0.02
+    assert np.all(np.abs(acc[:, 0]) <= 1.0 + 1e-12)
