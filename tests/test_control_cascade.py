@@ -11,7 +11,6 @@ import pytest
 from feed_twin.control import cascade as cc
 from feed_twin.control import config as ccfg
 from feed_twin.control import layout as lay
-from feed_twin.control import signals as sig
 from feed_twin.control.loops import (
     Cascade,
     CurrentLoop,
@@ -20,6 +19,7 @@ from feed_twin.control.loops import (
     VelocitySetpoint,
 )
 from feed_twin.control.transforms import SQRT3, clarke, inverse_clarke, inverse_park, park
+from feed_twin.core import signals as sig
 from feed_twin.io.config import load_yaml
 
 FIXTURES = Path(__file__).parent / "fixtures"

@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 from feed_twin.analysis.fit import SimOutputs
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun
 

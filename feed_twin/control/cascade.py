@@ -48,7 +48,6 @@ import numpy as np
 from numba import njit
 
 from feed_twin.control import layout as lay
-from feed_twin.control import signals as sig
 from feed_twin.control.blocks import biquad_update, pi_integrate, pi_update
 from feed_twin.control.config import (
     INTERP_HOLD,
@@ -64,7 +63,8 @@ from feed_twin.control.transforms import (
     limit_voltage_circle,
     svpwm_phase_duties,
 )
-from feed_twin.plant.trig import sincos, sincos_anchored
+from feed_twin.core import signals as sig
+from feed_twin.core.trig import sincos, sincos_anchored
 
 # ---------------------------------------------------------------------------------------------
 # Kernels. Only `cascade_tick` touches the arrays; the laws below take and return scalars, which
@@ -374,14 +374,8 @@ def source_digest() -> str:
     (numba's cache of a caller does not notice changes in callees from other modules)."""
     digest = hashlib.sha256()
     here = Path(__file__).resolve().parent
-    for name in (
-        "cascade.py",
-        "layout.py",
-        "config.py",
-        "blocks.py",
-        "transforms.py",
-        "signals.py",
-    ):
+    for name in ("cascade.py", "layout.py", "config.py", "blocks.py", "transforms.py"):
         digest.update((here / name).read_bytes())
-    digest.update((here.parent / "plant" / "trig.py").read_bytes())
+    for name in ("signals.py", "trig.py", "fma.py"):
+        digest.update((here.parent / "core" / name).read_bytes())
     return digest.hexdigest()[:20]

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from feed_twin.control import signals as sig
 from feed_twin.control.blocks import (
     BIQUAD_IDENTITY,
     lowpass1_alpha,
@@ -28,6 +27,7 @@ from feed_twin.control.config import (
     ControllerConfig,
     Mode,
 )
+from feed_twin.core import signals as sig
 
 # ---------------------------------------------------------------------------------------------
 # Flat layouts. Unpacking `range` over the name tuple keeps constants and names in step (a
@@ -246,7 +246,7 @@ STATE_NAMES = (
     S_EFFORT_NEXT,
     S_EFFORT_OUT,
     S_PARK_ANCHOR,  # the last electrical angle whose sine and cosine were evaluated in full
-    _S_PARK_ANCHOR_COS,  # and that pair (feed_twin.plant.trig.sincos_anchored)
+    _S_PARK_ANCHOR_COS,  # and that pair (feed_twin.core.trig.sincos_anchored)
     _S_PARK_ANCHOR_SIN,
 ) = range(len(STATE_NAMES))
 S_FIR_HIST = len(STATE_NAMES)  # the FIR difference history follows the fixed slots

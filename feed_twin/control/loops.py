@@ -26,7 +26,7 @@ import numpy as np
 
 from feed_twin.control import cascade as cc
 from feed_twin.control import layout as lay
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -38,7 +38,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from feed_twin.control import layout, signals
+from feed_twin.control import layout
+from feed_twin.core import signals
 from feed_twin.native.emit import CKernel, c_kernel
 
 HAL_PACKAGE = "linuxcnc-uspace-dev"
