@@ -559,7 +559,7 @@ class Twin:
         from feed_twin.control import layout as lay
 
         cs = self.controller.initial_state()
-        cs[lay.S_INITIALISED] = 1.0
+        cs[lay.S_INITIALISED] = lay.STARTED
         for i in range(3):
             cs[lay.S_NC_PREV_POS + i] = ref[0, signals.REF_POS_M + i]
             cs[lay.S_NC_POS + i] = ref[0, signals.REF_POS_M + i]
