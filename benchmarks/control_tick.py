@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from feed_twin.control import signals as sig
 from feed_twin.control.cascade import cascade_tick
 from feed_twin.control.config import load_controller_config
 from feed_twin.control.layout import build_cascade
+from feed_twin.core import signals as sig
 from feed_twin.io.config import load_yaml
 
 FIXTURES = Path(__file__).resolve().parent.parent / "tests" / "fixtures"

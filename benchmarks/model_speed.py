@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.sim.batch import run_batch
 from feed_twin.sim.config import build_engine, load_axis_config
 from feed_twin.sim.kernel import cache_dir
@@ -179,7 +179,7 @@ FIRST_RUN = """
 import time
 t0 = time.perf_counter()
 import numpy as np
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.sim.config import build_engine, load_axis_config
 axis = load_axis_config({path!r})
 engine = build_engine(axis)

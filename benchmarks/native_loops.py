@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.native.fmu import build_fmu
 from feed_twin.native.hal import halcompile, write_comp
 from feed_twin.native.halrun import sine_loop

@@ -11,7 +11,6 @@ import pytest
 from feed_twin.control import cascade as cc
 from feed_twin.control import config as ccfg
 from feed_twin.control import layout as lay
-from feed_twin.control import signals as sig
 from feed_twin.control.loops import (
     Cascade,
     CurrentLoop,
@@ -20,6 +19,7 @@ from feed_twin.control.loops import (
     VelocitySetpoint,
 )
 from feed_twin.control.transforms import SQRT3, clarke, inverse_clarke, inverse_park, park
+from feed_twin.core import signals as sig
 from feed_twin.io.config import load_yaml
 
 FIXTURES = Path(__file__).parent / "fixtures"
@@ -83,7 +83,7 @@ def test_park_angle_is_encoder_times_pole_pairs_and_decoupling_feeds_forward():
     rig.meas[sig.MEAS_I_A : sig.MEAS_I_C + 1] = inverse_clarke(*inverse_park(i_d, i_q, theta_e))
     rig.ref[sig.REF_I_Q_EXT_A] = i_q
     v_load = 0.05  # m/s
-    rig.cs[lay.S_INITIALISED] = 1.0
+    rig.cs[lay.S_INITIALISED] = lay.STARTED
     rig.cs[lay.S_VEL_EST] = v_load
     rig.cs[lay.S_ENC_POS_PREV] = theta_m * config.drive.lead_m / (2 * math.pi)
     rig.cs[lay.S_FIR_HIST : lay.S_FIR_HIST + 2] = v_load
@@ -107,7 +107,7 @@ def test_angle_advance_rotates_the_output_vector():
     for config in (base, advanced):
         rig = Rig(config)
         rig.ref[sig.REF_I_Q_EXT_A] = 1.0
-        rig.cs[lay.S_INITIALISED] = 1.0
+        rig.cs[lay.S_INITIALISED] = lay.STARTED
         rig.cs[lay.S_VEL_EST] = 0.2
         rig.cs[lay.S_FIR_HIST : lay.S_FIR_HIST + 2] = 0.2
         rig.cs[lay.S_ENC_POS_PREV] = -0.2 * config.velocity.period_s

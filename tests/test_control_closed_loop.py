@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from feed_twin.control import signals as sig
 from feed_twin.control.tuning import tune_config, tune_current_loop
+from feed_twin.core import signals as sig
 from feed_twin.io.config import load_yaml
 from feed_twin.sim.config import build_engine, load_axis_config
 

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from feed_twin.control import signals as sig
 from feed_twin.control.cascade import cascade_tick
 from feed_twin.control.config import load_controller_config
 from feed_twin.control.layout import build_cascade
+from feed_twin.core import signals as sig
 from feed_twin.io.config import load_yaml
 
 DATA = Path("/work/shared/data/emps")

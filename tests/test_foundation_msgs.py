@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from feed_twin_msgs.msg import AxisFeedback, DriveCommand, HealthStatus
 
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.ros import msgcheck
 from feed_twin.ros.domain import private_graph_env, reserve_domain_id
 

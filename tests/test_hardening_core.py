@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from feed_twin.cli import main as cli_main
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.gcode import GcodeError, load_nc_config, validate_program
 from feed_twin.gcode.lexer import MAX_LINE_BYTES
 from feed_twin.io.bag import BagError, BagReader, BagWriter, recover

@@ -13,7 +13,7 @@ from fmpy.validation import validate_fmu
 from native_support import ROOT, SAMPLE, program_ref
 
 from feed_twin.cli import main as cli_main
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.sim.config import build_engine, load_axis_config
 
 AXIS = ROOT / "config" / "axis_default.yaml"

@@ -16,8 +16,8 @@ import pytest
 from native_support import ROOT
 
 from feed_twin.cli import main as cli_main
-from feed_twin.control import signals
 from feed_twin.control.layout import build_cascade, with_mode
+from feed_twin.core import signals
 from feed_twin.native.build import CModel, compile_kernel
 from feed_twin.native.emit import c_kernel
 from feed_twin.native.hal import HalcompileMissingError, find_halcompile

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from native_support import ROOT, SAMPLE, program_ref
 
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.io.config import load_yaml
 from feed_twin.native.build import (
     FLAGS,

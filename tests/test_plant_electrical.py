@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.plant.config import load_plant
 from feed_twin.plant.pmsm import CoggingHarmonic
 from feed_twin.sim.config import build_engine, load_axis_config

@@ -4,9 +4,9 @@ where it skips the exponential, the law that always evaluates it gives the same 
 import numpy as np
 from numba import njit
 
+from feed_twin.core.smooth import smooth_sign
 from feed_twin.plant.expneg import exp_neg
 from feed_twin.plant.guide_friction import CUT_RATIO, CUT_X, friction_force
-from feed_twin.plant.smooth import smooth_sign
 
 
 @njit  # the law as it was before the cut-off: the exponential at every velocity

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.plant.backlash import backlash_force
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.config import load_axis_config

@@ -1,13 +1,13 @@
 """The plant's written-out elementary functions against their definitions: the C2 smooth sign
-(feed_twin.plant.smooth) and exp(-x) (feed_twin.plant.expneg, against libm)."""
+(feed_twin.core.smooth) and exp(-x) (feed_twin.plant.expneg, against libm)."""
 
 import math
 
 import numpy as np
 from numba import njit
 
+from feed_twin.core.smooth import WIDTH, smooth_sign, smooth_sign_array
 from feed_twin.plant.expneg import X_MAX, exp_neg
-from feed_twin.plant.smooth import WIDTH, smooth_sign, smooth_sign_array
 
 
 @njit  # no cache: numba would not notice a change of the callee

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.engine import Engine
 

@@ -9,7 +9,7 @@ import pytest
 
 from feed_twin.analysis.thermal import with_thermal_growth
 from feed_twin.analysis.twin import ModelDoc
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.plant.config import load_plant
 from feed_twin.plant.thermal_growth import ALPHA_STEEL, ThermalGrowth, temperature_rate
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.plant.config import load_plant
 from feed_twin.sim import batch as batch_module
 from feed_twin.sim.batch import check_steps, run_batch

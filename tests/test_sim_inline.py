@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from feed_twin.control import layout as lay
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.io.config import ConfigError
 from feed_twin.sim.batch import run_batch
 from feed_twin.sim.config import build_engine, load_axis_config

@@ -9,8 +9,9 @@ from numba.core.caching import NullCache
 from numba.core.dispatcher import Dispatcher
 
 import feed_twin.control
+import feed_twin.core
 import feed_twin.plant
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.sim.config import build_engine, load_axis_config
 
 
@@ -71,11 +72,11 @@ def test_the_laws_the_kernel_calls_are_not_disk_cached():
     rare fallbacks (the noise's ziggurat tail, sincos_near's full evaluation) stay out of line."""
     entry_points = {
         "feed_twin.control.cascade.cascade_tick",
-        "feed_twin.plant.smooth._smooth_sign_flat",  # the analysis code's, not the kernel's
+        "feed_twin.core.smooth._smooth_sign_flat",  # the analysis code's, not the kernel's
     }
-    out_of_line = {"feed_twin.plant.noise._slow_path", "feed_twin.plant.trig._sincos_far"}
+    out_of_line = {"feed_twin.plant.noise._slow_path", "feed_twin.core.trig._sincos_far"}
     seen = []
-    for pkg in (feed_twin.plant, feed_twin.control):
+    for pkg in (feed_twin.core, feed_twin.plant, feed_twin.control):
         for info in pkgutil.iter_modules(pkg.__path__):
             module = importlib.import_module(f"{pkg.__name__}.{info.name}")
             for name, obj in vars(module).items():

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from feed_twin.control import signals as sig
 from feed_twin.control.layout import build_cascade
+from feed_twin.core import signals as sig
 from feed_twin.sim.config import build_engine, load_axis_config
 from feed_twin.sim.engine import Engine
 from feed_twin.sim.reference import reference_run

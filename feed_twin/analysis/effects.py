@@ -35,8 +35,8 @@ from typing import Literal
 import numpy as np
 from scipy import signal as sps
 
+from feed_twin.core.smooth import smooth_sign_array
 from feed_twin.plant.registry import OWNED_EFFECTS, OWNER_OF
-from feed_twin.plant.smooth import smooth_sign_array
 
 STRIBECK_SPEEDS_M_S = (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03)
 COGGING_ORDERS = tuple(range(1, 25))  # harmonics per motor revolution searched for cogging

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
-from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.registry import OWNED_EFFECTS
 
 # A program with moves of several lengths and feeds, reversals and dwells on one axis (X).

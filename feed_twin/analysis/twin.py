@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 from feed_twin.analysis.fit import SimOutputs
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun
 
@@ -559,7 +559,7 @@ class Twin:
         from feed_twin.control import layout as lay
 
         cs = self.controller.initial_state()
-        cs[lay.S_INITIALISED] = 1.0
+        cs[lay.S_INITIALISED] = lay.STARTED
         for i in range(3):
             cs[lay.S_NC_PREV_POS + i] = ref[0, signals.REF_POS_M + i]
             cs[lay.S_NC_POS + i] = ref[0, signals.REF_POS_M + i]

@@ -48,7 +48,6 @@ import numpy as np
 from numba import njit
 
 from feed_twin.control import layout as lay
-from feed_twin.control import signals as sig
 from feed_twin.control.blocks import biquad_update, pi_integrate, pi_update
 from feed_twin.control.config import (
     INTERP_HOLD,
@@ -57,18 +56,13 @@ from feed_twin.control.config import (
     MODE_TORQUE,
     MODE_VELOCITY,
 )
-from feed_twin.control.transforms import (
-    SQRT3,
-    clarke,
-    inverse_clarke,
-    limit_voltage_circle,
-    svpwm_phase_duties,
-)
-from feed_twin.plant.trig import sincos, sincos_anchored
+from feed_twin.control.transforms import SQRT3, clarke, limit_voltage_circle, modulate
+from feed_twin.core import signals as sig
+from feed_twin.core.trig import sincos, sincos_anchored
 
-# ---------------------------------------------------------------------------------------------
-# Kernels. Only `cascade_tick` touches the arrays; the laws below take and return scalars, which
-# keeps numba from reference-counting array arguments on every call inside the hot loop.
+# The laws (due, interpolate, position_law, current_law) take and return scalars; the stages of
+# `cascade_tick` read and write the arrays and are compiled without reference counting
+# (_nrt=False), so passing the arrays on costs nothing inside the hot loop.
 
 
 @njit(forceinline=True)
@@ -137,7 +131,8 @@ def current_law(
     cp: np.ndarray,
 ) -> tuple[float, float, float, float, float, float, float, tuple[float, float, float]]:
     """FOC sample: (d_a, d_b, d_c, u_d, u_q, next x_d, next x_q, next anchor); x_* are the PI
-    integrators, `anchor` the last angle evaluated in full and its (cos, sin).
+    integrators, `anchor` the last angle evaluated in full and its (cos, sin). The voltages
+    reach the duties through `transforms.modulate`, at the angle advanced by the delay.
 
     `cp` is only read; numba does not reference-count read-only parameter arrays passed on.
     """
@@ -164,19 +159,227 @@ def current_law(
     if advance != 0.0:
         cos_a, sin_a = sincos(advance)
         cos_e, sin_e = cos_e * cos_a - sin_e * sin_a, sin_e * cos_a + cos_e * sin_a
-    u_alpha = cos_e * u_d_lim - sin_e * u_q_lim
-    u_beta = sin_e * u_d_lim + cos_e * u_q_lim
-    if u_dc <= 0.0:
-        return 0.5, 0.5, 0.5, u_d_lim, u_q_lim, x_d, x_q, anchor
-    u_a, u_b, u_c = inverse_clarke(u_alpha, u_beta)
-    comp = cp[lay.P_DEAD_TIME_COMP]
-    if comp > 0.0:
-        inv_band = 1.0 / cp[lay.P_DEAD_TIME_BAND]
-        u_a += comp * min(max(i_a * inv_band, -1.0), 1.0)
-        u_b += comp * min(max(i_b * inv_band, -1.0), 1.0)
-        u_c += comp * min(max(i_c * inv_band, -1.0), 1.0)
-    d_a, d_b, d_c = svpwm_phase_duties(u_a, u_b, u_c, u_dc)
+    d_a, d_b, d_c = modulate(
+        u_d_lim,
+        u_q_lim,
+        cos_e,
+        sin_e,
+        i_a,
+        i_b,
+        i_c,
+        cp[lay.P_DEAD_TIME_COMP],
+        cp[lay.P_DEAD_TIME_BAND],
+        u_dc,
+    )
     return d_a, d_b, d_c, u_d_lim, u_q_lim, x_d, x_q, anchor
+
+
+@njit(_nrt=False, forceinline=True)
+def is_active(cs: np.ndarray) -> bool:
+    """The power stage is on: requested (enable_cmd) and no fault latched."""
+    return int(cs[lay.S_ENABLE_CMD]) == lay.STAGE_ON and cs[lay.S_FAULT] == sig.FAULT_NONE
+
+
+@njit(_nrt=False, forceinline=True)
+def start(cs: np.ndarray, k: int, ref: np.ndarray, x_enc: float, nc_div: float) -> None:
+    """First tick: the interpolator at the current setpoint (latched at the last NC instant at
+    or before k), the velocity estimator at rest."""
+    for i in range(3):
+        cs[lay.S_NC_PREV_POS + i] = ref[sig.REF_POS_M + i]
+        cs[lay.S_NC_POS + i] = ref[sig.REF_POS_M + i]
+    cs[lay.S_NC_TICK] = k - k % int(nc_div)
+    cs[lay.S_ENC_POS_PREV] = x_enc
+    cs[lay.S_INITIALISED] = lay.STARTED
+
+
+@njit(_nrt=False, forceinline=True)
+def trip_overcurrent(cp: np.ndarray, cs: np.ndarray, meas: np.ndarray) -> None:
+    """Latch FAULT_OVERCURRENT when a measured phase current exceeds the trip level."""
+    i_trip = cp[lay.P_I_TRIP]
+    if (
+        abs(meas[sig.MEAS_I_A]) > i_trip
+        or abs(meas[sig.MEAS_I_B]) > i_trip
+        or abs(meas[sig.MEAS_I_C]) > i_trip
+    ):
+        cs[lay.S_FAULT] = sig.FAULT_OVERCURRENT
+
+
+@njit(_nrt=False, forceinline=True)
+def latch_nc_sample(cs: np.ndarray, k: int, ref: np.ndarray) -> None:
+    """An NC instant: the latest (x, v, a) setpoint becomes the previous one."""
+    for i in range(3):
+        cs[lay.S_NC_PREV_POS + i] = cs[lay.S_NC_POS + i]
+        cs[lay.S_NC_POS + i] = ref[sig.REF_POS_M + i]
+    cs[lay.S_NC_TICK] = k
+
+
+@njit(_nrt=False, forceinline=True)
+def estimate_velocity(cp: np.ndarray, cs: np.ndarray, x_enc: float) -> None:
+    """Encoder difference quotient through the FIR on the differences and the low-pass."""
+    n_taps = int(cp[lay.P_FIR_N])
+    for i in range(n_taps - 1, 0, -1):
+        cs[lay.S_FIR_HIST + i] = cs[lay.S_FIR_HIST + i - 1]
+    cs[lay.S_FIR_HIST] = (x_enc - cs[lay.S_ENC_POS_PREV]) * cp[lay.P_VEL_RATE]
+    cs[lay.S_ENC_POS_PREV] = x_enc
+    v_raw = 0.0
+    for i in range(n_taps):
+        v_raw += cp[lay.P_FIR_TAPS + i] * cs[lay.S_FIR_HIST + i]
+    cs[lay.S_VEL_EST] += cp[lay.P_VEL_LP_ALPHA] * (v_raw - cs[lay.S_VEL_EST])
+
+
+@njit(_nrt=False, forceinline=True)
+def position_loop(
+    cp: np.ndarray,
+    cs: np.ndarray,
+    k: int,
+    meas: np.ndarray,
+    x_enc: float,
+    watch_following_error: bool,
+) -> None:
+    """Fine interpolation of the NC setpoint and the P position loop; latches
+    FAULT_FOLLOWING_ERROR beyond the limit when `watch_following_error`."""
+    nc_div = cp[lay.P_NC_DIV]
+    x_r, v_r, a_r = interpolate(
+        int(cp[lay.P_INTERPOLATION]),
+        (k - cs[lay.S_NC_TICK]) * cp[lay.P_NC_DIV_INV],
+        nc_div * cp[lay.P_BASE_PERIOD],
+        (cs[lay.S_NC_PREV_POS], cs[lay.S_NC_PREV_POS + 1], cs[lay.S_NC_PREV_POS + 2]),
+        (cs[lay.S_NC_POS], cs[lay.S_NC_POS + 1], cs[lay.S_NC_POS + 2]),
+    )
+    if int(cp[lay.P_FEEDBACK_SCALE]) == lay.FEEDBACK_SCALE:
+        x_fb = meas[sig.MEAS_X_SCALE_M]
+    else:
+        x_fb = x_enc
+    v_cmd, effort_ff, e = position_law(
+        x_r,
+        v_r,
+        a_r,
+        x_fb,
+        cp[lay.P_KV],
+        cp[lay.P_VFF],
+        cp[lay.P_ACC_FF_GAIN],
+        cp[lay.P_V_LIMIT],
+    )
+    cs[lay.S_POS_REF] = x_r
+    cs[lay.S_FOLLOWING_ERROR] = e
+    cs[lay.S_VEL_CMD] = v_cmd
+    cs[lay.S_EFFORT_FF] = effort_ff
+    if watch_following_error and abs(e) > cp[lay.P_FE_LIMIT]:
+        cs[lay.S_FAULT] = sig.FAULT_FOLLOWING_ERROR
+
+
+@njit(_nrt=False, forceinline=True)
+def power_stage_off(cs: np.ndarray) -> None:
+    """Power stage off: integrators, filters and pending outputs cleared, duties 1/2."""
+    cs[lay.S_VEL_INT] = 0.0
+    cs[lay.S_I_D_INT] = 0.0
+    cs[lay.S_I_Q_INT] = 0.0
+    for i in range(2):
+        cs[lay.S_BQ_LP + i] = 0.0
+        cs[lay.S_BQ_NOTCH + i] = 0.0
+    cs[lay.S_EFFORT_CMD] = 0.0
+    cs[lay.S_U_D_REF] = 0.0
+    cs[lay.S_U_Q_REF] = 0.0
+    for i in range(3):
+        cs[lay.S_DUTY_NEXT + i] = 0.5
+        cs[lay.S_DUTY + i] = 0.5
+    cs[lay.S_EFFORT_NEXT] = 0.0
+    cs[lay.S_EFFORT_OUT] = 0.0
+
+
+@njit(_nrt=False, forceinline=True)
+def velocity_loop(cp: np.ndarray, cs: np.ndarray, effort_add: float) -> None:
+    """PI velocity loop with the effort limit, then the set-point low-pass and the notch."""
+    lim = cp[lay.P_EFFORT_LIMIT]
+    u, cs[lay.S_VEL_INT] = pi_update(
+        cs[lay.S_VEL_INT],
+        cs[lay.S_VEL_CMD] - cs[lay.S_VEL_EST],
+        cp[lay.P_VEL_KP],
+        cp[lay.P_VEL_KI_T],
+        cs[lay.S_EFFORT_FF] + effort_add,
+        -lim,
+        lim,
+    )
+    for p_bq, s_bq in ((lay.P_BQ_LP, lay.S_BQ_LP), (lay.P_BQ_NOTCH, lay.S_BQ_NOTCH)):
+        u, cs[s_bq], cs[s_bq + 1] = biquad_update(
+            cp[p_bq],
+            cp[p_bq + 1],
+            cp[p_bq + 2],
+            cp[p_bq + 3],
+            cp[p_bq + 4],
+            cs[s_bq],
+            cs[s_bq + 1],
+            u,
+        )
+    cs[lay.S_EFFORT_CMD] = min(max(u, -lim), lim)
+
+
+@njit(_nrt=False, forceinline=True)
+def current_loop(cp: np.ndarray, cs: np.ndarray, meas: np.ndarray, delayed: bool) -> None:
+    """One FOC sample (`current_law`) into the state: integrators, Park anchor, voltages and
+    the duties, applied now or, `delayed`, from the next sample."""
+    p = cp[lay.P_POLE_PAIRS]
+    a = lay.S_PARK_ANCHOR
+    d_a, d_b, d_c, u_d, u_q, cs[lay.S_I_D_INT], cs[lay.S_I_Q_INT], anchor = current_law(
+        meas[sig.MEAS_I_A],
+        meas[sig.MEAS_I_B],
+        meas[sig.MEAS_I_C],
+        p * meas[sig.MEAS_THETA_ENC_RAD] + cp[lay.P_ENCODER_OFFSET],
+        p * cs[lay.S_VEL_EST] * cp[lay.P_RAD_PER_M],
+        cs[lay.S_EFFORT_CMD],
+        meas[sig.MEAS_U_DC_V],
+        cs[lay.S_I_D_INT],
+        cs[lay.S_I_Q_INT],
+        (cs[a], cs[a + 1], cs[a + 2]),
+        cp,
+    )
+    cs[a], cs[a + 1], cs[a + 2] = anchor
+    cs[lay.S_U_D_REF] = u_d
+    cs[lay.S_U_Q_REF] = u_q
+    if delayed:
+        for i in range(3):
+            cs[lay.S_DUTY + i] = cs[lay.S_DUTY_NEXT + i]
+        cs[lay.S_DUTY_NEXT] = d_a
+        cs[lay.S_DUTY_NEXT + 1] = d_b
+        cs[lay.S_DUTY_NEXT + 2] = d_c
+    else:
+        cs[lay.S_DUTY] = d_a
+        cs[lay.S_DUTY + 1] = d_b
+        cs[lay.S_DUTY + 2] = d_c
+
+
+@njit(_nrt=False, forceinline=True)
+def effort_output(cs: np.ndarray, delayed: bool) -> None:
+    """Without a current loop: the effort command becomes the output, now or (`delayed`) from
+    the next sample of the innermost loop."""
+    if delayed:
+        cs[lay.S_EFFORT_OUT] = cs[lay.S_EFFORT_NEXT]
+        cs[lay.S_EFFORT_NEXT] = cs[lay.S_EFFORT_CMD]
+    else:
+        cs[lay.S_EFFORT_OUT] = cs[lay.S_EFFORT_CMD]
+
+
+@njit(_nrt=False, forceinline=True)
+def write_outputs(cs: np.ndarray, out: np.ndarray, active: bool) -> None:
+    """Every OUT_* slot but the effort command, from the state."""
+    out[sig.OUT_DUTY_A] = cs[lay.S_DUTY]
+    out[sig.OUT_DUTY_B] = cs[lay.S_DUTY + 1]
+    out[sig.OUT_DUTY_C] = cs[lay.S_DUTY + 2]
+    out[sig.OUT_I_D_REF_A] = 0.0
+    out[sig.OUT_I_Q_REF_A] = cs[lay.S_EFFORT_CMD]
+    out[sig.OUT_U_D_REF_V] = cs[lay.S_U_D_REF]
+    out[sig.OUT_U_Q_REF_V] = cs[lay.S_U_Q_REF]
+    out[sig.OUT_POS_REF_M] = cs[lay.S_POS_REF]
+    out[sig.OUT_VEL_REF_M_S] = cs[lay.S_VEL_CMD]
+    out[sig.OUT_VEL_EST_M_S] = cs[lay.S_VEL_EST]
+    out[sig.OUT_FOLLOWING_ERROR_M] = cs[lay.S_FOLLOWING_ERROR]
+    if cs[lay.S_FAULT] != sig.FAULT_NONE:
+        out[sig.OUT_FAULT] = cs[lay.S_FAULT]
+    elif int(cs[lay.S_ENABLE_CMD]) != lay.STAGE_ON:
+        out[sig.OUT_FAULT] = sig.FAULT_DISABLED
+    else:
+        out[sig.OUT_FAULT] = sig.FAULT_NONE
+    out[sig.OUT_ENABLED] = 1.0 if active else 0.0
 
 
 @njit(cache=True, _nrt=False)
@@ -189,184 +392,46 @@ def cascade_tick(
     cycles within the same tick (plus the configured computation delay).
     """
     mode = int(cp[lay.P_MODE])
-    m_per_rad = cp[lay.P_M_PER_RAD]
-    x_enc = meas[sig.MEAS_THETA_ENC_RAD] * m_per_rad
-    has_position = cp[lay.P_HAS_POSITION] > 0.5
-    has_velocity = cp[lay.P_HAS_VELOCITY] > 0.5
-    has_current = cp[lay.P_HAS_CURRENT] > 0.5
-    nc_div = cp[lay.P_NC_DIV]
-
-    if cs[lay.S_INITIALISED] == 0.0:
-        # start the interpolator at the current setpoint (latched at the last NC instant at or
-        # before k) and the velocity estimator at rest
-        for i in range(3):
-            cs[lay.S_NC_PREV_POS + i] = ref[sig.REF_POS_M + i]
-            cs[lay.S_NC_POS + i] = ref[sig.REF_POS_M + i]
-        cs[lay.S_NC_TICK] = k - k % int(nc_div)
-        cs[lay.S_ENC_POS_PREV] = x_enc
-        cs[lay.S_INITIALISED] = 1.0
-
-    active = cs[lay.S_ENABLE_CMD] > 0.5 and cs[lay.S_FAULT] == 0.0
+    x_enc = meas[sig.MEAS_THETA_ENC_RAD] * cp[lay.P_M_PER_RAD]
+    has_position = int(cp[lay.P_HAS_POSITION]) == lay.LOOP_PRESENT
+    has_current = int(cp[lay.P_HAS_CURRENT]) == lay.LOOP_PRESENT
+    delayed = int(cp[lay.P_COMPUTATION_DELAY]) == lay.DELAY_ONE_SAMPLE
+    if int(cs[lay.S_INITIALISED]) == lay.PENDING:
+        start(cs, k, ref, x_enc, cp[lay.P_NC_DIV])
+    # the monitors watch the stage as it was when the tick began
+    active = is_active(cs)
     if active and has_current:
-        i_trip = cp[lay.P_I_TRIP]
-        if (
-            abs(meas[sig.MEAS_I_A]) > i_trip
-            or abs(meas[sig.MEAS_I_B]) > i_trip
-            or abs(meas[sig.MEAS_I_C]) > i_trip
-        ):
-            cs[lay.S_FAULT] = sig.FAULT_OVERCURRENT
-
-    if has_position and due(k, nc_div):
-        for i in range(3):
-            cs[lay.S_NC_PREV_POS + i] = cs[lay.S_NC_POS + i]
-            cs[lay.S_NC_POS + i] = ref[sig.REF_POS_M + i]
-        cs[lay.S_NC_TICK] = k
-
-    vel_due = has_velocity and due(k, cp[lay.P_VEL_DIV])
+        trip_overcurrent(cp, cs, meas)
+    if has_position and due(k, cp[lay.P_NC_DIV]):
+        latch_nc_sample(cs, k, ref)
+    vel_due = int(cp[lay.P_HAS_VELOCITY]) == lay.LOOP_PRESENT and due(k, cp[lay.P_VEL_DIV])
     if vel_due:
-        n_taps = int(cp[lay.P_FIR_N])
-        for i in range(n_taps - 1, 0, -1):
-            cs[lay.S_FIR_HIST + i] = cs[lay.S_FIR_HIST + i - 1]
-        cs[lay.S_FIR_HIST] = (x_enc - cs[lay.S_ENC_POS_PREV]) * cp[lay.P_VEL_RATE]
-        cs[lay.S_ENC_POS_PREV] = x_enc
-        v_raw = 0.0
-        for i in range(n_taps):
-            v_raw += cp[lay.P_FIR_TAPS + i] * cs[lay.S_FIR_HIST + i]
-        cs[lay.S_VEL_EST] += cp[lay.P_VEL_LP_ALPHA] * (v_raw - cs[lay.S_VEL_EST])
-
+        estimate_velocity(cp, cs, x_enc)
     if has_position and due(k, cp[lay.P_POS_DIV]):
-        x_r, v_r, a_r = interpolate(
-            int(cp[lay.P_INTERPOLATION]),
-            (k - cs[lay.S_NC_TICK]) * cp[lay.P_NC_DIV_INV],
-            nc_div * cp[lay.P_BASE_PERIOD],
-            (cs[lay.S_NC_PREV_POS], cs[lay.S_NC_PREV_VEL], cs[lay.S_NC_PREV_ACC]),
-            (cs[lay.S_NC_POS], cs[lay.S_NC_VEL], cs[lay.S_NC_ACC]),
-        )
-        x_fb = meas[sig.MEAS_X_SCALE_M] if cp[lay.P_FEEDBACK_SCALE] > 0.5 else x_enc
-        v_cmd, effort_ff, e = position_law(
-            x_r,
-            v_r,
-            a_r,
-            x_fb,
-            cp[lay.P_KV],
-            cp[lay.P_VFF],
-            cp[lay.P_ACC_FF_GAIN],
-            cp[lay.P_V_LIMIT],
-        )
-        cs[lay.S_POS_REF] = x_r
-        cs[lay.S_FOLLOWING_ERROR] = e
-        cs[lay.S_VEL_CMD] = v_cmd
-        cs[lay.S_EFFORT_FF] = effort_ff
-        if active and mode == MODE_POSITION and abs(e) > cp[lay.P_FE_LIMIT]:
-            cs[lay.S_FAULT] = sig.FAULT_FOLLOWING_ERROR
+        position_loop(cp, cs, k, meas, x_enc, active and mode == MODE_POSITION)
 
-    active = cs[lay.S_ENABLE_CMD] > 0.5 and cs[lay.S_FAULT] == 0.0
-    lim = cp[lay.P_EFFORT_LIMIT]
-    effort_add = ref[sig.REF_EFFORT_ADD]
+    active = is_active(cs)
     if mode == MODE_VELOCITY:
         cs[lay.S_VEL_CMD] = ref[sig.REF_VEL_EXT_M_S]
         cs[lay.S_EFFORT_FF] = 0.0
     if not active:
-        # power stage off: integrators, filters and pending outputs cleared
-        cs[lay.S_VEL_INT] = 0.0
-        cs[lay.S_I_D_INT] = 0.0
-        cs[lay.S_I_Q_INT] = 0.0
-        for i in range(2):
-            cs[lay.S_BQ_LP + i] = 0.0
-            cs[lay.S_BQ_NOTCH + i] = 0.0
-        cs[lay.S_EFFORT_CMD] = 0.0
-        cs[lay.S_U_D_REF] = 0.0
-        cs[lay.S_U_Q_REF] = 0.0
-        for i in range(3):
-            cs[lay.S_DUTY_NEXT_A + i] = 0.5
-            cs[lay.S_DUTY_A + i] = 0.5
-        cs[lay.S_EFFORT_NEXT] = 0.0
-        cs[lay.S_EFFORT_OUT] = 0.0
+        power_stage_off(cs)
     elif mode == MODE_TORQUE:
-        cs[lay.S_EFFORT_CMD] = min(max(ref[sig.REF_I_Q_EXT_A] + effort_add, -lim), lim)
+        lim = cp[lay.P_EFFORT_LIMIT]
+        effort = ref[sig.REF_I_Q_EXT_A] + ref[sig.REF_EFFORT_ADD]
+        cs[lay.S_EFFORT_CMD] = min(max(effort, -lim), lim)
     elif vel_due:
-        u, cs[lay.S_VEL_INT] = pi_update(
-            cs[lay.S_VEL_INT],
-            cs[lay.S_VEL_CMD] - cs[lay.S_VEL_EST],
-            cp[lay.P_VEL_KP],
-            cp[lay.P_VEL_KI_T],
-            cs[lay.S_EFFORT_FF] + effort_add,
-            -lim,
-            lim,
-        )
-        for p_bq, s_bq in ((lay.P_BQ_LP, lay.S_BQ_LP), (lay.P_BQ_NOTCH, lay.S_BQ_NOTCH)):
-            u, cs[s_bq], cs[s_bq + 1] = biquad_update(
-                cp[p_bq],
-                cp[p_bq + 1],
-                cp[p_bq + 2],
-                cp[p_bq + 3],
-                cp[p_bq + 4],
-                cs[s_bq],
-                cs[s_bq + 1],
-                u,
-            )
-        cs[lay.S_EFFORT_CMD] = min(max(u, -lim), lim)
+        velocity_loop(cp, cs, ref[sig.REF_EFFORT_ADD])
 
-    delayed = cp[lay.P_COMPUTATION_DELAY] > 0.5
     if has_current:
         if active and due(k, cp[lay.P_CUR_DIV]):
-            p = cp[lay.P_POLE_PAIRS]
-            a = lay.S_PARK_ANCHOR
-            d_a, d_b, d_c, u_d, u_q, cs[lay.S_I_D_INT], cs[lay.S_I_Q_INT], anchor = current_law(
-                meas[sig.MEAS_I_A],
-                meas[sig.MEAS_I_B],
-                meas[sig.MEAS_I_C],
-                p * meas[sig.MEAS_THETA_ENC_RAD] + cp[lay.P_ENCODER_OFFSET],
-                p * cs[lay.S_VEL_EST] * cp[lay.P_RAD_PER_M],
-                cs[lay.S_EFFORT_CMD],
-                meas[sig.MEAS_U_DC_V],
-                cs[lay.S_I_D_INT],
-                cs[lay.S_I_Q_INT],
-                (cs[a], cs[a + 1], cs[a + 2]),
-                cp,
-            )
-            cs[a], cs[a + 1], cs[a + 2] = anchor
-            cs[lay.S_U_D_REF] = u_d
-            cs[lay.S_U_Q_REF] = u_q
-            if delayed:
-                cs[lay.S_DUTY_A] = cs[lay.S_DUTY_NEXT_A]
-                cs[lay.S_DUTY_B] = cs[lay.S_DUTY_NEXT_B]
-                cs[lay.S_DUTY_C] = cs[lay.S_DUTY_NEXT_C]
-                cs[lay.S_DUTY_NEXT_A] = d_a
-                cs[lay.S_DUTY_NEXT_B] = d_b
-                cs[lay.S_DUTY_NEXT_C] = d_c
-            else:
-                cs[lay.S_DUTY_A] = d_a
-                cs[lay.S_DUTY_B] = d_b
-                cs[lay.S_DUTY_C] = d_c
+            current_loop(cp, cs, meas, delayed)
         out[sig.OUT_EFFORT_CMD] = 0.0
     else:
         if active and (mode == MODE_TORQUE or vel_due):
-            if delayed:
-                cs[lay.S_EFFORT_OUT] = cs[lay.S_EFFORT_NEXT]
-                cs[lay.S_EFFORT_NEXT] = cs[lay.S_EFFORT_CMD]
-            else:
-                cs[lay.S_EFFORT_OUT] = cs[lay.S_EFFORT_CMD]
+            effort_output(cs, delayed)
         out[sig.OUT_EFFORT_CMD] = cs[lay.S_EFFORT_OUT]
-
-    out[sig.OUT_DUTY_A] = cs[lay.S_DUTY_A]
-    out[sig.OUT_DUTY_B] = cs[lay.S_DUTY_B]
-    out[sig.OUT_DUTY_C] = cs[lay.S_DUTY_C]
-    out[sig.OUT_I_D_REF_A] = 0.0
-    out[sig.OUT_I_Q_REF_A] = cs[lay.S_EFFORT_CMD]
-    out[sig.OUT_U_D_REF_V] = cs[lay.S_U_D_REF]
-    out[sig.OUT_U_Q_REF_V] = cs[lay.S_U_Q_REF]
-    out[sig.OUT_POS_REF_M] = cs[lay.S_POS_REF]
-    out[sig.OUT_VEL_REF_M_S] = cs[lay.S_VEL_CMD]
-    out[sig.OUT_VEL_EST_M_S] = cs[lay.S_VEL_EST]
-    out[sig.OUT_FOLLOWING_ERROR_M] = cs[lay.S_FOLLOWING_ERROR]
-    if cs[lay.S_FAULT] != 0.0:
-        out[sig.OUT_FAULT] = cs[lay.S_FAULT]
-    elif cs[lay.S_ENABLE_CMD] <= 0.5:
-        out[sig.OUT_FAULT] = sig.FAULT_DISABLED
-    else:
-        out[sig.OUT_FAULT] = sig.FAULT_NONE
-    out[sig.OUT_ENABLED] = 1.0 if active else 0.0
+    write_outputs(cs, out, active)
 
 
 def source_digest() -> str:
@@ -374,14 +439,8 @@ def source_digest() -> str:
     (numba's cache of a caller does not notice changes in callees from other modules)."""
     digest = hashlib.sha256()
     here = Path(__file__).resolve().parent
-    for name in (
-        "cascade.py",
-        "layout.py",
-        "config.py",
-        "blocks.py",
-        "transforms.py",
-        "signals.py",
-    ):
+    for name in ("cascade.py", "layout.py", "config.py", "blocks.py", "transforms.py"):
         digest.update((here / name).read_bytes())
-    digest.update((here.parent / "plant" / "trig.py").read_bytes())
+    for name in ("signals.py", "trig.py", "fma.py"):
+        digest.update((here.parent / "core" / name).read_bytes())
     return digest.hexdigest()[:20]

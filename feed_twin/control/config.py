@@ -13,13 +13,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from feed_twin.io.config import (
-    from_mapping,
+from feed_twin.core.validate import (
     require_integer_multiple,
     require_nonnegative,
     require_positive,
     require_range,
 )
+from feed_twin.io.config import from_mapping
 
 TWO_PI = 2.0 * math.pi
 MAX_FIR_TAPS = 16

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from feed_twin.control import signals as sig
 from feed_twin.control.blocks import (
     BIQUAD_IDENTITY,
     lowpass1_alpha,
@@ -28,25 +27,26 @@ from feed_twin.control.config import (
     ControllerConfig,
     Mode,
 )
+from feed_twin.core import signals as sig
 
-# ---------------------------------------------------------------------------------------------
-# Flat layouts. Unpacking `range` over the name tuple keeps constants and names in step (a
-# mismatch fails at import); numba folds these module integers into the kernels.
+# Flat layouts. Each vector's slots are declared once, as names in order; every P_*/S_* constant
+# is looked up by its name (`_slot`), so a constant cannot point at another slot than the one it
+# names, and an unknown name fails at import. numba folds these module integers into the kernels.
 
 PARAM_NAMES = (
     "base_period_s",
-    "mode",
-    "computation_delay",
+    "mode",  # a config.MODE_* code
+    "computation_delay",  # DELAY_NONE or DELAY_ONE_SAMPLE
     "nc_div",
     "lead_m",
     "effort_limit",
-    "has_position",
+    "has_position",  # LOOP_ABSENT or LOOP_PRESENT, as has_velocity and has_current
     "pos_div",
     "Kv_1_s",
     "velocity_ff",
     "acc_ff_gain",
-    "feedback_scale",
-    "interpolation",
+    "feedback_scale",  # FEEDBACK_ENCODER or FEEDBACK_SCALE
+    "interpolation",  # a config.INTERP_* code
     "fe_limit_m",
     "v_limit_m_s",
     "has_velocity",
@@ -56,16 +56,8 @@ PARAM_NAMES = (
     "vel_Ki_T",
     "vel_lowpass_alpha",
     "fir_n",
-    "bq_lp_b0",
-    "bq_lp_b1",
-    "bq_lp_b2",
-    "bq_lp_a1",
-    "bq_lp_a2",
-    "bq_notch_b0",
-    "bq_notch_b1",
-    "bq_notch_b2",
-    "bq_notch_a1",
-    "bq_notch_a2",
+    *(f"bq_lp_{c}" for c in ("b0", "b1", "b2", "a1", "a2")),
+    *(f"bq_notch_{c}" for c in ("b0", "b1", "b2", "a1", "a2")),
     "has_current",
     "cur_div",
     "cur_period_s",
@@ -77,8 +69,8 @@ PARAM_NAMES = (
     "Ki_T_d",
     "Kp_q",
     "Ki_T_q",
-    "decoupling",
-    "back_emf_ff",
+    "decoupling",  # a gain, 0 or 1
+    "back_emf_ff",  # a gain, 0 or 1
     "voltage_margin",
     "angle_advance_periods",
     "encoder_offset_rad",
@@ -90,64 +82,138 @@ PARAM_NAMES = (
     "vel_rate_1_s",
     "nc_div_inv",
 )
-(
-    P_BASE_PERIOD,
-    P_MODE,
-    P_COMPUTATION_DELAY,
-    P_NC_DIV,
-    P_LEAD,
-    P_EFFORT_LIMIT,
-    P_HAS_POSITION,
-    P_POS_DIV,
-    P_KV,
-    P_VFF,
-    P_ACC_FF_GAIN,
-    P_FEEDBACK_SCALE,
-    P_INTERPOLATION,
-    P_FE_LIMIT,
-    P_V_LIMIT,
-    P_HAS_VELOCITY,
-    P_VEL_DIV,
-    P_VEL_PERIOD,
-    P_VEL_KP,
-    P_VEL_KI_T,
-    P_VEL_LP_ALPHA,
-    P_FIR_N,
-    P_BQ_LP,
-    _P_BQ_LP_1,
-    _P_BQ_LP_2,
-    _P_BQ_LP_3,
-    _P_BQ_LP_4,
-    P_BQ_NOTCH,
-    _P_BQ_NOTCH_1,
-    _P_BQ_NOTCH_2,
-    _P_BQ_NOTCH_3,
-    _P_BQ_NOTCH_4,
-    P_HAS_CURRENT,
-    P_CUR_DIV,
-    P_CUR_PERIOD,
-    P_POLE_PAIRS,
-    P_L_D,
-    P_L_Q,
-    P_PSI_PM,
-    P_KP_D,
-    P_KI_T_D,
-    P_KP_Q,
-    P_KI_T_Q,
-    P_DECOUPLING,
-    P_BACK_EMF_FF,
-    P_VOLTAGE_MARGIN,
-    P_ANGLE_ADVANCE,
-    P_ENCODER_OFFSET,
-    P_I_TRIP,
-    P_DEAD_TIME_COMP,
-    P_DEAD_TIME_BAND,
-    P_M_PER_RAD,
-    P_RAD_PER_M,
-    P_VEL_RATE,
-    P_NC_DIV_INV,
-) = range(len(PARAM_NAMES))
-P_FIR_TAPS = len(PARAM_NAMES)  # the FIR taps follow the fixed slots
+
+STATE_NAMES = (
+    "initialised",  # PENDING or STARTED
+    "enable_cmd",  # STAGE_OFF or STAGE_ON
+    "fault",  # a signals.FAULT_* code
+    "nc_tick",
+    *(f"nc_prev_{q}" for q in ("pos_m", "vel_m_s", "acc_m_s2")),
+    *(f"nc_{q}" for q in ("pos_m", "vel_m_s", "acc_m_s2")),
+    "pos_ref_m",
+    "following_error_m",
+    "vel_cmd_m_s",
+    "effort_ff",
+    "vel_est_m_s",
+    "enc_pos_prev_m",
+    "vel_int",
+    "effort_cmd",
+    "bq_lp_s1",
+    "bq_lp_s2",
+    "bq_notch_s1",
+    "bq_notch_s2",
+    "i_d_int",
+    "i_q_int",
+    "u_d_ref_V",
+    "u_q_ref_V",
+    *(f"duty_next_{x}" for x in "abc"),
+    *(f"duty_{x}" for x in "abc"),
+    "effort_next",
+    "effort_out",
+    # the last electrical angle whose sine and cosine were evaluated in full, and that pair
+    # (feed_twin.core.trig.sincos_anchored)
+    "park_anchor_rad",
+    "park_anchor_cos",
+    "park_anchor_sin",
+)
+
+
+def _slot(names: tuple[str, ...], name: str, *following: str) -> int:
+    """Position of `name` in `names`; `following` names the slots a block reads after it."""
+    if len(set(names)) != len(names):
+        raise ValueError(f"duplicate slot names in {names}")
+    i = names.index(name)
+    if names[i + 1 : i + 1 + len(following)] != following:
+        raise ValueError(f"slot {name}: expected {following} after it")
+    return i
+
+
+_BQ = ("b1", "b2", "a1", "a2")
+
+P_BASE_PERIOD = _slot(PARAM_NAMES, "base_period_s")
+P_MODE = _slot(PARAM_NAMES, "mode")
+P_COMPUTATION_DELAY = _slot(PARAM_NAMES, "computation_delay")
+P_NC_DIV = _slot(PARAM_NAMES, "nc_div")
+P_LEAD = _slot(PARAM_NAMES, "lead_m")
+P_EFFORT_LIMIT = _slot(PARAM_NAMES, "effort_limit")
+P_HAS_POSITION = _slot(PARAM_NAMES, "has_position")
+P_POS_DIV = _slot(PARAM_NAMES, "pos_div")
+P_KV = _slot(PARAM_NAMES, "Kv_1_s")
+P_VFF = _slot(PARAM_NAMES, "velocity_ff")
+P_ACC_FF_GAIN = _slot(PARAM_NAMES, "acc_ff_gain")
+P_FEEDBACK_SCALE = _slot(PARAM_NAMES, "feedback_scale")
+P_INTERPOLATION = _slot(PARAM_NAMES, "interpolation")
+P_FE_LIMIT = _slot(PARAM_NAMES, "fe_limit_m")
+P_V_LIMIT = _slot(PARAM_NAMES, "v_limit_m_s")
+P_HAS_VELOCITY = _slot(PARAM_NAMES, "has_velocity")
+P_VEL_DIV = _slot(PARAM_NAMES, "vel_div")
+P_VEL_PERIOD = _slot(PARAM_NAMES, "vel_period_s")
+P_VEL_KP = _slot(PARAM_NAMES, "vel_Kp")
+P_VEL_KI_T = _slot(PARAM_NAMES, "vel_Ki_T")
+P_VEL_LP_ALPHA = _slot(PARAM_NAMES, "vel_lowpass_alpha")
+P_FIR_N = _slot(PARAM_NAMES, "fir_n")
+P_BQ_LP = _slot(PARAM_NAMES, "bq_lp_b0", *(f"bq_lp_{c}" for c in _BQ))  # b0 b1 b2 a1 a2
+P_BQ_NOTCH = _slot(PARAM_NAMES, "bq_notch_b0", *(f"bq_notch_{c}" for c in _BQ))
+P_HAS_CURRENT = _slot(PARAM_NAMES, "has_current")
+P_CUR_DIV = _slot(PARAM_NAMES, "cur_div")
+P_CUR_PERIOD = _slot(PARAM_NAMES, "cur_period_s")
+P_POLE_PAIRS = _slot(PARAM_NAMES, "pole_pairs")
+P_L_D = _slot(PARAM_NAMES, "L_d_H")
+P_L_Q = _slot(PARAM_NAMES, "L_q_H")
+P_PSI_PM = _slot(PARAM_NAMES, "psi_pm_Vs")
+P_KP_D = _slot(PARAM_NAMES, "Kp_d")
+P_KI_T_D = _slot(PARAM_NAMES, "Ki_T_d")
+P_KP_Q = _slot(PARAM_NAMES, "Kp_q")
+P_KI_T_Q = _slot(PARAM_NAMES, "Ki_T_q")
+P_DECOUPLING = _slot(PARAM_NAMES, "decoupling")
+P_BACK_EMF_FF = _slot(PARAM_NAMES, "back_emf_ff")
+P_VOLTAGE_MARGIN = _slot(PARAM_NAMES, "voltage_margin")
+P_ANGLE_ADVANCE = _slot(PARAM_NAMES, "angle_advance_periods")
+P_ENCODER_OFFSET = _slot(PARAM_NAMES, "encoder_offset_rad")
+P_I_TRIP = _slot(PARAM_NAMES, "i_trip_A")
+P_DEAD_TIME_COMP = _slot(PARAM_NAMES, "dead_time_comp_V")
+P_DEAD_TIME_BAND = _slot(PARAM_NAMES, "dead_time_comp_band_A")
+P_M_PER_RAD = _slot(PARAM_NAMES, "m_per_rad")
+P_RAD_PER_M = _slot(PARAM_NAMES, "rad_per_m")
+P_VEL_RATE = _slot(PARAM_NAMES, "vel_rate_1_s")
+P_NC_DIV_INV = _slot(PARAM_NAMES, "nc_div_inv")
+P_FIR_TAPS = len(PARAM_NAMES)  # the FIR taps follow the named slots
+
+_XVA = ("vel_m_s", "acc_m_s2")
+
+S_INITIALISED = _slot(STATE_NAMES, "initialised")
+S_ENABLE_CMD = _slot(STATE_NAMES, "enable_cmd")
+S_FAULT = _slot(STATE_NAMES, "fault")
+S_NC_TICK = _slot(STATE_NAMES, "nc_tick")
+S_NC_PREV_POS = _slot(STATE_NAMES, "nc_prev_pos_m", *(f"nc_prev_{q}" for q in _XVA))  # x, v, a
+S_NC_POS = _slot(STATE_NAMES, "nc_pos_m", *(f"nc_{q}" for q in _XVA))  # x, v, a
+S_POS_REF = _slot(STATE_NAMES, "pos_ref_m")
+S_FOLLOWING_ERROR = _slot(STATE_NAMES, "following_error_m")
+S_VEL_CMD = _slot(STATE_NAMES, "vel_cmd_m_s")
+S_EFFORT_FF = _slot(STATE_NAMES, "effort_ff")
+S_VEL_EST = _slot(STATE_NAMES, "vel_est_m_s")
+S_ENC_POS_PREV = _slot(STATE_NAMES, "enc_pos_prev_m")
+S_VEL_INT = _slot(STATE_NAMES, "vel_int")
+S_EFFORT_CMD = _slot(STATE_NAMES, "effort_cmd")
+S_BQ_LP = _slot(STATE_NAMES, "bq_lp_s1", "bq_lp_s2")
+S_BQ_NOTCH = _slot(STATE_NAMES, "bq_notch_s1", "bq_notch_s2")
+S_I_D_INT = _slot(STATE_NAMES, "i_d_int")
+S_I_Q_INT = _slot(STATE_NAMES, "i_q_int")
+S_U_D_REF = _slot(STATE_NAMES, "u_d_ref_V")
+S_U_Q_REF = _slot(STATE_NAMES, "u_q_ref_V")
+S_DUTY_NEXT = _slot(STATE_NAMES, "duty_next_a", "duty_next_b", "duty_next_c")
+S_DUTY = _slot(STATE_NAMES, "duty_a", "duty_b", "duty_c")
+S_EFFORT_NEXT = _slot(STATE_NAMES, "effort_next")
+S_EFFORT_OUT = _slot(STATE_NAMES, "effort_out")
+S_PARK_ANCHOR = _slot(STATE_NAMES, "park_anchor_rad", "park_anchor_cos", "park_anchor_sin")
+S_FIR_HIST = len(STATE_NAMES)  # the FIR difference history follows the named slots
+
+# Values of the integer-valued slots (exact in the float64 vectors; the tick compares int(slot)).
+LOOP_ABSENT, LOOP_PRESENT = 0, 1  # has_position, has_velocity, has_current
+FEEDBACK_ENCODER, FEEDBACK_SCALE = 0, 1  # feedback_scale: semi-closed or closed position loop
+DELAY_NONE, DELAY_ONE_SAMPLE = 0, 1  # computation_delay
+PENDING, STARTED = 0, 1  # initialised: the first tick latches the setpoint and the encoder
+STAGE_OFF, STAGE_ON = 0, 1  # enable_cmd: the power stage as requested (CiA 402 controlword)
 
 # The cascade's structure: its mode, which loops exist and at what rates, the feedback source,
 # the interpolation, the FIR's length and the computation delay. The engine compiles these slots
@@ -171,90 +237,6 @@ STRUCTURE_NAMES = (
 )
 STRUCTURE_SLOTS = tuple(PARAM_NAMES.index(n) for n in STRUCTURE_NAMES)
 
-STATE_NAMES = (
-    "initialised",
-    "enable_cmd",
-    "fault",
-    "nc_tick",
-    "nc_prev_pos_m",
-    "nc_prev_vel_m_s",
-    "nc_prev_acc_m_s2",
-    "nc_pos_m",
-    "nc_vel_m_s",
-    "nc_acc_m_s2",
-    "pos_ref_m",
-    "following_error_m",
-    "vel_cmd_m_s",
-    "effort_ff",
-    "vel_est_m_s",
-    "enc_pos_prev_m",
-    "vel_int",
-    "effort_cmd",
-    "bq_lp_s1",
-    "bq_lp_s2",
-    "bq_notch_s1",
-    "bq_notch_s2",
-    "i_d_int",
-    "i_q_int",
-    "u_d_ref_V",
-    "u_q_ref_V",
-    "duty_next_a",
-    "duty_next_b",
-    "duty_next_c",
-    "duty_a",
-    "duty_b",
-    "duty_c",
-    "effort_next",
-    "effort_out",
-    "park_anchor_rad",
-    "park_anchor_cos",
-    "park_anchor_sin",
-)
-(
-    S_INITIALISED,
-    S_ENABLE_CMD,
-    S_FAULT,
-    S_NC_TICK,
-    S_NC_PREV_POS,
-    S_NC_PREV_VEL,
-    S_NC_PREV_ACC,
-    S_NC_POS,
-    S_NC_VEL,
-    S_NC_ACC,
-    S_POS_REF,
-    S_FOLLOWING_ERROR,
-    S_VEL_CMD,
-    S_EFFORT_FF,
-    S_VEL_EST,
-    S_ENC_POS_PREV,
-    S_VEL_INT,
-    S_EFFORT_CMD,
-    S_BQ_LP,
-    _S_BQ_LP_2,
-    S_BQ_NOTCH,
-    _S_BQ_NOTCH_2,
-    S_I_D_INT,
-    S_I_Q_INT,
-    S_U_D_REF,
-    S_U_Q_REF,
-    S_DUTY_NEXT_A,
-    S_DUTY_NEXT_B,
-    S_DUTY_NEXT_C,
-    S_DUTY_A,
-    S_DUTY_B,
-    S_DUTY_C,
-    S_EFFORT_NEXT,
-    S_EFFORT_OUT,
-    S_PARK_ANCHOR,  # the last electrical angle whose sine and cosine were evaluated in full
-    _S_PARK_ANCHOR_COS,  # and that pair (feed_twin.plant.trig.sincos_anchored)
-    _S_PARK_ANCHOR_SIN,
-) = range(len(STATE_NAMES))
-S_FIR_HIST = len(STATE_NAMES)  # the FIR difference history follows the fixed slots
-
-
-# ---------------------------------------------------------------------------------------------
-# Building the parameter vector
-
 
 @dataclass(frozen=True, kw_only=True)
 class CompiledCascade:
@@ -269,8 +251,9 @@ class CompiledCascade:
     def initial_state(self) -> np.ndarray:
         """A fresh state vector: everything zero, drive enabled if configured so."""
         cs = np.zeros(len(self.state_names))
-        cs[S_ENABLE_CMD] = 1.0 if self.config.enabled_at_start else 0.0
-        cs[S_DUTY_NEXT_A : S_DUTY_C + 1] = 0.5
+        cs[S_ENABLE_CMD] = STAGE_ON if self.config.enabled_at_start else STAGE_OFF
+        cs[S_DUTY_NEXT : S_DUTY_NEXT + 3] = 0.5
+        cs[S_DUTY : S_DUTY + 3] = 0.5
         cs[S_PARK_ANCHOR : S_PARK_ANCHOR + 3] = 0.0, 1.0, 0.0  # the angle 0 and its exact pair
         return cs
 
@@ -286,7 +269,7 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
     p = np.zeros(P_FIR_TAPS)
     p[P_BASE_PERIOD] = base
     p[P_MODE] = MODE_CODES[config.mode]
-    p[P_COMPUTATION_DELAY] = float(config.computation_delay)
+    p[P_COMPUTATION_DELAY] = DELAY_ONE_SAMPLE if config.computation_delay else DELAY_NONE
     p[P_NC_DIV] = round(config.nc_period_s / base)
     p[P_LEAD] = drive.lead_m
     # reciprocals the tick would otherwise divide by: a division is 13 cycles on its path
@@ -303,7 +286,7 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
     taps: tuple[float, ...] = (1.0,)
     pos = config.position
     if pos is not None:
-        p[P_HAS_POSITION] = 1.0
+        p[P_HAS_POSITION] = LOOP_PRESENT
         p[P_POS_DIV] = round(pos.period_s / base)
         p[P_KV] = pos.Kv_1_s
         p[P_VFF] = pos.velocity_ff
@@ -311,7 +294,7 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
         p[P_ACC_FF_GAIN] = (
             pos.acceleration_ff * (TWO_PI / drive.lead_m) * (drive.J_total_kg_m2 / drive.K_t)
         )
-        p[P_FEEDBACK_SCALE] = 1.0 if pos.feedback == "linear_scale" else 0.0
+        p[P_FEEDBACK_SCALE] = FEEDBACK_SCALE if pos.feedback == "linear_scale" else FEEDBACK_ENCODER
         p[P_INTERPOLATION] = INTERPOLATION_CODES[pos.interpolation]
         if pos.following_error_limit_m is not None:
             p[P_FE_LIMIT] = pos.following_error_limit_m
@@ -320,7 +303,7 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
     vel = config.velocity
     if vel is not None:
         T_v = vel.period_s
-        p[P_HAS_VELOCITY] = 1.0
+        p[P_HAS_VELOCITY] = LOOP_PRESENT
         p[P_VEL_DIV] = round(T_v / base)
         p[P_VEL_PERIOD] = T_v
         p[P_VEL_RATE] = 1.0 / T_v
@@ -343,7 +326,7 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
     cur = config.current
     if cur is not None:
         T_i = cur.period_s
-        p[P_HAS_CURRENT] = 1.0
+        p[P_HAS_CURRENT] = LOOP_PRESENT
         p[P_CUR_DIV] = round(T_i / base)
         p[P_CUR_PERIOD] = T_i
         p[P_POLE_PAIRS] = cur.pole_pairs
@@ -382,23 +365,19 @@ def with_mode(cascade: CompiledCascade, mode: Mode) -> CompiledCascade:
     return build_cascade(dataclasses.replace(cascade.config, mode=mode))
 
 
-# ---------------------------------------------------------------------------------------------
-# Drive commands on a state vector (what a CiA 402 controlword does)
-
-
 def enable(cs: np.ndarray) -> None:
     """Request the power stage on (takes effect at the next tick unless a fault is latched)."""
-    cs[S_ENABLE_CMD] = 1.0
+    cs[S_ENABLE_CMD] = STAGE_ON
 
 
 def disable(cs: np.ndarray) -> None:
     """Request the power stage off; integrators are cleared at the next tick."""
-    cs[S_ENABLE_CMD] = 0.0
+    cs[S_ENABLE_CMD] = STAGE_OFF
 
 
 def clear_fault(cs: np.ndarray) -> None:
     """Acknowledge a latched fault (fault reset)."""
-    cs[S_FAULT] = 0.0
+    cs[S_FAULT] = sig.FAULT_NONE
 
 
 def fault_reason(code: float) -> str:

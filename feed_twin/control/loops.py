@@ -26,7 +26,7 @@ import numpy as np
 
 from feed_twin.control import cascade as cc
 from feed_twin.control import layout as lay
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -70,7 +70,7 @@ class _SampledController:
             ("current", lay.P_HAS_CURRENT),
         ):
             if loop not in keep:
-                params[slot] = 0.0
+                params[slot] = lay.LOOP_ABSENT
         params.setflags(write=False)
         self._params = params
         self.base_period_s = self._cascade.base_period_s

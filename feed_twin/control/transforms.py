@@ -96,6 +96,37 @@ def svpwm_phase_duties(
 
 
 @njit(forceinline=True)
+def modulate(
+    u_d: float,
+    u_q: float,
+    cos_e: float,
+    sin_e: float,
+    i_a: float,
+    i_b: float,
+    i_c: float,
+    dead_time_comp_V: float,
+    dead_time_comp_band_A: float,
+    u_dc: float,
+) -> tuple[float, float, float]:
+    """The modulator: (u_d, u_q) [V] at the angle whose (cos, sin) is given -> duty cycles.
+
+    Inverse Park, then per phase the dead-time compensation u_comp * clip(i_x / band, -1, 1)
+    (the inverter's dead time takes about u_comp off a phase in the direction of its current),
+    then SVPWM on u_dc; a bus without voltage gets duties 1/2. The cascade's current loop and
+    the node set's voltage-mode drive both modulate with it.
+    """
+    if u_dc <= 0.0:
+        return 0.5, 0.5, 0.5
+    u_a, u_b, u_c = inverse_clarke(cos_e * u_d - sin_e * u_q, sin_e * u_d + cos_e * u_q)
+    if dead_time_comp_V > 0.0:
+        inv_band = 1.0 / dead_time_comp_band_A
+        u_a += dead_time_comp_V * min(max(i_a * inv_band, -1.0), 1.0)
+        u_b += dead_time_comp_V * min(max(i_b * inv_band, -1.0), 1.0)
+        u_c += dead_time_comp_V * min(max(i_c * inv_band, -1.0), 1.0)
+    return svpwm_phase_duties(u_a, u_b, u_c, u_dc)
+
+
+@njit(forceinline=True)
 def svpwm_duties(u_alpha: float, u_beta: float, u_dc: float) -> tuple[float, float, float]:
     """Duty cycles in [0, 1] for a two-level inverter from the (alpha, beta) voltage [V]."""
     u_a, u_b, u_c = inverse_clarke(u_alpha, u_beta)

@@ -1,8 +1,8 @@
 """Typed YAML loading: frozen parameter dataclasses from mappings, with errors that say where.
 
 Every parameter class in feed_twin is a frozen, keyword-only dataclass that validates itself in
-`__post_init__` with the `require_*` helpers below. `from_mapping` builds one from a YAML mapping,
-rejects unknown keys and missing fields, converts nested dataclasses, tuples and literals, and
+`__post_init__` with the `require_*` helpers of feed_twin.core.validate. `from_mapping` builds one
+from a YAML mapping, rejects unknown keys and missing fields, converts nested dataclasses, tuples and literals, and
 re-raises any `ValueError` prefixed with the file and the dotted field path, so a user reads
 `config/axis.yaml: plant.table.m = -3.0: must be > 0`.
 """
@@ -10,7 +10,6 @@ re-raises any `ValueError` prefixed with the file and the dotted field path, so 
 from __future__ import annotations
 
 import dataclasses
-import math
 import types
 import typing
 from pathlib import Path
@@ -26,41 +25,6 @@ MAX_CONFIG_BYTES = 4_000_000
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown, of the wrong type or outside its range."""
-
-
-def require_finite(name: str, value: float) -> None:
-    if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
-        raise ValueError(f"{name} = {value!r}: must be a finite number")
-
-
-def require_positive(name: str, value: float) -> None:
-    require_finite(name, value)
-    if value <= 0.0:
-        raise ValueError(f"{name} = {value!r}: must be > 0")
-
-
-def require_nonnegative(name: str, value: float) -> None:
-    require_finite(name, value)
-    if value < 0.0:
-        raise ValueError(f"{name} = {value!r}: must be >= 0")
-
-
-def require_range(name: str, value: float, low: float, high: float) -> None:
-    require_finite(name, value)
-    if not low <= value <= high:
-        raise ValueError(f"{name} = {value!r}: must lie in [{low}, {high}]")
-
-
-def require_integer_multiple(name: str, value: float, base: float, base_name: str) -> int:
-    """Return value/base when it is a whole number (to 1e-9 relative), else raise."""
-    require_positive(name, value)
-    ratio = value / base
-    whole = round(ratio)
-    if whole < 1 or abs(ratio - whole) > 1e-9 * max(1.0, ratio):
-        raise ValueError(
-            f"{name} = {value!r}: must be an integer multiple of {base_name} = {base!r}"
-        )
-    return whole
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.linuxcnc.machine import machine_for_config
 from feed_twin.linuxcnc.runner import LinuxcncRun, RunOptions
 from feed_twin.linuxcnc.samples import JOINT_LETTERS, ROW_HEADER, ServoTrace, sample_layout

@@ -26,8 +26,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from feed_twin.core.validate import require_nonnegative, require_positive, require_range
 from feed_twin.gcode.config import WORK_OFFSET_CODES, NcConfig
-from feed_twin.io.config import require_nonnegative, require_positive, require_range
 from feed_twin.linuxcnc.samples import sample_layout
 
 MM_PER_M = 1000.0

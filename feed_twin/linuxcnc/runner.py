@@ -39,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.gcode.config import NcConfig
-from feed_twin.io.config import require_nonnegative, require_positive
 from feed_twin.linuxcnc.check import rejection_in
 from feed_twin.linuxcnc.host import (
     LinuxcncError,

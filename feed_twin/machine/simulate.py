@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.gcode.geometry import programmed_path
 from feed_twin.gcode.planner import plan_program
 from feed_twin.gcode.trajectory import SampledTrajectory

@@ -14,6 +14,7 @@ import operator
 import numpy as np
 from numba.core.registry import CPUDispatcher
 
+from feed_twin.core import fma as _fma_module
 from feed_twin.native.ckinds import (
     BOOL,
     DOUBLE,
@@ -32,7 +33,6 @@ from feed_twin.native.ckinds import (
     unify,
     var,
 )
-from feed_twin.plant import fma as _fma_module
 
 __all__ = ["Expressions", "TranslationError"]
 

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from feed_twin.control import signals
 from feed_twin.control.layout import STRUCTURE_SLOTS
+from feed_twin.core import signals
 from feed_twin.native.capi import LOOP_C
 from feed_twin.native.ckinds import PRELUDE, ArrayKind, Scalar, TupleKind, literal
 from feed_twin.native.translate import Source, Translator

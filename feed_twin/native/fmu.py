@@ -31,7 +31,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.native.build import FLAGS, find_cc, portable_flags, run_cc
 from feed_twin.native.emit import CKernel, c_kernel
 from feed_twin.native.fmi2 import GLUE_C

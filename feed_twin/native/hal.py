@@ -38,7 +38,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from feed_twin.control import layout, signals
+from feed_twin.control import layout
+from feed_twin.core import signals
 from feed_twin.native.emit import CKernel, c_kernel
 
 HAL_PACKAGE = "linuxcnc-uspace-dev"
@@ -131,8 +132,8 @@ FUNCTION(_)
         ft_set_states(model, x);
         started = 1;
     }}
-    if (enable && !was_enabled) ft_set_ctrl_state(model, {s_fault}, 0.0); /* fault reset */
-    ft_set_ctrl_state(model, {s_enable}, enable ? 1.0 : 0.0);
+    if (enable && !was_enabled) ft_set_ctrl_state(model, {s_fault}, {fault_none}); /* fault reset */
+    ft_set_ctrl_state(model, {s_enable}, enable ? {stage_on} : {stage_off});
     was_enabled = enable;
 {ref}
     ft_set_ref(model, ref);
@@ -140,7 +141,7 @@ FUNCTION(_)
     const double *meas = ft_meas(model), *out = ft_out(model), *cp = ft_ctrl_params(model);
     enc_pos_fb = meas[{meas_theta}] * cp[{m_per_rad}] * units_per_m;
     scale_pos_fb = meas[{meas_scale}] * units_per_m;
-    pos_fb = cp[{feedback_scale}] > 0.5 ? scale_pos_fb : enc_pos_fb;
+    pos_fb = (int)cp[{feedback_scale}] == {feedback_scale_code} ? scale_pos_fb : enc_pos_fb;
     vel_fb = out[{out_vel}] * units_per_m;
     following_error = out[{out_fe}] * units_per_m;
     current_q = out[{out_iq}];
@@ -196,12 +197,16 @@ def comp_source(
         meas_scale=signals.MEAS_X_SCALE_M,
         m_per_rad=layout.P_M_PER_RAD,
         feedback_scale=layout.P_FEEDBACK_SCALE,
+        feedback_scale_code=layout.FEEDBACK_SCALE,
         out_vel=signals.OUT_VEL_EST_M_S,
         out_fe=signals.OUT_FOLLOWING_ERROR_M,
         out_iq=signals.OUT_I_Q_REF_A,
         out_fault=signals.OUT_FAULT,
         s_fault=layout.S_FAULT,
         s_enable=layout.S_ENABLE_CMD,
+        fault_none=f"{float(signals.FAULT_NONE)!r}",
+        stage_on=f"{float(layout.STAGE_ON)!r}",
+        stage_off=f"{float(layout.STAGE_OFF)!r}",
     )
     # halcompile compiles one file: the header's declarations go in front of the kernel
     header = kernel.header.replace("#include <stdint.h>", "#include <stdint.h>\n#include <errno.h>")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.gcode.config import nc_config_from_mapping
 from feed_twin.gcode.planner import plan_program
 from feed_twin.io.config import load_yaml

@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.control import signals as sig
 from feed_twin.control.layout import disable, enable
 from feed_twin.control.transforms import (
     clarke,
@@ -36,6 +35,7 @@ from feed_twin.control.transforms import (
     park,
     svpwm_phase_duties,
 )
+from feed_twin.core import signals as sig
 from feed_twin.io.config import ConfigError
 from feed_twin.nodeset.split import (
     BOUNDARY_MODES,

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from feed_twin.control import signals as sig
-from feed_twin.io.config import require_positive
+from feed_twin.core import signals as sig
+from feed_twin.core.validate import require_positive
 
 FAULT_CURRENT_LIMIT = 4  # |i_q| stayed at the current limit for longer than allowed
 FAULT_OVERSPEED = 5  # |table velocity| above the speed limit

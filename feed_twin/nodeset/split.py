@@ -38,10 +38,11 @@ from typing import Literal
 
 import numpy as np
 
-from feed_twin.control import signals as sig
 from feed_twin.control.config import ControllerConfig
 from feed_twin.control.loops import Cascade, PositionLoop, VelocityLoop, VelocitySetpoint
-from feed_twin.io.config import from_mapping, load_yaml, require_positive
+from feed_twin.core import signals as sig
+from feed_twin.core.validate import require_positive
+from feed_twin.io.config import from_mapping, load_yaml
 from feed_twin.nodeset.protection import ProtectionConfig
 from feed_twin.nodeset.topics import AxisTopics
 

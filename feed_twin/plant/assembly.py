@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.plant.codegen import Generator, acceleration_name, const_name
 from feed_twin.plant.component import STAGES, AssemblyError, Component, check_name
 

@@ -27,7 +27,7 @@ from typing import Literal
 
 from numba import njit
 
-from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
 
 

@@ -17,7 +17,7 @@ from typing import Any
 
 from numba import njit
 
-from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, OwnedEffect, SlotReader
 from feed_twin.plant.coupling import emit_two_port
 

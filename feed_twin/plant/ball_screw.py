@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 from numba import njit
 
-from feed_twin.io.config import require_positive, require_range
+from feed_twin.core.smooth import smooth_sign
+from feed_twin.core.validate import require_positive, require_range
 from feed_twin.plant.component import Component, Emitter
-from feed_twin.plant.smooth import smooth_sign
 
 P_REG = 1e-3  # power scale of the smooth direction switch [W]
 

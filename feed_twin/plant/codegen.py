@@ -171,7 +171,7 @@ class Generator(Emitter):
                 "(a component has at most one: its locals cos and sin)"
             )
         self.angles.append((expr, self.local("")))
-        self.imports["sincos"] = "from feed_twin.plant.trig import sincos, sincos_near"
+        self.imports["sincos"] = "from feed_twin.core.trig import sincos, sincos_near"
         self._add(("angle", str(len(self.angles) - 1)))
         return self.local("cos"), self.local("sin")
 
@@ -390,10 +390,10 @@ class Generator(Emitter):
             "import math",
             "import numpy as np",
             "from numba import njit",
-            "from feed_twin.control.signals import MEAS_SIZE, OUT_SIZE, REF_SIZE",
+            "from feed_twin.core.signals import MEAS_SIZE, OUT_SIZE, REF_SIZE",
         ]
         sig_names = sorted(self.signal_names | {"OUT_ENABLED"})
-        head.append(f"from feed_twin.control.signals import {', '.join(sig_names)}")
+        head.append(f"from feed_twin.core.signals import {', '.join(sig_names)}")
         head += sorted(set(self.imports.values()))
         body_all = self._preamble()
         funcs = []

@@ -216,7 +216,7 @@ class Emitter:
 
         The compiled loop evaluates the pair once per tick, at the tick's start state; each
         derivative call inside the tick rotates it by the angle's increment since
-        (`feed_twin.plant.trig.sincos_near`, a quarter of the work of a sine and a cosine).
+        (`feed_twin.core.trig.sincos_near`, a quarter of the work of a sine and a cosine).
         """
         raise NotImplementedError
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from numba import njit
 
-from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
 
 

@@ -11,7 +11,7 @@ Beyond x = 708 (the last normal double) it returns 0; NaN gives NaN.
 Why not math.exp: a libm call in the derivative function makes the compiler spill every live
 floating-point register around it, on the hot path or not, and cannot be scheduled with the
 rest of the derivative. Written out in IEEE double arithmetic whose fused multiply-adds are
-explicit (feed_twin.plant.fma, rounded once on every CPU; no fast-math), the result does not
+explicit (feed_twin.core.fma, rounded once on every CPU; no fast-math), the result does not
 depend on the CPU either, where libm picks an FMA or a non-FMA variant at run time.
 """
 
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from feed_twin.plant.fma import fma
+from feed_twin.core.fma import fma
 
 X_MAX = 708.0  # exp(-708) = 3.3e-308, the smallest normal range; beyond it the result is 0
 _INV_LN2 = 1.44269504088896338700e00

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from feed_twin.io.config import require_finite
+from feed_twin.core.validate import require_finite
 from feed_twin.plant.component import Component, Emitter, OwnedEffect
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from feed_twin.io.config import require_finite, require_nonnegative, require_positive
+from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from feed_twin.io.config import require_nonnegative, require_positive, require_range
+from feed_twin.core.validate import require_nonnegative, require_positive, require_range
 from feed_twin.plant.component import Component, Emitter, InertiaSpec
 
 

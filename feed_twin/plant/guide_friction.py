@@ -3,7 +3,7 @@
 Equation: the force into the flange is f = -F(v) with
     F(v) = [F_c(v) + dF_s * exp(-(v/v_s)^2)] * sgn(v/v_reg) + F_v(v) * v,
     F_c(v) = (F_c_pos + F_c_neg)/2 + (F_c_pos - F_c_neg)/2 * sgn(v/v_reg), likewise F_v(v),
-with sgn the smooth sign function of feed_twin.plant.smooth (a C2 quintic, exactly +/-1 for
+with sgn the smooth sign function of feed_twin.core.smooth (a C2 quintic, exactly +/-1 for
 |v| >= 15/8 v_reg) and exp(-x) written out (feed_twin.plant.expneg, no libm call in the loop),
 so positive and negative motion can have their own Coulomb and viscous values (worn screws and
 the EMPS bench are asymmetric) while F stays smooth. dF_s is the Stribeck excess of the breakaway
@@ -28,10 +28,10 @@ from dataclasses import dataclass
 
 from numba import njit
 
-from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.core.smooth import smooth_sign
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
 from feed_twin.plant.expneg import exp_neg
-from feed_twin.plant.smooth import smooth_sign
 
 # beyond x = (v/v_s)^2 > CUT_X the Stribeck term is below the last bit of F_c, provided that
 # dF_s < CUT_RATIO * F_c: exp(-41) * 16 = 2.5e-17 < 2^-54 = 5.6e-17 (module docstring)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from feed_twin.io.config import require_positive
+from feed_twin.core.validate import require_positive
 from feed_twin.plant.component import Component, InertiaSpec
 
 

@@ -4,7 +4,7 @@ Each leg x in {a, b, c} sets a pole voltage (against the negative bus rail) from
 and the sign of its phase current i_x (out of the leg, into the machine):
     u_x = d_eff,x * u_dc - u_f * sgn(i_x),   i_dc = sum_x d_eff,x * i_x,
 where u_f is the conduction drop of the conducting IGBT or diode and sgn(i) is the smooth sign
-of i / i_reg (feed_twin.plant.smooth).
+of i / i_reg (feed_twin.core.smooth).
 Averaged model (`model: averaged`): d_eff = d - t_dead * f_pwm * sgn(i): dead time removes
 t_dead of high time per period when the current leaves the leg (the lower diode holds the pole
 low until the delayed upper switch turns on) and adds it when the current enters.
@@ -26,9 +26,9 @@ from typing import Literal
 
 from numba import njit
 
-from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.core.smooth import smooth_sign
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter
-from feed_twin.plant.smooth import smooth_sign
 
 PHASES = ("a", "b", "c")
 DUTY_SLOTS = ("OUT_DUTY_A", "OUT_DUTY_B", "OUT_DUTY_C")

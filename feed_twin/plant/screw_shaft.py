@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader
 from feed_twin.plant.coupling import emit_two_port
 

@@ -1,6 +1,6 @@
 """Sensors the drive samples once per base tick: encoder, linear scale, phase-current ADC.
 
-Each writes its MEAS_* slots (feed_twin.control.signals) at a sample instant; the engine delays
+Each writes its MEAS_* slots (feed_twin.core.signals) at a sample instant; the engine delays
 the sample by `delay_ticks` whole base periods before the controller sees it.
 - Encoder on a rotational flange: theta = floor(phi / q) * q with q = 2*pi / counts_per_rev
   (an incremental count, so it truncates towards -inf like a counter does).
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from numba import njit
 
-from feed_twin.io.config import require_finite, require_nonnegative, require_positive
+from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter
 
 MAX_DELAY_TICKS = 15  # the engine keeps the last 16 samples

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, OwnedEffect, SlotReader, StateSpec
 
 DEFLECTION_LIMIT_M = 1e-2  # |z| above this is a runaway

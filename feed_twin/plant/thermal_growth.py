@@ -25,7 +25,7 @@ from typing import Literal
 
 from numba import njit
 
-from feed_twin.io.config import require_nonnegative, require_positive
+from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.axial_compliance import AxialCompliance, fixed_fixed_flag
 from feed_twin.plant.component import Component, Emitter, StateSpec
 

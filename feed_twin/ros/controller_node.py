@@ -20,8 +20,8 @@ import numpy as np
 from feed_twin_msgs.msg import AxisCommand, AxisFeedback, DriveCommand
 from std_msgs.msg import String
 
-from feed_twin.control import signals as sig
 from feed_twin.control.config import ControllerConfig, load_controller_config
+from feed_twin.core import signals as sig
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.nodeset.guard import check_values, parse_program_state

@@ -31,7 +31,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from feed_twin.control import signals as sig
+from feed_twin.core import signals as sig
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost, build_drive_host
 from feed_twin.nodeset.guard import check_values, parse_program_state

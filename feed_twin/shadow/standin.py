@@ -18,7 +18,7 @@ import numpy as np
 
 from feed_twin.analysis.synthetic import PROGRAM, Unmodelled, command, truth_model
 from feed_twin.analysis.twin import ModelDoc, Twin
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.io.bag import QosProfile
 from feed_twin.shadow.config import StandInConfig
 from feed_twin.shadow.twin import _Rows

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from feed_twin.analysis.twin import Twin
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.shadow.config import ShadowConfig
 from feed_twin.shadow.health import HealthMonitor, PhysicalEffect, Verdict
 from feed_twin.shadow.stream import SlotStream

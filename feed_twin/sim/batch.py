@@ -22,8 +22,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from feed_twin.control import signals
 from feed_twin.control.layout import STRUCTURE_SLOTS
+from feed_twin.core import signals
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.sim.engine import (
     RK4_STABILITY_MARGIN,

@@ -25,8 +25,8 @@ from types import ModuleType
 
 import numpy as np
 
-from feed_twin.control import signals
 from feed_twin.control.layout import STRUCTURE_SLOTS
+from feed_twin.core import signals
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.sim.kernel import RING, load_kernel
 

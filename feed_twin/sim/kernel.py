@@ -347,7 +347,7 @@ def kernel_source(
         ptuple=_slot_tuple("p", p_slots, len(model.param_names)),
         cptuple="cp" if cp_slots is None else _slot_tuple("cp", cp_slots, len(cp_slots)),
         xtuple=_tuple(f"x[{i}]" for i in range(n_x)),
-        # the stage sums as fused multiply-adds (feed_twin.plant.fma): one rounding, CPU-independent
+        # the stage sums as fused multiply-adds (feed_twin.core.fma): one rounding, CPU-independent
         stage_k1=_tuple(f"fma(0.5 * hs, k1[{i}], x[{i}])" for i in range(n_x)),
         stage_k2=_tuple(f"fma(0.5 * hs, k2[{i}], x[{i}])" for i in range(n_x)),
         stage_k3=_tuple(f"fma(hs, k3[{i}], x[{i}])" for i in range(n_x)),
@@ -357,7 +357,7 @@ def kernel_source(
         store_x="\n".join(f"        x[{i}] = xs[{i}]" for i in range(n_x)),
         controller=_CLOSED if closed_loop else _OPEN,
     )
-    head = "from feed_twin.control.signals import OUT_DUTY_A\nfrom feed_twin.plant.fma import fma\n"
+    head = "from feed_twin.core.signals import OUT_DUTY_A\nfrom feed_twin.core.fma import fma\n"
     if closed_loop and cp_slots is not None:
         # a tick with constants belongs inside the loop: LLVM folds them there
         head += (
@@ -382,7 +382,7 @@ def _callee_digest() -> str:
     """
     root = Path(__file__).resolve().parent.parent
     digest = hashlib.sha256()
-    paths = sorted((root / "plant").glob("*.py")) + sorted((root / "control").glob("*.py"))
+    paths = [p for pkg in ("core", "plant", "control") for p in sorted((root / pkg).glob("*.py"))]
     for path in [*paths, Path(__file__).resolve()]:
         digest.update(path.read_bytes())
     return digest.hexdigest()

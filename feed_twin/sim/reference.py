@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from feed_twin.control import signals
+from feed_twin.core import signals
 from feed_twin.sim.engine import Engine, SimResult
 from feed_twin.sim.kernel import RING
 

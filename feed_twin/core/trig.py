@@ -8,13 +8,13 @@ a 33-bit middle and a tail (Cody and Waite), so that n*head and n*middle are exa
 theta itself (|theta| * 1e-16), which no evaluation can undo. sin(r) and cos(r) are fdlibm's
 minimax polynomials (Sun Microsystems 1993) evaluated in Estrin's form with fused multiply-adds,
 and n mod 4 swaps and signs them: within two units in the last place of libm
-(tests/test_plant_trig.py). NaN and inf give NaN.
+(tests/test_core_trig.py). NaN and inf give NaN.
 
 Why not math.sin and math.cos: the machine's Park angle is evaluated six times per tick of the
 16 kHz loop (four RK4 stages, the current sensors, the controller), and libm's sincos call was a
 third of the cost of a derivative evaluation: a call makes the compiler spill every live
 floating-point register around it and cannot be scheduled with the rest. Written out here, in
-IEEE double arithmetic whose fused multiply-adds are explicit (feed_twin.plant.fma, rounded once
+IEEE double arithmetic whose fused multiply-adds are explicit (feed_twin.core.fma, rounded once
 on every CPU; no fast-math), the result does not depend on the CPU either, where libm picks an
 FMA or a non-FMA variant at run time.
 """
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from feed_twin.plant.fma import fma
+from feed_twin.core.fma import fma
 
 _TWO_OVER_PI = 0.63661977236758134308
 _PIO2_HEAD = 1.57079632673412561417e00  # first 33 bits of pi/2
@@ -104,7 +104,7 @@ def sincos_near(theta: float, theta0: float, c0: float, s0: float) -> tuple[floa
     exactly. A quarter of the operations of `sincos` and no range reduction: the compiled loop
     evaluates the Park angle of each RK4 stage this way from its value at the start of the
     tick, where the rotor has turned by at most h * omega_e (0.16 rad at 6000 rpm, 4 pole pairs,
-    62.5 us). Within four units in the last place of libm (tests/test_plant_trig.py); beyond
+    62.5 us). Within four units in the last place of libm (tests/test_core_trig.py); beyond
     |d| > NEAR, or with a NaN anywhere, it is `sincos(theta)`.
     """
     d = theta - theta0

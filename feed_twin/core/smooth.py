@@ -14,7 +14,7 @@ Cost matters: the plant evaluates it six times per derivative call (guide and be
 screw efficiency, three inverter legs), 24 times per 16 kHz tick. A clamp and five products
 replace the square root and the division of x/sqrt(1 + x^2): the engine's realtime factor rose by
 about 12 % (benchmarks/model_speed.py). The polynomial is two fused multiply-adds
-(feed_twin.plant.fma): 3 % of the tick. `smooth_sign_array`, the analysis code's element-wise
+(feed_twin.core.fma): 3 % of the tick. `smooth_sign_array`, the analysis code's element-wise
 form, is compiled from the same function, so both round alike.
 """
 
@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from feed_twin.plant.fma import fma
+from feed_twin.core.fma import fma
 
 WIDTH = 15.0 / 8.0  # |x| beyond which sgn(x) = +/-1 exactly
 _INV_WIDTH = 8.0 / 15.0
@@ -41,7 +41,7 @@ def smooth_sign(x: float, scale: float) -> float:
     return u * fma(z, fma(0.375, z, -1.25), 1.875)
 
 
-# cached: its key is this file, so an edit of smooth_sign recompiles it (an edit of plant/fma.py
+# cached: its key is this file, so an edit of smooth_sign recompiles it (an edit of core/fma.py
 # would not: clear the cache then)
 @njit(cache=True, error_model="numpy")
 def _smooth_sign_flat(x: np.ndarray, scale: float) -> np.ndarray:

@@ -6,7 +6,7 @@ import math
 import numpy as np
 from numba import njit
 
-from feed_twin.plant.trig import NEAR, sincos, sincos_anchored, sincos_near
+from feed_twin.core.trig import NEAR, sincos, sincos_anchored, sincos_near
 
 
 @njit  # no cache: numba would not notice a change of the callee

@@ -5,7 +5,7 @@ import math
 import numpy as np
 from numba import njit
 
-from feed_twin.plant.fma import fma
+from feed_twin.core.fma import fma
 
 
 @njit
