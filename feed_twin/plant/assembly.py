@@ -10,8 +10,9 @@ The assembler
 3. lays out the flat state vector (coordinates, then component states, then energy accumulators)
    and the flat parameter vector (component slots, then derived slots: node ratios and inverse
    effective inertias), each slot with a name and a named constant in the generated source;
-4. asks each component to emit its glue stage by stage into a `codegen.Generator`, which
-   writes the module source (see feed_twin.plant.codegen). The engine (feed_twin.sim.kernel)
+4. asks each component to emit its glue stage by stage into a `codegen.Generator`, which reads
+   the structure through `PlantModel.view()` (a frozen `plant.view.AssemblyView`) and writes
+   the module source (see feed_twin.plant.codegen). The engine (feed_twin.sim.kernel)
    adds the loop and compiles the whole module once per structure.
 """
 
@@ -28,6 +29,7 @@ import numpy as np
 from feed_twin.control import signals
 from feed_twin.plant.codegen import Generator, acceleration_name, const_name
 from feed_twin.plant.component import STAGES, AssemblyError, Component, check_name
+from feed_twin.plant.view import AssemblyView, Coordinate
 
 POSITION_LIMIT = 1.0e4  # |q| [m or rad] counted as a runaway
 VELOCITY_LIMIT = 1.0e5  # |dq/dt| [m/s or rad/s] counted as a runaway
@@ -38,19 +40,6 @@ class Node:
     index: int
     kind: str
     ports: tuple[str, ...]  # "component.port"
-
-
-@dataclass(frozen=True, kw_only=True)
-class Coordinate:
-    """A generalized coordinate: mechanical nodes moving rigidly together."""
-
-    index: int
-    name: str  # the body that names it, e.g. "motor" -> states motor.phi, motor.omega
-    kind: str  # kind of the reference node: rotational or translational
-    nodes: tuple[int, ...]
-    ratios: dict[int, str]  # node index -> Python expression of r_n in p[...] slots
-    position_state: str
-    velocity_state: str
 
 
 class PlantModel:
@@ -85,8 +74,6 @@ class PlantModel:
         self._build_coordinates()
         self._build_layouts()
         self._generate()
-
-    # ------------------------------------------------------------------ graph
 
     def _port_kind(self, ref: str, where: str) -> str:
         comp_name, _, port = ref.partition(".")
@@ -230,8 +217,6 @@ class PlantModel:
             for n in order:
                 self.coordinate_of[n] = coord.index
 
-    # ------------------------------------------------------------------ layouts
-
     def _build_layouts(self) -> None:
         states: list[tuple[str, str, float]] = []
         for c in self.coordinates:
@@ -242,6 +227,7 @@ class PlantModel:
             for spec in comp.states():
                 states.append((f"{name}.{spec.name}", spec.unit, spec.limit))
         self._core_states = states
+        self.core_state_names: tuple[str, ...] = tuple(s for s, _, _ in states)
         params: list[tuple[str, float]] = []
         for name, comp in self.components.items():
             for slot, value in comp.slots().items():
@@ -259,18 +245,28 @@ class PlantModel:
             name for name, comp in self.components.items() if getattr(comp, "HAS_INPUT", False)
         )
 
-    # ------------------------------------------------------------------ code generation
+    def view(self) -> AssemblyView:
+        """The graph and layouts as the code generator reads them."""
+        return AssemblyView(
+            source=self.source,
+            track_energy=self.track_energy,
+            component_names=tuple(self.components),
+            node_of=dict(self.node_of),
+            coordinates=tuple(self.coordinates),
+            inertia_nodes={n: tuple(specs) for n, specs in self.inertia_nodes.items()},
+            core_state_names=self.core_state_names,
+            param_names=self.param_names,
+            ext_names=self.ext_names,
+        )
 
     def _generate(self) -> None:
-        gen = Generator(self)
+        gen = Generator(self.view())
         for stage in STAGES:
             gen.stage = stage
             for name, comp in self.components.items():
                 gen.current = name
                 comp.emit(stage, gen)
-        self.state_names: tuple[str, ...] = tuple(s for s, _, _ in self._core_states) + tuple(
-            gen.energy_states
-        )
+        self.state_names: tuple[str, ...] = self.core_state_names + tuple(gen.energy_states)
         self.state_units: tuple[str, ...] = tuple(u for _, u, _ in self._core_states) + (
             ("J",) * len(gen.energy_states)
         )
@@ -291,8 +287,6 @@ class PlantModel:
         )
         self.source_code = gen.module_source()
         self.structure_digest = hashlib.sha256(self.source_code.encode()).hexdigest()[:16]
-
-    # ------------------------------------------------------------------ vectors
 
     def nominal_params(self) -> np.ndarray:
         """The parameter vector of the components as configured (derived slots filled)."""
@@ -372,8 +366,6 @@ class PlantModel:
 
     def _ratio_value(self, node: int, p: np.ndarray) -> float:
         return float(p[self.param_index[f"derived.ratio_n{node}"]])
-
-    # ------------------------------------------------------------------ compiled functions
 
     def namespace(self) -> dict:
         """The plant functions executed as plain Python (un-jitted numba callees inside)."""

@@ -1,7 +1,8 @@
 """Generation of a plant's glue code from what its components emit.
 
 `Generator` is the Emitter the assembler (feed_twin.plant.assembly) hands to every component,
-stage by stage. From the collected lines it writes one Python module: the slot constants, three
+stage by stage; it reads the assembled structure through an `AssemblyView` (feed_twin.plant.view)
+only. From the collected lines it writes one Python module: the slot constants, three
 functions from the same lines, `rhs` (derivatives; also as `rhs_tuple`, derivatives returned),
 `outputs` (auxiliary signals, powers, stored energies) and `sense` (sensor samples, reading the
 tick's standard normal samples, the tuple `noise` that `draw_noise(p, seed, k)` drew or
@@ -18,12 +19,9 @@ stages' derivatives, `rhs_tuple_start` (the tick's first stage, at that state) d
 from __future__ import annotations
 
 import re
-from typing import TYPE_CHECKING
 
 from feed_twin.plant.component import STAGES, AssemblyError, Emitter
-
-if TYPE_CHECKING:
-    from feed_twin.plant.assembly import Coordinate, PlantModel
+from feed_twin.plant.view import AssemblyView, Coordinate
 
 NOISE_CHANNELS_PER_COMPONENT = 8
 SENSE_STAGES = ("currents", "dc_current", "dc_voltage", "sense")
@@ -42,8 +40,9 @@ def const_name(prefix: str, name: str) -> str:
 class Generator(Emitter):
     """Collects the lines of the generated functions while components emit."""
 
-    def __init__(self, model: PlantModel) -> None:
-        self.m = model
+    def __init__(self, view: AssemblyView) -> None:
+        self.m = view
+        self._param_slots = frozenset(view.param_names)
         self.current: str | None = None
         # (kind, code, stage); kind: all, dx, aux, meas
         self.lines: list[tuple[str, str, str]] = []
@@ -58,20 +57,18 @@ class Generator(Emitter):
         self.node_scale: dict[int, str] = {}
         self.noise_channels: dict[int, str] = {}  # channel key -> scale that switches it on
         self.angles: list[tuple[str, str]] = []  # (expression, local prefix) of each angle
-        self.comp_index = {n: i for i, n in enumerate(model.components)}
-        self.n_core = len(model._core_states)
+        self.comp_index = {n: i for i, n in enumerate(view.component_names)}
 
     def _add(self, item: tuple[str, str]) -> None:
         self.lines.append((item[0], item[1], self.stage))
 
-    # -------------------------------------------------- Emitter
     def _name(self) -> str:
         assert self.current is not None
         return self.current
 
     def p(self, slot: str) -> str:
         full = f"{self._name()}.{slot}"
-        if full not in self.m.param_index:
+        if full not in self._param_slots:
             raise KeyError(f"{full}: no such parameter slot")
         return f"p[{const_name('P_', full)}]"
 
@@ -236,7 +233,7 @@ class Generator(Emitter):
         The compiled loop keeps the state and the RK4 stages in registers with it: numba's arrays
         may alias, so with dx and stage vectors in memory LLVM reloaded them around every store.
         """
-        slots = [const_name("X_", s) for s, _, _ in self.m._core_states] + [
+        slots = [const_name("X_", s) for s in self.m.core_state_names] + [
             const_name("X_", s) for s in self.energy_states
         ]
         lines, assigned = [], set()
@@ -289,11 +286,10 @@ class Generator(Emitter):
             f"    return {'(' + ''.join(f'{d}, ' for d in pick).rstrip() + ')'}",
         ]
 
-    # -------------------------------------------------- output
     def _constants(self) -> list[str]:
         m = self.m
         out = ["# state slots"]
-        names = [s for s, _, _ in m._core_states] + self.energy_states
+        names = [*m.core_state_names, *self.energy_states]
         out += [f"{const_name('X_', n)} = {i}" for i, n in enumerate(names)]
         out.append(f"N_X = {len(names)}")
         out.append("# parameter slots")
@@ -371,7 +367,7 @@ class Generator(Emitter):
                 body.append(f"    p[{const_name('P_', f'derived.ratio_n{n}')}] = {expr}")
             terms = []
             for n in c.nodes:
-                for comp, slot, factor in m.inertia_nodes.get(n, []):
+                for comp, slot, factor in m.inertia_nodes.get(n, ()):
                     r = f"p[{const_name('P_', f'derived.ratio_n{n}')}]"
                     terms.append(f"{factor!r} * p[{const_name('P_', f'{comp}.{slot}')}] * {r} ** 2")
             body.append(
