@@ -285,6 +285,7 @@ class PlantModel:
         self.switching_inverter = next(
             (n for n, c in self.components.items() if getattr(c, "switching", False)), None
         )
+        self.signal_names: frozenset[str] = frozenset(gen.signal_names)  # MEAS_*/OUT_* it imports
         self.source_code = gen.module_source()
         self.structure_digest = hashlib.sha256(self.source_code.encode()).hexdigest()[:16]
 

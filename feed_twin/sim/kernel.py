@@ -28,13 +28,14 @@ import hashlib
 import importlib.util
 import math
 import os
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
 from feed_twin.plant.assembly import PlantModel
-from feed_twin.plant.codegen import const_name
+from feed_twin.plant.codegen import SIGNALS, const_name
 
 RING = 16  # sensor samples kept: delays up to RING - 1 ticks
 
@@ -357,17 +358,24 @@ def kernel_source(
         store_x="\n".join(f"        x[{i}] = xs[{i}]" for i in range(n_x)),
         controller=_CLOSED if closed_loop else _OPEN,
     )
-    head = "from feed_twin.control.signals import OUT_DUTY_A\nfrom feed_twin.plant.fma import fma\n"
+    signals = {"MEAS_SIZE", "OUT_SIZE"} | ({"OUT_DUTY_A", "OUT_ENABLED"} if switching else set())
+    imports = [f"from {SIGNALS} import {', '.join(sorted(signals - model.signal_names))}"]
+    imports.append("from feed_twin.plant.fma import fma")
+    if re.search(r"\bmath\.", loop):
+        imports.append("import math")
+    defs = ""
     if closed_loop and cp_slots is not None:
         # a tick with constants belongs inside the loop: LLVM folds them there
-        head += (
-            "from feed_twin.control.cascade import cascade_tick as _cascade_tick\n"
+        imports.append("from feed_twin.control.cascade import cascade_tick as _cascade_tick")
+        defs = (
             "cascade_tick = njit(forceinline=True, _nrt=False, error_model='numpy')"
             "(_cascade_tick.py_func)\n"
         )
     elif closed_loop:
-        head += "from feed_twin.control.cascade import cascade_tick\n"
-    return model.source_code + head + loop
+        imports.append("from feed_twin.control.cascade import cascade_tick")
+    # the loop's imports join the plant module's block, which ends at its first blank line
+    plant_imports, plant_body = model.source_code.split("\n\n", 1)
+    return "\n".join([plant_imports, *imports]) + "\n\n" + defs + plant_body + loop
 
 
 _LOADED: dict[str, ModuleType] = {}
