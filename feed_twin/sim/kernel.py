@@ -17,9 +17,8 @@ and returns the module. Per base tick k (period h) the loop
      = h) with dead-time intervals in which both switches of a leg are off;
   5. stops with a status (tick, state index) if a state is NaN, infinite or beyond its limit.
 `advance` releases the GIL, so the engine's batch mode runs parameter sets on several threads,
-calling `advance_sets` once per block of sets it takes (a numba prange over sets measured 2-3x
-slower per set than the plain call, even on one thread); sets are independent, so a diverged set
-only flags its own status.
+calling `advance_sets` once per block of sets it takes (cheaper per set than a numba prange:
+docs/performance.md); sets are independent, so a diverged set only flags its own status.
 """
 
 from __future__ import annotations
@@ -121,8 +120,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
     for j in range(n):
         k = k0 + j
         t = k * h
-        # a tuple: drawn into the scratch vector 32 ticks ahead, a tick of axis_default took 7 ns
-        # longer (stores that may alias every array the loop reads)
+        # a tuple, not the scratch vector: the loop stores nothing that may alias what it reads
         if drawn:
             noise = pick_noise(pt, normals[k])
         else:
@@ -175,8 +173,8 @@ def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, tables,
     Set b takes its standard normal samples from `tables[table_of[b]]` (n rows), or draws them
     itself where table_of[b] < 0.
 
-    One call per thread: a Python-level call per set cost about 0.1 ms of dispatch, as much as
-    simulating 0.3 ms of a set.
+    One call per thread, not per set: Python's dispatch of a call costs as much as simulating a
+    fraction of a millisecond of a set.
     """
     for b in range(first, X.shape[0], stride):
         if status[b, 0] == 0.0:
@@ -322,16 +320,16 @@ def kernel_source(
 ) -> str:
     """The full module text: plant functions, loop and batch loop, for `substeps` RK4 steps per
     tick (a constant: with one, the usual case, the kernel holds no sub-step loop, whose inlined
-    copy of the step cost a third of the compile time).
+    copy of the step would lengthen the compile).
 
     `p_slots`, `cp_slots`: one entry per slot of the plant's and the controller's parameter
     vector, a value to compile into the loop as an exact literal or None for a slot the loop
     reads from `p` or `cp` (at each call of `advance`). LLVM folds what the literals decide.
     - The engine's default kernel fixes the controller's structure (feed_twin.control.layout
       STRUCTURE_SLOTS: mode, loops, rates, ...), so one kernel serves every parameter set of a
-      plant and cascade structure: 2-4 % per tick on axis_default against reading every slot.
-    - With engine.inline_parameters every slot is fixed: about 10 % per tick
-      (docs/architecture.md, "Engine performance"), one kernel per parameter set.
+      plant and cascade structure.
+    - With engine.inline_parameters every slot is fixed: faster per tick, one kernel per
+      parameter set (docs/performance.md).
     With `cp_slots` the controller's tick is inlined into the loop; without (None) the loop
     passes `cp` to the tick compiled on its own.
     """
