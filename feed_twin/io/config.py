@@ -14,11 +14,14 @@ import math
 import types
 import typing
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import yaml
 
-T = TypeVar("T")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T", bound="DataclassInstance")
 # Largest config file read [bytes]: configs are a few kB, and a runaway file (a 100 MB list took
 # minutes and 2.4 GB to parse) is refused before YAML sees it.
 MAX_CONFIG_BYTES = 4_000_000
@@ -173,7 +176,7 @@ def _convert(hint: Any, value: Any, *, source: str, path: str) -> Any:
             _convert(a, v, source=source, path=_join(path, i))
             for i, (a, v) in enumerate(zip(args, value, strict=True))
         )
-    if dataclasses.is_dataclass(hint):
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
         return from_mapping(hint, value, source=source, path=path)
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):

@@ -53,7 +53,7 @@ class PlantModel:
     def __init__(
         self,
         components: Sequence[tuple[str, Component]],
-        connections: Sequence[tuple[str, str]],
+        connections: Sequence[Sequence[str]],
         *,
         source: str = "<plant>",
         track_energy: bool = False,
@@ -69,7 +69,8 @@ class PlantModel:
             if name in self.components:
                 raise AssemblyError(f"{source}: plant.{name}: duplicate component name")
             self.components[name] = comp
-        self.connections = tuple(tuple(c) for c in connections)
+        # pairs as configured; a pair of another length is reported by _build_nodes
+        self.connections: tuple[tuple[str, ...], ...] = tuple(tuple(c) for c in connections)
         self._build_nodes()
         self._build_coordinates()
         self._build_layouts()
@@ -130,8 +131,8 @@ class PlantModel:
         for node in self.nodes:
             if node.kind in ("dc", "ac3") and len(node.ports) < 2:
                 raise AssemblyError(
-                    f"{self.source}: plant.connect: the {node.kind} port {node.ports[0]} is not "
-                    "connected to anything"
+                    f"{self.source}: plant.connect: the {node.kind} port "
+                    f"{', '.join(node.ports)} is not connected to anything"
                 )
 
     def _build_coordinates(self) -> None:
@@ -144,7 +145,7 @@ class PlantModel:
         edges: dict[int, list[tuple[int, str, bool, str]]] = {}
         self.lossy_nodes: set[int] = set()
         for name, comp in self.components.items():
-            spec = getattr(comp, "TRANSFORMER", None)
+            spec = comp.TRANSFORMER
             if spec is None:
                 continue
             rot, trans, slot = spec
@@ -152,12 +153,13 @@ class PlantModel:
             expr = f"p[{const_name('P_', f'{name}.{slot}')}]"
             edges.setdefault(a, []).append((b, expr, True, name))
             edges.setdefault(b, []).append((a, expr, False, name))
-            if getattr(comp, "lossy", False):
+            if comp.lossy:
                 if b in inertia_nodes:
                     raise AssemblyError(
-                        f"{self.source}: plant.{name}.efficiency = {comp.efficiency!r}: a lossy "
-                        f"screw needs a massless translational flange, but {name}.{trans} "
-                        "carries a mass; put an AxialCompliance between the screw and the nut"
+                        f"{self.source}: plant.{name}.efficiency = "
+                        f"{comp.slots()['efficiency']!r}: a lossy screw needs a massless "
+                        f"translational flange, but {name}.{trans} carries a mass; put an "
+                        "AxialCompliance between the screw and the nut"
                     )
                 self.lossy_nodes.add(b)
         mech = [n for n in self.nodes if n.kind in ("rotational", "translational")]
@@ -242,7 +244,7 @@ class PlantModel:
         self.param_names: tuple[str, ...] = tuple(n for n, _ in params) + tuple(derived)
         self.param_index = {n: i for i, n in enumerate(self.param_names)}
         self.ext_names: tuple[str, ...] = tuple(
-            name for name, comp in self.components.items() if getattr(comp, "HAS_INPUT", False)
+            name for name, comp in self.components.items() if comp.HAS_INPUT
         )
 
     def view(self) -> AssemblyView:
@@ -282,9 +284,7 @@ class PlantModel:
         )
         self.stored_names: tuple[str, ...] = tuple(gen.stored_names) + tuple(kinetic)
         self.meas_delay_slots = dict(gen.meas_delays)
-        self.switching_inverter = next(
-            (n for n, c in self.components.items() if getattr(c, "switching", False)), None
-        )
+        self.switching_inverter = next((n for n, c in self.components.items() if c.switching), None)
         self.signal_names: frozenset[str] = frozenset(gen.signal_names)  # MEAS_*/OUT_* it imports
         self.source_code = gen.module_source()
         self.structure_digest = hashlib.sha256(self.source_code.encode()).hexdigest()[:16]
@@ -338,7 +338,7 @@ class PlantModel:
             ports = [
                 pt for pt in comp.ports() if comp.ports()[pt] in ("rotational", "translational")
             ]
-            if len(ports) != 2 or getattr(comp, "TRANSFORMER", None):
+            if len(ports) != 2 or comp.TRANSFORMER:
                 continue
             na, nb = (self.node_of[f"{name}.{pt}"] for pt in ports)
             ca, cb = self.coordinate_of[na], self.coordinate_of[nb]
@@ -432,7 +432,7 @@ class PlantModel:
 
 def assemble(
     components: Sequence[tuple[str, Component]],
-    connections: Sequence[tuple[str, str]],
+    connections: Sequence[Sequence[str]],
     *,
     source: str = "<plant>",
     track_energy: bool = False,
