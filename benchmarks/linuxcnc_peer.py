@@ -38,7 +38,6 @@ from feed_twin.gcode.peer import (
     Side,
     acceptance_mismatch,
     measure_side,
-    servo_trajectory,
     side_summary,
     time_ratio,
 )
@@ -103,7 +102,7 @@ def linuxcnc(
         return f"{result.trace.samples_lost + result.overruns} servo periods lost from the record"
     # From the program's first motion to its last (before it: HAL start-up and homing).
     trace = result.trace.cut(result.trace.program_span())
-    return servo_trajectory(trace, nc.axis_names)
+    return trace.commanded_trajectory(nc.axis_names)
 
 
 def run_one(program: Path, nc: NcConfig, servo: HalServo, machine: Path) -> dict:

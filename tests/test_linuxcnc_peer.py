@@ -19,7 +19,7 @@ import pytest
 from feed_twin.gcode import SampledTrajectory, plan_program
 from feed_twin.gcode.geometry import programmed_path
 from feed_twin.gcode.metrics import CORNER_RESOLUTION
-from feed_twin.gcode.peer import TIME_TOLERANCE, measure_side, servo_trajectory, time_ratio
+from feed_twin.gcode.peer import TIME_TOLERANCE, measure_side, time_ratio
 from feed_twin.linuxcnc.machine import machine_for_config
 from feed_twin.linuxcnc.runner import run_program
 
@@ -32,7 +32,7 @@ def linuxcnc_trajectory(program: Path) -> SampledTrajectory:
     result = run_program(program, nc=NC, servo=SERVO, say=lambda text: None)
     assert result.trace.samples_lost == 0 and result.overruns == 0
     trace = result.trace.cut(result.trace.program_span())
-    return servo_trajectory(trace, NC.axis_names)
+    return trace.commanded_trajectory(NC.axis_names)
 
 
 @pytest.mark.parametrize("name", ["star.ngc", "arcs_g19.ngc"])

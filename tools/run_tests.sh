@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# The test command behind `make test` and `make test-fast`: ruff check, ruff format --check and
-# pytest, all three run even when an earlier one fails (so pytest's summary line is always
-# printed); the exit status is non-zero when any failed. Arguments go to pytest.
+# The test command behind `make test` and `make test-fast`: ruff check, ruff format --check,
+# pyright (basic mode, feed_twin/; [tool.pyright] in pyproject.toml) and pytest, all four run
+# even when an earlier one fails (so pytest's summary line is always printed); the exit status
+# is non-zero when any failed. Arguments go to pytest.
 # pytest's exit status 5 (no tests collected) counts as success.
 
 set -o nounset
@@ -17,6 +18,9 @@ echo "== ruff check"
 "$bin/ruff" check . || failed+=("ruff check")
 echo "== ruff format --check"
 "$bin/ruff" format --check . || failed+=("ruff format")
+echo "== pyright"
+# the pinned wheel's own pyright and Node.js: no look-up of a newer version on the network
+PYRIGHT_PYTHON_IGNORE_WARNINGS=1 "$bin/pyright" || failed+=("pyright")
 echo "== pytest $*"
 "$bin/pytest" "$@"
 status=$?

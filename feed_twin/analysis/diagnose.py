@@ -125,13 +125,7 @@ def diagnose(
     clock = time.perf_counter()
     timings: dict[str, float] = {}
     notes = list(run.warnings)
-    drive = drive_from_run(run)
-    progress(f"compiling the nominal model {nominal.source}")
-    twin = Twin.compile(nominal)
-    progress("simulating the nominal twin on the measured command")
-    out0 = twin.simulate(drive, twin.nominal[None, :])
-    if not out0.ok[0]:
-        raise RuntimeError(f"the nominal model {nominal.source} diverged on {run.source}")
+    drive, twin, out0 = _simulate_nominal(run, nominal, progress)
     timings["nominal_s"] = time.perf_counter() - clock
     check_effort_sign(run, out0)
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
@@ -139,16 +133,7 @@ def diagnose(
     stride = max(1, len(run.t_s) // opts.fit_samples)
     floors = noise_floors(run, out0)
     meas = weighted_channels(run, out0, stride, floors)
-    effort_name = run.effort_name
-    motion = motion_from_position(
-        run.t_s,
-        run["pos_meas_m"],
-        effort_sim=None if out0.effort is None or effort_name is None else out0.effort[0],
-        lead_m=twin.lead_m,
-        pole_pairs=twin.pole_pairs,
-        travel_m=max(float(np.ptp(run["pos_meas_m"])), 1e-6),
-        current_q_A=run.signals.get("current_q_A"),
-    )
+    motion = _motion(run, twin, out0)
     re0, rp0 = residuals(run, out0)
     location = locate(
         run.t_s,
@@ -173,57 +158,12 @@ def diagnose(
         progress=progress,
         notes=notes,
     )
-    excluded: list[str] = []
-    ranking: list[Candidate] = []
-    unfitted: list[dict] = []
-    for round_no in range(1, opts.max_effects + 1):
-        ranking, more = run_round(round_no, state, context, excluded, unfitted)
-        if not more:
-            break
-    if state.found:
-        progress("re-fitting the found effects together with the nominal parameters")
-        meas = weighted_channels(run, state.outputs, stride, context.floors)
-        state.cost = cost_of(meas, state.outputs)
-        note = final_joint(state, drive, meas, opts)
-        if note is not None:
-            notes.append(note)
-        drop_collapsed(state, context, "after the joint re-fit")
-        state.found = [
-            dataclasses.replace(
-                f,
-                effect=dataclasses.replace(
-                    f.effect,
-                    parameters={k: float(g(Values(state.doc))) for k, g in f.report.items()},
-                ),
-            )
-            for f in state.found
-        ]
+    ranking, unfitted = _identify(state, context)
     timings["identify_s"] = time.perf_counter() - clock
     after = _metrics(run, state.outputs)
-    if state.found:
-        names = ", ".join(f.name for f in state.found)
-        verdict = f"the nominal model misses {names}; with them the gap shrinks as shown"
-    elif unfitted:
-        names = ", ".join(u["name"] for u in unfitted)
-        verdict = f"the residual carries the signature of {names}, which could not be fitted"
-    else:
-        verdict = "no significant missing effect: " + _left_over(run, state.outputs, floors)
-    validation = None
-    validation_traces = None
+    validation, validation_traces = None, None
     if validate is not None:
-        progress(f"validating on {validate.source}")
-        vdrive = drive_from_run(validate)
-        v0 = twin.simulate(vdrive, twin.nominal[None, :])
-        v1 = state.twin.simulate(vdrive, state.twin.nominal[None, :])
-        validation = {
-            "measured": validate.source,
-            "before": _metrics(validate, v0).as_dict(),
-            "after": _metrics(validate, v1).as_dict(),
-        }
-        validation_traces = (
-            _trace("nominal", validate, vdrive, v0),
-            _trace("augmented", validate, vdrive, v1),
-        )
+        validation, validation_traces = _validate(validate, twin, state.twin, progress)
         notes.extend(validate.warnings)
     timings["total_s"] = time.perf_counter() - clock
     diagnosis = Diagnosis(
@@ -236,17 +176,9 @@ def diagnose(
         before_trace=_trace("nominal", run, drive, out0),
         after_trace=_trace("augmented", run, drive, state.outputs),
         effects=tuple(f.effect for f in state.found),
-        verdict=verdict,
+        verdict=_verdict(run, state, unfitted, floors),
         location=location,
-        ranking=tuple(
-            {
-                "name": c.name,
-                "explained_fraction": c.explained_fraction,
-                "p_value": c.p_value,
-                "significant": c.significant,
-            }
-            for c in ranking
-        ),
+        ranking=tuple(_ranking_row(c) for c in ranking),
         validation=validation,
         validation_traces=validation_traces,
         named_not_fitted=tuple(unfitted),
@@ -254,6 +186,103 @@ def diagnose(
         timings_s=timings,
     )
     return diagnosis, state.doc, motion
+
+
+def _simulate_nominal(
+    run: MeasuredRun, nominal: ModelDoc, progress: Progress
+) -> tuple[Drive, Twin, SimOutputs]:
+    """The measured command as the twin's drive, the compiled nominal twin and its response."""
+    drive = drive_from_run(run)
+    progress(f"compiling the nominal model {nominal.source}")
+    twin = Twin.compile(nominal)
+    progress("simulating the nominal twin on the measured command")
+    out0 = twin.simulate(drive, twin.nominal[None, :])
+    if not out0.ok[0]:
+        raise RuntimeError(f"the nominal model {nominal.source} diverged on {run.source}")
+    return drive, twin, out0
+
+
+def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs) -> Motion:
+    """The measured motion the effects' signatures are built from."""
+    effort_name = run.effort_name
+    return motion_from_position(
+        run.t_s,
+        run["pos_meas_m"],
+        effort_sim=None if out0.effort is None or effort_name is None else out0.effort[0],
+        lead_m=twin.lead_m,
+        pole_pairs=twin.pole_pairs,
+        travel_m=max(float(np.ptp(run["pos_meas_m"])), 1e-6),
+        current_q_A=run.signals.get("current_q_A"),
+    )
+
+
+def _identify(state: State, context: Context) -> tuple[list[Candidate], list[dict]]:
+    """The rounds of ranking, fitting and testing, then the joint re-fit of what they found;
+    `state` ends with the augmented model. Returns the last ranking and the named effects that
+    could not be fitted."""
+    opts = context.opts
+    excluded: list[str] = []
+    ranking: list[Candidate] = []
+    unfitted: list[dict] = []
+    for round_no in range(1, opts.max_effects + 1):
+        ranking, more = run_round(round_no, state, context, excluded, unfitted)
+        if not more:
+            break
+    if state.found:
+        context.progress("re-fitting the found effects together with the nominal parameters")
+        meas = weighted_channels(context.run, state.outputs, context.stride, context.floors)
+        state.cost = cost_of(meas, state.outputs)
+        note = final_joint(state, context.drive, meas, opts)
+        if note is not None:
+            context.notes.append(note)
+        drop_collapsed(state, context, "after the joint re-fit")
+        state.found = [
+            dataclasses.replace(
+                f,
+                effect=dataclasses.replace(
+                    f.effect,
+                    parameters={k: float(g(Values(state.doc))) for k, g in f.report.items()},
+                ),
+            )
+            for f in state.found
+        ]
+    return ranking, unfitted
+
+
+def _verdict(run: MeasuredRun, state: State, unfitted: list[dict], floors: dict[str, float]) -> str:
+    if state.found:
+        names = ", ".join(f.name for f in state.found)
+        return f"the nominal model misses {names}; with them the gap shrinks as shown"
+    if unfitted:
+        names = ", ".join(u["name"] for u in unfitted)
+        return f"the residual carries the signature of {names}, which could not be fitted"
+    return "no significant missing effect: " + _left_over(run, state.outputs, floors)
+
+
+def _validate(
+    validate: MeasuredRun, nominal: Twin, augmented: Twin, progress: Progress
+) -> tuple[dict[str, object], tuple[Trace, Trace]]:
+    """Metrics and traces of the nominal and the augmented twin on a second run."""
+    progress(f"validating on {validate.source}")
+    vdrive = drive_from_run(validate)
+    v0 = nominal.simulate(vdrive, nominal.nominal[None, :])
+    v1 = augmented.simulate(vdrive, augmented.nominal[None, :])
+    validation: dict[str, object] = {
+        "measured": validate.source,
+        "before": _metrics(validate, v0).as_dict(),
+        "after": _metrics(validate, v1).as_dict(),
+    }
+    traces = (_trace("nominal", validate, vdrive, v0), _trace("augmented", validate, vdrive, v1))
+    return validation, traces
+
+
+def _ranking_row(c: Candidate) -> dict[str, object]:
+    return {
+        "name": c.name,
+        "explained_fraction": c.explained_fraction,
+        "p_value": c.p_value,
+        "significant": c.significant,
+    }
 
 
 def _left_over(run: MeasuredRun, out: SimOutputs, floors: dict[str, float]) -> str:

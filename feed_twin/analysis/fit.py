@@ -196,7 +196,7 @@ def fit(
         sol = least_squares(
             fun,
             z0,
-            jac=jac,
+            jac=jac,  # pyright: ignore[reportArgumentType]  scipy's hint omits the callable form
             bounds=(lower, upper),
             method="trf",
             x_scale="jac",

@@ -235,7 +235,7 @@ def _noise_level(r: np.ndarray, entries: list, nuisance: np.ndarray | None):
 def _lowpass(r: np.ndarray, motion: Motion) -> np.ndarray:
     h = float((motion.t_s[-1] - motion.t_s[0]) / (len(motion.t_s) - 1))
     window = max(5, int(round(0.02 / h)) | 1)
-    return sps.savgol_filter(r, window, 1)
+    return np.asarray(sps.savgol_filter(r, window, 1))
 
 
 def evidence(candidate: Candidate, unit: str) -> str:

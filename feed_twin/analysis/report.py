@@ -227,7 +227,7 @@ def plot_traces(before: Trace, after: Trace, path: Path, title: str) -> None:
             ax.plot(t, after.effort_meas - after.effort_sim, lw=0.6, label="augmented")
         ax.set_ylabel(f"residual {label}")
         ax.legend(loc="upper right", fontsize=8)
-    if has_u:
+    if before.u_q_meas_V is not None and before.u_q_sim_V is not None:  # has_u
         ax = axes[-1]
         ax.plot(t, before.u_q_meas_V - before.u_q_sim_V, lw=0.6, label="nominal")
         if after.u_q_meas_V is not None and after.u_q_sim_V is not None:

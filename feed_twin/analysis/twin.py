@@ -5,9 +5,9 @@ and feed_twin.control.cascade) held as data, with the edits the effect library n
 parameter, tie two slots to one fitted value, add a component, write the augmented file. Edits
 return new documents; the nominal file is never touched.
 
-`Twin` compiles a document once (H3's assembler and engine, H4's cascade) and simulates N
-parameter sets at once with `run_batch`, driven by a measured run's command and known
-disturbances. What it returns is what the measurement system of the real axis reports: the
+`Twin` compiles a document once (the plant's assembler and engine, the controller's cascade)
+and simulates N parameter sets at once with `run_batch`, driven by a measured run's command and
+known disturbances. What it returns is what the measurement system of the real axis reports: the
 position as the controller's feedback sensor sees it, the drive effort in the measured
 effort's SI unit and, for a PMSM axis, the q-axis voltage the current controller commands
 (`out.u_q_ref_V`, before the dead-time compensation: what a drive scope records as u_q).

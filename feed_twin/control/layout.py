@@ -25,7 +25,6 @@ from feed_twin.control.config import (
     MODE_CODES,
     TWO_PI,
     ControllerConfig,
-    Mode,
 )
 from feed_twin.core import signals as sig
 
@@ -360,7 +359,7 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
     )
 
 
-def with_mode(cascade: CompiledCascade, mode: Mode) -> CompiledCascade:
+def with_mode(cascade: CompiledCascade, mode: str) -> CompiledCascade:
     """The same controller at another CiA 402 boundary (validated like a loaded config)."""
     return build_cascade(dataclasses.replace(cascade.config, mode=mode))
 

@@ -6,8 +6,7 @@ way the result is the exactly rounded a*b + c, so it does not depend on the CPU;
 fast-math's `contract` could not promise, where the compiler fuses or not as the target allows.
 
 The RK4 stage updates and the polynomials of the hot loop (sincos, exp_neg, smooth_sign) use it:
-one operation instead of two, 310 -> 287 ns per tick of axis_default (docs/architecture.md,
-"Engine performance").
+one operation instead of two (docs/performance.md).
 
 Called from Python (the reference integration runs the laws' un-jitted `py_func`) it is the
 plain a*b + c, rounded twice: the two paths then differ in the last bit of such a step, far
@@ -41,6 +40,6 @@ def _fma_compiled(a, b, c):
         return None
 
     def impl(a, b, c):
-        return _llvm_fma(float(a), float(b), float(c))
+        return _llvm_fma(float(a), float(b), float(c))  # pyright: ignore[reportCallIssue]  (numba passes typingctx)
 
     return impl

@@ -11,14 +11,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from feed_twin.gcode.geometry import PathSegment
 from feed_twin.gcode.metrics import TrajectoryFigures, requirement_failures, trajectory_figures
 from feed_twin.gcode.trajectory import SampledTrajectory
-
-if TYPE_CHECKING:
-    from feed_twin.linuxcnc.samples import ServoTrace
 
 TIME_TOLERANCE = 0.05  # program times within 5 % of the reference's where the limits are the same
 
@@ -94,20 +90,3 @@ def side_summary(side: Side) -> dict:
         "failures": len(side.failures),
         "first_failure": side.failures[0] if side.failures else None,
     }
-
-
-def servo_trajectory(trace: ServoTrace, axes: tuple[str, ...]) -> SampledTrajectory:
-    """LinuxCNC's commanded joint motion of a servo recording as setpoints to measure.
-
-    `trace` is a `feed_twin.linuxcnc.samples.ServoTrace` (joints X, Y, Z = `axes`, SI units);
-    its program line is motion's, which `metrics` uses to find each sample's segment.
-    """
-    return SampledTrajectory(
-        t_s=trace.t_s,
-        axes=axes,
-        pos_m=trace.pos_cmd_m,
-        vel_m_s=trace.vel_cmd_m_s,
-        acc_m_s2=trace.acc_cmd_m_s2,
-        line=trace.program_line,
-        events=(),
-    )

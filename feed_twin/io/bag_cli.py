@@ -37,14 +37,15 @@ def simulated_span(bag: BagInfo) -> tuple[str, float] | None:
     if not names:
         return None
     topic = names[0].name
-    first = last = None
+    first: float | None = None
+    last: float | None = None
     with open(bag.mcap_path, "rb") as handle:
         for _, _, message in make_reader(handle).iter_messages(topics=[topic]):
             sec, nsec = struct.unpack_from("<iI", message.data, 4)
             stamp = sec + nsec * 1e-9
             first = stamp if first is None else min(first, stamp)
             last = stamp if last is None else max(last, stamp)
-    return None if first is None else (topic, last - first)
+    return None if first is None or last is None else (topic, last - first)
 
 
 def with_simulated_duration(bag: BagInfo, text: str) -> str:

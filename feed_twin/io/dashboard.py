@@ -291,7 +291,9 @@ class Dashboard:
         if len(self._t) >= self._batch:
             self._send_buffer()
 
-    def log_columns(self, t_s: Sequence[float], columns: Mapping[str, Sequence[float]]) -> None:
+    def log_columns(
+        self, t_s: Sequence[float] | np.ndarray, columns: Mapping[str, Sequence[float] | np.ndarray]
+    ) -> None:
         t = np.asarray(t_s, dtype=float)
         for name, values in columns.items():
             if name not in SERIES:

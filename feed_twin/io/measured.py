@@ -246,11 +246,10 @@ def _read_bag_table(path: Path, column_map: ColumnMap) -> tuple[list[str], np.nd
         raise MeasuredDataError(str(exc)) from None
 
     def axis(columns: dict[str, np.ndarray], other: dict[str, np.ndarray]) -> str:
-        stamped = stamp is not None and stamp in columns and stamp in other
         # stamps left at zero (a publisher that does not set them) do not order anything
-        if stamped and np.all(np.diff(columns[stamp]) > 0):
-            return stamp
-        return "log_time_s"
+        if stamp is None or stamp not in columns or stamp not in other:
+            return "log_time_s"
+        return stamp if np.all(np.diff(columns[stamp]) > 0) else "log_time_s"
 
     base = data[time_topic]
     header: list[str] = []

@@ -139,7 +139,6 @@ class LinuxcncRun:
         self._rt: list[int] = []  # pids of rtapi_app (the servo thread's process)
         self.fault_wall: float | None = None
 
-    # -- start-up ---------------------------------------------------------------------------
     def __enter__(self) -> LinuxcncRun:
         check_installed()
         user = run_user()
@@ -254,7 +253,6 @@ class LinuxcncRun:
         # the servo thread's process, watched while rows do not come
         self._rt = [pid for pid, name in leftover_processes() if name == "rtapi_app"]
 
-    # -- while running ----------------------------------------------------------------------
     def poll(self, timeout: float = 0.01) -> np.ndarray:
         """Rows (n, row_width) that arrived since the last call; empty once the run ended.
 
@@ -397,7 +395,6 @@ class LinuxcncRun:
         with contextlib.suppress(OSError):
             self.stop_file.touch()
 
-    # -- the end ----------------------------------------------------------------------------
     def wait_end(self) -> None:
         """Poll until the program ended and LinuxCNC exited (rows stay in rows_so_far())."""
         while not self.ended:

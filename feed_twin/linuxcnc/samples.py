@@ -13,8 +13,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from feed_twin.gcode.trajectory import SampledTrajectory
 
 JOINT_LETTERS = ("x", "y", "z")
 M_PER_MM = 1e-3
@@ -142,6 +146,23 @@ class ServoTrace:
     def reader_latency_s(self) -> np.ndarray:
         """[s] servo tick -> row in the reader's hands."""
         return self.receive_time_s - self.tick_time_s
+
+    def commanded_trajectory(self, axes: tuple[str, ...]) -> SampledTrajectory:
+        """LinuxCNC's commanded joint motion as setpoints to measure (joints X, Y, Z = `axes`);
+        its program line is motion's, which `gcode.metrics` uses to find each sample's segment.
+        """
+        # imported here: the G-code package compiles its planner, which a trace need not pay for
+        from feed_twin.gcode.trajectory import SampledTrajectory
+
+        return SampledTrajectory(
+            t_s=self.t_s,
+            axes=axes,
+            pos_m=self.pos_cmd_m,
+            vel_m_s=self.vel_cmd_m_s,
+            acc_m_s2=self.acc_cmd_m_s2,
+            line=self.program_line,
+            events=(),
+        )
 
 
 def rows_to_trace(rows: np.ndarray, layout: SampleLayout, *, period_s: float) -> ServoTrace:

@@ -101,7 +101,7 @@ def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Pa
             bag.add_topic(topic, "feed_twin_msgs/msg/AxisState")
             fields = _state_fields(run.signals[axis], run.command[:, run.axes.index(axis)])
             for k, t_ns in enumerate(stamps):
-                values = {name: float(column[k]) for name, column in fields.items()}
+                values: dict[str, float | int | str] = {n: float(c[k]) for n, c in fields.items()}
                 values.update({
                     "header.stamp.sec": int(t_ns // NS_PER_S),
                     "header.stamp.nanosec": int(t_ns % NS_PER_S),

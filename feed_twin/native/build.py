@@ -8,9 +8,9 @@ Flags: -O3 and IEEE arithmetic as numba's kernel has it (-ffp-contract=off: the 
 no multiply-add the source does not spell `fma`; no fast-math), -fwrapv (int64 wraps, as in
 numba), and -march=native, as numba compiles for the CPU it runs on: `fma` is then one
 instruction instead of a call into the C library (correctly rounded either way: the same
-doubles), and AVX-512's 32 registers spill less (254 -> 225 ns per tick of axis_default).
--fno-trapping-math (no FP exception ever traps here) lets divisions by parameters leave the
-loop; -fno-tree-vectorize: the vectorised copies were slower (225 -> 217 ns).
+doubles), and AVX-512's 32 registers spill less. -fno-trapping-math (no FP exception ever traps
+here) lets divisions by parameters leave the loop; -fno-tree-vectorize: the vectorised copies
+are slower (docs/performance.md).
 """
 
 from __future__ import annotations

@@ -30,6 +30,7 @@ from feed_twin.native.ckinds import (
     describe,
     flat_names,
     flatten,
+    scalar_ctype,
     unify,
     var,
 )
@@ -150,7 +151,7 @@ class Expressions:
         if not isinstance(base.kind, ArrayKind):
             raise self.fail(node, f"cannot index a {describe(base.kind)}")
         index = self.scalar(node.slice, d)
-        if index.kind.ctype == "double":
+        if index.ctype == "double":
             raise self.fail(node, "an array index must be an integer")
         fixed = dict(base.kind.fixed)
         if isinstance(index.const, int) and index.const in fixed:
@@ -165,7 +166,7 @@ class Expressions:
         index = self.scalar(node.slice, d)
         if isinstance(index.const, int) and index.const in dict(base.kind.fixed):
             raise self.fail(node, f"slot {index.const} is fixed at translation and cannot be set")
-        return base.code, index.code
+        return base.c, index.c
 
     def _UnaryOp(self, node, d):
         v = self.scalar(node.operand, d)
@@ -175,7 +176,7 @@ class Expressions:
             kind = INT if v.kind == BOOL else v.kind
             const = -v.const if isinstance(v.const, (int, float)) else None
             if const is not None and not isinstance(const, bool):
-                return constant(type(v.const)(const))
+                return constant(const)
             return Val(f"(-{v.code})", kind)
         if isinstance(node.op, ast.UAdd):
             return v
@@ -187,7 +188,7 @@ class Expressions:
             if v.kind != BOOL:
                 raise self.fail(n, "and/or of non-boolean values does not translate to C")
         op = " && " if isinstance(node.op, ast.And) else " || "
-        return Val("(" + op.join(v.code for v in vals) + ")", BOOL)
+        return Val("(" + op.join(v.c for v in vals) + ")", BOOL)
 
     def _Compare(self, node, d):
         left = self.scalar(node.left, d)
@@ -196,7 +197,7 @@ class Expressions:
             if type(op) not in _CMP:
                 raise self.fail(node, f"the comparison {type(op).__name__} does not translate")
             right = self.scalar(right_node, d)
-            if {left.kind.ctype, right.kind.ctype} == {"int64_t", "uint64_t"}:
+            if {left.ctype, right.ctype} == {"int64_t", "uint64_t"}:
                 raise self.fail(node, "comparison of int64 with uint64")
             terms.append(f"({left.code} {_CMP[type(op)]} {right.code})")
             left = right
@@ -239,7 +240,7 @@ class Expressions:
         kind = unify(a.kind, b.kind)
         if kind == BOOL:
             kind = INT
-        ct = kind.ctype
+        ct = scalar_ctype(kind)
         if isinstance(op, (ast.Mod, ast.FloorDiv)):
             if ct == "double":
                 if isinstance(op, ast.FloorDiv):
@@ -269,7 +270,7 @@ class Expressions:
             n >>= 1
             if n:
                 base = Val(f"({base.code} * {base.code})", base.kind)
-        return Val(result or cast(constant(1), a.kind.ctype), a.kind)
+        return Val(result or cast(constant(1), a.ctype), a.kind)
 
     def _Call(self, node, d):
         if node.keywords:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import SupportsFloat
 
 import numpy as np
 
@@ -45,6 +46,24 @@ class Val:
     const: object = None  # the Python value when known at translation time
     parts: list = field(default_factory=list)  # of a tuple
     side_effect: bool = False
+
+    @property
+    def c(self) -> str:
+        """The C expression (a tuple, a module or a function has none)."""
+        if self.code is None:
+            raise TranslationError(f"a {describe(self.kind)} has no C expression")
+        return self.code
+
+    @property
+    def ctype(self) -> str:
+        """The C type of a scalar value."""
+        return scalar_ctype(self.kind)
+
+
+def scalar_ctype(kind: object) -> str:
+    if not isinstance(kind, Scalar):
+        raise TranslationError(f"a {describe(kind)} where a scalar is needed")
+    return kind.ctype
 
 
 def var(name: str) -> str:
@@ -94,8 +113,8 @@ def unify(a, b):
 
 def cast(v: Val, ctype: str) -> str:
     if v.kind == Scalar(ctype):
-        return v.code
-    if v.const is not None and ctype == "double" and not isinstance(v.const, bool):
+        return v.c
+    if isinstance(v.const, SupportsFloat) and ctype == "double" and not isinstance(v.const, bool):
         return literal(float(v.const))
     return f"(({ctype})({v.code}))"
 

@@ -62,7 +62,6 @@ class Translator:
         self._active: set[tuple] = set()  # specialisations being translated
         self._tmp = 0
 
-    # ------------------------------------------------------------------ public
     def function(self, func, kinds: tuple) -> tuple[str, object]:
         """The C name and return kind of `func` specialised for argument `kinds`."""
         py = func.py_func if isinstance(func, CPUDispatcher) else func
@@ -207,7 +206,6 @@ class _Body:
         self.out = saved
         return text
 
-    # ------------------------------------------------------------------ statements
     def stmt(self, s: ast.stmt, d: int) -> None:
         if isinstance(s, ast.Expr):
             if isinstance(s.value, ast.Constant) and isinstance(s.value.value, str):
@@ -329,11 +327,11 @@ class _Body:
             if not isinstance(s.target, ast.Name):
                 raise self.fail(s, "a range loop needs one loop variable")
             args = [self.expr.scalar(a, d) for a in it.args]
-            if not 1 <= len(args) <= 3 or any(a.kind.ctype == "double" for a in args):
+            if not 1 <= len(args) <= 3 or any(a.ctype == "double" for a in args):
                 raise self.fail(s, "range() takes 1 to 3 integer arguments")
             start, stop = ("0", args[0]) if len(args) == 1 else (args[0].code, args[1])
             step = args[2] if len(args) == 3 else Val("1", Scalar("int64_t"), const=1)
-            if step.const is None or step.const == 0:
+            if not isinstance(step.const, int | np.integer) or step.const == 0:
                 raise self.fail(s, "range() needs a constant, non-zero step")
             name = cx.var(s.target.id)
             self.declare(s.target.id, Scalar("int64_t"), s)
@@ -381,7 +379,7 @@ class _Body:
                     self.emit(f"*r{i} = {cx.cast(v, t)};", d)
             self.emit("return;", d)
         else:
-            self.emit(f"return {cx.cast(value, merged.ctype)};", d)
+            self.emit(f"return {cx.cast(value, cx.scalar_ctype(merged))};", d)
 
 
 def _as_load(target: ast.expr) -> ast.expr:

@@ -18,8 +18,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TypeVar
 
 from feed_twin.io.config import ConfigError
+from feed_twin.plant.ball_screw import BallScrew
+from feed_twin.plant.component import Component
+from feed_twin.plant.dc_bus import DcBus
+from feed_twin.plant.guide_friction import GuideFriction
+from feed_twin.plant.pmsm import Pmsm
+
+C = TypeVar("C", bound=Component)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -48,21 +56,29 @@ class DriveCapability:
 
     def voltage_at(self, v: float, a: float) -> float:
         """Stator voltage amplitude [V] at v [m/s] while accelerating at a (NaN: not a PMSM)."""
-        if self.u_max_V is None:
+        R_s, L_q, psi_pm, p = self.R_s, self.L_q, self.psi_pm, self.pole_pairs
+        if self.u_max_V is None or R_s is None or L_q is None or psi_pm is None or p is None:
             return math.nan
-        omega_e = self.pole_pairs * 2.0 * math.pi * v / self.lead_m
+        omega_e = p * 2.0 * math.pi * v / self.lead_m
         i_q = self.current_at(v, a)
-        return math.hypot(self.R_s * i_q + omega_e * self.psi_pm, omega_e * self.L_q * i_q)
+        return math.hypot(R_s * i_q + omega_e * psi_pm, omega_e * L_q * i_q)
 
     def reachable_speed(self, a: float) -> float:
         """The largest v [m/s] whose voltage fits (bisection; the voltage grows with v)."""
+        u_max = self.u_max_V
+        if u_max is None:  # no voltage limit
+            return math.inf
         low, high = 0.0, 1.0
-        while self.voltage_at(high, a) < self.u_max_V and high < 1e3:
+        while self.voltage_at(high, a) < u_max and high < 1e3:
             high *= 2.0
         for _ in range(60):
             mid = 0.5 * (low + high)
-            low, high = (mid, high) if self.voltage_at(mid, a) <= self.u_max_V else (low, mid)
+            low, high = (mid, high) if self.voltage_at(mid, a) <= u_max else (low, mid)
         return low
+
+
+def _first(components: list[Component], kind: type[C]) -> C | None:
+    return next((c for c in components if isinstance(c, kind)), None)
 
 
 def capability(axis) -> DriveCapability | None:
@@ -71,15 +87,14 @@ def capability(axis) -> DriveCapability | None:
     controller = axis.controller
     if controller is None:
         return None
-    by_type: dict[str, object] = {}
-    for comp in axis.plant.components.values():
-        by_type.setdefault(comp.TYPE, comp)
-    screw, guides = by_type.get("BallScrew"), by_type.get("GuideFriction")
+    components = list(axis.plant.components.values())
+    screw = _first(components, BallScrew)
+    guides = _first(components, GuideFriction)
     if screw is None:
         return None
     drive = controller.drive
     fields = {}
-    motor, bus = by_type.get("Pmsm"), by_type.get("DcBus")
+    motor, bus = _first(components, Pmsm), _first(components, DcBus)
     if motor is not None and bus is not None:
         current = controller.current
         margin = current.voltage_margin if current is not None else 1.0

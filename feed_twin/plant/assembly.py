@@ -10,8 +10,9 @@ The assembler
 3. lays out the flat state vector (coordinates, then component states, then energy accumulators)
    and the flat parameter vector (component slots, then derived slots: node ratios and inverse
    effective inertias), each slot with a name and a named constant in the generated source;
-4. asks each component to emit its glue stage by stage into a `codegen.Generator`, which
-   writes the module source (see feed_twin.plant.codegen). The engine (feed_twin.sim.kernel)
+4. asks each component to emit its glue stage by stage into a `codegen.Generator`, which reads
+   the structure through `PlantModel.view()` (a frozen `plant.view.AssemblyView`) and writes
+   the module source (see feed_twin.plant.codegen). The engine (feed_twin.sim.kernel)
    adds the loop and compiles the whole module once per structure.
 """
 
@@ -28,6 +29,7 @@ import numpy as np
 from feed_twin.core import signals
 from feed_twin.plant.codegen import Generator, acceleration_name, const_name
 from feed_twin.plant.component import STAGES, AssemblyError, Component, check_name
+from feed_twin.plant.view import AssemblyView, Coordinate
 
 POSITION_LIMIT = 1.0e4  # |q| [m or rad] counted as a runaway
 VELOCITY_LIMIT = 1.0e5  # |dq/dt| [m/s or rad/s] counted as a runaway
@@ -38,19 +40,6 @@ class Node:
     index: int
     kind: str
     ports: tuple[str, ...]  # "component.port"
-
-
-@dataclass(frozen=True, kw_only=True)
-class Coordinate:
-    """A generalized coordinate: mechanical nodes moving rigidly together."""
-
-    index: int
-    name: str  # the body that names it, e.g. "motor" -> states motor.phi, motor.omega
-    kind: str  # kind of the reference node: rotational or translational
-    nodes: tuple[int, ...]
-    ratios: dict[int, str]  # node index -> Python expression of r_n in p[...] slots
-    position_state: str
-    velocity_state: str
 
 
 class PlantModel:
@@ -64,7 +53,7 @@ class PlantModel:
     def __init__(
         self,
         components: Sequence[tuple[str, Component]],
-        connections: Sequence[tuple[str, str]],
+        connections: Sequence[Sequence[str]],
         *,
         source: str = "<plant>",
         track_energy: bool = False,
@@ -80,13 +69,12 @@ class PlantModel:
             if name in self.components:
                 raise AssemblyError(f"{source}: plant.{name}: duplicate component name")
             self.components[name] = comp
-        self.connections = tuple(tuple(c) for c in connections)
+        # pairs as configured; a pair of another length is reported by _build_nodes
+        self.connections: tuple[tuple[str, ...], ...] = tuple(tuple(c) for c in connections)
         self._build_nodes()
         self._build_coordinates()
         self._build_layouts()
         self._generate()
-
-    # ------------------------------------------------------------------ graph
 
     def _port_kind(self, ref: str, where: str) -> str:
         comp_name, _, port = ref.partition(".")
@@ -143,8 +131,8 @@ class PlantModel:
         for node in self.nodes:
             if node.kind in ("dc", "ac3") and len(node.ports) < 2:
                 raise AssemblyError(
-                    f"{self.source}: plant.connect: the {node.kind} port {node.ports[0]} is not "
-                    "connected to anything"
+                    f"{self.source}: plant.connect: the {node.kind} port "
+                    f"{', '.join(node.ports)} is not connected to anything"
                 )
 
     def _build_coordinates(self) -> None:
@@ -157,7 +145,7 @@ class PlantModel:
         edges: dict[int, list[tuple[int, str, bool, str]]] = {}
         self.lossy_nodes: set[int] = set()
         for name, comp in self.components.items():
-            spec = getattr(comp, "TRANSFORMER", None)
+            spec = comp.TRANSFORMER
             if spec is None:
                 continue
             rot, trans, slot = spec
@@ -165,12 +153,13 @@ class PlantModel:
             expr = f"p[{const_name('P_', f'{name}.{slot}')}]"
             edges.setdefault(a, []).append((b, expr, True, name))
             edges.setdefault(b, []).append((a, expr, False, name))
-            if getattr(comp, "lossy", False):
+            if comp.lossy:
                 if b in inertia_nodes:
                     raise AssemblyError(
-                        f"{self.source}: plant.{name}.efficiency = {comp.efficiency!r}: a lossy "
-                        f"screw needs a massless translational flange, but {name}.{trans} "
-                        "carries a mass; put an AxialCompliance between the screw and the nut"
+                        f"{self.source}: plant.{name}.efficiency = "
+                        f"{comp.slots()['efficiency']!r}: a lossy screw needs a massless "
+                        f"translational flange, but {name}.{trans} carries a mass; put an "
+                        "AxialCompliance between the screw and the nut"
                     )
                 self.lossy_nodes.add(b)
         mech = [n for n in self.nodes if n.kind in ("rotational", "translational")]
@@ -230,8 +219,6 @@ class PlantModel:
             for n in order:
                 self.coordinate_of[n] = coord.index
 
-    # ------------------------------------------------------------------ layouts
-
     def _build_layouts(self) -> None:
         states: list[tuple[str, str, float]] = []
         for c in self.coordinates:
@@ -242,6 +229,7 @@ class PlantModel:
             for spec in comp.states():
                 states.append((f"{name}.{spec.name}", spec.unit, spec.limit))
         self._core_states = states
+        self.core_state_names: tuple[str, ...] = tuple(s for s, _, _ in states)
         params: list[tuple[str, float]] = []
         for name, comp in self.components.items():
             for slot, value in comp.slots().items():
@@ -256,21 +244,31 @@ class PlantModel:
         self.param_names: tuple[str, ...] = tuple(n for n, _ in params) + tuple(derived)
         self.param_index = {n: i for i, n in enumerate(self.param_names)}
         self.ext_names: tuple[str, ...] = tuple(
-            name for name, comp in self.components.items() if getattr(comp, "HAS_INPUT", False)
+            name for name, comp in self.components.items() if comp.HAS_INPUT
         )
 
-    # ------------------------------------------------------------------ code generation
+    def view(self) -> AssemblyView:
+        """The graph and layouts as the code generator reads them."""
+        return AssemblyView(
+            source=self.source,
+            track_energy=self.track_energy,
+            component_names=tuple(self.components),
+            node_of=dict(self.node_of),
+            coordinates=tuple(self.coordinates),
+            inertia_nodes={n: tuple(specs) for n, specs in self.inertia_nodes.items()},
+            core_state_names=self.core_state_names,
+            param_names=self.param_names,
+            ext_names=self.ext_names,
+        )
 
     def _generate(self) -> None:
-        gen = Generator(self)
+        gen = Generator(self.view())
         for stage in STAGES:
             gen.stage = stage
             for name, comp in self.components.items():
                 gen.current = name
                 comp.emit(stage, gen)
-        self.state_names: tuple[str, ...] = tuple(s for s, _, _ in self._core_states) + tuple(
-            gen.energy_states
-        )
+        self.state_names: tuple[str, ...] = self.core_state_names + tuple(gen.energy_states)
         self.state_units: tuple[str, ...] = tuple(u for _, u, _ in self._core_states) + (
             ("J",) * len(gen.energy_states)
         )
@@ -286,13 +284,10 @@ class PlantModel:
         )
         self.stored_names: tuple[str, ...] = tuple(gen.stored_names) + tuple(kinetic)
         self.meas_delay_slots = dict(gen.meas_delays)
-        self.switching_inverter = next(
-            (n for n, c in self.components.items() if getattr(c, "switching", False)), None
-        )
+        self.switching_inverter = next((n for n, c in self.components.items() if c.switching), None)
+        self.signal_names: frozenset[str] = frozenset(gen.signal_names)  # MEAS_*/OUT_* it imports
         self.source_code = gen.module_source()
         self.structure_digest = hashlib.sha256(self.source_code.encode()).hexdigest()[:16]
-
-    # ------------------------------------------------------------------ vectors
 
     def nominal_params(self) -> np.ndarray:
         """The parameter vector of the components as configured (derived slots filled)."""
@@ -343,7 +338,7 @@ class PlantModel:
             ports = [
                 pt for pt in comp.ports() if comp.ports()[pt] in ("rotational", "translational")
             ]
-            if len(ports) != 2 or getattr(comp, "TRANSFORMER", None):
+            if len(ports) != 2 or comp.TRANSFORMER:
                 continue
             na, nb = (self.node_of[f"{name}.{pt}"] for pt in ports)
             ca, cb = self.coordinate_of[na], self.coordinate_of[nb]
@@ -372,8 +367,6 @@ class PlantModel:
 
     def _ratio_value(self, node: int, p: np.ndarray) -> float:
         return float(p[self.param_index[f"derived.ratio_n{node}"]])
-
-    # ------------------------------------------------------------------ compiled functions
 
     def namespace(self) -> dict:
         """The plant functions executed as plain Python (un-jitted numba callees inside)."""
@@ -439,7 +432,7 @@ class PlantModel:
 
 def assemble(
     components: Sequence[tuple[str, Component]],
-    connections: Sequence[tuple[str, str]],
+    connections: Sequence[Sequence[str]],
     *,
     source: str = "<plant>",
     track_energy: bool = False,

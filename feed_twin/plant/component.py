@@ -10,12 +10,12 @@ both the compiled kernel and its un-jitted `py_func` (the reference integration)
 Component equations (and the controller's laws in feed_twin.control) are compiled without
 numba's on-disk cache (`@njit(error_model="numpy", forceinline=True)`, no `cache=True`): numba
 caches a function as machine code only, and a kernel compiled later can then call it but LLVM
-cannot inline it. With the laws cached from an earlier process the engine ran at 350 ns per tick
-instead of 300 (benchmarks/model_speed.py). Compiled in the kernel's own process, their LLVM IR
-is linked into the kernel; `forceinline` marks them alwaysinline for LLVM, which inlined a few
-that its cost model had left as calls (another 7 % per tick, at no compile time, where numba's
-own `inline="always"` took the cold compile from 12 s to 95 s). The kernel itself is cached,
-with them inside (tests/test_sim_perf.py::test_the_laws_the_kernel_calls_are_not_disk_cached).
+cannot inline it. Compiled in the kernel's own process, their LLVM IR is linked into the kernel;
+`forceinline` marks them alwaysinline for LLVM, which then inlines the few its cost model would
+leave as calls, at no compile time (numba's own `inline="always"` would multiply it). The kernel
+itself is cached, with them inside
+(tests/test_sim_perf.py::test_the_laws_the_kernel_calls_are_not_disk_cached; the measurements:
+docs/performance.md).
 Small helpers that must vanish into their callers (smooth_sign, sincos, exp_neg) are
 `inline="always"`.
 
@@ -91,6 +91,7 @@ class OwnedEffect:
     needs: tuple[str, ...] = ()  # Motion fields the signature needs
 
 
+@dataclass(frozen=True, kw_only=True)
 class Component:
     """Base of every plant component; subclasses are frozen keyword-only dataclasses.
 
@@ -102,13 +103,27 @@ class Component:
     TYPE: ClassVar[str]
     PORTS: ClassVar[dict[str, PortKind]]
     EFFECTS: ClassVar[tuple[OwnedEffect, ...]] = ()  # effects the workflow may add with it
+    # (rotational port, translational port, ratio slot) of an ideal transformer, whose nodes the
+    # assembler merges into one coordinate: across(trans) = p[ratio] * across(rot)
+    TRANSFORMER: ClassVar[tuple[str, str, str] | None] = None
+    HAS_INPUT: ClassVar[bool] = False  # takes an external input channel (a force [N])
+
+    @property
+    def lossy(self) -> bool:
+        """A transformer with an efficiency below 1 (the force it passes depends on direction)."""
+        return False
+
+    @property
+    def switching(self) -> bool:
+        """An inverter whose legs switch (PWM edges resolved by the loop), not averaged."""
+        return False
 
     def ports(self) -> dict[str, PortKind]:
         return self.PORTS
 
     def slots(self) -> dict[str, float]:
         values: dict[str, float] = {}
-        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+        for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if isinstance(value, float):
                 values[f.name] = value
@@ -201,7 +216,7 @@ class Emitter:
     def stored(self, name: str, expr: str) -> None:  # stored energy [J] (springs, fields, gravity)
         raise NotImplementedError
 
-    def meas(self, slot: str, expr: str) -> None:  # sensor sample into MEAS_* (before delay)
+    def meas(self, slot: str, expr: str, delay: str = "0") -> None:  # MEAS_* sample, its delay
         raise NotImplementedError
 
     def noise(self, channel: int, scale: str) -> str:

@@ -12,6 +12,7 @@ import math
 from collections.abc import Iterable, Mapping
 
 from feed_twin.io.config import ConfigError
+from feed_twin.plant.component import Component
 
 # (component type, field) -> (low, high) of |value| in SI units; 0 always passes (effects off).
 RANGES: dict[tuple[str, str], tuple[float, float]] = {
@@ -35,7 +36,9 @@ RANGES: dict[tuple[str, str], tuple[float, float]] = {
 ANY_NUMBER_MAX = 1e15
 
 
-def check_plausible(components: Mapping[str, object], unusual: Iterable[str], source: str):
+def check_plausible(
+    components: Mapping[str, Component], unusual: Iterable[str], source: str
+) -> None:
     """Raise ConfigError naming the first parameter outside its range (unless listed unusual)."""
     skip = set(unusual)
     unknown = sorted(n for n in skip if n.split(".")[0] not in components)

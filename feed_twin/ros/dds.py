@@ -15,11 +15,9 @@
   `ros.cpu_latency_us` (the sim node, for the whole run) asks the kernel's PM QoS
   (`/dev/cpu_dma_latency`, held open for the life of the process, as cyclictest does) to keep
   idle CPUs in states that wake within that many microseconds: at 0 an idle CPU polls instead
-  of halting. On this virtual machine waking a halted CPU goes through the host (a UDP send
-  that wakes a thread on the other core cost 18 us instead of 2.4 us): lockstep went from 2.8x
-  to 5.0x real time, and missed real-time steps from 286 to 125 in 60 s
-  (benchmarks/nodes_speed.py, interleaved A/B). The price is an idle CPU that keeps spinning
-  while a run lasts. Needs root; refused, it is logged and skipped.
+  of halting. On a virtual machine waking a halted CPU goes through the host, which costs a
+  cross-core message several times its send (docs/performance.md). The price is an idle CPU
+  that keeps spinning while a run lasts. Needs root; refused, it is logged and skipped.
 """
 
 from __future__ import annotations
@@ -100,7 +98,11 @@ def init_context(args: Sequence[str] | None = None) -> Context:
         else:
             os.environ[name] = value
     context = Context()
-    rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(
+        args=None if args is None else list(args),
+        context=context,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
     return context
 
 

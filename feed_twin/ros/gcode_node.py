@@ -154,8 +154,6 @@ class GcodeNode(FeedTwinNode):
             self.set_parameters([Parameter("program", value=program)])
         self.start_heartbeat(when=lambda: self.recorder_listens((self._pub,)))
 
-    # -- program ------------------------------------------------------------------------------
-
     def _state(self, text: str) -> None:
         self._state_pub.publish(String(data=sign_state(text, self._token)))
         self.get_logger().info(f"program: {text}")
@@ -213,8 +211,6 @@ class GcodeNode(FeedTwinNode):
             self.running = False
             word = "stopped" if stream.stopped else "finished"
             self._state(f"{word} {stream.end_t_ns}")
-
-    # -- callbacks ----------------------------------------------------------------------------
 
     def _on_clock(self, data: bytes) -> None:
         sec, nsec = CLOCK.decode(data)

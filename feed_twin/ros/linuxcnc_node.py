@@ -29,7 +29,7 @@ import struct
 import sys
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +59,7 @@ class LinuxcncNode(FeedTwinNode):
         self,
         options: NodeOptions,
         *,
-        start_run,
+        start_run: Callable[[], LinuxcncRun],
         joint: int,
         period_s: float,
         context=None,
@@ -86,6 +86,7 @@ class LinuxcncNode(FeedTwinNode):
         if self._command.numbers != _COMMAND_ORDER:
             raise ValueError(f"AxisCommand's numbers are {self._command.numbers}")
         self.run: LinuxcncRun | None = None
+        self.run_ended = False  # LinuxCNC has been stopped (run is None again)
         self.bridge: ServoBridge | None = None
         self.report: dict = {}
         self._done_at: float | None = None
@@ -106,18 +107,19 @@ class LinuxcncNode(FeedTwinNode):
                 self.finish(*self._ending)
                 return None
             return 0.05
-        if self.run is None:
+        if self.run is None and not self.run_ended:
             if not (self.peers_alive() and self._js_pub.get_subscription_count() > 0):
                 return 0.01
             self._t_start = now
             try:
-                self.run = self._start_run()
+                run = self._start_run()
             except LinuxcncError as exc:
                 self._end(EXIT_ERROR, str(exc))
                 return 0.05
-            self.bridge = ServoBridge(self.run.layout, period_s=self.period_s, joint=self.joint)
+            self.run = run
+            self.bridge = ServoBridge(run.layout, period_s=self.period_s, joint=self.joint)
             self.report["startup_s"] = time.monotonic() - now
-        if self.run is not _ENDED:
+        if self.run is not None and self.bridge is not None:
             try:
                 rows = self.run.poll(0.0)
             except LinuxcncError as exc:
@@ -132,7 +134,7 @@ class LinuxcncNode(FeedTwinNode):
         if now - self._progress_at > PROGRESS_PERIOD_S and self._sent_ns is not None:
             self._progress_at = now
             print(f"PROGRESS {self._sent_ns * 1e-9:.3f}", file=sys.stderr, flush=True)
-        if self.run is _ENDED and not self._backlog:
+        if self.run_ended and not self._backlog:
             self._end(EXIT_OK, "")
             return 0.05
         return 0.001
@@ -142,7 +144,8 @@ class LinuxcncNode(FeedTwinNode):
         does not wait for a slow twin, this node does (DDS would drop what the twin's reader
         cannot hold), so the twin shadows every period, late if it must."""
         window_end = self._twin_ns + round(WINDOW * self.period_s * 1e9)
-        while self._backlog:
+        bridge = self.bridge
+        while self._backlog and bridge is not None:
             batch, start = self._backlog[0]
             stop = start
             while stop < len(batch) and batch.stamp_ns[stop] <= window_end:
@@ -150,7 +153,7 @@ class LinuxcncNode(FeedTwinNode):
             if stop == start:
                 return
             self._publish(batch, start, stop)
-            self.bridge.mark_published(batch.tick_time_s[start:stop], now_s=time.monotonic())
+            bridge.mark_published(batch.tick_time_s[start:stop], now_s=time.monotonic())
             self._sent_ns = int(batch.stamp_ns[stop - 1])
             if stop == len(batch):
                 self._backlog.popleft()
@@ -195,8 +198,9 @@ class LinuxcncNode(FeedTwinNode):
             self.report["fault"] = message
 
     def _close_run(self) -> None:
-        run, self.run = self.run, _ENDED
-        if run is None or run is _ENDED:
+        run, self.run = self.run, None
+        self.run_ended = True
+        if run is None:
             return
         fault_at = run.fault_wall
         run.__exit__(None, None, None)
@@ -227,7 +231,6 @@ class LinuxcncNode(FeedTwinNode):
         print("LINUXCNC " + json.dumps(self.report), file=sys.stderr, flush=True)
 
 
-_ENDED = object()  # the run attribute once LinuxCNC has been stopped
 _COMMAND_ORDER = (
     "header.stamp.sec", "header.stamp.nanosec", "position", "velocity", "acceleration", "line",
 )  # fmt: skip
@@ -288,7 +291,9 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="linuxcnc node", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="linuxcnc node", description=__doc__.splitlines()[0] if __doc__ else None
+    )
     configure(parser)
     args = parser.parse_args(argv)
     return start_node("linuxcnc node", lambda context: build(args, context))

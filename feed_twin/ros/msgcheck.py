@@ -12,7 +12,6 @@ publish -> callback latency.
 from __future__ import annotations
 
 import argparse
-import array
 import importlib
 import json
 import math
@@ -121,8 +120,10 @@ def filled_message(msg_type: type, *, seed: int = 0) -> Any:
 
 
 def _plain(value: Any) -> Any:
-    if isinstance(value, array.array | list | tuple) or hasattr(value, "tolist"):
-        return list(value.tolist() if hasattr(value, "tolist") else value)
+    if hasattr(value, "tolist"):  # array.array, numpy arrays
+        return list(value.tolist())
+    if isinstance(value, list | tuple):
+        return list(value)
     return value
 
 
@@ -289,7 +290,8 @@ def round_trip_between_processes(*, domain_id: int, timeout_s: float = 20.0) -> 
         return _results(messages, received, {})
     finally:
         if child is not None:
-            child.stdin.close()  # tells the talker it may go
+            if child.stdin is not None:
+                child.stdin.close()  # tells the talker it may go
             try:
                 child.wait(timeout=5.0)
             except subprocess.TimeoutExpired:

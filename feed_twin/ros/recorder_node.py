@@ -33,6 +33,7 @@ from pathlib import Path
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 
 from feed_twin.io.bag import BagError, BagWriter, QosProfile
 from feed_twin.nodeset.guard import run_token
@@ -100,7 +101,8 @@ class RecorderNode(FeedTwinNode):
         self._data_node = Node(
             f"{RECORDER_NODE}_data", namespace=self.topics.namespace, context=self.context
         )
-        self._takers: list[tuple[str, object, bool, object]] = []
+        # (topic, subscription, counts: True, False or the run token to look for, live feed)
+        self._takers: list[tuple[str, Subscription, bytes | bool, LiveFeed | None]] = []
         self._next_drain = 0.0
         self._last_message = time.monotonic()
         self._ending_since: float | None = None

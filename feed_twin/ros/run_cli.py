@@ -33,6 +33,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from feed_twin.io.config import ConfigError
 from feed_twin.nodeset.guard import RUN_TOKEN_ENV
@@ -40,6 +41,11 @@ from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
 from feed_twin.ros.launch import launch, log_record
+
+if TYPE_CHECKING:
+    from feed_twin.linuxcnc.summary import LinuxcncFigures
+    from feed_twin.nodeset.summary import RunSummary
+    from feed_twin.shadow.summary import ShadowFigures
 
 ROLES = (RECORDER_NODE, "controller", "sim", "gcode")
 # --shadow: the stand-in plays the real machine (drive and axis), the twin shadows it
@@ -333,9 +339,9 @@ def _effort_unit(config: Path) -> str:
 
 @dataclass
 class _ShadowSummary:
-    run: object  # feed_twin.nodeset.summary.RunSummary of the machine
-    figures: object  # feed_twin.shadow.summary.ShadowFigures
-    extra: object = None  # feed_twin.linuxcnc.summary.LinuxcncFigures with --nc linuxcnc
+    run: RunSummary  # of the machine
+    figures: ShadowFigures
+    extra: LinuxcncFigures | None = None  # with --nc linuxcnc
 
     def format(self) -> str:
         text = f"{self.run.format()}\n{self.figures.format()}"

@@ -39,10 +39,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rclpy.clock import Clock, ClockType
+from rclpy.clock import Clock
+from rclpy.clock_type import ClockType
 from rclpy.context import Context
 from rclpy.duration import Duration
-from rclpy.experimental import EventsExecutor
+from rclpy.experimental.events_executor import EventsExecutor
 from rclpy.node import Node
 from rclpy.task import Future
 from std_msgs.msg import String
@@ -200,8 +201,6 @@ class FeedTwinNode(Node):
         self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
         self.create_timer(HEARTBEAT_PERIOD_S, self._tick, clock=self.wall)
 
-    # -- life cycle ---------------------------------------------------------------------------
-
     def start_heartbeat(self, *, when: Callable[[], bool] | None = None) -> None:
         """Call at the end of set-up: peers start watching this node from its first beat.
 
@@ -279,8 +278,6 @@ class FeedTwinNode(Node):
         """Called by the spin loop before each wait; returns how long it may block at most [s]
         (None: no limit of its own). Nodes that pace themselves by the wall clock override it."""
         return None
-
-    # -- watchdogs ----------------------------------------------------------------------------
 
     def watch_input(
         self,

@@ -205,8 +205,6 @@ class SimNode(FeedTwinNode):
         outputs = (self._feedback_pub, self._state_pub, self._joint_pub)
         self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
-    # -- start and end ------------------------------------------------------------------------
-
     def poll(self) -> float | None:
         """Called by the spin loop; starts the run once every peer is up; paces real time."""
         if not self.started:
@@ -224,7 +222,7 @@ class SimNode(FeedTwinNode):
         if now - self._progress_at > 0.5:
             self._progress_at = now
             print(f"PROGRESS {self.host.t_ns / NS_PER_S:.3f}", file=sys.stderr, flush=True)
-        if not self.realtime or self.done:
+        if not self.realtime or self.done or self.wall_start is None:
             return None
         deadline = self.wall_start + self.host.k * self.host.exchange_ns / NS_PER_S
         now = time.monotonic()
@@ -274,8 +272,6 @@ class SimNode(FeedTwinNode):
         self.wall_end = time.monotonic()
         self._run_pub.publish(String(data=text))
         self.finish(code, "" if code == EXIT_OK else text)
-
-    # -- exchanges ----------------------------------------------------------------------------
 
     def _on_command(self, data: bytes) -> None:
         setpoint = self._admit(data)

@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 from feed_twin_msgs.msg import AxisCommand, AxisState
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
@@ -105,7 +106,7 @@ class StandInNode(FeedTwinNode):
         self._friction = {name: standin.parameter(name) for name in standin.friction_parameters()}
         self._js_pub = self.create_publisher(JointState, self.topics.joint_states, DATA_QOS)
         self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
-        self._cmd_pub = None
+        self._cmd_pub: Publisher | None = None  # the stand-in NC's, when it plays a program
         # NC samples still to play: (stamp [ns], x, v, a)
         self._commands: deque[tuple[int, float, float, float]] = deque()
         self._t0_ns: int | None = None
@@ -113,7 +114,7 @@ class StandInNode(FeedTwinNode):
         self._last_cmd: tuple[int, float, float, float] | None = None
         self._twin_count = 0
         self.late_commands = 0
-        if self.follow:
+        if program is None:  # follow
             self.create_subscription(AxisCommand, self.topics.command, self._on_command, DATA_QOS)
             self.create_subscription(
                 String, self.topics.program_state, self._on_program_state, LATCHED_QOS
@@ -151,8 +152,6 @@ class StandInNode(FeedTwinNode):
         self.lateness_s: list[float] = []
         self.start_heartbeat(when=lambda: self.recorder_listens((self._js_pub,)))
 
-    # -- inputs -------------------------------------------------------------------------------
-
     def _on_command(self, msg: AxisCommand) -> None:
         stamp = msg.header.stamp.sec * NS + msg.header.stamp.nanosec
         self._commands.append((stamp, msg.position, msg.velocity, msg.acceleration))
@@ -185,8 +184,6 @@ class StandInNode(FeedTwinNode):
         """[s] since the first command, of the next sample."""
         return self.k * self.period_s
 
-    # -- pacing -------------------------------------------------------------------------------
-
     def poll(self) -> float | None:
         if self.done:
             return None
@@ -217,7 +214,7 @@ class StandInNode(FeedTwinNode):
             wait = None
         while self._queue and self._queue[0][0] <= now:
             _, _, topic, data = heapq.heappop(self._queue)
-            (self._cmd_pub if topic == "command" else self._js_pub).publish(data)
+            self._publisher(topic).publish(data)
         if self._ended() and not self._queue:
             if self._done_at is None:
                 self.wall_end = now
@@ -251,6 +248,13 @@ class StandInNode(FeedTwinNode):
             "; ".join(lines) + f": another run on ROS domain {domain}? Stop it, or run this one "
             "in another domain (ROS_DOMAIN_ID) or under other ros.machine/ros.axis names"
         )
+
+    def _publisher(self, topic: str) -> Publisher:
+        if topic != "command":
+            return self._js_pub
+        if self._cmd_pub is None:
+            raise RuntimeError("the stand-in follows an NC: it publishes no command")
+        return self._cmd_pub
 
     def _ended(self) -> bool:
         if self._end_ns is None or self._t0_ns is None:
@@ -333,7 +337,7 @@ class StandInNode(FeedTwinNode):
                 heapq.heappush(self._queue, (release, self._seq, topic, data))
                 self._seq += 1
             else:
-                (self._cmd_pub if topic == "command" else self._js_pub).publish(data)
+                self._publisher(topic).publish(data)
         self._last_cmd = command
         self.k += 1
         if self.follow and self.k % self.clock_divider == 0:
@@ -463,7 +467,9 @@ def build(args: argparse.Namespace, context) -> StandInNode:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="standin node", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="standin node", description=__doc__.splitlines()[0] if __doc__ else None
+    )
     configure(parser)
     args = parser.parse_args(argv)
     return start_node("standin node", lambda context: build(args, context))

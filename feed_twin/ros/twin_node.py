@@ -347,7 +347,9 @@ def build(args: argparse.Namespace, context) -> TwinNode:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="twin node", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="twin node", description=__doc__.splitlines()[0] if __doc__ else None
+    )
     configure(parser)
     args = parser.parse_args(argv)
     return start_node("twin node", lambda context: build(args, context))

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -200,7 +201,7 @@ class HealthMonitor:
         b = self.baseline or {"fe_dev_rms_m": math.nan, "effort_dev_rms": math.nan}
         fe_rms = math.nan if empty else float(np.sqrt(np.mean(w[:, 2] ** 2)))
         eff_rms = math.nan if empty else float(np.sqrt(np.mean(w[:, 3] ** 2)))
-        common = dict(
+        common: dict[str, Any] = dict(  # the fields every verdict of this cycle shares
             t_s=self._t_last if stale else float(w[-1, 0]),
             fe_dev_rms_m=fe_rms,
             effort_dev_rms=eff_rms,
@@ -242,8 +243,6 @@ class HealthMonitor:
             del self.verdicts[:5_000]
         self.last = verdict
         return verdict
-
-    # ------------------------------------------------------------------ baseline and naming
 
     def _motion(self, w: np.ndarray):
         effort = w[:, 4]

@@ -132,9 +132,6 @@ def replay(bag: str | Path, doc: ModelDoc, cmap: ColumnMap, config: ShadowConfig
     )
 
 
-# ---------------------------------------------------------------------------- outputs
-
-
 def twin_namespace(command_topic: str) -> str:
     parent = posixpath.dirname(command_topic)
     return posixpath.join(parent if parent != "/" else "", "twin") if parent else "/twin"

@@ -97,7 +97,7 @@ class SlotStream:
         self.next_slot: int | None = None  # first slot not yet released (None before start)
         self.newest: int | None = None
         self.counts = FaultCounts()
-        self._pending: dict[int, np.ndarray] = {}
+        self._pending: dict[int, list[float]] = {}
         self._released_real: set[int] = set()  # recent real slots, for duplicate detection
         self._final_through = -(2**62)  # slots up to here are decided (filled if never seen)
         self._last: list[float] | None = None
@@ -215,18 +215,20 @@ class SlotStream:
                 (i for i, f in enumerate(filled) if f and k + i > horizon), len(out)
             )  # the first gap that is not decided yet ends this release
             for i in range(stop, len(out)):
-                if out[i] is not None:
-                    pending[k + i] = out[i]
+                value = out[i]
+                if value is not None:
+                    pending[k + i] = value
             out, filled = out[:stop], filled[:stop]
             # each gap's next real sample within this release (popped already, so _filler
             # would not find it in the buffer)
             successor: list[tuple[int, list[float]] | None] = [None] * len(out)
-            following = None
+            following: tuple[int, list[float]] | None = None
             for i in range(len(out) - 1, -1, -1):
-                if filled[i]:
+                value = out[i]  # None where filled[i]
+                if value is None:
                     successor[i] = following
                 else:
-                    following = (k + i, out[i])
+                    following = (k + i, value)
             for i, f in enumerate(filled):
                 if f:
                     if i:

@@ -40,7 +40,7 @@ def check_steps(model: PlantModel, P: np.ndarray, h: float, nsub: int) -> list[s
     The damping slopes are evaluated once per distinct value of the slots each component reads
     and the stability ratios for all rows at once (the same floating-point operations as
     `check_step`, so the same verdicts); only refused rows go through `check_step` itself, for
-    its message. A per-row Python loop cost about 30 ms per 1000 sets, 5-8 % of a batch.
+    its message: a per-row Python loop would be a noticeable part of a batch.
     """
     hs = h / nsub
     refused = np.zeros(len(P), dtype=bool)
@@ -158,8 +158,7 @@ def _shared_normals(
     set the table it reads (-1: the set draws its own, as a single run does).
 
     A sample depends on (seed, tick, channel) alone, so the sets get the same doubles either
-    way; drawing them in the loop cost about 11 ns of a 246 ns tick of axis_default (three
-    current sensors), for every set again.
+    way; drawn in the loop, every set would pay for the same draws again.
     """
     n_noise = kernel.N_NOISE
     table_of = np.full(len(seeds), -1, dtype=np.int64)

@@ -17,9 +17,8 @@ and returns the module. Per base tick k (period h) the loop
      = h) with dead-time intervals in which both switches of a leg are off;
   5. stops with a status (tick, state index) if a state is NaN, infinite or beyond its limit.
 `advance` releases the GIL, so the engine's batch mode runs parameter sets on several threads,
-calling `advance_sets` once per block of sets it takes (a numba prange over sets measured 2-3x
-slower per set than the plain call, even on one thread); sets are independent, so a diverged set
-only flags its own status.
+calling `advance_sets` once per block of sets it takes (cheaper per set than a numba prange:
+docs/performance.md); sets are independent, so a diverged set only flags its own status.
 """
 
 from __future__ import annotations
@@ -28,13 +27,14 @@ import hashlib
 import importlib.util
 import math
 import os
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
 from feed_twin.plant.assembly import PlantModel
-from feed_twin.plant.codegen import const_name
+from feed_twin.plant.codegen import SIGNALS, const_name
 
 RING = 16  # sensor samples kept: delays up to RING - 1 ticks
 
@@ -120,8 +120,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
     for j in range(n):
         k = k0 + j
         t = k * h
-        # a tuple: drawn into the scratch vector 32 ticks ahead, a tick of axis_default took 7 ns
-        # longer (stores that may alias every array the loop reads)
+        # a tuple, not the scratch vector: the loop stores nothing that may alias what it reads
         if drawn:
             noise = pick_noise(pt, normals[k])
         else:
@@ -174,8 +173,8 @@ def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, tables,
     Set b takes its standard normal samples from `tables[table_of[b]]` (n rows), or draws them
     itself where table_of[b] < 0.
 
-    One call per thread: a Python-level call per set cost about 0.1 ms of dispatch, as much as
-    simulating 0.3 ms of a set.
+    One call per thread, not per set: Python's dispatch of a call costs as much as simulating a
+    fraction of a millisecond of a set.
     """
     for b in range(first, X.shape[0], stride):
         if status[b, 0] == 0.0:
@@ -321,16 +320,16 @@ def kernel_source(
 ) -> str:
     """The full module text: plant functions, loop and batch loop, for `substeps` RK4 steps per
     tick (a constant: with one, the usual case, the kernel holds no sub-step loop, whose inlined
-    copy of the step cost a third of the compile time).
+    copy of the step would lengthen the compile).
 
     `p_slots`, `cp_slots`: one entry per slot of the plant's and the controller's parameter
     vector, a value to compile into the loop as an exact literal or None for a slot the loop
     reads from `p` or `cp` (at each call of `advance`). LLVM folds what the literals decide.
     - The engine's default kernel fixes the controller's structure (feed_twin.control.layout
       STRUCTURE_SLOTS: mode, loops, rates, ...), so one kernel serves every parameter set of a
-      plant and cascade structure: 2-4 % per tick on axis_default against reading every slot.
-    - With engine.inline_parameters every slot is fixed: about 10 % per tick
-      (docs/architecture.md, "Engine performance"), one kernel per parameter set.
+      plant and cascade structure.
+    - With engine.inline_parameters every slot is fixed: faster per tick, one kernel per
+      parameter set (docs/performance.md).
     With `cp_slots` the controller's tick is inlined into the loop; without (None) the loop
     passes `cp` to the tick compiled on its own.
     """
@@ -357,17 +356,24 @@ def kernel_source(
         store_x="\n".join(f"        x[{i}] = xs[{i}]" for i in range(n_x)),
         controller=_CLOSED if closed_loop else _OPEN,
     )
-    head = "from feed_twin.core.signals import OUT_DUTY_A\nfrom feed_twin.core.fma import fma\n"
+    signals = {"MEAS_SIZE", "OUT_SIZE"} | ({"OUT_DUTY_A", "OUT_ENABLED"} if switching else set())
+    imports = [f"from {SIGNALS} import {', '.join(sorted(signals - model.signal_names))}"]
+    imports.append("from feed_twin.core.fma import fma")
+    if re.search(r"\bmath\.", loop):
+        imports.append("import math")
+    defs = ""
     if closed_loop and cp_slots is not None:
         # a tick with constants belongs inside the loop: LLVM folds them there
-        head += (
-            "from feed_twin.control.cascade import cascade_tick as _cascade_tick\n"
+        imports.append("from feed_twin.control.cascade import cascade_tick as _cascade_tick")
+        defs = (
             "cascade_tick = njit(forceinline=True, _nrt=False, error_model='numpy')"
             "(_cascade_tick.py_func)\n"
         )
     elif closed_loop:
-        head += "from feed_twin.control.cascade import cascade_tick\n"
-    return model.source_code + head + loop
+        imports.append("from feed_twin.control.cascade import cascade_tick")
+    # the loop's imports join the plant module's block, which ends at its first blank line
+    plant_imports, plant_body = model.source_code.split("\n\n", 1)
+    return "\n".join([plant_imports, *imports]) + "\n\n" + defs + plant_body + loop
 
 
 _LOADED: dict[str, ModuleType] = {}
