@@ -12,9 +12,10 @@ and bytes), per path:
 - `native_ref`: the setpoints the native backends are fed;
 - `machine`: feed_twin.machine's simulate on config/machine_default.yaml;
 - `bag`: `feed-twin run` (lockstep over DDS), the decoded message data of the recorded topics
-  (receive times left out); skipped with --no-bag.
+  (receive times and the run's token in header.frame_id left out); skipped with --no-bag, alone
+  with --bag-only.
 
-    .venv/bin/python benchmarks/identity.py [--no-bag]
+    .venv/bin/python benchmarks/identity.py [--no-bag | --bag-only]
 
 The last line is one JSON object: path name -> hash.
 """
@@ -189,12 +190,13 @@ def machine(program: str) -> str:
 
 
 def _fields(msg: Any) -> Any:
-    """A decoded message as plain values (field order kept), for hashing."""
+    """A decoded message as plain values (field order kept), for hashing; without the frame_id,
+    which carries a token new in every run."""
     slots = getattr(msg, "__slots__", None)
     if slots is None and hasattr(msg, "__dict__"):
         slots = list(vars(msg))
     if slots is not None:
-        return [(s, _fields(getattr(msg, s))) for s in slots]
+        return [(s, _fields(getattr(msg, s))) for s in slots if s != "frame_id"]
     if isinstance(msg, list | tuple):
         return [_fields(m) for m in msg]
     if isinstance(msg, float):
@@ -229,10 +231,12 @@ def bag(program: str) -> dict[str, str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--no-bag", action="store_true", help="skip the node-set run over DDS")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--no-bag", action="store_true", help="skip the node-set run over DDS")
+    which.add_argument("--bag-only", action="store_true", help="only the node-set run over DDS")
     args = parser.parse_args()
     hashes: dict[str, str] = {}
-    for program in PROGRAMS:
+    for program in () if args.bag_only else PROGRAMS:
         stem = Path(program).stem
         for model in MODELS:
             tag = f"{stem}/{Path(model).stem}"
