@@ -485,6 +485,8 @@ class Twin:
         return float(self.controller.base_period_s)
 
     def _inputs(self, drive: Drive) -> tuple[np.ndarray, np.ndarray | None, int, int]:
+        from feed_twin.sim.program import set_nc_reference
+
         h = self.base_period_s
         period = float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
         dec = round(period / h)
@@ -497,9 +499,7 @@ class Twin:
         hold = np.repeat  # known inputs are held between record samples
         ref = np.zeros((n, signals.REF_SIZE))
         if dec == 1:
-            ref[:, signals.REF_POS_M] = drive.pos_ref_m
-            ref[:, signals.REF_VEL_M_S] = drive.vel_ref_m_s
-            ref[:, signals.REF_ACC_M_S2] = drive.acc_ref_m_s2
+            set_nc_reference(ref, drive.pos_ref_m, drive.vel_ref_m_s, drive.acc_ref_m_s2)
         else:
             # a trace slower than the controller (a 50 Hz machine trace of a 1 kHz NC): the NC's
             # setpoints ran smoothly between the samples, so they are interpolated, not held (a
@@ -509,12 +509,12 @@ class Twin:
             # (less one tick) earlier for a signal smooth over the period: the command's own
             # time
             stamps = drive.t_s - (0.5 * (dec - 1) * h if drive.trace_mean else 0.0)
-            for slot, values in (
-                (signals.REF_POS_M, drive.pos_ref_m),
-                (signals.REF_VEL_M_S, drive.vel_ref_m_s),
-                (signals.REF_ACC_M_S2, drive.acc_ref_m_s2),
-            ):
-                ref[:, slot] = np.interp(fine, stamps, values)
+            set_nc_reference(
+                ref,
+                np.interp(fine, stamps, drive.pos_ref_m),
+                np.interp(fine, stamps, drive.vel_ref_m_s),
+                np.interp(fine, stamps, drive.acc_ref_m_s2),
+            )
         if drive.effort_add is not None:
             gain = self.doc.reference_gain or 1.0
             ref[:, signals.REF_EFFORT_ADD] = hold(drive.effort_add / gain, dec)

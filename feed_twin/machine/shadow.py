@@ -21,11 +21,11 @@ from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.gcode.planner import plan_program
 from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
-from feed_twin.machine.simulate import with_settle
 from feed_twin.shadow.config import ShadowConfig, load_shadow_config
 from feed_twin.shadow.health import LEVEL_NAMES, OK, Verdict
 from feed_twin.shadow.standin import StandIn
 from feed_twin.shadow.twin import ResidualBlock, ShadowTwin
+from feed_twin.sim.program import with_settle
 
 
 @dataclass(frozen=True, kw_only=True)

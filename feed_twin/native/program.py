@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.core import signals
 from feed_twin.gcode.config import nc_config_from_mapping
 from feed_twin.gcode.planner import plan_program
 from feed_twin.io.config import load_yaml
+from feed_twin.sim.program import nc_reference
 
 DEFAULT_NC = Path(__file__).resolve().parents[2] / "config" / "axis_default.yaml"
 
@@ -22,8 +22,4 @@ def program_ref(program: Path, base_period_s: float, nc_config: Path = DEFAULT_N
     traj = plan_program(program, cfg)
     x, v, a = traj.axis(cfg.twin_axis)
     dec = round((traj.t_s[1] - traj.t_s[0]) / base_period_s)
-    ref = np.zeros((len(x) * dec, signals.REF_SIZE))
-    ref[:, signals.REF_POS_M] = np.repeat(x, dec)
-    ref[:, signals.REF_VEL_M_S] = np.repeat(v, dec)
-    ref[:, signals.REF_ACC_M_S2] = np.repeat(a, dec)
-    return ref
+    return nc_reference(x, v, a, dec)

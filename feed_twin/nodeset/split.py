@@ -45,6 +45,7 @@ from feed_twin.core.validate import require_positive
 from feed_twin.io.config import from_mapping, load_yaml
 from feed_twin.nodeset.protection import ProtectionConfig
 from feed_twin.nodeset.topics import AxisTopics
+from feed_twin.sim.program import set_nc_reference
 
 Boundary = Literal["torque", "velocity", "position", "voltage"]
 RecorderHost = Literal["auto", "sim", "own"]
@@ -409,9 +410,7 @@ class ControllerCore:
                 velocity_m_s=nc.velocity_m_s,
             )
         ref = self._ref
-        ref[sig.REF_POS_M] = nc.position_m
-        ref[sig.REF_VEL_M_S] = nc.velocity_m_s
-        ref[sig.REF_ACC_M_S2] = nc.acceleration_m_s2
+        set_nc_reference(ref, nc.position_m, nc.velocity_m_s, nc.acceleration_m_s2)
         if self._cascade is not None:
             out = self._cascade.update(t, ref, meas)
             return DriveSetpoint(
@@ -462,8 +461,8 @@ def drive_reference(setpoint: DriveSetpoint, K_t: float, out: np.ndarray) -> Non
         out[sig.REF_VEL_EXT_M_S] = setpoint.velocity_m_s
         out[sig.REF_EFFORT_ADD] = setpoint.torque_Nm / K_t
     elif setpoint.mode == MODE_CSP:
-        out[sig.REF_POS_M] = setpoint.position_m
-        out[sig.REF_VEL_M_S] = setpoint.velocity_m_s
+        # CSP carries no acceleration: the drive's own feed-forward stays at zero
+        set_nc_reference(out, setpoint.position_m, setpoint.velocity_m_s, 0.0)
         out[sig.REF_EFFORT_ADD] = setpoint.torque_Nm / K_t
     elif setpoint.mode != MODE_VOLTAGE:  # the voltage goes to the modulator, not the cascade
         raise ValueError(f"DriveCommand mode = {setpoint.mode!r}: not one of -1, 8, 9, 10")

@@ -21,6 +21,14 @@ NODE_ROLES = (GCODE_NODE, CONTROLLER_NODE, SIM_NODE, RECORDER_NODE)
 
 
 @dataclass(frozen=True, kw_only=True)
+class Topic:
+    """A topic: its name and the installed message type it carries (pkg/msg/Type)."""
+
+    name: str
+    type_name: str
+
+
+@dataclass(frozen=True, kw_only=True)
 class AxisTopics:
     """Topic names of one axis, and the installed message type of each."""
 
@@ -78,20 +86,24 @@ class AxisTopics:
 
     clock = "/clock"
 
+    def published(self) -> tuple[Topic, ...]:
+        """Every topic the node set publishes, with its message type."""
+        return (
+            Topic(name=self.command, type_name="feed_twin_msgs/msg/AxisCommand"),
+            Topic(name=self.drive_command, type_name="feed_twin_msgs/msg/DriveCommand"),
+            Topic(name=self.feedback, type_name="feed_twin_msgs/msg/AxisFeedback"),
+            Topic(name=self.state, type_name="feed_twin_msgs/msg/AxisState"),
+            Topic(name=self.joint_states, type_name="sensor_msgs/msg/JointState"),
+            Topic(name=self.program_state, type_name="std_msgs/msg/String"),
+            Topic(name=self.run_state, type_name="std_msgs/msg/String"),
+            Topic(name=self.heartbeat, type_name="std_msgs/msg/String"),
+            Topic(name=self.health, type_name="feed_twin_msgs/msg/HealthStatus"),
+            Topic(name=self.clock, type_name="rosgraph_msgs/msg/Clock"),
+        )
+
     def types(self) -> dict[str, str]:
         """Topic name -> message type (pkg/msg/Type) of every topic the node set publishes."""
-        return {
-            self.command: "feed_twin_msgs/msg/AxisCommand",
-            self.drive_command: "feed_twin_msgs/msg/DriveCommand",
-            self.feedback: "feed_twin_msgs/msg/AxisFeedback",
-            self.state: "feed_twin_msgs/msg/AxisState",
-            self.joint_states: "sensor_msgs/msg/JointState",
-            self.program_state: "std_msgs/msg/String",
-            self.run_state: "std_msgs/msg/String",
-            self.heartbeat: "std_msgs/msg/String",
-            self.health: "feed_twin_msgs/msg/HealthStatus",
-            self.clock: "rosgraph_msgs/msg/Clock",
-        }
+        return {topic.name: topic.type_name for topic in self.published()}
 
     def service(self, node: str, name: str) -> str:
         return f"{self.namespace}/{node}/{name}"

@@ -28,6 +28,7 @@ import sys
 import time
 from collections import deque
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,7 @@ from sensor_msgs.msg import JointState
 from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.measured import load_column_map
+from feed_twin.nodeset.topics import Topic
 from feed_twin.ros.dds import DATA_QOS
 from feed_twin.ros.runtime import EXIT_OK, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import JOINT_STATE, MessageFields, plan
@@ -66,14 +68,22 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
+@dataclass(frozen=True, kw_only=True)
+class InputTopic:
+    """A machine topic the twin subscribes to and the decoder of its mapped fields."""
+
+    topic: Topic
+    fields: MessageFields
+
+
 class TwinNode(FeedTwinNode):
     def __init__(
         self,
         options: NodeOptions,
         *,
         shadow: ShadowTwin,
-        command: tuple[str, str, MessageFields],
-        measured: tuple[str, str, MessageFields],
+        command: InputTopic,
+        measured: InputTopic,
         out_namespace: str,
         axis_label: str,
         dashboard=None,
@@ -85,26 +95,28 @@ class TwinNode(FeedTwinNode):
         self.axis_label = axis_label
         self.dashboard = dashboard
         self.max_time_s = max_time_s
-        self._cmd_fields = command[2]
-        self._meas_fields = measured[2]
+        self._cmd_fields = command.fields
+        self._meas_fields = measured.fields
+        # the measured stream's effort signal, if mapped
         self._effort_name = next(
-            (n for n in measured[2]._paths if n != "pos_meas_m"), None
-        )  # the measured stream's effort signal, if mapped
+            (n for n in measured.fields.signal_names if n != "pos_meas_m"), None
+        )
         self._is_current = shadow.twin.effort_unit == "A"
         self._state_pub = self.create_publisher(AxisState, f"{out_namespace}/state", DATA_QOS)
         self._residual_pub = self.create_publisher(
             TwinResidual, f"{out_namespace}/residual", DATA_QOS
         )
         self._health_pub = self.create_publisher(HealthStatus, f"{out_namespace}/health", DATA_QOS)
-        self.create_subscription(
-            MESSAGE_TYPES[command[1]], command[0], self._on_command, DATA_QOS, raw=True
-        )
-        self.create_subscription(
-            MESSAGE_TYPES[measured[1]], measured[0], self._on_measured, DATA_QOS, raw=True
-        )
+        for source, callback in ((command, self._on_command), (measured, self._on_measured)):
+            topic = source.topic
+            self.create_subscription(
+                MESSAGE_TYPES[topic.type_name], topic.name, callback, DATA_QOS, raw=True
+            )
         self._seen_command = False
         self._measured_dog = self.watch_input(
-            measured[0], measured[1], armed=lambda: self._seen_command and not self.run_ended
+            measured.topic.name,
+            measured.topic.type_name,
+            armed=lambda: self._seen_command and not self.run_ended,
         )
         self._arrival: dict[int, float] = {}
         self._draining_since: float | None = None
@@ -334,10 +346,14 @@ def build(args: argparse.Namespace, context) -> TwinNode:
                     peers=tuple(p for p in args.peers.split(",") if p),
                     input_timeout_s=args.input_timeout, startup_timeout_s=args.startup_timeout),
         shadow=shadow,
-        command=(topic_of["command"], args.command_type,
-                 MessageFields(args.command_type, groups["command"], cmap)),
-        measured=(topic_of["measured"], args.measured_type,
-                  MessageFields(args.measured_type, groups["measured"], cmap)),
+        command=InputTopic(
+            topic=Topic(name=topic_of["command"], type_name=args.command_type),
+            fields=MessageFields(args.command_type, groups["command"], cmap),
+        ),
+        measured=InputTopic(
+            topic=Topic(name=topic_of["measured"], type_name=args.measured_type),
+            fields=MessageFields(args.measured_type, groups["measured"], cmap),
+        ),
         out_namespace=args.out_namespace or twin_namespace(topic_of["command"]),
         axis_label=args.axis.upper(),
         dashboard=dashboard,

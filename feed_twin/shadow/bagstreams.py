@@ -465,6 +465,11 @@ class MessageFields:
         }
         self._layouts: dict[int, dict[str, tuple[int, str]]] = {}
 
+    @property
+    def signal_names(self) -> tuple[str, ...]:
+        """The mapped signals each message yields (pos_meas_m, pos_cmd_m, ...)."""
+        return tuple(self._paths)
+
     def __call__(self, data: bytes) -> tuple[float, dict[str, float]]:
         where = self._layouts.get(len(data))
         if where is None:

@@ -18,10 +18,10 @@ import numpy as np
 
 from feed_twin.analysis.synthetic import PROGRAM, Unmodelled, command, truth_model
 from feed_twin.analysis.twin import ModelDoc, Twin
-from feed_twin.core import signals
 from feed_twin.io.bag import QosProfile
 from feed_twin.shadow.config import StandInConfig
 from feed_twin.shadow.twin import _Rows
+from feed_twin.sim.program import nc_reference
 
 
 def program_command(
@@ -100,10 +100,7 @@ class StandIn:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Measured position [m] and effort [effort unit] at each of the given NC samples."""
         n = len(x_m)
-        ref = np.zeros((n * self.dec, signals.REF_SIZE))
-        ref[:, signals.REF_POS_M] = np.repeat(x_m, self.dec)
-        ref[:, signals.REF_VEL_M_S] = np.repeat(v_m_s, self.dec)
-        ref[:, signals.REF_ACC_M_S2] = np.repeat(a_m_s2, self.dec)
+        ref = nc_reference(x_m, v_m_s, a_m_s2, self.dec)
         res = self.engine.advance(n * self.dec, ref=ref)
         x, effort = self.twin.measured_signals(_Rows(res), self.dec)
         return x[0], effort[0] + self._rng.normal(0.0, self.noise_std, n)

@@ -39,11 +39,11 @@ from typing import Any
 import numpy as np
 
 from feed_twin.analysis.twin import Twin
-from feed_twin.core import signals
 from feed_twin.shadow.config import ShadowConfig
 from feed_twin.shadow.health import HealthMonitor, PhysicalEffect, Verdict
 from feed_twin.shadow.stream import SlotStream
 from feed_twin.sim.engine import DivergenceError
+from feed_twin.sim.program import nc_reference
 
 CMD_POS, CMD_VEL = 0, 1
 SILENT_AFTER_S = 0.5  # [s] a stream this far behind the other one is decided as missing
@@ -400,10 +400,7 @@ class ShadowTwin:
             return
         rows, filled = derived
         n = len(rows)
-        ref = np.zeros((n * self.dec, signals.REF_SIZE))
-        ref[:, signals.REF_POS_M] = np.repeat(rows[:, 0], self.dec)
-        ref[:, signals.REF_VEL_M_S] = np.repeat(rows[:, 1], self.dec)
-        ref[:, signals.REF_ACC_M_S2] = np.repeat(rows[:, 2], self.dec)
+        ref = nc_reference(rows[:, 0], rows[:, 1], rows[:, 2], self.dec)
         assert self._next_sim is not None
         slots = np.arange(self._next_sim, self._next_sim + n)
         try:

@@ -257,9 +257,7 @@ def run_batch(
     ks = np.arange(n_ticks)
     rec_ticks = ks[ks % engine.dec == 0]
     rec = np.full((N, len(rec_ticks), len(engine.sel)), np.nan)
-    ref2 = engine._input(ref, n_ticks, signals.REF_SIZE, "ref")
-    drive2 = engine._input(drive, n_ticks, signals.OUT_SIZE, "drive")
-    ext2 = engine._input(ext, n_ticks, engine.n_ext, "ext")
+    ref2, drive2, ext2 = engine.tick_inputs(n_ticks, ref=ref, drive=drive, ext=ext)
     works = np.zeros((N, engine.work.size))
     n_threads = max(1, min(threads or default_threads(), N))
     # the noise tables depend on the plant alone: the engine's own kernel draws them

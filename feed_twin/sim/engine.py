@@ -264,9 +264,7 @@ class Engine:
         ext: np.ndarray | None = None,
     ) -> SimResult:
         """Advance n_ticks base periods from the current tick; returns what was recorded."""
-        ref2 = self._input(ref, n_ticks, signals.REF_SIZE, "ref")
-        drive2 = self._input(drive, n_ticks, signals.OUT_SIZE, "drive")
-        ext2 = self._input(ext, n_ticks, self.n_ext, "ext")
+        ref2, drive2, ext2 = self.tick_inputs(n_ticks, ref=ref, drive=drive, ext=ext)
         k0 = self.k
         # the recorded ticks: the multiples of dec in [k0, k0 + n_ticks)
         rec_ticks = np.arange(-(-k0 // self.dec) * self.dec, k0 + n_ticks, self.dec)
@@ -298,6 +296,22 @@ class Engine:
         if status[0] != 0.0:
             raise DivergenceError(divergence_message(self.model, status, self.h))
         return SimResult(t=rec_ticks * self.h, names=self.record_names, data=rec)
+
+    def tick_inputs(
+        self,
+        n_ticks: int,
+        *,
+        ref: np.ndarray | None = None,
+        drive: np.ndarray | None = None,
+        ext: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ref, drive, ext) for n_ticks base ticks as the kernel takes them: (n_ticks, REF_SIZE),
+        (n_ticks, OUT_SIZE), (n_ticks, n_ext); zeros for an input not given."""
+        return (
+            self._input(ref, n_ticks, signals.REF_SIZE, "ref"),
+            self._input(drive, n_ticks, signals.OUT_SIZE, "drive"),
+            self._input(ext, n_ticks, self.n_ext, "ext"),
+        )
 
     def _input(self, array: np.ndarray | None, n: int, width: int, what: str) -> np.ndarray:
         """An input as the kernel takes it; an absent one is zeros, made once per shape (a
