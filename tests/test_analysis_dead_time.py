@@ -15,20 +15,20 @@ import numpy as np
 import pytest
 
 from feed_twin.analysis.diagnose import diagnose
-from feed_twin.analysis.edits import dead_time
-from feed_twin.analysis.effects import BY_NAME, dead_time_voltage
+from feed_twin.analysis.effects import BY_NAME
 from feed_twin.analysis.effects import motion_from_position as motion_of
 from feed_twin.analysis.ranking import Candidate, rank
 from feed_twin.analysis.synthetic import generate, write_csv
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 from feed_twin.io.measured import load_measured
-from feed_twin.plant.inverter import leg_duty
+from feed_twin.plant.inverter import dead_time_voltage, leg_duty
 
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "config" / "axis_default.yaml"
 # the long program and machine-tool NC of the stiffness tests: moves over most of the travel
 LONG_PROGRAM = (ROOT / "tests" / "fixtures" / "analysis" / "long_travel.ngc").read_text()
 TRUTH_T_DEAD_S = 2.0e-6  # the compensation assumes the nominal 1 us
+dead_time = BY_NAME["dead_time"].edit  # the Inverter's edit of its own dead time
 
 
 def _candidate(domain: str, coefficients: dict[str, float]) -> Candidate:

@@ -53,7 +53,14 @@ def test_library_holds_every_identifier_of_the_issue():
 
 def test_effect_needs_exactly_one_signature_kind():
     with pytest.raises(ValueError, match="effect x: give exactly one of signature and choices"):
-        Effect(name="x", domain="effort", component="c", words="w")
+        Effect(
+            name="x",
+            domain="effort",
+            parameters="c",
+            words="w",
+            edit=BY_NAME["coulomb_friction"].edit,
+            truth=BY_NAME["coulomb_friction"].truth,
+        )
 
 
 @pytest.mark.parametrize(

@@ -18,6 +18,7 @@ from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.synthetic import NC_CONFIG, generate, write_csv
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io.measured import load_measured
+from feed_twin.plant.external_force import with_constant_force
 
 ROOT = Path(__file__).resolve().parents[1]
 EMPS = ROOT / "config" / "emps_nominal.yaml"
@@ -42,7 +43,7 @@ def test_neutral_values_are_the_model_before_the_effect():
     before = ModelDoc.load(AXIS)
     fr = before.friction()
     after = before.tie(f"{fr}.F_c", (f"{fr}.F_c_pos", f"{fr}.F_c_neg")).set(f"{fr}.F_c", 160.0)
-    after, slot = after.with_constant_force(-20.0)
+    after, slot = with_constant_force(after, -20.0)
     neutral = neutral_values(before, after, (f"{fr}.F_c", slot))
     # the tie did not exist before: its members' mean; the new component: zero
     assert neutral == {f"{fr}.F_c": 120.0, slot: 0.0}
@@ -50,7 +51,7 @@ def test_neutral_values_are_the_model_before_the_effect():
 
 def test_an_effect_whose_size_fell_back_to_neutral_has_collapsed():
     doc = ModelDoc.load(EMPS)
-    doc, slot = doc.with_constant_force(-20.0)
+    doc, slot = with_constant_force(doc, -20.0)
     found = Found(
         effect=FoundEffect(
             name="constant_force", evidence="", parameters={}, explained_fraction=0.5, component=""

@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from feed_twin.analysis.diagnose import diagnose
-from feed_twin.analysis.edits import current_offset, position_dependent_stiffness
 from feed_twin.analysis.effects import BY_NAME
 from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, fit
 from feed_twin.analysis.ranking import Candidate
@@ -26,6 +25,9 @@ from feed_twin.io.measured import load_measured
 
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "config" / "axis_default.yaml"
+# the edits the owning components declare (AxialCompliance, CurrentSensor)
+position_dependent_stiffness = BY_NAME["position_dependent_stiffness"].edit
+current_offset = BY_NAME["current_offset"].edit
 
 LONG_PROGRAM = (ROOT / "tests" / "fixtures" / "analysis" / "long_travel.ngc").read_text()
 # a machine tool accelerates at metres per second squared: the inertial load dominates friction

@@ -12,7 +12,7 @@ from feed_twin.analysis.effects import BY_NAME
 from feed_twin.analysis.synthetic import Unmodelled, generate, write_csv
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io.measured import load_measured
-from feed_twin.plant.registry import COMPONENT_TYPES, OWNER_OF
+from feed_twin.plant.registry import COMPONENT_TYPES
 from feed_twin.plant.stiction_friction import StictionFriction, stiction_force
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,7 +56,15 @@ def test_parameters_are_checked_by_name():
 
 def test_one_component_file_and_one_registry_line_make_a_library_effect():
     assert COMPONENT_TYPES["StictionFriction"] is StictionFriction
-    assert OWNER_OF["stiction"] == "StictionFriction"
+    assert BY_NAME["stiction"].owner == "StictionFriction"
+    # the law is known nowhere else: not to the analysis, not to the rest of the plant
+    package = ROOT / "feed_twin"
+    naming = sorted(
+        str(path.relative_to(package))
+        for path in package.rglob("*.py")
+        if "StictionFriction" in path.read_text() or "stiction" in path.read_text()
+    )
+    assert naming == ["plant/registry.py", "plant/stiction_friction.py"]
     assert BY_NAME["stiction"].component == "StictionFriction.F_hold"
     assert BY_NAME["stribeck_friction"].component == "GuideFriction.dF_s, v_s"  # the field
 

@@ -7,11 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from feed_twin.analysis.thermal import with_thermal_growth
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.core import signals as sig
 from feed_twin.plant.config import load_plant
-from feed_twin.plant.thermal_growth import ALPHA_STEEL, ThermalGrowth, temperature_rate
+from feed_twin.plant.thermal_growth import (
+    ALPHA_STEEL,
+    ThermalGrowth,
+    temperature_rate,
+    with_thermal_growth,
+)
 
 GEOMETRY = {
     "arrangement": "fixed-free",
@@ -90,7 +94,6 @@ def test_invalid_parameters_are_refused_with_the_field_named(field, value, messa
 
 
 def test_backlash_edit_needs_a_backlash_component():
-    from feed_twin.analysis.edits import EDITS
     from feed_twin.analysis.effects import BY_NAME
     from feed_twin.analysis.ranking import Candidate
 
@@ -105,7 +108,7 @@ def test_backlash_edit_needs_a_backlash_component():
         significant=True,
     )
     with pytest.raises(LookupError, match="no Backlash between a nut mass and the table"):
-        EDITS["backlash"](ModelDoc.load("config/emps_nominal.yaml"), cand)
-    edit = EDITS["backlash"](ModelDoc.load("config/axis_default.yaml"), cand)
+        BY_NAME["backlash"].edit(ModelDoc.load("config/emps_nominal.yaml"), cand)
+    edit = BY_NAME["backlash"].edit(ModelDoc.load("config/axis_default.yaml"), cand)
     # nominal gap 2 um plus twice the half-gap weight
     assert edit.doc.get("backlash.gap") == pytest.approx(2e-6 + 8e-6)

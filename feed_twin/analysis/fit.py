@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from feed_twin.plant.effect_api import FreeParameter
+
 DIVERGED_RESIDUAL = 1e3  # residual entries (normalised) of a diverged simulation
 
 
@@ -39,33 +41,6 @@ class SimOutputs:
 
 
 BatchSimulator = Callable[[np.ndarray], SimOutputs]  # params (N, P) -> outputs
-
-
-@dataclass(frozen=True, kw_only=True)
-class FreeParameter:
-    name: str  # engine parameter slot, e.g. "friction.F_c_pos"
-    initial: float
-    scale: float  # typical magnitude, sets the finite-difference step and the solver scaling
-    lower: float = -np.inf
-    upper: float = np.inf
-    # fitted as z = ln(value / scale): for a positive quantity known only to a factor (a
-    # stiffness), whose effect goes with 1/value, so equal steps in z change the output alike
-    log: bool = False
-
-    def __post_init__(self) -> None:
-        if not (np.isfinite(self.scale) and self.scale > 0.0):
-            raise ValueError(f"{self.name}: scale = {self.scale!r}: must be > 0")
-        if self.log and not (self.initial > 0.0 and self.lower >= 0.0):
-            raise ValueError(
-                f"{self.name}: initial = {self.initial!r}, lower = {self.lower!r}: a log "
-                f"parameter must start > 0 with lower >= 0"
-            )
-        if not self.lower < self.upper:
-            raise ValueError(
-                f"{self.name}: bounds [{self.lower!r}, {self.upper!r}]: lower must be < upper"
-            )
-        if not np.isfinite(self.initial):
-            raise ValueError(f"{self.name}: initial = {self.initial!r}: must be finite")
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)

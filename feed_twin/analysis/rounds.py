@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from feed_twin.analysis.edits import EDITS, Edit, interacting
 from feed_twin.analysis.effects import Motion
 from feed_twin.analysis.fit import (
     FitResult,
@@ -25,12 +24,14 @@ from feed_twin.analysis.fit import (
     cost_of,
     fit,
 )
+from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate, evidence, rank
 from feed_twin.analysis.reexamine import Found, collapsed, neutral_values, removable, without
 from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import compare, sample_noise
-from feed_twin.analysis.twin import EFFORT_DELAY_SLOT, Drive, ModelDoc, Twin, delayed
+from feed_twin.analysis.twin import Drive, Twin, delayed
 from feed_twin.io.measured import MeasuredRun
+from feed_twin.plant.effect_api import Edit, interacting
 
 VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
 
@@ -174,15 +175,11 @@ def _try(
 ) -> tuple[Edit, list[FreeParameter], Twin, FitResult] | str:
     """Add the candidate to the model and fit it (with the effects found before); returns the
     edit, the effect's own parameters, the compiled twin and the fit, or why it was not fitted."""
-    if cand.name not in EDITS:
-        return (
-            f"{cand.name}: named by its signature, but the workflow cannot add "
-            f"{cand.effect.component} to a model yet; not fitted"
-        )
     try:
-        edit = EDITS[cand.name](state.doc, cand)
+        edit = cand.effect.edit(state.doc, cand)
     except LookupError as exc:
         return f"{cand.name}: cannot be added to this model ({exc}); not fitted"
+    doc = model_of(edit.doc)
     # the effects found before interact with the new one (a constant force fitted alone has
     # absorbed part of a Coulomb force found later): their parameters are fitted again with it
     names = {p.name for p in edit.own}
@@ -191,15 +188,15 @@ def _try(
     for p in () if edit.grid else state.found_free():
         if p.name in names:
             continue
-        if not edit.doc.has_slot(p.name):
+        if not doc.has_slot(p.name):
             continue  # the parameter was split or replaced by the new effect
-        again.append(dataclasses.replace(p, initial=edit.doc.get(p.name)))
+        again.append(dataclasses.replace(p, initial=doc.get(p.name)))
         names.add(p.name)
     own = edit.own + again
     edit = dataclasses.replace(
         edit, own=own, free=own + [p for p in edit.free if p.name not in names]
     )
-    twin = Twin.compile(edit.doc)
+    twin = Twin.compile(doc)
     if edit.grid:
         return edit, alone, twin, _grid_search(twin, edit, drive, meas)
     return edit, alone, twin, _fit_resumed(twin, drive, edit.own, meas, opts)
@@ -408,7 +405,7 @@ def run_round(
 def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
     """Adopt the fitted effect into the state."""
     before = state.doc
-    doc = edit.doc
+    doc = model_of(edit.doc)
     for name, value in result.values.items():
         doc = doc.set(name, value)
     explained = (state.cost - result.cost) / state.cost if state.cost > 0 else 0.0

@@ -17,15 +17,17 @@ what was hidden.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from feed_twin.analysis.twin import Drive, ModelDoc, Twin
+from feed_twin.analysis.effects import LIBRARY
+from feed_twin.analysis.model_doc import ModelDoc, model_of
+from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.registry import OWNED_EFFECTS
+from feed_twin.plant.effect_api import TruthFn
 
 # A program with moves of several lengths and feeds, reversals and dwells on one axis (X).
 PROGRAM = """\
@@ -92,106 +94,8 @@ EFFORT_COLUMNS = {
 VOLTAGE_COLUMN = "u_q_V"  # the commanded q-axis voltage of a PMSM drive [V]
 
 
-def _friction(doc: ModelDoc) -> tuple[ModelDoc, str]:
-    doc = doc.with_friction()
-    fr = doc.friction()
-    assert fr is not None
-    return doc, fr
-
-
-def _coulomb(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    doc, fr = _friction(doc)
-    return doc.set(f"{fr}.F_c_pos", p["F_c_N"]).set(f"{fr}.F_c_neg", p["F_c_N"])
-
-
-def _viscous(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    doc, fr = _friction(doc)
-    return doc.set(f"{fr}.F_v_pos", p["F_v_N_s_m"]).set(f"{fr}.F_v_neg", p["F_v_N_s_m"])
-
-
-def _stribeck(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    doc, fr = _friction(doc)
-    return doc.set(f"{fr}.dF_s", p["dF_s_N"]).set(f"{fr}.v_s", p["v_s_m_s"])
-
-
-def _asymmetric(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    doc, fr = _friction(doc)
-    for name in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg"):
-        if name in p:
-            doc = doc.set(f"{fr}.{name}", p[name])
-    return doc
-
-
-def _mass(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    slot = doc.mass_slot()
-    assert slot is not None
-    return doc.set(slot, p["m_kg"])
-
-
-def _gain(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    slot = doc.gain_slot()
-    assert slot is not None
-    return doc.set(slot, p["gain"])
-
-
-def _delay(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    sensors = doc.of_type("Encoder") + doc.of_type("LinearScale")
-    for name in sensors:
-        doc = doc.set(f"{name}.delay_ticks", int(p["delay_ticks"]))
-    return doc
-
-
-def _lead_error(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    name = doc.of_type("AxialCompliance")[0]
-    lead = doc.get(f"{doc.of_type('BallScrew')[0]}.lead")
-    doc = doc.set_raw(name, "lead_error_period", lead)
-    doc = doc.set(f"{name}.lead_error_amplitude", p["amplitude_m"])
-    return doc.set(f"{name}.lead_error_phase", p["phase_rad"])
-
-
-def _thermal(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    from feed_twin.analysis.thermal import with_thermal_growth
-
-    return with_thermal_growth(doc, p["heating_K_m"])[0]
-
-
-def _stiffness(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    name = doc.of_type("AxialCompliance")[0]
-    return doc.set(f"{name}.k_bearing", p["k_bearing_N_m"]).set(f"{name}.EA", p["EA_N"])
-
-
-def _current_offset(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    name = doc.of_type("CurrentSensor")[0]
-    for phase in ("a", "b", "c"):
-        key = f"offset_{phase}_A"
-        if key in p:
-            doc = doc.set(f"{name}.offset_{phase}", p[key])
-    return doc
-
-
-def _dead_time(doc: ModelDoc, p: Mapping[str, float]) -> ModelDoc:
-    # the controller's dead-time compensation stays tuned for the nominal dead time
-    return doc.set(f"{doc.of_type('Inverter')[0]}.t_dead", p["t_dead_s"])
-
-
-HIDDEN: dict[str, Callable[[ModelDoc, Mapping[str, float]], ModelDoc]] = {
-    **{effect.name: effect.truth for effect in OWNED_EFFECTS},
-    "coulomb_friction": _coulomb,
-    "viscous_friction": _viscous,
-    "stribeck_friction": _stribeck,
-    "asymmetric_friction": _asymmetric,
-    "mass_error": _mass,
-    "torque_constant_error": _gain,
-    "measurement_delay": _delay,
-    "lead_error": lambda doc, p: _lead_error(doc, p),
-    "thermal_drift": lambda doc, p: _thermal(doc, p),
-    "position_dependent_stiffness": _stiffness,
-    "current_offset": _current_offset,
-    "dead_time": _dead_time,
-    "cogging_torque": lambda doc, p: doc.with_cogging(
-        int(p["order"]), p["amplitude_Nm"], p["phase_rad"]
-    )[0],
-}
+# effect -> how a truth model hides it (declared by the component that carries it)
+HIDDEN: dict[str, TruthFn] = {effect.name: effect.truth for effect in LIBRARY}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -215,7 +119,7 @@ def truth_model(
 ) -> ModelDoc:
     doc = nominal
     for name, params in hidden.items():
-        doc = HIDDEN[name](doc, params)
+        doc = model_of(HIDDEN[name](doc, params))
     if unmodelled.current_lag_s > 0.0:
         for source in doc.of_type("EffortSource"):
             doc = doc.set(f"{source}.T_lag", unmodelled.current_lag_s)

@@ -22,13 +22,26 @@ Ports: `a`, `b` (translational: s [m], v [m/s], f [N]).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
+import numpy as np
 from numba import njit
 
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, SlotReader
+from feed_twin.plant.component import Component, Emitter, Quantity, SlotReader
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    FreeParameter,
+    Motion,
+    Weights,
+    first_of,
+    make_edit,
+    motor_angle,
+)
 
 
 def fixed_fixed_flag(arrangement: str) -> str:
@@ -97,10 +110,132 @@ def axial_force(
     )
 
 
+def axial_rigidity(E: float, d_root: float) -> float:
+    """EA [N] of a screw of root diameter d_root [m] and Young's modulus E [Pa]."""
+    return E * math.pi * d_root**2 / 4.0
+
+
+def _set_axial_rigidity(params: dict[str, Any], value: float) -> None:
+    # the root diameter stays: the fitted EA is stored as Young's modulus
+    params["E"] = float(value) / (math.pi * float(params["d_root"]) ** 2 / 4.0)
+
+
+def _screw_lead(doc: Document) -> float:
+    screw = first_of(doc, "BallScrew", "whose lead is the lead error's period")
+    return doc.get(f"{screw}.lead")
+
+
+def _lead_error_edit(doc: Document, cand: Weights) -> Edit:
+    """A once-per-revolution lead error in the axial compliance; amplitude and phase fitted.
+
+    A linear scale reads the table at s + e(s), the twin at s: the position residual
+    (twin minus measured) is -A sin(2 pi s / P + psi), so (sin, cos) weights (s, c) give
+    A = hypot(s, c) and psi = atan2(-c, -s).
+    """
+    name = first_of(doc, AxialCompliance.TYPE, "to carry a lead error")
+    lead = _screw_lead(doc)
+    s_w, c_w = cand.coefficients.get("sin", 0.0), cand.coefficients.get("cos", 0.0)
+    amplitude = max(math.hypot(s_w, c_w), 1e-9)
+    phase = math.atan2(-c_w, -s_w)
+    doc = _with_lead_error(doc, name, lead, amplitude, phase)
+    own = [
+        FreeParameter(
+            name=f"{name}.lead_error_amplitude", initial=amplitude, scale=amplitude, lower=0.0
+        ),
+        FreeParameter(name=f"{name}.lead_error_phase", initial=phase, scale=1.0),
+    ]
+    report = {
+        "amplitude_m": lambda v: v[f"{name}.lead_error_amplitude"],
+        "phase_rad": lambda v: v[f"{name}.lead_error_phase"],
+        "period_m": lambda v: lead,
+    }
+    return make_edit(doc, own, report, interacts=False)
+
+
+def _with_lead_error(
+    doc: Document, name: str, lead: float, amplitude: float, phase: float
+) -> Document:
+    doc = doc.set_raw(name, "lead_error_period", lead)
+    return doc.set(f"{name}.lead_error_amplitude", amplitude).set(f"{name}.lead_error_phase", phase)
+
+
+def _lead_error_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    name = first_of(doc, AxialCompliance.TYPE, "to carry a lead error")
+    return _with_lead_error(doc, name, _screw_lead(doc), p["amplitude_m"], p["phase_rad"])
+
+
+def _stiffness_edit(doc: Document, cand: Weights) -> Edit:
+    """The axial rigidity EA of the screw and the support-bearing stiffness are fitted.
+
+    The axial compliance is 1/k(x) = 1/k_bearing + c_screw(x)/EA + 1/k_nut: the
+    position-dependent part identifies EA, the constant part the bearing (the nut's share stays
+    nominal: a constant compliance cannot tell the two apart). Both are fitted in the log
+    (scaled to order 1 by their nominal values): the deflection goes with their inverses and
+    the truth may be a factor of several away, where a linear parametrisation left the trust
+    region crawling. The screw's root diameter stays fixed; EA is stored as Young's modulus.
+    """
+    del cand
+    name = first_of(doc, AxialCompliance.TYPE, "(screw) whose stiffness could vary")
+    slots = (f"{name}.k_bearing", f"{name}.EA")
+    own = [
+        FreeParameter(name=slot, initial=doc.get(slot), scale=doc.get(slot), lower=0.0, log=True)
+        for slot in slots
+    ]
+    report = {"k_bearing_N_m": lambda v: v[slots[0]], "EA_N": lambda v: v[slots[1]]}
+    return make_edit(doc, own, report, interacts=False)
+
+
+def _stiffness_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    name = first_of(doc, AxialCompliance.TYPE, "(screw) whose stiffness could vary")
+    return doc.set(f"{name}.k_bearing", p["k_bearing_N_m"]).set(f"{name}.EA", p["EA_N"])
+
+
+def _stiffness_signature(m: Motion) -> dict[str, np.ndarray]:
+    # the table lags the nut by F * c(x): a screw held at one end (fixed-free) has c linear
+    # in the distance to the bearing, one held at both ends (fixed-fixed) c ~ x (L - x); a
+    # quadratic in the position covers both (the constant part: bearings and nut). The twin's
+    # effort stands for the axial load F.
+    assert m.effort_sim is not None
+    s = (m.x_m - m.x_m.mean()) / max(float(np.ptp(m.x_m)), 1e-9)
+    f = m.effort_sim
+    return {"f": f, "f_x": f * s, "f_x2": f * s * s}
+
+
 @dataclass(frozen=True, kw_only=True)
 class AxialCompliance(Component):
     TYPE = "AxialCompliance"
     PORTS = {"a": "translational", "b": "translational"}
+    EFFECTS = (
+        Effect(
+            name="lead_error",
+            domain="position",
+            words="a position error that repeats once per screw revolution (pitch error, "
+            "eccentricity)",
+            parameters="lead_error_amplitude, lead_error_phase",
+            needs=("lead_m",),
+            signature=lambda m: {"sin": np.sin(motor_angle(m)), "cos": np.cos(motor_angle(m))},
+            edit=_lead_error_edit,
+            truth=_lead_error_truth,
+        ),
+        Effect(
+            name="position_dependent_stiffness",
+            domain="position",
+            words="the table lags more under load in mid-travel than near the bearings: the "
+            "screw's axial stiffness depends on the table position",
+            parameters="k_bearing, EA",
+            needs=("effort_sim",),
+            signature=_stiffness_signature,
+            edit=_stiffness_edit,
+            truth=_stiffness_truth,
+        ),
+    )
+    QUANTITIES = {
+        "EA": Quantity(
+            stored_as=("E", "d_root"),
+            read=lambda params: axial_rigidity(float(params["E"]), float(params["d_root"])),
+            write=_set_axial_rigidity,
+        )
+    }
 
     arrangement: Literal["fixed-fixed", "fixed-free"]  # bearing arrangement of the screw
     E: float  # Young's modulus of the screw [Pa] (steel about 210e9)
@@ -140,7 +275,7 @@ class AxialCompliance(Component):
     def slots(self) -> dict[str, float]:
         return {
             "L": self.L,
-            "EA": self.E * math.pi * self.d_root**2 / 4.0,
+            "EA": axial_rigidity(self.E, self.d_root),
             "x_0": self.x_0,
             "x_min": self.x_min,
             "k_bearing": self.k_bearing,

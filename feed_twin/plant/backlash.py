@@ -13,13 +13,23 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
+import numpy as np
 from numba import njit
 
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, OwnedEffect, SlotReader
+from feed_twin.plant.component import Component, Emitter, SlotReader
 from feed_twin.plant.coupling import emit_two_port
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    FreeParameter,
+    Motion,
+    Weights,
+    last_direction,
+    make_edit,
+)
 
 
 @njit(error_model="numpy", forceinline=True)
@@ -39,20 +49,16 @@ def backlash_force(
     return f, 0.5 * f_e * f_e / k, (f - f_e) * delta_rate
 
 
-def _last_direction(m: Any) -> dict[str, Any]:
-    from feed_twin.analysis.effects import last_direction
-
+def _last_direction(m: Motion) -> dict[str, np.ndarray]:
     return {"last_direction": last_direction(m)}
 
 
-def _gap_edit(doc: Any, cand: Any) -> Any:
+def _gap_edit(doc: Document, cand: Weights) -> Edit:
     """The gap of the model's Backlash (lost motion between nut and table) is fitted.
 
     A move in +x leaves the table b = gap/2 behind the nut, a move in -x b ahead, so the
     position residual (twin minus measured) is (gap_true - gap_model)/2 * last direction.
     """
-    from feed_twin.analysis.edits import FreeParameter, make_edit
-
     found = doc.of_type(Backlash.TYPE)
     if not found:
         raise LookupError(
@@ -66,7 +72,7 @@ def _gap_edit(doc: Any, cand: Any) -> Any:
     return make_edit(doc, own, {"gap_m": lambda v: v[slot]}, interacts=False)
 
 
-def _gap_truth(doc: Any, p: Mapping[str, float]) -> Any:
+def _gap_truth(doc: Document, p: Mapping[str, float]) -> Document:
     return doc.set(f"{doc.of_type(Backlash.TYPE)[0]}.gap", p["gap_m"])
 
 
@@ -75,7 +81,7 @@ class Backlash(Component):
     TYPE = "Backlash"
     PORTS = {"a": "translational", "b": "translational"}
     EFFECTS = (
-        OwnedEffect(
+        Effect(
             name="backlash",
             domain="position",
             words="lost motion at every reversal: the table stays behind by a fixed gap when "

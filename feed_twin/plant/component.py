@@ -42,6 +42,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
+from feed_twin.plant.effect_api import Effect
+
 PortKind = Literal["rotational", "translational", "dc", "ac3"]
 SlotReader = Callable[[str], float]  # parameter slot name of the component -> its value
 STAGES = ("currents", "dc_current", "dc_voltage", "voltages", "dynamics", "transmit", "sense")
@@ -71,24 +73,22 @@ class InertiaSpec:
 
 
 @dataclass(frozen=True, kw_only=True)
-class OwnedEffect:
-    """An effect a component carries, as the discrepancy workflow (feed_twin.analysis) sees it.
+class Quantity:
+    """A quantity made of several YAML parameters of a component, read and set as one number by
+    the workflow's model document (a screw's axial rigidity EA = E pi d_root^2 / 4: the fit
+    identifies EA, the root diameter stays). Declared by the component, so the document itself
+    knows no physics."""
 
-    A component lists its effects in `EFFECTS`; analysis.effects, analysis.edits and
-    analysis.synthetic collect them from the registry (feed_twin.plant.registry), so a new law
-    is its component file plus one registry line. The callables take the analysis types
-    (analysis.effects.Motion, analysis.twin.ModelDoc, analysis.ranking.Candidate), imported
-    inside them: the plant never imports the analysis at load time.
-    """
+    stored_as: tuple[str, ...]  # the parameters it is made of (all present, or it is absent)
+    read: Callable[[Mapping[str, Any]], float]
+    write: Callable[[dict[str, Any], float], None]  # sets the parameters from the value
+    # whether the parameters hold it, where that is more than having them (an indexed entry)
+    exists: Callable[[Mapping[str, Any]], bool] | None = None
 
-    name: str  # the effect's identifier in reports
-    domain: Literal["effort", "position", "voltage"]  # the residual its signature explains
-    words: str  # what a machine-tool engineer calls it
-    parameters: str  # the component's slots it sets, for the report ("F_hold")
-    signature: Callable[[Any], dict[str, Any]]  # Motion -> regressor name -> array
-    edit: Callable[[Any, Any], Any]  # (ModelDoc, Candidate) -> analysis.edits.Edit
-    truth: Callable[[Any, Mapping[str, float]], Any]  # (ModelDoc, parameters) -> ModelDoc
-    needs: tuple[str, ...] = ()  # Motion fields the signature needs
+    def present(self, params: Mapping[str, Any]) -> bool:
+        if self.exists is not None:
+            return self.exists(params)
+        return all(name in params for name in self.stored_as)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -102,7 +102,14 @@ class Component:
 
     TYPE: ClassVar[str]
     PORTS: ClassVar[dict[str, PortKind]]
-    EFFECTS: ClassVar[tuple[OwnedEffect, ...]] = ()  # effects the workflow may add with it
+    EFFECTS: ClassVar[tuple[Effect, ...]] = ()  # effects the workflow may add with it
+    QUANTITIES: ClassVar[dict[str, Quantity]] = {}  # slots made of several parameters
+
+    @classmethod
+    def quantity(cls, name: str) -> Quantity | None:
+        """The quantity `name` (a slot that is no single YAML parameter), None if undeclared."""
+        return cls.QUANTITIES.get(name)
+
     # (rotational port, translational port, ratio slot) of an ideal transformer, whose nodes the
     # assembler merges into one coordinate: across(trans) = p[ratio] * across(rot)
     TRANSFORMER: ClassVar[tuple[str, str, str] | None] = None

@@ -9,17 +9,65 @@ Port: `flange` (rotational [rad, rad/s, N m] or translational [m, m/s, N], set b
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, PortKind, StateSpec
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    FreeParameter,
+    Weights,
+    make_edit,
+    slot_reader,
+    symmetric,
+)
+
+
+def _gain_slot(doc: Document) -> str:
+    g = doc.gain_slot()
+    if g is None:
+        raise LookupError("the model has no EffortSource component")
+    return g
+
+
+def _gain_edit(doc: Document, cand: Weights) -> Edit:
+    g = _gain_slot(doc)
+    doc = symmetric(doc)
+    value = doc.get(g)
+    # measured effort = K_nom/K_true * needed effort: weight c = K_nom/K_true - 1
+    guess = value / (1.0 + cand.coefficients.get("effort", 0.0))
+    doc = doc.set(g, guess)
+    own = [FreeParameter(name=g, initial=guess, scale=abs(value))]
+    # the gain scales every force of the model at once: fitted together with the mass and
+    # friction it would be degenerate, so it is fitted alone
+    return make_edit(doc, own, {"gain": slot_reader(g)}, interacts=False)
+
+
+def _gain_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    return doc.set(_gain_slot(doc), p["gain"])
 
 
 @dataclass(frozen=True, kw_only=True)
 class EffortSource(Component):
     TYPE = "EffortSource"
     PORTS = {}
+    EFFECTS = (
+        Effect(
+            name="torque_constant_error",
+            domain="effort",
+            words="the whole effort is off by a fixed ratio: the torque (force) constant of the "
+            "drive differs from the data sheet",
+            parameters="gain",
+            needs=("effort_sim",),
+            signature=lambda m: {"effort": m.effort_sim},
+            edit=_gain_edit,
+            truth=_gain_truth,
+        ),
+    )
 
     domain: Literal["rotational", "translational"]
     gain: float  # effort per drive input unit [N/V, N m/V or N/A ...]

@@ -11,12 +11,20 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from feed_twin.core.validate import require_finite
-from feed_twin.plant.component import Component, Emitter, OwnedEffect
+from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    Weights,
+    free_parameter,
+    make_edit,
+    symmetric,
+)
 
 
 def _emit_force(g: Emitter, f: str) -> None:
@@ -37,19 +45,27 @@ class ExternalForce(Component):
             _emit_force(g, g.ext())
 
 
-def _constant_edit(doc: Any, cand: Any) -> Any:
-    """A ConstantForce on the table (or the model's own) with f_0 fitted."""
-    from feed_twin.analysis.edits import free_parameter, make_edit, symmetric
+def with_constant_force(doc: Document, f_0: float) -> tuple[Document, str]:
+    """The document with a ConstantForce f_0 [N] on the table (or its own set); (doc, slot)."""
+    existing = doc.of_type(ConstantForce.TYPE)
+    if existing:
+        return doc.set(f"{existing[0]}.f_0", f_0), f"{existing[0]}.f_0"
+    params = {"f_0": float(f_0)}
+    doc, name = doc.with_table_component("constant_force", ConstantForce.TYPE, params)
+    return doc, f"{name}.f_0"
 
+
+def _constant_edit(doc: Document, cand: Weights) -> Edit:
+    """A ConstantForce on the table (or the model's own) with f_0 fitted."""
     # the residual is measured minus twin: a force the drive must supply is a load of -f_0
     f0 = -cand.coefficients.get("one", 0.0)
-    doc, slot = symmetric(doc).with_constant_force(f0)
+    doc, slot = with_constant_force(symmetric(doc), f0)
     own = [free_parameter(doc, slot, f0, lower=-math.inf)]
     return make_edit(doc, own, {"f_0_N": lambda v: v[slot]})
 
 
-def _constant_truth(doc: Any, p: Mapping[str, float]) -> Any:
-    return doc.with_constant_force(p["f_0_N"])[0]
+def _constant_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    return with_constant_force(doc, p["f_0_N"])[0]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -57,7 +73,7 @@ class ConstantForce(Component):
     TYPE = "ConstantForce"
     PORTS = {"flange": "translational"}
     EFFECTS = (
-        OwnedEffect(
+        Effect(
             name="constant_force",
             domain="effort",
             words="a constant force in one direction (gravity on a vertical axis, an unbalanced "

@@ -24,13 +24,29 @@ Port: `flange` (translational: s [m], v [m/s], f [N] into the flange).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numpy as np
 from numba import njit
 
 from feed_twin.core.smooth import smooth_sign
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    Motion,
+    Signature,
+    Weights,
+    direction,
+    free_parameter,
+    make_edit,
+    moving,
+    slot_reader,
+    symmetric,
+)
 from feed_twin.plant.expneg import exp_neg
 
 # beyond x = (v/v_s)^2 > CUT_X the Stribeck term is below the last bit of F_c, provided that
@@ -65,10 +81,143 @@ def friction_force(
     return (F_c + stribeck) * sgn + F_v * v
 
 
+STRIBECK_SPEEDS_M_S = (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03)  # searched v_s
+# what the workflow adds to a model without guide friction (all zero, v_reg of a fitting twin)
+ADDED_FRICTION = {
+    "F_c_pos": 0.0,
+    "F_c_neg": 0.0,
+    "F_v_pos": 0.0,
+    "F_v_neg": 0.0,
+    "dF_s": 0.0,
+    "v_s": 0.005,
+    "v_reg": 1e-3,
+}
+
+
+def with_friction(doc: Document) -> tuple[Document, str]:
+    """The document with a GuideFriction on the table (all zero) if it has none; its name."""
+    fr = doc.friction()
+    if fr is not None:
+        return doc, fr
+    return doc.with_table_component("friction", GuideFriction.TYPE, ADDED_FRICTION)
+
+
+def _tied(doc: Document, tied: str) -> tuple[Document, str]:
+    """The symmetric document with the forward/backward pair of `tied` (F_c, F_v) as one."""
+    doc, fr = with_friction(doc)
+    return symmetric(doc).tie(f"{fr}.{tied}", (f"{fr}.{tied}_pos", f"{fr}.{tied}_neg")), fr
+
+
+def _coulomb_edit(doc: Document, cand: Weights) -> Edit:
+    doc, fr = _tied(doc, "F_c")
+    # the weight is the friction the twin lacks (measured minus twin), on top of what it has
+    fc = max(doc.get(f"{fr}.F_c") + cand.coefficients.get("sign_v", 0.0), 1e-3)
+    doc = doc.set(f"{fr}.F_c", fc)
+    own = [free_parameter(doc, f"{fr}.F_c", fc)]
+    return make_edit(doc, own, {"F_c_N": slot_reader(f"{fr}.F_c")})
+
+
+def _viscous_edit(doc: Document, cand: Weights) -> Edit:
+    doc, fr = _tied(doc, "F_v")
+    guess = max(doc.get(f"{fr}.F_v") + cand.coefficients.get("v", 0.0), 0.0)
+    doc = doc.set(f"{fr}.F_v", guess)
+    own = [free_parameter(doc, f"{fr}.F_v", guess)]
+    return make_edit(doc, own, {"F_v_N_s_m": slot_reader(f"{fr}.F_v")})
+
+
+def _stribeck_edit(doc: Document, cand: Weights) -> Edit:
+    doc, fr = with_friction(doc)
+    doc = symmetric(doc)
+    vs = float(cand.variant.split("=")[1].split()[0]) if cand.variant else 0.005
+    ds = max(doc.get(f"{fr}.dF_s") + cand.coefficients.get("stribeck", 0.0), 1e-3)
+    doc = doc.set(f"{fr}.dF_s", ds).set(f"{fr}.v_s", vs)
+    own = [
+        free_parameter(doc, f"{fr}.dF_s"),
+        free_parameter(doc, f"{fr}.v_s", lower=1e-4, floor=1e-3),
+    ]
+    report = {"dF_s_N": slot_reader(f"{fr}.dF_s"), "v_s_m_s": slot_reader(f"{fr}.v_s")}
+    return make_edit(doc, own, report)
+
+
+def _asymmetric_edit(doc: Document, cand: Weights) -> Edit:
+    """Forward and backward friction apart. Coulomb is split only once Coulomb friction is in
+    the model: a split Coulomb force alone would look like a constant force while moving."""
+    del cand
+    doc, fr = with_friction(doc)
+    has_coulomb = doc.get(f"{fr}.F_c_pos") > 0.0 or doc.get(f"{fr}.F_c_neg") > 0.0
+    doc = doc.untie().mark_asymmetric(fr)
+    names = ("F_v_pos", "F_v_neg") + (("F_c_pos", "F_c_neg") if has_coulomb else ())
+    own = [free_parameter(doc, f"{fr}.{n}") for n in names]
+    report = {n: slot_reader(f"{fr}.{n}") for n in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg")}
+    # one more value per direction-split term than the symmetric model had
+    return make_edit(doc, own, report, added=len(names) // 2)
+
+
+def _truth(doc: Document, p: Mapping[str, float]) -> Document:
+    """The friction a synthetic record hides: any of F_c_N, F_v_N_s_m (both directions),
+    dF_s_N with v_s_m_s, or the per-direction F_c_pos, F_c_neg, F_v_pos, F_v_neg."""
+    doc, fr = with_friction(doc)
+    for key, fields in (("F_c_N", ("F_c_pos", "F_c_neg")), ("F_v_N_s_m", ("F_v_pos", "F_v_neg"))):
+        for name in fields if key in p else ():
+            doc = doc.set(f"{fr}.{name}", p[key])
+    if "dF_s_N" in p:
+        doc = doc.set(f"{fr}.dF_s", p["dF_s_N"]).set(f"{fr}.v_s", p["v_s_m_s"])
+    for name in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg"):
+        if name in p:
+            doc = doc.set(f"{fr}.{name}", p[name])
+    return doc
+
+
+def _stribeck_choices(m: Motion) -> list[tuple[str, Signature]]:
+    def make(vs: float) -> Signature:
+        return lambda mm: {"stribeck": direction(mm) * np.exp(-((mm.v_m_s / vs) ** 2))}
+
+    return [(f"v_s = {vs:g} m/s", make(vs)) for vs in STRIBECK_SPEEDS_M_S]
+
+
 @dataclass(frozen=True, kw_only=True)
 class GuideFriction(Component):
     TYPE = "GuideFriction"
     PORTS = {"flange": "translational"}
+    EFFECTS = (
+        Effect(
+            name="coulomb_friction",
+            domain="effort",
+            words="a constant friction force that changes sign with the direction of motion",
+            parameters="F_c",
+            signature=lambda m: {"sign_v": direction(m)},
+            edit=_coulomb_edit,
+            truth=_truth,
+        ),
+        Effect(
+            name="viscous_friction",
+            domain="effort",
+            words="a friction force that grows in proportion to speed (lubricant, seals)",
+            parameters="F_v",
+            signature=lambda m: {"v": m.v_m_s},
+            edit=_viscous_edit,
+            truth=_truth,
+        ),
+        Effect(
+            name="stribeck_friction",
+            domain="effort",
+            words="extra break-away friction at low speed that fades as speed rises (stick-slip)",
+            parameters="dF_s, v_s",
+            choices=_stribeck_choices,
+            edit=_stribeck_edit,
+            truth=_truth,
+        ),
+        Effect(
+            name="asymmetric_friction",
+            domain="effort",
+            words="friction that differs between the two directions of travel (worn or "
+            "fatigued screw, uneven preload)",
+            parameters="F_c_pos, F_c_neg, F_v_pos, F_v_neg",
+            signature=lambda m: {"abs_v": np.abs(m.v_m_s), "moving": moving(m)},
+            edit=_asymmetric_edit,
+            truth=_truth,
+        ),
+    )
 
     F_c_pos: float  # Coulomb force in positive motion [N]
     F_c_neg: float  # Coulomb force in negative motion [N]

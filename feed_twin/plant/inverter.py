@@ -21,14 +21,29 @@ currents i_a..i_c [A] set by the machine).
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
+import numpy as np
 from numba import njit
 
-from feed_twin.core.smooth import smooth_sign
+from feed_twin.core.smooth import smooth_sign, smooth_sign_array
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.component import Component, Emitter, Quantity
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    FreeParameter,
+    Motion,
+    Signature,
+    Weights,
+    first_of,
+    make_edit,
+    motor_angle,
+)
 
 PHASES = ("a", "b", "c")
 DUTY_SLOTS = ("OUT_DUTY_A", "OUT_DUTY_B", "OUT_DUTY_C")
@@ -49,10 +64,128 @@ def leg_duty(
     return command - dead_fraction * sgn, sgn
 
 
+# [A] sign-smoothing currents searched for the dead time (PWM current ripple of small to large
+# drives): below i_reg the inverter's voltage error grows linearly with the phase current
+DEAD_TIME_CURRENT_SCALES_A = (0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0)
+
+
+def dead_time_voltage(
+    i_q_A: np.ndarray, theta_e_rad: np.ndarray, i_reg_A: float
+) -> dict[str, np.ndarray]:
+    """d/q components of the three phases' smooth sgn(i_x / i_reg) at i_d = 0.
+
+    A two-level inverter leg with interlock time T_d at PWM period T_s loses about
+    u_dc T_d / T_s of its pole voltage while its phase current i_x flows out of the leg and
+    gains it while the current flows in: an error -u_dc (T_d/T_s) sgn(i_x) per phase (the
+    device drop u_f sgn(i_x) has the same shape and is not told apart from it). The Park
+    transform of these three square waves at i_d ~ 0 is a voltage along the current vector of
+    mean (4/pi) u_dc T_d/T_s sgn(i_q) with a ripple at six times the electrical frequency. A
+    drive's PI current loop supplies the missing voltage within a few current-loop periods, so
+    the current keeps only a small trace; the voltage the controller commands carries the whole
+    error. Amplitude-invariant Clarke and Park, as the drive's controller uses them.
+    """
+    i_alpha = -np.sin(theta_e_rad) * i_q_A
+    i_beta = np.cos(theta_e_rad) * i_q_A
+    half = 0.5 * math.sqrt(3.0) * i_beta
+    phases = (i_alpha, -0.5 * i_alpha + half, -0.5 * i_alpha - half)
+    s_a, s_b, s_c = (smooth_sign_array(x, i_reg_A) for x in phases)
+    s_alpha = (2.0 / 3.0) * (s_a - 0.5 * (s_b + s_c))
+    s_beta = (s_b - s_c) / math.sqrt(3.0)
+    return {
+        "d": np.cos(theta_e_rad) * s_alpha + np.sin(theta_e_rad) * s_beta,
+        "q": -np.sin(theta_e_rad) * s_alpha + np.cos(theta_e_rad) * s_beta,
+    }
+
+
+def _dead_time_choices(m: Motion) -> list[tuple[str, Signature]]:
+    # the weight of the q part computed from the measured q-current at the electrical angle
+    # p 2 pi x / lead is u_dc Delta T_d / T_s, the extra volts the controller must command
+    def make(i_reg: float) -> Signature:
+        def signature(mm: Motion) -> dict[str, np.ndarray]:
+            assert mm.current_q_A is not None and mm.pole_pairs is not None
+            theta_e = mm.pole_pairs * motor_angle(mm)
+            return {"sgn_i_q": dead_time_voltage(mm.current_q_A, theta_e, i_reg)["q"]}
+
+        return signature
+
+    return [(f"i_reg = {i:g} A", make(i)) for i in DEAD_TIME_CURRENT_SCALES_A]
+
+
+def _dead_time_edit(doc: Document, cand: Weights) -> Edit:
+    """The Inverter's dead time t_dead is fitted (the controller's compensation stays as it is).
+
+    Averaged inverter: the fitted engine slot is dead_fraction = t_dead f_pwm (stored as t_dead).
+    Ranked on the q-voltage residual, the weight c of the signature is the extra voltage the
+    controller must command, u_dc Delta t_dead f_pwm, so the guess is dead_fraction + c / u_dc;
+    ranked on the effort (no voltage recorded) the weight is in amperes and says nothing about
+    the size, so the fit starts at the nominal value. The device drop u_f stays nominal: it has
+    the same sgn(i) shape and cannot be told apart from the dead time.
+    """
+    name = first_of(doc, Inverter.TYPE, "whose dead time could be fitted")
+    params = doc.component(name)["params"]
+    f_pwm = float(params["f_pwm"])
+    switching = params.get("model") == "switching"
+    slot = f"{name}.t_dead" if switching else f"{name}.dead_fraction"
+    per_fraction = 1.0 / f_pwm if switching else 1.0  # slot units per unit of dead fraction
+    fraction = doc.get(f"{name}.t_dead") * f_pwm
+    buses = doc.of_type("DcBus")
+    u_dc = doc.get(f"{buses[0]}.u_0") if buses else None
+    if cand.residual_domain == "voltage" and u_dc:
+        fraction = fraction + cand.coefficients.get("sgn_i_q", 0.0) / u_dc
+    # the Inverter accepts t_dead up to 10 % of the PWM period
+    fraction = min(max(fraction, 1e-4), 0.09)
+    doc = doc.set(slot, fraction * per_fraction)
+    own = [
+        FreeParameter(
+            name=slot,
+            initial=fraction * per_fraction,
+            scale=fraction * per_fraction,
+            lower=0.0,
+            upper=0.099 * per_fraction,
+        )
+    ]
+    to_seconds = 1.0 if switching else 1.0 / f_pwm
+    return make_edit(doc, own, {"t_dead_s": lambda v: v[slot] * to_seconds}, interacts=False)
+
+
+def _dead_time_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    # the controller's dead-time compensation stays tuned for the nominal dead time
+    name = first_of(doc, Inverter.TYPE, "whose dead time could be fitted")
+    return doc.set(f"{name}.t_dead", p["t_dead_s"])
+
+
+def _set_dead_fraction(params: dict[str, Any], value: float) -> None:
+    params["t_dead"] = float(value) / float(params["f_pwm"])
+
+
 @dataclass(frozen=True, kw_only=True)
 class Inverter(Component):
     TYPE = "Inverter"
     PORTS = {"dc": "dc", "ac": "ac3"}
+    EFFECTS = (
+        Effect(
+            name="dead_time",
+            domain="voltage",
+            fallback="effort",
+            words="a voltage error that flips with the sign of the phase currents and ripples "
+            "six times per electrical revolution: the inverter's dead time eats part of every "
+            "phase voltage, and the current controller must command the missing volts",
+            parameters="t_dead",
+            needs=("current_q_A", "lead_m", "pole_pairs"),
+            choices=_dead_time_choices,
+            edit=_dead_time_edit,
+            truth=_dead_time_truth,
+        ),
+    )
+    # the averaged model's engine slot dead_fraction = t_dead f_pwm (the duty the dead time
+    # removes), stored as t_dead
+    QUANTITIES = {
+        "dead_fraction": Quantity(
+            stored_as=("t_dead", "f_pwm"),
+            read=lambda params: float(params["t_dead"]) * float(params["f_pwm"]),
+            write=_set_dead_fraction,
+        )
+    }
 
     model: Literal["averaged", "switching"]
     f_pwm: float  # switching frequency [Hz]

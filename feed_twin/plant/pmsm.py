@@ -27,12 +27,38 @@ omega [rad/s], tau [N m] into the flange).
 from __future__ import annotations
 
 import math
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
+import numpy as np
 from numba import njit
 
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader, StateSpec
+from feed_twin.plant.component import (
+    Component,
+    Emitter,
+    InertiaSpec,
+    Quantity,
+    SlotReader,
+    StateSpec,
+)
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    FreeParameter,
+    Motion,
+    Signature,
+    Weights,
+    first_of,
+    make_edit,
+    motor_angle,
+)
+
+COGGING_ORDERS = tuple(range(1, 25))  # harmonics per motor revolution searched for cogging
+COGGING_SLOT = re.compile(r"^cog(\d+)_(order|amplitude|phase)$")  # the slots of a harmonic
 
 SQRT3 = math.sqrt(3.0)
 
@@ -118,10 +144,110 @@ class CoggingHarmonic:
         require_nonnegative("amplitude", self.amplitude)
 
 
+def with_cogging(doc: Document, order: int, amplitude: float, phase: float) -> tuple[Document, str]:
+    """The document with a cogging harmonic on its (first) Pmsm; (document, slot prefix)."""
+    motor = first_of(doc, Pmsm.TYPE, "to carry cogging")
+    harmonics = list(doc.component(motor)["params"].get("cogging", []))
+    harmonics.append({"order": int(order), "amplitude": float(amplitude), "phase": float(phase)})
+    return doc.set_raw(motor, "cogging", harmonics), f"{motor}.cog{len(harmonics) - 1}_"
+
+
+def torque_constant(doc: Document) -> float:
+    """K_t [N m/A] of the document's first Pmsm."""
+    return doc.get(f"{first_of(doc, Pmsm.TYPE, 'to carry cogging')}.K_t")
+
+
+def _cogging_edit(doc: Document, cand: Weights) -> Edit:
+    """A cogging harmonic of the order the signature found; amplitude and phase are fitted.
+
+    The drive must supply -tau_cog = -A sin(k phi + psi), so the current residual is
+    -(A/K_t) sin(k phi + psi): the weights (s, c) of (sin, cos) give A = K_t sqrt(s^2 + c^2)
+    and psi = atan2(-c, -s).
+    """
+    k_t = torque_constant(doc)
+    order = int(cand.variant.split()[1]) if cand.variant else 6
+    s_w, c_w = cand.coefficients.get("sin", 0.0), cand.coefficients.get("cos", 0.0)
+    amplitude = max(k_t * math.hypot(s_w, c_w), 1e-4)
+    phase = math.atan2(-c_w, -s_w)
+    doc, prefix = with_cogging(doc, order, amplitude, phase)
+    own = [
+        FreeParameter(name=f"{prefix}amplitude", initial=amplitude, scale=amplitude, lower=0.0),
+        FreeParameter(name=f"{prefix}phase", initial=phase, scale=1.0),
+    ]
+    report = {
+        "order": lambda v: float(order),
+        "amplitude_Nm": lambda v: v[f"{prefix}amplitude"],
+        "phase_rad": lambda v: v[f"{prefix}phase"],
+    }
+    return make_edit(doc, own, report, interacts=False)
+
+
+def _cogging_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    return with_cogging(doc, int(p["order"]), p["amplitude_Nm"], p["phase_rad"])[0]
+
+
+def _cogging_choices(m: Motion) -> list[tuple[str, Signature]]:
+    def make(k: int) -> Signature:
+        return lambda mm: {
+            "sin": np.sin(k * motor_angle(mm)),
+            "cos": np.cos(k * motor_angle(mm)),
+        }
+
+    # once per electrical revolution (order = pole pairs) is current_offset's signature: a
+    # cogging torque repeats lcm(slots, 2 p) times per revolution, never p times
+    orders = [k for k in COGGING_ORDERS if k != m.pole_pairs]
+    return [(f"order {k} per motor revolution", make(k)) for k in orders]
+
+
+def _harmonic(n: int, key: str) -> Quantity:
+    """Slot `cog<n>_<key>`: a field of the n-th entry of the YAML's cogging list."""
+
+    def write(params: dict[str, Any], value: float) -> None:
+        params["cogging"][n][key] = int(round(value)) if key == "order" else float(value)
+
+    return Quantity(
+        stored_as=("cogging",),
+        read=lambda params: float(params.get("cogging", [])[n][key]),
+        write=write,
+        exists=lambda params: n < len(params.get("cogging", [])),
+    )
+
+
+def _set_torque_constant(params: dict[str, Any], value: float) -> None:
+    params["psi_pm"] = float(value) / (1.5 * float(params["p"]))
+
+
 @dataclass(frozen=True, kw_only=True)
 class Pmsm(Component):
     TYPE = "Pmsm"
     PORTS = {"ac": "ac3", "flange": "rotational"}
+    EFFECTS = (
+        Effect(
+            name="cogging_torque",
+            domain="effort",
+            words="a force ripple that repeats a fixed number of times per motor revolution",
+            parameters="cogging",
+            needs=("lead_m",),
+            choices=_cogging_choices,
+            edit=_cogging_edit,
+            truth=_cogging_truth,
+        ),
+    )
+    # K_t = 1.5 p psi_pm [N m/A] (amplitude-invariant dq)
+    QUANTITIES = {
+        "K_t": Quantity(
+            stored_as=("p", "psi_pm"),
+            read=lambda params: 1.5 * float(params["p"]) * float(params["psi_pm"]),
+            write=_set_torque_constant,
+        )
+    }
+
+    @classmethod
+    def quantity(cls, name: str) -> Quantity | None:
+        harmonic = COGGING_SLOT.match(name)
+        if harmonic is not None:
+            return _harmonic(int(harmonic.group(1)), harmonic.group(2))
+        return super().quantity(name)
 
     R_s: float  # stator resistance per phase [ohm]
     L_d: float  # d-axis inductance [H]

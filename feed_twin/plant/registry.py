@@ -1,14 +1,21 @@
-"""The component types a plant YAML may name, by their `type:`."""
+"""The component types a plant YAML may name, by their `type:`, and the effects they carry.
+
+A new component (a friction law) is its own file plus one line here; the effects it declares
+(`EFFECTS`) then belong to the discrepancy workflow's library.
+"""
 
 from __future__ import annotations
+
+import dataclasses
 
 from feed_twin.plant.axial_compliance import AxialCompliance
 from feed_twin.plant.backlash import Backlash
 from feed_twin.plant.ball_screw import BallScrew
-from feed_twin.plant.component import Component, OwnedEffect
+from feed_twin.plant.component import Component
 from feed_twin.plant.coupling import Coupling
 from feed_twin.plant.dc_bus import DcBus
 from feed_twin.plant.dc_motor import DcMotor
+from feed_twin.plant.effect_api import Effect
 from feed_twin.plant.effort_source import EffortSource
 from feed_twin.plant.external_force import ConstantForce, ExternalForce
 from feed_twin.plant.gas_spring import GasSpring
@@ -50,10 +57,9 @@ COMPONENT_TYPES: dict[str, type[Component]] = {
         ThermalGrowth,
     )
 }
-# the effects the discrepancy workflow may add, each with the component that carries it
-OWNED_EFFECTS: tuple[OwnedEffect, ...] = tuple(
-    effect for cls in COMPONENT_TYPES.values() for effect in cls.EFFECTS
+# the effects the discrepancy workflow may add, each with the component type that carries it
+EFFECTS: tuple[Effect, ...] = tuple(
+    dataclasses.replace(effect, owner=cls.TYPE)
+    for cls in COMPONENT_TYPES.values()
+    for effect in cls.EFFECTS
 )
-OWNER_OF: dict[str, str] = {
-    effect.name: cls.TYPE for cls in COMPONENT_TYPES.values() for effect in cls.EFFECTS
-}

@@ -18,14 +18,29 @@ Ports: `flange` (rotational or translational, reads only) or `ac` (ac3, reads th
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
+import numpy as np
 from numba import njit
 
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    FreeParameter,
+    Motion,
+    Weights,
+    first_of,
+    make_edit,
+    motor_angle,
+    rate,
+)
 
 MAX_DELAY_TICKS = 15  # the engine keeps the last 16 samples
+SEARCHED_DELAY_TICKS = 8  # sample delays the workflow searches for measurement_delay
 
 
 @njit(error_model="numpy", forceinline=True)
@@ -44,10 +59,49 @@ def _check_delay(delay_ticks: int) -> None:
         raise ValueError(f"delay_ticks = {delay_ticks!r}: must lie in [0, {MAX_DELAY_TICKS}]")
 
 
+def _position_sensors(doc: Document) -> list[str]:
+    sensors = doc.of_type(Encoder.TYPE) + doc.of_type(LinearScale.TYPE)
+    if not sensors:
+        raise LookupError("the model has no Encoder or LinearScale")
+    return sensors
+
+
+def _delay_edit(doc: Document, cand: Weights) -> Edit:
+    """One sample delay for every position sensor, searched over whole base periods."""
+    del cand
+    slots = tuple(f"{s}.delay_ticks" for s in _position_sensors(doc))
+    name = "sensors.delay_ticks"
+    doc = doc.tie(name, slots)
+    period = doc.base_period()
+    own = [FreeParameter(name=name, initial=doc.get(name), scale=1.0, lower=0.0)]
+    report = {"delay_ticks": lambda v: v[name], "delay_s": lambda v: v[name] * period}
+    # a delay in whole sensor samples: searched, not differentiated
+    return make_edit(doc, own, report, interacts=False, grid=tuple(range(SEARCHED_DELAY_TICKS + 1)))
+
+
+def _delay_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    for name in _position_sensors(doc):
+        doc = doc.set(f"{name}.delay_ticks", int(p["delay_ticks"]))
+    return doc
+
+
 @dataclass(frozen=True, kw_only=True)
 class Encoder(Component):
     TYPE = "Encoder"
     PORTS = {"flange": "rotational"}
+    EFFECTS = (
+        Effect(
+            name="measurement_delay",
+            domain="effort",
+            words="the loop acts on a position measured late: the effort follows the twin's "
+            "effort shifted in time (sensor sample delay, slow fieldbus)",
+            parameters="delay_ticks (and LinearScale.delay_ticks)",
+            needs=("effort_sim",),
+            signature=lambda m: {"effort_rate": rate(m.effort_sim, m.t_s)},
+            edit=_delay_edit,
+            truth=_delay_truth,
+        ),
+    )
 
     counts_per_rev: int  # counts per revolution after quadrature decoding
     delay_ticks: int  # sample delay in base periods
@@ -92,10 +146,67 @@ class LinearScale(Component):
             )
 
 
+def _electrical(m: Motion) -> dict[str, np.ndarray]:
+    assert m.pole_pairs is not None
+    theta = m.pole_pairs * motor_angle(m)
+    return {"sin": np.sin(theta), "cos": np.cos(theta)}
+
+
+def _offset_edit(doc: Document, cand: Weights) -> Edit:
+    """The three per-phase offsets of the CurrentSensor are fitted.
+
+    The offsets read as alpha/beta errors (2/3)(o_a - (o_b + o_c)/2), (o_b - o_c)/sqrt(3) (a
+    part common to the three phases cancels there); the current loop makes the true i_q differ
+    from the measured by -q = alpha sin(theta_e) - beta cos(theta_e), and the velocity loop
+    adds that back to its i_q command, so the effort residual is about -alpha sin + beta cos:
+    the (sin, cos) weights (s, c) give the initial guess alpha = -s, beta = c with no common
+    part. The common part is fitted too: the drive's dead-time compensation switches on the
+    sign of each measured phase current, so a phase offset also shifts where that happens.
+    """
+    name = first_of(doc, CurrentSensor.TYPE, "whose phase offsets could be fitted")
+    params = doc.component(name)["params"]
+    alpha, beta = -cand.coefficients.get("sin", 0.0), cand.coefficients.get("cos", 0.0)
+    guesses = (alpha, -0.5 * alpha + 0.5 * math.sqrt(3.0) * beta)
+    guesses += (-guesses[0] - guesses[1],)
+    # scaled by the ADC full scale: the finite-difference step (1e-3 of the scale) is then about
+    # two counts of a 12-bit converter, large enough to average over the loop's sharp local
+    # sensitivity at slow moves (stick-slip), small next to the offsets (the response is
+    # close to linear in them)
+    scale = float(params["range_A"])
+    slots = tuple(f"{name}.offset_{x}" for x in "abc")
+    for slot, guess in zip(slots, guesses, strict=True):
+        doc = doc.set(slot, float(params.get(slot.split(".")[1], 0.0)) + guess)
+    own = [FreeParameter(name=slot, initial=doc.get(slot), scale=scale) for slot in slots]
+    report = {f"{slot.split('.')[1]}_A": (lambda s: lambda v: v[s])(slot) for slot in slots}
+    return make_edit(doc, own, report, interacts=False)
+
+
+def _offset_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    name = first_of(doc, CurrentSensor.TYPE, "whose phase offsets could be fitted")
+    for phase in ("a", "b", "c"):
+        key = f"offset_{phase}_A"
+        if key in p:
+            doc = doc.set(f"{name}.offset_{phase}", p[key])
+    return doc
+
+
 @dataclass(frozen=True, kw_only=True)
 class CurrentSensor(Component):
     TYPE = "CurrentSensor"
     PORTS = {"ac": "ac3"}
+    EFFECTS = (
+        Effect(
+            name="current_offset",
+            domain="effort",
+            words="a force ripple once per electrical revolution: an offset in a phase-current "
+            "measurement",
+            parameters="offset_a, offset_b, offset_c",
+            needs=("lead_m", "pole_pairs"),
+            signature=_electrical,
+            edit=_offset_edit,
+            truth=_offset_truth,
+        ),
+    )
 
     gain: float  # sensor gain error factor (1 = ideal) [-]
     offset: float  # offset [A]

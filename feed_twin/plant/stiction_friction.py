@@ -27,13 +27,23 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numba import njit
 
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, OwnedEffect, SlotReader, StateSpec
+from feed_twin.plant.component import Component, Emitter, SlotReader, StateSpec
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    FreeParameter,
+    Motion,
+    Weights,
+    last_direction,
+    make_edit,
+    moving,
+)
 
 DEFLECTION_LIMIT_M = 1e-2  # |z| above this is a runaway
 # presliding stiffness and damping ratio the workflow gives a stiction it adds: a deflection of
@@ -59,20 +69,16 @@ def stiction_force(
     return f, rate, stored, loss
 
 
-def _held(m: Any) -> dict[str, np.ndarray]:
+def _held(m: Motion) -> dict[str, np.ndarray]:
     # at rest the stuck table keeps the force it had when it stopped: the loop stops it short of
     # the command (or past it, the EMPS loop's proportional velocity law overshoots), the same
     # way after every move of one direction, so the held force follows the last direction
-    from feed_twin.analysis.effects import last_direction, moving
-
     return {"held": last_direction(m) * (1.0 - moving(m))}
 
 
-def _edit(doc: Any, cand: Any) -> Any:
+def _edit(doc: Document, cand: Weights) -> Edit:
     """Add StictionFriction on the table; it takes over the Coulomb part of the guide friction
     (the common part of both directions), so that the sliding force stays what it was."""
-    from feed_twin.analysis.edits import FreeParameter, make_edit
-
     fr = doc.friction()
     coulomb = 0.0
     if fr is not None:
@@ -80,31 +86,29 @@ def _edit(doc: Any, cand: Any) -> Any:
         for side in ("F_c_pos", "F_c_neg"):
             doc = doc.set(f"{fr}.{side}", doc.get(f"{fr}.{side}") - coulomb)
     f_hold = coulomb if coulomb > 0.0 else max(abs(cand.coefficients.get("held", 0.0)), 1e-3)
-    mass = doc.get(doc.mass_slot()) if doc.mass_slot() is not None else 1.0
-    period = float(doc.data["controller"]["base_period_s"])
-    params = {
-        "F_hold": f_hold,
-        "k_s": ADDED_K_S_N_M,
-        "d_s": 2.0 * ADDED_DAMPING_RATIO * float(np.sqrt(ADDED_K_S_N_M * mass)),
-        "r_slip": 1.0 / period,
-    }
-    doc, name = doc.with_table_component("stiction", StictionFriction.TYPE, params)
+    doc, name = _with_stiction(doc, f_hold)
     slot = f"{name}.F_hold"
     own = [FreeParameter(name=slot, initial=f_hold, scale=f_hold, lower=0.0)]
     # re-fitted with the rigid-body parameters it trades off against (mass, friction)
     return make_edit(doc, own, {"F_hold_N": lambda v: v[slot]})
 
 
-def _truth(doc: Any, p: Mapping[str, float]) -> Any:
-    mass = doc.get(doc.mass_slot()) if doc.mass_slot() is not None else 1.0
-    period = float(doc.data["controller"]["base_period_s"])
+def _truth(doc: Document, p: Mapping[str, float]) -> Document:
+    return _with_stiction(doc, float(p["F_hold_N"]))[0]
+
+
+def _with_stiction(doc: Document, f_hold: float) -> tuple[Document, str]:
+    """The document with a StictionFriction of holding force f_hold [N] on the table, its
+    presliding spring ADDED_K_S_N_M damped at ADDED_DAMPING_RATIO of the table mass."""
+    slot = doc.mass_slot()
+    mass = doc.get(slot) if slot is not None else 1.0
     params = {
-        "F_hold": float(p["F_hold_N"]),
+        "F_hold": f_hold,
         "k_s": ADDED_K_S_N_M,
         "d_s": 2.0 * ADDED_DAMPING_RATIO * float(np.sqrt(ADDED_K_S_N_M * mass)),
-        "r_slip": 1.0 / period,
+        "r_slip": 1.0 / doc.base_period(),
     }
-    return doc.with_table_component("stiction", StictionFriction.TYPE, params)[0]
+    return doc.with_table_component("stiction", StictionFriction.TYPE, params)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -112,7 +116,7 @@ class StictionFriction(Component):
     TYPE = "StictionFriction"
     PORTS = {"flange": "translational"}
     EFFECTS = (
-        OwnedEffect(
+        Effect(
             name="stiction",
             domain="effort",
             words="the drive keeps a holding force while the table stands still: friction "

@@ -20,14 +20,25 @@ Ports: `a`, `b` (translational: s [m], v [m/s], f [N]). State: `dT` [K], startin
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
 from numba import njit
 
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.axial_compliance import AxialCompliance, fixed_fixed_flag
 from feed_twin.plant.component import Component, Emitter, StateSpec
+from feed_twin.plant.effect_api import (
+    Document,
+    Edit,
+    Effect,
+    FreeParameter,
+    Motion,
+    Weights,
+    make_edit,
+)
 
 ALPHA_STEEL = 11.5e-6  # [1/K] linear thermal expansion of screw steel
 TEMPERATURE_LIMIT_K = 500.0  # |dT| above this is a runaway
@@ -47,10 +58,75 @@ def elongation(dT: float, x: float, alpha: float) -> float:
     return alpha * dT * x
 
 
+TAU_DEFAULT_S = 1800.0  # [s] thermal time constant of a ball screw (tens of minutes)
+# the accompanying compliance's parameters a ThermalGrowth the workflow adds copies
+GEOMETRY = ("arrangement", "E", "d_root", "L", "x_0", "x_min", "k_bearing", "k_nut")
+
+
+def with_thermal_growth(
+    doc: Document, heating: float, *, tau: float = TAU_DEFAULT_S, alpha: float = ALPHA_STEEL
+) -> tuple[Document, str]:
+    """The document with thermal growth of the screw (or its heating set); (doc, heating slot).
+
+    The ThermalGrowth goes in parallel with the model's (first) AxialCompliance, with that
+    compliance's geometry, so the pair acts as one spring stretched by the screw's thermal
+    elongation. Only the heating rate [K/m] is fitted: a record much shorter than the thermal
+    time constant sees dT grow in proportion to the distance travelled, heating * D(t), so the
+    time constant is not identifiable from it and stays at its default.
+    """
+    existing = doc.of_type(ThermalGrowth.TYPE)
+    if existing:
+        return doc.set(f"{existing[0]}.heating", heating), f"{existing[0]}.heating"
+    compliances = doc.of_type(AxialCompliance.TYPE)
+    if not compliances:
+        raise LookupError("the model has no AxialCompliance (screw) to grow thermally")
+    axial = compliances[0]
+    geometry = doc.component(axial)["params"]
+    params = {"alpha": float(alpha), "heating": float(heating), "tau": float(tau)}
+    params.update({k: geometry[k] for k in GEOMETRY})
+    connect = [["{name}.a", f"{axial}.a"], ["{name}.b", f"{axial}.b"]]
+    doc, name = doc.with_component("thermal", ThermalGrowth.TYPE, params, connect)
+    return doc, f"{name}.heating"
+
+
+def _thermal_edit(doc: Document, cand: Weights) -> Edit:
+    # heating [K/m] from the signature's weight on x*D (residual = twin - measured
+    # = -alpha * heating * D * (x_0 + x))
+    heating = max(-cand.coefficients.get("x_D", 0.0) / ALPHA_STEEL, 1e-3)
+    doc, slot = with_thermal_growth(doc, heating)
+    own = [FreeParameter(name=slot, initial=heating, scale=heating, lower=0.0)]
+    return make_edit(doc, own, {"heating_K_m": lambda v: v[slot]}, interacts=False)
+
+
+def _thermal_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    return with_thermal_growth(doc, p["heating_K_m"])[0]
+
+
+def _travelled(m: Motion) -> dict[str, np.ndarray]:
+    # a screw still far from thermal equilibrium warms in proportion to the distance travelled
+    # D(t); its heated length from the fixed bearing is x_0 + x with x_0 unknown here, so the
+    # elongation alpha dT (x_0 + x) is a combination of D x and D
+    dt = np.diff(m.t_s, prepend=m.t_s[0])
+    travelled = np.cumsum(np.abs(m.v_m_s) * dt)
+    return {"x_D": m.x_m * travelled, "D": travelled}
+
+
 @dataclass(frozen=True, kw_only=True)
 class ThermalGrowth(Component):
     TYPE = "ThermalGrowth"
     PORTS = {"a": "translational", "b": "translational"}
+    EFFECTS = (
+        Effect(
+            name="thermal_drift",
+            domain="position",
+            words="a position error that grows slowly with the distance travelled and with the "
+            "distance from the fixed bearing: the screw heats up and lengthens",
+            parameters="heating",
+            signature=_travelled,
+            edit=_thermal_edit,
+            truth=_thermal_truth,
+        ),
+    )
 
     alpha: float  # thermal expansion coefficient of the screw [1/K]
     heating: float  # temperature rise per metre travelled, cold screw [K/m]

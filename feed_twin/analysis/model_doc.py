@@ -1,0 +1,264 @@
+"""Model documents: a model YAML held as data, with the edits the effect library needs.
+
+`ModelDoc` holds the `plant:` and `controller:` sections of feed_twin.plant.config and
+feed_twin.control.cascade as data: set a parameter, tie two slots to one fitted value, add a
+component, write the augmented file. Edits return new documents; the nominal file is never
+touched. It knows no physics: a slot that is not a YAML parameter but a quantity made of
+several (a screw's axial rigidity EA, an averaged inverter's dead fraction, a PMSM's torque
+constant, a cogging harmonic's amplitude) is read and set through the `Quantity` its component
+declares (feed_twin.plant.component.Component.quantity). It implements the
+feed_twin.plant.effect_api.Document protocol the components' effect edits work on.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.plant.component import Quantity
+from feed_twin.plant.effect_api import Document
+from feed_twin.plant.registry import COMPONENT_TYPES
+
+FIXED_SECTIONS = ("plant", "controller")
+# the section the workflow writes beside a fitted model, and its key: the drive gain the
+# measured effort was converted with (the nominal one), which a fitted gain must not replace
+ANALYSIS_SECTION = "analysis"
+REFERENCE_GAIN_KEY = "effort_reference_gain"
+# the record's own slots (not the machine's): `analysis.effort_delay_s`, how much later than the
+# position the recorder stamps the effort (trace side, outside every loop)
+RECORD_SLOTS = ("effort_delay_s",)
+EFFORT_DELAY_SLOT = f"{ANALYSIS_SECTION}.effort_delay_s"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class ModelDoc:
+    """A model YAML as data plus the ties between slots that the fit treats as one value."""
+
+    data: dict[str, Any]
+    source: str
+    ties: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    asymmetric: tuple[str, ...] = ()  # GuideFriction components fitted per direction
+    # the drive gain of the document the workflow started from: the measured effort was
+    # converted with the nominal gain, so the twin's effort is too (even if the fit changes it)
+    reference_gain: float | None = None
+
+    @classmethod
+    def load(cls, path: str | Path) -> ModelDoc:
+        data = load_yaml(path)
+        for key in FIXED_SECTIONS:
+            if key not in data:
+                raise ConfigError(f"{path}: missing required section {key}")
+        doc = cls(data=data, source=str(path))
+        g = doc.gain_slot()
+        reference = None if g is None else doc.get(g)
+        written = (data.get(ANALYSIS_SECTION) or {}).get(REFERENCE_GAIN_KEY)
+        if written is not None:
+            if not (isinstance(written, (int, float)) and math.isfinite(written) and written):
+                raise ConfigError(
+                    f"{path}: {ANALYSIS_SECTION}.{REFERENCE_GAIN_KEY} = {written!r}: must be a "
+                    "finite number other than 0"
+                )
+            reference = float(written)
+        return ModelDoc(data=data, source=str(path), reference_gain=reference)
+
+    # ---------------------------------------------------------------- lookup
+
+    def _components(self) -> list[dict[str, Any]]:
+        return self.data["plant"]["components"]
+
+    def component(self, name: str) -> dict[str, Any]:
+        for entry in self._components():
+            if entry.get("name") == name:
+                return entry
+        raise LookupError(f"{self.source}: no component named {name!r}")
+
+    def of_type(self, kind: str) -> list[str]:
+        return [e["name"] for e in self._components() if e.get("type") == kind]
+
+    def mass_slot(self) -> str | None:
+        masses = self.of_type("Mass")
+        return f"{masses[-1]}.m" if masses else None
+
+    def friction(self) -> str | None:
+        found = self.of_type("GuideFriction")
+        return found[0] if found else None
+
+    def gain_slot(self) -> str | None:
+        found = self.of_type("EffortSource")
+        return f"{found[0]}.gain" if found else None
+
+    def base_period(self) -> float:
+        """The controller's base period [s] (the engine's tick)."""
+        return float(self.data["controller"]["base_period_s"])
+
+    def tie_names(self) -> tuple[str, ...]:
+        return tuple(name for name, _ in self.ties)
+
+    def ties_of(self, friction: str) -> str:
+        return "asymmetric" if friction in self.asymmetric else "symmetric"
+
+    def mark_asymmetric(self, friction: str) -> ModelDoc:
+        return self._copy(asymmetric=self.asymmetric + (friction,))
+
+    def tie_members(self, name: str) -> tuple[str, ...]:
+        for tied, members in self.ties:
+            if tied == name:
+                return members
+        return (name,)
+
+    def _declared(self, comp: str, field_name: str) -> tuple[dict[str, Any], Quantity | None]:
+        """(the component's YAML params, the quantity its type declares by that name)."""
+        entry = self.component(comp)
+        kind = COMPONENT_TYPES.get(str(entry.get("type")))
+        return entry["params"], None if kind is None else kind.quantity(field_name)
+
+    def has_slot(self, slot: str) -> bool:
+        """True for a tie name or a parameter the document holds (not a split tie)."""
+        if slot in self.tie_names():
+            return True
+        comp, _, field_name = slot.partition(".")
+        if comp == ANALYSIS_SECTION:
+            return field_name in (self.data.get(ANALYSIS_SECTION) or {})
+        try:
+            params, quantity = self._declared(comp, field_name)
+        except LookupError:
+            return False
+        if quantity is not None:
+            return quantity.present(params)
+        return field_name in params
+
+    def get(self, slot: str) -> float:
+        first = self.tie_members(slot)[0]
+        comp, _, field_name = first.partition(".")
+        if comp == ANALYSIS_SECTION and field_name in RECORD_SLOTS:
+            return float((self.data.get(ANALYSIS_SECTION) or {}).get(field_name, 0.0))
+        params, quantity = self._declared(comp, field_name)
+        if quantity is not None and quantity.present(params):
+            return quantity.read(params)
+        if field_name not in params:
+            pair = (f"{field_name}_pos", f"{field_name}_neg")
+            if all(p in params for p in pair):
+                # a tie that a later edit split (Coulomb -> asymmetric): report the mean
+                return 0.5 * (float(params[pair[0]]) + float(params[pair[1]]))
+            raise LookupError(f"{self.source}: plant.{comp} has no parameter {field_name!r}")
+        return float(params[field_name])
+
+    # ---------------------------------------------------------------- edits
+
+    def _copy(self, **changes: Any) -> ModelDoc:
+        return ModelDoc(
+            data=changes.get("data", copy.deepcopy(self.data)),
+            source=self.source,
+            ties=changes.get("ties", self.ties),
+            asymmetric=changes.get("asymmetric", self.asymmetric),
+            reference_gain=self.reference_gain,
+        )
+
+    def set(self, slot: str, value: float) -> ModelDoc:
+        new = self._copy()
+        for member in self.tie_members(slot):
+            comp, _, field_name = member.partition(".")
+            if comp == ANALYSIS_SECTION and field_name in RECORD_SLOTS:
+                new.data.setdefault(ANALYSIS_SECTION, {})[field_name] = float(value)
+                continue
+            params, quantity = new._declared(comp, field_name)
+            if quantity is not None and quantity.present(params):
+                quantity.write(params, value)
+                continue
+            old = params.get(field_name)
+            # whole-number fields (counts, delays in ticks) stay whole numbers in the YAML
+            keep_int = isinstance(old, int) and not isinstance(old, bool)
+            params[field_name] = int(round(value)) if keep_int else float(value)
+        return new
+
+    def set_raw(self, component: str, field_name: str, value: Any) -> ModelDoc:
+        """Set a component field that is not a fitted slot (a period, a flag, a list)."""
+        new = self._copy()
+        new.component(component)["params"][field_name] = copy.deepcopy(value)
+        return new
+
+    def tie(self, name: str, members: tuple[str, ...]) -> ModelDoc:
+        """Treat `members` as one parameter `name` (set to their mean now)."""
+        if name in dict(self.ties):
+            return self
+        mean = sum(self.get(m) for m in members) / len(members)
+        new = self._copy(ties=self.ties + ((name, members),))
+        return new.set(name, mean)
+
+    def untie(self) -> ModelDoc:
+        return self._copy(ties=())
+
+    def add_component(self, entry: dict[str, Any], connect_to: str) -> ModelDoc:
+        """Append a component and connect its `flange` to the port `connect_to`."""
+        return self._added(entry, [[f"{entry['name']}.flange", connect_to]])
+
+    def _added(self, entry: dict[str, Any], connect: list[list[str]]) -> ModelDoc:
+        new = self._copy()
+        new.data["plant"]["components"].append(copy.deepcopy(entry))
+        new.data["plant"]["connect"].extend(copy.deepcopy(connect))
+        return new
+
+    def table_port(self) -> str:
+        slot = self.mass_slot()
+        if slot is None:
+            raise LookupError(f"{self.source}: the model has no Mass (table) to act on")
+        return f"{slot.split('.')[0]}.flange"
+
+    def _free_name(self, base: str) -> str:
+        taken = {e["name"] for e in self._components()}
+        name, i = base, 2
+        while name in taken:
+            name, i = f"{base}{i}", i + 1
+        return name
+
+    def with_component(
+        self, base: str, kind: str, params: dict[str, Any], connect: list[list[str]]
+    ) -> tuple[ModelDoc, str]:
+        """The document with a component of type `kind` named `base` (or `base2`, ...), its
+        ports connected as `connect` says (`{name}` in a port stands for its name)."""
+        name = self._free_name(base)
+        entry = {"name": name, "type": kind, "params": dict(params)}
+        wires = [[end.format(name=name) for end in pair] for pair in connect]
+        return self._added(entry, wires), name
+
+    def with_table_component(
+        self, base: str, kind: str, params: dict[str, Any]
+    ) -> tuple[ModelDoc, str]:
+        """The document with a component of type `kind` on the table's node (its single port
+        connected there), named `base` or `base2`, ...; returns the document and the name."""
+        return self.with_component(base, kind, params, [["{name}.flange", self.table_port()]])
+
+    def bus_voltage(self) -> float | None:
+        """No-load DC-bus voltage u_0 [V] of the (first) DcBus, None without one."""
+        buses = self.of_type("DcBus")
+        return self.get(f"{buses[0]}.u_0") if buses else None
+
+    def torque_constant(self) -> float | None:
+        """The torque constant [N m/A] the first Pmsm declares (its `K_t`), None without one."""
+        motors = self.of_type("Pmsm")
+        return self.get(f"{motors[0]}.K_t") if motors else None
+
+    def dump(self, path: str | Path, header: list[str]) -> None:
+        """Write the model YAML; a drive gain the fit changed keeps the gain the record's
+        effort was converted with (the map's), so the written model reproduces the fit."""
+        data = self.data
+        g = self.gain_slot()
+        if g is not None and self.reference_gain is not None and self.get(g) != self.reference_gain:
+            data = {**data, ANALYSIS_SECTION: {REFERENCE_GAIN_KEY: self.reference_gain}}
+        text = "".join(f"# {line}\n" for line in header)
+        text += yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
+        Path(path).write_text(text)
+
+
+def model_of(doc: Document) -> ModelDoc:
+    """The ModelDoc behind a document an effect's edit or truth returned (they return the
+    document they were given, edited)."""
+    if not isinstance(doc, ModelDoc):
+        raise TypeError(f"expected a ModelDoc, got {type(doc).__name__}")
+    return doc

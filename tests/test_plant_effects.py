@@ -1,0 +1,109 @@
+"""Effects owned by the plant components: declarations, declared quantities, import direction."""
+
+from __future__ import annotations
+
+import ast
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from feed_twin.analysis.effects import BY_NAME, LIBRARY, RECORD_EFFECTS
+from feed_twin.analysis.model_doc import ModelDoc, model_of
+from feed_twin.plant.axial_compliance import AxialCompliance
+from feed_twin.plant.inverter import Inverter
+from feed_twin.plant.registry import COMPONENT_TYPES, EFFECTS
+from feed_twin.plant.thermal_growth import ALPHA_STEEL as ALPHA
+
+ROOT = Path(__file__).resolve().parents[1]
+AXIS = ROOT / "config" / "axis_default.yaml"
+EMPS = ROOT / "config" / "emps_nominal.yaml"
+
+
+def _imports(path: Path) -> set[str]:
+    """Every module a file imports, at module level or inside functions."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+    return names
+
+
+def test_no_plant_module_imports_the_analysis():
+    offenders = {
+        str(path.relative_to(ROOT)): sorted(m for m in _imports(path) if "analysis" in m)
+        for path in (ROOT / "feed_twin" / "plant").glob("*.py")
+    }
+    assert {k: v for k, v in offenders.items() if v} == {}
+
+
+def test_every_library_effect_is_carried_by_a_registered_component_or_the_record():
+    assert LIBRARY == EFFECTS + RECORD_EFFECTS
+    for effect in EFFECTS:
+        kind = COMPONENT_TYPES[effect.owner]
+        assert effect.name in {e.name for e in kind.EFFECTS}
+        assert effect.component.startswith(f"{effect.owner}.")
+    assert len(BY_NAME) == len(LIBRARY)  # no name twice
+
+
+def test_declared_quantities_equal_the_components_own_slots():
+    """Two paths to EA, the dead fraction and K_t: the document's (through the declared
+    Quantity) and the component's (its slots / the Park torque law)."""
+    doc = ModelDoc.load(AXIS)
+    axial = doc.component("axial")["params"]
+    assert doc.get("axial.EA") == AxialCompliance(**axial).slots()["EA"]
+    inverter = doc.component("inverter")["params"]
+    assert doc.get("inverter.dead_fraction") == Inverter(**inverter).slots()["dead_fraction"]
+    motor = doc.component("motor")["params"]
+    assert doc.torque_constant() == pytest.approx(1.5 * motor["p"] * motor["psi_pm"], rel=1e-15)
+
+
+def test_setting_a_declared_quantity_writes_the_parameters_it_is_made_of():
+    doc = ModelDoc.load(AXIS)
+    ea = 2.5e8
+    new = doc.set("axial.EA", ea)
+    params = new.component("axial")["params"]
+    assert params["d_root"] == doc.component("axial")["params"]["d_root"]  # diameter kept
+    assert params["E"] * math.pi * params["d_root"] ** 2 / 4.0 == pytest.approx(ea, rel=1e-14)
+    new = doc.set("inverter.dead_fraction", 0.032)
+    f_pwm = new.component("inverter")["params"]["f_pwm"]
+    assert new.component("inverter")["params"]["t_dead"] == pytest.approx(0.032 / f_pwm)
+    assert doc.has_slot("axial.EA") and not doc.has_slot("motor.cog0_amplitude")
+
+
+def _weights(**coefficients: float) -> SimpleNamespace:
+    return SimpleNamespace(coefficients=coefficients, variant="", residual_domain="effort")
+
+
+@pytest.mark.parametrize(
+    ("effect", "model", "truth", "weights", "slot", "value"),
+    [
+        # weights: what the ranking would find on the truth's residual against itself (none),
+        # or the weight an edit that sets the value from it needs to land on the truth
+        ("coulomb_friction", EMPS, {"F_c_N": 15.0}, {}, "friction.F_c", 15.0),
+        ("constant_force", EMPS, {"f_0_N": -20.0}, {"one": 20.0}, "constant_force.f_0", -20.0),
+        ("backlash", AXIS, {"gap_m": 1e-5}, {}, "backlash.gap", 1e-5),
+        (
+            "thermal_drift",
+            AXIS,
+            {"heating_K_m": 2.0},
+            {"x_D": -2.0 * ALPHA},
+            "thermal.heating",
+            2.0,
+        ),
+        ("channel_delay", EMPS, {"delay_s": 0.003}, {}, "analysis.effort_delay_s", 0.003),
+    ],
+)
+def test_a_truth_sets_what_the_edit_of_the_same_effect_fits(
+    effect, model, truth, weights, slot, value
+):
+    """The synthetic truth and the workflow's edit go through the same component: the edit of
+    the truth model frees the very slot the truth set, at the truth's value."""
+    nominal = ModelDoc.load(model)
+    hidden = model_of(BY_NAME[effect].truth(nominal, truth))
+    edit = BY_NAME[effect].edit(hidden, _weights(**weights))
+    assert slot in {p.name for p in edit.own}
+    assert model_of(edit.doc).get(slot) == pytest.approx(value, rel=1e-12)
