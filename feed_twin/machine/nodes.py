@@ -79,23 +79,24 @@ def write_axis_files(
     machine: MachineConfig, directory: Path | None = None, *, settle_s: float | None = None
 ) -> dict[str, Path]:
     """Each simulated axis's config file (the nodes' --config), by default under the kernel
-    cache in a directory named by the content's hash: the generated plant kernel names its
-    config file, so a new path for the same axis would compile it again (16 s of CPU per
-    axis), and runs of one machine share the compiled kernels this way."""
+    cache in a directory named by the file's hash: the generated plant kernel names its config
+    file, so a new path for the same axis would compile it again (16 s of CPU per axis), and
+    runs of one machine (any --axes) share the compiled kernels this way."""
     docs = {
         key: f"# axis {key} of {machine.source}, written for its nodes\n"
         + yaml.safe_dump(doc, sort_keys=False)
         for key, doc in axis_documents(machine, settle_s=settle_s).items()
     }
-    if directory is None:
-        from feed_twin.sim.kernel import cache_dir
-
-        digest = hashlib.sha256("".join(docs.values()).encode()).hexdigest()[:16]
-        directory = cache_dir() / "machine_axes" / f"{machine.name}_{digest}"
-    directory.mkdir(parents=True, exist_ok=True)
     files = {}
     for key, text in docs.items():
-        files[key] = directory / f"axis_{key.lower()}.yaml"
+        where = directory
+        if where is None:
+            from feed_twin.sim.kernel import cache_dir
+
+            digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+            where = cache_dir() / "machine_axes" / digest
+        where.mkdir(parents=True, exist_ok=True)
+        files[key] = where / f"axis_{key.lower()}.yaml"
         if not files[key].exists() or files[key].read_text() != text:
             tmp = files[key].with_suffix(f".tmp{os.getpid()}")
             tmp.write_text(text)
@@ -154,6 +155,22 @@ def node_plan(
         command_axes=tuple(a for a in machine.nc.axis_names if a not in machine.axes),
         files=files,
     )
+
+
+def chosen_processes(names: list[str], start: str | None) -> list[str]:
+    """The processes `--start` names (process names or roles), in the plan's order; ValueError
+    for a name that is neither."""
+    if start is None:
+        return names
+    wanted = [w.strip() for w in start.split(",") if w.strip()]
+    roles = {n.rpartition("_")[2] for n in names}
+    unknown = [w for w in wanted if w not in names and w not in roles]
+    if unknown or not wanted:
+        raise ValueError(
+            f"--start {start}: {', '.join(unknown) or 'nothing'} is not a process or role of "
+            f"this run (processes: {', '.join(names)})"
+        )
+    return [n for n in names if n in wanted or n.rpartition("_")[2] in wanted]
 
 
 def axis_of_process(name: str, axes: tuple[str, ...]) -> str | None:

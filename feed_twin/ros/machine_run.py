@@ -3,7 +3,7 @@
 1. Checks before anything moves (one line each): the machine file, `--axes`, the program on the
    machine's NC, and every axis file its nodes will read as a single-axis run would
    (feed_twin/ros/preflight.py: sections, the controller at the exchange period, the drive's
-   reach of the NC's limits); all axes must exchange at one period (lockstep across axes).
+   reach of the NC's limits).
 2. Starts the G-code node, the recorder, and per simulated axis a controller and a sim node,
    each in its own process, in the run's own ROS domain with its run token; one process that
    fails (an axis node killed, a drive fault) stops all others at once, the recorder last, and
@@ -27,10 +27,11 @@ from pathlib import Path
 from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import (
+    RECORDER_PROCESS,
     NodePlan,
     axis_of_process,
+    chosen_processes,
     node_plan,
-    process_name,
     read_machine_bag,
 )
 from feed_twin.ros import preflight
@@ -41,20 +42,14 @@ REFUSED = ("single_process", "live", "no_gcode", "shadow")
 
 
 def check_plan(machine: MachineConfig, plan: NodePlan) -> None:
-    """Every axis file as its nodes will read it; one exchange period for all axes."""
-    periods = {}
+    """Every axis file as its nodes will read it (ConfigError naming the axis)."""
     for axis, path in plan.files.items():
         try:
-            ros, _ = preflight.check_run_config(path, shadow=False)
+            preflight.check_run_config(path, shadow=False)
         except ConfigError as exc:
-            raise ConfigError(f"{machine.source}: axis {axis}: {exc}") from None
-        periods[axis] = ros.exchange_period_s
-    if len(set(periods.values())) > 1:
-        said = ", ".join(f"{a} {p!r} s" for a, p in periods.items())
-        raise ConfigError(
-            f"{machine.source}: ros.exchange_period_s differs between axes ({said}): the axes "
-            "run in lockstep, at one exchange period"
-        )
+            # the written file is the machine file's axis: name that instead
+            said = str(exc).removeprefix(f"{path}: ")
+            raise ConfigError(f"{machine.source}: axis {axis}: {said}") from None
 
 
 def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
@@ -67,6 +62,12 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     try:
         plan = node_plan(machine, settle_s=args.settle)
         check_plan(machine, plan)
+        common = ["--startup-timeout", str(args.startup_timeout),
+                  "--input-timeout", str(args.input_timeout)]  # fmt: skip
+        processes = plan.processes(
+            program=args.program, bag=bag, realtime=args.realtime, common=common
+        )
+        here = chosen_processes(list(processes), getattr(args, "start", None))
     except (ConfigError, ValueError, OSError) as exc:
         return _error(args, str(exc))
     env = dict(os.environ)
@@ -75,14 +76,12 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    common = ["--startup-timeout", str(args.startup_timeout),
-              "--input-timeout", str(args.input_timeout)]  # fmt: skip
-    processes = plan.processes(program=args.program, bag=bag, realtime=args.realtime, common=common)
     commands = {
-        name: [sys.executable, "-m", NODE_MODULES[role], *argv]
-        for name, (role, argv) in processes.items()
+        n: [sys.executable, "-m", NODE_MODULES[role], *argv]
+        for n, (role, argv) in processes.items()
+        if n in here
     }
-    clock = process_name(plan.axes[0], "sim")
+    clock = next((n for n in here if processes[n][0] == "sim"), None)
     try:
         result = launch(
             commands,
@@ -95,10 +94,39 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     finally:
         if reservation is not None:
             reservation.release()
-    reason = _named(result.reason, plan)
-    timing = log_record(result.logs[clock], "TIMING") or {}
-    summary, problem = _finish(bag, machine, args.program)
-    code = 1 if result.code == 0 and summary is None else preflight.exit_status(result.code)
+    timing = (log_record(result.logs[clock], "TIMING") or {}) if clock else {}
+    summary, problem = None, ""
+    if RECORDER_PROCESS in here:
+        summary, problem = _finish(bag, machine, args.program)
+    else:
+        print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
+    failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)
+    code = preflight.exit_status(result.code) if result.code else int(failed)
+    _report(machine, _named(result.reason, plan), problem, summary, timing, clock)
+    print(f"bag: {bag if bag.exists() else '(none)'}")
+    if args.json:
+        from feed_twin.nodeset.summary import json_line
+
+        print(json_line({
+            "exit_code": code,
+            "reason": _named(result.reason, plan) or problem,
+            "bag": str(bag) if bag.exists() else None,
+            "logs": str(logs),
+            "processes": here,
+            **(summary or {}),
+            **{f"timing_{k}": v for k, v in timing.items()},
+        }))  # fmt: skip
+    return code
+
+
+def _report(
+    machine: MachineConfig,
+    reason: str,
+    problem: str,
+    summary: dict | None,
+    timing: dict,
+    clock: str | None,
+) -> None:
     if reason:
         print(f"feed-twin run: {reason}", file=sys.stderr)
     if problem:
@@ -109,20 +137,6 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         keys = ("realtime_factor", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms")
         shown = ", ".join(f"{k} {timing[k]:.3f}" for k in keys if isinstance(timing.get(k), float))
         print(f"timing ({clock}): {shown}, missed steps {timing.get('missed_steps')}")
-    print(f"bag: {bag if bag.exists() else '(none)'}")
-    if args.json:
-        from feed_twin.nodeset.summary import json_line
-
-        record = {
-            "exit_code": code,
-            "reason": reason or problem,
-            "bag": str(bag) if bag.exists() else None,
-            "logs": str(logs),
-            **(summary or {}),
-            **{f"timing_{k}": v for k, v in timing.items()},
-        }
-        print(json_line(record))
-    return code
 
 
 def _named(reason: str, plan: NodePlan) -> str:

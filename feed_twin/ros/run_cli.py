@@ -95,6 +95,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--settle", type=float, default=0.2, help="machine config: simulated after the end [s]"
     )
     parser.add_argument(
+        "--start",
+        default=None,
+        help="machine config: start only these of the run's processes (names such as x_sim, or "
+        "roles: sim, controller, gcode, recorder), the others run on other computers",
+    )
+    parser.add_argument(
         "--in-process",
         action="store_true",
         help="machine config: every axis on the engine in this process instead of ROS nodes",
