@@ -8,7 +8,8 @@
    each in its own process, in the run's own ROS domain with its run token; one process that
    fails (an axis node killed, a drive fault) stops all others at once, the recorder last, and
    the reason names the axis.
-3. Afterwards: the bag (recovered if needed) gets the contour error and its along-path lag per
+3. Afterwards: the `.rrd` dashboard (feed_twin.machine.dashboard, as in-process); the bag
+   (recovered if needed) gets the contour error and its along-path lag per
    sample (`/<machine>/contour_error`, `/<machine>/contour_lag`, std_msgs/Float64 [m], logged at
    the first axis's state of the same sample), and the summary and `--json` give
    contour_error_max_m, contour_error_rms_m, following_error_max_m per axis and the timing of
@@ -98,6 +99,8 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     summary, problem = None, ""
     if RECORDER_PROCESS in here:
         summary, problem = _finish(bag, machine, args.program)
+        if summary is not None:
+            summary["rrd"] = str(bag.with_name(f"{bag.name}.rrd"))
     else:
         print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
     failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)
@@ -189,6 +192,10 @@ def _finish(bag: Path, machine: MachineConfig, program: Path) -> tuple[dict | No
             )  # fmt: skip
         },
     )
+    from feed_twin.machine.dashboard import write_machine_dashboard
+
+    segments = programmed_path(program, machine.nc)
+    write_machine_dashboard(record, segments, bag.with_name(f"{bag.name}.rrd"))
     return record.summary(), ""
 
 
