@@ -145,8 +145,8 @@ def test_missing_sections_and_unknown_axes_selection(tmp_path):
         load_machine_config(write_machine(tmp_path, nc=None))
     with pytest.raises(ConfigError, match=r"unknown section\(s\) plant; allowed: machine, nc"):
         load_machine_config(write_machine(tmp_path, plant={}))
-    with pytest.raises(ConfigError, match=r"unknown section\(s\) ros; allowed: machine, nc, axes"):
-        load_machine_config(write_machine(tmp_path, ros={"axis": "x"}))
+    with pytest.raises(ConfigError, match=r"\(s\) controller; allowed: machine, nc, axes, ros"):
+        load_machine_config(write_machine(tmp_path, controller={}))
     machine = load_machine_config(MACHINE)
     with pytest.raises(ConfigError, match=r"--axes X,B: axis B has no plant \(simulated axes"):
         machine.select(["X", "B"])

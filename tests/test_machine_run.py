@@ -27,7 +27,7 @@ def run(tmp_path: Path, capsys, *extra: str, program: str = PROGRAM, config: Pat
     path = tmp_path / "part.ngc"
     path.write_text(program)
     argv = ["run", str(path), "--config", str(config), "--out", str(tmp_path), "--name", "m"]
-    code = cli_main([*argv, "--json", "--settle", "0.05", *extra])
+    code = cli_main([*argv, "--json", "--settle", "0.05", "--in-process", *extra])
     out, err = capsys.readouterr()
     return code, json.loads(out.strip().splitlines()[-1]), err
 
@@ -70,7 +70,7 @@ def test_axes_subset_simulates_only_those(tmp_path, capsys):
         ((), "G1 X1 A5 F100\n", MACHINE,
          r"G-code error, nothing was started: .*part.ngc:1:7: word 'A5': unknown word \(axis A"),
         (("--axes", "X,B"), PROGRAM, MACHINE, r"--axes X,B: axis B has no plant"),
-        (("--realtime",), PROGRAM, MACHINE, r"--realtime: not available for a machine config"),
+        (("--realtime",), PROGRAM, MACHINE, r"--realtime: not available .* run in-process"),
         (("--axes", "X"), PROGRAM, AXIS, r"--axes needs a machine config; .*axis_default.yaml is"),
     ],
 )  # fmt: skip

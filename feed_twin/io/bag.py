@@ -526,6 +526,59 @@ def recover(path: str | Path) -> RecoverResult:
     )
 
 
+def add_topics(
+    path: str | Path, topics: dict[str, tuple[str, Sequence[tuple[int, bytes]]]]
+) -> BagInfo:
+    """Rewrite a finished bag with more topics: name -> (message type, [(log time ns, CDR
+    bytes)]), for figures computed after the run (a machine run's contour error). The original
+    is replaced once the new file is complete on disk."""
+    directory, mcap_path = bag_paths(path)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    messages: list[Message] = []
+    with open(mcap_path, "rb") as f:
+        for record in StreamReader(f, skip_magic=False, emit_chunks=False).records:
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                messages.append(record)
+    for name, (type_name, items) in topics.items():
+        if any(c.topic == name for c in channels.values()):
+            raise BagError(f"{directory}: topic {name!r} is already in the bag")
+        definition = message_definition(type_name)
+        schema_id = next((i for i, s in schemas.items() if s.name == type_name), None)
+        if schema_id is None:
+            schema_id = max(schemas, default=0) + 1
+            schemas[schema_id] = Schema(
+                id=schema_id,
+                name=type_name,
+                encoding=SCHEMA_ENCODING,
+                data=definition.schema_text.encode("utf-8"),
+            )
+        channel_id = max(channels, default=0) + 1
+        channels[channel_id] = Channel(
+            id=channel_id,
+            schema_id=schema_id,
+            topic=name,
+            message_encoding=MESSAGE_ENCODING,
+            metadata={
+                "offered_qos_profiles": qos_yaml((QosProfile(),)),
+                "topic_type_hash": definition.type_hash,
+            },
+        )
+        messages += [
+            Message(channel_id=channel_id, sequence=k, log_time=t, publish_time=t, data=data)
+            for k, (t, data) in enumerate(items)
+        ]
+    tmp = mcap_path.with_name(mcap_path.name + ".adding")
+    text, _ = _write_recovered(tmp, schemas, channels, messages, mcap_path.name)
+    os.replace(tmp, mcap_path)
+    _write_atomically(directory / METADATA_FILE, text)
+    return info(directory)
+
+
 def _write_recovered(target: Path, schemas, channels, messages, mcap_name: str):
     """Write the recovered records to `target` (synced); returns (metadata text, counts)."""
     counts: dict[int, int] = dict.fromkeys(channels, 0)

@@ -31,7 +31,7 @@ from feed_twin.gcode.config import NcConfig, nc_config_from_mapping
 from feed_twin.io.config import ConfigError, from_mapping, load_yaml
 from feed_twin.sim.config import AxisConfig, load_axis_config
 
-MACHINE_SECTIONS = ("machine", "nc", "axes")
+MACHINE_SECTIONS = ("machine", "nc", "axes", "ros")
 AXIS_ENTRY_KEYS = ("include", "plant", "engine", "controller", "shadow", "vertical")
 STANDARD_GRAVITY = 9.80665  # [m/s^2]
 
@@ -167,6 +167,15 @@ def load_machine_config(path: str | Path) -> MachineConfig:
 def _axis_entry(
     entry: Any, key: str, nc: NcConfig, path: Path
 ) -> tuple[AxisConfig, Vertical | None]:
+    sections, axis_source, vertical = axis_sections(entry, key, nc, path)
+    return load_axis_config(sections, source=axis_source), vertical
+
+
+def axis_sections(
+    entry: Any, key: str, nc: NcConfig, path: Path
+) -> tuple[dict[str, Any], str, Vertical | None]:
+    """The plant (weight and counterbalance added), engine, controller and shadow mappings of
+    axis entry `key`, the source its errors name, and its vertical description."""
     source = str(path)
     where = f"{source}: axes.{key}"
     if not isinstance(entry, Mapping):
@@ -206,7 +215,7 @@ def _axis_entry(
             Vertical, entry["vertical"], source=source, path=f"axes.{key}.vertical"
         )
         sections = {**sections, "plant": _with_weight(sections.get("plant"), vertical, where)}
-    return load_axis_config(sections, source=axis_source), vertical
+    return sections, axis_source, vertical
 
 
 def _with_weight(plant: Any, vertical: Vertical, where: str) -> dict[str, Any]:

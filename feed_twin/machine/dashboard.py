@@ -15,6 +15,7 @@ import rerun.blueprint as rrb
 
 from feed_twin.gcode.geometry import PathSegment
 from feed_twin.io.dashboard import APPLICATION_ID, TIMELINE
+from feed_twin.machine.nodes import MachineRecord
 from feed_twin.machine.simulate import MachineRun
 
 MM = 1e3  # display mm per m
@@ -41,7 +42,7 @@ def path_points(segments: tuple[PathSegment, ...]) -> np.ndarray:
 
 
 def write_machine_dashboard(
-    run: MachineRun, segments: tuple[PathSegment, ...], rrd_path: str | Path
+    run: MachineRun | MachineRecord, segments: tuple[PathSegment, ...], rrd_path: str | Path
 ) -> Path:
     rrd_path = Path(rrd_path)
     rrd_path.parent.mkdir(parents=True, exist_ok=True)

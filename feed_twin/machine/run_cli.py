@@ -1,6 +1,8 @@
-"""`feed-twin run PROGRAM --config MACHINE.yaml [--axes X,Z]`: the machine twin in-process.
+"""`feed-twin run PROGRAM --config MACHINE.yaml [--axes X,Z]`: the machine twin.
 
-A machine config (feed_twin.machine.config) runs every simulated axis of the machine on the
+By default the machine runs as its ROS node set (feed_twin.ros.machine_run: a sim and a
+controller node per axis, each in its own process). With `--in-process` (and for `--shadow`) a
+machine config (feed_twin.machine.config) runs every simulated axis of the machine on the
 engine in this process (feed_twin.machine.simulate), in lockstep on the NC's sample grid; the
 program and the config are checked first and a bad one stops the run with one line before
 anything moves. Outputs:
@@ -15,9 +17,8 @@ anything moves. Outputs:
   following_error_max_m per axis, the engine's realtime factor, the paths).
 `--shadow` adds the shadow twin of every simulated axis beside its stand-in
 (feed_twin.machine.shadow): residuals and health per axis in the summary and under "shadow" in
-the JSON line. The ROS 2 node set of a machine (a sim and controller node per axis in its own
-process) is not built yet: the node-set options (--realtime, --single-process, --live,
---no-gcode) are refused for a machine config.
+the JSON line. In-process, the node-set options (--realtime, --single-process, --live,
+--no-gcode) are refused.
 """
 
 from __future__ import annotations
@@ -127,12 +128,13 @@ def run_machine(args: argparse.Namespace) -> int:
     from feed_twin.gcode.planner import validate_program
     from feed_twin.machine.dashboard import write_machine_dashboard
 
+    in_process = args.in_process or args.shadow
     refused = [f"--{o.replace('_', '-')}" for o in NODE_SET_OPTIONS if getattr(args, o, False)]
-    if refused:
+    if refused and in_process:
         return _error(
             args,
-            f"{', '.join(refused)}: not available for a machine config ({args.config}): the "
-            "machine runs in-process (the machine's ROS node set is not built yet)",
+            f"{', '.join(refused)}: not available for a machine config run in-process "
+            f"({args.config}; without --in-process and --shadow it runs as ROS nodes)",
         )
     if args.program is None:
         return _error(args, "a PROGRAM is needed")
@@ -145,6 +147,10 @@ def run_machine(args: argparse.Namespace) -> int:
         return _error(args, f"G-code error, nothing was started: {exc}")
     except (ConfigError, ValueError, OSError) as exc:
         return _error(args, str(exc))
+    if not in_process:
+        from feed_twin.ros.machine_run import run_machine_nodes
+
+        return run_machine_nodes(args, machine)
     name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
     args.out.mkdir(parents=True, exist_ok=True)
     bag_path, rrd_path = args.out / name, args.out / f"{name}.rrd"

@@ -87,6 +87,9 @@ def parse_program_state(text: str, token: str = "") -> tuple[str, int | None, st
     return word, None, text
 
 
+MACHINE_WIDE_NODES = frozenset(("gcode",))  # nodes that serve every axis of a machine
+
+
 @dataclass(frozen=True, kw_only=True)
 class Endpoint:
     """A publisher in the ROS graph."""
@@ -131,4 +134,10 @@ class CommandGuard:
         return found
 
     def _own(self, e: Endpoint) -> bool:
-        return e.node_namespace.rstrip("/") == self.namespace and e.node_name in self.own_nodes
+        namespace = e.node_namespace.rstrip("/")
+        if namespace == self.namespace:
+            return e.node_name in self.own_nodes
+        # a machine's one G-code node commands every axis from another axis's namespace of the
+        # same machine (feed_twin.machine.nodes)
+        machine = self.namespace.rpartition("/")[0]
+        return e.node_name in MACHINE_WIDE_NODES and namespace.rpartition("/")[0] == machine

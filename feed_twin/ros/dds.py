@@ -154,3 +154,35 @@ def apply_scheduling(*, cpu: int = -1, priority: int = 0, cpu_latency_us: int = 
         except (OSError, AttributeError) as exc:
             notes.append(f"normal scheduling, SCHED_FIFO priority {priority} refused: {exc}")
     return notes
+
+
+def peers_profile(interface: str, peers: Sequence[str], *, participants: int = 32) -> str:
+    """A Fast DDS profile (XML text) for nodes spread over several computers: UDP on the
+    interface with address `interface` only, participants found by unicast at `peers` (every
+    computer of the run, this one included; `participants` participant IDs per address), and
+    feed_twin's writer settings (fastdds_profiles.xml). Point FASTRTPS_DEFAULT_PROFILES_FILE at
+    it on each computer: the nodes then keep it (`dds_environment`)."""
+    writer = FASTDDS_PROFILES.read_text()
+    writer = writer[writer.index("  <data_writer") : writer.index("</profiles>")]
+    locators = "".join(f"<locator><udpv4><address>{p}</address></udpv4></locator>" for p in peers)
+    return f"""<?xml version="1.0" encoding="UTF-8" ?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <transport_descriptors>
+    <transport_descriptor>
+      <transport_id>feed_twin_udp</transport_id>
+      <type>UDPv4</type>
+      <maxInitialPeersRange>{participants}</maxInitialPeersRange>
+      <interfaceWhiteList><address>{interface}</address></interfaceWhiteList>
+    </transport_descriptor>
+  </transport_descriptors>
+  <participant profile_name="feed_twin_participant" is_default_profile="true">
+    <rtps>
+      <builtin>
+        <initialPeersList>{locators}</initialPeersList>
+      </builtin>
+      <userTransports><transport_id>feed_twin_udp</transport_id></userTransports>
+      <useBuiltinTransports>false</useBuiltinTransports>
+    </rtps>
+  </participant>
+{writer}</profiles>
+"""

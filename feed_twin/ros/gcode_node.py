@@ -15,6 +15,11 @@
   axis's machine positions minus its start position.
 - Timing: setpoints are stamped in simulation time, one per interpolation period, and published
   up to `lookahead` periods ahead of the latest /clock so the controller never waits for them.
+- A machine (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes): one node commands
+  every NC axis, each on its own `/<machine>/<axis>/command`, and announces `program_state` to
+  every axis with nodes. It reads each such axis's clock (`<namespace>/clock`) and publishes
+  ahead of the slowest: no axis's controller gets a setpoint more than `lookahead` periods
+  ahead of any other axis, which holds all axes together in simulated time.
 - `program_state` (latched std_msgs/String): `loaded ...`, `running`, `paused line N ...`,
   `finished <t_ns>`, `stopped <t_ns>`, `error <message>`.
 """
@@ -39,7 +44,7 @@ from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_con
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.nodeset.guard import run_token, sign_state
 from feed_twin.nodeset.split import NS_PER_S
-from feed_twin.nodeset.topics import GCODE_NODE
+from feed_twin.nodeset.topics import GCODE_NODE, AxisTopics
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, node_main
 
@@ -133,16 +138,38 @@ class GcodeNode(FeedTwinNode):
         self.nc = nc
         self.lookahead = lookahead
         self.period_ns = round(nc.interpolation_period_s * NS_PER_S)
-        self.stream: ProgramStream | None = None
+        self.streams: list[ProgramStream] = []  # one per commanded axis, in step
         self.trajectory: SampledTrajectory | None = None
         self.running = False
         self._clock_ns = 0
         # The run's token (feed_twin.nodeset.guard) marks the commands as this run's.
         self._token = run_token(os.environ)
-        self._command = AXIS_COMMAND.fixed({"axis": nc.twin_axis, "header.frame_id": self._token})
-        self._pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
-        self._state_pub = self.create_publisher(String, self.topics.program_state, LATCHED_QOS)
-        self.create_subscription(Clock, "/clock", self._on_clock, DATA_QOS, raw=True)
+        served = options.axis_topics()
+        commanded = [(nc.twin_axis, self.topics)] + [
+            (a.upper(), AxisTopics(machine=options.machine, axis=a))
+            for a in (*options.other_axes, *options.command_axes)
+        ]
+        self._labels = tuple(label for label, _ in commanded)
+        self._commands = [
+            AXIS_COMMAND.fixed({"axis": label, "header.frame_id": self._token})
+            for label in self._labels
+        ]
+        self._pubs = [self.create_publisher(AxisCommand, t.command, DATA_QOS) for _, t in commanded]
+        self._state_pubs = [
+            self.create_publisher(String, t.program_state, LATCHED_QOS) for t in served.values()
+        ]
+        if options.other_axes:
+            self._clocks = dict.fromkeys(served, 0)
+            for prefix, t in served.items():
+                self.create_subscription(
+                    Clock,
+                    f"{t.namespace}/clock",
+                    lambda data, prefix=prefix: self._on_axis_clock(data, prefix),
+                    DATA_QOS,
+                    raw=True,
+                )
+        else:
+            self.create_subscription(Clock, "/clock", self._on_clock, DATA_QOS, raw=True)
         self.create_service(Trigger, "~/start", self._srv_start)
         self.create_service(Trigger, "~/pause", self._srv_pause)
         self.create_service(Trigger, "~/stop", self._srv_stop)
@@ -152,10 +179,16 @@ class GcodeNode(FeedTwinNode):
         self.autostart = autostart
         if program:
             self.set_parameters([Parameter("program", value=program)])
-        self.start_heartbeat(when=lambda: self.recorder_listens((self._pub,)))
+        self.start_heartbeat(when=lambda: self.recorder_listens(self._pubs))
+
+    @property
+    def stream(self) -> ProgramStream | None:
+        """The first axis's stream: every axis pauses, stops and ends with it."""
+        return self.streams[0] if self.streams else None
 
     def _state(self, text: str) -> None:
-        self._state_pub.publish(String(data=sign_state(text, self._token)))
+        for pub in self._state_pubs:
+            pub.publish(String(data=sign_state(text, self._token)))
         self.get_logger().info(f"program: {text}")
 
     def load(self, program: str) -> bool:
@@ -175,20 +208,24 @@ class GcodeNode(FeedTwinNode):
 
     def start(self) -> str:
         if self.stream is not None and self.stream.paused is not None:
-            self.stream.paused = None
+            for stream in self.streams:
+                stream.paused = None
             self._state("running")
             return "resumed"
         if self.trajectory is None:
             return "no program loaded"
         if self.running:
             return "already running"
-        self.stream = ProgramStream(
-            self.trajectory,
-            self.nc.twin_axis,
-            period_ns=self.period_ns,
-            t0_ns=self._clock_ns,
-            optional_stop=bool(self.get_parameter("optional_stop").value),
-        )
+        self.streams = [
+            ProgramStream(
+                self.trajectory,
+                label,
+                period_ns=self.period_ns,
+                t0_ns=self._clock_ns,
+                optional_stop=bool(self.get_parameter("optional_stop").value),
+            )
+            for label in self._labels
+        ]
         self.running = True
         self._state("running")
         self._publish_ahead()
@@ -200,10 +237,12 @@ class GcodeNode(FeedTwinNode):
             return
         horizon = self._clock_ns + self.lookahead * self.period_ns
         was_paused = stream.paused
+        outputs = list(zip(self.streams, self._commands, self._pubs, strict=True))
         while not stream.finished and stream.next_t_ns <= horizon:
-            t_ns, x, v, a, line = stream.next_sample()
-            sec, nsec = divmod(t_ns, NS_PER_S)
-            self._pub.publish(self._command.encode((sec, nsec, x, v, a, line)))
+            for each, command, pub in outputs:
+                t_ns, x, v, a, line = each.next_sample()
+                sec, nsec = divmod(t_ns, NS_PER_S)
+                pub.publish(command.encode((sec, nsec, x, v, a, line)))
             if stream.paused is not None and was_paused is None:
                 self._state(f"paused {stream.paused}")
                 was_paused = stream.paused
@@ -215,6 +254,12 @@ class GcodeNode(FeedTwinNode):
     def _on_clock(self, data: bytes) -> None:
         sec, nsec = CLOCK.decode(data)
         self._clock_ns = sec * NS_PER_S + nsec
+        self._publish_ahead()
+
+    def _on_axis_clock(self, data: bytes, prefix: str) -> None:
+        sec, nsec = CLOCK.decode(data)
+        self._clocks[prefix] = sec * NS_PER_S + nsec
+        self._clock_ns = min(self._clocks.values())  # the slowest axis sets the horizon
         self._publish_ahead()
 
     def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:
@@ -238,7 +283,8 @@ class GcodeNode(FeedTwinNode):
         if self.stream is None or not self.running:
             response.success, response.message = False, "not running"
         else:
-            self.stream.pause_requested = True
+            for stream in self.streams:
+                stream.pause_requested = True
             response.success, response.message = True, "pausing at the next standstill"
         return response
 
@@ -246,8 +292,9 @@ class GcodeNode(FeedTwinNode):
         if self.stream is None or not self.running:
             response.success, response.message = False, "not running"
         else:
-            self.stream.stop_requested = True
-            self.stream.paused = None
+            for stream in self.streams:
+                stream.stop_requested = True
+                stream.paused = None
             response.success, response.message = True, "stopping at the next standstill"
         return response
 

@@ -60,14 +60,17 @@ def launch(
     progress_role: str | None = None,
     show_progress: bool = False,
     deadline_s: float | None = None,
+    stop_on_failure: bool = False,
 ) -> Launched:
     """Start one process per role, watch them until all have ended, and say why they did.
 
     A node that exits with an error ends the run (the others notice its missing heartbeat and
     stop within a second, else they are told to); SIGINT/SIGTERM to this process is passed to
     the producers first and to the recorder last, so that it records what they sent;
-    `deadline_s` [s wall] bounds the whole run (the nodes are then terminated). Every process is
-    gone when this returns.
+    `deadline_s` [s wall] bounds the whole run (the nodes are then terminated). With
+    `stop_on_failure` the others are told to stop at once (a machine's axes do not watch each
+    other's nodes), producers first and the recorder last. Every process is gone when this
+    returns.
     """
     logs_dir.mkdir(parents=True, exist_ok=True)
     procs: dict[str, subprocess.Popen] = {}
@@ -95,15 +98,7 @@ def launch(
         while any(p.poll() is None for p in procs.values()):
             if stop.signum is not None:
                 reason = f"stopped by {signal.Signals(stop.signum).name}"
-                # Producers first, the recorder last, so that it records everything they sent.
-                producers = {r: p for r, p in procs.items() if r != "recorder"}
-                for p in producers.values():
-                    if p.poll() is None:
-                        p.send_signal(stop.signum)
-                _wait_all(producers, STOP_GRACE_S)
-                if "recorder" in procs and procs["recorder"].poll() is None:
-                    procs["recorder"].send_signal(stop.signum)
-                _wait_all(procs, STOP_GRACE_S)
+                _stop_in_order(procs, stop.signum)
                 break
             for role, p in procs.items():
                 rc = p.poll()
@@ -111,6 +106,9 @@ def launch(
                     first_failure = role
                     code = rc
                     reason = ""
+            if first_failure is not None and stop_on_failure:
+                _stop_in_order(procs, signal.SIGTERM)
+                break
             if first_failure is not None:
                 # Nodes that had seen the failed one stop on their own within a second (lost
                 # heartbeat); the others (it died while starting) are told to stop.
@@ -155,6 +153,18 @@ def launch(
         logs=logs,
         returncodes={r: p.returncode for r, p in procs.items()},
     )
+
+
+def _stop_in_order(procs: dict[str, subprocess.Popen], signum: int) -> None:
+    """Producers first, the recorder last, so that it records everything they sent."""
+    producers = {r: p for r, p in procs.items() if r != "recorder"}
+    for p in producers.values():
+        if p.poll() is None:
+            p.send_signal(signum)
+    _wait_all(producers, STOP_GRACE_S)
+    if "recorder" in procs and procs["recorder"].poll() is None:
+        procs["recorder"].send_signal(signum)
+    _wait_all(procs, STOP_GRACE_S)
 
 
 def _wait_all(procs: dict[str, subprocess.Popen], grace_s: float) -> None:

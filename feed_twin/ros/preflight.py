@@ -145,7 +145,9 @@ def run_environment(args, environ):
 
     reservation, domain_id = run_domain(args.domain_id)
     environ["ROS_DOMAIN_ID"] = str(domain_id)
-    environ[RUN_TOKEN_ENV] = secrets.token_hex(8)
+    # a run spread over several computers (`--start`) shares the token the user set on each
+    if not (getattr(args, "start", None) and environ.get(RUN_TOKEN_ENV)):
+        environ[RUN_TOKEN_ENV] = secrets.token_hex(8)
     environ[OPEN_NC_ENV] = "1" if args.no_gcode else "0"
     return reservation
 

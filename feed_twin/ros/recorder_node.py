@@ -15,9 +15,13 @@ per second; a callback per message would make the recorder the largest CPU user 
 and steal the cores the controller and the sim wait for. The subscriptions' history (DATA_QOS
 depth) holds what arrives between two drains.
 
-The run ends when the sim node announces it on `run_state`; the recorder then drains what is
-still in flight (until 0.3 s without a message, at most 30 s) and closes the bag. On SIGINT,
-SIGTERM or a lost peer it closes the bag as well.
+A machine's recorder (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes) records
+every axis of the machine into the one bag: the node-set topics of each axis with nodes, the
+command of each axis without, and whatever else appears under `/<machine>/`.
+
+The run ends when the sim node (of every axis) announces it on `run_state`; the recorder then
+drains what is still in flight (until 0.3 s without a message, at most 30 s) and closes the
+bag. On SIGINT, SIGTERM or a lost peer it closes the bag as well.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ from rclpy.subscription import Subscription
 from feed_twin.io.bag import BagError, BagWriter, QosProfile
 from feed_twin.nodeset.guard import run_token
 from feed_twin.nodeset.summary import LiveFeed
-from feed_twin.nodeset.topics import RECORDER_NODE
+from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
 from feed_twin.ros.dds import DATA_QOS, HEARTBEAT_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import (
     EXIT_ERROR,
@@ -110,19 +114,29 @@ class RecorderNode(FeedTwinNode):
         self._peer_lost: str | None = None
         self._peers_lost: set[str] = set()
         self._signal: str | None = None
-        known = self.topics.types()
+        served = list(options.axis_topics().values())
+        known: dict[str, str] = {}
+        self._signed_topics: set[str] = set()
+        qos_for = {}
+        self._heartbeats = set()
+        for topics in served:
+            known.update(topics.types())
+            self._signed_topics |= {topics.command, topics.drive_command, topics.program_state}
+            qos_for[topics.program_state] = qos_for[topics.run_state] = LATCHED_QOS
+            qos_for[topics.heartbeat] = HEARTBEAT_QOS
+            self._heartbeats.add(topics.heartbeat)
+        if options.other_axes:
+            # each sim publishes its axis's clock (sim_node --axis-clock); nobody /clock
+            clock_type = known.pop(AxisTopics.clock)
+            for topics in served:
+                known[f"{topics.namespace}/clock"] = clock_type
+        for axis in options.command_axes:
+            command = AxisTopics(machine=options.machine, axis=axis).command
+            known[command] = "feed_twin_msgs/msg/AxisCommand"
+            self._signed_topics.add(command)
+        self._scan_prefix = f"/{options.machine}/" if options.other_axes else None
         token = run_token(os.environ)
         self._token = token.encode() if token else b""
-        self._signed_topics = {
-            self.topics.command,
-            self.topics.drive_command,
-            self.topics.program_state,
-        }
-        qos_for = {
-            self.topics.program_state: LATCHED_QOS,
-            self.topics.run_state: LATCHED_QOS,
-            self.topics.heartbeat: HEARTBEAT_QOS,
-        }
         if twin_namespace is not None:
             # a shadow run: the twin's output is known in advance, so it is recorded from its
             # first message instead of from whenever the graph scan finds it (late under load)
@@ -148,7 +162,7 @@ class RecorderNode(FeedTwinNode):
         )
         self._recorded[topic] = subscription
         # Heartbeats go on while peers live; only data counts when judging "quiet".
-        counts = topic != self.topics.heartbeat
+        counts = topic not in self._heartbeats
         if counts and self._token and topic in self._signed_topics:
             # Only the run's own messages (signed with its token) count: a foreign publisher
             # that goes on sending must not hold the recording open after the run.
@@ -196,7 +210,7 @@ class RecorderNode(FeedTwinNode):
         return total
 
     def _scan(self) -> None:
-        prefix = self.topics.namespace + "/"
+        prefix = self._scan_prefix or self.topics.namespace + "/"
         for topic, types in self.get_topic_names_and_types():
             if topic in self._recorded or len(types) != 1:
                 continue

@@ -100,6 +100,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--settle", type=float, default=0.2, help="machine config: simulated after the end [s]"
     )
+    parser.add_argument(
+        "--start",
+        default=None,
+        help="machine config: start only these of the run's processes (names such as x_sim, or "
+        "roles: sim, controller, gcode, recorder), the others run on other computers",
+    )
+    parser.add_argument(
+        "--in-process",
+        action="store_true",
+        help="machine config: every axis on the engine in this process instead of ROS nodes",
+    )
 
 
 @dataclass
@@ -359,8 +370,9 @@ def main(args: argparse.Namespace) -> int:
         from feed_twin.machine.run_cli import run_machine
 
         return run_machine(args)
-    if args.axes is not None:
-        return _early_error(args, f"--axes needs a machine config; {args.config} is one axis")
+    if args.axes is not None or args.in_process:
+        option = "--axes" if args.axes is not None else "--in-process"
+        return _early_error(args, f"{option} needs a machine config; {args.config} is one axis")
     if args.program is None and not args.no_gcode:
         print(
             "feed-twin run: a PROGRAM is needed (or --no-gcode for an external NC)", file=sys.stderr

@@ -87,16 +87,38 @@ class NodeOptions:
     startup_timeout_s: float = 60.0  # [s] wall time for peers to appear
     input_timeout_s: float = 10.0  # [s] wall time an expected topic may stay silent
     peer_timeout_s: float = PEER_TIMEOUT_S  # [s]
+    # A machine's G-code and recorder node serve several axes (feed_twin.machine.nodes): they
+    # also beat, watch peers (named `<axis>/<role>`) and wait for the run's end there.
+    other_axes: tuple[str, ...] = ()
+    command_axes: tuple[str, ...] = ()  # NC axes without nodes: commanded and recorded only
 
     def __post_init__(self) -> None:
         for name in ("startup_timeout_s", "input_timeout_s", "peer_timeout_s"):
             value = getattr(self, name)
             if not value > 0.0:
                 raise ValueError(f"{name} = {value!r}: must be > 0")
+        for axis in (*self.other_axes, *self.command_axes):
+            AxisTopics(machine=self.machine, axis=axis)  # a valid ROS name
+        if self.axis in self.other_axes:
+            raise ValueError(f"other_axes = {self.other_axes!r}: names this node's own axis")
 
     @property
     def topics(self) -> AxisTopics:
         return AxisTopics(machine=self.machine, axis=self.axis)
+
+    def axis_topics(self) -> dict[str, AxisTopics]:
+        """Peer-name prefix ('' for this node's namespace, else '<axis>/') -> that axis's
+        topics, for every axis with nodes this node serves."""
+        return {
+            "": self.topics,
+            **{f"{a}/": AxisTopics(machine=self.machine, axis=a) for a in self.other_axes},
+        }
+
+    def peer_path(self, peer: str) -> str:
+        """The full name of peer `peer` (`sim` here, `y/sim` on another axis)."""
+        if "/" in peer:
+            return f"/{self.machine}/{peer}"
+        return f"{self.topics.namespace}/{peer}"
 
 
 class Liveness:
@@ -116,10 +138,17 @@ class Liveness:
         self.role = role
         self.options = options
         self.node = Node(f"{role}_liveness", namespace=options.topics.namespace, context=context)
-        self._pub = self.node.create_publisher(String, options.topics.heartbeat, HEARTBEAT_QOS)
-        self._sub = self.node.create_subscription(
-            String, options.topics.heartbeat, _never_called, HEARTBEAT_QOS
-        )
+        served = options.axis_topics()
+        self._pubs = [
+            self.node.create_publisher(String, t.heartbeat, HEARTBEAT_QOS) for t in served.values()
+        ]
+        self._subs = [
+            (
+                prefix,
+                self.node.create_subscription(String, t.heartbeat, _never_called, HEARTBEAT_QOS),
+            )
+            for prefix, t in served.items()
+        ]
         self._lock = threading.Lock()
         self._seen: dict[str, float] = {}
         self._beating = False
@@ -135,16 +164,17 @@ class Liveness:
         return self._beating
 
     def _take(self) -> None:
-        handle = self._sub.handle
-        with handle:
-            while True:
-                taken = handle.take_message(String, False)
-                if taken is None:
-                    return
-                peer = taken[0].data
-                if peer != self.role:
-                    with self._lock:
-                        self._seen[peer] = time.monotonic()
+        for prefix, sub in self._subs:
+            handle = sub.handle
+            with handle:
+                while True:
+                    taken = handle.take_message(String, False)
+                    if taken is None:
+                        break
+                    peer = taken[0].data
+                    if peer != self.role:
+                        with self._lock:
+                            self._seen[prefix + peer] = time.monotonic()
 
     def _run(self) -> None:
         next_beat = time.monotonic()
@@ -154,8 +184,9 @@ class Liveness:
             now = time.monotonic()
             if self._beating and now >= next_beat:
                 next_beat = now + HEARTBEAT_PERIOD_S
-                with contextlib.suppress(Exception):
-                    self._pub.publish(String(data=self.role))
+                for pub in self._pubs:
+                    with contextlib.suppress(Exception):
+                        pub.publish(String(data=self.role))
 
     def seen(self) -> dict[str, float]:
         with self._lock:
@@ -198,7 +229,14 @@ class FeedTwinNode(Node):
         self._beat_when: Callable[[], bool] | None = None
         self.setup_cpu_s = 0.0  # CPU time of this process when set-up ended [s]
         self.run_ended = False
-        self.create_subscription(String, self.topics.run_state, self._on_run_state, LATCHED_QOS)
+        self._not_done = set(options.axis_topics())  # axes whose sim has not announced the end
+        for prefix, topics in options.axis_topics().items():
+            self.create_subscription(
+                String,
+                topics.run_state,
+                lambda msg, prefix=prefix: self._on_run_state(msg, prefix),
+                LATCHED_QOS,
+            )
         self.create_timer(HEARTBEAT_PERIOD_S, self._tick, clock=self.wall)
 
     def start_heartbeat(self, *, when: Callable[[], bool] | None = None) -> None:
@@ -266,10 +304,15 @@ class FeedTwinNode(Node):
     def on_run_state(self, text: str) -> None:
         """Any other run_state announcement (the sim's "realtime" at the start); default: none."""
 
-    def _on_run_state(self, msg: String) -> None:
+    def _on_run_state(self, msg: String, prefix: str = "") -> None:
         if not msg.data.startswith("done"):
             self.on_run_state(msg.data)
-        elif not self.run_ended:
+            return
+        # a machine's run ends when every axis has ended it, or at the first axis's error
+        self._not_done.discard(prefix)
+        if self._not_done and not msg.data.startswith("done error"):
+            return
+        if not self.run_ended:
             self.run_ended = True  # peers leave from now on: that is no longer a fault
             self.get_logger().info(f"run state: {msg.data}")
             self.on_run_done(msg.data)
@@ -322,7 +365,7 @@ class FeedTwinNode(Node):
                 if self._heartbeat_on and now - self._created > self.options.startup_timeout_s:
                     self.finish(
                         EXIT_PEER_LOST,
-                        f"node '{self.topics.namespace}/{peer}' did not start within "
+                        f"node '{self.options.peer_path(peer)}' did not start within "
                         f"{self.options.startup_timeout_s:g} s",
                     )
             else:
@@ -332,7 +375,7 @@ class FeedTwinNode(Node):
             # named together: the others beat every 0.1 s, so half the timeout tells them apart.
             self.on_peer_lost(
                 "; ".join(
-                    f"node '{self.topics.namespace}/{peer}' is gone: no heartbeat for {s:.2f} s"
+                    f"node '{self.options.peer_path(peer)}' is gone: no heartbeat for {s:.2f} s"
                     for peer, s in sorted(silent.items(), key=lambda item: -item[1])
                     if s > 0.5 * self.options.peer_timeout_s
                 )
@@ -524,6 +567,12 @@ def node_parser(prog: str, configure: Callable[[argparse.ArgumentParser], None])
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
+    parser.add_argument(
+        "--machine-axes", default="", help="further axes with nodes this node serves (a, b)"
+    )
+    parser.add_argument(
+        "--command-axes", default="", help="NC axes without nodes: commanded and recorded only"
+    )
     configure(parser)
     return parser
 
@@ -535,6 +584,8 @@ def node_options(args: argparse.Namespace, ros) -> NodeOptions:
         peers=tuple(p for p in args.peers.split(",") if p),
         input_timeout_s=args.input_timeout,
         startup_timeout_s=args.startup_timeout,
+        other_axes=tuple(a for a in getattr(args, "machine_axes", "").split(",") if a),
+        command_axes=tuple(a for a in getattr(args, "command_axes", "").split(",") if a),
     )
 
 

@@ -138,6 +138,7 @@ class SimNode(FeedTwinNode):
         realtime_priority: int = 0,
         cpu_latency_us: int = -1,
         protection: DriveProtection | None = None,
+        clock_topic: str = "/clock",
         context=None,
     ) -> None:
         super().__init__(SIM_NODE, options, context=context)
@@ -162,7 +163,7 @@ class SimNode(FeedTwinNode):
         self._feedback_pub = self.create_publisher(AxisFeedback, self.topics.feedback, DATA_QOS)
         self._state_pub = self.create_publisher(AxisState, self.topics.state, DATA_QOS)
         self._joint_pub = self.create_publisher(JointState, self.topics.joint_states, DATA_QOS)
-        self._clock_pub = self.create_publisher(Clock, "/clock", DATA_QOS)
+        self._clock_pub = self.create_publisher(Clock, clock_topic, DATA_QOS)
         self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
         self.create_subscription(
             DriveCommand, self.topics.drive_command, self._on_command, DATA_QOS, raw=True
@@ -406,6 +407,12 @@ class SimNode(FeedTwinNode):
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--realtime", action="store_true")
     parser.add_argument("--max-time", type=float, default=None, help="simulated seconds at most")
+    parser.add_argument(
+        "--axis-clock",
+        action="store_true",
+        help="publish the clock as <namespace>/clock: one G-code node holds a machine's axes "
+        "together by their clocks (feed_twin.machine.nodes)",
+    )
 
 
 def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNode:
@@ -424,6 +431,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNo
         realtime_priority=ros.realtime_priority,
         cpu_latency_us=ros.cpu_latency_us,
         protection=protection_for_config(args.config, ros, host.exchange_ns),
+        clock_topic=f"{options.topics.namespace}/clock" if args.axis_clock else "/clock",
         context=context,
     )
 

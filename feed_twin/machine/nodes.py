@@ -1,0 +1,260 @@
+"""The machine's ROS node set, planned in plain Python: which node runs where, with which file.
+
+Per simulated axis a sim (drive) node and a controller node in the axis's namespace
+`/<machine>/<axis>` (the single-axis nodes, feed_twin/ros/*_node.py, unchanged in what they
+compute), each in its own process; one G-code node that commands every NC axis and one recorder
+that records every axis into one bag. Each axis's nodes read one axis file that the runner
+writes (`axis_documents`): the axis's plant (with its weight and counterbalance), engine and
+controller from the machine file, the machine's NC with `twin_axis` set to that axis, and the
+machine's `ros:` section with the axis's namespace. The G-code and recorder nodes live in the
+first axis's namespace and also serve the others (`--machine-axes`): they beat and watch peers
+there and wait for every axis's end of run.
+
+Lockstep across axes: each sim advances when its controller's DriveCommand arrives, each
+controller when the NC setpoint for its feedback's time is known, and the G-code node publishes
+setpoints only up to `ros.lookahead` periods ahead of the slowest axis's clock (every sim
+publishes `<namespace>/clock`). So every axis runs the same deterministic exchanges as alone,
+and no axis runs more than lookahead + clock_divider exchanges ahead of another.
+
+After the run, `read_machine_bag` reads every axis's command and state back from the bag and
+measures the contour error (feed_twin.machine.contour) on the sample grid of the states.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.machine.config import MachineConfig, axis_sections
+from feed_twin.machine.contour import ContourError, contour_error
+
+NODE_ROS_NAME_KEYS = ("axis",)  # the machine's axes name their nodes' namespaces themselves
+GCODE_PROCESS = "gcode"
+RECORDER_PROCESS = "recorder"
+
+
+def axis_documents(
+    machine: MachineConfig, *, settle_s: float | None = None
+) -> dict[str, dict[str, Any]]:
+    """NC axis name -> the single-axis config (plant, engine, controller, nc, ros) its nodes
+    read; ConfigError (one line) where the machine's `ros:` section does not fit its axes.
+    `settle_s` replaces ros.settle_s (the run's --settle)."""
+    path = Path(machine.source)
+    data = load_yaml(path)
+    ros = data.get("ros") or {}
+    if not isinstance(ros, dict):
+        raise ConfigError(f"{path}: ros: expected a mapping, got {ros!r}")
+    for key in NODE_ROS_NAME_KEYS:
+        if key in ros:
+            raise ConfigError(
+                f"{path}: ros.{key} = {ros[key]!r}: a machine's nodes take their namespace from "
+                f"the axis (axes.X runs /{machine.name}/x); remove it"
+            )
+    if ros.get("machine", machine.name) != machine.name:
+        raise ConfigError(
+            f"{path}: ros.machine = {ros['machine']!r} does not match machine = "
+            f"{machine.name!r} (the nodes' namespace /{machine.name}/<axis>)"
+        )
+    docs = {}
+    for key in machine.axes:
+        sections, _, _ = axis_sections(data["axes"][key], key, machine.nc, path)
+        docs[key] = {
+            **{k: v for k, v in sections.items() if k in ("plant", "engine", "controller")},
+            "nc": {**data["nc"], "twin_axis": key},
+            "ros": {**ros, "machine": machine.name, "axis": key.lower()},
+        }
+        if settle_s is not None:
+            docs[key]["ros"]["settle_s"] = settle_s
+    return docs
+
+
+def write_axis_files(
+    machine: MachineConfig, directory: Path | None = None, *, settle_s: float | None = None
+) -> dict[str, Path]:
+    """Each simulated axis's config file (the nodes' --config), by default under the kernel
+    cache in a directory named by the file's hash: the generated plant kernel names its config
+    file, so a new path for the same axis would compile it again (16 s of CPU per axis), and
+    runs of one machine (any --axes) share the compiled kernels this way."""
+    docs = {
+        key: f"# axis {key} of {machine.source}, written for its nodes\n"
+        + yaml.safe_dump(doc, sort_keys=False)
+        for key, doc in axis_documents(machine, settle_s=settle_s).items()
+    }
+    files = {}
+    for key, text in docs.items():
+        where = directory
+        if where is None:
+            from feed_twin.sim.kernel import cache_dir
+
+            digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+            where = cache_dir() / "machine_axes" / digest
+        where.mkdir(parents=True, exist_ok=True)
+        files[key] = where / f"axis_{key.lower()}.yaml"
+        if not files[key].exists() or files[key].read_text() != text:
+            tmp = files[key].with_suffix(f".tmp{os.getpid()}")
+            tmp.write_text(text)
+            os.replace(tmp, files[key])  # a parallel run never reads half a file
+    return files
+
+
+def process_name(axis: str, role: str) -> str:
+    return f"{axis.lower()}_{role}"
+
+
+@dataclass(frozen=True, kw_only=True)
+class NodePlan:
+    """The processes of a machine run: name -> (node module role, its arguments)."""
+
+    machine: str
+    axes: tuple[str, ...]  # simulated NC axes, in the NC's order
+    command_axes: tuple[str, ...]  # NC axes without nodes (rotary axes, those left out)
+    files: dict[str, Path]  # simulated axis -> its config file
+
+    def processes(
+        self, *, program: Path, bag: Path, realtime: bool, common: list[str]
+    ) -> dict[str, tuple[str, list[str]]]:
+        """`common`: arguments every node takes (timeouts)."""
+        first, others = self.axes[0], self.axes[1:]
+        axis_roles = ("controller", "sim")
+        shared = [
+            "--machine-axes", ",".join(a.lower() for a in others),
+            "--command-axes", ",".join(a.lower() for a in self.command_axes),
+        ]  # fmt: skip
+        everyone = ["recorder", "gcode", *axis_roles]
+        everyone += [f"{a.lower()}/{r}" for a in others for r in axis_roles]
+        out: dict[str, tuple[str, list[str]]] = {}
+        for role, extra in (("recorder", ["--bag", str(bag)]),
+                            ("gcode", ["--program", str(program), "--autostart"])):  # fmt: skip
+            peers = ",".join(p for p in everyone if p != role)
+            out[role] = (role, ["--config", str(self.files[first]), "--peers", peers,
+                                *common, *shared, *extra])  # fmt: skip
+        for axis in self.axes:
+            for role in axis_roles:
+                peers = ",".join(p for p in ("recorder", "gcode", *axis_roles) if p != role)
+                extra = ["--axis-clock"] + (["--realtime"] if realtime else [])
+                argv = ["--config", str(self.files[axis]), "--peers", peers, *common]
+                out[process_name(axis, role)] = (role, argv + (extra if role == "sim" else []))
+        return out
+
+
+def node_plan(
+    machine: MachineConfig, directory: Path | None = None, *, settle_s: float | None = None
+) -> NodePlan:
+    """Write the axis files and plan the processes (ConfigError before anything starts)."""
+    files = write_axis_files(machine, directory, settle_s=settle_s)
+    return NodePlan(
+        machine=machine.name,
+        axes=tuple(machine.axes),
+        command_axes=tuple(a for a in machine.nc.axis_names if a not in machine.axes),
+        files=files,
+    )
+
+
+def chosen_processes(names: list[str], start: str | None) -> list[str]:
+    """The processes `--start` names (process names or roles), in the plan's order; ValueError
+    for a name that is neither."""
+    if start is None:
+        return names
+    wanted = [w.strip() for w in start.split(",") if w.strip()]
+    roles = {n.rpartition("_")[2] for n in names}
+    unknown = [w for w in wanted if w not in names and w not in roles]
+    if unknown or not wanted:
+        raise ValueError(
+            f"--start {start}: {', '.join(unknown) or 'nothing'} is not a process or role of "
+            f"this run (processes: {', '.join(names)})"
+        )
+    return [n for n in names if n in wanted or n.rpartition("_")[2] in wanted]
+
+
+def axis_of_process(name: str, axes: tuple[str, ...]) -> str | None:
+    """The NC axis whose node runs in process `name` (None: the G-code node or recorder)."""
+    head = name.partition("_")[0]
+    return next((a for a in axes if a.lower() == head), None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class MachineRecord:
+    """Every axis's command and twin read back from a machine run's bag, on one grid."""
+
+    axes: tuple[str, ...]  # every NC axis
+    simulated: tuple[str, ...]
+    t_s: np.ndarray  # (n,) [s] the states' stamps
+    line: np.ndarray  # (n,) program line of the command
+    command: np.ndarray  # (n, axes) [m or rad]
+    command_vel: np.ndarray  # (n, axes)
+    actual: np.ndarray  # (n, axes) the twins' table positions; the command elsewhere
+    contour: ContourError
+
+    def following_error(self, axis: str) -> np.ndarray:
+        i = self.axes.index(axis)
+        return self.command[:, i] - self.actual[:, i]
+
+    def summary(self) -> dict[str, object]:
+        out: dict[str, object] = dict(self.contour.summary())
+        out["following_error_max_m"] = {
+            a.lower(): float(np.max(np.abs(self.following_error(a)))) if len(self.t_s) else 0.0
+            for a in self.simulated
+        }
+        out["simulated_s"] = float(self.t_s[-1]) if len(self.t_s) else 0.0
+        out["axes"] = [a.lower() for a in self.simulated]
+        return out
+
+
+def _held(t_cmd: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The command in force at each time of `t` (sample-and-hold; before the first: the first)."""
+    if len(t_cmd) == 0:
+        return np.zeros(len(t))
+    k = np.clip(np.searchsorted(t_cmd, t + 1e-12, side="right") - 1, 0, len(t_cmd) - 1)
+    return values[k]
+
+
+def read_machine_bag(bag: Path, machine: MachineConfig, segments) -> MachineRecord:
+    """Commands and twins of every axis from the bag; the contour error on the states' grid
+    (the common stretch of all simulated axes when one axis stopped early)."""
+    from feed_twin.io.bag import BagReader
+
+    reader = BagReader(bag)
+    root = f"/{machine.name}"
+    nc = machine.nc
+    states = {
+        a: reader.columns(f"{root}/{a.lower()}/state", ["header.stamp", "table_position"])
+        for a in machine.axes
+    }
+    n = min(len(s["header.stamp"]) for s in states.values())
+    t = states[machine.simulated[0]]["header.stamp"][:n]
+    for a, s in states.items():
+        if not np.allclose(s["header.stamp"][:n], t, rtol=0.0, atol=1e-9):
+            raise ValueError(f"{bag}: axis {a}'s states are not on the grid of the others")
+    n_axes = len(nc.axis_names)
+    command, command_vel = np.zeros((n, n_axes)), np.zeros((n, n_axes))
+    line = np.zeros(n, dtype=np.int64)
+    fields = ["header.stamp", "position", "velocity", "line"]
+    for i, a in enumerate(nc.axis_names):
+        c = reader.columns(f"{root}/{a.lower()}/command", fields)
+        command[:, i] = _held(c["header.stamp"], c["position"], t)
+        command_vel[:, i] = _held(c["header.stamp"], c["velocity"], t)
+        if n and len(c["header.stamp"]) and t[-1] > c["header.stamp"][-1]:
+            command_vel[t > c["header.stamp"][-1], i] = 0.0  # at rest after the program
+        if i == 0:
+            line = _held(c["header.stamp"], c["line"], t).astype(np.int64)
+    actual = command.copy()
+    for a, s in states.items():
+        actual[:, nc.axis_index(a)] = s["table_position"][:n]
+    contour = contour_error(t, line, actual, command, command_vel, segments, n_linear=len(nc.axes))
+    return MachineRecord(
+        axes=nc.axis_names,
+        simulated=machine.simulated,
+        t_s=t,
+        line=line,
+        command=command,
+        command_vel=command_vel,
+        actual=actual,
+        contour=contour,
+    )

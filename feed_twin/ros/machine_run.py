@@ -1,0 +1,221 @@
+"""`feed-twin run PROGRAM --config MACHINE.yaml`: the machine's node set (feed_twin.machine.nodes).
+
+1. Checks before anything moves (one line each): the machine file, `--axes`, the program on the
+   machine's NC, and every axis file its nodes will read as a single-axis run would
+   (feed_twin/ros/preflight.py: sections, the controller at the exchange period, the drive's
+   reach of the NC's limits).
+2. Starts the G-code node, the recorder, and per simulated axis a controller and a sim node,
+   each in its own process, in the run's own ROS domain with its run token; one process that
+   fails (an axis node killed, a drive fault) stops all others at once, the recorder last, and
+   the reason names the axis.
+3. Afterwards: the `.rrd` dashboard (feed_twin.machine.dashboard, as in-process); the bag
+   (recovered if needed) gets the contour error and its along-path lag per
+   sample (`/<machine>/contour_error`, `/<machine>/contour_lag`, std_msgs/Float64 [m], logged at
+   the first axis's state of the same sample), and the summary and `--json` give
+   contour_error_max_m, contour_error_rms_m, following_error_max_m per axis and the timing of
+   the first axis's sim (realtime_factor, lateness with --realtime).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from feed_twin.io.config import ConfigError
+from feed_twin.machine.config import MachineConfig
+from feed_twin.machine.nodes import (
+    RECORDER_PROCESS,
+    NodePlan,
+    axis_of_process,
+    chosen_processes,
+    node_plan,
+    read_machine_bag,
+)
+from feed_twin.ros import preflight
+from feed_twin.ros.host import NODE_MODULES
+from feed_twin.ros.launch import launch, log_record
+
+REFUSED = ("single_process", "live", "no_gcode", "shadow")
+
+
+def check_plan(machine: MachineConfig, plan: NodePlan) -> None:
+    """Every axis file as its nodes will read it (ConfigError naming the axis)."""
+    for axis, path in plan.files.items():
+        try:
+            preflight.check_run_config(path, shadow=False)
+        except ConfigError as exc:
+            # the written file is the machine file's axis: name that instead
+            said = str(exc).removeprefix(f"{path}: ")
+            raise ConfigError(f"{machine.source}: axis {axis}: {said}") from None
+
+
+def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
+    """The run (module docstring); returns the exit code."""
+    refused = [f"--{o.replace('_', '-')}" for o in REFUSED if getattr(args, o, False)]
+    if refused:
+        return _error(args, f"{', '.join(refused)}: not available for a machine's node set")
+    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    bag, logs = args.out / name, args.out / f"{name}.logs"
+    try:
+        plan = node_plan(machine, settle_s=args.settle)
+        check_plan(machine, plan)
+        common = ["--startup-timeout", str(args.startup_timeout),
+                  "--input-timeout", str(args.input_timeout)]  # fmt: skip
+        processes = plan.processes(
+            program=args.program, bag=bag, realtime=args.realtime, common=common
+        )
+        here = chosen_processes(list(processes), getattr(args, "start", None))
+    except (ConfigError, ValueError, OSError) as exc:
+        return _error(args, str(exc))
+    env = dict(os.environ)
+    try:
+        reservation = preflight.run_environment(args, env)
+    except (ValueError, RuntimeError) as exc:
+        return _error(args, str(exc))
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    commands = {
+        n: [sys.executable, "-m", NODE_MODULES[role], *argv]
+        for n, (role, argv) in processes.items()
+        if n in here
+    }
+    clock = next((n for n in here if processes[n][0] == "sim"), None)
+    try:
+        result = launch(
+            commands,
+            logs,
+            env=env,
+            progress_role=clock,
+            show_progress=not args.json,
+            stop_on_failure=True,
+        )
+    finally:
+        if reservation is not None:
+            reservation.release()
+    timing = (log_record(result.logs[clock], "TIMING") or {}) if clock else {}
+    summary, problem = None, ""
+    if RECORDER_PROCESS in here:
+        summary, problem = _finish(bag, machine, args.program)
+        if summary is not None:
+            summary["rrd"] = str(bag.with_name(f"{bag.name}.rrd"))
+    else:
+        print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
+    failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)
+    code = preflight.exit_status(result.code) if result.code else int(failed)
+    _report(machine, _named(result.reason, plan), problem, summary, timing, clock)
+    print(f"bag: {bag if bag.exists() else '(none)'}")
+    if args.json:
+        from feed_twin.nodeset.summary import json_line
+
+        print(json_line({
+            "exit_code": code,
+            "reason": _named(result.reason, plan) or problem,
+            "bag": str(bag) if bag.exists() else None,
+            "logs": str(logs),
+            "processes": here,
+            **(summary or {}),
+            **{f"timing_{k}": v for k, v in timing.items()},
+        }))  # fmt: skip
+    return code
+
+
+def _report(
+    machine: MachineConfig,
+    reason: str,
+    problem: str,
+    summary: dict | None,
+    timing: dict,
+    clock: str | None,
+) -> None:
+    if reason:
+        print(f"feed-twin run: {reason}", file=sys.stderr)
+    if problem:
+        print(f"feed-twin run: {problem}", file=sys.stderr)
+    if summary is not None:
+        _print_summary(machine, summary)
+    if timing:
+        keys = ("realtime_factor", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms")
+        shown = ", ".join(f"{k} {timing[k]:.3f}" for k in keys if isinstance(timing.get(k), float))
+        print(f"timing ({clock}): {shown}, missed steps {timing.get('missed_steps')}")
+
+
+def _named(reason: str, plan: NodePlan) -> str:
+    """The launcher's reason with the axis of the failed process named first."""
+    if not reason:
+        return reason
+    axis = axis_of_process(reason.split(" ", 1)[0], plan.axes)
+    return f"axis {axis}: {reason}" if axis is not None else reason
+
+
+def _finish(bag: Path, machine: MachineConfig, program: Path) -> tuple[dict | None, str]:
+    """The bag made readable, the contour error added to it, and the run's figures."""
+    import numpy as np
+
+    from feed_twin.gcode.geometry import programmed_path
+    from feed_twin.io.bag import BagError, BagReader, add_topics, info, recover
+    from feed_twin.io.cdr import FlatCodec
+
+    if not bag.exists():
+        return None, "no bag was written"
+    try:
+        info(bag)
+    except BagError:
+        try:
+            kept = recover(bag).messages_recovered
+        except BagError as exc:
+            return None, f"the bag is unreadable: {exc}"
+        print(f"bag: the recording was incomplete; recovered {kept} messages")
+    try:
+        record = read_machine_bag(bag, machine, programmed_path(program, machine.nc))
+    except (BagError, ValueError) as exc:
+        return None, str(exc)
+    first = f"/{machine.name}/{machine.simulated[0].lower()}/state"
+    logged = BagReader(bag).columns(first, [])["log_time_s"][: len(record.t_s)]
+    stamps = np.round(logged * 1e9).astype(np.int64)
+    scalar = FlatCodec("std_msgs/msg/Float64")
+    add_topics(
+        bag,
+        {
+            f"/{machine.name}/{name}": (
+                "std_msgs/msg/Float64",
+                [
+                    (int(t), scalar.encode_map({"data": float(v)}))
+                    for t, v in zip(stamps, column, strict=True)
+                ],
+            )
+            for name, column in (
+                ("contour_error", record.contour.normal_m),
+                ("contour_lag", record.contour.lag_m),
+            )  # fmt: skip
+        },
+    )
+    from feed_twin.machine.dashboard import write_machine_dashboard
+
+    segments = programmed_path(program, machine.nc)
+    write_machine_dashboard(record, segments, bag.with_name(f"{bag.name}.rrd"))
+    return record.summary(), ""
+
+
+def _print_summary(machine: MachineConfig, summary: dict) -> None:
+    fe = ", ".join(f"{a} {v * 1e6:.2f} um" for a, v in summary["following_error_max_m"].items())
+    print(
+        f"machine {machine.name}: {summary['simulated_s']:.3f} s simulated, axes "
+        f"{', '.join(summary['axes'])} in their own nodes"
+    )
+    print(
+        f"contour error: max {summary['contour_error_max_m'] * 1e6:.3f} um at t = "
+        f"{summary.get('contour_error_max_t_s', 0.0):.3f} s (line "
+        f"{summary.get('contour_error_max_line', 0)}), RMS "
+        f"{summary['contour_error_rms_m'] * 1e6:.3f} um"
+    )
+    print(f"following error max: {fe}")
+
+
+def _error(args: argparse.Namespace, message: str) -> int:
+    print(f"feed-twin run: {message}", file=sys.stderr)
+    if getattr(args, "json", False):
+        print(json.dumps({"exit_code": 1, "reason": message}))
+    return 1

@@ -1,0 +1,184 @@
+"""The machine's node set (feed_twin/machine/nodes.py, feed_twin/ros/machine_run.py): a sim and
+a controller node per axis in its own process, one G-code node, one recorder; every axis equals
+its in-process exchanges, the contour error is in the bag, a killed axis node stops the run
+naming the axis, and a machine file whose nodes do not fit its axes is refused in one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from nodes_support import last_json, run, start_run
+
+from feed_twin.cli import main as cli_main
+from feed_twin.gcode import load_nc_config, plan_program
+from feed_twin.io.bag import BagReader
+from feed_twin.machine.config import load_machine_config
+from feed_twin.machine.nodes import write_axis_files
+from feed_twin.nodeset.drive_host import Lockstep, build_drive_host, nc_samples
+from feed_twin.nodeset.split import NS_PER_S, ControllerCore, load_node_set_config
+from feed_twin.ros.domain import reserve_domain_id
+from feed_twin.sim.config import load_axis_config
+
+ROOT = Path(__file__).resolve().parents[1]
+MACHINE = ROOT / "config" / "machine_default.yaml"
+# a quarter circle in XY while Z rises (a helix), then the rotary table turns: B is a command only
+PROGRAM = "G90 G54 G17\nG1 X10 Y0 Z140 F6000\nG3 X0 Y10 Z141 I-10 J0 F3000\nG1 B5 F3000\nM2\n"
+LONG_PROGRAM = "G90 G54\nG1 X100 Z120 F1500\nM2\n"  # about 4 s: long enough to kill a node in
+
+
+def in_process_positions(axis_file: Path, program: Path, stamps: np.ndarray) -> np.ndarray:
+    """The axis's table positions of the same exchanges without DDS (drive_host.Lockstep)."""
+    ros = load_node_set_config(axis_file)
+    axis = load_axis_config(axis_file)
+    controller = ControllerCore(
+        axis.controller, boundary=ros.boundary, exchange_period_s=ros.exchange_period_s
+    )
+    nc = load_nc_config(axis_file)
+    trajectory = plan_program(program, nc)
+    x, v, a = trajectory.axis(nc.twin_axis)
+    host = build_drive_host(axis_file, ros)
+    samples = Lockstep(controller, host, ros).run(
+        nc_samples(trajectory.t_s, x, v, a, trajectory.line), until_ns=int(stamps[-1])
+    )
+    by_time = {s.t_ns: s.truth["table_position"] for s in samples}
+    return np.array([by_time[int(t)] for t in stamps])
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_three_axes_in_their_own_nodes_equal_their_in_process_exchanges(tmp_path):
+    program = tmp_path / "helix.ngc"
+    program.write_text(PROGRAM)
+    argv = [str(program), "--config", str(MACHINE), "--out", str(tmp_path), "--name", "m"]
+    with reserve_domain_id() as domain:
+        code, out, err = run([*argv, "--json"], domain.domain_id)
+    assert code == 0, err
+    record = last_json(out)
+    assert set(record["following_error_max_m"]) == {"x", "y", "z"}
+    processes = sorted(p.stem for p in Path(record["logs"]).glob("*.log"))
+    assert Path(record["rrd"]).stat().st_size > 10_000
+    assert processes == ["gcode", "recorder", "x_controller", "x_sim", "y_controller", "y_sim",
+                         "z_controller", "z_sim"]  # fmt: skip
+    reader = BagReader(record["bag"])
+    files = write_axis_files(load_machine_config(MACHINE), settle_s=0.2)  # the run's files
+    states = {}
+    for axis in ("x", "y", "z"):
+        states[axis] = reader.columns(f"/cnc/{axis}/state", ["header.stamp", "table_position"])
+        stamps = np.round(states[axis]["header.stamp"] * NS_PER_S).astype(np.int64)
+        # lockstep: every axis ran the same exchanges, one per millisecond from t = 0
+        np.testing.assert_array_equal(stamps, np.arange(len(stamps)) * 1_000_000)
+        expected = in_process_positions(files[axis.upper()], program, stamps)
+        np.testing.assert_allclose(
+            states[axis]["table_position"], expected, rtol=0.0, atol=1e-9, err_msg=axis
+        )
+    assert len(states["x"]["header.stamp"]) == len(states["z"]["header.stamp"])
+    # B has no plant: its command is in the bag, in radians, and no state
+    b = reader.columns("/cnc/b/command", ["position"])["position"]
+    assert b[-1] == pytest.approx(np.radians(5.0), abs=1e-12)
+    # the contour error per sample, and the summary's figures are its max and RMS
+    contour = reader.columns("/cnc/contour_error", ["data"])["data"]
+    assert len(contour) == len(states["x"]["header.stamp"])
+    assert record["contour_error_max_m"] == pytest.approx(contour.max(), rel=1e-12)
+    assert 1e-7 < record["contour_error_max_m"] < 1e-4
+    assert record["contour_error_rms_m"] < record["contour_error_max_m"]
+    # the largest following error of an axis is at least the contour error it causes... and
+    # the circle's end is back on the path: the last sample's error is well below the peak
+    assert max(record["following_error_max_m"].values()) > 0.5 * record["contour_error_max_m"]
+    assert contour[-1] < 0.2 * contour.max()
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(tmp_path):
+    program = tmp_path / "long.ngc"
+    program.write_text(LONG_PROGRAM)
+    argv = [str(program), "--config", str(MACHINE), "--out", str(tmp_path), "--name", "k"]
+    logs = tmp_path / "k.logs"
+    with reserve_domain_id() as domain:
+        proc = start_run([*argv, "--axes", "X,Z", "--json"], domain.domain_id)
+        try:
+            deadline = time.monotonic() + 180.0
+            while time.monotonic() < deadline:
+                sim_log = logs / "z_sim.log"
+                if sim_log.exists() and "PROGRESS" in sim_log.read_text(errors="replace"):
+                    break
+                time.sleep(0.1)
+            pid = _child_pid(proc.pid, "z_sim")
+            os.kill(pid, signal.SIGKILL)
+            killed_at = time.time()
+            out, err = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)
+    record = last_json(out)
+    assert record["exit_code"] == 137, err
+    assert record["reason"].startswith("axis Z: z_sim node was killed by SIGKILL"), record
+    assert len(record["reason"].splitlines()[0]) < 200
+    # the bag is readable, Y is a command only, and X stopped within a second of the kill
+    reader = BagReader(record["bag"])
+    x = reader.columns("/cnc/x/state", ["header.stamp"])
+    assert x["log_time_s"][-1] - killed_at < 1.0
+    assert 0.0 < x["header.stamp"][-1] < 3.0  # it did not run the program to its end
+    assert len(reader.columns("/cnc/y/command", ["position"])["position"]) > 0
+    assert "/cnc/y/state" not in {t.name for t in reader.info.topics}
+
+
+def _child_pid(parent: int, name: str) -> int:
+    """The pid of the runner's child process that runs `name` (its log file's stem)."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            status = (entry / "status").read_text()
+            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        ppid = int(next(ln.split()[1] for ln in status.splitlines() if ln.startswith("PPid:")))
+        role = name.split("_")[1]
+        axis_file = f"axis_{name.split('_')[0]}.yaml".encode()
+        if (
+            ppid == parent
+            and f"feed_twin.ros.{role}_node".encode() in cmdline
+            and any(arg.endswith(axis_file) for arg in cmdline)
+        ):
+            return int(entry.name)
+    raise AssertionError(f"no process {name} under {parent}")
+
+
+@pytest.mark.parametrize(
+    ("ros", "message"),
+    [
+        ({"axis": "x"}, r"ros.axis = 'x': a machine's nodes take their namespace from the axis"),
+        ({"machine": "mill"}, r"ros.machine = 'mill' does not match machine = 'cnc'"),
+        (
+            {"lookahead": 5, "clock_divider": 10},
+            r"yaml: axis X: ros.clock_divider = 10: must lie in \[1, lookahead - 1\] = \[1, 4\]",
+        ),
+    ],
+)
+def test_nodes_that_do_not_fit_the_axes_are_refused_in_one_line(tmp_path, capsys, ros, message):
+    data = yaml.safe_load(MACHINE.read_text())
+    data["ros"] = {**data["ros"], **ros}
+    for entry in data["axes"].values():
+        entry["include"] = str(ROOT / "config" / entry["include"])
+    config = tmp_path / "machine.yaml"
+    config.write_text(yaml.safe_dump(data))
+    program = tmp_path / "p.ngc"
+    program.write_text(PROGRAM)
+    argv = ["run", str(program), "--config", str(config), "--out", str(tmp_path), "--name", "m"]
+    assert cli_main([*argv, "--json"]) == 1
+    captured = capsys.readouterr()
+    assert len(captured.err.strip().splitlines()) == 1
+    reason = json.loads(captured.out.strip().splitlines()[-1])["reason"]
+    assert re.search(message, reason), reason
+    assert not (tmp_path / "m").exists()
+    assert not (tmp_path / "m.logs").exists()
