@@ -13,8 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.gcode.arcs import Arc
 from feed_twin.gcode.config import NcConfig
-from feed_twin.gcode.interpreter import Arc, Event, Interpreter, Move, Stop
+from feed_twin.gcode.interpreter import Interpreter
+from feed_twin.gcode.items import Event, Move, Stop
 from feed_twin.gcode.planner import iter_blocks
 
 

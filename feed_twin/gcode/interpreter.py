@@ -32,10 +32,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Iterator
-from typing import NamedTuple
 
 from feed_twin.gcode.arcs import (
-    Arc,
     ArcError,
     arc_sweep,
     centre_from_radius,
@@ -65,36 +63,11 @@ from feed_twin.gcode.codes import (
 )
 from feed_twin.gcode.config import NcConfig
 from feed_twin.gcode.errors import GcodeError
+from feed_twin.gcode.items import Event, Item, Move, Stop
 from feed_twin.gcode.lexer import Block, Word
 
 DEG = math.pi / 180.0  # [rad] per degree
-
-
-class Move(NamedTuple):
-    line: int
-    end_m: tuple[float, ...]  # [m] machine coordinates, one per configured axis
-    rapid: bool  # G0: per-axis rapid rates; otherwise the programmed feed
-    feed_m_s: float  # programmed feed (0 for rapids) along the move's length over all axes
-    # (m and rad): the F of XYZ moves; see the module's note on rotary axes
-    tolerance_m: float  # [m] allowed corner deviation at the end of this move (G64)
-    exact_stop: bool  # stop at the end of this move (G61, G9)
-    arc: Arc | None = None  # the programmed arc this move is a chord of
-
-
-class Stop(NamedTuple):
-    line: int
-    dwell_s: float  # [s] time spent at standstill
-
-
-class Event(NamedTuple):
-    line: int
-    kind: str
-    value: float
-    text: str
-    stops: bool  # the path comes to rest before the event happens
-
-
-Item = Move | Stop | Event
+_LINE_MOTION_NAMES = {0.0: "G0", 1.0: "G1"}  # G word values the fast path of CAM blocks takes
 
 
 class Interpreter:
@@ -357,8 +330,8 @@ class Interpreter:
                 if w.value <= 0.0:
                     return None
                 feed = w.value
-            elif letter == "G" and (w.value == 0.0 or w.value == 1.0):
-                motion = "G0" if w.value == 0.0 else "G1"
+            elif letter == "G" and w.value in _LINE_MOTION_NAMES:
+                motion = _LINE_MOTION_NAMES[w.value]
             elif letter != "N":
                 return None
         if len(seen) == ("N" in seen) + (feed is not None) + ("G" in seen):

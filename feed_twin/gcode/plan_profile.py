@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from feed_twin.gcode.interpreter import Event, Stop
+from feed_twin.gcode.items import Event, Stop
 from feed_twin.gcode.plan_chains import CHAIN_ENTRY, Bodies
 from feed_twin.gcode.profile import BODY, CRUISE, HOLD, body_profiles, plan_speeds
 

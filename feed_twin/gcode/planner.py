@@ -32,7 +32,8 @@ import numpy as np
 
 from feed_twin.gcode.config import NcConfig
 from feed_twin.gcode.errors import GcodeError
-from feed_twin.gcode.interpreter import Event, Interpreter, Move, Stop
+from feed_twin.gcode.interpreter import Interpreter
+from feed_twin.gcode.items import Event, Move, Stop
 from feed_twin.gcode.lexer import Block, iter_source_lines, lex_line
 from feed_twin.gcode.plan_blends import NodeFlags, WindowStart, corner_blends
 from feed_twin.gcode.plan_chains import SINGLE, Bodies, chain_bodies
