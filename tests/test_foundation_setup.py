@@ -308,11 +308,12 @@ def test_a_python_other_than_3_11_is_refused_with_the_reason(tmp_path):
 RUN_TESTS = REPO / "tools" / "run_tests.sh"
 
 
-def _fake_venv_tools(tmp_path: Path, *, ruff: int, pytest_status: int) -> Path:
-    """A venv whose ruff and pytest only record their arguments and exit with the given codes."""
+def _fake_venv_tools(tmp_path: Path, *, ruff: int, pyright: int, pytest_status: int) -> Path:
+    """A venv whose ruff, pyright and pytest only record their arguments and exit with the given
+    codes."""
     venv = tmp_path / "venv"
     (venv / "bin").mkdir(parents=True)
-    for name, status in (("ruff", ruff), ("pytest", pytest_status)):
+    for name, status in (("ruff", ruff), ("pyright", pyright), ("pytest", pytest_status)):
         script = venv / "bin" / name
         script.write_text(f'#!{BASH}\necho "{name} $*"\nexit {status}\n')
         script.chmod(0o755)
@@ -320,19 +321,20 @@ def _fake_venv_tools(tmp_path: Path, *, ruff: int, pytest_status: int) -> Path:
 
 
 @pytest.mark.parametrize(
-    ("ruff", "pytest_status", "status", "last_line"),
+    ("ruff", "pyright", "pytest_status", "status", "last_line"),
     [
-        (0, 0, 0, "pytest -m not slow"),
-        (0, 5, 0, "run_tests: pytest collected no tests"),
-        (0, 1, 1, "run_tests: FAILED: pytest (exit 1)"),
-        (1, 0, 1, "run_tests: FAILED: ruff check, ruff format"),
-        (1, 2, 1, "run_tests: FAILED: ruff check, ruff format, pytest (exit 2)"),
+        (0, 0, 0, 0, "pytest -m not slow"),
+        (0, 0, 5, 0, "run_tests: pytest collected no tests"),
+        (0, 0, 1, 1, "run_tests: FAILED: pytest (exit 1)"),
+        (1, 0, 0, 1, "run_tests: FAILED: ruff check, ruff format"),
+        (0, 1, 0, 1, "run_tests: FAILED: pyright"),
+        (1, 1, 2, 1, "run_tests: FAILED: ruff check, ruff format, pyright, pytest (exit 2)"),
     ],
 )
 def test_the_test_runner_runs_everything_and_combines_the_outcomes(
-    tmp_path, ruff, pytest_status, status, last_line
+    tmp_path, ruff, pyright, pytest_status, status, last_line
 ):
-    venv = _fake_venv_tools(tmp_path, ruff=ruff, pytest_status=pytest_status)
+    venv = _fake_venv_tools(tmp_path, ruff=ruff, pyright=pyright, pytest_status=pytest_status)
     result = subprocess.run(
         [BASH, str(RUN_TESTS), "-m", "not slow"],
         capture_output=True,
@@ -342,8 +344,9 @@ def test_the_test_runner_runs_everything_and_combines_the_outcomes(
     )
     assert result.returncode == status
     lines = result.stdout.splitlines()
-    # pytest runs even when ruff failed, so its summary is always printed.
+    # pytest runs even when ruff or pyright failed, so its summary is always printed.
     assert "ruff check ." in lines and "ruff format --check ." in lines
+    assert f"pyright --pythonpath {venv}/bin/python" in lines
     assert "pytest -m not slow" in lines
     assert lines[-1] == last_line
 

@@ -175,3 +175,11 @@ def test_relative_and_function_level_imports_are_edges(tmp_path):
     graph = {name: _imported(name, path, modules) for name, path in modules.items()}
     assert graph == {"pkg": set(), "pkg.a": {"pkg.b"}, "pkg.b": {"pkg.a"}}
     assert _cycles(graph) == [["pkg.a", "pkg.b"]]
+
+
+def test_codegen_reads_the_assembly_only_through_its_view():
+    graph = _import_graph()
+    assert "feed_twin.plant.codegen" in graph["feed_twin.plant.assembly"]
+    assert "feed_twin.plant.assembly" not in graph["feed_twin.plant.codegen"]
+    assert "feed_twin.plant.assembly" not in graph["feed_twin.plant.view"]
+    assert graph["feed_twin.plant.view"] == set()

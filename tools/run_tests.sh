@@ -20,7 +20,7 @@ echo "== ruff format --check"
 "$bin/ruff" format --check . || failed+=("ruff format")
 echo "== pyright"
 # the pinned wheel's own pyright and Node.js: no look-up of a newer version on the network
-PYRIGHT_PYTHON_IGNORE_WARNINGS=1 "$bin/pyright" || failed+=("pyright")
+PYRIGHT_PYTHON_IGNORE_WARNINGS=1 "$bin/pyright" --pythonpath "$bin/python" || failed+=("pyright")
 echo "== pytest $*"
 "$bin/pytest" "$@"
 status=$?

@@ -5,10 +5,9 @@ another process sends one datagram to a participant however many of its readers 
 sample. In lockstep `feed-twin run` therefore starts the recorder inside the sim node's
 process (`ros.recorder_host: auto` or `sim`), as a rosbag2 recorder is loaded into a component
 container next to a high-rate publisher: the sim's feedback and state reach the recorder
-without a socket, and the controller's DriveCommand is one datagram for both. On this 2-core
-virtual machine a datagram that wakes a thread on the other core costs the sender about 18 us,
-and the recorder process woke several thousand times a second: lockstep went from 2.4x to
-3.0x real time (interleaved A/B, benchmarks/nodes_speed.py). The price: killing this process
+without a socket, and the controller's DriveCommand is one datagram for both. On a virtual
+machine a datagram that wakes a thread on another core is costly, and a recorder process of its
+own would wake thousands of times a second (docs/performance.md). The price: killing this process
 ends both nodes, and the runner recovers the bag (at most one flush period, 0.5 s, is lost).
 
     python -m feed_twin.ros.host ROLE [NODE ARGS...] [--and ROLE [NODE ARGS...]]...
