@@ -74,6 +74,7 @@ def _gap_truth(doc: Any, p: Mapping[str, float]) -> Any:
 class Backlash(Component):
     TYPE = "Backlash"
     PORTS = {"a": "translational", "b": "translational"}
+    STATE_OUTPUTS = {"screw_force": "force"}  # the nut's push on the table
     EFFECTS = (
         OwnedEffect(
             name="backlash",

@@ -102,6 +102,9 @@ class Component:
     TYPE: ClassVar[str]
     PORTS: ClassVar[dict[str, PortKind]]
     EFFECTS: ClassVar[tuple[OwnedEffect, ...]] = ()  # effects the workflow may add with it
+    # what the component's outputs stand for in an axis's reported state (AxisState field ->
+    # own output, "-" for the opposite sign), so reporting never depends on instance names
+    STATE_OUTPUTS: ClassVar[Mapping[str, str]] = {}
 
     def ports(self) -> dict[str, PortKind]:
         return self.PORTS

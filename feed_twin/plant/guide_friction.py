@@ -69,6 +69,7 @@ def friction_force(
 class GuideFriction(Component):
     TYPE = "GuideFriction"
     PORTS = {"flange": "translational"}
+    STATE_OUTPUTS = {"friction_force": "-force"}  # force is F(v); the table receives -F
 
     F_c_pos: float  # Coulomb force in positive motion [N]
     F_c_neg: float  # Coulomb force in negative motion [N]
