@@ -41,12 +41,15 @@ from feed_twin.nodeset.split import NS_PER_S, StateSignals
 NODE_SET_OPTIONS = ("realtime", "single_process", "live", "no_gcode")
 
 
-def _state_fields(signals: dict[str, np.ndarray], command: np.ndarray) -> dict[str, np.ndarray]:
+def _state_fields(
+    signals: dict[str, np.ndarray], command: np.ndarray, names: StateSignals
+) -> dict[str, np.ndarray]:
     """AxisState fields from the engine's signals (NaN where the plant has no such signal)."""
     nan = np.full(len(command), np.nan)
-    names = StateSignals()
 
-    def get(name: str) -> np.ndarray:
+    def get(name: str | None) -> np.ndarray:
+        if not name:
+            return nan
         sign = -1.0 if name.startswith("-") else 1.0
         values = signals.get(name.lstrip("-"))
         return nan if values is None else sign * values
@@ -100,7 +103,9 @@ def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Pa
         for axis in run.simulated:
             topic = f"{root}/{axis.lower()}/state"
             bag.add_topic(topic, "feed_twin_msgs/msg/AxisState")
-            fields = _state_fields(run.signals[axis], run.command[:, run.axes.index(axis)])
+            fields = _state_fields(
+                run.signals[axis], run.command[:, run.axes.index(axis)], run.state_signals[axis]
+            )
             for k, t_ns in enumerate(stamps):
                 values: dict[str, float | int | str] = {n: float(c[k]) for n, c in fields.items()}
                 values.update({

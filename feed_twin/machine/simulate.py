@@ -18,14 +18,15 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.gcode.geometry import programmed_path
+from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.contour import ContourError, contour_error
 from feed_twin.nodeset.split import StateSignals
+from feed_twin.sim.config import build_engine
 from feed_twin.sim.program import TABLE_POSITION, ProgramRun, simulate_program
 
 # what the drive reports beside the plant's truth (AxisState's setpoint and following error)
 DRIVE_SIGNALS = ("out.pos_ref_m", "out.following_error_m")
-RECORD = (TABLE_POSITION, *DRIVE_SIGNALS, *StateSignals().names(), "table.a")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -33,6 +34,7 @@ class MachineRun(ProgramRun):
     """A program run on the machine with its contour error."""
 
     contour: ContourError
+    state_signals: dict[str, StateSignals]  # axis -> the engine signals behind its AxisState
 
     def summary(self) -> dict[str, object]:
         out: dict[str, object] = dict(self.contour.summary())
@@ -44,11 +46,25 @@ class MachineRun(ProgramRun):
         return out
 
 
+def axis_state_signals(machine: MachineConfig, axis: str) -> StateSignals:
+    """The engine signals behind axis `axis`'s AxisState fields (from its plant's components)."""
+    config = machine.axes[axis]
+    period = machine.nc.interpolation_period_s
+    known = build_engine(config, output_period_s=period).all_names
+    try:
+        return StateSignals().resolve(config.plant, known)
+    except ValueError as exc:
+        raise ConfigError(f"{config.source}: axis {axis}: {exc}") from None
+
+
 def simulate_machine(
     machine: MachineConfig, program: str | Path, *, settle_s: float = 0.2, preroll_s: float = 0.5
 ) -> MachineRun:
     """Plan `program` on the machine's NC, run every simulated axis, measure the contour."""
-    run = simulate_program(machine, program, settle_s=settle_s, preroll_s=preroll_s, record=RECORD)
+    states = {axis: axis_state_signals(machine, axis) for axis in machine.axes}
+    reported = dict.fromkeys(n for names in states.values() for n in names.names())
+    record = (TABLE_POSITION, *DRIVE_SIGNALS, *reported, "table.a")
+    run = simulate_program(machine, program, settle_s=settle_s, preroll_s=preroll_s, record=record)
     contour = contour_error(
         run.t_s,
         run.line,
@@ -59,4 +75,4 @@ def simulate_machine(
         n_linear=len(machine.nc.axes),
     )
     fields = {f.name: getattr(run, f.name) for f in dataclasses.fields(run)}
-    return MachineRun(**fields, contour=contour)
+    return MachineRun(**fields, contour=contour, state_signals=states)

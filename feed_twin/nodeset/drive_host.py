@@ -381,11 +381,15 @@ def build_drive_host(config_path: str | Path, ros: NodeSetConfig) -> DriveHost:
     axis = load_axis_config(config_path)
     if axis.controller is None:
         raise ConfigError(f"{config_path}: the sim node needs a controller section")
-    names = DriveHost.record_names(ros.signals)
     # The full cascade leaves the drive only its modulator: the engine runs open loop.
     closed = ros.boundary != "voltage"
     mode = ros.boundary if closed else None
     probe = build_engine(axis, closed_loop=closed, mode=mode, output_period_s=ros.exchange_period_s)
+    try:
+        signals = ros.signals.resolve(axis.plant, probe.all_names)
+    except ValueError as exc:
+        raise ConfigError(f"{config_path}: {exc}") from None
+    names = DriveHost.record_names(signals)
     unknown = [n for n in names if n not in probe.all_names]
     if unknown:
         raise ConfigError(
@@ -406,14 +410,14 @@ def build_drive_host(config_path: str | Path, ros: NodeSetConfig) -> DriveHost:
         from feed_twin.gcode.config import nc_config_from_mapping
 
         start = nc_config_from_mapping(axis.nc, source=str(config_path)).twin_start_position_m
-        body = ros.signals.table_position.lstrip("-").split(".")[0]
+        body = (signals.table_position or "").lstrip("-").split(".")[0]
         engine.reset(positions={body: start})
     current = axis.controller.current
     return DriveHost(
         engine,
         exchange_period_s=ros.exchange_period_s,
         K_t=axis.controller.drive.K_t,
-        signals=ros.signals,
+        signals=signals,
         pole_pairs=current.pole_pairs if current is not None else 0,
         encoder_offset_rad=current.encoder_offset_rad if current is not None else 0.0,
         start_position_m=start,

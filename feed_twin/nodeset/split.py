@@ -32,6 +32,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -45,6 +46,7 @@ from feed_twin.core.validate import require_positive
 from feed_twin.io.config import from_mapping, load_yaml
 from feed_twin.nodeset.protection import ProtectionConfig
 from feed_twin.nodeset.topics import AxisTopics
+from feed_twin.plant.assembly import PlantModel
 from feed_twin.sim.program import set_nc_reference
 
 Boundary = Literal["torque", "velocity", "position", "voltage"]
@@ -68,27 +70,52 @@ NS_PER_S = 1_000_000_000
 class StateSignals:
     """Engine signal names behind the AxisState fields ("" where the plant has no such signal).
 
-    The defaults name the components of config/axis_default.yaml; another plant sets its own
-    in the `ros.signals` section. A leading '-' negates the signal (sign conventions differ).
+    None (the default) takes the signal from the plant (`resolve`): the component that declares
+    the field among its STATE_OUTPUTS (feed_twin.plant.component), whatever its instance name.
+    The table is the body named `table` (the axis files' convention). A `ros.signals` entry
+    names a signal explicitly; a leading '-' negates it (sign conventions differ).
     """
 
-    table_position: str = "table.s"
-    table_velocity: str = "table.v"
-    motor_angle: str = "motor.phi"
-    motor_velocity: str = "motor.omega"
-    i_d: str = "motor.i_d"
-    i_q: str = "motor.i_q"
-    u_d: str = "motor.u_d"
-    u_q: str = "motor.u_q"
-    u_dc: str = "bus.u_dc"
-    i_dc: str = "bus.i_dc"
-    torque_em: str = "motor.tau_e"
-    friction_force: str = "-guides.force"  # guides.force is F(v); the table receives -F
-    screw_force: str = "backlash.force"
+    table_position: str | None = "table.s"
+    table_velocity: str | None = "table.v"
+    motor_angle: str | None = None
+    motor_velocity: str | None = None
+    i_d: str | None = None
+    i_q: str | None = None
+    u_d: str | None = None
+    u_q: str | None = None
+    u_dc: str | None = None
+    i_dc: str | None = None
+    torque_em: str | None = None
+    friction_force: str | None = None
+    screw_force: str | None = None
 
     def names(self) -> tuple[str, ...]:
-        """The engine signals to record (signs stripped)."""
+        """The engine signals to record (signs stripped; unresolved fields left out)."""
         return tuple(v.lstrip("-") for v in vars(self).values() if v)
+
+    def resolve(self, plant: PlantModel, available: Collection[str]) -> StateSignals:
+        """Every field given: those left None from the components' STATE_OUTPUTS, "" where no
+        component declares the field or its signal is not among `available` (the engine's)."""
+        found: dict[str, list[str]] = {}
+        for name, component in plant.components.items():
+            for field_name, output in component.STATE_OUTPUTS.items():
+                sign = "-" if output.startswith("-") else ""
+                signal = f"{name}.{output.lstrip('-')}"
+                if signal in available:
+                    found.setdefault(field_name, []).append(sign + signal)
+        chosen: dict[str, str] = {}
+        for field_name, value in vars(self).items():
+            if value is not None:
+                continue
+            candidates = found.get(field_name, [])
+            if len(candidates) > 1:
+                raise ValueError(
+                    f"ros.signals.{field_name}: {', '.join(candidates)} all stand for it; "
+                    "name one in the ros.signals section"
+                )
+            chosen[field_name] = candidates[0] if candidates else ""
+        return dataclasses.replace(self, **chosen)
 
 
 @dataclass(frozen=True, kw_only=True)

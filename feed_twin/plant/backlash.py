@@ -80,6 +80,7 @@ def _gap_truth(doc: Document, p: Mapping[str, float]) -> Document:
 class Backlash(Component):
     TYPE = "Backlash"
     PORTS = {"a": "translational", "b": "translational"}
+    STATE_OUTPUTS = {"screw_force": "force"}  # the nut's push on the table
     EFFECTS = (
         Effect(
             name="backlash",

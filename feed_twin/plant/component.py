@@ -125,6 +125,10 @@ class Component:
         """An inverter whose legs switch (PWM edges resolved by the loop), not averaged."""
         return False
 
+    # what the component's outputs stand for in an axis's reported state (AxisState field ->
+    # own output, "-" for the opposite sign), so reporting never depends on instance names
+    STATE_OUTPUTS: ClassVar[Mapping[str, str]] = {}
+
     def ports(self) -> dict[str, PortKind]:
         return self.PORTS
 

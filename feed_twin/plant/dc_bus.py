@@ -18,6 +18,7 @@ from feed_twin.plant.component import Component, Emitter
 class DcBus(Component):
     TYPE = "DcBus"
     PORTS = {"dc": "dc"}
+    STATE_OUTPUTS = {"u_dc": "u_dc", "i_dc": "i_dc"}
 
     u_0: float  # open-circuit bus voltage [V]
     R_i: float  # internal resistance [ohm]

@@ -218,6 +218,7 @@ class GuideFriction(Component):
             truth=_truth,
         ),
     )
+    STATE_OUTPUTS = {"friction_force": "-force"}  # force is F(v); the table receives -F
 
     F_c_pos: float  # Coulomb force in positive motion [N]
     F_c_neg: float  # Coulomb force in negative motion [N]

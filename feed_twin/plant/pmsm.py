@@ -249,6 +249,17 @@ class Pmsm(Component):
             return _harmonic(int(harmonic.group(1)), harmonic.group(2))
         return super().quantity(name)
 
+    # phi and omega: the rotor's coordinate, which carries the motor's name as its first body
+    STATE_OUTPUTS = {
+        "motor_angle": "phi",
+        "motor_velocity": "omega",
+        "i_d": "i_d",
+        "i_q": "i_q",
+        "u_d": "u_d",
+        "u_q": "u_q",
+        "torque_em": "tau_e",
+    }
+
     R_s: float  # stator resistance per phase [ohm]
     L_d: float  # d-axis inductance [H]
     L_q: float  # q-axis inductance [H]

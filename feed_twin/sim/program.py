@@ -71,9 +71,14 @@ def set_nc_reference(
     """Write NC setpoints into the cascade's REF_* vector `ref` (one row, or (n, REF_SIZE) with
     one value per row): the position loop's setpoint and its velocity and acceleration
     feed-forward. The other slots are left as they are."""
-    ref[..., signals.REF_POS_M] = position_m
-    ref[..., signals.REF_VEL_M_S] = velocity_m_s
-    ref[..., signals.REF_ACC_M_S2] = acceleration_m_s2
+    if ref.ndim == 1:  # plain indices: the node set's controller writes one row per exchange
+        ref[signals.REF_POS_M] = position_m
+        ref[signals.REF_VEL_M_S] = velocity_m_s
+        ref[signals.REF_ACC_M_S2] = acceleration_m_s2
+        return
+    ref[:, signals.REF_POS_M] = position_m
+    ref[:, signals.REF_VEL_M_S] = velocity_m_s
+    ref[:, signals.REF_ACC_M_S2] = acceleration_m_s2
 
 
 def nc_reference(
