@@ -35,7 +35,7 @@ import math
 from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -253,7 +253,8 @@ def controller_node_config(
     """
     gains = gains or NodeLoopGains()
     notes: list[str] = []
-    replace: dict[str, object] = {"base_period_s": exchange_period_s, "current": None}
+    # keyword arguments of dataclasses.replace(config, ...): values of several types
+    replace: dict[str, Any] = {"base_period_s": exchange_period_s, "current": None}
     current = config.current if with_current else None
     if with_current:
         if current is None:
@@ -526,11 +527,13 @@ class NcBuffer:
         samples = self._samples
         while len(samples) > 1 and samples[1].t_ns <= t_ns:
             samples.popleft()
-        if samples and samples[0].t_ns <= t_ns and self.latest_ns >= t_ns:
+        latest = self.latest_ns
+        if samples and samples[0].t_ns <= t_ns and latest is not None and latest >= t_ns:
             self._last = samples[0]
             return samples[0]
         if self.finished and (self._last is not None or samples):
             last = samples[-1] if samples else self._last
+            assert last is not None  # the condition above
             return NcSample(
                 t_ns=t_ns,
                 position_m=last.position_m,

@@ -27,6 +27,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
 import sys
@@ -164,7 +165,7 @@ class GcodeNode(FeedTwinNode):
                 self.create_subscription(
                     Clock,
                     f"{t.namespace}/clock",
-                    lambda data, prefix=prefix: self._on_axis_clock(data, prefix),
+                    functools.partial(self._on_axis_clock, prefix=prefix),
                     DATA_QOS,
                     raw=True,
                 )

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import faulthandler
+import functools
 import gc
 import os
 import resource
@@ -234,7 +235,7 @@ class FeedTwinNode(Node):
             self.create_subscription(
                 String,
                 topics.run_state,
-                lambda msg, prefix=prefix: self._on_run_state(msg, prefix),
+                functools.partial(self._on_run_state, prefix=prefix),
                 LATCHED_QOS,
             )
         self.create_timer(HEARTBEAT_PERIOD_S, self._tick, clock=self.wall)

@@ -121,6 +121,10 @@ class SlotStream:
     def first_pending(self) -> int | None:
         return min(self._pending) if self._pending else None
 
+    def pending(self, slot: int) -> list[float] | None:
+        """The values waiting in `slot`, None when nothing waits there."""
+        return self._pending.get(slot)
+
     def push(self, t_s: float, values: np.ndarray | tuple | list) -> str:
         """Offer one sample; returns what the policy did with it (a FaultCounts field name)."""
         c = self.counts

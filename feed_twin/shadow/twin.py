@@ -229,14 +229,19 @@ class ShadowTwin:
             )
         self.command_velocity = bool(command_velocity)
         self.lookahead = 1 if self.command_velocity else 2
-        common = dict(
-            period_s=h,
-            tolerance=config.stamp_tolerance,
-            window=config.reorder_window,
-            fill=config.missing_fill,
-        )
-        self.commands = SlotStream(name="command", width=2 if command_velocity else 1, **common)
-        self.measured = SlotStream(name="measured", width=2, **common)
+
+        def stream(name: str, width: int) -> SlotStream:
+            return SlotStream(
+                name=name,
+                width=width,
+                period_s=h,
+                tolerance=config.stamp_tolerance,
+                window=config.reorder_window,
+                fill=config.missing_fill,
+            )
+
+        self.commands = stream("command", 2 if command_velocity else 1)
+        self.measured = stream("measured", 2)
         self.health = HealthMonitor(
             config,
             physical=physical_effects(twin),
@@ -344,7 +349,8 @@ class ShadowTwin:
             x0 = float(self._meas_q[0][0, 1])
             if not math.isfinite(x0):
                 # no measurement at the start (a silent stream): start where the NC commands
-                start_cmd = self.commands._pending.get(self.start_slot)
+                assert self.start_slot is not None  # set by _try_start above
+                start_cmd = self.commands.pending(self.start_slot)
                 x0 = float(start_cmd[CMD_POS]) if start_cmd is not None else 0.0
             self._restart(x0)
             self._engine_started = True
@@ -443,6 +449,7 @@ class ShadowTwin:
         self._meas_q = [me[n:]] if len(me) > n else []
         tw, me = tw[:n], me[:n]
         assert np.array_equal(tw[:, 0], me[:, 0])  # both queues run in slot order from start
+        assert self.commands.t0_s is not None  # samples exist only once the origin is set
         t = self.commands.t0_s + tw[:, 0] * self.config.sample_period_s
         fe_dev = tw[:, 2] - me[:, 1]
         effort_dev = me[:, 2] - tw[:, 3]
