@@ -130,8 +130,6 @@ class TwinNode(FeedTwinNode):
         outputs = (self._state_pub, self._residual_pub, self._health_pub)
         self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
-    # -- input --------------------------------------------------------------------------------
-
     def _on_command(self, data: bytes) -> None:
         self._seen_command = True
         self._last_message = time.monotonic()
@@ -167,8 +165,6 @@ class TwinNode(FeedTwinNode):
         self.errors += 1
         if self.errors <= 5:
             self.get_logger().error(f"undecodable message dropped: {exc}")
-
-    # -- output -------------------------------------------------------------------------------
 
     def _step(self, *, final: bool = False) -> None:
         block = self.shadow.process(final=final)

@@ -272,8 +272,6 @@ class ShadowTwin:
         self._meas_q: list[np.ndarray] = []  # rows: slot, x_meas, effort_meas, filled
         self.new_verdicts: list[Verdict] = []
 
-    # ------------------------------------------------------------------ input
-
     def set_origin(self, t_s: float) -> None:
         """Put slot 0 of both streams at machine time t_s (the first stamp seen, by default)."""
         if self.commands.t0_s is None:
@@ -317,8 +315,6 @@ class ShadowTwin:
         self.set_origin(float(t_s[0]))
         eff = np.full(len(t_s), math.nan) if effort is None else np.asarray(effort, dtype=float)
         self.measured.push_many(t_s, np.column_stack([pos_m, eff]))
-
-    # ------------------------------------------------------------------ processing
 
     def process(self, *, final: bool = False) -> ResidualBlock | None:
         """Advance over every decided slot; the newly paired samples (None if there are none).
