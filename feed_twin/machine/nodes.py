@@ -36,8 +36,12 @@ from feed_twin.machine.config import MachineConfig, axis_sections
 from feed_twin.machine.contour import ContourError, contour_error
 
 NODE_ROS_NAME_KEYS = ("axis",)  # the machine's axes name their nodes' namespaces themselves
-GCODE_PROCESS = "gcode"
-RECORDER_PROCESS = "recorder"
+RECORDER_PROCESS = "recorder"  # hosts the recorder and the G-code node
+# [s] a peer silent this long is lost. A dead process is noticed by the runner at once
+# (launch's stop_on_failure); heartbeats find hung nodes and nodes on other computers. With
+# seven processes on two cores at load 15 the recorder's process went 0.8 s without taking
+# heartbeats (it named every other axis's nodes together), so the machine waits longer.
+PEER_TIMEOUT_S = 2.0
 
 
 def axis_documents(
@@ -121,10 +125,11 @@ class NodePlan:
         self, *, program: Path, bag: Path, realtime: bool, common: list[str]
     ) -> dict[str, list[tuple[str, list[str]]]]:
         """Process name -> its nodes (role, arguments); `common`: arguments every node takes
-        (timeouts). The G-code node runs inside the recorder's process (one DDS participant,
-        feed_twin/ros/host.py): its commands reach the recorder by a function call instead of
-        a datagram each, and the process is stopped last, after the axes."""
+        (timeouts; the peer timeout is added here). The G-code node runs inside the recorder's
+        process (one DDS participant, feed_twin/ros/host.py): its commands reach the recorder
+        by a function call instead of a datagram each, and the process is stopped last."""
         first, others = self.axes[0], self.axes[1:]
+        common = [*common, "--peer-timeout", str(PEER_TIMEOUT_S)]
         axis_roles = ("controller", "sim")
         shared = [
             "--machine-axes", ",".join(a.lower() for a in others),

@@ -552,6 +552,9 @@ def node_parser(prog: str, configure: Callable[[argparse.ArgumentParser], None])
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
     parser.add_argument(
+        "--peer-timeout", type=float, default=PEER_TIMEOUT_S, help="[s] silence of a lost peer"
+    )
+    parser.add_argument(
         "--machine-axes", default="", help="further axes with nodes this node serves (a, b)"
     )
     parser.add_argument(
@@ -568,6 +571,7 @@ def node_options(args: argparse.Namespace, ros) -> NodeOptions:
         peers=tuple(p for p in args.peers.split(",") if p),
         input_timeout_s=args.input_timeout,
         startup_timeout_s=args.startup_timeout,
+        peer_timeout_s=getattr(args, "peer_timeout", PEER_TIMEOUT_S),
         other_axes=tuple(a for a in getattr(args, "machine_axes", "").split(",") if a),
         command_axes=tuple(a for a in getattr(args, "command_axes", "").split(",") if a),
     )
