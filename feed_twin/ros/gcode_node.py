@@ -19,7 +19,9 @@
   every NC axis, each on its own `/<machine>/<axis>/command`, and announces `program_state` to
   every axis with nodes. It reads each such axis's clock (`<namespace>/clock`) and publishes
   ahead of the slowest: no axis's controller gets a setpoint more than `lookahead` periods
-  ahead of any other axis, which holds all axes together in simulated time.
+  ahead of any other axis, which holds all axes together in simulated time. In real time
+  (announced by the sims) the wall clock holds them together and it publishes ahead of the
+  fastest.
 - `program_state` (latched std_msgs/String): `loaded ...`, `running`, `paused line N ...`,
   `finished <t_ns>`, `stopped <t_ns>`, `error <message>`.
 """
@@ -142,6 +144,7 @@ class GcodeNode(FeedTwinNode):
         self.trajectory: SampledTrajectory | None = None
         self.running = False
         self._clock_ns = 0
+        self._realtime = False
         # The run's token (feed_twin.nodeset.guard) marks the commands as this run's.
         self._token = run_token(os.environ)
         served = options.axis_topics()
@@ -263,8 +266,17 @@ class GcodeNode(FeedTwinNode):
     def _on_axis_clock(self, data: bytes, prefix: str) -> None:
         sec, nsec = CLOCK.decode(data)
         self._clocks[prefix] = sec * NS_PER_S + nsec
-        self._clock_ns = min(self._clocks.values())  # the slowest axis sets the horizon
+        # In lockstep the slowest axis sets the horizon: the others wait for it. In real time
+        # every sim paces itself by the wall clock and cannot wait: the fastest sets it (an
+        # axis whose sim started later would otherwise miss steps until the others caught up).
+        pick = max if self._realtime else min
+        self._clock_ns = pick(self._clocks.values())
         self._publish_ahead()
+
+    def on_run_state(self, text: str) -> None:
+        # the sims announce real-time pacing on run_state (latched), before their first step
+        if text.startswith("realtime"):
+            self._realtime = True
 
     def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:
