@@ -139,7 +139,8 @@ class NodePlan:
         everyone += [f"{a.lower()}/{r}" for a in others for r in axis_roles]
         out: dict[str, list[tuple[str, list[str]]]] = {RECORDER_PROCESS: []}
         for role, extra in (("recorder", ["--bag", str(bag)]),
-                            ("gcode", ["--program", str(program), "--autostart"])):  # fmt: skip
+                            ("gcode", ["--program", str(program), "--autostart",
+                                       "--axis-clock"])):  # fmt: skip
             peers = ",".join(p for p in everyone if p != role)
             out[RECORDER_PROCESS].append((role, ["--config", str(self.files[first]), "--peers",
                                                  peers, *common, *shared, *extra]))  # fmt: skip

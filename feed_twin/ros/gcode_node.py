@@ -15,7 +15,8 @@
   axis's machine positions minus its start position.
 - Timing: setpoints are stamped in simulation time, one per interpolation period, and published
   up to `lookahead` periods ahead of the latest /clock so the controller never waits for them.
-- A machine (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes): one node commands
+- A machine (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes): `--autostart`
+  waits until every node of every axis beats, and one node commands
   every NC axis, each on its own `/<machine>/<axis>/command`, and announces `program_state` to
   every axis with nodes. It reads each such axis's clock (`<namespace>/clock`) and publishes
   ahead of the slowest: no axis's controller gets a setpoint more than `lookahead` periods
@@ -134,9 +135,11 @@ class GcodeNode(FeedTwinNode):
         program: str = "",
         autostart: bool = False,
         optional_stop: bool = False,
+        axis_clocks: bool = False,
         context=None,
     ) -> None:
         super().__init__(GCODE_NODE, options, context=context)
+        self.axis_clocks = axis_clocks  # a machine: each sim publishes <namespace>/clock
         self.nc = nc
         self.lookahead = lookahead
         self.period_ns = round(nc.interpolation_period_s * NS_PER_S)
@@ -161,7 +164,7 @@ class GcodeNode(FeedTwinNode):
         self._state_pubs = [
             self.create_publisher(String, t.program_state, LATCHED_QOS) for t in served.values()
         ]
-        if options.other_axes:
+        if axis_clocks:
             self._clocks = dict.fromkeys(served, 0)
             for prefix, t in served.items():
                 self.create_subscription(
@@ -183,6 +186,15 @@ class GcodeNode(FeedTwinNode):
         if program:
             self.set_parameters([Parameter("program", value=program)])
         self.start_heartbeat(when=lambda: self.recorder_listens(self._pubs))
+        if axis_clocks:
+            # A machine starts once every axis's nodes beat: its sims start on "running", so in
+            # real time all axes start together instead of each when its own nodes are up.
+            self._start_timer = self.create_timer(0.02, self._start_when_all_up, clock=self.wall)
+
+    def _start_when_all_up(self) -> None:
+        if self.autostart and self.trajectory is not None and self.peers_alive():
+            self._start_timer.cancel()
+            self.start()
 
     # -- program ------------------------------------------------------------------------------
 
@@ -207,7 +219,7 @@ class GcodeNode(FeedTwinNode):
         duration = len(trajectory) * self.nc.interpolation_period_s
         self._state(f"loaded {program} {len(trajectory)} samples {duration:.3f} s")
         self.get_logger().info(f"loaded {program}: {len(trajectory)} samples, {duration:.3f} s")
-        if self.autostart:
+        if self.autostart and not self.axis_clocks:
             self.start()
         return True
 
@@ -325,6 +337,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--program", default="")
     parser.add_argument("--autostart", action="store_true")
     parser.add_argument("--optional-stop", action="store_true")
+    parser.add_argument(
+        "--axis-clock",
+        action="store_true",
+        help="a machine: read every served axis's <namespace>/clock (sim_node --axis-clock) and "
+        "start the program (--autostart) once every node of every axis beats",
+    )
 
 
 def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> GcodeNode:
@@ -335,6 +353,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> Gcode
         program=args.program,
         autostart=args.autostart,
         optional_stop=args.optional_stop,
+        axis_clocks=args.axis_clock,
         context=context,
     )
 

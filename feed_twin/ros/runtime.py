@@ -359,7 +359,10 @@ class FeedTwinNode(Node):
         now = time.monotonic()
         heard = self.liveness.seen()
         silent: dict[str, float] = {}
-        for peer in () if self.run_ended else self.options.peers:
+        # the nodes of an axis that has ended its run leave: not a fault (a machine's axes end
+        # one after the other)
+        watched = [p for p in self.options.peers if _peer_prefix(p) in self._not_done]
+        for peer in () if self.run_ended else watched:
             seen = heard.get(peer)
             if seen is None:
                 if self._heartbeat_on and now - self._created > self.options.startup_timeout_s:
@@ -423,6 +426,12 @@ class FeedTwinNode(Node):
         if similar:
             lines.append(f"  {type_name} is published on: {', '.join(similar)} (wrong namespace?)")
         return "\n".join(lines)
+
+
+def _peer_prefix(peer: str) -> str:
+    """'y/' for a peer of axis y's namespace, '' for one of the node's own."""
+    head, sep, _ = peer.rpartition("/")
+    return f"{head}/" if sep else ""
 
 
 @dataclass
