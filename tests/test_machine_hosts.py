@@ -24,12 +24,21 @@ from feed_twin.nodeset.split import NS_PER_S
 from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.ros.netns import linked_namespaces
 
+
+def _can_make_namespaces() -> bool:
+    """Root with iproute2 and CAP_NET_ADMIN (a container may lack it)."""
+    if os.geteuid() != 0 or shutil.which("ip") is None:
+        return False
+    name = f"ftprobe{os.getpid()}"
+    made = subprocess.run(["ip", "netns", "add", name], capture_output=True, timeout=30)
+    subprocess.run(["ip", "netns", "del", name], capture_output=True, timeout=30)
+    return made.returncode == 0
+
+
 pytestmark = [
     pytest.mark.ros,
     pytest.mark.slow,
-    pytest.mark.skipif(
-        os.geteuid() != 0 or shutil.which("ip") is None, reason="needs root and iproute2"
-    ),
+    pytest.mark.skipif(not _can_make_namespaces(), reason="needs root, iproute2, CAP_NET_ADMIN"),
 ]
 
 

@@ -65,7 +65,7 @@ def test_three_axes_in_their_own_nodes_equal_their_in_process_exchanges(tmp_path
     assert set(record["following_error_max_m"]) == {"x", "y", "z"}
     processes = sorted(p.stem for p in Path(record["logs"]).glob("*.log"))
     assert Path(record["rrd"]).stat().st_size > 10_000
-    assert processes == ["gcode", "recorder", "x_controller", "x_sim", "y_controller", "y_sim",
+    assert processes == ["recorder", "x_controller", "x_sim", "y_controller", "y_sim",
                          "z_controller", "z_sim"]  # fmt: skip
     reader = BagReader(record["bag"])
     files = write_axis_files(load_machine_config(MACHINE), settle_s=0.2)  # the run's files

@@ -36,8 +36,12 @@ from feed_twin.machine.config import MachineConfig, axis_sections
 from feed_twin.machine.contour import ContourError, contour_error
 
 NODE_ROS_NAME_KEYS = ("axis",)  # the machine's axes name their nodes' namespaces themselves
-GCODE_PROCESS = "gcode"
-RECORDER_PROCESS = "recorder"
+RECORDER_PROCESS = "recorder"  # hosts the recorder and the G-code node
+# [s] a peer silent this long is lost. A dead process is noticed by the runner at once
+# (launch's stop_on_failure); heartbeats find hung nodes and nodes on other computers. With
+# seven processes on two cores at load 15 the recorder's process went 0.8 s without taking
+# heartbeats (it named every other axis's nodes together), so the machine waits longer.
+PEER_TIMEOUT_S = 2.0
 
 
 def axis_documents(
@@ -119,9 +123,13 @@ class NodePlan:
 
     def processes(
         self, *, program: Path, bag: Path, realtime: bool, common: list[str]
-    ) -> dict[str, tuple[str, list[str]]]:
-        """`common`: arguments every node takes (timeouts)."""
+    ) -> dict[str, list[tuple[str, list[str]]]]:
+        """Process name -> its nodes (role, arguments); `common`: arguments every node takes
+        (timeouts; the peer timeout is added here). The G-code node runs inside the recorder's
+        process (one DDS participant, feed_twin/ros/host.py): its commands reach the recorder
+        by a function call instead of a datagram each, and the process is stopped last."""
         first, others = self.axes[0], self.axes[1:]
+        common = [*common, "--peer-timeout", str(PEER_TIMEOUT_S)]
         axis_roles = ("controller", "sim")
         shared = [
             "--machine-axes", ",".join(a.lower() for a in others),
@@ -129,18 +137,19 @@ class NodePlan:
         ]  # fmt: skip
         everyone = ["recorder", "gcode", *axis_roles]
         everyone += [f"{a.lower()}/{r}" for a in others for r in axis_roles]
-        out: dict[str, tuple[str, list[str]]] = {}
+        out: dict[str, list[tuple[str, list[str]]]] = {RECORDER_PROCESS: []}
         for role, extra in (("recorder", ["--bag", str(bag)]),
-                            ("gcode", ["--program", str(program), "--autostart"])):  # fmt: skip
+                            ("gcode", ["--program", str(program), "--autostart",
+                                       "--axis-clock"])):  # fmt: skip
             peers = ",".join(p for p in everyone if p != role)
-            out[role] = (role, ["--config", str(self.files[first]), "--peers", peers,
-                                *common, *shared, *extra])  # fmt: skip
+            out[RECORDER_PROCESS].append((role, ["--config", str(self.files[first]), "--peers",
+                                                 peers, *common, *shared, *extra]))  # fmt: skip
         for axis in self.axes:
             for role in axis_roles:
                 peers = ",".join(p for p in ("recorder", "gcode", *axis_roles) if p != role)
                 extra = ["--axis-clock"] + (["--realtime"] if realtime else [])
                 argv = ["--config", str(self.files[axis]), "--peers", peers, *common]
-                out[process_name(axis, role)] = (role, argv + (extra if role == "sim" else []))
+                out[process_name(axis, role)] = [(role, argv + (extra if role == "sim" else []))]
         return out
 
 
@@ -157,20 +166,24 @@ def node_plan(
     )
 
 
-def chosen_processes(names: list[str], start: str | None) -> list[str]:
-    """The processes `--start` names (process names or roles), in the plan's order; ValueError
-    for a name that is neither."""
+def chosen_processes(
+    processes: dict[str, list[tuple[str, list[str]]]], start: str | None
+) -> list[str]:
+    """The processes `--start` names (process names, or roles of the nodes they host), in the
+    plan's order; ValueError for a name that is neither."""
+    names = list(processes)
     if start is None:
         return names
     wanted = [w.strip() for w in start.split(",") if w.strip()]
-    roles = {n.rpartition("_")[2] for n in names}
-    unknown = [w for w in wanted if w not in names and w not in roles]
+    roles = {n: {role for role, _ in nodes} for n, nodes in processes.items()}
+    known = set(names).union(*roles.values())
+    unknown = [w for w in wanted if w not in known]
     if unknown or not wanted:
         raise ValueError(
             f"--start {start}: {', '.join(unknown) or 'nothing'} is not a process or role of "
             f"this run (processes: {', '.join(names)})"
         )
-    return [n for n in names if n in wanted or n.rpartition("_")[2] in wanted]
+    return [n for n in names if n in wanted or roles[n] & set(wanted)]
 
 
 def axis_of_process(name: str, axes: tuple[str, ...]) -> str | None:

@@ -126,12 +126,11 @@ def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Pa
     return path
 
 
-def run_machine(args: argparse.Namespace) -> int:
-    """The `feed-twin run` of a machine config (module docstring)."""
+def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
+    """The machine of a `feed-twin run` (its --axes selection), its program checked on the
+    machine's NC; or the exit code after a one-line error."""
     from feed_twin.gcode import GcodeError
-    from feed_twin.gcode.geometry import programmed_path
     from feed_twin.gcode.planner import validate_program
-    from feed_twin.machine.dashboard import write_machine_dashboard
 
     in_process = args.in_process or args.shadow
     refused = [f"--{o.replace('_', '-')}" for o in NODE_SET_OPTIONS if getattr(args, o, False)]
@@ -152,10 +151,17 @@ def run_machine(args: argparse.Namespace) -> int:
         return _error(args, f"G-code error, nothing was started: {exc}")
     except (ConfigError, ValueError, OSError) as exc:
         return _error(args, str(exc))
-    if not in_process:
-        from feed_twin.ros.machine_run import run_machine_nodes
+    return machine
 
-        return run_machine_nodes(args, machine)
+
+def run_machine(args: argparse.Namespace) -> int:
+    """The in-process `feed-twin run` of a machine config (module docstring)."""
+    from feed_twin.gcode.geometry import programmed_path
+    from feed_twin.machine.dashboard import write_machine_dashboard
+
+    machine = prepare_machine(args)
+    if isinstance(machine, int):
+        return machine
     name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
     args.out.mkdir(parents=True, exist_ok=True)
     bag_path, rrd_path = args.out / name, args.out / f"{name}.rrd"

@@ -15,11 +15,14 @@
   axis's machine positions minus its start position.
 - Timing: setpoints are stamped in simulation time, one per interpolation period, and published
   up to `lookahead` periods ahead of the latest /clock so the controller never waits for them.
-- A machine (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes): one node commands
+- A machine (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes): `--autostart`
+  waits until every node of every axis beats, and one node commands
   every NC axis, each on its own `/<machine>/<axis>/command`, and announces `program_state` to
   every axis with nodes. It reads each such axis's clock (`<namespace>/clock`) and publishes
   ahead of the slowest: no axis's controller gets a setpoint more than `lookahead` periods
-  ahead of any other axis, which holds all axes together in simulated time.
+  ahead of any other axis, which holds all axes together in simulated time. In real time
+  (announced by the sims) the wall clock holds them together and it publishes ahead of the
+  fastest.
 - `program_state` (latched std_msgs/String): `loaded ...`, `running`, `paused line N ...`,
   `finished <t_ns>`, `stopped <t_ns>`, `error <message>`.
 """
@@ -133,9 +136,11 @@ class GcodeNode(FeedTwinNode):
         program: str = "",
         autostart: bool = False,
         optional_stop: bool = False,
+        axis_clocks: bool = False,
         context=None,
     ) -> None:
         super().__init__(GCODE_NODE, options, context=context)
+        self.axis_clocks = axis_clocks  # a machine: each sim publishes <namespace>/clock
         self.nc = nc
         self.lookahead = lookahead
         self.period_ns = round(nc.interpolation_period_s * NS_PER_S)
@@ -143,6 +148,7 @@ class GcodeNode(FeedTwinNode):
         self.trajectory: SampledTrajectory | None = None
         self.running = False
         self._clock_ns = 0
+        self._realtime = False
         # The run's token (feed_twin.nodeset.guard) marks the commands as this run's.
         self._token = run_token(os.environ)
         served = options.axis_topics()
@@ -159,7 +165,7 @@ class GcodeNode(FeedTwinNode):
         self._state_pubs = [
             self.create_publisher(String, t.program_state, LATCHED_QOS) for t in served.values()
         ]
-        if options.other_axes:
+        if axis_clocks:
             self._clocks = dict.fromkeys(served, 0)
             for prefix, t in served.items():
                 self.create_subscription(
@@ -181,6 +187,15 @@ class GcodeNode(FeedTwinNode):
         if program:
             self.set_parameters([Parameter("program", value=program)])
         self.start_heartbeat(when=lambda: self.recorder_listens(self._pubs))
+        if axis_clocks:
+            # A machine starts once every axis's nodes beat: its sims start on "running", so in
+            # real time all axes start together instead of each when its own nodes are up.
+            self._start_timer = self.create_timer(0.02, self._start_when_all_up, clock=self.wall)
+
+    def _start_when_all_up(self) -> None:
+        if self.autostart and self.trajectory is not None and self.peers_alive():
+            self._start_timer.cancel()
+            self.start()
 
     @property
     def stream(self) -> ProgramStream | None:
@@ -203,7 +218,7 @@ class GcodeNode(FeedTwinNode):
         duration = len(trajectory) * self.nc.interpolation_period_s
         self._state(f"loaded {program} {len(trajectory)} samples {duration:.3f} s")
         self.get_logger().info(f"loaded {program}: {len(trajectory)} samples, {duration:.3f} s")
-        if self.autostart:
+        if self.autostart and not self.axis_clocks:
             self.start()
         return True
 
@@ -260,8 +275,17 @@ class GcodeNode(FeedTwinNode):
     def _on_axis_clock(self, data: bytes, prefix: str) -> None:
         sec, nsec = CLOCK.decode(data)
         self._clocks[prefix] = sec * NS_PER_S + nsec
-        self._clock_ns = min(self._clocks.values())  # the slowest axis sets the horizon
+        # In lockstep the slowest axis sets the horizon: the others wait for it. In real time
+        # every sim paces itself by the wall clock and cannot wait: the fastest sets it (an
+        # axis whose sim started later would otherwise miss steps until the others caught up).
+        pick = max if self._realtime else min
+        self._clock_ns = pick(self._clocks.values())
         self._publish_ahead()
+
+    def on_run_state(self, text: str) -> None:
+        # the sims announce real-time pacing on run_state (latched), before their first step
+        if text.startswith("realtime"):
+            self._realtime = True
 
     def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:
@@ -310,6 +334,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--program", default="")
     parser.add_argument("--autostart", action="store_true")
     parser.add_argument("--optional-stop", action="store_true")
+    parser.add_argument(
+        "--axis-clock",
+        action="store_true",
+        help="a machine: read every served axis's <namespace>/clock (sim_node --axis-clock) and "
+        "start the program (--autostart) once every node of every axis beats",
+    )
 
 
 def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> GcodeNode:
@@ -320,6 +350,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> Gcode
         program=args.program,
         autostart=args.autostart,
         optional_stop=args.optional_stop,
+        axis_clocks=args.axis_clock,
         context=context,
     )
 

@@ -4,10 +4,10 @@
    machine's NC, and every axis file its nodes will read as a single-axis run would
    (feed_twin/ros/preflight.py: sections, the controller at the exchange period, the drive's
    reach of the NC's limits).
-2. Starts the G-code node, the recorder, and per simulated axis a controller and a sim node,
-   each in its own process, in the run's own ROS domain with its run token; one process that
-   fails (an axis node killed, a drive fault) stops all others at once, the recorder last, and
-   the reason names the axis.
+2. Starts the recorder with the G-code node in its process, and per simulated axis a
+   controller and a sim node, each in its own process, in the run's own ROS domain with its
+   run token; one process that fails (an axis node killed, a drive fault) stops all others at
+   once, the recorder last, and the reason names the axis.
 3. Afterwards: the `.rrd` dashboard (feed_twin.machine.dashboard, as in-process); the bag
    (recovered if needed) gets the contour error and its along-path lag per
    sample (`/<machine>/contour_error`, `/<machine>/contour_lag`, std_msgs/Float64 [m], logged at
@@ -36,7 +36,7 @@ from feed_twin.machine.nodes import (
     read_machine_bag,
 )
 from feed_twin.ros import preflight
-from feed_twin.ros.host import NODE_MODULES
+from feed_twin.ros.host import NODE_MODULES, host_argv
 from feed_twin.ros.launch import launch, log_record
 
 REFUSED = ("single_process", "live", "no_gcode", "shadow")
@@ -68,7 +68,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         processes = plan.processes(
             program=args.program, bag=bag, realtime=args.realtime, common=common
         )
-        here = chosen_processes(list(processes), getattr(args, "start", None))
+        here = chosen_processes(processes, getattr(args, "start", None))
     except (ConfigError, ValueError, OSError) as exc:
         return _error(args, str(exc))
     env = dict(os.environ)
@@ -77,12 +77,14 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    commands = {
-        n: [sys.executable, "-m", NODE_MODULES[role], *argv]
-        for n, (role, argv) in processes.items()
-        if n in here
-    }
-    clock = next((n for n in here if processes[n][0] == "sim"), None)
+    commands = {}
+    for n in here:
+        if len(processes[n]) == 1:
+            role, argv = processes[n][0]
+            commands[n] = [sys.executable, "-m", NODE_MODULES[role], *argv]
+        else:
+            commands[n] = [sys.executable, "-m", "feed_twin.ros.host", *host_argv(processes[n])]
+    clock = next((n for n in here if processes[n][0][0] == "sim"), None)
     try:
         result = launch(
             commands,

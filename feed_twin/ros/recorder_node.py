@@ -125,7 +125,7 @@ class RecorderNode(FeedTwinNode):
             qos_for[topics.program_state] = qos_for[topics.run_state] = LATCHED_QOS
             qos_for[topics.heartbeat] = HEARTBEAT_QOS
             self._heartbeats.add(topics.heartbeat)
-        if options.other_axes:
+        if options.other_axes or options.command_axes:
             # each sim publishes its axis's clock (sim_node --axis-clock); nobody /clock
             clock_type = known.pop(AxisTopics.clock)
             for topics in served:
@@ -134,7 +134,8 @@ class RecorderNode(FeedTwinNode):
             command = AxisTopics(machine=options.machine, axis=axis).command
             known[command] = "feed_twin_msgs/msg/AxisCommand"
             self._signed_topics.add(command)
-        self._scan_prefix = f"/{options.machine}/" if options.other_axes else None
+        machine = options.other_axes or options.command_axes
+        self._scan_prefix = f"/{options.machine}/" if machine else None
         token = run_token(os.environ)
         self._token = token.encode() if token else b""
         if twin_namespace is not None:

@@ -367,9 +367,16 @@ def main(args: argparse.Namespace) -> int:
     from feed_twin.gcode import GcodeError
 
     if _is_machine_config(args.config):
-        from feed_twin.machine.run_cli import run_machine
+        from feed_twin.machine.run_cli import prepare_machine, run_machine
 
-        return run_machine(args)
+        if args.in_process or args.shadow:
+            return run_machine(args)
+        machine = prepare_machine(args)
+        if isinstance(machine, int):
+            return machine
+        from feed_twin.ros.machine_run import run_machine_nodes
+
+        return run_machine_nodes(args, machine)
     if args.axes is not None or args.in_process:
         option = "--axes" if args.axes is not None else "--in-process"
         return _early_error(args, f"{option} needs a machine config; {args.config} is one axis")

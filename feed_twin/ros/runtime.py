@@ -360,7 +360,10 @@ class FeedTwinNode(Node):
         now = time.monotonic()
         heard = self.liveness.seen()
         silent: dict[str, float] = {}
-        for peer in () if self.run_ended else self.options.peers:
+        # the nodes of an axis that has ended its run leave: not a fault (a machine's axes end
+        # one after the other)
+        watched = [p for p in self.options.peers if _peer_prefix(p) in self._not_done]
+        for peer in () if self.run_ended else watched:
             seen = heard.get(peer)
             if seen is None:
                 if self._heartbeat_on and now - self._created > self.options.startup_timeout_s:
@@ -424,6 +427,12 @@ class FeedTwinNode(Node):
         if similar:
             lines.append(f"  {type_name} is published on: {', '.join(similar)} (wrong namespace?)")
         return "\n".join(lines)
+
+
+def _peer_prefix(peer: str) -> str:
+    """'y/' for a peer of axis y's namespace, '' for one of the node's own."""
+    head, sep, _ = peer.rpartition("/")
+    return f"{head}/" if sep else ""
 
 
 @dataclass
@@ -569,6 +578,9 @@ def node_parser(prog: str, configure: Callable[[argparse.ArgumentParser], None])
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
     parser.add_argument(
+        "--peer-timeout", type=float, default=PEER_TIMEOUT_S, help="[s] silence of a lost peer"
+    )
+    parser.add_argument(
         "--machine-axes", default="", help="further axes with nodes this node serves (a, b)"
     )
     parser.add_argument(
@@ -585,6 +597,7 @@ def node_options(args: argparse.Namespace, ros) -> NodeOptions:
         peers=tuple(p for p in args.peers.split(",") if p),
         input_timeout_s=args.input_timeout,
         startup_timeout_s=args.startup_timeout,
+        peer_timeout_s=getattr(args, "peer_timeout", PEER_TIMEOUT_S),
         other_axes=tuple(a for a in getattr(args, "machine_axes", "").split(",") if a),
         command_axes=tuple(a for a in getattr(args, "command_axes", "").split(",") if a),
     )

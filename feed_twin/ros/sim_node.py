@@ -159,6 +159,9 @@ class SimNode(FeedTwinNode):
         self.wall_start: float | None = None
         self.wall_end: float | None = None
         self._pending: dict[int, DriveSetpoint] = {}
+        # a machine's sim (its own axis clock) starts with the program, which the G-code node
+        # starts once every axis is up: all axes then start together, also in real time
+        self._go = clock_topic == "/clock"
         self._progress_at = 0.0
         self._feedback_pub = self.create_publisher(AxisFeedback, self.topics.feedback, DATA_QOS)
         self._state_pub = self.create_publisher(AxisState, self.topics.state, DATA_QOS)
@@ -209,7 +212,7 @@ class SimNode(FeedTwinNode):
     def poll(self) -> float | None:
         """Called by the spin loop; starts the run once every peer is up; paces real time."""
         if not self.started:
-            if self.peers_alive() and self._subscribers_ready():
+            if self.peers_alive() and self._subscribers_ready() and self._go:
                 self.started = True
                 self.wall_start = time.monotonic()
                 self._exchange(None)
@@ -257,6 +260,8 @@ class SimNode(FeedTwinNode):
             )  # fmt: skip
             return
         word, stamp_ns, text = parsed
+        if word == "running":
+            self._go = True
         if stamp_ns is not None and self.end_ns is None:
             self.end_ns = stamp_ns + self.settle_ns
             self.end_word = word
