@@ -10,6 +10,7 @@ twin); their weights are re-estimated from the current model before every round
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -28,7 +29,7 @@ from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate, evidence, rank
 from feed_twin.analysis.reexamine import Found, collapsed, neutral_values, removable, without
 from feed_twin.analysis.report import FoundEffect
-from feed_twin.analysis.significance import compare, sample_noise
+from feed_twin.analysis.significance import ALPHA, compare, sample_noise
 from feed_twin.analysis.twin import Drive, Twin, delayed
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
@@ -80,6 +81,19 @@ class Values(dict):
 
 def unit_of(twin: Twin, cand: Candidate) -> str:
     return {"effort": twin.effort_unit, "voltage": "V"}.get(cand.residual_domain, "m")
+
+
+def force_per_effort(twin: Twin) -> float:
+    """Newtons at the table per unit of the twin's effort: 1 for a force, 2 pi / lead for a
+    torque, K_t 2 pi / lead for a q-current (the controller's drive constant, else the
+    motor's); 1 where the model gives no lead."""
+    if twin.effort_unit == "N" or twin.lead_m is None:
+        return 1.0
+    per_torque = 2.0 * math.pi / twin.lead_m
+    if twin.effort_unit == "N m":
+        return per_torque
+    k_t = twin.doc.data["controller"].get("drive", {}).get("K_t") or twin.doc.torque_constant()
+    return float(k_t) * per_torque if k_t else 1.0
 
 
 def noop(_: str) -> None:
@@ -326,7 +340,19 @@ def run_round(
         loop_stiffness=ctx.stiffness,
         voltage_residual=voltage_residual(run, state.outputs),
     )
+    # the edits take force-like weights as forces at the table
+    per_effort = force_per_effort(ctx.unit_twin)
+    ranking = [
+        dataclasses.replace(c, force_per_unit=per_effort) if c.residual_domain == "effort" else c
+        for c in ranking
+    ]
     significant = [c for c in ranking if c.significant]
+    if not significant:
+        # a signature that acts on a part of the record only (the force a stuck table holds at
+        # rest) can test significant and still explain less than MIN_EXPLAINED of the whole
+        # residual: the best such one is fitted, and the fit's test (one channel's energy,
+        # with the model's own response to the effect) judges it
+        significant = [c for c in ranking if c.p_value < ALPHA][:1]
     if not significant:
         progress(f"round {round_no}: no effect of the library explains a significant part")
         return ranking, False
@@ -391,11 +417,14 @@ def run_round(
         ctx.channels(result.outputs),
         added=edit.added,
         searched=searched,
+        own=cand.residual_domain,
     )
     if not verdict.significant:
         ctx.notes.append(
             f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
         )
+        # the model did not change: the rivals it beat would fit the same way next round
+        excluded.extend(t[0].name for t in trials if t[0].name not in excluded)
         return ranking, True
     _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
     _reexamine(state, ctx, meas)

@@ -140,6 +140,13 @@ class Weights(Protocol):
     @property
     def residual_domain(self) -> str: ...  # the residual ranked
 
+    @property
+    def force_per_unit(self) -> float: ...  # [N at the table per unit of that residual]
+
+    def force(self, regressor: str) -> float:
+        """The weight of `regressor` as a force at the table [N per unit of the regressor]."""
+        ...
+
 
 class Document(Protocol):
     """A model document as an edit sees it (feed_twin.analysis.model_doc.ModelDoc)."""
