@@ -25,11 +25,11 @@ from feed_twin.plant.effect_api import (
     FreeParameter,
     Motion,
     Weights,
+    effort_rate,
     last_direction,
     make_edit,
     motion_from_position,
     moving,
-    rate,
 )
 from feed_twin.plant.registry import EFFECTS
 
@@ -69,7 +69,7 @@ RECORD_EFFECTS = (
         "effort follows the twin's shifted in time while the following error does not move",
         parameters="the record: analysis.effort_delay_s (trace side, outside every loop)",
         needs=("effort_sim",),
-        signature=lambda m: {"effort_rate": rate(m.effort_sim, m.t_s)},
+        signature=effort_rate,
         edit=_channel_delay_edit,
         truth=_channel_delay_truth,
     ),
