@@ -29,7 +29,7 @@ from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate, evidence, rank
 from feed_twin.analysis.reexamine import Found, collapsed, neutral_values, removable, without
 from feed_twin.analysis.report import FoundEffect
-from feed_twin.analysis.significance import ALPHA, compare, sample_noise
+from feed_twin.analysis.significance import compare, sample_noise
 from feed_twin.analysis.twin import Drive, Twin, delayed
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
@@ -347,12 +347,6 @@ def run_round(
         for c in ranking
     ]
     significant = [c for c in ranking if c.significant]
-    if not significant:
-        # a signature that acts on a part of the record only (the force a stuck table holds at
-        # rest) can test significant and still explain less than MIN_EXPLAINED of the whole
-        # residual: the best such one is fitted, and the fit's test (one channel's energy,
-        # with the model's own response to the effect) judges it
-        significant = [c for c in ranking if c.p_value < ALPHA][:1]
     if not significant:
         progress(f"round {round_no}: no effect of the library explains a significant part")
         return ranking, False
