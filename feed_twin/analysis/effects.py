@@ -33,8 +33,17 @@ from feed_twin.plant.effect_api import (
 )
 from feed_twin.plant.registry import EFFECTS
 
-__all__ = ["BY_NAME", "LIBRARY", "Effect", "Motion", "last_direction", "motion_from_position"]
-__all__ += ["moving"]
+# re-exported for the workflow's modules and the benchmarks (defined in plant.effect_api)
+__all__ = [
+    "BY_NAME",
+    "LIBRARY",
+    "RECORD_EFFECTS",
+    "Effect",
+    "Motion",
+    "last_direction",
+    "motion_from_position",
+    "moving",
+]
 
 # delays of the recorded effort behind the position searched for channel_delay: +/- this many
 # base periods in half steps (a trace recorder's channels drift by milliseconds)
