@@ -126,6 +126,24 @@ def test_stiffness_and_coulomb_friction_are_both_named(tmp_path):
 
 
 @pytest.mark.slow
+def test_backlash_and_coulomb_friction_are_both_named(tmp_path):
+    """Semi-closed loop, the scale reads the table: 10 um of lost motion (2 um nominal) and
+    160 N of Coulomb friction (120 N nominal). Behind the gap the friction decides whether the
+    table slides across it while the nut decelerates (200 kg at 0.8 m/s^2 is 160 N): a cliff in
+    the cost that a fit started from the nominal 120 N never saw. It stalled there while the
+    Coulomb weight in amperes was taken as newtons (+0.03 N instead of +40 N), and a Stribeck
+    term took its place; about five minutes on a loaded machine."""
+    nominal = ModelDoc.load(AXIS)
+    nominal.data["controller"]["position"]["feedback"] = "motor_encoder"
+    hidden = {"backlash": {"gap_m": 10e-6}, "coulomb_friction": {"F_c_N": 160.0}}
+    d = _diagnose(tmp_path, nominal, hidden, start_m=0.3)
+    found = _found(d)
+    assert set(found) == set(hidden), d.notes
+    assert found["backlash"]["gap_m"] == pytest.approx(10e-6, rel=0.05)
+    assert found["coulomb_friction"]["F_c_N"] == pytest.approx(160.0, rel=0.05)
+
+
+@pytest.mark.slow
 def test_a_delay_between_recorded_channels_is_named_and_measured(tmp_path):
     """The recorder stamps the effort 3 ms after the position (trace side, not in the loop):
     named channel_delay with its size, not a sensor delay in the loop, which would move the

@@ -79,6 +79,20 @@ def test_an_effect_that_trades_one_channel_for_another_is_not_significant():
     assert not v.significant
 
 
+def test_an_effect_that_worsens_the_channel_it_was_named_in_is_not_significant():
+    """A drive gain named on the effort, fitted to explain the position while the effort
+    gets 10 % worse (the vertical axis with stiction of benchmarks/real_machine_record.py)."""
+    rng = np.random.default_rng(6)
+    before = _channels(rng, 1.0, 1.0)
+    after = {"effort": before["effort"] * math.sqrt(1.1), "position": 0.6 * before["position"]}
+    assert compare(before, after, added=1).significant  # the position alone would carry it
+    v = compare(before, after, added=1, own="effort")
+    assert v.worsens_own and not v.significant
+    assert v.words().endswith("worse in the effort residual it was named in")
+    # named in the position, the same fit passes
+    assert compare(before, after, added=1, own="position").significant
+
+
 def test_compare_rejects_a_test_without_parameters():
     with pytest.raises(ValueError, match="added = 0, searched = 1: both must be >= 1"):
         compare({"effort": np.ones(3)}, {"effort": np.ones(3)}, added=0)

@@ -5,12 +5,14 @@ from __future__ import annotations
 import ast
 import math
 from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
 
 from feed_twin.analysis.effects import BY_NAME, LIBRARY, RECORD_EFFECTS
 from feed_twin.analysis.model_doc import ModelDoc, model_of
+from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.rounds import force_per_effort
+from feed_twin.analysis.twin import Twin
 from feed_twin.plant.axial_compliance import AxialCompliance
 from feed_twin.plant.inverter import Inverter
 from feed_twin.plant.registry import COMPONENT_TYPES, EFFECTS
@@ -74,8 +76,18 @@ def test_setting_a_declared_quantity_writes_the_parameters_it_is_made_of():
     assert doc.has_slot("axial.EA") and not doc.has_slot("motor.cog0_amplitude")
 
 
-def _weights(**coefficients: float) -> SimpleNamespace:
-    return SimpleNamespace(coefficients=coefficients, variant="", residual_domain="effort")
+def _weights(effect: str, force_per_unit: float = 1.0, **coefficients: float) -> Candidate:
+    return Candidate(
+        effect=BY_NAME[effect],
+        variant="",
+        explained_fraction=0.5,
+        f_statistic=100.0,
+        p_value=0.0,
+        n_eff=100.0,
+        coefficients=coefficients,
+        significant=True,
+        force_per_unit=force_per_unit,
+    )
 
 
 @pytest.mark.parametrize(
@@ -104,6 +116,20 @@ def test_a_truth_sets_what_the_edit_of_the_same_effect_fits(
     the truth model frees the very slot the truth set, at the truth's value."""
     nominal = ModelDoc.load(model)
     hidden = model_of(BY_NAME[effect].truth(nominal, truth))
-    edit = BY_NAME[effect].edit(hidden, _weights(**weights))
+    edit = BY_NAME[effect].edit(hidden, _weights(effect, **weights))
     assert slot in {p.name for p in edit.own}
     assert model_of(edit.doc).get(slot) == pytest.approx(value, rel=1e-12)
+
+
+def test_force_weights_of_a_current_record_enter_the_model_as_newtons():
+    """On a PMSM axis the effort is a q-current: the ranking's weight of sign(v) is in amperes
+    and 1 A is K_t 2 pi / lead = 1.9 * 2 pi / 0.01 = 1194 N at the table. Taken as newtons, the
+    Coulomb edit started 40 N of missing friction at +0.03 N."""
+    nominal = ModelDoc.load(AXIS)
+    per_amp = force_per_effort(Twin.compile(nominal))
+    assert per_amp == pytest.approx(1.9 * 2.0 * math.pi / 0.01, rel=1e-12)
+    edit = BY_NAME["coulomb_friction"].edit(
+        nominal, _weights("coulomb_friction", per_amp, sign_v=40.0 / per_amp)
+    )
+    assert model_of(edit.doc).get("guides.F_c") == pytest.approx(120.0 + 40.0, rel=1e-12)
+    assert force_per_effort(Twin.compile(ModelDoc.load(EMPS))) == 1.0  # a force record

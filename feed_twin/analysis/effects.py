@@ -25,16 +25,25 @@ from feed_twin.plant.effect_api import (
     FreeParameter,
     Motion,
     Weights,
+    effort_rate,
     last_direction,
     make_edit,
     motion_from_position,
     moving,
-    rate,
 )
 from feed_twin.plant.registry import EFFECTS
 
-__all__ = ["BY_NAME", "LIBRARY", "Effect", "Motion", "last_direction", "motion_from_position"]
-__all__ += ["moving"]
+# re-exported for the workflow's modules and the benchmarks (defined in plant.effect_api)
+__all__ = [
+    "BY_NAME",
+    "LIBRARY",
+    "RECORD_EFFECTS",
+    "Effect",
+    "Motion",
+    "last_direction",
+    "motion_from_position",
+    "moving",
+]
 
 # delays of the recorded effort behind the position searched for channel_delay: +/- this many
 # base periods in half steps (a trace recorder's channels drift by milliseconds)
@@ -69,7 +78,7 @@ RECORD_EFFECTS = (
         "effort follows the twin's shifted in time while the following error does not move",
         parameters="the record: analysis.effort_delay_s (trace side, outside every loop)",
         needs=("effort_sim",),
-        signature=lambda m: {"effort_rate": rate(m.effort_sim, m.t_s)},
+        signature=effort_rate,
         edit=_channel_delay_edit,
         truth=_channel_delay_truth,
     ),

@@ -22,7 +22,12 @@ import yaml
 
 from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.plant.component import Quantity
+from feed_twin.plant.dc_bus import DcBus
 from feed_twin.plant.effect_api import Document
+from feed_twin.plant.effort_source import EffortSource
+from feed_twin.plant.guide_friction import GuideFriction
+from feed_twin.plant.mass import Mass
+from feed_twin.plant.pmsm import Pmsm
 from feed_twin.plant.registry import COMPONENT_TYPES
 
 FIXED_SECTIONS = ("plant", "controller")
@@ -82,15 +87,15 @@ class ModelDoc:
         return [e["name"] for e in self._components() if e.get("type") == kind]
 
     def mass_slot(self) -> str | None:
-        masses = self.of_type("Mass")
+        masses = self.of_type(Mass.TYPE)
         return f"{masses[-1]}.m" if masses else None
 
     def friction(self) -> str | None:
-        found = self.of_type("GuideFriction")
+        found = self.of_type(GuideFriction.TYPE)
         return found[0] if found else None
 
     def gain_slot(self) -> str | None:
-        found = self.of_type("EffortSource")
+        found = self.of_type(EffortSource.TYPE)
         return f"{found[0]}.gain" if found else None
 
     def base_period(self) -> float:
@@ -236,12 +241,12 @@ class ModelDoc:
 
     def bus_voltage(self) -> float | None:
         """No-load DC-bus voltage u_0 [V] of the (first) DcBus, None without one."""
-        buses = self.of_type("DcBus")
+        buses = self.of_type(DcBus.TYPE)
         return self.get(f"{buses[0]}.u_0") if buses else None
 
     def torque_constant(self) -> float | None:
         """The torque constant [N m/A] the first Pmsm declares (its `K_t`), None without one."""
-        motors = self.of_type("Pmsm")
+        motors = self.of_type(Pmsm.TYPE)
         return self.get(f"{motors[0]}.K_t") if motors else None
 
     def dump(self, path: str | Path, header: list[str]) -> None:

@@ -46,10 +46,17 @@ class Candidate:
     significant: bool
     domain: str = ""  # the residual ranked ("": the effect's own domain)
     searched: int = 1  # variants the best one was chosen from (p_value is corrected for them)
+    # newtons at the table per unit of the residual ranked: the weights of an effort in amperes
+    # (or newton metres) are not forces (1 A is K_t 2 pi / lead = 1194 N on axis_default)
+    force_per_unit: float = 1.0
 
     @property
     def name(self) -> str:
         return self.effect.name
+
+    def force(self, regressor: str) -> float:
+        """The weight of `regressor` as a force at the table [N per unit of the regressor]."""
+        return self.coefficients.get(regressor, 0.0) * self.force_per_unit
 
     @property
     def residual_domain(self) -> str:

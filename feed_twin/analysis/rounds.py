@@ -10,6 +10,7 @@ twin); their weights are re-estimated from the current model before every round
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -80,6 +81,19 @@ class Values(dict):
 
 def unit_of(twin: Twin, cand: Candidate) -> str:
     return {"effort": twin.effort_unit, "voltage": "V"}.get(cand.residual_domain, "m")
+
+
+def force_per_effort(twin: Twin) -> float:
+    """Newtons at the table per unit of the twin's effort: 1 for a force, 2 pi / lead for a
+    torque, K_t 2 pi / lead for a q-current (the controller's drive constant, else the
+    motor's); 1 where the model gives no lead."""
+    if twin.effort_unit == "N" or twin.lead_m is None:
+        return 1.0
+    per_torque = 2.0 * math.pi / twin.lead_m
+    if twin.effort_unit == "N m":
+        return per_torque
+    k_t = twin.doc.data["controller"].get("drive", {}).get("K_t") or twin.doc.torque_constant()
+    return float(k_t) * per_torque if k_t else 1.0
 
 
 def noop(_: str) -> None:
@@ -326,6 +340,12 @@ def run_round(
         loop_stiffness=ctx.stiffness,
         voltage_residual=voltage_residual(run, state.outputs),
     )
+    # the edits take force-like weights as forces at the table
+    per_effort = force_per_effort(ctx.unit_twin)
+    ranking = [
+        dataclasses.replace(c, force_per_unit=per_effort) if c.residual_domain == "effort" else c
+        for c in ranking
+    ]
     significant = [c for c in ranking if c.significant]
     if not significant:
         progress(f"round {round_no}: no effect of the library explains a significant part")
@@ -391,11 +411,14 @@ def run_round(
         ctx.channels(result.outputs),
         added=edit.added,
         searched=searched,
+        own=cand.residual_domain,
     )
     if not verdict.significant:
         ctx.notes.append(
             f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
         )
+        # the model did not change: the rivals it beat would fit the same way next round
+        excluded.extend(t[0].name for t in trials if t[0].name not in excluded)
         return ranking, True
     _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
     _reexamine(state, ctx, meas)

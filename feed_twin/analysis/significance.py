@@ -18,7 +18,11 @@ exceeds the chi^2(added) quantile at ALPHA / searched (Bonferroni: the best of m
 is as likely to pass by chance as any of m tests), and it removes at least MIN_EXPLAINED of one
 channel's residual energy (so that a huge record cannot make a negligible effect count). An
 effect that halves one channel's residual RMS removes 75 % of that channel's energy: no other
-channel can veto it, unless that one gets worse by as much in likelihood.
+channel can veto it, unless that one gets worse by as much in likelihood. An effect named from
+its signature in one channel (`own`: the residual the ranking found it in) must not make that
+channel worse: a drive gain named on the effort that the fit bends to explain the position while
+the effort gets worse is another effect's evidence (on a vertical axis, the table
+held at rest), not its own.
 
 Effective samples. Residuals of filtered records are correlated over many samples; n samples
 then carry n / tau independent observations, tau the integrated autocorrelation time
@@ -32,6 +36,7 @@ look like chance.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -88,6 +93,12 @@ class Verdict:
     p_value: float  # after the correction for the search
     explained: dict[str, float]  # channel -> share of its residual energy removed
     significant: bool
+    own: str = ""  # the channel the effect was named in ("" if not given)
+
+    @property
+    def worsens_own(self) -> bool:
+        """The effect makes the residual it was named in worse."""
+        return self.explained.get(self.own, 0.0) < 0.0
 
     @property
     def best_channel(self) -> str:
@@ -95,9 +106,10 @@ class Verdict:
 
     def words(self) -> str:
         shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in self.explained.items())
+        worse = f", worse in the {self.own} residual it was named in" if self.worsens_own else ""
         return (
             f"removes {shares} residual energy "
-            f"(LR = {self.likelihood_ratio:.3g}, p = {self.p_value:.2g})"
+            f"(LR = {self.likelihood_ratio:.3g}, p = {self.p_value:.2g}){worse}"
         )
 
 
@@ -107,10 +119,12 @@ def compare(
     *,
     added: int,
     searched: int = 1,
+    own: str = "",
 ) -> Verdict:
     """The likelihood-ratio test of `after` (added free parameters) against `before`.
 
-    Both map a channel name to its residual (measured minus model) on one time base.
+    Both map a channel name to its residual (measured minus model) on one time base; `own` is
+    the channel the effect was named in, which it must not make worse.
     """
     if added < 1 or searched < 1:
         raise ValueError(f"added = {added!r}, searched = {searched!r}: both must be >= 1")
@@ -126,9 +140,8 @@ def compare(
     p = float(stats.chi2.sf(lr, added)) if lr > 0.0 else 1.0
     p = min(1.0, p * searched)
     best = max(explained.values(), default=0.0)
-    return Verdict(
-        likelihood_ratio=lr,
-        p_value=p,
-        explained=explained,
-        significant=p < ALPHA and best >= MIN_EXPLAINED,
+    verdict = Verdict(
+        likelihood_ratio=lr, p_value=p, explained=explained, significant=False, own=own
     )
+    significant = p < ALPHA and best >= MIN_EXPLAINED and not verdict.worsens_own
+    return dataclasses.replace(verdict, significant=significant)

@@ -97,7 +97,10 @@ class Component:
 
     Subclasses set `TYPE` (the YAML `type:`), `PORTS` (port name -> kind) and override what they
     need: `slots()` (parameter slot name -> value, default every float field), `states()`,
-    `inertias()`, `structure()` (anything that changes the generated code) and `emit()`.
+    `inertias()`, `structure()` (anything that changes the generated code) and `emit()`. For
+    the discrepancy workflow they declare the effects they can carry (`EFFECTS`, see
+    feed_twin.plant.effect_api) and the quantities made of several of their parameters
+    (`QUANTITIES`, or `quantity()` for a family of slots).
     """
 
     TYPE: ClassVar[str]

@@ -101,6 +101,13 @@ def rate(y: np.ndarray, t: np.ndarray) -> np.ndarray:
     return sps.savgol_filter(np.asarray(y, dtype=float), 5, 2, deriv=1, delta=h)
 
 
+def effort_rate(m: Motion) -> dict[str, np.ndarray]:
+    """The signature of a delay of the effort: the rate of the twin's effort (y(t - d) is
+    y(t) - d dy/dt to first order)."""
+    assert m.effort_sim is not None
+    return {"effort_rate": rate(m.effort_sim, m.t_s)}
+
+
 def motor_angle(m: Motion) -> np.ndarray:
     """Motor angle [rad] of a direct-drive screw: 2 pi x / lead."""
     assert m.lead_m is not None
@@ -140,6 +147,13 @@ class Weights(Protocol):
     @property
     def residual_domain(self) -> str: ...  # the residual ranked
 
+    @property
+    def force_per_unit(self) -> float: ...  # [N at the table per unit of that residual]
+
+    def force(self, regressor: str) -> float:
+        """The weight of `regressor` as a force at the table [N per unit of the regressor]."""
+        ...
+
 
 class Document(Protocol):
     """A model document as an edit sees it (feed_twin.analysis.model_doc.ModelDoc)."""
@@ -164,7 +178,6 @@ class Document(Protocol):
     def tie(self, name: str, members: tuple[str, ...]) -> Document: ...
     def untie(self) -> Document: ...
     def mark_asymmetric(self, friction: str) -> Document: ...
-    def with_friction(self) -> Document: ...
     def with_table_component(
         self, base: str, kind: str, params: dict[str, Any]
     ) -> tuple[Document, str]: ...

@@ -58,7 +58,7 @@ def with_constant_force(doc: Document, f_0: float) -> tuple[Document, str]:
 def _constant_edit(doc: Document, cand: Weights) -> Edit:
     """A ConstantForce on the table (or the model's own) with f_0 fitted."""
     # the residual is measured minus twin: a force the drive must supply is a load of -f_0
-    f0 = -cand.coefficients.get("one", 0.0)
+    f0 = -cand.force("one")
     doc, slot = with_constant_force(symmetric(doc), f0)
     own = [free_parameter(doc, slot, f0, lower=-math.inf)]
     return make_edit(doc, own, {"f_0_N": lambda v: v[slot]})

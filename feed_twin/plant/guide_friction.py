@@ -111,7 +111,7 @@ def _tied(doc: Document, tied: str) -> tuple[Document, str]:
 def _coulomb_edit(doc: Document, cand: Weights) -> Edit:
     doc, fr = _tied(doc, "F_c")
     # the weight is the friction the twin lacks (measured minus twin), on top of what it has
-    fc = max(doc.get(f"{fr}.F_c") + cand.coefficients.get("sign_v", 0.0), 1e-3)
+    fc = max(doc.get(f"{fr}.F_c") + cand.force("sign_v"), 1e-3)
     doc = doc.set(f"{fr}.F_c", fc)
     own = [free_parameter(doc, f"{fr}.F_c", fc)]
     return make_edit(doc, own, {"F_c_N": slot_reader(f"{fr}.F_c")})
@@ -119,7 +119,7 @@ def _coulomb_edit(doc: Document, cand: Weights) -> Edit:
 
 def _viscous_edit(doc: Document, cand: Weights) -> Edit:
     doc, fr = _tied(doc, "F_v")
-    guess = max(doc.get(f"{fr}.F_v") + cand.coefficients.get("v", 0.0), 0.0)
+    guess = max(doc.get(f"{fr}.F_v") + cand.force("v"), 0.0)
     doc = doc.set(f"{fr}.F_v", guess)
     own = [free_parameter(doc, f"{fr}.F_v", guess)]
     return make_edit(doc, own, {"F_v_N_s_m": slot_reader(f"{fr}.F_v")})
@@ -129,7 +129,7 @@ def _stribeck_edit(doc: Document, cand: Weights) -> Edit:
     doc, fr = with_friction(doc)
     doc = symmetric(doc)
     vs = float(cand.variant.split("=")[1].split()[0]) if cand.variant else 0.005
-    ds = max(doc.get(f"{fr}.dF_s") + cand.coefficients.get("stribeck", 0.0), 1e-3)
+    ds = max(doc.get(f"{fr}.dF_s") + cand.force("stribeck"), 1e-3)
     doc = doc.set(f"{fr}.dF_s", ds).set(f"{fr}.v_s", vs)
     own = [
         free_parameter(doc, f"{fr}.dF_s"),

@@ -35,7 +35,7 @@ def _mass_edit(doc: Document, cand: Weights) -> Edit:
     m = _table_mass(doc)
     doc = symmetric(doc)
     value = doc.get(m)
-    guess = max(value + cand.coefficients.get("a", 0.0), 0.2 * value)
+    guess = max(value + cand.force("a"), 0.2 * value)
     doc = doc.set(m, guess)
     own = [FreeParameter(name=m, initial=guess, scale=value, lower=0.2 * value)]
     return make_edit(doc, own, {"m_kg": slot_reader(m)})

@@ -33,10 +33,10 @@ from feed_twin.plant.effect_api import (
     FreeParameter,
     Motion,
     Weights,
+    effort_rate,
     first_of,
     make_edit,
     motor_angle,
-    rate,
 )
 
 MAX_DELAY_TICKS = 15  # the engine keeps the last 16 samples
@@ -97,7 +97,7 @@ class Encoder(Component):
             "effort shifted in time (sensor sample delay, slow fieldbus)",
             parameters="delay_ticks (and LinearScale.delay_ticks)",
             needs=("effort_sim",),
-            signature=lambda m: {"effort_rate": rate(m.effort_sim, m.t_s)},
+            signature=effort_rate,
             edit=_delay_edit,
             truth=_delay_truth,
         ),

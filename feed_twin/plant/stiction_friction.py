@@ -85,7 +85,7 @@ def _edit(doc: Document, cand: Weights) -> Edit:
         coulomb = min(doc.get(f"{fr}.F_c_pos"), doc.get(f"{fr}.F_c_neg"))
         for side in ("F_c_pos", "F_c_neg"):
             doc = doc.set(f"{fr}.{side}", doc.get(f"{fr}.{side}") - coulomb)
-    f_hold = coulomb if coulomb > 0.0 else max(abs(cand.coefficients.get("held", 0.0)), 1e-3)
+    f_hold = coulomb if coulomb > 0.0 else max(abs(cand.force("held")), 1e-3)
     doc, name = _with_stiction(doc, f_hold)
     slot = f"{name}.F_hold"
     own = [FreeParameter(name=slot, initial=f_hold, scale=f_hold, lower=0.0)]
