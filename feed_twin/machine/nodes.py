@@ -209,8 +209,8 @@ class MachineRecord:
         i = self.axes.index(axis)
         return self.command[:, i] - self.actual[:, i]
 
-    def summary(self) -> dict[str, object]:
-        out: dict[str, object] = dict(self.contour.summary())
+    def summary(self) -> dict[str, Any]:  # JSON values of several types
+        out: dict[str, Any] = dict(self.contour.summary())
         out["following_error_max_m"] = {
             a.lower(): float(np.max(np.abs(self.following_error(a)))) if len(self.t_s) else 0.0
             for a in self.simulated

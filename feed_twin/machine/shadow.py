@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +38,7 @@ class AxisShadow:
     verdicts: tuple[Verdict, ...]
     effort_unit: str
 
-    def summary(self) -> dict[str, object]:
+    def summary(self) -> dict[str, Any]:  # JSON values of several types
         ok = np.isfinite(self.samples.x_twin_m)
         fe = self.samples.fe_dev_m[ok]
         effort = self.samples.effort_dev[ok]

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,8 +37,8 @@ class MachineRun(ProgramRun):
     contour: ContourError
     state_signals: dict[str, StateSignals]  # axis -> the engine signals behind its AxisState
 
-    def summary(self) -> dict[str, object]:
-        out: dict[str, object] = dict(self.contour.summary())
+    def summary(self) -> dict[str, Any]:  # JSON values of several types
+        out: dict[str, Any] = dict(self.contour.summary())
         out["following_error_max_m"] = {
             a.lower(): float(np.max(np.abs(self.following_error(a)))) for a in self.simulated
         }
