@@ -179,6 +179,7 @@ def generate(
     rng = np.random.default_rng(um.seed)
     current = twin.effort_name == "current_q_A"
     std = um.effort_noise_std if um.effort_noise_std is not None else (0.01 if current else 0.3)
+    assert out.effort is not None  # ok[0]: the truth simulated
     effort = out.effort[0] + rng.normal(0.0, std, n)
     column = EFFORT_COLUMNS[twin.effort_name][0]
     gain = 1.0 if current else (nominal.reference_gain or 1.0)

@@ -18,6 +18,7 @@ for the phase-current ADC: the fitting twin's CurrentSensor has neither rounding
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -106,8 +107,8 @@ def drive_from_run(run: MeasuredRun) -> Drive:
         pos_ref_m=pos,
         vel_ref_m_s=vel,
         acc_ref_m_s2=np.gradient(vel, h),
-        effort_add=sum(run[n] for n in adds) if adds else None,
-        force_ext_N=sum(run[n] for n in forces) if forces else None,
+        effort_add=functools.reduce(np.add, [run[n] for n in adds]) if adds else None,
+        force_ext_N=functools.reduce(np.add, [run[n] for n in forces]) if forces else None,
         x0_m=float(run["pos_meas_m"][0]),
         sensor=run.position_sensor,
         v0_m_s=start_velocity(run.t_s, run["pos_meas_m"]),
@@ -172,7 +173,7 @@ class Twin:
             params=nominal,
             record=_recorded(has_voltage),
         )
-        index = {name: (i,) for i, name in enumerate(plant.param_names)}
+        index: dict[str, tuple[int, ...]] = {n: (i,) for i, n in enumerate(plant.param_names)}
         for name, members in doc.ties:
             index[name] = tuple(plant.param_index[m] for m in members)
         screws = doc.of_type("BallScrew")

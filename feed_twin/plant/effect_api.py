@@ -68,8 +68,8 @@ def motion_from_position(
     h = float((t[-1] - t[0]) / (len(t) - 1))
     window = max(5, int(round(SMOOTH_VELOCITY_S / h)) | 1)
     x = np.asarray(x_m, dtype=float)
-    v = sps.savgol_filter(x, window, 2, deriv=1, delta=h)
-    a = sps.savgol_filter(x, 2 * window + 1, 2, deriv=2, delta=h)
+    v = np.asarray(sps.savgol_filter(x, window, 2, deriv=1, delta=h), dtype=float)
+    a = np.asarray(sps.savgol_filter(x, 2 * window + 1, 2, deriv=2, delta=h), dtype=float)
     return Motion(
         t_s=t,
         x_m=x,
@@ -98,7 +98,7 @@ def moving(m: Motion) -> np.ndarray:
 def rate(y: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Time derivative by a 5-sample quadratic Savitzky-Golay filter (smooths the sample noise)."""
     h = float((t[-1] - t[0]) / (len(t) - 1))
-    return sps.savgol_filter(np.asarray(y, dtype=float), 5, 2, deriv=1, delta=h)
+    return np.asarray(sps.savgol_filter(np.asarray(y, dtype=float), 5, 2, deriv=1, delta=h))
 
 
 def effort_rate(m: Motion) -> dict[str, np.ndarray]:

@@ -13,6 +13,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, PortKind, StateSpec
 from feed_twin.plant.effect_api import (
@@ -20,6 +22,7 @@ from feed_twin.plant.effect_api import (
     Edit,
     Effect,
     FreeParameter,
+    Motion,
     Weights,
     make_edit,
     slot_reader,
@@ -51,6 +54,11 @@ def _gain_truth(doc: Document, p: Mapping[str, float]) -> Document:
     return doc.set(_gain_slot(doc), p["gain"])
 
 
+def _effort_signature(m: Motion) -> dict[str, np.ndarray]:
+    assert m.effort_sim is not None  # the effect needs effort_sim
+    return {"effort": m.effort_sim}
+
+
 @dataclass(frozen=True, kw_only=True)
 class EffortSource(Component):
     TYPE = "EffortSource"
@@ -63,7 +71,7 @@ class EffortSource(Component):
             "drive differs from the data sheet",
             parameters="gain",
             needs=("effort_sim",),
-            signature=lambda m: {"effort": m.effort_sim},
+            signature=_effort_signature,
             edit=_gain_edit,
             truth=_gain_truth,
         ),
