@@ -72,8 +72,6 @@ class ModelDoc:
             reference = float(written)
         return ModelDoc(data=data, source=str(path), reference_gain=reference)
 
-    # ---------------------------------------------------------------- lookup
-
     def _components(self) -> list[dict[str, Any]]:
         return self.data["plant"]["components"]
 
@@ -153,8 +151,6 @@ class ModelDoc:
                 return 0.5 * (float(params[pair[0]]) + float(params[pair[1]]))
             raise LookupError(f"{self.source}: plant.{comp} has no parameter {field_name!r}")
         return float(params[field_name])
-
-    # ---------------------------------------------------------------- edits
 
     def _copy(self, **changes: Any) -> ModelDoc:
         return ModelDoc(

@@ -83,9 +83,6 @@ def motion_from_position(
     )
 
 
-# ---------------------------------------------------------------- signature helpers
-
-
 def direction(m: Motion) -> np.ndarray:
     """sign(v), regularised over Motion.speed_eps."""
     return np.tanh(m.v_m_s / m.speed_eps)
@@ -130,9 +127,6 @@ def last_direction(m: Motion) -> np.ndarray:
 
 
 Signature = Callable[[Motion], dict[str, np.ndarray]]
-
-
-# ---------------------------------------------------------------- what an edit works on
 
 
 class Weights(Protocol):
@@ -315,9 +309,6 @@ def first_of(doc: Document, kind: str, why: str) -> str:
     if not found:
         raise LookupError(f"the model has no {kind} {why}")
     return found[0]
-
-
-# ---------------------------------------------------------------- the declaration
 
 
 EditFn = Callable[[Document, Weights], Edit]
