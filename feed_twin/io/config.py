@@ -1,10 +1,10 @@
 """Typed YAML loading: frozen parameter dataclasses from mappings, with errors that say where.
 
 Every parameter class in feed_twin is a frozen, keyword-only dataclass that validates itself in
-`__post_init__` with the `require_*` helpers of feed_twin.core.validate. `from_mapping` builds one
-from a YAML mapping, rejects unknown keys and missing fields, converts nested dataclasses, tuples and literals, and
-re-raises any `ValueError` prefixed with the file and the dotted field path, so a user reads
-`config/axis.yaml: plant.table.m = -3.0: must be > 0`.
+`__post_init__` with the `require_*` helpers of feed_twin.core.validate. `from_mapping` builds
+one from a YAML mapping, rejects unknown keys and missing fields, converts nested dataclasses,
+tuples and literals, and re-raises any `ValueError` prefixed with the file and the dotted field
+path, so a user reads `config/axis.yaml: plant.table.m = -3.0: must be > 0`.
 """
 
 from __future__ import annotations
