@@ -339,13 +339,10 @@ def current_loop(cp: np.ndarray, cs: np.ndarray, meas: np.ndarray, delayed: bool
     if delayed:
         for i in range(3):
             cs[lay.S_DUTY + i] = cs[lay.S_DUTY_NEXT + i]
-        cs[lay.S_DUTY_NEXT] = d_a
-        cs[lay.S_DUTY_NEXT + 1] = d_b
-        cs[lay.S_DUTY_NEXT + 2] = d_c
-    else:
-        cs[lay.S_DUTY] = d_a
-        cs[lay.S_DUTY + 1] = d_b
-        cs[lay.S_DUTY + 2] = d_c
+    d = lay.S_DUTY_NEXT if delayed else lay.S_DUTY
+    cs[d] = d_a
+    cs[d + 1] = d_b
+    cs[d + 2] = d_c
 
 
 @njit(_nrt=False, forceinline=True)
