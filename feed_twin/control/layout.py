@@ -120,11 +120,12 @@ STATE_NAMES = (
 
 def _slot(names: tuple[str, ...], name: str, *following: str) -> int:
     """Position of `name` in `names`; `following` names the slots a block reads after it."""
-    if len(set(names)) != len(names):
-        raise ValueError(f"duplicate slot names in {names}")
+    if names.count(name) != 1:
+        raise ValueError(f"slot {name!r}: declared {names.count(name)} times, not once")
     i = names.index(name)
-    if names[i + 1 : i + 1 + len(following)] != following:
-        raise ValueError(f"slot {name}: expected {following} after it")
+    found = names[i + 1 : i + 1 + len(following)]
+    if found != following:
+        raise ValueError(f"slot {name!r}: expected {following} after it, found {found}")
     return i
 
 
