@@ -179,7 +179,7 @@ def current_law(
 @njit(inline="always")
 def is_active(cs: np.ndarray) -> bool:
     """The power stage is on: requested (enable_cmd) and no fault latched."""
-    return int(cs[lay.S_ENABLE_CMD]) == lay.STAGE_ON and cs[lay.S_FAULT] == sig.FAULT_NONE
+    return cs[lay.S_ENABLE_CMD] == lay.STAGE_ON and cs[lay.S_FAULT] == sig.FAULT_NONE
 
 
 @njit(inline="always")
@@ -248,10 +248,8 @@ def position_loop(
         (cs[lay.S_NC_PREV_POS], cs[lay.S_NC_PREV_POS + 1], cs[lay.S_NC_PREV_POS + 2]),
         (cs[lay.S_NC_POS], cs[lay.S_NC_POS + 1], cs[lay.S_NC_POS + 2]),
     )
-    if int(cp[lay.P_FEEDBACK_SCALE]) == lay.FEEDBACK_SCALE:
-        x_fb = meas[sig.MEAS_X_SCALE_M]
-    else:
-        x_fb = x_enc
+    closed = cp[lay.P_FEEDBACK_SCALE] == lay.FEEDBACK_SCALE
+    x_fb = meas[sig.MEAS_X_SCALE_M] if closed else x_enc
     v_cmd, effort_ff, e = position_law(
         x_r,
         v_r,
@@ -374,7 +372,7 @@ def write_outputs(cs: np.ndarray, out: np.ndarray, active: bool) -> None:
     out[sig.OUT_FOLLOWING_ERROR_M] = cs[lay.S_FOLLOWING_ERROR]
     if cs[lay.S_FAULT] != sig.FAULT_NONE:
         out[sig.OUT_FAULT] = cs[lay.S_FAULT]
-    elif int(cs[lay.S_ENABLE_CMD]) != lay.STAGE_ON:
+    elif cs[lay.S_ENABLE_CMD] != lay.STAGE_ON:
         out[sig.OUT_FAULT] = sig.FAULT_DISABLED
     else:
         out[sig.OUT_FAULT] = sig.FAULT_NONE
@@ -392,10 +390,10 @@ def cascade_tick(
     """
     mode = int(cp[lay.P_MODE])
     x_enc = meas[sig.MEAS_THETA_ENC_RAD] * cp[lay.P_M_PER_RAD]
-    has_position = int(cp[lay.P_HAS_POSITION]) == lay.LOOP_PRESENT
-    has_current = int(cp[lay.P_HAS_CURRENT]) == lay.LOOP_PRESENT
-    delayed = int(cp[lay.P_COMPUTATION_DELAY]) == lay.DELAY_ONE_SAMPLE
-    if int(cs[lay.S_INITIALISED]) == lay.PENDING:
+    has_position = cp[lay.P_HAS_POSITION] == lay.LOOP_PRESENT
+    has_current = cp[lay.P_HAS_CURRENT] == lay.LOOP_PRESENT
+    delayed = cp[lay.P_COMPUTATION_DELAY] == lay.DELAY_ONE_SAMPLE
+    if cs[lay.S_INITIALISED] == lay.PENDING:
         start(cs, k, ref, x_enc, cp[lay.P_NC_DIV])
     # the monitors watch the stage as it was when the tick began
     active = is_active(cs)
@@ -403,7 +401,7 @@ def cascade_tick(
         trip_overcurrent(cp, cs, meas)
     if has_position and due(k, cp[lay.P_NC_DIV]):
         latch_nc_sample(cs, k, ref)
-    vel_due = int(cp[lay.P_HAS_VELOCITY]) == lay.LOOP_PRESENT and due(k, cp[lay.P_VEL_DIV])
+    vel_due = cp[lay.P_HAS_VELOCITY] == lay.LOOP_PRESENT and due(k, cp[lay.P_VEL_DIV])
     if vel_due:
         estimate_velocity(cp, cs, x_enc)
     if has_position and due(k, cp[lay.P_POS_DIV]):

@@ -209,7 +209,7 @@ S_EFFORT_OUT = _slot(STATE_NAMES, "effort_out")
 S_PARK_ANCHOR = _slot(STATE_NAMES, "park_anchor_rad", "park_anchor_cos", "park_anchor_sin")
 S_FIR_HIST = len(STATE_NAMES)  # the FIR difference history follows the named slots
 
-# Values of the integer-valued slots (exact in the float64 vectors; the tick compares int(slot)).
+# Values of the integer-valued slots: exact in the float64 vectors, compared for equality.
 LOOP_ABSENT, LOOP_PRESENT = 0, 1  # has_position, has_velocity, has_current
 FEEDBACK_ENCODER, FEEDBACK_SCALE = 0, 1  # feedback_scale: semi-closed or closed position loop
 DELAY_NONE, DELAY_ONE_SAMPLE = 0, 1  # computation_delay
