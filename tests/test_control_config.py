@@ -77,6 +77,43 @@ def test_machine_tool_config_flattens_to_named_slots():
     assert gain == pytest.approx(0.005 * 2 * np.pi / 0.01 / 1.8)
 
 
+def test_flag_slots_hold_their_named_codes():
+    p = dict(zip(lay.PARAM_NAMES, lay.build_cascade(_load(PMSM)).params, strict=False))
+    assert p["feedback_scale"] == lay.FEEDBACK_SCALE  # linear_scale
+    assert p["computation_delay"] == lay.DELAY_ONE_SAMPLE
+    assert p["has_position"] == p["has_velocity"] == p["has_current"] == lay.LOOP_PRESENT
+    off = lay.build_cascade(_load(_with("computation_delay", False)))
+    assert off.params[lay.P_COMPUTATION_DELAY] == lay.DELAY_NONE
+    cs = lay.build_cascade(_load(PMSM)).initial_state()
+    assert cs[lay.S_INITIALISED] == lay.PENDING
+    lay.disable(cs)
+    assert cs[lay.S_ENABLE_CMD] == lay.STAGE_OFF
+    lay.enable(cs)
+    assert cs[lay.S_ENABLE_CMD] == lay.STAGE_ON
+
+
+def test_each_slot_constant_is_the_position_of_its_name():
+    assert lay.PARAM_NAMES[lay.P_KV] == "Kv_1_s"
+    assert lay.PARAM_NAMES[lay.P_BQ_NOTCH : lay.P_BQ_NOTCH + 5] == tuple(
+        f"bq_notch_{c}" for c in ("b0", "b1", "b2", "a1", "a2")
+    )
+    assert lay.STATE_NAMES[lay.S_PARK_ANCHOR + 2] == "park_anchor_sin"
+    assert lay.STATE_NAMES[lay.S_DUTY_NEXT + 3 : lay.S_DUTY + 3] == ("duty_a", "duty_b", "duty_c")
+
+
+@pytest.mark.parametrize(
+    ("names", "name", "following", "message"),
+    [
+        (("a", "b"), "c", (), "slot 'c': declared 0 times, not once"),
+        (("a", "b", "a"), "a", (), "slot 'a': declared 2 times, not once"),
+        (("a", "c", "b"), "a", ("b",), r"slot 'a': expected \('b',\) after it, found \('c',\)"),
+    ],
+)
+def test_slot_lookup_errors(names, name, following, message):
+    with pytest.raises(ValueError, match=message):
+        lay._slot(names, name, *following)
+
+
 def test_with_mode_switches_the_boundary():
     cascade = lay.build_cascade(_load(PMSM))
     torque = lay.with_mode(cascade, "torque")

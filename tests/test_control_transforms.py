@@ -1,4 +1,4 @@
-"""Clarke/Park round trips, the amplitude-invariant power factor and min-max SVPWM."""
+"""Clarke/Park round trips, the amplitude-invariant power factor, SVPWM and the modulator."""
 
 import math
 
@@ -12,6 +12,7 @@ from feed_twin.control.transforms import (
     inverse_clarke,
     inverse_park,
     limit_voltage_circle,
+    modulate,
     park,
     svpwm_duties,
 )
@@ -101,3 +102,25 @@ def test_voltage_circle_limit_keeps_d_priority():
     u_d, u_q = limit_voltage_circle(6.0, 20.0, 10.0)
     assert (u_d, u_q) == pytest.approx((6.0, 8.0))
     assert limit_voltage_circle(-30.0, 5.0, 10.0) == (-10.0, 0.0)
+
+
+def test_modulator_gives_the_rotated_line_voltages_plus_the_dead_time_compensation():
+    # line-to-line voltages (d_x - d_y) * u_dc = the inverse Park of (u_d, u_q) at theta, each
+    # phase raised by u_comp * clip(i_x / band, -1, 1): with i = (2, -0.1, -1.9) A and a 0.5 A
+    # band that is (+1, -0.2, -1) * u_comp
+    u_dc, u_comp, band = 560.0, 10.0, 0.5
+    i = (2.0, -0.1, -1.9)
+    for theta in np.linspace(-3.0, 3.0, 13):
+        u_d, u_q = 40.0, -150.0
+        duties = modulate(u_d, u_q, math.cos(theta), math.sin(theta), *i, u_comp, band, u_dc)
+        u = inverse_clarke(*inverse_park(u_d, u_q, theta))
+        comp = (u_comp, -0.2 * u_comp, -u_comp)
+        for x, y in ((0, 1), (1, 2), (2, 0)):
+            expected = (u[x] + comp[x]) - (u[y] + comp[y])
+            assert (duties[x] - duties[y]) * u_dc == pytest.approx(expected, abs=1e-9 * u_dc)
+        plain = modulate(u_d, u_q, math.cos(theta), math.sin(theta), *i, 0.0, band, u_dc)
+        assert (plain[0] - plain[1]) * u_dc == pytest.approx(u[0] - u[1], abs=1e-9 * u_dc)
+
+
+def test_modulator_without_bus_voltage_gives_half_duties():
+    assert modulate(10.0, 20.0, 1.0, 0.0, 1.0, 0.0, -1.0, 5.0, 0.5, 0.0) == (0.5, 0.5, 0.5)

@@ -119,11 +119,12 @@ STATE_NAMES = (
 
 def _slot(names: tuple[str, ...], name: str, *following: str) -> int:
     """Position of `name` in `names`; `following` names the slots a block reads after it."""
-    if len(set(names)) != len(names):
-        raise ValueError(f"duplicate slot names in {names}")
+    if names.count(name) != 1:
+        raise ValueError(f"slot {name!r}: declared {names.count(name)} times, not once")
     i = names.index(name)
-    if names[i + 1 : i + 1 + len(following)] != following:
-        raise ValueError(f"slot {name}: expected {following} after it")
+    found = names[i + 1 : i + 1 + len(following)]
+    if found != following:
+        raise ValueError(f"slot {name!r}: expected {following} after it, found {found}")
     return i
 
 
@@ -207,7 +208,7 @@ S_EFFORT_OUT = _slot(STATE_NAMES, "effort_out")
 S_PARK_ANCHOR = _slot(STATE_NAMES, "park_anchor_rad", "park_anchor_cos", "park_anchor_sin")
 S_FIR_HIST = len(STATE_NAMES)  # the FIR difference history follows the named slots
 
-# Values of the integer-valued slots (exact in the float64 vectors; the tick compares int(slot)).
+# Values of the integer-valued slots: exact in the float64 vectors, compared for equality.
 LOOP_ABSENT, LOOP_PRESENT = 0, 1  # has_position, has_velocity, has_current
 FEEDBACK_ENCODER, FEEDBACK_SCALE = 0, 1  # feedback_scale: semi-closed or closed position loop
 DELAY_NONE, DELAY_ONE_SAMPLE = 0, 1  # computation_delay

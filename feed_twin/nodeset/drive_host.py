@@ -13,10 +13,10 @@ In MODE_VOLTAGE (the full cascade in the controller node) the engine runs open l
 drive is its modulator: at every PWM period j of the exchange it rotates (u_d, u_q) to the
 stator frame at the electrical angle p * phi(t_j) + offset, phi(t_j) = phi_k + omega_k * (j + 1/2) h
 extrapolated from the rotor angle and speed at the exchange start (the error over 1 ms at
-3 m/s^2 is below 0.01 rad electrical), adds the dead-time compensation of each phase
-(u_comp * clip(i_x / band, -1, 1) with the phase currents latched at the exchange start, the
-controller section's values) and gives the SVPWM duties for u_dc of the previous exchange; a
-disabled drive applies zero voltage (duties 1/2) with the stage off.
+3 m/s^2 is below 0.01 rad electrical), and modulates with the cascade's own law
+(feed_twin.control.transforms.modulate: dead-time compensation with the phase currents latched
+at the exchange start and the controller section's values, SVPWM on u_dc of the previous
+exchange); a disabled drive applies zero voltage (duties 1/2) with the stage off.
 """
 
 from __future__ import annotations
@@ -28,13 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.control.layout import disable, enable
-from feed_twin.control.transforms import (
-    clarke,
-    inverse_clarke,
-    inverse_park,
-    park,
-    svpwm_phase_duties,
-)
+from feed_twin.control.transforms import clarke, modulate, park
 from feed_twin.core import signals as sig
 from feed_twin.io.config import ConfigError
 from feed_twin.nodeset.split import (
@@ -201,8 +195,7 @@ class DriveHost:
         clarke(0.0, 0.0, 0.0)
         park(0.0, 0.0, 0.0)
         if self.modulator:
-            inverse_park(0.0, 0.0, 0.0)
-            svpwm_phase_duties(0.0, 0.0, 0.0, 1.0)
+            modulate(0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0)
 
     @staticmethod
     def record_names(signals: StateSignals) -> tuple[str, ...]:
@@ -248,15 +241,20 @@ class DriveHost:
         phi = float(self.engine.x[self._i_phi])
         omega = float(self.engine.x[self._i_omega])
         h = self.engine.h
-        comp = [
-            self.dead_time_comp_V * min(max(i / self.dead_time_comp_band_A, -1.0), 1.0)
-            for i in self._i_phase
-        ]
+        i_a, i_b, i_c = self._i_phase
         for j in range(self.ticks):
             theta_e = self.pole_pairs * (phi + omega * (j + 0.5) * h) + self.encoder_offset_rad
-            u_a, u_b, u_c = inverse_clarke(*inverse_park(sp.u_d_V, sp.u_q_V, theta_e))
-            rows[j, sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1] = svpwm_phase_duties(
-                u_a + comp[0], u_b + comp[1], u_c + comp[2], self._u_dc
+            rows[j, sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1] = modulate(
+                sp.u_d_V,
+                sp.u_q_V,
+                math.cos(theta_e),
+                math.sin(theta_e),
+                i_a,
+                i_b,
+                i_c,
+                self.dead_time_comp_V,
+                self.dead_time_comp_band_A,
+                self._u_dc,
             )
         return rows
 
