@@ -3,8 +3,8 @@
 Every parameter class in feed_twin is a frozen, keyword-only dataclass that validates itself in
 `__post_init__` with the `require_*` helpers of feed_twin.core.validate. `from_mapping` builds
 one from a YAML mapping, rejects unknown keys and missing fields, converts nested dataclasses,
-tuples and literals, and re-raises any `ValueError` prefixed with the file and the dotted field
-path, so a user reads `config/axis.yaml: plant.table.m = -3.0: must be > 0`.
+tuples and literals, and re-raises any `ValueError` prefixed with the file and the dotted
+field path, so a user reads `config/axis.yaml: plant.table.m = -3.0: must be > 0`.
 """
 
 from __future__ import annotations
@@ -13,11 +13,14 @@ import dataclasses
 import types
 import typing
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import yaml
 
-T = TypeVar("T")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T", bound="DataclassInstance")
 # Largest config file read [bytes]: configs are a few kB, and a runaway file (a 100 MB list took
 # minutes and 2.4 GB to parse) is refused before YAML sees it.
 MAX_CONFIG_BYTES = 4_000_000
@@ -137,7 +140,7 @@ def _convert(hint: Any, value: Any, *, source: str, path: str) -> Any:
             _convert(a, v, source=source, path=_join(path, i))
             for i, (a, v) in enumerate(zip(args, value, strict=True))
         )
-    if dataclasses.is_dataclass(hint):
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
         return from_mapping(hint, value, source=source, path=path)
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
