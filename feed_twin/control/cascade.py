@@ -118,7 +118,7 @@ def position_law(
     return v_cmd, acc_ff_gain * a_r, e
 
 
-@njit(_nrt=False, forceinline=True)
+@njit(_nrt=False, forceinline=True)  # pyright: ignore[reportCallIssue]  numba-only options
 def current_law(
     i_a: float,
     i_b: float,
@@ -379,7 +379,7 @@ def write_outputs(cs: np.ndarray, out: np.ndarray, active: bool) -> None:
     out[sig.OUT_ENABLED] = 1.0 if active else 0.0
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False)  # pyright: ignore[reportCallIssue]  numba-only options
 def cascade_tick(
     cp: np.ndarray, cs: np.ndarray, k: int, ref: np.ndarray, meas: np.ndarray, out: np.ndarray
 ) -> None:

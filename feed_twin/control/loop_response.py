@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
+EPS = float(np.finfo(float).eps)
+
 TWO_PI = 2.0 * math.pi
 TransferFunction = Callable[[np.ndarray], np.ndarray]  # s (complex array) -> L(s)
 
@@ -51,16 +53,18 @@ def loop_margins(
     down = np.nonzero((log_mag[:-1] >= 0.0) & (log_mag[1:] < 0.0))[0]
     if down.size:
         i = down[0]
-        crossover = brentq(
-            lambda w: math.log(abs(complex(loop(np.array([1j * w]))[0]))), omega[i], omega[i + 1]
+        w_i, phase_i = float(omega[i]), float(phase[i])
+        crossover = find_root(
+            lambda w: math.log(abs(complex(loop(np.array([1j * w]))[0]))), w_i, float(omega[i + 1])
         )
-        pm = 180.0 + math.degrees(_phase_at(loop, crossover, omega[i], phase[i]))
+        pm = 180.0 + math.degrees(_phase_at(loop, crossover, w_i, phase_i))
     phase_crossover, gm = math.nan, math.inf
     below = np.nonzero((phase[:-1] > -math.pi) & (phase[1:] <= -math.pi))[0]
     if below.size:
         i = below[0]
-        phase_crossover = brentq(
-            lambda w: _phase_at(loop, w, omega[i], phase[i]) + math.pi, omega[i], omega[i + 1]
+        w_i, phase_i = float(omega[i]), float(phase[i])
+        phase_crossover = find_root(
+            lambda w: _phase_at(loop, w, w_i, phase_i) + math.pi, w_i, float(omega[i + 1])
         )
         gm = -20.0 * math.log10(abs(complex(loop(np.array([1j * phase_crossover]))[0])))
     return Margins(
@@ -69,6 +73,13 @@ def loop_margins(
         gain_margin_db=gm,
         phase_crossover_rad_s=phase_crossover,
     )
+
+
+def find_root(f: Callable[[float], float], lo: float, hi: float, *, rtol: float = 4 * EPS) -> float:
+    """The root of f in [lo, hi] by Brent's method (scipy's brentq, its default tolerances)."""
+    root = brentq(f, lo, hi, rtol=np.float64(rtol))
+    assert isinstance(root, float)  # full_output was not asked for
+    return root
 
 
 def _phase_at(loop: TransferFunction, w: float, w_ref: float, phase_ref: float) -> float:
@@ -88,12 +99,13 @@ def closed_loop_bandwidth(
     if not idx.size:
         return math.nan
     i = idx[0]
-    return brentq(
-        lambda w: abs(complex(closed_loop(np.array([1j * w]))[0])) - target, omega[i], omega[i + 1]
+    return find_root(
+        lambda w: abs(complex(closed_loop(np.array([1j * w]))[0])) - target,
+        float(omega[i]),
+        float(omega[i + 1]),
     )
 
 
-# ---------------------------------------------------------------------------------------------
 # Linearised loops
 
 

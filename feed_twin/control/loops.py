@@ -26,6 +26,7 @@ import numpy as np
 
 from feed_twin.control import cascade as cc
 from feed_twin.control import layout as lay
+from feed_twin.control.config import ControllerConfig, Mode
 from feed_twin.core import signals as sig
 
 
@@ -53,10 +54,10 @@ class _SampledController:
 
     def __init__(
         self,
-        config: cc.ControllerConfig,
+        config: ControllerConfig,
         loop_period_s: float,
         *,
-        mode: cc.Mode,
+        mode: Mode,
         keep: tuple[str, ...],
         computation_delay: bool = False,
     ) -> None:
@@ -135,7 +136,7 @@ class _SampledController:
 class Cascade(_SampledController):
     """All configured loops at the base period in the configured mode: the engine's tick."""
 
-    def __init__(self, config: cc.ControllerConfig) -> None:
+    def __init__(self, config: ControllerConfig) -> None:
         super().__init__(
             config,
             config.base_period_s,
@@ -153,7 +154,7 @@ class PositionLoop(_SampledController):
     """P position loop with velocity/acceleration feed-forward and fine interpolation; trips on
     the following-error limit (see `fault`)."""
 
-    def __init__(self, config: cc.ControllerConfig) -> None:
+    def __init__(self, config: ControllerConfig) -> None:
         if config.position is None:
             raise ValueError("PositionLoop: the configuration has no position section")
         super().__init__(config, config.position.period_s, mode="position", keep=("position",))
@@ -172,7 +173,7 @@ class PositionLoop(_SampledController):
 class VelocityLoop(_SampledController):
     """PI velocity loop on the encoder-difference estimate, with limit and setpoint filters."""
 
-    def __init__(self, config: cc.ControllerConfig) -> None:
+    def __init__(self, config: ControllerConfig) -> None:
         if config.velocity is None:
             raise ValueError("VelocityLoop: the configuration has no velocity section")
         super().__init__(config, config.velocity.period_s, mode="velocity", keep=("velocity",))
@@ -194,7 +195,7 @@ class CurrentLoop(_SampledController):
     (load side m/s), normally the velocity loop's estimate.
     """
 
-    def __init__(self, config: cc.ControllerConfig) -> None:
+    def __init__(self, config: ControllerConfig) -> None:
         if config.current is None:
             raise ValueError("CurrentLoop: the configuration has no current section")
         super().__init__(

@@ -26,7 +26,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from feed_twin.control.config import ControllerConfig
 from feed_twin.control.loop_response import (
@@ -37,13 +36,13 @@ from feed_twin.control.loop_response import (
     closed_loop_bandwidth,
     current_open_loop,
     dead_time,
+    find_root,
     loop_margins,
     position_open_loop,
     series,
     velocity_forward,
 )
 
-# ---------------------------------------------------------------------------------------------
 # Designs
 
 
@@ -244,7 +243,7 @@ def tune_position_loop(
         return loop_margins(loop_for(Kv)).phase_margin_deg - phase_margin_deg
 
     Kv_max = TWO_PI * velocity_bandwidth_hz
-    Kv = Kv_max if margin(Kv_max) >= 0.0 else brentq(margin, 1e-6 * Kv_max, Kv_max, rtol=1e-6)
+    Kv = Kv_max if margin(Kv_max) >= 0.0 else find_root(margin, 1e-6 * Kv_max, Kv_max, rtol=1e-6)
     limited_by = "phase margin"
     if load_mode is not None:
         Kv_mode = 2.0 * load_mode.zeta * TWO_PI * load_mode.frequency_hz / mode_gain_margin
@@ -253,7 +252,6 @@ def tune_position_loop(
     return PositionLoopDesign(Kv_1_s=Kv, limited_by=limited_by, margins=loop_margins(loop_for(Kv)))
 
 
-# ---------------------------------------------------------------------------------------------
 # A whole configuration
 
 
