@@ -156,3 +156,21 @@ def test_settle_times_survive_the_look_ahead_windows(lookahead):
     assert traj.events[-1].t_s == pytest.approx(expected, rel=1e-9)
     held = np.flatnonzero(np.all(traj.vel_m_s == 0.0, axis=1))
     assert len(held) >= 40 * (round(SETTLE_S / CONFIG.interpolation_period_s) - 1)
+
+
+def test_settle_time_equals_a_dwell_after_each_exact_stop_block():
+    # two paths to the same motion: the config's settle, and a G4 written after every block
+    program = "G61 G1 X20 F3000\nG3 X40 Y0 R10\nG1 Y15 F2000\nG0 X0 Y0\nM2"
+    dwells = "G61 G1 X20 F3000\nG4 P0.065\nG3 X40 Y0 R10\nG4 P0.065\nG1 Y15 F2000\nG4 P0.065\n"
+    dwells += "G0 X0 Y0\nG4 P0.065\nM2"
+    settled = plan_program(program, dataclasses.replace(CONFIG, exact_stop_settle_s=SETTLE_S))
+    written = plan_program(dwells, CONFIG)
+    np.testing.assert_array_equal(settled.t_s, written.t_s)
+    np.testing.assert_array_equal(settled.pos_m, written.pos_m)
+    np.testing.assert_array_equal(settled.vel_m_s, written.vel_m_s)
+    np.testing.assert_array_equal(settled.acc_m_s2, written.acc_m_s2)
+
+
+def test_g60_and_g64_in_one_block_conflict():
+    with pytest.raises(ValueError, match=r"^<text>:1:5: word 'G64': conflicts with G60 \(both in"):
+        plan_program("G60 G64 G1 X1 F100\nM2", CONFIG)
