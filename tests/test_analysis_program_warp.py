@@ -55,3 +55,5 @@ def test_each_block_is_placed_at_its_own_delay(tmp_path):
     moves = int(note.split("block by block: ")[1].split(" moves")[0])
     late = float(note.split("the last ")[1].split(" ms")[0])
     assert late == pytest.approx(1e3 * (moves - 1) * SETTLE_S, rel=0.05)
+    # and the note says what to put in the NC config to plan the waits
+    assert "a median 65 ms per block: nc.exact_stop_settle_s plans" in note, note

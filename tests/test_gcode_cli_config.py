@@ -114,6 +114,10 @@ def _config_with(tmp_path, edit) -> Path:
             lambda nc: nc.update(interpolation_period_s=-1e-3),
             "nc.interpolation_period_s = -0.001: must be > 0",
         ),
+        (
+            lambda nc: nc.update(exact_stop_settle_s=-0.065),
+            "nc.exact_stop_settle_s = -0.065: must be >= 0",
+        ),
     ],
 )
 def test_config_errors_name_the_file_and_field(tmp_path, edit, message):

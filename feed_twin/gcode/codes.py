@@ -26,7 +26,9 @@ GROUP_OF: dict[str, str] = {
     **dict.fromkeys(("G90", "G91"), DISTANCE),
     **dict.fromkeys(("G90.1", "G91.1"), ARC_DISTANCE),
     "G94": FEED_MODE,
-    **dict.fromkeys(("G61", "G61.1", "G64"), PATH_CONTROL),
+    # exact stop G60 (Sinumerik; Fanuc's one-direction positioning G60 is not modelled),
+    # G61 and G61.1 (LinuxCNC's exact path and exact stop, both a stop here); G64 blends
+    **dict.fromkeys(("G60", "G61", "G61.1", "G64"), PATH_CONTROL),
     **dict.fromkeys(("G54", "G55", "G56", "G57", "G58", "G59"), WORK_OFFSET),
     **dict.fromkeys(("G4", "G9", "G53", "G92", "G92.1", "G92.2"), NON_MODAL),
     "G40": CUTTER_COMPENSATION,

@@ -97,7 +97,11 @@ class WorkOffsets:
 
 @dataclass(frozen=True, kw_only=True)
 class NcConfig:
-    """Everything the interpreter and planner need to turn a program into setpoints."""
+    """Everything the interpreter and planner need to turn a program into setpoints.
+
+    `exact_stop_settle_s` is the NC's wait for the in-position window at each exact stop,
+    modelled as a fixed dwell (the real wait ends when the following error is small enough).
+    """
 
     axes: tuple[NcAxis, ...]  # the machine's linear axes; X, Y and Z are required
     # the axis a single-axis twin models (the others are still planned); a machine config
@@ -113,6 +117,11 @@ class NcConfig:
     lookahead_segments: int = 2000  # segments planned together when streaming
     block_delete: bool = True  # '/' blocks are skipped (the block-delete switch is on)
     dwell_p_unit: Literal["s", "ms"] = "s"  # unit of G4 P (RS274/NGC: s; Fanuc: ms)
+    # [s] hold at rest after each block that ends in an exact stop (G60, G61, G61.1, G9)
+    # before the next block starts. A real NC waits until the axes are inside the in-position
+    # window (Sinumerik G601/G602), which depends on the drive; this models that wait as a
+    # fixed time (tens of ms on a machining centre).
+    exact_stop_settle_s: float = 0.0
     rotary_axes: tuple[NcRotaryAxis, ...] = ()  # A, B, C, planned after the linear axes
     axis_names: tuple[str, ...] = field(init=False)  # linear axes, then rotary axes
     # Per planned axis, SI (m or rad): limits and the position when a program starts.
@@ -156,6 +165,7 @@ class NcConfig:
         require_positive("chord_tolerance_m", self.chord_tolerance_m)
         require_nonnegative("arc_radius_tolerance_m", self.arc_radius_tolerance_m)
         require_positive("interpolation_period_s", self.interpolation_period_s)
+        require_nonnegative("exact_stop_settle_s", self.exact_stop_settle_s)
         if isinstance(self.lookahead_segments, bool) or not isinstance(
             self.lookahead_segments, int
         ):

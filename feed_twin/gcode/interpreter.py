@@ -537,7 +537,7 @@ MODE_ACTIONS: dict[str, Callable[[Interpreter, str, BlockWords, int], None]] = {
     **dict.fromkeys(PLANE_AXES, Interpreter._set_plane),
     **dict.fromkeys(("G90", "G91"), Interpreter._set_distance),
     **dict.fromkeys(("G90.1", "G91.1"), Interpreter._set_arc_distance),
-    **dict.fromkeys(("G61", "G61.1"), Interpreter._set_exact_stop),
+    **dict.fromkeys(("G60", "G61", "G61.1"), Interpreter._set_exact_stop),
     "G64": Interpreter._set_blending,
     **dict.fromkeys(("G54", "G55", "G56", "G57", "G58", "G59"), Interpreter._set_work_offset),
     **dict.fromkeys(("G0", "G1", "G2", "G3", "G80"), Interpreter._set_motion),

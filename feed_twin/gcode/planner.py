@@ -12,8 +12,10 @@ coordinates. A window of listed moves goes through five stages, each pure and in
 4. speed profile (`plan_profile`): boundary speeds and the pieces of s(t), dwells included;
 5. sampling (`plan_sampling`): s(t) at t = k * period, mapped onto the blended path.
 
-G61, G9, dwells and stopping M-codes end a move at rest. Every profile piece starts and ends
-at zero acceleration.
+G60, G61, G9, dwells and stopping M-codes end a move at rest. After an exact stop (G60, G61,
+G61.1, G9) the setpoint is held for `exact_stop_settle_s`, a dwell on the stopping block's line
+before the next block's events: the fixed-time model of the NC's wait for the in-position
+window. Every profile piece starts and ends at zero acceleration.
 
 Look-ahead: a backward pass of braking bounds and a forward pass over the boundary speeds of up
 to `lookahead_segments` moves, with the window's end at rest; the first half is committed,
@@ -156,6 +158,7 @@ class _StreamPlanner:
         self.limits = AxisLimits.of(config)
         self.jerk = self.limits.jerk
         self.period = config.interpolation_period_s
+        self.settle_s = config.exact_stop_settle_s
         self.forced = max(2, config.lookahead_segments // 4)
         # Listed moves: the not yet committed ones, preceded by one committed context move
         # (its end blend reaches into the next chunk) once anything was committed.
@@ -187,6 +190,8 @@ class _StreamPlanner:
             self.tols.append(item.tolerance_m)
             if item.exact_stop:
                 self.stops.add(node + 1)
+                if self.settle_s > 0.0:
+                    self.entries.setdefault(node + 1, []).append(Stop(item.line, self.settle_s))
             return
         self.entries.setdefault(node, []).append(item)
         if isinstance(item, Stop) or item.stops:
