@@ -32,8 +32,12 @@ def test_linuxcnc_closes_its_servo_loop_over_the_twin() -> None:
     offset = np.median(fb[m] - x[m - 1])
     on_time = np.abs(fb[m] - x[m - 1] - offset) < 1e-9
     held = fb[m] == fb[m - 1]
-    # (a value that reaches the streamer just as its period starts can come a period late)
-    assert np.count_nonzero(~(on_time | held)) <= max(3, m.size // 1000)
+    # A value that reaches the streamer just as its period starts comes a period late: every
+    # feedback is still the twin's own scale. How often that happens depends on the host's
+    # load (a timing, not a property of the loop), so it is bounded loosely.
+    late = np.abs(fb[m] - x[m - 2] - offset) < 1e-9
+    assert np.all(on_time | held | late)
+    assert np.count_nonzero(~(on_time | held)) <= max(3, m.size // 100)
     moving = np.abs(trace.vel_cmd_m_s[m, 0]) > 1e-3
     missed_in_motion = int(np.count_nonzero(~on_time & moving))
     # two counts of the missed periods: the display's late answers, and what LinuxCNC read
