@@ -7,7 +7,9 @@ every second looks for publishers of its command topics that are not nodes of th
 
 from __future__ import annotations
 
+import math
 import os
+import time
 
 from feed_twin_msgs.msg import HealthStatus
 
@@ -18,6 +20,9 @@ from feed_twin.ros.dds import LATCHED_QOS
 RUN_ROLES = ("gcode", "controller", "sim", "recorder", "standin", "twin")
 OWN_NODES = frozenset((*RUN_ROLES, "recorder_data", *(f"{role}_liveness" for role in RUN_ROLES)))
 GRAPH_PERIOD_S = 1.0
+# A refused message means someone is sending: the graph is read then too, at most this often,
+# so a publisher is named even in a run shorter than GRAPH_PERIOD_S.
+GRAPH_ON_REFUSAL_S = 0.1
 
 
 class InputGuard:
@@ -32,6 +37,7 @@ class InputGuard:
         self.guard = CommandGuard(own_nodes=OWN_NODES, namespace=node.topics.namespace)
         self._health = node.create_publisher(HealthStatus, node.topics.health, LATCHED_QOS)
         node.create_timer(GRAPH_PERIOD_S, self.check_graph, clock=node.wall)
+        self._graph_read_at = -math.inf  # [s] monotonic time of the last look at the graph
 
     def refuse(self, kind: str, topic: str, detail: str) -> None:
         """Drop one message: count it, warn (the first one, then every 1000th) and say so on
@@ -41,8 +47,11 @@ class InputGuard:
             text = f"refused {count} message(s) on {topic}: {detail}"
             self.node.get_logger().warning(text)
             self._publish(text)
+        if time.monotonic() - self._graph_read_at >= GRAPH_ON_REFUSAL_S:
+            self.check_graph()
 
     def check_graph(self) -> None:
+        self._graph_read_at = time.monotonic()
         for topic in self.topics:
             try:
                 infos = self.node.get_publishers_info_by_topic(topic)
