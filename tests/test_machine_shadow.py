@@ -26,7 +26,7 @@ def test_a_worn_x_guide_warns_on_x_only(tmp_path, capsys):
     (tmp_path / "machine.yaml").write_text(yaml.safe_dump(machine))
     (tmp_path / "p.ngc").write_text(PROGRAM)
     argv = ["run", str(tmp_path / "p.ngc"), "--config", str(tmp_path / "machine.yaml")]
-    argv += ["--out", str(tmp_path), "--name", "m", "--shadow", "--json"]
+    argv += ["--out", str(tmp_path), "--name", "m", "--shadow", "--in-process", "--json"]
     assert cli_main(argv) == 0
     out = capsys.readouterr().out
     record = json.loads(out.strip().splitlines()[-1])["shadow"]

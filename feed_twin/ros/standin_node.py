@@ -57,7 +57,14 @@ from std_msgs.msg import String
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
-from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, start_node
+from feed_twin.ros.runtime import (
+    EXIT_ERROR,
+    EXIT_OK,
+    PEER_TIMEOUT_S,
+    FeedTwinNode,
+    NodeOptions,
+    start_node,
+)
 from feed_twin.shadow.bagstreams import encode_joint_state
 from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.replay import twin_namespace
@@ -86,9 +93,12 @@ class StandInNode(FeedTwinNode):
         clock_divider: int = 10,
         schedule: Sequence[tuple[float, float]] = (),
         seed: int = 0,
+        clock_topic: str = "/clock",
         context=None,
     ) -> None:
-        """`program`: (t, x, v, a) of the built-in program; None follows `<ns>/command`."""
+        """`program`: (t, x, v, a) of the built-in program; None follows `<ns>/command`.
+        `clock_topic`: where a follower publishes the machine time (a machine's axis: its
+        `<ns>/clock`, which the G-code node reads with --axis-clock)."""
         super().__init__("standin", options, context=context)
         self.standin = standin
         self.period_s = period_s
@@ -127,7 +137,7 @@ class StandInNode(FeedTwinNode):
                     DATA_QOS,
                     raw=True,
                 )
-            self._clock_pub = self.create_publisher(Clock, "/clock", DATA_QOS)
+            self._clock_pub = self.create_publisher(Clock, clock_topic, DATA_QOS)
             self._clock_msg = Clock()
             self._waiting = False
             self.watch_input(
@@ -398,6 +408,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="play the G-code node's command stream (the config's ros: and nc: sections)",
     )
     parser.add_argument("--realtime", action="store_true", help="--follow: pace by wall clock")
+    parser.add_argument(
+        "--axis-clock",
+        action="store_true",
+        help="--follow: publish the clock as <namespace>/clock (an axis of a machine, "
+        "feed_twin.machine.shadow_nodes)",
+    )
     parser.add_argument("--duration", type=float, default=60.0, help="[s] of built-in program")
     parser.add_argument("--period", type=float, default=1e-3, help="[s] machine cycle")
     parser.add_argument("--jitter", type=float, help="[s] largest send delay (shadow.standin)")
@@ -409,6 +425,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
+    parser.add_argument("--peer-timeout", type=float, default=PEER_TIMEOUT_S, help="[s]")
 
 
 def build(args: argparse.Namespace, context) -> StandInNode:
@@ -453,6 +470,7 @@ def build(args: argparse.Namespace, context) -> StandInNode:
             peers=tuple(p for p in args.peers.split(",") if p),
             startup_timeout_s=args.startup_timeout,
             input_timeout_s=args.input_timeout,
+            peer_timeout_s=args.peer_timeout,
         ),
         standin=standin,
         period_s=args.period,
@@ -462,6 +480,7 @@ def build(args: argparse.Namespace, context) -> StandInNode:
         clock_divider=divider,
         schedule=schedule,
         seed=config.seed,
+        clock_topic=f"/{machine}/{axis}/clock" if args.axis_clock else "/clock",
         context=context,
     )
 

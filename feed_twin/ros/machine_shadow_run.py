@@ -1,0 +1,168 @@
+"""`feed-twin run PROGRAM --config MACHINE.yaml --shadow`: the machine's shadow twin as nodes.
+
+1. Checks before anything moves (one line each): the machine file, `--axes`, the program on the
+   machine's NC, every axis's `shadow:` section, and every axis file its nodes will read as a
+   single-axis `run --shadow` would (feed_twin/ros/preflight.py).
+2. Starts the recorder with the G-code node in its process, and per simulated axis a stand-in
+   and a twin node, each in its own process (feed_twin.machine.shadow_nodes), in the run's own
+   ROS domain with its run token; one process that fails stops the others at once, the
+   recorder last, and the reason names the axis.
+3. Afterwards: the bag (recovered if needed), per axis the shadow dashboard its twin wrote
+   (`<bag>_<axis>.rrd`), and per axis the residuals and health (feed_twin.machine.shadow.
+   axis_figures: FE and effort deviation RMS, worst health level, first warning, the named
+   effect) in the summary and under "shadow" in the `--json` line, as `--in-process --shadow`
+   gives them.
+
+`--nc linuxcnc` puts LinuxCNC in the stand-ins' place (feed_twin/ros/machine_linuxcnc_run.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+from feed_twin.io.config import ConfigError
+from feed_twin.machine.config import MachineConfig
+from feed_twin.machine.shadow_nodes import ShadowPlan, shadow_plan
+from feed_twin.ros import preflight
+from feed_twin.ros.host import NODE_MODULES, host_argv
+from feed_twin.ros.launch import launch, log_record
+
+# the node set plays the program in lockstep, all axes in one bag, started here
+REFUSED = ("single_process", "live", "no_gcode", "realtime", "start")
+
+
+def refused_options(args: argparse.Namespace) -> str:
+    """The one-line refusal of options the machine's shadow nodes do not take ("" if none)."""
+    refused = [f"--{o.replace('_', '-')}" for o in REFUSED if getattr(args, o, None)]
+    if not refused:
+        return ""
+    return f"{', '.join(refused)}: not available for a machine's shadow node set"
+
+
+def check_files(machine: MachineConfig, files: dict[str, Path]) -> None:
+    """Every axis file as its nodes will read it (ConfigError naming the axis)."""
+    for axis, path in files.items():
+        try:
+            preflight.check_run_config(path, shadow=True)
+        except ConfigError as exc:
+            said = str(exc).removeprefix(f"{path}: ")
+            raise ConfigError(f"{machine.source}: axis {axis}: {said}") from None
+
+
+def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
+    """The run (module docstring); returns the exit code."""
+    problem = refused_options(args)
+    if problem:
+        return _error(args, problem)
+    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    bag, logs = args.out / name, args.out / f"{name}.logs"
+    try:
+        plan = shadow_plan(machine, bag)
+        check_files(machine, plan.files)
+        common = ["--startup-timeout", str(args.startup_timeout),
+                  "--input-timeout", str(args.input_timeout)]  # fmt: skip
+        processes = plan.processes(program=args.program, bag=bag, common=common)
+    except (ConfigError, ValueError, OSError) as exc:
+        return _error(args, str(exc))
+    env = dict(os.environ)
+    try:
+        reservation = preflight.run_environment(args, env)
+    except (ValueError, RuntimeError) as exc:
+        return _error(args, str(exc))
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    commands = {}
+    for n, nodes in processes.items():
+        if len(nodes) == 1:
+            role, argv = nodes[0]
+            commands[n] = [sys.executable, "-m", NODE_MODULES[role], *argv]
+        else:
+            commands[n] = [sys.executable, "-m", "feed_twin.ros.host", *host_argv(nodes)]
+    clock = next(n for n in processes if processes[n][0][0] == "standin")
+    try:
+        result = launch(
+            commands,
+            logs,
+            env=env,
+            progress_role=clock,
+            show_progress=not args.json,
+            stop_on_failure=True,
+        )
+    finally:
+        if reservation is not None:
+            reservation.release()
+    figures, problem = finish(bag, plan)
+    code = preflight.exit_status(result.code) if result.code else int(figures is None)
+    reason = _named(result.reason, plan)
+    if reason:
+        print(f"feed-twin run: {reason}", file=sys.stderr)
+    if problem:
+        print(f"feed-twin run: {problem}", file=sys.stderr)
+    timing = log_record(result.logs[clock], "TIMING") or {}
+    if figures is not None:
+        print_figures(plan, figures)
+    print(f"bag: {bag if bag.exists() else '(none)'}")
+    if args.json:
+        from feed_twin.nodeset.summary import json_line
+
+        print(json_line({
+            "exit_code": code,
+            "reason": reason or problem,
+            "bag": str(bag) if bag.exists() else None,
+            "logs": str(logs),
+            "processes": list(processes),
+            "axes": [a.lower() for a in plan.axes],
+            "shadow": figures,
+            "rrd": {a.lower(): str(plan.rrd(bag, a)) for a in plan.axes},
+            **{f"timing_{k}": v for k, v in timing.items()},
+        }))  # fmt: skip
+    return code
+
+
+def finish(bag: Path, plan: ShadowPlan) -> tuple[dict | None, str]:
+    """The bag made readable and every axis's shadow figures read from it."""
+    from feed_twin.io.bag import BagError, info, recover
+    from feed_twin.machine.shadow_nodes import read_shadow_bag
+
+    if not bag.exists():
+        return None, "no bag was written"
+    try:
+        info(bag)
+    except BagError:
+        try:
+            kept = recover(bag).messages_recovered
+        except BagError as exc:
+            return None, f"the bag is unreadable: {exc}"
+        print(f"bag: the recording was incomplete; recovered {kept} messages")
+    try:
+        return read_shadow_bag(bag, plan.machine, plan.axes, plan.effort_units), ""
+    except (BagError, ValueError) as exc:
+        return None, str(exc)
+
+
+def print_figures(plan: ShadowPlan, figures: dict[str, dict]) -> None:
+    from feed_twin.machine.shadow import format_axis_figures
+
+    print(f"machine {plan.machine}: axes {', '.join(figures)} shadowed, each in its own nodes")
+    for axis, f in figures.items():
+        print(f"{format_axis_figures(axis, f)} ({f['samples']} samples)")
+
+
+def _named(reason: str, plan: ShadowPlan) -> str:
+    """The launcher's reason with the axis of the failed process named first."""
+    from feed_twin.machine.nodes import axis_of_process
+
+    axis = axis_of_process(reason.split(" ", 1)[0], plan.axes) if reason else None
+    return f"axis {axis}: {reason}" if axis is not None else reason
+
+
+def _error(args: argparse.Namespace, message: str) -> int:
+    import json
+
+    print(f"feed-twin run: {message}", file=sys.stderr)
+    if getattr(args, "json", False):
+        print(json.dumps({"exit_code": 1, "reason": message}))
+    return 1
