@@ -74,11 +74,12 @@ def axis_figures(
     give them alike. `health` is the worst level; effect and message are the last named ones."""
     fe = fe_dev_m[twin_ok]
     effort = effort_dev[twin_ok]
+    effort = effort[np.isfinite(effort)]  # a machine that reports no effort (LinuxCNC) has none
     warned = np.flatnonzero(verdict_level != OK)
     named = [int(k) for k in warned if verdict_effect[k]]
     return {
         "fe_dev_rms_m": float(np.sqrt(np.mean(fe**2))) if len(fe) else float("nan"),
-        "effort_dev_rms": float(np.sqrt(np.nanmean(effort**2))) if len(effort) else 0.0,
+        "effort_dev_rms": float(np.sqrt(np.mean(effort**2))) if len(effort) else None,
         "effort_unit": effort_unit,
         "health": LEVEL_NAMES[int(verdict_level.max()) if len(verdict_level) else OK],
         "first_warning_s": float(verdict_t_s[warned[0]]) if len(warned) else None,
@@ -90,9 +91,11 @@ def axis_figures(
 def format_axis_figures(axis: str, f: dict[str, Any]) -> str:
     """One line of an axis's shadow figures (`axis_figures`) for the summary."""
     said = f" from {f['first_warning_s']:.3f} s: {f['message']}" if f["first_warning_s"] else ""
+    effort = f["effort_dev_rms"]
+    effort = "no effort measured" if effort is None else f"{effort:.4f} {f['effort_unit']}"
     return (
         f"shadow {axis}: FE deviation RMS {f['fe_dev_rms_m'] * 1e6:.3f} um, effort deviation "
-        f"RMS {f['effort_dev_rms']:.4f} {f['effort_unit']}, health {f['health']}{said}"
+        f"RMS {effort}, health {f['health']}{said}"
     )
 
 

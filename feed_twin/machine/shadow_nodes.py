@@ -35,8 +35,15 @@ from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import PEER_TIMEOUT_S, axis_documents, process_name, write_documents
 from feed_twin.machine.shadow import axis_figures, axis_shadow_config
 
-RECORDER_PROCESS = "recorder"  # hosts the recorder and the G-code node
-AXIS_ROLES = ("standin", "twin")
+RECORDER_PROCESS = "recorder"  # hosts the recorder (and the G-code node beside stand-ins)
+LINUXCNC_PROCESS = "linuxcnc"
+MODULES = {
+    "recorder": "feed_twin.ros.recorder_node",
+    "gcode": "feed_twin.ros.gcode_node",
+    "standin": "feed_twin.ros.standin_node",
+    "twin": "feed_twin.ros.twin_node",
+    "linuxcnc": "feed_twin.ros.machine_linuxcnc_node",
+}
 
 
 def shadow_documents(machine: MachineConfig) -> dict[str, dict[str, Any]]:
@@ -62,12 +69,14 @@ class ShadowPlan:
     """The processes of a machine's shadow run: name -> (node role, its arguments)."""
 
     machine: str
+    source: str  # the machine file
     axes: tuple[str, ...]  # simulated NC axes, in the NC's order
     command_axes: tuple[str, ...]  # NC axes without nodes (rotary axes, those left out)
     files: dict[str, Path]  # simulated axis -> its config file
     maps: dict[str, Path]  # simulated axis -> the column map of its topics (the twin reads it)
     effort_units: dict[str, str]  # simulated axis -> the unit of its twin's effort (N, N m, A)
     period_s: float  # [s] the NC's interpolation period: one stand-in sample each
+    linuxcnc: bool  # LinuxCNC is the machine (feed_twin/ros/machine_linuxcnc_node.py)
 
     def namespace(self, axis: str) -> str:
         return f"/{self.machine}/{axis.lower()}"
@@ -76,6 +85,10 @@ class ShadowPlan:
         """The shadow dashboard the axis's twin writes."""
         return bag.with_name(f"{bag.name}_{axis.lower()}.rrd")
 
+    @property
+    def axis_roles(self) -> tuple[str, ...]:
+        return ("twin",) if self.linuxcnc else ("standin", "twin")
+
     def processes(
         self, *, program: Path, bag: Path, common: list[str]
     ) -> dict[str, list[tuple[str, list[str]]]]:
@@ -83,24 +96,32 @@ class ShadowPlan:
         (the peer timeout is added here)."""
         first, others = self.axes[0], self.axes[1:]
         common = [*common, "--peer-timeout", str(PEER_TIMEOUT_S)]
-        shared = [
+        served = [
             "--machine-axes", ",".join(a.lower() for a in others),
             "--command-axes", ",".join(a.lower() for a in self.command_axes),
         ]  # fmt: skip
-        everyone = ["recorder", "gcode", *AXIS_ROLES]
-        everyone += [f"{a.lower()}/{r}" for a in others for r in AXIS_ROLES]
+        hub = {
+            "recorder": [*served, "--bag", str(bag),
+                         "--twin-namespace", f"{self.namespace(first)}/twin"],
+            "gcode": [*served, "--program", str(program), "--autostart", "--axis-clock"],
+            "linuxcnc": ["--machine-config", self.source, "--axes", ",".join(self.axes),
+                         "--program", str(program)],
+        }  # fmt: skip
+        hub_roles = ("recorder", "linuxcnc") if self.linuxcnc else ("recorder", "gcode")
+        everyone = [*hub_roles, *self.axis_roles]
+        everyone += [f"{a.lower()}/{r}" for a in others for r in self.axis_roles]
         out: dict[str, list[tuple[str, list[str]]]] = {RECORDER_PROCESS: []}
-        extras = {
-            "recorder": ["--bag", str(bag), "--twin-namespace", f"{self.namespace(first)}/twin"],
-            "gcode": ["--program", str(program), "--autostart", "--axis-clock"],
-        }
-        for role, extra in extras.items():
+        for role in hub_roles:
             peers = ",".join(p for p in everyone if p != role)
-            argv = ["--config", str(self.files[first]), "--peers", peers, *common, *shared]
-            out[RECORDER_PROCESS].append((role, argv + extra))
+            argv = ["--config", str(self.files[first]), "--peers", peers, *common, *hub[role]]
+            # beside stand-ins the G-code node shares the recorder's process (the machine run's
+            # layout); LinuxCNC's bridge has its own
+            name = LINUXCNC_PROCESS if role == "linuxcnc" else RECORDER_PROCESS
+            out.setdefault(name, []).append((role, argv))
         for axis in self.axes:
-            for role in AXIS_ROLES:
-                peers = ",".join(p for p in ("recorder", "gcode", *AXIS_ROLES) if p != role)
+            for role in self.axis_roles:
+                mates = (*hub_roles, *self.axis_roles)
+                peers = ",".join(p for p in mates if p != role)
                 argv = ["--config", str(self.files[axis]), "--peers", peers, *common]
                 if role == "standin":
                     argv += ["--follow", "--axis-clock", "--period", repr(self.period_s)]
@@ -111,9 +132,10 @@ class ShadowPlan:
         return out
 
 
-def shadow_plan(machine: MachineConfig, bag: Path) -> ShadowPlan:
+def shadow_plan(machine: MachineConfig, bag: Path, *, linuxcnc: bool = False) -> ShadowPlan:
     """Write the axis files and the column maps (`<bag>_map_<axis>.yaml`) and plan the
-    processes (ConfigError before anything starts)."""
+    processes (ConfigError before anything starts). With `linuxcnc` the machine reports no
+    effort and its rapids reach the axis velocity limit (as the single-axis LinuxCNC run)."""
     from feed_twin.analysis.twin import ModelDoc, Twin
     from feed_twin.shadow.standin import write_map
 
@@ -129,15 +151,19 @@ def shadow_plan(machine: MachineConfig, bag: Path) -> ShadowPlan:
             twin,
             f"/{machine.name}/{axis.lower()}",
             travel_m=nc_axis.travel_max_m - nc_axis.travel_min_m,
+            with_effort=not linuxcnc,
+            max_speed_m_s=1.5 * nc_axis.rapid_m_s if linuxcnc else 0.5,
         )
     return ShadowPlan(
         machine=machine.name,
+        source=machine.source,
         axes=tuple(machine.axes),
         command_axes=tuple(a for a in machine.nc.axis_names if a not in machine.axes),
         files=files,
         maps=maps,
         effort_units=units,
         period_s=machine.nc.interpolation_period_s,
+        linuxcnc=linuxcnc,
     )
 
 

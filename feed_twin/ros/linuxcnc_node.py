@@ -74,7 +74,8 @@ class LinuxcncNode(FeedTwinNode):
         self._servo_pub = self.create_publisher(
             ServoSample, f"{self.topics.namespace}/linuxcnc/servo", DATA_QOS
         )
-        self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
+        # where the end of the run is announced (a machine's node: every axis's run_state)
+        self._run_pubs = [self.create_publisher(String, self.topics.run_state, LATCHED_QOS)]
         self.create_subscription(
             TwinResidual,
             f"{twin_namespace(self.topics.command)}/residual",
@@ -108,7 +109,7 @@ class LinuxcncNode(FeedTwinNode):
                 return None
             return 0.05
         if self.run is None and not self.run_ended:
-            if not (self.peers_alive() and self._js_pub.get_subscription_count() > 0):
+            if not self._ready():
                 return 0.01
             self._t_start = now
             try:
@@ -138,6 +139,10 @@ class LinuxcncNode(FeedTwinNode):
             self._end(EXIT_OK, "")
             return 0.05
         return 0.001
+
+    def _ready(self) -> bool:
+        """LinuxCNC may start: the peers beat and the twin listens."""
+        return self.peers_alive() and self._js_pub.get_subscription_count() > 0
 
     def _publish_window(self) -> None:
         """Publish what waits, at most WINDOW periods ahead of the twin's output: LinuxCNC
@@ -189,9 +194,9 @@ class LinuxcncNode(FeedTwinNode):
     def _end(self, code: int, message: str) -> None:
         """Stop LinuxCNC, announce the end of the run, stay LINGER_S, then finish."""
         self._close_run()
-        self._run_pub.publish(
-            String(data="done: program finished" if code == EXIT_OK else "done: LinuxCNC fault")
-        )
+        text = "done: program finished" if code == EXIT_OK else "done: LinuxCNC fault"
+        for pub in self._run_pubs:
+            pub.publish(String(data=text))
         self._ending = (code, message)
         self._done_at = time.monotonic()
         if message:

@@ -24,11 +24,13 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
-from feed_twin.machine.shadow_nodes import ShadowPlan, shadow_plan
+from feed_twin.machine.shadow_nodes import MODULES, ShadowPlan, shadow_plan
 from feed_twin.ros import preflight
-from feed_twin.ros.host import NODE_MODULES, host_argv
+from feed_twin.ros.host import host_argv
 from feed_twin.ros.launch import launch, log_record
 
 # the node set plays the program in lockstep, all axes in one bag, started here
@@ -60,8 +62,13 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
         return _error(args, problem)
     name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
     bag, logs = args.out / name, args.out / f"{name}.logs"
+    linuxcnc = args.nc == "linuxcnc"
     try:
-        plan = shadow_plan(machine, bag)
+        if linuxcnc:
+            problem = linuxcnc_precheck(args.program, machine)
+            if problem:
+                return _error(args, problem)
+        plan = shadow_plan(machine, bag, linuxcnc=linuxcnc)
         check_files(machine, plan.files)
         common = ["--startup-timeout", str(args.startup_timeout),
                   "--input-timeout", str(args.input_timeout)]  # fmt: skip
@@ -78,10 +85,10 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     for n, nodes in processes.items():
         if len(nodes) == 1:
             role, argv = nodes[0]
-            commands[n] = [sys.executable, "-m", NODE_MODULES[role], *argv]
+            commands[n] = [sys.executable, "-m", MODULES[role], *argv]
         else:
             commands[n] = [sys.executable, "-m", "feed_twin.ros.host", *host_argv(nodes)]
-    clock = next(n for n in processes if processes[n][0][0] == "standin")
+    clock = next(n for n in processes if processes[n][0][0] in ("standin", "linuxcnc"))
     try:
         result = launch(
             commands,
@@ -97,13 +104,23 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     figures, problem = finish(bag, plan)
     code = preflight.exit_status(result.code) if result.code else int(figures is None)
     reason = _named(result.reason, plan)
+    report = (log_record(result.logs[clock], "LINUXCNC") or {}) if linuxcnc else {}
+    if reason and report.get("fault"):
+        reason = report["fault"]  # the bridge's own line for a LinuxCNC fault
     if reason:
         print(f"feed-twin run: {reason}", file=sys.stderr)
     if problem:
         print(f"feed-twin run: {problem}", file=sys.stderr)
     timing = log_record(result.logs[clock], "TIMING") or {}
+    bridge = linuxcnc_figures(bag, plan, report, figures) if linuxcnc and figures else None
     if figures is not None:
         print_figures(plan, figures)
+    if bridge is not None:
+        print(
+            f"LinuxCNC: program time {bridge['program_time_s']:.3f} s, servo samples "
+            f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
+            f"latency p99 {bridge['bridge_latency_p99_ms']:.3f} ms"
+        )
     print(f"bag: {bag if bag.exists() else '(none)'}")
     if args.json:
         from feed_twin.nodeset.summary import json_line
@@ -117,9 +134,45 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             "axes": [a.lower() for a in plan.axes],
             "shadow": figures,
             "rrd": {a.lower(): str(plan.rrd(bag, a)) for a in plan.axes},
+            **({"linuxcnc": bridge} if bridge is not None else {}),
             **{f"timing_{k}": v for k, v in timing.items()},
         }))  # fmt: skip
     return code
+
+
+def linuxcnc_precheck(program: Path, machine: MachineConfig) -> str:
+    """Why LinuxCNC cannot be this machine's NC and machine ("" when it can): not installed,
+    a machine it lacks an axis of, a program only one of the two interpreters accepts."""
+    from feed_twin.linuxcnc.host import LinuxcncError, check_installed
+    from feed_twin.linuxcnc.machine_shadow import linuxcnc_machine
+    from feed_twin.linuxcnc.summary import interpreters_disagree
+
+    try:
+        check_installed()
+        nc, servo = linuxcnc_machine(machine)
+        return interpreters_disagree(program, nc, servo) or ""
+    except (LinuxcncError, OSError) as exc:
+        return str(exc)
+
+
+def linuxcnc_figures(bag: Path, plan: ShadowPlan, report: dict, figures: dict) -> dict:
+    """LinuxCNC's side of the run: per axis its own largest following error (its servo samples
+    in the bag) added to `figures`; the bridge's counts and latencies (its LINUXCNC report)."""
+    from feed_twin.io.bag import BagReader
+    from feed_twin.linuxcnc.machine import JOINT_AXES
+
+    fields = [f"following_error[{JOINT_AXES.index(a)}]" for a in plan.axes]
+    servo = BagReader(bag).columns(f"{plan.namespace(plan.axes[0])}/linuxcnc/servo", fields)
+    for axis, field in zip(plan.axes, fields, strict=True):
+        fe = servo[field]
+        figures[axis.lower()]["linuxcnc_following_error_max_m"] = (
+            float(np.max(np.abs(fe))) if fe.size else None
+        )
+    keys = ("program_time_s", "samples_received", "samples_lost", "samples_published",
+            "bridge_latency_p50_ms",
+            "bridge_latency_p99_ms", "twin_output_latency_p50_ms", "twin_output_latency_p99_ms",
+            "startup_s")  # fmt: skip
+    return {k: report.get(k) for k in keys}
 
 
 def finish(bag: Path, plan: ShadowPlan) -> tuple[dict | None, str]:

@@ -369,6 +369,12 @@ def main(args: argparse.Namespace) -> int:
     if _is_machine_config(args.config):
         from feed_twin.machine.run_cli import prepare_machine, run_machine
 
+        if args.nc == "linuxcnc" and (args.in_process or not args.shadow):
+            return _early_error(
+                args,
+                "--nc linuxcnc runs the program on LinuxCNC with the machine's twins beside it: "
+                "add --shadow (without --in-process)",
+            )
         if args.in_process:
             return run_machine(args)
         machine = prepare_machine(args)
