@@ -169,9 +169,8 @@ def linuxcnc_figures(bag: Path, plan: ShadowPlan, report: dict, figures: dict) -
             float(np.max(np.abs(fe))) if fe.size else None
         )
     keys = ("program_time_s", "samples_received", "samples_lost", "samples_published",
-            "bridge_latency_p50_ms",
-            "bridge_latency_p99_ms", "twin_output_latency_p50_ms", "twin_output_latency_p99_ms",
-            "startup_s")  # fmt: skip
+            "bridge_latency_p50_ms", "bridge_latency_p99_ms", "twin_output_latency_p50_ms",
+            "twin_output_latency_p99_ms", "startup_s")  # fmt: skip
     return {k: report.get(k) for k in keys}
 
 
