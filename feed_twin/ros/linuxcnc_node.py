@@ -268,11 +268,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
 
 
-def build(args: argparse.Namespace, context) -> LinuxcncNode:
-    from feed_twin.nodeset.split import load_node_set_config
-
-    ros = load_node_set_config(args.config)
-    nc, servo = machine_for_config(args.config)
+def run_starter(args: argparse.Namespace, nc, servo) -> Callable[[], LinuxcncRun]:
+    """What starts LinuxCNC on the node's program once the node set is up."""
     options = RunOptions(timeout_s=args.timeout, max_lag_s=args.max_lag)
 
     def start_run() -> LinuxcncRun:
@@ -280,6 +277,14 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
                           say=lambda text: print(text, file=sys.stderr, flush=True))  # fmt: skip
         return run.__enter__()
 
+    return start_run
+
+
+def build(args: argparse.Namespace, context) -> LinuxcncNode:
+    from feed_twin.nodeset.split import load_node_set_config
+
+    ros = load_node_set_config(args.config)
+    nc, servo = machine_for_config(args.config)
     return LinuxcncNode(
         NodeOptions(
             machine=ros.machine,
@@ -288,7 +293,7 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
             startup_timeout_s=args.startup_timeout,
             input_timeout_s=args.input_timeout,
         ),
-        start_run=start_run,
+        start_run=run_starter(args, nc, servo),
         joint=nc.axis_index(nc.twin_axis),
         period_s=servo.servo_period_s,
         context=context,

@@ -26,10 +26,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from feed_twin.linuxcnc.bridge import BridgeBatch
-from feed_twin.linuxcnc.runner import LinuxcncRun, RunOptions
+from feed_twin.linuxcnc.runner import LinuxcncRun
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
-from feed_twin.ros.linuxcnc_node import COMMAND, LinuxcncNode, _servo_sample
+from feed_twin.ros.linuxcnc_node import COMMAND, LinuxcncNode, _servo_sample, run_starter
+from feed_twin.ros.linuxcnc_node import configure as bridge_configure
 from feed_twin.ros.runtime import PEER_TIMEOUT_S, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import encode_joint_state
 from feed_twin.shadow.replay import twin_namespace
@@ -115,15 +116,9 @@ class MachineLinuxcncNode(LinuxcncNode):
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", required=True, type=Path, help="first axis's file (ros:)")
+    bridge_configure(parser)  # --config: the first shadowed axis's file (its ros: section)
     parser.add_argument("--machine-config", required=True, type=Path, help="machine YAML")
     parser.add_argument("--axes", required=True, help="the shadowed NC axes, e.g. X,Y,Z")
-    parser.add_argument("--program", required=True, type=Path, help="G-code program")
-    parser.add_argument("--timeout", type=float, default=3600.0, help="[s] program run at most")
-    parser.add_argument("--max-lag", type=float, default=1.0, help="[s] bridge lag at most")
-    parser.add_argument("--peers", default="", help="comma-separated roles to watch")
-    parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
-    parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
     parser.add_argument("--peer-timeout", type=float, default=PEER_TIMEOUT_S, help="[s]")
 
 
@@ -136,13 +131,6 @@ def build(args: argparse.Namespace, context) -> MachineLinuxcncNode:
     machine = load_machine_config(args.machine_config).select(args.axes.split(","))
     nc, servo = linuxcnc_machine(machine)
     joints = machine_joints(machine)
-    options = RunOptions(timeout_s=args.timeout, max_lag_s=args.max_lag)
-
-    def start_run() -> LinuxcncRun:
-        run = LinuxcncRun(args.program, nc=nc, servo=servo, options=options,
-                          say=lambda text: print(text, file=sys.stderr, flush=True))  # fmt: skip
-        return run.__enter__()
-
     return MachineLinuxcncNode(
         NodeOptions(
             machine=ros.machine,
@@ -153,7 +141,7 @@ def build(args: argparse.Namespace, context) -> MachineLinuxcncNode:
             peer_timeout_s=args.peer_timeout,
             other_axes=tuple(a.lower() for a in joints if a.lower() != ros.axis),
         ),
-        start_run=start_run,
+        start_run=run_starter(args, nc, servo),
         joints=joints,
         period_s=servo.servo_period_s,
         context=context,

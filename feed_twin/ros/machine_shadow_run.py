@@ -30,8 +30,8 @@ from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.shadow_nodes import MODULES, ShadowPlan, shadow_plan
 from feed_twin.ros import preflight
-from feed_twin.ros.host import host_argv
-from feed_twin.ros.launch import launch, log_record
+from feed_twin.ros.launch import log_record
+from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
 
 # the node set plays the program in lockstep, all axes in one bag, started here
 REFUSED = ("single_process", "live", "no_gcode", "realtime", "start")
@@ -43,16 +43,6 @@ def refused_options(args: argparse.Namespace) -> str:
     if not refused:
         return ""
     return f"{', '.join(refused)}: not available for a machine's shadow node set"
-
-
-def check_files(machine: MachineConfig, files: dict[str, Path]) -> None:
-    """Every axis file as its nodes will read it (ConfigError naming the axis)."""
-    for axis, path in files.items():
-        try:
-            preflight.check_run_config(path, shadow=True)
-        except ConfigError as exc:
-            said = str(exc).removeprefix(f"{path}: ")
-            raise ConfigError(f"{machine.source}: axis {axis}: {said}") from None
 
 
 def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
@@ -69,7 +59,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             if problem:
                 return _error(args, problem)
         plan = shadow_plan(machine, bag, linuxcnc=linuxcnc)
-        check_files(machine, plan.files)
+        check_plan(machine, plan.files, shadow=True)
         common = ["--startup-timeout", str(args.startup_timeout),
                   "--input-timeout", str(args.input_timeout)]  # fmt: skip
         processes = plan.processes(program=args.program, bag=bag, common=common)
@@ -80,27 +70,10 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
         reservation = preflight.run_environment(args, env)
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    commands = {}
-    for n, nodes in processes.items():
-        if len(nodes) == 1:
-            role, argv = nodes[0]
-            commands[n] = [sys.executable, "-m", MODULES[role], *argv]
-        else:
-            commands[n] = [sys.executable, "-m", "feed_twin.ros.host", *host_argv(nodes)]
     clock = next(n for n in processes if processes[n][0][0] in ("standin", "linuxcnc"))
-    try:
-        result = launch(
-            commands,
-            logs,
-            env=env,
-            progress_role=clock,
-            show_progress=not args.json,
-            stop_on_failure=True,
-        )
-    finally:
-        if reservation is not None:
-            reservation.release()
+    result = launch_processes(
+        processes, logs, env, reservation, clock=clock, quiet=args.json, modules=MODULES
+    )
     figures, problem = finish(bag, plan)
     code = preflight.exit_status(result.code) if result.code else int(figures is None)
     reason = _named(result.reason, plan)
@@ -176,19 +149,12 @@ def linuxcnc_figures(bag: Path, plan: ShadowPlan, report: dict, figures: dict) -
 
 def finish(bag: Path, plan: ShadowPlan) -> tuple[dict | None, str]:
     """The bag made readable and every axis's shadow figures read from it."""
-    from feed_twin.io.bag import BagError, info, recover
+    from feed_twin.io.bag import BagError
     from feed_twin.machine.shadow_nodes import read_shadow_bag
 
-    if not bag.exists():
-        return None, "no bag was written"
-    try:
-        info(bag)
-    except BagError:
-        try:
-            kept = recover(bag).messages_recovered
-        except BagError as exc:
-            return None, f"the bag is unreadable: {exc}"
-        print(f"bag: the recording was incomplete; recovered {kept} messages")
+    problem = readable_bag(bag)
+    if problem:
+        return None, problem
     try:
         return read_shadow_bag(bag, plan.machine, plan.axes, plan.effort_units), ""
     except (BagError, ValueError) as exc:
