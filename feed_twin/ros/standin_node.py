@@ -11,7 +11,9 @@ measured position [m] and the drive effort (N, or A for a PMSM model). Two comma
   NC setpoints on `<ns>/command` (AxisCommand) itself.
 - `--follow` (`feed-twin run PROGRAM --shadow`): the G-code node's AxisCommand stream on
   `<ns>/command`. The node publishes `/clock` (the machine time reached, every
-  `ros.clock_divider` samples), which paces the G-code node's lookahead, as the sim node does.
+  `ros.clock_divider` samples), which paces the G-code node's lookahead, as the sim node does;
+  an axis of a machine (`--axis-clock`, feed_twin.machine.shadow_nodes) publishes it on
+  `<ns>/clock`, and the G-code node follows the slowest axis.
   Lockstep (default): a sample is played as soon as its command is there, at most
   `LOCKSTEP_WINDOW` samples ahead of the twin's published state (`<ns>/twin/state`), so a slow
   twin is never flooded and the run is as fast as the twin. `--realtime`: sample k is played at
