@@ -6,13 +6,17 @@ one line before anything starts."""
 
 from __future__ import annotations
 
+import os
 import re
+import signal
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from nodes_support import last_json, run
+from nodes_support import last_json, run, start_run
+from test_machine_nodes import _child_pid, _simulated_time
 
 from feed_twin.cli import main as cli_main
 from feed_twin.io.bag import BagReader
@@ -101,6 +105,36 @@ def test_every_axis_shadowed_in_its_own_nodes_equals_the_in_process_shadow(tmp_p
     for a in ("x", "y", "z"):
         assert Path(record["rrd"][a]).stat().st_size > 10_000
     assert "shadow x: FE deviation RMS" in out
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_a_killed_twin_stops_the_run_naming_its_axis_and_the_bag_stays_readable(tmp_path):
+    program = tmp_path / "long.ngc"
+    program.write_text("G90 G54\n" + "G1 X-50 Z-50 F3000\nG1 X50 Z50\n" * 3 + "M2\n")  # about 18 s
+    argv = [str(program), "--config", str(write_machine(tmp_path)), "--shadow", "--axes", "X,Z",
+            "--out", str(tmp_path), "--name", "k", "--json"]  # fmt: skip
+    with reserve_domain_id() as domain:
+        proc = start_run(argv, domain.domain_id)
+        try:
+            deadline = time.monotonic() + 180.0
+            while _simulated_time(tmp_path / "k.logs" / "x_standin.log") < 0.3:
+                assert proc.poll() is None and time.monotonic() < deadline, proc.poll()
+                time.sleep(0.1)
+            os.kill(_child_pid(proc.pid, "z_twin"), signal.SIGKILL)
+            killed_at = time.time()
+            out, err = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)
+    record = last_json(out)
+    assert record["exit_code"] == 137, err[-3000:]
+    assert record["reason"].startswith("axis Z: z_twin node was killed by SIGKILL"), record
+    # readable, and X's shadow stopped within a second of the kill, long before the end
+    residual = BagReader(record["bag"]).columns("/cnc/x/twin/residual", ["header.stamp"])
+    assert residual["log_time_s"][-1] - killed_at < 1.0
+    assert 0.3 <= residual["header.stamp"][-1] < 6.0
 
 
 def _no_shadow_on_y(machine: dict) -> None:
