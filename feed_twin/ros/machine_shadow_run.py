@@ -89,10 +89,11 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     if figures is not None:
         print_figures(plan, figures)
     if bridge is not None:
+        said = {k: "?" if v is None else f"{v:.3f}" for k, v in bridge.items()}
         print(
-            f"LinuxCNC: program time {bridge['program_time_s']:.3f} s, servo samples "
+            f"LinuxCNC: program time {said['program_time_s']} s, servo samples "
             f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
-            f"latency p99 {bridge['bridge_latency_p99_ms']:.3f} ms"
+            f"latency p99 {said['bridge_latency_p99_ms']} ms"
         )
     print(f"bag: {bag if bag.exists() else '(none)'}")
     if args.json:
@@ -106,7 +107,8 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             "processes": list(processes),
             "axes": [a.lower() for a in plan.axes],
             "shadow": figures,
-            "rrd": {a.lower(): str(plan.rrd(bag, a)) for a in plan.axes},
+            "rrd": {a.lower(): preflight.shown_output(plan.rrd(bag, a), rrd=True)
+                    for a in plan.axes},
             **({"linuxcnc": bridge} if bridge is not None else {}),
             **{f"timing_{k}": v for k, v in timing.items()},
         }))  # fmt: skip
