@@ -262,9 +262,18 @@ class Engine:
         ref: np.ndarray | None = None,
         drive: np.ndarray | None = None,
         ext: np.ndarray | None = None,
+        *,
+        hold: int = 1,
     ) -> SimResult:
-        """Advance n_ticks base periods from the current tick; returns what was recorded."""
-        ref2, drive2, ext2 = self.tick_inputs(n_ticks, ref=ref, drive=drive, ext=ext)
+        """Advance n_ticks base periods from the current tick; returns what was recorded.
+
+        The inputs have one row per `hold` ticks (the last row may hold for fewer), each held
+        over its ticks: NC samples advance with hold = dec and no row repeated per tick."""
+        if int(hold) != hold or hold < 1:
+            raise ValueError(f"hold = {hold!r}: must be an integer >= 1")
+        hold = int(hold)
+        rows = -(-n_ticks // hold)
+        ref2, drive2, ext2 = self.tick_inputs(rows, ref=ref, drive=drive, ext=ext)
         k0 = self.k
         # the recorded ticks: the multiples of dec in [k0, k0 + n_ticks)
         rec_ticks = np.arange(-(-k0 // self.dec) * self.dec, k0 + n_ticks, self.dec)
@@ -280,6 +289,7 @@ class Engine:
             ref2,
             drive2,
             ext2,
+            hold,
             self.seed,
             self._no_normals,
             self.ring,
@@ -305,8 +315,8 @@ class Engine:
         drive: np.ndarray | None = None,
         ext: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ref, drive, ext) for n_ticks base ticks as the kernel takes them: (n_ticks, REF_SIZE),
-        (n_ticks, OUT_SIZE), (n_ticks, n_ext); zeros for an input not given."""
+        """(ref, drive, ext) as the kernel takes them, n_ticks rows (one per tick, or per `hold`
+        ticks of `advance`): (n, REF_SIZE), (n, OUT_SIZE), (n, n_ext); zeros for one not given."""
         return (
             self._input(ref, n_ticks, signals.REF_SIZE, "ref"),
             self._input(drive, n_ticks, signals.OUT_SIZE, "drive"),

@@ -80,9 +80,13 @@ def work_size(n_cs):
 
 
 @njit(cache=True, _nrt=False, nogil=True, error_model="numpy", fastmath=FASTMATH)
-def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, dec, sel, rec,
-            xlim, status, work):
+def advance(x, p, cp, cs, k0, n, ref, drive, ext, hold, seed, normals, ring, out, h, dec, sel,
+            rec, xlim, status, work):
     """Advance n ticks from tick k0; returns the number of ticks done (< n on divergence).
+
+    `ref`, `drive`, `ext`: one row per `hold` ticks, each held over its ticks (a drive holds a
+    fieldbus setpoint until the next one), row 0 from tick k0: an NC sample is one row, not
+    `hold` copies of it that the loop would stream from memory.
 
     `normals`: the standard normal samples of ticks 0 .. m-1 for `seed`, drawn ahead
     (`standard_normals`; run_batch draws them once for all sets of a seed), or m = 0 rows: the
@@ -117,6 +121,8 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
     xs = {xtuple}
     r = 0
     phase = k0 % dec  # ticks since the last recorded one: no integer division per tick
+    u = 0  # the input row of tick j, and the ticks it has been held
+    held = 0
     for j in range(n):
         k = k0 + j
         t = k * h
@@ -127,7 +133,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
             noise = draw_noise(pt, seed, k)
         # the Park angles of this state, once: the sensors read them, the RK4 stages rotate them
         trig = angles(t, xs, pt)
-        sense(t, xs, pt, out, ext[j], sw, trig, noise, mraw, mdelay)
+        sense(t, xs, pt, out, ext[u], sw, trig, noise, mraw, mdelay)
         slot = k % RING
         for m in range(MEAS_SIZE):
             ring[slot, m] = mraw[m]
@@ -136,7 +142,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
             meas[m] = ring[(k - back) % RING, m]
 {controller}
         if phase == 0:
-            outputs(t, xs, pt, out, ext[j], sw, aux)
+            outputs(t, xs, pt, out, ext[u], sw, aux)
             for i in range(N_X):
                 row[i] = x[i]
             for i in range(N_A):
@@ -153,7 +159,11 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
         phase += 1
         if phase == dec:
             phase = 0
-        xs = integrate_tick(t, h, xs, pt, out, ext[j], sw, edges, trig)
+        xs = integrate_tick(t, h, xs, pt, out, ext[u], sw, edges, trig)
+        held += 1
+        if held == hold:
+            held = 0
+            u += 1
 {store_x}
         for i in range(N_X):
             if not abs(x[i]) <= xlim[i]:
@@ -181,8 +191,8 @@ def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, tables,
             normals = tables[max(table_of[b], 0)]
             if table_of[b] < 0:
                 normals = normals[:0]
-            advance(X[b], P[b], CP[b], CS[b], 0, n, ref, drive, ext, seeds[b], normals, rings[b],
-                    outs[b], h, dec, sel, rec[b], xlim, status[b], works[b])
+            advance(X[b], P[b], CP[b], CS[b], 0, n, ref, drive, ext, 1, seeds[b], normals,
+                    rings[b], outs[b], h, dec, sel, rec[b], xlim, status[b], works[b])
     return 0
 '''
 
@@ -269,9 +279,9 @@ def integrate_tick(t0, h, x, p, out, ext, sw, edges, trig):
     return x
 """
 
-_CLOSED = """        cascade_tick(cpt, cs, k, ref[j], meas, out)"""
+_CLOSED = """        cascade_tick(cpt, cs, k, ref[u], meas, out)"""
 _OPEN = """        for i in range(OUT_SIZE):
-            out[i] = drive[j, i]"""
+            out[i] = drive[u, i]"""
 
 
 def _tuple(items) -> str:

@@ -191,17 +191,19 @@ def axis_engine(
         engine.reset(positions={TABLE_BODY: start})
     except KeyError as exc:
         raise ConfigError(f"{axis.source}: axis {name}: {exc.args[0]}") from None
-    hold = np.zeros((round(preroll_s / period) * engine.dec, signals.REF_SIZE))
-    hold[:, signals.REF_POS_M] = start
-    engine.advance(len(hold), ref=hold)
+    ticks = round(preroll_s / period) * engine.dec
+    if ticks:
+        rest = np.zeros((1, signals.REF_SIZE))
+        rest[0, signals.REF_POS_M] = start
+        engine.advance(ticks, ref=rest, hold=ticks)
     return engine
 
 
 def follow(engine: Engine, traj: SampledTrajectory, axis: str) -> dict[str, np.ndarray]:
     """The engine's recorded signals at every NC sample of `traj`, following its `axis`
     column."""
-    ref = nc_reference(*traj.axis(axis), engine.dec)
-    return engine.advance(len(ref), ref=ref).as_dict()
+    ref = nc_reference(*traj.axis(axis), 1)  # one row per NC sample, held for its period
+    return engine.advance(len(ref) * engine.dec, ref=ref, hold=engine.dec).as_dict()
 
 
 def simulate_program(
