@@ -264,14 +264,24 @@ class Engine:
         ext: np.ndarray | None = None,
         *,
         hold: int = 1,
+        normals: np.ndarray | None = None,
     ) -> SimResult:
         """Advance n_ticks base periods from the current tick; returns what was recorded.
 
         The inputs have one row per `hold` ticks (the last row may hold for fewer), each held
-        over its ticks: NC samples advance with hold = dec and no row repeated per tick."""
+        over its ticks: NC samples advance with hold = dec and no row repeated per tick.
+        `normals`: the sensor noise's standard normal samples of these ticks, drawn ahead
+        (`standard_normals` of an engine with the same `noise_key`, which draws the same
+        doubles), or None: the loop draws them."""
         if int(hold) != hold or hold < 1:
             raise ValueError(f"hold = {hold!r}: must be an integer >= 1")
         hold = int(hold)
+        if normals is None:
+            normals = self._no_normals
+        elif normals.shape != (n_ticks, self.kernel.N_NOISE):
+            raise ValueError(
+                f"normals: shape {normals.shape} given, expected ({n_ticks}, {self.kernel.N_NOISE})"
+            )
         rows = -(-n_ticks // hold)
         ref2, drive2, ext2 = self.tick_inputs(rows, ref=ref, drive=drive, ext=ext)
         k0 = self.k
@@ -291,7 +301,7 @@ class Engine:
             ext2,
             hold,
             self.seed,
-            self._no_normals,
+            normals,
             self.ring,
             self.out,
             self.h,
@@ -306,6 +316,19 @@ class Engine:
         if status[0] != 0.0:
             raise DivergenceError(divergence_message(self.model, status, self.h))
         return SimResult(t=rec_ticks * self.h, names=self.record_names, data=rec)
+
+    @property
+    def noise_key(self) -> tuple[int, tuple[int, ...]]:
+        """What the sensor noise's samples depend on besides the tick: the seed and the plant's
+        channel keys. Engines with equal keys draw the same doubles at the same tick."""
+        return self.seed, tuple(self.kernel.NOISE_KEYS)
+
+    def standard_normals(self, n_ticks: int) -> np.ndarray:
+        """(n_ticks, channels): the standard normal samples of the next n_ticks ticks, for
+        `advance(..., normals=)` of this engine or another with the same `noise_key`."""
+        table = np.empty((n_ticks, self.kernel.N_NOISE))
+        self.kernel.standard_normals(self.seed, self.k, n_ticks, table)
+        return table
 
     def tick_inputs(
         self,

@@ -88,9 +88,10 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, hold, seed, normals, ring, out
     fieldbus setpoint until the next one), row 0 from tick k0: an NC sample is one row, not
     `hold` copies of it that the loop would stream from memory.
 
-    `normals`: the standard normal samples of ticks 0 .. m-1 for `seed`, drawn ahead
-    (`standard_normals`; run_batch draws them once for all sets of a seed), or m = 0 rows: the
-    loop draws them itself when they do not cover ticks k0 .. k0+n-1. The same doubles either way.
+    `normals`: the standard normal samples of ticks k0 .. k0+m-1 for `seed`, drawn ahead
+    (`standard_normals`; run_batch draws them once for all sets of a seed, the machine engine
+    once for all axes of a seed), or m = 0 rows: the loop draws them itself when they do not
+    cover the n ticks. The same doubles either way.
 
     Compiled without numba's reference counting (no allocation here: `work` is the scratch):
     every array argument passed to an inner call would otherwise cost atomic counts.
@@ -112,7 +113,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, hold, seed, normals, ring, out
     row = work[o:o + N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs]
     for i in range(3):
         sw[i] = 0.0
-    drawn = normals.shape[0] >= k0 + n
+    drawn = normals.shape[0] >= n
     # the parameters as a tuple of scalars: numba's arrays may alias, so every store to x or dx
     # would force the loop to reload p[...] and redo each division by a parameter; a tuple is
     # immutable, and LLVM hoists what depends on parameters alone out of the loop
@@ -128,7 +129,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, hold, seed, normals, ring, out
         t = k * h
         # a tuple, not the scratch vector: the loop stores nothing that may alias what it reads
         if drawn:
-            noise = pick_noise(pt, normals[k])
+            noise = pick_noise(pt, normals[j])
         else:
             noise = draw_noise(pt, seed, k)
         # the Park angles of this state, once: the sensors read them, the RK4 stages rotate them
