@@ -23,6 +23,7 @@ docs/performance.md); sets are independent, so a diverged set only flags its own
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import math
@@ -388,6 +389,16 @@ def kernel_source(
 
 
 _LOADED: dict[str, ModuleType] = {}
+_DIGESTS: dict[tuple[tuple[str, int, int], ...], str] = {}  # by the callee files' (size, mtime)
+
+
+@functools.cache
+def _callee_paths() -> tuple[Path, ...]:
+    """The source files of `_callee_digest` (listed once: a module added to a running process
+    is not imported by its kernels anyway)."""
+    root = Path(__file__).resolve().parent.parent
+    paths = [p for pkg in ("core", "plant", "control") for p in sorted((root / pkg).glob("*.py"))]
+    return (*paths, Path(__file__).resolve())
 
 
 def _callee_digest() -> str:
@@ -395,14 +406,19 @@ def _callee_digest() -> str:
 
     numba's cache does not notice a change in a callee defined in another module, so the kernel
     file name carries this hash: edit a component, the controller or this loop and a new kernel
-    compiles.
+    compiles. Read again only when a file's size or modification time changed: every engine
+    asks, and reading and hashing the files took 6 ms, more than loading the kernel.
     """
-    root = Path(__file__).resolve().parent.parent
+    paths = _callee_paths()
+    stamp = tuple((str(p), st.st_size, st.st_mtime_ns) for p in paths for st in (p.stat(),))
+    known = _DIGESTS.get(stamp)
+    if known is not None:
+        return known
     digest = hashlib.sha256()
-    paths = [p for pkg in ("core", "plant", "control") for p in sorted((root / pkg).glob("*.py"))]
-    for path in [*paths, Path(__file__).resolve()]:
+    for path in paths:
         digest.update(path.read_bytes())
-    return digest.hexdigest()
+    _DIGESTS[stamp] = digest.hexdigest()
+    return _DIGESTS[stamp]
 
 
 def load_kernel(
