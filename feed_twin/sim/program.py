@@ -10,8 +10,10 @@ engine's setpoint rows (`nc_reference`), runs one closed-loop engine per simulat
 returns the NC's command beside the engines' recorded signals on the NC's sample grid.
 
 The NC command of sample j (position, and velocity and acceleration as feed-forward, held over
-its period as the drive's setpoint) drives base ticks [j dec, (j+1) dec), and what the engine
-records at tick j dec is the axis at t_j: every axis meets the others at every NC sample. Axes
+its period as the drive's setpoint: one input row the kernel holds for dec ticks) drives base
+ticks [j dec, (j+1) dec), and what the engine records at tick j dec is the axis at t_j: every
+axis meets the others at every NC sample. The axes advance side by side in chunks, and axes
+with the same sensor noise read it from one table (`follow`). Axes
 without a plant (rotary axes, or those a machine leaves out) are their command. The plant names
 its table `table`, the machine coordinate `table.s` (the axis files' convention).
 
