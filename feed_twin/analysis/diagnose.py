@@ -31,6 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.analysis.channels import (
+    VOLTAGE_Q,
+    channel_residuals,
+    noise_floors,
+    residuals,
+    voltage_residual,
+    weighted_channels,
+)
 from feed_twin.analysis.compare import Metrics, align, compute_metrics
 from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.fit import SimOutputs, cost_of
@@ -38,21 +46,15 @@ from feed_twin.analysis.locate import locate
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.rounds import (
-    VOLTAGE_Q,
     Context,
     Options,
     Progress,
     State,
     Values,
-    channel_residuals,
     drop_collapsed,
     final_joint,
-    noise_floors,
     noop,
-    residuals,
     run_round,
-    voltage_residual,
-    weighted_channels,
 )
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.io.measured import EFFORT_UNITS, MeasuredDataError, MeasuredRun

@@ -1,10 +1,9 @@
-"""The rounds of the discrepancy workflow (analysis.diagnose): its channels and their
-weights, one round of rank-fit-test-keep, the re-examination of earlier effects, the final
-joint re-fit.
+"""The rounds of the discrepancy workflow (analysis.diagnose): one round of
+rank-fit-test-keep, the re-examination of earlier effects, the final joint re-fit.
 
-The fit's channels are the recorded effort, position and q-voltage residuals (measured minus
-twin); their weights are re-estimated from the current model before every round
-(analysis.significance). See analysis.diagnose for the workflow as a whole.
+The fit's channels and their weights are analysis.channels' (estimated again from the current
+model before every round); a candidate is fitted into the model by analysis.trials. See
+analysis.diagnose for the workflow as a whole.
 """
 
 from __future__ import annotations
@@ -16,25 +15,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from feed_twin.analysis.effects import Motion
-from feed_twin.analysis.fit import (
-    FitResult,
-    FreeParameter,
-    Measured,
-    SimOutputs,
-    cost_of,
-    fit,
+from feed_twin.analysis.channels import (
+    channel_residuals,
+    residuals,
+    voltage_residual,
+    weighted_channels,
 )
-from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc, model_of
+from feed_twin.analysis.effects import Motion
+from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, cost_of, fit
+from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate, evidence, rank
 from feed_twin.analysis.reexamine import Found, collapsed, neutral_values, removable, without
 from feed_twin.analysis.report import FoundEffect
-from feed_twin.analysis.significance import compare, sample_noise
-from feed_twin.analysis.twin import Drive, Twin, delayed
+from feed_twin.analysis.significance import compare
+from feed_twin.analysis.trials import try_candidate
+from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.io.measured import MeasuredRun
-from feed_twin.plant.effect_api import Edit, interacting
-
-VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
+from feed_twin.plant.effect_api import interacting
 
 Progress = Callable[[str], None]
 
@@ -98,171 +95,6 @@ def force_per_effort(twin: Twin) -> float:
 
 def noop(_: str) -> None:
     pass
-
-
-def residuals(run: MeasuredRun, out: SimOutputs, row: int = 0):
-    x = run["pos_meas_m"]
-    rp = out.x_m[row] - x
-    re = None
-    name = run.effort_name
-    if name is not None and out.effort is not None:
-        re = run[name] - out.effort[row]
-    return re, rp
-
-
-def voltage_residual(run: MeasuredRun, out: SimOutputs, row: int = 0) -> np.ndarray | None:
-    """Measured minus twin q-voltage [V] of the current controller, when both have it."""
-    if VOLTAGE_Q not in run or out.voltage_q is None:
-        return None
-    return run[VOLTAGE_Q] - out.voltage_q[row]
-
-
-def channel_residuals(run: MeasuredRun, out: SimOutputs, row: int = 0) -> dict[str, np.ndarray]:
-    """Each recorded channel's residual (measured minus twin) on the record's time base."""
-    re, rp = residuals(run, out, row)
-    ru = voltage_residual(run, out, row)
-    found = {"effort": re, "position": -rp, "voltage": ru}
-    return {k: v for k, v in found.items() if v is not None}
-
-
-def noise_floors(run: MeasuredRun, out: SimOutputs) -> dict[str, float]:
-    """Each channel's sample noise: the least its weight's noise level can be (see
-    analysis.significance), never below the smallest step that means anything in its unit."""
-    least = {"effort": 1e-9, "position": 1e-12, "voltage": 1e-6}
-    return {k: max(sample_noise(r), least[k]) for k, r in channel_residuals(run, out).items()}
-
-
-def weighted_channels(
-    run: MeasuredRun, out: SimOutputs, stride: int, floors: dict[str, float]
-) -> Measured:
-    """The fit's channels, each weighted by its noise level estimated at the model `out`: the
-    RMS of its residual there, floored by its sample noise (analysis.significance)."""
-    sigma = {
-        k: max(float(np.sqrt(np.mean(r**2))), floors[k])
-        for k, r in channel_residuals(run, out).items()
-    }
-    name = run.effort_name
-    return Measured(
-        x_m=run["pos_meas_m"],
-        effort=None if name is None or out.effort is None else run[name],
-        scale_x=sigma["position"],
-        scale_effort=sigma.get("effort", 1.0),
-        stride=stride,
-        voltage_q=run[VOLTAGE_Q] if "voltage" in sigma else None,
-        scale_voltage=sigma.get("voltage", 1.0),
-    )
-
-
-def _fit_resumed(
-    twin: Twin, drive: Drive, free: list[FreeParameter], meas: Measured, opts: Options
-) -> FitResult:
-    """Least squares; resumed once from where it stopped if the budget ran out on the way down
-    (a friction fit through stick-slip needs more steps than a mass), so that a fit which was
-    still improving is not thrown away for its budget alone."""
-    result = fit(
-        lambda params: twin.simulate(drive, params),
-        twin.nominal,
-        twin.index,
-        free,
-        meas,
-        max_evaluations=opts.max_evaluations,
-    )
-    if result.converged or not result.cost < result.cost_initial:
-        return result
-    resumed = fit(
-        lambda params: twin.simulate(drive, params),
-        twin.nominal,
-        twin.index,
-        [dataclasses.replace(p, initial=result.values[p.name]) for p in free],
-        meas,
-        max_evaluations=opts.max_evaluations,
-    )
-    return dataclasses.replace(
-        resumed,
-        cost_initial=result.cost_initial,
-        evaluations=result.evaluations + resumed.evaluations,
-    )
-
-
-def _try(
-    state: State, cand: Candidate, drive: Drive, meas: Measured, opts: Options
-) -> tuple[Edit, list[FreeParameter], Twin, FitResult] | str:
-    """Add the candidate to the model and fit it (with the effects found before); returns the
-    edit, the effect's own parameters, the compiled twin and the fit, or why it was not fitted."""
-    try:
-        edit = cand.effect.edit(state.doc, cand)
-    except LookupError as exc:
-        return f"{cand.name}: cannot be added to this model ({exc}); not fitted"
-    doc = model_of(edit.doc)
-    # the effects found before interact with the new one (a constant force fitted alone has
-    # absorbed part of a Coulomb force found later): their parameters are fitted again with it
-    names = {p.name for p in edit.own}
-    alone = list(edit.own)
-    again = []
-    for p in () if edit.grid else state.found_free():
-        if p.name in names:
-            continue
-        if not doc.has_slot(p.name):
-            continue  # the parameter was split or replaced by the new effect
-        again.append(dataclasses.replace(p, initial=doc.get(p.name)))
-        names.add(p.name)
-    own = edit.own + again
-    edit = dataclasses.replace(
-        edit, own=own, free=own + [p for p in edit.free if p.name not in names]
-    )
-    twin = Twin.compile(doc)
-    if edit.grid:
-        return edit, alone, twin, _grid_search(twin, edit, drive, meas)
-    return edit, alone, twin, _fit_resumed(twin, drive, edit.own, meas, opts)
-
-
-def _grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
-    """A searched parameter (a delay in ticks, a recorded channel's delay): every grid value
-    in one batch, best kept. A record slot (analysis.*) changes no simulation: the twin runs
-    once and its output is shifted for each value."""
-    (param,) = edit.own
-    if param.name == EFFORT_DELAY_SLOT:
-        out = _effort_delays(twin, edit, drive)
-    else:
-        batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
-        for i in twin.index[param.name]:
-            batch[:, i] = edit.grid
-        out = twin.simulate(drive, batch)
-    costs = np.array([cost_of(meas, out, row) for row in range(len(edit.grid))])
-    best = int(np.argmin(costs))
-    start = int(np.argmin(np.abs(np.asarray(edit.grid) - param.initial)))
-    row = SimOutputs(
-        x_m=out.x_m[best : best + 1],
-        effort=None if out.effort is None else out.effort[best : best + 1],
-        ok=out.ok[best : best + 1],
-        voltage_q=None if out.voltage_q is None else out.voltage_q[best : best + 1],
-    )
-    return FitResult(
-        values={param.name: float(edit.grid[best])},
-        cost_initial=float(costs[start]),
-        cost=float(costs[best]),
-        converged=bool(np.isfinite(costs[best])),
-        message=f"grid search over {len(edit.grid)} values",
-        evaluations=len(edit.grid),
-        outputs=row,
-    )
-
-
-def _effort_delays(twin: Twin, edit: Edit, drive: Drive) -> SimOutputs:
-    """The twin's outputs once, its effort shifted by every grid delay (one row each)."""
-    if twin.doc.get(EFFORT_DELAY_SLOT) != 0.0:
-        twin = Twin.compile(twin.doc.set(EFFORT_DELAY_SLOT, 0.0))
-    once = twin.simulate(drive, twin.nominal[None, :])
-    n = len(edit.grid)
-    effort = None
-    if once.effort is not None:
-        effort = np.vstack([delayed(once.effort, drive.t_s, d) for d in edit.grid])
-    return SimOutputs(
-        x_m=np.repeat(once.x_m, n, axis=0),
-        effort=effort,
-        ok=np.repeat(once.ok, n),
-        voltage_q=None if once.voltage_q is None else np.repeat(once.voltage_q, n, axis=0),
-    )
 
 
 def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> str | None:
@@ -367,7 +199,9 @@ def run_round(
     )
     trials = []
     for cand in rivals:
-        tried = _try(state, cand, ctx.drive, meas, opts)
+        tried = try_candidate(
+            state.doc, state.found_free(), cand, ctx.drive, meas, opts.max_evaluations
+        )
         if isinstance(tried, str):
             ctx.notes.append(tried)
             unfitted.append(
