@@ -9,7 +9,6 @@ analysis.diagnose for the workflow as a whole.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -78,19 +77,6 @@ class Values(dict):
 
 def unit_of(twin: Twin, cand: Candidate) -> str:
     return {"effort": twin.effort_unit, "voltage": "V"}.get(cand.residual_domain, "m")
-
-
-def force_per_effort(twin: Twin) -> float:
-    """Newtons at the table per unit of the twin's effort: 1 for a force, 2 pi / lead for a
-    torque, K_t 2 pi / lead for a q-current (the controller's drive constant, else the
-    motor's); 1 where the model gives no lead."""
-    if twin.effort_unit == "N" or twin.lead_m is None:
-        return 1.0
-    per_torque = 2.0 * math.pi / twin.lead_m
-    if twin.effort_unit == "N m":
-        return per_torque
-    k_t = twin.doc.data["controller"].get("drive", {}).get("K_t") or twin.doc.torque_constant()
-    return float(k_t) * per_torque if k_t else 1.0
 
 
 def noop(_: str) -> None:
@@ -172,8 +158,9 @@ def run_round(
         loop_stiffness=ctx.stiffness,
         voltage_residual=voltage_residual(run, state.outputs),
     )
-    # the edits take force-like weights as forces at the table
-    per_effort = force_per_effort(ctx.unit_twin)
+    # the edits take force-like weights as forces at the table, converted as for a friction
+    # (they are starting values of the fit); without a screw they stay in the effort's unit
+    per_effort = ctx.unit_twin.doc.force_per_effort(ctx.unit_twin.effort_unit) or 1.0
     ranking = [
         dataclasses.replace(c, force_per_unit=per_effort) if c.residual_domain == "effort" else c
         for c in ranking
