@@ -16,11 +16,12 @@ Significance: a candidate is fitted only if its signature passed the ranking's s
 effect is kept only if the simulation confirms it by the likelihood-ratio test of
 analysis.significance (corrected for the candidates searched, and removing at least
 MIN_EXPLAINED of one channel's residual). The channels' weights are estimated again from the
-current model before every round (analysis.significance). After each addition the effects found
-before are re-examined jointly (analysis.reexamine): those whose parameters collapsed or whose
-removal costs nothing are dropped. A fit that does not converge within its budget but improved
-the cost is resumed once from where it stopped; one that still does not converge is reported and
-its model discarded: the last good model stays.
+current model before every round (analysis.significance); an effect that lives on part of the
+record (a force held at rest) is screened and tested on its support. After each addition the
+effects found (the newest too) are re-examined jointly (analysis.reexamine): those whose
+parameters collapsed or whose removal costs nothing are dropped. A fit that does not converge
+within its budget but improved the cost is resumed once from where it stopped; one that still
+does not converge is reported and its model discarded: the last good model stays.
 """
 
 from __future__ import annotations

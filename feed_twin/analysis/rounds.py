@@ -24,13 +24,20 @@ from feed_twin.analysis.effects import Motion
 from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, cost_of, fit
 from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate, evidence, rank
-from feed_twin.analysis.reexamine import Found, collapsed, neutral_values, removable, without
+from feed_twin.analysis.reexamine import (
+    Found,
+    collapsed,
+    fell_back,
+    neutral_values,
+    removable,
+    without,
+)
 from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import compare
 from feed_twin.analysis.trials import try_candidate
 from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.io.measured import MeasuredRun
-from feed_twin.plant.effect_api import interacting
+from feed_twin.plant.effect_api import Edit, interacting
 
 Progress = Callable[[str], None]
 
@@ -216,34 +223,61 @@ def run_round(
         trials.append((cand, edit, alone, new_twin, result))
     if not trials:
         return ranking, True
-    # the winner removes the most cost per added degree of freedom relative to what is
-    # left (the partial F statistic up to the common effective sample count), so a
-    # two-parameter effect must do twice the work of a one-parameter one
-    cand, edit, alone, new_twin, result = max(
-        trials,
+    # the best removes the most cost per added degree of freedom relative to what is left
+    # (the partial F statistic up to the common effective sample count), so a two-parameter
+    # effect must do twice the work of a one-parameter one; the best that passes the test is
+    # kept (a drive gain that bends the position at the effort's expense must not hide the
+    # holding force fitted beside it)
+    trials.sort(
         key=lambda t: (state.cost - t[4].cost) / t[1].added / max(t[4].cost, 1e-300),
+        reverse=True,
     )
-    excluded.append(cand.name)
-    # the search behind it: the signature's variants (or the grid of a whole number) and the
-    # rivals it was chosen from
-    searched = max(cand.searched, len(edit.grid), 1) * len(trials)
-    verdict = compare(
-        ctx.channels(state.outputs),
-        ctx.channels(result.outputs),
-        added=edit.added,
-        searched=searched,
-        own=cand.residual_domain,
-    )
-    if not verdict.significant:
+    for cand, edit, alone, new_twin, result in trials:
+        excluded.append(cand.name)
+        if _collapsed_in_fit(state, edit, alone, result):
+            ctx.notes.append(
+                f"{cand.name} was fitted but its parameters fell back to the values without it "
+                f"({', '.join(f'{k} = {v:.4g}' for k, v in result.values.items())}); not kept"
+            )
+            continue
+        verdict = compare(
+            ctx.channels(state.outputs),
+            ctx.channels(result.outputs),
+            added=edit.added,
+            searched=_searched(cand, edit, len(trials)),
+            own=cand.residual_domain,
+            support=cand.support,
+        )
+        if verdict.significant:
+            _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
+            _reexamine(state, ctx, meas)
+            return ranking, True
         ctx.notes.append(
             f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
         )
-        # the model did not change: the rivals it beat would fit the same way next round
-        excluded.extend(t[0].name for t in trials if t[0].name not in excluded)
-        return ranking, True
-    _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
-    _reexamine(state, ctx, meas)
+    # the model did not change: the rivals would fit the same way next round
     return ranking, True
+
+
+def _collapsed_in_fit(state: State, edit: Edit, alone: list[FreeParameter], result) -> bool:
+    """The fit took the new effect's size parameters back to within COLLAPSE of the values
+    without it, from where the ranking's weights started them: what the fit gained came from
+    fitting the effects found before again, not from this one."""
+    if edit.grid:
+        return False
+    slots = tuple(p.name for p in alone)
+    neutral = neutral_values(state.doc, model_of(edit.doc), slots)
+    start = {p.name: p.initial for p in alone}
+    return fell_back(neutral, start, {s: result.values.get(s, start[s]) for s in slots})
+
+
+def _searched(cand: Candidate, edit: Edit, rivals: int) -> int:
+    """The alternatives a kept effect was chosen from: its signature's variants and the rivals
+    fitted beside it. A grid over the effect's own size that holds the model's current value (a
+    delay from 0 up) is a fit of one parameter nested in the model without it, whose likelihood
+    ratio is chi^2(1) (Wilks): no search of unrelated alternatives. Any other grid is one."""
+    nested = bool(edit.grid) and edit.own[0].initial in edit.grid
+    return max(cand.searched, 1 if nested else len(edit.grid), 1) * rivals
 
 
 def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
@@ -294,12 +328,14 @@ def drop_collapsed(state: State, ctx: Context, when: str) -> None:
 
 
 def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
-    """Examine the effects found before the newest one jointly (analysis.reexamine)."""
+    """Examine the effects found jointly (analysis.reexamine), the newest one too: its fit
+    re-fitted the effects found before, and what that alone gains is no evidence for it."""
     if len(state.found) < 2:
         return
+    newest = state.found[-1]
     if any(collapsed(f, state.doc) for f in state.found[:-1]):
         drop_collapsed(state, ctx, "once a later effect was in the model")
-    for target in list(state.found[:-1]):
+    for target in list(state.found):
         if not removable([target], state.doc) or target.own == ():
             continue
         others = [f for f in state.found if f is not target]
@@ -317,8 +353,13 @@ def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
             continue
         state.found.remove(target)
         state.doc, state.twin, state.outputs = gone.doc, gone.twin, gone.outputs
+        when = (
+            "with the effects found before fitted again"
+            if target is newest
+            else "once a later effect was in the model"
+        )
         ctx.notes.append(
-            f"{target.name} was dropped once a later effect was in the model: removing it "
-            f"costs nothing significant (with it the model {gone.verdict.words()})"
+            f"{target.name} was dropped {when}: removing it costs nothing significant "
+            f"(with it the model {gone.verdict.words()})"
         )
         ctx.progress(f"  dropped {target.name}: removing it costs nothing significant")
