@@ -79,7 +79,8 @@ def _drive(t: np.ndarray, v: float) -> Drive:
 
 def test_the_twin_draws_the_current_the_factor_predicts():
     """Second path: the compiled PMSM axis. 50 N more Coulomb friction at a constant 0.1 m/s
-    costs 50 N / (K_t 2 pi eta / lead) more q-current: the screw drives the load."""
+    costs 50 N / (K_t 2 pi eta / lead) more q-current: the screw drives the load (a lossless
+    screw's factor would be 10 % off, far outside the 1 % tolerance)."""
     twin = Twin.compile(ModelDoc.load(AXIS))
     t = 1e-3 * np.arange(600)
     steady = slice(400, 600)
@@ -90,5 +91,3 @@ def test_the_twin_draws_the_current_the_factor_predicts():
     assert out.ok.all() and out.effort is not None
     d_i = float(np.mean(out.effort[1, steady] - out.effort[0, steady]))
     assert d_i * twin.doc.force_per_effort("A") == pytest.approx(50.0, rel=0.01)
-    # the factor of a lossless screw would be 10 % off
-    assert d_i * twin.doc.force_per_effort("A") / ETA == pytest.approx(55.6, rel=0.01)
