@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
+import pytest
 import yaml
 
 from feed_twin.cli import main as cli_main
@@ -66,7 +68,15 @@ def test_the_worn_guide_is_estimated_near_its_true_change(tmp_path):
     x = shadow_machine(load_machine_config(tmp_path / "machine.yaml"), tmp_path / "p.ngc")["X"]
     named = [v for v in x.verdicts if math.isfinite(v.relative_change)]
     assert named, [v.message for v in x.verdicts]
-    assert all(abs(v.relative_change) < 3.0 for v in named), [v.message for v in named]
-    coulomb = [v for v in named if v.effect == "coulomb_friction"]
-    assert coulomb, [v.message for v in named]
-    assert all(0.7 < v.relative_change < 1.5 for v in coulomb), [v.message for v in coulomb]
+    # the last window holds worn motion only: the guide's friction, doubled (its Coulomb part
+    # +100 %, or its Stribeck part, which doubled with it)
+    last = x.verdicts[-1]
+    assert last.effect in ("coulomb_friction", "stribeck_friction"), last.message
+    for v in named:
+        assert v.relative_change == pytest.approx(1.0, abs=0.15), v.message
+    # no window reports a size it cannot determine (opposite weights of |v| and "moving" on a
+    # cruise, a Stribeck speed the window never reaches): what an effect adds stays near the
+    # truth's change (120 N, about 0.1 A)
+    for v in x.verdicts:
+        added = re.search(r"adds up to (\S+) A", v.message)
+        assert added is None or float(added.group(1)) < 0.5, v.message

@@ -41,6 +41,12 @@ from feed_twin.analysis.effects import LIBRARY, Effect, Motion
 from feed_twin.analysis.significance import ALPHA, MIN_EXPLAINED
 
 SUPPORT_LEVEL = 1e-2  # a regressor this small against its peak carries 1e-4 of its energy
+# A support with fewer effective samples than this cannot give its own noise level: a few
+# neighbouring samples of a smooth residual fit any regressor there almost exactly.
+MIN_SUPPORT_N_EFF = 10.0
+# A variant whose signature peaks this far below the effect's largest variant vanishes on the
+# record: its weight would be the size of something the record never shows.
+VANISHING = 1e-6
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -61,6 +67,9 @@ class Candidate:
     # that it explains (the whole record's share where it lives everywhere)
     support: np.ndarray | None = None
     support_fraction: float = 0.0
+    # how far the regressors' weighted terms cancel each other (1: they do not): near-collinear
+    # regressors fit with huge opposite weights whose sum is small, so the weights mean nothing
+    cancellation: float = 1.0
     # newtons at the table per unit of the residual ranked: the weights of an effort in amperes
     # (or newton metres) are not forces (1 A is K_t 2 pi / lead = 1194 N on axis_default)
     force_per_unit: float = 1.0
@@ -188,9 +197,12 @@ def rank(
         r = residual_of[domain]
         nuisance = offset if domain == "position" else None
         variants = effect.variants(motion)
+        signatures = [(label, sig(motion)) for label, sig in variants]
+        peaks = [_peak(regs) for _, regs in signatures]
         best = None
-        for label, sig in variants:
-            regs = sig(motion)
+        for (label, regs), peak in zip(signatures, peaks, strict=True):
+            if peak < VANISHING * max(peaks):
+                continue  # not observed on this record (a Stribeck speed far below its speeds)
             result = test_regressors(r, regs, nuisance)
             if best is None or result[0] > best[2][0]:
                 best = (label, regs, result)
@@ -236,6 +248,7 @@ def rank(
         p_adj = min(1.0, p_value * n_variants)
         energy_on = float(np.dot(r[on], r[on]))
         on_support = min(1.0, ess / energy_on) if energy_on > 0 else 0.0
+        enough = support is None or n_eff >= MIN_SUPPORT_N_EFF
         out.append(
             Candidate(
                 effect=effect,
@@ -245,15 +258,32 @@ def rank(
                 p_value=p_adj,
                 n_eff=n_eff,
                 coefficients=coef,
-                significant=p_adj < ALPHA and on_support >= MIN_EXPLAINED,
+                significant=p_adj < ALPHA and on_support >= MIN_EXPLAINED and enough,
                 domain=domain,
                 searched=n_variants,
                 support=support,
                 support_fraction=on_support,
+                cancellation=cancellation(regs, coef),
             )
         )
     out.sort(key=lambda c: (c.significant, c.explained_fraction), reverse=True)
     return out
+
+
+def cancellation(regressors: dict[str, np.ndarray], coefficients: dict[str, float]) -> float:
+    """max |terms| summed over max |their sum| (1 for one regressor, inf for a zero fit)."""
+    terms = np.array([coefficients[k] * np.asarray(z, dtype=float) for k, z in regressors.items()])
+    total = float(np.max(np.abs(terms.sum(axis=0)), initial=0.0))
+    spread = float(np.max(np.abs(terms).sum(axis=0), initial=0.0))
+    if spread == 0.0:
+        return 1.0
+    return spread / total if total > 0.0 else math.inf
+
+
+def _peak(regressors: dict[str, np.ndarray]) -> float:
+    return max(
+        float(np.max(np.abs(np.asarray(z, dtype=float)), initial=0.0)) for z in regressors.values()
+    )
 
 
 def _rank_of(Z: np.ndarray | None) -> int:

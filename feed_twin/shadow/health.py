@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from feed_twin.analysis.effects import BY_NAME, motion_from_position
-from feed_twin.analysis.ranking import rank
+from feed_twin.analysis.ranking import Candidate, rank
 from feed_twin.shadow.config import ShadowConfig
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -49,6 +49,9 @@ MIN_SPEED_M_S = 1e-4  # [m/s] below this peak speed in a window nothing can be a
 # window costs about 0.1 s, which a live twin cannot spend every few seconds.
 NAMING_SAMPLES = 500
 MAX_BASELINE_EFFECTS = 4  # effects the baseline residual model may hold
+# An effect whose fitted terms cancel each other more than this is not identified on the window
+# (|v| and "moving" on a cruise at one speed): its weights would be reported as its size.
+MAX_CANCELLATION = 10.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -293,7 +296,7 @@ class HealthMonitor:
                 position_residual=None,
                 exclude=tuple(name for name, _ in chosen),
             )
-            found = next((c for c in ranked if c.significant), None)
+            found = _first_identified(ranked)
             if found is None:
                 break
             chosen.append((found.name, found.variant))
@@ -350,15 +353,20 @@ class HealthMonitor:
         except (np.linalg.LinAlgError, ValueError) as exc:
             # a twin must never stop over its diagnosis: report and go on
             return {"message": f"the effect ranking failed on this window ({exc})"}
-        found = next((c for c in ranked if c.significant), None)
+        found = _first_identified(ranked)
         if found is None:
             return {"message": "no effect of the library explains the change"}
         phys = self.physical.get(found.name)
         if phys is None or phys.regressor not in found.coefficients:
-            weights = ", ".join(f"{k} {v:+.3g}" for k, v in found.coefficients.items())
+            # its weights are sizes only where the window shows the whole signature (a Stribeck
+            # bump needs slow motion): what the window determines is the effort it adds here
+            columns, _ = self._regressors(motion, [(found.name, found.variant)])
+            added = sum(found.coefficients[k.split(":", 1)[1]] * z for k, z in columns.items())
+            peak = float(np.max(np.abs(added), initial=0.0))
             return {
                 "effect": found.name,
-                "message": f"{found.name} changed since start ({weights} [{unit}])",
+                "message": f"{found.name} changed since start (adds up to {peak:.3g} {unit} "
+                "in this window)",
             }
         start = phys.nominal
         now = start + phys.per_effort * found.coefficients[phys.regressor]
@@ -377,6 +385,11 @@ class HealthMonitor:
             "relative_change": rel,
             "message": f"{what} ({start:.4g} -> {now:.4g} {phys.unit})",
         }
+
+
+def _first_identified(ranked: list) -> Candidate | None:
+    """The most explaining significant candidate whose weights the window determines."""
+    return next((c for c in ranked if c.significant and c.cancellation <= MAX_CANCELLATION), None)
 
 
 def _decimated(rows: np.ndarray) -> np.ndarray:
