@@ -5,7 +5,8 @@ Subscribes `command` (AxisCommand, from the G-code node or a real NC) and `feedb
 until the NC setpoint for t is known (a setpoint stamped >= t has arrived, or the program has
 finished, after which the last setpoint is held at standstill), runs `split.ControllerCore` and
 publishes `drive_command` stamped t. All control maths is in feed_twin.control; this file only
-converts messages.
+converts messages. With `ros.record_batch` N > 0 the recorder's copies of the DriveCommands go
+to it packed, one RecordBatch per N exchanges (feed_twin.ros.batched).
 """
 
 from __future__ import annotations

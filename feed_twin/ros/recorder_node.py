@@ -15,6 +15,13 @@ per second; a callback per message would make the recorder the largest CPU user 
 and steal the cores the controller and the sim wait for. The subscriptions' history (DATA_QOS
 depth) holds what arrives between two drains.
 
+With `ros.record_batch` N > 0 (a machine's node set) the sim's feedback, state and joint states
+and the controller's DriveCommand come packed, N exchanges to a RecordBatch on
+`<namespace>/record/<role>` (feed_twin.nodeset.record_batch): the recorder subscribes to those
+instead of to the topics themselves and writes each message under its own topic, logged at its
+publish time. Producers of those topics other than the sim and controller nodes (a stand-in, a
+LinuxCNC bridge) do not pack: a run with them keeps record_batch 0.
+
 A machine's recorder (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes) records
 every axis of the machine into the one bag: the node-set topics of each axis with nodes, the
 command of each axis without, and whatever else appears under `/<machine>/`.

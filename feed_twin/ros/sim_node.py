@@ -11,7 +11,10 @@ Timing:
 - real time: exchanges start at wall-clock instants t0 + k*T; a DriveCommand that has not
   arrived by then counts as a missed step and the previous one is held (as a drive does). At the
   end the node reports lateness p50/p99/max of the exchange starts and the missed steps.
-The run ends `settle_s` after the program has finished (or was stopped); the node announces it
+
+With `ros.record_batch` N > 0 the recorder's copies of feedback, state and joint states go to it
+packed, one RecordBatch per N exchanges (feed_twin.ros.batched); the topics carry every message
+as before. The run ends `settle_s` after the program has finished (or was stopped); the node announces it
 on `run_state` ("done ..."), which ends the other nodes too.
 """
 
