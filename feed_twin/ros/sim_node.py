@@ -14,8 +14,8 @@ Timing:
 
 With `ros.record_batch` N > 0 the recorder's copies of feedback, state and joint states go to it
 packed, one RecordBatch per N exchanges (feed_twin.ros.batched); the topics carry every message
-as before. The run ends `settle_s` after the program has finished (or was stopped); the node announces it
-on `run_state` ("done ..."), which ends the other nodes too.
+as before. The run ends `settle_s` after the program has finished (or was stopped); the node
+announces it on `run_state` ("done ..."), which ends the other nodes too.
 """
 
 from __future__ import annotations
