@@ -4,9 +4,10 @@ Each case hides effects in a synthetic record (analysis.synthetic: truth = twin 
 current-loop lag + a 3 % softer coupling + the encoder's true counts + effort noise, written as
 CSV + column map) and runs `diagnose` on it with only the nominal model. A case passes when the
 hidden effects are the first ones named (in any order), each fitted parameter within its
-tolerance of the truth (10 %, 5 % where the test asks it), and nothing is named on a clean
-record. The per-case timings and the names found are printed as they come; the last line is one
-JSON object: {"cases": {name: {"ok", "named", "parameters", "seconds"}}, "passed", "failed"}.
+tolerance of the truth (10 %, 5 % where the test asks it), nothing else is named but what the
+truth's unmodelled part really has (a case lists it, and says why), and nothing is named on a
+clean record. The per-case timings and the names found are printed as they come; the last line
+is one JSON object: {"cases": {name: {"ok", "named", "parameters", "seconds"}}, "passed", "failed"}.
 
     .venv/bin/python benchmarks/blind_effects.py            # the whole matrix (tens of minutes)
     .venv/bin/python benchmarks/blind_effects.py coulomb_friction backlash+coulomb_friction
@@ -49,6 +50,10 @@ class Case:
     start_m: float = 0.0
     # parameter -> absolute tolerance (phases) instead of REL
     absolute: dict[str, float] = field(default_factory=dict)
+    # effects the truth really has beyond the hidden ones (its unmodelled part, see
+    # analysis.synthetic.Unmodelled), which may be named after them; their parameters are not
+    # checked: the library names them under the nearest effect it has
+    unmodelled: tuple[str, ...] = ()
 
 
 def _axis(hidden: dict, **kw: Any) -> Case:
@@ -83,7 +88,16 @@ CASES: dict[str, Case] = {
         absolute={"phase_rad": 0.1},
     ),
     "thermal_drift": _axis({"thermal_drift": {"heating_K_m": 2.0}}, semi_closed=True),
-    "backlash": _axis({"backlash": {"gap_m": 10e-6}}, semi_closed=True),
+    # the truth's 3 % softer torsional coupling is a stiffness error of the drive train: behind
+    # the gap, with the loop on the motor encoder, it is what remains in the position residual
+    # (15 % of it), and position_dependent_stiffness, the library's only stiffness effect, takes
+    # it. With the coupling as stiff as the model's, backlash alone is named (the stiffness is
+    # fitted and rejected, LR = 0.35): a true effect of the truth, not a false naming
+    "backlash": _axis(
+        {"backlash": {"gap_m": 10e-6}},
+        semi_closed=True,
+        unmodelled=("position_dependent_stiffness",),
+    ),
     "position_dependent_stiffness": _axis(
         {"position_dependent_stiffness": STIFFNESS}, long_program=True
     ),
@@ -128,7 +142,8 @@ def run_case(case: Case, folder: Path) -> dict[str, Any]:
     named = [e.name for e in d.effects]
     found = {e.name: e.parameters for e in d.effects}
     misses = []
-    if set(named[: len(case.hidden)]) != set(case.hidden) or len(named) > len(case.hidden):
+    extra = named[len(case.hidden) :]
+    if set(named[: len(case.hidden)]) != set(case.hidden) or not set(extra) <= set(case.unmodelled):
         misses.append(f"named {named}")
     for effect, truth in case.hidden.items():
         for key, value in truth.items():

@@ -4,11 +4,14 @@ per axis; a guide that wears on X is reported on X alone."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import yaml
 
 from feed_twin.cli import main as cli_main
+from feed_twin.machine.config import load_machine_config
+from feed_twin.machine.shadow import shadow_machine
 
 ROOT = Path(__file__).resolve().parents[1]
 PROGRAM = "G90 G54 G17\n" + "G1 X-50 Z-50 F6000\nG1 X50 Z50\n" * 3 + "M2\n"
@@ -26,7 +29,7 @@ def test_a_worn_x_guide_warns_on_x_only(tmp_path, capsys):
     (tmp_path / "machine.yaml").write_text(yaml.safe_dump(machine))
     (tmp_path / "p.ngc").write_text(PROGRAM)
     argv = ["run", str(tmp_path / "p.ngc"), "--config", str(tmp_path / "machine.yaml")]
-    argv += ["--out", str(tmp_path), "--name", "m", "--shadow", "--json"]
+    argv += ["--out", str(tmp_path), "--name", "m", "--shadow", "--in-process", "--json"]
     assert cli_main(argv) == 0
     out = capsys.readouterr().out
     record = json.loads(out.strip().splitlines()[-1])["shadow"]
@@ -44,3 +47,26 @@ def test_a_worn_x_guide_warns_on_x_only(tmp_path, capsys):
         assert record[axis]["effort_dev_rms"] < 0.06
     assert record["z"]["fe_dev_rms_m"] < 2e-6
     assert "shadow x: FE deviation RMS" in out
+
+
+def test_the_worn_guide_is_estimated_near_its_true_change(tmp_path):
+    """Once the health window holds only worn motion, the estimate is the truth's step: the guide
+    friction doubles (+100 %). The baseline residual model must stay well-posed on a one-way
+    cruise (|v| and v, or a standstill indicator, nearly collinear there): fitted all at once,
+    it once predicted 1000 A and named a Coulomb change of -336063 %."""
+    machine = yaml.safe_load((ROOT / "config" / "machine_default.yaml").read_text())
+    axis = (ROOT / "config" / "axis_default.yaml").read_text()
+    shadow = yaml.safe_load(axis)["shadow"]
+    shadow["standin"]["friction_steps"] = [{"at_s": 2.0, "scale": 2.0}]
+    shadow["evaluate_period_s"] = 0.5
+    machine["axes"]["X"]["shadow"] = shadow
+    (tmp_path / "axis_default.yaml").write_text(axis)
+    (tmp_path / "machine.yaml").write_text(yaml.safe_dump(machine))
+    (tmp_path / "p.ngc").write_text(PROGRAM)
+    x = shadow_machine(load_machine_config(tmp_path / "machine.yaml"), tmp_path / "p.ngc")["X"]
+    named = [v for v in x.verdicts if math.isfinite(v.relative_change)]
+    assert named, [v.message for v in x.verdicts]
+    assert all(abs(v.relative_change) < 3.0 for v in named), [v.message for v in named]
+    coulomb = [v for v in named if v.effect == "coulomb_friction"]
+    assert coulomb, [v.message for v in named]
+    assert all(0.7 < v.relative_change < 1.5 for v in coulomb), [v.message for v in coulomb]

@@ -11,8 +11,6 @@ import pytest
 from feed_twin.analysis.effects import BY_NAME, LIBRARY, RECORD_EFFECTS
 from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate
-from feed_twin.analysis.rounds import force_per_effort
-from feed_twin.analysis.twin import Twin
 from feed_twin.plant.axial_compliance import AxialCompliance
 from feed_twin.plant.inverter import Inverter
 from feed_twin.plant.registry import COMPONENT_TYPES, EFFECTS
@@ -123,13 +121,13 @@ def test_a_truth_sets_what_the_edit_of_the_same_effect_fits(
 
 def test_force_weights_of_a_current_record_enter_the_model_as_newtons():
     """On a PMSM axis the effort is a q-current: the ranking's weight of sign(v) is in amperes
-    and 1 A is K_t 2 pi / lead = 1.9 * 2 pi / 0.01 = 1194 N at the table. Taken as newtons, the
-    Coulomb edit started 40 N of missing friction at +0.03 N."""
+    and 1 A is K_t 2 pi eta / lead = 1.9002 * 2 pi * 0.9 / 0.01 = 1075 N of friction at the
+    table. Taken as newtons, the Coulomb edit started 40 N of missing friction at +0.03 N."""
     nominal = ModelDoc.load(AXIS)
-    per_amp = force_per_effort(Twin.compile(nominal))
-    assert per_amp == pytest.approx(1.9 * 2.0 * math.pi / 0.01, rel=1e-12)
+    per_amp = nominal.force_per_effort("A")
+    assert per_amp == pytest.approx(1.9002 * 2.0 * math.pi * 0.9 / 0.01, rel=1e-12)
     edit = BY_NAME["coulomb_friction"].edit(
         nominal, _weights("coulomb_friction", per_amp, sign_v=40.0 / per_amp)
     )
     assert model_of(edit.doc).get("guides.F_c") == pytest.approx(120.0 + 40.0, rel=1e-12)
-    assert force_per_effort(Twin.compile(ModelDoc.load(EMPS))) == 1.0  # a force record
+    assert ModelDoc.load(EMPS).force_per_effort("N") == 1.0  # a force record

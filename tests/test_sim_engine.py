@@ -207,10 +207,54 @@ def test_encoder_quantises_and_delays_its_samples():
     np.testing.assert_array_equal(res["meas.theta_enc_rad"], np.floor(delayed / step) * step)
 
 
+def test_held_inputs_give_the_bits_of_inputs_repeated_per_tick():
+    axis = load_axis_config("config/axis_default.yaml")
+    dec = 16  # 1 ms NC samples on the 62.5 us base tick
+    rows = np.zeros((30, sig.REF_SIZE))
+    rows[:, sig.REF_POS_M] = 2e-6 * np.arange(30) ** 2
+    rows[:, sig.REF_VEL_M_S] = 4e-3 * np.arange(30)
+    rows[:, sig.REF_ACC_M_S2] = 4.0
+    n = len(rows) * dec - 5  # the last row holds for fewer ticks
+    per_tick = build_engine(axis, output_period_s=1e-3).run(n, ref=np.repeat(rows, dec, axis=0)[:n])
+    engine = build_engine(axis, output_period_s=1e-3)
+    first = engine.advance(12 * dec, ref=rows[:12], hold=dec)
+    rest = engine.advance(n - 12 * dec, ref=rows[12:], hold=dec)
+    held = type(first).concat([first, rest])
+    assert np.array_equal(per_tick.t, held.t)
+    assert np.array_equal(per_tick.data, held.data)
+    assert np.max(np.abs(held["table.s"])) > 1e-4  # the axis moved
+
+
+def test_noise_drawn_ahead_by_another_engine_gives_the_bits_of_drawing_in_the_loop():
+    axis = load_axis_config("config/axis_default.yaml")
+    ref = np.zeros((800, sig.REF_SIZE))
+    ref[:, sig.REF_POS_M] = 1e-4
+    own = build_engine(axis, output_period_s=1e-3)
+    assert own.kernel.N_NOISE == 3  # the three current sensors
+    drawn = own.run(len(ref), ref=ref)
+    engine, other = build_engine(axis, output_period_s=1e-3), build_engine(axis)
+    assert engine.noise_key == other.noise_key
+    parts = []
+    for a, b in ((0, 300), (300, 800)):  # a table of the ticks from the engine's current one
+        other.k = a
+        parts.append(engine.advance(b - a, ref=ref[a:b], normals=other.standard_normals(b - a)))
+    ahead = type(drawn).concat(parts)
+    assert np.array_equal(drawn.data, ahead.data)
+    assert np.std(drawn["meas.i_a_meas_A"] - drawn["motor.i_a"]) > 0.01  # noise std 0.02 A
+    engine.seed = 2
+    assert engine.noise_key != other.noise_key
+
+
 def test_engine_input_errors_name_the_problem(emps):
     engine = build_engine(emps)
     with pytest.raises(ValueError, match=r"ref: shape \(5, 3\) given, expected \(5, 6\)"):
         engine.advance(5, ref=np.zeros((5, 3)))
+    with pytest.raises(ValueError, match=r"ref: shape \(3, 6\) given, expected \(2, 6\)"):
+        engine.advance(8, ref=np.zeros((3, 6)), hold=4)
+    with pytest.raises(ValueError, match=r"hold = 0: must be an integer >= 1"):
+        engine.advance(8, ref=np.zeros((8, 6)), hold=0)
+    with pytest.raises(ValueError, match=r"normals: shape \(7, 0\) given, expected \(8, 0\)"):
+        engine.advance(8, normals=np.zeros((7, 0)))
     with pytest.raises(KeyError, match="record: unknown signal.s. table.q"):
         build_engine(emps, record=["table.s", "table.q"])
     with pytest.raises(KeyError, match="signal 'nope': not recorded"):

@@ -16,11 +16,12 @@ Significance: a candidate is fitted only if its signature passed the ranking's s
 effect is kept only if the simulation confirms it by the likelihood-ratio test of
 analysis.significance (corrected for the candidates searched, and removing at least
 MIN_EXPLAINED of one channel's residual). The channels' weights are estimated again from the
-current model before every round (analysis.significance). After each addition the effects found
-before are re-examined jointly (analysis.reexamine): those whose parameters collapsed or whose
-removal costs nothing are dropped. A fit that does not converge within its budget but improved
-the cost is resumed once from where it stopped; one that still does not converge is reported and
-its model discarded: the last good model stays.
+current model before every round (analysis.significance); an effect that lives on part of the
+record (a force held at rest) is screened and tested on its support. After each addition the
+effects found (the newest too) are re-examined jointly (analysis.reexamine): those whose
+parameters collapsed or whose removal costs nothing are dropped. A fit that does not converge
+within its budget but improved the cost is resumed once from where it stopped; one that still
+does not converge is reported and its model discarded: the last good model stays.
 """
 
 from __future__ import annotations
@@ -31,6 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.analysis.channels import (
+    VOLTAGE_Q,
+    channel_residuals,
+    noise_floors,
+    residuals,
+    voltage_residual,
+    weighted_channels,
+)
 from feed_twin.analysis.compare import Metrics, align, compute_metrics
 from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.fit import SimOutputs, cost_of
@@ -38,21 +47,15 @@ from feed_twin.analysis.locate import locate
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.rounds import (
-    VOLTAGE_Q,
     Context,
     Options,
     Progress,
     State,
     Values,
-    channel_residuals,
     drop_collapsed,
     final_joint,
-    noise_floors,
     noop,
-    residuals,
     run_round,
-    voltage_residual,
-    weighted_channels,
 )
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.io.measured import EFFORT_UNITS, MeasuredDataError, MeasuredRun

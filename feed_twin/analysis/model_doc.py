@@ -21,8 +21,10 @@ from typing import Any
 import yaml
 
 from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.plant.ball_screw import BallScrew
 from feed_twin.plant.component import Quantity
 from feed_twin.plant.dc_bus import DcBus
+from feed_twin.plant.dc_motor import DcMotor
 from feed_twin.plant.effect_api import Document
 from feed_twin.plant.effort_source import EffortSource
 from feed_twin.plant.guide_friction import GuideFriction
@@ -241,9 +243,38 @@ class ModelDoc:
         return self.get(f"{buses[0]}.u_0") if buses else None
 
     def torque_constant(self) -> float | None:
-        """The torque constant [N m/A] the first Pmsm declares (its `K_t`), None without one."""
+        """The torque constant [N m/A] of the first Pmsm (its `K_t` = 1.5 p psi_pm) or else the
+        first DcMotor (its `k`), None without a motor."""
         motors = self.of_type(Pmsm.TYPE)
-        return self.get(f"{motors[0]}.K_t") if motors else None
+        if motors:
+            return self.get(f"{motors[0]}.K_t")
+        motors = self.of_type(DcMotor.TYPE)
+        return self.get(f"{motors[0]}.k") if motors else None
+
+    def force_per_effort(self, effort_unit: str, *, resisting: bool = True) -> float | None:
+        """Newtons at the table per unit of the drive's effort in `effort_unit` (N, N m or A).
+
+        1 for a force; for a torque, the first BallScrew's force per torque (its lead and
+        efficiency, plant.ball_screw.BallScrew.force_per_torque: `resisting` as there); for a
+        q-current, times the motor's torque constant (the plant's physics, not the
+        controller's belief of it in controller.drive). None where the model has no screw, or
+        no motor for a current.
+        """
+        if effort_unit not in ("N", "N m", "A"):
+            raise ValueError(f"effort_unit = {effort_unit!r}: must be one of 'N', 'N m', 'A'")
+        if effort_unit == "N":
+            return 1.0
+        screws = self.of_type(BallScrew.TYPE)
+        if not screws:
+            return None
+        screw = BallScrew(
+            lead=self.get(f"{screws[0]}.lead"), efficiency=self.get(f"{screws[0]}.efficiency")
+        )
+        per_torque = screw.force_per_torque(resisting=resisting)
+        if effort_unit == "N m":
+            return per_torque
+        k_t = self.torque_constant()
+        return None if k_t is None else k_t * per_torque
 
     def dump(self, path: str | Path, header: list[str]) -> None:
         """Write the model YAML; a drive gain the fit changed keeps the gain the record's

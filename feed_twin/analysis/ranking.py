@@ -14,6 +14,15 @@ such noise onto p regressors gives about (n / n_eff) times the white-noise energ
 the test rejects at `ALPHA` *and* it explains at least `MIN_EXPLAINED` of the residual, so a huge
 record cannot make a negligible effect significant.
 
+Support. Some signatures live on part of the record only: a force held at rest on the samples
+at standstill (a few per cent of a machining record), an effect of acceleration on the
+accelerating phases. Over the whole record their share is diluted by residual they could never
+explain (a model error while moving), and the noise they are tested against is that of other
+samples. So both the share and the test are taken on the signature's support (the samples where
+one of its regressors reaches SUPPORT_LEVEL of its peak): the share of the support's residual
+energy, the noise and its effective samples from the all-signature residual there. For a
+signature that lives everywhere (a constant, the direction of motion) nothing changes.
+
 A missing force also moves the following error through the closed loop, so before
 position-domain effects are ranked, the part of the position residual that the effort residual
 explains (through a low-pass, the loop's disturbance compliance) is removed.
@@ -31,6 +40,8 @@ from scipy import stats
 from feed_twin.analysis.effects import LIBRARY, Effect, Motion
 from feed_twin.analysis.significance import ALPHA, MIN_EXPLAINED
 
+SUPPORT_LEVEL = 1e-2  # a regressor this small against its peak carries 1e-4 of its energy
+
 
 @dataclass(frozen=True, kw_only=True)
 class Candidate:
@@ -46,6 +57,10 @@ class Candidate:
     significant: bool
     domain: str = ""  # the residual ranked ("": the effect's own domain)
     searched: int = 1  # variants the best one was chosen from (p_value is corrected for them)
+    # the samples the signature lives on (None: all) and the share of the residual energy there
+    # that it explains (the whole record's share where it lives everywhere)
+    support: np.ndarray | None = None
+    support_fraction: float = 0.0
     # newtons at the table per unit of the residual ranked: the weights of an effort in amperes
     # (or newton metres) are not forces (1 A is K_t 2 pi / lead = 1194 N on axis_default)
     force_per_unit: float = 1.0
@@ -189,23 +204,38 @@ def rank(
         )
         for d in domains
     }
+    full_rank = {d: _rank_of(noise[d][1]) for d in domains}
     out: list[Candidate] = []
     for effect, label, regs, result, n_variants, domain in best_of:
         explained, _, _, _, coef = result
         r = residual_of[domain]
         if domain == "position":
             r = r - r.mean()
-        rss_full, n_eff, p_full = noise[domain]
+        e_all, Z_all = noise[domain]
         p = len(regs)
         ess = explained * float(np.dot(r, r))
+        support = signature_support(regs)
+        on = slice(None) if support is None else support
         # see the module docstring: the noise level and its effective sample count come from
-        # the residual of all signatures together, so another effect's structure is not noise
+        # the residual of all signatures together, so another effect's structure is not noise;
+        # both are taken where the signature lives
+        rss_full = float(np.dot(e_all[on], e_all[on]))
+        n_eff = _effective_samples(e_all[on])
         f_stat = (ess / p) * n_eff / rss_full if rss_full > 0 else math.inf
+        # the parameters of all signatures that act on the support
+        if Z_all is None:
+            p_full = 0
+        elif support is None:
+            p_full = full_rank[domain]
+        else:
+            p_full = int(np.linalg.matrix_rank(Z_all[support]))
         dof = max(n_eff - p_full, 1.0)
         p_value = float(stats.f.sf(f_stat, p, dof)) if math.isfinite(f_stat) else 0.0
         # the variant search is one more free parameter, which the F-test's p does not see;
         # Bonferroni over the variants keeps the false-alarm rate at ALPHA
         p_adj = min(1.0, p_value * n_variants)
+        energy_on = float(np.dot(r[on], r[on]))
+        on_support = min(1.0, ess / energy_on) if energy_on > 0 else 0.0
         out.append(
             Candidate(
                 effect=effect,
@@ -215,28 +245,47 @@ def rank(
                 p_value=p_adj,
                 n_eff=n_eff,
                 coefficients=coef,
-                significant=p_adj < ALPHA and explained >= MIN_EXPLAINED,
+                significant=p_adj < ALPHA and on_support >= MIN_EXPLAINED,
                 domain=domain,
                 searched=n_variants,
+                support=support,
+                support_fraction=on_support,
             )
         )
     out.sort(key=lambda c: (c.significant, c.explained_fraction), reverse=True)
     return out
 
 
+def _rank_of(Z: np.ndarray | None) -> int:
+    return 0 if Z is None else int(np.linalg.matrix_rank(Z))
+
+
+def signature_support(regressors: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The samples where one of the regressors reaches SUPPORT_LEVEL of its peak; None when
+    that is every sample (the signature lives on the whole record)."""
+    on = np.zeros(len(next(iter(regressors.values()))), dtype=bool)
+    for z in regressors.values():
+        size = np.abs(np.asarray(z, dtype=float))
+        peak = float(size.max(initial=0.0))
+        if peak > 0.0:
+            on |= size >= SUPPORT_LEVEL * peak
+    return None if on.all() or not on.any() else on
+
+
 def _noise_level(r: np.ndarray, entries: list, nuisance: np.ndarray | None):
-    """(RSS, effective samples, parameters) of r after all the domain's signatures at once."""
+    """(residual, regressors scaled to unit norm) of r after all the domain's signatures at
+    once; no regressors: (r, None)."""
     columns = [np.asarray(v, dtype=float) for e in entries for v in e[2].values()]
     if nuisance is not None:
         columns.append(nuisance)
     if not columns:
-        return float(np.dot(r, r)), _effective_samples(r), 0
+        return r, None
     Z = np.column_stack(columns)
     scale = np.linalg.norm(Z, axis=0)
     scale[scale == 0.0] = 1.0
-    coef, _, rank_z, _ = np.linalg.lstsq(Z / scale, r, rcond=None)
-    e = r - (Z / scale) @ coef
-    return float(np.dot(e, e)), _effective_samples(e), int(rank_z)
+    Z = Z / scale
+    coef, *_ = np.linalg.lstsq(Z, r, rcond=None)
+    return r - Z @ coef, Z
 
 
 def _lowpass(r: np.ndarray, motion: Motion) -> np.ndarray:

@@ -67,12 +67,21 @@ def _sized(slot: str) -> bool:
 
 
 def collapsed(found: Found, doc: ModelDoc) -> bool:
-    sized = [s for s in found.neutral if _sized(s) and doc.has_slot(s)]
+    values = {s: doc.get(s) for s in found.neutral if doc.has_slot(s)}
+    return fell_back(found.neutral, found.at_discovery, values)
+
+
+def fell_back(
+    neutral: dict[str, float], reference: dict[str, float], values: dict[str, float]
+) -> bool:
+    """Every size parameter in `values` lies within COLLAPSE of its distance from neutral at
+    `reference` (False if there is none)."""
+    sized = [s for s in values if _sized(s)]
     if not sized:
         return False
     for slot in sized:
-        zero = found.neutral[slot]
-        if abs(doc.get(slot) - zero) > COLLAPSE * abs(found.at_discovery[slot] - zero):
+        zero = neutral[slot]
+        if abs(values[slot] - zero) > COLLAPSE * abs(reference[slot] - zero):
             return False
     return True
 

@@ -1,40 +1,43 @@
-"""The rounds of the discrepancy workflow (analysis.diagnose): its channels and their
-weights, one round of rank-fit-test-keep, the re-examination of earlier effects, the final
-joint re-fit.
+"""The rounds of the discrepancy workflow (analysis.diagnose): one round of
+rank-fit-test-keep, the re-examination of earlier effects, the final joint re-fit.
 
-The fit's channels are the recorded effort, position and q-voltage residuals (measured minus
-twin); their weights are re-estimated from the current model before every round
-(analysis.significance). See analysis.diagnose for the workflow as a whole.
+The fit's channels and their weights are analysis.channels' (estimated again from the current
+model before every round); a candidate is fitted into the model by analysis.trials. See
+analysis.diagnose for the workflow as a whole.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from feed_twin.analysis.effects import Motion
-from feed_twin.analysis.fit import (
-    FitResult,
-    FreeParameter,
-    Measured,
-    SimOutputs,
-    cost_of,
-    fit,
+from feed_twin.analysis.channels import (
+    channel_residuals,
+    residuals,
+    voltage_residual,
+    weighted_channels,
 )
-from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc, model_of
+from feed_twin.analysis.effects import Motion
+from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, cost_of, fit
+from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate, evidence, rank
-from feed_twin.analysis.reexamine import Found, collapsed, neutral_values, removable, without
+from feed_twin.analysis.reexamine import (
+    Found,
+    collapsed,
+    fell_back,
+    neutral_values,
+    removable,
+    without,
+)
 from feed_twin.analysis.report import FoundEffect
-from feed_twin.analysis.significance import compare, sample_noise
-from feed_twin.analysis.twin import Drive, Twin, delayed
+from feed_twin.analysis.significance import compare
+from feed_twin.analysis.trials import try_candidate
+from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
-
-VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
 
 Progress = Callable[[str], None]
 
@@ -83,186 +86,8 @@ def unit_of(twin: Twin, cand: Candidate) -> str:
     return {"effort": twin.effort_unit, "voltage": "V"}.get(cand.residual_domain, "m")
 
 
-def force_per_effort(twin: Twin) -> float:
-    """Newtons at the table per unit of the twin's effort: 1 for a force, 2 pi / lead for a
-    torque, K_t 2 pi / lead for a q-current (the controller's drive constant, else the
-    motor's); 1 where the model gives no lead."""
-    if twin.effort_unit == "N" or twin.lead_m is None:
-        return 1.0
-    per_torque = 2.0 * math.pi / twin.lead_m
-    if twin.effort_unit == "N m":
-        return per_torque
-    k_t = twin.doc.data["controller"].get("drive", {}).get("K_t") or twin.doc.torque_constant()
-    return float(k_t) * per_torque if k_t else 1.0
-
-
 def noop(_: str) -> None:
     pass
-
-
-def residuals(run: MeasuredRun, out: SimOutputs, row: int = 0):
-    x = run["pos_meas_m"]
-    rp = out.x_m[row] - x
-    re = None
-    name = run.effort_name
-    if name is not None and out.effort is not None:
-        re = run[name] - out.effort[row]
-    return re, rp
-
-
-def voltage_residual(run: MeasuredRun, out: SimOutputs, row: int = 0) -> np.ndarray | None:
-    """Measured minus twin q-voltage [V] of the current controller, when both have it."""
-    if VOLTAGE_Q not in run or out.voltage_q is None:
-        return None
-    return run[VOLTAGE_Q] - out.voltage_q[row]
-
-
-def channel_residuals(run: MeasuredRun, out: SimOutputs, row: int = 0) -> dict[str, np.ndarray]:
-    """Each recorded channel's residual (measured minus twin) on the record's time base."""
-    re, rp = residuals(run, out, row)
-    ru = voltage_residual(run, out, row)
-    found = {"effort": re, "position": -rp, "voltage": ru}
-    return {k: v for k, v in found.items() if v is not None}
-
-
-def noise_floors(run: MeasuredRun, out: SimOutputs) -> dict[str, float]:
-    """Each channel's sample noise: the least its weight's noise level can be (see
-    analysis.significance), never below the smallest step that means anything in its unit."""
-    least = {"effort": 1e-9, "position": 1e-12, "voltage": 1e-6}
-    return {k: max(sample_noise(r), least[k]) for k, r in channel_residuals(run, out).items()}
-
-
-def weighted_channels(
-    run: MeasuredRun, out: SimOutputs, stride: int, floors: dict[str, float]
-) -> Measured:
-    """The fit's channels, each weighted by its noise level estimated at the model `out`: the
-    RMS of its residual there, floored by its sample noise (analysis.significance)."""
-    sigma = {
-        k: max(float(np.sqrt(np.mean(r**2))), floors[k])
-        for k, r in channel_residuals(run, out).items()
-    }
-    name = run.effort_name
-    return Measured(
-        x_m=run["pos_meas_m"],
-        effort=None if name is None or out.effort is None else run[name],
-        scale_x=sigma["position"],
-        scale_effort=sigma.get("effort", 1.0),
-        stride=stride,
-        voltage_q=run[VOLTAGE_Q] if "voltage" in sigma else None,
-        scale_voltage=sigma.get("voltage", 1.0),
-    )
-
-
-def _fit_resumed(
-    twin: Twin, drive: Drive, free: list[FreeParameter], meas: Measured, opts: Options
-) -> FitResult:
-    """Least squares; resumed once from where it stopped if the budget ran out on the way down
-    (a friction fit through stick-slip needs more steps than a mass), so that a fit which was
-    still improving is not thrown away for its budget alone."""
-    result = fit(
-        lambda params: twin.simulate(drive, params),
-        twin.nominal,
-        twin.index,
-        free,
-        meas,
-        max_evaluations=opts.max_evaluations,
-    )
-    if result.converged or not result.cost < result.cost_initial:
-        return result
-    resumed = fit(
-        lambda params: twin.simulate(drive, params),
-        twin.nominal,
-        twin.index,
-        [dataclasses.replace(p, initial=result.values[p.name]) for p in free],
-        meas,
-        max_evaluations=opts.max_evaluations,
-    )
-    return dataclasses.replace(
-        resumed,
-        cost_initial=result.cost_initial,
-        evaluations=result.evaluations + resumed.evaluations,
-    )
-
-
-def _try(
-    state: State, cand: Candidate, drive: Drive, meas: Measured, opts: Options
-) -> tuple[Edit, list[FreeParameter], Twin, FitResult] | str:
-    """Add the candidate to the model and fit it (with the effects found before); returns the
-    edit, the effect's own parameters, the compiled twin and the fit, or why it was not fitted."""
-    try:
-        edit = cand.effect.edit(state.doc, cand)
-    except LookupError as exc:
-        return f"{cand.name}: cannot be added to this model ({exc}); not fitted"
-    doc = model_of(edit.doc)
-    # the effects found before interact with the new one (a constant force fitted alone has
-    # absorbed part of a Coulomb force found later): their parameters are fitted again with it
-    names = {p.name for p in edit.own}
-    alone = list(edit.own)
-    again = []
-    for p in () if edit.grid else state.found_free():
-        if p.name in names:
-            continue
-        if not doc.has_slot(p.name):
-            continue  # the parameter was split or replaced by the new effect
-        again.append(dataclasses.replace(p, initial=doc.get(p.name)))
-        names.add(p.name)
-    own = edit.own + again
-    edit = dataclasses.replace(
-        edit, own=own, free=own + [p for p in edit.free if p.name not in names]
-    )
-    twin = Twin.compile(doc)
-    if edit.grid:
-        return edit, alone, twin, _grid_search(twin, edit, drive, meas)
-    return edit, alone, twin, _fit_resumed(twin, drive, edit.own, meas, opts)
-
-
-def _grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
-    """A searched parameter (a delay in ticks, a recorded channel's delay): every grid value
-    in one batch, best kept. A record slot (analysis.*) changes no simulation: the twin runs
-    once and its output is shifted for each value."""
-    (param,) = edit.own
-    if param.name == EFFORT_DELAY_SLOT:
-        out = _effort_delays(twin, edit, drive)
-    else:
-        batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
-        for i in twin.index[param.name]:
-            batch[:, i] = edit.grid
-        out = twin.simulate(drive, batch)
-    costs = np.array([cost_of(meas, out, row) for row in range(len(edit.grid))])
-    best = int(np.argmin(costs))
-    start = int(np.argmin(np.abs(np.asarray(edit.grid) - param.initial)))
-    row = SimOutputs(
-        x_m=out.x_m[best : best + 1],
-        effort=None if out.effort is None else out.effort[best : best + 1],
-        ok=out.ok[best : best + 1],
-        voltage_q=None if out.voltage_q is None else out.voltage_q[best : best + 1],
-    )
-    return FitResult(
-        values={param.name: float(edit.grid[best])},
-        cost_initial=float(costs[start]),
-        cost=float(costs[best]),
-        converged=bool(np.isfinite(costs[best])),
-        message=f"grid search over {len(edit.grid)} values",
-        evaluations=len(edit.grid),
-        outputs=row,
-    )
-
-
-def _effort_delays(twin: Twin, edit: Edit, drive: Drive) -> SimOutputs:
-    """The twin's outputs once, its effort shifted by every grid delay (one row each)."""
-    if twin.doc.get(EFFORT_DELAY_SLOT) != 0.0:
-        twin = Twin.compile(twin.doc.set(EFFORT_DELAY_SLOT, 0.0))
-    once = twin.simulate(drive, twin.nominal[None, :])
-    n = len(edit.grid)
-    effort = None
-    if once.effort is not None:
-        effort = np.vstack([delayed(once.effort, drive.t_s, d) for d in edit.grid])
-    return SimOutputs(
-        x_m=np.repeat(once.x_m, n, axis=0),
-        effort=effort,
-        ok=np.repeat(once.ok, n),
-        voltage_q=None if once.voltage_q is None else np.repeat(once.voltage_q, n, axis=0),
-    )
 
 
 def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> str | None:
@@ -340,8 +165,9 @@ def run_round(
         loop_stiffness=ctx.stiffness,
         voltage_residual=voltage_residual(run, state.outputs),
     )
-    # the edits take force-like weights as forces at the table
-    per_effort = force_per_effort(ctx.unit_twin)
+    # the edits take force-like weights as forces at the table, converted as for a friction
+    # (they are starting values of the fit); without a screw they stay in the effort's unit
+    per_effort = ctx.unit_twin.doc.force_per_effort(ctx.unit_twin.effort_unit) or 1.0
     ranking = [
         dataclasses.replace(c, force_per_unit=per_effort) if c.residual_domain == "effort" else c
         for c in ranking
@@ -367,7 +193,9 @@ def run_round(
     )
     trials = []
     for cand in rivals:
-        tried = _try(state, cand, ctx.drive, meas, opts)
+        tried = try_candidate(
+            state.doc, state.found_free(), cand, ctx.drive, meas, opts.max_evaluations
+        )
         if isinstance(tried, str):
             ctx.notes.append(tried)
             unfitted.append(
@@ -395,34 +223,61 @@ def run_round(
         trials.append((cand, edit, alone, new_twin, result))
     if not trials:
         return ranking, True
-    # the winner removes the most cost per added degree of freedom relative to what is
-    # left (the partial F statistic up to the common effective sample count), so a
-    # two-parameter effect must do twice the work of a one-parameter one
-    cand, edit, alone, new_twin, result = max(
-        trials,
+    # the best removes the most cost per added degree of freedom relative to what is left
+    # (the partial F statistic up to the common effective sample count), so a two-parameter
+    # effect must do twice the work of a one-parameter one; the best that passes the test is
+    # kept (a drive gain that bends the position at the effort's expense must not hide the
+    # holding force fitted beside it)
+    trials.sort(
         key=lambda t: (state.cost - t[4].cost) / t[1].added / max(t[4].cost, 1e-300),
+        reverse=True,
     )
-    excluded.append(cand.name)
-    # the search behind it: the signature's variants (or the grid of a whole number) and the
-    # rivals it was chosen from
-    searched = max(cand.searched, len(edit.grid), 1) * len(trials)
-    verdict = compare(
-        ctx.channels(state.outputs),
-        ctx.channels(result.outputs),
-        added=edit.added,
-        searched=searched,
-        own=cand.residual_domain,
-    )
-    if not verdict.significant:
+    for cand, edit, alone, new_twin, result in trials:
+        excluded.append(cand.name)
+        if _collapsed_in_fit(state, edit, alone, result):
+            ctx.notes.append(
+                f"{cand.name} was fitted but its parameters fell back to the values without it "
+                f"({', '.join(f'{k} = {v:.4g}' for k, v in result.values.items())}); not kept"
+            )
+            continue
+        verdict = compare(
+            ctx.channels(state.outputs),
+            ctx.channels(result.outputs),
+            added=edit.added,
+            searched=_searched(cand, edit, len(trials)),
+            own=cand.residual_domain,
+            support=cand.support,
+        )
+        if verdict.significant:
+            _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
+            _reexamine(state, ctx, meas)
+            return ranking, True
         ctx.notes.append(
             f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
         )
-        # the model did not change: the rivals it beat would fit the same way next round
-        excluded.extend(t[0].name for t in trials if t[0].name not in excluded)
-        return ranking, True
-    _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
-    _reexamine(state, ctx, meas)
+    # the model did not change: the rivals would fit the same way next round
     return ranking, True
+
+
+def _collapsed_in_fit(state: State, edit: Edit, alone: list[FreeParameter], result) -> bool:
+    """The fit took the new effect's size parameters back to within COLLAPSE of the values
+    without it, from where the ranking's weights started them: what the fit gained came from
+    fitting the effects found before again, not from this one."""
+    if edit.grid:
+        return False
+    slots = tuple(p.name for p in alone)
+    neutral = neutral_values(state.doc, model_of(edit.doc), slots)
+    start = {p.name: p.initial for p in alone}
+    return fell_back(neutral, start, {s: result.values.get(s, start[s]) for s in slots})
+
+
+def _searched(cand: Candidate, edit: Edit, rivals: int) -> int:
+    """The alternatives a kept effect was chosen from: its signature's variants and the rivals
+    fitted beside it. A grid over the effect's own size that holds the model's current value (a
+    delay from 0 up) is a fit of one parameter nested in the model without it, whose likelihood
+    ratio is chi^2(1) (Wilks): no search of unrelated alternatives. Any other grid is one."""
+    nested = bool(edit.grid) and edit.own[0].initial in edit.grid
+    return max(cand.searched, 1 if nested else len(edit.grid), 1) * rivals
 
 
 def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
@@ -473,12 +328,14 @@ def drop_collapsed(state: State, ctx: Context, when: str) -> None:
 
 
 def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
-    """Examine the effects found before the newest one jointly (analysis.reexamine)."""
+    """Examine the effects found jointly (analysis.reexamine), the newest one too: its fit
+    re-fitted the effects found before, and what that alone gains is no evidence for it."""
     if len(state.found) < 2:
         return
+    newest = state.found[-1]
     if any(collapsed(f, state.doc) for f in state.found[:-1]):
         drop_collapsed(state, ctx, "once a later effect was in the model")
-    for target in list(state.found[:-1]):
+    for target in list(state.found):
         if not removable([target], state.doc) or target.own == ():
             continue
         others = [f for f in state.found if f is not target]
@@ -496,8 +353,13 @@ def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
             continue
         state.found.remove(target)
         state.doc, state.twin, state.outputs = gone.doc, gone.twin, gone.outputs
+        when = (
+            "with the effects found before fitted again"
+            if target is newest
+            else "once a later effect was in the model"
+        )
         ctx.notes.append(
-            f"{target.name} was dropped once a later effect was in the model: removing it "
-            f"costs nothing significant (with it the model {gone.verdict.words()})"
+            f"{target.name} was dropped {when}: removing it costs nothing significant "
+            f"(with it the model {gone.verdict.words()})"
         )
         ctx.progress(f"  dropped {target.name}: removing it costs nothing significant")

@@ -24,6 +24,13 @@ channel worse: a drive gain named on the effort that the fit bends to explain th
 the effort gets worse is another effect's evidence (on a vertical axis, the table
 held at rest), not its own.
 
+Support. An effect that lives on part of the record (a force held at rest: the samples at
+standstill) is tested with two noise levels per channel, one on its support and one on the
+rest of the record: the concentrated likelihood then sums n_eff ln(RSS_before / RSS_after)
+over both groups, so the noise it is measured against is the noise where it acts (not a model
+error while moving, which no holding force can touch), while what it costs elsewhere still
+counts. Its share of a channel's residual energy is taken on the support.
+
 Effective samples. Residuals of filtered records are correlated over many samples; n samples
 then carry n / tau independent observations, tau the integrated autocorrelation time
 1 + 2 sum_k rho_k (summed up to Sokal's window, the first M >= 5 tau(M)): the spectrum at low
@@ -120,23 +127,28 @@ def compare(
     added: int,
     searched: int = 1,
     own: str = "",
+    support: np.ndarray | None = None,
 ) -> Verdict:
     """The likelihood-ratio test of `after` (added free parameters) against `before`.
 
     Both map a channel name to its residual (measured minus model) on one time base; `own` is
-    the channel the effect was named in, which it must not make worse.
+    the channel the effect was named in, which it must not make worse; `support` (a mask on
+    that time base) the samples the effect lives on (module docstring), None for all.
     """
     if added < 1 or searched < 1:
         raise ValueError(f"added = {added!r}, searched = {searched!r}: both must be >= 1")
+    groups = [slice(None)] if support is None else [support, ~support]
     lr = 0.0
     explained: dict[str, float] = {}
     for name, r_after in after.items():
-        rss_before = float(np.dot(before[name], before[name]))
-        rss_after = float(np.dot(r_after, r_after))
-        if rss_before <= 0.0:
-            continue
-        explained[name] = 1.0 - rss_after / rss_before
-        lr += effective_samples(r_after) * math.log(rss_before / max(rss_after, 1e-300))
+        for group in groups:
+            b, a = before[name][group], r_after[group]
+            rss_before, rss_after = float(np.dot(b, b)), float(np.dot(a, a))
+            if rss_before <= 0.0:
+                continue
+            if group is groups[0]:
+                explained[name] = 1.0 - rss_after / rss_before
+            lr += effective_samples(a) * math.log(rss_before / max(rss_after, 1e-300))
     p = float(stats.chi2.sf(lr, added)) if lr > 0.0 else 1.0
     p = min(1.0, p * searched)
     best = max(explained.values(), default=0.0)

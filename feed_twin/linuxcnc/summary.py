@@ -16,31 +16,43 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.gcode.config import NcConfig
 from feed_twin.io.bag import BagReader
+from feed_twin.linuxcnc.machine import HalServo
 
 
 def sides_disagree(program: Path, config: Path) -> str | None:
     """A one-line report when exactly one of the two interpreters rejects `program`."""
-    from feed_twin.gcode import GcodeError, load_nc_config, validate_program
-    from feed_twin.linuxcnc.check import linuxcnc_rejects
+    from feed_twin.gcode import load_nc_config
     from feed_twin.linuxcnc.machine import machine_for_config
 
     nc, servo = machine_for_config(config)
+    return interpreters_disagree(program, nc, servo, ours=load_nc_config(config))
+
+
+def interpreters_disagree(
+    program: Path, nc: NcConfig, servo: HalServo, *, ours: NcConfig | None = None
+) -> str | None:
+    """`sides_disagree` for LinuxCNC's machine (nc, servo) and feed_twin's NC `ours` (default:
+    the same nc)."""
+    from feed_twin.gcode import GcodeError, validate_program
+    from feed_twin.linuxcnc.check import linuxcnc_rejects
+
     theirs = linuxcnc_rejects(program, nc, servo)
     try:
-        validate_program(program, load_nc_config(config))
-        ours = None
+        validate_program(program, nc if ours is None else ours)
+        ours_said = None
     except GcodeError as exc:
-        ours = str(exc)
-    if theirs is not None and ours is None:
+        ours_said = str(exc)
+    if theirs is not None and ours_said is None:
         return f"feed_twin's interpreter accepts the program but {theirs}; nothing was started"
-    if ours is not None and theirs is None:
+    if ours_said is not None and theirs is None:
         return (
-            f"LinuxCNC accepts the program but feed_twin's interpreter rejects it: {ours}; "
+            f"LinuxCNC accepts the program but feed_twin's interpreter rejects it: {ours_said}; "
             "nothing was started"
         )
     if theirs is not None:
-        return f"{theirs}; feed_twin's interpreter rejects it too: {ours}"
+        return f"{theirs}; feed_twin's interpreter rejects it too: {ours_said}"
     return None
 
 

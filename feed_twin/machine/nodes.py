@@ -94,10 +94,17 @@ def write_axis_files(
     cache in a directory named by the file's hash: the generated plant kernel names its config
     file, so a new path for the same axis would compile it again (16 s of CPU per axis), and
     runs of one machine (any --axes) share the compiled kernels this way."""
+    return write_documents(machine, axis_documents(machine, settle_s=settle_s), directory)
+
+
+def write_documents(
+    machine: MachineConfig, documents: dict[str, dict[str, Any]], directory: Path | None
+) -> dict[str, Path]:
+    """Axis -> the file its nodes read, holding `documents[axis]` (write_axis_files)."""
     docs = {
         key: f"# axis {key} of {machine.source}, written for its nodes\n"
         + yaml.safe_dump(doc, sort_keys=False)
-        for key, doc in axis_documents(machine, settle_s=settle_s).items()
+        for key, doc in documents.items()
     }
     files = {}
     for key, text in docs.items():

@@ -1,7 +1,8 @@
 """`feed-twin run PROGRAM --config MACHINE.yaml [--axes X,Z]`: the machine twin.
 
 By default the machine runs as its ROS node set (feed_twin.ros.machine_run: a sim and a
-controller node per axis, each in its own process). With `--in-process` (and for `--shadow`) a
+controller node per axis, each in its own process; with `--shadow`
+feed_twin.ros.machine_shadow_run: a stand-in and a twin node per axis). With `--in-process` a
 machine config (feed_twin.machine.config) runs every simulated axis of the machine on the
 engine in this process (feed_twin.machine.simulate), in lockstep on the NC's sample grid; the
 program and the config are checked first and a bad one stops the run with one line before
@@ -15,10 +16,10 @@ anything moves. Outputs:
   error beside per-axis following error;
 - the summary, and with `--json` one JSON object last (contour_error_max_m, contour_error_rms_m,
   following_error_max_m per axis, the engine's realtime factor, the paths).
-`--shadow` adds the shadow twin of every simulated axis beside its stand-in
-(feed_twin.machine.shadow): residuals and health per axis in the summary and under "shadow" in
-the JSON line. In-process, the node-set options (--realtime, --single-process, --live,
---no-gcode) are refused.
+`--in-process --shadow` adds the shadow twin of every simulated axis beside its stand-in
+(feed_twin.machine.shadow, over the program's samples): residuals and health per axis in the
+summary and under "shadow" in the JSON line. In-process, the node-set options (--realtime,
+--single-process, --live, --no-gcode) are refused.
 """
 
 from __future__ import annotations
@@ -132,13 +133,12 @@ def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
     from feed_twin.gcode import GcodeError
     from feed_twin.gcode.planner import validate_program
 
-    in_process = args.in_process or args.shadow
     refused = [f"--{o.replace('_', '-')}" for o in NODE_SET_OPTIONS if getattr(args, o, False)]
-    if refused and in_process:
+    if refused and args.in_process:
         return _error(
             args,
             f"{', '.join(refused)}: not available for a machine config run in-process "
-            f"({args.config}; without --in-process and --shadow it runs as ROS nodes)",
+            f"({args.config}; without --in-process it runs as ROS nodes)",
         )
     if args.program is None:
         return _error(args, "a PROGRAM is needed")
@@ -210,19 +210,15 @@ def run_machine(args: argparse.Namespace) -> int:
 def _shadow(args: argparse.Namespace, machine: MachineConfig) -> dict | str:
     """Every axis's shadow twin beside its stand-in (feed_twin.machine.shadow): the per-axis
     figures, printed; or the reason it cannot run."""
-    from feed_twin.machine.shadow import shadow_machine
+    from feed_twin.machine.shadow import format_axis_figures, shadow_machine
 
     try:
-        result = shadow_machine(machine, args.program, settle_s=args.settle)
+        result = shadow_machine(machine, args.program)
     except (ConfigError, ValueError) as exc:
         return f"--shadow: {exc}"
     figures = {axis.lower(): r.summary() for axis, r in result.items()}
     for axis, f in figures.items():
-        said = f" from {f['first_warning_s']:.3f} s: {f['message']}" if f["first_warning_s"] else ""
-        print(
-            f"shadow {axis}: FE deviation RMS {f['fe_dev_rms_m'] * 1e6:.3f} um, effort deviation "
-            f"RMS {f['effort_dev_rms']:.4f} {f['effort_unit']}, health {f['health']}{said}"
-        )
+        print(format_axis_figures(axis, f))
     return figures
 
 

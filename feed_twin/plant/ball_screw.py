@@ -57,6 +57,20 @@ class BallScrew(Component):
     def slots(self) -> dict[str, float]:
         return {"ratio": self.lead / (2.0 * math.pi), "efficiency": self.efficiency}
 
+    def force_per_torque(self, *, resisting: bool) -> float:
+        """Force at the nut [N] that one newton metre at the screw balances: 2 pi / (lead c).
+
+        `resisting`: the force resists every motion (friction), so the screw always drives the
+        load and c = 1/eta (force per torque 2 pi eta / lead). Otherwise the force is driven
+        against as often as it drives (inertia over a move that brakes as hard as it
+        accelerates, a weight lifted and lowered, a force held at rest): c takes its mean
+        (1/eta + eta)/2, the factor of efficiency_factor at zero power.
+        """
+        mean = 0.5 * (1.0 / self.efficiency + self.efficiency)
+        half = 0.5 * (1.0 / self.efficiency - self.efficiency)
+        c = mean + half if resisting else mean
+        return 2.0 * math.pi / (self.lead * c)
+
     def structure(self) -> tuple:
         return (self.lossy,)
 

@@ -297,6 +297,8 @@ class Generator(Emitter):
         out += [f"{const_name('P_', n)} = {i}" for i, n in enumerate(m.param_names)]
         out.append(f"N_P = {len(m.param_names)}")
         out.append(f"N_NOISE = {len(self.noise_channels)}  # normal samples per tick")
+        # a sample is standard_normal(seed, tick, key): plants whose keys agree draw the same
+        out.append(f"NOISE_KEYS = {tuple(self.noise_channels)!r}  # channel keys, in column order")
         out.append("# auxiliary outputs")
         kinetic = [f"stored.{c.name}.kinetic" for c in m.coordinates]
         aux = self.aux_names + kinetic + [acceleration_name(c) for c in m.coordinates]

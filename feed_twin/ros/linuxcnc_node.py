@@ -74,7 +74,8 @@ class LinuxcncNode(FeedTwinNode):
         self._servo_pub = self.create_publisher(
             ServoSample, f"{self.topics.namespace}/linuxcnc/servo", DATA_QOS
         )
-        self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
+        # where the end of the run is announced (a machine's node: every axis's run_state)
+        self._run_pubs = [self.create_publisher(String, self.topics.run_state, LATCHED_QOS)]
         self.create_subscription(
             TwinResidual,
             f"{twin_namespace(self.topics.command)}/residual",
@@ -108,7 +109,7 @@ class LinuxcncNode(FeedTwinNode):
                 return None
             return 0.05
         if self.run is None and not self.run_ended:
-            if not (self.peers_alive() and self._js_pub.get_subscription_count() > 0):
+            if not self._ready():
                 return 0.01
             self._t_start = now
             try:
@@ -138,6 +139,10 @@ class LinuxcncNode(FeedTwinNode):
             self._end(EXIT_OK, "")
             return 0.05
         return 0.001
+
+    def _ready(self) -> bool:
+        """LinuxCNC may start: the peers beat and the twin listens."""
+        return self.peers_alive() and self._js_pub.get_subscription_count() > 0
 
     def _publish_window(self) -> None:
         """Publish what waits, at most WINDOW periods ahead of the twin's output: LinuxCNC
@@ -189,9 +194,9 @@ class LinuxcncNode(FeedTwinNode):
     def _end(self, code: int, message: str) -> None:
         """Stop LinuxCNC, announce the end of the run, stay LINGER_S, then finish."""
         self._close_run()
-        self._run_pub.publish(
-            String(data="done: program finished" if code == EXIT_OK else "done: LinuxCNC fault")
-        )
+        text = "done: program finished" if code == EXIT_OK else "done: LinuxCNC fault"
+        for pub in self._run_pubs:
+            pub.publish(String(data=text))
         self._ending = (code, message)
         self._done_at = time.monotonic()
         if message:
@@ -263,11 +268,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
 
 
-def build(args: argparse.Namespace, context) -> LinuxcncNode:
-    from feed_twin.nodeset.split import load_node_set_config
-
-    ros = load_node_set_config(args.config)
-    nc, servo = machine_for_config(args.config)
+def run_starter(args: argparse.Namespace, nc, servo) -> Callable[[], LinuxcncRun]:
+    """What starts LinuxCNC on the node's program once the node set is up."""
     options = RunOptions(timeout_s=args.timeout, max_lag_s=args.max_lag)
 
     def start_run() -> LinuxcncRun:
@@ -275,6 +277,14 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
                           say=lambda text: print(text, file=sys.stderr, flush=True))  # fmt: skip
         return run.__enter__()
 
+    return start_run
+
+
+def build(args: argparse.Namespace, context) -> LinuxcncNode:
+    from feed_twin.nodeset.split import load_node_set_config
+
+    ros = load_node_set_config(args.config)
+    nc, servo = machine_for_config(args.config)
     return LinuxcncNode(
         NodeOptions(
             machine=ros.machine,
@@ -283,7 +293,7 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
             startup_timeout_s=args.startup_timeout,
             input_timeout_s=args.input_timeout,
         ),
-        start_run=start_run,
+        start_run=run_starter(args, nc, servo),
         joint=nc.axis_index(nc.twin_axis),
         period_s=servo.servo_period_s,
         context=context,

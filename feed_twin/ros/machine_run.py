@@ -23,7 +23,9 @@ import json
 import os
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
@@ -37,16 +39,20 @@ from feed_twin.machine.nodes import (
 )
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, host_argv
-from feed_twin.ros.launch import launch, log_record
+from feed_twin.ros.launch import Launched, launch, log_record
+
+if TYPE_CHECKING:
+    from feed_twin.ros.domain import DomainReservation
 
 REFUSED = ("single_process", "live", "no_gcode", "shadow")
 
 
-def check_plan(machine: MachineConfig, plan: NodePlan) -> None:
-    """Every axis file as its nodes will read it (ConfigError naming the axis)."""
-    for axis, path in plan.files.items():
+def check_plan(machine: MachineConfig, files: Mapping[str, Path], *, shadow: bool = False) -> None:
+    """Every axis file as its nodes will read it (ConfigError naming the axis); `shadow`: with
+    its shadow: section."""
+    for axis, path in files.items():
         try:
-            preflight.check_run_config(path, shadow=False)
+            preflight.check_run_config(path, shadow=shadow)
         except ConfigError as exc:
             # the written file is the machine file's axis: name that instead
             said = str(exc).removeprefix(f"{path}: ")
@@ -62,7 +68,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     bag, logs = args.out / name, args.out / f"{name}.logs"
     try:
         plan = node_plan(machine, settle_s=args.settle)
-        check_plan(machine, plan)
+        check_plan(machine, plan.files)
         common = ["--startup-timeout", str(args.startup_timeout),
                   "--input-timeout", str(args.input_timeout)]  # fmt: skip
         processes = plan.processes(
@@ -76,27 +82,10 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         reservation = preflight.run_environment(args, env)
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    commands = {}
-    for n in here:
-        if len(processes[n]) == 1:
-            role, argv = processes[n][0]
-            commands[n] = [sys.executable, "-m", NODE_MODULES[role], *argv]
-        else:
-            commands[n] = [sys.executable, "-m", "feed_twin.ros.host", *host_argv(processes[n])]
     clock = next((n for n in here if processes[n][0][0] == "sim"), None)
-    try:
-        result = launch(
-            commands,
-            logs,
-            env=env,
-            progress_role=clock,
-            show_progress=not args.json,
-            stop_on_failure=True,
-        )
-    finally:
-        if reservation is not None:
-            reservation.release()
+    result = launch_processes(
+        {n: processes[n] for n in here}, logs, env, reservation, clock=clock, quiet=args.json
+    )
     timing = (log_record(result.logs[clock], "TIMING") or {}) if clock else {}
     summary, problem = None, ""
     if RECORDER_PROCESS in here:
@@ -122,6 +111,37 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
             **{f"timing_{k}": v for k, v in timing.items()},
         }))  # fmt: skip
     return code
+
+
+def launch_processes(
+    processes: dict[str, list[tuple[str, list[str]]]],
+    logs: Path,
+    env: dict[str, str],
+    reservation: DomainReservation | None,
+    *,
+    clock: str | None,
+    quiet: bool,
+    modules: Mapping[str, str] = NODE_MODULES,
+) -> Launched:
+    """Start each process (one node: its module from `modules`; several: feed_twin.ros.host),
+    watch them until all have ended (one failing stops the others at once, the recorder last;
+    `clock` shows progress unless `quiet`), then release the run's domain reservation."""
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    commands = {}
+    for n, nodes in processes.items():
+        if len(nodes) == 1:
+            role, argv = nodes[0]
+            commands[n] = [sys.executable, "-m", modules[role], *argv]
+        else:
+            commands[n] = [sys.executable, "-m", "feed_twin.ros.host", *host_argv(nodes)]
+    try:
+        return launch(
+            commands, logs, env=env, progress_role=clock, show_progress=not quiet,
+            stop_on_failure=True,
+        )  # fmt: skip
+    finally:
+        if reservation is not None:
+            reservation.release()
 
 
 def _report(
@@ -152,24 +172,35 @@ def _named(reason: str, plan: NodePlan) -> str:
     return f"axis {axis}: {reason}" if axis is not None else reason
 
 
-def _finish(bag: Path, machine: MachineConfig, program: Path) -> tuple[dict | None, str]:
-    """The bag made readable, the contour error added to it, and the run's figures."""
-    import numpy as np
-
-    from feed_twin.gcode.geometry import programmed_path
-    from feed_twin.io.bag import BagError, BagReader, add_topics, info, recover
-    from feed_twin.io.cdr import FlatCodec
+def readable_bag(bag: Path) -> str:
+    """ "" when the run's bag can be read (recovered first when the recording was cut short),
+    else why not."""
+    from feed_twin.io.bag import BagError, info, recover
 
     if not bag.exists():
-        return None, "no bag was written"
+        return "no bag was written"
     try:
         info(bag)
     except BagError:
         try:
             kept = recover(bag).messages_recovered
         except BagError as exc:
-            return None, f"the bag is unreadable: {exc}"
+            return f"the bag is unreadable: {exc}"
         print(f"bag: the recording was incomplete; recovered {kept} messages")
+    return ""
+
+
+def _finish(bag: Path, machine: MachineConfig, program: Path) -> tuple[dict | None, str]:
+    """The bag made readable, the contour error added to it, and the run's figures."""
+    import numpy as np
+
+    from feed_twin.gcode.geometry import programmed_path
+    from feed_twin.io.bag import BagError, BagReader, add_topics
+    from feed_twin.io.cdr import FlatCodec
+
+    problem = readable_bag(bag)
+    if problem:
+        return None, problem
     try:
         record = read_machine_bag(bag, machine, programmed_path(program, machine.nc))
     except (BagError, ValueError) as exc:

@@ -20,15 +20,17 @@ and the controller's DriveCommand come packed, N exchanges to a RecordBatch on
 `<namespace>/record/<role>` (feed_twin.nodeset.record_batch): the recorder subscribes to those
 instead of to the topics themselves and writes each message under its own topic, logged at its
 publish time. Producers of those topics other than the sim and controller nodes (a stand-in, a
-LinuxCNC bridge) do not pack: a run with them keeps record_batch 0.
+LinuxCNC bridge) do not pack: the recorder reads the packed copies of a role only where its
+peers include that role's node (`--peers`), and the topics themselves elsewhere.
 
 A machine's recorder (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes) records
 every axis of the machine into the one bag: the node-set topics of each axis with nodes, the
 command of each axis without, and whatever else appears under `/<machine>/`.
 
 The run ends when the sim node (of every axis) announces it on `run_state`; the recorder then
-drains what is still in flight (until 0.3 s without a message, at most 30 s) and closes the
-bag. On SIGINT, SIGTERM or a lost peer it closes the bag as well.
+drains what is still in flight (until 0.3 s without a message and no shadow twin left in the
+graph, at most 30 s) and closes the bag. On SIGINT, SIGTERM or a lost peer it closes the bag as
+well.
 """
 
 from __future__ import annotations
@@ -65,6 +67,7 @@ from feed_twin.ros.runtime import (
 )
 
 DRAIN_QUIET_S = 0.3
+TWIN_STATE_SUFFIX = "/twin/state"  # a shadow twin's output: the last topic of a run to end
 DRAIN_MAX_S = 30.0  # a recorder starved of CPU may lag seconds behind the graph
 SCAN_PERIOD_S = 0.2
 DRAIN_PERIOD_S = 0.005  # [s] between two drains of the data subscriptions
@@ -127,6 +130,7 @@ class RecorderNode(FeedTwinNode):
         self._peer_lost: str | None = None
         self._peers_lost: set[str] = set()
         self._signal: str | None = None
+        self._twin_states: set[str] = set()
         served = list(options.axis_topics().values())
         known: dict[str, str] = {}
         self._signed_topics: set[str] = set()
@@ -161,9 +165,11 @@ class RecorderNode(FeedTwinNode):
                     f"{twin_namespace}/health": "feed_twin_msgs/msg/HealthStatus",
                 }
             )
-        if record_batch:
-            for topics in served:
-                for role in (SIM_NODE, CONTROLLER_NODE):
+        for prefix, topics in options.axis_topics().items():
+            for role in (SIM_NODE, CONTROLLER_NODE):
+                # only a sim or controller node packs: the topics of other producers (a
+                # stand-in's joint states) are recorded from the topics themselves
+                if record_batch and f"{prefix}{role}" in options.peers:
                     self._record_batched(topics, role, known, record_batch)
         for topic, type_name in known.items():
             self._record(topic, type_name, qos_for.get(topic, DATA_QOS))
@@ -179,6 +185,8 @@ class RecorderNode(FeedTwinNode):
             message_class(type_name), topic, _never_called, qos, raw=True
         )
         self._recorded[topic] = subscription
+        if topic.endswith(TWIN_STATE_SUFFIX):
+            self._twin_states.add(topic)
         counts = self._counts(topic)
         live = self.live if self.live is not None and self.live.wants(topic) else None
         self._takers.append((topic, subscription, counts, live))
@@ -339,13 +347,22 @@ class RecorderNode(FeedTwinNode):
         if self._ending_since is None or self.done:
             return
         now = time.monotonic()
-        if now - self._last_message > DRAIN_QUIET_S or now - self._ending_since > DRAIN_MAX_S:
+        quiet = now - self._last_message > DRAIN_QUIET_S and not self._twin_still_deciding()
+        if quiet or now - self._ending_since > DRAIN_MAX_S:
             if self._signal is not None:
                 self.finish(EXIT_SIGNAL, f"stopped by {self._signal}")
             elif self.run_ended or self._peer_lost is None:
                 self.finish(EXIT_OK, "")
             else:
                 self.finish(EXIT_PEER_LOST, self._peer_lost)
+
+    def _twin_still_deciding(self) -> bool:
+        # A shadow twin decides its last samples only once its inputs have been quiet, and
+        # under load that can come after the recorder's own quiet period: wait for it to leave.
+        # A killed twin stays in the graph until its lease ends: not after a signal or a lost peer.
+        if self._signal is not None or self._peer_lost is not None:
+            return False
+        return any(self.count_publishers(topic) > 0 for topic in self._twin_states)
 
     def on_shutdown(self, reason: str) -> None:
         self._drain()

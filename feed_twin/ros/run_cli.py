@@ -369,11 +369,21 @@ def main(args: argparse.Namespace) -> int:
     if _is_machine_config(args.config):
         from feed_twin.machine.run_cli import prepare_machine, run_machine
 
-        if args.in_process or args.shadow:
+        if args.nc == "linuxcnc" and (args.in_process or not args.shadow):
+            return _early_error(
+                args,
+                "--nc linuxcnc runs the program on LinuxCNC with the machine's twins beside it: "
+                "add --shadow (without --in-process)",
+            )
+        if args.in_process:
             return run_machine(args)
         machine = prepare_machine(args)
         if isinstance(machine, int):
             return machine
+        if args.shadow:
+            from feed_twin.ros.machine_shadow_run import run_machine_shadow
+
+            return run_machine_shadow(args, machine)
         from feed_twin.ros.machine_run import run_machine_nodes
 
         return run_machine_nodes(args, machine)

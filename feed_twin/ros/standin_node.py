@@ -11,7 +11,9 @@ measured position [m] and the drive effort (N, or A for a PMSM model). Two comma
   NC setpoints on `<ns>/command` (AxisCommand) itself.
 - `--follow` (`feed-twin run PROGRAM --shadow`): the G-code node's AxisCommand stream on
   `<ns>/command`. The node publishes `/clock` (the machine time reached, every
-  `ros.clock_divider` samples), which paces the G-code node's lookahead, as the sim node does.
+  `ros.clock_divider` samples), which paces the G-code node's lookahead, as the sim node does;
+  an axis of a machine (`--axis-clock`, feed_twin.machine.shadow_nodes) publishes it on
+  `<ns>/clock`, and the G-code node follows the slowest axis.
   Lockstep (default): a sample is played as soon as its command is there, at most
   `LOCKSTEP_WINDOW` samples ahead of the twin's published state (`<ns>/twin/state`), so a slow
   twin is never flooded and the run is as fast as the twin. `--realtime`: sample k is played at
@@ -57,7 +59,14 @@ from std_msgs.msg import String
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
-from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, start_node
+from feed_twin.ros.runtime import (
+    EXIT_ERROR,
+    EXIT_OK,
+    PEER_TIMEOUT_S,
+    FeedTwinNode,
+    NodeOptions,
+    start_node,
+)
 from feed_twin.shadow.bagstreams import encode_joint_state
 from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.replay import twin_namespace
@@ -86,9 +95,12 @@ class StandInNode(FeedTwinNode):
         clock_divider: int = 10,
         schedule: Sequence[tuple[float, float]] = (),
         seed: int = 0,
+        clock_topic: str = "/clock",
         context=None,
     ) -> None:
-        """`program`: (t, x, v, a) of the built-in program; None follows `<ns>/command`."""
+        """`program`: (t, x, v, a) of the built-in program; None follows `<ns>/command`.
+        `clock_topic`: where a follower publishes the machine time (a machine's axis: its
+        `<ns>/clock`, which the G-code node reads with --axis-clock)."""
         super().__init__("standin", options, context=context)
         self.standin = standin
         self.period_s = period_s
@@ -127,7 +139,7 @@ class StandInNode(FeedTwinNode):
                     DATA_QOS,
                     raw=True,
                 )
-            self._clock_pub = self.create_publisher(Clock, "/clock", DATA_QOS)
+            self._clock_pub = self.create_publisher(Clock, clock_topic, DATA_QOS)
             self._clock_msg = Clock()
             self._waiting = False
             self.watch_input(
@@ -398,6 +410,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="play the G-code node's command stream (the config's ros: and nc: sections)",
     )
     parser.add_argument("--realtime", action="store_true", help="--follow: pace by wall clock")
+    parser.add_argument(
+        "--axis-clock",
+        action="store_true",
+        help="--follow: publish the clock as <namespace>/clock (an axis of a machine, "
+        "feed_twin.machine.shadow_nodes)",
+    )
     parser.add_argument("--duration", type=float, default=60.0, help="[s] of built-in program")
     parser.add_argument("--period", type=float, default=1e-3, help="[s] machine cycle")
     parser.add_argument("--jitter", type=float, help="[s] largest send delay (shadow.standin)")
@@ -409,6 +427,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
+    parser.add_argument("--peer-timeout", type=float, default=PEER_TIMEOUT_S, help="[s]")
 
 
 def build(args: argparse.Namespace, context) -> StandInNode:
@@ -453,6 +472,7 @@ def build(args: argparse.Namespace, context) -> StandInNode:
             peers=tuple(p for p in args.peers.split(",") if p),
             startup_timeout_s=args.startup_timeout,
             input_timeout_s=args.input_timeout,
+            peer_timeout_s=args.peer_timeout,
         ),
         standin=standin,
         period_s=args.period,
@@ -462,6 +482,7 @@ def build(args: argparse.Namespace, context) -> StandInNode:
         clock_divider=divider,
         schedule=schedule,
         seed=config.seed,
+        clock_topic=f"/{machine}/{axis}/clock" if args.axis_clock else "/clock",
         context=context,
     )
 

@@ -40,7 +40,7 @@ from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.measured import load_column_map
 from feed_twin.nodeset.topics import Topic
 from feed_twin.ros.dds import DATA_QOS
-from feed_twin.ros.runtime import EXIT_OK, FeedTwinNode, NodeOptions, start_node
+from feed_twin.ros.runtime import EXIT_OK, PEER_TIMEOUT_S, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import JOINT_STATE, MessageFields, plan
 from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.health import Verdict
@@ -306,6 +306,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
+    parser.add_argument("--peer-timeout", type=float, default=PEER_TIMEOUT_S, help="[s]")
 
 
 def build(args: argparse.Namespace, context) -> TwinNode:
@@ -340,7 +341,8 @@ def build(args: argparse.Namespace, context) -> TwinNode:
     return TwinNode(
         NodeOptions(machine=args.machine, axis=args.axis,
                     peers=tuple(p for p in args.peers.split(",") if p),
-                    input_timeout_s=args.input_timeout, startup_timeout_s=args.startup_timeout),
+                    input_timeout_s=args.input_timeout, startup_timeout_s=args.startup_timeout,
+                    peer_timeout_s=args.peer_timeout),
         shadow=shadow,
         command=InputTopic(
             topic=Topic(name=topic_of["command"], type_name=args.command_type),

@@ -48,6 +48,7 @@ MIN_SPEED_M_S = 1e-4  # [m/s] below this peak speed in a window nothing can be a
 # friction, mass and force effects are smooth functions of the motion, and ranking a 4000-sample
 # window costs about 0.1 s, which a live twin cannot spend every few seconds.
 NAMING_SAMPLES = 500
+MAX_BASELINE_EFFECTS = 4  # effects the baseline residual model may hold
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -272,23 +273,41 @@ class HealthMonitor:
         rows = _decimated(rows)
         motion = self._motion(rows)
         try:
-            ranked = rank(motion, effort_residual=rows[:, 3], position_residual=None)
+            self._baseline_model = self._fit_baseline(motion, rows[:, 3])
         except (np.linalg.LinAlgError, ValueError) as exc:
             self._baseline_note = f"baseline residual model not fitted: {exc}"
-            return
-        chosen = [(c.name, c.variant) for c in ranked]
-        columns, owners = self._regressors(motion, chosen)
-        if not columns:
-            return
-        Z = np.column_stack([v for v in columns.values()])
-        scale = np.linalg.norm(Z, axis=0)
-        scale[scale == 0.0] = 1.0
-        coef, *_ = np.linalg.lstsq(Z / scale, rows[:, 3], rcond=1e-10)
-        coef = coef / scale
-        by_effect: dict[tuple[str, str], dict[str, float]] = {}
-        for (key, value), owner in zip(zip(columns, coef, strict=True), owners, strict=True):
-            by_effect.setdefault(owner, {})[key.split(":", 1)[1]] = float(value)
-        self._baseline_model = [(name, variant, c) for (name, variant), c in by_effect.items()]
+
+    def _fit_baseline(self, motion, effort_dev: np.ndarray) -> list:
+        """The effects the baseline window's effort deviation already holds, added one at a time
+        while the next one is significant on what the others leave: fitting every ranked
+        candidate at once lets near-collinear signatures (|v| and v on one-way moves, a
+        standstill indicator on a moving window) take huge opposite weights that predict
+        nonsense on the next window."""
+        chosen: list[tuple[str, str]] = []
+        coef: dict[tuple[str, str], dict[str, float]] = {}
+        residual = effort_dev
+        for _ in range(MAX_BASELINE_EFFECTS):
+            ranked = rank(
+                motion,
+                effort_residual=residual,
+                position_residual=None,
+                exclude=tuple(name for name, _ in chosen),
+            )
+            found = next((c for c in ranked if c.significant), None)
+            if found is None:
+                break
+            chosen.append((found.name, found.variant))
+            columns, owners = self._regressors(motion, chosen)
+            Z = np.column_stack(list(columns.values()))
+            scale = np.linalg.norm(Z, axis=0)
+            scale[scale == 0.0] = 1.0
+            fitted, *_ = np.linalg.lstsq(Z / scale, effort_dev, rcond=1e-10)
+            fitted = fitted / scale
+            residual = effort_dev - Z @ fitted
+            coef = {}
+            for (key, value), owner in zip(zip(columns, fitted, strict=True), owners, strict=True):
+                coef.setdefault(owner, {})[key.split(":", 1)[1]] = float(value)
+        return [(name, variant, c) for (name, variant), c in coef.items()]
 
     @staticmethod
     def _regressors(motion, chosen):

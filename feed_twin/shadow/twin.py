@@ -145,19 +145,14 @@ class _Rows:
 
 
 def physical_effects(twin: Twin) -> tuple[PhysicalEffect, ...]:
-    """The library effects whose weight maps to a parameter of this model, with their scales."""
+    """The library effects whose weight maps to a parameter of this model, with their scales:
+    a friction resists every motion, the screw drives it; inertia and a constant force are
+    driven against as often as they drive (analysis.model_doc.ModelDoc.force_per_effort)."""
     doc = twin.doc
-    if twin.effort_unit == "N":
-        per_effort = 1.0
-    elif twin.lead_m is None:
+    per_effort = doc.force_per_effort(twin.effort_unit, resisting=True)
+    per_effort_both = doc.force_per_effort(twin.effort_unit, resisting=False)
+    if per_effort is None or per_effort_both is None:
         return ()
-    elif twin.effort_unit == "N m":
-        per_effort = 2.0 * math.pi / twin.lead_m
-    else:
-        k_t = doc.data["controller"].get("drive", {}).get("K_t")
-        if k_t is None:
-            return ()
-        per_effort = float(k_t) * 2.0 * math.pi / twin.controller_lead()
     out: list[PhysicalEffect] = []
     friction = doc.friction()
     if friction is not None:
@@ -186,7 +181,7 @@ def physical_effects(twin: Twin) -> tuple[PhysicalEffect, ...]:
                 parameter=f"plant.{mass}",
                 unit="kg",
                 nominal=doc.get(mass),
-                per_effort=per_effort,
+                per_effort=per_effort_both,
             )
         )
     forces = doc.of_type("ConstantForce")
@@ -199,7 +194,7 @@ def physical_effects(twin: Twin) -> tuple[PhysicalEffect, ...]:
             parameter=f"plant.{forces[0]}.f_0" if forces else "plant.constant_force.f_0",
             unit="N",
             nominal=nominal_f0,
-            per_effort=-per_effort,
+            per_effort=-per_effort_both,
         )
     )
     return tuple(out)

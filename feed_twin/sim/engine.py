@@ -262,9 +262,28 @@ class Engine:
         ref: np.ndarray | None = None,
         drive: np.ndarray | None = None,
         ext: np.ndarray | None = None,
+        *,
+        hold: int = 1,
+        normals: np.ndarray | None = None,
     ) -> SimResult:
-        """Advance n_ticks base periods from the current tick; returns what was recorded."""
-        ref2, drive2, ext2 = self.tick_inputs(n_ticks, ref=ref, drive=drive, ext=ext)
+        """Advance n_ticks base periods from the current tick; returns what was recorded.
+
+        The inputs have one row per `hold` ticks (the last row may hold for fewer), each held
+        over its ticks: NC samples advance with hold = dec and no row repeated per tick.
+        `normals`: the sensor noise's standard normal samples of these ticks, drawn ahead
+        (`standard_normals` of an engine with the same `noise_key`, which draws the same
+        doubles), or None: the loop draws them."""
+        if int(hold) != hold or hold < 1:
+            raise ValueError(f"hold = {hold!r}: must be an integer >= 1")
+        hold = int(hold)
+        if normals is None:
+            normals = self._no_normals
+        elif normals.shape != (n_ticks, self.kernel.N_NOISE):
+            raise ValueError(
+                f"normals: shape {normals.shape} given, expected ({n_ticks}, {self.kernel.N_NOISE})"
+            )
+        rows = -(-n_ticks // hold)
+        ref2, drive2, ext2 = self.tick_inputs(rows, ref=ref, drive=drive, ext=ext)
         k0 = self.k
         # the recorded ticks: the multiples of dec in [k0, k0 + n_ticks)
         rec_ticks = np.arange(-(-k0 // self.dec) * self.dec, k0 + n_ticks, self.dec)
@@ -280,8 +299,9 @@ class Engine:
             ref2,
             drive2,
             ext2,
+            hold,
             self.seed,
-            self._no_normals,
+            normals,
             self.ring,
             self.out,
             self.h,
@@ -297,6 +317,19 @@ class Engine:
             raise DivergenceError(divergence_message(self.model, status, self.h))
         return SimResult(t=rec_ticks * self.h, names=self.record_names, data=rec)
 
+    @property
+    def noise_key(self) -> tuple[int, tuple[int, ...]]:
+        """What the sensor noise's samples depend on besides the tick: the seed and the plant's
+        channel keys. Engines with equal keys draw the same doubles at the same tick."""
+        return self.seed, tuple(self.kernel.NOISE_KEYS)
+
+    def standard_normals(self, n_ticks: int) -> np.ndarray:
+        """(n_ticks, channels): the standard normal samples of the next n_ticks ticks, for
+        `advance(..., normals=)` of this engine or another with the same `noise_key`."""
+        table = np.empty((n_ticks, self.kernel.N_NOISE))
+        self.kernel.standard_normals(self.seed, self.k, n_ticks, table)
+        return table
+
     def tick_inputs(
         self,
         n_ticks: int,
@@ -305,8 +338,8 @@ class Engine:
         drive: np.ndarray | None = None,
         ext: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ref, drive, ext) for n_ticks base ticks as the kernel takes them: (n_ticks, REF_SIZE),
-        (n_ticks, OUT_SIZE), (n_ticks, n_ext); zeros for an input not given."""
+        """(ref, drive, ext) as the kernel takes them, n_ticks rows (one per tick, or per `hold`
+        ticks of `advance`): (n, REF_SIZE), (n, OUT_SIZE), (n, n_ext); zeros for one not given."""
         return (
             self._input(ref, n_ticks, signals.REF_SIZE, "ref"),
             self._input(drive, n_ticks, signals.OUT_SIZE, "drive"),

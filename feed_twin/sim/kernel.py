@@ -23,6 +23,7 @@ docs/performance.md); sets are independent, so a diverged set only flags its own
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import math
@@ -80,13 +81,18 @@ def work_size(n_cs):
 
 
 @njit(cache=True, _nrt=False, nogil=True, error_model="numpy", fastmath=FASTMATH)
-def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, dec, sel, rec,
-            xlim, status, work):
+def advance(x, p, cp, cs, k0, n, ref, drive, ext, hold, seed, normals, ring, out, h, dec, sel,
+            rec, xlim, status, work):
     """Advance n ticks from tick k0; returns the number of ticks done (< n on divergence).
 
-    `normals`: the standard normal samples of ticks 0 .. m-1 for `seed`, drawn ahead
-    (`standard_normals`; run_batch draws them once for all sets of a seed), or m = 0 rows: the
-    loop draws them itself when they do not cover ticks k0 .. k0+n-1. The same doubles either way.
+    `ref`, `drive`, `ext`: one row per `hold` ticks, each held over its ticks (a drive holds a
+    fieldbus setpoint until the next one), row 0 from tick k0: an NC sample is one row, not
+    `hold` copies of it that the loop would stream from memory.
+
+    `normals`: the standard normal samples of ticks k0 .. k0+m-1 for `seed`, drawn ahead
+    (`standard_normals`; run_batch draws them once for all sets of a seed, the machine engine
+    once for all axes of a seed), or m = 0 rows: the loop draws them itself when they do not
+    cover the n ticks. The same doubles either way.
 
     Compiled without numba's reference counting (no allocation here: `work` is the scratch):
     every array argument passed to an inner call would otherwise cost atomic counts.
@@ -108,7 +114,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
     row = work[o:o + N_X + N_A + MEAS_SIZE + OUT_SIZE + n_cs]
     for i in range(3):
         sw[i] = 0.0
-    drawn = normals.shape[0] >= k0 + n
+    drawn = normals.shape[0] >= n
     # the parameters as a tuple of scalars: numba's arrays may alias, so every store to x or dx
     # would force the loop to reload p[...] and redo each division by a parameter; a tuple is
     # immutable, and LLVM hoists what depends on parameters alone out of the loop
@@ -117,17 +123,19 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
     xs = {xtuple}
     r = 0
     phase = k0 % dec  # ticks since the last recorded one: no integer division per tick
+    u = 0  # the input row of tick j, and the ticks it has been held
+    held = 0
     for j in range(n):
         k = k0 + j
         t = k * h
         # a tuple, not the scratch vector: the loop stores nothing that may alias what it reads
         if drawn:
-            noise = pick_noise(pt, normals[k])
+            noise = pick_noise(pt, normals[j])
         else:
             noise = draw_noise(pt, seed, k)
         # the Park angles of this state, once: the sensors read them, the RK4 stages rotate them
         trig = angles(t, xs, pt)
-        sense(t, xs, pt, out, ext[j], sw, trig, noise, mraw, mdelay)
+        sense(t, xs, pt, out, ext[u], sw, trig, noise, mraw, mdelay)
         slot = k % RING
         for m in range(MEAS_SIZE):
             ring[slot, m] = mraw[m]
@@ -136,7 +144,7 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
             meas[m] = ring[(k - back) % RING, m]
 {controller}
         if phase == 0:
-            outputs(t, xs, pt, out, ext[j], sw, aux)
+            outputs(t, xs, pt, out, ext[u], sw, aux)
             for i in range(N_X):
                 row[i] = x[i]
             for i in range(N_A):
@@ -153,7 +161,11 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, seed, normals, ring, out, h, d
         phase += 1
         if phase == dec:
             phase = 0
-        xs = integrate_tick(t, h, xs, pt, out, ext[j], sw, edges, trig)
+        xs = integrate_tick(t, h, xs, pt, out, ext[u], sw, edges, trig)
+        held += 1
+        if held == hold:
+            held = 0
+            u += 1
 {store_x}
         for i in range(N_X):
             if not abs(x[i]) <= xlim[i]:
@@ -181,8 +193,8 @@ def advance_sets(first, stride, X, P, CP, CS, n, ref, drive, ext, seeds, tables,
             normals = tables[max(table_of[b], 0)]
             if table_of[b] < 0:
                 normals = normals[:0]
-            advance(X[b], P[b], CP[b], CS[b], 0, n, ref, drive, ext, seeds[b], normals, rings[b],
-                    outs[b], h, dec, sel, rec[b], xlim, status[b], works[b])
+            advance(X[b], P[b], CP[b], CS[b], 0, n, ref, drive, ext, 1, seeds[b], normals,
+                    rings[b], outs[b], h, dec, sel, rec[b], xlim, status[b], works[b])
     return 0
 '''
 
@@ -269,9 +281,9 @@ def integrate_tick(t0, h, x, p, out, ext, sw, edges, trig):
     return x
 """
 
-_CLOSED = """        cascade_tick(cpt, cs, k, ref[j], meas, out)"""
+_CLOSED = """        cascade_tick(cpt, cs, k, ref[u], meas, out)"""
 _OPEN = """        for i in range(OUT_SIZE):
-            out[i] = drive[j, i]"""
+            out[i] = drive[u, i]"""
 
 
 def _tuple(items) -> str:
@@ -377,6 +389,16 @@ def kernel_source(
 
 
 _LOADED: dict[str, ModuleType] = {}
+_DIGESTS: dict[tuple[tuple[str, int, int], ...], str] = {}  # by the callee files' (size, mtime)
+
+
+@functools.cache
+def _callee_paths() -> tuple[Path, ...]:
+    """The source files of `_callee_digest` (listed once: a module added to a running process
+    is not imported by its kernels anyway)."""
+    root = Path(__file__).resolve().parent.parent
+    paths = [p for pkg in ("core", "plant", "control") for p in sorted((root / pkg).glob("*.py"))]
+    return (*paths, Path(__file__).resolve())
 
 
 def _callee_digest() -> str:
@@ -384,14 +406,19 @@ def _callee_digest() -> str:
 
     numba's cache does not notice a change in a callee defined in another module, so the kernel
     file name carries this hash: edit a component, the controller or this loop and a new kernel
-    compiles.
+    compiles. Read again only when a file's size or modification time changed: every engine
+    asks, and reading and hashing the files took 6 ms, more than loading the kernel.
     """
-    root = Path(__file__).resolve().parent.parent
+    paths = _callee_paths()
+    stamp = tuple((str(p), st.st_size, st.st_mtime_ns) for p in paths for st in (p.stat(),))
+    known = _DIGESTS.get(stamp)
+    if known is not None:
+        return known
     digest = hashlib.sha256()
-    paths = [p for pkg in ("core", "plant", "control") for p in sorted((root / pkg).glob("*.py"))]
-    for path in [*paths, Path(__file__).resolve()]:
+    for path in paths:
         digest.update(path.read_bytes())
-    return digest.hexdigest()
+    _DIGESTS[stamp] = digest.hexdigest()
+    return _DIGESTS[stamp]
 
 
 def load_kernel(

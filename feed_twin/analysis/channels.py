@@ -1,0 +1,71 @@
+"""The discrepancy workflow's channels: the recorded effort, position and q-voltage residuals
+(measured minus twin) and the weights the fit gives them.
+
+A channel's weight is its noise level estimated at the current model (the RMS of its residual
+there, the maximum-likelihood variance), floored by its sample noise (analysis.significance), so
+a channel that one large effect explained keeps its say. analysis.rounds estimates the weights
+again before every round.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from feed_twin.analysis.fit import Measured, SimOutputs
+from feed_twin.analysis.significance import sample_noise
+from feed_twin.io.measured import MeasuredRun
+
+VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
+
+
+def residuals(run: MeasuredRun, out: SimOutputs, row: int = 0):
+    x = run["pos_meas_m"]
+    rp = out.x_m[row] - x
+    re = None
+    name = run.effort_name
+    if name is not None and out.effort is not None:
+        re = run[name] - out.effort[row]
+    return re, rp
+
+
+def voltage_residual(run: MeasuredRun, out: SimOutputs, row: int = 0) -> np.ndarray | None:
+    """Measured minus twin q-voltage [V] of the current controller, when both have it."""
+    if VOLTAGE_Q not in run or out.voltage_q is None:
+        return None
+    return run[VOLTAGE_Q] - out.voltage_q[row]
+
+
+def channel_residuals(run: MeasuredRun, out: SimOutputs, row: int = 0) -> dict[str, np.ndarray]:
+    """Each recorded channel's residual (measured minus twin) on the record's time base."""
+    re, rp = residuals(run, out, row)
+    ru = voltage_residual(run, out, row)
+    found = {"effort": re, "position": -rp, "voltage": ru}
+    return {k: v for k, v in found.items() if v is not None}
+
+
+def noise_floors(run: MeasuredRun, out: SimOutputs) -> dict[str, float]:
+    """Each channel's sample noise: the least its weight's noise level can be (see
+    analysis.significance), never below the smallest step that means anything in its unit."""
+    least = {"effort": 1e-9, "position": 1e-12, "voltage": 1e-6}
+    return {k: max(sample_noise(r), least[k]) for k, r in channel_residuals(run, out).items()}
+
+
+def weighted_channels(
+    run: MeasuredRun, out: SimOutputs, stride: int, floors: dict[str, float]
+) -> Measured:
+    """The fit's channels, each weighted by its noise level estimated at the model `out`: the
+    RMS of its residual there, floored by its sample noise (analysis.significance)."""
+    sigma = {
+        k: max(float(np.sqrt(np.mean(r**2))), floors[k])
+        for k, r in channel_residuals(run, out).items()
+    }
+    name = run.effort_name
+    return Measured(
+        x_m=run["pos_meas_m"],
+        effort=None if name is None or out.effort is None else run[name],
+        scale_x=sigma["position"],
+        scale_effort=sigma.get("effort", 1.0),
+        stride=stride,
+        voltage_q=run[VOLTAGE_Q] if "voltage" in sigma else None,
+        scale_voltage=sigma.get("voltage", 1.0),
+    )

@@ -1,0 +1,137 @@
+"""Fitting one candidate effect into the model (a step of analysis.rounds).
+
+The candidate's edit is applied to a copy of the model; its own parameters, and those of the
+effects found before (they interact with it), are fitted by output-error least squares
+(analysis.fit), or, for a searched whole number or a record slot, by a grid search over one
+batch of the engine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from feed_twin.analysis.fit import FitResult, FreeParameter, Measured, SimOutputs, cost_of, fit
+from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc, model_of
+from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.twin import Drive, Twin, delayed
+from feed_twin.plant.effect_api import Edit
+
+
+def fit_resumed(
+    twin: Twin, drive: Drive, free: list[FreeParameter], meas: Measured, max_evaluations: int
+) -> FitResult:
+    """Least squares; resumed once from where it stopped if the budget ran out on the way down
+    (a friction fit through stick-slip needs more steps than a mass), so that a fit which was
+    still improving is not thrown away for its budget alone."""
+    result = fit(
+        lambda params: twin.simulate(drive, params),
+        twin.nominal,
+        twin.index,
+        free,
+        meas,
+        max_evaluations=max_evaluations,
+    )
+    if result.converged or not result.cost < result.cost_initial:
+        return result
+    resumed = fit(
+        lambda params: twin.simulate(drive, params),
+        twin.nominal,
+        twin.index,
+        [dataclasses.replace(p, initial=result.values[p.name]) for p in free],
+        meas,
+        max_evaluations=max_evaluations,
+    )
+    return dataclasses.replace(
+        resumed,
+        cost_initial=result.cost_initial,
+        evaluations=result.evaluations + resumed.evaluations,
+    )
+
+
+def try_candidate(
+    model: ModelDoc,
+    found_free: list[FreeParameter],
+    cand: Candidate,
+    drive: Drive,
+    meas: Measured,
+    max_evaluations: int,
+) -> tuple[Edit, list[FreeParameter], Twin, FitResult] | str:
+    """Add the candidate to the model and fit it (with `found_free`, the parameters of the
+    effects found before); returns the edit, the effect's own parameters, the compiled twin and
+    the fit, or why it was not fitted."""
+    try:
+        edit = cand.effect.edit(model, cand)
+    except LookupError as exc:
+        return f"{cand.name}: cannot be added to this model ({exc}); not fitted"
+    doc = model_of(edit.doc)
+    # the effects found before interact with the new one (a constant force fitted alone has
+    # absorbed part of a Coulomb force found later): their parameters are fitted again with it
+    names = {p.name for p in edit.own}
+    alone = list(edit.own)
+    again = []
+    for p in () if edit.grid else found_free:
+        if p.name in names:
+            continue
+        if not doc.has_slot(p.name):
+            continue  # the parameter was split or replaced by the new effect
+        again.append(dataclasses.replace(p, initial=doc.get(p.name)))
+        names.add(p.name)
+    own = edit.own + again
+    edit = dataclasses.replace(
+        edit, own=own, free=own + [p for p in edit.free if p.name not in names]
+    )
+    twin = Twin.compile(doc)
+    if edit.grid:
+        return edit, alone, twin, grid_search(twin, edit, drive, meas)
+    return edit, alone, twin, fit_resumed(twin, drive, edit.own, meas, max_evaluations)
+
+
+def grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
+    """A searched parameter (a delay in ticks, a recorded channel's delay): every grid value
+    in one batch, best kept. A record slot (analysis.*) changes no simulation: the twin runs
+    once and its output is shifted for each value."""
+    (param,) = edit.own
+    if param.name == EFFORT_DELAY_SLOT:
+        out = effort_delays(twin, edit, drive)
+    else:
+        batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
+        for i in twin.index[param.name]:
+            batch[:, i] = edit.grid
+        out = twin.simulate(drive, batch)
+    costs = np.array([cost_of(meas, out, row) for row in range(len(edit.grid))])
+    best = int(np.argmin(costs))
+    start = int(np.argmin(np.abs(np.asarray(edit.grid) - param.initial)))
+    row = SimOutputs(
+        x_m=out.x_m[best : best + 1],
+        effort=None if out.effort is None else out.effort[best : best + 1],
+        ok=out.ok[best : best + 1],
+        voltage_q=None if out.voltage_q is None else out.voltage_q[best : best + 1],
+    )
+    return FitResult(
+        values={param.name: float(edit.grid[best])},
+        cost_initial=float(costs[start]),
+        cost=float(costs[best]),
+        converged=bool(np.isfinite(costs[best])),
+        message=f"grid search over {len(edit.grid)} values",
+        evaluations=len(edit.grid),
+        outputs=row,
+    )
+
+
+def effort_delays(twin: Twin, edit: Edit, drive: Drive) -> SimOutputs:
+    """The twin's outputs once, its effort shifted by every grid delay (one row each)."""
+    if twin.doc.get(EFFORT_DELAY_SLOT) != 0.0:
+        twin = Twin.compile(twin.doc.set(EFFORT_DELAY_SLOT, 0.0))
+    once = twin.simulate(drive, twin.nominal[None, :])
+    n = len(edit.grid)
+    effort = None
+    if once.effort is not None:
+        effort = np.vstack([delayed(once.effort, drive.t_s, d) for d in edit.grid])
+    return SimOutputs(
+        x_m=np.repeat(once.x_m, n, axis=0),
+        effort=effort,
+        ok=np.repeat(once.ok, n),
+        voltage_q=None if once.voltage_q is None else np.repeat(once.voltage_q, n, axis=0),
+    )

@@ -1,0 +1,213 @@
+"""The machine's shadow twin as ROS nodes, planned in plain Python; its figures from the bag.
+
+Per simulated axis two processes in the axis's namespace `/<machine>/<axis>`:
+
+- a stand-in node (feed_twin/ros/standin_node.py `--follow --axis-clock`): that axis of the
+  "real machine", the axis model with its `shadow.standin` hidden effects, answering each NC
+  sample of the G-code node with a measured sample on `<ns>/joint_states` (position and effort,
+  as ros2_control's joint_state_broadcaster publishes them) and publishing `<ns>/clock`;
+- a twin node (feed_twin/ros/twin_node.py): the shadow twin of that axis, reading
+  `<ns>/command` and `<ns>/joint_states` through the axis's column map and publishing
+  `<ns>/twin/state`, `<ns>/twin/residual` and `<ns>/twin/health`.
+
+The G-code node commands every NC axis and the recorder records every axis into one bag; both
+live in one process, in the first axis's namespace, as in the machine run
+(feed_twin.machine.nodes, whose axis files these extend by the axis's `shadow:` section). A
+real multi-axis machine would replace the stand-ins: it publishes the same topics per axis.
+
+Lockstep across axes: each stand-in plays a sample as soon as its command is there and at most
+a window ahead of its twin's output, and the G-code node publishes at most `ros.lookahead`
+periods ahead of the slowest axis's clock. Each axis's stand-in and twin see exactly the
+samples of the in-process machine shadow (feed_twin.machine.shadow), so both give the same
+figures per axis (`read_shadow_bag` and `AxisShadow.summary` share `axis_figures`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from feed_twin.io.config import ConfigError
+from feed_twin.machine.config import MachineConfig
+from feed_twin.machine.nodes import PEER_TIMEOUT_S, axis_documents, process_name, write_documents
+from feed_twin.machine.shadow import axis_figures, axis_shadow_config
+
+RECORDER_PROCESS = "recorder"  # hosts the recorder (and the G-code node beside stand-ins)
+LINUXCNC_PROCESS = "linuxcnc"
+MODULES = {
+    "recorder": "feed_twin.ros.recorder_node",
+    "gcode": "feed_twin.ros.gcode_node",
+    "standin": "feed_twin.ros.standin_node",
+    "twin": "feed_twin.ros.twin_node",
+    "linuxcnc": "feed_twin.ros.machine_linuxcnc_node",
+}
+
+
+def shadow_documents(machine: MachineConfig) -> dict[str, dict[str, Any]]:
+    """NC axis -> the single-axis config its stand-in and twin read (the machine run's axis
+    document and the axis's `shadow:` section); ConfigError (one line) for an axis without a
+    usable shadow section."""
+    docs = axis_documents(machine)
+    nc_period = machine.nc.interpolation_period_s
+    for axis, doc in docs.items():
+        shadow = axis_shadow_config(machine, axis)
+        if abs(shadow.sample_period_s - nc_period) > 1e-12:
+            raise ConfigError(
+                f"{machine.axes[axis].source}: shadow.sample_period_s = "
+                f"{shadow.sample_period_s!r}: must equal nc.interpolation_period_s = "
+                f"{nc_period!r} (the twin shadows the NC's command stream)"
+            )
+        doc["shadow"] = machine.axes[axis].shadow
+    return docs
+
+
+@dataclass(frozen=True, kw_only=True)
+class ShadowPlan:
+    """The processes of a machine's shadow run: name -> (node role, its arguments)."""
+
+    machine: str
+    source: str  # the machine file
+    axes: tuple[str, ...]  # simulated NC axes, in the NC's order
+    command_axes: tuple[str, ...]  # NC axes without nodes (rotary axes, those left out)
+    files: dict[str, Path]  # simulated axis -> its config file
+    maps: dict[str, Path]  # simulated axis -> the column map of its topics (the twin reads it)
+    effort_units: dict[str, str]  # simulated axis -> the unit of its twin's effort (N, N m, A)
+    period_s: float  # [s] the NC's interpolation period: one stand-in sample each
+    linuxcnc: bool  # LinuxCNC is the machine (feed_twin/ros/machine_linuxcnc_node.py)
+
+    def namespace(self, axis: str) -> str:
+        return f"/{self.machine}/{axis.lower()}"
+
+    def rrd(self, bag: Path, axis: str) -> Path:
+        """The shadow dashboard the axis's twin writes."""
+        return bag.with_name(f"{bag.name}_{axis.lower()}.rrd")
+
+    @property
+    def axis_roles(self) -> tuple[str, ...]:
+        return ("twin",) if self.linuxcnc else ("standin", "twin")
+
+    def processes(
+        self, *, program: Path, bag: Path, common: list[str]
+    ) -> dict[str, list[tuple[str, list[str]]]]:
+        """Process name -> its nodes (role, arguments); `common`: the timeouts every node takes
+        (the peer timeout is added here)."""
+        first, others = self.axes[0], self.axes[1:]
+        common = [*common, "--peer-timeout", str(PEER_TIMEOUT_S)]
+        served = [
+            "--machine-axes", ",".join(a.lower() for a in others),
+            "--command-axes", ",".join(a.lower() for a in self.command_axes),
+        ]  # fmt: skip
+        hub = {
+            "recorder": [*served, "--bag", str(bag),
+                         "--twin-namespace", f"{self.namespace(first)}/twin"],
+            "gcode": [*served, "--program", str(program), "--autostart", "--axis-clock"],
+            "linuxcnc": ["--machine-config", self.source, "--axes", ",".join(self.axes),
+                         "--program", str(program)],
+        }  # fmt: skip
+        hub_roles = ("recorder", "linuxcnc") if self.linuxcnc else ("recorder", "gcode")
+        everyone = [*hub_roles, *self.axis_roles]
+        everyone += [f"{a.lower()}/{r}" for a in others for r in self.axis_roles]
+        out: dict[str, list[tuple[str, list[str]]]] = {RECORDER_PROCESS: []}
+        for role in hub_roles:
+            peers = ",".join(p for p in everyone if p != role)
+            argv = ["--config", str(self.files[first]), "--peers", peers, *common, *hub[role]]
+            # beside stand-ins the G-code node shares the recorder's process (the machine run's
+            # layout); LinuxCNC's bridge has its own
+            name = LINUXCNC_PROCESS if role == "linuxcnc" else RECORDER_PROCESS
+            out.setdefault(name, []).append((role, argv))
+        for axis in self.axes:
+            for role in self.axis_roles:
+                mates = (*hub_roles, *self.axis_roles)
+                peers = ",".join(p for p in mates if p != role)
+                argv = ["--config", str(self.files[axis]), "--peers", peers, *common]
+                if role == "standin":
+                    argv += ["--follow", "--axis-clock", "--period", repr(self.period_s)]
+                else:
+                    argv += ["--map", str(self.maps[axis]), "--machine", self.machine,
+                             "--axis", axis.lower(), "--rrd", str(self.rrd(bag, axis))]  # fmt: skip
+                out[process_name(axis, role)] = [(role, argv)]
+        return out
+
+
+def shadow_plan(machine: MachineConfig, bag: Path, *, linuxcnc: bool = False) -> ShadowPlan:
+    """Write the axis files and the column maps (`<bag>_map_<axis>.yaml`) and plan the
+    processes (ConfigError before anything starts). With `linuxcnc` the machine reports no
+    effort and its rapids reach the axis velocity limit (as the single-axis LinuxCNC run)."""
+    from feed_twin.analysis.twin import ModelDoc, Twin
+    from feed_twin.shadow.standin import write_map
+
+    files = write_documents(machine, shadow_documents(machine), None)
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    maps, units = {}, {}
+    for axis, path in files.items():
+        nc_axis = machine.nc.axes[machine.nc.axis_index(axis)]
+        twin = Twin.compile(ModelDoc.load(path))
+        units[axis] = twin.effort_unit
+        maps[axis] = write_map(
+            bag.with_name(f"{bag.name}_map_{axis.lower()}.yaml"),
+            twin,
+            f"/{machine.name}/{axis.lower()}",
+            travel_m=nc_axis.travel_max_m - nc_axis.travel_min_m,
+            with_effort=not linuxcnc,
+            max_speed_m_s=1.5 * nc_axis.rapid_m_s if linuxcnc else 0.5,
+        )
+    return ShadowPlan(
+        machine=machine.name,
+        source=machine.source,
+        axes=tuple(machine.axes),
+        command_axes=tuple(a for a in machine.nc.axis_names if a not in machine.axes),
+        files=files,
+        maps=maps,
+        effort_units=units,
+        period_s=machine.nc.interpolation_period_s,
+        linuxcnc=linuxcnc,
+    )
+
+
+RESIDUAL_FIELDS = (
+    "header.stamp",
+    "following_error_measured",
+    "following_error_twin",
+    "following_error_deviation",
+    "effort_deviation",
+)
+
+
+def read_shadow_bag(
+    bag: Path, machine: str, axes: tuple[str, ...], effort_units: dict[str, str]
+) -> dict[str, dict[str, Any]]:
+    """Per axis (lower case) the shadow figures from the twins' residual and health topics of
+    the bag (`axis_figures`, as in-process) plus the paired samples and the largest measured
+    following error; ValueError when an axis's twin shadowed nothing."""
+    from feed_twin.io.bag import BagReader
+
+    reader = BagReader(bag)
+    present = {t.name for t in reader.info.topics if t.message_count > 0}
+    out = {}
+    for axis in axes:
+        twin = f"/{machine}/{axis.lower()}/twin"
+        if f"{twin}/residual" not in present:
+            raise ValueError(f"axis {axis}: the bag has no {twin}/residual: nothing was shadowed")
+        r = reader.columns(f"{twin}/residual", RESIDUAL_FIELDS)
+        h = {"header.stamp": np.zeros(0), "level": np.zeros(0), "effect": [], "message": []}
+        if f"{twin}/health" in present:
+            h = reader.columns(f"{twin}/health", ("header.stamp", "level", "effect", "message"))
+        figures = axis_figures(
+            fe_dev_m=r["following_error_deviation"],
+            effort_dev=r["effort_deviation"],
+            twin_ok=np.isfinite(r["following_error_twin"]),
+            verdict_t_s=np.asarray(h["header.stamp"], dtype=float),
+            verdict_level=np.asarray(h["level"], dtype=np.int64),
+            verdict_effect=[str(e) for e in h["effect"]],
+            verdict_message=[str(m) for m in h["message"]],
+            effort_unit=effort_units[axis],
+        )
+        fe = r["following_error_measured"]
+        fe = fe[np.isfinite(fe)]
+        figures["samples"] = int(len(r["header.stamp"]))
+        figures["following_error_max_m"] = float(np.max(np.abs(fe))) if fe.size else None
+        out[axis.lower()] = figures
+    return out

@@ -1,0 +1,188 @@
+"""`feed-twin run PROGRAM --config MACHINE.yaml --shadow`: the machine's shadow twin as nodes.
+
+1. Checks before anything moves (one line each): the machine file, `--axes`, the program on the
+   machine's NC, every axis's `shadow:` section, and every axis file its nodes will read as a
+   single-axis `run --shadow` would (feed_twin/ros/preflight.py).
+2. Starts the recorder with the G-code node in its process, and per simulated axis a stand-in
+   and a twin node, each in its own process (feed_twin.machine.shadow_nodes), in the run's own
+   ROS domain with its run token; one process that fails stops the others at once, the
+   recorder last, and the reason names the axis.
+3. Afterwards: the bag (recovered if needed), per axis the shadow dashboard its twin wrote
+   (`<bag>_<axis>.rrd`), and per axis the residuals and health (feed_twin.machine.shadow.
+   axis_figures: FE and effort deviation RMS, worst health level, first warning, the named
+   effect) in the summary and under "shadow" in the `--json` line, as `--in-process --shadow`
+   gives them.
+
+`--nc linuxcnc` puts LinuxCNC in the stand-ins' place (feed_twin/ros/machine_linuxcnc_run.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from feed_twin.io.config import ConfigError
+from feed_twin.machine.config import MachineConfig
+from feed_twin.machine.shadow_nodes import MODULES, ShadowPlan, shadow_plan
+from feed_twin.ros import preflight
+from feed_twin.ros.launch import log_record
+from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
+
+# the node set plays the program in lockstep, all axes in one bag, started here
+REFUSED = ("single_process", "live", "no_gcode", "realtime", "start")
+
+
+def refused_options(args: argparse.Namespace) -> str:
+    """The one-line refusal of options the machine's shadow nodes do not take ("" if none)."""
+    refused = [f"--{o.replace('_', '-')}" for o in REFUSED if getattr(args, o, None)]
+    if not refused:
+        return ""
+    return f"{', '.join(refused)}: not available for a machine's shadow node set"
+
+
+def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
+    """The run (module docstring); returns the exit code."""
+    problem = refused_options(args)
+    if problem:
+        return _error(args, problem)
+    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    bag, logs = args.out / name, args.out / f"{name}.logs"
+    linuxcnc = args.nc == "linuxcnc"
+    try:
+        if linuxcnc:
+            problem = linuxcnc_precheck(args.program, machine)
+            if problem:
+                return _error(args, problem)
+        plan = shadow_plan(machine, bag, linuxcnc=linuxcnc)
+        check_plan(machine, plan.files, shadow=True)
+        common = ["--startup-timeout", str(args.startup_timeout),
+                  "--input-timeout", str(args.input_timeout)]  # fmt: skip
+        processes = plan.processes(program=args.program, bag=bag, common=common)
+    except (ConfigError, ValueError, OSError) as exc:
+        return _error(args, str(exc))
+    env = dict(os.environ)
+    try:
+        reservation = preflight.run_environment(args, env)
+    except (ValueError, RuntimeError) as exc:
+        return _error(args, str(exc))
+    clock = next(n for n in processes if processes[n][0][0] in ("standin", "linuxcnc"))
+    result = launch_processes(
+        processes, logs, env, reservation, clock=clock, quiet=args.json, modules=MODULES
+    )
+    figures, problem = finish(bag, plan)
+    code = preflight.exit_status(result.code) if result.code else int(figures is None)
+    reason = _named(result.reason, plan)
+    report = (log_record(result.logs[clock], "LINUXCNC") or {}) if linuxcnc else {}
+    if reason and report.get("fault"):
+        reason = report["fault"]  # the bridge's own line for a LinuxCNC fault
+    if reason:
+        print(f"feed-twin run: {reason}", file=sys.stderr)
+    if problem:
+        print(f"feed-twin run: {problem}", file=sys.stderr)
+    timing = log_record(result.logs[clock], "TIMING") or {}
+    bridge = linuxcnc_figures(bag, plan, report, figures) if linuxcnc and figures else None
+    if figures is not None:
+        print_figures(plan, figures)
+    if bridge is not None:
+        said = {k: "?" if v is None else f"{v:.3f}" for k, v in bridge.items()}
+        print(
+            f"LinuxCNC: program time {said['program_time_s']} s, servo samples "
+            f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
+            f"latency p99 {said['bridge_latency_p99_ms']} ms"
+        )
+    print(f"bag: {bag if bag.exists() else '(none)'}")
+    if args.json:
+        from feed_twin.nodeset.summary import json_line
+
+        print(json_line({
+            "exit_code": code,
+            "reason": reason or problem,
+            "bag": str(bag) if bag.exists() else None,
+            "logs": str(logs),
+            "processes": list(processes),
+            "axes": [a.lower() for a in plan.axes],
+            "shadow": figures,
+            "rrd": {a.lower(): preflight.shown_output(plan.rrd(bag, a), rrd=True)
+                    for a in plan.axes},
+            **({"linuxcnc": bridge} if bridge is not None else {}),
+            **{f"timing_{k}": v for k, v in timing.items()},
+        }))  # fmt: skip
+    return code
+
+
+def linuxcnc_precheck(program: Path, machine: MachineConfig) -> str:
+    """Why LinuxCNC cannot be this machine's NC and machine ("" when it can): not installed,
+    a machine it lacks an axis of, a program only one of the two interpreters accepts."""
+    from feed_twin.linuxcnc.host import LinuxcncError, check_installed
+    from feed_twin.linuxcnc.machine_shadow import linuxcnc_machine
+    from feed_twin.linuxcnc.summary import interpreters_disagree
+
+    try:
+        check_installed()
+        nc, servo = linuxcnc_machine(machine)
+        return interpreters_disagree(program, nc, servo) or ""
+    except (LinuxcncError, OSError) as exc:
+        return str(exc)
+
+
+def linuxcnc_figures(bag: Path, plan: ShadowPlan, report: dict, figures: dict) -> dict:
+    """LinuxCNC's side of the run: per axis its own largest following error (its servo samples
+    in the bag) added to `figures`; the bridge's counts and latencies (its LINUXCNC report)."""
+    from feed_twin.io.bag import BagReader
+    from feed_twin.linuxcnc.machine import JOINT_AXES
+
+    fields = [f"following_error[{JOINT_AXES.index(a)}]" for a in plan.axes]
+    servo = BagReader(bag).columns(f"{plan.namespace(plan.axes[0])}/linuxcnc/servo", fields)
+    for axis, field in zip(plan.axes, fields, strict=True):
+        fe = servo[field]
+        figures[axis.lower()]["linuxcnc_following_error_max_m"] = (
+            float(np.max(np.abs(fe))) if fe.size else None
+        )
+    keys = ("program_time_s", "samples_received", "samples_lost", "samples_published",
+            "bridge_latency_p50_ms", "bridge_latency_p99_ms", "twin_output_latency_p50_ms",
+            "twin_output_latency_p99_ms", "startup_s")  # fmt: skip
+    return {k: report.get(k) for k in keys}
+
+
+def finish(bag: Path, plan: ShadowPlan) -> tuple[dict | None, str]:
+    """The bag made readable and every axis's shadow figures read from it."""
+    from feed_twin.io.bag import BagError
+    from feed_twin.machine.shadow_nodes import read_shadow_bag
+
+    problem = readable_bag(bag)
+    if problem:
+        return None, problem
+    try:
+        return read_shadow_bag(bag, plan.machine, plan.axes, plan.effort_units), ""
+    except (BagError, ValueError) as exc:
+        return None, str(exc)
+
+
+def print_figures(plan: ShadowPlan, figures: dict[str, dict]) -> None:
+    from feed_twin.machine.shadow import format_axis_figures
+
+    print(f"machine {plan.machine}: axes {', '.join(figures)} shadowed, each in its own nodes")
+    for axis, f in figures.items():
+        print(f"{format_axis_figures(axis, f)} ({f['samples']} samples)")
+
+
+def _named(reason: str, plan: ShadowPlan) -> str:
+    """The launcher's reason with the axis of the failed process named first."""
+    from feed_twin.machine.nodes import axis_of_process
+
+    axis = axis_of_process(reason.split(" ", 1)[0], plan.axes) if reason else None
+    return f"axis {axis}: {reason}" if axis is not None else reason
+
+
+def _error(args: argparse.Namespace, message: str) -> int:
+    import json
+
+    print(f"feed-twin run: {message}", file=sys.stderr)
+    if getattr(args, "json", False):
+        print(json.dumps({"exit_code": 1, "reason": message}))
+    return 1
