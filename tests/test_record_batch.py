@@ -3,6 +3,8 @@ and the one-joint JointState bytes the sim publishes (feed_twin.io.cdr.JointStat
 
 from __future__ import annotations
 
+import time
+
 import pytest
 from feed_twin_msgs.msg import RecordBatch as RecordBatchMsg
 from rclpy.serialization import deserialize_message, serialize_message
@@ -116,3 +118,67 @@ def test_joint_state_bytes_decode_as_rclpy_reads_them(name):
     assert list(msg.name) == [name]
     assert (msg.position[0], msg.velocity[0], msg.effort[0]) == (0.125, -2.5, 1e3)
     assert len(data) == len(serialize_message(msg))  # rclpy's padding bytes are not zeroed
+
+
+@pytest.mark.ros
+def test_the_recorder_writes_packed_messages_under_their_topics_and_others_from_the_topic(
+    tmp_path,
+):
+    """X's sim and controller are the recorder's peers: their topics come packed. Y's joint
+    states come from a stand-in (no sim peer on Y): recorded from the topic itself. A packed
+    message of a topic the batch's node does not publish is dropped."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.signals import SignalHandlerOptions
+
+    from feed_twin.io.bag import BagReader
+    from feed_twin.io.cdr import FlatCodec
+    from feed_twin.ros.batched import batch_qos
+    from feed_twin.ros.dds import DATA_QOS
+    from feed_twin.ros.domain import reserve_domain_id
+    from feed_twin.ros.recorder_node import RecorderNode
+    from feed_twin.ros.runtime import NodeOptions
+
+    feedback = FlatCodec("feed_twin_msgs/msg/AxisFeedback").encode_map(
+        {"axis": "X", "header.stamp.sec": 3, "scale_position": 0.25}
+    )
+    joint = JointStateLayout("y").encode(3, 0, 0.5, 0.0, 1.0)
+    with reserve_domain_id() as domain:
+        context = Context()
+        rclpy.init(
+            context=context,
+            domain_id=domain.domain_id,
+            signal_handler_options=SignalHandlerOptions.NO,
+        )
+        try:
+            options = NodeOptions(
+                machine="cnc", axis="x", peers=("sim", "controller", "y/standin"),
+                other_axes=("y",),
+            )  # fmt: skip
+            recorder = RecorderNode(options, tmp_path / "bag", record_batch=4, context=context)
+            producer = rclpy.create_node("producer", namespace="/cnc", context=context)
+            packed = producer.create_publisher(RecordBatchMsg, "/cnc/x/record/sim", batch_qos(4))
+            direct = producer.create_publisher(JointState, "/cnc/y/joint_states", DATA_QOS)
+            batch = RecordBatch(("/cnc/x/feedback", "/cnc/x/command"), 4)
+            batch.add(0, feedback, 1_000)
+            batch.add(1, feedback, 2_000)  # not a topic of the sim: dropped
+            packed.publish(batch.take())
+            direct.publish(joint)
+            deadline = time.monotonic() + 10.0
+            while recorder.bag.message_count < 2 and time.monotonic() < deadline:
+                recorder._drain()
+                time.sleep(0.01)
+            recorder.on_shutdown("")
+            producer.destroy_node()
+            recorder.destroy_node()
+        finally:
+            context.try_shutdown()
+    reader = BagReader(tmp_path / "bag")
+    counts = {t.name: t.message_count for t in reader.info.topics}
+    assert counts["/cnc/x/feedback"] == 1 and counts["/cnc/y/joint_states"] == 1
+    assert counts.get("/cnc/x/command", 0) == 0
+    fb = reader.columns("/cnc/x/feedback", ["scale_position"])
+    assert fb["scale_position"][0] == 0.25
+    assert round(fb["log_time_s"][0] * 1e9) == 1_000  # logged at its publish time
+    js = reader.columns("/cnc/y/joint_states", ["position[0]"])
+    assert js["position[0]"][0] == 0.5
