@@ -17,8 +17,12 @@
   difference, the cost of the link per exchange (two one-way trips); also the link's round
   trip of one UDP datagram (p50/p99 of 2000, from Python), for scale.
 
+- with `--before N`: each lockstep run is followed by one with `ros.record_batch` N instead
+  of the machine file's (0: every recorder copy a datagram of its own, as before the batches),
+  interleaved `--repeat` times, both figures with the load average at their start.
+
     .venv/bin/python benchmarks/machine_nodes.py [--lockstep-seconds 10] [--realtime-seconds 0]
-        [--hosts]
+        [--hosts] [--before 0 --repeat 3]
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+import yaml
 
 from feed_twin.ros.domain import private_graph_env, reserve_domain_id
 
@@ -48,24 +54,59 @@ def program(seconds: float) -> str:
     return "\n".join(lines)
 
 
-def command(directory: Path, name: str, seconds: float) -> list[str]:
+def machine_with(directory: Path, record_batch: int) -> Path:
+    """The machine file with ros.record_batch replaced (its axis files by absolute path)."""
+    data = yaml.safe_load(MACHINE.read_text())
+    data["ros"]["record_batch"] = record_batch
+    for entry in data["axes"].values():
+        if "include" in entry:
+            entry["include"] = str(MACHINE.parent / entry["include"])
+    path = directory / f"machine_batch{record_batch}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def command(directory: Path, name: str, seconds: float, machine: Path = MACHINE) -> list[str]:
     prog = directory / f"{name}.ngc"
     prog.write_text(program(seconds))
     return [
-        sys.executable, "-m", "feed_twin.cli", "run", str(prog), "--config", str(MACHINE),
+        sys.executable, "-m", "feed_twin.cli", "run", str(prog), "--config", str(machine),
         "--out", str(directory / "bags"), "--name", name, "--json",
     ]  # fmt: skip
 
 
-def run(directory: Path, name: str, seconds: float, realtime: bool) -> dict:
-    args = command(directory, name, seconds) + (["--realtime"] if realtime else [])
+def run(
+    directory: Path, name: str, seconds: float, realtime: bool, machine: Path = MACHINE
+) -> dict:
+    args = command(directory, name, seconds, machine) + (["--realtime"] if realtime else [])
     with reserve_domain_id() as domain:
         env = dict(os.environ)
         env.update(private_graph_env(domain.domain_id))
         proc = subprocess.run(args, env=env, capture_output=True, text=True, timeout=1800)
     if proc.returncode != 0:
         raise SystemExit(f"{name}: feed-twin run failed ({proc.returncode}):\n{proc.stderr}")
-    return with_cpu(directory, name, json.loads(proc.stdout.strip().splitlines()[-1]))
+    record = with_cpu(directory, name, json.loads(proc.stdout.strip().splitlines()[-1]))
+    record["cpu_us_per_exchange_total"] = round(sum(record["cpu_us_per_exchange"].values()), 1)
+    return record
+
+
+def interleaved(directory: Path, seconds: float, before: int, repeat: int) -> list[dict]:
+    """Lockstep runs of the machine file and of it with record_batch `before`, alternating."""
+    other = machine_with(directory, before)
+    rows = []
+    for i in range(repeat):
+        for label, machine in (("now", MACHINE), (f"record_batch {before}", other)):
+            load = os.getloadavg()[0]
+            rec = run(directory, f"ab{i}_{label.replace(' ', '')}", seconds, False, machine)
+            rows.append({
+                "config": label, "load_start": round(load, 2),
+                "realtime_factor": round(rec["timing_realtime_factor"], 3),
+                "cpu_us_per_exchange": rec["cpu_us_per_exchange"],
+                "cpu_us_per_exchange_total": rec["cpu_us_per_exchange_total"],
+                "contour_error_max_m": rec["contour_error_max_m"],
+            })  # fmt: skip
+            print(json.dumps(rows[-1]))
+    return rows
 
 
 def with_cpu(directory: Path, name: str, record: dict) -> dict:
@@ -147,6 +188,8 @@ def main() -> None:
     parser.add_argument("--lockstep-seconds", type=float, default=10.0)
     parser.add_argument("--realtime-seconds", type=float, default=0.0)
     parser.add_argument("--hosts", action="store_true", help="also split over two namespaces")
+    parser.add_argument("--before", type=int, default=None, help="A/B against this record_batch")
+    parser.add_argument("--repeat", type=int, default=3, help="A/B pairs with --before")
     args = parser.parse_args()
     result: dict[str, object] = {"load_start": os.getloadavg()[0], "cpus": os.cpu_count()}
     with tempfile.TemporaryDirectory(prefix="machine_nodes_") as tmp:
@@ -157,11 +200,17 @@ def main() -> None:
             "lockstep_realtime_factor": lock["timing_realtime_factor"],
             "lockstep_steps": lock["timing_steps"],
             "cpu_us_per_exchange": lock["cpu_us_per_exchange"],
+            "cpu_us_per_exchange_total": lock["cpu_us_per_exchange_total"],
+            "load_after_lockstep": os.getloadavg()[0],
             "contour_error_max_m": lock["contour_error_max_m"],
             "following_error_max_m": lock["following_error_max_m"],
         })  # fmt: skip
         print(f"lockstep: {lock['timing_realtime_factor']:.2f}x real time, CPU per exchange "
               f"[us]: {lock['cpu_us_per_exchange']}")  # fmt: skip
+        if args.before is not None:
+            result["interleaved"] = interleaved(
+                directory, args.lockstep_seconds, args.before, args.repeat
+            )
         if args.hosts:
             hosts = run_on_two_hosts(directory, args.lockstep_seconds)
             one = 1e3 / lock["timing_realtime_factor"]  # [us] wall per 1 ms exchange

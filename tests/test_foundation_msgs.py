@@ -167,7 +167,7 @@ def test_every_field_has_a_comment_and_every_quantity_a_unit(path):
             assert re.search(r"\[[^\]]+\]", comment), (
                 f"{path.name}:{number}: field {match['name']} has no [unit] in its comment"
             )
-    assert fields >= 6
+    assert fields >= 5  # the smallest, RecordBatch, has five
 
 
 def test_every_message_has_a_header_and_an_axis_name():

@@ -167,6 +167,10 @@ def _child_pid(parent: int, name: str) -> int:
         ({"axis": "x"}, r"ros.axis = 'x': a machine's nodes take their namespace from the axis"),
         ({"machine": "mill"}, r"ros.machine = 'mill' does not match machine = 'cnc'"),
         (
+            {"recorder_host": "own"},
+            r"ros.recorder_host = 'own': a machine's recorder runs in the G-code node's process",
+        ),
+        (
             {"lookahead": 5, "clock_divider": 10},
             r"yaml: axis X: ros.clock_divider = 10: must lie in \[1, lookahead - 1\] = \[1, 4\]",
         ),

@@ -85,6 +85,8 @@ def test_fixed_layout_errors_name_the_message_and_field() -> None:
         ("realtime_priority", 100, r"realtime_priority = 100: must be a whole number in \[0, 99\]"),
         ("realtime_priority", True, r"realtime_priority = True: must be a whole number"),
         ("cpu_latency_us", -2, r"cpu_latency_us = -2: must be a whole number"),
+        ("record_batch", -1, r"record_batch = -1: must be a whole number in \[0, 1000\]"),
+        ("record_batch", 2.0, r"record_batch = 2.0: must be a whole number in \[0, 1000\]"),
         (
             "recorder_host",
             "controller",

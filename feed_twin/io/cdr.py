@@ -275,3 +275,38 @@ class FixedLayout:
         return tuple(
             v for (_, kind), v in zip(self.codec.fields, values, strict=True) if kind != "string"
         )
+
+
+class JointStateLayout:
+    """sensor_msgs/JointState of one named joint, empty frame_id: (sec, nanosec, position,
+    velocity, effort) -> the CDR bytes, padding zeroed as on the wire (rclpy's
+    `serialize_message` leaves whatever was in its buffer in the padding)."""
+
+    def __init__(self, joint_name: str) -> None:
+        name = joint_name.encode("utf-8") + b"\0"
+        fmt, offset = ["<"], 0
+
+        def add(code: str, size: int, align: int) -> None:
+            nonlocal offset
+            pad = -offset % align
+            fmt.append(f"{pad}x{code}" if pad else code)
+            offset += pad + size
+
+        add("i", 4, 4)  # header.stamp.sec
+        add("I", 4, 4)  # header.stamp.nanosec
+        add("I", 4, 4)  # header.frame_id: length 1 (the NUL)
+        add("1s", 1, 1)
+        add("I", 4, 4)  # name: one string
+        add("I", 4, 4)
+        add(f"{len(name)}s", len(name), 1)
+        for _ in ("position", "velocity", "effort"):
+            add("I", 4, 4)  # one value
+            add("d", 8, 8)
+        self._struct = struct.Struct("".join(fmt))
+        self._name = name
+
+    def encode(self, sec: int, nanosec: int, position: float, velocity: float, effort: float):
+        return ENCAPSULATION + self._struct.pack(
+            sec, nanosec, 1, b"\0", 1, len(self._name), self._name,
+            1, position, 1, velocity, 1, effort,
+        )  # fmt: skip

@@ -61,6 +61,14 @@ def axis_documents(
                 f"{path}: ros.{key} = {ros[key]!r}: a machine's nodes take their namespace from "
                 f"the axis (axes.X runs /{machine.name}/x); remove it"
             )
+    if "recorder_host" in ros:
+        # the single-axis choice (the recorder in the sim's process or its own) has no
+        # meaning here: one recorder serves every axis, beside the G-code node
+        raise ConfigError(
+            f"{path}: ros.recorder_host = {ros['recorder_host']!r}: a machine's recorder runs in "
+            f"the G-code node's process (its copies of the axes' messages come packed, "
+            f"ros.record_batch); remove it"
+        )
     if ros.get("machine", machine.name) != machine.name:
         raise ConfigError(
             f"{path}: ros.machine = {ros['machine']!r} does not match machine = "

@@ -158,6 +158,11 @@ class NodeSetConfig:
     # feed_twin/ros/host.py); "own": a process of its own; "auto": with the sim in lockstep,
     # its own in real time (there the sim must not wait while the recorder writes its bag)
     recorder_host: RecorderHost = "auto"
+    # Exchanges per message to the recorder (feed_twin/nodeset/record_batch.py): the sim's
+    # feedback, state and joint states and the controller's DriveCommand reach the recorder
+    # packed, one message per this many exchanges, instead of one datagram each; 0: each on
+    # its own topic (a recorder in the sim's process receives those without a socket) [-]
+    record_batch: int = 0
     signals: StateSignals = dataclasses.field(default_factory=StateSignals)
     node_gains: NodeLoopGains = dataclasses.field(default_factory=NodeLoopGains)
     # the drive's following-error, current and speed trips (feed_twin/nodeset/protection.py)
@@ -191,6 +196,7 @@ class NodeSetConfig:
                 f"{', '.join(RECORDER_HOSTS)}"
             )
         for name, low, high in (
+            ("record_batch", 0, 1000),
             ("exchange_cpu", -1, 1023),
             ("realtime_priority", 0, 99),
             ("cpu_latency_us", -1, 1_000_000),

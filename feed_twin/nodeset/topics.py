@@ -86,6 +86,18 @@ class AxisTopics:
 
     clock = "/clock"
 
+    def record(self, role: str) -> str:  # node -> recorder: its messages packed (record_batch)
+        return f"{self.namespace}/record/{role}"
+
+    def batched(self, role: str) -> tuple[str, ...]:
+        """The topics node `role` sends the recorder packed when ros.record_batch > 0 (those
+        only the recorder reads, and those it reads besides one other node):
+        feed_twin.nodeset.record_batch."""
+        return {
+            SIM_NODE: (self.feedback, self.state, self.joint_states),
+            CONTROLLER_NODE: (self.drive_command,),
+        }.get(role, ())
+
     def published(self) -> tuple[Topic, ...]:
         """Every topic the node set publishes, with its message type."""
         return (

@@ -5,13 +5,15 @@ Subscribes `command` (AxisCommand, from the G-code node or a real NC) and `feedb
 until the NC setpoint for t is known (a setpoint stamped >= t has arrived, or the program has
 finished, after which the last setpoint is held at standstill), runs `split.ControllerCore` and
 publishes `drive_command` stamped t. All control maths is in feed_twin.control; this file only
-converts messages.
+converts messages. With `ros.record_batch` N > 0 the recorder's copies of the DriveCommands go
+to it packed, one RecordBatch per N exchanges (feed_twin.ros.batched).
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -35,6 +37,7 @@ from feed_twin.nodeset.split import (
     NodeLoopGains,
 )
 from feed_twin.nodeset.topics import CONTROLLER_NODE
+from feed_twin.ros.batched import RecordSender
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
 from feed_twin.ros.guarded import InputGuard
 from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, node_main
@@ -115,6 +118,7 @@ class ControllerNode(FeedTwinNode):
         axis_label: str,
         gains: NodeLoopGains | None = None,
         exchange_cpu: int = -1,
+        record_batch: int = 0,
         context=None,
     ) -> None:
         super().__init__(CONTROLLER_NODE, options, context=context)
@@ -136,6 +140,14 @@ class ControllerNode(FeedTwinNode):
         self._meas = np.zeros(sig.MEAS_SIZE)
         self.steps = 0
         self._pub = self.create_publisher(DriveCommand, self.topics.drive_command, DATA_QOS)
+        self._record = None
+        if record_batch:
+            self._record = RecordSender(
+                self,
+                self.topics.record(CONTROLLER_NODE),
+                self.topics.batched(CONTROLLER_NODE),
+                record_batch,
+            )
         self.create_subscription(
             AxisCommand, self.topics.command, self._on_command, DATA_QOS, raw=True
         )
@@ -158,7 +170,8 @@ class ControllerNode(FeedTwinNode):
         )
         for note in apply_scheduling(cpu=exchange_cpu):
             self.get_logger().info(f"scheduling: {note}")
-        self.start_heartbeat(when=lambda: self.recorder_listens((self._pub,)))
+        outputs = (self._pub,) if self._record is None else (self._record.publisher,)
+        self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
     def on_run_state(self, text: str) -> None:
         word, _, priority = text.partition(" priority ")
@@ -222,8 +235,17 @@ class ControllerNode(FeedTwinNode):
             except ValueError as exc:
                 self.finish(EXIT_ERROR, f"controller: at t = {t_ns * 1e-9:.6f} s: {exc}")
                 return
-            self._pub.publish(self.io.drive_command(setpoint))
+            data = self.io.drive_command(setpoint)
+            self._pub.publish(data)
+            if self._record is not None:
+                self._record.add(0, data)  # DriveCommand, its only topic
+                self._record.end_exchange()
             self.steps += 1
+
+    def on_shutdown(self, reason: str) -> None:
+        if self._record is not None:
+            with contextlib.suppress(Exception):  # the context may be shutting down
+                self._record.flush()
 
 
 def load_node_controller_config(path: Path) -> ControllerConfig:
@@ -246,6 +268,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> Contr
         axis_label=ros.axis.upper(),
         gains=ros.node_gains,
         exchange_cpu=ros.exchange_cpu,
+        record_batch=ros.record_batch,
         context=context,
     )
 

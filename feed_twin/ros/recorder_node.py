@@ -15,6 +15,14 @@ per second; a callback per message would make the recorder the largest CPU user 
 and steal the cores the controller and the sim wait for. The subscriptions' history (DATA_QOS
 depth) holds what arrives between two drains.
 
+With `ros.record_batch` N > 0 (a machine's node set) the sim's feedback, state and joint states
+and the controller's DriveCommand come packed, N exchanges to a RecordBatch on
+`<namespace>/record/<role>` (feed_twin.nodeset.record_batch): the recorder subscribes to those
+instead of to the topics themselves and writes each message under its own topic, logged at its
+publish time. Producers of those topics other than the sim and controller nodes (a stand-in, a
+LinuxCNC bridge) do not pack: the recorder reads the packed copies of a role only where its
+peers include that role's node (`--peers`), and the topics themselves elsewhere.
+
 A machine's recorder (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes) records
 every axis of the machine into the one bag: the node-set topics of each axis with nodes, the
 command of each axis without, and whatever else appears under `/<machine>/`.
@@ -36,14 +44,17 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from feed_twin_msgs.msg import RecordBatch as RecordBatchMsg
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 
 from feed_twin.io.bag import BagError, BagWriter, QosProfile
 from feed_twin.nodeset.guard import run_token
+from feed_twin.nodeset.record_batch import unpack
 from feed_twin.nodeset.summary import LiveFeed
-from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
+from feed_twin.nodeset.topics import CONTROLLER_NODE, RECORDER_NODE, SIM_NODE, AxisTopics
+from feed_twin.ros.batched import batch_qos
 from feed_twin.ros.dds import DATA_QOS, HEARTBEAT_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import (
     EXIT_ERROR,
@@ -96,6 +107,7 @@ class RecorderNode(FeedTwinNode):
         *,
         live_url: str | None = None,
         twin_namespace: str | None = None,
+        record_batch: int = 0,
         context=None,
     ) -> None:
         super().__init__(RECORDER_NODE, options, context=context)
@@ -109,6 +121,8 @@ class RecorderNode(FeedTwinNode):
         )
         # (topic, subscription, counts: True, False or the run token to look for, live feed)
         self._takers: list[tuple[str, Subscription, bytes | bool, LiveFeed | None]] = []
+        # (batch topic, subscription, the topics it may carry); record_batch > 0
+        self._batch_takers: list[tuple[str, Subscription, frozenset[str]]] = []
         self._next_drain = 0.0
         self._last_message = time.monotonic()
         self._ending_since: float | None = None
@@ -151,6 +165,12 @@ class RecorderNode(FeedTwinNode):
                     f"{twin_namespace}/health": "feed_twin_msgs/msg/HealthStatus",
                 }
             )
+        for prefix, topics in options.axis_topics().items():
+            for role in (SIM_NODE, CONTROLLER_NODE):
+                # only a sim or controller node packs: the topics of other producers (a
+                # stand-in's joint states) are recorded from the topics themselves
+                if record_batch and f"{prefix}{role}" in options.peers:
+                    self._record_batched(topics, role, known, record_batch)
         for topic, type_name in known.items():
             self._record(topic, type_name, qos_for.get(topic, DATA_QOS))
         self.create_timer(SCAN_PERIOD_S, self._scan, clock=self.wall)
@@ -167,14 +187,36 @@ class RecorderNode(FeedTwinNode):
         self._recorded[topic] = subscription
         if topic.endswith(TWIN_STATE_SUFFIX):
             self._twin_states.add(topic)
+        counts = self._counts(topic)
+        live = self.live if self.live is not None and self.live.wants(topic) else None
+        self._takers.append((topic, subscription, counts, live))
+
+    def _record_batched(
+        self, topics: AxisTopics, role: str, known: dict[str, str], record_batch: int
+    ) -> None:
+        """Record `role`'s packed topics from its RecordBatch (feed_twin.nodeset.record_batch)
+        instead of from their own topics; they leave `known`."""
+        inner = topics.batched(role)
+        for topic in inner:
+            self.bag.add_topic(topic, known.pop(topic), qos=(_bag_qos(DATA_QOS),))
+            self._recorded[topic] = None  # from the batch: the graph scan passes it by
+        batch = topics.record(role)
+        subscription = self._data_node.create_subscription(
+            RecordBatchMsg, batch, _never_called, batch_qos(record_batch), raw=True
+        )
+        self._recorded[batch] = subscription
+        self._batch_takers.append((batch, subscription, frozenset(inner)))
+
+    def _counts(self, topic: str) -> bytes | bool:
+        """Whether a message of `topic` shows the run still sending (True, False, or the run
+        token a message must hold to count)."""
         # Heartbeats go on while peers live; only data counts when judging "quiet".
         counts = topic not in self._heartbeats
         if counts and self._token and topic in self._signed_topics:
             # Only the run's own messages (signed with its token) count: a foreign publisher
             # that goes on sending must not hold the recording open after the run.
-            counts = self._token
-        live = self.live if self.live is not None and self.live.wants(topic) else None
-        self._takers.append((topic, subscription, counts, live))
+            return self._token
+        return counts
 
     def poll(self) -> float | None:
         now = time.monotonic()
@@ -213,6 +255,40 @@ class RecorderNode(FeedTwinNode):
             if own:
                 self._last_message = time.monotonic()
             total += n
+        return total + self._drain_batches()
+
+    def _drain_batches(self) -> int:
+        """Write every message of the waiting RecordBatches under its own topic."""
+        write = self.bag.write
+        total = own = 0
+        for batch, subscription, allowed in self._batch_takers:
+            handle = subscription.handle
+            with handle:
+                while True:
+                    taken = handle.take_message(subscription.msg_type, True)
+                    if taken is None:
+                        break
+                    try:
+                        messages = unpack(taken[0])
+                    except ValueError as exc:
+                        self.get_logger().warning(
+                            f"{batch}: a malformed RecordBatch dropped ({exc})",
+                            throttle_duration_sec=1.0,
+                        )
+                        continue
+                    for topic, stamp_ns, data in messages:
+                        if topic not in allowed:
+                            continue  # only the topics this batch's node publishes
+                        # the publish time: a batch arrives up to record_batch exchanges late
+                        write(topic, data, log_time_ns=stamp_ns, publish_time_ns=stamp_ns)
+                        if self.live is not None and self.live.wants(topic):
+                            self.live.feed(topic, data)
+                        counts = self._counts(topic)
+                        total += 1
+                        if counts is True or counts and counts in data:
+                            own += 1
+        if own:
+            self._last_message = time.monotonic()
         return total
 
     def _scan(self) -> None:
@@ -329,6 +405,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> Recor
         args.bag,
         live_url=args.live_url,
         twin_namespace=args.twin_namespace,
+        record_batch=ros.record_batch,
         context=context,
     )
 

@@ -11,8 +11,11 @@ Timing:
 - real time: exchanges start at wall-clock instants t0 + k*T; a DriveCommand that has not
   arrived by then counts as a missed step and the previous one is held (as a drive does). At the
   end the node reports lateness p50/p99/max of the exchange starts and the missed steps.
-The run ends `settle_s` after the program has finished (or was stopped); the node announces it
-on `run_state` ("done ..."), which ends the other nodes too.
+
+With `ros.record_batch` N > 0 the recorder's copies of feedback, state and joint states go to it
+packed, one RecordBatch per N exchanges (feed_twin.ros.batched); the topics carry every message
+as before. The run ends `settle_s` after the program has finished (or was stopped); the node
+announces it on `run_state` ("done ..."), which ends the other nodes too.
 """
 
 from __future__ import annotations
@@ -32,13 +35,14 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from feed_twin.core import signals as sig
-from feed_twin.io.cdr import FlatCodec
+from feed_twin.io.cdr import FlatCodec, JointStateLayout
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost, build_drive_host
 from feed_twin.nodeset.guard import check_values, parse_program_state
 from feed_twin.nodeset.pacing import pacing_report
 from feed_twin.nodeset.protection import DriveProtection, Trip, protection_for_config
 from feed_twin.nodeset.split import NS_PER_S, DriveSetpoint
 from feed_twin.nodeset.topics import SIM_NODE
+from feed_twin.ros.batched import RecordSender
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
 from feed_twin.ros.guarded import InputGuard
 from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, node_main
@@ -139,6 +143,7 @@ class SimNode(FeedTwinNode):
         cpu_latency_us: int = -1,
         protection: DriveProtection | None = None,
         clock_topic: str = "/clock",
+        record_batch: int = 0,
         context=None,
     ) -> None:
         super().__init__(SIM_NODE, options, context=context)
@@ -168,6 +173,13 @@ class SimNode(FeedTwinNode):
         self._joint_pub = self.create_publisher(JointState, self.topics.joint_states, DATA_QOS)
         self._clock_pub = self.create_publisher(Clock, clock_topic, DATA_QOS)
         self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
+        self._record = None
+        if record_batch:
+            batched = self.topics.batched(SIM_NODE)
+            self._record = RecordSender(self, self.topics.record(SIM_NODE), batched, record_batch)
+            self._record_feedback = self._record.index(self.topics.feedback)
+            self._record_state = self._record.index(self.topics.state)
+            self._record_joint = self._record.index(self.topics.joint_states)
         self.create_subscription(
             DriveCommand, self.topics.drive_command, self._on_command, DATA_QOS, raw=True
         )
@@ -182,7 +194,7 @@ class SimNode(FeedTwinNode):
             armed=lambda: self.started and not self.done and not self.realtime,
             timeout_s=2.0 * options.input_timeout_s,
         )
-        self._joint = JointState(name=[joint_name], position=[0.0], velocity=[0.0], effort=[0.0])
+        self._joint = JointStateLayout(joint_name)
         self._clock = Clock()
         self._guard = InputGuard(
             self, (self.topics.drive_command, self.topics.program_state), axis_label
@@ -206,7 +218,11 @@ class SimNode(FeedTwinNode):
         if realtime:
             # The controller raises its own priority on this announcement (latched).
             self._run_pub.publish(String(data=f"realtime priority {realtime_priority}"))
-        outputs = (self._feedback_pub, self._state_pub, self._joint_pub)
+        outputs = (
+            (self._feedback_pub, self._state_pub, self._joint_pub)
+            if self._record is None
+            else (self._record.publisher,)
+        )
         self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
     def poll(self) -> float | None:
@@ -276,6 +292,8 @@ class SimNode(FeedTwinNode):
             return
         self.run_ended = True
         self.wall_end = time.monotonic()
+        if self._record is not None:
+            self._record.flush()  # the recorder's copies before the end they precede
         self._run_pub.publish(String(data=text))
         self.finish(code, "" if code == EXIT_OK else text)
 
@@ -348,16 +366,24 @@ class SimNode(FeedTwinNode):
             # word shows the fault and its code, and the run ends naming the limit.
             fault, enabled = trip.code, False
             self.host.setpoint = dataclasses.replace(self.host.setpoint, enable=False)
-        self._feedback_pub.publish(
-            self._feedback_layout.encode(
-                (
-                    sec, nsec, counts, *meas[: sig.MEAS_U_DC_V], i_d, i_q,
-                    meas[sig.MEAS_U_DC_V], u_d_ref, u_q_ref, error, host.setpoint.mode,
-                    (STATUS_ENABLED if enabled else 0) | (STATUS_FAULT if fault else 0), fault,
-                )
+        feedback = self._feedback_layout.encode(
+            (
+                sec, nsec, counts, *meas[: sig.MEAS_U_DC_V], i_d, i_q,
+                meas[sig.MEAS_U_DC_V], u_d_ref, u_q_ref, error, host.setpoint.mode,
+                (STATUS_ENABLED if enabled else 0) | (STATUS_FAULT if fault else 0), fault,
             )
         )  # fmt: skip
-        self._state_pub.publish(self._state_layout.encode((sec, nsec, *truth)))
+        self._feedback_pub.publish(feedback)
+        state = self._state_layout.encode((sec, nsec, *truth))
+        self._state_pub.publish(state)
+        record = self._record
+        if record is not None:
+            record.add(self._record_feedback, feedback)
+            record.add(self._record_state, state)
+        if trip is None:
+            self._publish_slow(t_ns, truth)
+        if record is not None:
+            record.end_exchange()
         if trip is not None:
             self._end(EXIT_ERROR, f"done error: {trip.text()}")
             return
@@ -368,18 +394,23 @@ class SimNode(FeedTwinNode):
                 f"drive fault at t = {t_ns * 1e-9:.6f} s: {fault_reason(fault)}",
                 throttle_duration_sec=1.0,
             )
+
+    def _publish_slow(self, t_ns: int, truth) -> None:
+        """Joint states and the clock, every clock_divider exchanges."""
+        host = self.host
         if (host.k - 1) % self.clock_divider:
             return
+        sec, nsec = divmod(t_ns, NS_PER_S)
         # Tools get joint states and the clock at a lower rate; every message carries its stamp.
-        js = self._joint
-        js.header.stamp.sec, js.header.stamp.nanosec = sec, nsec
-        js.position[0] = truth[self._i_position]
-        js.velocity[0] = truth[self._i_velocity]
-        js.effort[0] = truth[self._i_screw]
+        joint = self._joint.encode(
+            sec, nsec, truth[self._i_position], truth[self._i_velocity], truth[self._i_screw]
+        )
         # The clock reads the time the simulation has reached: the end of this exchange.
         csec, cnsec = divmod(t_ns + host.exchange_ns, NS_PER_S)
         self._clock.clock.sec, self._clock.clock.nanosec = csec, cnsec
-        self._joint_pub.publish(js)
+        self._joint_pub.publish(joint)
+        if self._record is not None:
+            self._record.add(self._record_joint, joint)
         self._clock_pub.publish(self._clock)
 
     def _protect(self, t_ns: int, fault: int, error: float, i_q: float, v: float):
@@ -402,6 +433,9 @@ class SimNode(FeedTwinNode):
         )
 
     def on_shutdown(self, reason: str) -> None:
+        if self._record is not None:
+            with contextlib.suppress(Exception):  # the context may be shutting down
+                self._record.flush()
         if not self.done or self.exit_code != EXIT_OK:
             # The context may already be shutting down; the others also stop on lost heartbeats.
             with contextlib.suppress(Exception):
@@ -437,6 +471,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNo
         cpu_latency_us=ros.cpu_latency_us,
         protection=protection_for_config(args.config, ros, host.exchange_ns),
         clock_topic=f"{options.topics.namespace}/clock" if args.axis_clock else "/clock",
+        record_batch=ros.record_batch,
         context=context,
     )
 
