@@ -18,46 +18,65 @@ from feed_twin.io.measured import MeasuredRun
 VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
 
 
-def residuals(run: MeasuredRun, out: SimOutputs, row: int = 0):
+def _from(r: np.ndarray, start: int) -> np.ndarray:
+    """The residual with its first `start` samples, which are not evidence, set to zero (the
+    record's time base is kept: the effects' signatures and supports index it)."""
+    if start == 0:
+        return r
+    r = r.copy()
+    r[:start] = 0.0
+    return r
+
+
+def residuals(run: MeasuredRun, out: SimOutputs, row: int = 0, *, start: int = 0):
+    """(effort, position) residuals, twin minus measured for the position; zero before the
+    first sample that is evidence (`start`, Twin.first_evidence)."""
     x = run["pos_meas_m"]
-    rp = out.x_m[row] - x
+    rp = _from(out.x_m[row] - x, start)
     re = None
     name = run.effort_name
     if name is not None and out.effort is not None:
-        re = run[name] - out.effort[row]
+        re = _from(run[name] - out.effort[row], start)
     return re, rp
 
 
-def voltage_residual(run: MeasuredRun, out: SimOutputs, row: int = 0) -> np.ndarray | None:
+def voltage_residual(
+    run: MeasuredRun, out: SimOutputs, row: int = 0, *, start: int = 0
+) -> np.ndarray | None:
     """Measured minus twin q-voltage [V] of the current controller, when both have it."""
     if VOLTAGE_Q not in run or out.voltage_q is None:
         return None
-    return run[VOLTAGE_Q] - out.voltage_q[row]
+    return _from(run[VOLTAGE_Q] - out.voltage_q[row], start)
 
 
-def channel_residuals(run: MeasuredRun, out: SimOutputs, row: int = 0) -> dict[str, np.ndarray]:
-    """Each recorded channel's residual (measured minus twin) on the record's time base."""
-    re, rp = residuals(run, out, row)
-    ru = voltage_residual(run, out, row)
+def channel_residuals(
+    run: MeasuredRun, out: SimOutputs, row: int = 0, *, start: int = 0
+) -> dict[str, np.ndarray]:
+    """Each recorded channel's residual (measured minus twin) on the record's time base, zero
+    before the first sample that is evidence."""
+    re, rp = residuals(run, out, row, start=start)
+    ru = voltage_residual(run, out, row, start=start)
     found = {"effort": re, "position": -rp, "voltage": ru}
     return {k: v for k, v in found.items() if v is not None}
 
 
-def noise_floors(run: MeasuredRun, out: SimOutputs) -> dict[str, float]:
+def noise_floors(run: MeasuredRun, out: SimOutputs, *, start: int = 0) -> dict[str, float]:
     """Each channel's sample noise: the least its weight's noise level can be (see
     analysis.significance), never below the smallest step that means anything in its unit."""
     least = {"effort": 1e-9, "position": 1e-12, "voltage": 1e-6}
-    return {k: max(sample_noise(r), least[k]) for k, r in channel_residuals(run, out).items()}
+    found = channel_residuals(run, out, start=start)
+    return {k: max(sample_noise(r[start:]), least[k]) for k, r in found.items()}
 
 
 def weighted_channels(
-    run: MeasuredRun, out: SimOutputs, stride: int, floors: dict[str, float]
+    run: MeasuredRun, out: SimOutputs, stride: int, floors: dict[str, float], *, start: int = 0
 ) -> Measured:
-    """The fit's channels, each weighted by its noise level estimated at the model `out`: the
-    RMS of its residual there, floored by its sample noise (analysis.significance)."""
+    """The fit's channels from the first sample that is evidence (`start`), each weighted by
+    its noise level estimated at the model `out`: the RMS of its residual there, floored by its
+    sample noise (analysis.significance)."""
     sigma = {
-        k: max(float(np.sqrt(np.mean(r**2))), floors[k])
-        for k, r in channel_residuals(run, out).items()
+        k: max(float(np.sqrt(np.mean(r[start:] ** 2))), floors[k])
+        for k, r in channel_residuals(run, out, start=start).items()
     }
     name = run.effort_name
     return Measured(
@@ -66,6 +85,7 @@ def weighted_channels(
         scale_x=sigma["position"],
         scale_effort=sigma.get("effort", 1.0),
         stride=stride,
+        start=start,
         voltage_q=run[VOLTAGE_Q] if "voltage" in sigma else None,
         scale_voltage=sigma.get("voltage", 1.0),
     )

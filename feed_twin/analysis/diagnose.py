@@ -19,9 +19,12 @@ MIN_EXPLAINED of one channel's residual). The channels' weights are estimated ag
 current model before every round (analysis.significance); an effect that lives on part of the
 record (a force held at rest) is screened and tested on its support. After each addition the
 effects found (the newest too) are re-examined jointly (analysis.reexamine): those whose
-parameters collapsed or whose removal costs nothing are dropped. A fit that does not converge
-within its budget but improved the cost is resumed once from where it stopped; one that still
-does not converge is reported and its model discarded: the last good model stays.
+parameters collapsed or whose removal costs nothing are dropped. The first samples of a trace
+that averages (the window before the twin's start, the twin's settling from a start read off
+averaged samples: Twin.first_evidence) are left out of every residual ranked, tested and fitted.
+A fit that does not converge within its budget but improved the cost is resumed once from where
+it stopped; one that still does not converge is reported and its model discarded: the last good
+model stays.
 """
 
 from __future__ import annotations
@@ -134,10 +137,12 @@ def diagnose(
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
     before = _metrics(run, out0)
     stride = max(1, len(run.t_s) // opts.fit_samples)
-    floors = noise_floors(run, out0)
-    meas = weighted_channels(run, out0, stride, floors)
+    # the first samples of a trace that averages are not evidence (Twin.first_evidence)
+    start = twin.first_evidence(drive)
+    floors = noise_floors(run, out0, start=start)
+    meas = weighted_channels(run, out0, stride, floors, start=start)
     motion = _motion(run, twin, out0)
-    re0, rp0 = residuals(run, out0)
+    re0, rp0 = residuals(run, out0, start=start)
     location = locate(
         run.t_s,
         re0 if re0 is not None else rp0,
@@ -160,6 +165,7 @@ def diagnose(
         unit_twin=twin,
         progress=progress,
         notes=notes,
+        start=start,
     )
     ranking, unfitted = _identify(state, context)
     timings["identify_s"] = time.perf_counter() - clock
@@ -179,7 +185,7 @@ def diagnose(
         before_trace=_trace("nominal", run, drive, out0),
         after_trace=_trace("augmented", run, drive, state.outputs),
         effects=tuple(f.effect for f in state.found),
-        verdict=_verdict(run, state, unfitted, floors),
+        verdict=_verdict(run, state, unfitted, floors, start),
         location=location,
         ranking=tuple(_ranking_row(c) for c in ranking),
         validation=validation,
@@ -233,7 +239,9 @@ def _identify(state: State, context: Context) -> tuple[list[Candidate], list[dic
             break
     if state.found:
         context.progress("re-fitting the found effects together with the nominal parameters")
-        meas = weighted_channels(context.run, state.outputs, context.stride, context.floors)
+        meas = weighted_channels(
+            context.run, state.outputs, context.stride, context.floors, start=context.start
+        )
         state.cost = cost_of(meas, state.outputs)
         note = final_joint(state, context.drive, meas, opts)
         if note is not None:
@@ -252,14 +260,16 @@ def _identify(state: State, context: Context) -> tuple[list[Candidate], list[dic
     return ranking, unfitted
 
 
-def _verdict(run: MeasuredRun, state: State, unfitted: list[dict], floors: dict[str, float]) -> str:
+def _verdict(
+    run: MeasuredRun, state: State, unfitted: list[dict], floors: dict[str, float], start: int
+) -> str:
     if state.found:
         names = ", ".join(f.name for f in state.found)
         return f"the nominal model misses {names}; with them the gap shrinks as shown"
     if unfitted:
         names = ", ".join(u["name"] for u in unfitted)
         return f"the residual carries the signature of {names}, which could not be fitted"
-    return "no significant missing effect: " + _left_over(run, state.outputs, floors)
+    return "no significant missing effect: " + _left_over(run, state.outputs, floors, start)
 
 
 def _validate(
@@ -288,14 +298,14 @@ def _ranking_row(c: Candidate) -> dict[str, object]:
     }
 
 
-def _left_over(run: MeasuredRun, out: SimOutputs, floors: dict[str, float]) -> str:
+def _left_over(run: MeasuredRun, out: SimOutputs, floors: dict[str, float], start: int) -> str:
     """What is left when nothing was found, against each channel's sample noise (not claimed
     to be noise: a delay between recorded channels or a lag the model lacks leaves structure
     that no library effect explains)."""
     units = {"effort": EFFORT_UNITS.get(run.effort_name or "", ""), "position": "m", "voltage": "V"}
     parts = []
-    for name, r in channel_residuals(run, out).items():
-        rms = float(np.sqrt(np.mean(r**2)))
+    for name, r in channel_residuals(run, out, start=start).items():
+        rms = float(np.sqrt(np.mean(r[start:] ** 2)))
         parts.append(
             f"{name} residual RMS {rms:.3g} {units[name]} = {rms / floors[name]:.3g} x its "
             "sample noise"

@@ -63,6 +63,7 @@ class Measured:
     scale_x: float  # [m] normalisation of the position channel
     scale_effort: float  # normalisation of the effort channel
     stride: int = 1  # use every stride-th sample
+    start: int = 0  # the first sample that is evidence (Twin.first_evidence)
     voltage_q: np.ndarray | None = None  # [V] commanded q-axis voltage, when recorded
     scale_voltage: float = 1.0  # [V] normalisation of the voltage channel
 
@@ -73,7 +74,7 @@ def residual_vector(
     effort_sim: np.ndarray | None,
     voltage_sim: np.ndarray | None = None,
 ) -> np.ndarray:
-    s = slice(None, None, meas.stride)
+    s = slice(meas.start, None, meas.stride)
     parts = [(meas.x_m[s] - x_sim[s]) / meas.scale_x]
     if meas.effort is not None and effort_sim is not None:
         parts.append((meas.effort[s] - effort_sim[s]) / meas.scale_effort)

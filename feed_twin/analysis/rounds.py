@@ -145,9 +145,10 @@ class Context:
     unit_twin: Twin  # the nominal twin (for the evidence's units)
     progress: Progress
     notes: list[str]
+    start: int = 0  # the record's first sample that is evidence (Twin.first_evidence)
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
-        return channel_residuals(self.run, out)
+        return channel_residuals(self.run, out, start=self.start)
 
 
 def run_round(
@@ -156,14 +157,14 @@ def run_round(
     """One round: rank, fit the leading candidates, keep the best one if the test passes, then
     re-examine the effects found before. Returns the ranking and whether to go on."""
     run, opts, progress = ctx.run, ctx.opts, ctx.progress
-    re, rp = residuals(run, state.outputs)
+    re, rp = residuals(run, state.outputs, start=ctx.start)
     ranking = rank(
         ctx.motion,
         effort_residual=re,
         position_residual=rp,
         exclude=tuple(excluded),
         loop_stiffness=ctx.stiffness,
-        voltage_residual=voltage_residual(run, state.outputs),
+        voltage_residual=voltage_residual(run, state.outputs, start=ctx.start),
     )
     # the edits take force-like weights as forces at the table, converted as for a friction
     # (they are starting values of the fit); without a screw they stay in the effort's unit
@@ -177,7 +178,7 @@ def run_round(
         progress(f"round {round_no}: no effect of the library explains a significant part")
         return ranking, False
     # the weights of this round: each channel's noise level at the current model
-    meas = weighted_channels(run, state.outputs, ctx.stride, ctx.floors)
+    meas = weighted_channels(run, state.outputs, ctx.stride, ctx.floors, start=ctx.start)
     state.cost = cost_of(meas, state.outputs)
     lead = significant[0]
     rivals = [

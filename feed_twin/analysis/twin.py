@@ -50,6 +50,11 @@ class Drive:
     trace_mean: bool = False  # each record sample is the mean over its period (a drive trace)
 
 
+# a start from a wrong state has settled when what is left of it is below e^-3 = 5 % of its
+# largest deviation (three time constants of a first-order loop; Twin.settle_time_s)
+SETTLE_LEVEL = math.exp(-3.0)
+SETTLE_OFFSET_M = 1e-4  # [m] the start's distance from the setpoint (force >> friction)
+SETTLE_HORIZON_S = 2.0  # [s] the longest settling looked for
 START_FIT_SAMPLES = 7  # samples of the quadratic whose slope at t_0 is the start velocity
 START_FIT_S = 0.006  # [s] the longest span of that quadratic
 # [m] a start velocity that moves the table less than this over the fit window is a start at
@@ -286,6 +291,58 @@ class Twin:
         cs[lay.S_FIR_HIST : lay.S_FIR_HIST + fir] = drive.v0_m_s
         cs[lay.S_VEL_EST] = drive.v0_m_s
         return cs
+
+    def settle_time_s(self) -> float:
+        """[s] How long the nominal closed loop takes to settle from a wrong start state: the
+        twin held at a setpoint, started SETTLE_OFFSET_M away from it; the last time its
+        effort or position is off its final value by more than SETTLE_LEVEL of the largest
+        deviation. Simulated, not derived from one gain: the velocity loop's bandwidth can be
+        below the position gain (EMPS: 90 against 160 1/s), and then the slowest pole is a
+        lightly damped pair whose decay neither gain gives."""
+        h = self.base_period_s
+        t = h * np.arange(round(SETTLE_HORIZON_S / h))
+        zero = np.zeros_like(t)
+        drive = Drive(
+            t_s=t,
+            pos_ref_m=zero,
+            vel_ref_m_s=zero,
+            acc_ref_m_s2=zero,
+            effort_add=None,
+            force_ext_N=None,
+            x0_m=SETTLE_OFFSET_M,
+            sensor="motor_encoder",
+        )
+        out = self.simulate(drive, self.nominal[None, :])
+        if not out.ok[0]:
+            raise ConfigError(f"{self.doc.source}: the nominal loop diverges from rest")
+        last = 0
+        for y in (out.x_m[0], out.effort[0] if out.effort is not None else None):
+            if y is None:
+                continue
+            dev = np.abs(y - y[-1])
+            if dev.max() > 0.0:
+                last = max(last, int(np.flatnonzero(dev > SETTLE_LEVEL * dev.max())[-1]))
+        return float(t[last])
+
+    def first_evidence(self, drive: Drive) -> int:
+        """Index of the record's first sample that is evidence about the plant's effects.
+
+        Only a trace that averages over its sample period has samples that are not: its first
+        sample averages a window before the twin's start, and the twin starts from a state read
+        off averaged samples (position off by the travel in half a window, following error
+        and held force unknown), so its closed loop settles from a wrong state for
+        settle_time_s. A sample whose window starts inside that settling is left out. A raw
+        sample is the state itself (up to noise): none is left out.
+        """
+        h = self.base_period_s
+        period = float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
+        dec = round(period / h)
+        if not drive.trace_mean or dec <= 1:
+            return 0
+        settle_ticks = self.settle_time_s() / h
+        # sample k averages ticks k*dec - dec + 1 .. k*dec; evidence once the first of them
+        # is at or after the end of the settling
+        return min(len(drive.t_s), math.ceil((settle_ticks + dec - 1) / dec - 1e-9))
 
     def simulate(self, drive: Drive, params: np.ndarray) -> SimOutputs:
         """Simulate each row of `params` (full parameter vectors) on the drive's command."""
