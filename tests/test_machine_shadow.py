@@ -19,7 +19,9 @@ ROOT = Path(__file__).resolve().parents[1]
 PROGRAM = "G90 G54 G17\n" + "G1 X-50 Z-50 F6000\nG1 X50 Z50\n" * 3 + "M2\n"
 
 
-def test_a_worn_x_guide_warns_on_x_only(tmp_path, capsys):
+def write_worn_machine(directory: Path) -> None:
+    """machine.yaml (X's guide friction doubling at 2 s in its stand-in) and p.ngc in
+    `directory`."""
     machine = yaml.safe_load((ROOT / "config" / "machine_default.yaml").read_text())
     axis = (ROOT / "config" / "axis_default.yaml").read_text()
     shadow = yaml.safe_load(axis)["shadow"]
@@ -27,9 +29,13 @@ def test_a_worn_x_guide_warns_on_x_only(tmp_path, capsys):
     # a warning identifies the effect at every evaluation (seconds each): every 0.5 s here
     shadow["evaluate_period_s"] = 0.5
     machine["axes"]["X"]["shadow"] = shadow
-    (tmp_path / "axis_default.yaml").write_text(axis)
-    (tmp_path / "machine.yaml").write_text(yaml.safe_dump(machine))
-    (tmp_path / "p.ngc").write_text(PROGRAM)
+    (directory / "axis_default.yaml").write_text(axis)
+    (directory / "machine.yaml").write_text(yaml.safe_dump(machine))
+    (directory / "p.ngc").write_text(PROGRAM)
+
+
+def test_a_worn_x_guide_warns_on_x_only(tmp_path, capsys):
+    write_worn_machine(tmp_path)
     argv = ["run", str(tmp_path / "p.ngc"), "--config", str(tmp_path / "machine.yaml")]
     argv += ["--out", str(tmp_path), "--name", "m", "--shadow", "--in-process", "--json"]
     assert cli_main(argv) == 0
@@ -56,15 +62,7 @@ def test_the_worn_guide_is_estimated_near_its_true_change(tmp_path):
     friction doubles (+100 %). The baseline residual model must stay well-posed on a one-way
     cruise (|v| and v, or a standstill indicator, nearly collinear there): fitted all at once,
     it once predicted 1000 A and named a Coulomb change of -336063 %."""
-    machine = yaml.safe_load((ROOT / "config" / "machine_default.yaml").read_text())
-    axis = (ROOT / "config" / "axis_default.yaml").read_text()
-    shadow = yaml.safe_load(axis)["shadow"]
-    shadow["standin"]["friction_steps"] = [{"at_s": 2.0, "scale": 2.0}]
-    shadow["evaluate_period_s"] = 0.5
-    machine["axes"]["X"]["shadow"] = shadow
-    (tmp_path / "axis_default.yaml").write_text(axis)
-    (tmp_path / "machine.yaml").write_text(yaml.safe_dump(machine))
-    (tmp_path / "p.ngc").write_text(PROGRAM)
+    write_worn_machine(tmp_path)
     x = shadow_machine(load_machine_config(tmp_path / "machine.yaml"), tmp_path / "p.ngc")["X"]
     named = [v for v in x.verdicts if math.isfinite(v.relative_change)]
     assert named, [v.message for v in x.verdicts]
