@@ -22,6 +22,15 @@ def test_a_host_command_line_names_each_node_with_its_own_arguments() -> None:
                                 "--bag", "b"]  # fmt: skip
 
 
+def test_a_host_takes_a_controller_node_per_axis() -> None:
+    # a machine's controller process: one controller node per axis file (namespace)
+    nodes = [
+        ("controller", ["--config", "axis_x.yaml"]),
+        ("controller", ["--config", "axis_y.yaml"]),
+    ]
+    assert split_argv(host_argv(nodes)) == nodes
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -2,7 +2,10 @@
 
 Per simulated axis a sim (drive) node and a controller node in the axis's namespace
 `/<machine>/<axis>` (the single-axis nodes, feed_twin/ros/*_node.py, unchanged in what they
-compute), each in its own process; one G-code node that commands every NC axis and one recorder
+compute); each sim in its own process, and the controller nodes of every axis together in one
+process (`ros.controller_processes: shared`, the default: a CNC has one control for all its
+axes, and on two cores five busy processes share them better than seven) or each in its own
+(`per_axis`); one G-code node that commands every NC axis and one recorder
 that records every axis into one bag. Each axis's nodes read one axis file that the runner
 writes (`axis_documents`): the axis's plant (with its weight and counterbalance), engine and
 controller from the machine file, the machine's NC with `twin_axis` set to that axis, and the
@@ -37,6 +40,14 @@ from feed_twin.machine.contour import ContourError, contour_error
 
 NODE_ROS_NAME_KEYS = ("axis",)  # the machine's axes name their nodes' namespaces themselves
 RECORDER_PROCESS = "recorder"  # hosts the recorder and the G-code node
+CONTROLLER_PROCESS = "controller"  # hosts every axis's controller node (shared layout)
+# ros.controller_processes: "shared", one process for every axis's controller node (a CNC has
+# one control for all its axes, and fewer busy processes share the cores better,
+# docs/performance.md); "per_axis", a process per axis's controller node
+CONTROLLER_LAYOUTS = ("shared", "per_axis")
+# ros.command_batch: true, the G-code node sends each axis's controller the setpoints one clock
+# message lets it publish as one message (gcode_node --command-batch); false, one each
+MACHINE_ROS_KEYS = ("controller_processes", "command_batch")  # the machine's own, not an axis's
 # [s] a peer silent this long is lost. A dead process is noticed by the runner at once
 # (launch's stop_on_failure); heartbeats find hung nodes and nodes on other computers. With
 # seven processes on two cores at load 15 the recorder's process went 0.8 s without taking
@@ -74,6 +85,8 @@ def axis_documents(
             f"{path}: ros.machine = {ros['machine']!r} does not match machine = "
             f"{machine.name!r} (the nodes' namespace /{machine.name}/<axis>)"
         )
+    machine_settings(machine)  # checked here, before any file is written
+    ros = {k: v for k, v in ros.items() if k not in MACHINE_ROS_KEYS}
     docs = {}
     for key in machine.axes:
         sections, _, _ = axis_sections(data["axes"][key], key, machine.nc, path)
@@ -85,6 +98,24 @@ def axis_documents(
         if settle_s is not None:
             docs[key]["ros"]["settle_s"] = settle_s
     return docs
+
+
+def machine_settings(machine: MachineConfig) -> tuple[str, bool]:
+    """The machine file's ros.controller_processes (default "shared") and ros.command_batch
+    (default true); ConfigError (one line) for a value they cannot take."""
+    path = Path(machine.source)
+    ros = load_yaml(path).get("ros") or {}
+    ros = ros if isinstance(ros, dict) else {}
+    layout = ros.get("controller_processes", "shared")
+    if layout not in CONTROLLER_LAYOUTS:
+        raise ConfigError(
+            f"{path}: ros.controller_processes = {layout!r}: must be one of "
+            f"{', '.join(CONTROLLER_LAYOUTS)}"
+        )
+    batch = ros.get("command_batch", True)
+    if not isinstance(batch, bool):
+        raise ConfigError(f"{path}: ros.command_batch = {batch!r}: must be true or false")
+    return layout, batch
 
 
 def write_axis_files(
@@ -101,8 +132,10 @@ def write_documents(
     machine: MachineConfig, documents: dict[str, dict[str, Any]], directory: Path | None
 ) -> dict[str, Path]:
     """Axis -> the file its nodes read, holding `documents[axis]` (write_axis_files)."""
+    # the header names the machine, not its file: a copy of the file elsewhere with the same
+    # axes (a benchmark's variant of ros.controller_processes) reuses the compiled kernels
     docs = {
-        key: f"# axis {key} of {machine.source}, written for its nodes\n"
+        key: f"# axis {key} of machine {machine.name}, written for its nodes\n"
         + yaml.safe_dump(doc, sort_keys=False)
         for key, doc in documents.items()
     }
@@ -135,6 +168,8 @@ class NodePlan:
     axes: tuple[str, ...]  # simulated NC axes, in the NC's order
     command_axes: tuple[str, ...]  # NC axes without nodes (rotary axes, those left out)
     files: dict[str, Path]  # simulated axis -> its config file
+    controller_processes: str = "shared"  # CONTROLLER_LAYOUTS
+    command_batch: bool = True  # setpoints packed from the G-code node to the controllers
 
     def processes(
         self, *, program: Path, bag: Path, realtime: bool, common: list[str]
@@ -152,20 +187,33 @@ class NodePlan:
         ]  # fmt: skip
         everyone = ["recorder", "gcode", *axis_roles]
         everyone += [f"{a.lower()}/{r}" for a in others for r in axis_roles]
+        batch = ["--command-batch"] if self.command_batch else []
         out: dict[str, list[tuple[str, list[str]]]] = {RECORDER_PROCESS: []}
         for role, extra in (("recorder", ["--bag", str(bag)]),
                             ("gcode", ["--program", str(program), "--autostart",
-                                       "--axis-clock"])):  # fmt: skip
+                                       "--axis-clock", *batch])):  # fmt: skip
             peers = ",".join(p for p in everyone if p != role)
             out[RECORDER_PROCESS].append((role, ["--config", str(self.files[first]), "--peers",
                                                  peers, *common, *shared, *extra]))  # fmt: skip
         for axis in self.axes:
             for role in axis_roles:
                 peers = ",".join(p for p in ("recorder", "gcode", *axis_roles) if p != role)
-                extra = ["--axis-clock"] + (["--realtime"] if realtime else [])
+                extra = {"sim": ["--axis-clock"] + (["--realtime"] if realtime else []),
+                         "controller": batch}[role]  # fmt: skip
                 argv = ["--config", str(self.files[axis]), "--peers", peers, *common]
-                out[process_name(axis, role)] = [(role, argv + (extra if role == "sim" else []))]
+                node = (role, argv + extra)
+                if role == "controller" and self.controller_processes == "shared":
+                    out.setdefault(CONTROLLER_PROCESS, []).append(node)
+                else:
+                    out[process_name(axis, role)] = [node]
         return out
+
+    def axes_of_process(self, name: str) -> tuple[str, ...]:
+        """The NC axes whose nodes run in process `name` (none: the G-code node and recorder)."""
+        if name == CONTROLLER_PROCESS and self.controller_processes == "shared":
+            return self.axes
+        axis = axis_of_process(name, self.axes)
+        return () if axis is None else (axis,)
 
 
 def node_plan(
@@ -173,11 +221,14 @@ def node_plan(
 ) -> NodePlan:
     """Write the axis files and plan the processes (ConfigError before anything starts)."""
     files = write_axis_files(machine, directory, settle_s=settle_s)
+    layout, command_batch = machine_settings(machine)
     return NodePlan(
         machine=machine.name,
         axes=tuple(machine.axes),
         command_axes=tuple(a for a in machine.nc.axis_names if a not in machine.axes),
         files=files,
+        controller_processes=layout,
+        command_batch=command_batch,
     )
 
 

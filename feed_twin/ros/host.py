@@ -33,6 +33,9 @@ NODE_MODULES = {
 }
 AND = "--and"  # separates the nodes on the command line
 HOSTABLE = ("recorder", "controller", "sim", "gcode")  # built by node_main's configure/build
+# Roles a process may host several times, each in another axis's namespace: a machine's one
+# controller process holds every axis's controller node (feed_twin/machine/nodes.py).
+REPEATABLE = ("controller",)
 
 
 def host_argv(nodes: Sequence[tuple[str, Sequence[str]]]) -> list[str]:
@@ -58,7 +61,7 @@ def split_argv(argv: Sequence[str]) -> list[tuple[str, list[str]]]:
         role, *args = group
         if role not in HOSTABLE:
             raise ValueError(f"node role {role!r}: must be one of {', '.join(HOSTABLE)}")
-        if any(role == r for r, _ in nodes):
+        if role not in REPEATABLE and any(role == r for r, _ in nodes):
             raise ValueError(f"node role {role!r} given twice")
         nodes.append((role, args))
     return nodes

@@ -4,10 +4,11 @@
    machine's NC, and every axis file its nodes will read as a single-axis run would
    (feed_twin/ros/preflight.py: sections, the controller at the exchange period, the drive's
    reach of the NC's limits).
-2. Starts the recorder with the G-code node in its process, and per simulated axis a
-   controller and a sim node, each in its own process, in the run's own ROS domain with its
-   run token; one process that fails (an axis node killed, a drive fault) stops all others at
-   once, the recorder last, and the reason names the axis.
+2. Starts the recorder with the G-code node in its process, per simulated axis a sim node in
+   its own process, and the controller nodes of every axis in one process (or each in its own,
+   `ros.controller_processes: per_axis`), in the run's own ROS domain with its run token; one
+   process that fails (an axis node killed, a drive fault) stops all others at once, the
+   recorder last, and the reason names the axis (every axis of the controller process).
 3. Afterwards: the `.rrd` dashboard (feed_twin.machine.dashboard, as in-process); the bag
    (recovered if needed) gets the contour error and its along-path lag per
    sample (`/<machine>/contour_error`, `/<machine>/contour_lag`, std_msgs/Float64 [m], logged at
@@ -32,7 +33,6 @@ from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import (
     RECORDER_PROCESS,
     NodePlan,
-    axis_of_process,
     chosen_processes,
     node_plan,
     read_machine_bag,
@@ -165,11 +165,13 @@ def _report(
 
 
 def _named(reason: str, plan: NodePlan) -> str:
-    """The launcher's reason with the axis of the failed process named first."""
+    """The launcher's reason with the axes of the failed process named first."""
     if not reason:
         return reason
-    axis = axis_of_process(reason.split(" ", 1)[0], plan.axes)
-    return f"axis {axis}: {reason}" if axis is not None else reason
+    axes = plan.axes_of_process(reason.split(" ", 1)[0])
+    if not axes:
+        return reason
+    return f"axis {axes[0]}: {reason}" if len(axes) == 1 else f"axes {', '.join(axes)}: {reason}"
 
 
 def readable_bag(bag: Path) -> str:
