@@ -162,3 +162,15 @@ def unpack(data: bytes) -> list[tuple[str, int, bytes]]:
         out.append((topics[i], stamp, bytes(body[at : at + size])))
         at += size
     return out
+
+
+def messages_of(data: bytes, topic: str) -> list[bytes]:
+    """The CDR bytes of every message in a RecordBatch of `topic` alone (the G-code node's
+    setpoints for one controller, gcode_node --command-batch), in order; ValueError for bytes
+    that are not a well-formed batch or that hold a message of another topic."""
+    out = []
+    for name, _, message in unpack(data):
+        if name != topic:
+            raise ValueError(f"it holds a message of {name}, not of {topic}")
+        out.append(message)
+    return out

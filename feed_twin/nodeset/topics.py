@@ -53,6 +53,13 @@ class AxisTopics:
         return f"{self.namespace}/command"
 
     @property
+    def command_batch(self) -> str:
+        """gcode -> controller: the NC setpoints of `command` packed, several to a RecordBatch
+        (a machine's node set, feed_twin/ros/gcode_node.py); not recorded: the bag holds them
+        on `command`, so it is left out of `published`."""
+        return f"{self.namespace}/command_batch"
+
+    @property
     def drive_command(self) -> str:  # controller -> sim: CiA 402 setpoints
         return f"{self.namespace}/drive_command"
 

@@ -6,7 +6,10 @@ until the NC setpoint for t is known (a setpoint stamped >= t has arrived, or th
 finished, after which the last setpoint is held at standstill), runs `split.ControllerCore` and
 publishes `drive_command` stamped t. All control maths is in feed_twin.control; this file only
 converts messages. With `ros.record_batch` N > 0 the recorder's copies of the DriveCommands go
-to it packed, one RecordBatch per N exchanges (feed_twin.ros.batched).
+to it packed, one RecordBatch per N exchanges (feed_twin.ros.batched). With `--command-batch`
+(a machine's node set) the NC setpoints come packed from the G-code node on `command_batch`
+(several AxisCommands to a RecordBatch, feed_twin/ros/gcode_node.py) instead of on `command`:
+each is checked and used as if it had come alone.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 from feed_twin_msgs.msg import AxisCommand, AxisFeedback, DriveCommand
+from feed_twin_msgs.msg import RecordBatch as RecordBatchMsg
 from std_msgs.msg import String
 
 from feed_twin.control.config import ControllerConfig, load_controller_config
@@ -27,6 +31,7 @@ from feed_twin.core import signals as sig
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.nodeset.guard import check_values, parse_program_state
+from feed_twin.nodeset.record_batch import messages_of
 from feed_twin.nodeset.split import (
     NS_PER_S,
     Boundary,
@@ -119,6 +124,7 @@ class ControllerNode(FeedTwinNode):
         gains: NodeLoopGains | None = None,
         exchange_cpu: int = -1,
         record_batch: int = 0,
+        command_batch: bool = False,
         context=None,
     ) -> None:
         super().__init__(CONTROLLER_NODE, options, context=context)
@@ -130,7 +136,9 @@ class ControllerNode(FeedTwinNode):
         self.core.warm_up()
         self.axis_label = axis_label
         self.exchange_ns = round(exchange_period_s * NS_PER_S)
-        self._guard = InputGuard(self, (self.topics.command, self.topics.program_state), axis_label)
+        # where the NC setpoints come from: one AxisCommand each, or packed (--command-batch)
+        command_topic = self.topics.command_batch if command_batch else self.topics.command
+        self._guard = InputGuard(self, (command_topic, self.topics.program_state), axis_label)
         token = self._guard.token
         self._nc_token = self._guard.nc_token
         self.io = MessageIO(axis_label, token, self._nc_token)
@@ -148,9 +156,14 @@ class ControllerNode(FeedTwinNode):
                 self.topics.batched(CONTROLLER_NODE),
                 record_batch,
             )
-        self.create_subscription(
-            AxisCommand, self.topics.command, self._on_command, DATA_QOS, raw=True
-        )
+        if command_batch:
+            self.create_subscription(
+                RecordBatchMsg, command_topic, self._on_command_batch, DATA_QOS, raw=True
+            )
+        else:
+            self.create_subscription(
+                AxisCommand, command_topic, self._on_command, DATA_QOS, raw=True
+            )
         self.create_subscription(
             AxisFeedback, self.topics.feedback, self._on_feedback, DATA_QOS, raw=True
         )
@@ -159,8 +172,8 @@ class ControllerNode(FeedTwinNode):
         )
         # A command stream is due once drive feedback flows; silence while paused is expected.
         self._command_dog = self.watch_input(
-            self.topics.command,
-            "feed_twin_msgs/msg/AxisCommand",
+            command_topic,
+            "feed_twin_msgs/msg/RecordBatch" if command_batch else "feed_twin_msgs/msg/AxisCommand",
             armed=lambda: bool(self._pending) and not self._paused and not self.nc.finished,
         )
         self._feedback_dog = self.watch_input(
@@ -180,15 +193,29 @@ class ControllerNode(FeedTwinNode):
                 self.get_logger().info(f"scheduling: {note}")
 
     def _on_command(self, data: bytes) -> None:
-        topic = self.topics.command
+        if self._take_command(data, self.topics.command):
+            self._serve()
+
+    def _on_command_batch(self, data: bytes) -> None:
+        topic = self.topics.command_batch
+        try:
+            messages = messages_of(data, self.topics.command)
+        except ValueError as exc:
+            self._guard.refuse("malformed", topic, f"a RecordBatch refused: {exc}")
+            return
+        if any([self._take_command(m, topic) for m in messages]):
+            self._serve()
+
+    def _take_command(self, data: bytes, topic: str) -> bool:
+        """Check one AxisCommand and add its setpoint; False: refused."""
         if self._nc_token and not self.io.command.matches(data):
             self._guard.refuse("token", topic, "not from this run's G-code node (run token)")
-            return
+            return False
         try:
             sample = self.io.nc_sample(data)
         except Exception as exc:  # noqa: BLE001 - any undecodable message is dropped, not fatal
             self._guard.refuse("malformed", topic, f"undecodable ({type(exc).__name__})")
-            return
+            return False
         bad = check_values(
             {
                 "position": sample.position_m,
@@ -198,10 +225,10 @@ class ControllerNode(FeedTwinNode):
         )
         if bad is not None:
             self._guard.refuse("values", topic, bad)
-            return
+            return False
         self.nc.add(sample)
         self._command_dog.feed()
-        self._serve()
+        return True
 
     def _on_feedback(self, data: bytes) -> None:
         self._pending.append(data)
@@ -256,7 +283,12 @@ def load_node_controller_config(path: Path) -> ControllerConfig:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    """The controller node has no options of its own."""
+    parser.add_argument(
+        "--command-batch",
+        action="store_true",
+        help="take the NC setpoints packed from <namespace>/command_batch (a machine's G-code "
+        "node, gcode_node --command-batch) instead of from <namespace>/command",
+    )
 
 
 def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> ControllerNode:
@@ -269,6 +301,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> Contr
         gains=ros.node_gains,
         exchange_cpu=ros.exchange_cpu,
         record_batch=ros.record_batch,
+        command_batch=args.command_batch,
         context=context,
     )
 

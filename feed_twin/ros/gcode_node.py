@@ -23,6 +23,13 @@
   ahead of any other axis, which holds all axes together in simulated time. In real time
   (announced by the sims) the wall clock holds them together and it publishes ahead of the
   fastest.
+- `--command-batch` (a machine, `ros.command_batch`): what one clock message lets it publish
+  for an axis with nodes goes to that axis's controller as one RecordBatch on
+  `<namespace>/command_batch` (feed_twin.nodeset.record_batch), with each setpoint's
+  AxisCommand bytes as on `command`, instead of a datagram per setpoint. `command` still
+  carries every setpoint (the recorder beside this node records it from there, by a function
+  call). The batch goes out before a `paused` or `finished` state, so the controller has every
+  setpoint before it holds the last one.
 - `program_state` (latched std_msgs/String): `loaded ...`, `running`, `paused line N ...`,
   `finished <t_ns>`, `stopped <t_ns>`, `error <message>`.
 """
@@ -34,12 +41,15 @@ import functools
 import math
 import os
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
 from feed_twin_msgs.msg import AxisCommand
+from feed_twin_msgs.msg import RecordBatch as RecordBatchMsg
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
@@ -47,6 +57,7 @@ from std_srvs.srv import Trigger
 from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_config, plan_program
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.nodeset.guard import run_token, sign_state
+from feed_twin.nodeset.record_batch import RecordBatch
 from feed_twin.nodeset.split import NS_PER_S
 from feed_twin.nodeset.topics import GCODE_NODE, AxisTopics
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
@@ -137,6 +148,7 @@ class GcodeNode(FeedTwinNode):
         autostart: bool = False,
         optional_stop: bool = False,
         axis_clocks: bool = False,
+        command_batch: bool = False,
         context=None,
     ) -> None:
         super().__init__(GCODE_NODE, options, context=context)
@@ -162,6 +174,17 @@ class GcodeNode(FeedTwinNode):
             for label in self._labels
         ]
         self._pubs = [self.create_publisher(AxisCommand, t.command, DATA_QOS) for _, t in commanded]
+        # (batch, its publisher) per commanded axis; None for an axis without a controller
+        with_nodes = {t.namespace for t in served.values()}
+        self._batches: list[tuple[RecordBatch, Publisher] | None] = [
+            (
+                RecordBatch((t.command,), lookahead),
+                self.create_publisher(RecordBatchMsg, t.command_batch, DATA_QOS),
+            )
+            if command_batch and t.namespace in with_nodes
+            else None
+            for _, t in commanded
+        ]
         self._state_pubs = [
             self.create_publisher(String, t.program_state, LATCHED_QOS) for t in served.values()
         ]
@@ -253,19 +276,31 @@ class GcodeNode(FeedTwinNode):
             return
         horizon = self._clock_ns + self.lookahead * self.period_ns
         was_paused = stream.paused
-        outputs = list(zip(self.streams, self._commands, self._pubs, strict=True))
+        outputs = list(zip(self.streams, self._commands, self._pubs, self._batches, strict=True))
+        now_ns = time.time_ns()  # the batches' publish time (not read by the controllers)
         while not stream.finished and stream.next_t_ns <= horizon:
-            for each, command, pub in outputs:
+            for each, command, pub, batch in outputs:
                 t_ns, x, v, a, line = each.next_sample()
                 sec, nsec = divmod(t_ns, NS_PER_S)
-                pub.publish(command.encode((sec, nsec, x, v, a, line)))
+                data = command.encode((sec, nsec, x, v, a, line))
+                pub.publish(data)
+                if batch is not None:
+                    batch[0].add(0, data, now_ns)
             if stream.paused is not None and was_paused is None:
+                self._send_batches()
                 self._state(f"paused {stream.paused}")
                 was_paused = stream.paused
+        self._send_batches()
         if stream.finished and self.running:
             self.running = False
             word = "stopped" if stream.stopped else "finished"
             self._state(f"{word} {stream.end_t_ns}")
+
+    def _send_batches(self) -> None:
+        for batch in self._batches:
+            data = batch[0].take() if batch is not None else None
+            if batch is not None and data is not None:
+                batch[1].publish(data)
 
     def _on_clock(self, data: bytes) -> None:
         sec, nsec = CLOCK.decode(data)
@@ -340,6 +375,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="a machine: read every served axis's <namespace>/clock (sim_node --axis-clock) and "
         "start the program (--autostart) once every node of every axis beats",
     )
+    parser.add_argument(
+        "--command-batch",
+        action="store_true",
+        help="also send each axis's setpoints packed on <namespace>/command_batch (a machine's "
+        "controllers read them there)",
+    )
 
 
 def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> GcodeNode:
@@ -351,6 +392,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> Gcode
         autostart=args.autostart,
         optional_stop=args.optional_stop,
         axis_clocks=args.axis_clock,
+        command_batch=args.command_batch,
         context=context,
     )
 

@@ -138,6 +138,9 @@ class RecorderNode(FeedTwinNode):
         self._heartbeats = set()
         for topics in served:
             known.update(topics.types())
+            # the G-code node's packed copies for the controllers (gcode_node --command-batch):
+            # recorded from `command` instead, so the graph scan passes them by
+            self._recorded[topics.command_batch] = None
             self._signed_topics |= {topics.command, topics.drive_command, topics.program_state}
             qos_for[topics.program_state] = qos_for[topics.run_state] = LATCHED_QOS
             qos_for[topics.heartbeat] = HEARTBEAT_QOS
