@@ -1,7 +1,9 @@
-"""The machine's node set (feed_twin/machine/nodes.py, feed_twin/ros/machine_run.py): a sim and
-a controller node per axis in its own process, one G-code node, one recorder; every axis equals
-its in-process exchanges, the contour error is in the bag, a killed axis node stops the run
-naming the axis, and a machine file whose nodes do not fit its axes is refused in one line."""
+"""The machine's node set (feed_twin/machine/nodes.py, feed_twin/ros/machine_run.py): a sim node
+per axis in its own process, the controller nodes of all axes in one process, one G-code node,
+one recorder; every axis equals its in-process exchanges, the contour error is in the bag, the
+bag holds the same bytes as with a controller process per axis and unpacked setpoints, a killed
+axis node or controller process stops the run naming the axes, and a machine file whose nodes
+do not fit its axes is refused in one line."""
 
 from __future__ import annotations
 
@@ -15,11 +17,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from mcap.reader import make_reader
 from nodes_support import last_json, run, start_run
 
 from feed_twin.cli import main as cli_main
 from feed_twin.gcode import load_nc_config, plan_program
-from feed_twin.io.bag import BagReader
+from feed_twin.io.bag import BagReader, info
 from feed_twin.machine.config import load_machine_config
 from feed_twin.machine.nodes import write_axis_files
 from feed_twin.nodeset.drive_host import Lockstep, build_drive_host, nc_samples
@@ -52,21 +55,43 @@ def in_process_positions(axis_file: Path, program: Path, stamps: np.ndarray) -> 
     return np.array([by_time[int(t)] for t in stamps])
 
 
-@pytest.mark.ros
-@pytest.mark.slow
-def test_three_axes_in_their_own_nodes_equal_their_in_process_exchanges(tmp_path):
-    program = tmp_path / "helix.ngc"
+def machine_file(directory: Path, **ros: object) -> Path:
+    """config/machine_default.yaml with the ros: fields `ros` replaced, written to `directory`."""
+    data = yaml.safe_load(MACHINE.read_text())
+    data["ros"] = {**data["ros"], **ros}
+    for entry in data["axes"].values():
+        entry["include"] = str(ROOT / "config" / entry["include"])
+    config = directory / "machine.yaml"
+    config.write_text(yaml.safe_dump(data))
+    return config
+
+
+def run_helix(directory: Path, program: Path, config: Path = MACHINE) -> dict:
+    """`feed-twin run` of PROGRAM, written to `program`, on `config`: its JSON record."""
     program.write_text(PROGRAM)
-    argv = [str(program), "--config", str(MACHINE), "--out", str(tmp_path), "--name", "m"]
+    argv = [str(program), "--config", str(config), "--out", str(directory), "--name", "m"]
     with reserve_domain_id() as domain:
         code, out, err = run([*argv, "--json"], domain.domain_id)
     assert code == 0, err
-    record = last_json(out)
+    return last_json(out)
+
+
+@pytest.fixture(scope="module")
+def helix(tmp_path_factory) -> tuple[Path, dict]:
+    """The helix on the machine file as it is (one controller process, packed setpoints)."""
+    directory = tmp_path_factory.mktemp("shared")
+    program = directory / "helix.ngc"
+    return program, run_helix(directory / "out", program)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_three_axes_in_their_own_nodes_equal_their_in_process_exchanges(helix):
+    program, record = helix
     assert set(record["following_error_max_m"]) == {"x", "y", "z"}
     processes = sorted(p.stem for p in Path(record["logs"]).glob("*.log"))
     assert Path(record["rrd"]).stat().st_size > 10_000
-    assert processes == ["recorder", "x_controller", "x_sim", "y_controller", "y_sim",
-                         "z_controller", "z_sim"]  # fmt: skip
+    assert processes == ["controller", "recorder", "x_sim", "y_sim", "z_sim"]
     reader = BagReader(record["bag"])
     files = write_axis_files(load_machine_config(MACHINE), settle_s=0.2)  # the run's files
     states = {}
@@ -95,9 +120,49 @@ def test_three_axes_in_their_own_nodes_equal_their_in_process_exchanges(tmp_path
     assert contour[-1] < 0.2 * contour.max()
 
 
+def _raw_topics(bag: str) -> dict[str, list[bytes]]:
+    """Every topic's message bytes in the bag, in the order written, the run token masked."""
+    token = next(BagReader(bag).messages(["/cnc/x/command"])).msg.header.frame_id.encode()
+    assert len(token) == 16
+    out: dict[str, list[bytes]] = {}
+    with open(info(bag).mcap_path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            out.setdefault(channel.topic, []).append(message.data.replace(token, b"T" * 16))
+    return out
+
+
 @pytest.mark.ros
 @pytest.mark.slow
-def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(tmp_path):
+def test_one_controller_process_records_the_bytes_of_a_controller_process_per_axis(helix, tmp_path):
+    program, shared = helix
+    config = machine_file(tmp_path, controller_processes="per_axis", command_batch=False)
+    per_axis = run_helix(tmp_path / "out", program, config)  # program_state names its path
+    processes = sorted(p.stem for p in Path(per_axis["logs"]).glob("*.log"))
+    assert processes == ["recorder", "x_controller", "x_sim", "y_controller", "y_sim",
+                         "z_controller", "z_sim"]  # fmt: skip
+    a, b = _raw_topics(shared["bag"]), _raw_topics(per_axis["bag"])
+    assert set(a) == set(b)
+    # heartbeats and log lines carry wall time; every other topic is the run's result
+    compared = [t for t in a if not t.endswith("/heartbeat") and t != "/rosout"]
+    # per simulated axis command, drive_command, feedback, state, joint_states, clock,
+    # program_state, run_state; B's command; the contour error and lag
+    assert len(compared) == 3 * 8 + 1 + 2
+    assert "/cnc/x/command_batch" not in a  # the controllers' packed copy is not recorded
+    for topic in compared:
+        assert a[topic] == b[topic], topic
+    assert len(a["/cnc/z/drive_command"]) == len(a["/cnc/z/state"]) > 100
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("victim", "named"),
+    [
+        ("z_sim", "axis Z: z_sim node was killed by SIGKILL"),
+        ("controller", "axes X, Z: controller node was killed by SIGKILL"),
+    ],
+)
+def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(tmp_path, victim, named):
     program = tmp_path / "long.ngc"
     program.write_text(LONG_PROGRAM)
     argv = [str(program), "--config", str(MACHINE), "--out", str(tmp_path), "--name", "k"]
@@ -110,7 +175,7 @@ def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(tmp_pa
                 if _simulated_time(logs / "z_sim.log") >= 0.2:  # states are in the bag by now
                     break
                 time.sleep(0.1)
-            pid = _child_pid(proc.pid, "z_sim")
+            pid = _child_pid(proc.pid, victim)
             os.kill(pid, signal.SIGKILL)
             killed_at = time.time()
             out, err = proc.communicate(timeout=120)
@@ -120,7 +185,7 @@ def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(tmp_pa
                 proc.communicate(timeout=10)
     record = last_json(out)
     assert record["exit_code"] == 137, err
-    assert record["reason"].startswith("axis Z: z_sim node was killed by SIGKILL"), record
+    assert record["reason"].startswith(named), record
     assert len(record["reason"].splitlines()[0]) < 200
     # the bag is readable, Y is a command only, and X stopped within a second of the kill
     reader = BagReader(record["bag"])
@@ -140,7 +205,8 @@ def _simulated_time(log: Path) -> float:
 
 
 def _child_pid(parent: int, name: str) -> int:
-    """The pid of the runner's child process that runs `name` (its log file's stem)."""
+    """The pid of the runner's child process that runs `name` (its log file's stem: an axis's
+    node, or "controller", every axis's controller node in one node host)."""
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
@@ -150,12 +216,16 @@ def _child_pid(parent: int, name: str) -> int:
         except OSError:
             continue
         ppid = int(next(ln.split()[1] for ln in status.splitlines() if ln.startswith("PPid:")))
+        if ppid != parent:
+            continue
+        if name == "controller":
+            if b"feed_twin.ros.host" in cmdline and b"controller" in cmdline:
+                return int(entry.name)
+            continue
         role = name.split("_")[1]
         axis_file = f"axis_{name.split('_')[0]}.yaml".encode()
-        if (
-            ppid == parent
-            and f"feed_twin.ros.{role}_node".encode() in cmdline
-            and any(arg.endswith(axis_file) for arg in cmdline)
+        if f"feed_twin.ros.{role}_node".encode() in cmdline and any(
+            arg.endswith(axis_file) for arg in cmdline
         ):
             return int(entry.name)
     raise AssertionError(f"no process {name} under {parent}")
@@ -171,18 +241,18 @@ def _child_pid(parent: int, name: str) -> int:
             r"ros.recorder_host = 'own': a machine's recorder runs in the G-code node's process",
         ),
         (
+            {"controller_processes": "one"},
+            r"ros.controller_processes = 'one': must be one of shared, per_axis$",
+        ),
+        ({"command_batch": "yes"}, r"ros.command_batch = 'yes': must be true or false$"),
+        (
             {"lookahead": 5, "clock_divider": 10},
             r"yaml: axis X: ros.clock_divider = 10: must lie in \[1, lookahead - 1\] = \[1, 4\]",
         ),
     ],
 )
 def test_nodes_that_do_not_fit_the_axes_are_refused_in_one_line(tmp_path, capsys, ros, message):
-    data = yaml.safe_load(MACHINE.read_text())
-    data["ros"] = {**data["ros"], **ros}
-    for entry in data["axes"].values():
-        entry["include"] = str(ROOT / "config" / entry["include"])
-    config = tmp_path / "machine.yaml"
-    config.write_text(yaml.safe_dump(data))
+    config = machine_file(tmp_path, **ros)
     program = tmp_path / "p.ngc"
     program.write_text(PROGRAM)
     argv = ["run", str(program), "--config", str(config), "--out", str(tmp_path), "--name", "m"]

@@ -11,7 +11,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import JointState
 
 from feed_twin.io.cdr import ENCAPSULATION, JointStateLayout
-from feed_twin.nodeset.record_batch import RecordBatch, unpack
+from feed_twin.nodeset.record_batch import RecordBatch, messages_of, unpack
 
 TOPICS = ("/cnc/x/feedback", "/cnc/x/state", "/cnc/x/joint_states")
 # lengths 7, 41, 4, 1: three need padding to a multiple of 4, as Fast DDS sends a payload
@@ -91,6 +91,22 @@ def test_a_topic_index_outside_the_batch_is_refused():
     assert data is not None
     with pytest.raises(ValueError, match="a topic index out of range"):
         unpack(data)
+
+
+def test_a_controllers_setpoint_batch_gives_its_messages_in_order_and_refuses_others():
+    # the G-code node's setpoints for one controller (gcode_node --command-batch)
+    command = "/cnc/y/command"
+    batch = RecordBatch((command,), 50)
+    sent = [ENCAPSULATION + bytes([k] * 68) for k in range(3)]
+    for data in sent:
+        batch.add(0, data, 7)
+    packed = batch.take()
+    assert packed is not None
+    assert messages_of(packed, command) == sent
+    with pytest.raises(ValueError, match=r"^it holds a message of /cnc/y/command, not of /cnc/x/"):
+        messages_of(packed, "/cnc/x/command")
+    with pytest.raises(ValueError, match="truncated"):
+        messages_of(packed[:-3], command)
 
 
 @pytest.mark.parametrize(
