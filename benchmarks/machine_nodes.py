@@ -54,16 +54,25 @@ def program(seconds: float) -> str:
     return "\n".join(lines)
 
 
-def machine_with(directory: Path, record_batch: int) -> Path:
-    """The machine file with ros.record_batch replaced (its axis files by absolute path)."""
+def machine_with(directory: Path, settings: dict[str, object]) -> Path:
+    """The machine file with its ros: fields `settings` replaced (its axis files by absolute
+    path)."""
     data = yaml.safe_load(MACHINE.read_text())
-    data["ros"]["record_batch"] = record_batch
+    data["ros"].update(settings)
     for entry in data["axes"].values():
         if "include" in entry:
             entry["include"] = str(MACHINE.parent / entry["include"])
-    path = directory / f"machine_batch{record_batch}.yaml"
+    path = directory / f"machine_{'_'.join(f'{k}_{v}' for k, v in settings.items())}.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
+
+
+def ros_setting(text: str) -> tuple[str, object]:
+    """`KEY=VALUE` of --against: a ros: field of the machine file and its YAML value."""
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KEY=VALUE (a ros: field)")
+    return key, yaml.safe_load(value)
 
 
 def command(directory: Path, name: str, seconds: float, machine: Path = MACHINE) -> list[str]:
@@ -90,16 +99,21 @@ def run(
     return record
 
 
-def interleaved(directory: Path, seconds: float, before: int, repeat: int) -> list[dict]:
-    """Lockstep runs of the machine file and of it with record_batch `before`, alternating."""
-    other = machine_with(directory, before)
+def interleaved(directory: Path, seconds: float, settings: dict, repeat: int) -> list:
+    """Lockstep runs of the machine file and of it with the ros: fields `settings`,
+    alternating; per run the realtime factor, the CPU per exchange of each process and in all,
+    and the load average (1 min) at its start and end."""
+    other = machine_with(directory, settings)
+    label_other = ", ".join(f"{k} {v}" for k, v in settings.items())
     rows = []
     for i in range(repeat):
-        for label, machine in (("now", MACHINE), (f"record_batch {before}", other)):
+        for label, machine in (("now", MACHINE), (label_other, other)):
             load = os.getloadavg()[0]
-            rec = run(directory, f"ab{i}_{label.replace(' ', '')}", seconds, False, machine)
+            rec = run(directory, f"ab{i}_{'now' if machine == MACHINE else 'other'}", seconds,
+                      False, machine)  # fmt: skip
             rows.append({
                 "config": label, "load_start": round(load, 2),
+                "load_end": round(os.getloadavg()[0], 2),
                 "realtime_factor": round(rec["timing_realtime_factor"], 3),
                 "cpu_us_per_exchange": rec["cpu_us_per_exchange"],
                 "cpu_us_per_exchange_total": rec["cpu_us_per_exchange_total"],
@@ -189,27 +203,37 @@ def main() -> None:
     parser.add_argument("--realtime-seconds", type=float, default=0.0)
     parser.add_argument("--hosts", action="store_true", help="also split over two namespaces")
     parser.add_argument("--before", type=int, default=None, help="A/B against this record_batch")
-    parser.add_argument("--repeat", type=int, default=3, help="A/B pairs with --before")
+    parser.add_argument(
+        "--against", type=ros_setting, action="append", metavar="KEY=VALUE",
+        help="A/B against the machine file with this ros: field (controller_processes=per_axis;"
+        " repeat it for several fields at once)",
+    )  # fmt: skip
+    parser.add_argument("--repeat", type=int, default=3, help="A/B pairs with --before/--against")
     args = parser.parse_args()
     result: dict[str, object] = {"load_start": os.getloadavg()[0], "cpus": os.cpu_count()}
     with tempfile.TemporaryDirectory(prefix="machine_nodes_") as tmp:
         directory = Path(tmp)
         run(directory, "warm", 0.5, False)  # compiles and caches every axis's kernels
+        load = os.getloadavg()[0]
         lock = run(directory, "lockstep", args.lockstep_seconds, False)
         result.update({
             "lockstep_realtime_factor": lock["timing_realtime_factor"],
             "lockstep_steps": lock["timing_steps"],
             "cpu_us_per_exchange": lock["cpu_us_per_exchange"],
             "cpu_us_per_exchange_total": lock["cpu_us_per_exchange_total"],
+            "load_before_lockstep": load,
             "load_after_lockstep": os.getloadavg()[0],
             "contour_error_max_m": lock["contour_error_max_m"],
             "following_error_max_m": lock["following_error_max_m"],
         })  # fmt: skip
         print(f"lockstep: {lock['timing_realtime_factor']:.2f}x real time, CPU per exchange "
               f"[us]: {lock['cpu_us_per_exchange']}")  # fmt: skip
+        against = dict(args.against or [])
         if args.before is not None:
+            against["record_batch"] = args.before
+        if against:
             result["interleaved"] = interleaved(
-                directory, args.lockstep_seconds, args.before, args.repeat
+                directory, args.lockstep_seconds, against, args.repeat
             )
         if args.hosts:
             hosts = run_on_two_hosts(directory, args.lockstep_seconds)
