@@ -1,13 +1,13 @@
 """Speed of the machine's node set (issue 18): the last printed line is one JSON object.
 
 - lockstep_realtime_factor: `feed-twin run PROGRAM --config config/machine_default.yaml`, the
-  three linear axes each with a sim and a controller node in its own process, one G-code node,
-  one recorder (eight processes), 1 kHz exchange, in lockstep: simulated time over the wall
-  time of the first axis's sim from its first to its last exchange (goal >= 2 on this 2-core
-  machine).
-- cpu_us_per_exchange: per node process its CPU time after set-up (numba compilation and DDS
-  discovery excluded) per exchange; comparable on a busy machine, where the wall-clock figure
-  is not. Also the load average at the start and the end.
+  three linear axes each with a sim node in its own process, their three controller nodes in
+  one process (ros.controller_processes: shared), the G-code node with the recorder (five
+  processes), 1 kHz exchange, in lockstep: simulated time over the wall time of the first
+  axis's sim from its first to its last exchange (goal >= 2 on this 2-core machine).
+- cpu_us_per_exchange: per process (its log's name) its CPU time after set-up (numba
+  compilation and DDS discovery excluded) per exchange, and their sum; comparable on a busy
+  machine, where the wall-clock figure is not. Also the load average (1 min) before and after.
 - with `--realtime-seconds S` (default 0: skipped), the same machine under `--realtime`:
   lateness p50/p99/max of the first axis's exchanges and its missed steps.
 - with `--hosts` (root): the same lockstep run split over two network namespaces joined by a
@@ -17,12 +17,15 @@
   difference, the cost of the link per exchange (two one-way trips); also the link's round
   trip of one UDP datagram (p50/p99 of 2000, from Python), for scale.
 
-- with `--before N`: each lockstep run is followed by one with `ros.record_batch` N instead
-  of the machine file's (0: every recorder copy a datagram of its own, as before the batches),
-  interleaved `--repeat` times, both figures with the load average at their start.
+- with `--against KEY=VALUE` (repeatable): each lockstep run of the machine file is followed
+  by one of a copy with those `ros:` fields (controller_processes=per_axis
+  command_batch=false: the layout before one controller process), interleaved `--repeat`
+  times; per run the realtime factor, the CPU per exchange of every process and in all, and
+  the load average at its start and end. `--before N` is `--against record_batch=N`.
 
     .venv/bin/python benchmarks/machine_nodes.py [--lockstep-seconds 10] [--realtime-seconds 0]
-        [--hosts] [--before 0 --repeat 3]
+        [--hosts] [--against controller_processes=per_axis --against command_batch=false]
+        [--before 0] [--repeat 3]
 """
 
 from __future__ import annotations
