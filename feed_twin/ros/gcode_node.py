@@ -174,7 +174,10 @@ class GcodeNode(FeedTwinNode):
             for label in self._labels
         ]
         self._pubs = [self.create_publisher(AxisCommand, t.command, DATA_QOS) for _, t in commanded]
-        # (batch, its publisher) per commanded axis; None for an axis without a controller
+        # (batch, its publisher) per commanded axis; None for an axis without a controller.
+        # Sent after each _publish_ahead (`_send_batches`); the batch's exchange count is not
+        # used, so its capacity (lookahead: the most one clock message lets it publish) is
+        # nominal.
         with_nodes = {t.namespace for t in served.values()}
         self._batches: list[tuple[RecordBatch, Publisher] | None] = [
             (
