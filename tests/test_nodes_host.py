@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
 import subprocess
 import sys
 
 import pytest
-from nodes_support import AXIS_CONFIG
+from nodes_support import AXIS_CONFIG, node_env
 
 from feed_twin.nodeset.split import load_node_set_config
+from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.ros.host import host_argv, split_argv
 from feed_twin.ros.run_cli import _processes
 
@@ -29,6 +31,36 @@ def test_a_host_takes_a_controller_node_per_axis() -> None:
         ("controller", ["--config", "axis_y.yaml"]),
     ]
     assert split_argv(host_argv(nodes)) == nodes
+
+
+# Two nodes of one role in one process, as a machine's controllers: X's fails at once, Y's
+# would run until stopped; the process must end at X's failure with its code.
+ONE_ROLE_HOST = """
+import time
+from feed_twin.ros.dds import init_context
+from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, spin_nodes
+context = init_context()
+nodes = [FeedTwinNode("controller", NodeOptions(machine="cnc", axis=a, peers=()), context=context)
+         for a in ("x", "y")]
+nodes[0].finish(EXIT_ERROR, "controller: at t = 0.5 s: broken")
+started = time.monotonic()
+code = spin_nodes(nodes, context, until_all_done=True, stop_on_failure=True)
+print("RESULT", code, [n.exit_code for n in nodes], round(time.monotonic() - started, 2))
+"""
+
+
+@pytest.mark.ros
+def test_nodes_of_one_role_in_one_process_end_it_at_the_first_failure() -> None:
+    with reserve_domain_id() as domain:
+        done = subprocess.run(
+            [sys.executable, "-c", ONE_ROLE_HOST], env=node_env(domain.domain_id),
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+    line = next(ln for ln in done.stdout.splitlines() if ln.startswith("RESULT"))
+    code, y_code, seconds = re.match(r"RESULT (\d+) \[1, (\w+)\] ([\d.]+)", line).groups()
+    assert (int(code), y_code) == (1, "None"), line  # Y was still running: not waited for
+    assert float(seconds) < 2.0
+    assert "controller: at t = 0.5 s: broken" in done.stderr
 
 
 @pytest.mark.parametrize(

@@ -90,7 +90,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"node host: {exc}", file=sys.stderr)
         return EXIT_ERROR
     prog = "node host (" + " + ".join(role for role, _ in nodes) + ")"
-    return start_node(prog, lambda context: build_nodes(nodes, context))
+    # Nodes of one role serve different axes (a machine's controllers): one failing is the
+    # run's failure, and the process ends at once so that the runner stops the run naming it,
+    # as a process of that node alone would. Nodes of different roles (recorder + G-code)
+    # finish together: the recorder records until the end.
+    one_role = len({role for role, _ in nodes}) == 1 and len(nodes) > 1
+    return start_node(prog, lambda context: build_nodes(nodes, context), stop_on_failure=one_role)
 
 
 if __name__ == "__main__":

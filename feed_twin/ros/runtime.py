@@ -465,10 +465,12 @@ def spin_nodes(
     context: Context,
     *,
     until_all_done: bool = False,
+    stop_on_failure: bool = False,
     poll_s: float = 0.02,
     teardown_limit_s: float | None = None,
 ) -> int:
-    """Spin until one node finishes (or all, with until_all_done) or a signal arrives.
+    """Spin until one node finishes (or all, with until_all_done; with stop_on_failure too,
+    at the first node that finishes with a non-zero code) or a signal arrives.
 
     Every node's `on_shutdown` runs before returning; returns the process exit code (the
     first non-zero code of the nodes, EXIT_SIGNAL after SIGINT/SIGTERM). With
@@ -496,7 +498,8 @@ def spin_nodes(
                 if all(n.done for n in nodes) or time.monotonic() - signalled_at > SIGNAL_DRAIN_S:
                     break
             elif until_all_done:
-                if all(n.done for n in nodes):
+                failed = stop_on_failure and any(n.exit_code not in (None, EXIT_OK) for n in nodes)
+                if failed or all(n.done for n in nodes):
                     break
             elif any(n.done for n in nodes):
                 break
@@ -617,11 +620,16 @@ def watch_parent(parent_pid: int, *, period_s: float = 0.2) -> threading.Thread:
     return thread
 
 
-def start_node(prog: str, make: Callable[[Any], FeedTwinNode | Sequence[FeedTwinNode]]) -> int:
+def start_node(
+    prog: str,
+    make: Callable[[Any], FeedTwinNode | Sequence[FeedTwinNode]],
+    *,
+    stop_on_failure: bool = False,
+) -> int:
     """Create the ROS context, build the node (or the nodes sharing this process, which then
-    runs until all of them have finished) with `make(context)` and spin it; a bad
-    configuration or input (a ValueError, KeyError or OSError) prints one line naming `prog`
-    and returns EXIT_ERROR."""
+    runs until all of them have finished, or with `stop_on_failure` until the first fails)
+    with `make(context)` and spin it; a bad configuration or input (a ValueError, KeyError or
+    OSError) prints one line naming `prog` and returns EXIT_ERROR."""
     parent = os.environ.get(PARENT_PID_ENV)
     if parent is not None and parent.isdigit():
         watch_parent(int(parent))
@@ -636,7 +644,13 @@ def start_node(prog: str, make: Callable[[Any], FeedTwinNode | Sequence[FeedTwin
         return EXIT_ERROR
     if isinstance(made, FeedTwinNode):
         return spin_nodes([made], context, teardown_limit_s=TEARDOWN_LIMIT_S)
-    return spin_nodes(made, context, until_all_done=True, teardown_limit_s=TEARDOWN_LIMIT_S)
+    return spin_nodes(
+        made,
+        context,
+        until_all_done=True,
+        stop_on_failure=stop_on_failure,
+        teardown_limit_s=TEARDOWN_LIMIT_S,
+    )
 
 
 def node_main(
