@@ -41,7 +41,7 @@ from feed_twin.analysis.diagnose import check_effort_sign, diagnose
 from feed_twin.analysis.effects import last_direction, motion_from_position, moving
 from feed_twin.analysis.program import command_from_program
 from feed_twin.analysis.repetitions import split_repetitions
-from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, generate
+from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, as_trace, generate
 from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
 from feed_twin.io.measured import MeasuredDataError, load_measured
 
@@ -78,21 +78,18 @@ def program() -> str:
     return "\n".join(lines[:2] + moves + ["G4 P0.3"] + moves + ["G4 P0.5"] + moves + ["M30", ""])
 
 
-def trace(values: np.ndarray) -> np.ndarray:
-    """A 20 ms average sampled every 20 ms (the drive's trace of a 1 kHz signal)."""
-    n = len(values) // TRACE_PERIOD_TICKS * TRACE_PERIOD_TICKS
-    return values[:n].reshape(-1, TRACE_PERIOD_TICKS).mean(axis=1)
-
-
 def write_record(folder: Path, nominal: ModelDoc) -> Path:
     fine = generate(nominal, HIDDEN, program=program(), nc_config=MACHINE_NC)
     force = fine["u_drive_V"] * nominal.reference_gain
     late = np.concatenate((np.full(EFFORT_LATE_TICKS, force[0]), force[:-EFFORT_LATE_TICKS]))
+    traced = as_trace(
+        {"time_ms": fine["time_ms"], "x_act_mm": fine["x_act_mm"], "force_N": late},
+        TRACE_PERIOD_TICKS,
+    )
     columns = {
-        # the stamp of a trace sample: the end of its averaging window
-        "t_ms": trace(fine["time_ms"]) + 0.5 * (TRACE_PERIOD_TICKS - 1),
-        "x_act_mm": trace(fine["x_act_mm"]),
-        "i_mot_A": -trace(late) / FORCE_CONSTANT_N_A,  # counted against the motion
+        "t_ms": traced["time_ms"],
+        "x_act_mm": traced["x_act_mm"],
+        "i_mot_A": -traced["force_N"] / FORCE_CONSTANT_N_A,  # counted against the motion
     }
     names = list(columns)
     table = np.column_stack([columns[k] for k in names])
