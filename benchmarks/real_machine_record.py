@@ -22,7 +22,9 @@ repetitions, identifies on the first run and validates on the second.
 The figures: the effects named, and the current error after the fit against a
 least-squares fit of the same effects by hand (constant force, sliding friction sign(v), the
 force held at rest, and the channel delay as the rate of the nominal twin's effort, added to
-the nominal twin's effort) on the same run. Last printed line: one JSON object.
+the nominal twin's effort) on the same run, over all its samples and over those that are
+evidence (from Twin.first_evidence on; the first samples average the window before the twin's
+start and dominate both RMS values over all samples). Last printed line: one JSON object.
 
     .venv/bin/python benchmarks/real_machine_record.py
 """
@@ -98,8 +100,9 @@ def write_record(folder: Path, nominal: ModelDoc) -> Path:
     return path
 
 
-def hand_fit_rms(run, nominal: ModelDoc) -> float:
-    """RMS [N] of the effort left by a least-squares fit of the same effects by hand."""
+def hand_fit_rms(run, nominal: ModelDoc, start: int = 0) -> float:
+    """RMS [N] of the effort left by a least-squares fit of the same effects by hand, on the
+    samples from `start` on."""
     twin = Twin.compile(nominal)
     e0 = twin.simulate(drive_from_run(run), twin.nominal[None, :]).effort[0]
     m = motion_from_position(
@@ -112,8 +115,8 @@ def hand_fit_rms(run, nominal: ModelDoc) -> float:
         last_direction(m) * at_rest,  # the force held at rest
         np.gradient(e0, run.t_s),  # the channel delay
     ]
-    Z = np.column_stack(columns)
-    r = run["force_cmd_N"] - e0
+    Z = np.column_stack(columns)[start:]
+    r = (run["force_cmd_N"] - e0)[start:]
     coef, *_ = np.linalg.lstsq(Z, r, rcond=None)
     return float(np.sqrt(np.mean((r - Z @ coef) ** 2)))
 
@@ -149,6 +152,13 @@ def main() -> None:
     d, _, _ = diagnose(runs[0], nominal, validate=runs[1])
     diagnose_s = time.perf_counter() - clock
     hand = hand_fit_rms(runs[0], nominal)
+    # the samples that are evidence (Twin.first_evidence: the first average the window before
+    # the twin's start and its settling from a start read off averaged samples)
+    start = twin.first_evidence(drive_from_run(runs[0]))
+    trace = d.after_trace
+    assert trace.effort_meas is not None and trace.effort_sim is not None
+    after_evidence = float(np.sqrt(np.mean((trace.effort_meas - trace.effort_sim)[start:] ** 2)))
+    hand_evidence = hand_fit_rms(runs[0], nominal, start)
     result = {
         "samples": int(sum(len(r.t_s) for r in cut)),
         "repetitions": len(cut),
@@ -158,6 +168,9 @@ def main() -> None:
         "effort_rms_after_N": d.after.effort_rms,
         "effort_rms_hand_fit_N": hand,
         "after_over_hand": d.after.effort_rms / hand,
+        "evidence_from_sample": start,
+        "effort_rms_after_on_evidence_N": after_evidence,
+        "effort_rms_hand_fit_on_evidence_N": hand_evidence,
         "validation_effort_rel_err_pct": d.validation["after"]["effort_rel_err_pct"],
         "program_note": runs[0].warnings[-1],
         "placing_s": placing_s,
