@@ -118,15 +118,15 @@ def main_diagnose(args: argparse.Namespace) -> int:
         _check_out(Path(args.out), directory=True)
         doc = ModelDoc.load(args.config)
         # the program file holds one run of what the record repeats: placed on each repetition
-        each = args.repetitions and args.program is not None
-        program = None if each else args.program
-        run = _load(args.measured, args.map, program, doc, args.segment, command=not each)
+        once: str | None = args.program if args.repetitions else None
+        whole = None if once else args.program
+        run = _load(args.measured, args.map, whole, doc, args.segment, command=once is None)
         other = _load(args.validate, args.map, args.program, doc) if args.validate else None
         more: list[MeasuredRun] = []
         if args.repetitions:
             run, other, more = _repetitions(run, other, progress)
-            if each:
-                run, other, *more = (_placed(r, args.program, doc) for r in (run, other, *more))
+            if once is not None:
+                run, other, *more = (_placed(r, once, doc) for r in (run, other, *more))
         for w in run.warnings:
             progress(f"warning: {w}")
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
