@@ -17,8 +17,9 @@ import yaml
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.program import command_from_program
+from feed_twin.analysis.recorder import window_mean
 from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, as_trace, generate
-from feed_twin.analysis.twin import Drive, ModelDoc, Twin, window_mean
+from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 from feed_twin.core import signals
 from feed_twin.io.measured import PlannedCommand, load_measured
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from feed_twin.analysis.fit import SimOutputs
 from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc
+from feed_twin.analysis.recorder import delayed, start_velocity, window_mean
 from feed_twin.core import signals
 from feed_twin.io.config import ConfigError
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
@@ -59,41 +60,6 @@ class Drive:
 SETTLE_LEVEL = math.exp(-3.0)
 SETTLE_OFFSET_M = 1e-4  # [m] the start's distance from the setpoint (force >> friction)
 SETTLE_HORIZON_S = 2.0  # [s] the longest settling looked for
-START_FIT_SAMPLES = 7  # samples of the quadratic whose slope at t_0 is the start velocity
-START_FIT_S = 0.006  # [s] the longest span of that quadratic
-# [m] a start velocity that moves the table less than this over the fit window is a start at
-# rest: a record that begins as the axis sets off (a shadow twin's bag) starts exactly at rest
-START_TRAVEL_M = 1e-6
-
-
-def start_velocity(t_s: np.ndarray, x_m: np.ndarray) -> float:
-    """Velocity [m/s] at the first sample: the slope at t_0 of a quadratic through the first
-    START_FIT_SAMPLES samples (one quantisation step over the window is all it must resolve),
-    0 for a record that starts at rest (START_TRAVEL_M)."""
-    # over at most START_FIT_S (at least 3 samples): a slow trace's 7 samples span a move
-    h = float(t_s[1] - t_s[0]) if len(t_s) > 1 else 1.0
-    n = min(START_FIT_SAMPLES, max(3, int(START_FIT_S / h) + 1), len(t_s))
-    if n < 3:
-        return 0.0
-    coef = np.polyfit(t_s[:n] - t_s[0], x_m[:n] - x_m[0], 2)
-    v0 = float(coef[1])
-    return v0 if abs(v0) * (t_s[n - 1] - t_s[0]) > START_TRAVEL_M else 0.0
-
-
-def delayed(rows: np.ndarray, t_s: np.ndarray, delay_s: float) -> np.ndarray:
-    """Each row as a recorder that stamps it `delay_s` late sees it: y(t - delay), linearly
-    interpolated between samples, the first (last) value held outside the record."""
-    return np.array([np.interp(t_s - delay_s, t_s, row) for row in np.atleast_2d(rows)])
-
-
-def window_mean(rows: np.ndarray, dec: int) -> np.ndarray:
-    """Every dec-th column of `rows` replaced by the mean of the dec columns ending there (the
-    first: itself), as a trace that averages a fast signal over its sample period records it."""
-    rows = np.atleast_2d(rows)
-    c = np.concatenate((np.zeros((len(rows), 1)), np.cumsum(rows, axis=1)), axis=1)
-    ends = np.arange(0, rows.shape[1], dec)
-    starts = np.maximum(ends - dec + 1, 0)
-    return (c[:, ends + 1] - c[:, starts]) / (ends - starts + 1)
 
 
 def drive_from_run(run: MeasuredRun) -> Drive:
