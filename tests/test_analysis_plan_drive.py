@@ -179,6 +179,9 @@ def test_stiction_and_the_channel_delay_are_named_on_the_trace(machine_trace, no
     run, _, _ = machine_trace
     d, _, _ = diagnose(run, nominal)
     named = {e.name: e.parameters for e in d.effects}
+    # the right effects and no other: a Coulomb force or an asymmetry found before the stiction
+    # and the delay is dropped once they are in the model
+    assert set(named) == {"constant_force", "stiction", "channel_delay"}, d.notes
     assert named["constant_force"]["f_0_N"] == pytest.approx(-120.0, rel=0.02)
     assert named["stiction"]["F_hold_N"] == pytest.approx(20.0, rel=0.1)
     assert named["channel_delay"]["delay_s"] == pytest.approx(4e-3, abs=1e-3)
