@@ -7,9 +7,10 @@ import json
 from pathlib import Path
 
 import pytest
+import yaml
 
 from feed_twin.analysis.repetitions import find_period, split_repetitions
-from feed_twin.analysis.synthetic import PROGRAM, generate, write_csv
+from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, generate, write_csv
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.cli import main
 from feed_twin.io.measured import load_measured
@@ -89,3 +90,33 @@ def test_identify_on_the_first_run_and_validate_on_the_others(record, tmp_path, 
     assert report["validation"]["after"]["effort_rel_err_pct"] < 5.0
     third = [n for n in report["notes"] if n.startswith("validation on")]
     assert len(third) == 1 and "s to " in third[0]
+
+
+@pytest.mark.slow
+def test_the_program_of_one_run_is_placed_on_each_repetition(record, tmp_path, capsys):
+    """A record without a command: --program names one run, which --repetitions places on
+    each repetition (the whole record against one run of the program correlates poorly)."""
+    csv, map_path = record["thrice"]
+    scope = tmp_path / "scope_map.yaml"
+    scope.write_text(
+        map_path.read_text().replace("  pos_cmd_m: {column: x_cmd_mm, unit: mm}\n", "")
+    )
+    program = tmp_path / "part.ngc"
+    program.write_text(PROGRAM)
+    model = tmp_path / "model.yaml"  # the nominal model with the NC the program ran on
+    model.write_text(
+        yaml.safe_dump(yaml.safe_load(NOMINAL.read_text()) | yaml.safe_load(NC_CONFIG))
+    )
+    out = tmp_path / "out"
+    code = main(["diagnose", str(csv), "--config", str(model), "--map", str(scope),
+                 "--program", str(program), "--repetitions", "--out", str(out)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert "found 3 repetitions" in capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    placed = [n for n in report["notes"] if n.startswith(f"command from {program}")]
+    assert len(placed) == 2  # the identification run's and the validation run's
+    # named first: a 1 N Stribeck term follows it on this run placed from the program (the
+    # same with the plan at the NC period or with the record's own samples of it)
+    assert report["effects"][0]["name"] == "coulomb_friction"
+    assert report["effects"][0]["parameters"]["F_c_N"] == pytest.approx(15.0, rel=0.05)
+    assert report["validation"]["after"]["effort_rel_err_pct"] < 5.0

@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from feed_twin.analysis.recorder import start_velocity
 from feed_twin.analysis.synthetic import Unmodelled, generate, write_csv
-from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run, start_velocity
+from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
 from feed_twin.io.measured import load_measured
 
 ROOT = Path(__file__).resolve().parents[1]

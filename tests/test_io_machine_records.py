@@ -232,7 +232,7 @@ def test_trace_filter_is_read_from_the_map_and_kept_by_a_segment(tmp_path):
 
 
 def test_window_mean_is_the_mean_over_the_period_ending_at_each_sample():
-    from feed_twin.analysis.twin import window_mean
+    from feed_twin.analysis.recorder import window_mean
 
     ticks = np.arange(60, dtype=float)[None, :] ** 2
     out = window_mean(ticks, 20)

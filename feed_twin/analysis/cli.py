@@ -2,6 +2,8 @@
 
     feed-twin diagnose MEASURED --config NOMINAL [--map MAP] [--program PROGRAM]
                        [--validate OTHER | --repetitions] [--segment T0:T1] --out DIR
+
+With --repetitions, --program names one run of the program: it is placed on each repetition.
     feed-twin simulate --config MODEL --measured MEASURED [--map MAP] [--program PROGRAM]
                        [--segment T0:T1] --out traces.csv
 
@@ -55,18 +57,18 @@ def _load(
     program: str | None = None,
     model=None,
     window: str | None = None,
+    *,
+    command: bool = True,
 ) -> MeasuredRun:
+    """The record, cut to `window`, with the program placed on it; `command=False`: the
+    command may still be missing (a program placed later, on each repetition)."""
     path = Path(measured)
     run = load_measured(path, _map_for(path, map_path))
     if window is not None:
         run = segment(run, *parse_segment(window))
     if program is not None:
-        from feed_twin.analysis.program import command_from_program
-
-        nc = None if model is None else model.data.get("nc")
-        source = "<nc>" if model is None else model.source
-        run = command_from_program(run, program, nc=nc, nc_source=source, model=model)
-    if "pos_cmd_m" not in run and "vel_cmd_m_s" not in run:
+        run = _placed(run, program, model)
+    if command and "pos_cmd_m" not in run and "vel_cmd_m_s" not in run:
         raise MeasuredDataError(
             f"{measured}: the record has no command (pos_cmd_m or vel_cmd_m_s); give the G-code "
             "that ran with --program"
@@ -74,6 +76,14 @@ def _load(
     if "pos_meas_m" not in run:
         raise MeasuredDataError(f"{measured}: the map provides no measured position pos_meas_m")
     return run
+
+
+def _placed(run: MeasuredRun, program: str, model) -> MeasuredRun:
+    from feed_twin.analysis.program import command_from_program
+
+    nc = None if model is None else model.data.get("nc")
+    source = "<nc>" if model is None else model.source
+    return command_from_program(run, program, nc=nc, nc_source=source, model=model)
 
 
 def configure_diagnose(parser: argparse.ArgumentParser) -> None:
@@ -107,13 +117,18 @@ def main_diagnose(args: argparse.Namespace) -> int:
     try:
         _check_out(Path(args.out), directory=True)
         doc = ModelDoc.load(args.config)
-        run = _load(args.measured, args.map, args.program, doc, args.segment)
-        for w in run.warnings:
-            progress(f"warning: {w}")
+        # the program file holds one run of what the record repeats: placed on each repetition
+        once: str | None = args.program if args.repetitions else None
+        whole = None if once else args.program
+        run = _load(args.measured, args.map, whole, doc, args.segment, command=once is None)
         other = _load(args.validate, args.map, args.program, doc) if args.validate else None
         more: list[MeasuredRun] = []
         if args.repetitions:
             run, other, more = _repetitions(run, other, progress)
+            if once is not None:
+                run, other, *more = (_placed(r, once, doc) for r in (run, other, *more))
+        for w in run.warnings:
+            progress(f"warning: {w}")
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
         return 2

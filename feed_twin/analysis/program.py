@@ -7,11 +7,13 @@ aligns the planned velocity with the measured one (cross-correlation over the wh
 refined below one sample, see analysis.compare), and the position offset is the median
 difference after the shift (a different encoder zero). Because an axis follows its command
 late, the estimate is refined (twice) with the nominal twin's response to the placed command. Both
-numbers are reported as a warning of the run.
+numbers are reported as a warning of the run. The placed program is kept at the NC's own period
+too (`MeasuredRun.plan`), which the twin interpolates onto its base ticks.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +21,7 @@ import numpy as np
 
 from feed_twin.analysis.compare import align
 from feed_twin.io.config import load_yaml
-from feed_twin.io.measured import MeasuredDataError, MeasuredRun
+from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
 
 REFINEMENTS = 2  # alignments against the twin's response
 # [s] block shifts that spread less than this are one shift for all: the loop's lag differs by
@@ -28,6 +30,7 @@ WARP_MIN_SPREAD_S = 0.015
 BLOCK_SEARCH_S = (-0.05, 0.3)  # [s] a block's start against the previous block's shift
 FIRST_BLOCK_SEARCH_S = (-1.0, 1.0)  # [s] the first block's against the whole program's
 LOCAL_SEARCH_S = 0.01  # [s] a block's correction against the twin's response
+LOCAL_STEP_S = 0.001  # [s] the steps of that search on a trace slower than 1 kHz
 REST_SHARE = 1e-3  # below this share of the peak speed the program rests
 DEFAULT_NC = Path(__file__).resolve().parents[2] / "config" / "axis_default.yaml"
 
@@ -49,7 +52,10 @@ def command_from_program(
     nc_source: str = "<nc>",
     model: Any = None,
 ) -> MeasuredRun:
-    """`run` with pos_cmd_m and vel_cmd_m_s from the planned program, aligned to its clock.
+    """`run` with pos_cmd_m and vel_cmd_m_s from the planned program, aligned to its clock,
+    and the same command at the NC's interpolation period as `run.plan` (what the twin is
+    driven with: a 50 Hz trace's samples miss each stop's final approach, and with it the
+    side on which friction holds the table).
 
     With `model` (an analysis.twin.ModelDoc) the alignment is refined twice against the twin's
     simulated response instead of the bare command.
@@ -62,8 +68,9 @@ def command_from_program(
         )
     cfg = _nc_config(nc, nc_source)
     traj = plan_program(program, cfg)
-    x_prog, v_prog, _ = traj.axis(cfg.twin_axis)
+    x_prog, v_prog, a_prog = traj.axis(cfg.twin_axis)
     t_prog = traj.t_s - traj.t_s[0]
+    rows = (x_prog, v_prog, a_prog)
     t = run.t_s
     x = run["pos_meas_m"]
     # place the program on a grid that covers the record whatever the offset: pad both ends
@@ -87,21 +94,31 @@ def command_from_program(
     shifts = _block_shifts(t - t[0], v_meas, t_prog, v_prog, moves, shift)
     warp = shifts is not None and float(np.ptp(shifts)) > WARP_MIN_SPREAD_S
 
-    def placed(delta: float) -> tuple[np.ndarray, np.ndarray]:
-        """The program on the record's clock, delta [s] later than the estimate, no offset."""
+    # the NC's own period over the record: the twin is driven from these setpoints, which a
+    # trace slower than the NC samples too coarsely (MeasuredRun.plan)
+    h_nc = float(t_prog[1] - t_prog[0])
+    t_nc = t[0] + h_nc * np.arange(int(np.ceil((t[-1] - t[0]) / h_nc)) + 1)
+
+    def placed(delta: float, times: np.ndarray) -> np.ndarray:
+        """(position, velocity, acceleration) of the program at `times` on the record's clock,
+        delta [s] later than the estimate, no offset."""
         if warp:
             assert shifts is not None
-            return _warped(t - t[0], t_prog, x_prog, v_prog, moves, shifts + delta)
-        return (
-            np.interp(t - t[0] - shift - delta, t_prog, x_prog),
-            np.interp(t - t[0] - shift - delta, t_prog, v_prog),
+            return _warped(times - t[0], t_prog, rows, moves, shifts + delta)
+        return np.array([np.interp(times - t[0] - shift - delta, t_prog, y) for y in rows])
+
+    def commanded(delta: float, offset: float) -> MeasuredRun:
+        pos, vel, _ = placed(delta, t)
+        fine = placed(delta, t_nc)
+        plan = PlannedCommand(t_s=t_nc, pos_m=fine[0] + offset, vel_m_s=fine[1], acc_m_s2=fine[2])
+        return dataclasses.replace(
+            run.with_signals(pos_cmd_m=pos + offset, vel_cmd_m_s=vel), plan=plan
         )
 
     delta = 0.0
-    pos, vel = placed(delta)
     if warp:
-        offset = float(np.median(x - pos))
-    pos = pos + offset
+        offset = float(np.median(x - placed(delta, t)[0]))
+    trial = commanded(delta, offset)
     if model is not None:
         # the measured axis follows its command late (a P position loop lags by about 1/Kv):
         # compare the twin's response, not the command, with the measurement
@@ -112,7 +129,6 @@ def command_from_program(
         # milliseconds off (the bare estimate) upsets its first samples, which moves the
         # second estimate by a tenth of a millisecond
         for _ in range(REFINEMENTS):
-            trial = run.with_signals(pos_cmd_m=pos, vel_cmd_m_s=vel)
             sim = twin.simulate(drive_from_run(trial), twin.nominal[None, :])
             if not sim.ok[0]:
                 break
@@ -129,8 +145,7 @@ def command_from_program(
                 b = align(t, x, sim.x_m[0], max_shift_s=0.05)
                 delta += b.time_shift_s
                 offset += b.position_offset_m
-            pos, vel = placed(delta)
-            pos = pos + offset
+            trial = commanded(delta, offset)
     shift += delta
     note = (
         f"command from {program}: the program starts {shift:+.4f} s after the record "
@@ -145,14 +160,7 @@ def command_from_program(
             f"exact stop and settle; a median {float(np.median(np.diff(late))):.0f} ms per "
             "block: nc.exact_stop_settle_s plans such a wait after G60/G61/G9 blocks)"
         )
-    out = run.with_signals(pos_cmd_m=pos, vel_cmd_m_s=vel)
-    return MeasuredRun(
-        source=out.source,
-        t_s=out.t_s,
-        signals=out.signals,
-        position_sensor=out.position_sensor,
-        warnings=out.warnings + (note,),
-    )
+    return dataclasses.replace(trial, warnings=trial.warnings + (note,))
 
 
 def _moves(t_prog: np.ndarray, v_prog: np.ndarray) -> list[tuple[float, float]]:
@@ -204,42 +212,49 @@ def _block_shifts(
 def _warped(
     t: np.ndarray,
     t_prog: np.ndarray,
-    x_prog: np.ndarray,
-    v_prog: np.ndarray,
+    rows: tuple[np.ndarray, ...],
     moves: list[tuple[float, float]],
     shifts: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The program on the record's clock with each move at its own shift; between moves the
-    setpoint holds where the last move ended (a later move never starts before the last ends)."""
-    pos = np.full_like(t, float(x_prog[0]))
-    vel = np.zeros_like(t)
+) -> np.ndarray:
+    """The program's rows (a position, then its rates) on the record's clock with each move at
+    its own shift; between moves the position holds where the last move ended and the rates
+    are zero (a later move never starts before the last ends)."""
+    out = np.zeros((len(rows), len(t)))
+    out[0] = rows[0][0]
     ends = [s + e for (_, e), s in zip(moves, shifts, strict=True)]
     for i, ((start, end), s) in enumerate(zip(moves, shifts, strict=True)):
         begin = max(start + s, ends[i - 1] if i else -np.inf)
         inside = (t >= begin) & (t <= end + s)
-        pos[inside] = np.interp(t[inside] - s, t_prog, x_prog)
-        vel[inside] = np.interp(t[inside] - s, t_prog, v_prog)
+        for row, y in zip(out, rows, strict=True):
+            row[inside] = np.interp(t[inside] - s, t_prog, y)
         after = t > end + s
-        pos[after] = float(np.interp(end, t_prog, x_prog))
-        vel[after] = 0.0
-    return pos, vel
+        out[0, after] = float(np.interp(end, t_prog, rows[0]))
+        out[1:, after] = 0.0
+    return out
 
 
 def _local_shift(t: np.ndarray, v: np.ndarray, v_sim: np.ndarray, t0: float, t1: float) -> float:
     """The shift s [s] within +/-LOCAL_SEARCH_S that best lays v_sim(t - s) over v(t) on
-    [t0, t1], to a fraction of a sample (parabola through the best three)."""
+    [t0, t1], tried every LOCAL_STEP_S (or every sample, if closer) and refined to a fraction
+    of a step by a parabola through the best three. v_sim is shifted by a cubic spline: a
+    50 Hz trace's samples are 20 ms apart, twice the search, and a straight line between them
+    pulls the shift towards whole samples."""
+    from scipy.interpolate import CubicSpline
+
     h = float(t[1] - t[0])
+    step = min(h, LOCAL_STEP_S)
     inside = (t >= t0) & (t <= t1)
     if inside.sum() < 3:
         return 0.0
-    trials = np.arange(-LOCAL_SEARCH_S, LOCAL_SEARCH_S + h / 2, h)
+    spline = CubicSpline(t, v_sim)
+    trials = np.arange(-LOCAL_SEARCH_S, LOCAL_SEARCH_S + step / 2, step)
     cost = np.array(
-        [np.mean((v[inside] - np.interp(t[inside] - s, t, v_sim)) ** 2) for s in trials]
+        [np.mean((v[inside] - spline(np.clip(t[inside] - s, t[0], t[-1]))) ** 2) for s in trials]
     )
     k = int(np.argmin(cost))
     best = float(trials[k])
     if 0 < k < len(trials) - 1:
         curvature = cost[k - 1] - 2.0 * cost[k] + cost[k + 1]
         if curvature > 0:
-            best += 0.5 * h * (cost[k - 1] - cost[k + 1]) / curvature
+            best += 0.5 * step * (cost[k - 1] - cost[k + 1]) / curvature
     return best

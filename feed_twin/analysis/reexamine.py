@@ -6,7 +6,12 @@ model, the first may no longer be needed. After each addition every earlier effe
 examined jointly with the others:
 - its parameters collapsed: every size parameter moved back to within COLLAPSE of the value
   that removes the effect (its `neutral` value: the model's value before the effect was added,
-  0 for a component the effect added) -- dropped without further ado;
+  0 for a component the effect added) -- dropped without further ado. An effect that split a
+  tied forward/backward pair (asymmetric friction) is removed by tying the pair again at its
+  mean: its size is each member's distance from that mean, whatever the later fits did to the
+  mean (a later law that took over the Coulomb part). An effect whose tie a later one split
+  (Coulomb friction, once asymmetric) is read as the mean of the tie's members and removed by
+  setting each member to its neutral value;
 - otherwise it is removed (its parameters set to neutral), the others are fitted again without
   it, and the likelihood-ratio test of analysis.significance decides whether the model with it
   is significantly better; if not, removing it costs nothing and it is dropped.
@@ -15,8 +20,8 @@ examined jointly with the others:
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,6 +45,11 @@ class Found:
     at_discovery: dict[str, float]  # slot -> its value when it was added
     report: dict[str, Callable[[dict[str, float]], float]]
     added: int  # degrees of freedom it adds
+    # tied pairs the effect split (removed by tying them again at their mean)
+    pairs: tuple[tuple[str, ...], ...] = ()
+    # a tie slot's members (the effect is read and removed through them once a later one
+    # splits the tie)
+    members: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -66,9 +76,73 @@ def _sized(slot: str) -> bool:
     return not slot.endswith("phase")
 
 
+def split_pairs(before: ModelDoc, after: ModelDoc, slots: tuple[str, ...]):
+    """The tied pairs of `before` whose members are all free slots of `after` (the effect with
+    those slots split them), and each tie slot's members in `after`."""
+    pairs = tuple(
+        members
+        for name, members in before.ties
+        if not after.has_slot(name) and all(m in slots for m in members)
+    )
+    return pairs, {s: after.tie_members(s) for s in slots if s in after.tie_names()}
+
+
+def _now(found: Found, doc: ModelDoc, slot: str) -> float | None:
+    """The slot's value in `doc`, through its members if a later effect split its tie."""
+    if doc.has_slot(slot):
+        return doc.get(slot)
+    members = found.members.get(slot, ())
+    if members and all(doc.has_slot(m) for m in members):
+        return sum(doc.get(m) for m in members) / len(members)
+    return None
+
+
+def _pair(found: Found, slot: str) -> tuple[str, ...] | None:
+    return next((p for p in found.pairs if slot in p), None)
+
+
+def _mean(values: Mapping[str, float] | ModelDoc, pair: tuple[str, ...]) -> float:
+    get = values.get if isinstance(values, ModelDoc) else values.__getitem__
+    return sum(get(m) for m in pair) / len(pair)
+
+
 def collapsed(found: Found, doc: ModelDoc) -> bool:
-    values = {s: doc.get(s) for s in found.neutral if doc.has_slot(s)}
-    return fell_back(found.neutral, found.at_discovery, values)
+    neutral, reference, values = {}, {}, {}
+    for slot, zero in found.neutral.items():
+        now = _now(found, doc, slot)
+        if now is None:
+            continue
+        pair = _pair(found, slot)
+        if pair is None:
+            neutral[slot], reference[slot], values[slot] = zero, found.at_discovery[slot], now
+        else:
+            # an asymmetry: each member's distance from the pair's mean, now and at discovery
+            neutral[slot] = 0.0
+            reference[slot] = found.at_discovery[slot] - _mean(found.at_discovery, pair)
+            values[slot] = now - _mean(doc, pair)
+    return fell_back(neutral, reference, values)
+
+
+def removed(found: Found, doc: ModelDoc) -> ModelDoc:
+    """`doc` without the effect: each slot at its neutral value, a pair it split at the pair's
+    mean, a tie a later effect split with each member at the neutral value."""
+    means = {p: _mean(doc, p) for p in found.pairs if all(doc.has_slot(m) for m in p)}
+    for slot, value in found.neutral.items():
+        pair = _pair(found, slot)
+        if pair is not None and pair in means:
+            value = means[pair]
+        if doc.has_slot(slot):
+            doc = doc.set(slot, value)
+        else:
+            for member in found.members.get(slot, ()):
+                doc = doc.set(member, value)
+    return doc
+
+
+def values_now(found: Found, doc: ModelDoc) -> str:
+    """The effect's slots in `doc`, as a note lists them."""
+    now = {s: _now(found, doc, s) for s in found.neutral}
+    return ", ".join(f"{k} = {v:.4g}" for k, v in now.items() if v is not None)
 
 
 def fell_back(
@@ -113,8 +187,7 @@ def without(
     max_evaluations: int,
 ) -> Without | None:
     """Remove `target` from `doc`, fit the others again; None if the simulation fails."""
-    for slot, value in target.neutral.items():
-        doc = doc.set(slot, value)
+    doc = removed(target, doc)
     free = [
         dataclasses.replace(p, initial=doc.get(p.name))
         for f in others

@@ -30,6 +30,9 @@ from feed_twin.analysis.reexamine import (
     fell_back,
     neutral_values,
     removable,
+    removed,
+    split_pairs,
+    values_now,
     without,
 )
 from feed_twin.analysis.report import FoundEffect
@@ -290,6 +293,7 @@ def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
     explained = (state.cost - result.cost) / state.cost if state.cost > 0 else 0.0
     params = {k: float(f(Values(doc))) for k, f in edit.report.items()}
     slots = tuple(p.name for p in alone)
+    pairs, members = split_pairs(before, doc, slots)
     state.found.append(
         Found(
             effect=FoundEffect(
@@ -305,6 +309,8 @@ def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
             at_discovery={s: doc.get(s) for s in slots},
             report=edit.report,
             added=edit.added,
+            pairs=pairs,
+            members=members,
         )
     )
     state.doc, state.twin, state.outputs, state.cost = doc, new_twin, result.outputs, result.cost
@@ -313,16 +319,16 @@ def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
 
 
 def drop_collapsed(state: State, ctx: Context, when: str) -> None:
-    """Remove the effects whose fitted parameters fell back to their neutral values."""
-    for f in [f for f in state.found if collapsed(f, state.doc)]:
-        doc = state.doc
-        for slot, value in f.neutral.items():
-            doc = doc.set(slot, value)
-        state.doc = doc
+    """Remove the effects whose fitted parameters fell back to their neutral values, until
+    none is left (removing one can leave another at its own: an asymmetry of a Coulomb force
+    that was itself removed)."""
+    while (f := next((f for f in state.found if collapsed(f, state.doc)), None)) is not None:
+        before = values_now(f, state.doc)
+        state.doc = removed(f, state.doc)
         state.found.remove(f)
         ctx.notes.append(
             f"{f.name} was dropped {when}: its fitted parameters collapsed to the values "
-            f"without it ({', '.join(f'{k} = {state.doc.get(k):.4g}' for k in f.neutral)})"
+            f"without it ({before})"
         )
     state.twin = Twin.compile(state.doc)
     state.outputs = state.twin.simulate(ctx.drive, state.twin.nominal[None, :])

@@ -194,6 +194,18 @@ def generate(
     return columns
 
 
+def as_trace(columns: Mapping[str, np.ndarray], period_ticks: int) -> dict[str, np.ndarray]:
+    """The columns of a record at the base period as a drive's trace records them: each the
+    mean over `period_ticks` ticks, one sample per period, stamped (time_ms) at the end of its
+    window, as Twin.simulate takes a record whose map says `trace_filter: mean`."""
+    if period_ticks < 1:
+        raise ValueError(f"period_ticks = {period_ticks!r}: must be >= 1")
+    n = len(columns["time_ms"]) // period_ticks * period_ticks
+    out = {k: v[:n].reshape(-1, period_ticks).mean(axis=1) for k, v in columns.items()}
+    out["time_ms"] = columns["time_ms"][period_ticks - 1 : n : period_ticks].copy()
+    return out
+
+
 def write_csv(path: str | Path, columns: Mapping[str, np.ndarray], nominal: ModelDoc) -> Path:
     """Write the record and its column map `<stem>_map.yaml` next to it; returns the map."""
     path = Path(path)

@@ -15,7 +15,7 @@ import numpy as np
 from feed_twin.analysis.fit import FitResult, FreeParameter, Measured, SimOutputs, cost_of, fit
 from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate
-from feed_twin.analysis.twin import Drive, Twin, delayed
+from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.plant.effect_api import Edit
 
 
@@ -122,16 +122,4 @@ def grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResu
 
 def effort_delays(twin: Twin, edit: Edit, drive: Drive) -> SimOutputs:
     """The twin's outputs once, its effort shifted by every grid delay (one row each)."""
-    if twin.doc.get(EFFORT_DELAY_SLOT) != 0.0:
-        twin = Twin.compile(twin.doc.set(EFFORT_DELAY_SLOT, 0.0))
-    once = twin.simulate(drive, twin.nominal[None, :])
-    n = len(edit.grid)
-    effort = None
-    if once.effort is not None:
-        effort = np.vstack([delayed(once.effort, drive.t_s, d) for d in edit.grid])
-    return SimOutputs(
-        x_m=np.repeat(once.x_m, n, axis=0),
-        effort=effort,
-        ok=np.repeat(once.ok, n),
-        voltage_q=None if once.voltage_q is None else np.repeat(once.voltage_q, n, axis=0),
-    )
+    return twin.simulate(drive, twin.nominal[None, :], effort_delays=edit.grid)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,9 +28,10 @@ import numpy as np
 
 from feed_twin.analysis.fit import SimOutputs
 from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc
+from feed_twin.analysis.recorder import delayed, start_velocity, window_mean
 from feed_twin.core import signals
 from feed_twin.io.config import ConfigError
-from feed_twin.io.measured import MeasuredDataError, MeasuredRun
+from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
 
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
 
@@ -48,6 +50,9 @@ class Drive:
     sensor: str  # motor_encoder or linear_scale
     v0_m_s: float = 0.0  # measured velocity at the start (a record that begins mid-motion)
     trace_mean: bool = False  # each record sample is the mean over its period (a drive trace)
+    # the command at the NC's own period (a program planned for the record): the setpoints
+    # are taken from it instead of from the record's samples of pos_ref_m .. acc_ref_m_s2
+    plan: PlannedCommand | None = None
 
 
 # a start from a wrong state has settled when what is left of it is below e^-3 = 5 % of its
@@ -55,41 +60,6 @@ class Drive:
 SETTLE_LEVEL = math.exp(-3.0)
 SETTLE_OFFSET_M = 1e-4  # [m] the start's distance from the setpoint (force >> friction)
 SETTLE_HORIZON_S = 2.0  # [s] the longest settling looked for
-START_FIT_SAMPLES = 7  # samples of the quadratic whose slope at t_0 is the start velocity
-START_FIT_S = 0.006  # [s] the longest span of that quadratic
-# [m] a start velocity that moves the table less than this over the fit window is a start at
-# rest: a record that begins as the axis sets off (a shadow twin's bag) starts exactly at rest
-START_TRAVEL_M = 1e-6
-
-
-def start_velocity(t_s: np.ndarray, x_m: np.ndarray) -> float:
-    """Velocity [m/s] at the first sample: the slope at t_0 of a quadratic through the first
-    START_FIT_SAMPLES samples (one quantisation step over the window is all it must resolve),
-    0 for a record that starts at rest (START_TRAVEL_M)."""
-    # over at most START_FIT_S (at least 3 samples): a slow trace's 7 samples span a move
-    h = float(t_s[1] - t_s[0]) if len(t_s) > 1 else 1.0
-    n = min(START_FIT_SAMPLES, max(3, int(START_FIT_S / h) + 1), len(t_s))
-    if n < 3:
-        return 0.0
-    coef = np.polyfit(t_s[:n] - t_s[0], x_m[:n] - x_m[0], 2)
-    v0 = float(coef[1])
-    return v0 if abs(v0) * (t_s[n - 1] - t_s[0]) > START_TRAVEL_M else 0.0
-
-
-def delayed(rows: np.ndarray, t_s: np.ndarray, delay_s: float) -> np.ndarray:
-    """Each row as a recorder that stamps it `delay_s` late sees it: y(t - delay), linearly
-    interpolated between samples, the first (last) value held outside the record."""
-    return np.array([np.interp(t_s - delay_s, t_s, row) for row in np.atleast_2d(rows)])
-
-
-def window_mean(rows: np.ndarray, dec: int) -> np.ndarray:
-    """Every dec-th column of `rows` replaced by the mean of the dec columns ending there (the
-    first: itself), as a trace that averages a fast signal over its sample period records it."""
-    rows = np.atleast_2d(rows)
-    c = np.concatenate((np.zeros((len(rows), 1)), np.cumsum(rows, axis=1)), axis=1)
-    ends = np.arange(0, rows.shape[1], dec)
-    starts = np.maximum(ends - dec + 1, 0)
-    return (c[:, ends + 1] - c[:, starts]) / (ends - starts + 1)
 
 
 def drive_from_run(run: MeasuredRun) -> Drive:
@@ -118,6 +88,7 @@ def drive_from_run(run: MeasuredRun) -> Drive:
         sensor=run.position_sensor,
         v0_m_s=start_velocity(run.t_s, run["pos_meas_m"]),
         trace_mean=run.trace_filter == "mean",
+        plan=run.plan,
     )
 
 
@@ -219,7 +190,13 @@ class Twin:
         n = len(drive.t_s) * dec
         hold = np.repeat  # known inputs are held between record samples
         ref = np.zeros((n, signals.REF_SIZE))
-        if dec == 1:
+        if drive.plan is not None:
+            # base tick j is at t_0 + j h on the record's clock, where the plan lies: the NC's
+            # own setpoints between the record's samples (a stop's final approach too)
+            fine = drive.t_s[0] + h * np.arange(n)
+            plan = drive.plan
+            set_nc_reference(ref, *(np.interp(fine, plan.t_s, y) for y in plan.setpoints))
+        elif dec == 1:
             set_nc_reference(ref, drive.pos_ref_m, drive.vel_ref_m_s, drive.acc_ref_m_s2)
         else:
             # a trace slower than the controller (a 50 Hz machine trace of a 1 kHz NC): the NC's
@@ -344,8 +321,15 @@ class Twin:
         # is at or after the end of the settling
         return min(len(drive.t_s), math.ceil((settle_ticks + dec - 1) / dec - 1e-9))
 
-    def simulate(self, drive: Drive, params: np.ndarray) -> SimOutputs:
-        """Simulate each row of `params` (full parameter vectors) on the drive's command."""
+    def simulate(
+        self, drive: Drive, params: np.ndarray, *, effort_delays: Sequence[float] | None = None
+    ) -> SimOutputs:
+        """Simulate each row of `params` (full parameter vectors) on the drive's command.
+
+        With `effort_delays` (one row of params) the outputs have one row per delay [s]: the
+        effort as a recorder that stamps it that late sees it, in place of the model's own
+        delay (one simulation for a search of the delay).
+        """
         from feed_twin.sim.batch import run_batch
         from feed_twin.sim.engine import check_step
 
@@ -355,6 +339,12 @@ class Twin:
             self._cache = {"drive": drive, "inputs": self._inputs(drive)}
         ref, ext, n, dec = self._cache["inputs"]
         P = np.array(params, dtype=float, ndmin=2)
+        if effort_delays is None:
+            delays = (self.doc.get(EFFORT_DELAY_SLOT),)
+        elif len(P) == 1:
+            delays = tuple(effort_delays)
+        else:
+            raise ValueError(f"effort_delays need one parameter row, not {len(P)}")
         ok = np.ones(len(P), dtype=bool)
         for i, row in enumerate(P):
             try:
@@ -364,29 +354,51 @@ class Twin:
                 ok[i] = False
         rows = np.flatnonzero(ok)
         T = len(drive.t_s)
-        x = np.full((len(P), T), np.nan)
-        effort = np.full((len(P), T), np.nan)
-        u_q = np.full((len(P), T), np.nan) if self.has_voltage else None
+        k = len(delays)  # output rows per parameter row
+        x = np.full((len(P) * k, T), np.nan)
+        effort = np.full((len(P) * k, T), np.nan)
+        u_q = np.full((len(P) * k, T), np.nan) if self.has_voltage else None
         if len(rows):
             x0 = self._x0(drive, P[rows[0]])
             cs0 = self.start_controller(drive, ref)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
-            if drive.trace_mean and dec > 1:
-                # the record's trace averages each channel over its sample period
-                pos, eff = (window_mean(s, dec) for s in self._measured_signals(res, 1))
-                voltage = window_mean(res["out.u_q_ref_V"], dec) if u_q is not None else None
-            else:
-                pos, eff = self._measured_signals(res, dec)
-                voltage = res["out.u_q_ref_V"][:, ::dec] if u_q is not None else None
-            x[rows] = pos[:, :T]
-            effort[rows] = eff[:, :T]
-            if u_q is not None and voltage is not None:
-                u_q[rows] = voltage[:, :T]
+            pos, eff = self._measured_signals(res, 1)
+            volt = res["out.u_q_ref_V"] if u_q is not None else None
+            for j, delay in enumerate(delays):
+                recorded = self._as_recorded(drive, dec, pos, eff, volt, delay)
+                x[rows * k + j] = recorded[0][:, :T]
+                effort[rows * k + j] = recorded[1][:, :T]
+                if u_q is not None and recorded[2] is not None:
+                    u_q[rows * k + j] = recorded[2][:, :T]
             ok[rows] = ~res.diverged
-        delay = self.doc.get(EFFORT_DELAY_SLOT)
-        if delay != 0.0:
-            effort = delayed(effort, drive.t_s, delay)
-        return SimOutputs(x_m=x, effort=effort, ok=ok, voltage_q=u_q)
+        return SimOutputs(x_m=x, effort=effort, ok=np.repeat(ok, k), voltage_q=u_q)
+
+    def _as_recorded(
+        self,
+        drive: Drive,
+        dec: int,
+        pos: np.ndarray,
+        eff: np.ndarray,
+        volt: np.ndarray | None,
+        delay: float,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(position, effort, q-voltage) on the record's samples from the base ticks' values,
+        as the record's trace takes them: every dec-th tick or the mean over each period, the
+        effort stamped `delay` [s] late."""
+        if delay != 0.0 and dec > 1:
+            # on the base ticks: a trace's samples are too far apart to shift a transient by
+            # a few milliseconds, and a delay commutes with the trace's mean
+            eff = delayed(eff, self.base_period_s * np.arange(eff.shape[1]), delay)
+        if drive.trace_mean and dec > 1:
+            # the record's trace averages each channel over its sample period
+            pos, eff = window_mean(pos, dec), window_mean(eff, dec)
+            volt = None if volt is None else window_mean(volt, dec)
+        else:
+            pos, eff = pos[:, ::dec], eff[:, ::dec]
+            volt = None if volt is None else volt[:, ::dec]
+        if delay != 0.0 and dec == 1:
+            eff = delayed(eff, drive.t_s, delay)
+        return pos, eff, volt
 
     def _measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:
         return self.measured_signals(res, dec)

@@ -75,7 +75,8 @@ class MeasuredDataError(ValueError):
 
 
 def segment(run: MeasuredRun, t0_s: float, t1_s: float) -> MeasuredRun:
-    """The part of `run` with t0 <= t <= t1 [s] (a record's own time stamps)."""
+    """The part of `run` with t0 <= t <= t1 [s] (a record's own time stamps). A planned
+    command stays whole: it lies on the same clock."""
     t = run.t_s
     if not (t0_s < t1_s):
         raise MeasuredDataError(f"{run.source}: segment {t0_s:g}:{t1_s:g}: t0 must be < t1")
@@ -108,6 +109,24 @@ def parse_segment(text: str) -> tuple[float, float]:
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
+class PlannedCommand:
+    """The NC's command at its own interpolation period, on the record's clock: what a record
+    without a command is driven with once its program is planned (analysis.program). A trace
+    slower than the NC samples it too coarsely: a stop's final approach lasts a few of the
+    NC's periods and falls between two 50 Hz samples."""
+
+    t_s: np.ndarray  # [s] uniform, the NC's period apart
+    pos_m: np.ndarray  # [m] position setpoint
+    vel_m_s: np.ndarray  # [m/s] velocity setpoint
+    acc_m_s2: np.ndarray  # [m/s^2] acceleration setpoint
+
+    @property
+    def setpoints(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(position, velocity, acceleration), the order of the NC's setpoint rows."""
+        return self.pos_m, self.vel_m_s, self.acc_m_s2
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
 class MeasuredRun:
     """A measured record on a uniform time base, in SI, with canonical names.
 
@@ -121,6 +140,7 @@ class MeasuredRun:
     position_sensor: str
     warnings: tuple[str, ...] = ()
     trace_filter: Literal["none", "mean"] = "none"  # see ColumnMap.trace_filter
+    plan: PlannedCommand | None = None  # the command at the NC's period, if planned
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:

@@ -1,0 +1,42 @@
+"""Signals as a record holds them: the velocity at its first sample, a channel stamped late, a
+trace's mean over its sample period (what analysis.twin does to its outputs to compare them)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+START_FIT_SAMPLES = 7  # samples of the quadratic whose slope at t_0 is the start velocity
+START_FIT_S = 0.006  # [s] the longest span of that quadratic
+# [m] a start velocity that moves the table less than this over the fit window is a start at
+# rest: a record that begins as the axis sets off (a shadow twin's bag) starts exactly at rest
+START_TRAVEL_M = 1e-6
+
+
+def start_velocity(t_s: np.ndarray, x_m: np.ndarray) -> float:
+    """Velocity [m/s] at the first sample: the slope at t_0 of a quadratic through the first
+    START_FIT_SAMPLES samples (one quantisation step over the window is all it must resolve),
+    0 for a record that starts at rest (START_TRAVEL_M)."""
+    # over at most START_FIT_S (at least 3 samples): a slow trace's 7 samples span a move
+    h = float(t_s[1] - t_s[0]) if len(t_s) > 1 else 1.0
+    n = min(START_FIT_SAMPLES, max(3, int(START_FIT_S / h) + 1), len(t_s))
+    if n < 3:
+        return 0.0
+    coef = np.polyfit(t_s[:n] - t_s[0], x_m[:n] - x_m[0], 2)
+    v0 = float(coef[1])
+    return v0 if abs(v0) * (t_s[n - 1] - t_s[0]) > START_TRAVEL_M else 0.0
+
+
+def delayed(rows: np.ndarray, t_s: np.ndarray, delay_s: float) -> np.ndarray:
+    """Each row as a recorder that stamps it `delay_s` late sees it: y(t - delay), linearly
+    interpolated between samples, the first (last) value held outside the record."""
+    return np.array([np.interp(t_s - delay_s, t_s, row) for row in np.atleast_2d(rows)])
+
+
+def window_mean(rows: np.ndarray, dec: int) -> np.ndarray:
+    """Every dec-th column of `rows` replaced by the mean of the dec columns ending there (the
+    first: itself), as a trace that averages a fast signal over its sample period records it."""
+    rows = np.atleast_2d(rows)
+    c = np.concatenate((np.zeros((len(rows), 1)), np.cumsum(rows, axis=1)), axis=1)
+    ends = np.arange(0, rows.shape[1], dec)
+    starts = np.maximum(ends - dec + 1, 0)
+    return (c[:, ends + 1] - c[:, starts]) / (ends - starts + 1)
