@@ -15,7 +15,10 @@ and bytes), per path:
   (receive times and the run's token in header.frame_id left out); skipped with --no-bag, alone
   with --bag-only.
 
-    .venv/bin/python benchmarks/identity.py [--no-bag | --bag-only]
+    .venv/bin/python benchmarks/identity.py [--no-bag | --bag-only] [--machine FILE]
+
+`--machine` names another machine file (e.g. an older tree's, to compare two trees on one
+configuration: benchmarks/before_after.py).
 
 The last line is one JSON object: path name -> hash.
 """
@@ -166,11 +169,11 @@ def native_ref(program: str) -> str:
     return digest(program_ref(ROOT / program, 1.25e-4, ROOT / NC_CONFIG))
 
 
-def machine(program: str) -> str:
+def machine(program: str, config: Path) -> str:
     from feed_twin.machine.config import load_machine_config
     from feed_twin.machine.simulate import simulate_machine
 
-    run = simulate_machine(load_machine_config(ROOT / MACHINE), ROOT / program)
+    run = simulate_machine(load_machine_config(config), ROOT / program)
     arrays = [run.t_s, run.command, run.command_vel, run.command_acc, run.actual]
     for axis in sorted(run.signals):
         arrays += [run.signals[axis][n] for n in sorted(run.signals[axis])]
@@ -222,6 +225,9 @@ def main() -> None:
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--no-bag", action="store_true", help="skip the node-set run over DDS")
     which.add_argument("--bag-only", action="store_true", help="only the node-set run over DDS")
+    parser.add_argument(
+        "--machine", type=Path, default=ROOT / MACHINE, help=f"machine file (default {MACHINE})"
+    )
     args = parser.parse_args()
     hashes: dict[str, str] = {}
     for program in () if args.bag_only else PROGRAMS:
@@ -235,7 +241,7 @@ def main() -> None:
                 hashes[f"shadow/{tag}/{name}"] = value
         hashes[f"lockstep/{stem}"] = lockstep(program)
         hashes[f"native_ref/{stem}"] = native_ref(program)
-        hashes[f"machine/{stem}"] = machine(program)
+        hashes[f"machine/{stem}"] = machine(program, args.machine)
     if not args.no_bag:
         for name, value in bag(PROGRAMS[1]).items():
             hashes[f"bag/{Path(PROGRAMS[1]).stem}/{name}"] = value
