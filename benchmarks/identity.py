@@ -15,10 +15,11 @@ and bytes), per path:
   (receive times and the run's token in header.frame_id left out); skipped with --no-bag, alone
   with --bag-only.
 
-    .venv/bin/python benchmarks/identity.py [--no-bag | --bag-only] [--machine FILE]
+    .venv/bin/python benchmarks/identity.py [--no-bag | --bag-only] [--machine FILE] [--tree DIR]
 
-`--machine` names another machine file (e.g. an older tree's, to compare two trees on one
-configuration: benchmarks/before_after.py).
+`--tree DIR` hashes another checkout (its programs and configs; run with PYTHONPATH=DIR so its
+feed_twin is imported), `--machine` names another machine file: two trees compare on one
+machine configuration (benchmarks/before_after.py --identity).
 
 The last line is one JSON object: path name -> hash.
 """
@@ -226,9 +227,24 @@ def main() -> None:
     which.add_argument("--no-bag", action="store_true", help="skip the node-set run over DDS")
     which.add_argument("--bag-only", action="store_true", help="only the node-set run over DDS")
     parser.add_argument(
-        "--machine", type=Path, default=ROOT / MACHINE, help=f"machine file (default {MACHINE})"
+        "--machine", type=Path, help=f"machine file (default: the tree's {MACHINE})"
+    )
+    parser.add_argument(
+        "--tree",
+        type=Path,
+        help="another checkout whose programs and configs to read; its feed_twin must be the one "
+        "imported (PYTHONPATH=TREE)",
     )
     args = parser.parse_args()
+    if args.tree is not None:
+        global ROOT
+        ROOT = args.tree.resolve()
+        import feed_twin
+
+        if Path(feed_twin.__file__).resolve().parent != ROOT / "feed_twin":
+            parser.error(f"--tree {ROOT}: feed_twin is imported from {feed_twin.__file__}")
+    if args.machine is None:
+        args.machine = ROOT / MACHINE
     hashes: dict[str, str] = {}
     for program in () if args.bag_only else PROGRAMS:
         stem = Path(program).stem
