@@ -10,13 +10,15 @@ nodes_speed's CPU per exchange) are the ones that other jobs on the cores do not
 
     git worktree add /work/before <commit>
     .venv/bin/python benchmarks/before_after.py --before /work/before [--pairs 3]
-        [--realtime-seconds 10] [--only model|nodes|identity]
+        [--realtime-seconds 10] [--only tick|model|nodes|identity]
 
 First `benchmarks/identity.py` (this tree's script) hashes both trees' results on the before
 tree's machine file: which of its paths are bit for bit equal.
 
 Figures compared (each: the before and after values of every pair, their medians and
 after/before of the medians):
+- tick (benchmarks/_tick_probe.py, this tree's, in both): a process's import, build and first
+  run times, and the best per-tick CPU time of the 1 s trapezoid, default and inlined kernel;
 - model_speed (--skip-motulator): realtime_factor and _cpu, realtime_factor_inlined_cpu, the
   interleaved numba and C kernels' _cpu figures, batch_axis_seconds_per_cpu_second, first_run_s;
 - nodes_speed (--probe-seconds 0, --realtime-seconds): lockstep_realtime_factor, the lockstep
@@ -51,12 +53,16 @@ MODEL_FIGURES = (
     "batch_axis_seconds_per_cpu_second",
     "first_run_s",
 )
+TICK_FIGURES = ("import_s", "build_s", "first_run_s", "ns_per_tick", "ns_per_tick_inline")
 NODES_FIGURES = (
     "lockstep_realtime_factor",
     "lockstep_cpu_us_per_exchange",
     "realtime_p99_lateness_ms",
     "missed_steps",
 )
+
+
+FIGURES = {"tick": TICK_FIGURES, "model": MODEL_FIGURES, "nodes": NODES_FIGURES}
 
 
 def tree_env(tree: Path) -> dict[str, str]:
@@ -78,6 +84,8 @@ def check_import(tree: Path) -> None:
 
 def run_one(bench: str, tree: Path, args: argparse.Namespace) -> dict[str, Any]:
     script = tree / "benchmarks" / f"{bench}_speed.py"
+    if bench == "tick":  # this tree's probe, run in the other tree too
+        script = ROOT / "benchmarks" / "_tick_probe.py"
     extra = ["--skip-motulator"] if bench == "model" else []
     if bench == "nodes":
         extra = ["--probe-seconds", "0", "--realtime-seconds", str(args.realtime_seconds)]
@@ -164,7 +172,7 @@ def flat(figures: dict[str, Any], names: tuple[str, ...]) -> dict[str, float]:
 
 def summarise(runs: list[dict[str, Any]], before: Path) -> dict[str, Any]:
     summary: dict[str, Any] = {}
-    for bench, names in (("model", MODEL_FIGURES), ("nodes", NODES_FIGURES)):
+    for bench, names in FIGURES.items():
         rows = [r for r in runs if r["bench"] == bench]
         if not rows:
             continue
@@ -206,7 +214,7 @@ def main() -> None:
     parser.add_argument("--before", type=Path, required=True, help="the other tree (a worktree)")
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--realtime-seconds", type=float, default=10.0)
-    parser.add_argument("--only", choices=("model", "nodes", "identity"))
+    parser.add_argument("--only", choices=(*FIGURES, "identity"))
     args = parser.parse_args()
     before = args.before.resolve()
     for tree in (before, ROOT):
@@ -219,7 +227,7 @@ def main() -> None:
             f"{', '.join(same['different']) or 'none'}",
             flush=True,
         )
-    benches = {None: ("model", "nodes"), "identity": ()}.get(args.only, (args.only,))
+    benches = {None: tuple(FIGURES), "identity": ()}.get(args.only, (args.only,))
     runs = []
     for bench in benches:
         for pair in range(args.pairs):
@@ -228,7 +236,7 @@ def main() -> None:
                 run["pair"] = pair
                 runs.append(run)
                 label = "before" if tree == before else "after"
-                shown = flat(run["figures"], MODEL_FIGURES if bench == "model" else NODES_FIGURES)
+                shown = flat(run["figures"], FIGURES[bench])
                 print(
                     f"{bench} pair {pair} {label}: load {run['load_1min_before']:.2f}, "
                     f"{run['wall_s']:.0f} s, {run.get('failed') or json.dumps(shown)}",
