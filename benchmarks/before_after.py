@@ -18,7 +18,8 @@ tree's machine file: which of its paths are bit for bit equal.
 Figures compared (each: the before and after values of every pair, their medians and
 after/before of the medians):
 - tick (benchmarks/_tick_probe.py, this tree's, in both): a process's import, build and first
-  run times, and the best per-tick CPU time of the 1 s trapezoid, default and inlined kernel;
+  run times, the best per-tick CPU time of the 1 s trapezoid (default and inlined kernel) and
+  of model_speed's batch per set;
 - model_speed (--skip-motulator): realtime_factor and _cpu, realtime_factor_inlined_cpu, the
   interleaved numba and C kernels' _cpu figures, batch_axis_seconds_per_cpu_second, first_run_s;
 - nodes_speed (--probe-seconds 0, --realtime-seconds): lockstep_realtime_factor, the lockstep
@@ -53,7 +54,14 @@ MODEL_FIGURES = (
     "batch_axis_seconds_per_cpu_second",
     "first_run_s",
 )
-TICK_FIGURES = ("import_s", "build_s", "first_run_s", "ns_per_tick", "ns_per_tick_inline")
+TICK_FIGURES = (
+    "import_s",
+    "build_s",
+    "first_run_s",
+    "ns_per_tick",
+    "ns_per_tick_inline",
+    "batch_ns_per_set_tick",
+)
 NODES_FIGURES = (
     "lockstep_realtime_factor",
     "lockstep_cpu_us_per_exchange",
