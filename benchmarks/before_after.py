@@ -219,12 +219,18 @@ def summarise(runs: list[dict[str, Any]], before: Path) -> dict[str, Any]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--before", type=Path, required=True, help="the other tree (a worktree)")
+    parser.add_argument("--before", type=Path, help="the other tree (a worktree)")
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--realtime-seconds", type=float, default=10.0)
     parser.add_argument("--only", choices=(*FIGURES, "identity"))
     args = parser.parse_args()
+    if args.before is None:  # `make bench` runs every benchmark without arguments
+        print("before_after: no --before tree given, nothing to compare")
+        print(json.dumps({"skipped": "no --before tree given"}))
+        return
     before = args.before.resolve()
+    if not (before / "feed_twin").is_dir():
+        parser.error(f"--before {before}: not a feed_twin checkout (no feed_twin/ there)")
     for tree in (before, ROOT):
         check_import(tree)
     same = None
