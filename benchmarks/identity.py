@@ -15,7 +15,11 @@ and bytes), per path:
   (receive times and the run's token in header.frame_id left out); skipped with --no-bag, alone
   with --bag-only.
 
-    .venv/bin/python benchmarks/identity.py [--no-bag | --bag-only]
+    .venv/bin/python benchmarks/identity.py [--no-bag | --bag-only] [--machine FILE] [--tree DIR]
+
+`--tree DIR` hashes another checkout (its programs and configs; run with PYTHONPATH=DIR so its
+feed_twin is imported), `--machine` names another machine file: two trees compare on one
+machine configuration (benchmarks/before_after.py --identity).
 
 The last line is one JSON object: path name -> hash.
 """
@@ -166,11 +170,11 @@ def native_ref(program: str) -> str:
     return digest(program_ref(ROOT / program, 1.25e-4, ROOT / NC_CONFIG))
 
 
-def machine(program: str) -> str:
+def machine(program: str, config: Path) -> str:
     from feed_twin.machine.config import load_machine_config
     from feed_twin.machine.simulate import simulate_machine
 
-    run = simulate_machine(load_machine_config(ROOT / MACHINE), ROOT / program)
+    run = simulate_machine(load_machine_config(config), ROOT / program)
     arrays = [run.t_s, run.command, run.command_vel, run.command_acc, run.actual]
     for axis in sorted(run.signals):
         arrays += [run.signals[axis][n] for n in sorted(run.signals[axis])]
@@ -222,7 +226,25 @@ def main() -> None:
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--no-bag", action="store_true", help="skip the node-set run over DDS")
     which.add_argument("--bag-only", action="store_true", help="only the node-set run over DDS")
+    parser.add_argument(
+        "--machine", type=Path, help=f"machine file (default: the tree's {MACHINE})"
+    )
+    parser.add_argument(
+        "--tree",
+        type=Path,
+        help="another checkout whose programs and configs to read; its feed_twin must be the one "
+        "imported (PYTHONPATH=TREE)",
+    )
     args = parser.parse_args()
+    if args.tree is not None:
+        global ROOT
+        ROOT = args.tree.resolve()
+        import feed_twin
+
+        if Path(feed_twin.__file__).resolve().parent != ROOT / "feed_twin":
+            parser.error(f"--tree {ROOT}: feed_twin is imported from {feed_twin.__file__}")
+    if args.machine is None:
+        args.machine = ROOT / MACHINE
     hashes: dict[str, str] = {}
     for program in () if args.bag_only else PROGRAMS:
         stem = Path(program).stem
@@ -235,7 +257,7 @@ def main() -> None:
                 hashes[f"shadow/{tag}/{name}"] = value
         hashes[f"lockstep/{stem}"] = lockstep(program)
         hashes[f"native_ref/{stem}"] = native_ref(program)
-        hashes[f"machine/{stem}"] = machine(program)
+        hashes[f"machine/{stem}"] = machine(program, args.machine)
     if not args.no_bag:
         for name, value in bag(PROGRAMS[1]).items():
             hashes[f"bag/{Path(PROGRAMS[1]).stem}/{name}"] = value

@@ -4,18 +4,17 @@
 
 f is the odd quintic with f(1) = 1 and f'(1) = f''(1) = 0, so sgn is twice continuously
 differentiable, equal to +/-1 exactly for |x| >= W s, and has its largest slope, 1/s, at x = 0
-(W is chosen for that: f'(0) = 15/8 = W), like tanh(x/s) and x/sqrt(s^2 + x^2) before it; so the
-step-size bounds of `damping_bounds` hold unchanged. Modelica's libraries regularise such
+(W is chosen for that: f'(0) = 15/8 = W), like tanh(x/s) and x/sqrt(s^2 + x^2); so the step-size
+bounds of `damping_bounds` hold for it as for those. Modelica's libraries regularise such
 switches the same way, with a polynomial over a small band (`Modelica.Fluid.Utilities.regStep`,
 a cubic). Unlike x/sqrt(s^2 + x^2), still 3 % short of 1 at x = 4 s, the friction, the bearing
 torque and the inverter's dead-time voltage reach their full values just outside the band.
 
 Cost matters: the plant evaluates it six times per derivative call (guide and bearing friction,
-screw efficiency, three inverter legs), 24 times per 16 kHz tick. A clamp and five products
-replace the square root and the division of x/sqrt(1 + x^2): the engine's realtime factor rose by
-about 12 % (benchmarks/model_speed.py). The polynomial is two fused multiply-adds
-(feed_twin.core.fma): 3 % of the tick. `smooth_sign_array`, the analysis code's element-wise
-form, is compiled from the same function, so both round alike.
+screw efficiency, three inverter legs), 24 times per 16 kHz tick, so it is a clamp and five
+products, without a square root or a division (docs/performance.md); the polynomial is two fused
+multiply-adds (feed_twin.core.fma). `smooth_sign_array`, the analysis code's element-wise form,
+is compiled from the same function, so both round alike.
 """
 
 from __future__ import annotations

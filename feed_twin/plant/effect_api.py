@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
 import numpy as np
-from scipy import signal as sps
 
 SMOOTH_VELOCITY_S = 0.005  # [s] smoothing window for velocity and acceleration estimates
 
@@ -68,8 +67,8 @@ def motion_from_position(
     h = float((t[-1] - t[0]) / (len(t) - 1))
     window = max(5, int(round(SMOOTH_VELOCITY_S / h)) | 1)
     x = np.asarray(x_m, dtype=float)
-    v = np.asarray(sps.savgol_filter(x, window, 2, deriv=1, delta=h), dtype=float)
-    a = np.asarray(sps.savgol_filter(x, 2 * window + 1, 2, deriv=2, delta=h), dtype=float)
+    v = _savgol(x, window, 1, h)
+    a = _savgol(x, 2 * window + 1, 2, h)
     return Motion(
         t_s=t,
         x_m=x,
@@ -95,7 +94,16 @@ def moving(m: Motion) -> np.ndarray:
 def rate(y: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Time derivative by a 5-sample quadratic Savitzky-Golay filter (smooths the sample noise)."""
     h = float((t[-1] - t[0]) / (len(t) - 1))
-    return np.asarray(sps.savgol_filter(np.asarray(y, dtype=float), 5, 2, deriv=1, delta=h))
+    return _savgol(np.asarray(y, dtype=float), 5, 1, h)
+
+
+def _savgol(y: np.ndarray, window: int, deriv: int, h: float) -> np.ndarray:
+    """Quadratic Savitzky-Golay derivative of order `deriv` of samples `h` [s] apart."""
+    # imported here: every process that builds an engine imports this module (plant.component)
+    # and scipy.signal takes most of a second to import; only the analysis differentiates
+    from scipy.signal import savgol_filter
+
+    return np.asarray(savgol_filter(y, window, 2, deriv=deriv, delta=h), dtype=float)
 
 
 def effort_rate(m: Motion) -> dict[str, np.ndarray]:

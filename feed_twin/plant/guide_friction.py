@@ -12,8 +12,8 @@ Where the Stribeck term cannot change a bit it is not evaluated: for (v/v_s)^2 >
 and dF_s < CUT_RATIO * min(F_c_pos, F_c_neg) = 16 min(...), dF_s exp(-(v/v_s)^2) < 2.6e-17 F_c,
 below half a unit in the last place of F_c (>= 2^-54 F_c = 5.6e-17 F_c), so F_c + that term
 rounds to F_c and the force is the same to the bit (tests/test_plant_friction_cut.py). Above
-|v| = 6.4 v_s the exponential's polynomial is then skipped in every RK4 stage: 6 % of a tick of
-axis_default on the batch benchmark's 50 mm/s move (docs/architecture.md).
+|v| = 6.4 v_s the exponential's polynomial is then skipped in every RK4 stage (its share of a
+tick: docs/performance.md).
 Why it is stable at the step size: near v = 0 the law is a damper of slope
 c0 = (F_c + dF_s)/v_reg + F_v; an explicit RK4 step h on a body of effective mass m is stable for
 h*c0/m < 2.78. `damping_bounds` reports c0 and the engine refuses a step that violates h*c0/m <
