@@ -143,6 +143,26 @@ def test_fit_that_cannot_converge_says_so_and_keeps_the_start():
     assert math.isfinite(r.cost) and r.cost <= r.cost_initial
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_fit_maps_only_log_parameters_through_exp():
+    """A linear parameter far from its scale (a force of 2000 N at scale 1) beside a log one:
+    exp(2000) would overflow, so the log map must never be evaluated on a linear slot."""
+    t = np.linspace(0.0, 1.0, 100)
+
+    def simulate(params: np.ndarray) -> SimOutputs:
+        x = params[:, :1] * t[None, :] + 1.0 / params[:, 1:2] * t[None, :] ** 2
+        return SimOutputs(x_m=x, effort=None, ok=np.ones(len(params), bool))
+
+    meas = Measured(x_m=2000.0 * t + 0.25 * t**2, effort=None, scale_x=1.0, scale_effort=1.0)
+    free = [
+        FreeParameter(name="force", initial=1900.0, scale=1.0),
+        FreeParameter(name="stiffness", initial=1.0, scale=1.0, lower=0.0, log=True),
+    ]
+    r = fit(simulate, np.zeros(2), {"force": (0,), "stiffness": (1,)}, free, meas)
+    assert r.values["force"] == pytest.approx(2000.0, abs=1e-4)
+    assert r.values["stiffness"] == pytest.approx(4.0, rel=1e-4)
+
+
 @pytest.mark.slow
 def test_command_from_the_program_that_ran(tmp_path):
     from feed_twin.analysis.program import command_from_program

@@ -112,12 +112,18 @@ def fit(
     scale = np.array([p.scale for p in free], dtype=float)
     is_log = np.array([p.log for p in free], dtype=bool)
 
+    # the log map applies to the log parameters only: np.where would evaluate exp on a linear
+    # parameter's z too (a stiffness of 1e9 N/m at scale 1 overflows) and then discard it
     def to_z(values: np.ndarray) -> np.ndarray:
-        with np.errstate(divide="ignore"):
-            return np.where(is_log, np.log(np.maximum(values, 0.0) / scale), values / scale)
+        zs = values / scale
+        with np.errstate(divide="ignore"):  # a log parameter's lower bound 0 maps to -inf
+            zs[..., is_log] = np.log(np.maximum(values[..., is_log], 0.0) / scale[is_log])
+        return zs
 
     def to_value(zs: np.ndarray) -> np.ndarray:
-        return np.where(is_log, np.exp(zs) * scale, zs * scale)
+        values = zs * scale
+        values[..., is_log] = np.exp(zs[..., is_log]) * scale[is_log]
+        return values
 
     lower = to_z(np.array([p.lower for p in free], dtype=float))
     upper = to_z(np.array([p.upper for p in free], dtype=float))
