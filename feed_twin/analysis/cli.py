@@ -79,11 +79,10 @@ def _load(
 
 
 def _placed(run: MeasuredRun, program: str, model) -> MeasuredRun:
-    from feed_twin.analysis.program import command_from_program
+    from feed_twin.analysis.program import command_from_program, nc_of_model
 
-    nc = None if model is None else model.data.get("nc")
-    source = "<nc>" if model is None else model.source
-    return command_from_program(run, program, nc=nc, nc_source=source, model=model)
+    nc = nc_of_model(model.data, model.source)
+    return command_from_program(run, program, nc=nc, nc_source=model.source, model=model)
 
 
 def configure_diagnose(parser: argparse.ArgumentParser) -> None:
