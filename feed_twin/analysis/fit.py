@@ -9,8 +9,9 @@ command and known disturbances,
 
 over a decimated time base, with e the drive effort, x the measured position and u the q-axis
 voltage the current controller commands (only when the record carries it: the one channel in
-which an inverter's dead time shows, see analysis.effects). s_e, s_x and s_u normalise the
-channels by the nominal model's residual RMS, so each starts with the same weight. scipy's
+which an inverter's dead time shows, see analysis.effects). s_e, s_x and s_u are each channel's
+noise level (analysis.channels: its residual RMS at the model of the current round, floored by
+its sample noise), so a channel that one large effect explained keeps its say. scipy's
 trust-region reflective solver minimises it; its Jacobian comes from forward differences
 evaluated as ONE batch of P perturbed parameter sets, which is what the engine's batch mode is
 for. A step whose simulation diverges returns a large finite residual, so the
