@@ -248,3 +248,25 @@ def test_bad_unmodelled_dynamics_are_named():
         Unmodelled(current_lag_s=-1.0)
     with pytest.raises(ValueError, match=r"effort_noise_std = -0.1: must be >= 0"):
         Unmodelled(effort_noise_std=-0.1)
+
+
+def test_diagnose_runs_with_one_blas_thread_unless_the_user_set_one():
+    """`feed-twin diagnose` sets OPENBLAS_NUM_THREADS before numpy loads OpenBLAS (OpenBLAS
+    reads it once, at load): the CLI's registry imports nothing numeric first."""
+    import os
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys, importlib, os, feed_twin.cli\n"
+        "assert 'numpy' not in sys.modules, 'numpy loaded before the analysis CLI'\n"
+        "importlib.import_module('feed_twin.analysis.cli')\n"
+        "print(os.environ['OPENBLAS_NUM_THREADS'])\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "1"
+    env["OPENBLAS_NUM_THREADS"] = "2"
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True)
+    assert out.stdout.strip() == "2", out.stderr
