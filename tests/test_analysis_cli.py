@@ -143,6 +143,26 @@ def test_fit_that_cannot_converge_says_so_and_keeps_the_start():
     assert math.isfinite(r.cost) and r.cost <= r.cost_initial
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_fit_maps_only_log_parameters_through_exp():
+    """A linear parameter far from its scale (a force of 2000 N at scale 1) beside a log one:
+    exp(2000) would overflow, so the log map must never be evaluated on a linear slot."""
+    t = np.linspace(0.0, 1.0, 100)
+
+    def simulate(params: np.ndarray) -> SimOutputs:
+        x = params[:, :1] * t[None, :] + 1.0 / params[:, 1:2] * t[None, :] ** 2
+        return SimOutputs(x_m=x, effort=None, ok=np.ones(len(params), bool))
+
+    meas = Measured(x_m=2000.0 * t + 0.25 * t**2, effort=None, scale_x=1.0, scale_effort=1.0)
+    free = [
+        FreeParameter(name="force", initial=1900.0, scale=1.0),
+        FreeParameter(name="stiffness", initial=1.0, scale=1.0, lower=0.0, log=True),
+    ]
+    r = fit(simulate, np.zeros(2), {"force": (0,), "stiffness": (1,)}, free, meas)
+    assert r.values["force"] == pytest.approx(2000.0, abs=1e-4)
+    assert r.values["stiffness"] == pytest.approx(4.0, rel=1e-4)
+
+
 @pytest.mark.slow
 def test_command_from_the_program_that_ran(tmp_path):
     from feed_twin.analysis.program import command_from_program
@@ -228,3 +248,25 @@ def test_bad_unmodelled_dynamics_are_named():
         Unmodelled(current_lag_s=-1.0)
     with pytest.raises(ValueError, match=r"effort_noise_std = -0.1: must be >= 0"):
         Unmodelled(effort_noise_std=-0.1)
+
+
+def test_diagnose_runs_with_one_blas_thread_unless_the_user_set_one():
+    """`feed-twin diagnose` sets OPENBLAS_NUM_THREADS before numpy loads OpenBLAS (OpenBLAS
+    reads it once, at load): the CLI's registry imports nothing numeric first."""
+    import os
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys, importlib, os, feed_twin.cli\n"
+        "assert 'numpy' not in sys.modules, 'numpy loaded before the analysis CLI'\n"
+        "importlib.import_module('feed_twin.analysis.cli')\n"
+        "print(os.environ['OPENBLAS_NUM_THREADS'])\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "1"
+    env["OPENBLAS_NUM_THREADS"] = "2"
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True)
+    assert out.stdout.strip() == "2", out.stderr

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -43,3 +44,34 @@ def test_the_section_is_checked_and_known_to_the_axis_loader(tmp_path):
     path.write_text(text + "analysis: {effort_reference_gain: 0}\n")
     with pytest.raises(ConfigError, match=r"analysis.effort_reference_gain = 0: must be a finite"):
         ModelDoc.load(path)
+
+
+@pytest.mark.slow
+def test_simulate_on_the_written_model_reproduces_the_fitted_torque_constant(tmp_path, capsys):
+    """diagnose fits a torque-constant error; `simulate --config out/model.yaml` on the same
+    record then gives the fit's effort error, not the nominal's (the issue: it gave a worse one
+    than the nominal, the fitted gain converted the record's effort a second time)."""
+    from feed_twin.analysis.compare import relative_error_pct
+    from feed_twin.analysis.synthetic import generate, write_csv
+    from feed_twin.cli import main
+
+    nominal = ModelDoc.load(ROOT / "config" / "emps_nominal.yaml")
+    csv = tmp_path / "run.csv"
+    map_path = write_csv(
+        csv, generate(nominal, {"torque_constant_error": {"gain": 29.88}}), nominal
+    )
+    out = tmp_path / "out"
+    code = main(["diagnose", str(csv), "--config", str(nominal.source), "--map", str(map_path),
+                 "--out", str(out)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    report = json.loads((out / "report.json").read_text())
+    assert [e["name"] for e in report["effects"]] == ["torque_constant_error"]
+    after = report["after"]["effort_rel_err_pct"]
+    assert after < 0.2 * report["before"]["effort_rel_err_pct"]
+    traces = tmp_path / "traces.csv"
+    code = main(["simulate", "--config", str(out / "model.yaml"), "--measured", str(csv),
+                 "--map", str(map_path), "--out", str(traces)])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    data = np.genfromtxt(traces, delimiter=",", names=True)
+    again = relative_error_pct(data["force_cmd_N"], data["sim_force_cmd_N"])
+    assert again == pytest.approx(after, rel=1e-6, abs=1e-6)

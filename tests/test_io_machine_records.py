@@ -240,3 +240,32 @@ def test_window_mean_is_the_mean_over_the_period_ending_at_each_sample():
     assert out[0, 0] == 0.0  # the first sample: itself
     assert out[0, 1] == pytest.approx(np.mean(np.arange(1, 21) ** 2))
     assert out[0, 2] == pytest.approx(np.mean(np.arange(21, 41) ** 2))
+
+
+@pytest.mark.slow
+def test_report_json_keeps_an_effort_in_amperes_in_amperes(tmp_path):
+    """A drive that records its q-current: report.json says A, and its RMS is the amperes that
+    `simulate` shows (the issue: `effort_rms_N` held amperes)."""
+    from feed_twin.analysis.synthetic import NC_CONFIG, generate, write_csv
+    from feed_twin.analysis.twin import ModelDoc
+
+    axis = ROOT / "config" / "axis_default.yaml"
+    nominal = ModelDoc.load(axis)
+    program = (ROOT / "tests" / "fixtures" / "analysis" / "long_travel.ngc").read_text()
+    nc = NC_CONFIG.replace("a_max_m_s2: 0.8", "a_max_m_s2: 3.0")
+    csv = tmp_path / "run.csv"
+    map_path = write_csv(csv, generate(nominal, {}, program=program, nc_config=nc), nominal)
+    assert "current_q_A: {column: i_q_A, unit: A}" in map_path.read_text()
+    out = tmp_path / "out"
+    code = main(["diagnose", str(csv), "--config", str(axis), "--map", str(map_path),
+                 "--out", str(out)])  # fmt: skip
+    assert code == 0
+    before = json.loads((out / "report.json").read_text())["before"]
+    assert before["effort_unit"] == "A" and "effort_rms_N" not in before
+    traces = tmp_path / "traces.csv"
+    code = main(["simulate", "--config", str(axis), "--measured", str(csv), "--map",
+                 str(map_path), "--out", str(traces)])  # fmt: skip
+    assert code == 0
+    data = np.genfromtxt(traces, delimiter=",", names=True)
+    rms = math.sqrt(float(np.mean((data["current_q_A"] - data["sim_current_q_A"]) ** 2)))
+    assert before["effort_rms"] == pytest.approx(rms, rel=1e-6)

@@ -17,13 +17,22 @@ twin produces but the record lacks).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
-import numpy as np
+# One BLAS thread, set before numpy loads OpenBLAS (feed_twin.cli imports this module first):
+# the workflow's linear algebra is tall and thin (20001 x a few), which a second thread does
+# not speed up, while OpenBLAS's threads spin for the core the engine's batch threads and the
+# machine's other work need. On 2 shared cores at load 6 the same diagnose of a 20 s, 1 kHz
+# record took 0.9 to 10.5 s (CPU 1.6 to 7.0 s) with them, 0.8 to 1.4 s with one
+# (benchmarks/diagnose_record_speed.py). A value the user set is kept.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from feed_twin.io.config import ConfigError
-from feed_twin.io.measured import (
+import numpy as np  # noqa: E402
+
+from feed_twin.io.config import ConfigError  # noqa: E402
+from feed_twin.io.measured import (  # noqa: E402
     MeasuredDataError,
     MeasuredRun,
     load_measured,
@@ -79,11 +88,10 @@ def _load(
 
 
 def _placed(run: MeasuredRun, program: str, model) -> MeasuredRun:
-    from feed_twin.analysis.program import command_from_program
+    from feed_twin.analysis.program import command_from_program, nc_of_model
 
-    nc = None if model is None else model.data.get("nc")
-    source = "<nc>" if model is None else model.source
-    return command_from_program(run, program, nc=nc, nc_source=source, model=model)
+    nc = nc_of_model(model.data, model.source)
+    return command_from_program(run, program, nc=nc, nc_source=model.source, model=model)
 
 
 def configure_diagnose(parser: argparse.ArgumentParser) -> None:

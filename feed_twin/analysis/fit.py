@@ -9,8 +9,9 @@ command and known disturbances,
 
 over a decimated time base, with e the drive effort, x the measured position and u the q-axis
 voltage the current controller commands (only when the record carries it: the one channel in
-which an inverter's dead time shows, see analysis.effects). s_e, s_x and s_u normalise the
-channels by the nominal model's residual RMS, so each starts with the same weight. scipy's
+which an inverter's dead time shows, see analysis.effects). s_e, s_x and s_u are each channel's
+noise level (analysis.channels: its residual RMS at the model of the current round, floored by
+its sample noise), so a channel that one large effect explained keeps its say. scipy's
 trust-region reflective solver minimises it; its Jacobian comes from forward differences
 evaluated as ONE batch of P perturbed parameter sets, which is what the engine's batch mode is
 for. A step whose simulation diverges returns a large finite residual, so the
@@ -112,12 +113,18 @@ def fit(
     scale = np.array([p.scale for p in free], dtype=float)
     is_log = np.array([p.log for p in free], dtype=bool)
 
+    # the log map applies to the log parameters only: np.where would evaluate exp on a linear
+    # parameter's z too (a stiffness of 1e9 N/m at scale 1 overflows) and then discard it
     def to_z(values: np.ndarray) -> np.ndarray:
-        with np.errstate(divide="ignore"):
-            return np.where(is_log, np.log(np.maximum(values, 0.0) / scale), values / scale)
+        zs = values / scale
+        with np.errstate(divide="ignore"):  # a log parameter's lower bound 0 maps to -inf
+            zs[..., is_log] = np.log(np.maximum(values[..., is_log], 0.0) / scale[is_log])
+        return zs
 
     def to_value(zs: np.ndarray) -> np.ndarray:
-        return np.where(is_log, np.exp(zs) * scale, zs * scale)
+        values = zs * scale
+        values[..., is_log] = np.exp(zs[..., is_log]) * scale[is_log]
+        return values
 
     lower = to_z(np.array([p.lower for p in free], dtype=float))
     upper = to_z(np.array([p.upper for p in free], dtype=float))

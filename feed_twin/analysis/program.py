@@ -1,7 +1,9 @@
 """The command of a record that has none, from the G-code program that ran.
 
 Many drive scopes record only actual values. The program is planned with feed_twin.gcode
-(`plan_program`, the NC section of the model or, failing that, of config/axis_default.yaml) and
+(`plan_program`, the NC section of the model: there is no default NC, because another machine's
+axis limits, start position, work offsets and exact-stop settle would place the program
+millimetres and tens of milliseconds off without a word) and
 its axis setpoints are placed on the record's clock: the time offset is the shift that best
 aligns the planned velocity with the measured one (cross-correlation over the whole record,
 refined below one sample, see analysis.compare), and the position offset is the median
@@ -20,7 +22,6 @@ from typing import Any
 import numpy as np
 
 from feed_twin.analysis.compare import align
-from feed_twin.io.config import load_yaml
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
 
 REFINEMENTS = 2  # alignments against the twin's response
@@ -32,23 +33,29 @@ FIRST_BLOCK_SEARCH_S = (-1.0, 1.0)  # [s] the first block's against the whole pr
 LOCAL_SEARCH_S = 0.01  # [s] a block's correction against the twin's response
 LOCAL_STEP_S = 0.001  # [s] the steps of that search on a trace slower than 1 kHz
 REST_SHARE = 1e-3  # below this share of the peak speed the program rests
-DEFAULT_NC = Path(__file__).resolve().parents[2] / "config" / "axis_default.yaml"
+# above this share of its peak speed a trace moves (a measured speed's noise stays below it)
+MOVING_SHARE = 0.05
+# the record moving this many times as long as the placed program: the program ran more often
+UNCOVERED_RATIO = 1.5
 
 
-def _nc_config(nc: dict[str, Any] | None, source: str):
-    from feed_twin.gcode.config import nc_config_from_mapping
-
-    if nc is None:
-        data = load_yaml(DEFAULT_NC)
-        return nc_config_from_mapping(data["nc"], source=str(DEFAULT_NC))
-    return nc_config_from_mapping(nc, source=source)
+def nc_of_model(data: dict[str, Any], source: str) -> dict[str, Any]:
+    """The model's `nc:` section, which planning a program needs."""
+    nc = data.get("nc")
+    if not isinstance(nc, dict):
+        raise MeasuredDataError(
+            f"{source}: --program needs the model's nc: section (the NC the program ran on: "
+            "axis limits, start position, work offsets, exact-stop settle); copy the nc: section "
+            "of config/axis_default.yaml and set it to the machine's"
+        )
+    return nc
 
 
 def command_from_program(
     run: MeasuredRun,
     program: str | Path,
     *,
-    nc: dict[str, Any] | None = None,
+    nc: dict[str, Any],
     nc_source: str = "<nc>",
     model: Any = None,
 ) -> MeasuredRun:
@@ -60,13 +67,14 @@ def command_from_program(
     With `model` (an analysis.twin.ModelDoc) the alignment is refined twice against the twin's
     simulated response instead of the bare command.
     """
+    from feed_twin.gcode.config import nc_config_from_mapping
     from feed_twin.gcode.planner import plan_program
 
     if "pos_meas_m" not in run:
         raise MeasuredDataError(
             f"{run.source}: aligning a program needs the measured position pos_meas_m"
         )
-    cfg = _nc_config(nc, nc_source)
+    cfg = nc_config_from_mapping(nc, source=nc_source)
     traj = plan_program(program, cfg)
     x_prog, v_prog, a_prog = traj.axis(cfg.twin_axis)
     t_prog = traj.t_s - traj.t_s[0]
@@ -83,10 +91,8 @@ def command_from_program(
     a = align(grid, x_meas_grid, x_grid, max_shift_s=span)
     shift, offset = a.time_shift_s, a.position_offset_m
     if a.correlation < 0.5:
-        raise MeasuredDataError(
-            f"{run.source}: the program {program} does not match the measured motion "
-            f"(best correlation {a.correlation:.2f} at a shift of {shift:.3f} s)"
-        )
+        why = f"does not match the measured motion (best correlation {a.correlation:.2f} at a "
+        raise _unplaced(run, program, why + f"shift of {shift:.3f} s)")
     # block by block where the NC's own waits between blocks (exact stop and settle) moved
     # the blocks apart: each move at its own shift, found on the velocities (offset-free)
     moves = _moves(t_prog, v_prog)
@@ -115,6 +121,7 @@ def command_from_program(
             run.with_signals(pos_cmd_m=pos + offset, vel_cmd_m_s=vel), plan=plan
         )
 
+    _check_covered(run, program, t, v_meas, placed(0.0, t)[1])
     delta = 0.0
     if warp:
         offset = float(np.median(x - placed(delta, t)[0]))
@@ -161,6 +168,27 @@ def command_from_program(
             "block: nc.exact_stop_settle_s plans such a wait after G60/G61/G9 blocks)"
         )
     return dataclasses.replace(trial, warnings=trial.warnings + (note,))
+
+
+def _check_covered(
+    run: MeasuredRun, program: str | Path, t: np.ndarray, v_meas: np.ndarray, v_cmd: np.ndarray
+) -> None:
+    """The placed program must account for the record's motion: one run of a program that the
+    record holds three times correlates well enough with one of them, and the twin would then
+    be driven to stand still through the others."""
+    h = float(t[1] - t[0])
+    moving = float(np.sum(np.abs(v_meas) > MOVING_SHARE * np.max(np.abs(v_meas)))) * h
+    commanded = float(np.sum(np.abs(v_cmd) > MOVING_SHARE * np.max(np.abs(v_cmd)))) * h
+    if moving > UNCOVERED_RATIO * commanded:
+        why = f"moves the axis for {commanded:.3g} s, the record moves for {moving:.3g} s"
+        raise _unplaced(run, program, why)
+
+
+def _unplaced(run: MeasuredRun, program: str | Path, why: str) -> MeasuredDataError:
+    return MeasuredDataError(
+        f"{run.source}: the program {program} {why}; if the record holds the program several "
+        "times, add --repetitions or cut one run with --segment t0:t1"
+    )
 
 
 def _moves(t_prog: np.ndarray, v_prog: np.ndarray) -> list[tuple[float, float]]:

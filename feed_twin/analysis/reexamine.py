@@ -25,9 +25,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from feed_twin.analysis.fit import FitResult, FreeParameter, Measured, SimOutputs, fit
+from feed_twin.analysis.fit import FitResult, FreeParameter, Measured, SimOutputs
 from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import Verdict, compare
+from feed_twin.analysis.trials import fit_resumed
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 
 COLLAPSE = 0.1  # share of its size at discovery below which a fitted effect has collapsed
@@ -196,14 +197,10 @@ def without(
     ]
     twin = Twin.compile(doc)
     if free:
-        result: FitResult = fit(
-            lambda params: twin.simulate(drive, params),
-            twin.nominal,
-            twin.index,
-            free,
-            meas,
-            max_evaluations=max_evaluations,
-        )
+        # the same least squares as the fit that added the effect (resumed once if its budget
+        # ran out on the way down): a re-fit stopped early would make the model without the
+        # effect look worse than it is, and the test would keep the effect for that alone
+        result: FitResult = fit_resumed(twin, drive, free, meas, max_evaluations)
         for name, value in result.values.items():
             doc = doc.set(name, value)
         twin = Twin.compile(doc)
