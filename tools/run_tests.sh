@@ -22,6 +22,9 @@ echo "== pyright"
 # the pinned wheel's own pyright and Node.js: no look-up of a newer version on the network
 PYRIGHT_PYTHON_IGNORE_WARNINGS=1 "$bin/pyright" --pythonpath "$bin/python" || failed+=("pyright")
 echo "== pytest $*"
+# OpenBLAS's own threads spin against the engine's and the nodes' on a small machine (a diagnose
+# of the same record took 0.9-21 s); one thread unless the caller chose
+export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}"
 "$bin/pytest" "$@"
 status=$?
 if [[ $status -eq 5 ]]; then
