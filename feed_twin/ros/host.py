@@ -90,12 +90,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"node host: {exc}", file=sys.stderr)
         return EXIT_ERROR
     prog = "node host (" + " + ".join(role for role, _ in nodes) + ")"
-    # Nodes of one role serve different axes (a machine's controllers): one failing is the
-    # run's failure, and the process ends at once so that the runner stops the run naming it,
-    # as a process of that node alone would. Nodes of different roles (recorder + G-code)
-    # finish together: the recorder records until the end.
-    one_role = len({role for role, _ in nodes}) == 1 and len(nodes) > 1
-    return start_node(prog, lambda context: build_nodes(nodes, context), stop_on_failure=one_role)
+    # A process of a machine's controllers, or of an axis's sim and controller: one node
+    # failing is the run's failure, and the process ends at once so that the runner stops the
+    # run naming it, as a process of that node alone would. With the recorder (recorder +
+    # G-code) the nodes finish together: the recorder records until the end.
+    alone = "recorder" not in {role for role, _ in nodes} and len(nodes) > 1
+    return start_node(prog, lambda context: build_nodes(nodes, context), stop_on_failure=alone)
 
 
 if __name__ == "__main__":
