@@ -253,7 +253,7 @@ def _child_pid(parent: int, name: str) -> int:
         ),
         (
             {"controller_processes": "one"},
-            r"ros.controller_processes = 'one': must be one of shared, per_axis$",
+            r"ros.controller_processes = 'one': must be one of shared, per_axis, with_sim$",
         ),
         ({"command_batch": "yes"}, r"ros.command_batch = 'yes': must be true or false$"),
         (
