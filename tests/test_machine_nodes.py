@@ -167,16 +167,21 @@ def test_one_controller_process_records_the_bytes_of_the_other_layouts(
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    ("victim", "named"),
+    ("victim", "ros", "named"),
     [
-        ("z_sim", "axis Z: z_sim node was killed by SIGKILL"),
-        ("controller", "axes X, Z: controller node was killed by SIGKILL"),
+        ("z_sim", {}, "axis Z: z_sim node was killed by SIGKILL"),
+        ("controller", {}, "axes X, Z: controller node was killed by SIGKILL"),
+        # Z's sim and controller in one process
+        ("z_sim", {"controller_processes": "with_sim"}, "axis Z: z_sim node was killed by SIGKILL"),
     ],
 )
-def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(tmp_path, victim, named):
+def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(
+    tmp_path, victim, ros, named
+):
     program = tmp_path / "long.ngc"
     program.write_text(LONG_PROGRAM)
-    argv = [str(program), "--config", str(MACHINE), "--out", str(tmp_path), "--name", "k"]
+    config = machine_file(tmp_path, **ros) if ros else MACHINE
+    argv = [str(program), "--config", str(config), "--out", str(tmp_path), "--name", "k"]
     logs = tmp_path / "k.logs"
     with reserve_domain_id() as domain:
         proc = start_run([*argv, "--axes", "X,Z", "--json"], domain.domain_id)
@@ -235,9 +240,11 @@ def _child_pid(parent: int, name: str) -> int:
             continue
         role = name.split("_")[1]
         axis_file = f"axis_{name.split('_')[0]}.yaml".encode()
-        if f"feed_twin.ros.{role}_node".encode() in cmdline and any(
-            arg.endswith(axis_file) for arg in cmdline
-        ):
+        # the node's own module, or a node host with that role (a sim and its controller)
+        runs = f"feed_twin.ros.{role}_node".encode() in cmdline or (
+            b"feed_twin.ros.host" in cmdline and role.encode() in cmdline
+        )
+        if runs and any(arg.endswith(axis_file) for arg in cmdline):
             return int(entry.name)
     raise AssertionError(f"no process {name} under {parent}")
 
