@@ -19,7 +19,8 @@
 
 - with `--against KEY=VALUE` (repeatable): each lockstep run of the machine file is followed
   by one of a copy with those `ros:` fields (controller_processes=per_axis
-  command_batch=false: the layout before one controller process), interleaved `--repeat`
+  command_batch=false: the layout before one controller process; controller_processes=with_sim:
+  each axis's controller in its sim's process), interleaved `--repeat`
   times; per run the realtime factor, the CPU per exchange of every process and in all, and
   the load average at its start and end. `--before N` is `--against record_batch=N`.
 

@@ -24,10 +24,12 @@ from feed_twin.nodeset.guard import (
     UNKNOWN_NODE_NAME,
     CommandGuard,
     Endpoint,
+    bounds_of,
     check_values,
     parse_program_state,
     run_token,
     sign_state,
+    within_bounds,
 )
 from feed_twin.nodeset.protection import (
     FAULT_CURRENT_LIMIT,
@@ -188,6 +190,13 @@ def test_command_values_and_program_states():
     assert check_values({"position": 0.4, "velocity": -0.1}) is None
     assert check_values({"position": math.nan}) == "position = nan"
     assert check_values({"i_q": 2e4}) == "i_q = 20000.0 beyond +/-10000"
+    # the per-exchange fast path agrees with check_values on every kind of value
+    bounds = bounds_of(("position", "i_q"))
+    for values in ((0.4, -1e4), (0.4, math.nan), (math.inf, 0.0), (-1e3, 2e4), (-1000.1, 0.0)):
+        named = dict(zip(("position", "i_q"), values, strict=True))
+        assert within_bounds(values, bounds) == (check_values(named) is None), values
+    with pytest.raises(ValueError, match="no ABSURD bound for line"):
+        bounds_of(("position", "line"))
     assert parse_program_state("finished 123") == ("finished", 123, "finished 123")
     assert parse_program_state("running") == ("running", None, "running")
     assert parse_program_state("finished notanumber") is None

@@ -1,9 +1,10 @@
 """The machine's node set (feed_twin/machine/nodes.py, feed_twin/ros/machine_run.py): a sim node
 per axis in its own process, the controller nodes of all axes in one process, one G-code node,
 one recorder; every axis equals its in-process exchanges, the contour error is in the bag, the
-bag holds the same bytes as with a controller process per axis and unpacked setpoints, a killed
-axis node or controller process stops the run naming the axes, and a machine file whose nodes
-do not fit its axes is refused in one line."""
+bag holds the same bytes as with a controller process per axis and unpacked setpoints and as
+with each axis's controller in its sim's process, a killed axis node or controller process
+stops the run naming the axes, and a machine file whose nodes do not fit its axes is refused
+in one line."""
 
 from __future__ import annotations
 
@@ -133,14 +134,24 @@ def _raw_topics(bag: str) -> dict[str, list[bytes]]:
 
 @pytest.mark.ros
 @pytest.mark.slow
-def test_one_controller_process_records_the_bytes_of_a_controller_process_per_axis(helix, tmp_path):
+@pytest.mark.parametrize(
+    ("ros", "processes"),
+    [
+        (
+            {"controller_processes": "per_axis", "command_batch": False},
+            ["recorder", "x_controller", "x_sim", "y_controller", "y_sim", "z_controller", "z_sim"],
+        ),
+        ({"controller_processes": "with_sim"}, ["recorder", "x_sim", "y_sim", "z_sim"]),
+    ],
+)
+def test_one_controller_process_records_the_bytes_of_the_other_layouts(
+    helix, tmp_path, ros, processes
+):
     program, shared = helix
-    config = machine_file(tmp_path, controller_processes="per_axis", command_batch=False)
-    per_axis = run_helix(tmp_path / "out", program, config)  # program_state names its path
-    processes = sorted(p.stem for p in Path(per_axis["logs"]).glob("*.log"))
-    assert processes == ["recorder", "x_controller", "x_sim", "y_controller", "y_sim",
-                         "z_controller", "z_sim"]  # fmt: skip
-    a, b = _raw_topics(shared["bag"]), _raw_topics(per_axis["bag"])
+    config = machine_file(tmp_path, **ros)
+    other = run_helix(tmp_path / "out", program, config)  # program_state names its path
+    assert sorted(p.stem for p in Path(other["logs"]).glob("*.log")) == processes
+    a, b = _raw_topics(shared["bag"]), _raw_topics(other["bag"])
     assert set(a) == set(b)
     # heartbeats and log lines carry wall time; every other topic is the run's result
     compared = [t for t in a if not t.endswith("/heartbeat") and t != "/rosout"]
@@ -156,16 +167,21 @@ def test_one_controller_process_records_the_bytes_of_a_controller_process_per_ax
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    ("victim", "named"),
+    ("victim", "ros", "named"),
     [
-        ("z_sim", "axis Z: z_sim node was killed by SIGKILL"),
-        ("controller", "axes X, Z: controller node was killed by SIGKILL"),
+        ("z_sim", {}, "axis Z: z_sim node was killed by SIGKILL"),
+        ("controller", {}, "axes X, Z: controller node was killed by SIGKILL"),
+        # Z's sim and controller in one process
+        ("z_sim", {"controller_processes": "with_sim"}, "axis Z: z_sim node was killed by SIGKILL"),
     ],
 )
-def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(tmp_path, victim, named):
+def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(
+    tmp_path, victim, ros, named
+):
     program = tmp_path / "long.ngc"
     program.write_text(LONG_PROGRAM)
-    argv = [str(program), "--config", str(MACHINE), "--out", str(tmp_path), "--name", "k"]
+    config = machine_file(tmp_path, **ros) if ros else MACHINE
+    argv = [str(program), "--config", str(config), "--out", str(tmp_path), "--name", "k"]
     logs = tmp_path / "k.logs"
     with reserve_domain_id() as domain:
         proc = start_run([*argv, "--axes", "X,Z", "--json"], domain.domain_id)
@@ -224,9 +240,11 @@ def _child_pid(parent: int, name: str) -> int:
             continue
         role = name.split("_")[1]
         axis_file = f"axis_{name.split('_')[0]}.yaml".encode()
-        if f"feed_twin.ros.{role}_node".encode() in cmdline and any(
-            arg.endswith(axis_file) for arg in cmdline
-        ):
+        # the node's own module, or a node host with that role (a sim and its controller)
+        runs = f"feed_twin.ros.{role}_node".encode() in cmdline or (
+            b"feed_twin.ros.host" in cmdline and role.encode() in cmdline
+        )
+        if runs and any(arg.endswith(axis_file) for arg in cmdline):
             return int(entry.name)
     raise AssertionError(f"no process {name} under {parent}")
 
@@ -242,7 +260,7 @@ def _child_pid(parent: int, name: str) -> int:
         ),
         (
             {"controller_processes": "one"},
-            r"ros.controller_processes = 'one': must be one of shared, per_axis$",
+            r"ros.controller_processes = 'one': must be one of shared, per_axis, with_sim$",
         ),
         ({"command_batch": "yes"}, r"ros.command_batch = 'yes': must be true or false$"),
         (

@@ -13,7 +13,7 @@ from nodes_support import AXIS_CONFIG, node_env
 
 from feed_twin.nodeset.split import load_node_set_config
 from feed_twin.ros.domain import reserve_domain_id
-from feed_twin.ros.host import host_argv, split_argv
+from feed_twin.ros.host import host_argv, split_argv, stops_at_first_failure
 from feed_twin.ros.run_cli import _processes
 
 
@@ -31,6 +31,14 @@ def test_a_host_takes_a_controller_node_per_axis() -> None:
         ("controller", ["--config", "axis_y.yaml"]),
     ]
     assert split_argv(host_argv(nodes)) == nodes
+
+
+def test_a_host_ends_at_its_first_failure_unless_it_holds_the_recorder() -> None:
+    assert stops_at_first_failure(["controller", "controller", "controller"])
+    assert stops_at_first_failure(["sim", "controller"])  # ros.controller_processes: with_sim
+    assert not stops_at_first_failure(["recorder", "gcode"])
+    assert not stops_at_first_failure(["sim", "recorder"])  # a single axis's sim + recorder
+    assert not stops_at_first_failure(["sim"])
 
 
 # Two nodes of one role in one process, as a machine's controllers: X's fails at once, Y's

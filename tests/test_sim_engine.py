@@ -225,6 +225,23 @@ def test_held_inputs_give_the_bits_of_inputs_repeated_per_tick():
     assert np.max(np.abs(held["table.s"])) > 1e-4  # the axis moved
 
 
+def test_advance_held_gives_the_bits_of_advance_one_period_at_a_time():
+    axis = load_axis_config("config/axis_default.yaml")
+    dec = 16  # one 1 ms exchange of 62.5 us ticks per call, as the sim node's drive host
+    rows = np.zeros((40, 1, sig.REF_SIZE))
+    rows[:, 0, sig.REF_POS_M] = 2e-6 * np.arange(40) ** 2
+    rows[:, 0, sig.REF_VEL_M_S] = 4e-3 * np.arange(40)
+    plain, held = (build_engine(axis, output_period_s=1e-3) for _ in range(2))
+    expected = np.concatenate([plain.advance(dec, ref=row, hold=dec).data for row in rows])
+    got = np.array([held.advance_held(row).copy() for row in rows])  # a view: copied at once
+    assert np.array_equal(expected, got)
+    assert held.k == plain.k == 40 * dec
+    assert np.max(np.abs(got[:, held.record_names.index("table.s")])) > 1e-5  # it moved
+    held.k += 1
+    with pytest.raises(ValueError, match=r"advance_held: at tick 641 with ref of shape \(1, "):
+        held.advance_held(rows[0])
+
+
 def test_noise_drawn_ahead_by_another_engine_gives_the_bits_of_drawing_in_the_loop():
     axis = load_axis_config("config/axis_default.yaml")
     ref = np.zeros((800, sig.REF_SIZE))

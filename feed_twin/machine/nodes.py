@@ -43,8 +43,10 @@ RECORDER_PROCESS = "recorder"  # hosts the recorder and the G-code node
 CONTROLLER_PROCESS = "controller"  # hosts every axis's controller node (shared layout)
 # ros.controller_processes: "shared", one process for every axis's controller node (a CNC has
 # one control for all its axes, and fewer busy processes share the cores better,
-# docs/performance.md); "per_axis", a process per axis's controller node
-CONTROLLER_LAYOUTS = ("shared", "per_axis")
+# docs/performance.md); "per_axis", a process per axis's controller node; "with_sim", each
+# axis's controller node in its sim's process (`<axis>_sim`): the exchange's DriveCommand and
+# feedback then pass within one process and one thread, without a datagram or a wake-up
+CONTROLLER_LAYOUTS = ("shared", "per_axis", "with_sim")
 # ros.command_batch: true, the G-code node sends each axis's controller the setpoints one clock
 # message lets it publish as one message (gcode_node --command-batch); false, one each
 MACHINE_ROS_KEYS = ("controller_processes", "command_batch")  # the machine's own, not an axis's
@@ -196,16 +198,20 @@ class NodePlan:
             out[RECORDER_PROCESS].append((role, ["--config", str(self.files[first]), "--peers",
                                                  peers, *common, *shared, *extra]))  # fmt: skip
         for axis in self.axes:
+            nodes = {}
             for role in axis_roles:
                 peers = ",".join(p for p in ("recorder", "gcode", *axis_roles) if p != role)
                 extra = {"sim": ["--axis-clock"] + (["--realtime"] if realtime else []),
                          "controller": batch}[role]  # fmt: skip
                 argv = ["--config", str(self.files[axis]), "--peers", peers, *common]
-                node = (role, argv + extra)
-                if role == "controller" and self.controller_processes == "shared":
-                    out.setdefault(CONTROLLER_PROCESS, []).append(node)
-                else:
-                    out[process_name(axis, role)] = [node]
+                nodes[role] = (role, argv + extra)
+            if self.controller_processes == "shared":
+                out.setdefault(CONTROLLER_PROCESS, []).append(nodes["controller"])
+            elif self.controller_processes == "per_axis":
+                out[process_name(axis, "controller")] = [nodes["controller"]]
+            # with_sim: the sim first (the run's clock and timing are its process's first node)
+            with_sim = [nodes["controller"]] if self.controller_processes == "with_sim" else []
+            out[process_name(axis, "sim")] = [nodes["sim"], *with_sim]
         return out
 
     def axes_of_process(self, name: str) -> tuple[str, ...]:

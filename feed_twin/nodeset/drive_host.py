@@ -162,8 +162,7 @@ class DriveHost:
         self._signal_sign = np.array(
             [math.nan if not n else (-1.0 if n[0] == "-" else 1.0) for n in names]
         )
-        self._ref = np.zeros((self.ticks, sig.REF_SIZE))
-        self._row = np.zeros(sig.REF_SIZE)
+        self._row = np.zeros((1, sig.REF_SIZE))  # the reference held over an exchange
         self._prev_v: float | None = None
         self.modulator = engine.controller is None  # open loop: MODE_VOLTAGE only
         self._drive = np.zeros((self.ticks, sig.OUT_SIZE))
@@ -207,7 +206,8 @@ class DriveHost:
 
     def advance(self, setpoint: DriveSetpoint | None) -> tuple[int, np.ndarray]:
         """Hold `setpoint` (None: keep the previous one) over one exchange; returns the exchange
-        instant t_k [ns] and the engine row recorded there (names: `engine.record_names`)."""
+        instant t_k [ns] and the engine row recorded there (names: `engine.record_names`; valid
+        until the next call)."""
         if setpoint is not None:
             if (setpoint.mode == MODE_VOLTAGE) != self.modulator:
                 raise ValueError(
@@ -218,15 +218,14 @@ class DriveHost:
             self.setpoint = setpoint
         sp = self.setpoint
         if self.modulator:
-            result = self.engine.advance(self.ticks, drive=self._modulate(sp))
+            row = self.engine.advance(self.ticks, drive=self._modulate(sp)).data[0]
         else:
             (enable if sp.enable else disable)(self.engine.cs)
-            drive_reference(sp, self.K_t, self._row)
-            self._ref[:] = self._row
-            result = self.engine.advance(self.ticks, self._ref)
+            drive_reference(sp, self.K_t, self._row[0])
+            row = self.engine.advance_held(self._row)
         t_ns = self.t_ns
         self.k += 1
-        return t_ns, result.data[0]
+        return t_ns, row
 
     def _modulate(self, sp: DriveSetpoint) -> np.ndarray:
         """Open-loop drive rows (duties, enabled) of one exchange for a MODE_VOLTAGE setpoint."""

@@ -21,7 +21,8 @@ Pure: the ROS side (feed_twin.ros) passes decoded fields and graph entries in.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+import operator
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 RUN_TOKEN_ENV = "FEED_TWIN_RUN_TOKEN"
@@ -60,6 +61,22 @@ def check_values(values: Mapping[str, float]) -> str | None:
         if bound is not None and abs(value) > bound:
             return f"{name} = {value!r} beyond +/-{bound:g}"
     return None
+
+
+def bounds_of(names: Sequence[str]) -> tuple[float, ...]:
+    """The ABSURD bound of each of `names`, for `within_bounds` (every name must have one)."""
+    unknown = [name for name in names if name not in ABSURD]
+    if unknown:
+        raise ValueError(f"no ABSURD bound for {', '.join(unknown)}")
+    return tuple(ABSURD[name] for name in names)
+
+
+def within_bounds(values: Sequence[float], bounds: Sequence[float]) -> bool:
+    """`check_values`'s fast answer for the common case: every value within its bound. A NaN
+    or infinite value fails (`abs(nan) <= b` is false, and every bound is finite), and so
+    does any value beyond its bound: then `check_values` says why. Called per exchange:
+    one C-level pass instead of a dict and a loop in Python."""
+    return all(map(operator.le, map(abs, values), bounds))
 
 
 def sign_state(text: str, token: str) -> str:

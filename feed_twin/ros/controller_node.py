@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import collections
 import contextlib
+import operator
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,7 +31,7 @@ from feed_twin.control.config import ControllerConfig, load_controller_config
 from feed_twin.core import signals as sig
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError, load_yaml
-from feed_twin.nodeset.guard import check_values, parse_program_state
+from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
 from feed_twin.nodeset.record_batch import messages_of
 from feed_twin.nodeset.split import (
     NS_PER_S,
@@ -61,17 +62,13 @@ class MessageIO:
         self.command = AXIS_COMMAND.fixed({"axis": axis_label, "header.frame_id": nc_token})
         self.feedback = AXIS_FEEDBACK.fixed({"axis": axis_label})
         self.drive = DRIVE_COMMAND.fixed({"axis": axis_label, "header.frame_id": token})
-        self._nc = [
-            self.command.index(n)
-            for n in (
-                "header.stamp.sec", "header.stamp.nanosec", "position", "velocity",
-                "acceleration", "line",
+        self._nc = operator.itemgetter(*(self.command.index(n) for n in _NC_FIELDS))
+        self._fb = operator.itemgetter(
+            *(
+                self.feedback.index(n)
+                for n in ("header.stamp.sec", "header.stamp.nanosec", *_MEAS_FIELDS)
             )
-        ]  # fmt: skip
-        self._fb = [
-            self.feedback.index(n)
-            for n in ("header.stamp.sec", "header.stamp.nanosec", *_MEAS_FIELDS)
-        ]
+        )
         expected = (
             "header.stamp.sec", "header.stamp.nanosec", "mode", "enable", "position",
             "velocity", "torque", "i_q", "i_d", "u_d", "u_q", "effort",
@@ -79,9 +76,14 @@ class MessageIO:
         if self.drive.numbers != expected:
             raise ValueError(f"DriveCommand fields {self.drive.numbers} != {expected}")
 
-    def nc_sample(self, data: bytes) -> NcSample:
-        values = self.command.decode(data)
-        sec, nsec, x, v, a, line = (values[i] for i in self._nc)
+    def nc_values(self, data: bytes) -> tuple:
+        """The `_NC_FIELDS` of AxisCommand bytes, in that order."""
+        return self._nc(self.command.decode(data))
+
+    @staticmethod
+    def nc_sample_of(values: tuple) -> NcSample:
+        """The NcSample of `values` (the `_NC_FIELDS`)."""
+        sec, nsec, x, v, a, line = values
         return NcSample(
             t_ns=sec * NS_PER_S + nsec,
             position_m=x,
@@ -92,10 +94,9 @@ class MessageIO:
 
     def feedback_sample(self, data: bytes, out: np.ndarray) -> int:
         """Fill the MEAS_* vector from AxisFeedback bytes; returns the stamp [ns]."""
-        values = self.feedback.decode(data)
-        sec, nsec, *meas = (values[i] for i in self._fb)
-        out[:] = meas
-        return sec * NS_PER_S + nsec
+        values = self._fb(self.feedback.decode(data))
+        out[:] = values[2:]
+        return values[0] * NS_PER_S + values[1]
 
     def drive_command(self, sp: DriveSetpoint) -> bytes:
         sec, nsec = divmod(sp.t_ns, NS_PER_S)
@@ -107,6 +108,13 @@ class MessageIO:
         )  # fmt: skip
 
 
+# The AxisCommand numbers a controller reads, and those that may not be absurd (as
+# `check_values` names them; the position, velocity and acceleration, in this order).
+_NC_FIELDS = (
+    "header.stamp.sec", "header.stamp.nanosec", "position", "velocity", "acceleration", "line",
+)  # fmt: skip
+_NC_CHECKED = ("position", "velocity", "acceleration")
+_NC_CHECKED_BOUNDS = bounds_of(_NC_CHECKED)
 # AxisFeedback fields of the MEAS_* slots, in slot order.
 _MEAS_FIELDS = ("encoder_angle", "scale_position", "i_a", "i_b", "i_c", "u_dc")
 assert len(_MEAS_FIELDS) == sig.MEAS_SIZE
@@ -212,20 +220,17 @@ class ControllerNode(FeedTwinNode):
             self._guard.refuse("token", topic, "not from this run's G-code node (run token)")
             return False
         try:
-            sample = self.io.nc_sample(data)
+            values = self.io.nc_values(data)
         except Exception as exc:  # noqa: BLE001 - any undecodable message is dropped, not fatal
             self._guard.refuse("malformed", topic, f"undecodable ({type(exc).__name__})")
             return False
-        bad = check_values(
-            {
-                "position": sample.position_m,
-                "velocity": sample.velocity_m_s,
-                "acceleration": sample.acceleration_m_s2,
-            }
-        )
-        if bad is not None:
-            self._guard.refuse("values", topic, bad)
-            return False
+        checked = values[2:5]
+        if not within_bounds(checked, _NC_CHECKED_BOUNDS):
+            bad = check_values(dict(zip(_NC_CHECKED, checked, strict=True)))
+            if bad is not None:
+                self._guard.refuse("values", topic, bad)
+                return False
+        sample = self.io.nc_sample_of(values)
         self.nc.add(sample)
         self._command_dog.feed()
         return True

@@ -67,6 +67,14 @@ def split_argv(argv: Sequence[str]) -> list[tuple[str, list[str]]]:
     return nodes
 
 
+def stops_at_first_failure(roles: Sequence[str]) -> bool:
+    """Whether a host of nodes with `roles` ends at its first failing node: a machine's
+    controllers, or an axis's sim and controller, where one node failing is the run's failure
+    and the runner should stop the run naming it at once, as for a process of that node alone.
+    With the recorder (recorder + G-code) the nodes finish together: it records to the end."""
+    return len(roles) > 1 and "recorder" not in roles
+
+
 def build_nodes(nodes: Sequence[tuple[str, Sequence[str]]], context) -> list:
     """Build each node with its module's own argument parser and `build`, in `context`."""
     from feed_twin.nodeset.split import load_node_set_config
@@ -90,12 +98,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"node host: {exc}", file=sys.stderr)
         return EXIT_ERROR
     prog = "node host (" + " + ".join(role for role, _ in nodes) + ")"
-    # Nodes of one role serve different axes (a machine's controllers): one failing is the
-    # run's failure, and the process ends at once so that the runner stops the run naming it,
-    # as a process of that node alone would. Nodes of different roles (recorder + G-code)
-    # finish together: the recorder records until the end.
-    one_role = len({role for role, _ in nodes}) == 1 and len(nodes) > 1
-    return start_node(prog, lambda context: build_nodes(nodes, context), stop_on_failure=one_role)
+    return start_node(
+        prog,
+        lambda context: build_nodes(nodes, context),
+        stop_on_failure=stops_at_first_failure([role for role, _ in nodes]),
+    )
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ import contextlib
 import dataclasses
 import json
 import math
+import operator
 import sys
 import time
 from collections.abc import Sequence
@@ -37,7 +38,7 @@ from std_msgs.msg import String
 from feed_twin.core import signals as sig
 from feed_twin.io.cdr import FlatCodec, JointStateLayout
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost, build_drive_host
-from feed_twin.nodeset.guard import check_values, parse_program_state
+from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
 from feed_twin.nodeset.pacing import pacing_report
 from feed_twin.nodeset.protection import DriveProtection, Trip, protection_for_config
 from feed_twin.nodeset.split import NS_PER_S, DriveSetpoint
@@ -94,6 +95,11 @@ _COMMAND_FIELDS = (
     "u_d",
     "u_q",
 )
+# The command values a setpoint may not take absurd (feed_twin.nodeset.guard), as `check_values`
+# names them, and where they start in `_COMMAND_FIELDS` (position .. u_q, in this order).
+_CHECKED = ("position", "velocity", "torque", "i_q", "i_d", "u_d", "u_q")
+_CHECKED_FROM = _COMMAND_FIELDS.index("position")
+_CHECKED_BOUNDS = bounds_of(_CHECKED)
 
 
 class CommandReader:
@@ -102,11 +108,16 @@ class CommandReader:
 
     def __init__(self, axis_label: str, token: str = "") -> None:
         self.layout = DRIVE_COMMAND.fixed({"axis": axis_label, "header.frame_id": token})
-        self._pick = [self.layout.index(n) for n in _COMMAND_FIELDS]
+        self._pick = operator.itemgetter(*(self.layout.index(n) for n in _COMMAND_FIELDS))
 
-    def __call__(self, data: bytes) -> DriveSetpoint:
-        values = self.layout.decode(data)
-        sec, nsec, mode, enable, x, v, tau, i_q, i_d, u_d, u_q = (values[i] for i in self._pick)
+    def values(self, data: bytes) -> tuple:
+        """The `_COMMAND_FIELDS` of DriveCommand bytes, in that order."""
+        return self._pick(self.layout.decode(data))
+
+    @staticmethod
+    def setpoint(values: tuple) -> DriveSetpoint:
+        """The DriveSetpoint of `values` (the `_COMMAND_FIELDS`)."""
+        sec, nsec, mode, enable, x, v, tau, i_q, i_d, u_d, u_q = values
         return DriveSetpoint(
             t_ns=sec * NS_PER_S + nsec,
             mode=mode,
@@ -119,6 +130,9 @@ class CommandReader:
             u_d_V=u_d,
             u_q_V=u_q,
         )
+
+    def __call__(self, data: bytes) -> DriveSetpoint:
+        return self.setpoint(self.values(data))
 
 
 def setpoint_from(data: bytes) -> DriveSetpoint:
@@ -320,25 +334,22 @@ class SimNode(FeedTwinNode):
         """The setpoint of a DriveCommand of this run with usable values, else None (refused
         with a warning: another publisher's message, garbage, NaN)."""
         topic = self.topics.drive_command
-        if self._guard.token and not self._read_command.layout.matches(data):
+        reader = self._read_command
+        if self._guard.token and not reader.layout.matches(data):
             self._guard.refuse("token", topic, "not from this run's controller (run token)")
             return None
         try:
-            setpoint = self._read_command(data)
+            values = reader.values(data)
         except Exception as exc:  # noqa: BLE001 - any undecodable message is dropped, not fatal
             self._guard.refuse("malformed", topic, f"undecodable ({type(exc).__name__})")
             return None
-        bad = check_values(
-            {
-                "position": setpoint.position_m, "velocity": setpoint.velocity_m_s,
-                "torque": setpoint.torque_Nm, "i_q": setpoint.i_q_A, "i_d": setpoint.i_d_A,
-                "u_d": setpoint.u_d_V, "u_q": setpoint.u_q_V,
-            }
-        )  # fmt: skip
-        if bad is not None:
-            self._guard.refuse("values", topic, bad)
-            return None
-        return setpoint
+        checked = values[_CHECKED_FROM:]
+        if not within_bounds(checked, _CHECKED_BOUNDS):
+            bad = check_values(dict(zip(_CHECKED, checked, strict=True)))
+            if bad is not None:
+                self._guard.refuse("values", topic, bad)
+                return None
+        return reader.setpoint(values)
 
     def _exchange(self, setpoint: DriveSetpoint | None) -> None:
         if self.end_ns is not None and self.host.t_ns > self.end_ns:

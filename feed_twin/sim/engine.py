@@ -173,6 +173,8 @@ class Engine:
         # no noise drawn ahead: the kernel draws a run's own (run_batch shares tables)
         self._no_normals = np.zeros((0, self.kernel.N_NOISE))
         self._zeros: dict[tuple[int, int], np.ndarray] = {}  # absent inputs (the kernel reads)
+        # advance_held's record row, status and zero drive and external inputs
+        self._held: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self.reset()
 
     @property
@@ -316,6 +318,34 @@ class Engine:
         if status[0] != 0.0:
             raise DivergenceError(divergence_message(self.model, status, self.h))
         return SimResult(t=rec_ticks * self.h, names=self.record_names, data=rec)
+
+    def advance_held(self, ref: np.ndarray) -> np.ndarray:
+        """One recorded period (`dec` ticks) from a recorded tick with the reference row `ref`
+        (shape (1, REF_SIZE)) held over it, no drive or external input: `advance(dec, ref,
+        hold=dec)` without its per-call arrays, for a host that advances one exchange per call
+        thousands of times a second (feed_twin.nodeset.drive_host). Returns the one recorded
+        row, a view valid until the next call."""
+        k0 = self.k
+        if k0 % self.dec or ref.shape != (1, signals.REF_SIZE):
+            raise ValueError(
+                f"advance_held: at tick {k0} with ref of shape {ref.shape}: needs a recorded "
+                f"tick (a multiple of {self.dec}) and shape (1, {signals.REF_SIZE})"
+            )
+        if self._held is None:
+            _, drive, ext = self.tick_inputs(1)
+            self._held = (np.empty((1, len(self.sel))), np.zeros(4), drive, ext)
+        rec, status, drive, ext = self._held
+        done = self.kernel.advance(
+            self.x, self.p, self.cp, self.cs, k0, self.dec, ref, drive, ext, self.dec, self.seed,
+            self._no_normals, self.ring, self.out, self.h, self.dec, self.sel, rec,
+            self.model.state_limits, status, self.work,
+        )  # fmt: skip
+        self.k = k0 + done
+        if status[0] != 0.0:
+            message = divergence_message(self.model, status, self.h)
+            status[:] = 0.0
+            raise DivergenceError(message)
+        return rec[0]
 
     @property
     def noise_key(self) -> tuple[int, tuple[int, ...]]:
