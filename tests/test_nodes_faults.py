@@ -17,6 +17,7 @@ from nodes_support import AXIS_CONFIG, ROOT, last_json, node_env, run, start_run
 
 from feed_twin.io.bag import BagReader, info
 from feed_twin.ros.domain import reserve_domain_id
+from feed_twin.ros.exit_timer import exit_after
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 SAMPLE = ROOT / "tests" / "fixtures" / "gcode" / "sample.ngc"  # about 7 s of motion
@@ -261,6 +262,31 @@ def test_missing_or_mistyped_command_stream_is_reported(
     assert code == 4, err
     assert "no feed_twin_msgs/msg/AxisCommand message on /cnc/x/command for 2 s" in err
     assert re.search(expected, err), err
+
+
+def test_a_teardown_that_holds_the_gil_ends_the_node_process_with_its_code() -> None:
+    """A teardown spinning in C with the GIL held (rclpy's events executor waiting for a DDS
+    thread that waits for the GIL) stops every Python thread; the process still ends with its
+    nodes' code, from libc's timer thread, one second after the limit."""
+    script = (
+        "import ctypes\n"
+        "from feed_twin.ros.runtime import exit_if_teardown_hangs\n"
+        "exit_if_teardown_hangs(0.3, 3)\n"
+        "ctypes.PyDLL(None).sleep(30)\n"  # a C call that keeps the GIL
+    )
+    started = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=20.0
+    )
+    assert time.monotonic() - started < 15.0
+    assert done.returncode == 3, done.stderr
+    assert "teardown: DDS did not finish" not in done.stderr  # no Python thread ran
+
+
+@pytest.mark.parametrize(("delay_s", "code"), [(0.0, 1), (1.0, 256), (1.0, -1)])
+def test_the_exit_timer_refuses_what_it_cannot_do(delay_s, code) -> None:
+    with pytest.raises(ValueError, match=r"must be > 0|must lie in \[0, 255\]"):
+        exit_after(delay_s, code)
 
 
 def test_a_hung_dds_teardown_ends_the_node_process_with_its_code() -> None:

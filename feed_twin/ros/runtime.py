@@ -51,6 +51,7 @@ from std_msgs.msg import String
 
 from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
 from feed_twin.ros.dds import HEARTBEAT_QOS, LATCHED_QOS, init_context
+from feed_twin.ros.exit_timer import exit_after
 
 EXIT_OK = 0
 EXIT_ERROR = 1  # a configuration, program or runtime error; the message says which
@@ -70,6 +71,9 @@ SIGNAL_DRAIN_S = 30.0  # [s] nodes may take after SIGINT/SIGTERM to finish (reco
 # A node process leaves without DDS's teardown after this long: deleting a reliable writer whose
 # reader was killed can block for many seconds, and by then outputs are closed and logged.
 TEARDOWN_LIMIT_S = 2.0
+# [s] after that, the process leaves from outside Python: a teardown that spins in rclpy's events
+# executor with the GIL held (a DDS thread waiting for the GIL) stops every Python thread
+GIL_HELD_GRACE_S = 1.0
 PEER_TIMEOUT_S = 0.8  # noticed within 0.9 s; 0.6 s gave false alarms on a machine at load 9
 # Diagnosis: with FEED_TWIN_STALL_DUMP_S=0.5 in its environment, a node whose spin loop does not
 # come back within 0.5 s prints every thread's Python stack to its log (faulthandler: it works
@@ -563,6 +567,10 @@ def spin_nodes(
 
 
 def exit_if_teardown_hangs(limit_s: float, code: int) -> None:
+    """Leave with `code` once the teardown has taken `limit_s`: from a Python thread with a
+    line saying so, or, if a C call holds the GIL so that no Python thread runs, silently one
+    second later from libc's own timer thread (feed_twin.ros.exit_timer)."""
+
     def leave() -> None:
         message = f"teardown: DDS did not finish within {limit_s} s; leaving"
         print(message, file=sys.stderr, flush=True)
@@ -571,6 +579,7 @@ def exit_if_teardown_hangs(limit_s: float, code: int) -> None:
     timer = threading.Timer(limit_s, leave)
     timer.daemon = True
     timer.start()
+    exit_after(limit_s + GIL_HELD_GRACE_S, code)
 
 
 def node_parser(prog: str, configure: Callable[[argparse.ArgumentParser], None]):
