@@ -1,9 +1,9 @@
 """Speed of the machine's node set (issue 18): the last printed line is one JSON object.
 
 - lockstep_realtime_factor: `feed-twin run PROGRAM --config config/machine_default.yaml`, the
-  three linear axes each with a sim node in its own process, their three controller nodes in
-  one process (ros.controller_processes: shared), the G-code node with the recorder (five
-  processes), 1 kHz exchange, in lockstep: simulated time over the wall time of the first
+  three linear axes each with a sim node in its own process and its controller node beside it
+  (ros.controller_processes: with_sim), the G-code node with the recorder (four processes),
+  1 kHz exchange, in lockstep: simulated time over the wall time of the first
   axis's sim from its first to its last exchange (goal >= 2 on this 2-core machine).
 - cpu_us_per_exchange: per process (its log's name) its CPU time after set-up (numba
   compilation and DDS discovery excluded) per exchange, and their sum; comparable on a busy
@@ -12,20 +12,20 @@
   lateness p50/p99/max of the first axis's exchanges and its missed steps.
 - with `--hosts` (root): the same lockstep run split over two network namespaces joined by a
   veth pair (feed_twin/ros/netns.py), the sims in one and the G-code, controller and recorder
-  nodes in the other, so that every exchange crosses the link twice; reported beside the
-  one-host run: wall time per exchange (1 / (realtime factor x 1 kHz)) on each, and the
-  difference, the cost of the link per exchange (two one-way trips); also the link's round
-  trip of one UDP datagram (p50/p99 of 2000, from Python), for scale.
+  nodes in the other (ros.controller_processes: shared), so that every exchange crosses the
+  link twice; reported beside the one-host run: wall time per exchange (1 / (realtime factor
+  x 1 kHz)) on each, and the difference, the cost of the link per exchange (two one-way
+  trips); also the link's round trip of one UDP datagram (p50/p99 of 2000, from Python).
 
 - with `--against KEY=VALUE` (repeatable): each lockstep run of the machine file is followed
-  by one of a copy with those `ros:` fields (controller_processes=per_axis
-  command_batch=false: the layout before one controller process; controller_processes=with_sim:
-  each axis's controller in its sim's process), interleaved `--repeat`
+  by one of a copy with those `ros:` fields (controller_processes=shared: every axis's
+  controller in one process; with per_axis and command_batch=false: a process per controller
+  and a datagram per setpoint), interleaved `--repeat`
   times; per run the realtime factor, the CPU per exchange of every process and in all, and
   the load average at its start and end. `--before N` is `--against record_batch=N`.
 
     .venv/bin/python benchmarks/machine_nodes.py [--lockstep-seconds 10] [--realtime-seconds 0]
-        [--hosts] [--against controller_processes=per_axis --against command_batch=false]
+        [--hosts] [--against controller_processes=shared]
         [--before 0] [--repeat 3]
 """
 
@@ -144,7 +144,10 @@ def run_on_two_hosts(directory: Path, seconds: float) -> dict:
     from feed_twin.nodeset.guard import RUN_TOKEN_ENV
     from feed_twin.ros.netns import linked_namespaces
 
-    args = command(directory, "hosts", seconds)
+    # the controllers on the NC's side, away from the sims' processes
+    args = command(
+        directory, "hosts", seconds, machine_with(directory, {"controller_processes": "shared"})
+    )
     with reserve_domain_id() as domain, linked_namespaces("fb", directory) as (axes, nc):
         base = {**os.environ, RUN_TOKEN_ENV: os.urandom(8).hex()}
         args += ["--domain-id", str(domain.domain_id), "--start"]

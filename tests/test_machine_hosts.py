@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 import pytest
-from test_machine_nodes import MACHINE, PROGRAM, in_process_positions
+from test_machine_nodes import MACHINE, PROGRAM, in_process_positions, machine_file
 
 from feed_twin.io.bag import BagReader
 from feed_twin.machine.config import load_machine_config
@@ -51,10 +51,12 @@ def test_axis_nodes_on_another_host_give_the_same_exchanges(tmp_path):
     program = tmp_path / "helix.ngc"
     program.write_text(PROGRAM)
     before = _namespaces()
+    # the controllers on the NC's side: out of the sims' processes
+    shared = machine_file(tmp_path, controller_processes="shared")
     with reserve_domain_id() as domain, linked_namespaces("ft", tmp_path) as (axes, nc):
         base = {**os.environ, RUN_TOKEN_ENV: secrets.token_hex(8)}
         argv = [
-            sys.executable, "-m", "feed_twin.cli", "run", str(program), "--config", str(MACHINE),
+            sys.executable, "-m", "feed_twin.cli", "run", str(program), "--config", str(shared),
             "--domain-id", str(domain.domain_id), "--json",
         ]  # fmt: skip
         procs = {

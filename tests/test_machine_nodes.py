@@ -1,8 +1,8 @@
 """The machine's node set (feed_twin/machine/nodes.py, feed_twin/ros/machine_run.py): a sim node
-per axis in its own process, the controller nodes of all axes in one process, one G-code node,
-one recorder; every axis equals its in-process exchanges, the contour error is in the bag, the
-bag holds the same bytes as with a controller process per axis and unpacked setpoints and as
-with each axis's controller in its sim's process, a killed axis node or controller process
+per axis in its own process with its axis's controller node, one G-code node, one recorder;
+every axis equals its in-process exchanges, the contour error is in the bag, the bag holds the
+same bytes as with a controller process per axis and unpacked setpoints and as with the
+controllers of all axes in one process, a killed axis node or controller process
 stops the run naming the axes, and a machine file whose nodes do not fit its axes is refused
 in one line."""
 
@@ -25,7 +25,7 @@ from feed_twin.cli import main as cli_main
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag import BagReader, info
 from feed_twin.machine.config import load_machine_config
-from feed_twin.machine.nodes import write_axis_files
+from feed_twin.machine.nodes import chosen_processes, node_plan, write_axis_files
 from feed_twin.nodeset.drive_host import Lockstep, build_drive_host, nc_samples
 from feed_twin.nodeset.split import NS_PER_S, ControllerCore, load_node_set_config
 from feed_twin.ros.domain import reserve_domain_id
@@ -79,7 +79,8 @@ def run_helix(directory: Path, program: Path, config: Path = MACHINE) -> dict:
 
 @pytest.fixture(scope="module")
 def helix(tmp_path_factory) -> tuple[Path, dict]:
-    """The helix on the machine file as it is (one controller process, packed setpoints)."""
+    """The helix on the machine file as it is (each controller in its sim's process, packed
+    setpoints)."""
     directory = tmp_path_factory.mktemp("shared")
     program = directory / "helix.ngc"
     return program, run_helix(directory / "out", program)
@@ -92,7 +93,7 @@ def test_three_axes_in_their_own_nodes_equal_their_in_process_exchanges(helix):
     assert set(record["following_error_max_m"]) == {"x", "y", "z"}
     processes = sorted(p.stem for p in Path(record["logs"]).glob("*.log"))
     assert Path(record["rrd"]).stat().st_size > 10_000
-    assert processes == ["controller", "recorder", "x_sim", "y_sim", "z_sim"]
+    assert processes == ["recorder", "x_sim", "y_sim", "z_sim"]
     reader = BagReader(record["bag"])
     files = write_axis_files(load_machine_config(MACHINE), settle_s=0.2)  # the run's files
     states = {}
@@ -141,17 +142,15 @@ def _raw_topics(bag: str) -> dict[str, list[bytes]]:
             {"controller_processes": "per_axis", "command_batch": False},
             ["recorder", "x_controller", "x_sim", "y_controller", "y_sim", "z_controller", "z_sim"],
         ),
-        ({"controller_processes": "with_sim"}, ["recorder", "x_sim", "y_sim", "z_sim"]),
+        ({"controller_processes": "shared"}, ["controller", "recorder", "x_sim", "y_sim", "z_sim"]),
     ],
 )
-def test_one_controller_process_records_the_bytes_of_the_other_layouts(
-    helix, tmp_path, ros, processes
-):
-    program, shared = helix
+def test_every_controller_layout_records_the_same_bytes(helix, tmp_path, ros, processes):
+    program, default = helix
     config = machine_file(tmp_path, **ros)
     other = run_helix(tmp_path / "out", program, config)  # program_state names its path
     assert sorted(p.stem for p in Path(other["logs"]).glob("*.log")) == processes
-    a, b = _raw_topics(shared["bag"]), _raw_topics(other["bag"])
+    a, b = _raw_topics(default["bag"]), _raw_topics(other["bag"])
     assert set(a) == set(b)
     # heartbeats and log lines carry wall time; every other topic is the run's result
     compared = [t for t in a if not t.endswith("/heartbeat") and t != "/rosout"]
@@ -169,10 +168,14 @@ def test_one_controller_process_records_the_bytes_of_the_other_layouts(
 @pytest.mark.parametrize(
     ("victim", "ros", "named"),
     [
-        ("z_sim", {}, "axis Z: z_sim node was killed by SIGKILL"),
-        ("controller", {}, "axes X, Z: controller node was killed by SIGKILL"),
         # Z's sim and controller in one process
-        ("z_sim", {"controller_processes": "with_sim"}, "axis Z: z_sim node was killed by SIGKILL"),
+        ("z_sim", {}, "axis Z: z_sim node was killed by SIGKILL"),
+        ("z_sim", {"controller_processes": "shared"}, "axis Z: z_sim node was killed by SIGKILL"),
+        (
+            "controller",
+            {"controller_processes": "shared"},
+            "axes X, Z: controller node was killed by SIGKILL",
+        ),
     ],
 )
 def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(
@@ -260,7 +263,7 @@ def _child_pid(parent: int, name: str) -> int:
         ),
         (
             {"controller_processes": "one"},
-            r"ros.controller_processes = 'one': must be one of shared, per_axis, with_sim$",
+            r"ros.controller_processes = 'one': must be one of with_sim, shared, per_axis$",
         ),
         ({"command_batch": "yes"}, r"ros.command_batch = 'yes': must be true or false$"),
         (
@@ -281,3 +284,22 @@ def test_nodes_that_do_not_fit_the_axes_are_refused_in_one_line(tmp_path, capsys
     assert re.search(message, reason), reason
     assert not (tmp_path / "m").exists()
     assert not (tmp_path / "m.logs").exists()
+
+
+def test_start_splits_roles_only_where_their_processes_split(tmp_path, capsys):
+    """`--start` by role on two computers: each side starts the processes of its roles, and a
+    process that also hosts a role of the other side (a sim with its controller) is refused."""
+    program = tmp_path / "p.ngc"
+    program.write_text(PROGRAM)
+    argv = ["run", str(program), "--config", str(MACHINE), "--out", str(tmp_path), "--name", "m"]
+    assert cli_main([*argv, "--start", "sim", "--json"]) == 1
+    reason = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["reason"]
+    assert reason == (
+        "--start sim: process x_sim also runs controller; name the process, "
+        "or split the roles with ros.controller_processes: shared"
+    )
+    assert not (tmp_path / "m.logs").exists()
+    plan = node_plan(load_machine_config(machine_file(tmp_path, controller_processes="shared")))
+    processes = plan.processes(program=program, bag=tmp_path / "m", realtime=False, common=[])
+    assert chosen_processes(processes, "sim") == ["x_sim", "y_sim", "z_sim"]
+    assert chosen_processes(processes, "gcode,controller,recorder") == ["recorder", "controller"]

@@ -2,10 +2,13 @@
 
 Per simulated axis a sim (drive) node and a controller node in the axis's namespace
 `/<machine>/<axis>` (the single-axis nodes, feed_twin/ros/*_node.py, unchanged in what they
-compute); each sim in its own process, and the controller nodes of every axis together in one
-process (`ros.controller_processes: shared`, the default: a CNC has one control for all its
-axes, and on two cores five busy processes share them better than seven) or each in its own
-(`per_axis`); one G-code node that commands every NC axis and one recorder
+compute); each sim in its own process with its axis's controller node beside it
+(`ros.controller_processes: with_sim`, the default: a drive closes its axis's loops itself, as a
+CiA 402 drive in cyclic synchronous position mode does, and the exchange between controller and
+drive then costs no datagram; docs/performance.md), or the controller nodes of every axis
+together in one process (`shared`: one control for all axes, the NC's side of a link between
+computers) or each in its own (`per_axis`); one G-code node that commands every NC axis and one
+recorder
 that records every axis into one bag. Each axis's nodes read one axis file that the runner
 writes (`axis_documents`): the axis's plant (with its weight and counterbalance), engine and
 controller from the machine file, the machine's NC with `twin_axis` set to that axis, and the
@@ -41,12 +44,13 @@ from feed_twin.machine.contour import ContourError, contour_error
 NODE_ROS_NAME_KEYS = ("axis",)  # the machine's axes name their nodes' namespaces themselves
 RECORDER_PROCESS = "recorder"  # hosts the recorder and the G-code node
 CONTROLLER_PROCESS = "controller"  # hosts every axis's controller node (shared layout)
-# ros.controller_processes: "shared", one process for every axis's controller node (a CNC has
-# one control for all its axes, and fewer busy processes share the cores better,
-# docs/performance.md); "per_axis", a process per axis's controller node; "with_sim", each
-# axis's controller node in its sim's process (`<axis>_sim`): the exchange's DriveCommand and
-# feedback then pass within one process and one thread, without a datagram or a wake-up
-CONTROLLER_LAYOUTS = ("shared", "per_axis", "with_sim")
+# ros.controller_processes: "with_sim" (the default), each axis's controller node in its sim's
+# process (`<axis>_sim`): the exchange's DriveCommand and feedback pass within one process and
+# one thread, without a datagram or a wake-up; "shared", one process for every axis's
+# controller node (so they can run on the NC's computer, away from the sims); "per_axis", a
+# process per axis's controller node
+CONTROLLER_LAYOUTS = ("with_sim", "shared", "per_axis")
+DEFAULT_CONTROLLER_LAYOUT = "with_sim"
 # ros.command_batch: true, the G-code node sends each axis's controller the setpoints one clock
 # message lets it publish as one message (gcode_node --command-batch); false, one each
 MACHINE_ROS_KEYS = ("controller_processes", "command_batch")  # the machine's own, not an axis's
@@ -103,12 +107,12 @@ def axis_documents(
 
 
 def machine_settings(machine: MachineConfig) -> tuple[str, bool]:
-    """The machine file's ros.controller_processes (default "shared") and ros.command_batch
+    """The machine file's ros.controller_processes (default "with_sim") and ros.command_batch
     (default true); ConfigError (one line) for a value they cannot take."""
     path = Path(machine.source)
     ros = load_yaml(path).get("ros") or {}
     ros = ros if isinstance(ros, dict) else {}
-    layout = ros.get("controller_processes", "shared")
+    layout = ros.get("controller_processes", DEFAULT_CONTROLLER_LAYOUT)
     if layout not in CONTROLLER_LAYOUTS:
         raise ConfigError(
             f"{path}: ros.controller_processes = {layout!r}: must be one of "
@@ -170,7 +174,7 @@ class NodePlan:
     axes: tuple[str, ...]  # simulated NC axes, in the NC's order
     command_axes: tuple[str, ...]  # NC axes without nodes (rotary axes, those left out)
     files: dict[str, Path]  # simulated axis -> its config file
-    controller_processes: str = "shared"  # CONTROLLER_LAYOUTS
+    controller_processes: str = DEFAULT_CONTROLLER_LAYOUT  # CONTROLLER_LAYOUTS
     command_batch: bool = True  # setpoints packed from the G-code node to the controllers
 
     def processes(
@@ -242,7 +246,9 @@ def chosen_processes(
     processes: dict[str, list[tuple[str, list[str]]]], start: str | None
 ) -> list[str]:
     """The processes `--start` names (process names, or roles of the nodes they host), in the
-    plan's order; ValueError for a name that is neither."""
+    plan's order; ValueError for a name that is neither, and for roles that would start a
+    process hosting a role not named (a sim and its controller under `with_sim`), since the
+    other computer would start that role again."""
     names = list(processes)
     if start is None:
         return names
@@ -255,7 +261,15 @@ def chosen_processes(
             f"--start {start}: {', '.join(unknown) or 'nothing'} is not a process or role of "
             f"this run (processes: {', '.join(names)})"
         )
-    return [n for n in names if n in wanted or roles[n] & set(wanted)]
+    chosen = [n for n in names if n in wanted or roles[n] & set(wanted)]
+    for n in chosen:
+        left = sorted(roles[n] - set(wanted))
+        if n not in wanted and left:
+            raise ValueError(
+                f"--start {start}: process {n} also runs {', '.join(left)}; name the process, "
+                "or split the roles with ros.controller_processes: shared"
+            )
+    return chosen
 
 
 def axis_of_process(name: str, axes: tuple[str, ...]) -> str | None:
