@@ -41,11 +41,17 @@ class _ITimerSpec(ctypes.Structure):
     _fields_ = (("it_interval", _TimeSpec), ("it_value", _TimeSpec))
 
 
-def _libc_with_timers() -> ctypes.CDLL:
+def _libraries() -> tuple[ctypes.CDLL, ctypes.CDLL]:
+    """libc (for _exit) and the library with timer_create (libc, or librt before glibc 2.34)."""
     libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
     if hasattr(libc, "timer_create"):
-        return libc
-    return ctypes.CDLL(ctypes.util.find_library("rt"), use_errno=True)
+        return libc, libc
+    rt = ctypes.util.find_library("rt")
+    if rt is not None:
+        timers = ctypes.CDLL(rt, use_errno=True)
+        if hasattr(timers, "timer_create"):
+            return libc, timers
+    raise OSError("no timer_create in libc or librt (POSIX timers need Linux)")
 
 
 def exit_after(delay_s: float, code: int) -> None:
@@ -57,15 +63,15 @@ def exit_after(delay_s: float, code: int) -> None:
         raise ValueError(f"delay_s = {delay_s!r}: must be > 0")
     if not 0 <= code <= 255:
         raise ValueError(f"code = {code!r}: must lie in [0, 255]")
-    libc = _libc_with_timers()
+    libc, timers = _libraries()
     exit_function = ctypes.cast(libc._exit, ctypes.c_void_p).value
     event = _SigEvent(
         sigev_value=code, sigev_notify=_SIGEV_THREAD, sigev_notify_function=exit_function
     )
     timer = ctypes.c_void_p()
-    if libc.timer_create(_CLOCK_MONOTONIC, ctypes.byref(event), ctypes.byref(timer)) != 0:
+    if timers.timer_create(_CLOCK_MONOTONIC, ctypes.byref(event), ctypes.byref(timer)) != 0:
         raise OSError(ctypes.get_errno(), "timer_create failed")
     seconds = int(delay_s)
     spec = _ITimerSpec(it_value=_TimeSpec(seconds, int(round((delay_s - seconds) * 1e9))))
-    if libc.timer_settime(timer, 0, ctypes.byref(spec), None) != 0:
+    if timers.timer_settime(timer, 0, ctypes.byref(spec), None) != 0:
         raise OSError(ctypes.get_errno(), "timer_settime failed")
