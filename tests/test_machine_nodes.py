@@ -35,7 +35,8 @@ ROOT = Path(__file__).resolve().parents[1]
 MACHINE = ROOT / "config" / "machine_default.yaml"
 # a quarter circle in XY while Z rises (a helix), then the rotary table turns: B is a command only
 PROGRAM = "G90 G54 G17\nG1 X10 Y0 Z140 F6000\nG3 X0 Y10 Z141 I-10 J0 F3000\nG1 B5 F3000\nM2\n"
-LONG_PROGRAM = "G90 G54\nG1 X100 Z120 F1500\nM2\n"  # about 4 s: long enough to kill a node in
+# about 12 s of motion: a run 3-4x faster than real time is stopped long before its end
+LONG_PROGRAM = "G90 G54\nG1 X100 Z120 F500\nM2\n"
 
 
 def in_process_positions(axis_file: Path, program: Path, stamps: np.ndarray) -> np.ndarray:
@@ -210,7 +211,7 @@ def test_a_killed_axis_node_stops_the_run_within_a_second_naming_the_axis(
     reader = BagReader(record["bag"])
     x = reader.columns("/cnc/x/state", ["header.stamp"])
     assert x["log_time_s"][-1] - killed_at < 1.0
-    assert 0.0 < x["header.stamp"][-1] < 3.0  # it did not run the program to its end
+    assert 0.0 < x["header.stamp"][-1] < 8.0  # it did not run the program to its end
     assert len(reader.columns("/cnc/y/command", ["position"])["position"]) > 0
     assert "/cnc/y/state" not in {t.name for t in reader.info.topics}
 
