@@ -63,18 +63,7 @@ def test_the_samples_left_out_follow_from_the_loops_settling_and_the_window():
 
 
 def _drive(t, *, trace_mean):
-    zero = np.zeros_like(t)
-    return Drive(
-        t_s=t,
-        pos_ref_m=zero,
-        vel_ref_m_s=zero,
-        acc_ref_m_s2=zero,
-        effort_add=None,
-        force_ext_N=None,
-        x0_m=0.0,
-        sensor="motor_encoder",
-        trace_mean=trace_mean,
-    )
+    return Drive.at_rest(t, trace_mean=trace_mean)
 
 
 def test_the_start_transient_of_an_averaged_trace_is_left_out_of_the_fit(tmp_path):

@@ -64,19 +64,8 @@ def _sine_plan(t0: float, t1: float, h: float, phase_s: float) -> PlannedCommand
 
 
 def _drive(t: np.ndarray, plan: PlannedCommand, *, trace_mean: bool) -> Drive:
-    zero = np.zeros_like(t)
-    return Drive(
-        t_s=t,
-        pos_ref_m=zero,  # the record's own samples: not used where a plan is given
-        vel_ref_m_s=zero,
-        acc_ref_m_s2=zero,
-        effort_add=None,
-        force_ext_N=None,
-        x0_m=0.0,
-        sensor="motor_encoder",
-        trace_mean=trace_mean,
-        plan=plan,
-    )
+    # the samples' command (0 m) is not used where a plan is given
+    return Drive.at_rest(t, trace_mean=trace_mean, plan=plan)
 
 
 def test_the_plan_is_interpolated_onto_the_base_ticks(nominal):

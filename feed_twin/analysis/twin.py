@@ -54,6 +54,31 @@ class Drive:
     # are taken from it instead of from the record's samples of pos_ref_m .. acc_ref_m_s2
     plan: PlannedCommand | None = None
 
+    @classmethod
+    def at_rest(
+        cls,
+        t_s: np.ndarray,
+        *,
+        x0_m: float = 0.0,
+        trace_mean: bool = False,
+        plan: PlannedCommand | None = None,
+    ) -> Drive:
+        """A command that holds 0 m on the motor encoder, with no known disturbance: the loop
+        settling from `x0_m`, or the command a `plan` carries instead of the samples."""
+        zero = np.zeros_like(t_s)
+        return cls(
+            t_s=t_s,
+            pos_ref_m=zero,
+            vel_ref_m_s=zero,
+            acc_ref_m_s2=zero,
+            effort_add=None,
+            force_ext_N=None,
+            x0_m=x0_m,
+            sensor="motor_encoder",
+            trace_mean=trace_mean,
+            plan=plan,
+        )
+
 
 # a start from a wrong state has settled when what is left of it is below e^-3 = 5 % of its
 # largest deviation (three time constants of a first-order loop; Twin.settle_time_s)
@@ -278,17 +303,7 @@ class Twin:
         lightly damped pair whose decay neither gain gives."""
         h = self.base_period_s
         t = h * np.arange(round(SETTLE_HORIZON_S / h))
-        zero = np.zeros_like(t)
-        drive = Drive(
-            t_s=t,
-            pos_ref_m=zero,
-            vel_ref_m_s=zero,
-            acc_ref_m_s2=zero,
-            effort_add=None,
-            force_ext_N=None,
-            x0_m=SETTLE_OFFSET_M,
-            sensor="motor_encoder",
-        )
+        drive = Drive.at_rest(t, x0_m=SETTLE_OFFSET_M)
         out = self.simulate(drive, self.nominal[None, :])
         if not out.ok[0]:
             raise ConfigError(f"{self.doc.source}: the nominal loop diverges from rest")
