@@ -76,9 +76,15 @@ def test_following_error_limit_stops_the_run_naming_limit_time_and_line(tmp_path
     assert np.all(feedback["fault_code"][:-1] == 0)
 
 
+# A 6 s dwell, then the short move: DDS discovery of a participant that was up before the run
+# (the intruder) can wait for its next announcement, 3 s apart, and a lockstep run of the short
+# move alone ended in CI before the controller had matched the intruder.
+DISCOVERY_PROGRAM = SHORT_PROGRAM.replace("G1 X10", "G4 P6\nG1 X10")
+
+
 def test_foreign_command_publisher_is_refused(tmp_path):
     program = tmp_path / "move.ngc"
-    program.write_text(SHORT_PROGRAM)
+    program.write_text(DISCOVERY_PROGRAM)
     with reserve_domain_id() as domain:
         intruder = subprocess.Popen(
             [sys.executable, "-c", INTRUDER, "60"],
