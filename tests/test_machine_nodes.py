@@ -33,7 +33,6 @@ from feed_twin.sim.config import load_axis_config
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = ROOT / "config" / "machine_default.yaml"
-LOOKAHEAD_EXCHANGES = 50  # the machine file's ros.lookahead
 # a quarter circle in XY while Z rises (a helix), then the rotary table turns: B is a command only
 PROGRAM = "G90 G54 G17\nG1 X10 Y0 Z140 F6000\nG3 X0 Y10 Z141 I-10 J0 F3000\nG1 B5 F3000\nM2\n"
 # about 12 s of motion: a run 3-4x faster than real time is stopped long before its end
@@ -161,17 +160,9 @@ def test_every_controller_layout_records_the_same_bytes(helix, tmp_path, ros, pr
     assert len(compared) == 3 * 8 + 1 + 2
     assert "/cnc/x/command_batch" not in a  # the controllers' packed copy is not recorded
     for topic in compared:
-        if topic.endswith("/run_state"):  # names the exchange its axis ended at: below
-            assert a[topic][-1].find(b"done finished") >= 0, topic
-            assert b[topic][-1].find(b"done finished") >= 0, topic
-            continue
-        # Known defect: a sim that hears of the program's end (program_state) after its
-        # controller does runs on, holding the last setpoint, for up to the lookahead; every
-        # exchange both runs made is the same
-        n = min(len(a[topic]), len(b[topic]))
-        assert a[topic][:n] == b[topic][:n], topic
-        assert abs(len(a[topic]) - len(b[topic])) <= LOOKAHEAD_EXCHANGES, topic
-    assert len(a["/cnc/z/drive_command"]) == len(a["/cnc/z/state"]) > 100
+        assert a[topic] == b[topic], topic
+    # a drive command for every exchange after the first, none past the run's end
+    assert len(a["/cnc/z/drive_command"]) == len(a["/cnc/z/state"]) - 1 > 100
 
 
 @pytest.mark.ros

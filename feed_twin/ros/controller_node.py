@@ -1,15 +1,17 @@
 """The controller node: NC setpoints + drive feedback -> DriveCommand, once per exchange.
 
-Subscribes `command` (AxisCommand, from the G-code node or a real NC) and `feedback`
-(AxisFeedback, from the sim node or a real drive); for every feedback sample at time t it waits
-until the NC setpoint for t is known (a setpoint stamped >= t has arrived, or the program has
-finished, after which the last setpoint is held at standstill), runs `split.ControllerCore` and
-publishes `drive_command` stamped t. All control maths is in feed_twin.control; this file only
-converts messages. With `ros.record_batch` N > 0 the recorder's copies of the DriveCommands go
-to it packed, one RecordBatch per N exchanges (feed_twin.ros.batched). With `--command-batch`
-(a machine's node set) the NC setpoints come packed from the G-code node on `command_batch`
-(several AxisCommands to a RecordBatch, feed_twin/ros/gcode_node.py) instead of on `command`:
-each is checked and used as if it had come alone.
+Subscribes `command` (AxisCommand, from the G-code node or a real NC) and `feedback` (AxisFeedback,
+from the sim node or a real drive); for every feedback sample at time t it waits until the NC
+setpoint for t is known (a setpoint stamped >= t has arrived, or the program has finished, after
+which the last setpoint is held at standstill), runs `split.ControllerCore` and publishes
+`drive_command` stamped t, up to the run's end (`settle_s` after the program's finish,
+feed_twin.nodeset.run_end): past it, feedback gets no answer. All control maths is in
+feed_twin.control; this file only converts messages. With `ros.record_batch` N > 0 the recorder's
+copies of the DriveCommands go to it packed, one RecordBatch per N exchanges
+(feed_twin.ros.batched). With `--command-batch` (a machine's node set) the NC setpoints come packed
+from the G-code node on `command_batch` (several AxisCommands to a RecordBatch,
+feed_twin/ros/gcode_node.py) instead of on `command`: each is checked and used as if it had come
+alone.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
 from feed_twin.nodeset.record_batch import messages_of
+from feed_twin.nodeset.run_end import RunEnd
 from feed_twin.nodeset.split import (
     NS_PER_S,
     Boundary,
@@ -128,6 +131,7 @@ class ControllerNode(FeedTwinNode):
         *,
         boundary: Boundary,
         exchange_period_s: float,
+        settle_s: float,
         axis_label: str,
         gains: NodeLoopGains | None = None,
         exchange_cpu: int = -1,
@@ -151,6 +155,7 @@ class ControllerNode(FeedTwinNode):
         self._nc_token = self._guard.nc_token
         self.io = MessageIO(axis_label, token, self._nc_token)
         self.nc = NcBuffer()
+        self.end = RunEnd(round(settle_s * NS_PER_S))
         self._pending: collections.deque[bytes] = collections.deque()
         self._paused = False
         self._meas = np.zeros(sig.MEAS_SIZE)
@@ -248,8 +253,9 @@ class ControllerNode(FeedTwinNode):
                 f"{msg.data[:80]!r} (malformed, or not from this run's G-code node)",
             )  # fmt: skip
             return
-        state = parsed[0]
+        state, stamp_ns, _ = parsed
         self._paused = state == "paused"
+        self.end.learn(state, stamp_ns)
         if state in ("finished", "stopped"):
             self.nc.finish()
             self._serve()
@@ -258,6 +264,9 @@ class ControllerNode(FeedTwinNode):
         while self._pending:
             # Feedback latched at t_k sets the setpoint the drive applies from t_k+1 (drive_host).
             t_ns = self.io.feedback_sample(self._pending[0], self._meas) + self.exchange_ns
+            if self.end.passed(t_ns):
+                self._pending.clear()  # the sim ends at the same exchange (run_end.py)
+                return
             nc = self.nc.for_time(t_ns)
             if nc is None:
                 return
@@ -302,6 +311,7 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> Contr
         load_node_controller_config(args.config),
         boundary=ros.boundary,
         exchange_period_s=ros.exchange_period_s,
+        settle_s=ros.settle_s,
         axis_label=ros.axis.upper(),
         gains=ros.node_gains,
         exchange_cpu=ros.exchange_cpu,

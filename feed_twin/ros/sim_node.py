@@ -14,8 +14,9 @@ Timing:
 
 With `ros.record_batch` N > 0 the recorder's copies of feedback, state and joint states go to it
 packed, one RecordBatch per N exchanges (feed_twin.ros.batched); the topics carry every message
-as before. The run ends `settle_s` after the program has finished (or was stopped); the node
-announces it on `run_state` ("done ..."), which ends the other nodes too.
+as before. The run ends `settle_s` after the program has finished (or was stopped), at the
+same exchange in every run (feed_twin.nodeset.run_end); the node announces it on `run_state`
+("done ..."), which ends the other nodes too.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost, build_drive_ho
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
 from feed_twin.nodeset.pacing import pacing_report
 from feed_twin.nodeset.protection import DriveProtection, Trip, protection_for_config
+from feed_twin.nodeset.run_end import RunEnd
 from feed_twin.nodeset.split import NS_PER_S, DriveSetpoint
 from feed_twin.nodeset.topics import SIM_NODE
 from feed_twin.ros.batched import RecordSender
@@ -163,14 +165,12 @@ class SimNode(FeedTwinNode):
         super().__init__(SIM_NODE, options, context=context)
         self.host = host
         self.protection = protection
-        self.settle_ns = round(settle_s * NS_PER_S)
+        self.end = RunEnd(round(settle_s * NS_PER_S))
         self.axis_label = axis_label
         self.joint_name = joint_name
         self.realtime = realtime
         self.clock_divider = clock_divider
         self.max_ns = None if max_time_s is None else round(max_time_s * NS_PER_S)
-        self.end_ns: int | None = None
-        self.end_word = ""
         self.started = False
         self.steps = 0
         self.missed_steps = 0
@@ -261,6 +261,8 @@ class SimNode(FeedTwinNode):
         deadline = self.wall_start + self.host.k * self.host.exchange_ns / NS_PER_S
         now = time.monotonic()
         if now >= deadline:
+            if self._end_if_passed():  # the controller sends nothing past the end: no miss
+                return None
             self.lateness_s.append(now - deadline)
             t_ns = self.host.t_ns
             setpoint = self._pending.pop(t_ns, None)
@@ -292,11 +294,18 @@ class SimNode(FeedTwinNode):
         word, stamp_ns, text = parsed
         if word == "running":
             self._go = True
-        if stamp_ns is not None and self.end_ns is None:
-            self.end_ns = stamp_ns + self.settle_ns
-            self.end_word = word
+        if self.end.learn(word, stamp_ns):
+            if self.started:
+                self._end_if_passed()  # the last exchange may have run already
         elif word == "error":
             self._end(EXIT_ERROR, f"done error: {text.partition(' ')[2]}")
+
+    def _end_if_passed(self) -> bool:
+        """End the run when the next exchange lies past the program's end (run_end.py)."""
+        if not self.end.passed(self.host.t_ns):
+            return False
+        self._end(EXIT_OK, f"done {self.end.word} at {self.host.t_ns} ns")
+        return True
 
     def on_run_done(self, text: str) -> None:
         """Its own announcement comes back on the latched topic; _end has already finished."""
@@ -352,8 +361,7 @@ class SimNode(FeedTwinNode):
         return reader.setpoint(values)
 
     def _exchange(self, setpoint: DriveSetpoint | None) -> None:
-        if self.end_ns is not None and self.host.t_ns > self.end_ns:
-            self._end(EXIT_OK, f"done {self.end_word} at {self.host.t_ns} ns")
+        if self._end_if_passed():
             return
         if self.max_ns is not None and self.host.t_ns > self.max_ns:
             self._end(EXIT_OK, f"done time limit at {self.host.t_ns} ns")
@@ -405,6 +413,7 @@ class SimNode(FeedTwinNode):
                 f"drive fault at t = {t_ns * 1e-9:.6f} s: {fault_reason(fault)}",
                 throttle_duration_sec=1.0,
             )
+        self._end_if_passed()
 
     def _publish_slow(self, t_ns: int, truth) -> None:
         """Joint states and the clock, every clock_divider exchanges."""
