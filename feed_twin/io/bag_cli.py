@@ -5,13 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 
+from feed_twin.io import msg_types
 from feed_twin.io.bag import BagError, BagInfo, info, recover
 
 # Topics whose messages begin with their stamp (rosgraph Clock, std_msgs/Header first), in the
 # order they are preferred as the simulated time base: sec (int32), nanosec (uint32) after the
 # 4-byte CDR encapsulation header.
 CLOCK_TOPIC = "/clock"
-STAMPED_TYPES = ("rosgraph_msgs/msg/Clock", "feed_twin_msgs/msg/", "sensor_msgs/msg/JointState")
+STAMPED_TYPES = (msg_types.CLOCK, msg_types.FEED_TWIN_PACKAGE, msg_types.JOINT_STATE)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.io import msg_types
 from feed_twin.io.bag import BagWriter
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError
@@ -81,14 +82,14 @@ def _state_fields(
 def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Path:
     """The run as a rosbag2 MCAP bag (module docstring); returns the bag's info."""
     stamps = np.round(run.t_s * NS_PER_S).astype(np.int64)
-    command = FlatCodec("feed_twin_msgs/msg/AxisCommand")
-    state = FlatCodec("feed_twin_msgs/msg/AxisState")
-    scalar = FlatCodec("std_msgs/msg/Float64")
+    command = FlatCodec(msg_types.AXIS_COMMAND)
+    state = FlatCodec(msg_types.AXIS_STATE)
+    scalar = FlatCodec(msg_types.FLOAT64)
     root = f"/{machine.name}"
     with BagWriter(path) as bag:
         for i, axis in enumerate(run.axes):
             topic = f"{root}/{axis.lower()}/command"
-            bag.add_topic(topic, "feed_twin_msgs/msg/AxisCommand")
+            bag.add_topic(topic, msg_types.AXIS_COMMAND)
             for k, t_ns in enumerate(stamps):
                 values = {
                     "header.stamp.sec": int(t_ns // NS_PER_S),
@@ -103,7 +104,7 @@ def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Pa
                 bag.write(topic, command.encode_map(values), log_time_ns=int(t_ns))
         for axis in run.simulated:
             topic = f"{root}/{axis.lower()}/state"
-            bag.add_topic(topic, "feed_twin_msgs/msg/AxisState")
+            bag.add_topic(topic, msg_types.AXIS_STATE)
             fields = _state_fields(
                 run.signals[axis], run.command[:, run.axes.index(axis)], run.state_signals[axis]
             )
@@ -119,7 +120,7 @@ def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Pa
         for name, column in (("contour_error", run.contour.normal_m),
                              ("contour_lag", run.contour.lag_m)):  # fmt: skip
             topic = f"{root}/{name}"
-            bag.add_topic(topic, "std_msgs/msg/Float64")
+            bag.add_topic(topic, msg_types.FLOAT64)
             for k, t_ns in enumerate(stamps):
                 bag.write(
                     topic, scalar.encode_map({"data": float(column[k])}), log_time_ns=int(t_ns)

@@ -28,7 +28,6 @@ from collections.abc import Sequence
 
 from feed_twin.io.cdr import ENCAPSULATION
 
-TYPE_NAME = "feed_twin_msgs/msg/RecordBatch"
 _U32 = struct.Struct("<I")
 
 

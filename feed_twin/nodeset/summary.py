@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.io import msg_types
 from feed_twin.io.bag import BagReader
 from feed_twin.io.dashboard import Dashboard
 from feed_twin.nodeset.topics import AxisTopics
@@ -191,10 +192,10 @@ class LiveFeed:
         self.decimation = decimation
         self._count: dict[str, int] = {}
         self._codecs = {
-            topics.state: FlatCodec("feed_twin_msgs/msg/AxisState"),
-            topics.command: FlatCodec("feed_twin_msgs/msg/AxisCommand"),
-            topics.feedback: FlatCodec("feed_twin_msgs/msg/AxisFeedback"),
-            topics.drive_command: FlatCodec("feed_twin_msgs/msg/DriveCommand"),
+            topics.state: FlatCodec(msg_types.AXIS_STATE),
+            topics.command: FlatCodec(msg_types.AXIS_COMMAND),
+            topics.feedback: FlatCodec(msg_types.AXIS_FEEDBACK),
+            topics.drive_command: FlatCodec(msg_types.DRIVE_COMMAND),
         }
         self._topics = topics
         self._line = -2

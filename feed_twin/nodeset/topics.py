@@ -10,6 +10,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from feed_twin.io import msg_types
+
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 # Node names (one per role; the namespace tells axes apart).
@@ -108,16 +110,16 @@ class AxisTopics:
     def published(self) -> tuple[Topic, ...]:
         """Every topic the node set publishes, with its message type."""
         return (
-            Topic(name=self.command, type_name="feed_twin_msgs/msg/AxisCommand"),
-            Topic(name=self.drive_command, type_name="feed_twin_msgs/msg/DriveCommand"),
-            Topic(name=self.feedback, type_name="feed_twin_msgs/msg/AxisFeedback"),
-            Topic(name=self.state, type_name="feed_twin_msgs/msg/AxisState"),
-            Topic(name=self.joint_states, type_name="sensor_msgs/msg/JointState"),
-            Topic(name=self.program_state, type_name="std_msgs/msg/String"),
-            Topic(name=self.run_state, type_name="std_msgs/msg/String"),
-            Topic(name=self.heartbeat, type_name="std_msgs/msg/String"),
-            Topic(name=self.health, type_name="feed_twin_msgs/msg/HealthStatus"),
-            Topic(name=self.clock, type_name="rosgraph_msgs/msg/Clock"),
+            Topic(name=self.command, type_name=msg_types.AXIS_COMMAND),
+            Topic(name=self.drive_command, type_name=msg_types.DRIVE_COMMAND),
+            Topic(name=self.feedback, type_name=msg_types.AXIS_FEEDBACK),
+            Topic(name=self.state, type_name=msg_types.AXIS_STATE),
+            Topic(name=self.joint_states, type_name=msg_types.JOINT_STATE),
+            Topic(name=self.program_state, type_name=msg_types.STRING),
+            Topic(name=self.run_state, type_name=msg_types.STRING),
+            Topic(name=self.heartbeat, type_name=msg_types.STRING),
+            Topic(name=self.health, type_name=msg_types.HEALTH_STATUS),
+            Topic(name=self.clock, type_name=msg_types.CLOCK),
         )
 
     def types(self) -> dict[str, str]:

@@ -31,6 +31,7 @@ from std_msgs.msg import String
 
 from feed_twin.control.config import ControllerConfig, load_controller_config
 from feed_twin.core import signals as sig
+from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
@@ -51,9 +52,9 @@ from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
 from feed_twin.ros.guarded import InputGuard
 from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, node_main
 
-AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
-AXIS_FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")
-DRIVE_COMMAND = FlatCodec("feed_twin_msgs/msg/DriveCommand")
+AXIS_COMMAND = FlatCodec(msg_types.AXIS_COMMAND)
+AXIS_FEEDBACK = FlatCodec(msg_types.AXIS_FEEDBACK)
+DRIVE_COMMAND = FlatCodec(msg_types.DRIVE_COMMAND)
 
 
 class MessageIO:
@@ -186,12 +187,12 @@ class ControllerNode(FeedTwinNode):
         # A command stream is due once drive feedback flows; silence while paused is expected.
         self._command_dog = self.watch_input(
             command_topic,
-            "feed_twin_msgs/msg/RecordBatch" if command_batch else "feed_twin_msgs/msg/AxisCommand",
+            msg_types.RECORD_BATCH if command_batch else msg_types.AXIS_COMMAND,
             armed=lambda: bool(self._pending) and not self._paused and not self.nc.finished,
         )
         self._feedback_dog = self.watch_input(
             self.topics.feedback,
-            "feed_twin_msgs/msg/AxisFeedback",
+            msg_types.AXIS_FEEDBACK,
             armed=lambda: self.peers_alive() and self.nc.latest_ns is not None and not self.steps,
         )
         for note in apply_scheduling(cpu=exchange_cpu):

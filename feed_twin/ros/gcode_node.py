@@ -55,6 +55,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_config, plan_program
+from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.nodeset.guard import run_token, sign_state
 from feed_twin.nodeset.record_batch import RecordBatch
@@ -63,8 +64,8 @@ from feed_twin.nodeset.topics import GCODE_NODE, AxisTopics
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, node_main
 
-AXIS_COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
-CLOCK = FlatCodec("rosgraph_msgs/msg/Clock").fixed({})
+AXIS_COMMAND = FlatCodec(msg_types.AXIS_COMMAND)
+CLOCK = FlatCodec(msg_types.CLOCK).fixed({})
 STANDSTILL_M_S = 1e-9  # |v| below which the planned path is at rest [m/s]
 
 

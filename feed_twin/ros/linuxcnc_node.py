@@ -37,6 +37,7 @@ from feed_twin_msgs.msg import AxisCommand, ServoSample, TwinResidual
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.linuxcnc.bridge import BridgeBatch, ServoBridge
 from feed_twin.linuxcnc.host import LinuxcncError
@@ -47,7 +48,7 @@ from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions
 from feed_twin.shadow.bagstreams import encode_joint_state
 from feed_twin.shadow.replay import twin_namespace
 
-COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
+COMMAND = FlatCodec(msg_types.AXIS_COMMAND)
 LINGER_S = 1.0  # [s] after the end, so that readers receive everything
 WINDOW = 100  # periods published ahead of the twin's output at most
 PROGRESS_PERIOD_S = 0.5

@@ -28,6 +28,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from feed_twin.io import msg_types
 from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import (
@@ -210,12 +211,12 @@ def _finish(bag: Path, machine: MachineConfig, program: Path) -> tuple[dict | No
     first = f"/{machine.name}/{machine.simulated[0].lower()}/state"
     logged = BagReader(bag).columns(first, [])["log_time_s"][: len(record.t_s)]
     stamps = np.round(logged * 1e9).astype(np.int64)
-    scalar = FlatCodec("std_msgs/msg/Float64")
+    scalar = FlatCodec(msg_types.FLOAT64)
     add_topics(
         bag,
         {
             f"/{machine.name}/{name}": (
-                "std_msgs/msg/Float64",
+                msg_types.FLOAT64,
                 [
                     (int(t), scalar.encode_map({"data": float(v)}))
                     for t, v in zip(stamps, column, strict=True)

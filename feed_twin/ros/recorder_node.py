@@ -49,6 +49,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 
+from feed_twin.io import msg_types
 from feed_twin.io.bag import BagError, BagWriter, QosProfile
 from feed_twin.nodeset.guard import run_token
 from feed_twin.nodeset.record_batch import unpack
@@ -152,7 +153,7 @@ class RecorderNode(FeedTwinNode):
                 known[f"{topics.namespace}/clock"] = clock_type
         for axis in options.command_axes:
             command = AxisTopics(machine=options.machine, axis=axis).command
-            known[command] = "feed_twin_msgs/msg/AxisCommand"
+            known[command] = msg_types.AXIS_COMMAND
             self._signed_topics.add(command)
         machine = options.other_axes or options.command_axes
         self._scan_prefix = f"/{options.machine}/" if machine else None
@@ -163,9 +164,9 @@ class RecorderNode(FeedTwinNode):
             # first message instead of from whenever the graph scan finds it (late under load)
             known.update(
                 {
-                    f"{twin_namespace}/state": "feed_twin_msgs/msg/AxisState",
-                    f"{twin_namespace}/residual": "feed_twin_msgs/msg/TwinResidual",
-                    f"{twin_namespace}/health": "feed_twin_msgs/msg/HealthStatus",
+                    f"{twin_namespace}/state": msg_types.AXIS_STATE,
+                    f"{twin_namespace}/residual": msg_types.TWIN_RESIDUAL,
+                    f"{twin_namespace}/health": msg_types.HEALTH_STATUS,
                 }
             )
         for prefix, topics in options.axis_topics().items():

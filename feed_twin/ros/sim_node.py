@@ -37,6 +37,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from feed_twin.core import signals as sig
+from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec, JointStateLayout
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost, build_drive_host
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
@@ -61,9 +62,9 @@ STATUS_ENABLED = (
 STATUS_FAULT = AxisFeedback.STATUS_FAULT
 
 
-DRIVE_COMMAND = FlatCodec("feed_twin_msgs/msg/DriveCommand")
-AXIS_FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")
-AXIS_STATE = FlatCodec("feed_twin_msgs/msg/AxisState")
+DRIVE_COMMAND = FlatCodec(msg_types.DRIVE_COMMAND)
+AXIS_FEEDBACK = FlatCodec(msg_types.AXIS_FEEDBACK)
+AXIS_STATE = FlatCodec(msg_types.AXIS_STATE)
 # The AxisFeedback numbers as `_exchange` packs them (the MEAS_* slots 0..4 are in this order).
 FEEDBACK_NUMBERS = (
     "header.stamp.sec",
@@ -204,7 +205,7 @@ class SimNode(FeedTwinNode):
         # silent too, and the node nearest the cause should be the one that reports.
         self._command_dog = self.watch_input(
             self.topics.drive_command,
-            "feed_twin_msgs/msg/DriveCommand",
+            msg_types.DRIVE_COMMAND,
             armed=lambda: self.started and not self.done and not self.realtime,
             timeout_s=2.0 * options.input_timeout_s,
         )

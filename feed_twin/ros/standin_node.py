@@ -57,6 +57,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from feed_twin.analysis.twin import ModelDoc
+from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import (
@@ -72,7 +73,7 @@ from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.replay import twin_namespace
 from feed_twin.shadow.standin import StandIn, program_command
 
-COMMAND = FlatCodec("feed_twin_msgs/msg/AxisCommand")
+COMMAND = FlatCodec(msg_types.AXIS_COMMAND)
 NS = 1_000_000_000
 LINGER_S = 1.0  # [s] the node stays after the last sample so that readers receive everything
 LOCKSTEP_WINDOW = 100  # samples the stand-in may be ahead of the twin's output in lockstep
@@ -144,7 +145,7 @@ class StandInNode(FeedTwinNode):
             self._waiting = False
             self.watch_input(
                 self.topics.command,
-                "feed_twin_msgs/msg/AxisCommand",
+                msg_types.AXIS_COMMAND,
                 armed=lambda: self._waiting and not self.run_ended,
             )
         else:

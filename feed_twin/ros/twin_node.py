@@ -36,28 +36,29 @@ from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState, HealthStatu
 from sensor_msgs.msg import JointState
 
 from feed_twin.analysis.twin import ModelDoc, Twin
+from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.measured import load_column_map
 from feed_twin.nodeset.topics import Topic
 from feed_twin.ros.dds import DATA_QOS
 from feed_twin.ros.runtime import EXIT_OK, PEER_TIMEOUT_S, FeedTwinNode, NodeOptions, start_node
-from feed_twin.shadow.bagstreams import JOINT_STATE, MessageFields, plan
+from feed_twin.shadow.bagstreams import MessageFields, plan
 from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.health import Verdict
 from feed_twin.shadow.replay import health_values, twin_namespace
 from feed_twin.shadow.twin import ResidualBlock, ShadowTwin
 
 MESSAGE_TYPES = {
-    "feed_twin_msgs/msg/AxisCommand": AxisCommand,
-    "feed_twin_msgs/msg/AxisFeedback": AxisFeedback,
-    JOINT_STATE: JointState,
+    msg_types.AXIS_COMMAND: AxisCommand,
+    msg_types.AXIS_FEEDBACK: AxisFeedback,
+    msg_types.JOINT_STATE: JointState,
 }
 DRAIN_QUIET_S = 0.5  # [s] without messages after the run's end before the node finishes
 FINAL_AFTER_S = 0.1  # [s] without messages after the run's end: the streams have ended
 LAG_SAMPLES = 600_000  # lags kept for the report (10 min at 1 kHz): bounded memory
-STATE = FlatCodec("feed_twin_msgs/msg/AxisState")
-RESIDUAL = FlatCodec("feed_twin_msgs/msg/TwinResidual")
-HEALTH = FlatCodec("feed_twin_msgs/msg/HealthStatus")
+STATE = FlatCodec(msg_types.AXIS_STATE)
+RESIDUAL = FlatCodec(msg_types.TWIN_RESIDUAL)
+HEALTH = FlatCodec(msg_types.HEALTH_STATUS)
 
 
 def _rss_mb() -> float:
@@ -295,8 +296,8 @@ class TwinNode(FeedTwinNode):
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, type=Path, help="model YAML with shadow:")
     parser.add_argument("--map", required=True, type=Path, help="column map (topics, units)")
-    parser.add_argument("--command-type", default="feed_twin_msgs/msg/AxisCommand")
-    parser.add_argument("--measured-type", default=JOINT_STATE)
+    parser.add_argument("--command-type", default=msg_types.AXIS_COMMAND)
+    parser.add_argument("--measured-type", default=msg_types.JOINT_STATE)
     parser.add_argument("--out-namespace", help="default: <command namespace>/twin")
     parser.add_argument("--machine", default="cnc", help="namespace of the node (machine)")
     parser.add_argument("--axis", default="x", help="namespace of the node (axis)")

@@ -22,13 +22,13 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
+from feed_twin.io import msg_types
 from feed_twin.io.bag import BagReader, info
 from feed_twin.io.cdr import FlatCodec, NotFlatError
 from feed_twin.io.measured import ColumnMap, ColumnSpec, MeasuredDataError, _to_si
 
 COMMAND_SIGNALS = ("pos_cmd_m", "vel_cmd_m_s")
 MEASURED_SIGNALS = ("pos_meas_m", "force_cmd_N", "torque_cmd_Nm", "current_q_A")
-JOINT_STATE = "sensor_msgs/msg/JointState"
 _ARRAYS = ("position", "velocity", "effort")
 
 
@@ -223,7 +223,7 @@ def read_streams(bag: str | Path, cmap: ColumnMap) -> dict[str, Stream]:
     fast = {
         topic
         for topic, _, _ in wanted.values()
-        if types[topic] == JOINT_STATE or _flat(types[topic])
+        if types[topic] == msg_types.JOINT_STATE or _flat(types[topic])
     }
     collected = raw_messages(bag_info.mcap_path, fast) if fast else {}
     out: dict[str, Stream] = {}
@@ -371,7 +371,7 @@ def _decode_fast(
     """Arrival order (stable sort by log time); fixed-size messages read as one byte table."""
     order = np.argsort(raw.log_time_ns, kind="stable")
     log_ns = raw.log_time_ns[order]
-    codec = None if type_name == JOINT_STATE else FlatCodec(type_name)
+    codec = None if type_name == msg_types.JOINT_STATE else FlatCodec(type_name)
 
     def layout(data: bytes) -> dict[str, tuple[int, str]]:
         return _joint_state(data)[1] if codec is None else flat_offsets(codec, data)
@@ -457,7 +457,7 @@ class MessageFields:
         self, type_name: str, signals: dict[str, tuple[str, ColumnSpec]], cmap: ColumnMap
     ) -> None:
         self.type_name = type_name
-        self._codec = None if type_name == JOINT_STATE else FlatCodec(type_name)
+        self._codec = None if type_name == msg_types.JOINT_STATE else FlatCodec(type_name)
         self._paths = {name: col.partition(":")[2] for name, (col, _) in signals.items()}
         self._scale = {
             name: float(_to_si(name, spec, np.ones(1), cmap.conversion)[0])

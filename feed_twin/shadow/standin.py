@@ -18,6 +18,7 @@ import numpy as np
 
 from feed_twin.analysis.synthetic import PROGRAM, Unmodelled, command, truth_model
 from feed_twin.analysis.twin import ModelDoc, Twin
+from feed_twin.io import msg_types
 from feed_twin.io.bag import QosProfile
 from feed_twin.shadow.config import StandInConfig
 from feed_twin.shadow.twin import _Rows
@@ -168,7 +169,7 @@ def record_bag(
     path = Path(path)
     t, x, v, a = program_command(duration_s, period_s)
     command_topic, joints_topic = f"{namespace}/command", f"{namespace}/joint_states"
-    codec = FlatCodec("feed_twin_msgs/msg/AxisCommand")
+    codec = FlatCodec(msg_types.AXIS_COMMAND)
     pending = sorted(changes)
     chunk = max(1, round(0.1 / period_s))
     with BagWriter(path, flush_period_s=None) as writer:
@@ -177,11 +178,9 @@ def record_bag(
         if unknown:
             raise ValueError(f"qos: unknown topic(s) {unknown}; use 'command', 'joint_states'")
         default = (QosProfile(),)
+        writer.add_topic(command_topic, msg_types.AXIS_COMMAND, qos=offered.get("command", default))
         writer.add_topic(
-            command_topic, "feed_twin_msgs/msg/AxisCommand", qos=offered.get("command", default)
-        )
-        writer.add_topic(
-            joints_topic, "sensor_msgs/msg/JointState", qos=offered.get("joint_states", default)
+            joints_topic, msg_types.JOINT_STATE, qos=offered.get("joint_states", default)
         )
         for k0 in range(0, len(t), chunk):
             while pending and pending[0][0] <= t[k0]:
