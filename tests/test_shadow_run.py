@@ -7,10 +7,12 @@ health baseline (1.5 s) and window (1 s) of the config have motion in them.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -127,8 +129,9 @@ def steady(tmp_path_factory) -> dict:
 @pytest.fixture(scope="module")
 def worn(tmp_path_factory) -> dict:
     steps = [{"at_s": RAISE_AT_S, "scale": 2.0}]
-    record = shadow_run(tmp_path_factory.mktemp("worn"), "worn", steps)
-    return {"json": record, "bag": read_bag(record["bag"])}
+    directory = tmp_path_factory.mktemp("worn")
+    record = shadow_run(directory, "worn", steps)
+    return {"json": record, "bag": read_bag(record["bag"]), "config": directory / "worn.yaml"}
 
 
 def test_every_sample_is_followed_shadowed_and_recorded(steady) -> None:
@@ -208,6 +211,24 @@ def test_raised_friction_is_named_in_the_health_topic(worn) -> None:
     assert "coulomb_friction +" in j["shadow_last_warning"]
     # the machine moved as before: the truth's drive makes up the extra friction
     assert j["following_error_max_m"] == pytest.approx(V_PEAK_M_S * NC_PERIOD_S, rel=0.1)
+
+
+def test_diagnose_names_the_raised_friction_in_the_run_bag(worn, tmp_path) -> None:
+    """The discrepancy workflow on a bag `feed-twin run` recorded over DDS (lockstep bursts,
+    the column map the run wrote), after the friction change: it names the doubled Coulomb
+    friction and nothing else."""
+    j, config = worn["json"], worn["config"]
+    out = tmp_path / "diagnosis"
+    done = subprocess.run(
+        [sys.executable, "-m", "feed_twin.cli", "diagnose", j["bag"], "--config", str(config),
+         "--map", f"{j['bag']}_map.yaml", "--segment", f"{RAISE_AT_S + 0.5}:5.6",
+         "--out", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-4000:]
+    report = json.loads((out / "report.json").read_text())
+    assert [e["name"] for e in report["effects"]] == ["coulomb_friction"], done.stderr[-4000:]
+    assert report["effects"][0]["parameters"]["F_c_N"] == pytest.approx(240.0, rel=0.03)
 
 
 def test_killed_twin_is_noticed_named_and_the_bag_readable(tmp_path) -> None:
