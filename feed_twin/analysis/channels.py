@@ -31,8 +31,10 @@ def _from(r: np.ndarray, start: int) -> np.ndarray:
 def residuals(run: MeasuredRun, out: SimOutputs, row: int = 0, *, start: int = 0):
     """(effort, position) residuals, twin minus measured for the position; zero before the
     first sample that is evidence (`start`, Twin.first_evidence)."""
-    x = run["pos_meas_m"]
-    rp = _from(out.x_m[row] - x, start)
+    rp = out.x_m[row] - run["pos_meas_m"]
+    if run.position_offset_free:
+        rp = rp - float(np.mean(rp[start:]))  # the zero the record does not give
+    rp = _from(rp, start)
     re = None
     name = run.effort_name
     if name is not None and out.effort is not None:
@@ -88,4 +90,5 @@ def weighted_channels(
         start=start,
         voltage_q=run[VOLTAGE_Q] if "voltage" in sigma else None,
         scale_voltage=sigma.get("voltage", 1.0),
+        free_offset=run.position_offset_free,
     )

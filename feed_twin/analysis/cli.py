@@ -199,20 +199,14 @@ def _validate_more(diagnosis, doc, runs: list[MeasuredRun], progress):
     """The validation metrics of the fitted model on further runs, as notes of the report."""
     import dataclasses
 
-    from feed_twin.analysis.compare import compute_metrics
+    from feed_twin.analysis.diagnose import run_metrics
     from feed_twin.analysis.twin import Twin, drive_from_run
 
     twin = Twin.compile(doc)
     notes = []
     for run in runs:
         out = twin.simulate(drive_from_run(run), twin.nominal[None, :])
-        name = run.effort_name
-        m = compute_metrics(
-            run["pos_meas_m"],
-            out.x_m[0],
-            None if name is None else run[name],
-            None if name is None or out.effort is None else out.effort[0],
-        )
+        m = run_metrics(run, out)
         effort = "n/a" if m.effort_rel_err_pct is None else f"{m.effort_rel_err_pct:.3f}"
         note = (
             f"validation on {run.source}: position {m.pos_rel_err_pct:.4g} %, effort "

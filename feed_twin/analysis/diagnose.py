@@ -85,12 +85,17 @@ def _loop_stiffness(twin: Twin, drive: Drive, out0: SimOutputs) -> float | None:
     return abs(float(np.dot(df, dx)) / denom) if denom > 0 else None
 
 
-def _metrics(run: MeasuredRun, out: SimOutputs, row: int = 0) -> Metrics:
+def run_metrics(run: MeasuredRun, out: SimOutputs, row: int = 0) -> Metrics:
+    """The twin's metrics on a run; where the run's position zero is not known, it is read
+    again at this model (the mean difference), as the fit reads it."""
     name = run.effort_name
+    x = run["pos_meas_m"]
+    if run.position_offset_free:
+        x = x + float(np.mean(out.x_m[row] - x))
     effort_sim = None if out.effort is None or name is None else out.effort[row]
     has_u = voltage_residual(run, out, row) is not None
     return compute_metrics(
-        run["pos_meas_m"],
+        x,
         out.x_m[row],
         None if name is None else run[name],
         effort_sim,
@@ -135,7 +140,7 @@ def diagnose(
     timings["nominal_s"] = time.perf_counter() - clock
     check_effort_sign(run, out0)
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
-    before = _metrics(run, out0)
+    before = run_metrics(run, out0)
     stride = max(1, len(run.t_s) // opts.fit_samples)
     # the first samples of a trace that averages are not evidence (Twin.first_evidence)
     start = twin.first_evidence(drive)
@@ -169,7 +174,7 @@ def diagnose(
     )
     ranking, unfitted = _identify(state, context)
     timings["identify_s"] = time.perf_counter() - clock
-    after = _metrics(run, state.outputs)
+    after = run_metrics(run, state.outputs)
     validation, validation_traces = None, None
     if validate is not None:
         validation, validation_traces = _validate(validate, twin, state.twin, progress)
@@ -282,8 +287,8 @@ def _validate(
     v1 = augmented.simulate(vdrive, augmented.nominal[None, :])
     validation: dict[str, object] = {
         "measured": validate.source,
-        "before": _metrics(validate, v0).as_dict(),
-        "after": _metrics(validate, v1).as_dict(),
+        "before": run_metrics(validate, v0).as_dict(),
+        "after": run_metrics(validate, v1).as_dict(),
     }
     traces = (_trace("nominal", validate, vdrive, v0), _trace("augmented", validate, vdrive, v1))
     return validation, traces

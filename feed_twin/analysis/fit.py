@@ -67,6 +67,9 @@ class Measured:
     start: int = 0  # the first sample that is evidence (Twin.first_evidence)
     voltage_q: np.ndarray | None = None  # [V] commanded q-axis voltage, when recorded
     scale_voltage: float = 1.0  # [V] normalisation of the voltage channel
+    # the position's zero is not known (MeasuredRun.position_offset_free): the channel's mean
+    # is a free constant, fitted with every simulation
+    free_offset: bool = False
 
 
 def residual_vector(
@@ -76,7 +79,10 @@ def residual_vector(
     voltage_sim: np.ndarray | None = None,
 ) -> np.ndarray:
     s = slice(meas.start, None, meas.stride)
-    parts = [(meas.x_m[s] - x_sim[s]) / meas.scale_x]
+    dx = meas.x_m[s] - x_sim[s]
+    if meas.free_offset:
+        dx = dx - float(np.mean(dx))
+    parts = [dx / meas.scale_x]
     if meas.effort is not None and effort_sim is not None:
         parts.append((meas.effort[s] - effort_sim[s]) / meas.scale_effort)
     if meas.voltage_q is not None and voltage_sim is not None:

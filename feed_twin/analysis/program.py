@@ -118,7 +118,9 @@ def command_from_program(
         fine = placed(delta, t_nc)
         plan = PlannedCommand(t_s=t_nc, pos_m=fine[0] + offset, vel_m_s=fine[1], acc_m_s2=fine[2])
         return dataclasses.replace(
-            run.with_signals(pos_cmd_m=pos + offset, vel_cmd_m_s=vel), plan=plan
+            run.with_signals(pos_cmd_m=pos + offset, vel_cmd_m_s=vel),
+            plan=plan,
+            position_offset_free=True,
         )
 
     _check_covered(run, program, t, v_meas, placed(0.0, t)[1])

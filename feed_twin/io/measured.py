@@ -141,6 +141,9 @@ class MeasuredRun:
     warnings: tuple[str, ...] = ()
     trace_filter: Literal["none", "mean"] = "none"  # see ColumnMap.trace_filter
     plan: PlannedCommand | None = None  # the command at the NC's period, if planned
+    # the measured position's zero is not known (a command placed from the program, whose
+    # offset is only estimated): the position channel compares shapes, not levels
+    position_offset_free: bool = False
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
