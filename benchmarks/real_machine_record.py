@@ -39,9 +39,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from feed_twin.analysis.diagnose import check_effort_sign, diagnose
+from feed_twin.analysis.diagnose import check_effort_sign
 from feed_twin.analysis.effects import last_direction, motion_from_position, moving
-from feed_twin.analysis.program import command_from_program
+from feed_twin.analysis.placed import diagnose_program, place
 from feed_twin.analysis.repetitions import split_repetitions
 from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, as_trace, generate
 from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
@@ -132,13 +132,18 @@ def main() -> None:
         declared.write_text(MAP.format(gain=-FORCE_CONSTANT_N_A))
         gcode = folder / "part.mpf"
         gcode.write_text(once())
+        # the nominal model with the NC the program is planned on (not the machine's: its
+        # waits are what the placement finds)
+        with_nc = folder / "nominal_nc.yaml"
+        with_nc.write_text(yaml.safe_dump(nominal.data | yaml.safe_load(NC_CONFIG)))
+        planned = ModelDoc.load(with_nc)
         # the repetitions cut on the measured motion, the program placed on each (the CLI's
-        # diagnose --repetitions --program)
+        # diagnose --repetitions --program: analysis.placed)
         clock = time.perf_counter()
-        nc = yaml.safe_load(NC_CONFIG)["nc"]
         cut = split_repetitions(load_measured(csv, declared))
-        runs = [command_from_program(r, gcode, nc=nc, model=nominal) for r in cut[:2]]
+        runs = place(cut[:2], gcode, planned)
         placing_s = time.perf_counter() - clock
+        assert runs[0] is not None
         # the same run and placed command, the current as recorded
         recorded = split_repetitions(load_measured(csv, as_recorded))[0]["force_cmd_N"]
         raw = runs[0].with_signals(force_cmd_N=recorded)
@@ -148,9 +153,10 @@ def main() -> None:
             sign_message = None
         except MeasuredDataError as exc:
             sign_message = str(exc).split(": ", 1)[1]
-    clock = time.perf_counter()
-    d, _, _ = diagnose(runs[0], nominal, validate=runs[1])
-    diagnose_s = time.perf_counter() - clock
+        clock = time.perf_counter()
+        d, _, _, runs = diagnose_program(cut[:2], gcode, planned)
+        diagnose_s = time.perf_counter() - clock
+    assert runs[0] is not None
     hand = hand_fit_rms(runs[0], nominal)
     # the samples that are evidence (Twin.first_evidence: the first average the window before
     # the twin's start and its settling from a start read off averaged samples)

@@ -114,14 +114,17 @@ def test_the_program_of_one_run_is_placed_on_each_repetition(record, tmp_path, c
     assert "found 3 repetitions" in capsys.readouterr().out
     report = json.loads((out / "report.json").read_text())
     placed = [n for n in report["notes"] if n.startswith(f"command from {program}")]
-    assert len(placed) == 2  # the identification run's and the validation run's
-    # named first: a viscous term 5 % under the nominal follows it on this run placed from the
-    # program (a 1 N Stribeck term did while the offset was read at the nominal twin)
-    assert report["effects"][0]["name"] == "coulomb_friction"
+    assert len(placed) == 2  # the identification run's and the validation run's, as placed last
+    # Coulomb friction alone, as with the record's own command: placed against the nominal
+    # twin only, whose response lacks the friction's lag, the command came out 16 us late, and
+    # a viscous term 5 % under the nominal (before that, a 1 N Stribeck term) was named too
+    # (analysis/placed.py places it again against the fitted model)
+    assert [e["name"] for e in report["effects"]] == ["coulomb_friction"]
     assert report["effects"][0]["parameters"]["F_c_N"] == pytest.approx(15.0, rel=0.05)
-    assert report["validation"]["after"]["effort_rel_err_pct"] < 5.0
-    # The record's zero is read again at the fitted model: the friction the nominal twin lacks
-    # lags the measured axis, which the offset read at the nominal twin took for a 9 um shift
-    # of the encoder's zero, left in the deviation after the fit (9 um RMS).
-    assert report["after"]["fe_dev_rms_m"] < 1e-6
-    assert report["validation"]["after"]["fe_dev_rms_m"] < 1e-6
+    assert report["validation"]["after"]["effort_rel_err_pct"] < 2.0
+    assert report["notes"][0].startswith("the program was placed again")
+    # The record's zero is a free constant of the fit, read again at each model: read once at
+    # the nominal twin it took the missing friction's lag for a 9 um shift of the encoder's
+    # zero, left in the deviation after the fit (9 um RMS).
+    assert report["after"]["fe_dev_rms_m"] < 0.5e-6
+    assert report["validation"]["after"]["fe_dev_rms_m"] < 0.5e-6

@@ -88,10 +88,11 @@ def _load(
 
 
 def _placed(run: MeasuredRun, program: str, model) -> MeasuredRun:
-    from feed_twin.analysis.program import command_from_program, nc_of_model
+    from feed_twin.analysis.placed import place
 
-    nc = nc_of_model(model.data, model.source)
-    return command_from_program(run, program, nc=nc, nc_source=model.source, model=model)
+    placed = place([run], program, model)[0]
+    assert placed is not None
+    return placed
 
 
 def configure_diagnose(parser: argparse.ArgumentParser) -> None:
@@ -114,6 +115,8 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
 
 def main_diagnose(args: argparse.Namespace) -> int:
     from feed_twin.analysis.diagnose import diagnose, write_model
+    from feed_twin.analysis.placed import diagnose_program
+    from feed_twin.analysis.program import nc_of_model
     from feed_twin.analysis.report import write_report
     from feed_twin.analysis.twin import ModelDoc
 
@@ -125,16 +128,20 @@ def main_diagnose(args: argparse.Namespace) -> int:
     try:
         _check_out(Path(args.out), directory=True)
         doc = ModelDoc.load(args.config)
-        # the program file holds one run of what the record repeats: placed on each repetition
-        once: str | None = args.program if args.repetitions else None
-        whole = None if once else args.program
-        run = _load(args.measured, args.map, whole, doc, args.segment, command=once is None)
-        other = _load(args.validate, args.map, args.program, doc) if args.validate else None
+        program: str | None = args.program
+        # with --program the runs are placed by diagnose_program (analysis/placed.py), on the
+        # model's NC, which is checked before anything is written
+        if program is not None:
+            nc_of_model(doc.data, doc.source)
+        unplaced = program is None
+        run = _load(args.measured, args.map, None, doc, args.segment, command=unplaced)
+        other = None
+        if args.validate:
+            other = _load(args.validate, args.map, None, doc, command=unplaced)
         more: list[MeasuredRun] = []
         if args.repetitions:
+            # the program file holds one run of what the record repeats: placed on each
             run, other, more = _repetitions(run, other, progress)
-            if once is not None:
-                run, other, *more = (_placed(r, once, doc) for r in (run, other, *more))
         for w in run.warnings:
             progress(f"warning: {w}")
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
@@ -144,10 +151,16 @@ def main_diagnose(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     model_path = out / "model.yaml"
     try:
-        diagnosis, final_doc, motion = diagnose(
-            run, doc, validate=other, progress=progress, model_path=str(model_path)
-        )
-    except (MeasuredDataError, ConfigError) as exc:
+        if program is None:
+            diagnosis, final_doc, motion = diagnose(
+                run, doc, validate=other, progress=progress, model_path=str(model_path)
+            )
+        else:
+            diagnosis, final_doc, motion, placed = diagnose_program(
+                [run, other, *more], program, doc, progress=progress, model_path=str(model_path)
+            )
+            more = [r for r in placed[2:] if r is not None]
+    except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
         return 2
     if more:

@@ -1,0 +1,81 @@
+"""The discrepancy workflow on records without a command: the G-code program placed on them.
+
+Placing (analysis.program) refines the program's time shifts and the record's position zero
+against a twin's response to the command. The first placement can only use the nominal twin,
+whose response lacks the very effects the workflow is about to find: a missing force lags or
+holds the measured axis, and that moves the placed command. On a 1 kHz record with 15 N of
+Coulomb friction hidden the command came out 16 us late, which the fit explained with a viscous
+term of its own (tests/test_analysis_repetitions.py); on a 50 Hz exact-stop trace of a vertical
+axis with stiction the zero came out 92 um off (benchmarks/real_machine_record.py). So when the
+first pass names effects, the program is placed again against the fitted model's response and
+the workflow runs once more from the nominal model; that second diagnosis is the result.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+
+from feed_twin.analysis.diagnose import diagnose
+from feed_twin.analysis.effects import Motion
+from feed_twin.analysis.program import command_from_program, nc_of_model
+from feed_twin.analysis.report import Diagnosis
+from feed_twin.analysis.rounds import Progress, noop
+from feed_twin.analysis.twin import ModelDoc
+from feed_twin.io.measured import MeasuredRun
+
+
+def place(
+    runs: Sequence[MeasuredRun | None],
+    program: str | Path,
+    nominal: ModelDoc,
+    response: ModelDoc | None = None,
+) -> list[MeasuredRun | None]:
+    """Each run (None stays None) with `program` planned on the nominal model's NC and placed
+    against the response of `response` (default: the nominal model)."""
+    nc = nc_of_model(nominal.data, nominal.source)
+    twin = nominal if response is None else response
+    return [
+        None
+        if r is None
+        else command_from_program(r, program, nc=nc, nc_source=nominal.source, model=twin)
+        for r in runs
+    ]
+
+
+def diagnose_program(
+    runs: Sequence[MeasuredRun | None],
+    program: str | Path,
+    nominal: ModelDoc,
+    *,
+    progress: Progress = noop,
+    model_path: str = "model.yaml",
+) -> tuple[Diagnosis, ModelDoc, Motion, list[MeasuredRun | None]]:
+    """Diagnose `runs[0]` (validated on `runs[1]` when there is one) with `program` placed on
+    each run (module docstring); also returns the runs as placed for the result."""
+    placed = place(runs, program, nominal)
+    diagnosis, doc, motion = _diagnose_placed(runs, placed, nominal, progress, model_path)
+    if not diagnosis.effects:
+        return diagnosis, doc, motion, placed
+    found = ", ".join(e.name for e in diagnosis.effects)
+    progress(f"placing the program again against the response of the model with {found}")
+    placed = place(runs, program, nominal, doc)
+    diagnosis, doc, motion = _diagnose_placed(runs, placed, nominal, progress, model_path)
+    again = f"the program was placed again against the response of the model with {found}"
+    diagnosis = dataclasses.replace(diagnosis, notes=(again, *diagnosis.notes))
+    return diagnosis, doc, motion, placed
+
+
+def _diagnose_placed(
+    runs: Sequence[MeasuredRun | None],
+    placed: list[MeasuredRun | None],
+    nominal: ModelDoc,
+    progress: Progress,
+    model_path: str,
+) -> tuple[Diagnosis, ModelDoc, Motion]:
+    first, validate = placed[0], placed[1] if len(placed) > 1 else None
+    assert first is not None and runs[0] is not None
+    for note in first.warnings[len(runs[0].warnings) :]:
+        progress(f"warning: {note}")  # where the program was placed
+    return diagnose(first, nominal, validate=validate, progress=progress, model_path=model_path)
