@@ -6,9 +6,10 @@ whose response lacks the very effects the workflow is about to find: a missing f
 holds the measured axis, and that moves the placed command. On a 1 kHz record with 15 N of
 Coulomb friction hidden the command came out 16 us late, which the fit explained with a viscous
 term of its own (tests/test_analysis_repetitions.py); on a 50 Hz exact-stop trace of a vertical
-axis with stiction the zero came out 92 um off (benchmarks/real_machine_record.py). So when the
-first pass names effects, the program is placed again against the fitted model's response and
-the workflow runs once more from the nominal model; that second diagnosis is the result.
+axis held at rest by friction the zero came out 92 um off (benchmarks/real_machine_record.py).
+So when the first pass names effects, the program is placed again against the fitted model's
+response and the workflow runs once more from the nominal model; that second diagnosis is the
+result.
 """
 
 from __future__ import annotations

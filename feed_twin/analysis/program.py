@@ -162,20 +162,32 @@ def command_from_program(
                 offset += b.position_offset_m
             trial = commanded(delta, offset)
     shift += delta
+    note = _placement_note(program, shift, a.correlation, offset, moves, shifts if warp else None)
+    return dataclasses.replace(trial, warnings=trial.warnings + (note,))
+
+
+def _placement_note(
+    program: str | Path,
+    shift: float,
+    correlation: float,
+    offset: float,
+    moves: list[tuple[float, float]],
+    shifts: np.ndarray | None,
+) -> str:
+    """The run's warning that says where the program was placed (`shifts`: block by block)."""
     note = (
         f"command from {program}: the program starts {shift:+.4f} s after the record "
-        f"(correlation {a.correlation:.4f}), position offset {offset * 1e6:+.2f} um"
+        f"(correlation {correlation:.4f}), position offset {offset * 1e6:+.2f} um"
     )
-    if warp:
-        assert shifts is not None
-        late = 1e3 * (shifts - shifts[0])
-        note += (
-            f"; aligned block by block: {len(moves)} moves, the last {late[-1]:+.1f} ms later "
-            "than the first would be by the program (the NC's own waits between blocks, e.g. "
-            f"exact stop and settle; a median {float(np.median(np.diff(late))):.0f} ms per "
-            "block: nc.exact_stop_settle_s plans such a wait after G60/G61/G9 blocks)"
-        )
-    return dataclasses.replace(trial, warnings=trial.warnings + (note,))
+    if shifts is None:
+        return note
+    late = 1e3 * (shifts - shifts[0])
+    return note + (
+        f"; aligned block by block: {len(moves)} moves, the last {late[-1]:+.1f} ms later "
+        "than the first would be by the program (the NC's own waits between blocks, e.g. "
+        f"exact stop and settle; a median {float(np.median(np.diff(late))):.0f} ms per "
+        "block: nc.exact_stop_settle_s plans such a wait after G60/G61/G9 blocks)"
+    )
 
 
 def _check_covered(
