@@ -90,3 +90,23 @@ def test_a_program_the_record_holds_three_times_points_to_repetitions(tmp_path):
     shift = re.search(r"the program starts ([-+][0-9.]+) s after the record", note)
     assert shift is not None and abs(float(shift.group(1))) < 1e-3, note
     assert "(correlation 1.0000)" in note
+
+
+def test_diagnose_says_a_program_that_does_not_fit_before_it_writes_anything(tmp_path, capsys):
+    """`diagnose --program` places the program before it creates --out: a record that holds
+    the program three times is one line, pointing to --repetitions, and no directory."""
+    csv, map_path = _scope(tmp_path, _three_times())
+    program = tmp_path / "part.ngc"
+    program.write_text(PROGRAM)
+    model = tmp_path / "model.yaml"  # the nominal model with the NC the program ran on
+    model.write_text(
+        yaml.safe_dump(yaml.safe_load(NOMINAL.read_text()) | yaml.safe_load(NC_CONFIG))
+    )
+    out = tmp_path / "out"
+    code = main(["diagnose", str(csv), "--config", str(model), "--map", str(map_path),
+                 "--program", str(program), "--out", str(out)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "add --repetitions or cut one run with --segment t0:t1" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not out.exists()

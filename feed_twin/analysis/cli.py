@@ -115,8 +115,7 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
 
 def main_diagnose(args: argparse.Namespace) -> int:
     from feed_twin.analysis.diagnose import diagnose, write_model
-    from feed_twin.analysis.placed import diagnose_program
-    from feed_twin.analysis.program import nc_of_model
+    from feed_twin.analysis.placed import diagnose_program, place
     from feed_twin.analysis.report import write_report
     from feed_twin.analysis.twin import ModelDoc
 
@@ -129,10 +128,8 @@ def main_diagnose(args: argparse.Namespace) -> int:
         _check_out(Path(args.out), directory=True)
         doc = ModelDoc.load(args.config)
         program: str | None = args.program
-        # with --program the runs are placed by diagnose_program (analysis/placed.py), on the
-        # model's NC, which is checked before anything is written
-        if program is not None:
-            nc_of_model(doc.data, doc.source)
+        # with --program the runs are placed here and, once more, by diagnose_program
+        # (analysis/placed.py): a program that does not fit is said before anything is written
         unplaced = program is None
         run = _load(args.measured, args.map, None, doc, args.segment, command=unplaced)
         other = None
@@ -142,7 +139,9 @@ def main_diagnose(args: argparse.Namespace) -> int:
         if args.repetitions:
             # the program file holds one run of what the record repeats: placed on each
             run, other, more = _repetitions(run, other, progress)
-        for w in run.warnings:
+        measured = [run, other, *more]
+        placed = None if program is None else place(measured, program, doc)
+        for w in run.warnings:  # the loader's; diagnose_program says where it placed the program
             progress(f"warning: {w}")
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
@@ -157,8 +156,9 @@ def main_diagnose(args: argparse.Namespace) -> int:
             )
         else:
             diagnosis, final_doc, motion, placed = diagnose_program(
-                [run, other, *more], program, doc, progress=progress, model_path=str(model_path)
-            )
+                measured, program, doc, progress=progress, model_path=str(model_path),
+                placed=placed,
+            )  # fmt: skip
             more = [r for r in placed[2:] if r is not None]
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)

@@ -52,10 +52,14 @@ def diagnose_program(
     *,
     progress: Progress = noop,
     model_path: str = "model.yaml",
+    placed: list[MeasuredRun | None] | None = None,
 ) -> tuple[Diagnosis, ModelDoc, Motion, list[MeasuredRun | None]]:
     """Diagnose `runs[0]` (validated on `runs[1]` when there is one) with `program` placed on
-    each run (module docstring); also returns the runs as placed for the result."""
-    placed = place(runs, program, nominal)
+    each run (module docstring); also returns the runs as placed for the result. `placed`: the
+    runs as `place(runs, program, nominal)` gave them, if the caller has placed them already
+    (to report a program that does not fit the record before anything is written)."""
+    if placed is None:
+        placed = place(runs, program, nominal)
     diagnosis, doc, motion = _diagnose_placed(runs, placed, nominal, progress, model_path)
     if not diagnosis.effects:
         return diagnosis, doc, motion, placed
