@@ -37,13 +37,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from feed_twin.analysis.diagnose import check_effort_sign
 from feed_twin.analysis.effects import last_direction, motion_from_position, moving
 from feed_twin.analysis.placed import diagnose_program, place
 from feed_twin.analysis.repetitions import split_repetitions
-from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, as_trace, generate
+from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, as_trace, generate, write_with_nc
 from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
 from feed_twin.io.measured import MeasuredDataError, load_measured
 
@@ -134,9 +133,7 @@ def main() -> None:
         gcode.write_text(once())
         # the nominal model with the NC the program is planned on (not the machine's: its
         # waits are what the placement finds)
-        with_nc = folder / "nominal_nc.yaml"
-        with_nc.write_text(yaml.safe_dump(nominal.data | yaml.safe_load(NC_CONFIG)))
-        planned = ModelDoc.load(with_nc)
+        planned = write_with_nc(nominal, folder / "nominal_nc.yaml")
         # the repetitions cut on the measured motion, the program placed on each (the CLI's
         # diagnose --repetitions --program: analysis.placed)
         clock = time.perf_counter()

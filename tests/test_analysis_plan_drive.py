@@ -19,7 +19,7 @@ from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.placed import diagnose_program
 from feed_twin.analysis.program import command_from_program
 from feed_twin.analysis.recorder import window_mean
-from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, as_trace, generate
+from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, as_trace, generate, write_with_nc
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 from feed_twin.core import signals
 from feed_twin.io.measured import PlannedCommand, load_measured
@@ -146,15 +146,13 @@ def machine_trace(nominal, tmp_path_factory):
     run = load_measured(folder / "trace.csv", folder / "map.yaml")
     nc = yaml.safe_load(NC_CONFIG)["nc"]  # the NC as the user knows it: no settle time
     placed = command_from_program(run, folder / "part.mpf", nc=nc, model=nominal)
-    with_nc = folder / "nominal.yaml"  # what `diagnose --program` takes: the model with its NC
-    with_nc.write_text(yaml.safe_dump(nominal.data | {"nc": nc}))
     return {
         "placed": placed,
         "t_truth": fine["time_ms"] * 1e-3,
         "x_truth": fine["x_cmd_mm"] * 1e-3,
         "unplaced": run,
         "program": folder / "part.mpf",
-        "nominal": ModelDoc.load(with_nc),
+        "nominal": write_with_nc(nominal, folder / "nominal.yaml"),
     }
 
 

@@ -10,7 +10,8 @@ import pytest
 import yaml
 
 from feed_twin.analysis.program import command_from_program
-from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM
+from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, write_with_nc
+from feed_twin.analysis.twin import ModelDoc
 from feed_twin.cli import main
 from feed_twin.gcode.config import nc_config_from_mapping
 from feed_twin.gcode.planner import plan_program
@@ -99,9 +100,7 @@ def test_diagnose_says_a_program_that_does_not_fit_before_it_writes_anything(tmp
     program = tmp_path / "part.ngc"
     program.write_text(PROGRAM)
     model = tmp_path / "model.yaml"  # the nominal model with the NC the program ran on
-    model.write_text(
-        yaml.safe_dump(yaml.safe_load(NOMINAL.read_text()) | yaml.safe_load(NC_CONFIG))
-    )
+    write_with_nc(ModelDoc.load(NOMINAL), model)
     out = tmp_path / "out"
     code = main(["diagnose", str(csv), "--config", str(model), "--map", str(map_path),
                  "--program", str(program), "--out", str(out)])  # fmt: skip

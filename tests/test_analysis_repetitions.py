@@ -7,10 +7,9 @@ import json
 from pathlib import Path
 
 import pytest
-import yaml
 
 from feed_twin.analysis.repetitions import find_period, split_repetitions
-from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, generate, write_csv
+from feed_twin.analysis.synthetic import PROGRAM, generate, write_csv, write_with_nc
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.cli import main
 from feed_twin.io.measured import load_measured
@@ -104,9 +103,7 @@ def test_the_program_of_one_run_is_placed_on_each_repetition(record, tmp_path, c
     program = tmp_path / "part.ngc"
     program.write_text(PROGRAM)
     model = tmp_path / "model.yaml"  # the nominal model with the NC the program ran on
-    model.write_text(
-        yaml.safe_dump(yaml.safe_load(NOMINAL.read_text()) | yaml.safe_load(NC_CONFIG))
-    )
+    write_with_nc(ModelDoc.load(NOMINAL), model)
     out = tmp_path / "out"
     code = main(["diagnose", str(csv), "--config", str(model), "--map", str(scope),
                  "--program", str(program), "--repetitions", "--out", str(out)])  # fmt: skip

@@ -129,6 +129,15 @@ def truth_model(
     return doc
 
 
+def write_with_nc(nominal: ModelDoc, path: str | Path, nc_config: str = NC_CONFIG) -> ModelDoc:
+    """The nominal model with the NC a synthetic program is planned on, written to `path`
+    and loaded from there: what `diagnose --program` takes (a model's nc: section)."""
+    import yaml
+
+    Path(path).write_text(yaml.safe_dump(nominal.data | yaml.safe_load(nc_config)))
+    return ModelDoc.load(path)
+
+
 def command(program: str = PROGRAM, nc_config: str = NC_CONFIG) -> tuple[np.ndarray, np.ndarray]:
     """(t [s], X position setpoint [m]) of a G-code program planned by feed_twin.gcode."""
     import yaml
