@@ -12,6 +12,7 @@ An axis that does not move (u_i = 0) sets no limit.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,16 +28,28 @@ class AxisLimits:
     rapid: np.ndarray  # [m/s or rad/s] G0 speed per axis
     a_max: np.ndarray  # [m/s^2 or rad/s^2]
     j_max: np.ndarray  # [m/s^3 or rad/s^3]
-    jerk: bool  # jerk-limited S-curves; otherwise trapezoids (J infinite)
+    jerk: bool  # jerk-limited (the raw plan filtered, `jerk_filter`); otherwise trapezoids
+    filter_n: int  # samples averaged by the jerk filter (1: no filter)
+    # [s] T: how long the raw plan holds a speed for the filter (0: no filter): the window's
+    # span (filter_n - 1) periods and two more, over which differences of the samples spread
+    # a change of the raw acceleration
+    window_s: float
 
     @classmethod
     def of(cls, config: NcConfig) -> AxisLimits:
+        a_max = np.array(config.a_max)
+        j_max = np.array(config.j_max)
+        jerk = config.profile == "jerk"
+        period = config.interpolation_period_s
+        n = filter_samples(a_max, j_max, period) if jerk else 1
         return cls(
             v_max=np.array(config.v_max),
             rapid=np.array(config.rapid),
-            a_max=np.array(config.a_max),
-            j_max=np.array(config.j_max),
-            jerk=config.profile == "jerk",
+            a_max=a_max,
+            j_max=j_max,
+            jerk=jerk,
+            filter_n=n,
+            window_s=(n + 1) * period if jerk else 0.0,
         )
 
     def cruise_cap(
@@ -88,3 +101,9 @@ def move_limits(
     if not limits.jerk:
         J = np.full(n, np.inf)
     return MoveLimits(P=P, L=L, u=u, V=V, A=A, J=J)
+
+
+def filter_samples(a_max: np.ndarray, j_max: np.ndarray, period: float) -> int:
+    """Samples N the jerk filter averages (`jerk_filter`): (N - 1) * period >= max_i a_i / j_i."""
+    span = float(np.max(a_max / j_max))
+    return math.ceil(span / period - 1e-9) + 1
