@@ -218,7 +218,7 @@ def box_filter(history: np.ndarray, raw: np.ndarray, span: float) -> np.ndarray:
     lag = len(history)
     joined = np.concatenate((history, raw))
     now, then = joined[lag:], joined[: len(joined) - lag]
-    return np.column_stack(
-        ((now[:, 2] - then[:, 2]) / span, (now[:, 0] - then[:, 0]) / span,
-         (now[:, 1] - then[:, 1]) / span)
-    )  # fmt: skip
+    # The mean lies between the window's ends: held there, the rounding of F cannot carry it
+    # past a stop (onto the next move) before it comes to rest, and at rest it is exact.
+    s = np.clip((now[:, 2] - then[:, 2]) / span, then[:, 0], now[:, 0])
+    return np.column_stack((s, (now[:, 0] - then[:, 0]) / span, (now[:, 1] - then[:, 1]) / span))

@@ -20,6 +20,9 @@ import numpy as np
 from feed_twin.gcode.config import NcConfig
 
 
+FILTER_ROUNDING = 1e-6  # share of a_max, j_max the jerk profile leaves for rounding errors
+
+
 @dataclass(frozen=True, kw_only=True)
 class AxisLimits:
     """Per-axis limits of the configured machine (arrays over the axes, SI)."""
@@ -30,10 +33,7 @@ class AxisLimits:
     j_max: np.ndarray  # [m/s^3 or rad/s^3]
     jerk: bool  # jerk-limited (the raw plan filtered, `jerk_filter`); otherwise trapezoids
     filter_n: int  # samples averaged by the jerk filter (1: no filter)
-    # [s] T: how long the raw plan holds a speed for the filter (0: no filter): the window's
-    # span (filter_n - 1) periods and two more, over which differences of the samples spread
-    # a change of the raw acceleration
-    window_s: float
+    window_s: float  # [s] T = (filter_n - 1) * period, the span it averages over (0: none)
 
     @classmethod
     def of(cls, config: NcConfig) -> AxisLimits:
@@ -42,6 +42,9 @@ class AxisLimits:
         jerk = config.profile == "jerk"
         period = config.interpolation_period_s
         n = filter_samples(a_max, j_max, period) if jerk else 1
+        if jerk:  # the filtered plan runs exactly at the limits: keep its rounding inside
+            a_max = a_max * (1.0 - FILTER_ROUNDING)
+            j_max = j_max * (1.0 - FILTER_ROUNDING)
         return cls(
             v_max=np.array(config.v_max),
             rapid=np.array(config.rapid),
@@ -49,7 +52,7 @@ class AxisLimits:
             j_max=j_max,
             jerk=jerk,
             filter_n=n,
-            window_s=(n + 1) * period if jerk else 0.0,
+            window_s=(n - 1) * period,
         )
 
     def cruise_cap(

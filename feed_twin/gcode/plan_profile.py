@@ -182,21 +182,23 @@ def node_entries(
 
 
 def stop_holds(
-    bodies: Bodies, speeds: SpeedProfile, *, q_commit: int, final: bool, window_s: float
+    bodies: Bodies, speeds: SpeedProfile, *, q_commit: int, final: bool, hold_s: float
 ) -> list[Dwell]:
-    """A hold of the filter window T at each 1-D node where the raw plan stops, so that the
-    filtered plan comes to rest there too, before the node's dwells and events (`jerk_filter`).
+    """A hold of `hold_s` (the filter window T and a period) at each 1-D node where the raw
+    plan stops, so that the filtered plan comes to rest there too, for at least one sample,
+    before the node's dwells and events (`jerk_filter`): its arrival and its departure, along
+    different moves, never share a sample.
 
     The window's first node is left out where the path was at rest before it (the start).
     """
-    if window_s <= 0.0:
+    if hold_s <= 0.0:
         return []
     last = q_commit + 1 if final else q_commit
     slots = np.flatnonzero(speeds.v[:last] == 0.0)
     return [
         Dwell(
             PIECES_PER_NODE * int(q) - 0.9,
-            window_s,
+            hold_s,
             float(bodies.sa[q]),
             -1,
             int(bodies.node[q]),

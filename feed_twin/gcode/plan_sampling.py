@@ -129,6 +129,11 @@ def sample_filtered(
     )
     raw = np.column_stack((s, sd, F, times))
     smooth = box_filter(history, raw, span)
+    # At a node itself a sample that moves belongs to the move it leaves on.
+    moving = smooth[:, 1] > 0.0
+    first = np.where(
+        moving, np.searchsorted(S, smooth[:, 0], "right"), np.searchsorted(S, smooth[:, 0])
+    )
     pos, vel, acc, seg = evaluate_path(
         smooth[:, 0],
         smooth[:, 1],
@@ -142,7 +147,7 @@ def sample_filtered(
         dU[:n],
         w[1:],
         dU[1:],
-        np.zeros(len(times), dtype=np.int64),
+        np.clip(first - 1, 0, n - 1),
     )
     joined = np.concatenate((history, raw))
     return pos, vel, acc, piece, seg, joined[len(raw) :], F_end

@@ -168,6 +168,7 @@ class _StreamPlanner:
         self.window_s = self.limits.window_s
         self.n_filter = self.limits.filter_n
         self.period = config.interpolation_period_s
+        self.hold_s = self.window_s + self.period if self.window_s > 0.0 else 0.0
         self.settle_s = config.exact_stop_settle_s
         self.forced = max(2, config.lookahead_segments // 4)
         # Listed moves: the not yet committed ones, preceded by one committed context move
@@ -183,7 +184,6 @@ class _StreamPlanner:
         # Raw samples (s, ds/dt, F = integral of s dt, t) within the jerk filter's span before
         # the next one, in the listed moves' s (at first the start point, at rest since t = 0);
         # F at the end of the committed pieces.
-        self.span_s = (self.n_filter - 1) * self.period
         k_before = np.arange(1 - self.n_filter, 0)
         self.history = np.column_stack((0.0 * k_before, 0.0 * k_before, 0.0 * k_before,
                                         k_before * self.period))  # fmt: skip
@@ -241,7 +241,7 @@ class _StreamPlanner:
             bodies, speeds, q_commit=q_commit, n_moves=n, jerk=self.jerk, window_s=self.window_s
         )
         dwells, timed = node_entries(self._entries_at(bodies, q_commit, final), bodies.S)
-        holds = stop_holds(bodies, speeds, q_commit=q_commit, final=final, window_s=self.window_s)
+        holds = stop_holds(bodies, speeds, q_commit=q_commit, final=final, hold_s=self.hold_s)
         pieces = with_dwells(pieces, holds + dwells)
         t0, t_end = piece_starts(pieces, self.t_s)
         events = event_times(timed, pieces, t0, t_end, q_commit)
@@ -257,7 +257,7 @@ class _StreamPlanner:
                 blends.dU,
                 history=self.history,
                 F0=self.F_end,
-                span=self.span_s,
+                span=self.window_s,
             )
         else:
             pos, vel, acc, piece, seg = sample_path(
