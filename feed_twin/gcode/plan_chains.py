@@ -23,6 +23,7 @@ from feed_twin.gcode.plan_blends import CHAIN_SHARE, SHARP_CORNER, CornerBlends,
 from feed_twin.gcode.plan_limits import AxisLimits, MoveLimits
 
 CHAIN_CUT = 1.3  # a chain is cut where its local speed cap changes by more than this factor
+SAME_CAP = 0.01  # neighbouring moves whose speed caps differ by less than this share: one cap
 
 # Kinds of 1-D node
 SINGLE = 0  # a corner blended alone (or a stop, or a passing point): cruise over its blend
@@ -81,8 +82,13 @@ def chain_bodies(
     sb = np.where(kind_q == SINGLE, S[node_q] + w[node_q], sa)
     if len(node_q) < 2:
         return None
+    length = np.maximum(sa[1:] - sb[:-1], 0.0)
+    if open_end:
+        length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
     filtered = limits.window_s > 0.0
-    extended = _extended(kind_q, node_q, blends) if filtered else np.zeros(len(kind_q), bool)
+    extended = np.zeros(len(kind_q), dtype=bool)
+    if filtered:
+        extended = _extended(kind_q, node_q, blends, V, length, limits.window_s)
     if filtered:
         # Bodies a filter window may share with a neighbour: planned as chains, eroded.
         in_chain = ~(extended[:-1] & extended[1:])
@@ -99,9 +105,6 @@ def chain_bodies(
     cap_q[:-1] = np.where(in_chain, np.minimum(cap_q[:-1], Vc), cap_q[:-1])
     if not filtered:
         cap_q = np.where(kind_q == SINGLE, cap[node_q], cap_q)
-    length = np.maximum(sa[1:] - sb[:-1], 0.0)
-    if open_end:
-        length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
     pairs = np.column_stack((node_q[:-1], node_q[1:])).ravel()
     pad = np.array([np.inf])
     Vb = np.minimum.reduceat(np.concatenate((V, pad)), pairs)[::2]
@@ -122,13 +125,32 @@ def chain_bodies(
     )
 
 
-def _extended(kind_q: np.ndarray, node_q: np.ndarray, blends: CornerBlends) -> np.ndarray:
-    """1-D nodes whose speed the filtered raw plan holds T v / 2 beyond the blend: stops, sharp
-    corners and passing points (`jerk_filter`); gentle corners blended alone are not, nor
-    are a chain's nodes (their neighbours' limits are eroded instead)."""
-    gentle = np.sqrt(np.einsum("ij,ij->i", blends.dU, blends.dU)) <= SHARP_CORNER
-    smooth = blends.alone & gentle & ~blends.stop
-    return (kind_q == SINGLE) & ~smooth[node_q]
+def _extended(
+    kind_q: np.ndarray,
+    node_q: np.ndarray,
+    blends: CornerBlends,
+    V: np.ndarray,
+    length: np.ndarray,
+    T: float,
+) -> np.ndarray:
+    """1-D nodes whose speed the filtered raw plan holds T v / 2 beyond the blend
+    (`jerk_filter`): stops; sharp corners and passing points where the speed cap changes,
+    where the bodies on both sides leave any room; gentle corners where they leave room at
+    the corner's cap. Not a chain's nodes, nor passing points between moves of (nearly) the
+    same cap, nor gentle corners between short bodies: their neighbours' limits are eroded."""
+    gentle = blends.corner & (np.sqrt(np.einsum("ij,ij->i", blends.dU, blends.dU)) <= SHARP_CORNER)
+    V_in = np.concatenate(([np.inf], V))
+    V_out = np.concatenate((V, [np.inf]))
+    with np.errstate(invalid="ignore"):
+        same_cap = np.abs(V_in - V_out) <= SAME_CAP * np.minimum(V_in, V_out)
+    smooth = (gentle | (~blends.corner & same_cap)) & ~blends.stop
+    room = np.minimum(np.concatenate(([np.inf], length)), np.concatenate((length, [np.inf])))
+    wide = room >= 0.5 * T * blends.cap[node_q]
+    single = kind_q == SINGLE
+    return single & (
+        blends.stop[node_q]
+        | np.where(smooth[node_q] & gentle[node_q], wide, ~smooth[node_q] & (room > 0.0))
+    )
 
 
 def _eroded(

@@ -19,8 +19,7 @@ import numpy as np
 
 from feed_twin.gcode.config import NcConfig
 
-
-FILTER_ROUNDING = 1e-6  # share of a_max, j_max the jerk profile leaves for rounding errors
+FILTER_ROUNDING = 1e-4  # share of a_max, j_max the jerk profile leaves for rounding and sampling
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -182,30 +182,34 @@ def node_entries(
 
 
 def stop_holds(
-    bodies: Bodies, speeds: SpeedProfile, *, q_commit: int, final: bool, hold_s: float
+    bodies: Bodies,
+    speeds: SpeedProfile,
+    *,
+    q_commit: int,
+    final: bool,
+    window_s: float,
+    period: float,
 ) -> list[Dwell]:
-    """A hold of `hold_s` (the filter window T and a period) at each 1-D node where the raw
-    plan stops, so that the filtered plan comes to rest there too, for at least one sample,
-    before the node's dwells and events (`jerk_filter`): its arrival and its departure, along
-    different moves, never share a sample.
+    """Holds at each 1-D node where the raw plan stops, so that the filtered plan (window T,
+    `jerk_filter`) comes to rest there too: T before the node's dwells and events, and one
+    period after them, so that its arrival and its departure (along different moves) never
+    share a sample. The program's end needs T alone.
 
     The window's first node is left out where the path was at rest before it (the start).
     """
-    if hold_s <= 0.0:
+    if window_s <= 0.0:
         return []
     last = q_commit + 1 if final else q_commit
     slots = np.flatnonzero(speeds.v[:last] == 0.0)
-    return [
-        Dwell(
-            PIECES_PER_NODE * int(q) - 0.9,
-            hold_s,
-            float(bodies.sa[q]),
-            -1,
-            int(bodies.node[q]),
-        )
-        for q in slots
-        if q > 0 or speeds.v[0] == 0.0 and bodies.node[0] > 0
-    ]
+    holds: list[Dwell] = []
+    for q in slots:
+        if q == 0 and not (speeds.v[0] == 0.0 and bodies.node[0] > 0):
+            continue
+        s, node = float(bodies.sa[q]), int(bodies.node[q])
+        holds.append(Dwell(PIECES_PER_NODE * int(q) - 0.9, window_s, s, -1, node))
+        if not (final and q == q_commit):
+            holds.append(Dwell(PIECES_PER_NODE * int(q) - 1e-6, period, s, -1, node))
+    return holds
 
 
 def with_dwells(pieces: Pieces, dwells: list[Dwell]) -> Pieces:

@@ -168,7 +168,6 @@ class _StreamPlanner:
         self.window_s = self.limits.window_s
         self.n_filter = self.limits.filter_n
         self.period = config.interpolation_period_s
-        self.hold_s = self.window_s + self.period if self.window_s > 0.0 else 0.0
         self.settle_s = config.exact_stop_settle_s
         self.forced = max(2, config.lookahead_segments // 4)
         # Listed moves: the not yet committed ones, preceded by one committed context move
@@ -241,7 +240,14 @@ class _StreamPlanner:
             bodies, speeds, q_commit=q_commit, n_moves=n, jerk=self.jerk, window_s=self.window_s
         )
         dwells, timed = node_entries(self._entries_at(bodies, q_commit, final), bodies.S)
-        holds = stop_holds(bodies, speeds, q_commit=q_commit, final=final, hold_s=self.hold_s)
+        holds = stop_holds(
+            bodies,
+            speeds,
+            q_commit=q_commit,
+            final=final,
+            window_s=self.window_s,
+            period=self.period,
+        )
         pieces = with_dwells(pieces, holds + dwells)
         t0, t_end = piece_starts(pieces, self.t_s)
         events = event_times(timed, pieces, t0, t_end, q_commit)
