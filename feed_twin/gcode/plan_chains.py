@@ -23,6 +23,9 @@ from feed_twin.gcode.plan_blends import CHAIN_SHARE, SHARP_CORNER, CornerBlends,
 from feed_twin.gcode.plan_limits import AxisLimits, MoveLimits
 
 CHAIN_CUT = 1.3  # a chain is cut where its local speed cap changes by more than this factor
+# With the jerk filter: the share of each axis's jerk the curvature's own change (x''' v^3)
+# may take at a chain's speed cap; s''' and the cross term share the rest through A.
+CURVE_JERK_SHARE = 0.75
 SAME_CAP = 0.01  # neighbouring moves whose speed caps differ by less than this share: one cap
 
 # Kinds of 1-D node
@@ -261,7 +264,8 @@ def chain_limits(
     a_g = over_bodies(a_node, np.maximum)
     j_g = over_bodies(j_node, np.maximum)
     u_g = over_bodies(u_node, np.maximum)
-    Vc = np.minimum(over_bodies(v_node, np.minimum), limits.cruise_cap(a_g, j_g, 0.5, 1.0 / 3.0))
+    a_share, j_share = (0.5, CURVE_JERK_SHARE) if limits.window_s > 0.0 else (0.5, 1.0 / 3.0)
+    Vc = np.minimum(over_bodies(v_node, np.minimum), limits.cruise_cap(a_g, j_g, a_share, j_share))
     a_max, j_max = limits.a_max, limits.j_max
     with np.errstate(divide="ignore", invalid="ignore"):
         Ac = np.min(np.where(u_g > 0.0, 0.5 * a_max / u_g, np.inf), axis=1)
