@@ -292,3 +292,28 @@ def requirement_failures(figures: TrajectoryFigures, *, chord_tolerance_m: float
                 f"{dev * 1e6:.3f} um from the vertex (tolerance {corner.tolerance_m * 1e6:.3f} um)"
             )
     return failures
+
+
+LIMIT_SLACK = 1e-6  # relative; differences of positions at rounding level stay inside
+
+
+def axis_limit_failures(
+    figures: TrajectoryFigures,
+    axes: tuple[str, ...],
+    *,
+    v_max: tuple[float, ...],
+    a_max: tuple[float, ...],
+    j_max: tuple[float, ...] | None,
+) -> list[str]:
+    """Axes whose peak velocity, acceleration or (with `j_max`) jerk, from differences of the
+    sampled positions, exceed their limits."""
+    checks = [("velocity", figures.peak_vel_m_s, v_max, "m/s")]
+    checks.append(("acceleration", figures.peak_acc_m_s2, a_max, "m/s^2"))
+    if j_max is not None:
+        checks.append(("jerk", figures.peak_jerk_m_s3, j_max, "m/s^3"))
+    failures = []
+    for kind, peaks, limits, unit in checks:
+        for axis, peak, limit in zip(axes, peaks, limits, strict=True):
+            if peak > limit * (1.0 + LIMIT_SLACK):
+                failures.append(f"axis {axis}: peak {kind} {peak:.6g} {unit} above {limit:.6g}")
+    return failures
