@@ -13,9 +13,10 @@ Requirements checked on our sides: arc samples within chord_tolerance_m of the c
 corners within their G64 tolerance; every axis's peak velocity and acceleration (and, for the
 jerk profile, jerk) from differences of the sampled positions within its limits; the
 trapezoid's program time within 5 % of LinuxCNC's and the jerk profile's at most 1.10 times
-LinuxCNC's (LinuxCNC is acceleration-limited: a jerk limit may cost a little time, not more). The programs in peer/disagree/ are accepted by one side only: they are reported, as a
-program one side refuses must never silently run on the other. Last printed line: one JSON
-object with every figure. Exit status 1 when a requirement is broken.
+LinuxCNC's (LinuxCNC is acceleration-limited: a jerk limit may cost a little time, not more).
+The programs in peer/disagree/ are accepted by one side only: they are reported, as a program
+one side refuses must never silently run on the other. Last printed line: one JSON object with
+every figure. Exit status 1 when a requirement is broken.
 
     .venv/bin/python benchmarks/linuxcnc_peer.py [--config config/axis_default.yaml] [-k NAME]
 """
