@@ -129,8 +129,9 @@ def sample_filtered(
     )
     raw = np.column_stack((s, sd, F, times))
     smooth = box_filter(history, raw, span)
-    # At a node itself a sample that moves belongs to the move it leaves on.
-    moving = smooth[:, 1] > 0.0
+    # At a node itself a sample belongs to the move it leaves on once the raw plan is past it
+    # (arriving at a stop, the raw plan is at the node: the move it arrives on).
+    moving = s > smooth[:, 0]
     first = np.where(
         moving, np.searchsorted(S, smooth[:, 0], "right"), np.searchsorted(S, smooth[:, 0])
     )
