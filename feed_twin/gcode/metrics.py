@@ -244,7 +244,14 @@ def trajectory_figures(
     for corner in corners:
         vertex = np.array(corner.vertex_m)
         to_vertex = np.linalg.norm(pos - vertex, axis=1)
-        own = np.flatnonzero((seg == corner.index) | (seg == corner.index + 1))
+        own_seg = (seg == corner.index) | (seg == corner.index + 1)
+        if use_lines:
+            # A vertex the path passes twice (a square drawn again from the same point): a
+            # sample off both segments by more than REASSIGN_DISTANCE_M may have been given to
+            # the other visit's segments; its program line still says which corner it is at.
+            lines = (corner.line, segments[corner.index + 1].line)
+            own_seg |= np.isin(traj.line, lines) & (to_vertex < corner.zone_m)
+        own = np.flatnonzero(own_seg)
         in_zone[own[to_vertex[own] < corner.zone_m]] = True
         if len(own) == 0:
             corner_dev.append(math.nan)
