@@ -151,4 +151,4 @@ def sample_filtered(
         np.clip(first - 1, 0, n - 1),
     )
     joined = np.concatenate((history, raw))
-    return pos, vel, acc, piece, seg, joined[len(raw) :], F_end
+    return pos, vel, acc, piece, seg, joined[len(raw) :], float(F_end)
