@@ -26,6 +26,10 @@ CHAIN_CUT = 1.3  # a chain is cut where its local speed cap changes by more than
 # With the jerk filter: the share of each axis's jerk the curvature's own change (x''' v^3)
 # may take at a chain's speed cap; s''' and the cross term share the rest through A.
 CURVE_JERK_SHARE = 0.75
+# The trapezoid's share of each axis's acceleration for the curvature (x'' v^2) at a chain's
+# speed cap (half before); s'' takes what it leaves. The filtered plan keeps half: its s''
+# feeds the jerk too.
+CURVE_ACC_SHARE = 0.75
 SAME_CAP = 0.01  # neighbouring moves whose speed caps differ by less than this share: one cap
 
 # Kinds of 1-D node
@@ -264,7 +268,11 @@ def chain_limits(
     a_g = over_bodies(a_node, np.maximum)
     j_g = over_bodies(j_node, np.maximum)
     u_g = over_bodies(u_node, np.maximum)
-    a_share, j_share = (0.5, CURVE_JERK_SHARE) if limits.window_s > 0.0 else (0.5, 1.0 / 3.0)
+    a_share, j_share = (0.5, 1.0 / 3.0)  # S-curves per body
+    if limits.window_s > 0.0:
+        a_share, j_share = 0.5, CURVE_JERK_SHARE
+    elif not limits.jerk:
+        a_share = CURVE_ACC_SHARE
     Vc = np.minimum(over_bodies(v_node, np.minimum), limits.cruise_cap(a_g, j_g, a_share, j_share))
     a_max, j_max = limits.a_max, limits.j_max
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -281,5 +289,7 @@ def chain_limits(
             Ac = np.minimum(Ac, np.min(np.where(a_g > 0.0, cross, np.inf), axis=1))
             Jc = np.min(np.where(u_g > 0.0, j_max / (3.0 * u_g), np.inf), axis=1)
         else:
+            a_left = (a_max - a_g * Vc[:, None] ** 2) / u_g
+            Ac = np.min(np.where(u_g > 0.0, a_left, np.inf), axis=1)
             Jc = np.full(len(Vc), np.inf)
     return Vc, Ac, Jc
