@@ -383,8 +383,8 @@ def test_exit_status_of_a_killed_node():
 
 
 def test_limits_of_the_default_config(tmp_path):
+    from feed_twin.nodeset.config import load_node_set_config
     from feed_twin.nodeset.protection import protection_for_config
-    from feed_twin.nodeset.split import load_node_set_config
 
     guard = protection_for_config(AXIS, load_node_set_config(AXIS), MS)
     assert guard.limits == DriveLimits(

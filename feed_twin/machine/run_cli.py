@@ -38,7 +38,8 @@ from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig, load_machine_config
 from feed_twin.machine.simulate import MachineRun, simulate_machine
-from feed_twin.nodeset.split import NS_PER_S, StateSignals
+from feed_twin.nodeset.config import StateSignals
+from feed_twin.nodeset.wire import NS_PER_S
 
 NODE_SET_OPTIONS = ("realtime", "single_process", "live", "no_gcode")
 

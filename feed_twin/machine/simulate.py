@@ -22,7 +22,7 @@ from feed_twin.gcode.geometry import programmed_path
 from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.contour import ContourError, contour_error
-from feed_twin.nodeset.split import StateSignals
+from feed_twin.nodeset.config import StateSignals
 from feed_twin.sim.config import build_engine
 from feed_twin.sim.program import TABLE_POSITION, ProgramRun, simulate_program
 

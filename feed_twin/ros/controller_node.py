@@ -34,19 +34,14 @@ from feed_twin.core import signals as sig
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.nodeset.config import Boundary, NodeLoopGains
+from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
+from feed_twin.nodeset.nc_buffer import NcBuffer
 from feed_twin.nodeset.record_batch import messages_of
 from feed_twin.nodeset.run_end import RunEnd
-from feed_twin.nodeset.split import (
-    NS_PER_S,
-    Boundary,
-    ControllerCore,
-    DriveSetpoint,
-    NcBuffer,
-    NcSample,
-    NodeLoopGains,
-)
 from feed_twin.nodeset.topics import CONTROLLER_NODE
+from feed_twin.nodeset.wire import NS_PER_S, DriveSetpoint, NcSample
 from feed_twin.ros.batched import RecordSender
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
 from feed_twin.ros.guarded import InputGuard

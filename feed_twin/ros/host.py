@@ -77,7 +77,7 @@ def stops_at_first_failure(roles: Sequence[str]) -> bool:
 
 def build_nodes(nodes: Sequence[tuple[str, Sequence[str]]], context) -> list:
     """Build each node with its module's own argument parser and `build`, in `context`."""
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.nodeset.config import load_node_set_config
     from feed_twin.ros.runtime import node_options, node_parser
 
     built = []

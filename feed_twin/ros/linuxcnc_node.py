@@ -282,7 +282,7 @@ def run_starter(args: argparse.Namespace, nc, servo) -> Callable[[], LinuxcncRun
 
 
 def build(args: argparse.Namespace, context) -> LinuxcncNode:
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.nodeset.config import load_node_set_config
 
     ros = load_node_set_config(args.config)
     nc, servo = machine_for_config(args.config)

@@ -125,7 +125,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def build(args: argparse.Namespace, context) -> MachineLinuxcncNode:
     from feed_twin.linuxcnc.machine_shadow import linuxcnc_machine, machine_joints
     from feed_twin.machine.config import load_machine_config
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.nodeset.config import load_node_set_config
 
     ros = load_node_set_config(args.config)
     machine = load_machine_config(args.machine_config).select(args.axes.split(","))

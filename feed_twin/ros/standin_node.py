@@ -445,7 +445,7 @@ def build(args: argparse.Namespace, context) -> StandInNode:
     machine, axis, divider, program = args.machine, args.axis, 10, None
     if args.follow:
         from feed_twin.gcode import load_nc_config
-        from feed_twin.nodeset.split import load_node_set_config
+        from feed_twin.nodeset.config import load_node_set_config
 
         ros = load_node_set_config(args.config)
         nc = load_nc_config(args.config)
