@@ -14,10 +14,10 @@ from rclpy.serialization import serialize_message
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from feed_twin.control.config import load_controller_config
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag.schema import message_definition
 from feed_twin.io.cdr import FlatCodec, NotFlatError
-from feed_twin.io.config import ConfigError
 from feed_twin.nodeset.config import NodeLoopGains, NodeSetConfig, load_node_set_config
 from feed_twin.nodeset.controller_core import ControllerCore, controller_node_config
 from feed_twin.nodeset.nc_buffer import NcBuffer

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.core.config import ConfigError, load_yaml
 from feed_twin.machine.config import MachineConfig, axis_sections
 from feed_twin.machine.contour import ContourError, contour_error
 

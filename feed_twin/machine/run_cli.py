@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.core.config import ConfigError
 from feed_twin.io import msg_types
 from feed_twin.io.bag import BagWriter
 from feed_twin.io.cdr import FlatCodec
-from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig, load_machine_config
 from feed_twin.machine.simulate import MachineRun, simulate_machine
 from feed_twin.nodeset.config import StateSignals

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import PEER_TIMEOUT_S, axis_documents, process_name, write_documents
 from feed_twin.machine.shadow import axis_figures, axis_shadow_config

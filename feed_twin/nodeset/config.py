@@ -8,8 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from feed_twin.core.config import from_mapping, load_yaml
 from feed_twin.core.validate import require_positive
-from feed_twin.io.config import from_mapping, load_yaml
 from feed_twin.nodeset.protection import ProtectionConfig
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.nodeset.wire import NS_PER_S

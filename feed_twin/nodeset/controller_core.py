@@ -5,7 +5,8 @@ the messages that carry its measurement. `controller_node_config` derives that c
 the axis's `controller:` section and says what it changed.
 
 The nodes only convert messages to and from these classes, so the in-process `Lockstep` run
-(feed_twin/nodeset/drive_host.py, used by the cross-check test) computes exactly what the node set computes.
+(feed_twin/nodeset/drive_host.py, used by the cross-check test) computes exactly what the node
+set computes.
 """
 
 from __future__ import annotations

@@ -31,9 +31,9 @@ from std_msgs.msg import String
 
 from feed_twin.control.config import ControllerConfig, load_controller_config
 from feed_twin.core import signals as sig
+from feed_twin.core.config import ConfigError, load_yaml
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
-from feed_twin.io.config import ConfigError, load_yaml
 from feed_twin.nodeset.config import Boundary, NodeLoopGains
 from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds

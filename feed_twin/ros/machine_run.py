@@ -28,8 +28,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from feed_twin.core.config import ConfigError
 from feed_twin.io import msg_types
-from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import (
     RECORDER_PROCESS,

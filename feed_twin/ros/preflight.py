@@ -19,7 +19,7 @@ import os
 import shutil
 from pathlib import Path
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 
 # Bytes per exchange in the bag: AxisCommand, DriveCommand, AxisFeedback and AxisState with
 # their MCAP records, zstd-compressed: sample.ngc at 1 kHz made 2.49 MB in 7331 exchanges

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.nodeset.guard import RUN_TOKEN_ENV
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
@@ -500,7 +500,7 @@ def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:
 
 def _is_machine_config(path: Path) -> bool:
     """A machine YAML (feed_twin.machine.config) rather than one axis's; unreadable: no."""
-    from feed_twin.io.config import load_yaml
+    from feed_twin.core.config import load_yaml
     from feed_twin.machine.config import is_machine_config
 
     try:
