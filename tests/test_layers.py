@@ -74,13 +74,9 @@ def _uses(path: Path) -> list[tuple[int, str, bool]]:
 
 
 def _exists(module: str) -> bool:
-    """A feed_twin module or package of that dotted name, or an attribute of one."""
-    parts = module.split(".")[1:]
-    for cut in (len(parts), len(parts) - 1):
-        base = PACKAGE.joinpath(*parts[:cut])
-        if base.with_suffix(".py").is_file() or (base / "__init__.py").is_file():
-            return True
-    return False
+    """A feed_twin module or package of that dotted name."""
+    base = PACKAGE.joinpath(*module.split(".")[1:])
+    return base.with_suffix(".py").is_file() or (base / "__init__.py").is_file()
 
 
 def test_every_subpackage_is_in_a_layer():
