@@ -41,6 +41,8 @@ DECLARED_UPWARD_NAMES = {
     "feed_twin/machine/shadow_nodes.py": "ros",
     "feed_twin/nodeset/roles.py": "ros",  # the role registry names each role's node module
 }
+# modules written at run time, not in the source tree
+GENERATED_MODULES = {"feed_twin.native.generated"}  # native/translate.py: Source.__module__
 MODULE_NAME = re.compile(r"feed_twin(?:\.\w+)+(?::\w+)?")
 
 
@@ -73,10 +75,32 @@ def _uses(path: Path) -> list[tuple[int, str, bool]]:
     return sorted(use for use in found if use[1].startswith("feed_twin."))
 
 
-def _exists(module: str) -> bool:
-    """A feed_twin module or package of that dotted name."""
+def _module_file(module: str) -> Path | None:
     base = PACKAGE.joinpath(*module.split(".")[1:])
-    return base.with_suffix(".py").is_file() or (base / "__init__.py").is_file()
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
+def _top_level_names(path: Path) -> set[str]:
+    names = set()
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            names.add(node.name)
+        elif isinstance(node, ast.Assign | ast.AnnAssign):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names.update(t.id for t in targets if isinstance(t, ast.Name))
+    return names
+
+
+def _exists(module: str) -> bool:
+    """A feed_twin module or package of that dotted name, or a top-level name defined in one."""
+    if module in GENERATED_MODULES or _module_file(module) is not None:
+        return True
+    parent, _, name = module.rpartition(".")
+    path = _module_file(parent)
+    return path is not None and name in _top_level_names(path)
 
 
 def test_every_subpackage_is_in_a_layer():
@@ -120,3 +144,5 @@ def test_the_checker_sees_a_string_that_names_a_higher_layer(tmp_path):
     ]
     assert _layer_of("ros") > _layer_of("machine")
     assert _exists("feed_twin.ros.twin_node") and not _exists("feed_twin.ros.no_such_node")
+    assert _exists("feed_twin.plant.backlash.backlash_force")
+    assert not _exists("feed_twin.plant.backlash.no_such_function")
