@@ -37,8 +37,6 @@ LAYERS: tuple[frozenset[str], ...] = (
 )
 # file -> the layer its module-name strings may reach although it sits lower, with the reason
 DECLARED_UPWARD_NAMES = {
-    # until the roles registry: its string table of node modules (issue #31, step 2)
-    "feed_twin/machine/shadow_nodes.py": "ros",
     "feed_twin/nodeset/roles.py": "ros",  # the role registry names each role's node module
 }
 # modules written at run time, not in the source tree

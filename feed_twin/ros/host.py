@@ -22,20 +22,15 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-NODE_MODULES = {
-    "recorder": "feed_twin.ros.recorder_node",
-    "controller": "feed_twin.ros.controller_node",
-    "sim": "feed_twin.ros.sim_node",
-    "gcode": "feed_twin.ros.gcode_node",
-    "twin": "feed_twin.ros.twin_node",
-    "standin": "feed_twin.ros.standin_node",
-    "linuxcnc": "feed_twin.ros.linuxcnc_node",
-}
+from feed_twin.nodeset.roles import ROLES, roles_where
+
+# role -> its node module (feed_twin.nodeset.roles)
+NODE_MODULES = {name: entry.module for name, entry in ROLES.items()}
 AND = "--and"  # separates the nodes on the command line
-HOSTABLE = ("recorder", "controller", "sim", "gcode")  # built by node_main's configure/build
+HOSTABLE = roles_where(hostable=True)  # built by node_main's configure/build
 # Roles a process may host several times, each in another axis's namespace: a machine's one
 # controller process holds every axis's controller node (feed_twin/machine/nodes.py).
-REPEATABLE = ("controller",)
+REPEATABLE = roles_where(repeatable=True)
 
 
 def host_argv(nodes: Sequence[tuple[str, Sequence[str]]]) -> list[str]:

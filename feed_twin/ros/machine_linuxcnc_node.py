@@ -27,6 +27,7 @@ from std_msgs.msg import String
 
 from feed_twin.linuxcnc.bridge import BridgeBatch
 from feed_twin.linuxcnc.runner import LinuxcncRun
+from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.linuxcnc_node import COMMAND, LinuxcncNode, _servo_sample, run_starter
@@ -71,7 +72,7 @@ class MachineLinuxcncNode(LinuxcncNode):
             self._run_pubs.append(self.create_publisher(String, topics.run_state, LATCHED_QOS))
             self.create_subscription(
                 TwinResidual,
-                f"{twin_namespace(topics.command)}/residual",
+                node_role("twin").topic(twin_namespace(topics.command), "residual"),
                 functools.partial(self._on_axis_output, axis),
                 DATA_QOS,
                 raw=True,

@@ -59,6 +59,7 @@ from std_msgs.msg import String
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
+from feed_twin.nodeset.roles import node_role
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import (
     EXIT_ERROR,
@@ -135,7 +136,7 @@ class StandInNode(FeedTwinNode):
             if not self.realtime:  # lockstep paces itself by the twin's output
                 self.create_subscription(
                     AxisState,
-                    f"{twin_namespace(self.topics.command)}/state",
+                    node_role("twin").topic(twin_namespace(self.topics.command), "state"),
                     self._on_twin_state,
                     DATA_QOS,
                     raw=True,
