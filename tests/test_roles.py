@@ -67,6 +67,7 @@ def test_topic_names_and_types_under_a_namespace():
     }
     assert node_role("sim").topic_types("/cnc/x", "subscribes") == {
         "/cnc/x/drive_command": msg_types.DRIVE_COMMAND,
+        "/cnc/x/program_state": msg_types.STRING,
         "/cnc/x/heartbeat": msg_types.STRING,
     }
 

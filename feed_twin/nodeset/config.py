@@ -99,7 +99,7 @@ class NodeSetConfig:
     machine: str = "cnc"  # first namespace level
     axis: str = "x"  # second namespace level
     exchange_period_s: float = 1.0e-3  # controller <-> drive message period [s]
-    boundary: Boundary = "torque"  # CiA 402 split, see the module docstring
+    boundary: Boundary = "torque"  # CiA 402 split, see feed_twin/nodeset/wire.py
     settle_s: float = 0.2  # simulated time after the program's end [s]
     lookahead: int = 50  # NC setpoints published ahead of the simulation clock [-]
     clock_divider: int = 10  # /clock and joint_states every this many exchanges [-]

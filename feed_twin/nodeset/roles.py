@@ -121,6 +121,7 @@ ROLES: dict[str, Role] = {
             own_node=True,
             topics=(
                 _in("drive_command", msg_types.DRIVE_COMMAND),
+                _in("program_state", msg_types.STRING),
                 _out("feedback", msg_types.AXIS_FEEDBACK),
                 _out("state", msg_types.AXIS_STATE),
                 _out("joint_states", msg_types.JOINT_STATE),
@@ -143,6 +144,7 @@ ROLES: dict[str, Role] = {
                 _out("command", msg_types.AXIS_COMMAND),
                 _out("command_batch", msg_types.RECORD_BATCH),
                 _out("program_state", msg_types.STRING),
+                _in("run_state", msg_types.STRING),  # and the global /clock
                 *_LIVENESS,
             ),
             arguments=("--program", "--autostart", "--optional-stop"),

@@ -3,7 +3,7 @@
 Subscribes `command` (AxisCommand, from the G-code node or a real NC) and `feedback` (AxisFeedback,
 from the sim node or a real drive); for every feedback sample at time t it waits until the NC
 setpoint for t is known (a setpoint stamped >= t has arrived, or the program has finished, after
-which the last setpoint is held at standstill), runs `split.ControllerCore` and publishes
+which the last setpoint is held at standstill), runs `controller_core.ControllerCore` and publishes
 `drive_command` stamped t, up to the run's end (`settle_s` after the program's finish,
 feed_twin.nodeset.run_end): past it, feedback gets no answer. All control maths is in
 feed_twin.control; this file only converts messages. With `ros.record_batch` N > 0 the recorder's
