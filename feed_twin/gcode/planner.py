@@ -5,21 +5,28 @@ coordinates. A window of listed moves goes through five stages, each pure and in
 
 1. move limits (`plan_limits`): length, direction and the speed, acceleration and jerk along
    each move that keep every axis within its limits;
-2. corner blends (`plan_blends`): blend half-widths within the path tolerance, corner speeds,
-   and the corners where stopping is quicker;
+2. corner blends (`plan_blends`): blend half-widths within the path tolerance and corner
+   speeds; every G64 corner is rounded;
 3. chains (`plan_chains`): overlapping blends grouped into chains; the 1-D nodes and the
    bodies between them with their limits;
 4. speed profile (`plan_profile`): boundary speeds and the pieces of s(t), dwells included;
 5. sampling (`plan_sampling`): s(t) at t = k * period, mapped onto the blended path.
 
+The jerk profile plans s acceleration-limited (the raw plan) and averages it over a window
+T = max a_max/j_max (`jerk_filter`, docs/planner.md): the stages give the raw plan what the
+filter needs (sharp corners and stops hold their speed around the node, chains are cut at
+every node with their limits eroded over a window), and sampling applies the filter exactly.
+
 G60, G61, G9, dwells and stopping M-codes end a move at rest. After an exact stop (G60, G61,
 G61.1, G9) the setpoint is held for `exact_stop_settle_s`, a dwell on the stopping block's line
 before the next block's events: the fixed-time model of the NC's wait for the in-position
-window. Every profile piece starts and ends at zero acceleration.
+window. Every profile piece starts and ends at zero acceleration (the filtered plan's does not
+need to: its raw pieces are trapezoids).
 
 Look-ahead: a backward pass of braking bounds and a forward pass over the boundary speeds of up
 to `lookahead_segments` moves, with the window's end at rest; the first half is committed,
-sampled and yielded, the rest is planned again with the next moves. Committed speeds stay
+sampled and yielded, the rest is planned again with the next moves (the moves the filter's
+window still runs on stay listed as context, with their blends). Committed speeds stay
 reachable as constraints relax (the braking bound is monotonic), so the result is always
 safe, and memory stays bounded.
 """
