@@ -78,6 +78,8 @@ class Diagnosis:
     validation_traces: tuple[Trace, Trace] | None = None
     notes: tuple[str, ...] = ()  # warnings of the loader, fit convergence messages
     timings_s: dict[str, float] = field(default_factory=dict)
+    # each channel's residual at the final model against its noise (analysis.verdict.Leftover)
+    leftover: tuple[dict[str, Any], ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -97,6 +99,7 @@ class Diagnosis:
             "validation": self.validation,
             "location": None if self.location is None else self.location.as_dict(),
             "ranking": list(self.ranking),
+            "leftover": list(self.leftover),
             "notes": list(self.notes),
             "timings_s": self.timings_s,
         }
@@ -154,6 +157,13 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         _metrics_rows("nominal", d.before),
         _metrics_rows("augmented", d.after),
     ]
+    if d.leftover:
+        lines += ["", "## What is left (final model against each channel's sample noise)", ""]
+        lines += [
+            f"- {c['channel']}: RMS {c['rms']:.3g} {c['unit']} = {c['noise_ratio']:.3g} x its "
+            f"sample noise; {c['signature']}"
+            for c in d.leftover
+        ]
     if d.validation is not None:
         lines += [
             "",
