@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.analysis.appraise import appraise
 from feed_twin.analysis.channels import (
     VOLTAGE_Q,
     channel_residuals,
@@ -175,6 +176,9 @@ def diagnose(
     )
     ranking, unfitted = _identify(state, context)
     timings["identify_s"] = time.perf_counter() - clock
+    progress("appraising the final model: intervals, correlations, plausibility, drift")
+    appraisal = appraise(state, context, nominal)
+    timings["appraise_s"] = appraisal.seconds
     after = run_metrics(run, state.outputs)
     leftover = _leftover(run, state.outputs, floors, start, motion)
     validation, validation_traces = None, None
@@ -194,6 +198,8 @@ def diagnose(
         effects=tuple(f.effect for f in state.found),
         verdict=verdict([f.name for f in state.found], [u["name"] for u in unfitted], leftover),
         leftover=tuple(c.as_dict() for c in leftover),
+        appraisal=appraisal.as_dict(),
+        appraisal_lines=tuple(appraisal.lines()),
         location=location,
         ranking=tuple(_ranking_row(c) for c in ranking),
         validation=validation,

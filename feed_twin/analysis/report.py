@@ -47,12 +47,15 @@ class FoundEffect:
     parameters: dict[str, float]
     explained_fraction: float  # [1] share of the fit cost this effect removed
     component: str
+    # reported parameter -> its 95 % interval (low, high) at the final model (analysis.appraise)
+    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "evidence": self.evidence,
             "parameters": self.parameters,
+            "intervals": {k: list(v) for k, v in self.intervals.items()},
             "explained_fraction": self.explained_fraction,
             "component": self.component,
         }
@@ -80,6 +83,9 @@ class Diagnosis:
     timings_s: dict[str, float] = field(default_factory=dict)
     # each channel's residual at the final model against its noise (analysis.verdict.Leftover)
     leftover: tuple[dict[str, Any], ...] = ()
+    # intervals, correlations, implausible values, drifts (analysis.appraise.Appraisal)
+    appraisal: dict[str, Any] = field(default_factory=dict)
+    appraisal_lines: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -100,6 +106,7 @@ class Diagnosis:
             "location": None if self.location is None else self.location.as_dict(),
             "ranking": list(self.ranking),
             "leftover": list(self.leftover),
+            "appraisal": self.appraisal,
             "notes": list(self.notes),
             "timings_s": self.timings_s,
         }
@@ -144,6 +151,11 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
             f"   - evidence: {e.evidence}",
             f"   - fitted: {params}",
         ]
+        if e.intervals:
+            lines.append(
+                "   - 95 % intervals: "
+                + ", ".join(f"{k} {lo:.5g} .. {hi:.5g}" for k, (lo, hi) in e.intervals.items())
+            )
     if d.named_not_fitted:
         lines += ["", "Also significant, but not fitted (no way to add it to this model yet):", ""]
         lines += [f"- **{u['name']}**: {u['evidence']}" for u in d.named_not_fitted]
@@ -157,6 +169,8 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         _metrics_rows("nominal", d.before),
         _metrics_rows("augmented", d.after),
     ]
+    if d.appraisal_lines:
+        lines += ["", "## How far to trust the fit", ""] + list(d.appraisal_lines)
     if d.leftover:
         lines += ["", "## What is left (final model against each channel's sample noise)", ""]
         lines += [

@@ -93,13 +93,9 @@ def noop(_: str) -> None:
     pass
 
 
-def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> str | None:
-    """Re-fit all found effects together with the nominal parameters they interact with.
-
-    Done once, at the end: re-estimating the mass or the viscous coefficient in every round
-    would let them absorb the signature of an effect that is found later. If the joint fit
-    does not converge or is not better, the effect-by-effect model stays and the note says so.
-    """
+def joint_free(state: State) -> list[FreeParameter]:
+    """The found effects' parameters at their values now, with the nominal parameters they
+    interact with (the final joint fit's, and the intervals' and the drift test's)."""
     free = []
     for p in state.found_free():
         if not state.doc.has_slot(p.name):
@@ -111,6 +107,17 @@ def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> st
         # with a fitted drive gain the mass and friction would be degenerate (the gain scales
         # every force), so they are re-estimated only when the gain is not
         free += [p for p in interacting(state.doc) if p.name not in names]
+    return free
+
+
+def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> str | None:
+    """Re-fit all found effects together with the nominal parameters they interact with.
+
+    Done once, at the end: re-estimating the mass or the viscous coefficient in every round
+    would let them absorb the signature of an effect that is found later. If the joint fit
+    does not converge or is not better, the effect-by-effect model stays and the note says so.
+    """
+    free = joint_free(state)
     twin = Twin.compile(state.doc)
     joint = fit(
         lambda params: twin.simulate(drive, params),
