@@ -125,3 +125,24 @@ def test_a_force_above_the_weight_and_a_stribeck_speed_above_the_record_are_flag
         "most 0.15 m/s): the law is fitted where it means nothing; likely cause: a friction "
         "that changed over the record (see drift) or a viscous friction",
     ]
+
+
+def test_a_friction_that_grows_over_the_record_is_named_as_a_drift_with_its_rate(tmp_path):
+    """The truth's guide friction grows by 30 % over the record: the drift of the friction is
+    named with its rate, and the verdict says that something changed over the record."""
+    grows = Unmodelled(current_lag_s=0.0, coupling_stiffness_factor=1.0, friction_growth=0.3)
+    nominal, run = _run(tmp_path, {"coulomb_friction": {"F_c_N": 15.0}}, grows)
+    d = diagnose(run, nominal)[0]
+    drift = d.appraisal["drifts"][0]
+    assert drift["parameter"] == "friction.*", drift
+    assert drift["change_over_record"] == pytest.approx(0.3, rel=0.10), drift
+    assert drift["summary"].startswith("every term of friction drifts alike, by +3."), drift
+    assert "; and something changed over the record: every term of friction" in d.verdict
+    assert not any("stribeck" in e.name for e in d.effects), d.effects
+
+
+def test_no_drift_is_named_on_a_record_without_one(tmp_path):
+    nominal, run = _run(tmp_path, {"mass_error": {"m_kg": 120.0}})
+    d = diagnose(run, nominal)[0]
+    assert d.appraisal["drifts"] == (), d.appraisal["drifts"]
+    assert "changed over the record" not in d.verdict

@@ -196,7 +196,12 @@ def diagnose(
         before_trace=_trace("nominal", run, drive, out0),
         after_trace=_trace("augmented", run, drive, state.outputs),
         effects=tuple(f.effect for f in state.found),
-        verdict=verdict([f.name for f in state.found], [u["name"] for u in unfitted], leftover),
+        verdict=verdict(
+            [f.name for f in state.found],
+            [u["name"] for u in unfitted],
+            leftover,
+            [str(d["summary"]) for d in appraisal.drifts],
+        ),
         leftover=tuple(c.as_dict() for c in leftover),
         appraisal=appraisal.as_dict(),
         appraisal_lines=tuple(appraisal.lines()),

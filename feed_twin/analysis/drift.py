@@ -7,7 +7,10 @@ follows sample by sample). So the drift's signature is the sensitivity column we
 and it is tested as every effect is: the residual with every parameter's constant correction
 against the residual with the drift term too, by the likelihood-ratio test of
 analysis.significance (one added parameter, searched over the p parameters, removing at least
-MIN_EXPLAINED of one channel's residual). Drifts are added one at a time, strongest first, each
+MIN_EXPLAINED of one channel's residual). A component's terms may also drift together (a
+guide friction whose Coulomb and viscous parts both grow as the lubricant warms): its drift
+direction is the sum of its parameters' sensitivities times their values, and its rate a share
+of each per second. Drifts are added one at a time, strongest first, each
 tested on top of those before, so two parameters that mimic each other's drift (a Coulomb
 force and a viscous one on a record at one speed) are not both named.
 
@@ -27,25 +30,36 @@ from feed_twin.analysis.uncertainty import Sensitivity
 
 @dataclass(frozen=True, kw_only=True)
 class Drift:
-    slot: str
-    value: float  # the parameter's value at the record's middle
-    rate_per_s: float  # [its unit per second]
+    slot: str  # a parameter, or a component whose every term drifts alike ("friction.*")
+    value: float  # the parameter's value at the record's middle (1 for a component)
+    # [its unit per second] (for a component: a share of each term's value at the record's
+    # middle per second)
+    rate_per_s: float
     duration_s: float
     verdict: Verdict
 
     @property
     def change(self) -> float:
-        """The change over the record as a share of the value (nan for a value of 0)."""
-        return self.rate_per_s * self.duration_s / abs(self.value) if self.value else float("nan")
+        """The change over the record as a share of the value at its start (nan for 0)."""
+        start = self.value - 0.5 * self.rate_per_s * self.duration_s
+        return self.rate_per_s * self.duration_s / abs(start) if start else float("nan")
 
-    def words(self) -> str:
+    def summary(self) -> str:
+        """The drift, its rate and its size over the record, in words."""
+        if self.slot.endswith(".*"):
+            return (
+                f"every term of {self.slot[:-2]} drifts alike, by {100 * self.rate_per_s:+.3g} % "
+                f"per second ({100 * self.change:+.0f} % over the {self.duration_s:.3g} s record)"
+            )
         start = self.value - 0.5 * self.rate_per_s * self.duration_s
         end = self.value + 0.5 * self.rate_per_s * self.duration_s
         return (
             f"{self.slot} drifts by {self.rate_per_s:+.3g} per second ({100 * self.change:+.0f} % "
-            f"over the {self.duration_s:.3g} s record, {start:.4g} -> {end:.4g}); the drift term "
-            f"{self.verdict.words()}"
+            f"over the {self.duration_s:.3g} s record, {start:.4g} -> {end:.4g})"
         )
+
+    def words(self) -> str:
+        return f"{self.summary()}; the drift term {self.verdict.words()}"
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -55,6 +69,7 @@ class Drift:
             "change_over_record": self.change,
             "explained": self.verdict.explained,
             "p_value": self.verdict.p_value,
+            "summary": self.summary(),
             "words": self.words(),
         }
 
@@ -79,34 +94,44 @@ def drifts(s: Sensitivity, *, max_drifts: int = 2) -> list[Drift]:
     times = s.t_s
     mid = 0.5 * (float(times.min()) + float(times.max()))
     duration = float(times.max() - times.min())
-    named: list[tuple[int, np.ndarray]] = []
+    candidates = _candidates(s)
+    named: list[tuple[str, np.ndarray]] = []
     found: list[Drift] = []
     while len(found) < max_drifts:
         before, _ = _residual(s, [col for _, col in named])
         best = None
-        for k in range(len(s.names)):
-            if any(k == j for j, _ in named):
+        for name, (value, direction) in candidates.items():
+            if any(name == n for n, _ in named):
                 continue
-            column = s.S[:, k] * (times - mid)
+            column = direction * (times - mid)
             after, coef = _residual(s, [col for _, col in named] + [column])
             verdict = compare(
-                _channels(s, before), _channels(s, after), added=1, searched=len(s.names)
+                _channels(s, before), _channels(s, after), added=1, searched=len(candidates)
             )
             if best is None or verdict.likelihood_ratio > best[1].likelihood_ratio:
-                best = (k, verdict, column, float(coef[-1]), float(coef[k]))
+                best = (name, verdict, column, float(coef[-1]), value)
         if best is None:
             break
-        k, verdict, column, rate, offset = best
+        name, verdict, column, rate, value = best
         if not verdict.significant or max(verdict.explained.values()) < MIN_EXPLAINED:
             break
-        named.append((k, column))
+        named.append((name, column))
         found.append(
-            Drift(
-                slot=s.names[k],
-                value=float(s.values[k]) + offset,
-                rate_per_s=rate,
-                duration_s=duration,
-                verdict=verdict,
-            )
+            Drift(slot=name, value=value, rate_per_s=rate, duration_s=duration, verdict=verdict)
         )
     return found
+
+
+def _candidates(s: Sensitivity) -> dict[str, tuple[float, np.ndarray]]:
+    """Each parameter's drift direction (its sensitivity) with its value, and each component's
+    with two or more non-zero parameters: every term growing by the same share (the sum of the
+    sensitivities times the values, a relative rate)."""
+    out = {name: (float(s.values[k]), s.S[:, k]) for k, name in enumerate(s.names)}
+    groups: dict[str, list[int]] = {}
+    for k, name in enumerate(s.names):
+        if s.values[k] != 0.0:
+            groups.setdefault(name.split(".", 1)[0], []).append(k)
+    for comp, members in groups.items():
+        if len(members) >= 2:
+            out[f"{comp}.*"] = (1.0, s.S[:, members] @ s.values[members])
+    return out

@@ -16,6 +16,7 @@ look for it:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -103,8 +104,18 @@ def _correlation(r: np.ndarray, q: np.ndarray) -> float:
     return float(np.dot(r, q)) / spread if spread > 0.0 else 0.0
 
 
-def verdict(found: list[str], unfitted: list[str], leftover: list[Leftover]) -> str:
-    """The verdict's sentence: what the model misses, and what is left far above the noise."""
+def verdict(
+    found: list[str], unfitted: list[str], leftover: list[Leftover], drifts: Sequence[str] = ()
+) -> str:
+    """The verdict's sentence: what the model misses, what changed over the record
+    (analysis.drift), and what is left far above the noise."""
+    text = _verdict(found, unfitted, leftover)
+    if drifts:
+        text += "; and something changed over the record: " + "; ".join(drifts)
+    return text
+
+
+def _verdict(found: list[str], unfitted: list[str], leftover: list[Leftover]) -> str:
     large = [c for c in leftover if c.far_above_noise]
     unexplained = (
         "a residual far above the noise remains that no effect of the library explains ("
