@@ -54,6 +54,10 @@ def test_the_interval_of_a_found_effect_covers_the_truth(tmp_path):
     assert report["effects"][0]["intervals"]["F_c_N"] == [low, high]
     text = (tmp_path / "out" / "report.md").read_text()
     assert "## How far to trust the fit" in text and "- table.m: " in text, text
+    # the search's cost: every fit's simulations, the appraisal's batch among them
+    assert d.search["simulations"] > d.appraisal["simulations"] + 6, d.search
+    assert d.search["seconds"] >= d.timings_s["appraise_s"]
+    assert f"Search: {d.search['simulations']:.0f} parameter sets simulated" in text
 
 
 def test_mass_and_torque_constant_are_said_to_be_correlated(tmp_path):
@@ -146,3 +150,19 @@ def test_no_drift_is_named_on_a_record_without_one(tmp_path):
     d = diagnose(run, nominal)[0]
     assert d.appraisal["drifts"] == (), d.appraisal["drifts"]
     assert "changed over the record" not in d.verdict
+
+
+def test_a_stiffness_56_times_below_nominal_is_flagged_but_a_found_backlash_is_not():
+    nominal = ModelDoc.load(ROOT / "config" / "axis_default.yaml")
+    k = nominal.get("axial.k_bearing")
+    gap = nominal.get("backlash.gap")
+    final = nominal.set("axial.k_bearing", k / 56.0).set("backlash.gap", 6.0 * gap)
+    slots = ["axial.k_bearing", "backlash.gap"]
+    (flag,) = implausible(nominal, final, slots, [], v_max_m_s=0.15, correlated={}, owned=slots)
+    assert flag.startswith("axial.k_bearing = ") and "0.0179 x its nominal" in flag, flag
+    assert "lost motion (backlash)" in flag, flag
+    # the same gap re-fitted as a nominal parameter (no effect owns it) is flagged
+    (again,) = implausible(
+        nominal, nominal.set("backlash.gap", 6.0 * gap), slots, [], v_max_m_s=0.15, correlated={}
+    )
+    assert again.startswith("backlash.gap = ") and "6 x its nominal" in again, again

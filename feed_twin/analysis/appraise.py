@@ -98,6 +98,7 @@ def appraise(state: State, ctx: Context, nominal: ModelDoc) -> Appraisal:
         [f.effect for f in state.found],
         v_max_m_s=float(np.max(np.abs(ctx.motion.v_m_s))),
         correlated=partners,
+        owned=[p.name for f in state.found for p in f.own],
     )
     return Appraisal(
         parameters=parameters,

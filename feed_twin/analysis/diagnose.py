@@ -6,8 +6,8 @@
       -> locate the residual (direction, speed, position, phases, spectrum)
       -> repeat: rank the effect library on the current residual; for the leading significant
          candidates add the effect to the model and fit its own parameters (and those of the
-         effects found before) by simulation-based least squares; keep the candidate that
-         removes the most cost per added degree of freedom
+         effects found before) by simulation-based least squares; keep the candidate with
+         the best likelihood ratio less a price per added parameter that passes the test
       -> re-fit all found effects jointly with the nominal parameters they interact with
       -> metrics "after", optional validation on a second run, report.
 
@@ -179,6 +179,10 @@ def diagnose(
     progress("appraising the final model: intervals, correlations, plausibility, drift")
     appraisal = appraise(state, context, nominal)
     timings["appraise_s"] = appraisal.seconds
+    search = {
+        "simulations": state.simulations + appraisal.simulations,
+        "seconds": time.perf_counter() - clock,
+    }
     after = run_metrics(run, state.outputs)
     leftover = _leftover(run, state.outputs, floors, start, motion)
     validation, validation_traces = None, None
@@ -204,6 +208,7 @@ def diagnose(
         ),
         leftover=tuple(c.as_dict() for c in leftover),
         appraisal=appraisal.as_dict(),
+        search=search,
         appraisal_lines=tuple(appraisal.lines()),
         location=location,
         ranking=tuple(_ranking_row(c) for c in ranking),

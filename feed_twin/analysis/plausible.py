@@ -8,17 +8,22 @@ model lacks something, a parameter that can mimic it takes it over, and its valu
   fitted together);
 - a stiffness ten times below or above its nominal (STIFFNESS_FACTOR): a soft spring stands in
   for lost motion (backlash) or a compliance elsewhere;
-- any other re-fitted nominal parameter moved by more than FACTOR;
+- any other re-fitted nominal parameter moved by more than FACTOR (not a found effect's own
+  size: a backlash found 5x the model's is the finding);
 - a constant force larger than the slide's whole weight m g: an offset of the measured current
   or the effort's sign; one that points against a modelled weight: the sign;
 - a Stribeck speed above every speed of the record: the law is used where it means nothing; a
-  friction that changed over the record (drift) or a viscous term is the likely cause.
+  friction that changed over the record (drift) or a viscous term is the likely cause. The
+  rounds (analysis.rounds) do not keep such a fit at all (`outside_record`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 
+import numpy as np
+
+from feed_twin.analysis.effects import Motion
 from feed_twin.analysis.model_doc import ModelDoc
 from feed_twin.analysis.report import FoundEffect
 
@@ -28,7 +33,9 @@ FACTOR = 5.0
 G = 9.80665  # [m/s^2]
 
 
-def _ratio_flag(slot: str, nominal: float, value: float, correlated: Iterable[str]) -> str | None:
+def _ratio_flag(
+    slot: str, nominal: float, value: float, correlated: Iterable[str], *, owned: bool
+) -> str | None:
     ratio = value / nominal
     short = slot.rsplit(".", 1)[-1]
     if short == "m":
@@ -44,6 +51,8 @@ def _ratio_flag(slot: str, nominal: float, value: float, correlated: Iterable[st
             STIFFNESS_FACTOR,
             ("a soft spring stands in for lost motion (backlash) or a compliance elsewhere"),
         )
+    elif owned:
+        return None  # a found effect's own size: changing it is what the effect is
     else:
         limit, cause = FACTOR, "it stands in for an effect the model lacks"
     if 1.0 / limit <= abs(ratio) <= limit and ratio > 0.0:
@@ -64,9 +73,12 @@ def implausible(
     *,
     v_max_m_s: float,
     correlated: Mapping[str, list[str]],
+    owned: Iterable[str] = (),
 ) -> list[str]:
     """One line per implausible fitted value (module docstring); `fitted` the slots the fit
-    moved, `correlated` each slot's strongly correlated partners."""
+    moved, `owned` those that are found effects' own sizes (only the mass and stiffness rules
+    hold for them), `correlated` each slot's strongly correlated partners."""
+    owned = set(owned)
     flags = []
     for slot in fitted:
         if not (nominal.has_slot(slot) and final.has_slot(slot)):
@@ -74,7 +86,9 @@ def implausible(
         before = nominal.get(slot)
         if before == 0.0 or slot.endswith("phase"):
             continue
-        flag = _ratio_flag(slot, before, final.get(slot), correlated.get(slot, []))
+        flag = _ratio_flag(
+            slot, before, final.get(slot), correlated.get(slot, []), owned=slot in owned
+        )
         if flag is not None:
             flags.append(flag)
     mass = nominal.mass_slot()
@@ -92,6 +106,21 @@ def implausible(
                 "or a viscous friction"
             )
     return flags
+
+
+def outside_record(name: str, parameters: Mapping[str, float], motion: Motion) -> str | None:
+    """Why an effect fitted with these parameters is no finding on this record (its law is
+    used outside the range the record holds), None if it is one. A Stribeck speed above every
+    speed of the record makes the Stribeck law a Coulomb force less a term in v^2, which fits
+    any lag a little better than the Coulomb force it stands for."""
+    v_s = parameters.get("v_s_m_s")
+    v_max = float(np.max(np.abs(motion.v_m_s)))
+    if v_s is not None and v_s > v_max:
+        return (
+            f"{name} was fitted with a Stribeck speed of {v_s:.3g} m/s, above every speed of the "
+            f"record (at most {v_max:.3g} m/s): not a Stribeck law"
+        )
+    return None
 
 
 def _force_flags(nominal: ModelDoc, f_0: float, weight: float) -> list[str]:

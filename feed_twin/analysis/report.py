@@ -86,6 +86,8 @@ class Diagnosis:
     # intervals, correlations, implausible values, drifts (analysis.appraise.Appraisal)
     appraisal: dict[str, Any] = field(default_factory=dict)
     appraisal_lines: tuple[str, ...] = ()
+    # the search's cost: parameter sets simulated (in batches) and seconds up to the appraisal
+    search: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -107,6 +109,7 @@ class Diagnosis:
             "ranking": list(self.ranking),
             "leftover": list(self.leftover),
             "appraisal": self.appraisal,
+            "search": self.search,
             "notes": list(self.notes),
             "timings_s": self.timings_s,
         }
@@ -169,6 +172,12 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         _metrics_rows("nominal", d.before),
         _metrics_rows("augmented", d.after),
     ]
+    if d.search:
+        lines += [
+            "",
+            f"Search: {d.search['simulations']:.0f} parameter sets simulated (in batches of the "
+            f"engine) in {d.search['seconds']:.2f} s.",
+        ]
     if d.appraisal_lines:
         lines += ["", "## How far to trust the fit", ""] + list(d.appraisal_lines)
     if d.leftover:

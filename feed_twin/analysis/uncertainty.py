@@ -110,7 +110,7 @@ class Estimates:
         s = self.sigma
         with np.errstate(invalid="ignore", divide="ignore"):
             rho = self.covariance / np.outer(s, s)
-        return np.where(np.isfinite(rho), rho, 0.0)
+        return np.clip(np.where(np.isfinite(rho), rho, 0.0), -1.0, 1.0)
 
     def correlated(self) -> list[tuple[str, str, float]]:
         """The pairs whose estimates are correlated beyond CORRELATED, strongest first."""
@@ -151,13 +151,20 @@ class _Overlay(dict):
 
 def estimates(s: Sensitivity) -> Estimates:
     """The sandwich covariance of the least-squares estimate (module docstring)."""
-    H = s.S.T @ s.S
+    # in units of each column's norm: H of parameters of very different sizes (a stiffness of
+    # 1e9 N/m beside a mass of 100 kg) is otherwise too ill-conditioned to invert in doubles
+    norm = np.linalg.norm(s.S, axis=0)
+    norm[norm == 0.0] = 1.0
+    S_all = s.S / norm
+    H = S_all.T @ S_all
     M = np.zeros_like(H)
     for rows in s.blocks.values():
-        r, S = s.r[rows], s.S[rows]
+        r, S = s.r[rows], S_all[rows]
         if len(r) < 3:
             continue
         tau = len(r) / max(effective_samples(r), 1.0)
         M += tau * float(np.mean(r**2)) * (S.T @ S)
-    H_inv = np.linalg.pinv(H)
-    return Estimates(names=s.names, values=s.values, covariance=H_inv @ M @ H_inv)
+    H_inv = np.linalg.pinv(H, hermitian=True)
+    C = H_inv @ M @ H_inv
+    C = 0.5 * (C + C.T) / np.outer(norm, norm)
+    return Estimates(names=s.names, values=s.values, covariance=C)
