@@ -42,6 +42,7 @@ from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import ALPHA, compare, effective_samples
 from feed_twin.analysis.trials import try_candidate
 from feed_twin.analysis.twin import Drive, Twin
+from feed_twin.io.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
 
@@ -161,6 +162,9 @@ class Context:
     progress: Progress
     notes: list[str]
     start: int = 0  # the record's first sample that is evidence (Twin.first_evidence)
+    # the candidates fitted and not kept since the model last changed (not ranked again until
+    # it changes: they would fit the same way)
+    tried: list[str] = field(default_factory=list)
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
         return channel_residuals(self.run, out, start=self.start)
@@ -177,7 +181,7 @@ def run_round(
         ctx.motion,
         effort_residual=re,
         position_residual=rp,
-        exclude=tuple(excluded),
+        exclude=tuple(excluded + ctx.tried),
         loop_stiffness=ctx.stiffness,
         voltage_residual=voltage_residual(run, state.outputs, start=ctx.start),
     )
@@ -245,7 +249,7 @@ def run_round(
     # the position at the effort's expense must not hide the holding force fitted beside it)
     judged = []
     for cand, edit, alone, new_twin, result in trials:
-        excluded.append(cand.name)
+        ctx.tried.append(cand.name)
         if _collapsed_in_fit(state, edit, alone, result):
             ctx.notes.append(
                 f"{cand.name} was fitted but its parameters fell back to the values without it "
@@ -253,6 +257,8 @@ def run_round(
             )
             continue
         meaningless = outside_record(cand.name, _fitted(edit, result), ctx.motion)
+        if meaningless is None:
+            meaningless = _no_feed_axis(cand.name, edit, result)
         if meaningless is not None:
             ctx.notes.append(f"{meaningless}; not kept")
             continue
@@ -278,6 +284,10 @@ def run_round(
     for verdict, cand, edit, alone, new_twin, result in (judged[k] for k in order):
         if verdict.significant:
             _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
+            excluded.append(cand.name)
+            # the model changed: the rivals tried so far are ranked again on its residual (a
+            # backlash tried beside the Coulomb force that hid it is found once that is in)
+            ctx.tried.clear()
             _reexamine(state, ctx, meas)
             return ranking, True
         ctx.notes.append(
@@ -319,12 +329,27 @@ def information(
     return lr - PARAMETER_PRICE * added
 
 
-def _fitted(edit: Edit, result) -> dict[str, float]:
-    """The effect's reported parameters at the fit's result."""
+def _fitted_doc(edit: Edit, result) -> ModelDoc:
     doc = model_of(edit.doc)
     for name, value in result.values.items():
         doc = doc.set(name, value)
+    return doc
+
+
+def _fitted(edit: Edit, result) -> dict[str, float]:
+    """The effect's reported parameters at the fit's result."""
+    doc = _fitted_doc(edit, result)
     return {k: float(f(Values(doc))) for k, f in edit.report.items()}
+
+
+def _no_feed_axis(name: str, edit: Edit, result) -> str | None:
+    """Why the fitted model is no feed axis (the plant's plausibility ranges reject it: a
+    bearing stiffness that ran off to 1e29 N/m), None if it is one."""
+    try:
+        Twin.compile(_fitted_doc(edit, result))
+    except ConfigError as exc:
+        return f"{name} was fitted to a model no feed axis has ({exc})"
+    return None
 
 
 def _collapsed_in_fit(state: State, edit: Edit, alone: list[FreeParameter], result) -> bool:
