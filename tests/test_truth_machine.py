@@ -159,3 +159,23 @@ def test_bad_input_is_named() -> None:
         Trace(effort_sign=2)
     with pytest.raises(ValueError, match="pole_pairs = 2.5: must be a whole number"):
         Machine(pole_pairs=2.5)  # type: ignore[arg-type]
+
+
+@pytest.mark.slow
+def test_diagnose_names_the_weight_of_a_truth_record(tmp_path: Path) -> None:
+    """The workflow on a machine it did not build, with a seed the benchmarks do not use: an
+    unbalanced vertical-axis weight is named as a constant force within 10 %."""
+    from feed_twin.analysis.diagnose import diagnose
+    from feed_twin.analysis.model_doc import ModelDoc
+    from feed_twin.io.measured import load_measured
+
+    hidden = draw_all(["constant_force"], seed=7)
+    rec = make_record(tmp_path / "run.csv", hidden=hidden, seed=7)
+    nominal = ModelDoc.load(
+        Path(feed_twin.__file__).resolve().parent.parent / "config/truth_nominal.yaml"
+    )
+    d = diagnose(load_measured(rec.csv, rec.map), nominal)[0]
+    found = {e.name: e.parameters for e in d.effects}
+    assert "constant_force" in found, d.verdict
+    truth = hidden["constant_force"]["f_0_N"]
+    assert found["constant_force"]["f_0_N"] == pytest.approx(truth, rel=0.10)
