@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import json
 import math
 from pathlib import Path
 
@@ -179,3 +180,16 @@ def test_diagnose_names_the_weight_of_a_truth_record(tmp_path: Path) -> None:
     assert "constant_force" in found, d.verdict
     truth = hidden["constant_force"]["f_0_N"]
     assert found["constant_force"]["f_0_N"] == pytest.approx(truth, rel=0.10)
+
+
+def test_command_line_writes_a_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from feed_twin.truth.__main__ import main
+
+    out = tmp_path / "r.csv"
+    assert main([str(out), "--hidden", "backlash", "--seed", "5", "--period-ms", "10"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["hidden"] == draw_all(["backlash"], 5)
+    assert np.allclose(np.diff(np.genfromtxt(out, delimiter=",", names=True)["time_ms"]), 10.0)
+    with pytest.raises(SystemExit):
+        main([str(out), "--hidden", "magic"])
+    assert "invalid choice: 'magic'" in capsys.readouterr().err
