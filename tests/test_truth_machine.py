@@ -154,6 +154,15 @@ def test_draws_are_seeded_and_in_range() -> None:
         assert 0.5 <= f <= 2.0
 
 
+def test_same_seed_same_record(tmp_path: Path) -> None:
+    trace = Trace(period_s=0.01)
+    hidden = draw_all(["coulomb_friction"], seed=9)
+    a = make_record(tmp_path / "a.csv", hidden=hidden, trace=trace, seed=9)
+    b = make_record(tmp_path / "b.csv", hidden=hidden, trace=trace, seed=9)
+    c = make_record(tmp_path / "c.csv", hidden=hidden, trace=trace, seed=10)
+    assert a.csv.read_text() == b.csv.read_text() != c.csv.read_text()
+
+
 def test_effect_sets_the_machine() -> None:
     mc = machine_with({"constant_force": {"f_0_N": -98.0665}, "backlash": {"gap_m": 1e-5}})
     assert mc.m_unbalanced == pytest.approx(10.0)
