@@ -120,6 +120,13 @@ def test_the_program_of_one_run_is_placed_on_each_repetition(record, tmp_path, c
     assert report["effects"][0]["parameters"]["F_c_N"] == pytest.approx(15.0, rel=0.05)
     assert report["validation"]["after"]["effort_rel_err_pct"] < 2.0
     assert report["notes"][0].startswith("the program was placed again")
+    # report.json times every pass: the placements, both diagnoses, and a total over all
+    # (total_s covered only the second diagnosis: 92 s of 172 s on a real record)
+    timings = report["timings_s"]
+    passes = ("placing_s", "first_pass_total_s", "placing_again_s", "second_pass_total_s")
+    assert all(timings[k] > 0.0 for k in passes), timings
+    assert timings["total_s"] >= sum(timings[k] for k in passes)
+    assert timings["total_s"] < 1.05 * sum(timings[k] for k in passes) + 0.5
     # The record's zero is a free constant of the fit, read again at each model: read once at
     # the nominal twin it took the missing friction's lag for a 9 um shift of the encoder's
     # zero, left in the deviation after the fit (9 um RMS).

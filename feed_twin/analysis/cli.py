@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from pathlib import Path
 
 # One BLAS thread, set before numpy loads OpenBLAS (feed_twin.cli imports this module first):
@@ -140,7 +141,9 @@ def main_diagnose(args: argparse.Namespace) -> int:
             # the program file holds one run of what the record repeats: placed on each
             run, other, more = _repetitions(run, other, progress)
         measured = [run, other, *more]
+        clock = time.perf_counter()
         placed = None if program is None else place(measured, program, doc)
+        placing_s = time.perf_counter() - clock
         for w in run.warnings:  # the loader's; diagnose_program says where it placed the program
             progress(f"warning: {w}")
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
@@ -157,7 +160,7 @@ def main_diagnose(args: argparse.Namespace) -> int:
         else:
             diagnosis, final_doc, motion, placed = diagnose_program(
                 measured, program, doc, progress=progress, model_path=str(model_path),
-                placed=placed,
+                placed=placed, placing_s=placing_s,
             )  # fmt: skip
             more = [r for r in placed[2:] if r is not None]
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
