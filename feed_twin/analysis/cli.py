@@ -199,12 +199,12 @@ def _repetitions(run: MeasuredRun, other: MeasuredRun | None, progress):
     parts = split_repetitions(run)
     if found is None or len(parts) < 2:
         raise MeasuredDataError(
-            f"{run.source}: --repetitions: no repetition of the program found (no peak of the "
-            "velocity's autocorrelation >= 0.8 past a fifth of the record)"
+            f"{run.source}: --repetitions: no repetition of the program found (no later part of "
+            "the record matches the first run's motion with a correlation >= 0.8)"
         )
     period, r = found
     progress(
-        f"found {len(parts)} repetitions of about {period:.3f} s (correlation {r:.3f}); "
+        f"found {len(parts)} repetitions, {period:.3f} s apart on average (least match {r:.3f}); "
         f"identifying on the first ({parts[0].t_s[0]:.3f} to {parts[0].t_s[-1]:.3f} s), "
         "validating on the others"
     )
