@@ -32,11 +32,13 @@ def delayed(rows: np.ndarray, t_s: np.ndarray, delay_s: float) -> np.ndarray:
     return np.array([np.interp(t_s - delay_s, t_s, row) for row in np.atleast_2d(rows)])
 
 
-def window_mean(rows: np.ndarray, dec: int) -> np.ndarray:
-    """Every dec-th column of `rows` replaced by the mean of the dec columns ending there (the
-    first: itself), as a trace that averages a fast signal over its sample period records it."""
+def window_mean(rows: np.ndarray, dec: int, ticks: int | None = None) -> np.ndarray:
+    """Every dec-th column of `rows` replaced by the mean of the `ticks` columns ending there
+    (default: dec; fewer at the start), as a trace that averages a fast signal over a window
+    (its sample period, or a filter of its own) records it."""
     rows = np.atleast_2d(rows)
+    width = dec if ticks is None else ticks
     c = np.concatenate((np.zeros((len(rows), 1)), np.cumsum(rows, axis=1)), axis=1)
     ends = np.arange(0, rows.shape[1], dec)
-    starts = np.maximum(ends - dec + 1, 0)
+    starts = np.maximum(ends - width + 1, 0)
     return (c[:, ends + 1] - c[:, starts]) / (ends - starts + 1)

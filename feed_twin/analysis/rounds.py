@@ -24,6 +24,7 @@ from feed_twin.analysis.effects import Motion
 from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, cost_of, fit
 from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate, evidence, rank
+from feed_twin.analysis.record_search import AT_EDGE
 from feed_twin.analysis.reexamine import (
     Found,
     collapsed,
@@ -254,6 +255,8 @@ def run_round(
         )
         if verdict.significant:
             _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
+            if result.message.endswith(AT_EDGE):  # a record slot's search said so
+                ctx.notes.append(f"{cand.name}: {result.message}")
             _reexamine(state, ctx, meas)
             return ranking, True
         ctx.notes.append(

@@ -27,7 +27,12 @@ from typing import Any
 import numpy as np
 
 from feed_twin.analysis.fit import SimOutputs
-from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc
+from feed_twin.analysis.model_doc import (
+    EFFORT_DELAY_SLOT,
+    POSITION_DELAY_SLOT,
+    TRACE_WINDOW_SLOT,
+    ModelDoc,
+)
 from feed_twin.analysis.recorder import delayed, start_velocity, window_mean
 from feed_twin.core import signals
 from feed_twin.io.config import ConfigError
@@ -336,14 +341,33 @@ class Twin:
         # is at or after the end of the settling
         return min(len(drive.t_s), math.ceil((settle_ticks + dec - 1) / dec - 1e-9))
 
+    def record_slots(self, drive: Drive) -> dict[str, float]:
+        """The record's own slots (model_doc.RECORD_SLOTS) of this model on `drive`: the
+        delays, and the trace's window, the map's (a sample period for `trace_filter: mean`,
+        else one base tick) unless the model has its own."""
+        h = self.base_period_s
+        declared = drive_period(drive) if drive.trace_mean else h
+        window = self.doc.get(TRACE_WINDOW_SLOT) if self.doc.has_slot(TRACE_WINDOW_SLOT) else None
+        return {
+            EFFORT_DELAY_SLOT: self.doc.get(EFFORT_DELAY_SLOT),
+            POSITION_DELAY_SLOT: self.doc.get(POSITION_DELAY_SLOT),
+            TRACE_WINDOW_SLOT: declared if window is None else window,
+        }
+
     def simulate(
-        self, drive: Drive, params: np.ndarray, *, effort_delays: Sequence[float] | None = None
+        self,
+        drive: Drive,
+        params: np.ndarray,
+        *,
+        effort_delays: Sequence[float] | None = None,
+        record: tuple[str, Sequence[float]] | None = None,
     ) -> SimOutputs:
         """Simulate each row of `params` (full parameter vectors) on the drive's command.
 
-        With `effort_delays` (one row of params) the outputs have one row per delay [s]: the
-        effort as a recorder that stamps it that late sees it, in place of the model's own
-        delay (one simulation for a search of the delay).
+        With `record` = (one of the record's slots, values) and one row of params, the outputs
+        have one row per value: the signals as a trace with that slot at that value records
+        them (one simulation for a search of the record's delays or window). `effort_delays`:
+        the same for the effort's delay [s].
         """
         from feed_twin.sim.batch import run_batch
         from feed_twin.sim.engine import check_step
@@ -354,12 +378,14 @@ class Twin:
             self._cache = {"drive": drive, "inputs": self._inputs(drive)}
         ref, ext, n, dec = self._cache["inputs"]
         P = np.array(params, dtype=float, ndmin=2)
-        if effort_delays is None:
-            delays = (self.doc.get(EFFORT_DELAY_SLOT),)
-        elif len(P) == 1:
-            delays = tuple(effort_delays)
-        else:
-            raise ValueError(f"effort_delays need one parameter row, not {len(P)}")
+        if effort_delays is not None:
+            if len(P) != 1:
+                raise ValueError(f"effort_delays need one parameter row, not {len(P)}")
+            record = (EFFORT_DELAY_SLOT, tuple(effort_delays))
+        if record is not None and len(P) != 1:
+            raise ValueError(f"record values need one parameter row, not {len(P)}")
+        base = self.record_slots(drive)
+        trace = [base] if record is None else [base | {record[0]: v} for v in record[1]]
         ok = np.ones(len(P), dtype=bool)
         for i, row in enumerate(P):
             try:
@@ -369,7 +395,7 @@ class Twin:
                 ok[i] = False
         rows = np.flatnonzero(ok)
         T = len(drive.t_s)
-        k = len(delays)  # output rows per parameter row
+        k = len(trace)  # output rows per parameter row
         x = np.full((len(P) * k, T), np.nan)
         effort = np.full((len(P) * k, T), np.nan)
         u_q = np.full((len(P) * k, T), np.nan) if self.has_voltage else None
@@ -379,8 +405,8 @@ class Twin:
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
             volt = res["out.u_q_ref_V"] if u_q is not None else None
-            for j, delay in enumerate(delays):
-                recorded = self._as_recorded(drive, dec, pos, eff, volt, delay)
+            for j, slots in enumerate(trace):
+                recorded = self._as_recorded(drive, dec, pos, eff, volt, slots)
                 x[rows * k + j] = recorded[0][:, :T]
                 effort[rows * k + j] = recorded[1][:, :T]
                 if u_q is not None and recorded[2] is not None:
@@ -395,25 +421,34 @@ class Twin:
         pos: np.ndarray,
         eff: np.ndarray,
         volt: np.ndarray | None,
-        delay: float,
+        slots: dict[str, float],
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(position, effort, q-voltage) on the record's samples from the base ticks' values,
-        as the record's trace takes them: every dec-th tick or the mean over each period, the
-        effort stamped `delay` [s] late."""
-        if delay != 0.0 and dec > 1:
+        as the record's trace takes them (`slots`: Twin.record_slots): each the mean over the
+        trace's window ending at its sample (one tick: the tick itself), the position and the
+        effort stamped their delays [s] late."""
+        h = self.base_period_s
+        ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
+        delays = ((0, slots[POSITION_DELAY_SLOT]), (1, slots[EFFORT_DELAY_SLOT]))
+        signals = [pos, eff]
+        fine = dec > 1 or ticks > 1
+        if fine:
             # on the base ticks: a trace's samples are too far apart to shift a transient by
             # a few milliseconds, and a delay commutes with the trace's mean
-            eff = delayed(eff, self.base_period_s * np.arange(eff.shape[1]), delay)
-        if drive.trace_mean and dec > 1:
-            # the record's trace averages each channel over its sample period
-            pos, eff = window_mean(pos, dec), window_mean(eff, dec)
-            volt = None if volt is None else window_mean(volt, dec)
+            for i, delay in delays:
+                if delay != 0.0:
+                    signals[i] = delayed(signals[i], h * np.arange(signals[i].shape[1]), delay)
+        if ticks > 1:
+            signals = [window_mean(y, dec, ticks) for y in signals]
+            volt = None if volt is None else window_mean(volt, dec, ticks)
         else:
-            pos, eff = pos[:, ::dec], eff[:, ::dec]
+            signals = [y[:, ::dec] for y in signals]
             volt = None if volt is None else volt[:, ::dec]
-        if delay != 0.0 and dec == 1:
-            eff = delayed(eff, drive.t_s, delay)
-        return pos, eff, volt
+        if not fine:
+            for i, delay in delays:
+                if delay != 0.0:
+                    signals[i] = delayed(signals[i], drive.t_s, delay)
+        return signals[0], signals[1], volt
 
     def _measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:
         return self.measured_signals(res, dec)
@@ -440,6 +475,11 @@ class Twin:
         if lead is None:
             raise ConfigError(f"{self.doc.source}: controller.drive.lead_m is needed")
         return float(lead)
+
+
+def drive_period(drive: Drive) -> float:
+    """[s] The record's sample period."""
+    return float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
 
 
 def _recorded(has_voltage: bool) -> list[str]:

@@ -1,0 +1,99 @@
+"""The record's own slots searched: the delays of the recorded position and effort and the
+trace's averaging window (analysis.effects' record effects), each over a range the record sets.
+
+The twin runs once; each value is applied to its outputs (Twin.simulate with `record`). The
+delays' first range is +/- DELAY_RECORD_SAMPLES of the record's sample periods, at least the
+edit's own grid (+/- 20 base periods: a 1 kHz drive's 1.25 ms was too narrow for a 2 ms lag
+between two channels, and a 50 Hz trace's channels drift by tens of milliseconds); the window's
+is up to WINDOW_RECORD_SAMPLES sample periods, at least WINDOW_MIN_S (a controller's 20 ms
+filter on a 1 kHz trace). Each is searched in at most GRID_POINTS steps, widened (doubled,
+WIDENINGS times at most) while the best value lies at its edge, then refined to half a base
+period (the delays) or one base tick (the window) around the best. A best value still at the
+edge is said (`AT_EDGE` ends the result's message), not passed off as found.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from feed_twin.analysis.fit import FitResult, Measured, SimOutputs, cost_of
+from feed_twin.analysis.model_doc import (
+    EFFORT_DELAY_SLOT,
+    POSITION_DELAY_SLOT,
+    TRACE_WINDOW_SLOT,
+)
+from feed_twin.analysis.twin import Drive, Twin, drive_period
+from feed_twin.plant.effect_api import Edit
+
+RECORD_SEARCHED = (EFFORT_DELAY_SLOT, POSITION_DELAY_SLOT, TRACE_WINDOW_SLOT)
+DELAY_RECORD_SAMPLES = 3  # the delays' first range: +/- this many record sample periods
+WINDOW_RECORD_SAMPLES = 2  # the window's first range: up to this many record sample periods
+WINDOW_MIN_S = 0.04  # [s] the window's first range reaches at least this far
+GRID_POINTS = 41  # values per pass
+WIDENINGS = 3  # the range is doubled at most this often while the best lies at its edge
+AT_EDGE = "at the edge of the range searched"
+
+
+def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
+    """The best value of the edit's record slot (module docstring), as a fit result."""
+    (param,) = edit.own
+    slot = param.name
+    h = twin.base_period_s
+    current = twin.record_slots(drive)[slot]
+    window = slot == TRACE_WINDOW_SLOT
+    if window:
+        reach = max(WINDOW_RECORD_SAMPLES * drive_period(drive), WINDOW_MIN_S, max(edit.grid))
+        finest = h
+    else:
+        reach = max(DELAY_RECORD_SAMPLES * drive_period(drive), max(abs(g) for g in edit.grid))
+        finest = 0.5 * h
+    tried: dict[float, tuple[float, SimOutputs]] = {}
+
+    def evaluate(values: np.ndarray) -> None:
+        fresh = sorted({float(v) for v in np.round(values / finest) * finest} - set(tried))
+        if not fresh:
+            return
+        out = twin.simulate(drive, twin.nominal[None, :], record=(slot, fresh))
+        for row, value in enumerate(fresh):
+            tried[value] = (cost_of(meas, out, row), _row(out, row))
+
+    evaluate(np.array([current]))
+    at_edge = False
+    for widening in range(WIDENINGS + 1):
+        lo = h if window else -reach
+        values = np.linspace(lo, reach, GRID_POINTS)
+        evaluate(values)
+        best = min(tried, key=lambda v: tried[v][0])
+        at_edge = best >= values[-1] - 0.5 * finest or (not window and best <= lo + 0.5 * finest)
+        if not at_edge or widening == WIDENINGS:
+            break
+        reach *= 2.0
+    step = float(values[1] - values[0])
+    best = min(tried, key=lambda v: tried[v][0])
+    k = min(int(np.ceil(step / finest)), GRID_POINTS // 2)
+    evaluate(np.clip(best + finest * np.arange(-k, k + 1), lo, reach))
+    inside = [v for v in tried if lo - 0.5 * finest <= v <= reach + 0.5 * finest]
+    best = min(inside, key=lambda v: tried[v][0])
+    cost, out = tried[best]
+    span = f"[{(h if window else -reach) * 1e3:.4g}, {reach * 1e3:.4g}] ms"
+    message = f"searched {len(tried)} values of {slot} over {span}"
+    if at_edge:
+        message += f"; the best, {best * 1e3:.4g} ms, lies {AT_EDGE}"
+    return FitResult(
+        values={slot: best},
+        cost_initial=tried[float(np.round(current / finest) * finest)][0],
+        cost=cost,
+        converged=bool(np.isfinite(cost)),
+        message=message,
+        evaluations=len(tried),
+        outputs=out,
+    )
+
+
+def _row(out: SimOutputs, row: int) -> SimOutputs:
+    return SimOutputs(
+        x_m=out.x_m[row : row + 1],
+        effort=None if out.effort is None else out.effort[row : row + 1],
+        ok=out.ok[row : row + 1],
+        voltage_q=None if out.voltage_q is None else out.voltage_q[row : row + 1],
+    )
