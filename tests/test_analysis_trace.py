@@ -13,10 +13,11 @@ from feed_twin.analysis import record_search
 from feed_twin.analysis.channels import noise_floors, weighted_channels
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.effects import BY_NAME
-from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT
+from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, RIPPLE_SLOTS
 from feed_twin.analysis.recorder import window_mean
 from feed_twin.analysis.synthetic import generate, write_csv
 from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
+from feed_twin.io.config import ConfigError
 from feed_twin.io.measured import load_measured
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,3 +99,41 @@ def test_averaging_as_declared_is_the_model_until_a_window_is_fitted():
     assert fitted.record_slots(Drive.at_rest(t, trace_mean=True))[
         record_search.TRACE_WINDOW_SLOT
     ] == pytest.approx(0.005)
+
+
+def _with_pole_pairs(doc: ModelDoc, p: int = 3) -> ModelDoc:
+    import dataclasses
+
+    return dataclasses.replace(doc, data={**doc.data, "analysis": {"pole_pairs": p}})
+
+
+def test_phase_current_offsets_without_a_current_sensor_are_not_cogging(tmp_path):
+    """The EMPS twin drives its table with an effort source (no motor, no current sensor);
+    the drive's phase-current offsets leave a ripple once per electrical revolution (3 per
+    motor revolution) in the recorded effort. Named current_offset with its offsets, not
+    cogging torque (whose orders leave out the pole pairs)."""
+    nominal = _with_pole_pairs(ModelDoc.load(NOMINAL))
+    gain = nominal.reference_gain
+    assert gain is not None
+    # offsets of +0.03, -0.01, -0.02 V on the drive's three phase sensors (the EMPS effort is
+    # a voltage): alpha = 0.03, beta = (o_b - o_c) / sqrt(3)
+    offsets = (0.03, -0.01, -0.02)
+    alpha, beta = offsets[0], (offsets[1] - offsets[2]) / np.sqrt(3.0)
+    truth = nominal.set(RIPPLE_SLOTS[0], -alpha * gain).set(RIPPLE_SLOTS[1], beta * gain)
+    columns = generate(truth, {"coulomb_friction": {"F_c_N": 10.0}})
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    run = load_measured(tmp_path / "run.csv", map_path)
+    d, _, _ = diagnose(run, nominal)
+    found = {e.name: e.parameters for e in d.effects}
+    assert "cogging_torque" not in found and "current_offset" in found, found
+    for k, x in enumerate("abc"):
+        assert found["current_offset"][f"offset_{x}_A"] == pytest.approx(offsets[k], abs=3e-3)
+    assert found["coulomb_friction"]["F_c_N"] == pytest.approx(10.0, rel=0.1)
+
+
+def test_pole_pairs_of_an_effort_source_twin_must_be_whole():
+    doc = _with_pole_pairs(ModelDoc.load(NOMINAL))
+    bad = type(doc)(data={**doc.data, "analysis": {"pole_pairs": 2.5}}, source="m.yaml")
+    with pytest.raises(ConfigError) as err:
+        Twin.compile(bad)
+    assert str(err.value) == "m.yaml: analysis.pole_pairs = 2.5: must be a whole number >= 1"

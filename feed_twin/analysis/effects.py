@@ -17,9 +17,17 @@ controller commands, when the record has it, and falls back to the effort otherw
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import numpy as np
 
-from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, POSITION_DELAY_SLOT, TRACE_WINDOW_SLOT
+from feed_twin.analysis.model_doc import (
+    EFFORT_DELAY_SLOT,
+    POSITION_DELAY_SLOT,
+    RIPPLE_SLOTS,
+    TRACE_WINDOW_SLOT,
+)
 from feed_twin.plant.effect_api import (
     Document,
     Edit,
@@ -143,5 +151,55 @@ RECORD_EFFECTS = (
         truth=_slot_truth(TRACE_WINDOW_SLOT, "window_s"),
     ),
 )
-LIBRARY: tuple[Effect, ...] = EFFECTS + RECORD_EFFECTS
+
+
+def _ripple_edit(doc: Document, cand: Weights) -> Edit:
+    """Offsets on the drive's phase-current sensors in a twin without a CurrentSensor (an
+    effort source): the ripple they leave in the recorded effort, once per electrical
+    revolution, as the record's own (Twin.record_slots). The loop makes the true current
+    differ from the measured by the offsets' q part and adds it back to its command, so the
+    recorded effort carries it: -alpha sin + beta cos in the effort's unit (plant.sensors).
+    Reported as the three phase offsets with no common part, in the recorded current's unit
+    (the effort over the drive gain the record was converted with)."""
+    s, c = (cand.coefficients.get(k, 0.0) for k in ("sin", "cos"))
+    scale = max(math.hypot(s, c), 1e-9)
+    for slot, value in zip(RIPPLE_SLOTS, (s, c), strict=True):
+        doc = doc.set(slot, value)
+    own = [FreeParameter(name=slot, initial=doc.get(slot), scale=scale) for slot in RIPPLE_SLOTS]
+    gain = model_gain(doc)
+
+    def phase(k: int):
+        def value(v: dict[str, float]) -> float:
+            alpha, beta = -v[RIPPLE_SLOTS[0]] / gain, v[RIPPLE_SLOTS[1]] / gain
+            return (alpha, -0.5 * alpha + 0.5 * math.sqrt(3.0) * beta,
+                    -0.5 * alpha - 0.5 * math.sqrt(3.0) * beta)[k]  # fmt: skip
+
+        return value
+
+    report = {f"offset_{x}_A": phase(k) for k, x in enumerate("abc")}
+    # searched (analysis.record_search: linear in the record), not by the engine's fit
+    return make_edit(doc, own, report, interacts=False, grid=(0.0,))
+
+
+def model_gain(doc: Document) -> float:
+    """The drive gain the record's effort was converted with (1 where none)."""
+    gain = getattr(doc, "reference_gain", None)
+    return float(gain) if gain else 1.0
+
+
+def _or_ripple(effect: Effect) -> Effect:
+    """current_offset, carried by the model's CurrentSensor, else by the record (_ripple_edit):
+    in a twin without one the ripple of the offsets was named cogging torque."""
+
+    def edit(doc: Document, cand: Weights) -> Edit:
+        if doc.of_type("CurrentSensor"):
+            return effect.edit(doc, cand)
+        return _ripple_edit(doc, cand)
+
+    return dataclasses.replace(effect, edit=edit)
+
+
+LIBRARY: tuple[Effect, ...] = (
+    tuple(_or_ripple(e) if e.name == "current_offset" else e for e in EFFECTS) + RECORD_EFFECTS
+)
 BY_NAME = {e.name: e for e in LIBRARY}

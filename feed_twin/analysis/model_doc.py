@@ -40,8 +40,20 @@ REFERENCE_GAIN_KEY = "effort_reference_gain"
 # the record's own slots (not the machine's): `analysis.effort_delay_s`, how much later than the
 # position the recorder stamps the effort, `position_delay_s` how much later than the command
 # it stamps the position, `trace_window_s` the window [s] each sample averages over (absent:
-# as the column map's trace_filter says). Trace side, outside every loop.
-RECORD_SLOTS = ("effort_delay_s", "position_delay_s", "trace_window_s")
+# as the column map's trace_filter says), `effort_ripple_sin`/`_cos` the ripple [effort SI unit]
+# once per electrical revolution that offsets on the drive's phase-current sensors leave in the
+# recorded effort of a twin without a CurrentSensor of its own. Trace side, outside every loop.
+RECORD_SLOTS = (
+    "effort_delay_s",
+    "position_delay_s",
+    "trace_window_s",
+    "effort_ripple_sin",
+    "effort_ripple_cos",
+)
+RIPPLE_SLOTS = (f"{ANALYSIS_SECTION}.effort_ripple_sin", f"{ANALYSIS_SECTION}.effort_ripple_cos")
+# `analysis.pole_pairs`: the motor's pole pairs, for a twin that models the drive as an effort
+# source (no Pmsm to carry them): the electrical angle of a phase-current offset's ripple
+POLE_PAIRS_KEY = "pole_pairs"
 EFFORT_DELAY_SLOT = f"{ANALYSIS_SECTION}.effort_delay_s"
 POSITION_DELAY_SLOT = f"{ANALYSIS_SECTION}.position_delay_s"
 TRACE_WINDOW_SLOT = f"{ANALYSIS_SECTION}.trace_window_s"

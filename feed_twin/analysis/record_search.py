@@ -20,12 +20,13 @@ from feed_twin.analysis.fit import FitResult, Measured, SimOutputs, cost_of
 from feed_twin.analysis.model_doc import (
     EFFORT_DELAY_SLOT,
     POSITION_DELAY_SLOT,
+    RIPPLE_SLOTS,
     TRACE_WINDOW_SLOT,
 )
 from feed_twin.analysis.twin import Drive, Twin, drive_period
 from feed_twin.plant.effect_api import Edit
 
-RECORD_SEARCHED = (EFFORT_DELAY_SLOT, POSITION_DELAY_SLOT, TRACE_WINDOW_SLOT)
+RECORD_SEARCHED = (EFFORT_DELAY_SLOT, POSITION_DELAY_SLOT, TRACE_WINDOW_SLOT, RIPPLE_SLOTS[0])
 DELAY_RECORD_SAMPLES = 3  # the delays' first range: +/- this many record sample periods
 WINDOW_RECORD_SAMPLES = 2  # the window's first range: up to this many record sample periods
 WINDOW_MIN_S = 0.04  # [s] the window's first range reaches at least this far
@@ -36,6 +37,8 @@ AT_EDGE = "at the edge of the range searched"
 
 def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
     """The best value of the edit's record slot (module docstring), as a fit result."""
+    if edit.own[0].name == RIPPLE_SLOTS[0]:
+        return _ripple(twin, drive, meas)
     (param,) = edit.own
     slot = param.name
     h = twin.base_period_s
@@ -53,7 +56,7 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
         fresh = sorted({float(v) for v in np.round(values / finest) * finest} - set(tried))
         if not fresh:
             return
-        out = twin.simulate(drive, twin.nominal[None, :], record=(slot, fresh))
+        out = twin.simulate(drive, twin.nominal[None, :], record=[{slot: v} for v in fresh])
         for row, value in enumerate(fresh):
             tried[value] = (cost_of(meas, out, row), _row(out, row))
 
@@ -87,6 +90,35 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
         message=message,
         evaluations=len(tried),
         outputs=out,
+    )
+
+
+def _ripple(twin: Twin, drive: Drive, meas: Measured) -> FitResult:
+    """The current-offset ripple's sin and cos amplitudes (RIPPLE_SLOTS): linear in the
+    recorded effort, so the twin runs once and the ripple's unit responses through the trace
+    are fitted to the effort by least squares on the fit's samples."""
+    base = twin.record_slots(drive)
+    current: dict[str, float] = {k: base[k] for k in RIPPLE_SLOTS}
+    units: list[dict[str, float]] = [
+        {k: float(k == unit) for k in RIPPLE_SLOTS} for unit in RIPPLE_SLOTS
+    ]
+    zero: dict[str, float] = dict.fromkeys(RIPPLE_SLOTS, 0.0)
+    out = twin.simulate(drive, twin.nominal[None, :], record=[zero, *units, current])
+    assert out.effort is not None and meas.effort is not None
+    on = slice(meas.start, None, meas.stride)
+    Z = np.column_stack([out.effort[k + 1][on] - out.effort[0][on] for k in range(2)])
+    coef, *_ = np.linalg.lstsq(Z, (meas.effort - out.effort[0])[on], rcond=None)
+    best: dict[str, float] = {k: float(v) for k, v in zip(RIPPLE_SLOTS, coef, strict=True)}
+    fitted = twin.simulate(drive, twin.nominal[None, :], record=[best])
+    cost = cost_of(meas, fitted)
+    return FitResult(
+        values=best,
+        cost_initial=cost_of(meas, out, 3),
+        cost=cost,
+        converged=bool(np.isfinite(cost)),
+        message="the ripple's amplitudes by linear least squares",
+        evaluations=2,
+        outputs=fitted,
     )
 
 

@@ -94,9 +94,9 @@ def grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResu
     in one batch, best kept. A record slot (analysis.*) changes no simulation: the twin runs
     once and its output is shifted for each value, over a range the record sets
     (analysis.record_search)."""
-    (param,) = edit.own
-    if param.name in RECORD_SEARCHED:
+    if edit.own[0].name in RECORD_SEARCHED:
         return search(twin, edit, drive, meas)
+    (param,) = edit.own
     batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
     for i in twin.index[param.name]:
         batch[:, i] = edit.grid

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,8 +28,11 @@ import numpy as np
 
 from feed_twin.analysis.fit import SimOutputs
 from feed_twin.analysis.model_doc import (
+    ANALYSIS_SECTION,
     EFFORT_DELAY_SLOT,
+    POLE_PAIRS_KEY,
     POSITION_DELAY_SLOT,
+    RIPPLE_SLOTS,
     TRACE_WINDOW_SLOT,
     ModelDoc,
 )
@@ -186,8 +189,7 @@ class Twin:
         lead = float(doc.component(screws[0])["params"]["lead"]) if screws else None
         if lead is None:
             lead = getattr(getattr(cfg, "drive", None), "lead_m", None)
-        motors = doc.of_type("Pmsm")
-        pole_pairs = int(doc.component(motors[0])["params"]["p"]) if motors else None
+        pole_pairs = _pole_pairs(doc)
         return cls(
             doc=doc,
             plant=plant,
@@ -352,7 +354,7 @@ class Twin:
             EFFORT_DELAY_SLOT: self.doc.get(EFFORT_DELAY_SLOT),
             POSITION_DELAY_SLOT: self.doc.get(POSITION_DELAY_SLOT),
             TRACE_WINDOW_SLOT: declared if window is None else window,
-        }
+        } | {slot: self.doc.get(slot) for slot in RIPPLE_SLOTS}
 
     def simulate(
         self,
@@ -360,14 +362,14 @@ class Twin:
         params: np.ndarray,
         *,
         effort_delays: Sequence[float] | None = None,
-        record: tuple[str, Sequence[float]] | None = None,
+        record: Sequence[Mapping[str, float]] | None = None,
     ) -> SimOutputs:
         """Simulate each row of `params` (full parameter vectors) on the drive's command.
 
-        With `record` = (one of the record's slots, values) and one row of params, the outputs
-        have one row per value: the signals as a trace with that slot at that value records
-        them (one simulation for a search of the record's delays or window). `effort_delays`:
-        the same for the effort's delay [s].
+        With `record` (a list of {record slot: value}, model_doc.RECORD_SLOTS) and one row of
+        params, the outputs have one row per entry: the signals as a trace with those slots at
+        those values records them (one simulation for a search of the record's delays or
+        window). `effort_delays`: the same for the effort's delays [s].
         """
         from feed_twin.sim.batch import run_batch
         from feed_twin.sim.engine import check_step
@@ -381,11 +383,11 @@ class Twin:
         if effort_delays is not None:
             if len(P) != 1:
                 raise ValueError(f"effort_delays need one parameter row, not {len(P)}")
-            record = (EFFORT_DELAY_SLOT, tuple(effort_delays))
+            record = [{EFFORT_DELAY_SLOT: d} for d in effort_delays]
         if record is not None and len(P) != 1:
             raise ValueError(f"record values need one parameter row, not {len(P)}")
         base = self.record_slots(drive)
-        trace = [base] if record is None else [base | {record[0]: v} for v in record[1]]
+        trace = [base] if record is None else [base | dict(values) for values in record]
         ok = np.ones(len(P), dtype=bool)
         for i, row in enumerate(P):
             try:
@@ -430,7 +432,7 @@ class Twin:
         h = self.base_period_s
         ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
         delays = ((0, slots[POSITION_DELAY_SLOT]), (1, slots[EFFORT_DELAY_SLOT]))
-        signals = [pos, eff]
+        signals = [pos, self._with_ripple(pos, eff, slots)]
         fine = dec > 1 or ticks > 1
         if fine:
             # on the base ticks: a trace's samples are too far apart to shift a transient by
@@ -449,6 +451,20 @@ class Twin:
                 if delay != 0.0:
                     signals[i] = delayed(signals[i], drive.t_s, delay)
         return signals[0], signals[1], volt
+
+    def _with_ripple(self, pos: np.ndarray, eff: np.ndarray, slots: dict[str, float]):
+        """The effort with the ripple of the record's current-sensor offsets (RIPPLE_SLOTS: sin
+        and cos of the electrical angle p 2 pi x / lead of the measured position)."""
+        s, c = (slots[k] for k in RIPPLE_SLOTS)
+        if s == 0.0 and c == 0.0:
+            return eff
+        if self.pole_pairs is None or self.lead_m is None:
+            raise ConfigError(
+                f"{self.doc.source}: a current-offset ripple needs the motor's pole pairs "
+                f"({ANALYSIS_SECTION}.{POLE_PAIRS_KEY}) and the screw's lead"
+            )
+        theta = self.pole_pairs * 2.0 * math.pi * pos / self.lead_m
+        return eff + s * np.sin(theta) + c * np.cos(theta)
 
     def _measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:
         return self.measured_signals(res, dec)
@@ -475,6 +491,23 @@ class Twin:
         if lead is None:
             raise ConfigError(f"{self.doc.source}: controller.drive.lead_m is needed")
         return float(lead)
+
+
+def _pole_pairs(doc: ModelDoc) -> int | None:
+    """The motor's pole pairs: its Pmsm's, else the model's analysis.pole_pairs (a twin that
+    models the drive as an effort source), else unknown."""
+    motors = doc.of_type("Pmsm")
+    if motors:
+        return int(doc.component(motors[0])["params"]["p"])
+    given = (doc.data.get(ANALYSIS_SECTION) or {}).get(POLE_PAIRS_KEY)
+    if given is None:
+        return None
+    if isinstance(given, bool) or not isinstance(given, int) or given < 1:
+        raise ConfigError(
+            f"{doc.source}: {ANALYSIS_SECTION}.{POLE_PAIRS_KEY} = {given!r}: must be a whole "
+            "number >= 1"
+        )
+    return given
 
 
 def drive_period(drive: Drive) -> float:
