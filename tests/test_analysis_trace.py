@@ -137,3 +137,26 @@ def test_pole_pairs_of_an_effort_source_twin_must_be_whole():
     with pytest.raises(ConfigError) as err:
         Twin.compile(bad)
     assert str(err.value) == "m.yaml: analysis.pole_pairs = 2.5: must be a whole number >= 1"
+
+
+def test_the_records_rounding_floors_its_noise():
+    """A position rounded to 1 um (a trace's display digits) that rests between two counts has
+    no sample-to-sample noise; its rounding noise, q / sqrt(12), is the least its channel's
+    noise can be (an effect is not named for the rounding)."""
+    from feed_twin.analysis.channels import quantisation_step
+    from feed_twin.analysis.fit import SimOutputs
+    from feed_twin.io.measured import MeasuredRun
+
+    q = 1e-6
+    t = 1e-3 * np.arange(4000)
+    x = 0.1 + 2e-6 * np.sin(2.0 * np.pi * t) + 1e-3 * np.clip(t - 3.0, 0.0, None)
+    rounded = np.round(x / q) * q
+    assert quantisation_step(rounded) == pytest.approx(q, rel=1e-6)
+    assert quantisation_step(x) == 0.0  # not rounded: no step of its own
+    assert quantisation_step(0.1 * t) == 0.0  # a ramp's equal gaps are no step
+    run = MeasuredRun(
+        source="trace.csv", t_s=t, signals={"pos_meas_m": rounded}, position_sensor="linear_scale"
+    )
+    out = SimOutputs(x_m=x[None, :], effort=None, ok=np.ones(1, dtype=bool))
+    floors = noise_floors(run, out)
+    assert floors["position"] == pytest.approx(q / np.sqrt(12.0), rel=1e-6)

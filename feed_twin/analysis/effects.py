@@ -23,7 +23,9 @@ import math
 import numpy as np
 
 from feed_twin.analysis.model_doc import (
+    ANALYSIS_SECTION,
     EFFORT_DELAY_SLOT,
+    POLE_PAIRS_KEY,
     POSITION_DELAY_SLOT,
     RIPPLE_SLOTS,
     TRACE_WINDOW_SLOT,
@@ -192,8 +194,9 @@ def _or_ripple(effect: Effect) -> Effect:
     in a twin without one the ripple of the offsets was named cogging torque."""
 
     def edit(doc: Document, cand: Weights) -> Edit:
-        if doc.of_type("CurrentSensor"):
-            return effect.edit(doc, cand)
+        pole_pairs = (doc.data.get(ANALYSIS_SECTION) or {}).get(POLE_PAIRS_KEY)
+        if doc.of_type("CurrentSensor") or pole_pairs is None:
+            return effect.edit(doc, cand)  # the sensor's offsets, or its LookupError
         return _ripple_edit(doc, cand)
 
     return dataclasses.replace(effect, edit=edit)
