@@ -1,15 +1,16 @@
-"""The record's own slots searched: the delays of the recorded position and effort and the
-trace's averaging window (analysis.effects' record effects), each over a range the record sets.
+"""The record's own slots searched: the delays of the recorded position and effort, the
+trace's averaging window and a current-offset ripple (analysis.effects' record effects).
 
 The twin runs once; each value is applied to its outputs (Twin.simulate with `record`). The
 delays' first range is +/- DELAY_RECORD_SAMPLES of the record's sample periods, at least the
 edit's own grid (+/- 20 base periods: a 1 kHz drive's 1.25 ms was too narrow for a 2 ms lag
-between two channels, and a 50 Hz trace's channels drift by tens of milliseconds); the window's
-is up to WINDOW_RECORD_SAMPLES sample periods, at least WINDOW_MIN_S (a controller's 20 ms
-filter on a 1 kHz trace). Each is searched in at most GRID_POINTS steps, widened (doubled,
-WIDENINGS times at most) while the best value lies at its edge, then refined to half a base
-period (the delays) or one base tick (the window) around the best. A best value still at the
-edge is said (`AT_EDGE` ends the result's message), not passed off as found.
+between two channels, and a 50 Hz trace's channels drift by tens of milliseconds), searched in
+GRID_POINTS steps, widened (doubled, WIDENINGS times at most) while the best value lies at its
+edge, then refined to half a base period around the best. A best delay still at the edge is
+said (`AT_EDGE` ends the result's message), not passed off as found. The window is one of the
+two ways controllers export a trace: each sample taken as it is (one base tick) or the mean
+over its sample period (windows in between stood in for the command's reconstruction from its
+means: 5 ms on a 20 ms averaged trace). The ripple is linear in the record: least squares.
 """
 
 from __future__ import annotations
@@ -28,8 +29,6 @@ from feed_twin.plant.effect_api import Edit
 
 RECORD_SEARCHED = (EFFORT_DELAY_SLOT, POSITION_DELAY_SLOT, TRACE_WINDOW_SLOT, RIPPLE_SLOTS[0])
 DELAY_RECORD_SAMPLES = 3  # the delays' first range: +/- this many record sample periods
-WINDOW_RECORD_SAMPLES = 2  # the window's first range: up to this many record sample periods
-WINDOW_MIN_S = 0.04  # [s] the window's first range reaches at least this far
 GRID_POINTS = 41  # values per pass
 WIDENINGS = 3  # the range is doubled at most this often while the best lies at its edge
 AT_EDGE = "at the edge of the range searched"
@@ -41,15 +40,11 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
         return _ripple(twin, drive, meas)
     (param,) = edit.own
     slot = param.name
-    h = twin.base_period_s
     current = twin.record_slots(drive)[slot]
-    window = slot == TRACE_WINDOW_SLOT
-    if window:
-        reach = max(WINDOW_RECORD_SAMPLES * drive_period(drive), WINDOW_MIN_S, max(edit.grid))
-        finest = h
-    else:
-        reach = max(DELAY_RECORD_SAMPLES * drive_period(drive), max(abs(g) for g in edit.grid))
-        finest = 0.5 * h
+    if slot == TRACE_WINDOW_SLOT:
+        return _trace_mode(twin, drive, meas, current)
+    reach = max(DELAY_RECORD_SAMPLES * drive_period(drive), max(abs(g) for g in edit.grid))
+    finest = 0.5 * twin.base_period_s
     tried: dict[float, tuple[float, SimOutputs]] = {}
 
     def evaluate(values: np.ndarray) -> None:
@@ -63,11 +58,11 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
     evaluate(np.array([current]))
     at_edge = False
     for widening in range(WIDENINGS + 1):
-        lo = h if window else -reach
+        lo = -reach
         values = np.linspace(lo, reach, GRID_POINTS)
         evaluate(values)
         best = min(tried, key=lambda v: tried[v][0])
-        at_edge = best >= values[-1] - 0.5 * finest or (not window and best <= lo + 0.5 * finest)
+        at_edge = abs(best) >= reach - 0.5 * finest
         if not at_edge or widening == WIDENINGS:
             break
         reach *= 2.0
@@ -78,7 +73,7 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
     inside = [v for v in tried if lo - 0.5 * finest <= v <= reach + 0.5 * finest]
     best = min(inside, key=lambda v: tried[v][0])
     cost, out = tried[best]
-    span = f"[{(h if window else -reach) * 1e3:.4g}, {reach * 1e3:.4g}] ms"
+    span = f"[{-reach * 1e3:.4g}, {reach * 1e3:.4g}] ms"
     message = f"searched {len(tried)} values of {slot} over {span}"
     if at_edge:
         message += f"; the best, {best * 1e3:.4g} ms, lies {AT_EDGE}"
@@ -90,6 +85,27 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
         message=message,
         evaluations=len(tried),
         outputs=out,
+    )
+
+
+def _trace_mode(twin: Twin, drive: Drive, meas: Measured, current: float) -> FitResult:
+    """The trace's window: one base tick (each sample taken as it is) or its sample period
+    (each the mean over it), the two ways controllers export a trace; the command a mean over
+    the same window (Twin._inputs)."""
+    h = twin.base_period_s
+    values = sorted({h, drive_period(drive), current})
+    rows = [{TRACE_WINDOW_SLOT: v} for v in values]
+    out = twin.simulate(drive, twin.nominal[None, :], record=rows)
+    costs = [cost_of(meas, out, row) for row in range(len(values))]
+    best = int(np.argmin(costs))
+    return FitResult(
+        values={TRACE_WINDOW_SLOT: values[best]},
+        cost_initial=costs[values.index(current)],
+        cost=costs[best],
+        converged=bool(np.isfinite(costs[best])),
+        message=f"tried the trace sampled and averaged over its period ({len(values)} values)",
+        evaluations=len(values),
+        outputs=_row(out, best),
     )
 
 

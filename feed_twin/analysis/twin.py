@@ -36,7 +36,7 @@ from feed_twin.analysis.model_doc import (
     TRACE_WINDOW_SLOT,
     ModelDoc,
 )
-from feed_twin.analysis.recorder import delayed, start_velocity, window_mean
+from feed_twin.analysis.recorder import deaveraged, delayed, start_velocity, window_mean
 from feed_twin.core import signals
 from feed_twin.io.config import ConfigError
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
@@ -208,7 +208,12 @@ class Twin:
     def base_period_s(self) -> float:
         return float(self.controller.base_period_s)
 
-    def _inputs(self, drive: Drive) -> tuple[np.ndarray, np.ndarray | None, int, int]:
+    def _inputs(
+        self, drive: Drive, window_ticks: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None, int, int]:
+        """(reference rows, external force, base ticks, base ticks per record sample) of the
+        drive; `window_ticks`: the trace's window over which its command samples are means
+        (default: the map's, a sample period for `trace_filter: mean`, else none)."""
         from feed_twin.sim.program import set_nc_reference
 
         h = self.base_period_s
@@ -222,29 +227,32 @@ class Twin:
         n = len(drive.t_s) * dec
         hold = np.repeat  # known inputs are held between record samples
         ref = np.zeros((n, signals.REF_SIZE))
+        if window_ticks is None:
+            window_ticks = dec if drive.trace_mean else 1
         if drive.plan is not None:
             # base tick j is at t_0 + j h on the record's clock, where the plan lies: the NC's
             # own setpoints between the record's samples (a stop's final approach too)
             fine = drive.t_s[0] + h * np.arange(n)
             plan = drive.plan
             set_nc_reference(ref, *(np.interp(fine, plan.t_s, y) for y in plan.setpoints))
-        elif dec == 1:
+        elif dec == 1 and window_ticks <= 1:
             set_nc_reference(ref, drive.pos_ref_m, drive.vel_ref_m_s, drive.acc_ref_m_s2)
         else:
             # a trace slower than the controller (a 50 Hz machine trace of a 1 kHz NC): the NC's
             # setpoints ran smoothly between the samples, so they are interpolated, not held (a
             # held position would step by v * period, millimetres at machine feeds)
             fine = drive.t_s[0] + h * np.arange(n)
-            # a trace's mean over the period ending at its stamp is the value half a period
-            # (less one tick) earlier for a signal smooth over the period: the command's own
-            # time
-            stamps = drive.t_s - (0.5 * (dec - 1) * h if drive.trace_mean else 0.0)
-            set_nc_reference(
-                ref,
-                np.interp(fine, stamps, drive.pos_ref_m),
-                np.interp(fine, stamps, drive.vel_ref_m_s),
-                np.interp(fine, stamps, drive.acc_ref_m_s2),
-            )
+            if window_ticks > 1:
+                # each command sample is a mean over the trace's window: the smooth command
+                # whose window means they are (recorder.deaveraged)
+                set_nc_reference(ref, *deaveraged(drive.t_s, drive.pos_ref_m, fine, window_ticks))
+            else:
+                set_nc_reference(
+                    ref,
+                    np.interp(fine, drive.t_s, drive.pos_ref_m),
+                    np.interp(fine, drive.t_s, drive.vel_ref_m_s),
+                    np.interp(fine, drive.t_s, drive.acc_ref_m_s2),
+                )
         if drive.effort_add is not None:
             gain = self.doc.reference_gain or 1.0
             ref[:, signals.REF_EFFORT_ADD] = hold(drive.effort_add / gain, dec)
@@ -374,11 +382,6 @@ class Twin:
         from feed_twin.sim.batch import run_batch
         from feed_twin.sim.engine import check_step
 
-        # keyed by the drive itself, which the cache keeps alive: an id() of a drive already
-        # collected can come back for the next one and return its stale inputs
-        if self._cache.get("drive") is not drive:
-            self._cache = {"drive": drive, "inputs": self._inputs(drive)}
-        ref, ext, n, dec = self._cache["inputs"]
         P = np.array(params, dtype=float, ndmin=2)
         if effort_delays is not None:
             if len(P) != 1:
@@ -401,20 +404,43 @@ class Twin:
         x = np.full((len(P) * k, T), np.nan)
         effort = np.full((len(P) * k, T), np.nan)
         u_q = np.full((len(P) * k, T), np.nan) if self.has_voltage else None
-        if len(rows):
+        # a recorded command is a mean over the trace's window too: one run per window
+        groups: dict[int | None, list[int]] = {}
+        for j, slots in enumerate(trace):
+            groups.setdefault(self._command_window(drive, slots), []).append(j)
+        for window, members in groups.items() if len(rows) else ():
+            ref, ext, n, dec = self._cached_inputs(drive, window)
             x0 = self._x0(drive, P[rows[0]])
             cs0 = self.start_controller(drive, ref)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
             volt = res["out.u_q_ref_V"] if u_q is not None else None
-            for j, slots in enumerate(trace):
-                recorded = self._as_recorded(drive, dec, pos, eff, volt, slots)
+            for j in members:
+                recorded = self._as_recorded(drive, dec, pos, eff, volt, trace[j])
                 x[rows * k + j] = recorded[0][:, :T]
                 effort[rows * k + j] = recorded[1][:, :T]
                 if u_q is not None and recorded[2] is not None:
                     u_q[rows * k + j] = recorded[2][:, :T]
-            ok[rows] = ~res.diverged
+            ok[rows] &= ~res.diverged
         return SimOutputs(x_m=x, effort=effort, ok=np.repeat(ok, k), voltage_q=u_q)
+
+    def _command_window(self, drive: Drive, slots: dict[str, float]) -> int | None:
+        """The window [base ticks] over which the record's command samples are means, None for
+        the map's (a command planned from a program is no trace's: it is not shifted)."""
+        h = self.base_period_s
+        ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
+        declared = round(drive_period(drive) / h) if drive.trace_mean else 1
+        return None if drive.plan is not None or ticks == declared else ticks
+
+    def _cached_inputs(self, drive: Drive, window: int | None):
+        """Twin._inputs, kept per drive and window."""
+        # keyed by the drive itself, which the cache keeps alive: an id() of a drive already
+        # collected can come back for the next one and return its stale inputs
+        if self._cache.get("drive") is not drive:
+            self._cache = {"drive": drive}
+        if window not in self._cache:
+            self._cache[window] = self._inputs(drive, window)
+        return self._cache[window]
 
     def _as_recorded(
         self,
