@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from pathlib import Path
 
 # One BLAS thread, set before numpy loads OpenBLAS (feed_twin.cli imports this module first):
@@ -140,7 +141,9 @@ def main_diagnose(args: argparse.Namespace) -> int:
             # the program file holds one run of what the record repeats: placed on each
             run, other, more = _repetitions(run, other, progress)
         measured = [run, other, *more]
+        clock = time.perf_counter()
         placed = None if program is None else place(measured, program, doc)
+        placing_s = time.perf_counter() - clock
         for w in run.warnings:  # the loader's; diagnose_program says where it placed the program
             progress(f"warning: {w}")
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
@@ -157,7 +160,7 @@ def main_diagnose(args: argparse.Namespace) -> int:
         else:
             diagnosis, final_doc, motion, placed = diagnose_program(
                 measured, program, doc, progress=progress, model_path=str(model_path),
-                placed=placed,
+                placed=placed, placing_s=placing_s,
             )  # fmt: skip
             more = [r for r in placed[2:] if r is not None]
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
@@ -196,12 +199,12 @@ def _repetitions(run: MeasuredRun, other: MeasuredRun | None, progress):
     parts = split_repetitions(run)
     if found is None or len(parts) < 2:
         raise MeasuredDataError(
-            f"{run.source}: --repetitions: no repetition of the program found (no peak of the "
-            "velocity's autocorrelation >= 0.8 past a fifth of the record)"
+            f"{run.source}: --repetitions: no repetition of the program found (no later part of "
+            "the record matches the first run's motion with a correlation >= 0.8)"
         )
     period, r = found
     progress(
-        f"found {len(parts)} repetitions of about {period:.3f} s (correlation {r:.3f}); "
+        f"found {len(parts)} repetitions, {period:.3f} s apart on average (least match {r:.3f}); "
         f"identifying on the first ({parts[0].t_s[0]:.3f} to {parts[0].t_s[-1]:.3f} s), "
         "validating on the others"
     )

@@ -27,6 +27,7 @@ from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, cost_of,
 from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.plausible import outside_record
 from feed_twin.analysis.ranking import Candidate, evidence, rank
+from feed_twin.analysis.record_search import AT_EDGE
 from feed_twin.analysis.reexamine import (
     Found,
     collapsed,
@@ -42,7 +43,7 @@ from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import ALPHA, compare, effective_samples
 from feed_twin.analysis.trials import try_candidate
 from feed_twin.analysis.twin import Drive, Twin
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
 
@@ -285,6 +286,8 @@ def run_round(
         if verdict.significant:
             _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
             excluded.append(cand.name)
+            if result.message.endswith(AT_EDGE):  # a record slot's search said so
+                ctx.notes.append(f"{cand.name}: {result.message}")
             # the model changed: the rivals tried so far are ranked again on its residual (a
             # backlash tried beside the Coulomb force that hid it is found once that is in)
             ctx.tried.clear()
