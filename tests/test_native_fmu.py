@@ -227,3 +227,39 @@ def test_the_fmu_rebuilt_from_its_sources_by_fmpy_gives_the_same_result(tmp_path
     rebuilt = simulate_fmu(str(unzipped), stop_time=0.2, output_interval=1e-3, input=ramp)
     assert np.array_equal(rebuilt["table.s"], shipped["table.s"])
     assert shipped["table.s"][-1] > 1e-3  # it moved
+
+
+def test_libcosim_runs_the_fmu_to_the_bits_of_simulate_program(axis_fmu):
+    # a second importer (libcosim, on the FMI Library): the program's commands through its
+    # override manipulator, one 1 ms step each; after step j the states and sensor samples are
+    # those simulate_program records at the next NC sample
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimManipulator import CosimManipulator
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+
+    log_output_level(CosimLogLevel.ERROR)
+    axis = load_axis_config(AXIS)
+    n = 300
+    outputs = (*axis.plant.state_names, "meas.x_scale_m", "meas.theta_enc_rad")
+    run = simulate_program(axis, SAMPLE, settle_s=0.0, preroll_s=0.0, record=outputs)
+    execution = CosimExecution.from_step_size(step_size=1_000_000)  # [ns]
+    slave = CosimLocalSlave(fmu_path=str(axis_fmu), instance_name="axis")
+    index = execution.add_local_slave(local_slave=slave)
+    vr = {v.name.decode(): v.reference for v in execution.slave_variables(index)}
+    observer = CosimObserver.create_last_value()
+    execution.add_observer(observer=observer)
+    override = CosimManipulator.create_override()
+    execution.add_manipulator(manipulator=override)
+    execution.real_initial_value(index, vr["start.table"], float(run.command[0, 0]))
+    names = ("ref.pos_ref_m", "ref.vel_ref_m_s", "ref.acc_ref_m_s2")
+    got = np.empty((n, len(outputs)))
+    for j in range(n):
+        command = [run.command[j, 0], run.command_vel[j, 0], run.command_acc[j, 0]]
+        override.slave_real_values(index, [vr[name] for name in names], command)
+        assert execution.step(step_count=1)
+        got[j] = observer.last_real_values(index, [vr[name] for name in outputs])
+    for i, name in enumerate(outputs):
+        assert np.array_equal(got[:, i], run.signals["X"][name][1 : n + 1]), name
+    assert np.ptp(got[:, outputs.index("table.s")]) > 1e-3  # it moved
