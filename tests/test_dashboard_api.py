@@ -19,8 +19,9 @@ def test_layout_covers_the_signals_the_issue_names() -> None:
         "Following error [um]",
         "Velocity [mm/s]",
         "dq currents [A]",
-        "Phase currents [A]",
-        "Voltages [V]",
+        "Phase currents, last 40 ms [A]",
+        "dq voltages [V]",
+        "DC bus [V]",
         "Friction force [N]",
     ]
     assert len(SIGNALS) == len(set(SIGNALS)) == 16

@@ -8,8 +8,9 @@ Panels (display units are converted here, once, at the edge; inputs are SI):
 | Following error [um]  | following_error_m [m]                                            |
 | Velocity [mm/s]       | v_cmd_m_s, v_m_s [m/s]                                           |
 | dq currents [A]       | i_q_ref_A, i_q_A, i_d_ref_A, i_d_A [A]                           |
-| Phase currents [A]    | i_a_A, i_b_A, i_c_A [A]                                          |
-| Voltages [V]          | u_d_V, u_q_V, u_dc_V [V]                                         |
+| Phase currents [A]    | i_a_A, i_b_A, i_c_A [A], the last 40 ms before the time cursor   |
+| dq voltages [V]       | u_d_V, u_q_V [V]                                                 |
+| DC bus [V]            | u_dc_V [V] (its own scale: 560 V would flatten u_d and u_q)      |
 | Friction force [N]    | f_friction_N [N]                                                 |
 | G-code                | the active program line, as a text log                           |
 
@@ -65,6 +66,10 @@ _BLUE, _ORANGE, _GREEN, _RED, _PURPLE = (
     (160, 60, 220),
 )
 
+# the phase currents turn at the electrical frequency: over a whole run they fill the panel as a
+# solid band, so their panel shows a window that ends at the time cursor
+PHASE_WINDOW_S = 0.04
+
 PANELS: tuple[Panel, ...] = (
     Panel(
         title="Position [mm]",
@@ -106,7 +111,7 @@ PANELS: tuple[Panel, ...] = (
         ),
     ),
     Panel(
-        title="Phase currents [A]",
+        title=f"Phase currents, last {PHASE_WINDOW_S * 1e3:g} ms [A]",
         origin="/current_phase",
         series=(
             Series(name="i_a_A", path="/current_phase/i_a", label="i_a", scale=1.0, color=_RED),
@@ -116,12 +121,18 @@ PANELS: tuple[Panel, ...] = (
         ),
     ),
     Panel(
-        title="Voltages [V]",
+        title="dq voltages [V]",
         origin="/voltage",
         series=(
             Series(name="u_d_V", path="/voltage/u_d", label="u_d", scale=1.0, color=_PURPLE),
             Series(name="u_q_V", path="/voltage/u_q", label="u_q", scale=1.0, color=_ORANGE),
-            Series(name="u_dc_V", path="/voltage/u_dc", label="u_dc", scale=1.0, color=_BLUE),
+        ),
+    ),
+    Panel(
+        title="DC bus [V]",
+        origin="/bus",
+        series=(
+            Series(name="u_dc_V", path="/bus/u_dc", label="u_dc", scale=1.0, color=_BLUE),
         ),
     ),
     Panel(
@@ -135,16 +146,22 @@ PANELS: tuple[Panel, ...] = (
 )  # fmt: skip
 SERIES: dict[str, Series] = {s.name: s for p in PANELS for s in p.series}
 SIGNALS: tuple[str, ...] = tuple(SERIES)
-GRID_COLUMNS = 2
+GRID_COLUMNS = 3
 
 
 def blueprint() -> rrb.Blueprint:
-    """The dashboard layout: a 2-column grid of time-series panels and the G-code log."""
+    """The dashboard layout: a 3-column grid of time-series panels and the G-code log."""
+    window = rrb.VisibleTimeRange(
+        TIMELINE,
+        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-PHASE_WINDOW_S),
+        end=rrb.TimeRangeBoundary.cursor_relative(),
+    )
     views: list[rrb.View] = [
         rrb.TimeSeriesView(
             name=p.title,
             origin=p.origin,
             plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightBottom, visible=True),
+            time_ranges=window if p.origin == "/current_phase" else None,
         )
         for p in PANELS
     ]

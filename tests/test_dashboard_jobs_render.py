@@ -1,0 +1,77 @@
+"""Each job's dashboard renders headless with every panel showing data (pixel variance per
+panel against the same blueprint with no data): the shadow twin, the machine twin, the
+LinuxCNC run and `diagnose`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rerun_shots import empty_panels, grid_cells, needs_vulkan, render
+
+from feed_twin.shadow import dashboard as shadow_dash
+from feed_twin.shadow.health import Verdict
+from feed_twin.shadow.twin import ResidualBlock
+
+pytestmark = [pytest.mark.slow, needs_vulkan]
+
+
+def _block(t: np.ndarray, *, effort: bool) -> ResidualBlock:
+    x_cmd = 0.05 * np.sin(2.0 * t)
+    fe = 20e-6 * np.cos(2.0 * t)
+    drift = 2e-6 * (t > 102.0)
+    effort_meas = (
+        100.0 * np.cos(2.0 * t) + 30.0 * (t > 102.0) + np.sin(30 * t)
+        if effort
+        else np.full_like(t, np.nan)
+    )
+    effort_twin = 100.0 * np.cos(2.0 * t)
+    return ResidualBlock(
+        t_s=t,
+        x_cmd_m=x_cmd,
+        x_meas_m=x_cmd - fe - drift,
+        x_twin_m=x_cmd - fe,
+        effort_meas=effort_meas,
+        effort_twin=effort_twin,
+        fe_dev_m=-drift + 1e-7 * np.sin(50 * t),
+        effort_dev=effort_meas - effort_twin,
+        fe_dev_rms_m=np.abs(drift) + 1e-7,
+        effort_dev_rms=np.abs(effort_meas - effort_twin),
+        measured_filled=np.zeros(t.size, bool),
+        command_filled=np.zeros(t.size, bool),
+    )
+
+
+def _verdict(t: float, level: int, message: str) -> Verdict:
+    return Verdict(
+        t_s=t, level=level, fe_dev_rms_m=0.0, effort_dev_rms=0.0, baseline_fe_dev_rms_m=0.0,
+        baseline_effort_dev_rms=0.0, message=message,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("effort", [True, False], ids=["effort", "no-effort"])
+def test_the_shadow_dashboard_shows_every_panel(tmp_path: Path, effort: bool) -> None:
+    t = 100.0 + np.arange(0.0, 4.0, 1e-3)
+    dash = shadow_dash.ShadowDashboard(effort_unit="N", rrd_path=tmp_path / "shadow.rrd")
+    for k in range(0, t.size, 500):
+        dash.log_block(_block(t[k : k + 500], effort=effort))
+        level = 1 if t[k] > 102.5 else 0
+        dash.log_verdict(_verdict(float(t[min(k + 499, t.size - 1)]), level,
+                                  "guides.F_c changed: +30 N (asymmetric_friction)"))  # fmt: skip
+    dash.close()
+    layout = shadow_dash.blueprint("N", with_effort=effort)
+    import rerun as rr
+
+    rr.RecordingStream("feed_twin_shadow").save(tmp_path / "empty.rrd", default_blueprint=layout)
+    columns = shadow_dash.grid_columns(with_effort=effort)
+    titles = [title for title, _ in shadow_dash.panels("N", with_effort=effort)]
+    plots, log = shadow_dash.ROW_SHARES
+    split = plots / (plots + log)
+    shots = [render(tmp_path / f"{n}.rrd", tmp_path / f"{n}.png") for n in ("shadow", "empty")]
+    full, empty = (
+        grid_cells(shot, len(titles), columns, share=(0.0, split))
+        + grid_cells(shot, 1, 1, share=(split, 1.0))
+        for shot in shots
+    )
+    assert empty_panels(full, empty, [*titles, "Health"]) == []
