@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 from rerun_shots import empty_panels, grid_cells, needs_vulkan, render
 
+ROOT = Path(__file__).resolve().parent.parent
+
 from feed_twin.shadow import dashboard as shadow_dash
 from feed_twin.shadow.health import Verdict
 from feed_twin.shadow.twin import ResidualBlock
@@ -75,3 +77,48 @@ def test_the_shadow_dashboard_shows_every_panel(tmp_path: Path, effort: bool) ->
         for shot in shots
     )
     assert empty_panels(full, empty, [*titles, "Health"]) == []
+
+
+def _machine_run():
+    """A planned program as the command and a twin a few um off it (duck-typed MachineRun)."""
+    from types import SimpleNamespace
+
+    from feed_twin.gcode.config import nc_config_from_mapping
+    from feed_twin.gcode.geometry import programmed_path
+    from feed_twin.gcode.planner import plan_program
+    from feed_twin.io.config import load_yaml
+
+    config = load_yaml(ROOT / "config" / "axis_default.yaml")["nc"]
+    nc = nc_config_from_mapping(config, source="axis_default.yaml")
+    program = ROOT / "tests" / "fixtures" / "gcode" / "helix.ngc"
+    traj = plan_program(program, nc)
+    t = traj.t_s
+    wobble = 5e-6 * np.sin(40.0 * t)
+    actual = traj.pos_m - np.outer(wobble, np.ones(traj.pos_m.shape[1]))
+    normal = np.abs(wobble) * (1.0 + np.sin(3.0 * t) ** 2)
+    errors = {a: traj.pos_m[:, k] - actual[:, k] for k, a in enumerate(nc.axis_names[:3])}
+    run = SimpleNamespace(
+        t_s=t,
+        actual=actual,
+        simulated=tuple(errors),
+        contour=SimpleNamespace(normal_m=normal, lag_m=200e-6 * np.sin(t)),
+        following_error=lambda a: errors[a],
+    )
+    return run, programmed_path(program, nc)
+
+
+def test_the_machine_dashboard_shows_every_panel(tmp_path: Path) -> None:
+    from feed_twin.machine import dashboard as machine_dash
+
+    run, segments = _machine_run()
+    machine_dash.write_machine_dashboard(run, segments, tmp_path / "machine.rrd")
+    import rerun as rr
+
+    frames = {name: machine_dash.PathFrame.around(np.zeros((1, 2))) for name, _, _ in machine_dash.VIEWS}
+    empty = rr.RecordingStream("feed_twin")
+    empty.save(tmp_path / "empty.rrd", default_blueprint=machine_dash.machine_blueprint(frames))
+    titles = list(machine_dash.PANEL_TITLES)
+    columns = machine_dash.GRID_COLUMNS
+    full = grid_cells(render(tmp_path / "machine.rrd", tmp_path / "m.png"), len(titles), columns)
+    blank = grid_cells(render(tmp_path / "empty.rrd", tmp_path / "e.png"), len(titles), columns)
+    assert empty_panels(full, blank, titles) == []
