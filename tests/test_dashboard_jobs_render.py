@@ -8,13 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rerun as rr
 from rerun_shots import empty_panels, grid_cells, needs_vulkan, render
 
-ROOT = Path(__file__).resolve().parent.parent
-
+from feed_twin.machine import dashboard as machine_dash
 from feed_twin.shadow import dashboard as shadow_dash
 from feed_twin.shadow.health import Verdict
 from feed_twin.shadow.twin import ResidualBlock
+
+ROOT = Path(__file__).resolve().parent.parent
 
 pytestmark = [pytest.mark.slow, needs_vulkan]
 
@@ -63,8 +65,6 @@ def test_the_shadow_dashboard_shows_every_panel(tmp_path: Path, effort: bool) ->
                                   "guides.F_c changed: +30 N (asymmetric_friction)"))  # fmt: skip
     dash.close()
     layout = shadow_dash.blueprint("N", with_effort=effort)
-    import rerun as rr
-
     rr.RecordingStream("feed_twin_shadow").save(tmp_path / "empty.rrd", default_blueprint=layout)
     columns = shadow_dash.grid_columns(with_effort=effort)
     titles = [title for title, _ in shadow_dash.panels("N", with_effort=effort)]
@@ -108,13 +108,10 @@ def _machine_run():
 
 
 def test_the_machine_dashboard_shows_every_panel(tmp_path: Path) -> None:
-    from feed_twin.machine import dashboard as machine_dash
-
     run, segments = _machine_run()
     machine_dash.write_machine_dashboard(run, segments, tmp_path / "machine.rrd")
-    import rerun as rr
-
-    frames = {name: machine_dash.PathFrame.around(np.zeros((1, 2))) for name, _, _ in machine_dash.VIEWS}
+    blank_frame = machine_dash.PathFrame.around(np.zeros((1, 2)))
+    frames = {name: blank_frame for name, _, _ in machine_dash.VIEWS}
     empty = rr.RecordingStream("feed_twin")
     empty.save(tmp_path / "empty.rrd", default_blueprint=machine_dash.machine_blueprint(frames))
     titles = list(machine_dash.PANEL_TITLES)
