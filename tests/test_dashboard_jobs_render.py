@@ -119,3 +119,52 @@ def test_the_machine_dashboard_shows_every_panel(tmp_path: Path) -> None:
     full = grid_cells(render(tmp_path / "machine.rrd", tmp_path / "m.png"), len(titles), columns)
     blank = grid_cells(render(tmp_path / "empty.rrd", tmp_path / "e.png"), len(titles), columns)
     assert empty_panels(full, blank, titles) == []
+
+
+def _diagnosis():
+    """Traces of an identification and a validation run with a friction the nominal model
+    lacks, and the effect named (duck-typed Diagnosis)."""
+    from types import SimpleNamespace
+
+    from feed_twin.analysis.report import FoundEffect, Trace
+
+    def trace(label: str, shift: float, friction: float) -> Trace:
+        t = np.arange(0.0, 3.0, 1e-3)
+        cmd = 0.1 * np.sin(2.0 * t + shift)
+        v = 0.2 * np.cos(2.0 * t + shift)
+        effort = 50.0 * np.sin(2.0 * t + shift) + 30.0 * np.tanh(v / 1e-3)
+        model = effort - friction * np.tanh(v / 1e-3)
+        return Trace(label=label, t_s=t, pos_cmd_m=cmd, x_meas_m=cmd - 1e-5 * v / 0.2,
+                     x_sim_m=cmd - (1e-5 - friction * 1e-7) * v / 0.2, effort_meas=effort,
+                     effort_sim=model, effort_name="force_cmd_N")  # fmt: skip
+
+    effect = FoundEffect(
+        name="coulomb_friction", evidence="a force opposing the motion", component="guides",
+        parameters={"F_c_N": 29.7}, explained_fraction=0.93,
+    )  # fmt: skip
+    return SimpleNamespace(
+        before_trace=trace("nominal", 0.0, 30.0), after_trace=trace("fitted", 0.0, 0.3),
+        validation_traces=(trace("nominal", 1.0, 30.0), trace("fitted", 1.0, 0.3)),
+        effects=(effect,), verdict="1 effect found", named_not_fitted=(),
+    )  # fmt: skip
+
+
+def test_the_diagnose_dashboard_shows_every_panel(tmp_path: Path) -> None:
+    from feed_twin.analysis import dashboard as diagnose_dash
+
+    d = _diagnosis()
+    diagnose_dash.write_rerun(d, tmp_path / "diagnose.rrd")  # type: ignore[arg-type]
+    names = [run for run, _, _ in diagnose_dash.runs(d)]  # type: ignore[arg-type]
+    panels = diagnose_dash.channels(d.before_trace)
+    empty = rr.RecordingStream("feed_twin_diagnose")
+    empty.save(tmp_path / "empty.rrd", default_blueprint=diagnose_dash.blueprint(names, panels))
+    titles = [f"{c.title}, {run}" for c in panels for run in names]
+    plots, text = diagnose_dash.ROW_SHARES
+    split = plots / (plots + text)
+    shots = [render(tmp_path / f"{n}.rrd", tmp_path / f"{n}.png") for n in ("diagnose", "empty")]
+    full, blank = (
+        grid_cells(shot, len(titles), len(names), share=(0.0, split))
+        + grid_cells(shot, 1, 1, share=(split, 1.0))
+        for shot in shots
+    )
+    assert empty_panels(full, blank, [*titles, "Effects"]) == []

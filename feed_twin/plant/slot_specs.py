@@ -134,3 +134,39 @@ def _ordered(x: float) -> int:
 def _double(i: int) -> float:
     bits = i if i >= 0 else (-i) | _SIGN
     return struct.unpack("<d", struct.pack("<Q", bits))[0]
+
+
+# unit suffixes of the workflow's report names (m_kg, F_v_N_s_m, heating_K_m), longest first
+_REPORT_SUFFIXES = (
+    ("_N_s_m", "N s/m"),
+    ("_m_s", "m/s"),
+    ("_N_m", "N/m"),
+    ("_K_m", "K/m"),
+    ("_Nm", "N m"),
+    ("_kg", "kg"),
+    ("_rad", "rad"),
+    ("_N", "N"),
+    ("_s", "s"),
+    ("_m", "m"),
+    ("_A", "A"),
+    ("_V", "V"),
+)
+
+
+def report_unit(name: str) -> str:
+    """The unit of a fitted parameter the discrepancy workflow reports: its name's suffix
+    (`F_c_N`), else the unit of the component field of that name (`F_v_pos`: N s/m) when every
+    component type that has the field agrees on it, else ""."""
+    for suffix, unit in _REPORT_SUFFIXES:
+        if name.endswith(suffix) and len(name) > len(suffix):
+            return unit
+    from feed_twin.plant.registry import COMPONENT_TYPES
+
+    units = {field_units(cls).get(name) for cls in COMPONENT_TYPES.values()} - {None}
+    return units.pop() if len(units) == 1 else ""  # type: ignore[return-value]
+
+
+def with_unit(name: str, value: float, digits: int = 5) -> str:
+    """`F_v_pos = 168.7 N s/m`: a fitted parameter as a report shows it."""
+    unit = report_unit(name)
+    return f"{name} = {value:.{digits}g}" + (f" {unit}" if unit and unit != "1" else "")
