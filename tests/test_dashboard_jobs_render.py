@@ -168,3 +168,32 @@ def test_the_diagnose_dashboard_shows_every_panel(tmp_path: Path) -> None:
         for shot in shots
     )
     assert empty_panels(full, blank, [*titles, "Effects"]) == []
+
+
+def test_the_linuxcnc_dashboard_shows_every_panel(tmp_path: Path) -> None:
+    from feed_twin.linuxcnc import dashboard as cnc_dash
+
+    t = np.arange(0.0, 3.0, 1e-3)
+    cmd = np.column_stack([0.05 * np.sin(t), 0.02 * np.sin(2 * t), 0.01 * t])
+    error = np.column_stack([2e-6 * np.cos(t), 1e-6 * np.cos(2 * t), 1e-7 * np.ones_like(t)])
+    trace = cnc_dash.ServoTrace(
+        t_s=t, tick_time_s=1000.0 + t + 20e-6 * np.sin(7.0 * t), joints=("X", "Y", "Z"),
+        position_command_m=cmd, position_feedback_m=cmd - error, following_error_m=error,
+        servo_output_m_s=np.gradient(cmd, t, axis=0),
+    )  # fmt: skip
+    cnc_dash.write_linuxcnc_dashboard(
+        trace, "X", 1e-3, "LinuxCNC program time: 3.000 s", tmp_path / "cnc.rrd"
+    )
+    rr.RecordingStream("feed_twin_linuxcnc").save(
+        tmp_path / "empty.rrd", default_blueprint=cnc_dash.blueprint("X")
+    )
+    titles = cnc_dash.panel_titles("X")
+    plots, text = cnc_dash.ROW_SHARES
+    split = plots / (plots + text)
+    shots = [render(tmp_path / f"{n}.rrd", tmp_path / f"{n}.png") for n in ("cnc", "empty")]
+    full, blank = (
+        grid_cells(shot, len(titles), cnc_dash.GRID_COLUMNS, share=(0.0, split))
+        + grid_cells(shot, 1, 1, share=(split, 1.0))
+        for shot in shots
+    )
+    assert empty_panels(full, blank, [*titles, "Run"]) == []
