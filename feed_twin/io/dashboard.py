@@ -15,7 +15,7 @@ Panels (display units are converted here, once, at the edge; inputs are SI):
 | G-code                | the active program line, as a text log                           |
 
 `Dashboard` writes an `.rrd` file (always, when given a path) and optionally streams live to a
-viewer: `LiveViewer` starts Rerun's gRPC server and web viewer bound to 127.0.0.1 only, or the
+viewer: feed_twin.io.live.LiveViewer serves Rerun's web viewer (127.0.0.1 unless asked), or the
 dashboard connects to a viewer the user started (`rerun`, native). Samples are buffered and sent
 as columns, because one `log` call per scalar costs about 60 us.
 """
@@ -24,10 +24,6 @@ from __future__ import annotations
 
 import importlib.util
 import math
-import os
-import socket
-import subprocess
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -172,12 +168,6 @@ def blueprint() -> rrb.Blueprint:
     )
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def rerun_binary() -> Path:
     """The real viewer binary shipped in rerun-sdk (bin/rerun is a Python wrapper around it)."""
     spec = importlib.util.find_spec("rerun_cli")
@@ -187,72 +177,6 @@ def rerun_binary() -> Path:
     if not path.is_file():
         raise FileNotFoundError(f"the rerun viewer binary is missing: {path}")
     return path
-
-
-class LiveViewer:
-    """Rerun's gRPC server and web viewer in a child process, listening on 127.0.0.1 only."""
-
-    def __init__(
-        self,
-        *,
-        grpc_port: int | None = None,
-        web_port: int | None = None,
-        memory_limit: str = "1GiB",
-        startup_timeout_s: float = 15.0,
-    ) -> None:
-        self.grpc_port = grpc_port or _free_port()
-        self.web_port = web_port or _free_port()
-        cmd = [
-            str(rerun_binary()),
-            "--serve-web",
-            "--bind",
-            "127.0.0.1",
-            "--port",
-            str(self.grpc_port),
-            "--web-viewer-port",
-            str(self.web_port),
-            "--server-memory-limit",
-            memory_limit,
-        ]
-        self._proc = subprocess.Popen(
-            cmd,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            env={**os.environ, "RERUN_ANALYTICS": "false"},
-        )
-        deadline = time.monotonic() + startup_timeout_s
-        while not self._listening(self.grpc_port):
-            if self._proc.poll() is not None or time.monotonic() > deadline:
-                self.stop()
-                raise RuntimeError(
-                    f"the Rerun server did not start listening on 127.0.0.1:{self.grpc_port} "
-                    f"within {startup_timeout_s} s"
-                )
-            time.sleep(0.05)
-
-    @staticmethod
-    def _listening(port: int) -> bool:
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            s.settimeout(0.2)
-            return s.connect_ex(("127.0.0.1", port)) == 0
-
-    @property
-    def grpc_url(self) -> str:
-        return f"rerun+http://127.0.0.1:{self.grpc_port}/proxy"
-
-    @property
-    def web_url(self) -> str:
-        return f"http://127.0.0.1:{self.web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{self.grpc_port}%2Fproxy"
-
-    def stop(self) -> None:
-        if self._proc.poll() is None:
-            self._proc.terminate()
-            try:
-                self._proc.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                self._proc.kill()
-                self._proc.wait(timeout=5.0)
 
 
 class Dashboard:

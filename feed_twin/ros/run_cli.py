@@ -425,7 +425,7 @@ def main(args: argparse.Namespace) -> int:
     viewer = None
     args.live_url = None
     if args.live:
-        from feed_twin.io.dashboard import LiveViewer
+        from feed_twin.io.live import LiveViewer
 
         viewer = LiveViewer()
         args.live_url = viewer.grpc_url

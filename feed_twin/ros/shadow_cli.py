@@ -66,7 +66,7 @@ def run_shadow(args: argparse.Namespace) -> tuple[int, dict | None, str]:
         standin_cmd += ["--raise-friction-at", str(args.raise_friction_at)]
     try:
         if args.live:
-            from feed_twin.io.dashboard import LiveViewer
+            from feed_twin.io.live import LiveViewer
 
             viewer = LiveViewer()
             twin_cmd += ["--rerun-url", viewer.grpc_url]
