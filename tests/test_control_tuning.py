@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from feed_twin.control import tune_cli
-from feed_twin.io.config import load_yaml
 from feed_twin.control.loop_response import closed, closed_loop_bandwidth, loop_margins
 from feed_twin.control.tuning import (
     LoadMode,
@@ -17,6 +16,7 @@ from feed_twin.control.tuning import (
     tune_position_loop,
     tune_velocity_loop,
 )
+from feed_twin.io.config import load_yaml
 
 FIXTURES = Path(__file__).parent / "fixtures"
 
