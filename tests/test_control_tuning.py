@@ -16,7 +16,7 @@ from feed_twin.control.tuning import (
     tune_position_loop,
     tune_velocity_loop,
 )
-from feed_twin.io.config import load_yaml
+from feed_twin.core.config import load_yaml
 
 FIXTURES = Path(__file__).parent / "fixtures"
 

@@ -83,10 +83,10 @@ def _machine_run():
     """A planned program as the command and a twin a few um off it (duck-typed MachineRun)."""
     from types import SimpleNamespace
 
+    from feed_twin.core.config import load_yaml
     from feed_twin.gcode.config import nc_config_from_mapping
     from feed_twin.gcode.geometry import programmed_path
     from feed_twin.gcode.planner import plan_program
-    from feed_twin.io.config import load_yaml
 
     config = load_yaml(ROOT / "config" / "axis_default.yaml")["nc"]
     nc = nc_config_from_mapping(config, source="axis_default.yaml")

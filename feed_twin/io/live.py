@@ -20,9 +20,10 @@ import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 from urllib.parse import quote
 
-from feed_twin.io.dashboard import rerun_binary
+from feed_twin.io.dashboard import APPLICATION_ID, rerun_binary
 
 LOOPBACK = "127.0.0.1"
 
@@ -169,3 +170,15 @@ def linger(viewer: LiveViewer | None, seconds: float | None) -> None:
         pass
     finally:
         viewer.stop()
+
+
+def show_recording(viewer: LiveViewer | None, rrd: str | Path) -> None:
+    """Send a finished recording (a run that writes its dashboard at the end) to the viewer."""
+    if viewer is None:
+        return
+    import rerun as rr
+
+    rec = rr.RecordingStream(APPLICATION_ID)
+    rec.set_sinks(rr.GrpcSink(url=viewer.grpc_url))
+    rec.log_file_from_path(Path(rrd))
+    rec.flush()
