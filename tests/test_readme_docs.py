@@ -106,3 +106,10 @@ def test_every_path_and_dotted_name_in_the_docs_resolves(page: Path) -> None:
 
 def test_architecture_no_longer_cites_the_removed_edits_module() -> None:
     assert "`edits." not in (ROOT / "docs" / "architecture.md").read_text()
+
+
+def test_the_benchmarks_page_is_what_the_saved_results_make() -> None:
+    import runpy
+
+    page = runpy.run_path(str(ROOT / "tools" / "benchmarks_page.py"))
+    assert (ROOT / "docs" / "benchmarks.md").read_text() == page["page"]()

@@ -351,7 +351,29 @@ def _finish_shadow(args: argparse.Namespace, topics, out: Outputs):
         report = log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}
         namespace = twin_namespace(topics.command)
         extra = linuxcnc_figures(out.bag, twin_namespace=namespace, report=report)
+        _linuxcnc_dashboard(args, topics, out, extra.format())
     return _ShadowSummary(run, figures, extra), ""
+
+
+def _linuxcnc_dashboard(args: argparse.Namespace, topics, out: Outputs, figures: str) -> None:
+    """`<run>_linuxcnc.rrd` beside the twin's: LinuxCNC's servo samples, PID output, timing."""
+    import numpy as np
+
+    from feed_twin.io.bag import BagError
+    from feed_twin.io.live import show_recording
+    from feed_twin.linuxcnc.dashboard import read_servo_trace, write_linuxcnc_dashboard
+
+    try:
+        trace = read_servo_trace(out.bag, f"{topics.namespace}/linuxcnc/servo")
+    except (BagError, ValueError) as exc:
+        print(f"feed-twin run: no LinuxCNC dashboard: {exc}", file=sys.stderr)
+        return
+    if len(trace.t_s) < 2:
+        return
+    rrd = out.bag.with_name(f"{out.bag.name}_linuxcnc.rrd")
+    period = float(np.median(np.diff(trace.t_s)))
+    write_linuxcnc_dashboard(trace, topics.axis.upper(), period, figures, rrd)
+    show_recording(getattr(args, "live_viewer", None), rrd)
 
 
 def _effort_unit(config: Path) -> str:
