@@ -257,13 +257,14 @@ def plot_signature(trace: Trace, v_m_s: np.ndarray, location: Location, path: Pa
     axes[0].set_ylabel(f"nominal residual, {unit}")
     b = location.by_direction
     axes[1].bar(b.labels, b.mean)
-    axes[1].set_ylabel("mean residual")
+    axes[1].set_ylabel(f"mean residual, {unit}")
     axes[1].set_title("by direction of motion")
     p = location.by_position
     centres = 0.5 * (np.array(p.edges[:-1]) + np.array(p.edges[1:]))
     axes[2].plot(centres * 1e3, p.mean, "o-", label="mean")
     axes[2].plot(centres * 1e3, p.rms, "s--", label="RMS")
     axes[2].set_xlabel("position [mm]")
+    axes[2].set_ylabel(f"residual, {unit}")
     axes[2].legend(fontsize=8)
     axes[2].set_title("along the screw")
     fig.tight_layout()
