@@ -103,3 +103,14 @@ def test_the_live_viewer_on_every_interface_is_warned_and_lingers(capsys) -> Non
     linger(viewer, args.live_linger)
     assert 0.4 < time.monotonic() - began < 5.0
     assert not viewer.running()
+
+
+def test_no_run_mode_refuses_live() -> None:
+    # every mode serves its dashboards: the axis modes stream, the machine modes show theirs
+    # once written (feed_twin.io.live.show_recording)
+    from feed_twin.machine.run_cli import NODE_SET_OPTIONS
+    from feed_twin.ros.machine_run import REFUSED as MACHINE_NODES_REFUSE
+    from feed_twin.ros.machine_shadow_run import REFUSED as MACHINE_SHADOW_REFUSES
+
+    for refused in (NODE_SET_OPTIONS, MACHINE_NODES_REFUSE, MACHINE_SHADOW_REFUSES):
+        assert not {"live", "live_addr", "live_port", "live_linger"} & set(refused)
