@@ -95,14 +95,17 @@ def test_the_live_viewer_on_every_interface_is_warned_and_lingers(capsys) -> Non
     args = parser.parse_args(["--live", "--live-addr", "0.0.0.0", "--live-linger", "0.5"])
     viewer = start_live(args)
     assert viewer is not None
-    out, err = capsys.readouterr()
-    assert err.startswith("warning: the live viewer listens on 0.0.0.0 (ports ")
-    assert "not on loopback" in err
-    assert out.startswith(f"live: http://{socket.gethostname()}:{viewer.web_port}/?url=")
-    began = time.monotonic()
-    linger(viewer, args.live_linger)
-    assert 0.4 < time.monotonic() - began < 5.0
-    assert not viewer.running()
+    try:
+        out, err = capsys.readouterr()
+        assert err.startswith("warning: the live viewer listens on 0.0.0.0 (ports ")
+        assert "not on loopback" in err
+        assert out.startswith(f"live: http://{socket.gethostname()}:{viewer.web_port}/?url=")
+        began = time.monotonic()
+        linger(viewer, args.live_linger)
+        assert 0.4 < time.monotonic() - began < 5.0
+        assert not viewer.running()
+    finally:
+        viewer.stop()
 
 
 def test_no_run_mode_refuses_live() -> None:
