@@ -32,6 +32,7 @@ class SpeedProfile:
     t_up: np.ndarray  # [s] speed-up phase
     t_cruise: np.ndarray  # [s] cruise at vp
     t_down: np.ndarray  # [s] slow-down phase
+    A: np.ndarray  # [m/s^2] acceleration of each body's speed-up and slow-down
 
 
 def speed_profile(
@@ -45,11 +46,13 @@ def speed_profile(
     L, V, A, J = bodies.length, bodies.V, bodies.A, bodies.J
     if window_s > 0.0:
         v = plan_speeds_filtered(bodies.cap, L, A, bodies.extended, window_s, v_first)
-        vp, t_up, t_cruise, t_down = body_profiles_filtered(v, L, V, A, bodies.extended, window_s)
+        vp, t_up, t_cruise, t_down, A = body_profiles_filtered(
+            v, L, V, A, bodies.extended, window_s
+        )
     else:
         v = plan_speeds(bodies.cap, L, A, J, jerk, v_first)
         vp, t_up, t_cruise, t_down = body_profiles(v, L, V, A, J, jerk)
-    return SpeedProfile(v=v, vp=vp, t_up=t_up, t_cruise=t_cruise, t_down=t_down)
+    return SpeedProfile(v=v, vp=vp, t_up=t_up, t_cruise=t_cruise, t_down=t_down, A=A)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -125,7 +128,7 @@ def motion_pieces(
     v0[body] = v_node[:-1]
     vpk[body] = speeds.vp[:q_commit]
     v1[body] = v_node[1:]
-    Ak[body] = bodies.A[:q_commit]
+    Ak[body] = speeds.A[:q_commit]
     Jk[body] = bodies.J[:q_commit] if jerk else 1.0
     tu[body] = speeds.t_up[:q_commit]
     tc[body] = speeds.t_cruise[:q_commit]
