@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from feed_twin.gcode.plan_blends import NodeFlags, corner_blends
+from feed_twin.gcode.plan_blends import NodeFlags, corner_blends, zone_coefficients
 from feed_twin.gcode.plan_chains import chain_bodies
 from feed_twin.gcode.plan_limits import AxisLimits, move_limits
 from feed_twin.gcode.plan_profile import Pieces, motion_pieces, speed_profile
@@ -20,6 +20,7 @@ LIMITS = AxisLimits(
     jerk=True,  # S-curves per body, no filter (the kernels the filtered plan does not use)
     filter_n=1,
     window_s=0.0,
+    period_s=1e-3,
 )
 
 
@@ -126,7 +127,7 @@ def test_sampler_positions_equal_the_analytic_trapezoid():
     # X alone: V = 0.1 m/s, A = 1 m/s^2 over 20 mm: ramps of 0.1 s (5 mm), 0.1 s at cruise.
     limits = AxisLimits(
         v_max=np.array([0.1]), rapid=np.array([0.1]), a_max=np.array([1.0]),
-        j_max=np.array([100.0]), jerk=False, filter_n=1, window_s=0.0,
+        j_max=np.array([100.0]), jerk=False, filter_n=1, window_s=0.0, period_s=1e-3,
     )  # fmt: skip
     moves = move_limits([(0.0,), (0.02,)], [False], [1.0], limits)
     flags = _flags(1, 2e-5)
@@ -152,3 +153,31 @@ def test_sampler_positions_equal_the_analytic_trapezoid():
     assert vel[:, 0] == pytest.approx(v, abs=1e-12)
     assert t[-1] >= t_end and pos[-1, 0] == 0.02
     assert np.all(np.abs(acc[:, 0]) <= 1.0 + 1e-12)
+
+
+def test_cruise_cap_with_curvature_steps_solves_the_cubic_exactly():
+    filtered = AxisLimits(**{**LIMITS.__dict__, "window_s": 0.05, "filter_n": 51})
+    j = np.array([[2e4, 0.0], [0.0, 0.0], [5e3, 1e3]])  # [1/m^2]
+    kick = np.array([[3.0, 0.0], [0.0, 2.0], [0.0, 0.0]])  # [1/m]
+    cap = filtered.cruise_cap(np.zeros_like(j), j, 1.0, 0.75, kick)
+    c = filtered.kick_jerk(kick)
+    used = j * cap[:, None] ** 3 + c * cap[:, None] ** 2
+    budget = 0.75 * filtered.j_max
+    assert np.all(used <= budget * (1 + 1e-12))
+    # The binding axis of each row sits on its budget.
+    np.testing.assert_allclose(np.max(used / budget, axis=1), 1.0, rtol=1e-9)
+    assert c[0, 0] == pytest.approx(1.5 * 3.0 / 1e-3)
+
+
+def test_a_short_zone_of_one_blend_is_a_curvature_step():
+    # Chords 1.0, 0.95, 0.9 along a gentle curve: on the middle move the end blend (width
+    # 0.9) leaves 0.05 of the start blend (width 0.95) alone, a curvature step dU / w^2 * 0.05.
+    L = np.array([1.0, 0.95, 0.9])
+    w = np.array([0.0, 0.95, 0.9, 0.0])
+    du = np.array([[0.0], [0.02], [0.02], [0.0]])
+    *_, j_s, j_e, kick = zone_coefficients(L, w, du, steps=False)
+    assert j_s[1, 0] == pytest.approx(0.02 / 0.95**2) and np.all(kick == 0.0)
+    *_, j_s, j_e, kick = zone_coefficients(L, w, du, steps=True)
+    assert kick[1, 0] == pytest.approx(0.02 / 0.95**2 * 0.05)
+    both = abs(0.02 / 0.81 - 0.02 / 0.95**2)  # overlap, plus the step spread over the move
+    assert j_s[1, 0] == pytest.approx(both + kick[1, 0] / 0.95)

@@ -207,7 +207,9 @@ def _one_d_nodes(
     chained = last_of > first_of
     # A chain is cut where its local speed cap changes a lot (typically where the
     # curvature ramps up at its ends), so that a slow end does not slow all of it.
-    local = limits.cruise_cap(blends.a_node[nodes_b], blends.j_node[nodes_b], 0.5, 1.0 / 3.0)
+    local = limits.cruise_cap(
+        blends.a_node[nodes_b], blends.j_node[nodes_b], 0.5, 1.0 / 3.0, blends.k_node[nodes_b]
+    )
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = local[1:] / local[:-1]  # inf/inf (straight stretches) gives nan: no cut
     cut = np.zeros(len(nodes_b), dtype=bool)
@@ -263,17 +265,21 @@ def chain_limits(
     seen = ~quiet[:, None]
     a_node = np.zeros_like(blends.a_node)
     j_node = np.zeros_like(blends.j_node)
+    k_node = np.zeros_like(blends.k_node)
     a_node[nodes_b] = np.where(seen, blends.a_node[nodes_b], 0.0)
     j_node[nodes_b] = np.where(seen, blends.j_node[nodes_b], 0.0)
+    k_node[nodes_b] = np.where(seen, blends.k_node[nodes_b], 0.0)
     a_g = over_bodies(a_node, np.maximum)
     j_g = over_bodies(j_node, np.maximum)
+    k_g = over_bodies(k_node, np.maximum)
     u_g = over_bodies(u_node, np.maximum)
     a_share, j_share = (0.5, 1.0 / 3.0)  # S-curves per body
     if limits.window_s > 0.0:
         a_share, j_share = 0.5, CURVE_JERK_SHARE
     elif not limits.jerk:
         a_share = CURVE_ACC_SHARE
-    Vc = np.minimum(over_bodies(v_node, np.minimum), limits.cruise_cap(a_g, j_g, a_share, j_share))
+    local = limits.cruise_cap(a_g, j_g, a_share, j_share, k_g)
+    Vc = np.minimum(over_bodies(v_node, np.minimum), local)
     a_max, j_max = limits.a_max, limits.j_max
     with np.errstate(divide="ignore", invalid="ignore"):
         Ac = np.min(np.where(u_g > 0.0, 0.5 * a_max / u_g, np.inf), axis=1)
@@ -281,7 +287,8 @@ def chain_limits(
             # Filtered: |s'''| <= 2 A / T (the raw s''' may change sign between bodies).
             v = Vc[:, None]
             a_left = (a_max - a_g * v * v) / u_g
-            j_left = (j_max - j_g * v**3) / (2.0 * u_g / limits.window_s + 3.0 * a_g * v)
+            curve = j_g * v**3 + limits.kick_jerk(k_g) * v * v  # x''' v^3, steps included
+            j_left = (j_max - curve) / (2.0 * u_g / limits.window_s + 3.0 * a_g * v)
             Ac = np.min(np.where(u_g > 0.0, np.minimum(a_left, j_left), np.inf), axis=1)
             Jc = np.full(len(Vc), np.inf)
         elif limits.jerk:
