@@ -247,7 +247,7 @@ def _measured_rows(n: int) -> list[str]:
 
 MEASURED: dict[str, tuple[Callable[[list[str]], str], str]] = {
     "empty": (lambda rows: "", "empty"),
-    "header_only": (lambda rows: rows[0], "too short"),
+    "header_only": (lambda rows: rows[0], "has a header (5 columns) but no data rows"),
     "missing_column": (
         lambda rows: "".join(",".join(r.split(",")[:2]) + "\n" for r in rows),
         "that the file lacks",

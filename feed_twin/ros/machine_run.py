@@ -23,7 +23,6 @@ import argparse
 import json
 import os
 import sys
-import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -65,7 +64,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     refused = [f"--{o.replace('_', '-')}" for o in REFUSED if getattr(args, o, False)]
     if refused:
         return _error(args, f"{', '.join(refused)}: not available for a machine's node set")
-    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    name = args.name  # feed_twin.ros.preflight.run_name, before anything started
     bag, logs = args.out / name, args.out / f"{name}.logs"
     try:
         plan = node_plan(machine, settle_s=args.settle)

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -50,7 +49,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     problem = refused_options(args)
     if problem:
         return _error(args, problem)
-    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    name = args.name  # feed_twin.ros.preflight.run_name, before anything started
     bag, logs = args.out / name, args.out / f"{name}.logs"
     linuxcnc = args.nc == "linuxcnc"
     try:

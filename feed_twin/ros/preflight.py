@@ -63,6 +63,44 @@ def check_run_config(config: Path, *, shadow: bool):
     return ros, nc
 
 
+# What a run named N writes into --out (single-axis and machine runs, every mode).
+RUN_OUTPUT_SUFFIXES = ("", ".rrd", ".logs", "_map.yaml")
+MAX_NAME_CHARS = 200  # and a suffix: within a file system's 255-byte names
+
+
+def run_outputs_of(out: Path, name: str) -> list[Path]:
+    """The outputs of a run named `name` that already exist in `out`."""
+    paths = [out / f"{name}{suffix}" for suffix in RUN_OUTPUT_SUFFIXES]
+    return [path for path in paths if path.exists() or path.is_symlink()]
+
+
+def run_name(out: Path, name: str | None, stem: str, stamp: str) -> str:
+    """The run's name: `name` (--name), which must be a file name and must not be used in `out`
+    yet (nothing a run wrote is overwritten); or, without one, `<stem>_<stamp>`, with `_2`,
+    `_3`, ... when a run of the same second is there. Raises ConfigError (one line)."""
+    if name is None:
+        chosen, k = f"{stem}_{stamp}", 1
+        while run_outputs_of(out, chosen):
+            k += 1
+            chosen = f"{stem}_{stamp}_{k}"
+        return chosen
+    shown = name if len(name) <= 40 else f"{name[:40]}..."
+    if not name or name in (".", "..") or "/" in name or "\0" in name:
+        raise ConfigError(
+            f"--name {shown!r}: must be a file name inside --out, not a path (no '/', not "
+            "'.' or '..')"
+        )
+    if len(name.encode()) > MAX_NAME_CHARS:
+        raise ConfigError(f"--name {shown!r}: longer than {MAX_NAME_CHARS} bytes")
+    used = run_outputs_of(out, name)
+    if used:
+        raise ConfigError(
+            f"--name {name}: already used in {out} ({', '.join(p.name for p in used)}); choose "
+            "another name or --out, nothing was started"
+        )
+    return name
+
+
 def estimate_bag_bytes(duration_s: float, exchange_period_s: float) -> int:
     """Bytes the run's bag will take for `duration_s` of simulated time."""
     return int(duration_s / exchange_period_s * BAG_BYTES_PER_EXCHANGE)

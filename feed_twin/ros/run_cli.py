@@ -124,9 +124,7 @@ class Outputs:
 
 
 def _outputs(args: argparse.Namespace) -> Outputs:
-    stem = args.program.stem if args.program is not None else "external"
-    name = args.name or f"{stem}_{time.strftime('%Y%m%d_%H%M%S')}"
-    out = args.out
+    name, out = args.name, args.out  # checked by preflight.run_name
     return Outputs(
         bag=out / name,
         rrd=out / f"{name}.rrd",
@@ -366,8 +364,18 @@ class _ShadowSummary:
 def main(args: argparse.Namespace) -> int:
     from feed_twin.gcode import GcodeError
 
+    stem = args.program.stem if args.program is not None else "external"
+    try:
+        args.name = preflight.run_name(args.out, args.name, stem, time.strftime("%Y%m%d_%H%M%S"))
+    except ConfigError as exc:
+        return _early_error(args, str(exc))
     if _is_machine_config(args.config):
         from feed_twin.machine.run_cli import prepare_machine, run_machine
+
+        try:  # the machine's bag is sized by its axes' nodes; here: that --out takes files
+            preflight.check_output_dir(args.out, 0)
+        except ConfigError as exc:
+            return _early_error(args, str(exc))
 
         if args.nc == "linuxcnc" and (args.in_process or not args.shadow):
             return _early_error(
