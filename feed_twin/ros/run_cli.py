@@ -364,37 +364,11 @@ class _ShadowSummary:
 def main(args: argparse.Namespace) -> int:
     from feed_twin.gcode import GcodeError
 
-    stem = args.program.stem if args.program is not None else "external"
-    try:
-        args.name = preflight.run_name(args.out, args.name, stem, time.strftime("%Y%m%d_%H%M%S"))
-    except ConfigError as exc:
-        return _early_error(args, str(exc))
+    problem = _name_and_out(args)
+    if problem:
+        return _early_error(args, problem)
     if _is_machine_config(args.config):
-        from feed_twin.machine.run_cli import prepare_machine, run_machine
-
-        try:  # the machine's bag is sized by its axes' nodes; here: that --out takes files
-            preflight.check_output_dir(args.out, 0)
-        except ConfigError as exc:
-            return _early_error(args, str(exc))
-
-        if args.nc == "linuxcnc" and (args.in_process or not args.shadow):
-            return _early_error(
-                args,
-                "--nc linuxcnc runs the program on LinuxCNC with the machine's twins beside it: "
-                "add --shadow (without --in-process)",
-            )
-        if args.in_process:
-            return run_machine(args)
-        machine = prepare_machine(args)
-        if isinstance(machine, int):
-            return machine
-        if args.shadow:
-            from feed_twin.ros.machine_shadow_run import run_machine_shadow
-
-            return run_machine_shadow(args, machine)
-        from feed_twin.ros.machine_run import run_machine_nodes
-
-        return run_machine_nodes(args, machine)
+        return _main_machine(args)
     if args.axes is not None or args.in_process:
         option = "--axes" if args.axes is not None else "--in-process"
         return _early_error(args, f"{option} needs a machine config; {args.config} is one axis")
@@ -490,6 +464,44 @@ def main(args: argparse.Namespace) -> int:
 
         print(json_line(record))
     return code
+
+
+def _main_machine(args: argparse.Namespace) -> int:
+    """`feed-twin run` of a machine config: in-process, its node set or its shadow node set."""
+    from feed_twin.machine.run_cli import prepare_machine, run_machine
+
+    if args.nc == "linuxcnc" and (args.in_process or not args.shadow):
+        return _early_error(
+            args,
+            "--nc linuxcnc runs the program on LinuxCNC with the machine's twins beside it: "
+            "add --shadow (without --in-process)",
+        )
+    if args.in_process:
+        return run_machine(args)
+    machine = prepare_machine(args)
+    if isinstance(machine, int):
+        return machine
+    if args.shadow:
+        from feed_twin.ros.machine_shadow_run import run_machine_shadow
+
+        return run_machine_shadow(args, machine)
+    from feed_twin.ros.machine_run import run_machine_nodes
+
+    return run_machine_nodes(args, machine)
+
+
+def _name_and_out(args: argparse.Namespace) -> str:
+    """Why the run's name or (machine config) --out cannot be used ("": they can); sets
+    args.name to the run's name (preflight.run_name) for every mode."""
+    stem = args.program.stem if args.program is not None else "external"
+    try:
+        args.name = preflight.run_name(args.out, args.name, stem, time.strftime("%Y%m%d_%H%M%S"))
+        if _is_machine_config(args.config):
+            # the machine's bag is sized by its axes' nodes; here: that --out takes files
+            preflight.check_output_dir(args.out, 0)
+    except ConfigError as exc:
+        return str(exc)
+    return ""
 
 
 def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:

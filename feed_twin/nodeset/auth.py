@@ -1,0 +1,260 @@
+"""Message authentication inside a run: a per-run key, a tag per message, a replay window.
+
+Why: the run token that the nodes used to put in `header.frame_id` travels in clear on the
+topic, so any process that subscribes can copy it and command the axis (issue 29: commands
+re-sent 1.5 mm off moved the table 203 um). The Fast DDS in the ROS 2 Jazzy wheels has no DDS
+Security plugins (README, "Protection, isolation and failures"), so the run authenticates its
+own messages:
+
+- **Key.** `feed-twin run` draws 32 random bytes per run (`new_key`) and hands them to its
+  nodes only through an inherited file descriptor (a sealed memfd, KEY_FD_ENV names its number)
+  or, for a run spread over several computers, a file that only its owner may read
+  (KEY_FILE_ENV; `read_key_file` refuses one that its group or others can read). The key never
+  goes on a topic, the command line or the environment.
+- **Tag.** Each topic has its own key, HMAC-SHA256(run key, "feed_twin topic " + name), so a
+  message cannot be moved to another topic. A message with a `std_msgs/Header` first carries
+  `header.frame_id` = 16 hex digits of its sequence number and the first 128 bits of
+  HMAC-SHA256(topic key, sequence (8 bytes) + the message's CDR bytes with that frame_id set to
+  48 '0's). The frame_id has a fixed length, so the numbers' offsets do not change and the
+  signed bytes are the CDR bytes of the layout with PLACEHOLDER (feed_twin.io.cdr.FixedLayout).
+  A text message (program_state) ends in " #" + the same 48 characters over its text.
+- **Replay.** Each receiver keeps a sliding window of the sequence numbers it took (RFC 4303's
+  anti-replay window, WINDOW wide): a number seen before, or older than the window, is refused.
+  The publisher counts from 1 for each topic.
+
+What it defends against: any process on the host or the network that reads the topics and
+writes on them (another run, a replayed bag, a tool, a copied or altered message) but cannot
+read the run's key. Not against a process that can read the key: the same user reading
+`/proc/<pid>/fd` or the memory of a node, or root. Pure: the ROS nodes pass bytes in.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hmac
+import os
+import secrets
+import stat
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+KEY_BYTES = 32
+KEY_FD_ENV = "FEED_TWIN_RUN_KEY_FD"  # the number of an inherited descriptor holding the key
+KEY_FILE_ENV = "FEED_TWIN_RUN_KEY_FILE"  # or a file readable by its owner only
+SEQ_HEX = 16  # sequence number: 64 bits as hex digits
+TAG_BYTES = 16  # HMAC-SHA256 truncated to 128 bits (NIST SP 800-107: at least 64 bits)
+SIGNATURE_CHARS = SEQ_HEX + 2 * TAG_BYTES  # the frame_id of a signed message
+PLACEHOLDER = "0" * SIGNATURE_CHARS  # the frame_id the tag is computed over
+WINDOW = 1024  # sequence numbers a receiver remembers behind the newest one
+# A CDR message with a Header first: encapsulation (4 bytes), stamp (sec, nanosec: 8), then
+# frame_id's length (uint32, with its terminating NUL) and its characters.
+CDR_LE = b"\x00\x01"  # little-endian CDR, the encapsulation every ROS 2 publisher here uses
+FRAME_ID_LENGTH_AT = 12
+FRAME_ID_AT = 16
+SIGNED_LENGTH = (SIGNATURE_CHARS + 1).to_bytes(4, "little")
+_PLACEHOLDER_BYTES = PLACEHOLDER.encode()
+TEXT_MARK = " #"
+
+# Why a message is refused (the count's key in `Verifier.refused`).
+UNSIGNED = "unsigned"  # no signature where the run's messages carry one
+BAD_TAG = "bad tag"  # altered, or signed with another key
+REPLAYED = "replayed"  # a sequence number seen before or older than the window
+
+
+class RunKeyError(ValueError):
+    """The run key cannot be read (one line naming where it was looked for)."""
+
+
+def new_key() -> bytes:
+    return secrets.token_bytes(KEY_BYTES)
+
+
+def key_memfd(key: bytes) -> int:
+    """A sealed, close-on-exec memfd holding `key`: give it to child processes with
+    `pass_fds` and its number in KEY_FD_ENV."""
+    fd = os.memfd_create("feed_twin_run_key", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
+    os.write(fd, key)
+    fcntl.fcntl(
+        fd,
+        fcntl.F_ADD_SEALS,
+        fcntl.F_SEAL_WRITE | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_SEAL,
+    )
+    return fd
+
+
+def read_key_fd(fd: int) -> bytes:
+    try:
+        key = os.pread(fd, KEY_BYTES + 1, 0)
+    except OSError as exc:
+        raise RunKeyError(
+            f"{KEY_FD_ENV} = {fd}: cannot read the run key ({exc.strerror})"
+        ) from None
+    if len(key) != KEY_BYTES:
+        raise RunKeyError(
+            f"{KEY_FD_ENV} = {fd}: holds {len(key)} bytes, not a {KEY_BYTES}-byte key"
+        )
+    return key
+
+
+def read_key_file(path: Path) -> bytes:
+    """The key in a file that only its owner may read or write (as ssh's private keys)."""
+    try:
+        with open(path, "rb") as handle:
+            mode = os.fstat(handle.fileno()).st_mode
+            key = handle.read(KEY_BYTES + 1)
+    except OSError as exc:
+        raise RunKeyError(f"{KEY_FILE_ENV} = {path}: cannot read it ({exc.strerror})") from None
+    if mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise RunKeyError(
+            f"{KEY_FILE_ENV} = {path}: mode {stat.S_IMODE(mode):04o}, readable beyond its "
+            "owner; chmod 600 it"
+        )
+    if len(key) != KEY_BYTES:
+        raise RunKeyError(f"{KEY_FILE_ENV} = {path}: holds {len(key)} bytes, not {KEY_BYTES}")
+    return key
+
+
+def write_key_file(path: Path, key: bytes) -> None:
+    """Write `key` to a new file of mode 0600 (refuses to replace an existing one)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    try:
+        os.write(fd, key)
+    finally:
+        os.close(fd)
+
+
+def key_from_environ(environ: Mapping[str, str]) -> bytes | None:
+    """The run key a node was given (None: it runs unauthenticated, outside `feed-twin run`).
+    The descriptor is closed once read, so that the node's own children do not inherit it."""
+    fd_text = environ.get(KEY_FD_ENV, "")
+    if fd_text:
+        if not fd_text.isdigit():
+            raise RunKeyError(f"{KEY_FD_ENV} = {fd_text[:40]!r}: not a descriptor number")
+        key = read_key_fd(int(fd_text))
+        os.close(int(fd_text))
+        return key
+    path = environ.get(KEY_FILE_ENV, "")
+    return read_key_file(Path(path)) if path else None
+
+
+def topic_key(key: bytes, topic: str) -> bytes:
+    return hmac.digest(key, b"feed_twin topic " + topic.encode(), "sha256")
+
+
+def _tag(topic_key_: bytes, seq: int, body: bytes) -> bytes:
+    return hmac.digest(topic_key_, seq.to_bytes(8, "little") + body, "sha256")[:TAG_BYTES]
+
+
+@dataclass
+class Signer:
+    """Signs one topic's messages in publishing order."""
+
+    key: bytes  # the run key
+    topic: str
+    seq: int = 0  # the last sequence number used
+    _topic_key: bytes = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._topic_key = topic_key(self.key, self.topic)
+
+    def sign(self, cdr: bytes) -> bytes:
+        """`cdr` (a message whose frame_id is PLACEHOLDER) with its signature in frame_id."""
+        if cdr[FRAME_ID_LENGTH_AT:FRAME_ID_AT] != SIGNED_LENGTH:
+            raise ValueError(
+                f"{self.topic}: the message's frame_id is not the {SIGNATURE_CHARS}-character "
+                "placeholder (feed_twin.nodeset.auth.PLACEHOLDER)"
+            )
+        self.seq += 1
+        tag = _tag(self._topic_key, self.seq, cdr)
+        signature = b"%016x" % self.seq + tag.hex().encode()
+        return cdr[:FRAME_ID_AT] + signature + cdr[FRAME_ID_AT + SIGNATURE_CHARS :]
+
+    def sign_text(self, text: str) -> str:
+        """A text message with its signature as the last word."""
+        self.seq += 1
+        tag = _tag(self._topic_key, self.seq, text.encode())
+        return f"{text}{TEXT_MARK}{self.seq:016x}{tag.hex()}"
+
+
+@dataclass
+class ReplayWindow:
+    """The sequence numbers taken so far: the newest and a bitmap of the WINDOW before it."""
+
+    size: int = WINDOW
+    newest: int = 0
+    _seen: int = 0  # bit k: newest - k was taken
+
+    def check(self, seq: int) -> bool:
+        """Whether `seq` is new (then it counts as taken), as RFC 4303 section 3.4.3."""
+        if seq <= 0:
+            return False
+        if seq > self.newest:
+            shift = seq - self.newest
+            self._seen = ((self._seen << shift) | 1) & ((1 << self.size) - 1)
+            self.newest = seq
+            return True
+        age = self.newest - seq
+        if age >= self.size or self._seen >> age & 1:
+            return False
+        self._seen |= 1 << age
+        return True
+
+
+@dataclass
+class Verifier:
+    """Checks one topic's incoming messages; counts what it refused, by reason."""
+
+    key: bytes
+    topic: str
+    window: ReplayWindow = field(default_factory=ReplayWindow)
+    refused: dict[str, int] = field(default_factory=dict)
+    _topic_key: bytes = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._topic_key = topic_key(self.key, self.topic)
+
+    def verify(self, data: bytes) -> bytes | None:
+        """The message's bytes with PLACEHOLDER in frame_id (what the run's layout decodes)
+        when it is the run's, new and unaltered; None (and counted) otherwise."""
+        if (
+            data[FRAME_ID_LENGTH_AT:FRAME_ID_AT] != SIGNED_LENGTH
+            or data[:2] != CDR_LE
+            or len(data) < FRAME_ID_AT + SIGNATURE_CHARS + 1
+        ):
+            return self._refuse(UNSIGNED)
+        signature = data[FRAME_ID_AT : FRAME_ID_AT + SIGNATURE_CHARS]
+        body = data[:FRAME_ID_AT] + _PLACEHOLDER_BYTES + data[FRAME_ID_AT + SIGNATURE_CHARS :]
+        seq = _hex_int(signature[:SEQ_HEX])
+        if seq is None:
+            return self._refuse(UNSIGNED)
+        expected = _tag(self._topic_key, seq, body).hex().encode()
+        if not hmac.compare_digest(expected, signature[SEQ_HEX:]):
+            return self._refuse(BAD_TAG)
+        if not self.window.check(seq):
+            return self._refuse(REPLAYED)
+        return body
+
+    def verify_text(self, text: str) -> str | None:
+        """The text without its signature, when it is the run's, new and unaltered."""
+        body, mark, signature = text.rpartition(TEXT_MARK)
+        seq = _hex_int(signature[:SEQ_HEX].encode()) if mark else None
+        if seq is None or len(signature) != SIGNATURE_CHARS:
+            return self._refuse(UNSIGNED)
+        expected = _tag(self._topic_key, seq, body.encode()).hex()
+        if not hmac.compare_digest(expected, signature[SEQ_HEX:]):
+            return self._refuse(BAD_TAG)
+        if not self.window.check(seq):
+            return self._refuse(REPLAYED)
+        return body
+
+    def _refuse(self, reason: str) -> None:
+        self.refused[reason] = self.refused.get(reason, 0) + 1
+        return None
+
+
+def _hex_int(digits: bytes) -> int | None:
+    # int() alone would take "+", "_" and spaces as well
+    if len(digits) != SEQ_HEX or digits.strip(b"0123456789abcdef"):
+        return None
+    return int(digits, 16)
