@@ -404,11 +404,19 @@ def _token_of(runner: int) -> str:
     return ""
 
 
-def concurrent(work: Path) -> Outcome:
+def concurrent(work: Path, *, own_tmpdirs: bool = False) -> Outcome:
+    """Two runs at once; `own_tmpdirs`: each with its own TMPDIR (the domain locks do not
+    live there)."""
     p = program(work, "short", SHORT)
     env = {k: v for k, v in os.environ.items() if k != "ROS_DOMAIN_ID"}
+    envs = [dict(env) for _ in range(2)]
+    if own_tmpdirs:
+        for i, e in enumerate(envs):
+            (work / f"tmp{i}").mkdir(exist_ok=True)
+            e["TMPDIR"] = str(work / f"tmp{i}")
+    tag = "tmp" if own_tmpdirs else ""
     procs = [
-        start([str(p), "--out", str(work / "b"), "--name", f"twin{i}", "--json"], env)
+        start([str(p), "--out", str(work / "b"), "--name", f"twin{tag}{i}", "--json"], envs[i])
         for i in range(2)
     ]
     results = [finish(q) for q in procs]
@@ -437,6 +445,11 @@ def run_cases() -> list[Case]:
         Case("foreign_program_state", "foreign", foreign("state", "refused")),
         Case("insider_nan_commands", "foreign", foreign("insider", "position = nan")),
         Case("concurrent_runs", "concurrent", concurrent),
+        Case(
+            "concurrent_runs_other_tmpdirs",
+            "concurrent",
+            lambda work: concurrent(work, own_tmpdirs=True),
+        ),
     ]
     if os.geteuid() == 0:
         cases += [
