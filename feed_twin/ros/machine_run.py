@@ -96,14 +96,15 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
     failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)
     code = preflight.exit_status(result.code) if result.code else int(failed)
-    _report(machine, _named(result.reason, plan), problem, summary, timing, clock)
+    reason = _with_trip_line(_named(result.reason, plan), bag, machine, args.program)
+    _report(machine, reason, problem, summary, timing, clock)
     print(f"bag: {bag if bag.exists() else '(none)'}")
     if args.json:
         from feed_twin.nodeset.summary import json_line
 
         print(json_line({
             "exit_code": code,
-            "reason": _named(result.reason, plan) or problem,
+            "reason": reason or problem,
             "bag": str(bag) if bag.exists() else None,
             "logs": str(logs),
             "processes": here,
@@ -172,6 +173,26 @@ def _named(reason: str, plan: NodePlan) -> str:
     if not axes:
         return reason
     return f"axis {axes[0]}: {reason}" if len(axes) == 1 else f"axes {', '.join(axes)}: {reason}"
+
+
+def _with_trip_line(reason: str, bag: Path, machine: MachineConfig, program: Path) -> str:
+    """`reason` with the program line active at a drive fault's time added to the fault's
+    line (feed_twin.nodeset.protection.describe_trip), read from the tripped axis's commands."""
+    from feed_twin.io.bag import BagError, BagReader
+    from feed_twin.nodeset.protection import describe_trip
+    from feed_twin.ros.gcode_node import program_lines
+
+    head, _, rest = reason.partition("\n")
+    axis = head.removeprefix("axis ").partition(":")[0]
+    if "drive fault " not in head or axis not in machine.axes or not bag.exists():
+        return reason
+    topic = f"/{machine.name}/{axis.lower()}/command"
+    try:
+        run = {topic: BagReader(bag).columns(topic, ["header.stamp", "line"])}
+    except (BagError, ValueError, OSError):
+        return reason
+    head = describe_trip(head, run, topic, program_lines(program))
+    return f"{head}\n{rest}" if rest else head
 
 
 def readable_bag(bag: Path) -> str:
