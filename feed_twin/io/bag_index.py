@@ -231,11 +231,11 @@ def _tail(found: Scan, keep: int, *, rebuild_last: bool) -> bytes:
     data = RecordBuilder()
     indexes: list[ChunkIndex] = []
     for k, chunk in enumerate(found.chunks):
-        offsets, length = dict(chunk.indexes), chunk.indexes_end - chunk.end
+        at, length = dict(chunk.indexes), chunk.indexes_end - chunk.end
         if rebuild_last and k == len(found.chunks) - 1:
-            offsets, start = {}, keep + data.count
+            at, start = {}, keep + data.count
             for channel_id, records in sorted(chunk.messages.items()):
-                offsets[channel_id] = keep + data.count
+                at[channel_id] = keep + data.count
                 MessageIndex(channel_id, records).write(data)
             length = keep + data.count - start
         indexes.append(
@@ -244,7 +244,7 @@ def _tail(found: Scan, keep: int, *, rebuild_last: bool) -> bytes:
                 message_end_time=chunk.record.message_end_time,
                 chunk_start_offset=chunk.start,
                 chunk_length=chunk.end - chunk.start,
-                message_index_offsets=offsets,
+                message_index_offsets=at,
                 message_index_length=max(length, 0),
                 compression=chunk.record.compression,
                 compressed_size=len(chunk.record.data),
