@@ -24,6 +24,7 @@ from feed_twin.nodeset.auth import (
     REPLAYED,
     UNSIGNED,
     ReplayWindow,
+    RunAuth,
     RunKeyError,
     Signer,
     Verifier,
@@ -162,3 +163,22 @@ def test_a_key_file_must_be_its_owners_alone(tmp_path):
     with pytest.raises(RunKeyError, match=r"^FEED_TWIN_RUN_KEY_FD = 'x1': not a descriptor"):
         key_from_environ({KEY_FD_ENV: "x1"})
     assert key_from_environ({}) is None
+
+
+def test_a_nodes_run_auth_signs_and_checks_per_topic_and_is_open_without_a_key():
+    key = new_key()
+    sender, receiver = RunAuth(key), RunAuth(key)
+    layout = FlatCodec(msg_types.AXIS_COMMAND).fixed(
+        {"axis": "X", "header.frame_id": sender.frame_id()}
+    )
+    data = sender.sign(TOPIC, layout.encode(VALUES))
+    assert layout.decode(receiver.verify(TOPIC, data)) == VALUES
+    assert receiver.verify(TOPIC, data) is None and receiver.last_refusal(TOPIC) == REPLAYED
+    assert receiver.verify("/cnc/y/command", sender.sign(TOPIC, layout.encode(VALUES))) is None
+    assert receiver.last_refusal("/cnc/y/command") == BAD_TAG
+    text = sender.sign_text("/cnc/program_state", "running")
+    assert receiver.verify_text("/cnc/program_state", text) == "running"
+    open_ = RunAuth(None)
+    assert not open_.enabled and open_.frame_id() == ""
+    assert open_.sign(TOPIC, b"abc") == b"abc" and open_.verify(TOPIC, b"abc") == b"abc"
+    assert open_.verify_text(TOPIC, "x") == "x" and open_.last_refusal(TOPIC) == ""

@@ -209,6 +209,7 @@ class Verifier:
     topic: str
     window: ReplayWindow = field(default_factory=ReplayWindow)
     refused: dict[str, int] = field(default_factory=dict)
+    last: str = ""  # the reason of the last refusal
     _topic_key: bytes = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -250,6 +251,7 @@ class Verifier:
 
     def _refuse(self, reason: str) -> None:
         self.refused[reason] = self.refused.get(reason, 0) + 1
+        self.last = reason
         return None
 
 
@@ -258,3 +260,63 @@ def _hex_int(digits: bytes) -> int | None:
     if len(digits) != SEQ_HEX or digits.strip(b"0123456789abcdef"):
         return None
     return int(digits, 16)
+
+
+class RunAuth:
+    """A node's signers and verifiers, one per topic, from the run key (None: the node runs
+    outside `feed-twin run` or beside an external NC, and neither signs nor checks)."""
+
+    def __init__(self, key: bytes | None) -> None:
+        self.key = key
+        self._signers: dict[str, Signer] = {}
+        self._verifiers: dict[str, Verifier] = {}
+
+    @classmethod
+    def from_environ(cls, environ: Mapping[str, str]) -> RunAuth:
+        return cls(key_from_environ(environ))
+
+    @property
+    def enabled(self) -> bool:
+        return self.key is not None
+
+    def frame_id(self) -> str:
+        """The frame_id the node's layouts carry: the placeholder its signature replaces."""
+        return PLACEHOLDER if self.key is not None else ""
+
+    def sign(self, topic: str, cdr: bytes) -> bytes:
+        return cdr if self.key is None else self._signer(topic).sign(cdr)
+
+    def verify(self, topic: str, data: bytes) -> bytes | None:
+        """The message as the run's layouts decode it, or None when it is not the run's."""
+        if self.key is None:
+            return data
+        return self.verifier(topic).verify(data)
+
+    def sign_text(self, topic: str, text: str) -> str:
+        return text if self.key is None else self._signer(topic).sign_text(text)
+
+    def _signer(self, topic: str) -> Signer:
+        signer = self._signers.get(topic)
+        if signer is None:
+            if self.key is None:
+                raise ValueError(f"{topic}: no run key, nothing to sign with")
+            signer = self._signers[topic] = Signer(self.key, topic)
+        return signer
+
+    def verify_text(self, topic: str, text: str) -> str | None:
+        if self.key is None:
+            return text
+        return self.verifier(topic).verify_text(text)
+
+    def verifier(self, topic: str) -> Verifier:
+        verifier = self._verifiers.get(topic)
+        if verifier is None:
+            if self.key is None:
+                raise ValueError(f"{topic}: no run key, nothing to verify with")
+            verifier = self._verifiers[topic] = Verifier(self.key, topic)
+        return verifier
+
+    def last_refusal(self, topic: str) -> str:
+        """Why the last message on `topic` was refused (the reason counted most recently)."""
+        verifier = self._verifiers.get(topic)
+        return verifier.last if verifier is not None else ""
