@@ -31,6 +31,7 @@ read the run's key. Not against a process that can read the key: the same user r
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import hmac
 import os
 import secrets
@@ -142,8 +143,17 @@ def topic_key(key: bytes, topic: str) -> bytes:
     return hmac.digest(key, b"feed_twin topic " + topic.encode(), "sha256")
 
 
-def _tag(topic_key_: bytes, seq: int, body: bytes) -> bytes:
-    return hmac.digest(topic_key_, seq.to_bytes(8, "little") + body, "sha256")[:TAG_BYTES]
+def _keyed(key: bytes) -> hmac.HMAC:
+    """HMAC-SHA256 with its key set up once: each tag copies it (about 1 us less a message
+    than `hmac.digest`, which pads and hashes the key every time)."""
+    return hmac.new(key, digestmod=hashlib.sha256)
+
+
+def _tag(keyed: hmac.HMAC, seq: int, body: bytes) -> bytes:
+    h = keyed.copy()
+    h.update(seq.to_bytes(8, "little"))
+    h.update(body)
+    return h.digest()[:TAG_BYTES]
 
 
 @dataclass
@@ -153,10 +163,10 @@ class Signer:
     key: bytes  # the run key
     topic: str
     seq: int = 0  # the last sequence number used
-    _topic_key: bytes = field(init=False, repr=False)
+    _topic_key: hmac.HMAC = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self._topic_key = topic_key(self.key, self.topic)
+        self._topic_key = _keyed(topic_key(self.key, self.topic))
 
     def sign(self, cdr: bytes) -> bytes:
         """`cdr` (a message whose frame_id is PLACEHOLDER) with its signature in frame_id."""
@@ -184,6 +194,10 @@ class ReplayWindow:
     size: int = WINDOW
     newest: int = 0
     _seen: int = 0  # bit k: newest - k was taken
+    _mask: int = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._mask = (1 << self.size) - 1
 
     def check(self, seq: int) -> bool:
         """Whether `seq` is new (then it counts as taken), as RFC 4303 section 3.4.3."""
@@ -191,7 +205,7 @@ class ReplayWindow:
             return False
         if seq > self.newest:
             shift = seq - self.newest
-            self._seen = ((self._seen << shift) | 1) & ((1 << self.size) - 1)
+            self._seen = ((self._seen << shift) | 1) & self._mask
             self.newest = seq
             return True
         age = self.newest - seq
@@ -210,10 +224,10 @@ class Verifier:
     window: ReplayWindow = field(default_factory=ReplayWindow)
     refused: dict[str, int] = field(default_factory=dict)
     last: str = ""  # the reason of the last refusal
-    _topic_key: bytes = field(init=False, repr=False)
+    _topic_key: hmac.HMAC = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self._topic_key = topic_key(self.key, self.topic)
+        self._topic_key = _keyed(topic_key(self.key, self.topic))
 
     def verify(self, data: bytes) -> bytes | None:
         """The message's bytes with PLACEHOLDER in frame_id (what the run's layout decodes)
