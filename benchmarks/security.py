@@ -184,9 +184,9 @@ def attack(work: Path, kind: str, topic: str, clean: dict, domain: int) -> dict:
 
 def _cost(type_name: str, repeats: int) -> dict[str, float]:
     from feed_twin.io.cdr import FlatCodec
-    from feed_twin.nodeset.auth import PLACEHOLDER, Signer, Verifier, new_key
+    from feed_twin.nodeset.auth import Signer, Verifier, new_key
 
-    layout = FlatCodec(type_name).fixed({"axis": "X", "header.frame_id": PLACEHOLDER})
+    layout = FlatCodec(type_name).fixed({"axis": "X"})
     values = tuple(range(len(layout.numbers)))
     data = layout.encode(values)
     key = new_key()

@@ -12,15 +12,18 @@ own messages:
   (KEY_FILE_ENV; `read_key_file` refuses one that its group or others can read). The key never
   goes on a topic, the command line or the environment.
 - **Tag.** Each topic has its own key, HMAC-SHA256(run key, "feed_twin topic " + name), so a
-  message cannot be moved to another topic. A message with a `std_msgs/Header` first carries
-  `header.frame_id` = 16 hex digits of its sequence number and the first 128 bits of
-  HMAC-SHA256(topic key, sequence (8 bytes) + the message's CDR bytes with that frame_id set to
-  48 '0's). The frame_id has a fixed length, so the numbers' offsets do not change and the
-  signed bytes are the CDR bytes of the layout with PLACEHOLDER (feed_twin.io.cdr.FixedLayout).
-  A text message (program_state) ends in " #" + the same 48 characters over its text.
-- **Replay.** Each receiver keeps a sliding window of the sequence numbers it took (RFC 4303's
-  anti-replay window, WINDOW wide): a number seen before, or older than the window, is refused.
-  The publisher counts from 1 for each topic.
+  message cannot be moved to another topic. The nodes make their messages with an empty
+  `header.frame_id`; `Signer.sign` puts the signature there on the way out: 16 hex digits of
+  a sequence number and the first 128 bits of HMAC-SHA256(topic key, sequence (8 bytes) + the
+  message's CDR bytes with that frame_id set to PLACEHOLDER, 48 '0's). The frame_id grows by
+  48 bytes, a multiple of 8, so every later field keeps its CDR alignment; `Verifier.verify`
+  checks and gives back the message with its empty frame_id, byte for byte what the node made
+  (what the decoders read and the recorder records). A text message (program_state,
+  run_state, heartbeat) ends in " #" + the same 48 characters over its text.
+- **Replay.** A sequence number is a publisher's random 24-bit stream number and a 40-bit
+  count from 1 (several nodes publish on one topic: heartbeats, health). Each receiver keeps,
+  per stream, a sliding window of the counts it took (RFC 4303's anti-replay window, WINDOW
+  wide): a count seen before, or older than the window, is refused.
 
 What it defends against: any process on the host or the network that reads the topics and
 writes on them (another run, a replayed bag, a tool, a copied or altered message) but cannot
@@ -44,6 +47,8 @@ KEY_BYTES = 32
 KEY_FD_ENV = "FEED_TWIN_RUN_KEY_FD"  # the number of an inherited descriptor holding the key
 KEY_FILE_ENV = "FEED_TWIN_RUN_KEY_FILE"  # or a file readable by its owner only
 SEQ_HEX = 16  # sequence number: 64 bits as hex digits
+COUNT_BITS = 40  # its low bits count a publisher's messages; the high 24 name its stream
+MAX_STREAMS = 256  # publishers a receiver tells apart on one topic
 TAG_BYTES = 16  # HMAC-SHA256 truncated to 128 bits (NIST SP 800-107: at least 64 bits)
 SIGNATURE_CHARS = SEQ_HEX + 2 * TAG_BYTES  # the frame_id of a signed message
 PLACEHOLDER = "0" * SIGNATURE_CHARS  # the frame_id the tag is computed over
@@ -54,6 +59,7 @@ CDR_LE = b"\x00\x01"  # little-endian CDR, the encapsulation every ROS 2 publish
 FRAME_ID_LENGTH_AT = 12
 FRAME_ID_AT = 16
 SIGNED_LENGTH = (SIGNATURE_CHARS + 1).to_bytes(4, "little")
+EMPTY_LENGTH = (1).to_bytes(4, "little")  # an empty frame_id: its terminating NUL only
 _PLACEHOLDER_BYTES = PLACEHOLDER.encode()
 TEXT_MARK = " #"
 
@@ -158,33 +164,39 @@ def _tag(keyed: hmac.HMAC, seq: int, body: bytes) -> bytes:
 
 @dataclass
 class Signer:
-    """Signs one topic's messages in publishing order."""
+    """Signs one topic's messages of one publisher, in publishing order."""
 
     key: bytes  # the run key
     topic: str
-    seq: int = 0  # the last sequence number used
+    count: int = 0  # messages signed so far
+    stream: int = field(default_factory=lambda: secrets.randbits(SEQ_HEX * 4 - COUNT_BITS))
     _topic_key: hmac.HMAC = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._topic_key = _keyed(topic_key(self.key, self.topic))
 
+    def _next(self) -> int:
+        self.count += 1
+        return self.stream << COUNT_BITS | self.count
+
     def sign(self, cdr: bytes) -> bytes:
-        """`cdr` (a message whose frame_id is PLACEHOLDER) with its signature in frame_id."""
-        if cdr[FRAME_ID_LENGTH_AT:FRAME_ID_AT] != SIGNED_LENGTH:
+        """`cdr` (a message with a Header first and an empty frame_id) with its signature as
+        frame_id."""
+        if cdr[FRAME_ID_LENGTH_AT:FRAME_ID_AT] != EMPTY_LENGTH or cdr[:2] != CDR_LE:
             raise ValueError(
-                f"{self.topic}: the message's frame_id is not the {SIGNATURE_CHARS}-character "
-                "placeholder (feed_twin.nodeset.auth.PLACEHOLDER)"
+                f"{self.topic}: only a little-endian message with an empty header.frame_id is "
+                "signed (the signature takes its place)"
             )
-        self.seq += 1
-        tag = _tag(self._topic_key, self.seq, cdr)
-        signature = b"%016x" % self.seq + tag.hex().encode()
-        return cdr[:FRAME_ID_AT] + signature + cdr[FRAME_ID_AT + SIGNATURE_CHARS :]
+        body = cdr[:FRAME_ID_LENGTH_AT] + SIGNED_LENGTH + _PLACEHOLDER_BYTES + cdr[FRAME_ID_AT:]
+        seq = self._next()
+        signature = b"%016x" % seq + _tag(self._topic_key, seq, body).hex().encode()
+        return body[:FRAME_ID_AT] + signature + body[FRAME_ID_AT + SIGNATURE_CHARS :]
 
     def sign_text(self, text: str) -> str:
         """A text message with its signature as the last word."""
-        self.seq += 1
-        tag = _tag(self._topic_key, self.seq, text.encode())
-        return f"{text}{TEXT_MARK}{self.seq:016x}{tag.hex()}"
+        seq = self._next()
+        tag = _tag(self._topic_key, seq, text.encode())
+        return f"{text}{TEXT_MARK}{seq:016x}{tag.hex()}"
 
 
 @dataclass
@@ -221,7 +233,7 @@ class Verifier:
 
     key: bytes
     topic: str
-    window: ReplayWindow = field(default_factory=ReplayWindow)
+    windows: dict[int, ReplayWindow] = field(default_factory=dict)  # stream -> its window
     refused: dict[str, int] = field(default_factory=dict)
     last: str = ""  # the reason of the last refusal
     _topic_key: hmac.HMAC = field(init=False, repr=False)
@@ -230,8 +242,8 @@ class Verifier:
         self._topic_key = _keyed(topic_key(self.key, self.topic))
 
     def verify(self, data: bytes) -> bytes | None:
-        """The message's bytes with PLACEHOLDER in frame_id (what the run's layout decodes)
-        when it is the run's, new and unaltered; None (and counted) otherwise."""
+        """The message as its node made it (empty frame_id) when it is the run's, new and
+        unaltered; None (and counted) otherwise."""
         if (
             data[FRAME_ID_LENGTH_AT:FRAME_ID_AT] != SIGNED_LENGTH
             or data[:2] != CDR_LE
@@ -239,16 +251,17 @@ class Verifier:
         ):
             return self._refuse(UNSIGNED)
         signature = data[FRAME_ID_AT : FRAME_ID_AT + SIGNATURE_CHARS]
-        body = data[:FRAME_ID_AT] + _PLACEHOLDER_BYTES + data[FRAME_ID_AT + SIGNATURE_CHARS :]
+        rest = data[FRAME_ID_AT + SIGNATURE_CHARS :]
         seq = _hex_int(signature[:SEQ_HEX])
         if seq is None:
             return self._refuse(UNSIGNED)
+        body = data[:FRAME_ID_AT] + _PLACEHOLDER_BYTES + rest
         expected = _tag(self._topic_key, seq, body).hex().encode()
         if not hmac.compare_digest(expected, signature[SEQ_HEX:]):
             return self._refuse(BAD_TAG)
-        if not self.window.check(seq):
+        if not self._new(seq):
             return self._refuse(REPLAYED)
-        return body
+        return data[:FRAME_ID_LENGTH_AT] + EMPTY_LENGTH + rest
 
     def verify_text(self, text: str) -> str | None:
         """The text without its signature, when it is the run's, new and unaltered."""
@@ -259,9 +272,18 @@ class Verifier:
         expected = _tag(self._topic_key, seq, body.encode()).hex()
         if not hmac.compare_digest(expected, signature[SEQ_HEX:]):
             return self._refuse(BAD_TAG)
-        if not self.window.check(seq):
+        if not self._new(seq):
             return self._refuse(REPLAYED)
         return body
+
+    def _new(self, seq: int) -> bool:
+        stream = seq >> COUNT_BITS
+        window = self.windows.get(stream)
+        if window is None:
+            if len(self.windows) >= MAX_STREAMS:
+                return False
+            window = self.windows[stream] = ReplayWindow()
+        return window.check(seq & ((1 << COUNT_BITS) - 1))
 
     def _refuse(self, reason: str) -> None:
         self.refused[reason] = self.refused.get(reason, 0) + 1
@@ -292,10 +314,6 @@ class RunAuth:
     @property
     def enabled(self) -> bool:
         return self.key is not None
-
-    def frame_id(self) -> str:
-        """The frame_id the node's layouts carry: the placeholder its signature replaces."""
-        return PLACEHOLDER if self.key is not None else ""
 
     def sign(self, topic: str, cdr: bytes) -> bytes:
         return cdr if self.key is None else self._signer(topic).sign(cdr)
