@@ -18,7 +18,9 @@ own messages:
   message's CDR bytes with that frame_id set to PLACEHOLDER, 48 '0's). The frame_id grows by
   48 bytes, a multiple of 8, so every later field keeps its CDR alignment; `Verifier.verify`
   checks and gives back the message with its empty frame_id, byte for byte what the node made
-  (what the decoders read and the recorder records). A text message (program_state,
+  (what the decoders read and the recorder records), up to the zeros that pad it to a multiple
+  of 4 bytes: Fast DDS pads every payload so between processes, without a mark of it, so the
+  signer pads first and the tag covers what every receiver gets. A text message (program_state,
   run_state, heartbeat) ends in " #" + the same 48 characters over its text.
 - **Replay.** A sequence number is a publisher's random 24-bit stream number and a 40-bit
   count from 1 (several nodes publish on one topic: heartbeats, health). Each receiver keeps,
@@ -188,6 +190,9 @@ class Signer:
                 "signed (the signature takes its place)"
             )
         body = cdr[:FRAME_ID_LENGTH_AT] + SIGNED_LENGTH + _PLACEHOLDER_BYTES + cdr[FRAME_ID_AT:]
+        # Fast DDS pads a payload to a multiple of 4 bytes between processes (and says so
+        # nowhere): the tag covers the padded message, as every receiver gets it
+        body += bytes(-len(body) % 4)
         seq = self._next()
         signature = b"%016x" % seq + _tag(self._topic_key, seq, body).hex().encode()
         return body[:FRAME_ID_AT] + signature + body[FRAME_ID_AT + SIGNATURE_CHARS :]

@@ -39,7 +39,7 @@ from feed_twin.machine.nodes import (
 )
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, host_argv
-from feed_twin.ros.launch import Launched, launch, log_record
+from feed_twin.ros.launch import Launched, foreign_messages, launch, log_record
 
 if TYPE_CHECKING:
     from feed_twin.ros.domain import DomainReservation
@@ -97,6 +97,9 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)
     code = preflight.exit_status(result.code) if result.code else int(failed)
     reason = _with_trip_line(_named(result.reason, plan), bag, machine, args.program)
+    foreign = foreign_messages(result.logs.values())
+    for line in foreign.lines():
+        print(line)  # the run's own output names who sent what it dropped
     _report(machine, reason, problem, summary, timing, clock)
     print(f"bag: {bag if bag.exists() else '(none)'}")
     if args.json:
@@ -108,6 +111,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
             "bag": str(bag) if bag.exists() else None,
             "logs": str(logs),
             "processes": here,
+            "foreign_messages": foreign.as_dict(),
             **(summary or {}),
             **{f"timing_{k}": v for k, v in timing.items()},
         }))  # fmt: skip
@@ -143,6 +147,7 @@ def launch_processes(
     finally:
         if reservation is not None:
             reservation.release()
+        preflight.end_environment(env)
 
 
 def _report(

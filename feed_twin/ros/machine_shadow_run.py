@@ -29,7 +29,7 @@ from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.shadow_nodes import MODULES, ShadowPlan, shadow_plan
 from feed_twin.ros import preflight
-from feed_twin.ros.launch import log_record
+from feed_twin.ros.launch import foreign_messages, log_record
 from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
 
 # the node set plays the program in lockstep, all axes in one bag, started here
@@ -94,6 +94,9 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
             f"latency p99 {said['bridge_latency_p99_ms']} ms"
         )
+    foreign = foreign_messages(result.logs.values())
+    for line in foreign.lines():
+        print(line)  # the run's own output names who sent what it dropped
     print(f"bag: {bag if bag.exists() else '(none)'}")
     if args.json:
         from feed_twin.nodeset.summary import json_line
@@ -104,6 +107,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             "bag": str(bag) if bag.exists() else None,
             "logs": str(logs),
             "processes": list(processes),
+            "foreign_messages": foreign.as_dict(),
             "axes": [a.lower() for a in plan.axes],
             "shadow": figures,
             "rrd": {a.lower(): preflight.shown_output(plan.rrd(bag, a), rrd=True)

@@ -174,20 +174,34 @@ def estimate_run_bytes(args, ros, nc) -> int:
 
 def run_environment(args, environ):
     """Put the run into its own ROS domain (feed_twin.ros.domain.run_domain) and give its
-    nodes the run token (feed_twin.nodeset.guard) through `environ`; returns the domain
-    reservation to hold for the run's life (None: the user named the domain)."""
-    import secrets
-
-    from feed_twin.nodeset.guard import OPEN_NC_ENV, RUN_TOKEN_ENV
+    nodes the run key (feed_twin.nodeset.auth): a sealed memfd whose number goes into
+    `environ` (KEY_FD_ENV; feed_twin.ros.launch passes the descriptor to the node processes,
+    nothing else carries the key); returns the domain reservation to hold for the run's life
+    (None: the user named the domain)."""
+    from feed_twin.nodeset.auth import KEY_FD_ENV, KEY_FILE_ENV, key_memfd, new_key
+    from feed_twin.nodeset.guard import OPEN_NC_ENV
     from feed_twin.ros.domain import run_domain
 
     reservation, domain_id = run_domain(args.domain_id)
     environ["ROS_DOMAIN_ID"] = str(domain_id)
-    # a run spread over several computers (`--start`) shares the token the user set on each
-    if not (getattr(args, "start", None) and environ.get(RUN_TOKEN_ENV)):
-        environ[RUN_TOKEN_ENV] = secrets.token_hex(8)
+    # a run spread over several computers (`--start`) shares the key file the user made
+    # (0600, KEY_FILE_ENV) on each; every other run draws its own key
+    if not environ.get(KEY_FILE_ENV):
+        environ[KEY_FD_ENV] = str(key_memfd(new_key()))
     environ[OPEN_NC_ENV] = "1" if args.no_gcode else "0"
     return reservation
+
+
+def end_environment(environ) -> None:
+    """The run is over: its key's descriptor is closed and its number leaves `environ`."""
+    import contextlib
+
+    from feed_twin.nodeset.auth import KEY_FD_ENV
+
+    text = environ.pop(KEY_FD_ENV, "")
+    if text.isdigit():
+        with contextlib.suppress(OSError):  # a single-process run's node closed it already
+            os.close(int(text))
 
 
 def shown_output(path: Path, *, rrd: bool = False) -> str | None:

@@ -31,16 +31,16 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from feed_twin.io.config import ConfigError
-from feed_twin.nodeset.guard import RUN_TOKEN_ENV
+from feed_twin.nodeset.foreign import ForeignLedger, merge
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
-from feed_twin.ros.launch import launch, log_record
+from feed_twin.ros.launch import foreign_messages, launch, log_record
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
@@ -121,6 +121,8 @@ class Outputs:
     map: Path  # --shadow: the column map of the machine's topics in the bag
     run: dict | None = None  # the bag's signals once read (feed_twin.nodeset.summary.read_run)
     recovered: int | None = None  # messages kept when the bag had to be recovered
+    # what the nodes refused as foreign (feed_twin.nodeset.foreign)
+    foreign: ForeignLedger = field(default_factory=ForeignLedger)
 
 
 def _outputs(args: argparse.Namespace) -> Outputs:
@@ -262,6 +264,7 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     clock = _clock_role(args)
     result = launch(commands, out.logs, env=env, progress_role=clock, show_progress=not args.json)
+    out.foreign = foreign_messages(result.logs.values())
     return result.code, result.reason, _timing(result.logs[clock])
 
 
@@ -277,6 +280,7 @@ def _run_single_process(args: argparse.Namespace, ros, out: Outputs) -> tuple[in
     context = init_context()
     nodes = build_nodes([(r, _node_args(r, args, ros, out)) for r in _roles(args)], context)
     code = spin_nodes(nodes, context, until_all_done=True)
+    out.foreign = merge([n.foreign_record().as_dict() for n in nodes])
     reason = next((n.exit_message for n in nodes if n.exit_code and n.exit_message), "")
     sim = next(n for n in nodes if n.role == "sim")
     return code, reason, sim.timing_report()
@@ -301,7 +305,7 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
     topics = AxisTopics(machine=ros.machine, axis=ros.axis)
     if args.shadow:
         return _finish_shadow(args, topics, out)
-    run = out.run = read_run(out.bag, topics, token=os.environ.get(RUN_TOKEN_ENV))
+    run = out.run = read_run(out.bag, topics)  # only the run's messages were recorded
     lines = program_lines(args.program) if args.program is not None else None
     if room := preflight.dashboard_room(out):
         print(f"feed-twin run: {room}", file=sys.stderr)
@@ -427,6 +431,7 @@ def main(args: argparse.Namespace) -> int:
             viewer.stop()
         if reservation is not None:
             reservation.release()
+        preflight.end_environment(os.environ)
     code = 1 if code == 0 and summary is None else preflight.exit_status(code)
     reason = preflight.explain(reason, out, ros, args.program)
     if code == 130:
@@ -440,6 +445,8 @@ def main(args: argparse.Namespace) -> int:
         print(summary.format())
     elif problem:
         print(f"feed-twin run: {problem}", file=sys.stderr)
+    for line in out.foreign.lines():
+        print(line)  # the run's own output names who sent what it dropped
     if timing:
         keys = ("realtime_factor", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms")
         shown = ", ".join(f"{k} {timing[k]:.3f}" for k in keys if isinstance(timing.get(k), float))
@@ -457,6 +464,7 @@ def main(args: argparse.Namespace) -> int:
             "bag": bag,
             "rrd": rrd,
             "logs": str(out.logs),
+            "foreign_messages": out.foreign.as_dict(),
             **(summary.as_dict() if summary is not None else {}),
             **{f"timing_{k}": v for k, v in timing.items()},
         }
