@@ -157,7 +157,7 @@ def attack(work: Path, kind: str, topic: str, clean: dict, domain: int) -> dict:
     env = {**os.environ, **private_graph_env(domain)}
     intruder = subprocess.Popen(
         [sys.executable, "-c", INTRUDER, kind, topic, "120"],
-        stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env,
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=ROOT, env=env,
     )  # fmt: skip
     try:
         intruder.stdout.readline()  # "up"
