@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from feed_twin.cli import main as cli_main
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredDataError, read_csv_table
 from feed_twin.machine.config import load_machine_config
 from feed_twin.nodeset.reach import capability, check_reachable

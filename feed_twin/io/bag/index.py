@@ -78,7 +78,7 @@ def scan(path: Path) -> Scan:
     """Walk the records of an MCAP file (module docstring)."""
     data = path.read_bytes()
     if not data.startswith(MAGIC):
-        raise CutBagError(f"{path}: not an MCAP file (no magic at its start)")
+        raise CutBagError(f"{path}: nothing recoverable: not an MCAP file (no magic at its start)")
     found = Scan(size=len(data), kept_end=len(MAGIC), finished=False)
     pos = len(MAGIC)
     while pos + RECORD_HEAD.size <= len(data):
@@ -179,16 +179,18 @@ class Indexed:
     finished: bool  # the file had its footer already: nothing was changed
 
 
-def index_in_place(path: Path) -> Indexed:
+def index_in_place(path: Path) -> tuple[Indexed, Scan]:
     """Cut the file after its last complete record and append its summary (module
-    docstring). Raises CutBagError when no chunk is complete, or when the file system has no
+    docstring); returns what was kept and what the scan found. Raises CutBagError when no
+    chunk is complete, or when the file system has no
     room for the summary (the file then ends after its last complete record)."""
     found = scan(path)
     if found.finished:
-        return Indexed(
+        done = Indexed(
             messages=found.message_count, chunks=len(found.chunks), kept_bytes=found.size,
             dropped_bytes=0, finished=True,
         )  # fmt: skip
+        return done, found
     if not found.chunks or not found.channels:
         raise CutBagError(
             f"{path}: nothing recoverable: no complete chunk in its {found.size} bytes"
@@ -217,13 +219,14 @@ def index_in_place(path: Path) -> Indexed:
             ) from None
     finally:
         os.close(fd)
-    return Indexed(
+    indexed = Indexed(
         messages=found.message_count,
         chunks=len(found.chunks),
         kept_bytes=keep,
         dropped_bytes=found.size - keep,
         finished=False,
     )
+    return indexed, found
 
 
 def _tail(found: Scan, keep: int, *, rebuild_last: bool) -> bytes:
