@@ -129,7 +129,7 @@ def test_foreign_publishers_on_every_topic_are_dropped_counted_and_named(tmp_pat
     for topic in ("/cnc/x/command", "/cnc/x/feedback", "/cnc/x/state"):
         assert foreign[topic]["messages"] > 0, foreign
         assert any("node '/intruder'" in p for p in foreign[topic]["publishers"]), foreign
-        assert f"foreign messages: {foreign[topic]['messages']} on {topic} (" in out
+        assert f"{topic}: {foreign[topic]['messages']} dropped, from node '/intruder'" in out
     reasons = foreign["/cnc/x/command"]["reasons"]
     assert reasons["unsigned"] > 0 and reasons["replayed"] > 0 and reasons["bad tag"] > 0
     bag = BagReader(record["bag"])
