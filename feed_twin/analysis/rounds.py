@@ -42,7 +42,7 @@ from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import ALPHA, compare, effective_samples
 from feed_twin.analysis.trials import try_candidate
 from feed_twin.analysis.twin import Drive, Twin
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
 
