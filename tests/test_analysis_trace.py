@@ -17,7 +17,7 @@ from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, RIPPLE_SLOTS
 from feed_twin.analysis.recorder import window_mean
 from feed_twin.analysis.synthetic import as_trace, generate, write_csv
 from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import load_measured
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -39,7 +39,7 @@ from feed_twin.analysis.model_doc import (
 )
 from feed_twin.analysis.recorder import deaveraged, delayed, start_velocity, window_mean
 from feed_twin.core import signals
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
 
 START_SAMPLES = 8  # the first trace samples a start is read off (Twin._started)
