@@ -13,7 +13,19 @@ import numpy as np
 import pytest
 
 import feed_twin
-from feed_twin.truth import NOMINAL, Machine, Trace, draw_all, machine_with, make_record, simulate
+from feed_twin.truth import (
+    NOMINAL,
+    PROGRAM,
+    VALIDATION_PROGRAM,
+    Machine,
+    Trace,
+    command,
+    draw_all,
+    long_program,
+    machine_with,
+    make_record,
+    simulate,
+)
 from feed_twin.truth.effects import EFFECTS
 from feed_twin.truth.machine import G_N_KG
 from feed_twin.truth.trace import quantise, sample
@@ -152,6 +164,22 @@ def test_draws_are_seeded_and_in_range() -> None:
     for seed in range(20):
         f = draw_all(["backlash"], seed)["backlash"]["gap_m"] / 10e-6
         assert 0.5 <= f <= 2.0
+
+
+def test_same_seed_same_record(tmp_path: Path) -> None:
+    trace = Trace(period_s=0.01)
+    hidden = draw_all(["coulomb_friction"], seed=9)
+    a = make_record(tmp_path / "a.csv", hidden=hidden, trace=trace, seed=9)
+    b = make_record(tmp_path / "b.csv", hidden=hidden, trace=trace, seed=9)
+    c = make_record(tmp_path / "c.csv", hidden=hidden, trace=trace, seed=10)
+    assert a.csv.read_text() == b.csv.read_text() != c.csv.read_text()
+
+
+def test_long_program_repeats_both_programs() -> None:
+    one = command(PROGRAM)[0][-1] + command(VALIDATION_PROGRAM)[0][-1]
+    assert command(long_program(3))[0][-1] == pytest.approx(3.0 * one, rel=0.02)
+    with pytest.raises(ValueError, match="repeats = 0: must be >= 1"):
+        long_program(0)
 
 
 def test_effect_sets_the_machine() -> None:

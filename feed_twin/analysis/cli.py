@@ -117,7 +117,7 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
 def main_diagnose(args: argparse.Namespace) -> int:
     from feed_twin.analysis.diagnose import diagnose, write_model
     from feed_twin.analysis.placed import diagnose_program, place
-    from feed_twin.analysis.report import write_report
+    from feed_twin.analysis.report_files import write_report
     from feed_twin.analysis.twin import ModelDoc
 
     def progress(text: str) -> None:
@@ -170,18 +170,22 @@ def main_diagnose(args: argparse.Namespace) -> int:
         diagnosis = _validate_more(diagnosis, final_doc, more, progress)
     write_model(final_doc, model_path, diagnosis.effects)
     written = write_report(diagnosis, out, v_m_s=motion.v_m_s)
+    from feed_twin.plant.slot_specs import with_unit
+
     progress(diagnosis.verdict)
     for e in diagnosis.effects:
-        progress(f"  {e.name}: {e.parameters} ({100 * e.explained_fraction:.1f} % of the cost)")
+        values = ", ".join(with_unit(k, v) for k, v in e.parameters.items())
+        progress(f"  {e.name}: {values} ({100 * e.explained_fraction:.1f} % of the cost)")
     b, a = diagnosis.before, diagnosis.after
     progress(
         f"FE deviation RMS {b.fe_dev_rms_m * 1e6:.3f} -> {a.fe_dev_rms_m * 1e6:.3f} um, "
-        f"effort rel. error {b.effort_rel_err_pct} -> {a.effort_rel_err_pct} %"
+        f"effort rel. error {b.effort_rel_err_pct:.3g} -> {a.effort_rel_err_pct:.3g} %"
     )
     if diagnosis.validation is not None:
         v = diagnosis.validation["after"]
         progress(
-            f"validation: position {v['pos_rel_err_pct']:.4g} %, effort {v['effort_rel_err_pct']} %"
+            f"validation: position {v['pos_rel_err_pct']:.4g} %, "
+            f"effort {v['effort_rel_err_pct']:.3g} %"
         )
     progress("wrote " + ", ".join(str(p) for p in written + [model_path]))
     return 0

@@ -65,6 +65,7 @@ from feed_twin.analysis.rounds import (
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.io.measured import EFFORT_UNITS, MeasuredRun
+from feed_twin.plant.slot_specs import with_unit
 
 __all__ = ["Options", "check_effort_sign", "diagnose", "write_model"]
 
@@ -338,7 +339,7 @@ def write_model(doc: ModelDoc, path: Path, found: tuple[FoundEffect, ...]) -> No
     header = [f"Augmented model written by feed-twin diagnose from {doc.source}."]
     header += [
         f"Added {e.name} ({e.component}): "
-        + ", ".join(f"{k} = {v:.6g}" for k, v in e.parameters.items())
+        + ", ".join(with_unit(k, v, 6) for k, v in e.parameters.items())
         for e in found
     ]
     doc.dump(path, header)

@@ -46,6 +46,7 @@ from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
+from feed_twin.plant.slot_specs import with_unit
 
 Progress = Callable[[str], None]
 
@@ -405,7 +406,8 @@ def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
     )
     state.doc, state.twin, state.outputs, state.cost = doc, new_twin, result.outputs, result.cost
     shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in explained_by.items())
-    ctx.progress(f"  added {cand.name}: {params}; it removed {shares} residual energy")
+    values = ", ".join(with_unit(k, v) for k, v in params.items())
+    ctx.progress(f"  added {cand.name}: {values}; it removed {shares} residual energy")
     if result.message.endswith(AT_EDGE):  # a record slot's search said so
         ctx.notes.append(f"{cand.name}: {result.message}")
 

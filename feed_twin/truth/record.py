@@ -66,6 +66,21 @@ M30
 """
 
 
+def long_program(repeats: int) -> str:
+    """PROGRAM's and VALIDATION_PROGRAM's moves one after the other, `repeats` times (about
+    21 s each time): a record long enough at a shop-floor logger's 10 Hz."""
+    if repeats < 1:
+        raise ValueError(f"repeats = {repeats!r}: must be >= 1")
+
+    def body(program: str) -> str:
+        return "".join(
+            line + "\n" for line in program.splitlines()[2:] if line.strip() and line != "M30"
+        )
+
+    header = "(feed_twin truth machine: long program)\nG21 G90 G94 G54 G64\n"
+    return header + (body(PROGRAM) + body(VALIDATION_PROGRAM)) * repeats + "M30\n"
+
+
 def nc_config(*, v_max: float, a_max: float, j_max: float, travel: float) -> str:
     """The NC section (feed_twin.gcode) of a three-axis machine whose axes move alike."""
     axes = "".join(
