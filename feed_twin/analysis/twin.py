@@ -31,7 +31,7 @@ from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc
 from feed_twin.analysis.recorder import delayed, start_velocity, window_mean
 from feed_twin.core import signals
 from feed_twin.io.config import ConfigError
-from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
+from feed_twin.io.measured import PERIOD_RTOL, MeasuredDataError, MeasuredRun, PlannedCommand
 
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
 
@@ -207,10 +207,10 @@ class Twin:
         h = self.base_period_s
         period = float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
         dec = round(period / h)
-        if dec < 1 or abs(dec * h - period) > 1e-6 * period:
+        if dec < 1 or abs(dec * h - period) > PERIOD_RTOL * period:
             raise MeasuredDataError(
-                f"the record's sample period {period!r} s is not a whole multiple of the "
-                f"model's base period {h!r} s"
+                f"the record's sample period {period:.6g} s is not a whole multiple of the "
+                f"model's base period {h:.6g} s (within {PERIOD_RTOL:g} of it)"
             )
         n = len(drive.t_s) * dec
         hold = np.repeat  # known inputs are held between record samples
