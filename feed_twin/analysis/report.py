@@ -78,6 +78,8 @@ class Diagnosis:
     validation_traces: tuple[Trace, Trace] | None = None
     notes: tuple[str, ...] = ()  # warnings of the loader, fit convergence messages
     timings_s: dict[str, float] = field(default_factory=dict)
+    # what the record can show (analysis.visibility.Visibility.as_dict, plus the lines said)
+    visibility: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -99,6 +101,7 @@ class Diagnosis:
             "ranking": list(self.ranking),
             "notes": list(self.notes),
             "timings_s": self.timings_s,
+            "visibility": self.visibility,
         }
 
 
@@ -128,9 +131,11 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         "",
         f"**Verdict:** {d.verdict}",
         "",
-        "## Effects found (in the order found)",
-        "",
     ]
+    if d.visibility is not None:
+        lines += ["## What this record can show", ""]
+        lines += [f"- {s}" for s in d.visibility.get("said", [])] + [""]
+    lines += ["## Effects found (in the order found)", ""]
     if not d.effects:
         lines.append(d.verdict[:1].upper() + d.verdict[1:] + ".")
     for i, e in enumerate(d.effects, 1):

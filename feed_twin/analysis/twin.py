@@ -34,6 +34,9 @@ from feed_twin.io.config import ConfigError
 from feed_twin.io.measured import PERIOD_RTOL, MeasuredDataError, MeasuredRun, PlannedCommand
 
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
+# [s] a record sampled slower than this (a monitoring log) has its command interpolated by a
+# smooth cubic between its samples (Twin._inputs); faster traces, linearly (kept as they were)
+SLOW_COMMAND_S = 0.02
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -232,12 +235,15 @@ class Twin:
             # (less one tick) earlier for a signal smooth over the period: the command's own
             # time
             stamps = drive.t_s - (0.5 * (dec - 1) * h if drive.trace_mean else 0.0)
-            set_nc_reference(
-                ref,
-                np.interp(fine, stamps, drive.pos_ref_m),
-                np.interp(fine, stamps, drive.vel_ref_m_s),
-                np.interp(fine, stamps, drive.acc_ref_m_s2),
-            )
+            if period > SLOW_COMMAND_S:
+                set_nc_reference(ref, *_smooth_command(fine, stamps, drive.pos_ref_m))
+            else:
+                set_nc_reference(
+                    ref,
+                    np.interp(fine, stamps, drive.pos_ref_m),
+                    np.interp(fine, stamps, drive.vel_ref_m_s),
+                    np.interp(fine, stamps, drive.acc_ref_m_s2),
+                )
         if drive.effort_add is not None:
             gain = self.doc.reference_gain or 1.0
             ref[:, signals.REF_EFFORT_ADD] = hold(drive.effort_add / gain, dec)
@@ -440,6 +446,24 @@ class Twin:
         if lead is None:
             raise ConfigError(f"{self.doc.source}: controller.drive.lead_m is needed")
         return float(lead)
+
+
+def _smooth_command(
+    fine: np.ndarray, stamps: np.ndarray, pos_m: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(position, velocity, acceleration) of a slow record's command between its samples: a
+    shape-preserving cubic (PCHIP) through the positions and its derivatives. Linear pieces
+    100 ms long turn the velocity into steps at every sample, where the twin's effort is read:
+    the loop's answer to each step, not the machine's, would be compared."""
+    from scipy.interpolate import PchipInterpolator
+
+    inside = np.clip(fine, stamps[0], stamps[-1])  # held before the first and after the last
+    curve = PchipInterpolator(stamps, pos_m)
+    held = (fine < stamps[0]) | (fine > stamps[-1])
+    vel, acc = curve(inside, 1), curve(inside, 2)
+    vel[held] = 0.0
+    acc[held] = 0.0
+    return curve(inside), vel, acc
 
 
 def _recorded(has_voltage: bool) -> list[str]:
