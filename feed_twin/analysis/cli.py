@@ -136,6 +136,7 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
 
 
 def main_diagnose(args: argparse.Namespace) -> int:
+    from feed_twin.analysis import wording
     from feed_twin.analysis.diagnose import diagnose, write_model
     from feed_twin.analysis.placed import diagnose_program, place
     from feed_twin.analysis.report import write_report
@@ -195,16 +196,21 @@ def main_diagnose(args: argparse.Namespace) -> int:
     written = write_report(diagnosis, out, v_m_s=motion.v_m_s)
     progress(diagnosis.verdict)
     for e in diagnosis.effects:
-        progress(f"  {e.name}: {e.parameters} ({100 * e.explained_fraction:.1f} % of the cost)")
+        progress(
+            f"  {e.name}: {wording.values(e.parameters)} "
+            f"({100 * e.explained_fraction:.3g} % of the cost)"
+        )
     b, a = diagnosis.before, diagnosis.after
     progress(
-        f"FE deviation RMS {b.fe_dev_rms_m * 1e6:.3f} -> {a.fe_dev_rms_m * 1e6:.3f} um, "
-        f"effort rel. error {b.effort_rel_err_pct} -> {a.effort_rel_err_pct} %"
+        f"FE deviation RMS {b.fe_dev_rms_m * 1e6:.3g} -> {a.fe_dev_rms_m * 1e6:.3g} um, "
+        f"effort rel. error {wording.percent(b.effort_rel_err_pct)} -> "
+        f"{wording.percent(a.effort_rel_err_pct)}"
     )
     if diagnosis.validation is not None:
         v = diagnosis.validation["after"]
         progress(
-            f"validation: position {v['pos_rel_err_pct']:.4g} %, effort {v['effort_rel_err_pct']} %"
+            f"validation: position {wording.percent(v['pos_rel_err_pct'])}, effort "
+            f"{wording.percent(v['effort_rel_err_pct'])}"
         )
     progress("wrote " + ", ".join(str(p) for p in written + [model_path]))
     return 0

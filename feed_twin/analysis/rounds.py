@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from feed_twin.analysis import wording
 from feed_twin.analysis.channels import (
     channel_residuals,
     residuals,
@@ -314,8 +315,9 @@ def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
         )
     )
     state.doc, state.twin, state.outputs, state.cost = doc, new_twin, result.outputs, result.cost
-    shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in explained_by.items())
-    ctx.progress(f"  added {cand.name}: {params}; it removed {shares} residual energy")
+    ctx.progress(
+        f"  added {cand.name}: {wording.values(params)}; it {wording.shares(explained_by)}"
+    )
 
 
 def drop_collapsed(state: State, ctx: Context, when: str) -> None:

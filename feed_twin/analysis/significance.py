@@ -112,11 +112,12 @@ class Verdict:
         return max(self.explained, key=self.explained.__getitem__)
 
     def words(self) -> str:
-        shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in self.explained.items())
+        from feed_twin.analysis.wording import shares
+
         worse = f", worse in the {self.own} residual it was named in" if self.worsens_own else ""
         return (
-            f"removes {shares} residual energy "
-            f"(LR = {self.likelihood_ratio:.3g}, p = {self.p_value:.2g}){worse}"
+            f"{shares(self.explained)} (LR = {self.likelihood_ratio:.3g}, "
+            f"p = {self.p_value:.2g}){worse}"
         )
 
 
