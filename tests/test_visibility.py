@@ -3,6 +3,7 @@ effects a slow, coarse record cannot show listed with their reasons."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -65,7 +66,11 @@ def test_floors_raised_to_the_rounding_noise():
         unseen=(Unseen(name="backlash", reason="below the resolution"),),
     )
     floors = with_floor({"position": 1e-9, "effort": 0.5}, vis)
-    assert floors["position"] == pytest.approx(1e-3 / math.sqrt(12.0))
+    assert floors["position"] == pytest.approx(100 * 1e-3)  # no evidence: no say
+    with_evidence = dataclasses.replace(vis, position_evidence=True)
+    assert with_floor({"position": 1e-9}, with_evidence)["position"] == pytest.approx(
+        1e-3 / math.sqrt(12.0)
+    )
     assert floors["effort"] == 0.5
     lines = vis.lines()
     assert lines[0] == (

@@ -189,6 +189,7 @@ def diagnose(
         progress=progress,
         notes=notes,
         start=start,
+        silent=() if vis.position_evidence else ("position",),
     )
     ranking, unfitted = _identify(state, context, list(vis.unseen_names))
     timings["identify_s"] = time.perf_counter() - clock

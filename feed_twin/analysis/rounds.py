@@ -150,9 +150,12 @@ class Context:
     progress: Progress
     notes: list[str]
     start: int = 0  # the record's first sample that is evidence (Twin.first_evidence)
+    # channels that carry no evidence in this record (analysis.visibility): not tested
+    silent: tuple[str, ...] = ()
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
-        return channel_residuals(self.run, out, start=self.start)
+        found = channel_residuals(self.run, out, start=self.start)
+        return {k: v for k, v in found.items() if k not in self.silent}
 
 
 def run_round(

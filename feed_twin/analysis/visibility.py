@@ -40,6 +40,7 @@ ON_GRID_FRACTION = 0.6  # a quantum holds when this share of the samples are its
 ON_GRID_TOL = 1e-3  # [quanta] how close to a multiple counts as on it (float noise)
 STAIRCASE_FRACTION = 0.2  # a staircase: this share of the moving samples stand still
 SLOW_RECORD_S = 2e-3  # [s] a record sampled slower than this cannot resolve a delay search
+SILENT_FACTOR = 100.0  # a channel without evidence is weighted at this many resolution steps
 MIN_ACCEL_SAMPLES = 3  # accelerations must span this many samples for the mass to show
 # [m] the largest position signature of the position-domain effects at their typical sizes
 # (thermal growth of 2 K/m over a metre, 10-20 um of backlash, microns of lead error): a
@@ -158,7 +159,7 @@ class Visibility:
         if not self.position_evidence:
             out.append(
                 "the position channel carries no evidence: the following error is below the "
-                "resolution, so set minus actual shows the rounding (weighted at q/sqrt(12))"
+                "resolution, so set minus actual shows the rounding; it is not fitted or tested"
             )
         out += [f"cannot be seen in this record: {u.name}: {u.reason}" for u in self.unseen]
         return out + list(self.notes)
@@ -365,10 +366,14 @@ def force_constant_correlation(run: MeasuredRun, out0: SimOutputs, v: np.ndarray
 
 
 def with_floor(floors: dict[str, float], vis: Visibility) -> dict[str, float]:
-    """The channels' noise floors raised to their rounding noise (q / sqrt(12))."""
+    """The channels' noise floors raised to their rounding noise (q / sqrt(12)); a position
+    channel without evidence to SILENT_FACTOR times its resolution (it must not steer a fit
+    with the twin's microns against the record's rounding)."""
     out = dict(floors)
-    if vis.position_resolution_m > 0 and "position" in out:
-        out["position"] = max(out["position"], vis.position_resolution_m / math.sqrt(12.0))
+    q = vis.position_resolution_m
+    if q > 0 and "position" in out:
+        least = q / math.sqrt(12.0) if vis.position_evidence else SILENT_FACTOR * q
+        out["position"] = max(out["position"], least)
     if vis.effort_resolution > 0 and "effort" in out:
         out["effort"] = max(out["effort"], vis.effort_resolution / math.sqrt(12.0))
     return out
