@@ -150,6 +150,8 @@ def diagnose(
     # what the record can show (analysis.visibility): said before fitting, and what it cannot
     # show is not searched
     vis = assess(run, twin, drive.pos_ref_m, out0, raw=raw)
+    if vis.blind is not None:
+        run = dataclasses.replace(run, effort_blind=vis.blind)
     said = [*smoothed, *vis.lines()]
     kt = force_constant_correlation(run, out0, drive.vel_ref_m_s)
     if kt is not None and "torque_constant_error" not in vis.unseen_names:

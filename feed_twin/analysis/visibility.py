@@ -26,7 +26,7 @@ Each effect not searched is listed, with its reason, as "cannot be seen in this 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,12 +36,14 @@ from feed_twin.io.measured import MeasuredRun
 
 # quanta tried by `resolution`: 1, 2, 5 x 10^k m (or A) from 1e-12 to 0.5
 _LADDER = tuple(m * 10.0**k for k in range(-12, 0) for m in (1.0, 2.0, 5.0))
-ON_GRID_FRACTION = 0.6  # a quantum holds when this share of the samples are its multiples
+ON_GRID_FRACTION = 0.98  # a quantum holds when this share of the samples are its multiples
 ON_GRID_TOL = 1e-3  # [quanta] how close to a multiple counts as on it (float noise)
 STAIRCASE_FRACTION = 0.2  # a staircase: this share of the moving samples stand still
 SLOW_RECORD_S = 2e-3  # [s] a record sampled slower than this cannot resolve a delay search
 SILENT_FACTOR = 100.0  # a channel without evidence is weighted at this many resolution steps
 MIN_ACCEL_SAMPLES = 3  # accelerations must span this many samples for the mass to show
+ACCEL_NOISE_FACTOR = 3.0  # an acceleration counts above this many times q / h^2
+BLIND_NOISE_FACTOR = 1.0  # ... and its effort is no evidence above this many
 # [m] the largest position signature of the position-domain effects at their typical sizes
 # (thermal growth of 2 K/m over a metre, 10-20 um of backlash, microns of lead error): a
 # resolution coarser than this hides them whatever the following error
@@ -60,8 +62,10 @@ RIPPLE_ORDERS = {"cogging_torque": 2, "current_offset": 1}
 
 def resolution(x: np.ndarray) -> float:
     """The step [signal unit] a signal is rounded to: the largest quantum of 1, 2 or 5 x 10^k
-    of which at least ON_GRID_FRACTION of its samples are multiples; 0 for a signal that is not
-    rounded to any (a float computation, a fine encoder)."""
+    of which nearly all (ON_GRID_FRACTION) of its samples are multiples; 0 for a signal that is
+    not rounded to any (a float computation, a fine encoder). Nearly all, not most: a command
+    that dwells on whole millimetres keeps its finer step, and a log printed to 3 significant
+    figures (0.1 mm below 100 mm, 1 mm above) reads as its finer step."""
     x = np.asarray(x, dtype=float)
     x = x[np.isfinite(x)]
     if len(x) == 0:
@@ -141,6 +145,9 @@ class Visibility:
     velocity_resolution_m_s: float  # q / h: the speed one step per sample means
     unseen: tuple[Unseen, ...]
     notes: tuple[str, ...] = ()
+    # samples whose effort carries an inertial force the record does not resolve (the command
+    # accelerates there within a sample or two, and the mass cannot be seen): no evidence
+    blind: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def unseen_names(self) -> tuple[str, ...]:
@@ -162,6 +169,12 @@ class Visibility:
                 "resolution, so set minus actual shows the rounding; it is not fitted or tested"
             )
         out += [f"cannot be seen in this record: {u.name}: {u.reason}" for u in self.unseen]
+        if self.blind is not None and self.blind.any():
+            out.append(
+                f"{int(self.blind.sum())} samples ({100 * float(self.blind.mean()):.2g} %) fall "
+                "in accelerations the record does not resolve: their effort is left out of the "
+                "evidence"
+            )
         return out + list(self.notes)
 
     def as_dict(self) -> dict[str, object]:
@@ -173,6 +186,7 @@ class Visibility:
             "position_evidence": self.position_evidence,
             "velocity_resolution_m_s": self.velocity_resolution_m_s,
             "cannot_be_seen": {u.name: u.reason for u in self.unseen},
+            "effort_samples_left_out": 0 if self.blind is None else int(self.blind.sum()),
         }
 
 
@@ -232,7 +246,12 @@ def assess(
         unseen += [Unseen(name=e, reason=why) for e in POSITION_EFFECTS]
     unseen += _fast_effects(run, twin, speed[moving], h)
     unseen += _slow_motion_effects(twin, v, moving, h, q)
+    blind = None
     if "mass_error" in [u.name for u in unseen]:
+        # any acceleration above the rounding's noise, and the samples next to it: the
+        # machine's acceleration lasts part of a sample, the record's is smeared over two
+        accel = _accelerating(v, h, q, factor=BLIND_NOISE_FACTOR)
+        blind = accel | np.roll(accel, 1) | np.roll(accel, -1)
         unseen.append(
             Unseen(
                 name="torque_constant_error",
@@ -249,6 +268,7 @@ def assess(
         position_evidence=position_evidence,
         velocity_resolution_m_s=q / h,
         unseen=tuple(unseen),
+        blind=blind,
     )
 
 
@@ -294,9 +314,7 @@ def _slow_motion_effects(
 ) -> list[Unseen]:
     """Effects that need the record to resolve accelerations, low speeds or two speeds."""
     out: list[Unseen] = []
-    a = np.gradient(v, h)
-    accel = np.abs(a) > 0.05 * float(np.max(np.abs(a))) if np.any(a) else np.zeros_like(v, bool)
-    runs = _run_lengths(accel)
+    runs = _run_lengths(_accelerating(v, h, q))
     median = float(np.median(runs)) if runs else 0.0
     if median < MIN_ACCEL_SAMPLES:
         out.append(
@@ -312,7 +330,7 @@ def _slow_motion_effects(
     v_s = None
     if friction is not None and twin.doc.has_slot(f"{friction}.v_s"):
         v_s = twin.doc.get(f"{friction}.v_s")
-    if v_s is not None and v_res > 2.0 * v_s:
+    if v_s is not None and v_res > v_s:
         out.append(
             Unseen(
                 name="stribeck_friction",
@@ -330,6 +348,15 @@ def _slow_motion_effects(
             )
         )
     return out
+
+
+def _accelerating(
+    v: np.ndarray, h: float, q: float, *, factor: float = ACCEL_NOISE_FACTOR
+) -> np.ndarray:
+    """Samples where the command accelerates: above the rounding's own acceleration noise
+    (about q / h^2, `factor` times) and a thousandth of the largest."""
+    a = np.abs(np.gradient(v, h))
+    return a > max(factor * q / h**2, 1e-3 * float(np.max(a)))
 
 
 def _run_lengths(mask: np.ndarray) -> list[int]:

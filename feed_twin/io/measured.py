@@ -107,6 +107,7 @@ def segment(run: MeasuredRun, t0_s: float, t1_s: float) -> MeasuredRun:
         source=f"{run.source} [{t0_s:g} s to {t1_s:g} s]",
         lines=None if run.lines is None else run.lines[keep],
         file=run.file,
+        effort_blind=None if run.effort_blind is None else run.effort_blind[keep],
     )
 
 
@@ -163,6 +164,9 @@ class MeasuredRun:
     # file: rows are named `file:line` in every complaint about them
     lines: np.ndarray | None = None
     file: str = ""
+    # samples whose effort is no evidence for the model (a slow record's accelerations, which
+    # fall between its samples: analysis.visibility); left out of residuals and fits
+    effort_blind: np.ndarray | None = None
 
     def where(self, sample: int) -> str:
         """`file:line` of sample `sample`, or its time where the sample has no line."""
