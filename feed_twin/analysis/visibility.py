@@ -108,7 +108,11 @@ def dequantize(t: np.ndarray, x: np.ndarray, q: float) -> np.ndarray:
     if len(change) == 0:
         return x.copy()
     d = x[change] - x[change - 1]
-    single = np.abs(np.abs(d) - q) < 0.5 * q
+    # a staircase step: one q, with the level held for a sample before or after it (a move
+    # slower than a step per sample); at a step or more per sample the samples are the motion
+    held_before = np.concatenate(([True], np.diff(change) > 1))
+    held_after = np.concatenate((np.diff(change) > 1, [True]))
+    single = (np.abs(np.abs(d) - q) < 0.5 * q) & (held_before | held_after)
     # a step joins the next when both are single steps in the same direction: a slow move
     joined = single[1:] & single[:-1] & (np.sign(d[1:]) == np.sign(d[:-1]))
     knots = [(float(t[0]), float(x[0]))]
@@ -200,26 +204,48 @@ def _length(x: float) -> str:
 
 
 def smooth_staircases(run: MeasuredRun) -> tuple[MeasuredRun, list[str]]:
-    """The run with its rounded position channels smoothed where they are staircases (module
-    docstring), and a note for each."""
+    """The run with its rounded position channels smoothed (module docstring), and a note for
+    each: staircases through the midpoints of their steps, then, in a record slower than
+    SLOW_RECORD_S, the rounding's jitter at the Nyquist frequency (steps of 1 and 2 q
+    alternating at 1.5 q per sample) removed by the [1 2 1] / 4 filter, which keeps straight
+    moves and rests as they are. Fed as it is, that jitter made the twin's effort at the
+    samples swing by a hundred newtons."""
     notes = []
     changed = {}
+    slow = run.sample_period_s > SLOW_RECORD_S
     for name in ("pos_cmd_m", "pos_meas_m"):
         if name not in run:
             continue
-        q = resolution(run[name])
-        share = staircase_fraction(run[name], q)
-        if share < STAIRCASE_FRACTION:
+        x = run[name]
+        q = resolution(x)
+        if q <= 0.0 or not slow:
             continue
-        changed[name] = dequantize(run.t_s, run[name], q)
+        share = staircase_fraction(x, q)
+        if share >= STAIRCASE_FRACTION:
+            x = dequantize(run.t_s, x, q)
+        changed[name] = _binomial(x)
         notes.append(
-            f"{name} is a staircase of rounding ({_length(q)} steps; {100 * share:.0f} % of its "
-            "samples in slow moves stand still): smoothed through the midpoints of its steps, "
-            "not fed to the twin as stop-and-go"
+            f"{name} is rounded to {_length(q)}"
+            + (
+                f" and a staircase ({100 * share:.0f} % of its samples in slow moves stand "
+                "still): smoothed through the midpoints of its steps, not fed to the twin as "
+                "stop-and-go, and"
+                if share >= STAIRCASE_FRACTION
+                else ":"
+            )
+            + " its rounding jitter filtered ([1 2 1] / 4)"
         )
     if not changed:
         return run, notes
     return run.with_signals(**changed), notes
+
+
+def _binomial(x: np.ndarray) -> np.ndarray:
+    """[1 2 1] / 4 over the samples, the ends kept: zero gain at the Nyquist frequency, exact
+    on straight lines."""
+    y = x.copy()
+    y[1:-1] = 0.25 * x[:-2] + 0.5 * x[1:-1] + 0.25 * x[2:]
+    return y
 
 
 def assess(
@@ -314,15 +340,19 @@ def _slow_motion_effects(
 ) -> list[Unseen]:
     """Effects that need the record to resolve accelerations, low speeds or two speeds."""
     out: list[Unseen] = []
-    runs = _run_lengths(_accelerating(v, h, q))
-    median = float(np.median(runs)) if runs else 0.0
-    if median < MIN_ACCEL_SAMPLES:
+    # how long the command takes to reach its fast speeds at its largest acceleration: a
+    # machine that gets there within a sample or two leaves its inertia between the samples
+    speeds = np.abs(v[moving])
+    a_peak = float(np.percentile(np.abs(np.gradient(v, h)), 99.5))
+    v_fast = float(np.percentile(speeds, 90)) if len(speeds) else 0.0
+    t_acc = v_fast / a_peak if a_peak > 0 else math.inf
+    if t_acc < MIN_ACCEL_SAMPLES * h:
         out.append(
             Unseen(
                 name="mass_error",
-                reason=f"the command's accelerations last a median of {median:.2g} sample(s) "
-                f"({median * h:.2g} s; at least {MIN_ACCEL_SAMPLES} are needed): the inertia's "
-                "force comes and goes between samples",
+                reason=f"the command reaches its fast speeds ({v_fast * 1e3:.3g} mm/s) within "
+                f"{t_acc:.2g} s ({a_peak:.2g} m/s^2), under {MIN_ACCEL_SAMPLES} samples: the "
+                "inertia's force comes and goes between samples",
             )
         )
     v_res = q / h if q > 0 else 0.0
@@ -338,7 +368,6 @@ def _slow_motion_effects(
                 f"record's velocity resolution ({v_res * 1e3:.2g} mm/s: one step per sample)",
             )
         )
-    speeds = np.abs(v[moving])
     if len(speeds) and np.percentile(speeds, 90) < 1.5 * max(np.percentile(speeds, 10), 1e-12):
         out.append(
             Unseen(
@@ -357,13 +386,6 @@ def _accelerating(
     (about q / h^2, `factor` times) and a thousandth of the largest."""
     a = np.abs(np.gradient(v, h))
     return a > max(factor * q / h**2, 1e-3 * float(np.max(a)))
-
-
-def _run_lengths(mask: np.ndarray) -> list[int]:
-    """Lengths of the runs of True in `mask`."""
-    padded = np.concatenate(([0], np.asarray(mask, dtype=int), [0]))
-    edges = np.flatnonzero(np.diff(padded))
-    return [int(b - a) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def force_constant_correlation(run: MeasuredRun, out0: SimOutputs, v: np.ndarray) -> str | None:
