@@ -195,12 +195,12 @@ class Visibility:
 
 
 def _length(x: float) -> str:
-    """A length [m] in the unit that reads best, to 2 significant figures."""
+    """A length [m] in the unit that reads best, to 2 (mm) or 3 significant figures."""
     if x >= 1e-3:
         return f"{x * 1e3:.2g} mm"
     if x >= 1e-6:
-        return f"{x * 1e6:.2g} um"
-    return f"{x * 1e9:.2g} nm"
+        return f"{x * 1e6:.3g} um"
+    return f"{x * 1e9:.3g} nm"
 
 
 def smooth_staircases(run: MeasuredRun) -> tuple[MeasuredRun, list[str]]:
