@@ -138,8 +138,10 @@ def shadow(model: str, program: str, measured: tuple[np.ndarray, np.ndarray]) ->
 
 def lockstep(program: str) -> str:
     from feed_twin.gcode import load_nc_config, plan_program
+    from feed_twin.nodeset.config import load_node_set_config
+    from feed_twin.nodeset.controller_core import ControllerCore
     from feed_twin.nodeset.drive_host import Lockstep, build_drive_host, nc_samples
-    from feed_twin.nodeset.split import NS_PER_S, ControllerCore, load_node_set_config
+    from feed_twin.nodeset.wire import NS_PER_S
     from feed_twin.sim.config import load_axis_config
 
     config = ROOT / NC_CONFIG
@@ -198,7 +200,7 @@ def _fields(msg: Any) -> Any:
 
 def bag(program: str) -> dict[str, str]:
     from feed_twin.io.bag import BagReader
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.nodeset.config import load_node_set_config
     from feed_twin.nodeset.topics import AxisTopics
 
     ros = load_node_set_config(ROOT / NC_CONFIG)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import load_measured
 from feed_twin.sim.config import load_axis_config
 

@@ -17,7 +17,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from feed_twin.io.bag import BagError, BagReader, BagWriter, QosProfile, info
-from feed_twin.io.bag_schema import (
+from feed_twin.io.bag.schema import (
     DEPENDENCY_SEPARATOR,
     MessageTypeError,
     message_definition,

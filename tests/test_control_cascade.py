@@ -20,7 +20,7 @@ from feed_twin.control.loops import (
 )
 from feed_twin.control.transforms import SQRT3, clarke, inverse_clarke, inverse_park, park
 from feed_twin.core import signals as sig
-from feed_twin.io.config import load_yaml
+from feed_twin.core.config import load_yaml
 
 FIXTURES = Path(__file__).parent / "fixtures"
 U_DC = 560.0

@@ -15,7 +15,7 @@ import pytest
 
 from feed_twin.control.tuning import tune_config, tune_current_loop
 from feed_twin.core import signals as sig
-from feed_twin.io.config import load_yaml
+from feed_twin.core.config import load_yaml
 from feed_twin.sim.config import build_engine, load_axis_config
 
 AXIS_FILE = Path(__file__).resolve().parent.parent / "config" / "axis_default.yaml"

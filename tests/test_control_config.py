@@ -8,7 +8,7 @@ import pytest
 from feed_twin.control import cascade as cc
 from feed_twin.control import config as ccfg
 from feed_twin.control import layout as lay
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 
 SOURCE = "config/test.yaml"
 PMSM = {

@@ -15,7 +15,7 @@ from feed_twin.control.cascade import cascade_tick
 from feed_twin.control.config import load_controller_config
 from feed_twin.control.layout import build_cascade
 from feed_twin.core import signals as sig
-from feed_twin.io.config import load_yaml
+from feed_twin.core.config import load_yaml
 
 DATA = Path("/work/shared/data/emps")
 CONFIGS = (

@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from feed_twin.cli import main as cli_main
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode import load_nc_config, plan_program
-from feed_twin.io.config import ConfigError
 
 FIXTURES = Path(__file__).parent / "fixtures" / "gcode"
 CONFIG_FILE = FIXTURES / "nc_test.yaml"

@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode import GcodeError, plan_program
 from feed_twin.gcode.config import nc_config_from_mapping
 from feed_twin.gcode.interpreter import Interpreter, Move
 from feed_twin.gcode.planner import iter_blocks, validate_program
-from feed_twin.io.config import ConfigError
 
 DEG = math.pi / 180.0
 LINEAR = [

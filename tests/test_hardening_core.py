@@ -16,10 +16,10 @@ import yaml
 
 from feed_twin.cli import main as cli_main
 from feed_twin.core import signals as sig
+from feed_twin.core.config import MAX_CONFIG_BYTES, ConfigError, load_yaml
 from feed_twin.gcode import GcodeError, load_nc_config, validate_program
 from feed_twin.gcode.lexer import MAX_LINE_BYTES
 from feed_twin.io.bag import BagError, BagReader, BagWriter, recover
-from feed_twin.io.config import MAX_CONFIG_BYTES, ConfigError, load_yaml
 from feed_twin.nodeset.guard import (
     UNKNOWN_NODE_NAME,
     CommandGuard,
@@ -383,8 +383,8 @@ def test_exit_status_of_a_killed_node():
 
 
 def test_limits_of_the_default_config(tmp_path):
+    from feed_twin.nodeset.config import load_node_set_config
     from feed_twin.nodeset.protection import protection_for_config
-    from feed_twin.nodeset.split import load_node_set_config
 
     guard = protection_for_config(AXIS, load_node_set_config(AXIS), MS)
     assert guard.limits == DriveLimits(

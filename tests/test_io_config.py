@@ -7,8 +7,8 @@ from typing import Literal
 
 import pytest
 
+from feed_twin.core.config import ConfigError, from_mapping, load_yaml
 from feed_twin.core.validate import require_integer_multiple, require_positive
-from feed_twin.io.config import ConfigError, from_mapping, load_yaml
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from feed_twin.cli import main
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredDataError, load_column_map, load_measured, segment
 
 ROOT = Path(__file__).resolve().parents[1]

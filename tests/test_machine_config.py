@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode import GcodeError, load_nc_config
 from feed_twin.gcode.planner import validate_program
-from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import is_machine_config, load_machine_config
 from feed_twin.sim.config import build_engine
 

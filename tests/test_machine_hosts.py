@@ -20,7 +20,7 @@ from feed_twin.io.bag import BagReader
 from feed_twin.machine.config import load_machine_config
 from feed_twin.machine.nodes import write_axis_files
 from feed_twin.nodeset.guard import RUN_TOKEN_ENV
-from feed_twin.nodeset.split import NS_PER_S
+from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.ros.netns import linked_namespaces
 

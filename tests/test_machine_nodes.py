@@ -26,8 +26,10 @@ from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag import BagReader, info
 from feed_twin.machine.config import load_machine_config
 from feed_twin.machine.nodes import chosen_processes, node_plan, write_axis_files
+from feed_twin.nodeset.config import load_node_set_config
+from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.drive_host import Lockstep, build_drive_host, nc_samples
-from feed_twin.nodeset.split import NS_PER_S, ControllerCore, load_node_set_config
+from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.sim.config import load_axis_config
 

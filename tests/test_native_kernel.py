@@ -16,7 +16,7 @@ import pytest
 from native_support import ROOT, SAMPLE, program_ref
 
 from feed_twin.core import signals
-from feed_twin.io.config import load_yaml
+from feed_twin.core.config import load_yaml
 from feed_twin.native.build import (
     FLAGS,
     CModel,

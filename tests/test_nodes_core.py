@@ -14,26 +14,23 @@ from rclpy.serialization import serialize_message
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from feed_twin.control.config import load_controller_config
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode import load_nc_config, plan_program
-from feed_twin.io.bag_schema import message_definition
+from feed_twin.io.bag.schema import message_definition
 from feed_twin.io.cdr import FlatCodec, NotFlatError
-from feed_twin.io.config import ConfigError
-from feed_twin.nodeset.split import (
+from feed_twin.nodeset.config import NodeLoopGains, NodeSetConfig, load_node_set_config
+from feed_twin.nodeset.controller_core import ControllerCore, controller_node_config
+from feed_twin.nodeset.nc_buffer import NcBuffer
+from feed_twin.nodeset.summary import summarise
+from feed_twin.nodeset.topics import AxisTopics
+from feed_twin.nodeset.wire import (
     MODE_CSP,
     MODE_CST,
     MODE_CSV,
-    ControllerCore,
     DriveSetpoint,
-    NcBuffer,
     NcSample,
-    NodeLoopGains,
-    NodeSetConfig,
-    controller_node_config,
     drive_reference,
-    load_node_set_config,
 )
-from feed_twin.nodeset.summary import summarise
-from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros.gcode_node import ProgramStream
 
 ROOT = Path(__file__).resolve().parents[1]

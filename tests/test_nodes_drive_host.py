@@ -9,8 +9,9 @@ import pytest
 from nodes_support import AXIS_CONFIG, SHORT_PROGRAM
 
 from feed_twin.gcode import load_nc_config, plan_program
+from feed_twin.nodeset.config import NodeSetConfig, load_node_set_config
+from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.drive_host import Lockstep, nc_samples
-from feed_twin.nodeset.split import ControllerCore, NodeSetConfig, load_node_set_config
 from feed_twin.ros.sim_node import build_drive_host
 from feed_twin.sim.config import load_axis_config
 
@@ -77,7 +78,7 @@ def test_friction_opposes_the_motion(run: dict[str, np.ndarray]) -> None:
 
 
 def test_unknown_signal_names_are_reported(tmp_path: Path) -> None:
-    from feed_twin.nodeset.split import StateSignals
+    from feed_twin.nodeset.config import StateSignals
 
     config = AXIS_CONFIG
     ros = NodeSetConfig(signals=StateSignals(table_position="carriage.s"))

@@ -11,7 +11,7 @@ import sys
 import pytest
 from nodes_support import AXIS_CONFIG, node_env
 
-from feed_twin.nodeset.split import load_node_set_config
+from feed_twin.nodeset.config import load_node_set_config
 from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.ros.host import host_argv, split_argv, stops_at_first_failure
 from feed_twin.ros.run_cli import _processes

@@ -14,8 +14,10 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag import BagReader
 from feed_twin.io.dashboard import rerun_binary
+from feed_twin.nodeset.config import load_node_set_config
+from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.drive_host import ExchangeSample, Lockstep, nc_samples
-from feed_twin.nodeset.split import NS_PER_S, ControllerCore, load_node_set_config
+from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.ros.sim_node import build_drive_host
 from feed_twin.sim.config import load_axis_config

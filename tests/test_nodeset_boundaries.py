@@ -20,8 +20,10 @@ from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, last_json, run
 
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag import BagReader
+from feed_twin.nodeset.config import load_node_set_config
+from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.drive_host import Lockstep, nc_samples
-from feed_twin.nodeset.split import NS_PER_S, ControllerCore, load_node_set_config
+from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.ros.sim_node import build_drive_host
 from feed_twin.sim.config import load_axis_config

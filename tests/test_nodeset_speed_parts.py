@@ -13,14 +13,9 @@ import pytest
 from nodes_support import AXIS_CONFIG
 
 from feed_twin.io.cdr import FlatCodec
-from feed_twin.nodeset.split import (
-    MODE_CST,
-    MODE_VOLTAGE,
-    DriveSetpoint,
-    NodeSetConfig,
-    controller_node_config,
-    load_node_set_config,
-)
+from feed_twin.nodeset.config import NodeSetConfig, load_node_set_config
+from feed_twin.nodeset.controller_core import controller_node_config
+from feed_twin.nodeset.wire import MODE_CST, MODE_VOLTAGE, DriveSetpoint
 from feed_twin.sim.config import load_axis_config
 
 FEEDBACK = FlatCodec("feed_twin_msgs/msg/AxisFeedback")

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from feed_twin.nodeset.split import StateSignals
+from feed_twin.nodeset.config import StateSignals
 from feed_twin.sim.config import build_engine, load_axis_config
 
 AXIS = Path(__file__).resolve().parents[1] / "config" / "axis_default.yaml"

@@ -6,7 +6,7 @@ import copy
 
 import pytest
 
-from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.core.config import ConfigError, load_yaml
 from feed_twin.sim.config import load_axis_config
 
 SOURCE = "config/emps.yaml"

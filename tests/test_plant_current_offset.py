@@ -9,7 +9,7 @@ import pytest
 
 from feed_twin.control.transforms import clarke, park
 from feed_twin.core import signals as sig
-from feed_twin.io.config import load_yaml
+from feed_twin.core.config import load_yaml
 from feed_twin.plant.sensors import CurrentSensor
 from feed_twin.sim.config import build_engine, load_axis_config
 

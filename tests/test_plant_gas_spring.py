@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.engine import Engine
 

@@ -10,8 +10,8 @@ import pytest
 import yaml
 
 from feed_twin.cli import main as cli_main
+from feed_twin.core.config import ConfigError
 from feed_twin.io.bag import BagWriter
-from feed_twin.io.config import ConfigError
 from feed_twin.shadow.config import FrictionStep, load_shadow_config
 from feed_twin.shadow.summary import summarise_shadow
 

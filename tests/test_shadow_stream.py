@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.stream import MAX_JUMP_S, SlotStream
 

@@ -16,7 +16,7 @@ import pytest
 
 from feed_twin.control import layout as lay
 from feed_twin.core import signals as sig
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.sim.batch import run_batch
 from feed_twin.sim.config import build_engine, load_axis_config
 from feed_twin.sim.kernel import _literal, kernel_source, load_kernel

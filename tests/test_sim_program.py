@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from feed_twin.core import signals
-from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.core.config import ConfigError, load_yaml
 from feed_twin.sim.config import load_axis_config
 from feed_twin.sim.program import nc_reference, set_nc_reference, simulate_program
 

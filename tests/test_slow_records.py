@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from feed_twin.analysis.cli import split_validate
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredDataError, load_column_map, load_measured
 
 MAP = """\

@@ -35,7 +35,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from feed_twin.io.config import ConfigError  # noqa: E402
+from feed_twin.core.config import ConfigError  # noqa: E402
 from feed_twin.io.measured import (  # noqa: E402
     MeasuredDataError,
     MeasuredRun,

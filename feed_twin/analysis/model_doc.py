@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.core.config import ConfigError, load_yaml
 from feed_twin.plant.ball_screw import BallScrew
 from feed_twin.plant.component import Quantity
 from feed_twin.plant.dc_bus import DcBus

@@ -30,7 +30,7 @@ from feed_twin.analysis.fit import SimOutputs
 from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc
 from feed_twin.analysis.recorder import delayed, start_velocity, window_mean
 from feed_twin.core import signals
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import PERIOD_RTOL, MeasuredDataError, MeasuredRun, PlannedCommand
 
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)

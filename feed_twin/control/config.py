@@ -1,7 +1,7 @@
 """The `controller:` section of an axis config: which loops exist, their rates, gains, limits.
 
 Frozen parameter dataclasses, validated on construction, loaded through
-feed_twin.io.config.from_mapping so that errors read `file: controller.field = value: reason`.
+feed_twin.core.config.from_mapping so that errors read `file: controller.field = value: reason`.
 feed_twin.control.cascade turns a ControllerConfig into the flat vectors its compiled tick reads.
 """
 
@@ -13,13 +13,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from feed_twin.core.config import from_mapping
 from feed_twin.core.validate import (
     require_integer_multiple,
     require_nonnegative,
     require_positive,
     require_range,
 )
-from feed_twin.io.config import from_mapping
 
 TWO_PI = 2.0 * math.pi
 MAX_FIR_TAPS = 16

@@ -7,7 +7,7 @@ import sys
 
 from feed_twin.control.config import load_controller_config
 from feed_twin.control.tuning import LoadMode, tune_config
-from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.core.config import ConfigError, load_yaml
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

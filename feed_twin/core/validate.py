@@ -1,7 +1,7 @@
 """Range checks for the `__post_init__` of frozen parameter dataclasses.
 
 Each raises `ValueError` naming the field and the value, e.g. `m = -3.0: must be > 0`;
-feed_twin.io.config.from_mapping prefixes that with the file and the dotted field path.
+feed_twin.core.config.from_mapping prefixes that with the file and the dotted field path.
 """
 
 from __future__ import annotations

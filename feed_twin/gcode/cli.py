@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode.config import ROTARY_AXIS_NAMES, load_nc_config
 from feed_twin.gcode.errors import GcodeError
 from feed_twin.gcode.planner import plan_program_stream
-from feed_twin.io.config import ConfigError
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

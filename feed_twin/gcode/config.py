@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from feed_twin.core.config import ConfigError, from_mapping, load_yaml
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
-from feed_twin.io.config import ConfigError, from_mapping, load_yaml
 
 LINEAR_AXIS_NAMES = ("X", "Y", "Z", "U", "V", "W")
 ROTARY_AXIS_NAMES = ("A", "B", "C")

@@ -23,7 +23,7 @@ import struct
 from collections.abc import Mapping, Sequence
 from functools import cache
 
-from feed_twin.io.bag_schema import package_share, split_type_name
+from feed_twin.io.bag.schema import package_share, split_type_name
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
 _PRIMITIVES = {

@@ -18,8 +18,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from feed_twin.core.config import ConfigError, from_mapping, load_yaml
 from feed_twin.core.validate import require_positive
-from feed_twin.io.config import ConfigError, from_mapping, load_yaml
 
 Dimension = Literal["time", "length", "velocity", "force", "torque", "current", "voltage"]
 

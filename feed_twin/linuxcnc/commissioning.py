@@ -60,8 +60,8 @@ def run_virtual_commissioning(
     say: Callable[[str], None] = print,
 ) -> CommissioningResult:
     """Run `program` on LinuxCNC with the twin of `config` as its twin axis (module docstring)."""
+    from feed_twin.nodeset.config import load_node_set_config
     from feed_twin.nodeset.drive_host import build_drive_host
-    from feed_twin.nodeset.split import load_node_set_config
 
     nc, servo = machine_for_config(config)
     # Missed periods freeze LinuxCNC's feedback; a burst of them on a loaded host (a 0.2 s
@@ -108,7 +108,7 @@ def _twin_answers(host, velocity_m_s: np.ndarray) -> np.ndarray:
     """The scale positions latched at the start of each period, each period driven at its
     velocity command (CiA 402 cyclic synchronous velocity)."""
     from feed_twin.nodeset.drive_host import MEAS_RECORD
-    from feed_twin.nodeset.split import MODE_CSV, DriveSetpoint
+    from feed_twin.nodeset.wire import MODE_CSV, DriveSetpoint
 
     scale = host.engine.record_names.index(MEAS_RECORD[sig.MEAS_X_SCALE_M])
     x = np.empty(len(velocity_m_s))

@@ -10,8 +10,8 @@ otherwise a one-line ConfigError naming the machine file and the axis.
 
 from __future__ import annotations
 
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode.config import NcConfig
-from feed_twin.io.config import ConfigError
 from feed_twin.linuxcnc.machine import JOINT_AXES, HalServo, servo_for_axis
 from feed_twin.machine.config import MachineConfig
 

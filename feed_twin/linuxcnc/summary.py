@@ -19,6 +19,7 @@ import numpy as np
 from feed_twin.gcode.config import NcConfig
 from feed_twin.io.bag import BagReader
 from feed_twin.linuxcnc.machine import HalServo
+from feed_twin.nodeset.roles import node_role
 
 
 def sides_disagree(program: Path, config: Path) -> str | None:
@@ -91,7 +92,7 @@ class LinuxcncFigures:
 def linuxcnc_figures(bag: Path, *, twin_namespace: str, report: dict) -> LinuxcncFigures:
     """The figures from the bag and the bridge's report (module docstring)."""
     reader = BagReader(bag)
-    residual = f"{twin_namespace}/residual"
+    residual = node_role("twin").topic(twin_namespace, "residual")
     present = {t.name for t in reader.info.topics if t.message_count > 0}
     twin_fe = math.nan
     if residual in present:

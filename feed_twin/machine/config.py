@@ -26,9 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+from feed_twin.core.config import ConfigError, from_mapping, load_yaml
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.gcode.config import NcConfig, nc_config_from_mapping
-from feed_twin.io.config import ConfigError, from_mapping, load_yaml
 from feed_twin.sim.config import AxisConfig, load_axis_config
 
 MACHINE_SECTIONS = ("machine", "nc", "axes", "ros")

@@ -37,9 +37,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.core.config import ConfigError, load_yaml
 from feed_twin.machine.config import MachineConfig, axis_sections
 from feed_twin.machine.contour import ContourError, contour_error
+from feed_twin.nodeset.topics import AxisTopics
 
 NODE_ROS_NAME_KEYS = ("axis",)  # the machine's axes name their nodes' namespaces themselves
 RECORDER_PROCESS = "recorder"  # hosts the recorder and the G-code node
@@ -320,10 +321,12 @@ def read_machine_bag(bag: Path, machine: MachineConfig, segments) -> MachineReco
     from feed_twin.io.bag import BagReader
 
     reader = BagReader(bag)
-    root = f"/{machine.name}"
     nc = machine.nc
     states = {
-        a: reader.columns(f"{root}/{a.lower()}/state", ["header.stamp", "table_position"])
+        a: reader.columns(
+            AxisTopics(machine=machine.name, axis=a.lower()).state,
+            ["header.stamp", "table_position"],
+        )
         for a in machine.axes
     }
     n = min(len(s["header.stamp"]) for s in states.values())
@@ -336,7 +339,7 @@ def read_machine_bag(bag: Path, machine: MachineConfig, segments) -> MachineReco
     line = np.zeros(n, dtype=np.int64)
     fields = ["header.stamp", "position", "velocity", "line"]
     for i, a in enumerate(nc.axis_names):
-        c = reader.columns(f"{root}/{a.lower()}/command", fields)
+        c = reader.columns(AxisTopics(machine=machine.name, axis=a.lower()).command, fields)
         command[:, i] = _held(c["header.stamp"], c["position"], t)
         command_vel[:, i] = _held(c["header.stamp"], c["velocity"], t)
         if n and len(c["header.stamp"]) and t[-1] > c["header.stamp"][-1]:

@@ -32,13 +32,15 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.core.config import ConfigError
 from feed_twin.io import msg_types
 from feed_twin.io.bag import BagWriter
 from feed_twin.io.cdr import FlatCodec
-from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig, load_machine_config
 from feed_twin.machine.simulate import MachineRun, simulate_machine
-from feed_twin.nodeset.split import NS_PER_S, StateSignals
+from feed_twin.nodeset.config import StateSignals
+from feed_twin.nodeset.topics import AxisTopics
+from feed_twin.nodeset.wire import NS_PER_S
 
 NODE_SET_OPTIONS = ("realtime", "single_process", "live", "no_gcode")
 
@@ -88,7 +90,7 @@ def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Pa
     root = f"/{machine.name}"
     with BagWriter(path) as bag:
         for i, axis in enumerate(run.axes):
-            topic = f"{root}/{axis.lower()}/command"
+            topic = AxisTopics(machine=machine.name, axis=axis.lower()).command
             bag.add_topic(topic, msg_types.AXIS_COMMAND)
             for k, t_ns in enumerate(stamps):
                 values = {
@@ -103,7 +105,7 @@ def write_machine_bag(run: MachineRun, machine: MachineConfig, path: Path) -> Pa
                 }
                 bag.write(topic, command.encode_map(values), log_time_ns=int(t_ns))
         for axis in run.simulated:
-            topic = f"{root}/{axis.lower()}/state"
+            topic = AxisTopics(machine=machine.name, axis=axis.lower()).state
             bag.add_topic(topic, msg_types.AXIS_STATE)
             fields = _state_fields(
                 run.signals[axis], run.command[:, run.axes.index(axis)], run.state_signals[axis]

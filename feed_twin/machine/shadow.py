@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from feed_twin.analysis.twin import ModelDoc, Twin
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode.planner import plan_program
-from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.shadow.config import ShadowConfig, load_shadow_config
 from feed_twin.shadow.health import LEVEL_NAMES, OK, Verdict

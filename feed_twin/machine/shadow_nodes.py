@@ -30,20 +30,20 @@ from typing import Any
 
 import numpy as np
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import PEER_TIMEOUT_S, axis_documents, process_name, write_documents
 from feed_twin.machine.shadow import axis_figures, axis_shadow_config
+from feed_twin.nodeset.roles import node_role
 
 RECORDER_PROCESS = "recorder"  # hosts the recorder (and the G-code node beside stand-ins)
 LINUXCNC_PROCESS = "linuxcnc"
+# role in the plan -> its node module: the registry's, with the machine's LinuxCNC bridge
 MODULES = {
-    "recorder": "feed_twin.ros.recorder_node",
-    "gcode": "feed_twin.ros.gcode_node",
-    "standin": "feed_twin.ros.standin_node",
-    "twin": "feed_twin.ros.twin_node",
-    "linuxcnc": "feed_twin.ros.machine_linuxcnc_node",
+    **{name: node_role(name).module for name in ("recorder", "gcode", "standin", "twin")},
+    "linuxcnc": node_role("machine_linuxcnc").module,
 }
+TWIN = node_role("twin")
 
 
 def shadow_documents(machine: MachineConfig) -> dict[str, dict[str, Any]]:
@@ -189,12 +189,13 @@ def read_shadow_bag(
     out = {}
     for axis in axes:
         twin = f"/{machine}/{axis.lower()}/twin"
-        if f"{twin}/residual" not in present:
-            raise ValueError(f"axis {axis}: the bag has no {twin}/residual: nothing was shadowed")
-        r = reader.columns(f"{twin}/residual", RESIDUAL_FIELDS)
+        residual, health = TWIN.topic(twin, "residual"), TWIN.topic(twin, "health")
+        if residual not in present:
+            raise ValueError(f"axis {axis}: the bag has no {residual}: nothing was shadowed")
+        r = reader.columns(residual, RESIDUAL_FIELDS)
         h = {"header.stamp": np.zeros(0), "level": np.zeros(0), "effect": [], "message": []}
-        if f"{twin}/health" in present:
-            h = reader.columns(f"{twin}/health", ("header.stamp", "level", "effect", "message"))
+        if health in present:
+            h = reader.columns(health, ("header.stamp", "level", "effect", "message"))
         figures = axis_figures(
             fe_dev_m=r["following_error_deviation"],
             effort_dev=r["effort_deviation"],

@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode.geometry import programmed_path
-from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.contour import ContourError, contour_error
-from feed_twin.nodeset.split import StateSignals
+from feed_twin.nodeset.config import StateSignals
 from feed_twin.sim.config import build_engine
 from feed_twin.sim.program import TABLE_POSITION, ProgramRun, simulate_program
 

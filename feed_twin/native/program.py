@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.core.config import load_yaml
 from feed_twin.gcode.config import nc_config_from_mapping
 from feed_twin.gcode.planner import plan_program
-from feed_twin.io.config import load_yaml
 from feed_twin.sim.program import nc_reference
 
 DEFAULT_NC = Path(__file__).resolve().parents[2] / "config" / "axis_default.yaml"

@@ -30,18 +30,17 @@ import numpy as np
 from feed_twin.control.layout import disable, enable
 from feed_twin.control.transforms import clarke, modulate, park
 from feed_twin.core import signals as sig
-from feed_twin.io.config import ConfigError
-from feed_twin.nodeset.split import (
+from feed_twin.core.config import ConfigError
+from feed_twin.nodeset.config import NodeSetConfig, StateSignals
+from feed_twin.nodeset.controller_core import ControllerCore
+from feed_twin.nodeset.nc_buffer import NcBuffer
+from feed_twin.nodeset.wire import (
     BOUNDARY_MODES,
     MODE_CST,
     MODE_VOLTAGE,
     NS_PER_S,
-    ControllerCore,
     DriveSetpoint,
-    NcBuffer,
     NcSample,
-    NodeSetConfig,
-    StateSignals,
     drive_reference,
 )
 

@@ -25,6 +25,8 @@ import operator
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from feed_twin.nodeset.roles import node_role, roles_where
+
 RUN_TOKEN_ENV = "FEED_TWIN_RUN_TOKEN"
 OPEN_NC_ENV = "FEED_TWIN_OPEN_NC"  # "1": AxisCommand comes from outside (an external NC)
 MAX_TOKEN_CHARS = 64
@@ -104,7 +106,10 @@ def parse_program_state(text: str, token: str = "") -> tuple[str, int | None, st
     return word, None, text
 
 
-MACHINE_WIDE_NODES = frozenset(("gcode",))  # nodes that serve every axis of a machine
+# nodes of the run that serve every axis of a machine (feed_twin.nodeset.roles)
+MACHINE_WIDE_NODES = frozenset(
+    node_role(name).node_name for name in roles_where(machine_wide=True, own_node=True)
+)
 
 
 @dataclass(frozen=True, kw_only=True)

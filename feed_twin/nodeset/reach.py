@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass
 from typing import TypeVar
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.plant.ball_screw import BallScrew
 from feed_twin.plant.component import Component
 from feed_twin.plant.dc_bus import DcBus

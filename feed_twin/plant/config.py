@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from feed_twin.io.config import ConfigError, from_mapping
+from feed_twin.core.config import ConfigError, from_mapping
 from feed_twin.plant.assembly import AssemblyError, PlantModel
 from feed_twin.plant.component import Component, check_name
 from feed_twin.plant.plausible import check_plausible

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.plant.component import Component
 
 # (component type, field) -> (low, high) of |value| in SI units; 0 always passes (effects off).

@@ -3,7 +3,7 @@
 Subscribes `command` (AxisCommand, from the G-code node or a real NC) and `feedback` (AxisFeedback,
 from the sim node or a real drive); for every feedback sample at time t it waits until the NC
 setpoint for t is known (a setpoint stamped >= t has arrived, or the program has finished, after
-which the last setpoint is held at standstill), runs `split.ControllerCore` and publishes
+which the last setpoint is held at standstill), runs `controller_core.ControllerCore` and publishes
 `drive_command` stamped t, up to the run's end (`settle_s` after the program's finish,
 feed_twin.nodeset.run_end): past it, feedback gets no answer. All control maths is in
 feed_twin.control; this file only converts messages. With `ros.record_batch` N > 0 the recorder's
@@ -31,22 +31,17 @@ from std_msgs.msg import String
 
 from feed_twin.control.config import ControllerConfig, load_controller_config
 from feed_twin.core import signals as sig
+from feed_twin.core.config import ConfigError, load_yaml
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
-from feed_twin.io.config import ConfigError, load_yaml
+from feed_twin.nodeset.config import Boundary, NodeLoopGains
+from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
+from feed_twin.nodeset.nc_buffer import NcBuffer
 from feed_twin.nodeset.record_batch import messages_of
 from feed_twin.nodeset.run_end import RunEnd
-from feed_twin.nodeset.split import (
-    NS_PER_S,
-    Boundary,
-    ControllerCore,
-    DriveSetpoint,
-    NcBuffer,
-    NcSample,
-    NodeLoopGains,
-)
 from feed_twin.nodeset.topics import CONTROLLER_NODE
+from feed_twin.nodeset.wire import NS_PER_S, DriveSetpoint, NcSample
 from feed_twin.ros.batched import RecordSender
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
 from feed_twin.ros.guarded import InputGuard

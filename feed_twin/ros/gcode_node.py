@@ -59,8 +59,8 @@ from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.nodeset.guard import run_token, sign_state
 from feed_twin.nodeset.record_batch import RecordBatch
-from feed_twin.nodeset.split import NS_PER_S
 from feed_twin.nodeset.topics import GCODE_NODE, AxisTopics
+from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, node_main
 

@@ -14,10 +14,11 @@ import time
 from feed_twin_msgs.msg import HealthStatus
 
 from feed_twin.nodeset.guard import OPEN_NC_ENV, CommandGuard, Endpoint, run_token
+from feed_twin.nodeset.roles import node_role, roles_where
 from feed_twin.ros.dds import LATCHED_QOS
 
 # Node names of a run: the roles, the recorder's data node and each role's liveness node.
-RUN_ROLES = ("gcode", "controller", "sim", "recorder", "standin", "twin")
+RUN_ROLES = tuple(node_role(name).node_name for name in roles_where(own_node=True))
 OWN_NODES = frozenset((*RUN_ROLES, "recorder_data", *(f"{role}_liveness" for role in RUN_ROLES)))
 GRAPH_PERIOD_S = 1.0
 # A refused message means someone is sending: the graph is read then too, at most this often,

@@ -22,20 +22,15 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-NODE_MODULES = {
-    "recorder": "feed_twin.ros.recorder_node",
-    "controller": "feed_twin.ros.controller_node",
-    "sim": "feed_twin.ros.sim_node",
-    "gcode": "feed_twin.ros.gcode_node",
-    "twin": "feed_twin.ros.twin_node",
-    "standin": "feed_twin.ros.standin_node",
-    "linuxcnc": "feed_twin.ros.linuxcnc_node",
-}
+from feed_twin.nodeset.roles import ROLES, roles_where
+
+# role -> its node module (feed_twin.nodeset.roles)
+NODE_MODULES = {name: entry.module for name, entry in ROLES.items()}
 AND = "--and"  # separates the nodes on the command line
-HOSTABLE = ("recorder", "controller", "sim", "gcode")  # built by node_main's configure/build
+HOSTABLE = roles_where(hostable=True)  # built by node_main's configure/build
 # Roles a process may host several times, each in another axis's namespace: a machine's one
 # controller process holds every axis's controller node (feed_twin/machine/nodes.py).
-REPEATABLE = ("controller",)
+REPEATABLE = roles_where(repeatable=True)
 
 
 def host_argv(nodes: Sequence[tuple[str, Sequence[str]]]) -> list[str]:
@@ -77,7 +72,7 @@ def stops_at_first_failure(roles: Sequence[str]) -> bool:
 
 def build_nodes(nodes: Sequence[tuple[str, Sequence[str]]], context) -> list:
     """Build each node with its module's own argument parser and `build`, in `context`."""
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.nodeset.config import load_node_set_config
     from feed_twin.ros.runtime import node_options, node_parser
 
     built = []

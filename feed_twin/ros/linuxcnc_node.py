@@ -43,6 +43,7 @@ from feed_twin.linuxcnc.bridge import BridgeBatch, ServoBridge
 from feed_twin.linuxcnc.host import LinuxcncError
 from feed_twin.linuxcnc.machine import machine_for_config
 from feed_twin.linuxcnc.runner import LinuxcncRun, RunOptions
+from feed_twin.nodeset.roles import node_role
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import encode_joint_state
@@ -79,7 +80,7 @@ class LinuxcncNode(FeedTwinNode):
         self._run_pubs = [self.create_publisher(String, self.topics.run_state, LATCHED_QOS)]
         self.create_subscription(
             TwinResidual,
-            f"{twin_namespace(self.topics.command)}/residual",
+            node_role("twin").topic(twin_namespace(self.topics.command), "residual"),
             self._on_twin_output,
             DATA_QOS,
             raw=True,
@@ -282,7 +283,7 @@ def run_starter(args: argparse.Namespace, nc, servo) -> Callable[[], LinuxcncRun
 
 
 def build(args: argparse.Namespace, context) -> LinuxcncNode:
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.nodeset.config import load_node_set_config
 
     ros = load_node_set_config(args.config)
     nc, servo = machine_for_config(args.config)

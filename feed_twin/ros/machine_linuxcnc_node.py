@@ -27,6 +27,7 @@ from std_msgs.msg import String
 
 from feed_twin.linuxcnc.bridge import BridgeBatch
 from feed_twin.linuxcnc.runner import LinuxcncRun
+from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.linuxcnc_node import COMMAND, LinuxcncNode, _servo_sample, run_starter
@@ -71,7 +72,7 @@ class MachineLinuxcncNode(LinuxcncNode):
             self._run_pubs.append(self.create_publisher(String, topics.run_state, LATCHED_QOS))
             self.create_subscription(
                 TwinResidual,
-                f"{twin_namespace(topics.command)}/residual",
+                node_role("twin").topic(twin_namespace(topics.command), "residual"),
                 functools.partial(self._on_axis_output, axis),
                 DATA_QOS,
                 raw=True,
@@ -125,7 +126,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def build(args: argparse.Namespace, context) -> MachineLinuxcncNode:
     from feed_twin.linuxcnc.machine_shadow import linuxcnc_machine, machine_joints
     from feed_twin.machine.config import load_machine_config
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.nodeset.config import load_node_set_config
 
     ros = load_node_set_config(args.config)
     machine = load_machine_config(args.machine_config).select(args.axes.split(","))

@@ -28,8 +28,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from feed_twin.core.config import ConfigError
 from feed_twin.io import msg_types
-from feed_twin.io.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import (
     RECORDER_PROCESS,
@@ -38,6 +38,7 @@ from feed_twin.machine.nodes import (
     node_plan,
     read_machine_bag,
 )
+from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, host_argv
 from feed_twin.ros.launch import Launched, launch, log_record
@@ -208,7 +209,7 @@ def _finish(bag: Path, machine: MachineConfig, program: Path) -> tuple[dict | No
         record = read_machine_bag(bag, machine, programmed_path(program, machine.nc))
     except (BagError, ValueError) as exc:
         return None, str(exc)
-    first = f"/{machine.name}/{machine.simulated[0].lower()}/state"
+    first = AxisTopics(machine=machine.name, axis=machine.simulated[0].lower()).state
     logged = BagReader(bag).columns(first, [])["log_time_s"][: len(record.t_s)]
     stamps = np.round(logged * 1e9).astype(np.int64)
     scalar = FlatCodec(msg_types.FLOAT64)

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.shadow_nodes import MODULES, ShadowPlan, shadow_plan
 from feed_twin.ros import preflight

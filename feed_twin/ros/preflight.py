@@ -19,7 +19,7 @@ import os
 import shutil
 from pathlib import Path
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 
 # Bytes per exchange in the bag: AxisCommand, DriveCommand, AxisFeedback and AxisState with
 # their MCAP records, zstd-compressed: sample.ngc at 1 kHz made 2.49 MB in 7331 exchanges
@@ -36,8 +36,9 @@ def check_run_config(config: Path, *, shadow: bool):
 
     Returns (ros, nc): the node-set config and the NC config."""
     from feed_twin.gcode import load_nc_config
+    from feed_twin.nodeset.config import load_node_set_config
+    from feed_twin.nodeset.controller_core import ControllerCore
     from feed_twin.nodeset.reach import check_reachable
-    from feed_twin.nodeset.split import ControllerCore, load_node_set_config
     from feed_twin.sim.config import load_axis_config
 
     ros = load_node_set_config(config)

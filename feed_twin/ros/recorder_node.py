@@ -53,6 +53,7 @@ from feed_twin.io import msg_types
 from feed_twin.io.bag import BagError, BagWriter, QosProfile
 from feed_twin.nodeset.guard import run_token
 from feed_twin.nodeset.record_batch import unpack
+from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.summary import LiveFeed
 from feed_twin.nodeset.topics import CONTROLLER_NODE, RECORDER_NODE, SIM_NODE, AxisTopics
 from feed_twin.ros.batched import batch_qos
@@ -68,7 +69,9 @@ from feed_twin.ros.runtime import (
 )
 
 DRAIN_QUIET_S = 0.3
-TWIN_STATE_SUFFIX = "/twin/state"  # a shadow twin's output: the last topic of a run to end
+# a shadow twin's output (under <axis>/twin, feed_twin.shadow.replay.twin_namespace): the last
+# topic of a run to end
+TWIN_STATE_SUFFIX = node_role("twin").topic("/twin", "state")
 DRAIN_MAX_S = 30.0  # a recorder starved of CPU may lag seconds behind the graph
 SCAN_PERIOD_S = 0.2
 DRAIN_PERIOD_S = 0.005  # [s] between two drains of the data subscriptions
@@ -162,13 +165,7 @@ class RecorderNode(FeedTwinNode):
         if twin_namespace is not None:
             # a shadow run: the twin's output is known in advance, so it is recorded from its
             # first message instead of from whenever the graph scan finds it (late under load)
-            known.update(
-                {
-                    f"{twin_namespace}/state": msg_types.AXIS_STATE,
-                    f"{twin_namespace}/residual": msg_types.TWIN_RESIDUAL,
-                    f"{twin_namespace}/health": msg_types.HEALTH_STATUS,
-                }
-            )
+            known.update(node_role("twin").topic_types(twin_namespace))
         for prefix, topics in options.axis_topics().items():
             for role in (SIM_NODE, CONTROLLER_NODE):
                 # only a sim or controller node packs: the topics of other producers (a

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.nodeset.guard import RUN_TOKEN_ENV
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
@@ -454,34 +454,48 @@ def main(args: argparse.Namespace) -> int:
         reason = (log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}).get("fault") or reason
     if reason:
         print(f"feed-twin run: {reason}", file=sys.stderr)
-    if summary is not None:
-        print(summary.format())
-    elif problem:
+    if summary is None and problem:
         print(f"feed-twin run: {problem}", file=sys.stderr)
-    if timing:
-        keys = ("realtime_factor", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms")
-        shown = ", ".join(f"{k} {timing[k]:.3f}" for k in keys if isinstance(timing.get(k), float))
-        missed = timing.get("missed_steps")
-        print(f"timing: {shown}" + (f", missed steps {missed}" if missed is not None else ""))
     preflight.remove_incomplete_rrd(out.rrd)
-    bag, rrd = preflight.shown_output(out.bag), preflight.shown_output(out.rrd, rrd=True)
-    print(f"bag: {bag or '(none)'}\nrerun: {rrd or '(none)'}")
+    report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
+    print(report.format())
     if args.json:
-        record = {
-            "exit_code": code,
-            "interrupted": code == 130,
-            "bag_recovered_messages": out.recovered,
-            "reason": reason,
-            "bag": bag,
-            "rrd": rrd,
-            "logs": str(out.logs),
-            **(summary.as_dict() if summary is not None else {}),
-            **{f"timing_{k}": v for k, v in timing.items()},
-        }
         from feed_twin.nodeset.summary import json_line
 
-        print(json_line(record))
+        print(json_line(report.as_dict()))
     return code
+
+
+def _mode(args: argparse.Namespace) -> str:
+    if args.shadow:
+        return "axis LinuxCNC shadow" if args.nc == "linuxcnc" else "axis shadow"
+    return "axis nodes, one process" if args.single_process else "axis nodes"
+
+
+def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, summary, timing):
+    """The run's end as `RunReport`: outputs, domain, timing and the mode's figures."""
+    from feed_twin.nodeset.run_report import RunReport, RunTiming
+
+    run_timing = RunTiming.from_report(timing)
+    figures = summary.as_dict() if summary is not None else {}
+    samples = run_timing.steps if run_timing.steps is not None else figures.get("samples")
+    domain = os.environ.get("ROS_DOMAIN_ID", "")
+    column_map = out.map if args.shadow and out.map.exists() else None
+    return RunReport(
+        mode=_mode(args),
+        exit_code=code,
+        reason=reason,
+        bag=preflight.shown_output(out.bag),
+        rrd=preflight.shown_output(out.rrd, rrd=True),
+        column_map=str(column_map) if column_map is not None else None,
+        logs=str(out.logs),
+        ros_domain=int(domain) if domain.isdigit() else None,
+        samples=samples,
+        bag_recovered_messages=out.recovered,
+        timing=run_timing,
+        figures=figures,
+        figure_lines=tuple(summary.format().splitlines()) if summary is not None else (),
+    )
 
 
 def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:
@@ -500,7 +514,7 @@ def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:
 
 def _is_machine_config(path: Path) -> bool:
     """A machine YAML (feed_twin.machine.config) rather than one axis's; unreadable: no."""
-    from feed_twin.io.config import load_yaml
+    from feed_twin.core.config import load_yaml
     from feed_twin.machine.config import is_machine_config
 
     try:

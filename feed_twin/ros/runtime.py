@@ -674,7 +674,7 @@ def node_main(
 ) -> int:
     """Parse, load the config, build the node with `build(args, ros, options, context)` and
     spin it (`start_node`)."""
-    from feed_twin.nodeset.split import load_node_set_config
+    from feed_twin.nodeset.config import load_node_set_config
 
     args = node_parser(prog, configure).parse_args(argv)
 

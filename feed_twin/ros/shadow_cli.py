@@ -23,6 +23,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from feed_twin.nodeset.roles import node_role
+
 NAMESPACE = "/cnc/x"
 
 
@@ -52,11 +54,11 @@ def run_shadow(args: argparse.Namespace) -> tuple[int, dict | None, str]:
     )
     viewer = None
     twin_cmd = [
-        sys.executable, "-m", "feed_twin.ros.twin_node", "--config", str(args.config),
+        sys.executable, "-m", node_role("twin").module, "--config", str(args.config),
         "--map", str(map_path), "--rrd", str(out / "shadow.rrd"), "--peers", "standin",
     ]  # fmt: skip
     standin_cmd = [
-        sys.executable, "-m", "feed_twin.ros.standin_node", "--config", str(args.config),
+        sys.executable, "-m", node_role("standin").module, "--config", str(args.config),
         "--duration", str(args.duration), "--friction-scale", str(args.friction_scale),
         "--peers", "twin",
     ]  # fmt: skip

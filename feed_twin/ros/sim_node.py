@@ -44,8 +44,8 @@ from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state
 from feed_twin.nodeset.pacing import pacing_report
 from feed_twin.nodeset.protection import DriveProtection, Trip, protection_for_config
 from feed_twin.nodeset.run_end import RunEnd
-from feed_twin.nodeset.split import NS_PER_S, DriveSetpoint
 from feed_twin.nodeset.topics import SIM_NODE
+from feed_twin.nodeset.wire import NS_PER_S, DriveSetpoint
 from feed_twin.ros.batched import RecordSender
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_scheduling
 from feed_twin.ros.guarded import InputGuard

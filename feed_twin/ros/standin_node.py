@@ -59,6 +59,7 @@ from std_msgs.msg import String
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
+from feed_twin.nodeset.roles import node_role
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import (
     EXIT_ERROR,
@@ -135,7 +136,7 @@ class StandInNode(FeedTwinNode):
             if not self.realtime:  # lockstep paces itself by the twin's output
                 self.create_subscription(
                     AxisState,
-                    f"{twin_namespace(self.topics.command)}/state",
+                    node_role("twin").topic(twin_namespace(self.topics.command), "state"),
                     self._on_twin_state,
                     DATA_QOS,
                     raw=True,
@@ -445,7 +446,7 @@ def build(args: argparse.Namespace, context) -> StandInNode:
     machine, axis, divider, program = args.machine, args.axis, 10, None
     if args.follow:
         from feed_twin.gcode import load_nc_config
-        from feed_twin.nodeset.split import load_node_set_config
+        from feed_twin.nodeset.config import load_node_set_config
 
         ros = load_node_set_config(args.config)
         nc = load_nc_config(args.config)

@@ -39,6 +39,7 @@ from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.measured import load_column_map
+from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import Topic
 from feed_twin.ros.dds import DATA_QOS
 from feed_twin.ros.runtime import EXIT_OK, PEER_TIMEOUT_S, FeedTwinNode, NodeOptions, start_node
@@ -103,11 +104,14 @@ class TwinNode(FeedTwinNode):
             (n for n in measured.fields.signal_names if n != "pos_meas_m"), None
         )
         self._is_current = shadow.twin.effort_unit == "A"
-        self._state_pub = self.create_publisher(AxisState, f"{out_namespace}/state", DATA_QOS)
+        out = node_role("twin").topic
+        self._state_pub = self.create_publisher(AxisState, out(out_namespace, "state"), DATA_QOS)
         self._residual_pub = self.create_publisher(
-            TwinResidual, f"{out_namespace}/residual", DATA_QOS
+            TwinResidual, out(out_namespace, "residual"), DATA_QOS
         )
-        self._health_pub = self.create_publisher(HealthStatus, f"{out_namespace}/health", DATA_QOS)
+        self._health_pub = self.create_publisher(
+            HealthStatus, out(out_namespace, "health"), DATA_QOS
+        )
         for source, callback in ((command, self._on_command), (measured, self._on_measured)):
             topic = source.topic
             self.create_subscription(

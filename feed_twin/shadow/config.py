@@ -40,8 +40,8 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Literal
 
+from feed_twin.core.config import ConfigError, from_mapping, load_yaml
 from feed_twin.core.validate import require_nonnegative, require_positive, require_range
-from feed_twin.io.config import ConfigError, from_mapping, load_yaml
 
 SECTION = "shadow"
 

@@ -32,9 +32,9 @@ import numpy as np
 
 from feed_twin.analysis.compare import Metrics, compute_metrics
 from feed_twin.analysis.twin import ModelDoc, Twin
-from feed_twin.io import msg_types
 from feed_twin.io.bag import QosProfile
 from feed_twin.io.measured import ColumnMap, MeasuredDataError
+from feed_twin.nodeset.roles import node_role
 from feed_twin.shadow.bagstreams import Stream, read_streams
 from feed_twin.shadow.config import ShadowConfig
 from feed_twin.shadow.health import LEVEL_NAMES, Verdict
@@ -152,9 +152,9 @@ def write_comparison_bag(bag: str | Path, result: ReplayResult, out: Path, axis:
 
     ns = twin_namespace(result.streams["command"].topic)
     topics = {
-        "state": (f"{ns}/state", msg_types.AXIS_STATE),
-        "residual": (f"{ns}/residual", msg_types.TWIN_RESIDUAL),
-        "health": (f"{ns}/health", msg_types.HEALTH_STATUS),
+        t.name: (node_role("twin").topic(ns, t.name), t.type_name)
+        for t in node_role("twin").topics
+        if t.direction == "publishes"
     }
     meas = result.streams["measured"]
     offset_ns = int(np.median(meas.log_time_ns - np.round(meas.stamp_s * NS).astype(np.int64)))

@@ -29,8 +29,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from feed_twin.analysis.cli import _map_for
     from feed_twin.analysis.twin import ModelDoc
+    from feed_twin.core.config import ConfigError
     from feed_twin.io.bag import BagError
-    from feed_twin.io.config import ConfigError
     from feed_twin.io.measured import MeasuredDataError, load_column_map
     from feed_twin.shadow.config import load_shadow_config
     from feed_twin.shadow.replay import (

@@ -20,6 +20,7 @@ from feed_twin.analysis.synthetic import PROGRAM, Unmodelled, command, truth_mod
 from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.io import msg_types
 from feed_twin.io.bag import QosProfile
+from feed_twin.nodeset.roles import node_role
 from feed_twin.shadow.config import StandInConfig
 from feed_twin.shadow.twin import _Rows
 from feed_twin.sim.program import nc_reference
@@ -168,7 +169,9 @@ def record_bag(
 
     path = Path(path)
     t, x, v, a = program_command(duration_s, period_s)
-    command_topic, joints_topic = f"{namespace}/command", f"{namespace}/joint_states"
+    standin_role = node_role("standin")
+    command_topic = standin_role.topic(namespace, "command")
+    joints_topic = standin_role.topic(namespace, "joint_states")
     codec = FlatCodec(msg_types.AXIS_COMMAND)
     pending = sorted(changes)
     chunk = max(1, round(0.1 / period_s))
@@ -228,12 +231,12 @@ def write_map(
     for a model `twin` (the stand-in's truth or the nominal twin: the same effort signal);
     `with_effort=False` for a machine that reports no effort (LinuxCNC's HAL servo)."""
     path = Path(path)
-    joints = f"{namespace}/joint_states"
+    joints = node_role("standin").topic(namespace, "joint_states")
     effort = twin.effort_name
     effort_line = EFFORT_LINE.format(effort=effort, joints=joints, unit=_UNIT_OF[effort])
     path.write_text(
         BAG_MAP.format(
-            command=f"{namespace}/command",
+            command=node_role("standin").topic(namespace, "command"),
             joints=joints,
             sensor=_feedback_sensor(twin.doc),
             effort_line=effort_line if with_effort else "",

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.io.bag import BagReader
+from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.summary import RunSummary
 from feed_twin.shadow.health import ERROR, WARN
 
@@ -84,7 +85,7 @@ def summarise_shadow(
     """The run and shadow figures of a recorded shadow run (module docstring)."""
     reader = BagReader(bag)
     present = {t.name for t in reader.info.topics if t.message_count > 0}
-    residual_topic = f"{twin_namespace}/residual"
+    residual_topic = node_role("twin").topic(twin_namespace, "residual")
     if residual_topic not in present:
         raise ValueError(f"the bag has no {residual_topic} messages: the twin shadowed nothing")
     r = reader.columns(residual_topic, RESIDUAL_FIELDS)
@@ -108,7 +109,7 @@ def summarise_shadow(
         sim_time_s=float(t[-1] - t[0]),
         samples=int(t.size),
     )
-    health_topic = f"{twin_namespace}/health"
+    health_topic = node_role("twin").topic(twin_namespace, "health")
     warnings, last = 0, ""
     if health_topic in present:
         h = reader.columns(health_topic, ("level", "message"))

@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from feed_twin.core.config import ConfigError, from_mapping, load_yaml
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.io.config import ConfigError, from_mapping, load_yaml
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.engine import Engine

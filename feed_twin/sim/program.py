@@ -33,10 +33,10 @@ from typing import Protocol
 import numpy as np
 
 from feed_twin.core import signals
+from feed_twin.core.config import ConfigError
 from feed_twin.gcode.config import NcConfig, nc_config_from_mapping
 from feed_twin.gcode.planner import plan_program
 from feed_twin.gcode.trajectory import SampledTrajectory
-from feed_twin.io.config import ConfigError
 from feed_twin.sim.config import AxisConfig, build_engine
 from feed_twin.sim.engine import Engine, SimResult
 

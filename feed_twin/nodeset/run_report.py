@@ -1,0 +1,174 @@
+"""What every `feed-twin run` reports at its end, the same fields in every mode (no rclpy).
+
+`RunReport` holds the run's outputs (bag, Rerun recording, the twin's column map, logs), the
+ROS domain other tools join to see it, its timing (speed, lateness against the wall clock in
+real-time mode), the samples it stepped, the foreign messages its guards refused, and the
+mode's own figures. `format` writes it for a person: every value with its unit, a missing one
+in words ("not paced", "none"), never a raw `nan`, `None` or a 16-digit float. `as_dict` is the
+same object for `--json` (one strict JSON line through `json_line`): the keys of earlier
+versions stay (`bag`, `rrd`, `timing_lateness_p99_ms`, ...), a missing value is null.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+EXIT_INTERRUPTED = 130  # SIGINT's exit status: the figures cover the run until the stop
+_LABEL_WIDTH = 22
+
+
+def _finite(value: Any) -> float | None:
+    """A float of `value`, or None for a missing or non-finite one."""
+    if value is None or isinstance(value, bool):
+        return None
+    number = float(value)
+    return number if math.isfinite(number) else None
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunTiming:
+    """How fast the run stepped and, paced by the wall clock, how late (None: not measured)."""
+
+    steps: int | None = None  # exchanges stepped by the clock's node [-]
+    sim_time_s: float | None = None  # simulated time [s]
+    wall_time_s: float | None = None  # wall time of the stepping [s]
+    realtime_factor: float | None = None  # simulated / wall time [-]
+    lateness_p50_s: float | None = None  # real time only: start after due time, median [s]
+    lateness_p99_s: float | None = None  # [s]
+    lateness_max_s: float | None = None  # [s]
+    missed_steps: int | None = None  # real time only: steps started over a period late [-]
+
+    @classmethod
+    def from_report(cls, report: Mapping[str, Any]) -> RunTiming:
+        """From a node's TIMING record (feed_twin.nodeset.pacing.pacing_report, ms for lateness)."""
+
+        def ms(key: str) -> float | None:
+            value = _finite(report.get(key))
+            return None if value is None else value * 1e-3
+
+        steps, missed = report.get("steps"), report.get("missed_steps")
+        return cls(
+            steps=int(steps) if steps is not None else None,
+            sim_time_s=_finite(report.get("sim_time_s")),
+            wall_time_s=_finite(report.get("wall_time_s")),
+            realtime_factor=_finite(report.get("realtime_factor")),
+            lateness_p50_s=ms("lateness_p50_ms"),
+            lateness_p99_s=ms("lateness_p99_ms"),
+            lateness_max_s=ms("lateness_max_ms"),
+            missed_steps=int(missed) if missed is not None else None,
+        )
+
+    def as_dict(self) -> dict[str, float | int | None]:
+        """The `timing_*` keys of `--json` (lateness in ms, as the TIMING record has it)."""
+
+        def ms(value: float | None) -> float | None:
+            return None if value is None else value * 1e3
+
+        return {
+            "timing_steps": self.steps,
+            "timing_sim_time_s": self.sim_time_s,
+            "timing_wall_time_s": self.wall_time_s,
+            "timing_realtime_factor": self.realtime_factor,
+            "timing_lateness_p50_ms": ms(self.lateness_p50_s),
+            "timing_lateness_p99_ms": ms(self.lateness_p99_s),
+            "timing_lateness_max_ms": ms(self.lateness_max_s),
+            "timing_missed_steps": self.missed_steps,
+        }
+
+    def speed_text(self) -> str:
+        if self.sim_time_s is None or self.wall_time_s is None:
+            return "not measured"
+        factor = "" if self.realtime_factor is None else f"{self.realtime_factor:.3g}x real time, "
+        return f"{factor}{self.sim_time_s:.3f} s simulated in {self.wall_time_s:.3f} s wall time"
+
+    def lateness_text(self) -> str:
+        late = (self.lateness_p50_s, self.lateness_p99_s, self.lateness_max_s)
+        if self.missed_steps is None and all(v is None for v in late):
+            return "not paced by the wall clock (as fast as it runs)"
+        shown = ", ".join(
+            f"{name} {'not measured' if v is None else f'{v * 1e3:.3f} ms'}"
+            for name, v in zip(("p50", "p99", "max"), late, strict=True)
+        )
+        missed = "not counted" if self.missed_steps is None else str(self.missed_steps)
+        return f"{shown}; missed steps {missed}"
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunReport:
+    """The end of a run, whatever its mode; `figure_lines` are the mode's figures, formatted."""
+
+    mode: str  # e.g. "axis nodes", "axis shadow", "axis LinuxCNC shadow"
+    exit_code: int
+    reason: str = ""  # why the run ended early or failed ("" for a normal end)
+    bag: str | None = None  # the recording's directory (None: none was written)
+    rrd: str | None = None  # the Rerun recording
+    column_map: str | None = None  # the twin's column map of the recorded topics (shadow runs)
+    logs: str | None = None  # directory of the nodes' logs
+    ros_domain: int | None = None  # ROS_DOMAIN_ID of the run (None: the environment's default)
+    samples: int | None = None  # exchanges (node set) or command samples (shadow) [-]
+    bag_recovered_messages: int | None = None  # a killed recording was recovered with these
+    timing: RunTiming = field(default_factory=RunTiming)
+    figures: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    figure_lines: tuple[str, ...] = ()
+    # topic -> messages refused as foreign (no run token) or sent by a node of no run
+    foreign_messages: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+
+    def __post_init__(self) -> None:
+        if not self.mode:
+            raise ValueError("mode = '': must name the run's mode")
+        # frozen all the way down: the mappings cannot be changed through the report
+        object.__setattr__(self, "figures", MappingProxyType(dict(self.figures)))
+        object.__setattr__(self, "foreign_messages", MappingProxyType(dict(self.foreign_messages)))
+
+    @property
+    def interrupted(self) -> bool:
+        return self.exit_code == EXIT_INTERRUPTED
+
+    def format(self) -> str:
+        """The report for a person: the figures, then the run's lines, each with its unit."""
+        status = "ended normally" if self.exit_code == 0 else f"exit code {self.exit_code}"
+        if self.interrupted:
+            status = "interrupted: the figures cover the run until the stop"
+        foreign = ", ".join(f"{t}: {n}" for t, n in sorted(self.foreign_messages.items()))
+        domain = "the environment's" if self.ros_domain is None else str(self.ros_domain)
+        recovered = ""
+        if self.bag_recovered_messages is not None:
+            recovered = f" (incomplete: {self.bag_recovered_messages} messages recovered)"
+        rows = [
+            ("run", f"{self.mode}, {status}"),
+            ("timing", self.timing.speed_text()),
+            ("lateness", self.timing.lateness_text()),
+            ("samples", "not counted" if self.samples is None else str(self.samples)),
+            ("foreign messages", foreign or "none"),
+            ("ROS domain", domain),
+            ("bag", (self.bag or "none") + (recovered if self.bag else "")),
+            ("rerun", self.rrd or "none"),
+            ("column map", self.column_map or "none"),
+            ("logs", self.logs or "none"),
+        ]
+        lines = [*self.figure_lines, *(f"{k + ':':<{_LABEL_WIDTH}}{v}" for k, v in rows)]
+        return "\n".join(lines)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The same report for `--json`: the earlier keys, the figures flat, the new fields."""
+        base = {
+            "mode": self.mode,
+            "exit_code": self.exit_code,
+            "interrupted": self.interrupted,
+            "bag_recovered_messages": self.bag_recovered_messages,
+            "reason": self.reason,
+            "bag": self.bag,
+            "rrd": self.rrd,
+            "column_map": self.column_map,
+            "logs": self.logs,
+            "ros_domain": self.ros_domain,
+            "samples": self.samples,
+            "foreign_messages": dict(self.foreign_messages),
+        }
+        # a figure of the same name (the node set's `samples`) does not hide the report's
+        figures = {k: v for k, v in self.figures.items() if k not in base}
+        return {**base, **figures, **self.timing.as_dict()}

@@ -1,0 +1,98 @@
+"""The run report (feed_twin.nodeset.run_report): units, no raw values, the same object in JSON."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import pytest
+
+from feed_twin.nodeset.pacing import pacing_report
+from feed_twin.nodeset.run_report import RunReport, RunTiming
+from feed_twin.nodeset.summary import json_line
+
+# a raw value in text: nan, None, inf, a repr, or a float with more than 6 decimals
+RAW = re.compile(r"\b(nan|NaN|None|inf)\b|<\w|\d\.\d{7,}")
+
+
+def _paced() -> RunTiming:
+    late = [0.0001, 0.0002, 0.0004, 0.0031]  # [s]; one over the 1 ms period
+    return RunTiming.from_report(
+        pacing_report(steps=4, period_s=1e-3, wall_s=0.004, lateness_s=late)
+    )
+
+
+def test_timing_from_a_paced_record_is_si_and_counts_the_missed_step():
+    timing = _paced()
+    assert timing.steps == 4 and timing.missed_steps == 1
+    assert timing.sim_time_s == pytest.approx(0.004) and timing.realtime_factor == pytest.approx(
+        1.0
+    )
+    assert timing.lateness_max_s == pytest.approx(0.0031)
+    assert timing.lateness_p50_s == pytest.approx(0.0003)  # median of 0.2 and 0.4 ms
+    # back to the record's keys and units for --json
+    assert timing.as_dict()["timing_lateness_max_ms"] == pytest.approx(3.1)
+
+
+def test_a_record_without_samples_gives_none_never_nan():
+    timing = RunTiming.from_report(pacing_report(steps=0, period_s=1e-3, wall_s=0.0, lateness_s=[]))
+    assert timing.realtime_factor is None and timing.lateness_p99_s is None
+    assert timing.missed_steps == 0
+
+
+def test_every_mode_formats_the_same_fields_with_units_and_no_raw_values():
+    unpaced = RunTiming.from_report(pacing_report(steps=2000, period_s=1e-3, wall_s=0.25))
+    reports = [
+        RunReport(mode="axis nodes", exit_code=0, timing=unpaced, samples=2000, bag="bags/a"),
+        RunReport(
+            mode="axis shadow",
+            exit_code=3,
+            reason="node gone",
+            timing=_paced(),
+            figure_lines=("peak current:          1.00 A",),
+            foreign_messages={"/cnc/x/state": 12},
+            ros_domain=17,
+            bag_recovered_messages=40,
+            bag="bags/b",
+        ),
+        RunReport(mode="axis nodes", exit_code=130),
+    ]
+    labels = None
+    for report in reports:
+        text = report.format()
+        assert not RAW.search(text), text
+        found = [line.split(":")[0] for line in text.splitlines() if not line.startswith("peak")]
+        labels = labels or found
+        assert found == labels  # the same fields in every mode
+    assert "8x real time, 2.000 s simulated in 0.250 s wall time" in reports[0].format()
+    assert "not paced by the wall clock" in reports[0].format()
+    shadow = reports[1].format()
+    assert "p50 0.300 ms, p99 3.019 ms, max 3.100 ms; missed steps 1" in shadow
+    assert "/cnc/x/state: 12" in shadow and "ROS domain:           17" in shadow
+    assert "bags/b (incomplete: 40 messages recovered)" in shadow
+    assert "interrupted" in reports[2].format() and reports[2].interrupted
+
+
+def test_json_is_the_same_object_strict_and_keeps_the_earlier_keys():
+    report = RunReport(
+        mode="axis nodes",
+        exit_code=0,
+        timing=_paced(),
+        figures={"cycle_time_s": 1.5, "current_peak_A": math.nan},
+        foreign_messages={"/cnc/x/command": 3},
+    )
+    record = json.loads(json_line(report.as_dict()))
+    for key in ("exit_code", "interrupted", "bag", "rrd", "logs", "reason", "timing_steps"):
+        assert key in record
+    assert record["current_peak_A"] is None  # NaN is null in strict JSON
+    assert record["foreign_messages"] == {"/cnc/x/command": 3}
+    assert record["timing_missed_steps"] == 1 and record["mode"] == "axis nodes"
+
+
+def test_the_report_is_frozen_with_its_mappings():
+    report = RunReport(mode="axis nodes", exit_code=0, foreign_messages={"/a/b/state": 1})
+    with pytest.raises(TypeError):
+        report.foreign_messages["/a/b/state"] = 2  # type: ignore[index]
+    with pytest.raises(ValueError, match="mode = '': must name the run's mode"):
+        RunReport(mode="", exit_code=0)
