@@ -130,3 +130,20 @@ def test_validate_takes_a_segment():
     assert split_validate("run.csv:10:20.5") == ("run.csv", "10:20.5")
     assert split_validate("run.csv") == ("run.csv", None)
     assert split_validate("dir/a:b.csv") == ("dir/a:b.csv", None)
+
+
+def test_a_period_slower_than_a_second_is_refused_naming_it(tmp_path):
+    cols = _log()
+    cols["t"] = cols["t"] * 20.0  # 2 s between rows: ms declared as s?
+    time = "time: {column: t, unit: s}"
+    with pytest.raises(MeasuredDataError) as info:
+        load_measured(_csv(tmp_path, cols), _write(tmp_path, "m.yaml", MAP.format(time=time)))
+    message = str(info.value)
+    assert "gives a sample period of 2 s, slower than any record the twin can compare" in message
+    assert "\n" not in message
+
+
+def test_a_bag_cannot_take_its_time_from_a_row_rate(tmp_path):
+    cmap = _write(tmp_path, "m.yaml", MAP.format(time=INDEX))
+    with pytest.raises(MeasuredDataError, match=r"a bag's time is a topic field, not a row rate"):
+        load_measured(tmp_path, cmap)

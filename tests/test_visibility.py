@@ -77,3 +77,22 @@ def test_floors_raised_to_the_rounding_noise():
         "record: 10 Hz, position resolution 1 mm, following error of the nominal twin up to 40 um"
     )
     assert "cannot be seen in this record: backlash: below the resolution" in lines
+
+
+def test_force_constant_against_friction_and_weight_is_said():
+    from types import SimpleNamespace
+
+    from feed_twin.analysis.fit import SimOutputs
+    from feed_twin.analysis.visibility import force_constant_correlation
+
+    t = np.linspace(0.0, 10.0, 1001)
+    v = 0.1 * np.sin(2.0 * math.pi * t / 5.0)
+    run = SimpleNamespace(effort_name="force_cmd_N")
+    friction_only = 100.0 * np.tanh(v / 0.005) + 300.0 * v - 50.0
+    out = SimOutputs(x_m=t[None, :], effort=friction_only[None, :], ok=np.ones(1, bool))
+    line = force_constant_correlation(run, out, v)  # type: ignore[arg-type]
+    assert line is not None and "nearly one unknown" in line
+    inertia = friction_only + 2000.0 * np.gradient(v, t)
+    out = SimOutputs(x_m=t[None, :], effort=inertia[None, :], ok=np.ones(1, bool))
+    line = force_constant_correlation(run, out, v)  # type: ignore[arg-type]
+    assert line is not None and "the accelerations tell them apart" in line
