@@ -137,7 +137,7 @@ def main() -> None:
                         parts.append(f"{name}: MISSED")
                 print(
                     f"q {q * 1e3:g} mm, seed {seed}, {case['rows']} rows, "
-                    f"{case['diagnose_s']:.1f} s: "
+                    f"{case['diagnose_s']:.1f} s (CPU {case['diagnose_cpu_s']:.1f} s): "
                     + "; ".join(parts)
                     + (f"; also named {case['also_named']}" if case["also_named"] else ""),
                     flush=True,

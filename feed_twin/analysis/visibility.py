@@ -30,8 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from feed_twin.analysis.effects import CHANNEL_DELAY_PERIODS
 from feed_twin.analysis.fit import SimOutputs
-from feed_twin.analysis.twin import Twin
+from feed_twin.analysis.twin import SLOW_COMMAND_S, Twin
 from feed_twin.io.measured import MeasuredRun
 
 # quanta tried by `resolution`: 1, 2, 5 x 10^k m (or A) from 1e-12 to 0.5
@@ -39,7 +40,8 @@ _LADDER = tuple(m * 10.0**k for k in range(-12, 0) for m in (1.0, 2.0, 5.0))
 ON_GRID_FRACTION = 0.98  # a quantum holds when this share of the samples are its multiples
 ON_GRID_TOL = 1e-3  # [quanta] how close to a multiple counts as on it (float noise)
 STAIRCASE_FRACTION = 0.2  # a staircase: this share of the moving samples stand still
-SLOW_RECORD_S = 2e-3  # [s] a record sampled slower than this cannot resolve a delay search
+SLOW_RECORD_S = 2e-3  # [s] a record sampled slower than this cannot show a dead time
+DELAY_SAMPLES = 4.0  # a delay search shorter than 1/this of the sample period is not searched
 SILENT_FACTOR = 100.0  # a channel without evidence is weighted at this many resolution steps
 MIN_ACCEL_SAMPLES = 3  # accelerations must span this many samples for the mass to show
 ACCEL_NOISE_FACTOR = 3.0  # an acceleration counts above this many times q / h^2
@@ -205,14 +207,14 @@ def _length(x: float) -> str:
 
 def smooth_staircases(run: MeasuredRun) -> tuple[MeasuredRun, list[str]]:
     """The run with its rounded position channels smoothed (module docstring), and a note for
-    each: staircases through the midpoints of their steps, then, in a record slower than
-    SLOW_RECORD_S, the rounding's jitter at the Nyquist frequency (steps of 1 and 2 q
-    alternating at 1.5 q per sample) removed by the [1 2 1] / 4 filter, which keeps straight
-    moves and rests as they are. Fed as it is, that jitter made the twin's effort at the
-    samples swing by a hundred newtons."""
+    each, in a record slower than SLOW_COMMAND_S (whose command the twin interpolates by a
+    cubic): staircases through the midpoints of their steps, then the rounding's jitter at the
+    Nyquist frequency (steps of 1 and 2 q alternating at 1.5 q per sample) removed by the
+    [1 2 1] / 4 filter, which keeps straight moves and rests as they are. Fed as it is, that
+    jitter made the twin's effort at the samples swing by a hundred newtons."""
     notes = []
     changed = {}
-    slow = run.sample_period_s > SLOW_RECORD_S
+    slow = run.sample_period_s > SLOW_COMMAND_S
     for name in ("pos_cmd_m", "pos_meas_m"):
         if name not in run:
             continue
@@ -302,13 +304,14 @@ def _fast_effects(run: MeasuredRun, twin: Twin, speeds: np.ndarray, h: float) ->
     """Effects whose signature lives on a time scale shorter than the record's samples."""
     out: list[Unseen] = []
     base = twin.base_period_s
-    if h > SLOW_RECORD_S:
-        searched = 20 * base  # analysis.effects.CHANNEL_DELAY_PERIODS base periods
+    searched = CHANNEL_DELAY_PERIODS * base
+    if h > DELAY_SAMPLES * searched:
         why = (
-            f"a delay of a few milliseconds ({searched * 1e3:.2g} ms searched) is a small "
-            f"fraction of the record's {h * 1e3:.3g} ms sample period"
+            f"the delays searched (up to {searched * 1e3:.2g} ms) are under 1/{DELAY_SAMPLES:g} of "
+            f"the record's {h * 1e3:.3g} ms sample period"
         )
         out += [Unseen(name=e, reason=why) for e in DELAY_EFFECTS]
+    if h > SLOW_RECORD_S:
         out.append(
             Unseen(
                 name="dead_time",
