@@ -164,7 +164,7 @@ class Visibility:
         q = self.position_resolution_m
         rate = 1.0 / self.sample_period_s
         head = (
-            f"record: {rate:.3g} Hz, position resolution "
+            f"record: {rate:.4g} Hz, position resolution "
             + (f"{_length(q)}" if q > 0 else "finer than the numbers' precision")
             + f", following error of the nominal twin up to {_length(self.fe_expected_max_m)}"
         )
@@ -418,10 +418,14 @@ def force_constant_correlation(run: MeasuredRun, out0: SimOutputs, v: np.ndarray
 
 
 def with_floor(floors: dict[str, float], vis: Visibility) -> dict[str, float]:
-    """The channels' noise floors raised to their rounding noise (q / sqrt(12)); a position
+    """A slow record's noise floors raised to their rounding noise (q / sqrt(12)); a position
     channel without evidence to SILENT_FACTOR times its resolution (it must not steer a fit
     with the twin's microns against the record's rounding)."""
     out = dict(floors)
+    if vis.sample_period_s <= SLOW_COMMAND_S:
+        # a drive trace (1 kHz, 50 Hz): its encoder's step sits under its sample noise, and its
+        # weights stay as the workflow's figures were made with
+        return out
     q = vis.position_resolution_m
     if q > 0 and "position" in out:
         least = q / math.sqrt(12.0) if vis.position_evidence else SILENT_FACTOR * q
