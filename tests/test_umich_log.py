@@ -45,7 +45,13 @@ def test_what_the_log_can_show():
     vis = assess(run, twin, drive.pos_ref_m, out0, raw=raw)
     assert vis.position_resolution_m == pytest.approx(1e-3)
     assert not vis.position_evidence  # 10 mm/s at Kv 30/s: 0.3 mm, under 1 mm
-    for name in ("mass_error", "torque_constant_error", "backlash", "channel_delay"):
+    for name in (
+        "mass_error",
+        "torque_constant_error",
+        "backlash",
+        "channel_delay",
+        "position_delay",
+    ):
         assert name in vis.unseen_names
     assert "coulomb_friction" not in vis.unseen_names
     assert all("\n" not in line for line in vis.lines())
