@@ -257,7 +257,7 @@ MEASURED: dict[str, tuple[Callable[[list[str]], str], str]] = {
     ),
     "text_in_numbers": (
         lambda rows: rows[0] + "".join(rows[1:500]) + "abc,0.1,1,2,3\n" + "".join(rows[501:]),
-        "is empty or not a number at data row 500",
+        ":501: time column 't_s' is empty or not a number",
     ),
     "nan_values": (
         lambda rows: rows[0] + "".join(r.replace(r.split(",")[2], "nan", 1) for r in rows[1:]),
@@ -265,7 +265,7 @@ MEASURED: dict[str, tuple[Callable[[list[str]], str], str]] = {
     ),
     "time_backwards": (
         lambda rows: rows[0] + "".join(reversed(rows[1:])),
-        "time column 't_s' does not increase at data row 2",
+        ":3: time column 't_s' goes back from",
     ),
     "short_rows": (
         lambda rows: rows[0] + "".join(rows[1:100]) + "1.0,2.0\n" + "".join(rows[101:]),

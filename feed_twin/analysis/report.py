@@ -89,6 +89,8 @@ class Diagnosis:
     appraisal_lines: tuple[str, ...] = ()
     # the search's cost: parameter sets simulated (in batches) and seconds up to the appraisal
     search: dict[str, float] = field(default_factory=dict)
+    # what the record can show (analysis.visibility.Visibility.as_dict, plus the lines said)
+    visibility: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -113,6 +115,7 @@ class Diagnosis:
             "search": self.search,
             "notes": list(self.notes),
             "timings_s": self.timings_s,
+            "visibility": self.visibility,
         }
 
 
@@ -142,9 +145,11 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         "",
         f"**Verdict:** {d.verdict}",
         "",
-        "## Effects found (in the order found)",
-        "",
     ]
+    if d.visibility is not None:
+        lines += ["## What this record can show", ""]
+        lines += [f"- {s}" for s in d.visibility.get("said", [])] + [""]
+    lines += ["## Effects found (in the order found)", ""]
     if not d.effects:
         lines.append(d.verdict[:1].upper() + d.verdict[1:] + ".")
     for i, e in enumerate(d.effects, 1):

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from feed_twin.analysis import wording
 from feed_twin.analysis.channels import (
     channel_residuals,
     residuals,
@@ -167,9 +168,12 @@ class Context:
     # the candidates fitted and not kept since the model last changed (not ranked again until
     # it changes: they would fit the same way)
     tried: list[str] = field(default_factory=list)
+    # channels that carry no evidence in this record (analysis.visibility): not tested
+    silent: tuple[str, ...] = ()
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
-        return channel_residuals(self.run, out, start=self.start)
+        found = channel_residuals(self.run, out, start=self.start)
+        return {k: v for k, v in found.items() if k not in self.silent}
 
 
 def run_round(
@@ -243,8 +247,6 @@ def run_round(
         if verdict.significant:
             _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
             excluded.append(cand.name)
-            if result.message.endswith(AT_EDGE):  # a record slot's search said so
-                ctx.notes.append(f"{cand.name}: {result.message}")
             # the model changed: the rivals tried so far are ranked again on its residual (a
             # backlash tried beside the Coulomb force that hid it is found once that is in)
             ctx.tried.clear()
@@ -412,9 +414,8 @@ def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
         )
     )
     state.doc, state.twin, state.outputs, state.cost = doc, new_twin, result.outputs, result.cost
-    shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in explained_by.items())
     values = ", ".join(with_unit(k, v) for k, v in params.items())
-    ctx.progress(f"  added {cand.name}: {values}; it removed {shares} residual energy")
+    ctx.progress(f"  added {cand.name}: {values}; it {wording.shares(explained_by)}")
     if result.message.endswith(AT_EDGE):  # a record slot's search said so
         ctx.notes.append(f"{cand.name}: {result.message}")
 

@@ -40,10 +40,13 @@ from feed_twin.analysis.model_doc import (
 from feed_twin.analysis.recorder import deaveraged, delayed, start_velocity, window_mean
 from feed_twin.core import signals
 from feed_twin.core.config import ConfigError
-from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
+from feed_twin.io.measured import PERIOD_RTOL, MeasuredDataError, MeasuredRun, PlannedCommand
 
 START_SAMPLES = 8  # the first trace samples a start is read off (Twin._started)
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
+# [s] a record sampled slower than this (a monitoring log) has its command interpolated by a
+# smooth cubic between its samples (Twin._inputs); faster traces, linearly (kept as they were)
+SLOW_COMMAND_S = 0.02
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -225,10 +228,10 @@ class Twin:
         h = self.base_period_s
         period = float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
         dec = round(period / h)
-        if dec < 1 or abs(dec * h - period) > 1e-6 * period:
+        if dec < 1 or abs(dec * h - period) > PERIOD_RTOL * period:
             raise MeasuredDataError(
-                f"the record's sample period {period!r} s is not a whole multiple of the "
-                f"model's base period {h!r} s"
+                f"the record's sample period {period:.6g} s is not a whole multiple of the "
+                f"model's base period {h:.6g} s (within {PERIOD_RTOL:g} of it)"
             )
         n = len(drive.t_s) * dec
         hold = np.repeat  # known inputs are held between record samples
@@ -252,6 +255,8 @@ class Twin:
                 # each command sample is a mean over the trace's window: the smooth command
                 # whose window means they are (recorder.deaveraged)
                 set_nc_reference(ref, *deaveraged(drive.t_s, drive.pos_ref_m, fine, window_ticks))
+            elif period > SLOW_COMMAND_S:
+                set_nc_reference(ref, *_smooth_command(fine, drive.t_s, drive.pos_ref_m))
             else:
                 set_nc_reference(
                     ref,
@@ -539,6 +544,24 @@ class Twin:
         if lead is None:
             raise ConfigError(f"{self.doc.source}: controller.drive.lead_m is needed")
         return float(lead)
+
+
+def _smooth_command(
+    fine: np.ndarray, stamps: np.ndarray, pos_m: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(position, velocity, acceleration) of a slow record's command between its samples: a
+    shape-preserving cubic (PCHIP) through the positions and its derivatives. Linear pieces
+    100 ms long turn the velocity into steps at every sample, where the twin's effort is read:
+    the loop's answer to each step, not the machine's, would be compared."""
+    from scipy.interpolate import PchipInterpolator
+
+    inside = np.clip(fine, stamps[0], stamps[-1])  # held before the first and after the last
+    curve = PchipInterpolator(stamps, pos_m)
+    held = (fine < stamps[0]) | (fine > stamps[-1])
+    vel, acc = curve(inside, 1), curve(inside, 2)
+    vel[held] = 0.0
+    acc[held] = 0.0
+    return curve(inside), vel, acc
 
 
 def _pole_pairs(doc: ModelDoc) -> int | None:
