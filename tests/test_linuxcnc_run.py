@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -17,6 +18,7 @@ import pytest
 
 from feed_twin.linuxcnc.check import linuxcnc_rejects
 from feed_twin.linuxcnc.host import (
+    USER_ENV,
     LinuxcncError,
     check_installed,
     host_lock,
@@ -36,10 +38,31 @@ def _assert_clean() -> None:
     assert leftovers() == []
 
 
+def _listening_ports() -> set[int]:
+    """TCP ports in LISTEN state on any address (IPv4 and IPv6)."""
+    ports = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in Path(table).read_text().splitlines()[1:]:
+            local, state = line.split()[1], line.split()[3]
+            if state == "0A":
+                ports.add(int(local.rsplit(":", 1)[1], 16))
+    return ports
+
+
 def test_every_servo_period_of_a_program_in_si_units() -> None:
     said: list[str] = []
-    result = run_program(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO, say=said.append)
+    listening: list[set[int]] = []
+
+    def on_rows(rows: np.ndarray) -> None:
+        if not listening:
+            listening.append(_listening_ports())
+
+    result = run_program(
+        PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO, say=said.append, on_rows=on_rows
+    )
     _assert_clean()
+    # linuxcncsvr serves the NML channels to no other host (linuxcnc.nml's TCP=5005 is dropped)
+    assert 5005 not in listening[0]
     full = result.trace
     T = SERVO.servo_period_s
     assert full.samples_lost == 0
@@ -154,6 +177,76 @@ def test_linuxcnc_dying_mid_run_stops_within_a_second() -> None:
     # noticed within a poll or two; the rest is killed, not waited for
     assert run.fault_wall is not None and run.fault_wall - killed[0] < 1.0
     assert returned - killed[0] < 5.0
+    _assert_clean()
+
+
+def _pid_of(name: str) -> int:
+    return next(pid for pid, found in leftover_processes() if found == name)
+
+
+@pytest.mark.slow
+def test_a_dead_task_process_ends_the_run_within_a_second() -> None:
+    # SIGKILL of milltask leaves the servo thread running: idle periods would stream forever
+    killed: list[float] = []
+    run = LinuxcncRun(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO)
+    with pytest.raises(LinuxcncError) as caught, run:
+        while not run.ended:
+            rows = run.poll(0.01)
+            if rows.size and not killed and len(run.rows_so_far()) > 1000:
+                os.kill(_pid_of("milltask"), signal.SIGKILL)
+                killed.append(time.monotonic())
+    message = str(caught.value)
+    assert message.startswith(
+        "LinuxCNC died mid-run: its task process milltask is gone (last tick "
+    )
+    assert "\n" not in message
+    assert run.fault_wall is not None and run.fault_wall - killed[0] < 1.0
+    # nothing left: rtapi_app, io, linuxcncsvr, the NML segments and their semaphores
+    _assert_clean()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(os.geteuid() != 0, reason="runs LinuxCNC as a second user: root only")
+def test_a_run_as_another_user_works_after_a_killed_run_as_the_first(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the killed run above left its 0700 semaphores until remove_leftovers removed them too
+    other = "feedtwin-other"
+    if subprocess.run(["id", other], capture_output=True).returncode != 0:
+        subprocess.run(
+            ["useradd", "--system", "--create-home", "--home-dir", f"/var/lib/{other}",
+             "--shell", "/usr/sbin/nologin", other],
+            check=True, capture_output=True,
+        )  # fmt: skip
+    run = LinuxcncRun(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO)
+    with pytest.raises(LinuxcncError), run:
+        while len(run.rows_so_far()) < 500:
+            run.poll(0.01)
+        os.kill(_pid_of("io"), signal.SIGKILL)
+        while True:
+            run.poll(0.01)
+    _assert_clean()
+    monkeypatch.setenv(USER_ENV, other)
+    result = run_program(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO)
+    assert result.trace.samples_lost == 0
+    assert result.trace.samples > 4000  # the whole program: 4.1 s of feed and a rapid
+    _assert_clean()
+
+
+@pytest.mark.slow
+def test_linuxcnc_alive_but_silent_is_stopped_after_stall_s() -> None:
+    # SIGSTOP freezes the servo thread: every process lives, no period comes
+    stopped: list[float] = []
+    run = LinuxcncRun(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO)
+    with pytest.raises(LinuxcncError) as caught, run:
+        while not run.ended:
+            run.poll(0.01)
+            if not stopped and len(run.rows_so_far()) > 1000:
+                os.kill(_pid_of("rtapi_app"), signal.SIGSTOP)
+                stopped.append(time.monotonic())
+    message = str(caught.value)
+    assert message.startswith("LinuxCNC stopped mid-run: no servo period for 3.0 s (last tick ")
+    assert run.fault_wall is not None and 3.0 <= run.fault_wall - stopped[0] < 4.0
     _assert_clean()
 
 

@@ -47,6 +47,7 @@ from feed_twin.linuxcnc.host import (
     check_installed,
     host_lock,
     leftover_processes,
+    loopback_nml,
     process_owner,
     remove_leftovers,
     run_user,
@@ -58,7 +59,17 @@ EVENT_PREFIX = "feed_twin-display: "
 _DISPLAY_SOURCE = Path(__file__).with_name("_display.py")
 _PIPE_SIZE = 1 << 20  # the largest pipe an unprivileged process may ask for
 GRACEFUL_S = 3.0  # [s] LinuxCNC's own shutdown takes 0.3-0.9 s
-DEATH_CHECK_S = 0.05  # [s] without rows before the runner looks whether rtapi_app still lives
+WATCH_S = 0.1  # [s] between two looks at whether each of LinuxCNC's processes still lives
+DEFAULT_NML = Path("/usr/share/linuxcnc/linuxcnc.nml")
+# LinuxCNC's long-lived processes, each a reason to stop the run when it dies: the servo thread
+# stops with rtapi_app; without milltask, io or linuxcncsvr the servo thread goes on sending idle
+# periods while nothing plans, runs or answers any more
+WATCHED = {
+    "rtapi_app": "realtime",
+    "milltask": "task",
+    "io": "I/O controller",
+    "linuxcncsvr": "NML server",
+}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -136,7 +147,8 @@ class LinuxcncRun:
         self.ended = False
         self._dead = False  # LinuxCNC's servo thread or script died: no graceful shutdown
         self._closing = False  # shutting down: rows are only kept
-        self._rt: list[int] = []  # pids of rtapi_app (the servo thread's process)
+        self._watched: dict[int, str] = {}  # pid -> name of LinuxCNC's processes (WATCHED)
+        self._watch_wall = 0.0
         self.fault_wall: float | None = None
 
     def __enter__(self) -> LinuxcncRun:
@@ -192,7 +204,7 @@ class LinuxcncRun:
         )  # fmt: skip
         if not found:
             raise LinuxcncError(f"{ini.name}: no 'DISPLAY =' line in its [DISPLAY] section")
-        ini.write_text(text, encoding="utf-8")
+        ini.write_text(_without_network(text, workdir), encoding="utf-8")
         self.stop_file = Path(run["stop_file"])
         if user is not None:
             entry = pwd.getpwnam(user)
@@ -250,8 +262,12 @@ class LinuxcncRun:
             self._handle_events(timeout=0.01)
             if time.monotonic() > deadline:
                 self._fail(f"LinuxCNC did not start within {self.options.start_timeout_s} s")
-        # the servo thread's process, watched while rows do not come
-        self._rt = [pid for pid, name in leftover_processes() if name == "rtapi_app"]
+        # (under the host lock every LinuxCNC process on the host is this run's)
+        self._watched = {pid: name for pid, name in leftover_processes() if name in WATCHED}
+        missing = set(WATCHED) - set(self._watched.values())
+        if missing:
+            self._dead = True
+            self._fail(f"LinuxCNC started without its process(es) {', '.join(sorted(missing))}")
 
     def poll(self, timeout: float = 0.01) -> np.ndarray:
         """Rows (n, row_width) that arrived since the last call; empty once the run ended.
@@ -276,16 +292,11 @@ class LinuxcncRun:
                 )
         elif self.state.end is not None:
             self._check_alive()
-        else:
+        if now - self._watch_wall > WATCH_S and self.state.end is None:
+            self._watch_wall = now
+            self._watch_processes()
+        if not rows.size and self.state.end is None:
             silent = now - getattr(self, "_last_row_wall", now)
-            if silent > DEATH_CHECK_S and not all(
-                process_owner(pid) is not None for pid in self._rt
-            ):
-                self._dead = True
-                self._fail(
-                    f"LinuxCNC died mid-run: its realtime process rtapi_app is gone (last tick "
-                    f"{self._last_tick}, {self._where()})"
-                )
             if silent > self.options.stall_s:
                 self._check_alive()
                 self._dead = True
@@ -296,6 +307,16 @@ class LinuxcncRun:
         if not new:
             return np.empty((0, self.layout.row_width))
         return new[0] if len(new) == 1 else np.concatenate(new)
+
+    def _watch_processes(self) -> None:
+        gone = [name for pid, name in self._watched.items() if process_owner(pid) is None]
+        if gone:
+            self._dead = True
+            name = gone[0]
+            self._fail(
+                f"LinuxCNC died mid-run: its {WATCHED[name]} process {name} is gone (last tick "
+                f"{self._last_tick}, {self._where()})"
+            )
 
     def send_twin(self, periods: np.ndarray, positions_m: np.ndarray) -> None:
         """Feedback positions [m] of the twin joint for the servo periods `periods`, in order."""
@@ -435,6 +456,24 @@ class LinuxcncRun:
         while leftover_processes() and time.monotonic() < deadline:
             time.sleep(0.02)
         remove_leftovers(user)
+
+
+def _without_network(ini_text: str, workdir: Path) -> str:
+    """The INI with its [EMC] NML_FILE replaced by a copy without network servers (see
+    host.loopback_nml), so that linuxcncsvr listens on no port."""
+    emc = re.search(r"^\[EMC\][^\[]*", ini_text, flags=re.MULTILINE)
+    if emc is None:
+        raise LinuxcncError("machine.ini: no [EMC] section")
+    given = re.search(r"^NML_FILE\s*=\s*(\S+)\s*$", emc.group(0), flags=re.MULTILINE)
+    source = DEFAULT_NML if given is None else workdir / given.group(1)
+    if not source.is_file():
+        raise LinuxcncError(f"machine.ini: [EMC] NML_FILE {source}: no such file")
+    nml = loopback_nml(source, workdir / "feed_twin-local.nml")
+    section = emc.group(0)
+    if given is not None:
+        section = section.replace(given.group(0), "")
+    section = section.replace("[EMC]\n", f"[EMC]\nNML_FILE = {nml}\n", 1)
+    return ini_text[: emc.start()] + section + ini_text[emc.end() :]
 
 
 # LinuxCNC's own words for why it stopped, most specific first: a HAL or INI file line,
