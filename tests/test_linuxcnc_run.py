@@ -184,23 +184,30 @@ def _pid_of(name: str) -> int:
     return next(pid for pid, found in leftover_processes() if found == name)
 
 
-@pytest.mark.slow
-def test_a_dead_task_process_ends_the_run_within_a_second() -> None:
-    # SIGKILL of milltask leaves the servo thread running: idle periods would stream forever
-    killed: list[float] = []
+def _signal_mid_run(name: str, sig: signal.Signals) -> tuple[str, float]:
+    """Send `sig` to LinuxCNC's process `name` after 1000 periods; the run's one-line fault and
+    the seconds from the signal to the fault."""
+    sent: list[float] = []
     run = LinuxcncRun(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO)
     with pytest.raises(LinuxcncError) as caught, run:
         while not run.ended:
-            rows = run.poll(0.01)
-            if rows.size and not killed and len(run.rows_so_far()) > 1000:
-                os.kill(_pid_of("milltask"), signal.SIGKILL)
-                killed.append(time.monotonic())
-    message = str(caught.value)
+            run.poll(0.01)
+            if not sent and len(run.rows_so_far()) > 1000:
+                os.kill(_pid_of(name), sig)
+                sent.append(time.monotonic())
+    assert run.fault_wall is not None
+    return str(caught.value), run.fault_wall - sent[0]
+
+
+@pytest.mark.slow
+def test_a_dead_task_process_ends_the_run_within_a_second() -> None:
+    # SIGKILL of milltask leaves the servo thread running: idle periods would stream forever
+    message, noticed_s = _signal_mid_run("milltask", signal.SIGKILL)
     assert message.startswith(
         "LinuxCNC died mid-run: its task process milltask is gone (last tick "
     )
     assert "\n" not in message
-    assert run.fault_wall is not None and run.fault_wall - killed[0] < 1.0
+    assert noticed_s < 1.0
     # nothing left: rtapi_app, io, linuxcncsvr, the NML segments and their semaphores
     _assert_clean()
 
@@ -210,7 +217,7 @@ def test_a_dead_task_process_ends_the_run_within_a_second() -> None:
 def test_a_run_as_another_user_works_after_a_killed_run_as_the_first(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    # the killed run above left its 0700 semaphores until remove_leftovers removed them too
+    # a killed run leaves its NML semaphores (mode 0700): remove_leftovers removes them too
     other = "feedtwin-other"
     if subprocess.run(["id", other], capture_output=True).returncode != 0:
         subprocess.run(
@@ -218,13 +225,8 @@ def test_a_run_as_another_user_works_after_a_killed_run_as_the_first(
              "--shell", "/usr/sbin/nologin", other],
             check=True, capture_output=True,
         )  # fmt: skip
-    run = LinuxcncRun(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO)
-    with pytest.raises(LinuxcncError), run:
-        while len(run.rows_so_far()) < 500:
-            run.poll(0.01)
-        os.kill(_pid_of("io"), signal.SIGKILL)
-        while True:
-            run.poll(0.01)
+    message, _ = _signal_mid_run("io", signal.SIGKILL)
+    assert message.startswith("LinuxCNC died mid-run: its I/O controller process io is gone")
     _assert_clean()
     monkeypatch.setenv(USER_ENV, other)
     result = run_program(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO)
@@ -236,17 +238,9 @@ def test_a_run_as_another_user_works_after_a_killed_run_as_the_first(
 @pytest.mark.slow
 def test_linuxcnc_alive_but_silent_is_stopped_after_stall_s() -> None:
     # SIGSTOP freezes the servo thread: every process lives, no period comes
-    stopped: list[float] = []
-    run = LinuxcncRun(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO)
-    with pytest.raises(LinuxcncError) as caught, run:
-        while not run.ended:
-            run.poll(0.01)
-            if not stopped and len(run.rows_so_far()) > 1000:
-                os.kill(_pid_of("rtapi_app"), signal.SIGSTOP)
-                stopped.append(time.monotonic())
-    message = str(caught.value)
+    message, noticed_s = _signal_mid_run("rtapi_app", signal.SIGSTOP)
     assert message.startswith("LinuxCNC stopped mid-run: no servo period for 3.0 s (last tick ")
-    assert run.fault_wall is not None and 3.0 <= run.fault_wall - stopped[0] < 4.0
+    assert 3.0 <= noticed_s < 4.0
     _assert_clean()
 
 
