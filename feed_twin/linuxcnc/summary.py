@@ -5,13 +5,14 @@
 - The figures: LinuxCNC's program time and largest following error of the twin's joint (from
   the bridge's `LINUXCNC {json}` report), the twin's largest following error (its residuals in
   the bag), the samples received and lost, the bridge latency servo tick -> published and the
-  latency servo tick -> the twin's output back at the bridge.
+  latency servo tick -> the twin's output back at the bridge, and the servo thread's own
+  timing (start lateness histogram and late periods, next to the tick count).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ import numpy as np
 from feed_twin.gcode.config import NcConfig
 from feed_twin.io.bag import BagReader
 from feed_twin.linuxcnc.machine import HalServo
+from feed_twin.linuxcnc.period_timing import PeriodTiming
 from feed_twin.nodeset.roles import node_role
 
 
@@ -69,9 +71,13 @@ class LinuxcncFigures:
     twin_output_latency_p50_ms: float  # [ms] servo tick -> the twin's output back at the bridge
     twin_output_latency_p99_ms: float  # [ms]
     startup_s: float  # [s] LinuxCNC start-up to the machine homed
+    # the servo thread's start lateness and jitter (None from a bridge that did not report it)
+    servo_timing: PeriodTiming | None = None
 
-    def as_dict(self) -> dict[str, float | int]:
-        return asdict(self)
+    def as_dict(self) -> dict:
+        out = asdict(self)
+        out["servo_timing"] = None if self.servo_timing is None else self.servo_timing.as_dict()
+        return out
 
     def format(self) -> str:
         return "\n".join(
@@ -81,6 +87,7 @@ class LinuxcncFigures:
                 f" um, twin {self.twin_following_error_max_m * 1e6:.3f} um",
                 f"servo samples:         {self.samples_received} received, "
                 f"{self.samples_lost} lost",
+                *([self.servo_timing.format()] if self.servo_timing is not None else []),
                 f"bridge latency:        p50 {self.bridge_latency_p50_ms:.3f} ms, "
                 f"p99 {self.bridge_latency_p99_ms:.3f} ms (servo tick -> published)",
                 f"twin output latency:   p50 {self.twin_output_latency_p50_ms:.3f} ms, "
@@ -115,4 +122,15 @@ def linuxcnc_figures(bag: Path, *, twin_namespace: str, report: dict) -> Linuxcn
         twin_output_latency_p50_ms=number("twin_output_latency_p50_ms"),
         twin_output_latency_p99_ms=number("twin_output_latency_p99_ms"),
         startup_s=number("startup_s"),
+        servo_timing=servo_timing_from_report(report),
     )
+
+
+def servo_timing_from_report(report: dict) -> PeriodTiming | None:
+    """The bridge's `servo_*` figures (ServoBridge.report) as a PeriodTiming."""
+    names = [f.name for f in fields(PeriodTiming)]
+    if any(f"servo_{name}" not in report for name in names):
+        return None
+    values = {name: report[f"servo_{name}"] for name in names}
+    values["histogram"] = tuple(values["histogram"])
+    return PeriodTiming(**values)

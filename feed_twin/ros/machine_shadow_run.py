@@ -95,6 +95,11 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
             f"latency p99 {said['bridge_latency_p99_ms']} ms"
         )
+        from feed_twin.linuxcnc.summary import servo_timing_from_report
+
+        servo_timing = servo_timing_from_report(report)
+        if servo_timing is not None:
+            print(servo_timing.format())
     print(f"bag: {bag if bag.exists() else '(none)'}")
     if args.json:
         from feed_twin.nodeset.summary import json_line
