@@ -117,7 +117,8 @@ def test_every_servo_period_of_a_program_in_si_units() -> None:
     assert np.array(simulated) == pytest.approx(fb[start + 1 :], abs=1e-9)
     # a real following error: the drive lag makes it grow with the acceleration
     assert 1e-5 < np.abs(trace.f_error_m[:, 0]).max() < 1e-3
-    assert said == []  # nobody else held the host lock
+    # nobody else held the host lock (on a loaded host the reader may lag a second: said once)
+    assert [line for line in said if not line.startswith("the bridge is behind")] == [], said
 
 
 def test_a_program_linuxcnc_rejects_names_message_and_line() -> None:
@@ -244,24 +245,38 @@ def test_linuxcnc_alive_but_silent_is_stopped_after_stall_s() -> None:
     _assert_clean()
 
 
-def test_a_bridge_that_falls_behind_is_stopped() -> None:
+def test_a_bridge_that_falls_behind_is_said_once_and_the_run_goes_on() -> None:
     stalled: list[float] = []
-    failed_at: list[float] = []
+    said: list[str] = []
 
     def on_rows(rows: np.ndarray) -> None:
         if not stalled and rows[-1, 0] > 0:
             stalled.append(time.monotonic())
             time.sleep(1.5)  # a consumer that stops reading for longer than max_lag_s
 
-    t0 = time.monotonic()
+    result = run_program(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO, on_rows=on_rows,
+                         say=said.append, options=RunOptions(max_lag_s=1.0))  # fmt: skip
+    assert len(said) == 1
+    assert said[0].startswith("the bridge is behind LinuxCNC: servo tick ")
+    assert said[0].endswith("ms late (bound 1000 ms); the run goes on, every period is kept")
+    assert result.trace.samples_lost == 0
+    assert result.trace.program_time_s > 4.0  # the whole program
+    _assert_clean()
+
+
+@pytest.mark.slow
+def test_a_bridge_behind_by_more_than_the_fifo_holds_is_stopped() -> None:
+    def on_rows(rows: np.ndarray) -> None:
+        if rows[-1, 0] > 0:
+            time.sleep(1.5)  # never catches up
+
     with pytest.raises(LinuxcncError) as caught:
         run_program(PROGRAMS / "x_line.ngc", nc=NC, servo=SERVO, on_rows=on_rows,
-                    options=RunOptions(max_lag_s=1.0))  # fmt: skip
-    failed_at.append(time.monotonic())
+                    say=lambda text: None,
+                    options=RunOptions(max_lag_s=0.2, lag_limit_s=1.0))  # fmt: skip
     message = str(caught.value)
     assert message.startswith("the bridge fell behind: servo tick ")
-    assert message.endswith("ms late (limit 1000 ms)")
-    assert failed_at[0] - t0 < 20.0
+    assert message.endswith("s late (limit 1.0 s: LinuxCNC's sampler FIFO would overflow)")
     _assert_clean()
 
 

@@ -15,7 +15,8 @@ feed_twin.linuxcnc.bridge):
 Latency (feed_twin.linuxcnc.bridge): servo tick -> published, and servo tick -> the twin's
 `<ns>/twin/residual` for that period back at the bridge. At the
 program's end it announces `done: program finished` on run_state; a LinuxCNC fault (a program it
-rejects, LinuxCNC dying, the bridge falling behind) ends the run with `done: LinuxCNC fault` and
+rejects, LinuxCNC dying, the bridge falling so far behind that LinuxCNC's sampler FIFO would
+overflow) ends the run with `done: LinuxCNC fault` and
 the fault's one line as the node's exit message, so the twin and the recorder finish and the bag
 stays readable. Stderr: `PROGRESS <program time>` and at the end `LINUXCNC {json}` (counts,
 latency, LinuxCNC's program time and following error, start-up).
@@ -222,6 +223,7 @@ class LinuxcncNode(FeedTwinNode):
             sampler_overruns=int((run.state.end or {}).get("overruns", 0)),
             samples_lost_total=trace.samples_lost,
             stop_s=None if fault_at is None else time.monotonic() - fault_at,
+            reader_lag_max_s=run.lag_max_s,
         )
         reader = program.reader_latency_s * 1e3
         if reader.size:
@@ -264,7 +266,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, type=Path, help="axis config (nc:, ros:)")
     parser.add_argument("--program", required=True, type=Path, help="G-code program")
     parser.add_argument("--timeout", type=float, default=3600.0, help="[s] program run at most")
-    parser.add_argument("--max-lag", type=float, default=1.0, help="[s] bridge lag at most")
+    parser.add_argument("--max-lag", type=float, default=1.0,
+                        help="[s] bridge lag said once above it (the run goes on)")  # fmt: skip
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
