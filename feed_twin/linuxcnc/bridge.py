@@ -144,6 +144,10 @@ class ServoBridge:
             "samples_received": self.received,
             "samples_lost": self.lost,
             "samples_published": self.published,
+            # periods of the program, first motion to the last period received (gaps included)
+            "program_periods": 0
+            if self.k0 is None or self._last_tick is None
+            else self._last_tick - self.k0 + 1,
             **_percentiles("bridge_latency", publish),
             **_percentiles("twin_output_latency", twin),
             **{f"servo_{key}": value for key, value in timing.items()},

@@ -249,10 +249,25 @@ class LinuxcncNode(FeedTwinNode):
                 reader_latency_p99_ms=float(np.percentile(reader, 99)),
             )
 
+    def _expected(self, periods: int) -> dict[str, int]:
+        """Messages each topic of the run should hold in the bag: one per program period on
+        command and servo, one fewer on joint_states (row k's feedback is period k - 1's) and
+        on the twin's output, which shadows every measured sample."""
+        twin = twin_namespace(self.topics.command)
+        measured = max(0, periods - 1)
+        return {
+            self.topics.command: periods,
+            f"{self.topics.namespace}/linuxcnc/servo": periods,
+            self.topics.joint_states: measured,
+            node_role("twin").topic(twin, "residual"): measured,
+            node_role("twin").topic(twin, "state"): measured,
+        }
+
     def on_shutdown(self, reason: str) -> None:
         self._close_run()
         if self.bridge is not None:
             self.report.update(self.bridge.report())
+            self.report["expected"] = self._expected(int(self.report["program_periods"]))
         self.report["wall_s"] = time.monotonic() - self._t_start if self._t_start else None
         self.report["latency_bound_ms"] = self.latency_bound_s * 1e3
         self.report["latency_over_bound"] = self._latency_said
