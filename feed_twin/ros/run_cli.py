@@ -476,6 +476,8 @@ def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, s
     """The run's end as `RunReport`: outputs, domain, timing and the mode's figures."""
     from feed_twin.nodeset.run_report import RunReport, RunTiming
 
+    if args.nc == "linuxcnc" and not timing:
+        timing = _linuxcnc_timing(out)
     run_timing = RunTiming.from_report(timing)
     figures = summary.as_dict() if summary is not None else {}
     samples = run_timing.steps if run_timing.steps is not None else figures.get("samples")
@@ -496,6 +498,22 @@ def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, s
         figures=figures,
         figure_lines=tuple(summary.format().splitlines()) if summary is not None else (),
     )
+
+
+def _linuxcnc_timing(out: Outputs) -> dict:
+    """Beside LinuxCNC the run is paced by LinuxCNC's servo thread: its lateness is how late
+    the twin shadows it, servo tick -> the twin's output back at the bridge (LINUXCNC record)."""
+    report = log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}
+    if not report.get("twin_output_latency_count"):
+        return {}
+    return {
+        "steps": report.get("samples_published"),
+        "sim_time_s": report.get("program_time_s"),
+        "wall_time_s": report.get("wall_s"),
+        "lateness_p50_ms": report.get("twin_output_latency_p50_ms"),
+        "lateness_p99_ms": report.get("twin_output_latency_p99_ms"),
+        "lateness_max_ms": report.get("twin_output_latency_max_ms"),
+    }
 
 
 def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:
