@@ -26,7 +26,10 @@ Goals (issue #28): samples_lost 0 and bag counts equal on every topic; bridge la
 ms quiet and <= 200 ms loaded; no aborted run.
 
     .venv/bin/python benchmarks/linuxcnc_load.py [--minutes 10] [--repeats 5] [--loads 0,2]
-        [--latency-seconds 60] [--hal-seconds 60]
+        [--latency-seconds 60] [--hal-seconds 60] [--program PROGRAM]
+
+The README's LinuxCNC example at 2x-cores load: `--program tests/fixtures/linuxcnc/long_x.ngc
+--minutes 1 --loads 2 --latency-seconds 0 --hal-seconds 0`.
 
 Last line: one JSON object.
 """
@@ -177,15 +180,18 @@ def _summary(runs: list, bound_ms: float) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--minutes", type=float, default=10.0, help="program length [min]")
+    parser.add_argument("--program", type=Path, help="run this program instead (--minutes: "
+                        "its length, for the timeout)")  # fmt: skip
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--loads", default="0,2", help="busy processes per core, per series")
     parser.add_argument("--latency-seconds", type=float, default=60.0, help="0: skip")
     parser.add_argument("--hal-seconds", type=float, default=60.0, help="0: skip")
     args = parser.parse_args()
     out = Path(tempfile.mkdtemp(prefix="feed_twin-linuxcnc-load-"))
-    program = write_program(out / "long.ngc", args.minutes)
+    program = args.program or write_program(out / "long.ngc", args.minutes)
     timeout_s = args.minutes * 60.0 * 4 + 300.0
-    result: dict = {"minutes": args.minutes, "repeats": args.repeats, "cores": os.cpu_count()}
+    result: dict = {"program": str(program), "minutes": args.minutes, "repeats": args.repeats,
+                    "cores": os.cpu_count()}  # fmt: skip
     for load in (int(x) for x in args.loads.split(",")):
         runs = loaded_runs(program, out, load, args.repeats, timeout_s)
         summary = _summary(runs, 20.0 if load == 0 else 200.0)
