@@ -73,3 +73,23 @@ def test_process_lives() -> None:
 )
 def test_silence_verdict(beat: Beat | None, silent_s: float, verdict: str) -> None:
     assert silence_verdict(beat, silent_s, timeout_s=0.8, hung_s=60.0) == verdict
+
+
+def test_the_runner_names_slow_nodes_from_the_logs(tmp_path) -> None:
+    from feed_twin.ros.launch import slow_line, slow_nodes
+
+    (tmp_path / "sim.log").write_text(
+        "[WARN] [1.0] [cnc.x.sim]: node '/cnc/x/gcode' is slow: no heartbeat for 0.81 s, its "
+        "process lives (a busy host); the run goes on (hung after 60 s)\n"
+    )
+    (tmp_path / "twin.log").write_text(
+        "[WARN] [1.2] [cnc.x.twin]: node '/cnc/x/gcode' is slow: no heartbeat for 1.30 s, its "
+        "process lives\n[WARN] [1.3] [cnc.x.twin]: node '/cnc/x/sim' is slow: no heartbeat for "
+        "0.90 s, its process lives\n"
+    )
+    assert slow_nodes(tmp_path) == {"/cnc/x/gcode": 1.3, "/cnc/x/sim": 0.9}
+    assert slow_line(tmp_path) == (
+        "slow, not gone (the run went on): '/cnc/x/gcode' (1.30 s without heartbeat), "
+        "'/cnc/x/sim' (0.90 s without heartbeat)"
+    )
+    assert slow_line(tmp_path / "empty") is None

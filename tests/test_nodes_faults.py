@@ -335,6 +335,7 @@ def test_a_stopped_node_is_slow_not_gone_and_the_run_completes(config: Path) -> 
     assert text.count("[cnc.x.sim]: node '/cnc/x/gcode' is slow") == 1  # said once
     assert "node '/cnc/x/gcode' beats again after " in text
     assert "is gone" not in text
+    assert "feed-twin run: slow, not gone (the run went on): '/cnc/x/gcode' (" in err
     # the whole program, without a gap
     states = BagReader(config.parent / "bags" / name).columns("/cnc/x/state", ["header.stamp"])
     np.testing.assert_allclose(np.diff(states["header.stamp"]), 1e-3, atol=1e-9)

@@ -40,7 +40,7 @@ from feed_twin.nodeset.guard import RUN_TOKEN_ENV
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
-from feed_twin.ros.launch import launch, log_record
+from feed_twin.ros.launch import launch, log_record, slow_line
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
@@ -456,6 +456,9 @@ def main(args: argparse.Namespace) -> int:
         print(f"feed-twin run: {reason}", file=sys.stderr)
     if summary is None and problem:
         print(f"feed-twin run: {problem}", file=sys.stderr)
+    slow = slow_line(out.logs)
+    if slow:
+        print(f"feed-twin run: {slow}", file=sys.stderr)
     preflight.remove_incomplete_rrd(out.rrd)
     report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
     print(report.format())
