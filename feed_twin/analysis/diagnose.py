@@ -6,8 +6,8 @@
       -> locate the residual (direction, speed, position, phases, spectrum)
       -> repeat: rank the effect library on the current residual; for the leading significant
          candidates add the effect to the model and fit its own parameters (and those of the
-         effects found before) by simulation-based least squares; keep the candidate that
-         removes the most cost per added degree of freedom
+         effects found before) by simulation-based least squares; keep the candidate with
+         the best likelihood ratio less a price per added parameter that passes the test
       -> re-fit all found effects jointly with the nominal parameters they interact with
       -> metrics "after", optional validation on a second run, report.
 
@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from feed_twin.analysis.appraise import appraise
 from feed_twin.analysis.channels import (
     VOLTAGE_Q,
     channel_residuals,
@@ -61,6 +62,7 @@ from feed_twin.analysis.rounds import (
     run_round,
 )
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
+from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.io.measured import EFFORT_UNITS, MeasuredDataError, MeasuredRun
 
 __all__ = ["Options", "diagnose", "write_model"]
@@ -174,7 +176,15 @@ def diagnose(
     )
     ranking, unfitted = _identify(state, context)
     timings["identify_s"] = time.perf_counter() - clock
+    progress("appraising the final model: intervals, correlations, plausibility, drift")
+    appraisal = appraise(state, context, nominal)
+    timings["appraise_s"] = appraisal.seconds
+    search = {
+        "simulations": state.simulations + appraisal.simulations,
+        "seconds": time.perf_counter() - clock,
+    }
     after = run_metrics(run, state.outputs)
+    leftover = _leftover(run, state.outputs, floors, start, motion)
     validation, validation_traces = None, None
     if validate is not None:
         validation, validation_traces = _validate(validate, twin, state.twin, progress)
@@ -190,7 +200,16 @@ def diagnose(
         before_trace=_trace("nominal", run, drive, out0),
         after_trace=_trace("augmented", run, drive, state.outputs),
         effects=tuple(f.effect for f in state.found),
-        verdict=_verdict(run, state, unfitted, floors, start),
+        verdict=verdict(
+            [f.name for f in state.found],
+            [u["name"] for u in unfitted],
+            leftover,
+            [str(d["summary"]) for d in appraisal.drifts],
+        ),
+        leftover=tuple(c.as_dict() for c in leftover),
+        appraisal=appraisal.as_dict(),
+        search=search,
+        appraisal_lines=tuple(appraisal.lines()),
         location=location,
         ranking=tuple(_ranking_row(c) for c in ranking),
         validation=validation,
@@ -265,16 +284,27 @@ def _identify(state: State, context: Context) -> tuple[list[Candidate], list[dic
     return ranking, unfitted
 
 
-def _verdict(
-    run: MeasuredRun, state: State, unfitted: list[dict], floors: dict[str, float], start: int
-) -> str:
-    if state.found:
-        names = ", ".join(f.name for f in state.found)
-        return f"the nominal model misses {names}; with them the gap shrinks as shown"
-    if unfitted:
-        names = ", ".join(u["name"] for u in unfitted)
-        return f"the residual carries the signature of {names}, which could not be fitted"
-    return "no significant missing effect: " + _left_over(run, state.outputs, floors, start)
+def _leftover(
+    run: MeasuredRun, out: SimOutputs, floors: dict[str, float], start: int, motion: Motion
+) -> list[Leftover]:
+    """Each channel's residual at the final model against its sample noise, with its signature
+    (analysis.verdict): not claimed to be noise."""
+    units = {"effort": EFFORT_UNITS.get(run.effort_name or "", ""), "position": "m", "voltage": "V"}
+    on = slice(start, None)
+    parts = []
+    for name, r in channel_residuals(run, out, start=start).items():
+        rms = float(np.sqrt(np.mean(r[on] ** 2)))
+        words = signature(r[on], run.t_s[on], motion.x_m[on], motion.v_m_s[on], motion.a_m_s2[on])
+        parts.append(
+            Leftover(
+                channel=name,
+                unit=units[name],
+                rms=rms,
+                noise_ratio=rms / floors[name],
+                signature=words,
+            )
+        )
+    return parts
 
 
 def _validate(
@@ -301,23 +331,6 @@ def _ranking_row(c: Candidate) -> dict[str, object]:
         "p_value": c.p_value,
         "significant": c.significant,
     }
-
-
-def _left_over(run: MeasuredRun, out: SimOutputs, floors: dict[str, float], start: int) -> str:
-    """What is left when nothing was found, against each channel's sample noise (not claimed
-    to be noise: a delay between recorded channels or a lag the model lacks leaves structure
-    that no library effect explains)."""
-    units = {"effort": EFFORT_UNITS.get(run.effort_name or "", ""), "position": "m", "voltage": "V"}
-    parts = []
-    for name, r in channel_residuals(run, out, start=start).items():
-        rms = float(np.sqrt(np.mean(r[start:] ** 2)))
-        parts.append(
-            f"{name} residual RMS {rms:.3g} {units[name]} = {rms / floors[name]:.3g} x its "
-            "sample noise"
-        )
-    return "no effect of the library explains a significant part of what is left (" + (
-        "; ".join(parts) + ")"
-    )
 
 
 REVERSED_CORRELATION = -0.5  # measured vs nominal effort at or below this: the sign is reversed

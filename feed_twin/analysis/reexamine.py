@@ -174,6 +174,7 @@ class Without:
     twin: Twin
     outputs: SimOutputs
     verdict: Verdict  # the test of the model WITH the effect against this one
+    simulations: int  # parameter sets simulated to find it
 
 
 def without(
@@ -204,10 +205,10 @@ def without(
         for name, value in result.values.items():
             doc = doc.set(name, value)
         twin = Twin.compile(doc)
-        out = result.outputs
+        out, simulations = result.outputs, result.evaluations
     else:
-        out = twin.simulate(drive, twin.nominal[None, :])
+        out, simulations = twin.simulate(drive, twin.nominal[None, :]), 1
     if not out.ok[0]:
         return None
     verdict = compare(channels(out), channels(outputs), added=target.added)
-    return Without(doc=doc, twin=twin, outputs=out, verdict=verdict)
+    return Without(doc=doc, twin=twin, outputs=out, verdict=verdict, simulations=simulations)

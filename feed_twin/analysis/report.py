@@ -47,12 +47,15 @@ class FoundEffect:
     parameters: dict[str, float]
     explained_fraction: float  # [1] share of the fit cost this effect removed
     component: str
+    # reported parameter -> its 95 % interval (low, high) at the final model (analysis.appraise)
+    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "evidence": self.evidence,
             "parameters": self.parameters,
+            "intervals": {k: list(v) for k, v in self.intervals.items()},
             "explained_fraction": self.explained_fraction,
             "component": self.component,
         }
@@ -78,6 +81,13 @@ class Diagnosis:
     validation_traces: tuple[Trace, Trace] | None = None
     notes: tuple[str, ...] = ()  # warnings of the loader, fit convergence messages
     timings_s: dict[str, float] = field(default_factory=dict)
+    # each channel's residual at the final model against its noise (analysis.verdict.Leftover)
+    leftover: tuple[dict[str, Any], ...] = ()
+    # intervals, correlations, implausible values, drifts (analysis.appraise.Appraisal)
+    appraisal: dict[str, Any] = field(default_factory=dict)
+    appraisal_lines: tuple[str, ...] = ()
+    # the search's cost: parameter sets simulated (in batches) and seconds up to the appraisal
+    search: dict[str, float] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -97,6 +107,9 @@ class Diagnosis:
             "validation": self.validation,
             "location": None if self.location is None else self.location.as_dict(),
             "ranking": list(self.ranking),
+            "leftover": list(self.leftover),
+            "appraisal": self.appraisal,
+            "search": self.search,
             "notes": list(self.notes),
             "timings_s": self.timings_s,
         }
@@ -141,6 +154,11 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
             f"   - evidence: {e.evidence}",
             f"   - fitted: {params}",
         ]
+        if e.intervals:
+            lines.append(
+                "   - 95 % intervals: "
+                + ", ".join(f"{k} {lo:.5g} .. {hi:.5g}" for k, (lo, hi) in e.intervals.items())
+            )
     if d.named_not_fitted:
         lines += ["", "Also significant, but not fitted (no way to add it to this model yet):", ""]
         lines += [f"- **{u['name']}**: {u['evidence']}" for u in d.named_not_fitted]
@@ -154,6 +172,21 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         _metrics_rows("nominal", d.before),
         _metrics_rows("augmented", d.after),
     ]
+    if d.search:
+        lines += [
+            "",
+            f"Search: {d.search['simulations']:.0f} parameter sets simulated (in batches of the "
+            f"engine) in {d.search['seconds']:.2f} s.",
+        ]
+    if d.appraisal_lines:
+        lines += ["", "## How far to trust the fit", ""] + list(d.appraisal_lines)
+    if d.leftover:
+        lines += ["", "## What is left (final model against each channel's sample noise)", ""]
+        lines += [
+            f"- {c['channel']}: RMS {c['rms']:.3g} {c['unit']} = {c['noise_ratio']:.3g} x its "
+            f"sample noise; {c['signature']}"
+            for c in d.leftover
+        ]
     if d.validation is not None:
         lines += [
             "",

@@ -9,10 +9,12 @@ analysis.diagnose for the workflow as a whole.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 from feed_twin.analysis.channels import (
     channel_residuals,
@@ -23,6 +25,7 @@ from feed_twin.analysis.channels import (
 from feed_twin.analysis.effects import Motion
 from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, cost_of, fit
 from feed_twin.analysis.model_doc import ModelDoc, model_of
+from feed_twin.analysis.plausible import outside_record
 from feed_twin.analysis.ranking import Candidate, evidence, rank
 from feed_twin.analysis.reexamine import (
     Found,
@@ -36,9 +39,10 @@ from feed_twin.analysis.reexamine import (
     without,
 )
 from feed_twin.analysis.report import FoundEffect
-from feed_twin.analysis.significance import compare
+from feed_twin.analysis.significance import ALPHA, compare, effective_samples
 from feed_twin.analysis.trials import try_candidate
 from feed_twin.analysis.twin import Drive, Twin
+from feed_twin.io.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
 
@@ -69,6 +73,7 @@ class State:
     outputs: SimOutputs
     cost: float
     found: list[Found] = field(default_factory=list)
+    simulations: int = 1  # parameter sets simulated so far (the search's cost), the nominal's too
 
     def found_free(self) -> list[FreeParameter]:
         return [p for f in self.found for p in f.own]
@@ -93,13 +98,9 @@ def noop(_: str) -> None:
     pass
 
 
-def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> str | None:
-    """Re-fit all found effects together with the nominal parameters they interact with.
-
-    Done once, at the end: re-estimating the mass or the viscous coefficient in every round
-    would let them absorb the signature of an effect that is found later. If the joint fit
-    does not converge or is not better, the effect-by-effect model stays and the note says so.
-    """
+def joint_free(state: State) -> list[FreeParameter]:
+    """The found effects' parameters at their values now, with the nominal parameters they
+    interact with (the final joint fit's, and the intervals' and the drift test's)."""
     free = []
     for p in state.found_free():
         if not state.doc.has_slot(p.name):
@@ -111,6 +112,17 @@ def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> st
         # with a fitted drive gain the mass and friction would be degenerate (the gain scales
         # every force), so they are re-estimated only when the gain is not
         free += [p for p in interacting(state.doc) if p.name not in names]
+    return free
+
+
+def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> str | None:
+    """Re-fit all found effects together with the nominal parameters they interact with.
+
+    Done once, at the end: re-estimating the mass or the viscous coefficient in every round
+    would let them absorb the signature of an effect that is found later. If the joint fit
+    does not converge or is not better, the effect-by-effect model stays and the note says so.
+    """
+    free = joint_free(state)
     twin = Twin.compile(state.doc)
     joint = fit(
         lambda params: twin.simulate(drive, params),
@@ -120,6 +132,7 @@ def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> st
         meas,
         max_evaluations=opts.max_evaluations,
     )
+    state.simulations += joint.evaluations
     if not joint.converged or joint.cost > state.cost:
         return (
             f"the joint re-fit of the found effects and the nominal parameters did not "
@@ -149,6 +162,9 @@ class Context:
     progress: Progress
     notes: list[str]
     start: int = 0  # the record's first sample that is evidence (Twin.first_evidence)
+    # the candidates fitted and not kept since the model last changed (not ranked again until
+    # it changes: they would fit the same way)
+    tried: list[str] = field(default_factory=list)
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
         return channel_residuals(self.run, out, start=self.start)
@@ -165,7 +181,7 @@ def run_round(
         ctx.motion,
         effort_residual=re,
         position_residual=rp,
-        exclude=tuple(excluded),
+        exclude=tuple(excluded + ctx.tried),
         loop_stiffness=ctx.stiffness,
         voltage_residual=voltage_residual(run, state.outputs, start=ctx.start),
     )
@@ -212,6 +228,7 @@ def run_round(
             excluded.append(cand.name)
             continue
         edit, alone, new_twin, result = tried
+        state.simulations += result.evaluations
         progress(
             f"  {cand.name}: cost {result.cost_initial:.4g} -> {result.cost:.4g} "
             f"({result.evaluations} simulations, "
@@ -227,22 +244,23 @@ def run_round(
         trials.append((cand, edit, alone, new_twin, result))
     if not trials:
         return ranking, True
-    # the best removes the most cost per added degree of freedom relative to what is left
-    # (the partial F statistic up to the common effective sample count), so a two-parameter
-    # effect must do twice the work of a one-parameter one; the best that passes the test is
-    # kept (a drive gain that bends the position at the effort's expense must not hide the
-    # holding force fitted beside it)
-    trials.sort(
-        key=lambda t: (state.cost - t[4].cost) / t[1].added / max(t[4].cost, 1e-300),
-        reverse=True,
-    )
+    # each trial's test against the model now; the best by an information criterion on the
+    # likelihood ratio (module docstring) that passes the test is kept (a drive gain that bends
+    # the position at the effort's expense must not hide the holding force fitted beside it)
+    judged = []
     for cand, edit, alone, new_twin, result in trials:
-        excluded.append(cand.name)
+        ctx.tried.append(cand.name)
         if _collapsed_in_fit(state, edit, alone, result):
             ctx.notes.append(
                 f"{cand.name} was fitted but its parameters fell back to the values without it "
                 f"({', '.join(f'{k} = {v:.4g}' for k, v in result.values.items())}); not kept"
             )
+            continue
+        meaningless = outside_record(cand.name, _fitted(edit, result), ctx.motion)
+        if meaningless is None:
+            meaningless = _no_feed_axis(cand.name, edit, result)
+        if meaningless is not None:
+            ctx.notes.append(f"{meaningless}; not kept")
             continue
         verdict = compare(
             ctx.channels(state.outputs),
@@ -252,8 +270,24 @@ def run_round(
             own=cand.residual_domain,
             support=cand.support,
         )
+        judged.append((verdict, cand, edit, alone, new_twin, result))
+    before = ctx.channels(state.outputs)
+    afters = [ctx.channels(j[-1].outputs) for j in judged]
+    yardstick = (
+        effective_counts(afters[int(np.argmin([j[-1].cost for j in judged]))]) if judged else {}
+    )
+    scores = [
+        information(before, after, yardstick, j[2].added)
+        for j, after in zip(judged, afters, strict=True)
+    ]
+    order = sorted(range(len(judged)), key=lambda k: scores[k], reverse=True)
+    for verdict, cand, edit, alone, new_twin, result in (judged[k] for k in order):
         if verdict.significant:
             _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
+            excluded.append(cand.name)
+            # the model changed: the rivals tried so far are ranked again on its residual (a
+            # backlash tried beside the Coulomb force that hid it is found once that is in)
+            ctx.tried.clear()
             _reexamine(state, ctx, meas)
             return ranking, True
         ctx.notes.append(
@@ -261,6 +295,61 @@ def run_round(
         )
     # the model did not change: the rivals would fit the same way next round
     return ranking, True
+
+
+# the price of one added parameter in the likelihood ratio: the test's own threshold for one
+# parameter (chi^2(1) at ALPHA), so a second parameter must earn what a first one must
+PARAMETER_PRICE = float(stats.chi2.isf(ALPHA, 1))
+
+
+def effective_counts(channels: dict[str, np.ndarray]) -> dict[str, float]:
+    """Each channel's effective sample count (analysis.significance.effective_samples)."""
+    return {name: effective_samples(r) for name, r in channels.items()}
+
+
+def information(
+    before: dict[str, np.ndarray],
+    after: dict[str, np.ndarray],
+    counts: dict[str, float],
+    added: int,
+) -> float:
+    """The likelihood ratio of `after` against `before`, with every rival's channels counted
+    alike (`counts`: the effective samples of the best-fitting rival's residuals), less
+    PARAMETER_PRICE per added parameter: what ranks the rivals of one round. Dividing the gain
+    by the parameter count, as before, made a two-parameter effect that fits much better
+    (asymmetric friction, cost 2389) lose to a one-parameter one that takes its mean (a
+    constant force, cost 3515); each rival's own effective count, as the test uses, would let
+    its few per cent decide between two rivals that fit alike (a Coulomb force and a Stribeck
+    law at a speed above the record's)."""
+    lr = 0.0
+    for name, a in after.items():
+        rss_before, rss_after = float(np.dot(before[name], before[name])), float(np.dot(a, a))
+        if rss_before > 0.0:
+            lr += counts[name] * math.log(rss_before / max(rss_after, 1e-300))
+    return lr - PARAMETER_PRICE * added
+
+
+def _fitted_doc(edit: Edit, result) -> ModelDoc:
+    doc = model_of(edit.doc)
+    for name, value in result.values.items():
+        doc = doc.set(name, value)
+    return doc
+
+
+def _fitted(edit: Edit, result) -> dict[str, float]:
+    """The effect's reported parameters at the fit's result."""
+    doc = _fitted_doc(edit, result)
+    return {k: float(f(Values(doc))) for k, f in edit.report.items()}
+
+
+def _no_feed_axis(name: str, edit: Edit, result) -> str | None:
+    """Why the fitted model is no feed axis (the plant's plausibility ranges reject it: a
+    bearing stiffness that ran off to 1e29 N/m), None if it is one."""
+    try:
+        Twin.compile(_fitted_doc(edit, result))
+    except ConfigError as exc:
+        return f"{name} was fitted to a model no feed axis has ({exc})"
+    return None
 
 
 def _collapsed_in_fit(state: State, edit: Edit, alone: list[FreeParameter], result) -> bool:
@@ -332,6 +421,7 @@ def drop_collapsed(state: State, ctx: Context, when: str) -> None:
         )
     state.twin = Twin.compile(state.doc)
     state.outputs = state.twin.simulate(ctx.drive, state.twin.nominal[None, :])
+    state.simulations += 1
 
 
 def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
@@ -356,6 +446,7 @@ def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
             channels=ctx.channels,
             max_evaluations=ctx.opts.max_evaluations,
         )
+        state.simulations += 1 if gone is None else gone.simulations
         if gone is None or gone.verdict.significant:
             continue
         state.found.remove(target)

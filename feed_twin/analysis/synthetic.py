@@ -28,6 +28,7 @@ from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.effect_api import TruthFn
+from feed_twin.plant.guide_friction import friction_force
 
 # A program with moves of several lengths and feeds, reversals and dwells on one axis (X).
 PROGRAM = """\
@@ -106,6 +107,9 @@ class Unmodelled:
     coupling_stiffness_factor: float = 0.97  # truth/nominal torsional coupling stiffness [-]
     effort_noise_std: float | None = None  # [effort unit]; None: 0.3 N or 0.01 A
     seed: int = 0
+    # [1] share by which the truth's guide friction grows, linearly, over the record (the
+    # engine holds parameters constant: the growth acts as a force on the table)
+    friction_growth: float = 0.0
 
     def __post_init__(self) -> None:
         require_nonnegative("current_lag_s", self.current_lag_s)
@@ -163,6 +167,8 @@ def generate(
     """The columns of a synthetic record in the file's own units (see MAP)."""
     um = unmodelled or Unmodelled()
     truth = truth_model(nominal, hidden, um)
+    if um.friction_growth:
+        truth, _ = truth.with_table_component("friction_growth", "ExternalForce", {})
     # the lag adds a fast pole: sub-steps keep explicit RK4 well inside its stability limit
     h = float(truth.data["controller"]["base_period_s"])
     lagged = um.current_lag_s > 0 and truth.of_type("EffortSource")
@@ -178,7 +184,7 @@ def generate(
         vel_ref_m_s=np.gradient(x_cmd, h),
         acc_ref_m_s2=np.gradient(np.gradient(x_cmd, h), h),
         effort_add=None,
-        force_ext_N=None,
+        force_ext_N=_friction_growth(truth, t, np.gradient(x_cmd, h), um.friction_growth),
         x0_m=float(x_cmd[0]),
         sensor="motor_encoder",
     )
@@ -201,6 +207,20 @@ def generate(
     if out.voltage_q is not None:
         columns[VOLTAGE_COLUMN] = out.voltage_q[0]
     return columns
+
+
+def _friction_growth(
+    truth: ModelDoc, t: np.ndarray, v: np.ndarray, growth: float
+) -> np.ndarray | None:
+    """The force on the table [N] of a guide friction that grows by `growth` of itself over
+    the record (at the commanded speed), None for none."""
+    fr = truth.friction()
+    if growth == 0.0 or fr is None:
+        return None
+    fields = ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg", "dF_s", "v_s", "v_reg")
+    p = [truth.get(f"{fr}.{name}") for name in fields]
+    force = np.array([friction_force(float(speed), *p) for speed in v])
+    return -growth * (t - t[0]) / (t[-1] - t[0]) * force
 
 
 def as_trace(columns: Mapping[str, np.ndarray], period_ticks: int) -> dict[str, np.ndarray]:

@@ -1,0 +1,101 @@
+"""Selection of the rivals of one round and the test of a channel that dominates
+(analysis.rounds.information, analysis.significance.compare)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from feed_twin.analysis.effects import motion_from_position
+from feed_twin.analysis.plausible import outside_record
+from feed_twin.analysis.rounds import PARAMETER_PRICE, effective_counts, information
+from feed_twin.analysis.significance import compare
+
+N = 6000
+
+
+def _smooth(rng: np.random.Generator, size: float) -> np.ndarray:
+    """A smooth model error (a few dozen effective samples) of RMS about `size`."""
+    t = np.linspace(0.0, 1.0, N)
+    phases = rng.uniform(0, 2 * np.pi, 8)
+    wave = np.sum([np.sin(2 * np.pi * (k + 1) * t + p) for k, p in enumerate(phases)], axis=0)
+    return size * wave / np.std(wave)
+
+
+def test_an_effect_that_removes_most_of_one_channel_is_not_vetoed_by_a_little_of_another():
+    """98 % of the position residual (smooth, far above its noise) removed, the effort (white)
+    14 % worse: the sum over channels is negative, the position channel decides."""
+    rng = np.random.default_rng(1)
+    position = _smooth(rng, 950.0)
+    effort = rng.normal(0.0, 1.0, N)
+    after_position = position * np.sqrt(0.02)
+    after_effort = effort * np.sqrt(1.14)
+    before = {"position": position, "effort": effort}
+    after = {"position": after_position, "effort": after_effort}
+    v = compare(before, after, added=2, own="position")
+    assert v.significant and v.dominant == "position", v.words()
+    assert v.explained["position"] == pytest.approx(0.98)
+    assert v.explained["effort"] == pytest.approx(-0.14)
+    assert "in the position channel, which it dominates" in v.words()
+
+
+@pytest.mark.parametrize(
+    ("position_share", "effort_worse"),
+    [(0.4, 0.14), (0.6, 0.7)],  # not dominant; dominant but costs more than it removes
+)
+def test_a_dominant_channel_needs_most_of_its_residual_and_a_net_gain(position_share, effort_worse):
+    rng = np.random.default_rng(2)
+    position = _smooth(rng, 950.0)
+    effort = rng.normal(0.0, 1.0, N)
+    before = {"position": position, "effort": effort}
+    after = {
+        "position": position * np.sqrt(1.0 - position_share),
+        "effort": effort * np.sqrt(1.0 + effort_worse),
+    }
+    v = compare(before, after, added=1, own="position")
+    assert not v.significant and v.dominant == "", v.words()
+
+
+def test_a_two_parameter_effect_that_fits_much_better_outranks_a_one_parameter_one():
+    """The issue's costs: asymmetric friction 2389, a constant force 3515 (from 10000). Per
+    added degree of freedom the force won (6485/1/3515 > 7611/2/2389)."""
+    rng = np.random.default_rng(3)
+    effort = rng.normal(0.0, 1.0, N)
+    before = {"effort": effort}
+    force = {"effort": effort * np.sqrt(0.3515)}
+    asymmetric = {"effort": effort * np.sqrt(0.2389)}
+    counts = effective_counts(asymmetric)
+    assert counts["effort"] == pytest.approx(N, rel=0.1)  # white: every sample counts
+    assert information(before, asymmetric, counts, 2) > information(before, force, counts, 1)
+    assert information(before, force, counts, 1) == pytest.approx(
+        counts["effort"] * np.log(1 / 0.3515) - PARAMETER_PRICE
+    )
+    assert pytest.approx(10.83, abs=0.01) == PARAMETER_PRICE  # chi^2(1) at 1e-3
+
+
+def test_of_two_rivals_that_fit_alike_the_one_with_fewer_parameters_ranks_first():
+    rng = np.random.default_rng(4)
+    effort = rng.normal(0.0, 1.0, N)
+    before = {"effort": 10.0 * effort}
+    coulomb = {"effort": effort}
+    stribeck = {"effort": effort * (1.0 - 1e-6)}  # the same fit, one parameter more
+    counts = effective_counts(coulomb)
+    assert information(before, coulomb, counts, 1) > information(before, stribeck, counts, 2)
+
+
+def test_a_stribeck_law_above_every_speed_of_the_record_is_no_finding():
+    t = np.linspace(0.0, 2.0, 2001)
+    x = 0.01 * np.sin(np.pi * t)
+    motion = motion_from_position(
+        t, x, effort_sim=None, lead_m=None, pole_pairs=None, travel_m=0.02
+    )
+    v_max = float(np.max(np.abs(motion.v_m_s)))
+    assert (
+        outside_record("stribeck_friction", {"dF_s_N": 15.0, "v_s_m_s": 0.5 * v_max}, motion)
+        is None
+    )
+    why = outside_record("stribeck_friction", {"dF_s_N": 15.0, "v_s_m_s": 1.13}, motion)
+    assert why == (
+        "stribeck_friction was fitted with a Stribeck speed of 1.13 m/s, above every speed of "
+        f"the record (at most {v_max:.3g} m/s): not a Stribeck law"
+    )

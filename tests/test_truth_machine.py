@@ -1,0 +1,161 @@
+"""The independent truth machine (feed_twin.truth) against closed forms, its trace stage on known
+signals, its seeds, and the rule that it shares no code with the twin."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import feed_twin
+from feed_twin.truth import NOMINAL, Machine, Trace, draw_all, machine_with, make_record, simulate
+from feed_twin.truth.effects import EFFECTS
+from feed_twin.truth.machine import G_N_KG
+from feed_twin.truth.trace import quantise, sample
+
+TRUTH_DIR = Path(feed_twin.__file__).resolve().parent / "truth"
+# the only feed_twin modules the truth may import: its own, and the G-code planner for the command
+ALLOWED = ("feed_twin.truth", "feed_twin.gcode")
+
+
+def _feed_twin_imports(path: Path) -> list[str]:
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names = [node.module]
+        else:
+            continue
+        own = [n for n in names if n.split(".")[0] == "feed_twin"]
+        found += [f"{path.name}:{node.lineno}: {n}" for n in own]
+    return found
+
+
+def test_truth_imports_nothing_of_the_twin() -> None:
+    files = sorted(TRUTH_DIR.glob("*.py"))
+    assert len(files) >= 5
+    imports = [i for f in files for i in _feed_twin_imports(f)]
+    assert imports  # the scan sees imports
+    bad = [i for i in imports if not i.split(": ")[1].startswith(ALLOWED)]
+    assert bad == []
+
+
+def _ramp(v: float, t_end: float, a: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A setpoint accelerating at a to v, then cruising (1 ms points)."""
+    t = np.arange(0.0, t_end, 1e-3)
+    t_a = v / a
+    x = np.where(t < t_a, 0.5 * a * t**2, 0.5 * a * t_a**2 + v * (t - t_a))
+    return t, x + 0.2
+
+
+def _mean(run, name: str, t0: float, t1: float) -> float:
+    sel = (run.t_s > t0) & (run.t_s < t1)
+    return float(run.signals[name][sel].mean())
+
+
+def test_steady_current_is_friction_over_force_constant() -> None:
+    """Cruising at v: K_t (2 pi / lead) i_q = F_c + F_v v, and with an unbalanced mass m_u the
+    weight m_u g is added (a vertical axis moving up)."""
+    mc = dataclasses.replace(NOMINAL, F_c_pos=90.0, F_v_pos=500.0, m_unbalanced=12.0)
+    run = simulate(mc, *_ramp(0.15, 0.6))
+    k_f = mc.K_t * 2.0 * math.pi / mc.lead
+    expected = (90.0 + 500.0 * 0.15 + 12.0 * G_N_KG) / k_f
+    assert _mean(run, "i_q_A", 0.45, 0.6) == pytest.approx(expected, rel=2e-3)
+
+
+def test_acceleration_current_is_equivalent_mass() -> None:
+    run = simulate(NOMINAL, *_ramp(0.15, 0.3, a=1.0))
+    k_f = NOMINAL.K_t * 2.0 * math.pi / NOMINAL.lead
+    v_mid = 0.11  # the speed at t = 0.11 s, the middle of the window below
+    expected = (NOMINAL.mass_equivalent * 1.0 + NOMINAL.F_c_pos + NOMINAL.F_v_pos * v_mid) / k_f
+    assert _mean(run, "i_q_A", 0.08, 0.14) == pytest.approx(expected, rel=5e-3)
+
+
+def test_holding_current_of_a_vertical_axis() -> None:
+    """At rest, with the loops' integral action, i_q = m g lead / (2 pi K_t) (without Coulomb
+    friction, which would hold part of the weight while the table creeps to rest)."""
+    mc = dataclasses.replace(NOMINAL, m_unbalanced=20.0, F_c_pos=0.0, F_c_neg=0.0)
+    t = np.arange(0.0, 0.5, 1e-3)
+    run = simulate(mc, t, np.full_like(t, 0.2))
+    expected = 20.0 * G_N_KG * mc.lead / (2.0 * math.pi * mc.K_t)
+    assert _mean(run, "i_q_A", 0.6, 0.8) == pytest.approx(expected, rel=2e-3)
+
+
+def test_current_loop_follows_its_rl_design() -> None:
+    """With the PI zero on the R-L pole (Ti = L/R) the current loop is first order with
+    bandwidth Kp/L, one period late: the q current reaches 63 % of a step after about
+    L/Kp + T_i (held at rest by a large holding force, no back-EMF)."""
+    mc = dataclasses.replace(NOMINAL, F_hold=1e6, F_c_pos=1e6, F_c_neg=1e6, Ti_i=2.5e-3 / 0.6)
+    t = np.arange(0.0, 0.05, 1e-3)
+    run = simulate(mc, t, np.where(t > 0.01, 0.21, 0.2))  # the current saturates at i_max
+    i_q = run.signals["i_q_A"]
+    k0 = int(np.argmax(run.signals["i_q_ref_A"] > 0.5 * mc.i_max))
+    ref = run.signals["i_q_ref_A"][k0 + 20]
+    assert ref == pytest.approx(mc.i_max)
+    t63 = (int(np.argmax(i_q[k0:] > 0.632 * mc.i_max))) / mc.f_current_hz
+    assert t63 == pytest.approx(mc.L_s / mc.Kp_i + 1.0 / mc.f_current_hz, abs=1.5 / mc.f_current_hz)
+
+
+def test_trace_mean_delay_and_decimation_are_exact() -> None:
+    fast = 1.0 / 8000.0
+    y = np.arange(80, dtype=float)  # y[k] held over (k, k+1] periods
+    t = np.array([1e-3, 2e-3, 5e-3])
+    # the mean over (t - 1 ms, t] of 8 values ending at period 8 t/1ms - 1
+    means = sample(y, fast, t, delay_s=0.0, window_s=1e-3)
+    assert means == pytest.approx([3.5, 11.5, 35.5])
+    late = sample(y, fast, t, delay_s=0.25e-3, window_s=0.0)
+    assert late == pytest.approx([5.0, 13.0, 37.0])
+    assert quantise(np.array([1.04e-3, -0.96e-3]), 1e-4) == pytest.approx([1.0e-3, -1.0e-3])
+
+
+def test_record_rounds_delays_and_flips_as_asked(tmp_path: Path) -> None:
+    trace = Trace(
+        period_s=0.1,
+        average=True,
+        position_resolution_m=1e-3,
+        effort_sign=-1,
+        effort_noise_A=0.0,
+        delay_position_s=2e-3,
+    )
+    rec = make_record(tmp_path / "r.csv", trace=trace)
+    data = np.genfromtxt(rec.csv, delimiter=",", names=True)
+    assert np.allclose(np.diff(data["time_ms"]), 100.0)
+    assert np.allclose(data["x_act_mm"], np.round(data["x_act_mm"]))  # whole millimetres
+    moving = np.abs(np.gradient(data["x_cmd_mm"])) > 1.0
+    # the weightless axis pushes forward while moving forward: the recorded sign is reversed
+    forward = moving & (np.gradient(data["x_cmd_mm"]) > 0)
+    assert np.mean(data["i_q_A"][forward]) < 0.0
+    assert "trace_filter: mean" in rec.map.read_text()
+
+
+def test_draws_are_seeded_and_in_range() -> None:
+    names = list(EFFECTS)
+    a, b, c = draw_all(names, seed=3), draw_all(names, seed=3), draw_all(names, seed=4)
+    assert a == b and a != c
+    for seed in range(20):
+        f = draw_all(["backlash"], seed)["backlash"]["gap_m"] / 10e-6
+        assert 0.5 <= f <= 2.0
+
+
+def test_effect_sets_the_machine() -> None:
+    mc = machine_with({"constant_force": {"f_0_N": -98.0665}, "backlash": {"gap_m": 1e-5}})
+    assert mc.m_unbalanced == pytest.approx(10.0)
+    assert mc.backlash == 1e-5
+
+
+def test_bad_input_is_named() -> None:
+    with pytest.raises(ValueError, match="m_table = -1.0: must be > 0"):
+        Machine(m_table=-1.0)
+    with pytest.raises(ValueError, match="f_position_hz = 3000.0: must divide f_velocity_hz"):
+        Machine(f_position_hz=3000.0)
+    with pytest.raises(ValueError, match="effect 'magic' is not one the truth machine has"):
+        machine_with({"magic": {}})
+    with pytest.raises(ValueError, match="effort_sign = 2: must be 1 or -1"):
+        Trace(effort_sign=2)
+    with pytest.raises(ValueError, match="pole_pairs = 2.5: must be a whole number"):
+        Machine(pole_pairs=2.5)  # type: ignore[arg-type]
