@@ -178,6 +178,9 @@ def main() -> None:
         "program_note": runs[0].warnings[-1],
         "placing_s": placing_s,
         "diagnose_s": diagnose_s,
+        # the twin on the placed program against the machine: 28-38 ms behind on a real record
+        "twin_behind_machine_ms": -1e3 * d.alignment.time_shift_s,
+        "timings_s": d.timings_s,
         "notes": list(d.notes),
     }
     print(f"reversed sign: {sign_message}")

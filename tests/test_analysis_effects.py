@@ -29,6 +29,8 @@ REQUIRED = {
     "measurement_delay",
     "stiction",
     "channel_delay",
+    "position_delay",  # issue 27: the trace between machine and record
+    "trace_window",
 }
 
 

@@ -109,3 +109,27 @@ def test_diagnose_says_a_program_that_does_not_fit_before_it_writes_anything(tmp
     assert "add --repetitions or cut one run with --segment t0:t1" in err
     assert len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_a_program_whose_rests_miss_the_record_is_refused(tmp_path):
+    """Placed, a program whose moves end elsewhere than the record's (one move 25 mm
+    further) is refused in one line, not placed with a warning (a real record's rapids were
+    missed by 103 mm)."""
+    csv, map_path = _scope(tmp_path, PROGRAM)
+    run = load_measured(csv, map_path)
+    other = PROGRAM.replace("G1 X70 F7200", "G1 X95 F7200")
+    assert other != PROGRAM
+    program = tmp_path / "other.ngc"
+    program.write_text(other)
+    nc = yaml.safe_load(NC_CONFIG)["nc"]
+    with pytest.raises(MeasuredDataError) as err:
+        command_from_program(run, program, nc=nc)
+    message = str(err.value)
+    assert message.startswith(f"{csv}: the program {program} does not fit the record: placed (")
+    miss = re.search(r"it rests ([0-9.]+) mm away from where the axis rests", message)
+    # the offset found splits the difference: the rests miss by 10 and 15 mm
+    assert miss is not None and 5.0 < float(miss.group(1)) < 25.0, message
+    assert "(at most 1 mm fit)" in message and len(message.splitlines()) == 1
+    # the program that ran fits
+    program.write_text(PROGRAM)
+    command_from_program(run, program, nc=nc)

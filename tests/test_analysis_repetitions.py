@@ -6,24 +6,29 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 
-from feed_twin.analysis.repetitions import find_period, split_repetitions
-from feed_twin.analysis.synthetic import PROGRAM, generate, write_csv, write_with_nc
+from feed_twin.analysis.repetitions import find_period, find_starts, split_repetitions
+from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, generate, write_csv, write_with_nc
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.cli import main
-from feed_twin.io.measured import load_measured
+from feed_twin.gcode.config import nc_config_from_mapping
+from feed_twin.gcode.planner import plan_program
+from feed_twin.io.measured import MeasuredRun, load_measured
 
 ROOT = Path(__file__).resolve().parents[1]
 NOMINAL = ROOT / "config" / "emps_nominal.yaml"
 HIDDEN = {"coulomb_friction": {"F_c_N": 15.0}}
 
 
-def _three_times() -> str:
+def _three_times(first_rest_s: float = 0.3, second_rest_s: float = 0.5) -> str:
     """The synthetic program three times, with rests of 0.3 s and 0.5 s between the runs."""
     lines = PROGRAM.splitlines()
     moves = [ln for ln in lines[2:] if ln and ln != "M30"]
-    return "\n".join(lines[:2] + moves + ["G4 P0.3"] + moves + ["G4 P0.5"] + moves + ["M30", ""])
+    rests = [f"G4 P{first_rest_s}"], [f"G4 P{second_rest_s}"]
+    return "\n".join(lines[:2] + moves + rests[0] + moves + rests[1] + moves + ["M30", ""])
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +48,9 @@ def record(tmp_path_factory):
 
 def test_three_runs_are_found_and_cut_in_the_rests(record):
     run = load_measured(*record["thrice"])
-    period, r = find_period(run)
+    found = find_period(run)
+    assert found is not None
+    period, r = found
     one = record["run_s"]
     # the period lies between one run plus the shorter and plus the longer rest
     assert one + 0.3 - 0.05 < period < one + 0.5 + 0.05
@@ -56,6 +63,39 @@ def test_three_runs_are_found_and_cut_in_the_rests(record):
     for before, after in zip(parts[:-1], parts[1:], strict=True):
         assert abs(before["pos_cmd_m"][-1] - before["pos_cmd_m"][-2]) < 1e-12
         assert abs(after["pos_cmd_m"][1] - after["pos_cmd_m"][0]) < 1e-12
+
+
+def test_unevenly_spaced_runs_are_found_each_where_it_starts():
+    """Runs 8.5 and 9.7 s apart (a longer pause before the third): the autocorrelation's
+    peak is smeared below 0.8 (0.70 on a real record 82.0 and 80.6 s apart, where none was
+    found); each run is found where the first run's motion matches."""
+    nc = nc_config_from_mapping(yaml.safe_load(NC_CONFIG)["nc"], source="<nc>")
+    once_s = float(np.ptp(plan_program(PROGRAM, nc).t_s))
+    traj = plan_program(_three_times(0.3, 1.5), nc)
+    x = traj.axis(nc.twin_axis)[0][::2]
+    t = traj.t_s[::2] - traj.t_s[0]
+    run = MeasuredRun(
+        source="scope.csv", t_s=t, signals={"pos_meas_m": x}, position_sensor="motor_encoder"
+    )
+    v = np.gradient(x, t)
+    lags = np.arange(int(0.2 * len(v)), len(v) // 2)
+    overlap = [np.dot(v[:-k], v[k:]) / np.sqrt(np.dot(v[:-k], v[:-k]) * np.dot(v[k:], v[k:]))
+               for k in lags]  # fmt: skip
+    assert max(overlap) < 0.5  # the autocorrelation alone (>= 0.8) finds no period
+    found = find_starts(run)
+    assert found is not None
+    starts, least = found
+    assert least > 0.99
+    # the runs start 0.3 s and 1.5 s after the one before ended (G4 and the planner's stop)
+    gaps = np.diff(t[starts]) - once_s
+    assert gaps[1] - gaps[0] == pytest.approx(1.2, abs=0.01)
+    parts = split_repetitions(run)
+    assert len(parts) == 3
+    for before, after, k in zip(parts[:-1], parts[1:], starts[1:], strict=True):
+        cut = after.t_s[0]
+        assert t[k] - 1.5 < cut < t[k]  # in the rest before the run's start
+        assert abs(before["pos_meas_m"][-1] - before["pos_meas_m"][-2]) < 1e-12
+        assert abs(after["pos_meas_m"][1] - after["pos_meas_m"][0]) < 1e-12
 
 
 def test_a_single_run_has_no_repetitions(record):
@@ -120,6 +160,13 @@ def test_the_program_of_one_run_is_placed_on_each_repetition(record, tmp_path, c
     assert report["effects"][0]["parameters"]["F_c_N"] == pytest.approx(15.0, rel=0.05)
     assert report["validation"]["after"]["effort_rel_err_pct"] < 2.0
     assert report["notes"][0].startswith("the program was placed again")
+    # report.json times every pass: the placements, both diagnoses, and a total over all
+    # (total_s covered only the second diagnosis: 92 s of 172 s on a real record)
+    timings = report["timings_s"]
+    passes = ("placing_s", "first_pass_total_s", "placing_again_s", "second_pass_total_s")
+    assert all(timings[k] > 0.0 for k in passes), timings
+    assert timings["total_s"] >= sum(timings[k] for k in passes)
+    assert timings["total_s"] < 1.05 * sum(timings[k] for k in passes) + 0.5
     # The record's zero is a free constant of the fit, read again at each model: read once at
     # the nominal twin it took the missing friction's lag for a 9 um shift of the encoder's
     # zero, left in the deviation after the fit (9 um RMS).

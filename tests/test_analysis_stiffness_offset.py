@@ -150,6 +150,8 @@ def test_current_offset_edit_guesses_offsets_from_the_electrical_ripple():
 
 
 def test_current_offset_edit_needs_a_current_sensor():
+    """...or the motor's pole pairs (analysis.pole_pairs) for the record's own ripple of an
+    effort-source twin (tests/test_analysis_trace.py)."""
     doc = ModelDoc.load(ROOT / "config" / "emps_nominal.yaml")
     with pytest.raises(LookupError, match="no CurrentSensor whose phase offsets"):
         current_offset(doc, _candidate("current_offset"))

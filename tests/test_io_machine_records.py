@@ -162,7 +162,7 @@ def test_a_reversed_effort_sign_is_said_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert len(err.splitlines()) == 1
-    assert "force_cmd_N runs against the nominal twin's (correlation -0.9" in err
+    assert "force_cmd_N fits the nominal twin's better with its sign reversed" in err
     assert "give its column a negative gain in the map" in err
 
 

@@ -25,7 +25,9 @@ PACKAGE = ROOT / "feed_twin"
 LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"core"}),  # signals, validation, the typed config loader
     frozenset({"plant", "control", "gcode", "io"}),  # physics, loops, G-code, file formats
-    frozenset({"sim"}),  # the engines that run plant + control on a program
+    # the engines that run plant + control on a program; the independent truth machine (its own
+    # equations, only the G-code planner below it)
+    frozenset({"sim", "truth"}),
     frozenset({"analysis", "nodeset"}),  # identification; the node set as plain Python
     frozenset({"shadow"}),  # the shadow twin beside a measured axis
     frozenset({"machine"}),  # several axes

@@ -9,6 +9,8 @@ again before every round.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from feed_twin.analysis.fit import Measured, SimOutputs
@@ -16,6 +18,10 @@ from feed_twin.analysis.significance import sample_noise
 from feed_twin.io.measured import MeasuredRun
 
 VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-voltage
+# gaps between a channel's values below this share of its largest are the number format's
+# rounding (a CSV's 10 significant digits), not the record's step
+QUANTISATION_RELATIVE = 1e-8
+REPEATED_SHARE = 0.9  # a rounded channel takes fewer distinct values than this share of samples
 
 
 def _from(r: np.ndarray, start: int) -> np.ndarray:
@@ -62,12 +68,39 @@ def channel_residuals(
     return {k: v for k, v in found.items() if v is not None}
 
 
+def quantisation_step(y: np.ndarray) -> float:
+    """The step a recorded channel is rounded to (a scale's resolution, a current's ADC count,
+    a trace's display digits): the smallest gap between the values it takes, where every value
+    lies on that step's grid and values repeat (a rounded channel dwells on its counts); 0 for
+    a channel that is not rounded (a smooth ramp's equal gaps are no step)."""
+    y = np.asarray(y, dtype=float)
+    values = np.unique(y)
+    if len(values) < 2 or len(values) > REPEATED_SHARE * len(y):
+        return 0.0
+    gaps = np.diff(values)
+    gaps = gaps[gaps > QUANTISATION_RELATIVE * float(np.max(np.abs(values)))]
+    if not len(gaps):
+        return 0.0
+    q = float(gaps.min())
+    counts = (values - values[0]) / q
+    on_grid = np.abs(counts - np.round(counts)) < 1e-3
+    return q if float(np.mean(on_grid)) >= 0.99 else 0.0
+
+
 def noise_floors(run: MeasuredRun, out: SimOutputs, *, start: int = 0) -> dict[str, float]:
     """Each channel's sample noise: the least its weight's noise level can be (see
-    analysis.significance), never below the smallest step that means anything in its unit."""
+    analysis.significance), never below the smallest step that means anything in its unit, nor
+    below the rounding noise of the record's own step, q / sqrt(12) (a channel that rests
+    between two counts has no sample-to-sample noise, and its rounding is not an effect)."""
     least = {"effort": 1e-9, "position": 1e-12, "voltage": 1e-6}
+    recorded = {"effort": run.effort_name, "position": "pos_meas_m", "voltage": VOLTAGE_Q}
     found = channel_residuals(run, out, start=start)
-    return {k: max(sample_noise(r[start:]), least[k]) for k, r in found.items()}
+    floors = {}
+    for k, r in found.items():
+        name = recorded[k]
+        rounding = 0.0 if name is None else quantisation_step(run[name]) / math.sqrt(12.0)
+        floors[k] = max(sample_noise(r[start:]), least[k], rounding)
+    return floors
 
 
 def weighted_channels(

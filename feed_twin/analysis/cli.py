@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from pathlib import Path
 
 # One BLAS thread, set before numpy loads OpenBLAS (feed_twin.cli imports this module first):
@@ -116,7 +117,7 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
 def main_diagnose(args: argparse.Namespace) -> int:
     from feed_twin.analysis.diagnose import diagnose, write_model
     from feed_twin.analysis.placed import diagnose_program, place
-    from feed_twin.analysis.report import write_report
+    from feed_twin.analysis.report_files import write_report
     from feed_twin.analysis.twin import ModelDoc
 
     def progress(text: str) -> None:
@@ -140,7 +141,9 @@ def main_diagnose(args: argparse.Namespace) -> int:
             # the program file holds one run of what the record repeats: placed on each
             run, other, more = _repetitions(run, other, progress)
         measured = [run, other, *more]
+        clock = time.perf_counter()
         placed = None if program is None else place(measured, program, doc)
+        placing_s = time.perf_counter() - clock
         for w in run.warnings:  # the loader's; diagnose_program says where it placed the program
             progress(f"warning: {w}")
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
@@ -157,7 +160,7 @@ def main_diagnose(args: argparse.Namespace) -> int:
         else:
             diagnosis, final_doc, motion, placed = diagnose_program(
                 measured, program, doc, progress=progress, model_path=str(model_path),
-                placed=placed,
+                placed=placed, placing_s=placing_s,
             )  # fmt: skip
             more = [r for r in placed[2:] if r is not None]
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
@@ -167,18 +170,22 @@ def main_diagnose(args: argparse.Namespace) -> int:
         diagnosis = _validate_more(diagnosis, final_doc, more, progress)
     write_model(final_doc, model_path, diagnosis.effects)
     written = write_report(diagnosis, out, v_m_s=motion.v_m_s)
+    from feed_twin.plant.slot_specs import with_unit
+
     progress(diagnosis.verdict)
     for e in diagnosis.effects:
-        progress(f"  {e.name}: {e.parameters} ({100 * e.explained_fraction:.1f} % of the cost)")
+        values = ", ".join(with_unit(k, v) for k, v in e.parameters.items())
+        progress(f"  {e.name}: {values} ({100 * e.explained_fraction:.1f} % of the cost)")
     b, a = diagnosis.before, diagnosis.after
     progress(
         f"FE deviation RMS {b.fe_dev_rms_m * 1e6:.3f} -> {a.fe_dev_rms_m * 1e6:.3f} um, "
-        f"effort rel. error {b.effort_rel_err_pct} -> {a.effort_rel_err_pct} %"
+        f"effort rel. error {b.effort_rel_err_pct:.3g} -> {a.effort_rel_err_pct:.3g} %"
     )
     if diagnosis.validation is not None:
         v = diagnosis.validation["after"]
         progress(
-            f"validation: position {v['pos_rel_err_pct']:.4g} %, effort {v['effort_rel_err_pct']} %"
+            f"validation: position {v['pos_rel_err_pct']:.4g} %, "
+            f"effort {v['effort_rel_err_pct']:.3g} %"
         )
     progress("wrote " + ", ".join(str(p) for p in written + [model_path]))
     return 0
@@ -196,12 +203,12 @@ def _repetitions(run: MeasuredRun, other: MeasuredRun | None, progress):
     parts = split_repetitions(run)
     if found is None or len(parts) < 2:
         raise MeasuredDataError(
-            f"{run.source}: --repetitions: no repetition of the program found (no peak of the "
-            "velocity's autocorrelation >= 0.8 past a fifth of the record)"
+            f"{run.source}: --repetitions: no repetition of the program found (no later part of "
+            "the record matches the first run's motion with a correlation >= 0.8)"
         )
     period, r = found
     progress(
-        f"found {len(parts)} repetitions of about {period:.3f} s (correlation {r:.3f}); "
+        f"found {len(parts)} repetitions, {period:.3f} s apart on average (least match {r:.3f}); "
         f"identifying on the first ({parts[0].t_s[0]:.3f} to {parts[0].t_s[-1]:.3f} s), "
         "validating on the others"
     )

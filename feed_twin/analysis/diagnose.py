@@ -46,6 +46,7 @@ from feed_twin.analysis.channels import (
 )
 from feed_twin.analysis.compare import Metrics, align, compute_metrics
 from feed_twin.analysis.effects import Motion, motion_from_position
+from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
 from feed_twin.analysis.locate import locate
 from feed_twin.analysis.ranking import Candidate
@@ -63,9 +64,10 @@ from feed_twin.analysis.rounds import (
 )
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.analysis.verdict import Leftover, signature, verdict
-from feed_twin.io.measured import EFFORT_UNITS, MeasuredDataError, MeasuredRun
+from feed_twin.io.measured import EFFORT_UNITS, MeasuredRun
+from feed_twin.plant.slot_specs import with_unit
 
-__all__ = ["Options", "diagnose", "write_model"]
+__all__ = ["Options", "check_effort_sign", "diagnose", "write_model"]
 
 
 def _loop_stiffness(twin: Twin, drive: Drive, out0: SimOutputs) -> float | None:
@@ -333,32 +335,11 @@ def _ranking_row(c: Candidate) -> dict[str, object]:
     }
 
 
-REVERSED_CORRELATION = -0.5  # measured vs nominal effort at or below this: the sign is reversed
-
-
-def check_effort_sign(run: MeasuredRun, out: SimOutputs) -> None:
-    """Raise if the measured effort runs against the nominal twin's (a current recorded with the
-    opposite sign convention): the workflow would blame every effect but the sign."""
-    name = run.effort_name
-    if name is None or out.effort is None:
-        return
-    measured, twin = run[name], out.effort[0]
-    spread = float(np.std(measured) * np.std(twin))
-    if spread == 0.0:
-        return
-    r = float(np.mean((measured - measured.mean()) * (twin - twin.mean())) / spread)
-    if r <= REVERSED_CORRELATION:
-        raise MeasuredDataError(
-            f"{run.source}: the measured {name} runs against the nominal twin's (correlation "
-            f"{r:.2f}): its sign looks reversed; give its column a negative gain in the map"
-        )
-
-
 def write_model(doc: ModelDoc, path: Path, found: tuple[FoundEffect, ...]) -> None:
     header = [f"Augmented model written by feed-twin diagnose from {doc.source}."]
     header += [
         f"Added {e.name} ({e.component}): "
-        + ", ".join(f"{k} = {v:.6g}" for k, v in e.parameters.items())
+        + ", ".join(with_unit(k, v, 6) for k, v in e.parameters.items())
         for e in found
     ]
     doc.dump(path, header)

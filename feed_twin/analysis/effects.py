@@ -5,7 +5,9 @@ Effect in the component's `EFFECTS`, collected by feed_twin.plant.registry): its
 small set of regressors, functions of the measured motion, that the residual it causes would
 follow; feed_twin.analysis.ranking projects residuals onto them and tests them), the edit of
 the component's own parameters and the synthetic truth. This module adds the one effect that is
-no part of the machine but of the record (channel_delay) and orders the library.
+no part of the machine but of the record (the trace between machine and file: channel_delay,
+position_delay, trace_window; searched over ranges the record sets, analysis.record_search) and
+orders the library.
 
 Domains: force-like effects act on the drive effort; position-like effects (sensor delay, lead
 error, backlash with a linear scale, thermal growth) act on the measured position. The
@@ -15,9 +17,19 @@ controller commands, when the record has it, and falls back to the effort otherw
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import dataclasses
+import math
 
-from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT
+import numpy as np
+
+from feed_twin.analysis.model_doc import (
+    ANALYSIS_SECTION,
+    EFFORT_DELAY_SLOT,
+    POLE_PAIRS_KEY,
+    POSITION_DELAY_SLOT,
+    RIPPLE_SLOTS,
+    TRACE_WINDOW_SLOT,
+)
 from feed_twin.plant.effect_api import (
     Document,
     Edit,
@@ -50,23 +62,61 @@ __all__ = [
 CHANNEL_DELAY_PERIODS = 20
 
 
+def _delay_grid(doc: Document) -> tuple[float, ...]:
+    """The delays [s] an edit declares: +/- CHANNEL_DELAY_PERIODS base periods in half steps
+    (analysis.record_search widens the range to what the record needs)."""
+    period = doc.base_period()
+    n = 2 * CHANNEL_DELAY_PERIODS
+    return tuple(0.5 * period * k for k in range(-n, n + 1))
+
+
+def _record_delay_edit(doc: Document, slot: str) -> Edit:
+    """A recorded channel stamped later (or earlier) than the rest: not a change of the
+    machine, a shift of the twin's output before it is compared (Twin.record_slots), searched
+    over a grid and kept in the model's `analysis` section."""
+    doc = doc.set(slot, doc.get(slot))
+    own = [FreeParameter(name=slot, initial=doc.get(slot), scale=doc.base_period())]
+    report = {"delay_s": lambda v: v[slot]}
+    return make_edit(doc, own, report, interacts=False, grid=_delay_grid(doc))
+
+
 def _channel_delay_edit(doc: Document, cand: Weights) -> Edit:
-    """The record's effort is stamped later than its position (or earlier): not a change of
-    the machine, a shift of the twin's effort before it is compared (analysis.twin.delayed),
-    searched over a grid and kept in the model's `analysis` section."""
+    del cand
+    return _record_delay_edit(doc, EFFORT_DELAY_SLOT)
+
+
+def _position_delay_edit(doc: Document, cand: Weights) -> Edit:
+    del cand
+    return _record_delay_edit(doc, POSITION_DELAY_SLOT)
+
+
+def _trace_window_edit(doc: Document, cand: Weights) -> Edit:
+    """The trace's averaging window [s], searched from one base tick (samples taken, not
+    averaged) up (analysis.record_search); the grid declared is its first ticks."""
     del cand
     period = doc.base_period()
-    grid = tuple(
-        0.5 * period * k for k in range(-2 * CHANNEL_DELAY_PERIODS, 2 * CHANNEL_DELAY_PERIODS + 1)
-    )
-    doc = doc.set(EFFORT_DELAY_SLOT, doc.get(EFFORT_DELAY_SLOT))
-    own = [FreeParameter(name=EFFORT_DELAY_SLOT, initial=0.0, scale=period)]
-    report = {"delay_s": lambda v: v[EFFORT_DELAY_SLOT]}
+    # not set here: without it the twin averages as the column map says (Twin.record_slots)
+    own = [FreeParameter(name=TRACE_WINDOW_SLOT, initial=doc.get(TRACE_WINDOW_SLOT), scale=period)]
+    report = {"window_s": lambda v: v[TRACE_WINDOW_SLOT]}
+    grid = tuple(sorted({doc.get(TRACE_WINDOW_SLOT), *(period * k for k in range(1, 41))}))
     return make_edit(doc, own, report, interacts=False, grid=grid)
 
 
-def _channel_delay_truth(doc: Document, p: Mapping[str, float]) -> Document:
-    return doc.set(EFFORT_DELAY_SLOT, p["delay_s"])
+def _position_rate(m: Motion) -> dict[str, np.ndarray]:
+    """The signature of a delay of the recorded position: x(t - d) is x(t) - d v(t)."""
+    return {"velocity": m.v_m_s}
+
+
+def _window_rates(m: Motion) -> dict[str, np.ndarray]:
+    """The signature of a trace's averaging window w ending at each sample, on the position:
+    the mean of x over [t - w, t] is x - (w/2) v + (w^2/6) a to second order. Ranked on the
+    position, which every trace records; the fit then weighs the effort's share too (one
+    window for every channel), which tells it from a delay of the position alone."""
+    return {"velocity": m.v_m_s, "acceleration": m.a_m_s2}
+
+
+def _slot_truth(slot: str, key: str):
+    return lambda doc, p: doc.set(slot, p[key])
 
 
 # effects of the record, not of the machine: no component carries them
@@ -80,8 +130,79 @@ RECORD_EFFECTS = (
         needs=("effort_sim",),
         signature=effort_rate,
         edit=_channel_delay_edit,
-        truth=_channel_delay_truth,
+        truth=_slot_truth(EFFORT_DELAY_SLOT, "delay_s"),
+    ),
+    Effect(
+        name="position_delay",
+        domain="position",
+        words="the recorder stamps the position later (or earlier) than the command: the "
+        "position residual follows the velocity, while the effort does not move",
+        parameters="the record: analysis.position_delay_s (trace side, outside every loop)",
+        signature=_position_rate,
+        edit=_position_delay_edit,
+        truth=_slot_truth(POSITION_DELAY_SLOT, "delay_s"),
+    ),
+    Effect(
+        name="trace_window",
+        domain="position",
+        words="the trace averages each channel over a window (a controller's trace filter): "
+        "the recorded position lags by half the window, the effort's peaks are cut",
+        parameters="the record: analysis.trace_window_s (trace side, outside every loop)",
+        signature=_window_rates,
+        edit=_trace_window_edit,
+        truth=_slot_truth(TRACE_WINDOW_SLOT, "window_s"),
     ),
 )
-LIBRARY: tuple[Effect, ...] = EFFECTS + RECORD_EFFECTS
+
+
+def _ripple_edit(doc: Document, cand: Weights) -> Edit:
+    """Offsets on the drive's phase-current sensors in a twin without a CurrentSensor (an
+    effort source): the ripple they leave in the recorded effort, once per electrical
+    revolution, as the record's own (Twin.record_slots). The loop makes the true current
+    differ from the measured by the offsets' q part and adds it back to its command, so the
+    recorded effort carries it: -alpha sin + beta cos in the effort's unit (plant.sensors).
+    Reported as the three phase offsets with no common part, in the recorded current's unit
+    (the effort over the drive gain the record was converted with)."""
+    s, c = (cand.coefficients.get(k, 0.0) for k in ("sin", "cos"))
+    scale = max(math.hypot(s, c), 1e-9)
+    for slot, value in zip(RIPPLE_SLOTS, (s, c), strict=True):
+        doc = doc.set(slot, value)
+    own = [FreeParameter(name=slot, initial=doc.get(slot), scale=scale) for slot in RIPPLE_SLOTS]
+    gain = model_gain(doc)
+
+    def phase(k: int):
+        def value(v: dict[str, float]) -> float:
+            alpha, beta = -v[RIPPLE_SLOTS[0]] / gain, v[RIPPLE_SLOTS[1]] / gain
+            return (alpha, -0.5 * alpha + 0.5 * math.sqrt(3.0) * beta,
+                    -0.5 * alpha - 0.5 * math.sqrt(3.0) * beta)[k]  # fmt: skip
+
+        return value
+
+    report = {f"offset_{x}_A": phase(k) for k, x in enumerate("abc")}
+    # searched (analysis.record_search: linear in the record), not by the engine's fit
+    return make_edit(doc, own, report, interacts=False, grid=(0.0,))
+
+
+def model_gain(doc: Document) -> float:
+    """The drive gain the record's effort was converted with (1 where none)."""
+    gain = getattr(doc, "reference_gain", None)
+    return float(gain) if gain else 1.0
+
+
+def _or_ripple(effect: Effect) -> Effect:
+    """current_offset, carried by the model's CurrentSensor, else by the record (_ripple_edit):
+    in a twin without one the ripple of the offsets was named cogging torque."""
+
+    def edit(doc: Document, cand: Weights) -> Edit:
+        pole_pairs = (doc.data.get(ANALYSIS_SECTION) or {}).get(POLE_PAIRS_KEY)
+        if doc.of_type("CurrentSensor") or pole_pairs is None:
+            return effect.edit(doc, cand)  # the sensor's offsets, or its LookupError
+        return _ripple_edit(doc, cand)
+
+    return dataclasses.replace(effect, edit=edit)
+
+
+LIBRARY: tuple[Effect, ...] = (
+    tuple(_or_ripple(e) if e.name == "current_offset" else e for e in EFFECTS) + RECORD_EFFECTS
+)
 BY_NAME = {e.name: e for e in LIBRARY}

@@ -38,9 +38,25 @@ FIXED_SECTIONS = ("plant", "controller")
 ANALYSIS_SECTION = "analysis"
 REFERENCE_GAIN_KEY = "effort_reference_gain"
 # the record's own slots (not the machine's): `analysis.effort_delay_s`, how much later than the
-# position the recorder stamps the effort (trace side, outside every loop)
-RECORD_SLOTS = ("effort_delay_s",)
+# position the recorder stamps the effort, `position_delay_s` how much later than the command
+# it stamps the position, `trace_window_s` the window [s] each sample averages over (absent:
+# as the column map's trace_filter says), `effort_ripple_sin`/`_cos` the ripple [effort SI unit]
+# once per electrical revolution that offsets on the drive's phase-current sensors leave in the
+# recorded effort of a twin without a CurrentSensor of its own. Trace side, outside every loop.
+RECORD_SLOTS = (
+    "effort_delay_s",
+    "position_delay_s",
+    "trace_window_s",
+    "effort_ripple_sin",
+    "effort_ripple_cos",
+)
+RIPPLE_SLOTS = (f"{ANALYSIS_SECTION}.effort_ripple_sin", f"{ANALYSIS_SECTION}.effort_ripple_cos")
+# `analysis.pole_pairs`: the motor's pole pairs, for a twin that models the drive as an effort
+# source (no Pmsm to carry them): the electrical angle of a phase-current offset's ripple
+POLE_PAIRS_KEY = "pole_pairs"
 EFFORT_DELAY_SLOT = f"{ANALYSIS_SECTION}.effort_delay_s"
+POSITION_DELAY_SLOT = f"{ANALYSIS_SECTION}.position_delay_s"
+TRACE_WINDOW_SLOT = f"{ANALYSIS_SECTION}.trace_window_s"
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -282,7 +298,8 @@ class ModelDoc:
         data = self.data
         g = self.gain_slot()
         if g is not None and self.reference_gain is not None and self.get(g) != self.reference_gain:
-            data = {**data, ANALYSIS_SECTION: {REFERENCE_GAIN_KEY: self.reference_gain}}
+            kept = data.get(ANALYSIS_SECTION) or {}  # the record's slots stay
+            data = {**data, ANALYSIS_SECTION: {**kept, REFERENCE_GAIN_KEY: self.reference_gain}}
         text = "".join(f"# {line}\n" for line in header)
         text += yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
         Path(path).write_text(text)

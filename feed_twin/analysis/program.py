@@ -8,7 +8,9 @@ its axis setpoints are placed on the record's clock: the time offset is the shif
 aligns the planned velocity with the measured one (cross-correlation over the whole record,
 refined below one sample, see analysis.compare), and the position offset is the median
 difference after the shift (a different encoder zero). Because an axis follows its command
-late, the estimate is refined (twice) with the nominal twin's response to the placed command. Both
+late (by about 1/Kv: 40-60 ms on a machine tool), the estimate is refined (REFINEMENTS times)
+with the nominal twin's response to the placed command, the whole program first, then block by
+block. Both
 numbers are reported as a warning of the run. The placed program is kept at the NC's own period
 too (`MeasuredRun.plan`), which the twin interpolates onto its base ticks.
 """
@@ -24,7 +26,8 @@ import numpy as np
 from feed_twin.analysis.compare import align
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
 
-REFINEMENTS = 2  # alignments against the twin's response
+REFINEMENTS = 3  # alignments against the twin's response
+GLOBAL_SEARCH_S = 0.1  # [s] the whole program's correction against the twin's response
 # [s] block shifts that spread less than this are one shift for all: the loop's lag differs by
 # milliseconds from move to move, an NC's waits between blocks are tens of milliseconds
 WARP_MIN_SPREAD_S = 0.015
@@ -37,6 +40,12 @@ REST_SHARE = 1e-3  # below this share of the peak speed the program rests
 MOVING_SHARE = 0.05
 # the record moving this many times as long as the placed program: the program ran more often
 UNCOVERED_RATIO = 1.5
+# below this share of the peak speed both the record and the placed program rest, and there
+# the placed position must meet the measured one within MISS_TOLERANCE_M (an axis at rest
+# follows its command within micrometres; a program placed on the wrong record misses by
+# millimetres: 103 mm on a real record, which was only a warning)
+AT_REST_SHARE = 2e-3
+MISS_TOLERANCE_M = 1e-3
 
 
 def nc_of_model(data: dict[str, Any], source: str) -> dict[str, Any]:
@@ -134,36 +143,58 @@ def command_from_program(
         from feed_twin.analysis.twin import Twin, drive_from_run
 
         twin = Twin.compile(model)
-        # twice: the twin starts from the record's measured state, and a command still a few
-        # milliseconds off (the bare estimate) upsets its first samples, which moves the
-        # second estimate by a tenth of a millisecond
+        # more than once: the twin starts from the record's measured state, and a command
+        # still a few milliseconds off (the bare estimate) upsets its first samples, which
+        # moves the next estimate by a tenth of a millisecond
         for _ in range(REFINEMENTS):
             sim = twin.simulate(drive_from_run(trial), twin.nominal[None, :])
             if not sim.ok[0]:
                 break
-            if warp:
-                # each block against the twin's response to it: the loop's lag differs from
-                # move to move, which the bare comparison of velocities left in the shifts
-                assert shifts is not None
-                v_sim = np.gradient(sim.x_m[0], h)
-                for i, (start, end) in enumerate(moves):
-                    lo, hi = start + shifts[i] + delta, end + shifts[i] + delta
-                    shifts[i] += _local_shift(t - t[0], v_meas, v_sim, lo, hi)
-                # the zero against the response to the moved blocks: read off the response to
-                # the blocks before, it took each block's time error for a position error
-                # (+96, then -100 um on a 50 Hz exact-stop trace, never settling)
-                sim = twin.simulate(drive_from_run(commanded(delta, offset)), twin.nominal[None, :])
-                if not sim.ok[0]:
-                    break
-                offset += float(np.median(x - sim.x_m[0]))
-            else:
-                b = align(t, x, sim.x_m[0], max_shift_s=0.05)
-                delta += b.time_shift_s
-                offset += b.position_offset_m
+            # the whole program against the twin's response first: the loop's lag (1/Kv, 40
+            # to 60 ms on a machine tool's axis) is common to every block, and a block's own
+            # search below reaches LOCAL_SEARCH_S only (the twin stayed 28-38 ms behind)
+            b = align(t, x, sim.x_m[0], max_shift_s=GLOBAL_SEARCH_S)
+            delta += b.time_shift_s
+            offset += b.position_offset_m
             trial = commanded(delta, offset)
+            if warp:
+                assert shifts is not None
+                offset = _refine_blocks(twin, trial, commanded, shifts, moves, delta, offset)
+                trial = commanded(delta, offset)
     shift += delta
+    _check_fit(run, program, trial, len(moves))
     note = _placement_note(program, shift, a.correlation, offset, moves, shifts if warp else None)
     return dataclasses.replace(trial, warnings=trial.warnings + (note,))
+
+
+def _refine_blocks(
+    twin: Any,
+    trial: MeasuredRun,
+    commanded: Any,
+    shifts: np.ndarray,
+    moves: list[tuple[float, float]],
+    delta: float,
+    offset: float,
+) -> float:
+    """Each block's shift (in place) against the twin's response to it: the loop's lag differs
+    from move to move, which the bare comparison of velocities left in the shifts. Returns the
+    position zero read again against the response to the moved blocks: read off the response
+    to the blocks before, it took each block's time error for a position error (+96, then
+    -100 um on a 50 Hz exact-stop trace, never settling)."""
+    from feed_twin.analysis.twin import drive_from_run
+
+    t, x, h = trial.t_s, trial["pos_meas_m"], trial.sample_period_s
+    sim = twin.simulate(drive_from_run(trial), twin.nominal[None, :])
+    if not sim.ok[0]:
+        return offset
+    v_meas, v_sim = np.gradient(x, h), np.gradient(sim.x_m[0], h)
+    for i, (start, end) in enumerate(moves):
+        lo, hi = start + shifts[i] + delta, end + shifts[i] + delta
+        shifts[i] += _local_shift(t - t[0], v_meas, v_sim, lo, hi)
+    sim = twin.simulate(drive_from_run(commanded(delta, offset)), twin.nominal[None, :])
+    if not sim.ok[0]:
+        return offset
+    return offset + float(np.median(x - sim.x_m[0]))
 
 
 def _placement_note(
@@ -202,6 +233,28 @@ def _check_covered(
     if moving > UNCOVERED_RATIO * commanded:
         why = f"moves the axis for {commanded:.3g} s, the record moves for {moving:.3g} s"
         raise _unplaced(run, program, why)
+
+
+def _check_fit(run: MeasuredRun, program: str | Path, placed: MeasuredRun, moves: int) -> None:
+    """Refuse, in one line, a placed program whose rests miss the record's by more than
+    MISS_TOLERANCE_M (see AT_REST_SHARE)."""
+    x, cmd = run["pos_meas_m"], placed["pos_cmd_m"]
+    v_meas = np.abs(np.gradient(x, run.sample_period_s))
+    v_cmd = np.abs(placed["vel_cmd_m_s"])
+    rest = (v_meas <= AT_REST_SHARE * v_meas.max()) & (v_cmd <= AT_REST_SHARE * v_cmd.max())
+    if not rest.any():
+        return
+    miss = np.where(rest, np.abs(x - cmd), 0.0)
+    worst = int(np.argmax(miss))
+    if miss[worst] <= MISS_TOLERANCE_M:
+        return
+    raise MeasuredDataError(
+        f"{run.source}: the program {program} does not fit the record: placed ({moves} moves), "
+        f"it rests {miss[worst] * 1e3:.3g} mm away from where the axis rests at "
+        f"t = {run.t_s[worst]:.3f} s (at most {MISS_TOLERANCE_M * 1e3:g} mm fit); check that "
+        "the program, the model's nc: section (start position, work offsets) and the record's "
+        "axis belong together"
+    )
 
 
 def _unplaced(run: MeasuredRun, program: str | Path, why: str) -> MeasuredDataError:

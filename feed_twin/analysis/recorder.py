@@ -32,11 +32,42 @@ def delayed(rows: np.ndarray, t_s: np.ndarray, delay_s: float) -> np.ndarray:
     return np.array([np.interp(t_s - delay_s, t_s, row) for row in np.atleast_2d(rows)])
 
 
-def window_mean(rows: np.ndarray, dec: int) -> np.ndarray:
-    """Every dec-th column of `rows` replaced by the mean of the dec columns ending there (the
-    first: itself), as a trace that averages a fast signal over its sample period records it."""
+def window_mean(rows: np.ndarray, dec: int, ticks: int | None = None) -> np.ndarray:
+    """Every dec-th column of `rows` replaced by the mean of the `ticks` columns ending there
+    (default: dec; fewer at the start), as a trace that averages a fast signal over a window
+    (its sample period, or a filter of its own) records it."""
     rows = np.atleast_2d(rows)
+    width = dec if ticks is None else ticks
     c = np.concatenate((np.zeros((len(rows), 1)), np.cumsum(rows, axis=1)), axis=1)
     ends = np.arange(0, rows.shape[1], dec)
-    starts = np.maximum(ends - dec + 1, 0)
+    starts = np.maximum(ends - width + 1, 0)
     return (c[:, ends + 1] - c[:, starts]) / (ends - starts + 1)
+
+
+DEAVERAGE_ITERATIONS = 10  # corrections of the knots (each halves a smooth signal's error)
+
+
+def deaveraged(
+    t_s: np.ndarray, means: np.ndarray, fine_t: np.ndarray, ticks: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(value, rate, second rate) on `fine_t` (ticks h apart from t_s[0], t_s[k] at index
+    k * dec) of a smooth signal whose mean over the `ticks` ticks ending at each stamp t_s[k]
+    is means[k]: a cubic spline through knots at the windows' centres, the knots corrected
+    until its window means are the record's. Interpolating the means themselves smooths the
+    signal twice once the twin's outputs are averaged too (a 50 Hz trace's accelerations, and
+    with them the effort, came out flattened: `trace_filter: mean` made fits worse)."""
+    from scipy.interpolate import CubicSpline
+
+    h = float(fine_t[1] - fine_t[0])
+    dec = round(float(t_s[1] - t_s[0]) / h) if len(t_s) > 1 else 1
+    centres = t_s - 0.5 * (ticks - 1) * h
+    inside = np.clip(fine_t, centres[0], centres[-1])
+    knots = np.asarray(means, dtype=float).copy()
+    spline = CubicSpline(centres, knots)
+    for _ in range(DEAVERAGE_ITERATIONS):
+        seen = window_mean(spline(inside), dec, ticks)[0][: len(knots)]
+        knots += means[: len(seen)] - seen
+        spline = CubicSpline(centres, knots)
+    value = spline(inside)
+    moving = (fine_t >= centres[0]) & (fine_t <= centres[-1])  # held outside the knots
+    return value, spline(inside, 1) * moving, spline(inside, 2) * moving

@@ -27,6 +27,7 @@ from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, cost_of,
 from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.plausible import outside_record
 from feed_twin.analysis.ranking import Candidate, evidence, rank
+from feed_twin.analysis.record_search import AT_EDGE
 from feed_twin.analysis.reexamine import (
     Found,
     collapsed,
@@ -42,9 +43,10 @@ from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import ALPHA, compare, effective_samples
 from feed_twin.analysis.trials import try_candidate
 from feed_twin.analysis.twin import Drive, Twin
-from feed_twin.io.config import ConfigError
+from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
+from feed_twin.plant.slot_specs import with_unit
 
 Progress = Callable[[str], None]
 
@@ -285,6 +287,8 @@ def run_round(
         if verdict.significant:
             _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
             excluded.append(cand.name)
+            if result.message.endswith(AT_EDGE):  # a record slot's search said so
+                ctx.notes.append(f"{cand.name}: {result.message}")
             # the model changed: the rivals tried so far are ranked again on its residual (a
             # backlash tried beside the Coulomb force that hid it is found once that is in)
             ctx.tried.clear()
@@ -404,7 +408,8 @@ def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
     )
     state.doc, state.twin, state.outputs, state.cost = doc, new_twin, result.outputs, result.cost
     shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in explained_by.items())
-    ctx.progress(f"  added {cand.name}: {params}; it removed {shares} residual energy")
+    values = ", ".join(with_unit(k, v) for k, v in params.items())
+    ctx.progress(f"  added {cand.name}: {values}; it removed {shares} residual energy")
 
 
 def drop_collapsed(state: State, ctx: Context, when: str) -> None:

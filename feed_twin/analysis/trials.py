@@ -13,8 +13,9 @@ import dataclasses
 import numpy as np
 
 from feed_twin.analysis.fit import FitResult, FreeParameter, Measured, SimOutputs, cost_of, fit
-from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc, model_of
+from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.record_search import RECORD_SEARCHED, search
 from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.plant.effect_api import Edit
 
@@ -91,15 +92,15 @@ def try_candidate(
 def grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
     """A searched parameter (a delay in ticks, a recorded channel's delay): every grid value
     in one batch, best kept. A record slot (analysis.*) changes no simulation: the twin runs
-    once and its output is shifted for each value."""
+    once and its output is shifted for each value, over a range the record sets
+    (analysis.record_search)."""
+    if edit.own[0].name in RECORD_SEARCHED:
+        return search(twin, edit, drive, meas)
     (param,) = edit.own
-    if param.name == EFFORT_DELAY_SLOT:
-        out = effort_delays(twin, edit, drive)
-    else:
-        batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
-        for i in twin.index[param.name]:
-            batch[:, i] = edit.grid
-        out = twin.simulate(drive, batch)
+    batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
+    for i in twin.index[param.name]:
+        batch[:, i] = edit.grid
+    out = twin.simulate(drive, batch)
     costs = np.array([cost_of(meas, out, row) for row in range(len(edit.grid))])
     best = int(np.argmin(costs))
     start = int(np.argmin(np.abs(np.asarray(edit.grid) - param.initial)))
@@ -118,8 +119,3 @@ def grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResu
         evaluations=len(edit.grid),
         outputs=row,
     )
-
-
-def effort_delays(twin: Twin, edit: Edit, drive: Drive) -> SimOutputs:
-    """The twin's outputs once, its effort shifted by every grid delay (one row each)."""
-    return twin.simulate(drive, twin.nominal[None, :], effort_delays=edit.grid)

@@ -20,15 +20,23 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from feed_twin.analysis.fit import SimOutputs
-from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, ModelDoc
-from feed_twin.analysis.recorder import delayed, start_velocity, window_mean
+from feed_twin.analysis.model_doc import (
+    ANALYSIS_SECTION,
+    EFFORT_DELAY_SLOT,
+    POLE_PAIRS_KEY,
+    POSITION_DELAY_SLOT,
+    RIPPLE_SLOTS,
+    TRACE_WINDOW_SLOT,
+    ModelDoc,
+)
+from feed_twin.analysis.recorder import deaveraged, delayed, start_velocity, window_mean
 from feed_twin.core import signals
 from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
@@ -181,8 +189,7 @@ class Twin:
         lead = float(doc.component(screws[0])["params"]["lead"]) if screws else None
         if lead is None:
             lead = getattr(getattr(cfg, "drive", None), "lead_m", None)
-        motors = doc.of_type("Pmsm")
-        pole_pairs = int(doc.component(motors[0])["params"]["p"]) if motors else None
+        pole_pairs = _pole_pairs(doc)
         return cls(
             doc=doc,
             plant=plant,
@@ -201,7 +208,12 @@ class Twin:
     def base_period_s(self) -> float:
         return float(self.controller.base_period_s)
 
-    def _inputs(self, drive: Drive) -> tuple[np.ndarray, np.ndarray | None, int, int]:
+    def _inputs(
+        self, drive: Drive, window_ticks: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None, int, int]:
+        """(reference rows, external force, base ticks, base ticks per record sample) of the
+        drive; `window_ticks`: the trace's window over which its command samples are means
+        (default: the map's, a sample period for `trace_filter: mean`, else none)."""
         from feed_twin.sim.program import set_nc_reference
 
         h = self.base_period_s
@@ -215,29 +227,32 @@ class Twin:
         n = len(drive.t_s) * dec
         hold = np.repeat  # known inputs are held between record samples
         ref = np.zeros((n, signals.REF_SIZE))
+        if window_ticks is None:
+            window_ticks = dec if drive.trace_mean else 1
         if drive.plan is not None:
             # base tick j is at t_0 + j h on the record's clock, where the plan lies: the NC's
             # own setpoints between the record's samples (a stop's final approach too)
             fine = drive.t_s[0] + h * np.arange(n)
             plan = drive.plan
             set_nc_reference(ref, *(np.interp(fine, plan.t_s, y) for y in plan.setpoints))
-        elif dec == 1:
+        elif dec == 1 and window_ticks <= 1:
             set_nc_reference(ref, drive.pos_ref_m, drive.vel_ref_m_s, drive.acc_ref_m_s2)
         else:
             # a trace slower than the controller (a 50 Hz machine trace of a 1 kHz NC): the NC's
             # setpoints ran smoothly between the samples, so they are interpolated, not held (a
             # held position would step by v * period, millimetres at machine feeds)
             fine = drive.t_s[0] + h * np.arange(n)
-            # a trace's mean over the period ending at its stamp is the value half a period
-            # (less one tick) earlier for a signal smooth over the period: the command's own
-            # time
-            stamps = drive.t_s - (0.5 * (dec - 1) * h if drive.trace_mean else 0.0)
-            set_nc_reference(
-                ref,
-                np.interp(fine, stamps, drive.pos_ref_m),
-                np.interp(fine, stamps, drive.vel_ref_m_s),
-                np.interp(fine, stamps, drive.acc_ref_m_s2),
-            )
+            if window_ticks > 1:
+                # each command sample is a mean over the trace's window: the smooth command
+                # whose window means they are (recorder.deaveraged)
+                set_nc_reference(ref, *deaveraged(drive.t_s, drive.pos_ref_m, fine, window_ticks))
+            else:
+                set_nc_reference(
+                    ref,
+                    np.interp(fine, drive.t_s, drive.pos_ref_m),
+                    np.interp(fine, drive.t_s, drive.vel_ref_m_s),
+                    np.interp(fine, drive.t_s, drive.acc_ref_m_s2),
+                )
         if drive.effort_add is not None:
             gain = self.doc.reference_gain or 1.0
             ref[:, signals.REF_EFFORT_ADD] = hold(drive.effort_add / gain, dec)
@@ -336,30 +351,46 @@ class Twin:
         # is at or after the end of the settling
         return min(len(drive.t_s), math.ceil((settle_ticks + dec - 1) / dec - 1e-9))
 
+    def record_slots(self, drive: Drive) -> dict[str, float]:
+        """The record's own slots (model_doc.RECORD_SLOTS) of this model on `drive`: the
+        delays, and the trace's window, the map's (a sample period for `trace_filter: mean`,
+        else one base tick) unless the model has its own."""
+        h = self.base_period_s
+        declared = drive_period(drive) if drive.trace_mean else h
+        window = self.doc.get(TRACE_WINDOW_SLOT) if self.doc.has_slot(TRACE_WINDOW_SLOT) else None
+        return {
+            EFFORT_DELAY_SLOT: self.doc.get(EFFORT_DELAY_SLOT),
+            POSITION_DELAY_SLOT: self.doc.get(POSITION_DELAY_SLOT),
+            TRACE_WINDOW_SLOT: declared if window is None else window,
+        } | {slot: self.doc.get(slot) for slot in RIPPLE_SLOTS}
+
     def simulate(
-        self, drive: Drive, params: np.ndarray, *, effort_delays: Sequence[float] | None = None
+        self,
+        drive: Drive,
+        params: np.ndarray,
+        *,
+        effort_delays: Sequence[float] | None = None,
+        record: Sequence[Mapping[str, float]] | None = None,
     ) -> SimOutputs:
         """Simulate each row of `params` (full parameter vectors) on the drive's command.
 
-        With `effort_delays` (one row of params) the outputs have one row per delay [s]: the
-        effort as a recorder that stamps it that late sees it, in place of the model's own
-        delay (one simulation for a search of the delay).
+        With `record` (a list of {record slot: value}, model_doc.RECORD_SLOTS) and one row of
+        params, the outputs have one row per entry: the signals as a trace with those slots at
+        those values records them (one simulation for a search of the record's delays or
+        window). `effort_delays`: the same for the effort's delays [s].
         """
         from feed_twin.sim.batch import run_batch
         from feed_twin.sim.engine import check_step
 
-        # keyed by the drive itself, which the cache keeps alive: an id() of a drive already
-        # collected can come back for the next one and return its stale inputs
-        if self._cache.get("drive") is not drive:
-            self._cache = {"drive": drive, "inputs": self._inputs(drive)}
-        ref, ext, n, dec = self._cache["inputs"]
         P = np.array(params, dtype=float, ndmin=2)
-        if effort_delays is None:
-            delays = (self.doc.get(EFFORT_DELAY_SLOT),)
-        elif len(P) == 1:
-            delays = tuple(effort_delays)
-        else:
-            raise ValueError(f"effort_delays need one parameter row, not {len(P)}")
+        if effort_delays is not None:
+            if len(P) != 1:
+                raise ValueError(f"effort_delays need one parameter row, not {len(P)}")
+            record = [{EFFORT_DELAY_SLOT: d} for d in effort_delays]
+        if record is not None and len(P) != 1:
+            raise ValueError(f"record values need one parameter row, not {len(P)}")
+        base = self.record_slots(drive)
+        trace = [base] if record is None else [base | dict(values) for values in record]
         ok = np.ones(len(P), dtype=bool)
         for i, row in enumerate(P):
             try:
@@ -369,24 +400,47 @@ class Twin:
                 ok[i] = False
         rows = np.flatnonzero(ok)
         T = len(drive.t_s)
-        k = len(delays)  # output rows per parameter row
+        k = len(trace)  # output rows per parameter row
         x = np.full((len(P) * k, T), np.nan)
         effort = np.full((len(P) * k, T), np.nan)
         u_q = np.full((len(P) * k, T), np.nan) if self.has_voltage else None
-        if len(rows):
+        # a recorded command is a mean over the trace's window too: one run per window
+        groups: dict[int | None, list[int]] = {}
+        for j, slots in enumerate(trace):
+            groups.setdefault(self._command_window(drive, slots), []).append(j)
+        for window, members in groups.items() if len(rows) else ():
+            ref, ext, n, dec = self._cached_inputs(drive, window)
             x0 = self._x0(drive, P[rows[0]])
             cs0 = self.start_controller(drive, ref)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
             volt = res["out.u_q_ref_V"] if u_q is not None else None
-            for j, delay in enumerate(delays):
-                recorded = self._as_recorded(drive, dec, pos, eff, volt, delay)
+            for j in members:
+                recorded = self._as_recorded(drive, dec, pos, eff, volt, trace[j])
                 x[rows * k + j] = recorded[0][:, :T]
                 effort[rows * k + j] = recorded[1][:, :T]
                 if u_q is not None and recorded[2] is not None:
                     u_q[rows * k + j] = recorded[2][:, :T]
-            ok[rows] = ~res.diverged
+            ok[rows] &= ~res.diverged
         return SimOutputs(x_m=x, effort=effort, ok=np.repeat(ok, k), voltage_q=u_q)
+
+    def _command_window(self, drive: Drive, slots: dict[str, float]) -> int | None:
+        """The window [base ticks] over which the record's command samples are means, None for
+        the map's (a command planned from a program is no trace's: it is not shifted)."""
+        h = self.base_period_s
+        ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
+        declared = round(drive_period(drive) / h) if drive.trace_mean else 1
+        return None if drive.plan is not None or ticks == declared else ticks
+
+    def _cached_inputs(self, drive: Drive, window: int | None):
+        """Twin._inputs, kept per drive and window."""
+        # keyed by the drive itself, which the cache keeps alive: an id() of a drive already
+        # collected can come back for the next one and return its stale inputs
+        if self._cache.get("drive") is not drive:
+            self._cache = {"drive": drive}
+        if window not in self._cache:
+            self._cache[window] = self._inputs(drive, window)
+        return self._cache[window]
 
     def _as_recorded(
         self,
@@ -395,25 +449,48 @@ class Twin:
         pos: np.ndarray,
         eff: np.ndarray,
         volt: np.ndarray | None,
-        delay: float,
+        slots: dict[str, float],
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(position, effort, q-voltage) on the record's samples from the base ticks' values,
-        as the record's trace takes them: every dec-th tick or the mean over each period, the
-        effort stamped `delay` [s] late."""
-        if delay != 0.0 and dec > 1:
+        as the record's trace takes them (`slots`: Twin.record_slots): each the mean over the
+        trace's window ending at its sample (one tick: the tick itself), the position and the
+        effort stamped their delays [s] late."""
+        h = self.base_period_s
+        ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
+        delays = ((0, slots[POSITION_DELAY_SLOT]), (1, slots[EFFORT_DELAY_SLOT]))
+        signals = [pos, self._with_ripple(pos, eff, slots)]
+        fine = dec > 1 or ticks > 1
+        if fine:
             # on the base ticks: a trace's samples are too far apart to shift a transient by
             # a few milliseconds, and a delay commutes with the trace's mean
-            eff = delayed(eff, self.base_period_s * np.arange(eff.shape[1]), delay)
-        if drive.trace_mean and dec > 1:
-            # the record's trace averages each channel over its sample period
-            pos, eff = window_mean(pos, dec), window_mean(eff, dec)
-            volt = None if volt is None else window_mean(volt, dec)
+            for i, delay in delays:
+                if delay != 0.0:
+                    signals[i] = delayed(signals[i], h * np.arange(signals[i].shape[1]), delay)
+        if ticks > 1:
+            signals = [window_mean(y, dec, ticks) for y in signals]
+            volt = None if volt is None else window_mean(volt, dec, ticks)
         else:
-            pos, eff = pos[:, ::dec], eff[:, ::dec]
+            signals = [y[:, ::dec] for y in signals]
             volt = None if volt is None else volt[:, ::dec]
-        if delay != 0.0 and dec == 1:
-            eff = delayed(eff, drive.t_s, delay)
-        return pos, eff, volt
+        if not fine:
+            for i, delay in delays:
+                if delay != 0.0:
+                    signals[i] = delayed(signals[i], drive.t_s, delay)
+        return signals[0], signals[1], volt
+
+    def _with_ripple(self, pos: np.ndarray, eff: np.ndarray, slots: dict[str, float]):
+        """The effort with the ripple of the record's current-sensor offsets (RIPPLE_SLOTS: sin
+        and cos of the electrical angle p 2 pi x / lead of the measured position)."""
+        s, c = (slots[k] for k in RIPPLE_SLOTS)
+        if s == 0.0 and c == 0.0:
+            return eff
+        if self.pole_pairs is None or self.lead_m is None:
+            raise ConfigError(
+                f"{self.doc.source}: a current-offset ripple needs the motor's pole pairs "
+                f"({ANALYSIS_SECTION}.{POLE_PAIRS_KEY}) and the screw's lead"
+            )
+        theta = self.pole_pairs * 2.0 * math.pi * pos / self.lead_m
+        return eff + s * np.sin(theta) + c * np.cos(theta)
 
     def _measured_signals(self, res: Any, dec: int) -> tuple[np.ndarray, np.ndarray]:
         return self.measured_signals(res, dec)
@@ -440,6 +517,28 @@ class Twin:
         if lead is None:
             raise ConfigError(f"{self.doc.source}: controller.drive.lead_m is needed")
         return float(lead)
+
+
+def _pole_pairs(doc: ModelDoc) -> int | None:
+    """The motor's pole pairs: its Pmsm's, else the model's analysis.pole_pairs (a twin that
+    models the drive as an effort source), else unknown."""
+    motors = doc.of_type("Pmsm")
+    if motors:
+        return int(doc.component(motors[0])["params"]["p"])
+    given = (doc.data.get(ANALYSIS_SECTION) or {}).get(POLE_PAIRS_KEY)
+    if given is None:
+        return None
+    if isinstance(given, bool) or not isinstance(given, int) or given < 1:
+        raise ConfigError(
+            f"{doc.source}: {ANALYSIS_SECTION}.{POLE_PAIRS_KEY} = {given!r}: must be a whole "
+            "number >= 1"
+        )
+    return given
+
+
+def drive_period(drive: Drive) -> float:
+    """[s] The record's sample period."""
+    return float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
 
 
 def _recorded(has_voltage: bool) -> list[str]:

@@ -19,7 +19,7 @@ anything moves. Outputs:
 `--in-process --shadow` adds the shadow twin of every simulated axis beside its stand-in
 (feed_twin.machine.shadow, over the program's samples): residuals and health per axis in the
 summary and under "shadow" in the JSON line. In-process, the node-set options (--realtime,
---single-process, --live, --no-gcode) are refused.
+--single-process, --no-gcode) are refused; --live shows the dashboard once written.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from feed_twin.nodeset.config import StateSignals
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.nodeset.wire import NS_PER_S
 
-NODE_SET_OPTIONS = ("realtime", "single_process", "live", "no_gcode")
+NODE_SET_OPTIONS = ("realtime", "single_process", "no_gcode")
 
 
 def _state_fields(
@@ -160,6 +160,7 @@ def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
 def run_machine(args: argparse.Namespace) -> int:
     """The in-process `feed-twin run` of a machine config (module docstring)."""
     from feed_twin.gcode.geometry import programmed_path
+    from feed_twin.io.live import show_recording
     from feed_twin.machine.dashboard import write_machine_dashboard
 
     machine = prepare_machine(args)
@@ -171,6 +172,7 @@ def run_machine(args: argparse.Namespace) -> int:
     run = simulate_machine(machine, args.program, settle_s=args.settle)
     write_machine_bag(run, machine, bag_path)
     write_machine_dashboard(run, programmed_path(args.program, machine.nc), rrd_path)
+    show_recording(getattr(args, "live_viewer", None), rrd_path)
     summary = run.summary()
     fe = ", ".join(f"{a} {v * 1e6:.2f} um" for a, v in summary["following_error_max_m"].items())
     print(

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 
 from feed_twin.core.config import ConfigError
 from feed_twin.io import msg_types
+from feed_twin.io.live import show_recording
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import (
     RECORDER_PROCESS,
@@ -46,7 +47,7 @@ from feed_twin.ros.launch import Launched, launch, log_record
 if TYPE_CHECKING:
     from feed_twin.ros.domain import DomainReservation
 
-REFUSED = ("single_process", "live", "no_gcode", "shadow")
+REFUSED = ("single_process", "no_gcode", "shadow")
 
 
 def check_plan(machine: MachineConfig, files: Mapping[str, Path], *, shadow: bool = False) -> None:
@@ -94,6 +95,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         summary, problem = _finish(bag, machine, args.program)
         if summary is not None:
             summary["rrd"] = str(bag.with_name(f"{bag.name}.rrd"))
+            show_recording(getattr(args, "live_viewer", None), summary["rrd"])
     else:
         print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
     failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.core.config import ConfigError
+from feed_twin.io.live import show_recording
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.shadow_nodes import MODULES, ShadowPlan, shadow_plan
 from feed_twin.ros import preflight
@@ -34,7 +35,7 @@ from feed_twin.ros.launch import log_record
 from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
 
 # the node set plays the program in lockstep, all axes in one bag, started here
-REFUSED = ("single_process", "live", "no_gcode", "realtime", "start")
+REFUSED = ("single_process", "no_gcode", "realtime", "start")
 
 
 def refused_options(args: argparse.Namespace) -> str:
@@ -88,6 +89,9 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     bridge = linuxcnc_figures(bag, plan, report, figures) if linuxcnc and figures else None
     if figures is not None:
         print_figures(plan, figures)
+        for axis in plan.axes:
+            if plan.rrd(bag, axis).exists():
+                show_recording(getattr(args, "live_viewer", None), plan.rrd(bag, axis))
     if bridge is not None:
         said = {k: "?" if v is None else f"{v:.3f}" for k, v in bridge.items()}
         print(

@@ -25,7 +25,6 @@ shadow figures (feed_twin.shadow.summary). Processes are started and watched by 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import os
@@ -36,6 +35,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from feed_twin.core.config import ConfigError
+from feed_twin.io.live import add_live_options, linger, start_live
 from feed_twin.nodeset.guard import RUN_TOKEN_ENV
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
@@ -48,6 +48,7 @@ if TYPE_CHECKING:
     from feed_twin.shadow.summary import ShadowFigures
 
 ROLES = (RECORDER_NODE, "controller", "sim", "gcode")
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "axis_default.yaml"
 # --shadow: the stand-in plays the real machine (drive and axis), the twin shadows it
 SHADOW_ROLES = ("recorder", "twin", "standin", "gcode")
 # --nc linuxcnc --shadow: LinuxCNC is the NC and the machine (feed_twin/ros/linuxcnc_node.py)
@@ -56,19 +57,28 @@ LINUXCNC_ROLES = ("recorder", "twin", "linuxcnc")
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("program", type=Path, nargs="?", help="G-code program")
-    parser.add_argument("--config", type=Path, default=Path("config/axis_default.yaml"))
+    parser.add_argument(
+        "--config", type=Path, default=DEFAULT_CONFIG,
+        help=f"axis or machine YAML (default: {DEFAULT_CONFIG}, this checkout's)",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("bags"), help="output directory")
     parser.add_argument("--name", default=None, help="bag name (default: program + time)")
     parser.add_argument("--realtime", action="store_true", help="pace by the wall clock")
     parser.add_argument("--json", action="store_true", help="last line: one JSON object")
-    parser.add_argument("--single-process", action="store_true")
-    parser.add_argument("--live", action="store_true", help="serve a live web viewer")
+    parser.add_argument(
+        "--single-process", action="store_true",
+        help="every node in this one process on one executor (no DDS between processes)",
+    )  # fmt: skip
+    add_live_options(parser)
     parser.add_argument("--optional-stop", action="store_true", help="M1 pauses")
     parser.add_argument("--max-time", type=float, default=None, help="simulated seconds at most")
     parser.add_argument(
         "--input-timeout", type=float, default=10.0, help="silence on an input topic [s]"
     )
-    parser.add_argument("--startup-timeout", type=float, default=120.0)
+    parser.add_argument(
+        "--startup-timeout", type=float, default=120.0,
+        help="[s] for every node to come up and see its peers (default 120)",
+    )  # fmt: skip
     parser.add_argument(
         "--shadow",
         action="store_true",
@@ -329,6 +339,8 @@ def _finish_shadow(args: argparse.Namespace, topics, out: Outputs):
             twin_namespace=twin_namespace(topics.command),
             effort_unit=report.get("effort_unit") or _effort_unit(args.config),
             lag_p99_ms=float(lag) if lag is not None else math.nan,
+            config=args.config,
+            column_map=out.map,
         )
     except ValueError as exc:
         return None, str(exc)
@@ -339,7 +351,29 @@ def _finish_shadow(args: argparse.Namespace, topics, out: Outputs):
         report = log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}
         namespace = twin_namespace(topics.command)
         extra = linuxcnc_figures(out.bag, twin_namespace=namespace, report=report)
+        _linuxcnc_dashboard(args, topics, out, extra.format())
     return _ShadowSummary(run, figures, extra), ""
+
+
+def _linuxcnc_dashboard(args: argparse.Namespace, topics, out: Outputs, figures: str) -> None:
+    """`<run>_linuxcnc.rrd` beside the twin's: LinuxCNC's servo samples, PID output, timing."""
+    import numpy as np
+
+    from feed_twin.io.bag import BagError
+    from feed_twin.io.live import show_recording
+    from feed_twin.linuxcnc.dashboard import read_servo_trace, write_linuxcnc_dashboard
+
+    try:
+        trace = read_servo_trace(out.bag, f"{topics.namespace}/linuxcnc/servo")
+    except (BagError, ValueError) as exc:
+        print(f"feed-twin run: no LinuxCNC dashboard: {exc}", file=sys.stderr)
+        return
+    if len(trace.t_s) < 2:
+        return
+    rrd = out.bag.with_name(f"{out.bag.name}_linuxcnc.rrd")
+    period = float(np.median(np.diff(trace.t_s)))
+    write_linuxcnc_dashboard(trace, topics.axis.upper(), period, figures, rrd)
+    show_recording(getattr(args, "live_viewer", None), rrd)
 
 
 def _effort_unit(config: Path) -> str:
@@ -364,6 +398,28 @@ class _ShadowSummary:
 
 
 def main(args: argparse.Namespace) -> int:
+    """The run in any mode; with --live, its dashboards served in a browser during the run (or
+    once written, for the modes that write them at the end) and after it (feed_twin.io.live)."""
+    try:
+        viewer = start_live(args)
+    except (ValueError, RuntimeError) as exc:
+        return _early_error(args, str(exc))
+    args.live_viewer = viewer
+    args.live_url = None if viewer is None else viewer.grpc_url
+    try:
+        code = _run(args)
+    except BaseException:
+        if viewer is not None:
+            viewer.stop()
+        raise
+    if code == 2 and viewer is not None:  # nothing ran: nothing to show
+        viewer.stop()
+        return code
+    linger(viewer, args.live_linger)
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
     from feed_twin.gcode import GcodeError
 
     if _is_machine_config(args.config):
@@ -422,27 +478,13 @@ def main(args: argparse.Namespace) -> int:
             _write_shadow_map(args, ros, nc, out)
         except (ConfigError, ValueError, OSError) as exc:
             return _early_error(args, str(exc))
-    viewer = None
-    args.live_url = None
-    if args.live:
-        from feed_twin.io.dashboard import LiveViewer
-
-        viewer = LiveViewer()
-        args.live_url = viewer.grpc_url
-        print(f"live viewer (127.0.0.1 only): {viewer.web_url}", file=sys.stderr)
     try:
         if args.single_process:
             code, reason, timing = _run_single_process(args, ros, out)
         else:
             code, reason, timing = _run_processes(args, ros, out)
         summary, problem = _finish_outputs(args, ros, out)
-        if viewer is not None and sys.stdin.isatty():
-            print("the live viewer stays up; press Enter to stop it", file=sys.stderr)
-            with contextlib.suppress(KeyboardInterrupt, EOFError):
-                input()
     finally:
-        if viewer is not None:
-            viewer.stop()
         if reservation is not None:
             reservation.release()
     code = 1 if code == 0 and summary is None else preflight.exit_status(code)

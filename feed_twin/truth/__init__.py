@@ -17,7 +17,7 @@ Making a record (CSV + column map, exactly what `feed-twin diagnose` takes):
         hidden=hidden,              # effect name -> the values the workflow reports for it
         machine=NOMINAL,            # the machine before the effects (truth.machine.Machine)
         trace=Trace(period_s=1e-3, average=True, delay_effort_s=2e-3),  # how the trace exports
-        program=PROGRAM,            # G-code (truth.record.PROGRAM, VALIDATION_PROGRAM, ...)
+        program=PROGRAM,            # G-code (PROGRAM, VALIDATION_PROGRAM, long_program(5), ...)
         seed=0,                     # the measurement noise
     )
     # rec.csv, rec.map, rec.machine (the truth with its effects), rec.hidden
@@ -34,6 +34,7 @@ from feed_twin.truth.record import (
     VALIDATION_PROGRAM,
     Record,
     command,
+    long_program,
     make_record,
     simulate,
 )
@@ -52,6 +53,7 @@ __all__ = [
     "command",
     "draw",
     "draw_all",
+    "long_program",
     "machine_with",
     "make_record",
     "simulate",

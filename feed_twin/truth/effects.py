@@ -15,7 +15,9 @@ the data sheet (and the nominal twin, config/truth_nominal.yaml) says 60 N.
     mass_error               table + load 150 + 100 f kg (m_kg: the table mass)
     torque_constant_error    K_t off by +-8 f % (sign drawn)
     measurement_delay        the loops' position 1-4 ms late (round(2 f) ms, >= 1)
-    stiction                 Karnopp sticking, holding (= sliding) force 60 (1 + f) N
+    stiction                 Karnopp sticking of the data sheet's Coulomb friction: held at rest
+                             up to the sliding force, F_hold = 60 N (no size: on or off; the
+                             twin's stiction holds with its sliding force too)
     backlash                 10 f um of lost motion between nut and table
     lead_error               3 f um once per screw revolution, phase uniform
     position_dependent_stiffness   bearing stiffness and EA both / (1 + f)
@@ -146,7 +148,7 @@ EFFECTS: dict[str, tuple[Apply, Draw]] = {
         lambda f, r: {"gain": NOMINAL.K_t * (1.0 + 0.08 * f * _sign(r))},
     ),
     "measurement_delay": (_delay, lambda f, r: {"delay_ticks": float(max(1, round(2.0 * f)))}),
-    "stiction": (_stiction, lambda f, r: {"F_hold_N": 60.0 * (1.0 + f)}),
+    "stiction": (_stiction, lambda f, r: {"F_hold_N": NOMINAL.F_c_pos}),
     "backlash": (_backlash, lambda f, r: {"gap_m": 10e-6 * f}),
     "lead_error": (_lead, lambda f, r: {"amplitude_m": 3e-6 * f, "phase_rad": _phase(r)}),
     "position_dependent_stiffness": (

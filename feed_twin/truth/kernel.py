@@ -191,6 +191,7 @@ def run(P: KernelParams, x_ref: np.ndarray, v_ref: np.ndarray, x0: float) -> np.
     int_q = 0.0
     int_v = 0.0
     iq_ref = 0.0
+    v_p = 0.0
     v_cmd = 0.0
     x_prev = x0
     nd = int(P.delay_periods)
@@ -208,7 +209,10 @@ def run(P: KernelParams, x_ref: np.ndarray, v_ref: np.ndarray, x0: float) -> np.
         n_vel = int(P.n_vel)
         if k % n_vel == 0:
             if (k // n_vel) % int(P.n_pos) == 0:
-                v_cmd = P.Kv * (x_ref[k] - x_fb) + P.vff * v_ref[k]
+                v_p = P.Kv * (x_ref[k] - x_fb)
+            # the speed feed-forward is fine-interpolated at the velocity-loop rate: held over
+            # a position period it would step, and the current kick at each step
+            v_cmd = v_p + P.vff * v_ref[k]
             v_est = (x_fb - x_prev) / (P.T_i * P.n_vel) if k > 0 else 0.0
             x_prev = x_fb
             e_v = v_cmd - v_est

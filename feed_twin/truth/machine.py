@@ -15,8 +15,9 @@ laws, numerics and rates:
   holding force) and optionally growing linearly over the record (drift);
 - gravity on an unbalanced mass (a vertical axis);
 - a velocity PI at `f_velocity_hz` on a backward-difference speed of the quantised motor
-  encoder, and a position P loop with velocity feed-forward at `f_position_hz`, closed on the
-  motor encoder (semi-closed loop), whose measurement may come late.
+  encoder, and a position P loop at `f_position_hz`, closed on the motor encoder (semi-closed
+  loop), whose measurement may come late; the speed feed-forward enters at the velocity rate;
+- NC setpoints fine-interpolated by a cubic Hermite spline, one NC period late.
 SI units throughout; table coordinate x [m], positive away from the motor.
 """
 

@@ -33,6 +33,7 @@ class Trace:
     command_resolution_m: float = 1.0e-8  # rounding of the recorded setpoint [m]
     effort_noise_A: float = 0.01  # current-measurement noise, std at the record rate [A]
     effort_resolution_A: float = 0.0  # rounding of the recorded current [A]; 0: none
+    effort_source: Literal["actual", "setpoint"] = "actual"  # measured i_q or its setpoint
     effort_unit: Literal["A", "Nm"] = "A"  # current, or torque through the data-sheet K_t
     effort_sign: int = 1  # -1: the drive records the current with the opposite sign
 
@@ -56,6 +57,8 @@ class Trace:
             raise ValueError(f"effort_sign = {self.effort_sign!r}: must be 1 or -1")
         if self.position_source not in ("scale", "motor"):
             raise ValueError(f"position_source = {self.position_source!r}: 'scale' or 'motor'")
+        if self.effort_source not in ("actual", "setpoint"):
+            raise ValueError(f"effort_source = {self.effort_source!r}: 'actual' or 'setpoint'")
         if self.effort_unit not in ("A", "Nm"):
             raise ValueError(f"effort_unit = {self.effort_unit!r}: 'A' or 'Nm'")
 

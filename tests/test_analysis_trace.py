@@ -1,0 +1,185 @@
+"""The trace between machine and record is part of the model, and identified: a delay of the
+recorded position, a trace's averaging window, and delays searched over a range the record
+sets, with a word when the best lies at its edge (analysis.record_search)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from feed_twin.analysis import record_search
+from feed_twin.analysis.channels import noise_floors, weighted_channels
+from feed_twin.analysis.diagnose import diagnose
+from feed_twin.analysis.effects import BY_NAME
+from feed_twin.analysis.model_doc import EFFORT_DELAY_SLOT, RIPPLE_SLOTS
+from feed_twin.analysis.recorder import window_mean
+from feed_twin.analysis.synthetic import as_trace, generate, write_csv
+from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
+from feed_twin.core.config import ConfigError
+from feed_twin.io.measured import load_measured
+
+ROOT = Path(__file__).resolve().parents[1]
+NOMINAL = ROOT / "config" / "emps_nominal.yaml"
+
+
+def _record(tmp_path: Path, hidden: dict, *, window_ticks: int = 1):
+    """A synthetic 1 kHz record; with `window_ticks` every recorded channel (not the
+    command) is the mean over that many ticks ending at its sample (a trace filter)."""
+    nominal = ModelDoc.load(NOMINAL)
+    columns = generate(nominal, hidden)
+    traced = {
+        k: v if k in ("time_ms", "x_cmd_mm") else window_mean(v, 1, window_ticks)[0]
+        for k, v in columns.items()
+    }
+    map_path = write_csv(tmp_path / "run.csv", traced, nominal)
+    return nominal, load_measured(tmp_path / "run.csv", map_path)
+
+
+def test_a_delay_of_the_recorded_position_is_named(tmp_path):
+    """The position stamped 2 ms after the command and the effort: named, not "no missing
+    effect" beside a position residual 3.35e4 x its noise."""
+    nominal, run = _record(tmp_path, {"position_delay": {"delay_s": 0.002}})
+    d, _, _ = diagnose(run, nominal)
+    assert [e.name for e in d.effects] == ["position_delay"]
+    assert d.effects[0].parameters["delay_s"] == pytest.approx(0.002, abs=2.5e-4)
+    assert d.after.fe_dev_rms_m < 0.02 * d.before.fe_dev_rms_m
+
+
+def test_a_declared_20_ms_mean_makes_the_fit_better_not_worse(tmp_path):
+    """A 50 Hz trace whose every channel (the command too) is the mean over its 20 ms, as
+    controllers export them, with 15 N of Coulomb friction. Declared (`trace_filter: mean`),
+    the command is rebuilt from its means (recorder.deaveraged) before the twin's outputs are
+    averaged: interpolating the means smoothed the command twice, and the declared record fit
+    worse than the same taken as point samples (Coulomb 13.4 N beside a false drive gain, 22 %
+    effort error left; as point samples a false 137 kg mass, 13 %)."""
+    nominal = ModelDoc.load(NOMINAL)
+    columns = as_trace(generate(nominal, {"coulomb_friction": {"F_c_N": 15.0}}), 20)
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    map_path.write_text(map_path.read_text() + "trace_filter: mean\n")
+    run = load_measured(tmp_path / "run.csv", map_path)
+    d, _, _ = diagnose(run, nominal)
+    assert [e.name for e in d.effects] == ["coulomb_friction"]
+    assert d.effects[0].parameters["F_c_N"] == pytest.approx(15.0, rel=0.02)
+    assert d.after.effort_rel_err_pct is not None and d.after.effort_rel_err_pct < 10.0
+    assert d.after.fe_dev_rms_m < 2e-6
+
+
+def test_an_undeclared_mean_is_identified_on_the_truth_machine(tmp_path):
+    """The independent truth machine's 50 Hz trace, each channel the mean over its period,
+    the map silent about it: trace_window names the 20 ms, and the position's lag behind
+    the twin (35 um RMS) is not left."""
+    from feed_twin.truth import Trace, make_record
+
+    nominal = ModelDoc.load(ROOT / "config" / "truth_nominal.yaml")
+    trace = Trace(period_s=0.02, average=True, declare_average=False)
+    rec = make_record(tmp_path / "run.csv", trace=trace, seed=1)
+    run = load_measured(rec.csv, rec.map)
+    assert run.trace_filter == "none"
+    d, _, _ = diagnose(run, nominal)
+    found = {e.name: e.parameters for e in d.effects}
+    assert found["trace_window"]["window_s"] == pytest.approx(0.020)
+    assert d.before.fe_dev_rms_m > 30e-6
+    assert d.after.fe_dev_rms_m < 15e-6
+
+
+def test_a_delay_is_searched_over_the_record_and_an_edge_is_said(tmp_path, monkeypatch):
+    """The effort stamped 5 ms late, searched from an edit's grid of +/- 1 ms: the range is
+    the record's (3 samples), widened while the best lies at its edge; with no widening
+    left the best is at the edge and the result says so."""
+    nominal, run = _record(tmp_path, {"channel_delay": {"delay_s": 0.005}})
+    twin = Twin.compile(nominal)
+    drive = drive_from_run(run)
+    out = twin.simulate(drive, twin.nominal[None, :])
+    meas = weighted_channels(run, out, 1, noise_floors(run, out))
+    edit = BY_NAME["channel_delay"].edit(nominal, None)  # type: ignore[arg-type]
+    narrow = type(edit)(**{**edit.__dict__, "grid": (-1e-3, 0.0, 1e-3)})
+    found = record_search.search(twin, narrow, drive, meas)
+    assert found.values[EFFORT_DELAY_SLOT] == pytest.approx(0.005, abs=5e-4)
+    assert not found.message.endswith(record_search.AT_EDGE)
+    assert "over [-6, 6] ms" in found.message  # 3 ms, doubled once
+    monkeypatch.setattr(record_search, "WIDENINGS", 0)
+    edge = record_search.search(twin, narrow, drive, meas)
+    assert edge.values[EFFORT_DELAY_SLOT] == pytest.approx(0.003, abs=1e-6)
+    assert edge.message.endswith(
+        f"over [-3, 3] ms; the best, 3 ms, lies {record_search.AT_EDGE}"
+    ), edge.message
+    assert found.cost < edge.cost
+
+
+def test_averaging_as_declared_is_the_model_until_a_window_is_fitted():
+    """Twin.record_slots: without a window of its own the twin averages as the map says."""
+    nominal = ModelDoc.load(NOMINAL)
+    twin = Twin.compile(nominal)
+    t = 0.02 * np.arange(50)
+    from feed_twin.analysis.twin import Drive
+
+    slots = twin.record_slots(Drive.at_rest(t, trace_mean=True))
+    assert slots[record_search.TRACE_WINDOW_SLOT] == pytest.approx(0.02)
+    assert twin.record_slots(Drive.at_rest(t))[record_search.TRACE_WINDOW_SLOT] == 1e-3
+    fitted = Twin.compile(nominal.set(record_search.TRACE_WINDOW_SLOT, 0.005))
+    assert fitted.record_slots(Drive.at_rest(t, trace_mean=True))[
+        record_search.TRACE_WINDOW_SLOT
+    ] == pytest.approx(0.005)
+
+
+def _with_pole_pairs(doc: ModelDoc, p: int = 3) -> ModelDoc:
+    import dataclasses
+
+    return dataclasses.replace(doc, data={**doc.data, "analysis": {"pole_pairs": p}})
+
+
+def test_phase_current_offsets_without_a_current_sensor_are_not_cogging(tmp_path):
+    """The EMPS twin drives its table with an effort source (no motor, no current sensor);
+    the drive's phase-current offsets leave a ripple once per electrical revolution (3 per
+    motor revolution) in the recorded effort. Named current_offset with its offsets, not
+    cogging torque (whose orders leave out the pole pairs)."""
+    nominal = _with_pole_pairs(ModelDoc.load(NOMINAL))
+    gain = nominal.reference_gain
+    assert gain is not None
+    # offsets of +0.03, -0.01, -0.02 V on the drive's three phase sensors (the EMPS effort is
+    # a voltage): alpha = 0.03, beta = (o_b - o_c) / sqrt(3)
+    offsets = (0.03, -0.01, -0.02)
+    alpha, beta = offsets[0], (offsets[1] - offsets[2]) / np.sqrt(3.0)
+    truth = nominal.set(RIPPLE_SLOTS[0], -alpha * gain).set(RIPPLE_SLOTS[1], beta * gain)
+    columns = generate(truth, {"coulomb_friction": {"F_c_N": 10.0}})
+    map_path = write_csv(tmp_path / "run.csv", columns, nominal)
+    run = load_measured(tmp_path / "run.csv", map_path)
+    d, _, _ = diagnose(run, nominal)
+    found = {e.name: e.parameters for e in d.effects}
+    assert "cogging_torque" not in found and "current_offset" in found, found
+    for k, x in enumerate("abc"):
+        assert found["current_offset"][f"offset_{x}_A"] == pytest.approx(offsets[k], abs=3e-3)
+    assert found["coulomb_friction"]["F_c_N"] == pytest.approx(10.0, rel=0.1)
+
+
+def test_pole_pairs_of_an_effort_source_twin_must_be_whole():
+    doc = _with_pole_pairs(ModelDoc.load(NOMINAL))
+    bad = type(doc)(data={**doc.data, "analysis": {"pole_pairs": 2.5}}, source="m.yaml")
+    with pytest.raises(ConfigError) as err:
+        Twin.compile(bad)
+    assert str(err.value) == "m.yaml: analysis.pole_pairs = 2.5: must be a whole number >= 1"
+
+
+def test_the_records_rounding_floors_its_noise():
+    """A position rounded to 1 um (a trace's display digits) that rests between two counts has
+    no sample-to-sample noise; its rounding noise, q / sqrt(12), is the least its channel's
+    noise can be (an effect is not named for the rounding)."""
+    from feed_twin.analysis.channels import quantisation_step
+    from feed_twin.analysis.fit import SimOutputs
+    from feed_twin.io.measured import MeasuredRun
+
+    q = 1e-6
+    t = 1e-3 * np.arange(4000)
+    x = 0.1 + 2e-6 * np.sin(2.0 * np.pi * t) + 1e-3 * np.clip(t - 3.0, 0.0, None)
+    rounded = np.round(x / q) * q
+    assert quantisation_step(rounded) == pytest.approx(q, rel=1e-6)
+    assert quantisation_step(x) == 0.0  # not rounded: no step of its own
+    assert quantisation_step(0.1 * t) == 0.0  # a ramp's equal gaps are no step
+    run = MeasuredRun(
+        source="trace.csv", t_s=t, signals={"pos_meas_m": rounded}, position_sensor="linear_scale"
+    )
+    out = SimOutputs(x_m=x[None, :], effort=None, ok=np.ones(1, dtype=bool))
+    floors = noise_floors(run, out)
+    assert floors["position"] == pytest.approx(q / np.sqrt(12.0), rel=1e-6)
