@@ -146,7 +146,9 @@ loadusr -w sh sample.sh
 stop
 """
     sampler = f"halsampler -n {n_periods} > samples.txt\n"
-    with hal_session(script, files={"sample.sh": sampler}) as (log, workdir):
+    # the session runs the periods in (about) real time, plus LinuxCNC's start and stop
+    timeout = n_periods * servo_period_ns * 1e-9 + 60.0
+    with hal_session(script, files={"sample.sh": sampler}, timeout=timeout) as (log, workdir):
         path = workdir / "samples.txt"
         if not path.exists():
             raise RuntimeError(f"the HAL session recorded nothing:\n{log}")
