@@ -13,6 +13,7 @@ import contextlib
 import ctypes
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -224,6 +225,29 @@ def log_record(log: Path, prefix: str) -> dict | None:
     except (OSError, ValueError):
         pass
     return None
+
+
+_SLOW = re.compile(r"node '([^']+)' is slow: no heartbeat for (\S+) s")
+
+
+def slow_nodes(logs: Path) -> dict[str, float]:
+    """Nodes some peer said slow during the run (feed_twin.nodeset.liveness), with the
+    longest silence said [s], from the nodes' logs in `logs`."""
+    found: dict[str, float] = {}
+    for log in sorted(Path(logs).glob("*.log")):
+        with contextlib.suppress(OSError):
+            for name, seconds in _SLOW.findall(log.read_text(errors="replace")):
+                found[name] = max(found.get(name, 0.0), float(seconds))
+    return found
+
+
+def slow_line(logs: Path) -> str | None:
+    """One line naming the slow (not gone) nodes, or None."""
+    slow = slow_nodes(logs)
+    if not slow:
+        return None
+    named = ", ".join(f"'{n}' ({s:.2f} s without heartbeat)" for n, s in sorted(slow.items()))
+    return f"slow, not gone (the run went on): {named}"
 
 
 class _Progress:

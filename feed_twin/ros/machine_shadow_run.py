@@ -98,6 +98,11 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
             f"latency p99 {said['bridge_latency_p99_ms']} ms"
         )
+        from feed_twin.linuxcnc.summary import servo_timing_from_report
+
+        servo_timing = servo_timing_from_report(report)
+        if servo_timing is not None:
+            print(servo_timing.format())
     foreign = foreign_messages(result.logs.values())
     for line in foreign.lines():
         print(line)  # the run's own output names who sent what it dropped

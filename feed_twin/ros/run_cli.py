@@ -40,7 +40,7 @@ from feed_twin.nodeset.foreign import ForeignLedger, merge
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
-from feed_twin.ros.launch import foreign_messages, launch, log_record
+from feed_twin.ros.launch import foreign_messages, launch, log_record, slow_line
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
@@ -485,6 +485,9 @@ def _run(args: argparse.Namespace) -> int:
         print(f"feed-twin run: {reason}", file=sys.stderr)
     if summary is None and problem:
         print(f"feed-twin run: {problem}", file=sys.stderr)
+    slow = slow_line(out.logs)
+    if slow:
+        print(f"feed-twin run: {slow}", file=sys.stderr)
     preflight.remove_incomplete_rrd(out.rrd)
     report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
     print(report.format())
@@ -543,6 +546,8 @@ def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, s
     """The run's end as `RunReport`: outputs, domain, timing and the mode's figures."""
     from feed_twin.nodeset.run_report import RunReport, RunTiming
 
+    if args.nc == "linuxcnc" and not timing:
+        timing = _linuxcnc_timing(out)
     run_timing = RunTiming.from_report(timing)
     figures = summary.as_dict() if summary is not None else {}
     samples = run_timing.steps if run_timing.steps is not None else figures.get("samples")
@@ -564,6 +569,22 @@ def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, s
         figure_lines=tuple(summary.format().splitlines()) if summary is not None else (),
         foreign_messages=out.foreign.as_dict(),
     )
+
+
+def _linuxcnc_timing(out: Outputs) -> dict:
+    """Beside LinuxCNC the run is paced by LinuxCNC's servo thread: its lateness is how late
+    the twin shadows it, servo tick -> the twin's output back at the bridge (LINUXCNC record)."""
+    report = log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}
+    if not report.get("twin_output_latency_count"):
+        return {}
+    return {
+        "steps": report.get("samples_published"),
+        "sim_time_s": report.get("program_time_s"),
+        "wall_time_s": report.get("wall_s"),
+        "lateness_p50_ms": report.get("twin_output_latency_p50_ms"),
+        "lateness_p99_ms": report.get("twin_output_latency_p99_ms"),
+        "lateness_max_ms": report.get("twin_output_latency_max_ms"),
+    }
 
 
 def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:

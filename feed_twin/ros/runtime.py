@@ -1,9 +1,11 @@
 """What every feed_twin node shares: liveness, input watchdogs, and the spin loop.
 
-- Liveness: each node publishes a heartbeat (its role) every 0.1 s of wall time on
-  `/<machine>/<axis>/heartbeat` and watches its peers' heartbeats. A peer that was seen and then
-  stays silent for `peer_timeout_s` (0.8 s) is gone: the node names it and stops with exit code
-  `EXIT_PEER_LOST`. A peer never seen within `startup_timeout_s` is reported as not started.
+- Liveness: each node publishes a heartbeat (its role, process id and host) every 0.1 s of wall
+  time on `/<machine>/<axis>/heartbeat` and watches its peers' heartbeats. A peer that was seen
+  and then stays silent for `peer_timeout_s` (0.8 s) is gone when its process is dead: the node
+  names it and stops with exit code `EXIT_PEER_LOST`; when its process lives it is slow (a busy
+  host): said once, the run goes on, up to `hung_s` (feed_twin.nodeset.liveness). A peer never
+  seen within `startup_timeout_s` is reported as not started.
   Heartbeats begin only after a node's set-up (numba compilation included), so a slow start is
   not mistaken for a crash, and (with `start_heartbeat(when=...)`) only once the recorder
   listens to the node's data topics, so that no run starts before its bag can hold everything.
@@ -52,6 +54,13 @@ from std_msgs.msg import String
 
 from feed_twin.nodeset.auth import RunAuth, key_from_environ
 from feed_twin.nodeset.foreign import ForeignLedger, merge
+from feed_twin.nodeset.liveness import (
+    HUNG_S,
+    Beat,
+    heartbeat_text,
+    parse_heartbeat,
+    silence_verdict,
+)
 from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
 from feed_twin.ros.dds import HEARTBEAT_QOS, LATCHED_QOS, init_context
 from feed_twin.ros.exit_timer import exit_after
@@ -95,14 +104,15 @@ class NodeOptions:
     peers: tuple[str, ...]  # roles whose heartbeat this node watches
     startup_timeout_s: float = 60.0  # [s] wall time for peers to appear
     input_timeout_s: float = 10.0  # [s] wall time an expected topic may stay silent
-    peer_timeout_s: float = PEER_TIMEOUT_S  # [s]
+    peer_timeout_s: float = PEER_TIMEOUT_S  # [s] silent this long: slow, or gone if dead
+    hung_s: float = HUNG_S  # [s] a peer whose process lives but is silent this long is hung
     # A machine's G-code and recorder node serve several axes (feed_twin.machine.nodes): they
     # also beat, watch peers (named `<axis>/<role>`) and wait for the run's end there.
     other_axes: tuple[str, ...] = ()
     command_axes: tuple[str, ...] = ()  # NC axes without nodes: commanded and recorded only
 
     def __post_init__(self) -> None:
-        for name in ("startup_timeout_s", "input_timeout_s", "peer_timeout_s"):
+        for name in ("startup_timeout_s", "input_timeout_s", "peer_timeout_s", "hung_s"):
             value = getattr(self, name)
             if not value > 0.0:
                 raise ValueError(f"{name} = {value!r}: must be > 0")
@@ -172,6 +182,8 @@ class Liveness:
         ]
         self._lock = threading.Lock()
         self._seen: dict[str, float] = {}
+        self._beats: dict[str, Beat] = {}  # the latest beat of each peer (its process)
+        self._text = heartbeat_text(role)
         self._beating = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"{role}-liveness", daemon=True)
@@ -192,13 +204,16 @@ class Liveness:
                     taken = handle.take_message(String, False)
                     if taken is None:
                         break
-                    peer = self.auth.verify_text(topic, taken[0].data)
-                    if peer is None:
+                    text = self.auth.verify_text(topic, taken[0].data)
+                    if text is None:
                         with self._lock:
                             self.foreign.refuse(topic, self.auth.last_refusal(topic))
-                    elif peer != self.role:
+                        continue
+                    beat = parse_heartbeat(text)
+                    if beat.role != self.role:
                         with self._lock:
-                            self._seen[prefix + peer] = time.monotonic()
+                            self._seen[prefix + beat.role] = time.monotonic()
+                            self._beats[prefix + beat.role] = beat
 
     def _run(self) -> None:
         next_beat = time.monotonic()
@@ -210,11 +225,15 @@ class Liveness:
                 next_beat = now + HEARTBEAT_PERIOD_S
                 for topic, pub in self._pubs:
                     with contextlib.suppress(Exception):
-                        pub.publish(String(data=self.auth.sign_text(topic, self.role)))
+                        pub.publish(String(data=self.auth.sign_text(topic, self._text)))
 
     def seen(self) -> dict[str, float]:
         with self._lock:
             return dict(self._seen)
+
+    def beat(self, peer: str) -> Beat | None:
+        with self._lock:
+            return self._beats.get(peer)
 
     def stop(self) -> None:
         """Stop beating and listening (idempotent); `seen` keeps the last times heard."""
@@ -257,6 +276,8 @@ class FeedTwinNode(Node):
         self._beat_when: Callable[[], bool] | None = None
         self.setup_cpu_s = 0.0  # CPU time of this process when set-up ended [s]
         self.run_ended = False
+        self._slow_since: dict[str, float] = {}  # slow peers (silent, their process lives)
+        self.slow_peers: list[str] = []  # every peer said slow during the run
         self._not_done = set(options.axis_topics())  # axes whose sim has not announced the end
         for prefix, topics in options.axis_topics().items():
             self.create_subscription(
@@ -452,16 +473,7 @@ class FeedTwinNode(Node):
                     )
             else:
                 silent[peer] = now - seen
-        if any(s > self.options.peer_timeout_s for s in silent.values()):
-            # Peers that went silent together (nodes sharing a process, feed_twin.ros.host) are
-            # named together: the others beat every 0.1 s, so half the timeout tells them apart.
-            self.on_peer_lost(
-                "; ".join(
-                    f"node '{self.options.peer_path(peer)}' is gone: no heartbeat for {s:.2f} s"
-                    for peer, s in sorted(silent.items(), key=lambda item: -item[1])
-                    if s > 0.5 * self.options.peer_timeout_s
-                )
-            )
+        self._judge_silence(silent)
         for dog in self._watchdogs:
             if not dog.armed():
                 dog.last = now
@@ -473,6 +485,43 @@ class FeedTwinNode(Node):
                     EXIT_INPUT_TIMEOUT,
                     self.describe_silence(dog.topic, dog.type_name, dog.timeout_s),
                 )
+
+    def _judge_silence(self, silent: dict[str, float]) -> None:
+        """Slow peers said once (and again when they beat again), gone or hung ones end the
+        node (feed_twin.nodeset.liveness)."""
+        timeout = self.options.peer_timeout_s
+        verdicts = {
+            peer: silence_verdict(
+                self.liveness.beat(peer), s, timeout_s=timeout, hung_s=self.options.hung_s
+            )
+            for peer, s in silent.items()
+        }
+        for peer, verdict in verdicts.items():
+            path = self.options.peer_path(peer)
+            if verdict == "slow" and peer not in self._slow_since:
+                self._slow_since[peer] = time.monotonic() - silent[peer]
+                self.slow_peers.append(path)
+                self.get_logger().warning(
+                    f"node '{path}' is slow: no heartbeat for {silent[peer]:.2f} s, its process "
+                    f"lives (a busy host); the run goes on (hung after {self.options.hung_s:g} s)"
+                )
+            elif verdict == "ok" and peer in self._slow_since:
+                late = time.monotonic() - self._slow_since.pop(peer)
+                self.get_logger().info(f"node '{path}' beats again after {late:.2f} s")
+        if not any(v in ("gone", "hung") for v in verdicts.values()):
+            return
+        # Peers that went silent together (nodes sharing a process, feed_twin.ros.host) are
+        # named together: the others beat every 0.1 s, so half the timeout tells them apart.
+        lines = []
+        for peer, s in sorted(silent.items(), key=lambda item: -item[1]):
+            path = self.options.peer_path(peer)
+            if verdicts[peer] == "hung":
+                lines.append(
+                    f"node '{path}' is hung: no heartbeat for {s:.2f} s, its process lives"
+                )
+            elif verdicts[peer] == "gone" or (verdicts[peer] == "ok" and s > 0.5 * timeout):
+                lines.append(f"node '{path}' is gone: no heartbeat for {s:.2f} s")
+        self.on_peer_lost("; ".join(lines))
 
     def recorder_alive(self) -> bool:
         """The recorder's heartbeat is recent (it will acknowledge what this node sent)."""

@@ -56,6 +56,10 @@ MESSAGE_TYPES = {
 }
 DRAIN_QUIET_S = 0.5  # [s] without messages after the run's end before the node finishes
 FINAL_AFTER_S = 0.1  # [s] without messages after the run's end: the streams have ended
+# [s] measured samples are paired and the twin advanced at most this often: a twin that fell
+# behind (messages queued) advances a whole batch per wake-up with its compiled engine instead of
+# one sample per message, which is how it catches up; poll() steps what waits in between
+STEP_EVERY_S = 0.002
 LAG_SAMPLES = 600_000  # lags kept for the report (10 min at 1 kHz): bounded memory
 STATE = FlatCodec(msg_types.AXIS_STATE)
 RESIDUAL = FlatCodec(msg_types.TWIN_RESIDUAL)
@@ -131,6 +135,8 @@ class TwinNode(FeedTwinNode):
         self.lags_ms: deque[float] = deque(maxlen=LAG_SAMPLES)
         self.samples = 0
         self._waiting_for_command = False  # measured samples are there, not yet paired
+        self._stepped_at = 0.0  # [s] monotonic time of the last step
+        self._unstepped = False  # samples arrived since the last step
         self.errors = 0
         self._rss_start = _rss_mb()
         outputs = (self._state_pub, self._residual_pub, self._health_pub)
@@ -175,7 +181,9 @@ class TwinNode(FeedTwinNode):
         outcome = self.shadow.push_measured(t, v["pos_meas_m"], effort)
         if outcome in ("accepted", "reordered"):
             self._arrival[self.shadow.measured.slot_of(t)[0]] = arrived
-        self._step()
+        self._unstepped = True
+        if self._last_message - self._stepped_at >= STEP_EVERY_S:
+            self._step()
 
     def _bad(self, exc: Exception) -> None:
         self.errors += 1
@@ -183,6 +191,8 @@ class TwinNode(FeedTwinNode):
             self.get_logger().error(f"undecodable message dropped: {exc}")
 
     def _step(self, *, final: bool = False) -> None:
+        self._stepped_at = time.monotonic()
+        self._unstepped = False
         block = self.shadow.process(final=final)
         if block is not None and len(block):
             self._publish(block)
@@ -292,6 +302,11 @@ class TwinNode(FeedTwinNode):
         self._draining_since = time.monotonic()
 
     def poll(self) -> float | None:
+        if self._unstepped and not self.done:
+            wait = self._stepped_at + STEP_EVERY_S - time.monotonic()
+            if wait > 0.0:
+                return wait
+            self._step()
         if self._draining_since is not None and not self.done:
             quiet = time.monotonic() - max(self._last_message, self._draining_since)
             if quiet > FINAL_AFTER_S and not self._final_done:
