@@ -95,7 +95,7 @@ def test_every_axis_of_linuxcnc_is_shadowed_by_its_own_twin(tmp_path: Path) -> N
         assert figures["effort_dev_rms"] is None  # the HAL servo reports no effort
         assert 0.0 < figures["fe_dev_rms_m"] < 1e-3
         assert figures["health"] in ("OK", "WARN", "ERROR")
-        assert Path(record["rrd"][axis]).stat().st_size > 10_000
+        assert Path(record["rrd_per_axis"][axis]).stat().st_size > 10_000
     assert leftovers() == []
 
 

@@ -103,7 +103,7 @@ def test_every_axis_shadowed_in_its_own_nodes_equals_the_in_process_shadow(tmp_p
     assert shadow["y"]["following_error_max_m"] == 0.0
     assert 1e-5 < shadow["z"]["following_error_max_m"] < 1e-3  # the stand-in's Z lags (0.1 mm)
     for a in ("x", "y", "z"):
-        assert Path(record["rrd"][a]).stat().st_size > 10_000
+        assert Path(record["rrd_per_axis"][a]).stat().st_size > 10_000
     assert "shadow x: FE deviation RMS" in out
 
 

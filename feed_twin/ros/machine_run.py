@@ -20,7 +20,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -38,6 +37,14 @@ from feed_twin.machine.nodes import (
     chosen_processes,
     node_plan,
     read_machine_bag,
+)
+from feed_twin.nodeset.run_report import (
+    RunReport,
+    RunTiming,
+    early_error_report,
+    emit,
+    mode_name,
+    ros_domain,
 )
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros import preflight
@@ -94,27 +101,30 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     if RECORDER_PROCESS in here:
         summary, problem = _finish(bag, machine, args.program)
         if summary is not None:
-            summary["rrd"] = str(bag.with_name(f"{bag.name}.rrd"))
-            show_recording(getattr(args, "live_viewer", None), summary["rrd"])
+            show_recording(getattr(args, "live_viewer", None), bag.with_name(f"{bag.name}.rrd"))
     else:
         print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
     failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)
     code = preflight.exit_status(result.code) if result.code else int(failed)
-    _report(machine, _named(result.reason, plan), problem, summary, timing, clock)
-    print(f"bag: {bag if bag.exists() else '(none)'}")
-    if args.json:
-        from feed_twin.nodeset.summary import json_line
-
-        print(json_line({
-            "exit_code": code,
-            "reason": _named(result.reason, plan) or problem,
-            "bag": str(bag) if bag.exists() else None,
-            "logs": str(logs),
-            "processes": here,
-            **(summary or {}),
-            **{f"timing_{k}": v for k, v in timing.items()},
-        }))  # fmt: skip
-    return code
+    reason = _named(result.reason, plan)
+    for said in (reason, problem):
+        if said:
+            print(f"feed-twin run: {said}", file=sys.stderr)
+    run_timing = RunTiming.from_report(timing)
+    report = RunReport(
+        mode=mode_name(args, machine=True),
+        exit_code=code,
+        reason=reason or problem,
+        bag=preflight.shown_output(bag),
+        rrd=preflight.shown_output(bag.with_name(f"{bag.name}.rrd"), rrd=True),
+        logs=str(logs),
+        ros_domain=ros_domain(env),
+        samples=run_timing.steps,
+        timing=run_timing,
+        figures={"processes": here, **(summary or {})},
+        figure_lines=tuple(_figure_lines(machine, summary)) if summary is not None else (),
+    )
+    return emit(report, json_out=args.json)
 
 
 def launch_processes(
@@ -146,26 +156,6 @@ def launch_processes(
     finally:
         if reservation is not None:
             reservation.release()
-
-
-def _report(
-    machine: MachineConfig,
-    reason: str,
-    problem: str,
-    summary: dict | None,
-    timing: dict,
-    clock: str | None,
-) -> None:
-    if reason:
-        print(f"feed-twin run: {reason}", file=sys.stderr)
-    if problem:
-        print(f"feed-twin run: {problem}", file=sys.stderr)
-    if summary is not None:
-        _print_summary(machine, summary)
-    if timing:
-        keys = ("realtime_factor", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms")
-        shown = ", ".join(f"{k} {timing[k]:.3f}" for k in keys if isinstance(timing.get(k), float))
-        print(f"timing ({clock}): {shown}, missed steps {timing.get('missed_steps')}")
 
 
 def _named(reason: str, plan: NodePlan) -> str:
@@ -238,23 +228,17 @@ def _finish(bag: Path, machine: MachineConfig, program: Path) -> tuple[dict | No
     return record.summary(), ""
 
 
-def _print_summary(machine: MachineConfig, summary: dict) -> None:
-    fe = ", ".join(f"{a} {v * 1e6:.2f} um" for a, v in summary["following_error_max_m"].items())
-    print(
+def _figure_lines(machine: MachineConfig, summary: dict) -> list[str]:
+    from feed_twin.machine.run_cli import machine_figure_lines
+
+    return [
         f"machine {machine.name}: {summary['simulated_s']:.3f} s simulated, axes "
-        f"{', '.join(summary['axes'])} in their own nodes"
-    )
-    print(
-        f"contour error: max {summary['contour_error_max_m'] * 1e6:.3f} um at t = "
-        f"{summary.get('contour_error_max_t_s', 0.0):.3f} s (line "
-        f"{summary.get('contour_error_max_line', 0)}), RMS "
-        f"{summary['contour_error_rms_m'] * 1e6:.3f} um"
-    )
-    print(f"following error max: {fe}")
+        f"{', '.join(summary['axes'])} in their own nodes",
+        *machine_figure_lines(summary),
+    ]
 
 
 def _error(args: argparse.Namespace, message: str) -> int:
     print(f"feed-twin run: {message}", file=sys.stderr)
-    if getattr(args, "json", False):
-        print(json.dumps({"exit_code": 1, "reason": message}))
-    return 1
+    report = early_error_report(mode_name(args, machine=True), message)
+    return emit(report, json_out=getattr(args, "json", False))

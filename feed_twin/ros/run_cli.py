@@ -25,7 +25,6 @@ shadow figures (feed_twin.shadow.summary). Processes are started and watched by 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -37,6 +36,7 @@ from typing import TYPE_CHECKING
 from feed_twin.core.config import ConfigError
 from feed_twin.io.live import add_live_options, linger, start_live
 from feed_twin.nodeset.guard import RUN_TOKEN_ENV
+from feed_twin.nodeset.run_report import emit
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
@@ -500,38 +500,26 @@ def _run(args: argparse.Namespace) -> int:
         print(f"feed-twin run: {problem}", file=sys.stderr)
     preflight.remove_incomplete_rrd(out.rrd)
     report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
-    print(report.format())
-    if args.json:
-        from feed_twin.nodeset.summary import json_line
-
-        print(json_line(report.as_dict()))
-    return code
-
-
-def _mode(args: argparse.Namespace) -> str:
-    if args.shadow:
-        return "axis LinuxCNC shadow" if args.nc == "linuxcnc" else "axis shadow"
-    return "axis nodes, one process" if args.single_process else "axis nodes"
+    return emit(report, json_out=args.json)
 
 
 def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, summary, timing):
     """The run's end as `RunReport`: outputs, domain, timing and the mode's figures."""
-    from feed_twin.nodeset.run_report import RunReport, RunTiming
+    from feed_twin.nodeset.run_report import RunReport, RunTiming, mode_name, ros_domain
 
     run_timing = RunTiming.from_report(timing)
     figures = summary.as_dict() if summary is not None else {}
     samples = run_timing.steps if run_timing.steps is not None else figures.get("samples")
-    domain = os.environ.get("ROS_DOMAIN_ID", "")
     column_map = out.map if args.shadow and out.map.exists() else None
     return RunReport(
-        mode=_mode(args),
+        mode=mode_name(args, machine=False),
         exit_code=code,
         reason=reason,
         bag=preflight.shown_output(out.bag),
         rrd=preflight.shown_output(out.rrd, rrd=True),
         column_map=str(column_map) if column_map is not None else None,
         logs=str(out.logs),
-        ros_domain=int(domain) if domain.isdigit() else None,
+        ros_domain=ros_domain(os.environ),
         samples=samples,
         bag_recovered_messages=out.recovered,
         timing=run_timing,
@@ -566,7 +554,9 @@ def _is_machine_config(path: Path) -> bool:
 
 
 def _early_error(args: argparse.Namespace, message: str) -> int:
+    """A run refused before anything started: the reason, then the report of every mode."""
+    from feed_twin.nodeset.run_report import early_error_report, emit, mode_name
+
     print(f"feed-twin run: {message}", file=sys.stderr)
-    if args.json:
-        print(json.dumps({"exit_code": 1, "reason": message}))
-    return 1
+    machine = _is_machine_config(args.config)
+    return emit(early_error_report(mode_name(args, machine=machine), message), json_out=args.json)
