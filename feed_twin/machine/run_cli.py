@@ -176,7 +176,7 @@ def run_machine(args: argparse.Namespace) -> int:
     name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
     args.out.mkdir(parents=True, exist_ok=True)
     bag_path, rrd_path = args.out / name, args.out / f"{name}.rrd"
-    run = simulate_machine(machine, args.program, settle_s=args.settle)
+    run = _simulate(args, machine)
     write_machine_bag(run, machine, bag_path)
     write_machine_dashboard(run, programmed_path(args.program, machine.nc), rrd_path)
     show_recording(getattr(args, "live_viewer", None), rrd_path)
@@ -184,6 +184,27 @@ def run_machine(args: argparse.Namespace) -> int:
     if isinstance(shadow, str):
         return _error(args, shadow)
     return emit(_report(args, machine, run, shadow, bag_path, rrd_path), json_out=args.json)
+
+
+def _simulate(args: argparse.Namespace, machine: MachineConfig) -> MachineRun:
+    """The machine's run, with its progress on a terminal (feed_twin.io.progress): the
+    compilation of every axis's kernels named until the first samples are stepped."""
+    from feed_twin.gcode.planner import plan_program
+    from feed_twin.io.progress import Progress, wanted
+
+    enabled = wanted(json_out=args.json)
+    total = plan_program(args.program, machine.nc).t_s[-1] + args.settle if enabled else None
+    bar = Progress(total_s=total, enabled=enabled)
+    bar.stage("compiling every axis's kernels (numba; cached after the first run)")
+
+    def advanced(sim_s: float) -> None:
+        bar.stage("simulating")
+        bar.update(sim_s)
+
+    try:
+        return simulate_machine(machine, args.program, settle_s=args.settle, on_progress=advanced)
+    finally:
+        bar.close()
 
 
 def _report(

@@ -49,7 +49,7 @@ from feed_twin.nodeset.run_report import (
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, host_argv
-from feed_twin.ros.launch import Launched, launch, log_record
+from feed_twin.ros.launch import Launched, launch, log_record, planned_duration_s
 
 if TYPE_CHECKING:
     from feed_twin.ros.domain import DomainReservation
@@ -93,9 +93,11 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
     clock = next((n for n in here if processes[n][0][0] == "sim"), None)
+    total = planned_duration_s(args.program, machine.nc, settle_s=args.settle, json_out=args.json)
     result = launch_processes(
-        {n: processes[n] for n in here}, logs, env, reservation, clock=clock, quiet=args.json
-    )
+        {n: processes[n] for n in here}, logs, env, reservation, clock=clock, quiet=args.json,
+        total_s=total,
+    )  # fmt: skip
     timing = (log_record(result.logs[clock], "TIMING") or {}) if clock else {}
     summary, problem = None, ""
     if RECORDER_PROCESS in here:
@@ -136,10 +138,12 @@ def launch_processes(
     clock: str | None,
     quiet: bool,
     modules: Mapping[str, str] = NODE_MODULES,
+    total_s: float | None = None,
 ) -> Launched:
     """Start each process (one node: its module from `modules`; several: feed_twin.ros.host),
     watch them until all have ended (one failing stops the others at once, the recorder last;
-    `clock` shows progress unless `quiet`), then release the run's domain reservation."""
+    `clock` shows progress unless `quiet`, `total_s` [s simulated] its 100 %), then release
+    the run's domain reservation."""
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     commands = {}
     for n, nodes in processes.items():
@@ -151,7 +155,7 @@ def launch_processes(
     try:
         return launch(
             commands, logs, env=env, progress_role=clock, show_progress=not quiet,
-            stop_on_failure=True,
+            stop_on_failure=True, progress_total_s=total_s,
         )  # fmt: skip
     finally:
         if reservation is not None:

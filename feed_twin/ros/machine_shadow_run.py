@@ -40,7 +40,7 @@ from feed_twin.nodeset.run_report import (
     shown,
 )
 from feed_twin.ros import preflight
-from feed_twin.ros.launch import log_record
+from feed_twin.ros.launch import log_record, planned_duration_s
 from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
 
 # the node set plays the program in lockstep, all axes in one bag, started here
@@ -81,9 +81,11 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
     clock = next(n for n in processes if processes[n][0][0] in ("standin", "linuxcnc"))
+    total = planned_duration_s(args.program, machine.nc, json_out=args.json)
     result = launch_processes(
-        processes, logs, env, reservation, clock=clock, quiet=args.json, modules=MODULES
-    )
+        processes, logs, env, reservation, clock=clock, quiet=args.json, modules=MODULES,
+        total_s=total,
+    )  # fmt: skip
     figures, problem = finish(bag, plan)
     code = preflight.exit_status(result.code) if result.code else int(figures is None)
     reason = _named(result.reason, plan)

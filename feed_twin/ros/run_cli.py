@@ -40,7 +40,7 @@ from feed_twin.nodeset.run_report import emit
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
-from feed_twin.ros.launch import launch, log_record
+from feed_twin.ros.launch import launch, log_record, planned_duration_s
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
@@ -260,7 +260,7 @@ def _processes(args: argparse.Namespace, ros) -> dict[str, tuple[str, ...]]:
     }
 
 
-def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
+def _run_processes(args: argparse.Namespace, ros, nc, out: Outputs) -> tuple[int, str, dict]:
     commands = {}
     for name, roles in _processes(args, ros).items():
         if len(roles) == 1:
@@ -273,7 +273,11 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
     # Discovery stays on this host unless the user chose otherwise.
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     clock = _clock_role(args)
-    result = launch(commands, out.logs, env=env, progress_role=clock, show_progress=not args.json)
+    total = planned_duration_s(args.program, nc, settle_s=ros.settle_s, json_out=args.json)
+    result = launch(
+        commands, out.logs, env=env, progress_role=clock, show_progress=not args.json,
+        progress_total_s=total,
+    )  # fmt: skip
     return result.code, result.reason, _timing(result.logs[clock])
 
 
@@ -482,7 +486,7 @@ def _run(args: argparse.Namespace) -> int:
         if args.single_process:
             code, reason, timing = _run_single_process(args, ros, out)
         else:
-            code, reason, timing = _run_processes(args, ros, out)
+            code, reason, timing = _run_processes(args, ros, nc, out)
         summary, problem = _finish_outputs(args, ros, out)
     finally:
         if reservation is not None:
