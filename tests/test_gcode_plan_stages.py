@@ -17,7 +17,9 @@ LIMITS = AxisLimits(
     rapid=np.array([1.0, 0.4]),
     a_max=np.array([2.0, 1.0]),  # [m/s^2]
     j_max=np.array([20.0, 40.0]),  # [m/s^3]
-    jerk=True,
+    jerk=True,  # S-curves per body, no filter (the kernels the filtered plan does not use)
+    filter_n=1,
+    window_s=0.0,
 )
 
 
@@ -124,7 +126,7 @@ def test_sampler_positions_equal_the_analytic_trapezoid():
     # X alone: V = 0.1 m/s, A = 1 m/s^2 over 20 mm: ramps of 0.1 s (5 mm), 0.1 s at cruise.
     limits = AxisLimits(
         v_max=np.array([0.1]), rapid=np.array([0.1]), a_max=np.array([1.0]),
-        j_max=np.array([100.0]), jerk=False,
+        j_max=np.array([100.0]), jerk=False, filter_n=1, window_s=0.0,
     )  # fmt: skip
     moves = move_limits([(0.0,), (0.02,)], [False], [1.0], limits)
     flags = _flags(1, 2e-5)

@@ -8,8 +8,8 @@ half-width w <= 6*tol/|dU|, so that the path stays within tol of the corner (dev
 - gentle corners (chords of an arc, CAM polylines) may take whole moves (CHAIN_SHARE), so
   that neighbouring blends overlap into chains (next stage) with a continuous curvature.
 A corner is crossed at a speed whose curvature terms dU_i h' v^2 and dU_i h'' v^3 stay within
-every axis's a_max and j_max. A corner that is quicker to stop at than to round under the
-jerk limit becomes a stop. Nodes: node j is the start of move j (0..n).
+every axis's a_max and j_max. Every corner is rounded: the path stops only where the program
+says so (`NodeFlags.stop`). Nodes: node j is the start of move j (0..n).
 """
 
 from __future__ import annotations
@@ -23,9 +23,13 @@ from feed_twin.gcode.plan_limits import AxisLimits, MoveLimits
 
 BLEND_SHARE = 0.4  # largest part of a move a corner blended alone may use
 NEIGHBOUR_SHARE = 0.55  # the same for its neighbours, so that a straight piece stays between
+# With the jerk filter the straight piece holds the corner's speed T v / 2 beyond its blend:
+# the neighbours keep off more, so that it has room on short CAM moves.
+FILTER_NEIGHBOUR_SHARE = 0.3
 CHAIN_SHARE = 1.0  # elsewhere: blends may reach the neighbouring corner and overlap
 SHARP_CORNER = 0.25  # |u_out - u_in| above this (about 14 degrees) is a corner, not a curve
 COLLINEAR = 1e-12  # |u_out - u_in| below this is a straight joint, not a corner
+ZONE_SLACK = 1e-9  # share of a move below which a blend zone on it is a rounding error
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -43,7 +47,7 @@ class CornerBlends:
     """Blends at the nodes (arrays of n+1; (n+1, n_axes) for vectors)."""
 
     corner: np.ndarray  # the direction changes there
-    stop: np.ndarray  # at rest there (given, or chosen because stopping is quicker)
+    stop: np.ndarray  # at rest there (as the program says)
     alone: np.ndarray  # blended alone: not part of a chain
     w: np.ndarray  # [m] blend half-width (0: no blend)
     dU: np.ndarray  # direction change where blended, else 0
@@ -54,14 +58,14 @@ class CornerBlends:
 
 @dataclass(frozen=True, kw_only=True)
 class WindowStart:
-    """The first node of a window that continues committed motion (decided earlier)."""
+    """The committed context of a window that continues committed motion (decided earlier)."""
 
-    w: float  # [m] its blend half-width
-    stop: bool  # whether the path stops there
+    w: np.ndarray  # [m] blend half-widths of the listed nodes up to the first uncommitted one
+    stop: bool  # whether the path stops at that last one
 
 
 class _Blends(NamedTuple):
-    """One trial of blends for given shares (fields as in `CornerBlends`)."""
+    """Blends for given shares (fields as in `CornerBlends`)."""
 
     w: np.ndarray
     dU: np.ndarray
@@ -73,43 +77,27 @@ class _Blends(NamedTuple):
 def corner_blends(
     moves: MoveLimits, flags: NodeFlags, limits: AxisLimits, start: WindowStart | None
 ) -> CornerBlends:
-    """Blend every corner, stopping where that is quicker; `start` is None for a fresh path."""
+    """Blend every corner where the path does not stop; `start` is None for a fresh path."""
     n = len(moves.L)
-    first = 0 if start is None else 1
     du = np.zeros((n + 1, moves.u.shape[1]))
     du[1:n] = moves.u[1:] - moves.u[:-1]
     ndu = np.sqrt(np.einsum("ij,ij->i", du, du))
     corner = ndu >= COLLINEAR
     corner[0] = corner[n] = False
     stop = flags.stop.copy()
-    V, A, J = moves.V, moves.A, moves.J
-
-    def blends(share_in: np.ndarray, share_out: np.ndarray) -> _Blends:
-        return _blends(moves, limits, flags.tol, du, ndu, corner, stop, share_in, share_out, start)
-
-    # A tight corner is quicker to stop at than to round within the tolerance under a jerk
-    # limit; stop there when the local time estimate (with single blends) says so.
-    single = np.full(n + 1, BLEND_SHARE)
-    trial = blends(single, single)
-    if n > 1:
-        inner = slice(1, n)
-        w, cap = trial.w[inner], trial.cap[inner]
-        stop[inner] |= (w > 0.0) & (
-            corner_cost(cap, w, V, A, J, limits.jerk)
-            >= corner_cost(0.0 * cap, 0.0 * w, V, A, J, limits.jerk)
-        )
     if start is not None:
-        stop[first] = start.stop  # decided when it was committed; must not change
+        stop[len(start.w) - 1] = start.stop  # decided when it was committed; must not change
     alone = (flags.has_entries | flags.forced | (ndu > SHARP_CORNER)) & corner & ~stop
     share_in = np.full(n + 1, CHAIN_SHARE)
     share_out = np.full(n + 1, CHAIN_SHARE)
     # Next to a stop as well: a corner that ends up alone needs a body to get up to speed.
     keep_off = alone | stop
-    share_in[1:] = np.where(keep_off[:-1], NEIGHBOUR_SHARE, share_in[1:])
-    share_out[:-1] = np.where(keep_off[1:], NEIGHBOUR_SHARE, share_out[:-1])
+    neighbour = FILTER_NEIGHBOUR_SHARE if limits.window_s > 0.0 else NEIGHBOUR_SHARE
+    share_in[1:] = np.where(keep_off[:-1], neighbour, share_in[1:])
+    share_out[:-1] = np.where(keep_off[1:], neighbour, share_out[:-1])
     share_in = np.where(alone, BLEND_SHARE, share_in)
     share_out = np.where(alone, BLEND_SHARE, share_out)
-    final = blends(share_in, share_out)
+    final = _blends(moves, limits, flags.tol, du, ndu, corner, stop, share_in, share_out, start)
     return CornerBlends(
         corner=corner,
         stop=stop,
@@ -142,7 +130,7 @@ def _blends(
         w = np.minimum(6.0 * tol / ndu, np.minimum(share_in * L_in, share_out * L_out))
     w = np.where(corner & ~stop, w, 0.0)
     if start is not None:
-        w[1] = start.w
+        w[: len(start.w)] = start.w
     dU = np.where((w > 0.0)[:, None], du, 0.0)
     a_s, a_e, j_s, j_e = zone_coefficients(L, w, dU)
     zero = np.zeros((1, du.shape[1]))
@@ -185,33 +173,12 @@ def zone_coefficients(
     a_start = np.where(overlap, np.maximum(a_start, curvature(inner_end)), a_start)
     a_end = np.where(overlap, np.maximum(a_end, curvature(inner_start)), a_end)
     with np.errstate(divide="ignore", invalid="ignore"):
-        start_only = (ws > 0.0) & (np.minimum(ws, Lc - we) > 0.0)
-        end_only = (we > 0.0) & (Lc - np.maximum(ws, Lc - we) > 0.0)
+        # A zone shorter than a rounding error of the move is none (equal neighbouring chords
+        # give w_start + w_end = L up to rounding, and no stretch of a single blend between).
+        slack = ZONE_SLACK * Lc
+        start_only = (ws > 0.0) & (np.minimum(ws, Lc - we) > slack)
+        end_only = (we > 0.0) & (Lc - np.maximum(ws, Lc - we) > slack)
         j_s = np.where(start_only, np.abs(dus) / (ws * ws), 0.0)
         j_e = np.where(end_only, np.abs(due) / (we * we), 0.0)
         j_both = np.where(overlap, np.abs(due / (we * we) - dus / (ws * ws)), 0.0)
     return a_start, a_end, np.maximum(j_s, j_both), np.maximum(j_e, j_both)
-
-
-def corner_cost(
-    v: np.ndarray, w: np.ndarray, V: np.ndarray, A: np.ndarray, J: np.ndarray, jerk: bool
-) -> np.ndarray:
-    """Time lost at each interior corner against cruising at the neighbouring caps.
-
-    Slowing from V to v takes T(V - v) and covers (V + v)/2 * T, which at V would take
-    (V + v)/(2V) * T: the loss is T * (V - v)/(2V). The blend itself adds 2w/v - 2w/V.
-    """
-    loss = np.zeros_like(v)
-    for V_s, A_s, J_s in ((V[:-1], A[:-1], J[:-1]), (V[1:], A[1:], J[1:])):
-        dv = np.maximum(V_s - v, 0.0)
-        if jerk:
-            short = dv * J_s < A_s * A_s
-            with np.errstate(invalid="ignore"):
-                T = np.where(short, 2.0 * np.sqrt(dv / J_s), dv / A_s + A_s / J_s)
-        else:
-            T = dv / A_s
-        loss += T * dv / (2.0 * V_s)
-    V_ref = np.minimum(V[:-1], V[1:])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        blend = np.where(w > 0.0, 2.0 * w / v - 2.0 * w / V_ref, 0.0)
-    return loss + blend

@@ -12,11 +12,14 @@ An axis that does not move (u_i = 0) sets no limit.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from feed_twin.gcode.config import NcConfig
+
+FILTER_ROUNDING = 1e-4  # share of a_max, j_max the jerk profile leaves for rounding and sampling
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -27,16 +30,28 @@ class AxisLimits:
     rapid: np.ndarray  # [m/s or rad/s] G0 speed per axis
     a_max: np.ndarray  # [m/s^2 or rad/s^2]
     j_max: np.ndarray  # [m/s^3 or rad/s^3]
-    jerk: bool  # jerk-limited S-curves; otherwise trapezoids (J infinite)
+    jerk: bool  # jerk-limited (the raw plan filtered, `jerk_filter`); otherwise trapezoids
+    filter_n: int  # samples averaged by the jerk filter (1: no filter)
+    window_s: float  # [s] T = (filter_n - 1) * period, the span it averages over (0: none)
 
     @classmethod
     def of(cls, config: NcConfig) -> AxisLimits:
+        a_max = np.array(config.a_max)
+        j_max = np.array(config.j_max)
+        jerk = config.profile == "jerk"
+        period = config.interpolation_period_s
+        n = filter_samples(a_max, j_max, period) if jerk else 1
+        if jerk:  # the filtered plan runs exactly at the limits: keep its rounding inside
+            a_max = a_max * (1.0 - FILTER_ROUNDING)
+            j_max = j_max * (1.0 - FILTER_ROUNDING)
         return cls(
             v_max=np.array(config.v_max),
             rapid=np.array(config.rapid),
-            a_max=np.array(config.a_max),
-            j_max=np.array(config.j_max),
-            jerk=config.profile == "jerk",
+            a_max=a_max,
+            j_max=j_max,
+            jerk=jerk,
+            filter_n=n,
+            window_s=(n - 1) * period,
         )
 
     def cruise_cap(
@@ -88,3 +103,9 @@ def move_limits(
     if not limits.jerk:
         J = np.full(n, np.inf)
     return MoveLimits(P=P, L=L, u=u, V=V, A=A, J=J)
+
+
+def filter_samples(a_max: np.ndarray, j_max: np.ndarray, period: float) -> int:
+    """Samples N the jerk filter averages (`jerk_filter`): (N - 1) * period >= max_i a_i / j_i."""
+    span = float(np.max(a_max / j_max))
+    return math.ceil(span / period - 1e-9) + 1

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from feed_twin.gcode.items import Event, Stop
+from feed_twin.gcode.jerk_filter import body_profiles_filtered, plan_speeds_filtered
 from feed_twin.gcode.plan_chains import CHAIN_ENTRY, Bodies
 from feed_twin.gcode.profile import BODY, CRUISE, HOLD, body_profiles, plan_speeds
 
@@ -33,10 +34,21 @@ class SpeedProfile:
     t_down: np.ndarray  # [s] slow-down phase
 
 
-def speed_profile(bodies: Bodies, *, jerk: bool, v_first: float) -> SpeedProfile:
-    """The fastest profile within the bodies' limits that starts at v_first and ends at rest."""
-    v = plan_speeds(bodies.cap, bodies.length, bodies.A, bodies.J, jerk, v_first)
-    vp, t_up, t_cruise, t_down = body_profiles(v, bodies.length, bodies.V, bodies.A, bodies.J, jerk)
+def speed_profile(
+    bodies: Bodies, *, jerk: bool, v_first: float, window_s: float = 0.0
+) -> SpeedProfile:
+    """The fastest profile within the bodies' limits that starts at v_first and ends at rest.
+
+    With a jerk filter window T (`window_s` > 0) it is the raw plan of `jerk_filter`:
+    trapezoids, extended nodes, a cruise of T at every peak.
+    """
+    L, V, A, J = bodies.length, bodies.V, bodies.A, bodies.J
+    if window_s > 0.0:
+        v = plan_speeds_filtered(bodies.cap, L, A, bodies.extended, window_s, v_first)
+        vp, t_up, t_cruise, t_down = body_profiles_filtered(v, L, V, A, bodies.extended, window_s)
+    else:
+        v = plan_speeds(bodies.cap, L, A, J, jerk, v_first)
+        vp, t_up, t_cruise, t_down = body_profiles(v, L, V, A, J, jerk)
     return SpeedProfile(v=v, vp=vp, t_up=t_up, t_cruise=t_cruise, t_down=t_down)
 
 
@@ -60,9 +72,19 @@ class Pieces:
 
 
 def motion_pieces(
-    bodies: Bodies, speeds: SpeedProfile, *, q_commit: int, n_moves: int, jerk: bool
+    bodies: Bodies,
+    speeds: SpeedProfile,
+    *,
+    q_commit: int,
+    n_moves: int,
+    jerk: bool,
+    window_s: float = 0.0,
 ) -> Pieces:
-    """Hold, cruise and body pieces of the 1-D nodes before `q_commit`, and a last hold."""
+    """Hold, cruise and body pieces of the 1-D nodes before `q_commit`, and a last hold.
+
+    An extended node (jerk filter, window T = `window_s`) cruises T v / 2 before and after its
+    blend, where the bodies next to it start and end.
+    """
     q = np.arange(q_commit)
     nodes = bodies.node[: q_commit + 1]
     v_node = speeds.v[: q_commit + 1]
@@ -90,15 +112,16 @@ def motion_pieces(
     seg[body] = np.where(kind_q == CHAIN_ENTRY, before, np.minimum(nodes[:-1], n_moves - 1))
     seg[-1] = n_moves - 1
     kind[cruise] = CRUISE
-    span = sb[:q_commit] - sa[:q_commit]
+    reach = np.where(bodies.extended[: q_commit + 1], 0.5 * window_s * v_node, 0.0)
+    span = sb[:q_commit] - sa[:q_commit] + 2.0 * reach[:-1]
     with np.errstate(divide="ignore", invalid="ignore"):
         dur[cruise] = np.where(span > 0.0, span / v_node[:-1], 0.0)
-    s0[cruise] = sa[:q_commit]
+    s0[cruise] = sa[:q_commit] - reach[:-1]
     v0[cruise] = v_node[:-1]
-    s0[hold] = sa[:q_commit]
+    s0[hold] = sa[:q_commit] - reach[:-1]
     kind[body] = BODY
     dur[body] = speeds.t_up[:q_commit] + speeds.t_cruise[:q_commit] + speeds.t_down[:q_commit]
-    s0[body] = sb[:q_commit]
+    s0[body] = sb[:q_commit] + reach[:-1]
     v0[body] = v_node[:-1]
     vpk[body] = speeds.vp[:q_commit]
     v1[body] = v_node[1:]
@@ -106,7 +129,7 @@ def motion_pieces(
     Jk[body] = bodies.J[:q_commit] if jerk else 1.0
     tu[body] = speeds.t_up[:q_commit]
     tc[body] = speeds.t_cruise[:q_commit]
-    s0[-1] = sa[q_commit]
+    s0[-1] = sa[q_commit] - reach[-1]
     return Pieces(
         key=np.arange(n_pieces, dtype=float),
         kind=kind,
@@ -127,7 +150,7 @@ def motion_pieces(
 class Dwell(NamedTuple):
     """A hold piece for a dwell at a 1-D node."""
 
-    key: float  # sort key: just before the node's hold slot
+    key: float  # sort key: just before the node's hold slot (stop holds before dwells)
     dur: float  # [s]
     s: float  # [m] path parameter of the node
     line: int  # source line of the dwell
@@ -156,6 +179,37 @@ def node_entries(
             else:
                 timed.append(TimedEvent(slot, offset, entry))
     return dwells, timed
+
+
+def stop_holds(
+    bodies: Bodies,
+    speeds: SpeedProfile,
+    *,
+    q_commit: int,
+    final: bool,
+    window_s: float,
+    period: float,
+) -> list[Dwell]:
+    """Holds at each 1-D node where the raw plan stops, so that the filtered plan (window T,
+    `jerk_filter`) comes to rest there too: T before the node's dwells and events, and one
+    period after them, so that its arrival and its departure (along different moves) never
+    share a sample. The program's end needs T alone.
+
+    The window's first node is left out where the path was at rest before it (the start).
+    """
+    if window_s <= 0.0:
+        return []
+    last = q_commit + 1 if final else q_commit
+    slots = np.flatnonzero(speeds.v[:last] == 0.0)
+    holds: list[Dwell] = []
+    for q in slots:
+        if q == 0 and not (speeds.v[0] == 0.0 and bodies.node[0] > 0):
+            continue
+        s, node = float(bodies.sa[q]), int(bodies.node[q])
+        holds.append(Dwell(PIECES_PER_NODE * int(q) - 0.9, window_s, s, -1, node))
+        if not (final and q == q_commit):
+            holds.append(Dwell(PIECES_PER_NODE * int(q) - 1e-6, period, s, -1, node))
+    return holds
 
 
 def with_dwells(pieces: Pieces, dwells: list[Dwell]) -> Pieces:
