@@ -4,7 +4,8 @@ One bar on stderr (tqdm, which computes the rate and the ETA from recent updates
 when stderr is a terminal and the run was not asked for `--json`, so a piped or logged run,
 a test and a JSON consumer never see it. `stage` names what the job does before its clock
 moves (planning the program, compiling the kernels: a first run compiles for a minute or more),
-`update` sets the simulated time reached; `total_s` [s] gives the percent and the ETA (None:
+`update` sets the simulated time reached (the rate, the ETA and the time shown count from
+its first call); `total_s` [s] gives the percent and the ETA (None:
 the simulated time and the wall time only).
 """
 
@@ -51,6 +52,7 @@ class Progress:
         self.enabled = enabled
         self._bar: tqdm | None = None
         self._stage = ""
+        self._moving = False
         if enabled:
             known = total_s is not None and total_s > 0
             file = sys.stderr if stream is None else stream
@@ -74,6 +76,10 @@ class Progress:
         if self._bar is None:
             return
         bar = self._bar
+        if not self._moving:
+            # the rate and the ETA count from the clock's first move, not from the compilation
+            self._moving = True
+            bar.reset(total=bar.total)
         if bar.total is not None:
             sim_s = min(sim_s, bar.total)
         bar.update(sim_s - bar.n)
