@@ -6,6 +6,9 @@ A corpus of cases, each run as a user would (the `feed-twin` command in a subpro
   `feed-twin run`;
 - measured inputs: broken CSV records through `feed-twin simulate`;
 - bags: truncated and foreign files through `feed-twin bag info/recover`;
+- outputs (benchmarks/_robustness_outputs.py): run names that are paths or already used, an
+  earlier diagnosis, argument errors, an FMU on a full disk, a machine's read-only --out, a
+  vertical axis too heavy for its drive;
 - faults, foreign publishers, disks and concurrency (benchmarks/_robustness_runs.py): runs killed
   (runner, node processes), interrupted, stopped by the drive's protection, a disk that fills up
   in a small tmpfs, read-only and missing output directories, foreign and insider publishers
@@ -247,7 +250,7 @@ def _measured_rows(n: int) -> list[str]:
 
 MEASURED: dict[str, tuple[Callable[[list[str]], str], str]] = {
     "empty": (lambda rows: "", "empty"),
-    "header_only": (lambda rows: rows[0], "too short"),
+    "header_only": (lambda rows: rows[0], "has a header (5 columns) but no data rows"),
     "missing_column": (
         lambda rows: "".join(",".join(r.split(",")[:2]) + "\n" for r in rows),
         "that the file lacks",
@@ -343,8 +346,11 @@ def main() -> int:
     parser.add_argument("--only", default="", help="run the cases whose name contains this")
     args = parser.parse_args()
     cases = input_cases()
+    sys.path.insert(0, str(Path(__file__).parent))
+    from _robustness_outputs import output_cases
+
+    cases += output_cases()
     if not args.skip_runs:
-        sys.path.insert(0, str(Path(__file__).parent))
         from _robustness_runs import run_cases
 
         cases += run_cases()

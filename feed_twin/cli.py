@@ -111,8 +111,16 @@ SUBCOMMANDS: tuple[Subcommand, ...] = (
 )
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (argparse prints its usage first, 5 lines
+    for `run`), exit status 2 as argparse's."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def _top_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="feed-twin",
         description="Digital twin of a CNC ball-screw feed axis on ROS 2.",
     )
@@ -133,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     if cmd is None:
         top.error(f"unknown command {argv[0]!r}; choose from {', '.join(by_name)}")
     module = importlib.import_module(cmd.module)
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog=f"feed-twin {cmd.name}",
         description=cmd.help,
         epilog=f"example:\n  {cmd.example}",

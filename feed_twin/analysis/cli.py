@@ -41,11 +41,20 @@ from feed_twin.io.measured import (  # noqa: E402
     segment,
 )
 
+# The files whose presence marks a directory as an earlier diagnosis's (analysis/report.py).
+REPORT_FILES = ("report.md", "report.json", "model.yaml", "diagnose.rrd")
+
 
 def _check_out(out: Path, *, directory: bool) -> None:
     """An --out that names the wrong kind of thing is refused before any work is done."""
     if directory and out.exists() and not out.is_dir():
         raise MeasuredDataError(f"--out {out}: is an existing file; name a directory")
+    written = [name for name in REPORT_FILES if directory and (out / name).exists()]
+    if written:
+        raise MeasuredDataError(
+            f"--out {out}: holds a report already ({', '.join(written)}); choose another "
+            "directory, nothing was written"
+        )
     if not directory and out.is_dir():
         raise MeasuredDataError(f"--out {out}: is a directory; name the CSV file to write")
 

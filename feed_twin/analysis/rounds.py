@@ -246,6 +246,26 @@ def run_round(
         trials.append((cand, edit, alone, new_twin, result))
     if not trials:
         return ranking, True
+    for verdict, cand, edit, alone, new_twin, result in _judged(state, ctx, trials):
+        if verdict.significant:
+            _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
+            excluded.append(cand.name)
+            if result.message.endswith(AT_EDGE):  # a record slot's search said so
+                ctx.notes.append(f"{cand.name}: {result.message}")
+            # the model changed: the rivals tried so far are ranked again on its residual (a
+            # backlash tried beside the Coulomb force that hid it is found once that is in)
+            ctx.tried.clear()
+            _reexamine(state, ctx, meas)
+            return ranking, True
+        ctx.notes.append(
+            f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
+        )
+    # the model did not change: the rivals would fit the same way next round
+    return ranking, True
+
+
+def _judged(state: State, ctx: Context, trials: list) -> list:
+    """The trials that are findings, each with its test against the model now, best first."""
     # each trial's test against the model now; the best by an information criterion on the
     # likelihood ratio (module docstring) that passes the test is kept (a drive gain that bends
     # the position at the effort's expense must not hide the holding force fitted beside it)
@@ -283,22 +303,7 @@ def run_round(
         for j, after in zip(judged, afters, strict=True)
     ]
     order = sorted(range(len(judged)), key=lambda k: scores[k], reverse=True)
-    for verdict, cand, edit, alone, new_twin, result in (judged[k] for k in order):
-        if verdict.significant:
-            _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
-            excluded.append(cand.name)
-            if result.message.endswith(AT_EDGE):  # a record slot's search said so
-                ctx.notes.append(f"{cand.name}: {result.message}")
-            # the model changed: the rivals tried so far are ranked again on its residual (a
-            # backlash tried beside the Coulomb force that hid it is found once that is in)
-            ctx.tried.clear()
-            _reexamine(state, ctx, meas)
-            return ranking, True
-        ctx.notes.append(
-            f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
-        )
-    # the model did not change: the rivals would fit the same way next round
-    return ranking, True
+    return [judged[k] for k in order]
 
 
 # the price of one added parameter in the likelihood ratio: the test's own threshold for one

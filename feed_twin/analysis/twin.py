@@ -18,6 +18,7 @@ for the phase-current ADC: the fitting twin's CurrentSensor has neither rounding
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Mapping, Sequence
@@ -41,6 +42,7 @@ from feed_twin.core import signals
 from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
 
+START_SAMPLES = 8  # the first trace samples a start is read off (Twin._started)
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
 
 
@@ -61,6 +63,9 @@ class Drive:
     # the command at the NC's own period (a program planned for the record): the setpoints
     # are taken from it instead of from the record's samples of pos_ref_m .. acc_ref_m_s2
     plan: PlannedCommand | None = None
+    # the measured position's samples: a trace of window means starts the twin from the
+    # position and velocity they are the means of (Twin._started)
+    x_meas_m: np.ndarray | None = None
 
     @classmethod
     def at_rest(
@@ -122,6 +127,7 @@ def drive_from_run(run: MeasuredRun) -> Drive:
         v0_m_s=start_velocity(run.t_s, run["pos_meas_m"]),
         trace_mean=run.trace_filter == "mean",
         plan=run.plan,
+        x_meas_m=run["pos_meas_m"],
     )
 
 
@@ -410,8 +416,9 @@ class Twin:
             groups.setdefault(self._command_window(drive, slots), []).append(j)
         for window, members in groups.items() if len(rows) else ():
             ref, ext, n, dec = self._cached_inputs(drive, window)
-            x0 = self._x0(drive, P[rows[0]])
-            cs0 = self.start_controller(drive, ref)
+            start = self._started(drive, window)
+            x0 = self._x0(start, P[rows[0]])
+            cs0 = self.start_controller(start, ref)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
             volt = res["out.u_q_ref_V"] if u_q is not None else None
@@ -431,6 +438,21 @@ class Twin:
         ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
         declared = round(drive_period(drive) / h) if drive.trace_mean else 1
         return None if drive.plan is not None or ticks == declared else ticks
+
+    def _started(self, drive: Drive, window: int | None) -> Drive:
+        """The drive with the twin's start read off a trace of window means: the position and
+        velocity at the first stamp of the smooth motion whose means the samples are (the
+        first sample is the position half a window earlier: at full speed the twin started
+        behind its command and its start transient outlasted Twin.first_evidence)."""
+        h = self.base_period_s
+        dec = round(drive_period(drive) / h)
+        ticks = window if window is not None else (dec if drive.trace_mean else 1)
+        if ticks <= 1 or drive.x_meas_m is None or drive.v0_m_s == 0.0:
+            return drive
+        k = min(len(drive.t_s), START_SAMPLES)
+        fine = drive.t_s[0] + h * np.arange(dec * k)
+        x, v, _ = deaveraged(drive.t_s[:k], drive.x_meas_m[:k], fine, ticks)
+        return dataclasses.replace(drive, x0_m=float(x[0]), v0_m_s=float(v[0]))
 
     def _cached_inputs(self, drive: Drive, window: int | None):
         """Twin._inputs, kept per drive and window."""

@@ -209,9 +209,14 @@ def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
                 f"{path}: line {number} has {cells} cells but the header has {len(header)} "
                 "columns (a ragged or truncated file)"
             )
-    table = np.genfromtxt(lines[1:], delimiter=",", dtype=float, ndmin=2)
-    if table.size == 0:
-        table = np.empty((0, len(header)))
+    rows = [line for line in lines[1:] if line.strip()]
+    if not rows:
+        # numpy's genfromtxt would warn "Empty input file" on stderr and return nothing
+        raise MeasuredDataError(
+            f"{path}: has a header ({len(header)} columns) but no data rows; export the record "
+            "with its samples"
+        )
+    table = np.genfromtxt(rows, delimiter=",", dtype=float, ndmin=2)
     return header, table
 
 

@@ -25,8 +25,8 @@ summary and under "shadow" in the JSON line. In-process, the node-set options (-
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +48,7 @@ from feed_twin.nodeset.run_report import (
 )
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.nodeset.wire import NS_PER_S
+from feed_twin.sim.engine import DivergenceError
 
 NODE_SET_OPTIONS = ("realtime", "single_process", "no_gcode")
 
@@ -142,6 +143,7 @@ def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
     machine's NC; or the exit code after a one-line error."""
     from feed_twin.gcode import GcodeError
     from feed_twin.gcode.planner import validate_program
+    from feed_twin.nodeset.reach import check_reachable
 
     refused = [f"--{o.replace('_', '-')}" for o in NODE_SET_OPTIONS if getattr(args, o, False)]
     if refused and args.in_process:
@@ -157,6 +159,13 @@ def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
         if args.axes:
             machine = machine.select(args.axes.split(","))
         validate_program(args.program, machine.nc)
+        for name, axis in machine.axes.items():  # the node set checks each axis's file so
+            check_reachable(
+                axis,
+                dataclasses.replace(machine.nc, twin_axis=name),
+                None,
+                source=f"{machine.source}: axis {name}",
+            )
     except GcodeError as exc:
         return _error(args, f"G-code error, nothing was started: {exc}")
     except (ConfigError, ValueError, OSError) as exc:
@@ -173,10 +182,13 @@ def run_machine(args: argparse.Namespace) -> int:
     machine = prepare_machine(args)
     if isinstance(machine, int):
         return machine
-    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    name = args.name  # feed_twin.ros.preflight.run_name, before anything started
     args.out.mkdir(parents=True, exist_ok=True)
     bag_path, rrd_path = args.out / name, args.out / f"{name}.rrd"
-    run = _simulate(args, machine)
+    try:
+        run = _simulate(args, machine)
+    except DivergenceError as exc:
+        return _error(args, f"the machine's simulation failed: {exc}")
     write_machine_bag(run, machine, bag_path)
     write_machine_dashboard(run, programmed_path(args.program, machine.nc), rrd_path)
     show_recording(getattr(args, "live_viewer", None), rrd_path)

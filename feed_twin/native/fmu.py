@@ -29,7 +29,9 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 import re
+import shutil
 import uuid
 import zipfile
 from dataclasses import dataclass
@@ -294,25 +296,29 @@ def build_fmu(axis, out: Path, *, cc: str = "cc") -> Path:
     digest = hashlib.sha256(kernel.source.encode() + repr(vars_).encode()).hexdigest()
     guid = "{" + str(uuid.UUID(digest[:32])) + "}"
     glue = glue_source(axis, kernel, vars_, guid)
+    # Built beside `out` and moved in place at the end: a failure (a full disk, a compiler
+    # error) leaves neither the build directory nor a partial FMU behind.
     build = out.parent / f".{out.name}.build"
     build.mkdir(parents=True, exist_ok=True)
-    files = {"feed_twin_axis.c": kernel.source, "feed_twin_axis.h": kernel.header}
-    files["fmu_glue.c"] = glue
-    for name, text in files.items():
-        (build / name).write_text(text)
-    library = build / f"{MODEL_IDENTIFIER}.so"
-    run_cc(
-        compiler,
-        [*C99_FLAGS, *portable_flags(), "-I", str(fmi_headers()), "-I", str(build), "-shared"],
-        [build / "feed_twin_axis.c", build / "fmu_glue.c"],
-        library,
-    )
-    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
-        z.writestr("modelDescription.xml", model_description(axis, kernel, vars_, guid))
-        z.write(library, f"binaries/linux64/{MODEL_IDENTIFIER}.so")
+    try:
+        files = {"feed_twin_axis.c": kernel.source, "feed_twin_axis.h": kernel.header}
+        files["fmu_glue.c"] = glue
         for name, text in files.items():
-            z.writestr(f"sources/{name}", text)
-    for path in build.iterdir():
-        path.unlink()
-    build.rmdir()
+            (build / name).write_text(text)
+        library = build / f"{MODEL_IDENTIFIER}.so"
+        run_cc(
+            compiler,
+            [*C99_FLAGS, *portable_flags(), "-I", str(fmi_headers()), "-I", str(build), "-shared"],
+            [build / "feed_twin_axis.c", build / "fmu_glue.c"],
+            library,
+        )
+        packed = build / out.name
+        with zipfile.ZipFile(packed, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr("modelDescription.xml", model_description(axis, kernel, vars_, guid))
+            z.write(library, f"binaries/linux64/{MODEL_IDENTIFIER}.so")
+            for name, text in files.items():
+                z.writestr(f"sources/{name}", text)
+        os.replace(packed, out)
+    finally:
+        shutil.rmtree(build, ignore_errors=True)
     return out

@@ -4,7 +4,7 @@
 one process per name (a node, or a node host running several: feed_twin/ros/host.py), each
 with its log file; a failed process ends the run, SIGINT/SIGTERM reach the producers first and
 the recorder last, a deadline bounds the whole run. `log_record` reads the `PREFIX {json}` lines
-the nodes print (TIMING, SHADOW).
+the nodes print (TIMING, SHADOW), `foreign_messages` the FOREIGN lines of every node.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,6 +42,15 @@ def stage(what: str) -> None:
     `STAGE <what>` line, which the progress bar shows); a node started otherwise says nothing."""
     if os.environ.get(PARENT_PID_ENV):
         print(f"STAGE {what}", file=sys.stderr, flush=True)
+
+
+def key_fds(env: dict[str, str]) -> tuple[int, ...]:
+    """The run key's descriptor (feed_twin.nodeset.auth.KEY_FD_ENV), inherited by the nodes
+    only: it is close-on-exec everywhere else."""
+    from feed_twin.nodeset.auth import KEY_FD_ENV
+
+    text = env.get(KEY_FD_ENV, "")
+    return (int(text),) if text.isdigit() else ()
 
 
 class _Stop:
@@ -102,6 +112,7 @@ def launch(
                     env={**env, PARENT_PID_ENV: str(os.getpid())},
                     start_new_session=True,  # a terminal's Ctrl-C reaches the runner only
                     preexec_fn=_die_with_parent,
+                    pass_fds=key_fds(env),
                 )
         progress = _Progress(enabled=show_progress, total_s=progress_total_s)
         while any(p.poll() is None for p in procs.values()):
@@ -276,3 +287,15 @@ class _Progress:
 
     def close(self) -> None:
         self.bar.close()
+
+
+def foreign_messages(logs: Iterable[Path]):
+    """What the run's nodes refused as foreign, merged over their logs
+    (feed_twin.nodeset.foreign.ForeignLedger)."""
+    from feed_twin.nodeset.foreign import merge, parse_log
+
+    records = []
+    for log in logs:
+        with contextlib.suppress(OSError):
+            records += parse_log(log.read_text(errors="replace"))
+    return merge(records)

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 from feed_twin_msgs.msg import AxisCommand, ServoSample, TwinResidual
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
@@ -176,11 +177,14 @@ class LinuxcncNode(FeedTwinNode):
             sec, nsec = divmod(stamp, 1_000_000_000)
             values = (sec, nsec, float(b.pos_cmd_m[i, j]), float(b.vel_cmd_m_s[i, j]),
                       float(b.acc_cmd_m_s2[i, j]), int(b.line[i]))  # fmt: skip
-            self._cmd_pub.publish(self._command.encode(values))
-            self._servo_pub.publish(_servo_sample(b, i, sec, nsec, self._label))
+            sign = self.auth.sign  # the run's signature (feed_twin.nodeset.auth)
+            self._cmd_pub.publish(sign(self._cmd_pub.topic_name, self._command.encode(values)))
+            servo = serialize_message(_servo_sample(b, i, sec, nsec, self._label))
+            self._servo_pub.publish(sign(self._servo_pub.topic_name, servo))
             if stamp > 0:  # row k's feedback is period k - 1's (feed_twin.linuxcnc.bridge)
                 fb = float(b.pos_fb_m[i, j])
-                self._js_pub.publish(encode_joint_state(stamp - period_ns, joint, [fb], [], []))
+                js = encode_joint_state(stamp - period_ns, joint, [fb], [], [])
+                self._js_pub.publish(sign(self._js_pub.topic_name, js))
 
     def on_run_done(self, text: str) -> None:
         """This node announces the end itself (and hears its own announcement): it finishes
@@ -198,7 +202,7 @@ class LinuxcncNode(FeedTwinNode):
         self._close_run()
         text = "done: program finished" if code == EXIT_OK else "done: LinuxCNC fault"
         for pub in self._run_pubs:
-            pub.publish(String(data=text))
+            pub.publish(String(data=self.auth.sign_text(pub.topic_name, text)))
         self._ending = (code, message)
         self._done_at = time.monotonic()
         if message:

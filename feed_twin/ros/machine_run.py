@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -49,7 +48,13 @@ from feed_twin.nodeset.run_report import (
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, host_argv
-from feed_twin.ros.launch import Launched, launch, log_record, planned_duration_s
+from feed_twin.ros.launch import (
+    Launched,
+    foreign_messages,
+    launch,
+    log_record,
+    planned_duration_s,
+)
 
 if TYPE_CHECKING:
     from feed_twin.ros.domain import DomainReservation
@@ -74,7 +79,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     refused = [f"--{o.replace('_', '-')}" for o in REFUSED if getattr(args, o, False)]
     if refused:
         return _error(args, f"{', '.join(refused)}: not available for a machine's node set")
-    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    name = args.name  # feed_twin.ros.preflight.run_name, before anything started
     bag, logs = args.out / name, args.out / f"{name}.logs"
     try:
         plan = node_plan(machine, settle_s=args.settle)
@@ -108,7 +113,10 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
     failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)
     code = preflight.exit_status(result.code) if result.code else int(failed)
-    reason = _named(result.reason, plan)
+    reason = _with_trip_line(_named(result.reason, plan), bag, machine, args.program)
+    foreign = foreign_messages(result.logs.values())
+    for line in foreign.lines():
+        print(line)  # the run's own output names who sent what it dropped
     for said in (reason, problem):
         if said:
             print(f"feed-twin run: {said}", file=sys.stderr)
@@ -125,6 +133,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         timing=run_timing,
         figures={"processes": here, **(summary or {})},
         figure_lines=tuple(_figure_lines(machine, summary)) if summary is not None else (),
+        foreign_messages=foreign.as_dict(),
     )
     return emit(report, json_out=args.json)
 
@@ -160,6 +169,7 @@ def launch_processes(
     finally:
         if reservation is not None:
             reservation.release()
+        preflight.end_environment(env)
 
 
 def _named(reason: str, plan: NodePlan) -> str:
@@ -170,6 +180,26 @@ def _named(reason: str, plan: NodePlan) -> str:
     if not axes:
         return reason
     return f"axis {axes[0]}: {reason}" if len(axes) == 1 else f"axes {', '.join(axes)}: {reason}"
+
+
+def _with_trip_line(reason: str, bag: Path, machine: MachineConfig, program: Path) -> str:
+    """`reason` with the program line active at a drive fault's time added to the fault's
+    line (feed_twin.nodeset.protection.describe_trip), read from the tripped axis's commands."""
+    from feed_twin.io.bag import BagError, BagReader
+    from feed_twin.nodeset.protection import describe_trip
+    from feed_twin.ros.gcode_node import program_lines
+
+    head, _, rest = reason.partition("\n")
+    axis = head.removeprefix("axis ").partition(":")[0]
+    if "drive fault " not in head or axis not in machine.axes or not bag.exists():
+        return reason
+    topic = AxisTopics(machine=machine.name, axis=axis.lower()).command
+    try:
+        run = {topic: BagReader(bag).columns(topic, ["header.stamp", "line"])}
+    except (BagError, ValueError, OSError):
+        return reason
+    head = describe_trip(head, run, topic, program_lines(program))
+    return f"{head}\n{rest}" if rest else head
 
 
 def readable_bag(bag: Path) -> str:

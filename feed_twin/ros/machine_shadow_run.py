@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +39,7 @@ from feed_twin.nodeset.run_report import (
     shown,
 )
 from feed_twin.ros import preflight
-from feed_twin.ros.launch import log_record, planned_duration_s
+from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s
 from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
 
 # the node set plays the program in lockstep, all axes in one bag, started here
@@ -60,7 +59,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     problem = refused_options(args)
     if problem:
         return _error(args, problem)
-    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    name = args.name  # feed_twin.ros.preflight.run_name, before anything started
     bag, logs = args.out / name, args.out / f"{name}.logs"
     linuxcnc = args.nc == "linuxcnc"
     try:
@@ -109,6 +108,9 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
             f"latency p99 {shown(bridge['bridge_latency_p99_ms'], 'ms')}"
         )
+    foreign = foreign_messages(result.logs.values())
+    for line in foreign.lines():
+        print(line)  # the run's own output names who sent what it dropped
     extra = {"axes": [a.lower() for a in plan.axes], "shadow": figures}
     report = RunReport(
         mode=mode_name(args, machine=True),
@@ -124,6 +126,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
         timing=timing,
         figures={"processes": list(processes), **extra, **({"linuxcnc": bridge} if bridge else {})},
         figure_lines=tuple(lines),
+        foreign_messages=foreign.as_dict(),
     )
     return emit(report, json_out=args.json)
 

@@ -29,18 +29,18 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from feed_twin.core.config import ConfigError
 from feed_twin.io.live import add_live_options, linger, start_live
-from feed_twin.nodeset.guard import RUN_TOKEN_ENV
+from feed_twin.nodeset.foreign import ForeignLedger, merge
 from feed_twin.nodeset.run_report import emit
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
-from feed_twin.ros.launch import launch, log_record, planned_duration_s
+from feed_twin.ros.launch import foreign_messages, launch, log_record, planned_duration_s
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
@@ -131,12 +131,12 @@ class Outputs:
     map: Path  # --shadow: the column map of the machine's topics in the bag
     run: dict | None = None  # the bag's signals once read (feed_twin.nodeset.summary.read_run)
     recovered: int | None = None  # messages kept when the bag had to be recovered
+    # what the nodes refused as foreign (feed_twin.nodeset.foreign)
+    foreign: ForeignLedger = field(default_factory=ForeignLedger)
 
 
 def _outputs(args: argparse.Namespace) -> Outputs:
-    stem = args.program.stem if args.program is not None else "external"
-    name = args.name or f"{stem}_{time.strftime('%Y%m%d_%H%M%S')}"
-    out = args.out
+    name, out = args.name, args.out  # checked by preflight.run_name
     return Outputs(
         bag=out / name,
         rrd=out / f"{name}.rrd",
@@ -278,6 +278,7 @@ def _run_processes(args: argparse.Namespace, ros, nc, out: Outputs) -> tuple[int
         commands, out.logs, env=env, progress_role=clock, show_progress=not args.json,
         progress_total_s=total,
     )  # fmt: skip
+    out.foreign = foreign_messages(result.logs.values())
     return result.code, result.reason, _timing(result.logs[clock])
 
 
@@ -293,6 +294,7 @@ def _run_single_process(args: argparse.Namespace, ros, out: Outputs) -> tuple[in
     context = init_context()
     nodes = build_nodes([(r, _node_args(r, args, ros, out)) for r in _roles(args)], context)
     code = spin_nodes(nodes, context, until_all_done=True)
+    out.foreign = merge([n.foreign_record().as_dict() for n in nodes])
     reason = next((n.exit_message for n in nodes if n.exit_code and n.exit_message), "")
     sim = next(n for n in nodes if n.role == "sim")
     return code, reason, sim.timing_report()
@@ -317,7 +319,7 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
     topics = AxisTopics(machine=ros.machine, axis=ros.axis)
     if args.shadow:
         return _finish_shadow(args, topics, out)
-    run = out.run = read_run(out.bag, topics, token=os.environ.get(RUN_TOKEN_ENV))
+    run = out.run = read_run(out.bag, topics)  # only the run's messages were recorded
     lines = program_lines(args.program) if args.program is not None else None
     if room := preflight.dashboard_room(out):
         print(f"feed-twin run: {room}", file=sys.stderr)
@@ -426,27 +428,11 @@ def main(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from feed_twin.gcode import GcodeError
 
+    problem = _name_and_out(args)
+    if problem:
+        return _early_error(args, problem)
     if _is_machine_config(args.config):
-        from feed_twin.machine.run_cli import prepare_machine, run_machine
-
-        if args.nc == "linuxcnc" and (args.in_process or not args.shadow):
-            return _early_error(
-                args,
-                "--nc linuxcnc runs the program on LinuxCNC with the machine's twins beside it: "
-                "add --shadow (without --in-process)",
-            )
-        if args.in_process:
-            return run_machine(args)
-        machine = prepare_machine(args)
-        if isinstance(machine, int):
-            return machine
-        if args.shadow:
-            from feed_twin.ros.machine_shadow_run import run_machine_shadow
-
-            return run_machine_shadow(args, machine)
-        from feed_twin.ros.machine_run import run_machine_nodes
-
-        return run_machine_nodes(args, machine)
+        return _main_machine(args)
     if args.axes is not None or args.in_process:
         option = "--axes" if args.axes is not None else "--in-process"
         return _early_error(args, f"{option} needs a machine config; {args.config} is one axis")
@@ -491,6 +477,7 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         if reservation is not None:
             reservation.release()
+        preflight.end_environment(os.environ)
     code = 1 if code == 0 and summary is None else preflight.exit_status(code)
     reason = preflight.explain(reason, out, ros, args.program)
     if code == 130:
@@ -505,6 +492,44 @@ def _run(args: argparse.Namespace) -> int:
     preflight.remove_incomplete_rrd(out.rrd)
     report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
     return emit(report, json_out=args.json)
+
+
+def _main_machine(args: argparse.Namespace) -> int:
+    """`feed-twin run` of a machine config: in-process, its node set or its shadow node set."""
+    from feed_twin.machine.run_cli import prepare_machine, run_machine
+
+    if args.nc == "linuxcnc" and (args.in_process or not args.shadow):
+        return _early_error(
+            args,
+            "--nc linuxcnc runs the program on LinuxCNC with the machine's twins beside it: "
+            "add --shadow (without --in-process)",
+        )
+    if args.in_process:
+        return run_machine(args)
+    machine = prepare_machine(args)
+    if isinstance(machine, int):
+        return machine
+    if args.shadow:
+        from feed_twin.ros.machine_shadow_run import run_machine_shadow
+
+        return run_machine_shadow(args, machine)
+    from feed_twin.ros.machine_run import run_machine_nodes
+
+    return run_machine_nodes(args, machine)
+
+
+def _name_and_out(args: argparse.Namespace) -> str:
+    """Why the run's name or (machine config) --out cannot be used ("": they can); sets
+    args.name to the run's name (preflight.run_name) for every mode."""
+    stem = args.program.stem if args.program is not None else "external"
+    try:
+        args.name = preflight.run_name(args.out, args.name, stem, time.strftime("%Y%m%d_%H%M%S"))
+        if _is_machine_config(args.config):
+            # the machine's bag is sized by its axes' nodes; here: that --out takes files
+            preflight.check_output_dir(args.out, 0)
+    except ConfigError as exc:
+        return str(exc)
+    return ""
 
 
 def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, summary, timing):
@@ -529,6 +554,7 @@ def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, s
         timing=run_timing,
         figures=figures,
         figure_lines=tuple(summary.format().splitlines()) if summary is not None else (),
+        foreign_messages=out.foreign.as_dict(),
     )
 
 

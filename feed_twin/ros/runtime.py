@@ -29,6 +29,7 @@ import contextlib
 import faulthandler
 import functools
 import gc
+import math
 import os
 import resource
 import signal
@@ -49,10 +50,13 @@ from rclpy.node import Node
 from rclpy.task import Future
 from std_msgs.msg import String
 
+from feed_twin.nodeset.auth import RunAuth, key_from_environ
+from feed_twin.nodeset.foreign import ForeignLedger, merge
 from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
 from feed_twin.ros.dds import HEARTBEAT_QOS, LATCHED_QOS, init_context
 from feed_twin.ros.exit_timer import exit_after
 
+FOREIGN_GRAPH_S = 0.5  # [s] between two looks for the publishers of a topic with refusals
 EXIT_OK = 0
 EXIT_ERROR = 1  # a configuration, program or runtime error; the message says which
 EXIT_PEER_LOST = 3  # another node of the set disappeared
@@ -126,6 +130,13 @@ class NodeOptions:
         return f"{self.topics.namespace}/{peer}"
 
 
+@functools.cache
+def process_key() -> bytes | None:
+    """The run's key (feed_twin.nodeset.auth), read once per process: a node host's nodes
+    share it, and its descriptor is closed once read."""
+    return key_from_environ(os.environ)
+
+
 class Liveness:
     """Heartbeats sent and watched from a thread with its own node, without an executor.
 
@@ -143,13 +154,18 @@ class Liveness:
         self.role = role
         self.options = options
         self.node = Node(f"{role}_liveness", namespace=options.topics.namespace, context=context)
+        # heartbeats are signed too: a foreign one must not keep a dead peer "alive"
+        self.auth = RunAuth(process_key())
+        self.foreign = ForeignLedger()
         served = options.axis_topics()
         self._pubs = [
-            self.node.create_publisher(String, t.heartbeat, HEARTBEAT_QOS) for t in served.values()
+            (t.heartbeat, self.node.create_publisher(String, t.heartbeat, HEARTBEAT_QOS))
+            for t in served.values()
         ]
         self._subs = [
             (
                 prefix,
+                t.heartbeat,
                 self.node.create_subscription(String, t.heartbeat, _never_called, HEARTBEAT_QOS),
             )
             for prefix, t in served.items()
@@ -169,15 +185,18 @@ class Liveness:
         return self._beating
 
     def _take(self) -> None:
-        for prefix, sub in self._subs:
+        for prefix, topic, sub in self._subs:
             handle = sub.handle
             with handle:
                 while True:
                     taken = handle.take_message(String, False)
                     if taken is None:
                         break
-                    peer = taken[0].data
-                    if peer != self.role:
+                    peer = self.auth.verify_text(topic, taken[0].data)
+                    if peer is None:
+                        with self._lock:
+                            self.foreign.refuse(topic, self.auth.last_refusal(topic))
+                    elif peer != self.role:
                         with self._lock:
                             self._seen[prefix + peer] = time.monotonic()
 
@@ -189,9 +208,9 @@ class Liveness:
             now = time.monotonic()
             if self._beating and now >= next_beat:
                 next_beat = now + HEARTBEAT_PERIOD_S
-                for pub in self._pubs:
+                for topic, pub in self._pubs:
                     with contextlib.suppress(Exception):
-                        pub.publish(String(data=self.role))
+                        pub.publish(String(data=self.auth.sign_text(topic, self.role)))
 
     def seen(self) -> dict[str, float]:
         with self._lock:
@@ -230,6 +249,10 @@ class FeedTwinNode(Node):
         self._created = time.monotonic()
         self._watchdogs: list[_Watchdog] = []
         self.liveness = Liveness(role, options, self.context)
+        # the run's message authentication (feed_twin.nodeset.auth) and what it refused
+        self.auth = RunAuth(process_key())
+        self.foreign = ForeignLedger()
+        self._named_at: dict[str, float] = {}  # topic -> when its publishers were last read
         self._heartbeat_on = False
         self._beat_when: Callable[[], bool] | None = None
         self.setup_cpu_s = 0.0  # CPU time of this process when set-up ended [s]
@@ -309,7 +332,58 @@ class FeedTwinNode(Node):
     def on_run_state(self, text: str) -> None:
         """Any other run_state announcement (the sim's "realtime" at the start); default: none."""
 
+    def admit(self, topic: str, data: bytes) -> bytes | None:
+        """A message of the run as its node made it, or None: refused, counted and its
+        publisher looked for (feed_twin.nodeset.auth, feed_twin.nodeset.foreign)."""
+        body = self.auth.verify(topic, data)
+        if body is None:
+            self.refuse_foreign(topic, self.auth.last_refusal(topic))
+        return body
+
+    def admit_text(self, topic: str, text: str) -> str | None:
+        """A text message of the run without its signature, or None (as `admit`)."""
+        body = self.auth.verify_text(topic, text)
+        if body is None:
+            self.refuse_foreign(topic, self.auth.last_refusal(topic))
+        return body
+
+    def refuse_foreign(self, topic: str, reason: str) -> None:
+        """Count one dropped message; warn on the first and every 1000th; name the topic's
+        foreign publishers (the graph is read at most every FOREIGN_GRAPH_S per topic)."""
+        count = self.foreign.refuse(topic, reason)
+        if count == 1 or count % 1000 == 0:
+            self.get_logger().warning(
+                f"refused {count} foreign message(s) on {topic} ({reason}): not signed by "
+                "this run's nodes"
+            )
+        now = time.monotonic()
+        if now - self._named_at.get(topic, -math.inf) >= FOREIGN_GRAPH_S:
+            self._named_at[topic] = now
+            self.name_foreign(topic)
+
+    def name_foreign(self, topic: str) -> list[str]:
+        """The publishers of `topic` that are not nodes of the run, added to the ledger;
+        returns the ones new to it."""
+        from feed_twin.ros.guarded import foreign_publishers
+
+        try:
+            found = foreign_publishers(self, topic)
+        except Exception:  # noqa: BLE001 - the graph is read again at the next refusal
+            return []
+        return [p for p in found if self.foreign.name(topic, p)]
+
+    def foreign_record(self) -> ForeignLedger:
+        """What this node and its liveness node refused, as one ledger."""
+        with self.liveness._lock:
+            heartbeats = self.liveness.foreign.as_dict()
+        return merge([self.foreign.as_dict(), heartbeats])
+
     def _on_run_state(self, msg: String, prefix: str = "") -> None:
+        topic = self.options.axis_topics()[prefix].run_state
+        text = self.admit_text(topic, msg.data)
+        if text is None:
+            return
+        msg = String(data=text)
         if not msg.data.startswith("done"):
             self.on_run_state(msg.data)
             return
@@ -523,6 +597,10 @@ def spin_nodes(
                 node.on_shutdown(reason)
             except Exception as exc:  # noqa: BLE001 - one node's cleanup must not skip another's
                 print(f"{node.role}: error while shutting down: {exc}", file=sys.stderr)
+        for node in nodes:
+            ledger = node.foreign_record()
+            if ledger.topics:
+                print(ledger.log_line(), file=sys.stderr, flush=True)
         # A finished node stops beating: a recorder sharing this process has closed its bag, and
         # the ack wait below (here and in other processes) must not take it for alive.
         for node in nodes:

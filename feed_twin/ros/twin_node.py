@@ -112,6 +112,7 @@ class TwinNode(FeedTwinNode):
         self._health_pub = self.create_publisher(
             HealthStatus, out(out_namespace, "health"), DATA_QOS
         )
+        self._command_topic, self._measured_topic = command.topic.name, measured.topic.name
         for source, callback in ((command, self._on_command), (measured, self._on_measured)):
             topic = source.topic
             self.create_subscription(
@@ -136,6 +137,11 @@ class TwinNode(FeedTwinNode):
         self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
     def _on_command(self, data: bytes) -> None:
+        if self.auth.enabled:  # a run's twin: only the run's NC (a bare shadow: any stream)
+            admitted = self.admit(self._command_topic, data)
+            if admitted is None:
+                return
+            data = admitted
         self._seen_command = True
         self._last_message = time.monotonic()
         try:
@@ -152,6 +158,11 @@ class TwinNode(FeedTwinNode):
             self._step()
 
     def _on_measured(self, data: bytes) -> None:
+        if self.auth.enabled:
+            admitted = self.admit(self._measured_topic, data)
+            if admitted is None:
+                return
+            data = admitted
         arrived = time.perf_counter()
         self._last_message = time.monotonic()
         self._measured_dog.feed()
@@ -201,23 +212,27 @@ class TwinNode(FeedTwinNode):
             }
             if self._is_current:
                 state["i_q"] = float(b.effort_twin[k])
-            self._state_pub.publish(STATE.encode_map(state))
+            sign = self.auth.sign
+            self._state_pub.publish(sign(self._state_pub.topic_name, STATE.encode_map(state)))
             self._residual_pub.publish(
-                RESIDUAL.encode_map(
-                    {
-                        "header.stamp.sec": sec,
-                        "header.stamp.nanosec": nsec,
-                        "axis": self.axis_label,
-                        "following_error_measured": float(b.x_cmd_m[k] - b.x_meas_m[k]),
-                        "following_error_twin": fe_twin,
-                        "following_error_deviation": float(b.fe_dev_m[k]),
-                        "effort_measured": float(b.effort_meas[k]),
-                        "effort_twin": float(b.effort_twin[k]),
-                        "effort_deviation": float(b.effort_dev[k]),
-                        "rms_window": window,
-                        "following_error_deviation_rms": float(b.fe_dev_rms_m[k]),
-                        "effort_deviation_rms": float(b.effort_dev_rms[k]),
-                    }
+                sign(
+                    self._residual_pub.topic_name,
+                    RESIDUAL.encode_map(
+                        {
+                            "header.stamp.sec": sec,
+                            "header.stamp.nanosec": nsec,
+                            "axis": self.axis_label,
+                            "following_error_measured": float(b.x_cmd_m[k] - b.x_meas_m[k]),
+                            "following_error_twin": fe_twin,
+                            "following_error_deviation": float(b.fe_dev_m[k]),
+                            "effort_measured": float(b.effort_meas[k]),
+                            "effort_twin": float(b.effort_twin[k]),
+                            "effort_deviation": float(b.effort_dev[k]),
+                            "rms_window": window,
+                            "following_error_deviation_rms": float(b.fe_dev_rms_m[k]),
+                            "effort_deviation_rms": float(b.effort_dev_rms[k]),
+                        }
+                    ),
                 )
             )
             arrived = self._arrival.pop(round((t - t0) / period), None)
@@ -228,7 +243,8 @@ class TwinNode(FeedTwinNode):
             self.dashboard.log_block(b)
 
     def _verdict(self, v: Verdict) -> None:
-        self._health_pub.publish(HEALTH.encode(health_values(HEALTH.names, v, self.axis_label)))
+        health = HEALTH.encode(health_values(HEALTH.names, v, self.axis_label))
+        self._health_pub.publish(self.auth.sign(self._health_pub.topic_name, health))
         text = f"health {v.level_name} at t = {v.t_s:.3f} s: {v.message}"
         # one call site per severity: rclpy refuses a call site whose severity changes
         if v.level == 2:
