@@ -85,6 +85,7 @@ def test_the_start_transient_of_an_averaged_trace_is_left_out_of_the_fit(tmp_pat
     assert np.max(np.abs(early)) < 10.0
     assert np.sqrt(np.mean(late**2)) < 2.5
     re, _ = residuals(run, out, start=start)
+    assert re is not None
     assert np.all(re[:start] == 0.0) and np.array_equal(re[start:], late)
     floors = noise_floors(run, out, start=start)
     meas = weighted_channels(run, out, 1, floors, start=start)

@@ -30,14 +30,21 @@ def test_raw_speeds_fit_every_body_with_the_held_stretches():
     held = 0.5 * T * np.where(ext, v, 0.0)
     need = np.abs(v[1:] ** 2 - v[:-1] ** 2) / (2.0 * A) + held[:-1] + held[1:]
     assert np.all(need <= L * (1 + 1e-12))
-    # Bodies: they fill their length, and a peak above both ends cruises at least T.
+    # Bodies: they fill their length; a body alone (both ends extended) with a peak above
+    # both ends cruises at least T at A, or runs at A / 2; chain bodies keep their A.
     V = np.full(m, 0.3)
-    vp, t_up, t_cruise, t_down = body_profiles_filtered(v, L, V, A, ext, T)
+    vp, t_up, t_cruise, t_down, a_used = body_profiles_filtered(v, L, V, A, ext, T)
     room = L - held[:-1] - held[1:]
     covered = 0.5 * (v[:-1] + vp) * t_up + vp * t_cruise + 0.5 * (vp + v[1:]) * t_down
     np.testing.assert_allclose(covered, room, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(t_up, (vp - v[:-1]) / a_used, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(t_down, (vp - v[1:]) / a_used, rtol=1e-12, atol=1e-15)
+    alone = ext[:-1] & ext[1:]
     peaked = vp > np.maximum(v[:-1], v[1:]) * (1 + 1e-12)
-    assert np.all(t_cruise[peaked] >= T * (1 - 1e-9))
+    at_full = alone & peaked & (a_used == A)
+    assert np.all(t_cruise[at_full] >= T * (1 - 1e-9))
+    assert np.all((a_used == A) | (alone & (a_used == 0.5 * A)))
+    assert np.any(alone & (a_used == 0.5 * A))  # the shorter bodies take the half rate
     assert np.all(vp <= V)
 
 

@@ -219,14 +219,7 @@ def run_round(
             state.doc, state.found_free(), cand, ctx.drive, meas, opts.max_evaluations
         )
         if isinstance(tried, str):
-            ctx.notes.append(tried)
-            unfitted.append(
-                {
-                    "name": cand.name,
-                    "evidence": evidence(cand, unit_of(ctx.unit_twin, cand)),
-                    "reason": tried,
-                }
-            )
+            _not_fitted(ctx, cand, tried, unfitted)
             excluded.append(cand.name)
             continue
         edit, alone, new_twin, result = tried
@@ -361,6 +354,13 @@ def _no_feed_axis(name: str, edit: Edit, result) -> str | None:
     return None
 
 
+def _not_fitted(ctx: Context, cand: Candidate, why: str, unfitted: list[dict]) -> None:
+    """A candidate the model cannot carry: said, and kept as named but not fitted."""
+    ctx.notes.append(why)
+    evidence_ = evidence(cand, unit_of(ctx.unit_twin, cand))
+    unfitted.append({"name": cand.name, "evidence": evidence_, "reason": why})
+
+
 def _collapsed_in_fit(state: State, edit: Edit, alone: list[FreeParameter], result) -> bool:
     """The fit took the new effect's size parameters back to within COLLAPSE of the values
     without it, from where the ranking's weights started them: what the fit gained came from
@@ -415,6 +415,8 @@ def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
     shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in explained_by.items())
     values = ", ".join(with_unit(k, v) for k, v in params.items())
     ctx.progress(f"  added {cand.name}: {values}; it removed {shares} residual energy")
+    if result.message.endswith(AT_EDGE):  # a record slot's search said so
+        ctx.notes.append(f"{cand.name}: {result.message}")
 
 
 def drop_collapsed(state: State, ctx: Context, when: str) -> None:

@@ -78,31 +78,54 @@ def plan_speeds_filtered(
 
 
 @njit(cache=True)
+def _trapezoid(v0: float, v1: float, room: float, V: float, a: float, hold: float):
+    """(peak, t_up, t_cruise, t_down, total time) of a trapezoid over `room` at acceleration
+    a, cruising at least `hold` at a peak above both ends: vp^2 / a + hold vp <= room +
+    (v0^2 + v1^2) / (2a). The peak is never below an end (a body the planned ends fit)."""
+    c = room + (v0 * v0 + v1 * v1) / (2.0 * a)
+    top = 0.5 * a * (-hold + math.sqrt(hold * hold + 4.0 * c / a))
+    top = max(min(top, V), max(v0, v1))
+    t_up = (top - v0) / a
+    t_down = (top - v1) / a
+    rest = room - (top * top - v0 * v0) / (2.0 * a) - (top * top - v1 * v1) / (2.0 * a)
+    t_cruise = rest / top if (top > 0.0 and rest > 0.0) else 0.0
+    return top, t_up, t_cruise, t_down, t_up + t_cruise + t_down
+
+
+@njit(cache=True)
 def body_profiles_filtered(
     v: np.ndarray, L: np.ndarray, V: np.ndarray, A: np.ndarray, ext: np.ndarray, T: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Peak speed and durations (speed-up, cruise, slow-down) of each raw body: a trapezoid
-    over the length its nodes' extensions leave, cruising at least T at a peak above both
-    ends: vp^2 / A + T vp <= L' + (v0^2 + v1^2) / (2A)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Peak speed, durations (speed-up, cruise, slow-down) and acceleration of each raw body:
+    a trapezoid over the length its nodes' extensions leave.
+
+    A body between two extended nodes (alone in its windows, A from the axes' a_max) either
+    cruises at least T at a peak above both ends (s'' keeps its sign within a window:
+    |s_f'''| <= A / T) or runs at A / 2 without that cruise (|s_f'''| <= 2 (A / 2) / T),
+    whichever is quicker. A chain body's A already budgets s'' changing sign within a window
+    (`plan_chains.chain_limits`): no cruise needed.
+    """
     m = L.shape[0]
     vp = np.empty(m)
     t_up = np.empty(m)
     t_cruise = np.empty(m)
     t_down = np.empty(m)
+    a_used = np.empty(m)
     for i in range(m):
         v0 = v[i]
         v1 = v[i + 1]
         a = A[i]
         room = L[i] - 0.5 * T * ((v0 if ext[i] else 0.0) + (v1 if ext[i + 1] else 0.0))
-        c = room + (v0 * v0 + v1 * v1) / (2.0 * a)
-        top = 0.5 * a * (-T + math.sqrt(T * T + 4.0 * c / a))
-        top = max(min(top, V[i]), max(v0, v1))
-        vp[i] = top
-        t_up[i] = (top - v0) / a
-        t_down[i] = (top - v1) / a
-        rest = room - (top * top - v0 * v0) / (2.0 * a) - (top * top - v1 * v1) / (2.0 * a)
-        t_cruise[i] = rest / top if (top > 0.0 and rest > 0.0) else 0.0
-    return vp, t_up, t_cruise, t_down
+        alone = ext[i] and ext[i + 1]
+        best = _trapezoid(v0, v1, room, V[i], a, T if alone else 0.0)
+        a_used[i] = a
+        if alone and abs(v0 * v0 - v1 * v1) <= a * room:  # the ends fit at A / 2
+            half = _trapezoid(v0, v1, room, V[i], 0.5 * a, 0.0)
+            if half[4] < best[4]:
+                best = half
+                a_used[i] = 0.5 * a
+        vp[i], t_up[i], t_cruise[i], t_down[i] = best[0], best[1], best[2], best[3]
+    return vp, t_up, t_cruise, t_down, a_used
 
 
 @njit(cache=True)

@@ -30,6 +30,9 @@ CHAIN_SHARE = 1.0  # elsewhere: blends may reach the neighbouring corner and ove
 SHARP_CORNER = 0.25  # |u_out - u_in| above this (about 14 degrees) is a corner, not a curve
 COLLINEAR = 1e-12  # |u_out - u_in| below this is a straight joint, not a corner
 ZONE_SLACK = 1e-9  # share of a move below which a blend zone on it is a rounding error
+# With the jerk filter: a zone of one blend alone shorter than this share of its move (where
+# neighbouring chords differ a little) is a step of curvature, not a slope (`zone_coefficients`)
+KICK_ZONE = 0.1
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -54,6 +57,7 @@ class CornerBlends:
     cap: np.ndarray  # [m/s] speed cap of the corner (0 at stops)
     a_node: np.ndarray  # (n+1, n_axes) [1/m] largest |d2x/ds2| per axis around the node
     j_node: np.ndarray  # (n+1, n_axes) [1/m^2] largest |d3x/ds3| per axis around the node
+    k_node: np.ndarray  # (n+1, n_axes) [1/m] largest curvature step per axis around the node
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -72,6 +76,7 @@ class _Blends(NamedTuple):
     cap: np.ndarray
     a_node: np.ndarray
     j_node: np.ndarray
+    k_node: np.ndarray
 
 
 def corner_blends(
@@ -107,6 +112,7 @@ def corner_blends(
         cap=np.where(stop, 0.0, final.cap),
         a_node=final.a_node,
         j_node=final.j_node,
+        k_node=final.k_node,
     )
 
 
@@ -132,26 +138,33 @@ def _blends(
     if start is not None:
         w[: len(start.w)] = start.w
     dU = np.where((w > 0.0)[:, None], du, 0.0)
-    a_s, a_e, j_s, j_e = zone_coefficients(L, w, dU)
+    a_s, a_e, j_s, j_e, kick = zone_coefficients(L, w, dU, steps=limits.window_s > 0.0)
     zero = np.zeros((1, du.shape[1]))
     # Per node: its blend runs through the end zone before it and the start zone after.
     a_node = np.maximum(np.vstack((zero, a_e)), np.vstack((a_s, zero)))
     j_node = np.maximum(np.vstack((zero, j_e)), np.vstack((j_s, zero)))
+    k_node = np.maximum(np.vstack((zero, kick)), np.vstack((kick, zero)))
     V_in = np.concatenate(([np.inf], V))
     V_out = np.concatenate((V, [np.inf]))
-    cap = np.minimum(np.minimum(V_in, V_out), limits.cruise_cap(a_node, j_node, 1.0, 1.0))
-    return _Blends(w, dU, cap, a_node, j_node)
+    cap = limits.cruise_cap(a_node, j_node, 1.0, 1.0, k_node)
+    cap = np.minimum(np.minimum(V_in, V_out), cap)
+    return _Blends(w, dU, cap, a_node, j_node, k_node)
 
 
 def zone_coefficients(
-    L: np.ndarray, w: np.ndarray, du: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Largest |d2x/ds2| and |d3x/ds3| per axis in the start and end blend zone of each move.
+    L: np.ndarray, w: np.ndarray, du: np.ndarray, *, steps: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Largest |d2x/ds2| and |d3x/ds3| per axis in the start and end blend zone of each move,
+    and its curvature steps.
 
     On move k the blends of node k (start, sigma in [0, w_k]) and node k+1 (end, sigma in
     [L - w_k+1, L]) may overlap; there d2x/ds2 = dU_k h'_k + dU_k+1 h'_k+1 is linear in
     sigma between the zone ends and d3x/ds3 = dU_k h''_k + dU_k+1 h''_k+1 is constant on
-    each part, so a few points bound them. Returns (a_start, a_end, j_start, j_end), (n, na).
+    each part, so a few points bound them. With `steps` a part of one blend alone shorter
+    than KICK_ZONE of the move (neighbouring chords of slightly different lengths) counts
+    as a curvature step K = |d3x/ds3| * its length, spread over the move (K / L in d3x/ds3;
+    the sampled jerk sees the step itself, `AxisLimits.kick_jerk`).
+    Returns (a_start, a_end, j_start, j_end, steps K), (n, na) each.
     """
     ws = w[:-1][:, None]
     we = w[1:][:, None]
@@ -176,9 +189,19 @@ def zone_coefficients(
         # A zone shorter than a rounding error of the move is none (equal neighbouring chords
         # give w_start + w_end = L up to rounding, and no stretch of a single blend between).
         slack = ZONE_SLACK * Lc
-        start_only = (ws > 0.0) & (np.minimum(ws, Lc - we) > slack)
-        end_only = (we > 0.0) & (Lc - np.maximum(ws, Lc - we) > slack)
+        alone_s = np.minimum(ws, Lc - we)  # length of the start blend alone
+        alone_e = Lc - np.maximum(ws, Lc - we)
+        start_only = (ws > 0.0) & (alone_s > slack)
+        end_only = (we > 0.0) & (alone_e > slack)
         j_s = np.where(start_only, np.abs(dus) / (ws * ws), 0.0)
         j_e = np.where(end_only, np.abs(due) / (we * we), 0.0)
         j_both = np.where(overlap, np.abs(due / (we * we) - dus / (ws * ws)), 0.0)
-    return a_start, a_end, np.maximum(j_s, j_both), np.maximum(j_e, j_both)
+    kick = np.zeros_like(j_s)
+    if steps:
+        short_s = overlap & (alone_s <= KICK_ZONE * Lc)
+        short_e = overlap & (alone_e <= KICK_ZONE * Lc)
+        kick = np.where(short_s, j_s * alone_s, 0.0) + np.where(short_e, j_e * alone_e, 0.0)
+        j_s = np.where(short_s, 0.0, j_s)
+        j_e = np.where(short_e, 0.0, j_e)
+        j_both = j_both + kick / Lc
+    return a_start, a_end, np.maximum(j_s, j_both), np.maximum(j_e, j_both), kick

@@ -207,7 +207,9 @@ def _one_d_nodes(
     chained = last_of > first_of
     # A chain is cut where its local speed cap changes a lot (typically where the
     # curvature ramps up at its ends), so that a slow end does not slow all of it.
-    local = limits.cruise_cap(blends.a_node[nodes_b], blends.j_node[nodes_b], 0.5, 1.0 / 3.0)
+    local = limits.cruise_cap(
+        blends.a_node[nodes_b], blends.j_node[nodes_b], 0.5, 1.0 / 3.0, blends.k_node[nodes_b]
+    )
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = local[1:] / local[:-1]  # inf/inf (straight stretches) gives nan: no cut
     cut = np.zeros(len(nodes_b), dtype=bool)
@@ -243,9 +245,10 @@ def chain_limits(
     Along a chain the axis motion is d(s) ds/dt with d a convex combination of the move
     directions (|d_i| <= max |u_i|), and
         a_i = d_i s'' + d'_i (s')^2,   j_i = d_i s''' + 3 d'_i s' s'' + d''_i (s')^3.
-    Half of each axis's acceleration goes to the curvature term (cap V) and half to s''
-    (A); a third of its jerk to each of the three jerk terms (V, then A, then J; with the jerk
-    filter s''' <= 2 A / T, and A takes what the curvature terms leave at the cap). The body
+    The curvature terms take a share of each axis's acceleration and jerk at the cap V
+    (trapezoid: CURVE_ACC_SHARE, no jerk; filtered: half and CURVE_JERK_SHARE, curvature
+    steps included), s'' the acceleration they leave (A); filtered, s''' <= 2 A / T and the
+    cross term share the jerk they leave. No jerk limit J of s''' itself (inf). The body
     from node p to node q meets the blends of nodes p..q, hence the maxima over them.
     """
     absu = np.abs(u)
@@ -263,33 +266,27 @@ def chain_limits(
     seen = ~quiet[:, None]
     a_node = np.zeros_like(blends.a_node)
     j_node = np.zeros_like(blends.j_node)
+    k_node = np.zeros_like(blends.k_node)
     a_node[nodes_b] = np.where(seen, blends.a_node[nodes_b], 0.0)
     j_node[nodes_b] = np.where(seen, blends.j_node[nodes_b], 0.0)
+    k_node[nodes_b] = np.where(seen, blends.k_node[nodes_b], 0.0)
     a_g = over_bodies(a_node, np.maximum)
     j_g = over_bodies(j_node, np.maximum)
+    k_g = over_bodies(k_node, np.maximum)
     u_g = over_bodies(u_node, np.maximum)
-    a_share, j_share = (0.5, 1.0 / 3.0)  # S-curves per body
-    if limits.window_s > 0.0:
-        a_share, j_share = 0.5, CURVE_JERK_SHARE
-    elif not limits.jerk:
-        a_share = CURVE_ACC_SHARE
-    Vc = np.minimum(over_bodies(v_node, np.minimum), limits.cruise_cap(a_g, j_g, a_share, j_share))
+    filtered = limits.window_s > 0.0
+    a_share, j_share = (0.5, CURVE_JERK_SHARE) if filtered else (CURVE_ACC_SHARE, 1.0)
+    local = limits.cruise_cap(a_g, j_g, a_share, j_share, k_g)
+    Vc = np.minimum(over_bodies(v_node, np.minimum), local)
     a_max, j_max = limits.a_max, limits.j_max
+    v = Vc[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        Ac = np.min(np.where(u_g > 0.0, 0.5 * a_max / u_g, np.inf), axis=1)
-        if limits.window_s > 0.0:
-            # Filtered: |s'''| <= 2 A / T (the raw s''' may change sign between bodies).
-            v = Vc[:, None]
-            a_left = (a_max - a_g * v * v) / u_g
-            j_left = (j_max - j_g * v**3) / (2.0 * u_g / limits.window_s + 3.0 * a_g * v)
-            Ac = np.min(np.where(u_g > 0.0, np.minimum(a_left, j_left), np.inf), axis=1)
-            Jc = np.full(len(Vc), np.inf)
-        elif limits.jerk:
-            cross = j_max / (9.0 * a_g * Vc[:, None])
-            Ac = np.minimum(Ac, np.min(np.where(a_g > 0.0, cross, np.inf), axis=1))
-            Jc = np.min(np.where(u_g > 0.0, j_max / (3.0 * u_g), np.inf), axis=1)
-        else:
-            a_left = (a_max - a_g * Vc[:, None] ** 2) / u_g
-            Ac = np.min(np.where(u_g > 0.0, a_left, np.inf), axis=1)
-            Jc = np.full(len(Vc), np.inf)
+        a_left = (a_max - a_g * v * v) / u_g
+        if filtered:
+            # |s'''| <= 2 A / T (the raw s'' may change sign between bodies).
+            curve = j_g * v**3 + limits.kick_jerk(k_g) * v * v  # x''' v^3, steps included
+            j_left = (j_max - curve) / (2.0 * u_g / limits.window_s + 3.0 * a_g * v)
+            a_left = np.minimum(a_left, j_left)
+        Ac = np.min(np.where(u_g > 0.0, a_left, np.inf), axis=1)
+    Jc = np.full(len(Vc), np.inf)
     return Vc, Ac, Jc

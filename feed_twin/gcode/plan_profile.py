@@ -4,7 +4,6 @@ The bodies' boundary speeds come from a backward pass of braking bounds and a fo
 (`profile.plan_speeds`), each body's peak speed and phase durations from `profile.body_profiles`.
 The profile is a list of pieces, three per 1-D node: a hold (dwells, standstill), a cruise over
 the node's blend at constant speed, and the body to the next 1-D node; a last hold at the end.
-Every piece starts and ends at zero acceleration.
 """
 
 from __future__ import annotations
@@ -32,24 +31,25 @@ class SpeedProfile:
     t_up: np.ndarray  # [s] speed-up phase
     t_cruise: np.ndarray  # [s] cruise at vp
     t_down: np.ndarray  # [s] slow-down phase
+    A: np.ndarray  # [m/s^2] acceleration of each body's speed-up and slow-down
 
 
-def speed_profile(
-    bodies: Bodies, *, jerk: bool, v_first: float, window_s: float = 0.0
-) -> SpeedProfile:
+def speed_profile(bodies: Bodies, *, v_first: float, window_s: float = 0.0) -> SpeedProfile:
     """The fastest profile within the bodies' limits that starts at v_first and ends at rest.
 
     With a jerk filter window T (`window_s` > 0) it is the raw plan of `jerk_filter`:
     trapezoids, extended nodes, a cruise of T at every peak.
     """
-    L, V, A, J = bodies.length, bodies.V, bodies.A, bodies.J
+    L, V, A = bodies.length, bodies.V, bodies.A
     if window_s > 0.0:
         v = plan_speeds_filtered(bodies.cap, L, A, bodies.extended, window_s, v_first)
-        vp, t_up, t_cruise, t_down = body_profiles_filtered(v, L, V, A, bodies.extended, window_s)
+        vp, t_up, t_cruise, t_down, A = body_profiles_filtered(
+            v, L, V, A, bodies.extended, window_s
+        )
     else:
-        v = plan_speeds(bodies.cap, L, A, J, jerk, v_first)
-        vp, t_up, t_cruise, t_down = body_profiles(v, L, V, A, J, jerk)
-    return SpeedProfile(v=v, vp=vp, t_up=t_up, t_cruise=t_cruise, t_down=t_down)
+        v = plan_speeds(bodies.cap, L, A, v_first)
+        vp, t_up, t_cruise, t_down = body_profiles(v, L, V, A)
+    return SpeedProfile(v=v, vp=vp, t_up=t_up, t_cruise=t_cruise, t_down=t_down, A=A)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -64,7 +64,6 @@ class Pieces:
     vp: np.ndarray  # [m/s] peak speed (bodies)
     v1: np.ndarray  # [m/s] speed at the end (bodies)
     A: np.ndarray  # [m/s^2] acceleration limit (bodies; 1 elsewhere)
-    J: np.ndarray  # [m/s^3] jerk limit (bodies with jerk; 1 elsewhere)
     t_up: np.ndarray  # [s] speed-up phase (bodies)
     t_cruise: np.ndarray  # [s] cruise phase (bodies)
     line: np.ndarray  # source line shown while the piece runs (-1: the move's own)
@@ -77,7 +76,6 @@ def motion_pieces(
     *,
     q_commit: int,
     n_moves: int,
-    jerk: bool,
     window_s: float = 0.0,
 ) -> Pieces:
     """Hold, cruise and body pieces of the 1-D nodes before `q_commit`, and a last hold.
@@ -97,7 +95,6 @@ def motion_pieces(
     vpk = np.zeros(n_pieces)
     v1 = np.zeros(n_pieces)
     Ak = np.ones(n_pieces)
-    Jk = np.ones(n_pieces)
     tu = np.zeros(n_pieces)
     tc = np.zeros(n_pieces)
     # First move each piece runs on: a blend or a chain starts on the move before its node.
@@ -125,8 +122,7 @@ def motion_pieces(
     v0[body] = v_node[:-1]
     vpk[body] = speeds.vp[:q_commit]
     v1[body] = v_node[1:]
-    Ak[body] = bodies.A[:q_commit]
-    Jk[body] = bodies.J[:q_commit] if jerk else 1.0
+    Ak[body] = speeds.A[:q_commit]
     tu[body] = speeds.t_up[:q_commit]
     tc[body] = speeds.t_cruise[:q_commit]
     s0[-1] = sa[q_commit] - reach[-1]
@@ -139,7 +135,6 @@ def motion_pieces(
         vp=vpk,
         v1=v1,
         A=Ak,
-        J=Jk,
         t_up=tu,
         t_cruise=tc,
         line=np.full(n_pieces, -1, dtype=np.int64),
@@ -228,7 +223,6 @@ def with_dwells(pieces: Pieces, dwells: list[Dwell]) -> Pieces:
         vp=np.concatenate((pieces.vp, zeros)),
         v1=np.concatenate((pieces.v1, zeros)),
         A=np.concatenate((pieces.A, zeros + 1.0)),
-        J=np.concatenate((pieces.J, zeros + 1.0)),
         t_up=np.concatenate((pieces.t_up, zeros)),
         t_cruise=np.concatenate((pieces.t_cruise, zeros)),
         line=np.concatenate((pieces.line, [d.line for d in dwells])),

@@ -63,8 +63,6 @@ def sample_path(
     moves: MoveLimits,
     w: np.ndarray,
     dU: np.ndarray,
-    *,
-    jerk: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(position, velocity, acceleration, piece, move) at each sample time."""
     n = len(moves.L)
@@ -79,10 +77,8 @@ def sample_path(
         pieces.vp,
         pieces.v1,
         pieces.A,
-        pieces.J,
         pieces.t_up,
         pieces.t_cruise,
-        jerk,
     )
     pos, vel, acc, seg = evaluate_path(
         s,

@@ -20,8 +20,7 @@ every node with their limits eroded over a window), and sampling applies the fil
 G60, G61, G9, dwells and stopping M-codes end a move at rest. After an exact stop (G60, G61,
 G61.1, G9) the setpoint is held for `exact_stop_settle_s`, a dwell on the stopping block's line
 before the next block's events: the fixed-time model of the NC's wait for the in-position
-window. Every profile piece starts and ends at zero acceleration (the filtered plan's does not
-need to: its raw pieces are trapezoids).
+window. Profile pieces are trapezoids (acceleration-limited); the jerk profile filters them.
 
 Look-ahead: a backward pass of braking bounds and a forward pass over the boundary speeds of up
 to `lookahead_segments` moves, with the window's end at rest; the first half is committed,
@@ -170,8 +169,6 @@ class _StreamPlanner:
         self.config = config
         self.axes = config.axis_names
         self.limits = AxisLimits.of(config)
-        # The raw plan of the jerk profile is a trapezoid; the filter makes it jerk-limited.
-        self.jerk = False
         self.window_s = self.limits.window_s
         self.n_filter = self.limits.filter_n
         self.period = config.interpolation_period_s
@@ -238,14 +235,12 @@ class _StreamPlanner:
         bodies = chain_bodies(moves, blends, flags, self.limits, first=first, open_end=not final)
         if bodies is None:
             return self._plan_standstill() if final else None
-        speeds = speed_profile(bodies, jerk=self.jerk, v_first=self.v_first, window_s=self.window_s)
+        speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
         q_commit = self._commit_point(bodies, first, n, final)
         if q_commit is None:
             return None  # nothing safely committable yet: wait for more moves
         end_node = int(bodies.node[q_commit])
-        pieces = motion_pieces(
-            bodies, speeds, q_commit=q_commit, n_moves=n, jerk=self.jerk, window_s=self.window_s
-        )
+        pieces = motion_pieces(bodies, speeds, q_commit=q_commit, n_moves=n, window_s=self.window_s)
         dwells, timed = node_entries(self._entries_at(bodies, q_commit, final), bodies.S)
         holds = stop_holds(
             bodies,
@@ -273,9 +268,7 @@ class _StreamPlanner:
                 span=self.window_s,
             )
         else:
-            pos, vel, acc, piece, seg = sample_path(
-                times, pieces, t0, moves, blends.w, blends.dU, jerk=self.jerk
-            )
+            pos, vel, acc, piece, seg = sample_path(times, pieces, t0, moves, blends.w, blends.dU)
         lines = np.array(self.lines, dtype=np.int64)[seg]
         held = pieces.line[piece]
         lines = np.where(held >= 0, held, lines)
