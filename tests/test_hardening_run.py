@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import yaml
 from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, last_json, node_env, run, start_run
+from run_report_support import assert_report
 
 from feed_twin.io.bag import BagReader
 from feed_twin.ros.domain import reserve_domain_id
@@ -231,5 +232,7 @@ def test_config_errors_end_the_run_before_any_node_starts(tmp_path):
     assert code == 1 and time.monotonic() - started < 30.0
     assert err.strip().count("\n") == 0
     assert "nc.axes[X].rapid_m_s = 0.5: the motor needs 401 V" in err
-    assert last_json(out) == {"exit_code": 1, "reason": err.strip().removeprefix("feed-twin run: ")}
+    record = assert_report(out)  # the report of every mode, with nothing written
+    assert record["exit_code"] == 1 and record["bag"] is None
+    assert record["reason"] == err.strip().removeprefix("feed-twin run: ")
     assert not (tmp_path / "bags").exists() or not any((tmp_path / "bags").iterdir())

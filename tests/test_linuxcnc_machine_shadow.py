@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from nodes_support import last_json, run
+from nodes_support import run
+from run_report_support import assert_report
 
 from feed_twin.cli import main as cli_main
 from feed_twin.io.bag import BagReader
@@ -52,7 +53,7 @@ def test_every_axis_of_linuxcnc_is_shadowed_by_its_own_twin(tmp_path: Path) -> N
     with reserve_domain_id() as domain:
         code, out, err = run(argv, domain.domain_id, timeout_s=300)
     assert code == 0, err[-3000:]
-    record = last_json(out)
+    record = assert_report(out)  # the report of every mode
     assert record["processes"] == ["recorder", "linuxcnc", "x_twin", "y_twin", "z_twin"]
     bridge = record["linuxcnc"]
     assert bridge["samples_lost"] == 0
@@ -95,7 +96,7 @@ def test_every_axis_of_linuxcnc_is_shadowed_by_its_own_twin(tmp_path: Path) -> N
         assert figures["effort_dev_rms"] is None  # the HAL servo reports no effort
         assert 0.0 < figures["fe_dev_rms_m"] < 1e-3
         assert figures["health"] in ("OK", "WARN", "ERROR")
-        assert Path(record["rrd"][axis]).stat().st_size > 10_000
+        assert Path(record["rrd_per_axis"][axis]).stat().st_size > 10_000
     assert leftovers() == []
 
 

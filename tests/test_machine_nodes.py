@@ -20,6 +20,7 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 from nodes_support import last_json, run, start_run
+from run_report_support import assert_report
 
 from feed_twin.cli import main as cli_main
 from feed_twin.gcode import load_nc_config, plan_program
@@ -77,7 +78,7 @@ def run_helix(directory: Path, program: Path, config: Path = MACHINE) -> dict:
     with reserve_domain_id() as domain:
         code, out, err = run([*argv, "--json"], domain.domain_id)
     assert code == 0, err
-    return last_json(out)
+    return assert_report(out)  # the report of every mode
 
 
 @pytest.fixture(scope="module")

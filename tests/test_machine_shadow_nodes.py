@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import yaml
 from nodes_support import last_json, run, start_run
+from run_report_support import assert_report
 from test_machine_nodes import _child_pid, _simulated_time
 
 from feed_twin.cli import main as cli_main
@@ -56,7 +57,7 @@ def test_every_axis_shadowed_in_its_own_nodes_equals_the_in_process_shadow(tmp_p
     with reserve_domain_id() as domain:
         code, out, err = run([*argv, "--name", "s", "--json"], domain.domain_id, timeout_s=300)
     assert code == 0, err[-3000:]
-    record = last_json(out)
+    record = assert_report(out)  # the report of every mode
     assert record["processes"] == ["recorder", "x_standin", "x_twin", "y_standin", "y_twin",
                                    "z_standin", "z_twin"]  # fmt: skip
     expected = shadow_machine(load_machine_config(config), program)
@@ -103,7 +104,7 @@ def test_every_axis_shadowed_in_its_own_nodes_equals_the_in_process_shadow(tmp_p
     assert shadow["y"]["following_error_max_m"] == 0.0
     assert 1e-5 < shadow["z"]["following_error_max_m"] < 1e-3  # the stand-in's Z lags (0.1 mm)
     for a in ("x", "y", "z"):
-        assert Path(record["rrd"][a]).stat().st_size > 10_000
+        assert Path(record["rrd_per_axis"][a]).stat().st_size > 10_000
     assert "shadow x: FE deviation RMS" in out
 
 

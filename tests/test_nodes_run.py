@@ -10,6 +10,7 @@ import pytest
 from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, last_json, run
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from run_report_support import assert_report
 
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag import BagReader
@@ -45,7 +46,7 @@ def multi(setup: dict) -> dict:
             domain.domain_id,
         )  # fmt: skip
     assert code == 0, err
-    return last_json(out)
+    return assert_report(out)  # the report of every mode
 
 
 def in_process_samples(setup: dict, until_ns: int) -> dict[int, ExchangeSample]:

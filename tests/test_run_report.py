@@ -109,3 +109,29 @@ def test_the_report_is_frozen_with_its_mappings():
         report.foreign_messages["/cnc/x/command"]["messages"] = 2  # type: ignore[index]
     with pytest.raises(ValueError, match="mode = '': must name the run's mode"):
         RunReport(mode="", exit_code=0)
+
+
+def test_a_figure_the_run_has_not_is_said_in_words():
+    from feed_twin.nodeset.run_report import shown
+    from feed_twin.nodeset.summary import RunSummary
+
+    assert shown(math.nan, "A") == "not measured" and shown(None, "ms") == "not measured"
+    assert shown(1.25e-5, "um", scale=1e6, digits=2) == "12.50 um"
+    # a LinuxCNC servo or the EMPS bench reports no current: no "nan A" in the axis figures
+    summary = RunSummary(cycle_time_s=1.0, following_error_max_m=2e-5, following_error_rms_m=1e-5,
+                         current_peak_A=math.nan, velocity_peak_m_s=0.05, sim_time_s=1.2,
+                         samples=1200)  # fmt: skip
+    text = summary.format()
+    assert "peak current:          none (no current recorded)" in text
+    assert RAW.search(text) is None, text
+
+
+def test_per_axis_dashboards_and_an_in_process_run_are_said_in_words():
+    report = RunReport(
+        mode="machine LinuxCNC shadow", exit_code=0, rrd_per_axis={"x": "b_x.rrd", "y": None}
+    )
+    assert "rerun:                x: b_x.rrd, y: none" in report.format()
+    assert report.as_dict()["rrd_per_axis"] == {"x": "b_x.rrd", "y": None}
+    in_process = RunReport(mode="machine in-process", exit_code=0, uses_ros=False)
+    assert "ROS domain:           none (in-process, no ROS)" in in_process.format()
+    assert in_process.as_dict()["ros_domain"] is None

@@ -23,6 +23,7 @@ import yaml
 from nodes_support import AXIS_CONFIG, last_json, run, start_run
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from run_report_support import assert_report
 from test_nodes_faults import alive, wait_for_progress
 
 from feed_twin.io.bag import BagReader, info
@@ -72,7 +73,7 @@ def shadow_run(directory: Path, name: str, friction_steps: list[dict]) -> dict:
     with reserve_domain_id() as domain:
         code, out, err = run(write_inputs(directory, name, friction_steps), domain.domain_id)
     assert code == 0, err[-4000:]
-    return last_json(out)
+    return assert_report(out)  # the report of every mode
 
 
 def shadow_pids(directory: Path) -> dict[str, int]:

@@ -22,6 +22,7 @@ from feed_twin.io.bag import BagReader
 from feed_twin.linuxcnc.machine import HalServo
 from feed_twin.linuxcnc.period_timing import PeriodTiming
 from feed_twin.nodeset.roles import node_role
+from feed_twin.nodeset.run_report import shown
 
 
 def sides_disagree(program: Path, config: Path) -> str | None:
@@ -87,9 +88,10 @@ class LinuxcncFigures:
     def format(self) -> str:
         return "\n".join(
             [
-                f"LinuxCNC program time: {self.program_time_s:.3f} s",
-                f"max following error:  LinuxCNC {self.linuxcnc_following_error_max_m * 1e6:.3f}"
-                f" um, twin {self.twin_following_error_max_m * 1e6:.3f} um",
+                f"LinuxCNC program time: {shown(self.program_time_s, 's')}",
+                f"max following error:  LinuxCNC "
+                f"{shown(self.linuxcnc_following_error_max_m, 'um', scale=1e6)}, twin "
+                f"{shown(self.twin_following_error_max_m, 'um', scale=1e6)}",
                 f"servo samples:         {self.samples_received} received, "
                 f"{self.samples_lost} lost (not in the bag on every topic)",
                 *(
@@ -101,10 +103,11 @@ class LinuxcncFigures:
                     else []
                 ),
                 *([self.servo_timing.format()] if self.servo_timing is not None else []),
-                f"bridge latency:        p50 {self.bridge_latency_p50_ms:.3f} ms, "
-                f"p99 {self.bridge_latency_p99_ms:.3f} ms (servo tick -> published)",
-                f"twin output latency:   p50 {self.twin_output_latency_p50_ms:.3f} ms, "
-                f"p99 {self.twin_output_latency_p99_ms:.3f} ms (servo tick -> twin's residual)",
+                f"bridge latency:        p50 {shown(self.bridge_latency_p50_ms, 'ms')}, "
+                f"p99 {shown(self.bridge_latency_p99_ms, 'ms')} (servo tick -> published)",
+                f"twin output latency:   p50 {shown(self.twin_output_latency_p50_ms, 'ms')}, "
+                f"p99 {shown(self.twin_output_latency_p99_ms, 'ms')} "
+                "(servo tick -> twin's residual)",
             ]
         )
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 from pathlib import Path
 
@@ -39,6 +38,14 @@ from feed_twin.io.cdr import FlatCodec
 from feed_twin.machine.config import MachineConfig, load_machine_config
 from feed_twin.machine.simulate import MachineRun, simulate_machine
 from feed_twin.nodeset.config import StateSignals
+from feed_twin.nodeset.run_report import (
+    RunReport,
+    RunTiming,
+    early_error_report,
+    emit,
+    mode_name,
+    shown,
+)
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.sim.engine import DivergenceError
@@ -179,68 +186,113 @@ def run_machine(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     bag_path, rrd_path = args.out / name, args.out / f"{name}.rrd"
     try:
-        run = simulate_machine(machine, args.program, settle_s=args.settle)
+        run = _simulate(args, machine)
     except DivergenceError as exc:
         return _error(args, f"the machine's simulation failed: {exc}")
     write_machine_bag(run, machine, bag_path)
     write_machine_dashboard(run, programmed_path(args.program, machine.nc), rrd_path)
     show_recording(getattr(args, "live_viewer", None), rrd_path)
-    summary = run.summary()
-    fe = ", ".join(f"{a} {v * 1e6:.2f} um" for a, v in summary["following_error_max_m"].items())
-    print(
-        f"machine {machine.name}: {len(run.t_s)} samples ({summary['simulated_s']:.3f} s), "
-        f"axes {', '.join(run.simulated)} simulated, "
-        f"{', '.join(a for a in run.axes if a not in run.simulated) or 'none'} as commands"
-    )
-    where = (
-        f"t = {summary.get('contour_error_max_t_s', 0.0):.3f} s "
-        f"(line {summary.get('contour_error_max_line', 0)})"
-    )
-    print(
-        f"contour error: max {summary['contour_error_max_m'] * 1e6:.3f} um at {where}, "
-        f"RMS {summary['contour_error_rms_m'] * 1e6:.3f} um"
-    )
-    print(f"following error max: {fe}")
-    factor = summary["simulated_s"] / run.engine_wall_s if run.engine_wall_s > 0 else 0.0
-    print(f"engine: {factor:.1f}x real time (all axes, one thread)")
     shadow = _shadow(args, machine) if args.shadow else None
     if isinstance(shadow, str):
         return _error(args, shadow)
-    print(f"bag: {bag_path}\nrerun: {rrd_path}")
-    if args.json:
-        record = {
-            "exit_code": 0,
-            "reason": "",
-            "bag": str(bag_path),
-            "rrd": str(rrd_path),
-            **summary,
-            "realtime_factor": factor,
-        }
-        if shadow is not None:
-            record["shadow"] = shadow
-        from feed_twin.nodeset.summary import json_line
+    return emit(_report(args, machine, run, shadow, bag_path, rrd_path), json_out=args.json)
 
-        print(json_line(record))
-    return 0
+
+def _simulate(args: argparse.Namespace, machine: MachineConfig) -> MachineRun:
+    """The machine's run, with its progress on a terminal (feed_twin.io.progress): the
+    compilation of every axis's kernels named until the first samples are stepped."""
+    from feed_twin.gcode.planner import plan_program
+    from feed_twin.io.progress import Progress, wanted
+
+    enabled = wanted(json_out=args.json)
+    total = plan_program(args.program, machine.nc).t_s[-1] + args.settle if enabled else None
+    bar = Progress(total_s=total, enabled=enabled)
+    bar.stage("compiling every axis's kernels (numba; cached after the first run)")
+
+    def advanced(sim_s: float) -> None:
+        bar.stage("simulating")
+        bar.update(sim_s)
+
+    try:
+        return simulate_machine(machine, args.program, settle_s=args.settle, on_progress=advanced)
+    finally:
+        bar.close()
+
+
+def _report(
+    args: argparse.Namespace,
+    machine: MachineConfig,
+    run: MachineRun,
+    shadow: dict | None,
+    bag: Path,
+    rrd: Path,
+) -> RunReport:
+    """The in-process run's end: the machine's figures above the fields of every mode."""
+    summary = run.summary()
+    simulated = summary["simulated_s"]
+    wall = run.engine_wall_s if run.engine_wall_s > 0 else None
+    timing = RunTiming(
+        steps=len(run.t_s),
+        sim_time_s=simulated,
+        wall_time_s=wall,
+        realtime_factor=simulated / wall if wall else None,
+    )
+    commands = ", ".join(a for a in run.axes if a not in run.simulated) or "none"
+    lines = [
+        f"machine {machine.name}: {len(run.t_s)} samples ({simulated:.3f} s), axes "
+        f"{', '.join(run.simulated)} simulated, {commands} as commands (engine: all axes, one "
+        "thread)",
+        *machine_figure_lines(summary),
+    ]
+    figures: dict = {**summary}
+    if shadow is not None:
+        from feed_twin.machine.shadow import format_axis_figures
+
+        lines += [format_axis_figures(axis, f) for axis, f in shadow.items()]
+        figures["shadow"] = shadow
+    return RunReport(
+        mode=mode_name(args, machine=True),
+        exit_code=0,
+        bag=str(bag),
+        rrd=str(rrd),
+        uses_ros=False,
+        samples=len(run.t_s),
+        timing=timing,
+        figures=figures,
+        figure_lines=tuple(lines),
+    )
+
+
+def machine_figure_lines(summary: dict) -> list[str]:
+    """The contour and following-error lines of a machine run's summary (`MachineRun.summary`)."""
+    fe = ", ".join(
+        f"{a} {shown(v, 'um', scale=1e6, digits=2)}"
+        for a, v in summary["following_error_max_m"].items()
+    )
+    where = (
+        f"t = {shown(summary.get('contour_error_max_t_s'), 's')} "
+        f"(line {summary.get('contour_error_max_line', 'unknown')})"
+    )
+    return [
+        f"contour error: max {shown(summary['contour_error_max_m'], 'um', scale=1e6)} at "
+        f"{where}, RMS {shown(summary['contour_error_rms_m'], 'um', scale=1e6)}",
+        f"following error max: {fe}",
+    ]
 
 
 def _shadow(args: argparse.Namespace, machine: MachineConfig) -> dict | str:
     """Every axis's shadow twin beside its stand-in (feed_twin.machine.shadow): the per-axis
     figures, printed; or the reason it cannot run."""
-    from feed_twin.machine.shadow import format_axis_figures, shadow_machine
+    from feed_twin.machine.shadow import shadow_machine
 
     try:
         result = shadow_machine(machine, args.program)
     except (ConfigError, ValueError) as exc:
         return f"--shadow: {exc}"
-    figures = {axis.lower(): r.summary() for axis, r in result.items()}
-    for axis, f in figures.items():
-        print(format_axis_figures(axis, f))
-    return figures
+    return {axis.lower(): r.summary() for axis, r in result.items()}
 
 
 def _error(args: argparse.Namespace, message: str) -> int:
     print(f"feed-twin run: {message}", file=sys.stderr)
-    if getattr(args, "json", False):
-        print(json.dumps({"exit_code": 1, "reason": message}))
-    return 1
+    report = early_error_report(mode_name(args, machine=True), message)
+    return emit(report, json_out=getattr(args, "json", False))

@@ -26,6 +26,7 @@ from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.core.config import ConfigError
 from feed_twin.gcode.planner import plan_program
 from feed_twin.machine.config import MachineConfig
+from feed_twin.nodeset.run_report import shown
 from feed_twin.shadow.config import ShadowConfig, load_shadow_config
 from feed_twin.shadow.health import LEVEL_NAMES, OK, Verdict
 from feed_twin.shadow.standin import StandIn
@@ -92,10 +93,10 @@ def format_axis_figures(axis: str, f: dict[str, Any]) -> str:
     """One line of an axis's shadow figures (`axis_figures`) for the summary."""
     said = f" from {f['first_warning_s']:.3f} s: {f['message']}" if f["first_warning_s"] else ""
     effort = f["effort_dev_rms"]
-    effort = "no effort measured" if effort is None else f"{effort:.4f} {f['effort_unit']}"
+    effort = shown(effort, f["effort_unit"], digits=4, missing="no effort measured")
     return (
-        f"shadow {axis}: FE deviation RMS {f['fe_dev_rms_m'] * 1e6:.3f} um, effort deviation "
-        f"RMS {effort}, health {f['health']}{said}"
+        f"shadow {axis}: FE deviation RMS {shown(f['fe_dev_rms_m'], 'um', scale=1e6)}, "
+        f"effort deviation RMS {effort}, health {f['health']}{said}"
     )
 
 

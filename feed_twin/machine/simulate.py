@@ -12,6 +12,7 @@ convention: the ROS node set reads the same signal).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,13 +60,22 @@ def axis_state_signals(machine: MachineConfig, axis: str) -> StateSignals:
 
 
 def simulate_machine(
-    machine: MachineConfig, program: str | Path, *, settle_s: float = 0.2, preroll_s: float = 0.5
+    machine: MachineConfig,
+    program: str | Path,
+    *,
+    settle_s: float = 0.2,
+    preroll_s: float = 0.5,
+    on_progress: Callable[[float], None] | None = None,
 ) -> MachineRun:
-    """Plan `program` on the machine's NC, run every simulated axis, measure the contour."""
+    """Plan `program` on the machine's NC, run every simulated axis, measure the contour;
+    `on_progress` hears the simulated time [s] reached as the axes advance."""
     states = {axis: axis_state_signals(machine, axis) for axis in machine.axes}
     reported = dict.fromkeys(n for names in states.values() for n in names.names())
     record = (TABLE_POSITION, *DRIVE_SIGNALS, *reported, "table.a")
-    run = simulate_program(machine, program, settle_s=settle_s, preroll_s=preroll_s, record=record)
+    run = simulate_program(
+        machine, program, settle_s=settle_s, preroll_s=preroll_s, record=record,
+        on_progress=on_progress,
+    )  # fmt: skip
     contour = contour_error(
         run.t_s,
         run.line,

@@ -11,6 +11,7 @@ versions stay (`bag`, `rrd`, `timing_lateness_p99_ms`, ...), a missing value is 
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -27,6 +28,15 @@ def _finite(value: Any) -> float | None:
         return None
     number = float(value)
     return number if math.isfinite(number) else None
+
+
+def shown(
+    value: Any, unit: str, *, scale: float = 1.0, digits: int = 3, missing: str = "not measured"
+) -> str:
+    """`value * scale` with `digits` decimals and its unit, or `missing` in words for a value
+    the run has not (None, NaN): a figure line never shows a raw `nan` or `None`."""
+    number = _finite(value)
+    return missing if number is None else f"{number * scale:.{digits}f} {unit}"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -106,9 +116,11 @@ class RunReport:
     reason: str = ""  # why the run ended early or failed ("" for a normal end)
     bag: str | None = None  # the recording's directory (None: none was written)
     rrd: str | None = None  # the Rerun recording
+    rrd_per_axis: Mapping[str, str | None] = field(default_factory=lambda: MappingProxyType({}))
     column_map: str | None = None  # the twin's column map of the recorded topics (shadow runs)
     logs: str | None = None  # directory of the nodes' logs
     ros_domain: int | None = None  # ROS_DOMAIN_ID of the run (None: the environment's default)
+    uses_ros: bool = True  # False: in-process, no node joined any ROS domain
     samples: int | None = None  # exchanges (node set) or command samples (shadow) [-]
     bag_recovered_messages: int | None = None  # a killed recording was recovered with these
     timing: RunTiming = field(default_factory=RunTiming)
@@ -125,6 +137,7 @@ class RunReport:
             raise ValueError("mode = '': must name the run's mode")
         # frozen all the way down: the mappings cannot be changed through the report
         object.__setattr__(self, "figures", MappingProxyType(dict(self.figures)))
+        object.__setattr__(self, "rrd_per_axis", MappingProxyType(dict(self.rrd_per_axis)))
         foreign = {t: MappingProxyType(dict(e)) for t, e in self.foreign_messages.items()}
         object.__setattr__(self, "foreign_messages", MappingProxyType(foreign))
 
@@ -142,6 +155,8 @@ class RunReport:
             for t, e in sorted(self.foreign_messages.items())
         )
         domain = "the environment's" if self.ros_domain is None else str(self.ros_domain)
+        if not self.uses_ros:
+            domain = "none (in-process, no ROS)"
         recovered = ""
         if self.bag_recovered_messages is not None:
             recovered = f" (incomplete: {self.bag_recovered_messages} messages recovered)"
@@ -153,12 +168,16 @@ class RunReport:
             ("foreign messages", foreign or "none"),
             ("ROS domain", domain),
             ("bag", (self.bag or "none") + (recovered if self.bag else "")),
-            ("rerun", self.rrd or "none"),
+            ("rerun", self._rrd_text()),
             ("column map", self.column_map or "none"),
             ("logs", self.logs or "none"),
         ]
         lines = [*self.figure_lines, *(f"{k + ':':<{_LABEL_WIDTH}}{v}" for k, v in rows)]
         return "\n".join(lines)
+
+    def _rrd_text(self) -> str:
+        per_axis = ", ".join(f"{a}: {p or 'none'}" for a, p in self.rrd_per_axis.items())
+        return ", ".join(t for t in (self.rrd, per_axis) if t) or "none"
 
     def as_dict(self) -> dict[str, Any]:
         """The same report for `--json`: the earlier keys, the figures flat, the new fields."""
@@ -170,6 +189,7 @@ class RunReport:
             "reason": self.reason,
             "bag": self.bag,
             "rrd": self.rrd,
+            "rrd_per_axis": dict(self.rrd_per_axis),
             "column_map": self.column_map,
             "logs": self.logs,
             "ros_domain": self.ros_domain,
@@ -182,3 +202,55 @@ class RunReport:
         # a figure of the same name (the node set's `samples`) does not hide the report's
         figures = {k: v for k, v in self.figures.items() if k not in base}
         return {**base, **figures, **self.timing.as_dict()}
+
+
+def mode_name(args: Any, *, machine: bool) -> str:
+    """The run's mode in words from `feed-twin run`'s options, the same name in every report."""
+    where = "machine" if machine else "axis"
+    if getattr(args, "in_process", False):
+        how = "in-process"
+    elif getattr(args, "single_process", False):
+        how = "nodes, one process"
+    else:
+        how = "nodes"
+    if getattr(args, "nc", "feed_twin") == "linuxcnc":
+        return f"{where} LinuxCNC shadow"
+    return f"{where} {how} shadow" if getattr(args, "shadow", False) else f"{where} {how}"
+
+
+def ros_domain(environ: Mapping[str, str]) -> int | None:
+    """The run's ROS_DOMAIN_ID in `environ` (None: unset, the default domain 0)."""
+    domain = environ.get("ROS_DOMAIN_ID", "")
+    return int(domain) if domain.isdigit() else None
+
+
+def early_error_report(mode: str, message: str) -> RunReport:
+    """The report of a run refused before anything started: every field, nothing written."""
+    return RunReport(mode=mode, exit_code=1, reason=message)
+
+
+def emit(report: RunReport, *, json_out: bool) -> int:
+    """Print the report (and with `json_out` its JSON line last); returns its exit code."""
+    print(report.format())
+    if json_out:
+        print(json_line(report.as_dict()))
+    return report.exit_code
+
+
+def json_line(record: dict) -> str:
+    """`record` as one strict JSON line: a figure that has no value (NaN, inf) becomes null.
+
+    json.dumps writes NaN as a bare `NaN`, which strict parsers (jq, JavaScript) reject; a run
+    without a current (a LinuxCNC servo, the EMPS bench) has no peak current to report.
+    """
+
+    def clean(value):
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items()}
+        if isinstance(value, list | tuple):
+            return [clean(v) for v in value]
+        return value
+
+    return json.dumps(clean(record), allow_nan=False)

@@ -14,8 +14,6 @@ Figures:
 
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -24,7 +22,11 @@ import numpy as np
 from feed_twin.io import msg_types
 from feed_twin.io.bag import BagReader
 from feed_twin.io.dashboard import Dashboard
+from feed_twin.nodeset.run_report import json_line as json_line  # its home before
+from feed_twin.nodeset.run_report import shown
 from feed_twin.nodeset.topics import AxisTopics
+
+NO_CURRENT = "none (no current recorded)"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -41,12 +43,13 @@ class RunSummary:
         return asdict(self)
 
     def format(self) -> str:
+        peak_current = shown(self.current_peak_A, "A", digits=2, missing=NO_CURRENT)
         return "\n".join(
             [
                 f"cycle time:            {self.cycle_time_s:.3f} s",
                 f"following error max:   {self.following_error_max_m * 1e6:.2f} um",
                 f"following error RMS:   {self.following_error_rms_m * 1e6:.2f} um",
-                f"peak current:          {self.current_peak_A:.2f} A",
+                f"peak current:          {peak_current}",
                 f"peak velocity:         {self.velocity_peak_m_s * 1e3:.2f} mm/s"
                 f" ({self.velocity_peak_m_s * 60.0:.2f} m/min)",
                 f"simulated time:        {self.sim_time_s:.3f} s ({self.samples} exchanges)",
@@ -236,22 +239,3 @@ class LiveFeed:
 
     def close(self) -> None:
         self.dashboard.close()
-
-
-def json_line(record: dict) -> str:
-    """`record` as one strict JSON line: a figure that has no value (NaN, inf) becomes null.
-
-    json.dumps writes NaN as a bare `NaN`, which strict parsers (jq, JavaScript) reject; a run
-    without a current (a LinuxCNC servo, the EMPS bench) has no peak current to report.
-    """
-
-    def clean(value):
-        if isinstance(value, float) and not math.isfinite(value):
-            return None
-        if isinstance(value, dict):
-            return {k: clean(v) for k, v in value.items()}
-        if isinstance(value, list | tuple):
-            return [clean(v) for v in value]
-        return value
-
-    return json.dumps(clean(record), allow_nan=False)

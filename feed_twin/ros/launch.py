@@ -38,6 +38,13 @@ def _die_with_parent() -> None:
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
 
 
+def stage(what: str) -> None:
+    """A node launched by `launch` names the step it is in before its clock moves (its log's
+    `STAGE <what>` line, which the progress bar shows); a node started otherwise says nothing."""
+    if os.environ.get(PARENT_PID_ENV):
+        print(f"STAGE {what}", file=sys.stderr, flush=True)
+
+
 def key_fds(env: dict[str, str]) -> tuple[int, ...]:
     """The run key's descriptor (feed_twin.nodeset.auth.KEY_FD_ENV), inherited by the nodes
     only: it is close-on-exec everywhere else."""
@@ -72,12 +79,14 @@ def launch(
     show_progress: bool = False,
     deadline_s: float | None = None,
     stop_on_failure: bool = False,
+    progress_total_s: float | None = None,
 ) -> Launched:
     """Start one process per role, watch them until all have ended, and say why they did.
 
     A node that exits with an error ends the run (the others notice its missing heartbeat and
     stop within a second, else they are told to); SIGINT/SIGTERM to this process is passed to
     the producers first and to the recorder last, so that it records what they sent;
+    `progress_total_s` [s simulated] gives the progress bar its percent and ETA;
     `deadline_s` [s wall] bounds the whole run (the nodes are then terminated). With
     `stop_on_failure` the others are told to stop at once (a machine's axes do not watch each
     other's nodes), producers first and the recorder last. Every process is gone when this
@@ -106,7 +115,7 @@ def launch(
                     preexec_fn=_die_with_parent,
                     pass_fds=key_fds(env),
                 )
-        progress = _Progress(enabled=show_progress)
+        progress = _Progress(enabled=show_progress, total_s=progress_total_s)
         while any(p.poll() is None for p in procs.values()):
             if stop.signum is not None:
                 reason = f"stopped by {signal.Signals(stop.signum).name}"
@@ -207,7 +216,7 @@ def _last_error(log: Path) -> str:
         lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
     except OSError:
         return "(no log)"
-    lines = [ln for ln in lines if not ln.startswith(("PROGRESS ", "TIMING ", "CPU "))]
+    lines = [ln for ln in lines if not ln.startswith(("PROGRESS ", "STAGE ", "TIMING ", "CPU "))]
     starts = [i for i, ln in enumerate(lines) if "[ERROR]" in ln or "Error" in ln]
     if not starts:
         return " | ".join(lines[-3:]) or "(empty log)"
@@ -250,21 +259,40 @@ def slow_line(logs: Path) -> str | None:
     return f"slow, not gone (the run went on): {named}"
 
 
-class _Progress:
-    """Simulated time on stderr (a terminal only), from a node's PROGRESS log lines."""
+def planned_duration_s(program, nc, *, settle_s: float = 0.0, json_out: bool) -> float | None:
+    """[s] the program's planned duration plus `settle_s` on the NC `nc`, the progress bar's
+    100 %; None when no bar is shown (planning costs time only a person watching needs) or
+    the program cannot be planned here (an external NC)."""
+    from feed_twin.gcode import GcodeError, plan_program
+    from feed_twin.io.progress import wanted
 
-    def __init__(self, *, enabled: bool) -> None:
-        self.enabled = enabled and sys.stderr.isatty()
-        self.start = time.monotonic()
+    if program is None or not wanted(json_out=json_out):
+        return None
+    try:
+        trajectory = plan_program(program, nc)
+    except (GcodeError, ValueError, OSError):
+        return None
+    return float(trajectory.t_s[-1]) + settle_s if len(trajectory.t_s) else None
+
+
+class _Progress:
+    """The run's bar (feed_twin.io.progress) from the clock node's log: its `STAGE <what>`
+    lines before the clock moves (compiling its kernels), then its `PROGRESS <t>` lines."""
+
+    def __init__(self, *, enabled: bool, total_s: float | None = None) -> None:
+        from feed_twin.io.progress import Progress, wanted
+
+        self.bar = Progress(total_s=total_s, enabled=enabled and wanted(json_out=False))
+        self.bar.stage("starting the nodes")
         self.last = 0.0
         self.offset = 0
+        self.moving = False
 
     def update(self, sim_log: Path) -> None:
         now = time.monotonic()
-        if not self.enabled or now - self.last < 0.5:
+        if not self.bar.enabled or now - self.last < 0.25:
             return
         self.last = now
-        sim_s = None
         try:
             with open(sim_log, "rb") as f:
                 f.seek(self.offset)
@@ -273,18 +301,16 @@ class _Progress:
             return
         self.offset += len(chunk)
         for line in chunk.decode(errors="replace").splitlines():
-            if line.startswith("PROGRESS "):
-                sim_s = line.split()[1]
-        if sim_s is not None:
-            print(
-                f"\rsimulated {float(sim_s):8.3f} s, wall {now - self.start:6.1f} s",
-                end="",
-                file=sys.stderr,
-            )
+            if line.startswith("STAGE ") and not self.moving:
+                self.bar.stage(line.removeprefix("STAGE ").strip())
+            elif line.startswith("PROGRESS "):
+                if not self.moving:
+                    self.moving = True
+                    self.bar.stage("running")
+                self.bar.update(float(line.split()[1]))
 
     def close(self) -> None:
-        if self.enabled:
-            print(file=sys.stderr)
+        self.bar.close()
 
 
 def foreign_messages(logs: Iterable[Path]):

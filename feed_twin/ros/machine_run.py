@@ -20,7 +20,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from collections.abc import Mapping
@@ -38,10 +37,24 @@ from feed_twin.machine.nodes import (
     node_plan,
     read_machine_bag,
 )
+from feed_twin.nodeset.run_report import (
+    RunReport,
+    RunTiming,
+    early_error_report,
+    emit,
+    mode_name,
+    ros_domain,
+)
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, host_argv
-from feed_twin.ros.launch import Launched, foreign_messages, launch, log_record
+from feed_twin.ros.launch import (
+    Launched,
+    foreign_messages,
+    launch,
+    log_record,
+    planned_duration_s,
+)
 
 if TYPE_CHECKING:
     from feed_twin.ros.domain import DomainReservation
@@ -85,16 +98,17 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
     clock = next((n for n in here if processes[n][0][0] == "sim"), None)
+    total = planned_duration_s(args.program, machine.nc, settle_s=args.settle, json_out=args.json)
     result = launch_processes(
-        {n: processes[n] for n in here}, logs, env, reservation, clock=clock, quiet=args.json
-    )
+        {n: processes[n] for n in here}, logs, env, reservation, clock=clock, quiet=args.json,
+        total_s=total,
+    )  # fmt: skip
     timing = (log_record(result.logs[clock], "TIMING") or {}) if clock else {}
     summary, problem = None, ""
     if RECORDER_PROCESS in here:
         summary, problem = _finish(bag, machine, args.program)
         if summary is not None:
-            summary["rrd"] = str(bag.with_name(f"{bag.name}.rrd"))
-            show_recording(getattr(args, "live_viewer", None), summary["rrd"])
+            show_recording(getattr(args, "live_viewer", None), bag.with_name(f"{bag.name}.rrd"))
     else:
         print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
     failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)
@@ -103,22 +117,25 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     foreign = foreign_messages(result.logs.values())
     for line in foreign.lines():
         print(line)  # the run's own output names who sent what it dropped
-    _report(machine, reason, problem, summary, timing, clock)
-    print(f"bag: {bag if bag.exists() else '(none)'}")
-    if args.json:
-        from feed_twin.nodeset.summary import json_line
-
-        print(json_line({
-            "exit_code": code,
-            "reason": reason or problem,
-            "bag": str(bag) if bag.exists() else None,
-            "logs": str(logs),
-            "processes": here,
-            "foreign_messages": foreign.as_dict(),
-            **(summary or {}),
-            **{f"timing_{k}": v for k, v in timing.items()},
-        }))  # fmt: skip
-    return code
+    for said in (reason, problem):
+        if said:
+            print(f"feed-twin run: {said}", file=sys.stderr)
+    run_timing = RunTiming.from_report(timing)
+    report = RunReport(
+        mode=mode_name(args, machine=True),
+        exit_code=code,
+        reason=reason or problem,
+        bag=preflight.shown_output(bag),
+        rrd=preflight.shown_output(bag.with_name(f"{bag.name}.rrd"), rrd=True),
+        logs=str(logs),
+        ros_domain=ros_domain(env),
+        samples=run_timing.steps,
+        timing=run_timing,
+        figures={"processes": here, **(summary or {})},
+        figure_lines=tuple(_figure_lines(machine, summary)) if summary is not None else (),
+        foreign_messages=foreign.as_dict(),
+    )
+    return emit(report, json_out=args.json)
 
 
 def launch_processes(
@@ -130,10 +147,12 @@ def launch_processes(
     clock: str | None,
     quiet: bool,
     modules: Mapping[str, str] = NODE_MODULES,
+    total_s: float | None = None,
 ) -> Launched:
     """Start each process (one node: its module from `modules`; several: feed_twin.ros.host),
     watch them until all have ended (one failing stops the others at once, the recorder last;
-    `clock` shows progress unless `quiet`), then release the run's domain reservation."""
+    `clock` shows progress unless `quiet`, `total_s` [s simulated] its 100 %), then release
+    the run's domain reservation."""
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     commands = {}
     for n, nodes in processes.items():
@@ -145,32 +164,12 @@ def launch_processes(
     try:
         return launch(
             commands, logs, env=env, progress_role=clock, show_progress=not quiet,
-            stop_on_failure=True,
+            stop_on_failure=True, progress_total_s=total_s,
         )  # fmt: skip
     finally:
         if reservation is not None:
             reservation.release()
         preflight.end_environment(env)
-
-
-def _report(
-    machine: MachineConfig,
-    reason: str,
-    problem: str,
-    summary: dict | None,
-    timing: dict,
-    clock: str | None,
-) -> None:
-    if reason:
-        print(f"feed-twin run: {reason}", file=sys.stderr)
-    if problem:
-        print(f"feed-twin run: {problem}", file=sys.stderr)
-    if summary is not None:
-        _print_summary(machine, summary)
-    if timing:
-        keys = ("realtime_factor", "lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms")
-        shown = ", ".join(f"{k} {timing[k]:.3f}" for k in keys if isinstance(timing.get(k), float))
-        print(f"timing ({clock}): {shown}, missed steps {timing.get('missed_steps')}")
 
 
 def _named(reason: str, plan: NodePlan) -> str:
@@ -263,23 +262,17 @@ def _finish(bag: Path, machine: MachineConfig, program: Path) -> tuple[dict | No
     return record.summary(), ""
 
 
-def _print_summary(machine: MachineConfig, summary: dict) -> None:
-    fe = ", ".join(f"{a} {v * 1e6:.2f} um" for a, v in summary["following_error_max_m"].items())
-    print(
+def _figure_lines(machine: MachineConfig, summary: dict) -> list[str]:
+    from feed_twin.machine.run_cli import machine_figure_lines
+
+    return [
         f"machine {machine.name}: {summary['simulated_s']:.3f} s simulated, axes "
-        f"{', '.join(summary['axes'])} in their own nodes"
-    )
-    print(
-        f"contour error: max {summary['contour_error_max_m'] * 1e6:.3f} um at t = "
-        f"{summary.get('contour_error_max_t_s', 0.0):.3f} s (line "
-        f"{summary.get('contour_error_max_line', 0)}), RMS "
-        f"{summary['contour_error_rms_m'] * 1e6:.3f} um"
-    )
-    print(f"following error max: {fe}")
+        f"{', '.join(summary['axes'])} in their own nodes",
+        *machine_figure_lines(summary),
+    ]
 
 
 def _error(args: argparse.Namespace, message: str) -> int:
     print(f"feed-twin run: {message}", file=sys.stderr)
-    if getattr(args, "json", False):
-        print(json.dumps({"exit_code": 1, "reason": message}))
-    return 1
+    report = early_error_report(mode_name(args, machine=True), message)
+    return emit(report, json_out=getattr(args, "json", False))

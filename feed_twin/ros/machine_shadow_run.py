@@ -29,8 +29,17 @@ from feed_twin.core.config import ConfigError
 from feed_twin.io.live import show_recording
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.shadow_nodes import MODULES, ShadowPlan, shadow_plan
+from feed_twin.nodeset.run_report import (
+    RunReport,
+    RunTiming,
+    early_error_report,
+    emit,
+    mode_name,
+    ros_domain,
+    shown,
+)
 from feed_twin.ros import preflight
-from feed_twin.ros.launch import foreign_messages, log_record
+from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s
 from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
 
 # the node set plays the program in lockstep, all axes in one bag, started here
@@ -71,60 +80,60 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
     clock = next(n for n in processes if processes[n][0][0] in ("standin", "linuxcnc"))
+    total = planned_duration_s(args.program, machine.nc, json_out=args.json)
     result = launch_processes(
-        processes, logs, env, reservation, clock=clock, quiet=args.json, modules=MODULES
-    )
+        processes, logs, env, reservation, clock=clock, quiet=args.json, modules=MODULES,
+        total_s=total,
+    )  # fmt: skip
     figures, problem = finish(bag, plan)
     code = preflight.exit_status(result.code) if result.code else int(figures is None)
     reason = _named(result.reason, plan)
-    report = (log_record(result.logs[clock], "LINUXCNC") or {}) if linuxcnc else {}
-    if reason and report.get("fault"):
-        reason = report["fault"]  # the bridge's own line for a LinuxCNC fault
-    if reason:
-        print(f"feed-twin run: {reason}", file=sys.stderr)
-    if problem:
-        print(f"feed-twin run: {problem}", file=sys.stderr)
-    timing = log_record(result.logs[clock], "TIMING") or {}
-    bridge = linuxcnc_figures(bag, plan, report, figures) if linuxcnc and figures else None
+    bridge_said = (log_record(result.logs[clock], "LINUXCNC") or {}) if linuxcnc else {}
+    if reason and bridge_said.get("fault"):
+        reason = bridge_said["fault"]  # the bridge's own line for a LinuxCNC fault
+    for said in (reason, problem):
+        if said:
+            print(f"feed-twin run: {said}", file=sys.stderr)
+    timing = RunTiming.from_report(log_record(result.logs[clock], "TIMING") or {})
+    bridge = linuxcnc_figures(bag, plan, bridge_said, figures) if linuxcnc and figures else None
+    lines: list[str] = []
     if figures is not None:
-        print_figures(plan, figures)
+        lines = figure_lines(plan, figures)
         for axis in plan.axes:
             if plan.rrd(bag, axis).exists():
                 show_recording(getattr(args, "live_viewer", None), plan.rrd(bag, axis))
     if bridge is not None:
-        said = {k: "?" if v is None else f"{v:.3f}" for k, v in bridge.items()}
-        print(
-            f"LinuxCNC: program time {said['program_time_s']} s, servo samples "
+        lines.append(
+            f"LinuxCNC: program time {shown(bridge['program_time_s'], 's')}, servo samples "
             f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
-            f"latency p99 {said['bridge_latency_p99_ms']} ms"
+            f"latency p99 {shown(bridge['bridge_latency_p99_ms'], 'ms')}"
         )
         from feed_twin.linuxcnc.summary import servo_timing_from_report
 
-        servo_timing = servo_timing_from_report(report)
+        servo_timing = servo_timing_from_report(bridge_said)
         if servo_timing is not None:
-            print(servo_timing.format())
+            lines.append(servo_timing.format())
     foreign = foreign_messages(result.logs.values())
     for line in foreign.lines():
         print(line)  # the run's own output names who sent what it dropped
-    print(f"bag: {bag if bag.exists() else '(none)'}")
-    if args.json:
-        from feed_twin.nodeset.summary import json_line
-
-        print(json_line({
-            "exit_code": code,
-            "reason": reason or problem,
-            "bag": str(bag) if bag.exists() else None,
-            "logs": str(logs),
-            "processes": list(processes),
-            "foreign_messages": foreign.as_dict(),
-            "axes": [a.lower() for a in plan.axes],
-            "shadow": figures,
-            "rrd": {a.lower(): preflight.shown_output(plan.rrd(bag, a), rrd=True)
-                    for a in plan.axes},
-            **({"linuxcnc": bridge} if bridge is not None else {}),
-            **{f"timing_{k}": v for k, v in timing.items()},
-        }))  # fmt: skip
-    return code
+    extra = {"axes": [a.lower() for a in plan.axes], "shadow": figures}
+    report = RunReport(
+        mode=mode_name(args, machine=True),
+        exit_code=code,
+        reason=reason or problem,
+        bag=preflight.shown_output(bag),
+        rrd_per_axis={
+            a.lower(): preflight.shown_output(plan.rrd(bag, a), rrd=True) for a in plan.axes
+        },
+        logs=str(logs),
+        ros_domain=ros_domain(env),
+        samples=timing.steps,
+        timing=timing,
+        figures={"processes": list(processes), **extra, **({"linuxcnc": bridge} if bridge else {})},
+        figure_lines=tuple(lines),
+        foreign_messages=foreign.as_dict(),
+    )
+    return emit(report, json_out=args.json)
 
 
 def linuxcnc_precheck(program: Path, machine: MachineConfig) -> str:
@@ -175,12 +184,16 @@ def finish(bag: Path, plan: ShadowPlan) -> tuple[dict | None, str]:
         return None, str(exc)
 
 
-def print_figures(plan: ShadowPlan, figures: dict[str, dict]) -> None:
+def figure_lines(plan: ShadowPlan, figures: dict[str, dict]) -> list[str]:
     from feed_twin.machine.shadow import format_axis_figures
 
-    print(f"machine {plan.machine}: axes {', '.join(figures)} shadowed, each in its own nodes")
-    for axis, f in figures.items():
-        print(f"{format_axis_figures(axis, f)} ({f['samples']} samples)")
+    return [
+        f"machine {plan.machine}: axes {', '.join(figures)} shadowed, each in its own nodes",
+        *(
+            f"{format_axis_figures(axis, f)} ({f['samples']} samples)"
+            for axis, f in figures.items()
+        ),
+    ]
 
 
 def _named(reason: str, plan: ShadowPlan) -> str:
@@ -192,9 +205,6 @@ def _named(reason: str, plan: ShadowPlan) -> str:
 
 
 def _error(args: argparse.Namespace, message: str) -> int:
-    import json
-
     print(f"feed-twin run: {message}", file=sys.stderr)
-    if getattr(args, "json", False):
-        print(json.dumps({"exit_code": 1, "reason": message}))
-    return 1
+    report = early_error_report(mode_name(args, machine=True), message)
+    return emit(report, json_out=getattr(args, "json", False))

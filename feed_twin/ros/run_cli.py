@@ -25,7 +25,6 @@ shadow figures (feed_twin.shadow.summary). Processes are started and watched by 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -37,10 +36,17 @@ from typing import TYPE_CHECKING
 from feed_twin.core.config import ConfigError
 from feed_twin.io.live import add_live_options, linger, start_live
 from feed_twin.nodeset.foreign import ForeignLedger, merge
+from feed_twin.nodeset.run_report import emit
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
-from feed_twin.ros.launch import foreign_messages, launch, log_record, slow_line
+from feed_twin.ros.launch import (
+    foreign_messages,
+    launch,
+    log_record,
+    planned_duration_s,
+    slow_line,
+)
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
@@ -260,7 +266,7 @@ def _processes(args: argparse.Namespace, ros) -> dict[str, tuple[str, ...]]:
     }
 
 
-def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
+def _run_processes(args: argparse.Namespace, ros, nc, out: Outputs) -> tuple[int, str, dict]:
     commands = {}
     for name, roles in _processes(args, ros).items():
         if len(roles) == 1:
@@ -273,7 +279,11 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
     # Discovery stays on this host unless the user chose otherwise.
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     clock = _clock_role(args)
-    result = launch(commands, out.logs, env=env, progress_role=clock, show_progress=not args.json)
+    total = planned_duration_s(args.program, nc, settle_s=ros.settle_s, json_out=args.json)
+    result = launch(
+        commands, out.logs, env=env, progress_role=clock, show_progress=not args.json,
+        progress_total_s=total,
+    )  # fmt: skip
     out.foreign = foreign_messages(result.logs.values())
     return result.code, result.reason, _timing(result.logs[clock])
 
@@ -468,7 +478,7 @@ def _run(args: argparse.Namespace) -> int:
         if args.single_process:
             code, reason, timing = _run_single_process(args, ros, out)
         else:
-            code, reason, timing = _run_processes(args, ros, out)
+            code, reason, timing = _run_processes(args, ros, nc, out)
         summary, problem = _finish_outputs(args, ros, out)
     finally:
         if reservation is not None:
@@ -490,12 +500,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"feed-twin run: {slow}", file=sys.stderr)
     preflight.remove_incomplete_rrd(out.rrd)
     report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
-    print(report.format())
-    if args.json:
-        from feed_twin.nodeset.summary import json_line
-
-        print(json_line(report.as_dict()))
-    return code
+    return emit(report, json_out=args.json)
 
 
 def _main_machine(args: argparse.Namespace) -> int:
@@ -536,32 +541,25 @@ def _name_and_out(args: argparse.Namespace) -> str:
     return ""
 
 
-def _mode(args: argparse.Namespace) -> str:
-    if args.shadow:
-        return "axis LinuxCNC shadow" if args.nc == "linuxcnc" else "axis shadow"
-    return "axis nodes, one process" if args.single_process else "axis nodes"
-
-
 def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, summary, timing):
     """The run's end as `RunReport`: outputs, domain, timing and the mode's figures."""
-    from feed_twin.nodeset.run_report import RunReport, RunTiming
+    from feed_twin.nodeset.run_report import RunReport, RunTiming, mode_name, ros_domain
 
     if args.nc == "linuxcnc" and not timing:
         timing = _linuxcnc_timing(out)
     run_timing = RunTiming.from_report(timing)
     figures = summary.as_dict() if summary is not None else {}
     samples = run_timing.steps if run_timing.steps is not None else figures.get("samples")
-    domain = os.environ.get("ROS_DOMAIN_ID", "")
     column_map = out.map if args.shadow and out.map.exists() else None
     return RunReport(
-        mode=_mode(args),
+        mode=mode_name(args, machine=False),
         exit_code=code,
         reason=reason,
         bag=preflight.shown_output(out.bag),
         rrd=preflight.shown_output(out.rrd, rrd=True),
         column_map=str(column_map) if column_map is not None else None,
         logs=str(out.logs),
-        ros_domain=int(domain) if domain.isdigit() else None,
+        ros_domain=ros_domain(os.environ),
         samples=samples,
         bag_recovered_messages=out.recovered,
         timing=run_timing,
@@ -613,7 +611,9 @@ def _is_machine_config(path: Path) -> bool:
 
 
 def _early_error(args: argparse.Namespace, message: str) -> int:
+    """A run refused before anything started: the reason, then the report of every mode."""
+    from feed_twin.nodeset.run_report import early_error_report, emit, mode_name
+
     print(f"feed-twin run: {message}", file=sys.stderr)
-    if args.json:
-        print(json.dumps({"exit_code": 1, "reason": message}))
-    return 1
+    machine = _is_machine_config(args.config)
+    return emit(early_error_report(mode_name(args, machine=machine), message), json_out=args.json)

@@ -86,6 +86,7 @@ def run_shadow(args: argparse.Namespace) -> tuple[int, dict | None, str]:
                 progress_role="standin",
                 show_progress=True,
                 deadline_s=args.duration + 120.0,
+                progress_total_s=args.duration,
             )
     finally:
         if viewer is not None:

@@ -490,8 +490,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNode:
+    from feed_twin.ros.launch import stage
+
+    stage("sim: compiling the drive and plant kernels (numba; cached after the first run)")
     host = build_drive_host(args.config, ros)
     host.warm_up()  # before the first heartbeat: a compiling node must not look dead
+    stage("sim: waiting for its peers")
     return SimNode(
         options,
         host,

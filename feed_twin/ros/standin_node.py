@@ -471,7 +471,11 @@ def build(args: argparse.Namespace, context) -> StandInNode:
     def make() -> StandIn:
         return StandIn.from_config(doc, config, sample_period_s=args.period, x0_m=0.0)
 
+    from feed_twin.ros.launch import stage
+
+    stage("stand-in: compiling its kernels (numba; cached after the first run)")
     make().step(np.zeros(1), np.zeros(1), np.zeros(1))  # compile before the first heartbeat
+    stage("stand-in: waiting for its peers")
     standin = make()
     return StandInNode(
         NodeOptions(

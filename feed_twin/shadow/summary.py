@@ -22,6 +22,7 @@ import numpy as np
 
 from feed_twin.io.bag import BagReader
 from feed_twin.nodeset.roles import node_role
+from feed_twin.nodeset.run_report import shown
 from feed_twin.nodeset.summary import RunSummary
 from feed_twin.shadow.health import ERROR, WARN
 
@@ -56,12 +57,12 @@ class ShadowFigures:
     def format(self) -> str:
         lines = [
             f"shadowed samples:      {self.samples}",
-            f"FE deviation RMS/max:  {self.fe_dev_rms_m * 1e6:.3f} / "
-            f"{self.fe_dev_max_m * 1e6:.3f} um",
-            f"effort deviation:      {self.effort_dev_rms:.4g} / {self.effort_dev_max:.4g} "
-            f"{self.effort_unit} (RMS/max)",
+            f"FE deviation RMS/max:  {shown(self.fe_dev_rms_m, 'um', scale=1e6)} / "
+            f"{shown(self.fe_dev_max_m, 'um', scale=1e6)}",
+            f"effort deviation:      {shown(self.effort_dev_rms, self.effort_unit, digits=4)} / "
+            f"{shown(self.effort_dev_max, self.effort_unit, digits=4)} (RMS/max)",
             f"health warnings:       {self.warnings}",
-            f"twin lag p99:          {self.lag_p99_ms:.3f} ms",
+            f"twin lag p99:          {shown(self.lag_p99_ms, 'ms')}",
         ]
         if self.last_warning:
             lines.append(f"last warning:          {self.last_warning}")

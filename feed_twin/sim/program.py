@@ -25,7 +25,7 @@ setpoint slots with `set_nc_reference` / `nc_reference`.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -205,7 +205,9 @@ def axis_engine(
 
 
 def follow(
-    engines: Mapping[str, Engine], traj: SampledTrajectory
+    engines: Mapping[str, Engine],
+    traj: SampledTrajectory,
+    on_progress: Callable[[float], None] | None = None,
 ) -> dict[str, dict[str, np.ndarray]]:
     """Each engine's recorded signals at every NC sample of `traj`, following its axis's column
     (the engines' keys): the axes advance side by side, CHUNK_SAMPLES NC samples at a time.
@@ -213,7 +215,8 @@ def follow(
     Engines that draw the same sensor noise (equal `Engine.noise_key`, e.g. axes built from one
     drive file with one seed) read one table of it, drawn once per chunk: an axis drawing its
     own spends a few per cent of its ticks on draws the others repeat. The chunks bound the
-    table (one row of samples per tick); the results are the bits of one long run each."""
+    table (one row of samples per tick); the results are the bits of one long run each.
+    `on_progress` hears the simulated time [s] reached after each chunk."""
     refs = {name: nc_reference(*traj.axis(name), 1) for name in engines}  # one row per sample
     keys = {name: (e.noise_key, e.k, e.dec) for name, e in engines.items()}
     shared = {key for key in keys.values() if list(keys.values()).count(key) > 1}
@@ -230,6 +233,8 @@ def follow(
                 normals = tables[keys[name]]
             part = engine.advance(n, ref=refs[name][a:b], hold=engine.dec, normals=normals)
             parts[name].append(part)
+        if on_progress is not None and b > 0:
+            on_progress(float(traj.t_s[b - 1]))
     return {name: SimResult.concat(chunks).as_dict() for name, chunks in parts.items()}
 
 
@@ -240,11 +245,13 @@ def simulate_program(
     settle_s: float = 0.2,
     preroll_s: float = 0.5,
     record: Sequence[str] = DEFAULT_RECORD,
+    on_progress: Callable[[float], None] | None = None,
 ) -> ProgramRun:
     """Plan `program` on the NC of `config` (an axis file with an nc: section, or a machine)
     and run every simulated axis on it (module docstring). `settle_s` [s] of rest follow the
     program; each axis holds its start position for `preroll_s` [s] before it; `record` names
-    the engine signals to keep where the plant has them (the table position always)."""
+    the engine signals to keep where the plant has them (the table position always);
+    `on_progress` hears the simulated time [s] reached as the axes advance."""
     nc, axes = _nc_and_axes(config)
     traj = with_settle(plan_program(program, nc), settle_s)
     engines = {
@@ -253,7 +260,7 @@ def simulate_program(
     }
     actual = traj.pos_m.copy()
     began, began_cpu = time.perf_counter(), time.process_time()
-    recorded = follow(engines, traj)
+    recorded = follow(engines, traj, on_progress)
     for name in engines:
         actual[:, nc.axis_index(name)] = recorded[name][TABLE_POSITION]
     wall, cpu = time.perf_counter() - began, time.process_time() - began_cpu

@@ -1,0 +1,90 @@
+"""A long job's progress on the terminal: percent, simulated time, ETA and the step it is in.
+
+One bar on stderr (tqdm, which computes the rate and the ETA from recent updates), shown only
+when stderr is a terminal and the run was not asked for `--json`, so a piped or logged run,
+a test and a JSON consumer never see it. `stage` names what the job does before its clock
+moves (planning the program, compiling the kernels: a first run compiles for a minute or more),
+`update` sets the simulated time reached (the rate, the ETA and the time shown count from
+its first call); `total_s` [s] gives the percent and the ETA (None:
+the simulated time and the wall time only).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import TextIO
+
+from tqdm import tqdm
+
+_WITH_TOTAL = (
+    "{desc}{percentage:3.0f}%|{bar:20}| {n:.2f}/{total:.2f} s simulated [{elapsed}<{remaining}]"
+)
+_WITHOUT_TOTAL = "{desc}{n:.2f} s simulated [{elapsed}]"
+
+
+def wanted(*, json_out: bool, stream: TextIO | None = None) -> bool:
+    """A bar only for a person at a terminal: not under --json, not into a pipe or a file."""
+    stream = sys.stderr if stream is None else stream
+    return not json_out and stream is not None and stream.isatty()
+
+
+def _columns(stream: TextIO) -> int:
+    """The terminal's width; a terminal that reports none (0, as a fresh pty does) gets 100,
+    since tqdm drops the bar and its format at width 0."""
+    try:
+        return os.get_terminal_size(stream.fileno()).columns or 100
+    except (OSError, ValueError):
+        return 100
+
+
+class Progress:
+    """The bar of one job (module docstring); every method does nothing when not `enabled`."""
+
+    def __init__(
+        self,
+        *,
+        total_s: float | None,
+        enabled: bool,
+        stream: TextIO | None = None,
+        min_interval_s: float = 0.1,  # [s wall] between redraws
+    ) -> None:
+        self.enabled = enabled
+        self._bar: tqdm | None = None
+        self._stage = ""
+        self._moving = False
+        if enabled:
+            known = total_s is not None and total_s > 0
+            file = sys.stderr if stream is None else stream
+            self._bar = tqdm(
+                total=total_s if known else None,
+                file=file,
+                bar_format=_WITH_TOTAL if known else _WITHOUT_TOTAL,
+                ncols=_columns(file),
+                mininterval=min_interval_s,
+                leave=False,
+            )
+
+    def stage(self, name: str) -> None:
+        """What the job is doing now (shown before the figures)."""
+        if self._bar is not None and name != self._stage:
+            self._stage = name
+            self._bar.set_description_str(f"{name}: ", refresh=True)
+
+    def update(self, sim_s: float) -> None:
+        """The simulated time reached [s]."""
+        if self._bar is None:
+            return
+        bar = self._bar
+        if not self._moving:
+            # the rate and the ETA count from the clock's first move, not from the compilation
+            self._moving = True
+            bar.reset(total=bar.total)
+        if bar.total is not None:
+            sim_s = min(sim_s, bar.total)
+        bar.update(sim_s - bar.n)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
