@@ -6,6 +6,7 @@ exits 1, and the reach check counts the weight a vertical axis carries."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import subprocess
 import sys
@@ -68,7 +69,10 @@ def test_a_name_used_in_out_is_refused_before_anything_starts(tmp_path, capsys, 
     captured = capsys.readouterr()
     said = f"--name m: already used in {out} (m, m.rrd); choose another name or --out, nothing "
     assert captured.err.strip() == f"feed-twin run: {said}was started"
-    assert captured.out.strip().startswith('{"exit_code": 1, "reason": "--name m: already used')
+    # the run report of a refused run, then the same object as the --json line
+    said_json = json.loads(captured.out.strip().splitlines()[-1])
+    assert said_json["exit_code"] == 1
+    assert said_json["reason"].startswith("--name m: already used")
     assert (out / "m" / "m_0.mcap").read_bytes() == b"earlier bag"
     assert (out / "m.rrd").read_bytes() == b"earlier dashboard"
     assert sorted(p.name for p in out.iterdir()) == ["m", "m.rrd"]
