@@ -400,6 +400,15 @@ def build_run(
             f"gives a sample period of {period:.4g} s, slower than any record the twin can "
             f"compare (> {MAX_PERIOD_S:g} s); is the time unit wrong (ms declared as s)?"
         )
+    if timed and getattr(cmap.time, "unit", "s") == "s" and abs(period - 1.0) <= PERIOD_RTOL:
+        # a 1 kHz trace stamped in ms and declared in s reads exactly as a 1 Hz log: a time
+        # column cannot tell them apart, the row index at a stated rate can
+        raise MeasuredDataError(
+            f"{source}: time column {tcol!r} (declared in s) gives a sample period of 1 s, which "
+            "is what a 1 kHz trace stamped in ms declared as s gives: declare its unit as ms, "
+            "or, for a log really sampled at 1 Hz, take time from the row index "
+            "(time: {index: true, rate_hz: 1} in the map, or --rate 1)"
+        )
     if (t_raw[-1] - t_raw[0]) / period > MAX_GRID_FACTOR * n:
         raise MeasuredDataError(
             f"{source}: time column {tcol!r}: a gap of {float(dt.max()):.4g} s in a record "
