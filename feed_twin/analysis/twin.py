@@ -58,6 +58,9 @@ class Drive:
     sensor: str  # motor_encoder or linear_scale
     v0_m_s: float = 0.0  # measured velocity at the start (a record that begins mid-motion)
     trace_mean: bool = False  # each record sample is the mean over its period (a drive trace)
+    # the recorded effort is the one that acted up to its stamp (a measured current), not the
+    # command issued at it (MeasuredRun.effort_sample)
+    effort_actual: bool = True
     # the command at the NC's own period (a program planned for the record): the setpoints
     # are taken from it instead of from the record's samples of pos_ref_m .. acc_ref_m_s2
     plan: PlannedCommand | None = None
@@ -121,6 +124,7 @@ def drive_from_run(run: MeasuredRun) -> Drive:
         sensor=run.position_sensor,
         v0_m_s=start_velocity(run.t_s, run["pos_meas_m"]),
         trace_mean=run.trace_filter == "mean",
+        effort_actual=run.effort_sample == "actual",
         plan=run.plan,
     )
 
@@ -173,7 +177,13 @@ class Twin:
             effort_name, unit = (
                 ("torque_cmd_Nm", "N m") if domain == "rotational" else ("force_cmd_N", "N")
             )
-        nsub = max(min_substeps, _substeps(plant, nominal, controller.base_period_s))
+        # the model's own engine.substeps, when it gives more than stability needs
+        given = (doc.data.get("engine") or {}).get("substeps", 1)
+        if isinstance(given, bool) or not isinstance(given, int) or given < 1:
+            raise ConfigError(
+                f"{doc.source}: engine.substeps = {given!r}: must be a whole number >= 1"
+            )
+        nsub = max(min_substeps, given, _substeps(plant, nominal, controller.base_period_s))
         engine = Engine(
             plant,
             base_period_s=controller.base_period_s,
@@ -414,6 +424,8 @@ class Twin:
             cs0 = self.start_controller(drive, ref)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
+            if drive.effort_actual:
+                eff = acted(eff)
             volt = res["out.u_q_ref_V"] if u_q is not None else None
             for j in members:
                 recorded = self._as_recorded(drive, dec, pos, eff, volt, trace[j])
@@ -536,6 +548,17 @@ def _pole_pairs(doc: ModelDoc) -> int | None:
     return given
 
 
+def acted(effort: np.ndarray) -> np.ndarray:
+    """The effort that acted up to each base tick, from the commands issued at each tick
+    (rows = sets): the controller's command of tick k drives the plant over (k, k + 1], so a
+    drive's actual current (force) sampled at tick k, before that command takes effect, is the
+    command of tick k - 1 (at the first tick, the first command: the loop held it at rest)."""
+    out = np.empty_like(effort)
+    out[:, 1:] = effort[:, :-1]
+    out[:, :1] = effort[:, :1]
+    return out
+
+
 def drive_period(drive: Drive) -> float:
     """[s] The record's sample period."""
     return float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
@@ -547,10 +570,15 @@ def _recorded(has_voltage: bool) -> list[str]:
 
 
 def _substeps(plant: Any, p: np.ndarray, h: float) -> int:
-    """The fewest RK4 sub-steps the engine accepts for these parameters (1, 2, 4, ... 64)."""
-    from feed_twin.sim.engine import check_step
+    """The fewest RK4 sub-steps (1, 2, 4, ... 64) the engine accepts for these parameters
+    (the damping slopes, engine.check_step) and that keep RK4 stable on the fastest spring's
+    oscillation (engine.oscillation_rate: h / nsub * omega < RK4_STABILITY_MARGIN)."""
+    from feed_twin.sim.engine import RK4_STABILITY_MARGIN, check_step, oscillation_rate
 
+    omega = oscillation_rate(plant, p)
     for nsub in (1, 2, 4, 8, 16, 32, 64):
+        if h / nsub * omega >= RK4_STABILITY_MARGIN:
+            continue
         try:
             check_step(plant, p, h, nsub)
             return nsub

@@ -140,6 +140,7 @@ class MeasuredRun:
     position_sensor: str
     warnings: tuple[str, ...] = ()
     trace_filter: Literal["none", "mean"] = "none"  # see ColumnMap.trace_filter
+    effort_sample: Literal["actual", "setpoint"] = "actual"  # see ColumnMap.effort_sample
     plan: PlannedCommand | None = None  # the command at the NC's period, if planned
     # the measured position's zero is not known (a command placed from the program, whose
     # offset is only estimated): the position channel compares shapes, not levels
@@ -396,6 +397,7 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
         position_sensor=cmap.position_sensor,
         warnings=tuple(notes),
         trace_filter=cmap.trace_filter,
+        effort_sample=cmap.effort_sample,
     )
     _check_plausible(run, cmap)
     return run
