@@ -1,6 +1,7 @@
 """When the twin's effort is stamped: a drive's actual current (force) sampled at tick k is the
 effort that acted over the tick before k, the command of k - 1; a recorded setpoint is the
-command issued at k (column map `effort_sample`)."""
+command issued at k (column map `effort_sample`). A drive that follows its command later than
+the twin (its setpoint latency) answers later: the command delay shifts every output."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from feed_twin.analysis.model_doc import COMMAND_DELAY_SLOT
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 from feed_twin.core.config import ConfigError
 from feed_twin.io.column_map import load_column_map
@@ -80,3 +82,38 @@ def test_the_column_map_says_what_the_effort_column_holds(tmp_path):
     path.write_text(base + "effort_sample: measured\n")
     with pytest.raises(ConfigError, match="effort_sample = 'measured'"):
         load_column_map(path)
+
+
+def _move_drive(delay_ticks: int) -> Drive:
+    """A smooth 20 mm move (cosine velocity profile), its command `delay_ticks` ticks late."""
+    h = 1e-3
+    t = h * np.arange(600)
+    s = np.clip((t - 0.05 - h * delay_ticks) / 0.3, 0.0, 1.0)
+    x = 0.02 * (s - np.sin(2.0 * np.pi * s) / (2.0 * np.pi))
+    v = np.gradient(x, h)
+    return Drive(
+        t_s=t,
+        pos_ref_m=x,
+        vel_ref_m_s=v,
+        acc_ref_m_s2=np.gradient(v, h),
+        effort_add=None,
+        force_ext_N=None,
+        x0_m=0.0,
+        sensor="motor_encoder",
+    )
+
+
+def test_a_command_delay_is_the_answer_to_a_later_command():
+    """The twin is time invariant: following its command 3 ms later gives its answer 3 ms
+    later. The command-delay slot (the drive's setpoint latency against the twin's loops)
+    shifts the outputs of one run; it equals the run on the command given 3 ms later, sample
+    for sample, position and effort."""
+    twin = Twin.compile(ModelDoc.load(NOMINAL))
+    p = twin.nominal[None, :]
+    late = twin.simulate(_move_drive(3), p)
+    shifted = twin.simulate(_move_drive(0), p, record=[{COMMAND_DELAY_SLOT: 3e-3}])
+    assert late.effort is not None and shifted.effort is not None
+    assert np.abs(late.effort[0]).max() > 10.0  # the move needs force: the test can fail
+    np.testing.assert_allclose(shifted.x_m[0][3:], late.x_m[0][3:], atol=1e-12)
+    scale = np.abs(late.effort[0]).max()  # [N], rounding only: 1e-11 of it was seen
+    np.testing.assert_allclose(shifted.effort[0][3:], late.effort[0][3:], atol=1e-9 * scale)

@@ -1,4 +1,5 @@
-"""The record's own slots searched: the delays of the recorded position and effort, the
+"""The record's own slots searched: the command's delay (the drive's setpoint latency against
+the twin's), the delays of the recorded position and effort, the
 trace's averaging window and a current-offset ripple (analysis.effects' record effects).
 
 The twin runs once; each value is applied to its outputs (Twin.simulate with `record`). The
@@ -19,6 +20,7 @@ import numpy as np
 
 from feed_twin.analysis.fit import FitResult, Measured, SimOutputs, cost_of
 from feed_twin.analysis.model_doc import (
+    COMMAND_DELAY_SLOT,
     EFFORT_DELAY_SLOT,
     POSITION_DELAY_SLOT,
     RIPPLE_SLOTS,
@@ -27,7 +29,13 @@ from feed_twin.analysis.model_doc import (
 from feed_twin.analysis.twin import Drive, Twin, drive_period
 from feed_twin.plant.effect_api import Edit
 
-RECORD_SEARCHED = (EFFORT_DELAY_SLOT, POSITION_DELAY_SLOT, TRACE_WINDOW_SLOT, RIPPLE_SLOTS[0])
+RECORD_SEARCHED = (
+    COMMAND_DELAY_SLOT,
+    EFFORT_DELAY_SLOT,
+    POSITION_DELAY_SLOT,
+    TRACE_WINDOW_SLOT,
+    RIPPLE_SLOTS[0],
+)
 DELAY_RECORD_SAMPLES = 3  # the delays' first range: +/- this many record sample periods
 GRID_POINTS = 41  # values per pass
 WIDENINGS = 3  # the range is doubled at most this often while the best lies at its edge

@@ -29,6 +29,7 @@ import numpy as np
 from feed_twin.analysis.fit import SimOutputs
 from feed_twin.analysis.model_doc import (
     ANALYSIS_SECTION,
+    COMMAND_DELAY_SLOT,
     EFFORT_DELAY_SLOT,
     POLE_PAIRS_KEY,
     POSITION_DELAY_SLOT,
@@ -369,6 +370,7 @@ class Twin:
         declared = drive_period(drive) if drive.trace_mean else h
         window = self.doc.get(TRACE_WINDOW_SLOT) if self.doc.has_slot(TRACE_WINDOW_SLOT) else None
         return {
+            COMMAND_DELAY_SLOT: self.doc.get(COMMAND_DELAY_SLOT),
             EFFORT_DELAY_SLOT: self.doc.get(EFFORT_DELAY_SLOT),
             POSITION_DELAY_SLOT: self.doc.get(POSITION_DELAY_SLOT),
             TRACE_WINDOW_SLOT: declared if window is None else window,
@@ -466,29 +468,29 @@ class Twin:
         """(position, effort, q-voltage) on the record's samples from the base ticks' values,
         as the record's trace takes them (`slots`: Twin.record_slots): each the mean over the
         trace's window ending at its sample (one tick: the tick itself), the position and the
-        effort stamped their delays [s] late."""
+        effort stamped their delays [s] late, every output the command's delay later (a loop
+        that follows its command d later answers d later: the twin is time invariant)."""
         h = self.base_period_s
         ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
-        delays = ((0, slots[POSITION_DELAY_SLOT]), (1, slots[EFFORT_DELAY_SLOT]))
+        common = slots[COMMAND_DELAY_SLOT]
         signals = [pos, self._with_ripple(pos, eff, slots)]
+        delays = [slots[POSITION_DELAY_SLOT] + common, slots[EFFORT_DELAY_SLOT] + common]
+        if volt is not None:
+            signals.append(volt)
+            delays.append(common)
         fine = dec > 1 or ticks > 1
         if fine:
             # on the base ticks: a trace's samples are too far apart to shift a transient by
             # a few milliseconds, and a delay commutes with the trace's mean
-            for i, delay in delays:
-                if delay != 0.0:
-                    signals[i] = delayed(signals[i], h * np.arange(signals[i].shape[1]), delay)
+            fine_t = h * np.arange(pos.shape[1])
+            signals = [_shifted(y, fine_t, d) for y, d in zip(signals, delays, strict=True)]
         if ticks > 1:
             signals = [window_mean(y, dec, ticks) for y in signals]
-            volt = None if volt is None else window_mean(volt, dec, ticks)
         else:
             signals = [y[:, ::dec] for y in signals]
-            volt = None if volt is None else volt[:, ::dec]
         if not fine:
-            for i, delay in delays:
-                if delay != 0.0:
-                    signals[i] = delayed(signals[i], drive.t_s, delay)
-        return signals[0], signals[1], volt
+            signals = [_shifted(y, drive.t_s, d) for y, d in zip(signals, delays, strict=True)]
+        return signals[0], signals[1], signals[2] if volt is not None else None
 
     def _with_ripple(self, pos: np.ndarray, eff: np.ndarray, slots: dict[str, float]):
         """The effort with the ripple of the record's current-sensor offsets (RIPPLE_SLOTS: sin
@@ -546,6 +548,10 @@ def _pole_pairs(doc: ModelDoc) -> int | None:
             "number >= 1"
         )
     return given
+
+
+def _shifted(y: np.ndarray, t_s: np.ndarray, delay: float) -> np.ndarray:
+    return y if delay == 0.0 else delayed(y, t_s, delay)
 
 
 def acted(effort: np.ndarray) -> np.ndarray:
