@@ -22,6 +22,7 @@ import yaml
 from robustness import AXIS, CLI, ROOT, Case, Outcome, one_line_error
 
 from feed_twin.io.bag import bag_paths
+from feed_twin.nodeset.auth import KEY_FILE_ENV, new_key, write_key_file
 from feed_twin.ros.domain import private_graph_env, reserve_domain_id
 from feed_twin.ros.preflight import complete_rrd
 
@@ -35,7 +36,7 @@ import sys, time, math, rclpy
 from feed_twin_msgs.msg import AxisCommand, DriveCommand
 from std_msgs.msg import String
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
-kind, seconds, token = sys.argv[1], float(sys.argv[2]), sys.argv[3]
+kind, seconds = sys.argv[1], float(sys.argv[2])
 rclpy.init()
 node = rclpy.create_node("intruder")
 if kind == "axis":
@@ -44,15 +45,26 @@ if kind == "axis":
 elif kind == "drive":
     pub = node.create_publisher(DriveCommand, "/cnc/x/drive_command", DATA_QOS)
     make = lambda k: DriveCommand(axis="X", mode=10, enable=True, i_q=30.0)
+elif kind == "truth":  # fake states and feedback: false figures, a lost lockstep if taken
+    from feed_twin_msgs.msg import AxisFeedback, AxisState
+    pub = node.create_publisher(AxisState, "/cnc/x/state", DATA_QOS)
+    feedback = node.create_publisher(AxisFeedback, "/cnc/x/feedback", DATA_QOS)
+    def make(k):
+        feedback.publish(AxisFeedback(axis="X", scale_position=0.77, i_q=25.0))
+        return AxisState(axis="X", table_position=0.77, following_error=0.5)
 elif kind == "state":
     pub = node.create_publisher(String, "/cnc/x/program_state", LATCHED_QOS)
     make = lambda k: String(data=("finished 0", "finished nan", "x" * 9000)[k % 3])
-else:  # an insider with the run's token sending garbage values
+else:  # an insider with the run's key (FEED_TWIN_RUN_KEY_FILE) sending garbage values
+    import os
+    from pathlib import Path
+    from rclpy.serialization import serialize_message
+    from feed_twin.nodeset.auth import Signer, read_key_file
     pub = node.create_publisher(AxisCommand, "/cnc/x/command", DATA_QOS)
+    signer = Signer(read_key_file(Path(os.environ["FEED_TWIN_RUN_KEY_FILE"])), "/cnc/x/command")
     def make(k):
         msg = AxisCommand(axis="X", position=math.nan, velocity=1e30, line=99)
-        msg.header.frame_id = token
-        return msg
+        return signer.sign(serialize_message(msg))
 end = time.monotonic() + seconds
 k = 0
 while time.monotonic() < end:
@@ -360,19 +372,28 @@ def out_is_file(work: Path) -> Outcome:
     return one_line_error(["run", str(p), "--out", str(blocker)], 1, "not a directory")
 
 
+FOREIGN_TOPIC = {  # where each intruder sends (the insider signs: its messages are not foreign)
+    "axis": "/cnc/x/command",
+    "drive": "/cnc/x/drive_command",
+    "state": "/cnc/x/program_state",
+    "truth": "/cnc/x/state",
+}
+
+
 def foreign(kind: str, needle: str):
     def check(work: Path) -> Outcome:
         p = program(work, "long", LONG)
         name = f"foreign_{kind}"
         with reserve_domain_id() as domain:
             env = {**os.environ, **private_graph_env(domain.domain_id)}
+            if kind == "insider":  # holds the run's key (as a node of the run would)
+                key_file = work / f"{name}.key"
+                key_file.unlink(missing_ok=True)
+                write_key_file(key_file, new_key())
+                env[KEY_FILE_ENV] = str(key_file)
             proc = start([str(p), "--out", str(work / "b"), "--name", name, "--json"], env)
-            token = ""
-            if kind == "insider":  # reads the run's token as root can (/proc/<pid>/environ)
-                wait_for(lambda: bool(_token_of(proc.pid)), 30)
-                token = _token_of(proc.pid)
             intruder = subprocess.Popen(
-                [sys.executable, "-c", INTRUDER, kind, "90", token or "-"], env=env, cwd=ROOT
+                [sys.executable, "-c", INTRUDER, kind, "90"], env=env, cwd=ROOT
             )
             try:
                 rc, out, err = finish(proc)
@@ -386,29 +407,28 @@ def foreign(kind: str, needle: str):
         fe = record.get("following_error_max_m", 1.0)
         if not fe < 1e-3:  # the undisturbed program: about 0.07 mm
             extra.append(f"following error {fe * 1e3:.3f} mm: the foreign commands got through")
+        topic = FOREIGN_TOPIC.get(kind)
+        entry = (record.get("foreign_messages") or {}).get(topic or "", {})
+        if topic and not any("intruder" in p for p in entry.get("publishers", ())):
+            extra.append(f"the intruder is not named under foreign_messages[{topic!r}]")
         return judge(rc, out, err, code=0, extra=extra)
 
     return check
 
 
-def _token_of(runner: int) -> str:
-    """The run token in a node process's environment (the runner sets it after its start)."""
-    for pid in children(runner):
-        try:
-            env = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        for item in env:
-            if item.startswith(b"FEED_TWIN_RUN_TOKEN="):
-                return item.split(b"=", 1)[1].decode()
-    return ""
-
-
-def concurrent(work: Path) -> Outcome:
+def concurrent(work: Path, *, own_tmpdirs: bool = False) -> Outcome:
+    """Two runs at once; `own_tmpdirs`: each with its own TMPDIR (the domain locks do not
+    live there)."""
     p = program(work, "short", SHORT)
     env = {k: v for k, v in os.environ.items() if k != "ROS_DOMAIN_ID"}
+    envs = [dict(env) for _ in range(2)]
+    if own_tmpdirs:
+        for i, e in enumerate(envs):
+            (work / f"tmp{i}").mkdir(exist_ok=True)
+            e["TMPDIR"] = str(work / f"tmp{i}")
+    tag = "tmp" if own_tmpdirs else ""
     procs = [
-        start([str(p), "--out", str(work / "b"), "--name", f"twin{i}", "--json"], env)
+        start([str(p), "--out", str(work / "b"), "--name", f"twin{tag}{i}", "--json"], envs[i])
         for i in range(2)
     ]
     results = [finish(q) for q in procs]
@@ -435,8 +455,14 @@ def run_cases() -> list[Case]:
         Case("foreign_axis_command", "foreign", foreign("axis", "foreign publisher on")),
         Case("foreign_drive_command", "foreign", foreign("drive", "foreign publisher on")),
         Case("foreign_program_state", "foreign", foreign("state", "refused")),
+        Case("foreign_state_and_feedback", "foreign", foreign("truth", "refused")),
         Case("insider_nan_commands", "foreign", foreign("insider", "position = nan")),
         Case("concurrent_runs", "concurrent", concurrent),
+        Case(
+            "concurrent_runs_other_tmpdirs",
+            "concurrent",
+            lambda work: concurrent(work, own_tmpdirs=True),
+        ),
     ]
     if os.geteuid() == 0:
         cases += [

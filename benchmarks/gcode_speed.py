@@ -1,5 +1,6 @@
 """G-code pipeline speed: parse + plan + sample 100 000 short linear moves, and parse speed
-against the `gcodeparser` package (PyPI) on the same file in the same run.
+against the `gcodeparser` package (PyPI) on the same file in the same run; and the same for
+the 5000-move CAM raster of the peer corpus (tests/fixtures/gcode/peer/cam_surface_raster.ngc).
 
 The program is CAM-like: a wavy closed contour of 0.03-0.1 mm segments, one `G1 X.. Y..` block
 each, in the nc: section of config/axis_default.yaml. numba compilation is timed separately
@@ -27,6 +28,8 @@ from feed_twin.gcode.lexer import lex_line
 
 ROOT = Path(__file__).resolve().parent.parent
 N_MOVES = 100_000
+# The CAM program of the peer corpus: a 3D surface finishing raster of 5100 moves of 0.2 mm.
+RASTER = ROOT / "tests" / "fixtures" / "gcode" / "peer" / "cam_surface_raster.ngc"
 REPEATS = 3
 
 
@@ -64,6 +67,9 @@ def main() -> None:
         compile_s = time.perf_counter() - start
 
         plan_s, plan_wall_s, traj = best_of(lambda: plan_program(program, config))
+        raster_s, raster_wall_s, _ = best_of(lambda: plan_program(RASTER, config))
+        raster_samples = len(plan_program(RASTER, config))
+        raster_moves = sum(1 for line in RASTER.read_text().splitlines() if line.startswith("G1"))
 
         def lex_all() -> int:
             return sum(
@@ -102,6 +108,10 @@ def main() -> None:
         "blocks_parsed": n_lexed,
         "blocks_parsed_by_gcodeparser": n_other,
         "numba_first_call_s": round(compile_s, 2),
+        "raster_moves": raster_moves,
+        "raster_blocks_per_second": round(raster_moves / raster_s),
+        "raster_blocks_per_second_wall": round(raster_moves / raster_wall_s),
+        "raster_samples": raster_samples,
     }
     for key, value in figures.items():
         print(f"{key:34s} {value}")

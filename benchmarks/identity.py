@@ -12,7 +12,7 @@ and bytes), per path:
 - `native_ref`: the setpoints the native backends are fed;
 - `machine`: feed_twin.machine's simulate on config/machine_default.yaml;
 - `bag`: `feed-twin run` (lockstep over DDS), the decoded message data of the recorded topics
-  (receive times and the run's token in header.frame_id left out); skipped with --no-bag, alone
+  (receive times and header.frame_id left out); skipped with --no-bag, alone
   with --bag-only.
 
     .venv/bin/python benchmarks/identity.py [--no-bag | --bag-only] [--machine FILE] [--tree DIR]
@@ -185,7 +185,7 @@ def machine(program: str, config: Path) -> str:
 
 def _fields(msg: Any) -> Any:
     """A decoded message as plain values (field order kept), for hashing; without the frame_id,
-    which carries a token new in every run."""
+    which carried a token new in every run (the run's signatures now stay out of the bag)."""
     slots = getattr(msg, "__slots__", None)
     if slots is None and hasattr(msg, "__dict__"):
         slots = list(vars(msg))

@@ -4,7 +4,8 @@ Runs one program twice on the real LinuxCNC: with the HAL servo (pid -> drive la
 and with the twin's axis as the X drive (velocity boundary, feedback one servo period late,
 feed_twin.linuxcnc.commissioning). Prints per run the following error LinuxCNC sees on X (max,
 RMS over the program), the servo periods missed (commissioning: the twin's answer came after its
-period), the servo thread's period jitter and the reader's latency. Last line: one JSON object.
+period), the servo thread's period jitter, start lateness histogram and late periods (its own
+clock, feed_twin.linuxcnc.period_timing) and the reader's latency. Last line: one JSON object.
 
     .venv/bin/python benchmarks/linuxcnc_commissioning.py [PROGRAM]
 
@@ -32,12 +33,19 @@ CONFIG = REPO / "config" / "axis_default.yaml"
 PROGRAM = REPO / "tests" / "fixtures" / "linuxcnc" / "x_line.ngc"
 
 
-def _figures(trace: ServoTrace) -> dict[str, float]:
+def _figures(trace: ServoTrace) -> dict:
     span = trace.program_span()
     fe = trace.f_error_m[span, 0]
     period = np.diff(trace.tick_time_s[span]) * 1e3
     reader = trace.reader_latency_s[span] * 1e3
+    timing = trace.cut(span).period_timing()
     return {
+        "periods": timing.periods,
+        "late_periods": timing.late_periods,
+        "start_lateness_p50_ms": timing.lateness_p50_ms,
+        "start_lateness_p99_ms": timing.lateness_p99_ms,
+        "start_lateness_max_ms": timing.lateness_max_ms,
+        "start_lateness_histogram": list(timing.histogram),
         "program_time_s": trace.program_time_s,
         "fe_max_um": float(np.max(np.abs(fe)) * 1e6),
         "fe_rms_um": float(np.sqrt(np.mean(fe * fe)) * 1e6),
@@ -67,7 +75,9 @@ def main() -> None:
         print(
             f"{name:22s} program {f['program_time_s']:.3f} s, X following error max "
             f"{f['fe_max_um']:.1f} um RMS {f['fe_rms_um']:.1f} um, {missed}servo period p99 "
-            f"{f['period_p99_ms']:.2f} ms max {f['period_max_ms']:.1f} ms"
+            f"{f['period_p99_ms']:.2f} ms max {f['period_max_ms']:.1f} ms; {f['periods']} ticks, "
+            f"{f['late_periods']} started > 1 period late (lateness p99 "
+            f"{f['start_lateness_p99_ms']:.2f} ms, histogram {f['start_lateness_histogram']})"
         )
     print(
         json.dumps(

@@ -141,7 +141,7 @@ def with_cpu(directory: Path, name: str, record: dict) -> dict:
 def run_on_two_hosts(directory: Path, seconds: float) -> dict:
     """The lockstep run with the sims behind a veth link from the rest; the NC side's record
     with the sims' timing."""
-    from feed_twin.nodeset.guard import RUN_TOKEN_ENV
+    from feed_twin.nodeset.auth import KEY_FILE_ENV, new_key, write_key_file
     from feed_twin.ros.netns import linked_namespaces
 
     # the controllers on the NC's side, away from the sims' processes
@@ -149,7 +149,8 @@ def run_on_two_hosts(directory: Path, seconds: float) -> dict:
         directory, "hosts", seconds, machine_with(directory, {"controller_processes": "shared"})
     )
     with reserve_domain_id() as domain, linked_namespaces("fb", directory) as (axes, nc):
-        base = {**os.environ, RUN_TOKEN_ENV: os.urandom(8).hex()}
+        write_key_file(directory / "run.key", new_key())  # both sides' run key, mode 0600
+        base = {**os.environ, KEY_FILE_ENV: str(directory / "run.key")}
         args += ["--domain-id", str(domain.domain_id), "--start"]
         procs = [
             subprocess.Popen(side.command([*args, start]), env=side.env(base),

@@ -11,9 +11,13 @@ Figures (last printed line, one JSON object):
 - hal_*: the HAL component of config/axis_default.yaml (1 ms servo period, 16 ticks of 62.5 us
   per call) in a bare halrun, a 10 mm / 1 Hz sine position command with velocity and
   acceleration feed-forward, HAL_SECONDS long: the drive's following error (max after the first
-  0.5 s, RMS), the periods in which the component did not advance exactly 16 ticks
-  (hal_missed_periods, 0 expected), and the component's execution time per call (LinuxCNC's
-  `time` pin in CPU clocks, divided by the clock rate /proc/cpuinfo states: median, p99, max).
+  0.5 s, RMS), the calls in which the component did not advance exactly 16 ticks
+  (hal_step_errors, 0 by construction: it counts a defect of the component, not the host), the
+  servo thread's own timing from the feedtwin_clock component first in the thread (start
+  lateness p50/p99/max and histogram, interval p50/p99/max, hal_late_periods: periods that
+  started more than one period after their deadline; feed_twin.linuxcnc.period_timing), and
+  the component's execution time per call (LinuxCNC's `time` pin in CPU clocks, divided by the
+  clock rate /proc/cpuinfo states: median, p99, max).
 - linuxcnc_*: sample.ngc on a whole LinuxCNC machine (feed_twin.linuxcnc, 1 ms servo thread),
   once with LinuxCNC's simulated X joint (PID, drive lowpass, integrator) and once with the HAL
   component closing X's loop instead: LinuxCNC's following error of X over the program
@@ -36,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.core import signals
+from feed_twin.linuxcnc.period_timing import EDGES_MS, period_timing
 from feed_twin.native.fmu import build_fmu
 from feed_twin.native.hal import halcompile, write_comp
 from feed_twin.native.halrun import sine_loop
@@ -45,7 +50,7 @@ from feed_twin.sim.config import build_engine, load_axis_config
 ROOT = Path(__file__).resolve().parent.parent
 AXIS = ROOT / "config" / "axis_default.yaml"
 SAMPLE = ROOT / "tests" / "fixtures" / "gcode" / "sample.ngc"
-HAL_SECONDS = 20
+HAL_SECONDS = 60
 
 
 def fmu_figures(axis) -> dict:
@@ -105,9 +110,19 @@ def hal_figures(axis) -> dict:
     fe = run["following_error"]  # [mm]
     steps = np.diff(np.concatenate(([0.0], run["ticks"])))
     call_us = run["time"][10:] / cpu_hz() * 1e6
+    timing = period_timing(run["clock_tick"], run["clock_time_s"], period_s=1e-3)
     return {
         "hal_periods": n,
-        "hal_missed_periods": int(np.count_nonzero(steps != 16)),
+        "hal_step_errors": int(np.count_nonzero(steps != 16)),
+        "hal_late_periods": timing.late_periods,
+        "hal_start_lateness_p50_ms": round(timing.lateness_p50_ms, 3),
+        "hal_start_lateness_p99_ms": round(timing.lateness_p99_ms, 3),
+        "hal_start_lateness_max_ms": round(timing.lateness_max_ms, 3),
+        "hal_interval_p50_ms": round(timing.interval_p50_ms, 3),
+        "hal_interval_p99_ms": round(timing.interval_p99_ms, 3),
+        "hal_interval_max_ms": round(timing.interval_max_ms, 3),
+        "hal_start_lateness_histogram": list(timing.histogram),
+        "hal_start_lateness_edges_ms": list(EDGES_MS),
         "hal_faults": int(np.count_nonzero(run["fault"])),
         "hal_following_error_max_um": round(float(np.abs(fe[500:]).max()) * 1e3, 3),
         "hal_following_error_rms_um": round(float(np.sqrt(np.mean(fe[500:] ** 2))) * 1e3, 3),
@@ -146,7 +161,11 @@ def main() -> int:
     print(f"FMU through FMPy: largest state deviation {figures['fmu_max_state_deviation']:.3g}")
     figures.update(hal_figures(axis))
     print(
-        f"HAL: {figures['hal_missed_periods']} missed of {figures['hal_periods']} periods, "
+        f"HAL: {figures['hal_periods']} ticks, {figures['hal_step_errors']} calls that did not "
+        f"advance 16 base ticks, {figures['hal_late_periods']} periods started more than one "
+        f"period late (start lateness p50/p99/max {figures['hal_start_lateness_p50_ms']}/"
+        f"{figures['hal_start_lateness_p99_ms']}/{figures['hal_start_lateness_max_ms']} ms, "
+        f"histogram {figures['hal_start_lateness_histogram']} over {list(EDGES_MS)} ms), "
         f"following error max {figures['hal_following_error_max_um']} um"
     )
     figures.update(linuxcnc_figures())

@@ -6,6 +6,9 @@ A corpus of cases, each run as a user would (the `feed-twin` command in a subpro
   `feed-twin run`;
 - measured inputs: broken CSV records through `feed-twin simulate`;
 - bags: truncated and foreign files through `feed-twin bag info/recover`;
+- outputs (benchmarks/_robustness_outputs.py): run names that are paths or already used, an
+  earlier diagnosis, argument errors, an FMU on a full disk, a machine's read-only --out, a
+  vertical axis too heavy for its drive;
 - faults, foreign publishers, disks and concurrency (benchmarks/_robustness_runs.py): runs killed
   (runner, node processes), interrupted, stopped by the drive's protection, a disk that fills up
   in a small tmpfs, read-only and missing output directories, foreign and insider publishers
@@ -247,14 +250,14 @@ def _measured_rows(n: int) -> list[str]:
 
 MEASURED: dict[str, tuple[Callable[[list[str]], str], str]] = {
     "empty": (lambda rows: "", "empty"),
-    "header_only": (lambda rows: rows[0], "too short"),
+    "header_only": (lambda rows: rows[0], "has a header (5 columns) but no data rows"),
     "missing_column": (
         lambda rows: "".join(",".join(r.split(",")[:2]) + "\n" for r in rows),
         "that the file lacks",
     ),
     "text_in_numbers": (
         lambda rows: rows[0] + "".join(rows[1:500]) + "abc,0.1,1,2,3\n" + "".join(rows[501:]),
-        "is empty or not a number at data row 500",
+        ":501: time column 't_s' is empty or not a number",
     ),
     "nan_values": (
         lambda rows: rows[0] + "".join(r.replace(r.split(",")[2], "nan", 1) for r in rows[1:]),
@@ -262,7 +265,7 @@ MEASURED: dict[str, tuple[Callable[[list[str]], str], str]] = {
     ),
     "time_backwards": (
         lambda rows: rows[0] + "".join(reversed(rows[1:])),
-        "time column 't_s' does not increase at data row 2",
+        ":3: time column 't_s' goes back from",
     ),
     "short_rows": (
         lambda rows: rows[0] + "".join(rows[1:100]) + "1.0,2.0\n" + "".join(rows[101:]),
@@ -343,8 +346,11 @@ def main() -> int:
     parser.add_argument("--only", default="", help="run the cases whose name contains this")
     args = parser.parse_args()
     cases = input_cases()
+    sys.path.insert(0, str(Path(__file__).parent))
+    from _robustness_outputs import output_cases
+
+    cases += output_cases()
     if not args.skip_runs:
-        sys.path.insert(0, str(Path(__file__).parent))
         from _robustness_runs import run_cases
 
         cases += run_cases()

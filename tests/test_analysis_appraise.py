@@ -16,7 +16,8 @@ from feed_twin.analysis.channels import noise_floors, weighted_channels
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.model_doc import ModelDoc
 from feed_twin.analysis.plausible import implausible
-from feed_twin.analysis.report import FoundEffect, write_report
+from feed_twin.analysis.report import FoundEffect
+from feed_twin.analysis.report_files import write_report
 from feed_twin.analysis.synthetic import Unmodelled, generate, write_csv
 from feed_twin.analysis.twin import Twin, drive_from_run
 from feed_twin.analysis.uncertainty import Estimates, estimates, sensitivity

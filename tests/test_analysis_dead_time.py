@@ -256,7 +256,7 @@ def test_hidden_dead_time_is_named_fitted_and_closes_the_gap(tmp_path, voltage):
         du = traces["voltage_q_V"] - traces["sim_voltage_q_V"]
         assert float(np.sqrt(np.mean(du**2))) == pytest.approx(d.after.voltage_q_rms_V, rel=1e-6)
         # the report shows the voltage residual before and after
-        from feed_twin.analysis.report import write_report
+        from feed_twin.analysis.report_files import write_report
 
         write_report(d, tmp_path / "out", v_m_s=motion.v_m_s)
         text = (tmp_path / "out" / "report.md").read_text()

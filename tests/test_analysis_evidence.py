@@ -67,27 +67,31 @@ def _drive(t, *, trace_mean):
 
 
 def test_the_start_transient_of_an_averaged_trace_is_left_out_of_the_fit(tmp_path):
-    """The exact twin on its own averaged trace begun at full speed: the samples before
-    first_evidence carry the start (tens of newtons, most of the residual's energy), those
-    after follow to what the command rebuilt from 50 Hz means leaves; the fit's cost does not
-    see the first ones at all."""
+    """The exact twin on its own averaged trace begun at full speed: its command and its
+    start rebuilt from the 50 Hz means (recorder.deaveraged, Twin._started), the samples
+    before first_evidence carry no start transient any more (320 N when the twin started at
+    the first mean, half a window behind); those after follow to what the rebuilt command
+    leaves (1.8 N RMS, 4.6 N from the means interpolated); the fit's cost does not see the
+    first ones at all."""
     nominal, run = _trace_run(tmp_path)
     twin = Twin.compile(nominal)
     drive = drive_from_run(run)
     out = twin.simulate(drive, twin.nominal[None, :])
     start = twin.first_evidence(drive)
     assert start == 4
+    assert out.effort is not None
     r = run["force_cmd_N"] - out.effort[0]
     early, late = r[:start], r[start:]
-    # 99 % of the residual's energy; after them 4.6 N RMS against a 341 N start
-    assert np.sum(early**2) > 0.9 * np.sum(r**2)
-    assert np.sqrt(np.mean(late**2)) < 0.02 * np.max(np.abs(early))
+    assert np.max(np.abs(early)) < 10.0
+    assert np.sqrt(np.mean(late**2)) < 2.5
     re, _ = residuals(run, out, start=start)
+    assert re is not None
     assert np.all(re[:start] == 0.0) and np.array_equal(re[start:], late)
     floors = noise_floors(run, out, start=start)
     meas = weighted_channels(run, out, 1, floors, start=start)
     assert meas.scale_effort == pytest.approx(max(np.sqrt(np.mean(late**2)), floors["effort"]))
     # what the first samples measured does not change the cost
+    assert meas.effort is not None
     spoilt = meas.effort.copy()
     spoilt[:start] += 1e3
     moved = weighted_channels(run, out, 1, floors, start=start)

@@ -81,7 +81,7 @@ def test_a_program_the_record_holds_three_times_points_to_repetitions(tmp_path):
     # one run correlates with the first of three (0.58): placed, the twin stood still in the
     # other two without a word
     assert "scope.csv: the program" in message
-    assert "moves the axis for 7.59 s, the record moves for 22.8 s" in message
+    assert "moves the axis for 7.58 s, the record moves for 22.7 s" in message
     assert "add --repetitions or cut one run with --segment t0:t1" in message
     # the hint is right: the first run cut with a segment is placed where it starts
     nc_cfg = nc_config_from_mapping(nc, source="<nc>")

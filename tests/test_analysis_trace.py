@@ -13,7 +13,12 @@ from feed_twin.analysis import record_search
 from feed_twin.analysis.channels import noise_floors, weighted_channels
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.effects import BY_NAME
-from feed_twin.analysis.model_doc import COMMAND_DELAY_SLOT, EFFORT_DELAY_SLOT, RIPPLE_SLOTS
+from feed_twin.analysis.model_doc import (
+    COMMAND_DELAY_SLOT,
+    EFFORT_DELAY_SLOT,
+    POSITION_DELAY_SLOT,
+    RIPPLE_SLOTS,
+)
 from feed_twin.analysis.recorder import window_mean
 from feed_twin.analysis.synthetic import as_trace, generate, write_csv
 from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
@@ -62,14 +67,14 @@ def test_a_declared_20_ms_mean_makes_the_fit_better_not_worse(tmp_path):
     d, _, _ = diagnose(run, nominal)
     assert [e.name for e in d.effects] == ["coulomb_friction"]
     assert d.effects[0].parameters["F_c_N"] == pytest.approx(15.0, rel=0.02)
-    assert d.after.effort_rel_err_pct is not None and d.after.effort_rel_err_pct < 10.0
+    assert d.after.effort_rel_err_pct is not None and d.after.effort_rel_err_pct < 8.0
     assert d.after.fe_dev_rms_m < 2e-6
 
 
 def test_an_undeclared_mean_is_identified_on_the_truth_machine(tmp_path):
     """The independent truth machine's 50 Hz trace, each channel the mean over its period,
-    the map silent about it: trace_window names the 20 ms, and the position's lag behind
-    the twin (35 um RMS) is not left."""
+    the map silent about it: trace_window names the 20 ms, and neither the position's lag
+    behind the twin (35 um RMS) nor the effort error (52 %, 28-37 % left before) is left."""
     from feed_twin.truth import Trace, make_record
 
     nominal = ModelDoc.load(ROOT / "config" / "truth_nominal.yaml")
@@ -82,6 +87,9 @@ def test_an_undeclared_mean_is_identified_on_the_truth_machine(tmp_path):
     assert found["trace_window"]["window_s"] == pytest.approx(0.020)
     assert d.before.fe_dev_rms_m > 30e-6
     assert d.after.fe_dev_rms_m < 15e-6
+    assert d.before.effort_rel_err_pct is not None and d.after.effort_rel_err_pct is not None
+    assert d.before.effort_rel_err_pct > 45.0
+    assert d.after.effort_rel_err_pct < 10.0
 
 
 def test_a_delay_is_searched_over_the_record_and_an_edge_is_said(tmp_path, monkeypatch):
@@ -187,13 +195,17 @@ def test_the_records_rounding_floors_its_noise():
 
 def test_a_command_followed_a_fraction_of_a_tick_late_is_named_to_its_step(tmp_path):
     """A drive that follows its command 0.3 ms later than the twin's 1 kHz loops (a setpoint
-    latency no user knows): named command_delay, searched in steps of COMMAND_DELAY_STEP of a
+    latency no user knows): command_delay named, searched in steps of COMMAND_DELAY_STEP of a
     tick (half a tick could not find the truth machine's 0.12 ms, which left 12.9 um RMS of
-    position residual). Within 0.1 ms: the synthetic truth's own encoder steps (its sensors
-    are not smoothed) put its effort about 0.1 ms apart from the fitting twin's."""
+    position residual). The position's whole delay (the command's plus the recorded
+    position's own, which has the same signature there and may be named beside it) within
+    0.1 ms: the synthetic truth's own encoder steps (its sensors are not smoothed) put its
+    effort about 0.1 ms apart from the fitting twin's."""
     nominal, run = _record(tmp_path, {"command_delay": {"delay_s": 3e-4}})
     d, doc, _ = diagnose(run, nominal)
-    assert [e.name for e in d.effects] == ["command_delay"]
+    assert "command_delay" in [e.name for e in d.effects]
+    assert set(e.name for e in d.effects) <= {"command_delay", "position_delay"}
     step = record_search.COMMAND_DELAY_STEP * nominal.base_period()
-    assert doc.get(COMMAND_DELAY_SLOT) == pytest.approx(3e-4, abs=1e-4 + step)
-    assert d.after.fe_dev_rms_m < 0.4 * d.before.fe_dev_rms_m  # 15.3 -> 5.1 um: the 0.1 ms
+    on_position = doc.get(COMMAND_DELAY_SLOT) + doc.get(POSITION_DELAY_SLOT)
+    assert on_position == pytest.approx(3e-4, abs=1e-4 + step)
+    assert d.after.fe_dev_rms_m < 0.4 * d.before.fe_dev_rms_m  # 15.2 -> 3.8 um

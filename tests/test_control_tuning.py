@@ -16,6 +16,7 @@ from feed_twin.control.tuning import (
     tune_position_loop,
     tune_velocity_loop,
 )
+from feed_twin.core.config import load_yaml
 
 FIXTURES = Path(__file__).parent / "fixtures"
 
@@ -146,8 +147,12 @@ def test_tune_subcommand_prints_gains_and_margins(capsys):
     assert code == 0
     text = capsys.readouterr().out
     assert "current  design    Kp = 21.33 V/A" in text
-    assert "velocity design    Kp = 2557 per m/s" in text
-    assert "position configured PM" in text
+    assert "velocity design    Kp = 2557 A s/m" in text
+    # the configured gains beside their margins, each with its unit
+    assert "current  configured Kp = 21.33 V/A, Ti = " in text
+    assert "velocity configured Kp = " in text and " A s/m" in text
+    kv = load_yaml(FIXTURES / "controller_axis.yaml")["controller"]["position"]["Kv_1_s"]
+    assert f"position configured Kv = {kv:.4g} 1/s; PM" in text
 
 
 def test_tune_subcommand_reports_config_errors(tmp_path, capsys):

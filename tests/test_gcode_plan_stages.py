@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from feed_twin.gcode.plan_blends import NodeFlags, corner_blends
+from feed_twin.gcode.plan_blends import NodeFlags, corner_blends, zone_coefficients
 from feed_twin.gcode.plan_chains import chain_bodies
 from feed_twin.gcode.plan_limits import AxisLimits, move_limits
 from feed_twin.gcode.plan_profile import Pieces, motion_pieces, speed_profile
@@ -17,7 +17,10 @@ LIMITS = AxisLimits(
     rapid=np.array([1.0, 0.4]),
     a_max=np.array([2.0, 1.0]),  # [m/s^2]
     j_max=np.array([20.0, 40.0]),  # [m/s^3]
-    jerk=True,
+    jerk=True,  # caps hold the jerk; no filter window: the raw plan's kernels on their own
+    filter_n=1,
+    window_s=0.0,
+    period_s=1e-3,
 )
 
 
@@ -39,17 +42,17 @@ def _pieces(points, feeds, limits: AxisLimits, tol: float = 2e-5):
     blends = corner_blends(moves, flags, limits, None)
     bodies = chain_bodies(moves, blends, flags, limits, first=0, open_end=False)
     assert bodies is not None
-    speeds = speed_profile(bodies, jerk=limits.jerk, v_first=0.0)
-    pieces = motion_pieces(bodies, speeds, q_commit=len(bodies.length), n_moves=n, jerk=limits.jerk)
+    speeds = speed_profile(bodies, v_first=0.0)
+    pieces = motion_pieces(bodies, speeds, q_commit=len(bodies.length), n_moves=n)
     return moves, blends, bodies, pieces
 
 
-def _sample_s(pieces: Pieces, jerk: bool, dt: float):
+def _sample_s(pieces: Pieces, dt: float):
     t0, t_end = piece_starts(pieces, 0.0)
     times = np.arange(0.0, t_end + dt, dt)
     p = pieces
     s, sd, sdd, _ = sample_pieces(
-        times, p.kind, t0, p.dur, p.s0, p.v0, p.vp, p.v1, p.A, p.J, p.t_up, p.t_cruise, jerk
+        times, p.kind, t0, p.dur, p.s0, p.v0, p.vp, p.v1, p.A, p.t_up, p.t_cruise
     )
     return times, s, sd, sdd, t_end
 
@@ -103,20 +106,17 @@ def test_corner_blend_stays_within_the_tolerance_and_its_speed_within_the_axis_l
         assert closest <= tol * (1.0 + 1e-6)  # sampled s: at or just above the apex
 
 
-@pytest.mark.parametrize("jerk", [True, False])
-def test_speed_profile_keeps_v_a_j_within_limits_and_integrates_to_the_length(jerk):
-    limits = AxisLimits(**{**LIMITS.__dict__, "jerk": jerk})
+def test_speed_profile_keeps_v_a_within_limits_and_integrates_to_the_length():
+    limits = LIMITS
     points = [(0.0, 0.0), (0.03, 0.0), (0.03, 0.002)]
     moves, _, bodies, pieces = _pieces(points, [0.3, 0.3], limits)
     dt = 1e-5
-    _, s, sd, sdd, t_end = _sample_s(pieces, jerk, dt)
+    _, s, sd, sdd, t_end = _sample_s(pieces, dt)
     assert s[-1] == pytest.approx(float(np.sum(moves.L)), abs=1e-12)
     # The speed integrates to the distance covered (trapezoid rule on a fine grid).
     assert np.sum(0.5 * (sd[1:] + sd[:-1]) * dt) == pytest.approx(s[-1] - s[0], rel=1e-6)
     assert np.all(sd >= -1e-15) and np.all(sd <= max(bodies.V) * (1.0 + 1e-12))
     assert np.all(np.abs(sdd) <= max(bodies.A) * (1.0 + 1e-9))
-    if jerk:
-        assert np.max(np.abs(np.diff(sdd))) / dt <= max(bodies.J) * (1.0 + 1e-6)
     assert sd[0] == 0.0 and sd[-1] == pytest.approx(0.0, abs=1e-12)
 
 
@@ -124,21 +124,21 @@ def test_sampler_positions_equal_the_analytic_trapezoid():
     # X alone: V = 0.1 m/s, A = 1 m/s^2 over 20 mm: ramps of 0.1 s (5 mm), 0.1 s at cruise.
     limits = AxisLimits(
         v_max=np.array([0.1]), rapid=np.array([0.1]), a_max=np.array([1.0]),
-        j_max=np.array([100.0]), jerk=False,
+        j_max=np.array([100.0]), jerk=False, filter_n=1, window_s=0.0, period_s=1e-3,
     )  # fmt: skip
     moves = move_limits([(0.0,), (0.02,)], [False], [1.0], limits)
     flags = _flags(1, 2e-5)
     blends = corner_blends(moves, flags, limits, None)
     bodies = chain_bodies(moves, blends, flags, limits, first=0, open_end=False)
     assert bodies is not None
-    speeds = speed_profile(bodies, jerk=False, v_first=0.0)
-    pieces = motion_pieces(bodies, speeds, q_commit=1, n_moves=1, jerk=False)
+    speeds = speed_profile(bodies, v_first=0.0)
+    pieces = motion_pieces(bodies, speeds, q_commit=1, n_moves=1)
     t0, t_end = piece_starts(pieces, 0.0)
     assert t_end == pytest.approx(0.3, rel=1e-12)
     period = 1e-3
     k0, k1 = sample_indices(0, t_end, period, final=True)
     t = np.arange(k0, k1) * period
-    pos, vel, acc, _, _ = sample_path(t, pieces, t0, moves, blends.w, blends.dU, jerk=False)
+    pos, vel, acc, _, _ = sample_path(t, pieces, t0, moves, blends.w, blends.dU)
     tc = np.clip(t, 0.0, 0.3)
     x = np.where(
         tc < 0.1,
@@ -150,3 +150,31 @@ def test_sampler_positions_equal_the_analytic_trapezoid():
     assert vel[:, 0] == pytest.approx(v, abs=1e-12)
     assert t[-1] >= t_end and pos[-1, 0] == 0.02
     assert np.all(np.abs(acc[:, 0]) <= 1.0 + 1e-12)
+
+
+def test_cruise_cap_with_curvature_steps_solves_the_cubic_exactly():
+    filtered = AxisLimits(**{**LIMITS.__dict__, "window_s": 0.05, "filter_n": 51})
+    j = np.array([[2e4, 0.0], [0.0, 0.0], [5e3, 1e3]])  # [1/m^2]
+    kick = np.array([[3.0, 0.0], [0.0, 2.0], [0.0, 0.0]])  # [1/m]
+    cap = filtered.cruise_cap(np.zeros_like(j), j, 1.0, 0.75, kick)
+    c = filtered.kick_jerk(kick)
+    used = j * cap[:, None] ** 3 + c * cap[:, None] ** 2
+    budget = 0.75 * filtered.j_max
+    assert np.all(used <= budget * (1 + 1e-12))
+    # The binding axis of each row sits on its budget.
+    np.testing.assert_allclose(np.max(used / budget, axis=1), 1.0, rtol=1e-9)
+    assert c[0, 0] == pytest.approx(1.5 * 3.0 / 1e-3)
+
+
+def test_a_short_zone_of_one_blend_is_a_curvature_step():
+    # Chords 1.0, 0.95, 0.9 along a gentle curve: on the middle move the end blend (width
+    # 0.9) leaves 0.05 of the start blend (width 0.95) alone, a curvature step dU / w^2 * 0.05.
+    L = np.array([1.0, 0.95, 0.9])
+    w = np.array([0.0, 0.95, 0.9, 0.0])
+    du = np.array([[0.0], [0.02], [0.02], [0.0]])
+    *_, j_s, j_e, kick = zone_coefficients(L, w, du, steps=False)
+    assert j_s[1, 0] == pytest.approx(0.02 / 0.95**2) and np.all(kick == 0.0)
+    *_, j_s, j_e, kick = zone_coefficients(L, w, du, steps=True)
+    assert kick[1, 0] == pytest.approx(0.02 / 0.95**2 * 0.05)
+    both = abs(0.02 / 0.81 - 0.02 / 0.95**2)  # overlap, plus the step spread over the move
+    assert j_s[1, 0] == pytest.approx(both + kick[1, 0] / 0.95)

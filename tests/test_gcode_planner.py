@@ -20,6 +20,7 @@ from feed_twin.gcode import (
     plan_program_stream,
 )
 from feed_twin.gcode.interpreter import Interpreter, Move
+from feed_twin.gcode.plan_limits import FILTER_ROUNDING
 from feed_twin.gcode.planner import iter_blocks
 
 FIXTURES = Path(__file__).parent / "fixtures" / "gcode"
@@ -47,10 +48,12 @@ def assert_limits(traj: SampledTrajectory, config, *, v_limit=None) -> None:
     if config.profile == "jerk":
         assert np.all(np.abs(np.diff(traj.acc_m_s2, axis=0)) / period <= J_MAX * (1 + SLACK))
         # Positions, velocities and accelerations are one function and its derivatives:
-        # the trapezoidal rule on v misses the position by at most j*T^3/12.
+        # the trapezoidal rule on v misses the position by at most j*T^3/12 (to 1 %: the
+        # filtered positions come from the integral of the raw plan, whose pieces meet to
+        # rounding errors of about 1e-12 m).
         step = np.diff(traj.pos_m, axis=0)
         trapezoid = 0.5 * period * (traj.vel_m_s[1:] + traj.vel_m_s[:-1])
-        assert np.all(np.abs(step - trapezoid) <= J_MAX * period**3 / 12 * (1 + 1e-6) + 1e-15)
+        assert np.all(np.abs(step - trapezoid) <= J_MAX * period**3 / 12 * (1 + 1e-2) + 1e-15)
     assert np.allclose(traj.t_s, np.arange(len(traj)) * period, rtol=0, atol=1e-12)
     assert np.all(traj.vel_m_s[-1] == 0.0)
 
@@ -96,13 +99,15 @@ def test_exact_stop_square_follows_the_corners_exactly_and_takes_longer():
         assert np.linalg.norm(exact.vel_m_s[at]) <= J_MAX.max() * (0.5e-3) ** 2 / 2
 
 
-def test_tight_corner_is_stopped_at_when_that_is_quicker_than_rounding_it():
-    # 90 degrees within 5 um under a 30 m/s^3 jerk limit: rounding would crawl (about v^3/r^2
-    # with r ~ 10 um), stopping is quicker, so G64 stops there exactly like G61 does.
+def test_tight_corner_is_rounded_not_stopped_at():
+    # 90 degrees within 5 um under a 30 m/s^3 jerk limit: slow, but G64 rounds every corner
+    # (a stop only where the program asks for one), within its tolerance.
     tight = plan_program(SQUARE.replace("P0.5", "P0.005"), CONFIG)
-    exact = plan_program(SQUARE.replace("G64 P0.5", "G61"), CONFIG)
-    assert tight.t_s[-1] == exact.t_s[-1]
-    np.testing.assert_allclose(tight.pos_m, exact.pos_m, atol=1e-15)
+    speed = np.linalg.norm(tight.vel_m_s, axis=1)
+    moving = np.flatnonzero(speed > 0.0)
+    assert np.all(speed[moving[0] : moving[-1] + 1] > 0.0)
+    assert polyline_distance(tight.pos_m, SQUARE_PATH).max() <= 5e-6 * (1 + SLACK)
+    assert_limits(tight, CONFIG)
 
 
 @pytest.mark.parametrize(
@@ -211,8 +216,10 @@ def test_trapezoid_program_time_matches_closed_form():
 
 
 def test_jerk_limited_single_move_time_matches_closed_form():
+    # The filtered plan keeps FILTER_ROUNDING of a_max and j_max for its rounding errors.
     traj = plan_program("G1 X300 F9000\nM2", CONFIG)
-    expected = _move_time_jerk(0.3, 0.15, 2.0, 40.0)
+    keep = 1.0 - FILTER_ROUNDING
+    expected = _move_time_jerk(0.3, 0.15, 2.0 * keep, 40.0 * keep)
     assert traj.events[-1].t_s == pytest.approx(expected, rel=1e-9)
 
 

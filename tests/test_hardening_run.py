@@ -23,18 +23,30 @@ pytestmark = [pytest.mark.ros]
 FAR_PROGRAM = "G21 G90 G54\nG0 X-200\nM30\n"  # a 200 mm rapid: the axis's largest following error
 
 INTRUDER = """
-import sys, time, rclpy
-from feed_twin_msgs.msg import AxisCommand
+import struct, sys, time, rclpy
+from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState
 from feed_twin.ros.dds import DATA_QOS
 rclpy.init()
 node = rclpy.create_node("intruder")
-pub = node.create_publisher(AxisCommand, "/cnc/x/command", DATA_QOS)
+command = node.create_publisher(AxisCommand, "/cnc/x/command", DATA_QOS)
+feedback = node.create_publisher(AxisFeedback, "/cnc/x/feedback", DATA_QOS)
+state = node.create_publisher(AxisState, "/cnc/x/state", DATA_QOS)
+heard = []  # the run's own signed commands, to send again altered and replayed
+node.create_subscription(AxisCommand, "/cnc/x/command", heard.append, DATA_QOS, raw=True)
 end = time.monotonic() + float(sys.argv[1])
 k = 0
 print("publishing", flush=True)
 while time.monotonic() < end:
+    rclpy.spin_once(node, timeout_sec=0.0)
     # setpoints 100 mm away from the program's, alternating: a lethal stream if taken
-    pub.publish(AxisCommand(axis="X", position=0.3 + 0.2 * (k % 2), line=99))
+    command.publish(AxisCommand(axis="X", position=0.3 + 0.2 * (k % 2), line=99))
+    feedback.publish(AxisFeedback(axis="X", scale_position=0.77, i_q=25.0))
+    state.publish(AxisState(axis="X", table_position=0.77, following_error=0.5))
+    if heard:
+        signed = bytearray(heard.pop(0))
+        command.publish(bytes(signed))  # replayed as it was
+        struct.pack_into("<d", signed, len(signed) - 28, 0.0015)  # its position 1.5 mm
+        command.publish(bytes(signed))  # altered, the signature kept
     k += 1
     time.sleep(0.002)
 """
@@ -82,7 +94,10 @@ def test_following_error_limit_stops_the_run_naming_limit_time_and_line(tmp_path
 DISCOVERY_PROGRAM = SHORT_PROGRAM.replace("G1 X10", "G4 P6\nG1 X10")
 
 
-def test_foreign_command_publisher_is_refused(tmp_path):
+def test_foreign_publishers_on_every_topic_are_dropped_counted_and_named(tmp_path):
+    """Unsigned commands, feedback and states, and the run's own commands replayed and altered
+    (#29): none is recorded, none moves the axis or ends the run, and the run names the
+    intruder in its own output and JSON."""
     program = tmp_path / "move.ngc"
     program.write_text(DISCOVERY_PROGRAM)
     with reserve_domain_id() as domain:
@@ -90,6 +105,7 @@ def test_foreign_command_publisher_is_refused(tmp_path):
             [sys.executable, "-c", INTRUDER, "60"],
             env=node_env(domain.domain_id),
             stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
             text=True,
         )
         try:
@@ -107,11 +123,23 @@ def test_foreign_command_publisher_is_refused(tmp_path):
     record = last_json(out)
     assert code == 0, err
     # The program moves 10 mm at 3 m/min: following error of a fraction of a millimetre, not
-    # the 100 mm the intruder's setpoints would give.
+    # the 100 mm the intruder's setpoints would give, nor its 0.5 m state.
     assert record["following_error_max_m"] < 5e-4
+    foreign = record["foreign_messages"]
+    for topic in ("/cnc/x/command", "/cnc/x/feedback", "/cnc/x/state"):
+        assert foreign[topic]["messages"] > 0, foreign
+        assert any("node '/intruder'" in p for p in foreign[topic]["publishers"]), foreign
+        assert f"{topic}: {foreign[topic]['messages']} dropped, from node '/intruder'" in out
+    reasons = foreign["/cnc/x/command"]["reasons"]
+    assert reasons["unsigned"] > 0 and reasons["replayed"] > 0 and reasons["bad tag"] > 0
+    bag = BagReader(record["bag"])
+    assert np.all(bag.columns("/cnc/x/command", ["line"])["line"] != 99)
+    states = bag.columns("/cnc/x/state", ["header.stamp", "table_position"])
+    assert np.all(np.diff(states["header.stamp"]) > 0)  # one sample per exchange, the sim's
+    assert np.max(np.abs(states["table_position"])) < 0.5
+    assert np.all(bag.columns("/cnc/x/feedback", ["scale_position"])["scale_position"] < 0.5)
     log = (Path(record["logs"]) / "controller.log").read_text()
     assert "foreign publisher on /cnc/x/command: node '/intruder'" in log
-    assert "not from this run's G-code node (run token)" in log
     health = BagReader(record["bag"]).columns("/cnc/x/health", ["message"])["message"]
     assert any("foreign publisher" in m for m in health)
 

@@ -190,3 +190,13 @@ def test_the_bridge_stamps_pairs_and_counts() -> None:
     report = bridge.report()
     assert report["twin_output_latency_p50_ms"] == pytest.approx(5.0)
     assert report["bridge_latency_max_ms"] == pytest.approx((100.2 - 100.106) * 1e3)
+    # the servo thread's own timing over every received period (the rows are on time)
+    assert report["servo_periods"] == 8
+    assert report["servo_late_periods"] == 0
+    assert report["servo_lateness_max_ms"] == pytest.approx(0.0, abs=1e-6)
+    assert sum(report["servo_histogram"]) == 8
+    from feed_twin.linuxcnc.summary import servo_timing_from_report
+
+    timing = servo_timing_from_report(report)
+    assert timing is not None and timing.periods == 8
+    assert servo_timing_from_report({"samples_received": 8}) is None

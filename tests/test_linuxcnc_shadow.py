@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from feed_twin.io.bag import BagReader, info
+from feed_twin.io.bag.counts import mcap_counts
 from feed_twin.linuxcnc.host import leftover_processes, leftovers
 
 REPO = Path(__file__).resolve().parents[1]
@@ -53,6 +54,14 @@ def test_a_minute_on_linuxcnc_shadowed_without_losing_a_servo_period(tmp_path: P
     assert passes < figures["program_time_s"] < passes + 0.6
     assert figures["samples_lost"] == 0
     assert figures["samples_received"] >= figures["program_time_s"] / PERIOD_S
+    # the summary's counts are the bag's, read back by an independent reader (mcap)
+    assert set(figures["samples_lost_by_topic"].values()) == {0}
+    assert figures["bag_counts"] == {
+        topic: n
+        for topic, n in mcap_counts(tmp_path / "run").items()
+        if topic in figures["bag_counts"]
+    }
+    assert len(figures["bag_counts"]) == 5  # command, servo, joint_states, twin residual, state
     # (timings are the benchmark's business; here only that they were measured)
     for key in ("bridge_latency_p50_ms", "bridge_latency_p99_ms", "twin_output_latency_p50_ms"):
         assert figures[key] > 0.0

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import shutil
 import subprocess
 import sys
@@ -19,7 +18,7 @@ from test_machine_nodes import MACHINE, PROGRAM, in_process_positions, machine_f
 from feed_twin.io.bag import BagReader
 from feed_twin.machine.config import load_machine_config
 from feed_twin.machine.nodes import write_axis_files
-from feed_twin.nodeset.guard import RUN_TOKEN_ENV
+from feed_twin.nodeset.auth import KEY_FILE_ENV, new_key, write_key_file
 from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.ros.netns import linked_namespaces
@@ -54,7 +53,9 @@ def test_axis_nodes_on_another_host_give_the_same_exchanges(tmp_path):
     # the controllers on the NC's side: out of the sims' processes
     shared = machine_file(tmp_path, controller_processes="shared")
     with reserve_domain_id() as domain, linked_namespaces("ft", tmp_path) as (axes, nc):
-        base = {**os.environ, RUN_TOKEN_ENV: secrets.token_hex(8)}
+        # the two computers share the run's key through a file only its owner reads
+        write_key_file(tmp_path / "run.key", new_key())
+        base = {**os.environ, KEY_FILE_ENV: str(tmp_path / "run.key")}
         argv = [
             sys.executable, "-m", "feed_twin.cli", "run", str(program), "--config", str(shared),
             "--domain-id", str(domain.domain_id), "--json",

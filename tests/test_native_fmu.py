@@ -4,17 +4,20 @@ engine's own result; bad inputs and steps give an FMI error with a message, neve
 from __future__ import annotations
 
 import ctypes
+import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.validation import validate_fmu
-from native_support import ROOT, SAMPLE, program_ref
+from native_support import ROOT, SAMPLE
 
 from feed_twin.cli import main as cli_main
-from feed_twin.core import signals
-from feed_twin.sim.config import build_engine, load_axis_config
+from feed_twin.native.fmu import fmi_headers
+from feed_twin.sim.config import load_axis_config
+from feed_twin.sim.program import simulate_program
 
 AXIS = ROOT / "config" / "axis_default.yaml"
 SECONDS = 2.0  # of sample.ngc: the pocket's first moves
@@ -42,42 +45,32 @@ def test_fmpy_validates_the_model_description(axis_fmu):
     assert by_name["controller.m_per_rad"].unit == "m/rad"
 
 
-def test_fmpy_simulation_equals_the_engine(axis_fmu):
+def test_fmpy_stepping_equals_simulate_program_to_the_bit(axis_fmu):
+    # the same program from the same start state: at every communication point (NC sample j,
+    # its command set) the FMU's states, sensor samples and controller outputs are the bits
+    # simulate_program records at tick j dec
     axis = load_axis_config(AXIS)
-    h = axis.engine.base_period_s
-    ref = program_ref(SAMPLE, h)[: round(SECONDS / h)]
-    dec = round(1e-3 / h)
-    nc = ref[::dec]
-    t = np.arange(len(nc)) * 1e-3
+    n = round(SECONDS / 1e-3)
+    outputs = (*axis.plant.state_names, "meas.x_scale_m", "meas.i_a_meas_A", "out.i_q_ref_A")
+    outputs += ("out.following_error_m", "out.pos_ref_m")
+    run = simulate_program(axis, SAMPLE, settle_s=0.0, preroll_s=0.0, record=outputs)
+    recorded = run.signals["X"]
+    messages: list[str] = []
+    start = float(run.command[0, 0])
+    slave, vr = _slave(axis_fmu, messages, {"start.table": start})
     names = ("ref.pos_ref_m", "ref.vel_ref_m_s", "ref.acc_ref_m_s2")
-    inputs = np.zeros(len(nc), dtype=[("time", float)] + [(n, float) for n in names])
-    inputs["time"] = t
-    for name, slot in zip(
-        names, (signals.REF_POS_M, signals.REF_VEL_M_S, signals.REF_ACC_M_S2), strict=True
-    ):
-        inputs[name] = nc[:, slot]
-    start = float(ref[0, signals.REF_POS_M])
-    result = simulate_fmu(
-        str(axis_fmu),
-        stop_time=t[-1],
-        output_interval=1e-3,
-        input=inputs,
-        start_values={"start.table": start},
-    )
-    engine = build_engine(axis, output_period_s=h)
-    # the FMU's start state: the state at rest at 1 m, times the start position (the engine's
-    # initial_state rounds the ratios in another order; at an encoder count's edge that matters)
-    engine.reset(x0=axis.plant.initial_state({"table": 1.0}) * start)
-    expected = engine.advance(len(ref), ref=ref)
-    rows = np.arange(len(result)) * dec  # the state after k ms is the row of tick 16 k
-    for name in axis.plant.state_names:
-        got, want = result[name], expected[name][rows]
-        span = max(np.abs(want).max(), 1e-300)
-        assert np.abs(got - want).max() <= 1e-12 * span, name
-    # meas and out after a step are those of its last tick
-    fe = result["out.following_error_m"][1:]
-    assert np.array_equal(fe, expected["out.following_error_m"][rows[1:] - 1])
-    assert np.ptp(result["table.s"]) > 0.03
+    got = np.empty((n, len(outputs)))
+    for j in range(n):
+        command = (run.command[j, 0], run.command_vel[j, 0], run.command_acc[j, 0])
+        slave.setReal([vr[name] for name in names], list(command))
+        got[j] = slave.getReal([vr[name] for name in outputs])
+        slave.doStep(j * 1e-3, 1e-3)
+    slave.terminate()
+    slave.freeInstance()
+    for i, name in enumerate(outputs):
+        assert np.array_equal(got[:, i], recorded[name][:n]), name
+    assert np.ptp(got[:, 0]) > 0.3  # the motor turned
+    assert messages == []
 
 
 def _slave(fmu, messages, parameters=None):
@@ -150,13 +143,69 @@ def test_a_runaway_state_is_an_fmi_error_naming_the_state(axis_fmu):
     slave.freeInstance()
 
 
-def test_a_fixed_parameter_is_refused_after_initialisation(axis_fmu):
+@pytest.mark.parametrize("name", ["table.m", "max_step", "start.table", "controller.Kv_1_s"])
+def test_a_fixed_parameter_is_refused_after_initialisation(axis_fmu, name):
     messages: list[str] = []
     slave, vr = _slave(axis_fmu, messages)
     with pytest.raises(Exception, match="fmi2SetReal failed with status 3"):
-        slave.setReal([vr["table.m"]], [150.0])
-    assert messages[-1] == "fmi2SetReal: table.m is a fixed parameter, set before initialisation"
+        slave.setReal([vr[name]], [0.5])
+    assert messages[-1] == f"fmi2SetReal: {name} is a fixed parameter, set before initialisation"
     slave.freeInstance()
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "rule"),
+    [
+        ("table.m", -5.0, "> 0 kg and finite"),
+        ("table.m", 0.0, "> 0 kg and finite"),
+        ("motor.L_d", 0.0, "> 0 H and finite"),
+        ("motor.p", 0.0, "a whole number >= 1"),
+        ("motor.p", 2.5, "a whole number >= 1"),
+        ("bus.u_0", -560.0, "> 0 V and finite"),
+        ("scale.delay_ticks", 1e9, "a whole number >= 0 and <= 15"),
+        ("guides.F_c_pos", -1.0, ">= 0 N and finite"),
+        ("screw_shaft.k_t", 0.0, "> 0 N m/rad"),
+        ("max_step", 0.0, "> 0 s and finite"),
+    ],
+)
+def test_a_non_physical_parameter_is_an_fmi_error_naming_its_range(axis_fmu, name, value, rule):
+    # the ranges are the components' own constructor checks (feed_twin.plant.slot_specs)
+    messages: list[str] = []
+    with pytest.raises(Exception, match="fmi2SetReal failed with status 3"):
+        _slave(axis_fmu, messages, {name: value})
+    assert messages[-1] == f"fmi2SetReal: {name} = {value:g}: must be {rule}"
+
+
+def test_every_parameter_has_a_unit_and_its_range_in_the_model_description(axis_fmu):
+    md = read_model_description(str(axis_fmu))
+    parameters = [v for v in md.modelVariables if v.causality == "parameter"]
+    assert [v.name for v in parameters if not v.unit] == []
+    by_name = {v.name: v for v in md.modelVariables}
+    for name, unit in [
+        ("screw_shaft.k_t", "N m/rad"),
+        ("screw_shaft.J", "kg m^2"),
+        ("axial.EA", "N"),
+        ("encoder.step", "rad"),
+        ("controller.effort_limit", "A"),
+        ("controller.vel_Kp", "A s/m"),
+        ("motor.p", "1"),
+    ]:
+        assert by_name[name].unit == unit, name
+    delay = by_name["scale.delay_ticks"]
+    assert (delay.min, delay.max) == ("0.0", "15.0")
+    assert by_name["table.m"].description == "> 0 kg and finite"
+
+
+def test_the_sources_compile_clean_as_c99_without_hidden_warnings(axis_fmu, tmp_path):
+    unzipped = Path(extract(str(axis_fmu), unzipdir=str(tmp_path / "fmu")))
+    sources = sorted((unzipped / "sources").glob("*.c"))
+    assert [p.name for p in sources] == ["feed_twin_axis.c", "fmu_glue.c"]
+    for path in sources:
+        assert "#pragma" not in path.read_text(), path.name
+        flags = ["-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-fsyntax-only"]
+        includes = ["-I", str(fmi_headers()), "-I", str(unzipped / "sources")]
+        done = subprocess.run(["cc", *flags, *includes, str(path)], capture_output=True, text=True)
+        assert (done.returncode, done.stderr) == (0, ""), path.name
 
 
 def test_the_fmu_rebuilt_from_its_sources_by_fmpy_gives_the_same_result(tmp_path):
@@ -178,3 +227,39 @@ def test_the_fmu_rebuilt_from_its_sources_by_fmpy_gives_the_same_result(tmp_path
     rebuilt = simulate_fmu(str(unzipped), stop_time=0.2, output_interval=1e-3, input=ramp)
     assert np.array_equal(rebuilt["table.s"], shipped["table.s"])
     assert shipped["table.s"][-1] > 1e-3  # it moved
+
+
+def test_libcosim_runs_the_fmu_to_the_bits_of_simulate_program(axis_fmu):
+    # a second importer (libcosim, on the FMI Library): the program's commands through its
+    # override manipulator, one 1 ms step each; after step j the states and sensor samples are
+    # those simulate_program records at the next NC sample
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimManipulator import CosimManipulator
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+
+    log_output_level(CosimLogLevel.ERROR)
+    axis = load_axis_config(AXIS)
+    n = 300
+    outputs = (*axis.plant.state_names, "meas.x_scale_m", "meas.theta_enc_rad")
+    run = simulate_program(axis, SAMPLE, settle_s=0.0, preroll_s=0.0, record=outputs)
+    execution = CosimExecution.from_step_size(step_size=1_000_000)  # [ns]
+    slave = CosimLocalSlave(fmu_path=str(axis_fmu), instance_name="axis")
+    index = execution.add_local_slave(local_slave=slave)
+    vr = {v.name.decode(): v.reference for v in execution.slave_variables(index)}
+    observer = CosimObserver.create_last_value()
+    execution.add_observer(observer=observer)
+    override = CosimManipulator.create_override()
+    execution.add_manipulator(manipulator=override)
+    execution.real_initial_value(index, vr["start.table"], float(run.command[0, 0]))
+    names = ("ref.pos_ref_m", "ref.vel_ref_m_s", "ref.acc_ref_m_s2")
+    got = np.empty((n, len(outputs)))
+    for j in range(n):
+        command = [run.command[j, 0], run.command_vel[j, 0], run.command_acc[j, 0]]
+        override.slave_real_values(index, [vr[name] for name in names], command)
+        assert execution.step(step_count=1)
+        got[j] = observer.last_real_values(index, [vr[name] for name in outputs])
+    for i, name in enumerate(outputs):
+        assert np.array_equal(got[:, i], run.signals["X"][name][1 : n + 1]), name
+    assert np.ptp(got[:, outputs.index("table.s")]) > 1e-3  # it moved

@@ -18,6 +18,7 @@ from native_support import ROOT
 from feed_twin.cli import main as cli_main
 from feed_twin.control.layout import build_cascade, with_mode
 from feed_twin.core import signals
+from feed_twin.linuxcnc.period_timing import period_timing
 from feed_twin.native.build import CModel, compile_kernel
 from feed_twin.native.emit import c_kernel
 from feed_twin.native.hal import HalcompileMissingError, find_halcompile
@@ -47,6 +48,12 @@ def test_servo_thread_steps_the_twin_one_period_per_call_as_the_engine(installed
     assert not period_error.any() and not fault.any()
     # one call per servo period, 16 base ticks each, none missed: 16, 32, 48, ...
     assert np.array_equal(ticks, 16.0 * np.arange(1, N_SAMPLES + 1))
+    # the thread's own clock beside it: one tick a period, 1 ms apart on average (late periods
+    # are caught up back to back), every period in the lateness histogram
+    assert np.array_equal(np.diff(run["clock_tick"]), np.ones(N_SAMPLES - 1))
+    timing = period_timing(run["clock_tick"], run["clock_time_s"], period_s=1e-3)
+    assert np.mean(np.diff(run["clock_time_s"])) == pytest.approx(1e-3, rel=0.05)
+    assert sum(timing.histogram) == timing.periods == N_SAMPLES
     # the sine starts at full speed (63 mm/s from rest): the drive catches up within its 2 mm
     # limit, then follows with full feed-forward within 10 um (the reversals: friction)
     assert np.abs(fe).max() < 0.5

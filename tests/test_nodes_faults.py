@@ -305,3 +305,38 @@ def test_a_hung_dds_teardown_ends_the_node_process_with_its_code() -> None:
     assert time.monotonic() - started < 15.0
     assert done.returncode == 3
     assert "teardown: DDS did not finish within 0.3 s; leaving" in done.stderr
+
+
+def test_a_stopped_node_is_slow_not_gone_and_the_run_completes(config: Path) -> None:
+    """SIGSTOP holds a node's heartbeats (as a host that does not schedule it for seconds
+    would): its peers say once that it is slow, its process lives, and the run completes."""
+    name = "stop_gcode"
+    logs = config.parent / "bags" / f"{name}.logs"
+    with reserve_domain_id() as domain:
+        proc = start_sample_run(config, name, domain.domain_id)
+        try:
+            wait_for_progress(proc, logs / "sim.log", 1.0)
+            pid = node_pids(config)["gcode"]
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(2.5)
+            os.kill(pid, signal.SIGCONT)
+            out, err = proc.communicate(timeout=180)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)
+    assert proc.returncode == 0, err[-3000:]
+    text = (logs / "sim.log").read_text(errors="replace")
+    slow = re.search(
+        r"node '/cnc/x/gcode' is slow: no heartbeat for (\S+) s, its process lives", text
+    )
+    assert slow is not None, text[-3000:]
+    assert float(slow[1]) < 2.0  # said when the timeout passed, not at the end
+    assert text.count("[cnc.x.sim]: node '/cnc/x/gcode' is slow") == 1  # said once
+    assert "node '/cnc/x/gcode' beats again after " in text
+    assert "is gone" not in text
+    assert "feed-twin run: slow, not gone (the run went on): '/cnc/x/gcode' (" in err
+    # the whole program, without a gap
+    states = BagReader(config.parent / "bags" / name).columns("/cnc/x/state", ["header.stamp"])
+    np.testing.assert_allclose(np.diff(states["header.stamp"]), 1e-3, atol=1e-9)
+    assert states["header.stamp"].size > 7000, last_json(out)

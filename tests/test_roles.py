@@ -97,6 +97,15 @@ def _spelled_topics(path: Path, names: set[str]) -> list[str]:
         if k.arg in ("path", "origin")
     }
     inside_f |= entity
+    # in a module that logs to Rerun, the keys of a dict are entity paths ({"/position/command": x})
+    if any(
+        isinstance(n, ast.Import | ast.ImportFrom)
+        and any(a.name.split(".")[0] == "rerun" for a in n.names)
+        or isinstance(n, ast.ImportFrom)
+        and (n.module or "").split(".")[0] == "rerun"
+        for n in ast.walk(tree)
+    ):
+        inside_f |= {id(k) for n in ast.walk(tree) if isinstance(n, ast.Dict) for k in n.keys}
     found = []
     for node in ast.walk(tree):
         if isinstance(node, ast.JoinedStr) and len(node.values) > 1:

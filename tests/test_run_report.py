@@ -16,6 +16,10 @@ from feed_twin.nodeset.summary import json_line
 RAW = re.compile(r"\b(nan|NaN|None|inf)\b|<\w|\d\.\d{7,}")
 
 
+INTRUDER = "node '/intruder' (publisher gid 01.0f)"
+FOREIGN = {"/cnc/x/command": {"messages": 3, "reasons": {"bad tag": 3}, "publishers": [INTRUDER]}}
+
+
 def _paced() -> RunTiming:
     late = [0.0001, 0.0002, 0.0004, 0.0031]  # [s]; one over the 1 ms period
     return RunTiming.from_report(
@@ -51,7 +55,13 @@ def test_every_mode_formats_the_same_fields_with_units_and_no_raw_values():
             reason="node gone",
             timing=_paced(),
             figure_lines=("peak current:          1.00 A",),
-            foreign_messages={"/cnc/x/state": 12},
+            foreign_messages={
+                "/cnc/x/state": {
+                    "messages": 12,
+                    "reasons": {"unsigned": 12},
+                    "publishers": [INTRUDER],
+                }
+            },  # fmt: skip
             ros_domain=17,
             bag_recovered_messages=40,
             bag="bags/b",
@@ -69,7 +79,8 @@ def test_every_mode_formats_the_same_fields_with_units_and_no_raw_values():
     assert "not paced by the wall clock" in reports[0].format()
     shadow = reports[1].format()
     assert "p50 0.300 ms, p99 3.019 ms, max 3.100 ms; missed steps 1" in shadow
-    assert "/cnc/x/state: 12" in shadow and "ROS domain:           17" in shadow
+    assert f"/cnc/x/state: 12 dropped, from {INTRUDER}" in shadow
+    assert "ROS domain:           17" in shadow
     assert "bags/b (incomplete: 40 messages recovered)" in shadow
     assert "interrupted" in reports[2].format() and reports[2].interrupted
 
@@ -80,19 +91,21 @@ def test_json_is_the_same_object_strict_and_keeps_the_earlier_keys():
         exit_code=0,
         timing=_paced(),
         figures={"cycle_time_s": 1.5, "current_peak_A": math.nan},
-        foreign_messages={"/cnc/x/command": 3},
+        foreign_messages=FOREIGN,
     )
     record = json.loads(json_line(report.as_dict()))
     for key in ("exit_code", "interrupted", "bag", "rrd", "logs", "reason", "timing_steps"):
         assert key in record
     assert record["current_peak_A"] is None  # NaN is null in strict JSON
-    assert record["foreign_messages"] == {"/cnc/x/command": 3}
+    assert record["foreign_messages"] == FOREIGN
     assert record["timing_missed_steps"] == 1 and record["mode"] == "axis nodes"
 
 
 def test_the_report_is_frozen_with_its_mappings():
-    report = RunReport(mode="axis nodes", exit_code=0, foreign_messages={"/a/b/state": 1})
+    report = RunReport(mode="axis nodes", exit_code=0, foreign_messages=FOREIGN)
     with pytest.raises(TypeError):
-        report.foreign_messages["/a/b/state"] = 2  # type: ignore[index]
+        report.foreign_messages["/a/b/state"] = {}  # type: ignore[index]
+    with pytest.raises(TypeError):
+        report.foreign_messages["/cnc/x/command"]["messages"] = 2  # type: ignore[index]
     with pytest.raises(ValueError, match="mode = '': must name the run's mode"):
         RunReport(mode="", exit_code=0)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -218,11 +219,18 @@ def test_diagnose_names_the_raised_friction_in_the_run_bag(worn, tmp_path) -> No
     the column map the run wrote), after the friction change: it names the doubled Coulomb
     friction and nothing else."""
     j, config = worn["json"], worn["config"]
+    # the shadow's summary gives the command: this bag, its config and column map, the segment
+    # from the first warning on
+    command = shlex.split(j["shadow_diagnose"])
+    assert command[:3] == ["feed-twin", "diagnose", j["bag"]]
+    assert command[command.index("--config") + 1] == str(config)
+    assert command[command.index("--map") + 1] == f"{j['bag']}_map.yaml"
+    start, _ = map(float, command[command.index("--segment") + 1].split(":"))
+    assert RAISE_AT_S < start < RAISE_AT_S + 2.0
     out = tmp_path / "diagnosis"
+    command[command.index("--out") + 1] = str(out)
     done = subprocess.run(
-        [sys.executable, "-m", "feed_twin.cli", "diagnose", j["bag"], "--config", str(config),
-         "--map", f"{j['bag']}_map.yaml", "--segment", f"{RAISE_AT_S + 0.5}:5.6",
-         "--out", str(out)],
+        [sys.executable, "-m", "feed_twin.cli", *command[1:]],
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-4000:]

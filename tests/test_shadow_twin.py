@@ -282,6 +282,32 @@ def test_without_measured_effort_the_fe_deviation_warns_and_a_position_effect_is
     assert settled[-1].message.endswith("um, effort deviation RMS +0 N since start")
 
 
+def test_a_model_gap_from_the_start_is_said_once_and_is_not_an_alarm(doc, config) -> None:
+    # a controller whose servo is not the twin's (LinuxCNC's HAL loop beside the twin's
+    # cascade): its following error differs by 0.5 ms of lag, 5 um of offset and 20 um per
+    # m/s^2 from the first sample on, and it reports no effort
+    run = machine_run(doc, 14.0)
+    a = np.gradient(run["v"], T)
+    run["xm"] = run["xm"] - (5e-6 + 5e-4 * run["v"] + 2e-5 * a)
+    run["em"] = np.full_like(run["em"], np.nan)
+    shadow = ShadowTwin(
+        Twin.compile(doc), config, command_velocity=True, travel_m=0.3, measured_effort=False
+    )
+    stream_through(shadow, run)
+    verdicts = shadow.health.verdicts
+    gaps = [v for v in verdicts if v.effect == "model_gap"]
+    assert len(gaps) == 1 and gaps[0].level == WARN
+    assert gaps[0].message.startswith("model gap from the start: FE deviation RMS ")
+    assert "feed-twin diagnose <this run's bag> --config <axis config> --out <dir>" in (
+        gaps[0].message
+    )
+    # the gap is learnt: offset and lag recovered, and no alarm after it
+    gap = shadow.health.gap_model
+    assert gap is not None and gap[1] == pytest.approx(5e-4, rel=0.05)
+    later = [v for v in verdicts if v is not gaps[0]]
+    assert later and all(v.level == OK for v in later), later[-1].message
+
+
 def test_a_measurement_that_never_comes_neither_stalls_nor_grows(doc, config, clean) -> None:
     shadow = shadow_of(doc, config)
     rows = 0

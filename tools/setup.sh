@@ -89,9 +89,10 @@ check_tools() {
     die "missing Debian package(s) ${missing[*]}: run 'sudo apt-get install ${missing[*]}'"
 }
 
-# Nice to have for the tests (Rerun's headless screenshots render with Vulkan on lavapipe).
+# Nice to have for the tests: Rerun's headless screenshots render with Vulkan on lavapipe, and
+# the live viewer's test loads its web page in a headless Chromium (driven by Playwright).
 optional_packages() {
-    local -a want=(mesa-vulkan-drivers) absent=()
+    local -a want=(mesa-vulkan-drivers chromium) absent=()
     local pkg
     for pkg in "${want[@]}"; do
         dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" ||
@@ -102,7 +103,7 @@ optional_packages() {
         say "installing Debian packages for the tests: ${absent[*]}"
         apt_install "${absent[@]}"
     else
-        say "note: not installing ${absent[*]} (not root); headless Rerun screenshots need it"
+        say "note: not installing ${absent[*]} (not root); the headless screenshot and browser tests need them"
     fi
 }
 

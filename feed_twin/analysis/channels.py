@@ -45,6 +45,8 @@ def residuals(run: MeasuredRun, out: SimOutputs, row: int = 0, *, start: int = 0
     name = run.effort_name
     if name is not None and out.effort is not None:
         re = _from(run[name] - out.effort[row], start)
+        if run.effort_blind is not None:
+            re = np.where(run.effort_blind, 0.0, re)  # no evidence there (analysis.visibility)
     return re, rp
 
 
@@ -109,8 +111,11 @@ def weighted_channels(
     """The fit's channels from the first sample that is evidence (`start`), each weighted by
     its noise level estimated at the model `out`: the RMS of its residual there, floored by its
     sample noise (analysis.significance)."""
+    seen = 1.0 if run.effort_blind is None else max(float(np.mean(~run.effort_blind[start:])), 1e-3)
     sigma = {
-        k: max(float(np.sqrt(np.mean(r[start:] ** 2))), floors[k])
+        k: max(
+            float(np.sqrt(np.mean(r[start:] ** 2) / (seen if k == "effort" else 1.0))), floors[k]
+        )
         for k, r in channel_residuals(run, out, start=start).items()
     }
     name = run.effort_name
@@ -124,4 +129,5 @@ def weighted_channels(
         voltage_q=run[VOLTAGE_Q] if "voltage" in sigma else None,
         scale_voltage=sigma.get("voltage", 1.0),
         free_offset=run.position_offset_free,
+        effort_weight=None if run.effort_blind is None else (~run.effort_blind).astype(float),
     )

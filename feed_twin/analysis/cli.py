@@ -1,13 +1,17 @@
 """`feed-twin diagnose` and `feed-twin simulate`: the discrepancy workflow from the shell.
 
     feed-twin diagnose MEASURED --config NOMINAL [--map MAP] [--program PROGRAM]
-                       [--validate OTHER | --repetitions] [--segment T0:T1] --out DIR
+                       [--validate OTHER[:T0:T1] | --repetitions] [--segment T0:T1]
+                       [--rate HZ] --out DIR
 
 With --repetitions, --program names one run of the program: it is placed on each repetition.
     feed-twin simulate --config MODEL --measured MEASURED [--map MAP] [--program PROGRAM]
                        [--segment T0:T1] --out traces.csv
 
 Without --map, a file `<MEASURED stem>_map.yaml` next to the data is used if it exists.
+--rate HZ: the rows were written at HZ and the time is their index (a monitoring log without
+a time column; the same as `time: {index: true, rate_hz: HZ}` in the map). --segment and the
+`:T0:T1` of --validate cut a record before its plausibility checks, which see only that part.
 `diagnose` writes DIR/report.md, DIR/report.json, DIR/model.yaml, PNG plots and DIR/diagnose.rrd
 and prints its progress. `simulate` writes t_s and, for every canonical signal the map provides,
 the measured `<name>` and the simulated `sim_<name>` (plus `sim_` columns of the signals the
@@ -38,14 +42,22 @@ from feed_twin.io.measured import (  # noqa: E402
     MeasuredRun,
     load_measured,
     parse_segment,
-    segment,
 )
+
+# The files whose presence marks a directory as an earlier diagnosis's (analysis/report.py).
+REPORT_FILES = ("report.md", "report.json", "model.yaml", "diagnose.rrd")
 
 
 def _check_out(out: Path, *, directory: bool) -> None:
     """An --out that names the wrong kind of thing is refused before any work is done."""
     if directory and out.exists() and not out.is_dir():
         raise MeasuredDataError(f"--out {out}: is an existing file; name a directory")
+    written = [name for name in REPORT_FILES if directory and (out / name).exists()]
+    if written:
+        raise MeasuredDataError(
+            f"--out {out}: holds a report already ({', '.join(written)}); choose another "
+            "directory, nothing was written"
+        )
     if not directory and out.is_dir():
         raise MeasuredDataError(f"--out {out}: is a directory; name the CSV file to write")
 
@@ -61,6 +73,19 @@ def _map_for(measured: Path, given: str | None) -> Path:
     )
 
 
+def split_validate(text: str) -> tuple[str, str | None]:
+    """`FILE[:T0:T1]` -> (FILE, 'T0:T1' or None): the part of a validation record to use."""
+    head, sep, t1 = text.rpartition(":")
+    path, sep0, t0 = head.rpartition(":")
+    if sep and sep0 and path:
+        try:
+            _ = (float(t0), float(t1))
+        except ValueError:
+            return text, None
+        return path, f"{t0}:{t1}"
+    return text, None
+
+
 def _load(
     measured: str,
     map_path: str | None,
@@ -69,13 +94,14 @@ def _load(
     window: str | None = None,
     *,
     command: bool = True,
+    rate_hz: float | None = None,
 ) -> MeasuredRun:
-    """The record, cut to `window`, with the program placed on it; `command=False`: the
-    command may still be missing (a program placed later, on each repetition)."""
+    """The record, cut to `window` (before its plausibility checks), with the program placed
+    on it; `command=False`: the command may still be missing (a program placed later, on each
+    repetition)."""
     path = Path(measured)
-    run = load_measured(path, _map_for(path, map_path))
-    if window is not None:
-        run = segment(run, *parse_segment(window))
+    cut = None if window is None else parse_segment(window)
+    run = load_measured(path, _map_for(path, map_path), rate_hz=rate_hz, window=cut)
     if program is not None:
         run = _placed(run, program, model)
     if command and "pos_cmd_m" not in run and "vel_cmd_m_s" not in run:
@@ -101,10 +127,15 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, help="nominal model YAML")
     parser.add_argument("--map", help="column map YAML (default: <measured stem>_map.yaml)")
     parser.add_argument("--program", help="G-code that ran, when the record has no command")
-    parser.add_argument("--validate", help="a second measured run to validate the result on")
+    parser.add_argument(
+        "--validate",
+        help="a second measured run to validate the result on, FILE or FILE:t0:t1 (a part of "
+        "it; the same file as the record validates on another part of it)",
+    )
     parser.add_argument(
         "--segment", help="identify on the part t0:t1 [s] of the record only (e.g. 2.5:14)"
     )
+    _rate_argument(parser)
     parser.add_argument(
         "--repetitions",
         action="store_true",
@@ -115,9 +146,10 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
 
 
 def main_diagnose(args: argparse.Namespace) -> int:
+    from feed_twin.analysis import wording
     from feed_twin.analysis.diagnose import diagnose, write_model
     from feed_twin.analysis.placed import diagnose_program, place
-    from feed_twin.analysis.report import write_report
+    from feed_twin.analysis.report_files import write_report
     from feed_twin.analysis.twin import ModelDoc
 
     def progress(text: str) -> None:
@@ -132,10 +164,14 @@ def main_diagnose(args: argparse.Namespace) -> int:
         # with --program the runs are placed here and, once more, by diagnose_program
         # (analysis/placed.py): a program that does not fit is said before anything is written
         unplaced = program is None
-        run = _load(args.measured, args.map, None, doc, args.segment, command=unplaced)
+        rate = args.rate
+        run = _load(
+            args.measured, args.map, None, doc, args.segment, command=unplaced, rate_hz=rate
+        )
         other = None
         if args.validate:
-            other = _load(args.validate, args.map, None, doc, command=unplaced)
+            path, part = split_validate(args.validate)
+            other = _load(path, args.map, None, doc, part, command=unplaced, rate_hz=rate)
         more: list[MeasuredRun] = []
         if args.repetitions:
             # the program file holds one run of what the record repeats: placed on each
@@ -170,18 +206,23 @@ def main_diagnose(args: argparse.Namespace) -> int:
         diagnosis = _validate_more(diagnosis, final_doc, more, progress)
     write_model(final_doc, model_path, diagnosis.effects)
     written = write_report(diagnosis, out, v_m_s=motion.v_m_s)
+    from feed_twin.plant.slot_specs import with_unit
+
     progress(diagnosis.verdict)
     for e in diagnosis.effects:
-        progress(f"  {e.name}: {e.parameters} ({100 * e.explained_fraction:.1f} % of the cost)")
+        values = ", ".join(with_unit(k, v) for k, v in e.parameters.items())
+        progress(f"  {e.name}: {values} ({100 * e.explained_fraction:.3g} % of the cost)")
     b, a = diagnosis.before, diagnosis.after
     progress(
-        f"FE deviation RMS {b.fe_dev_rms_m * 1e6:.3f} -> {a.fe_dev_rms_m * 1e6:.3f} um, "
-        f"effort rel. error {b.effort_rel_err_pct} -> {a.effort_rel_err_pct} %"
+        f"FE deviation RMS {b.fe_dev_rms_m * 1e6:.3g} -> {a.fe_dev_rms_m * 1e6:.3g} um, "
+        f"effort rel. error {wording.percent(b.effort_rel_err_pct)} -> "
+        f"{wording.percent(a.effort_rel_err_pct)}"
     )
     if diagnosis.validation is not None:
         v = diagnosis.validation["after"]
         progress(
-            f"validation: position {v['pos_rel_err_pct']:.4g} %, effort {v['effort_rel_err_pct']} %"
+            f"validation: position {wording.percent(v['pos_rel_err_pct'])}, effort "
+            f"{wording.percent(v['effort_rel_err_pct'])}"
         )
     progress("wrote " + ", ".join(str(p) for p in written + [model_path]))
     return 0
@@ -239,7 +280,17 @@ def configure_simulate(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", help="column map YAML (default: <measured stem>_map.yaml)")
     parser.add_argument("--program", help="G-code that ran, when the record has no command")
     parser.add_argument("--segment", help="simulate the part t0:t1 [s] of the record only")
+    _rate_argument(parser)
     parser.add_argument("--out", required=True, help="CSV file to write")
+
+
+def _rate_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--rate",
+        type=float,
+        metavar="HZ",
+        help="the record has no time column: its rows were written at HZ (time = row / HZ)",
+    )
 
 
 def simulate_traces(run: MeasuredRun, doc) -> dict[str, np.ndarray]:
@@ -276,7 +327,7 @@ def main_simulate(args: argparse.Namespace) -> int:
     try:
         _check_out(Path(args.out), directory=False)
         doc = ModelDoc.load(args.config)
-        run = _load(args.measured, args.map, args.program, doc, args.segment)
+        run = _load(args.measured, args.map, args.program, doc, args.segment, rate_hz=args.rate)
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin simulate: {exc}", file=sys.stderr)
         return 2

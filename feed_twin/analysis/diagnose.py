@@ -64,7 +64,14 @@ from feed_twin.analysis.rounds import (
 )
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.analysis.verdict import Leftover, signature, verdict
+from feed_twin.analysis.visibility import (
+    assess,
+    force_constant_correlation,
+    smooth_staircases,
+    with_floor,
+)
 from feed_twin.io.measured import EFFORT_UNITS, MeasuredRun
+from feed_twin.plant.slot_specs import with_unit
 
 __all__ = ["Options", "check_effort_sign", "diagnose", "write_model"]
 
@@ -139,15 +146,29 @@ def diagnose(
     clock = time.perf_counter()
     timings: dict[str, float] = {}
     notes = list(run.warnings)
+    raw = run
+    run, smoothed = smooth_staircases(run)
     drive, twin, out0 = _simulate_nominal(run, nominal, progress)
     timings["nominal_s"] = time.perf_counter() - clock
     check_effort_sign(run, out0)
+    # what the record can show (analysis.visibility): said before fitting, and what it cannot
+    # show is not searched
+    vis = assess(run, twin, drive.pos_ref_m, out0, raw=raw)
+    if vis.blind is not None:
+        run = dataclasses.replace(run, effort_blind=vis.blind)
+    said = [*smoothed, *vis.lines()]
+    kt = force_constant_correlation(run, out0, drive.vel_ref_m_s)
+    if kt is not None and "torque_constant_error" not in vis.unseen_names:
+        said.append(kt)
+    for line in said:
+        progress(line)
+    notes.extend(smoothed)
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
     before = run_metrics(run, out0)
     stride = max(1, len(run.t_s) // opts.fit_samples)
     # the first samples of a trace that averages are not evidence (Twin.first_evidence)
     start = twin.first_evidence(drive)
-    floors = noise_floors(run, out0, start=start)
+    floors = with_floor(noise_floors(run, out0, start=start), vis)
     meas = weighted_channels(run, out0, stride, floors, start=start)
     motion = _motion(run, twin, out0)
     re0, rp0 = residuals(run, out0, start=start)
@@ -174,8 +195,9 @@ def diagnose(
         progress=progress,
         notes=notes,
         start=start,
+        silent=() if vis.position_evidence else ("position",),
     )
-    ranking, unfitted = _identify(state, context)
+    ranking, unfitted = _identify(state, context, list(vis.unseen_names))
     timings["identify_s"] = time.perf_counter() - clock
     progress("appraising the final model: intervals, correlations, plausibility, drift")
     appraisal = appraise(state, context, nominal)
@@ -188,6 +210,8 @@ def diagnose(
     leftover = _leftover(run, state.outputs, floors, start, motion)
     validation, validation_traces = None, None
     if validate is not None:
+        validate, smoothed_v = smooth_staircases(validate)
+        notes.extend(f"validation: {n}" for n in smoothed_v)
         validation, validation_traces = _validate(validate, twin, state.twin, progress)
         notes.extend(validate.warnings)
     timings["total_s"] = time.perf_counter() - clock
@@ -218,6 +242,7 @@ def diagnose(
         named_not_fitted=tuple(unfitted),
         notes=tuple(notes),
         timings_s=timings,
+        visibility={**vis.as_dict(), "said": said},
     )
     return diagnosis, state.doc, motion
 
@@ -250,12 +275,13 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs) -> Motion:
     )
 
 
-def _identify(state: State, context: Context) -> tuple[list[Candidate], list[dict]]:
+def _identify(
+    state: State, context: Context, excluded: list[str]
+) -> tuple[list[Candidate], list[dict]]:
     """The rounds of ranking, fitting and testing, then the joint re-fit of what they found;
-    `state` ends with the augmented model. Returns the last ranking and the named effects that
-    could not be fitted."""
+    `state` ends with the augmented model. `excluded`: effects not searched (those the record
+    cannot show). Returns the last ranking and the named effects that could not be fitted."""
     opts = context.opts
-    excluded: list[str] = []
     ranking: list[Candidate] = []
     unfitted: list[dict] = []
     for round_no in range(1, opts.max_effects + 1):
@@ -338,7 +364,7 @@ def write_model(doc: ModelDoc, path: Path, found: tuple[FoundEffect, ...]) -> No
     header = [f"Augmented model written by feed-twin diagnose from {doc.source}."]
     header += [
         f"Added {e.name} ({e.component}): "
-        + ", ".join(f"{k} = {v:.6g}" for k, v in e.parameters.items())
+        + ", ".join(with_unit(k, v, 6) for k, v in e.parameters.items())
         for e in found
     ]
     doc.dump(path, header)

@@ -70,6 +70,8 @@ class Measured:
     # the position's zero is not known (MeasuredRun.position_offset_free): the channel's mean
     # is a free constant, fitted with every simulation
     free_offset: bool = False
+    # per-sample weight of the effort channel (0 where it is no evidence), None for all 1
+    effort_weight: np.ndarray | None = None
 
 
 def residual_vector(
@@ -84,7 +86,8 @@ def residual_vector(
         dx = dx - float(np.mean(dx))
     parts = [dx / meas.scale_x]
     if meas.effort is not None and effort_sim is not None:
-        parts.append((meas.effort[s] - effort_sim[s]) / meas.scale_effort)
+        de = (meas.effort[s] - effort_sim[s]) / meas.scale_effort
+        parts.append(de if meas.effort_weight is None else de * meas.effort_weight[s])
     if meas.voltage_q is not None and voltage_sim is not None:
         parts.append((meas.voltage_q[s] - voltage_sim[s]) / meas.scale_voltage)
     return np.concatenate(parts)

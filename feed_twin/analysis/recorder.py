@@ -50,24 +50,29 @@ DEAVERAGE_ITERATIONS = 10  # corrections of the knots (each halves a smooth sign
 def deaveraged(
     t_s: np.ndarray, means: np.ndarray, fine_t: np.ndarray, ticks: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(value, rate, second rate) on `fine_t` (ticks h apart from t_s[0], t_s[k] at index
-    k * dec) of a smooth signal whose mean over the `ticks` ticks ending at each stamp t_s[k]
-    is means[k]: a cubic spline through knots at the windows' centres, the knots corrected
-    until its window means are the record's. Interpolating the means themselves smooths the
-    signal twice once the twin's outputs are averaged too (a 50 Hz trace's accelerations, and
-    with them the effort, came out flattened: `trace_filter: mean` made fits worse)."""
+    """(value, rate, second rate) on `fine_t` (ticks h apart) of a smooth signal whose mean over
+    the `ticks` ticks ending at each stamp t_s[k] is means[k]: a cubic spline through knots at
+    the windows' centres, the knots corrected until its window means are the record's (the
+    first window too, which reaches back before the record). Interpolating the means
+    themselves smooths the signal twice once the twin's outputs are averaged too (a 50 Hz
+    trace's accelerations, and with them the effort, came out flattened: `trace_filter: mean`
+    made fits worse)."""
     from scipy.interpolate import CubicSpline
 
     h = float(fine_t[1] - fine_t[0])
     dec = round(float(t_s[1] - t_s[0]) / h) if len(t_s) > 1 else 1
     centres = t_s - 0.5 * (ticks - 1) * h
-    inside = np.clip(fine_t, centres[0], centres[-1])
-    knots = np.asarray(means, dtype=float).copy()
+    # every window on one grid: tick (ticks - 1) + k dec is the stamp t_s[k]
+    grid = t_s[0] - (ticks - 1) * h + h * np.arange((ticks - 1) + dec * (len(t_s) - 1) + 1)
+    ends = (ticks - 1) + dec * np.arange(len(t_s))
+    means = np.asarray(means, dtype=float)
+    knots = means.copy()
     spline = CubicSpline(centres, knots)
     for _ in range(DEAVERAGE_ITERATIONS):
-        seen = window_mean(spline(inside), dec, ticks)[0][: len(knots)]
-        knots += means[: len(seen)] - seen
+        c = np.concatenate(([0.0], np.cumsum(spline(grid))))
+        seen = (c[ends + 1] - c[ends + 1 - ticks]) / ticks
+        knots += means - seen
         spline = CubicSpline(centres, knots)
-    value = spline(inside)
-    moving = (fine_t >= centres[0]) & (fine_t <= centres[-1])  # held outside the knots
-    return value, spline(inside, 1) * moving, spline(inside, 2) * moving
+    inside = np.minimum(fine_t, centres[-1])  # held after the last centre
+    moving = fine_t <= centres[-1]
+    return spline(inside), spline(inside, 1) * moving, spline(inside, 2) * moving

@@ -1,4 +1,5 @@
-"""What a diagnosis writes: report.json, report.md, PNG plots and a Rerun recording.
+"""What a diagnosis reports: report.md, the JSON layout and the PNG plots (feed_twin.analysis
+.report_files writes them with diagnose.rrd into the output directory).
 
 Display units (mm, um) appear only here; every input is SI. The JSON layout is the issue's:
 `effects` is a list of `{name, evidence, parameters, explained_fraction}` in the order found,
@@ -8,7 +9,6 @@ second run was given) the metrics of the nominal and the final model on it.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +22,7 @@ import numpy as np  # noqa: E402
 
 from feed_twin.analysis.compare import Alignment, Metrics  # noqa: E402
 from feed_twin.analysis.locate import Location  # noqa: E402
+from feed_twin.plant.slot_specs import with_unit
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -88,6 +89,8 @@ class Diagnosis:
     appraisal_lines: tuple[str, ...] = ()
     # the search's cost: parameter sets simulated (in batches) and seconds up to the appraisal
     search: dict[str, float] = field(default_factory=dict)
+    # what the record can show (analysis.visibility.Visibility.as_dict, plus the lines said)
+    visibility: dict[str, Any] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -112,6 +115,7 @@ class Diagnosis:
             "search": self.search,
             "notes": list(self.notes),
             "timings_s": self.timings_s,
+            "visibility": self.visibility,
         }
 
 
@@ -141,13 +145,15 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         "",
         f"**Verdict:** {d.verdict}",
         "",
-        "## Effects found (in the order found)",
-        "",
     ]
+    if d.visibility is not None:
+        lines += ["## What this record can show", ""]
+        lines += [f"- {s}" for s in d.visibility.get("said", [])] + [""]
+    lines += ["## Effects found (in the order found)", ""]
     if not d.effects:
         lines.append(d.verdict[:1].upper() + d.verdict[1:] + ".")
     for i, e in enumerate(d.effects, 1):
-        params = ", ".join(f"{k} = {v:.5g}" for k, v in e.parameters.items())
+        params = ", ".join(with_unit(k, v) for k, v in e.parameters.items())
         lines += [
             f"{i}. **{e.name}** ({e.component}), explains "
             f"{100 * e.explained_fraction:.1f} % of the remaining residual",
@@ -289,13 +295,14 @@ def plot_signature(trace: Trace, v_m_s: np.ndarray, location: Location, path: Pa
     axes[0].set_ylabel(f"nominal residual, {unit}")
     b = location.by_direction
     axes[1].bar(b.labels, b.mean)
-    axes[1].set_ylabel("mean residual")
+    axes[1].set_ylabel(f"mean residual, {unit}")
     axes[1].set_title("by direction of motion")
     p = location.by_position
     centres = 0.5 * (np.array(p.edges[:-1]) + np.array(p.edges[1:]))
     axes[2].plot(centres * 1e3, p.mean, "o-", label="mean")
     axes[2].plot(centres * 1e3, p.rms, "s--", label="RMS")
     axes[2].set_xlabel("position [mm]")
+    axes[2].set_ylabel(f"residual, {unit}")
     axes[2].legend(fontsize=8)
     axes[2].set_title("along the screw")
     fig.tight_layout()
@@ -303,58 +310,7 @@ def plot_signature(trace: Trace, v_m_s: np.ndarray, location: Location, path: Pa
     plt.close(fig)
 
 
-def write_rerun(d: Diagnosis, path: Path) -> None:
-    """Measured and twin signals (before/after) as scalar series on the `sim_time` timeline."""
-    import rerun as rr
-
-    rec = rr.RecordingStream("feed_twin_diagnose")
-    traces = [("identification", d.before_trace, d.after_trace)]
-    if d.validation_traces is not None:
-        traces.append(("validation", *d.validation_traces))
-    for run, before, after in traces:
-        times = rr.TimeColumn("sim_time", duration=before.t_s)
-        series = {
-            f"{run}/following_error_um/measured": (before.pos_cmd_m - before.x_meas_m) * 1e6,
-            f"{run}/following_error_um/nominal": (before.pos_cmd_m - before.x_sim_m) * 1e6,
-            f"{run}/following_error_um/augmented": (after.pos_cmd_m - after.x_sim_m) * 1e6,
-        }
-        if before.effort_meas is not None and before.effort_sim is not None:
-            series[f"{run}/effort/measured"] = before.effort_meas
-            series[f"{run}/effort/nominal"] = before.effort_sim
-            if after.effort_sim is not None:
-                series[f"{run}/effort/augmented"] = after.effort_sim
-                series[f"{run}/effort_residual/augmented"] = after.effort_meas - after.effort_sim
-            series[f"{run}/effort_residual/nominal"] = before.effort_meas - before.effort_sim
-        for label, trace in (("nominal", before), ("augmented", after)):
-            if trace.u_q_meas_V is not None and trace.u_q_sim_V is not None:
-                series[f"{run}/u_q_residual_V/{label}"] = trace.u_q_meas_V - trace.u_q_sim_V
-        for entity, values in series.items():
-            rec.send_columns(
-                entity, indexes=[times], columns=rr.Scalars.columns(scalars=np.asarray(values))
-            )
-    rec.save(str(path))
-
-
-def write_report(d: Diagnosis, out_dir: Path, *, v_m_s: np.ndarray) -> list[Path]:
-    """Write report.json, report.md, the PNG plots and diagnose.rrd into out_dir."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    plots = ["identification.png"]
-    plot_traces(d.before_trace, d.after_trace, out_dir / plots[0], "identification run")
-    if d.location is not None:
-        plots.append("signature.png")
-        plot_signature(d.before_trace, v_m_s, d.location, out_dir / plots[-1])
-    if d.validation_traces is not None:
-        plots.append("validation.png")
-        plot_traces(*d.validation_traces, out_dir / plots[-1], "validation run")
-    write_rerun(d, out_dir / "diagnose.rrd")
-    (out_dir / "report.json").write_text(json.dumps(d.as_dict(), indent=2, default=_json_default))
-    (out_dir / "report.md").write_text(markdown(d, plots))
-    return [out_dir / "report.json", out_dir / "report.md", out_dir / "diagnose.rrd"] + [
-        out_dir / p for p in plots
-    ]
-
-
-def _json_default(value: Any) -> Any:
+def json_default(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from feed_twin.analysis import wording
 from feed_twin.analysis.channels import (
     channel_residuals,
     residuals,
@@ -46,6 +47,7 @@ from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.effect_api import Edit, interacting
+from feed_twin.plant.slot_specs import with_unit
 
 Progress = Callable[[str], None]
 
@@ -172,9 +174,12 @@ class Context:
     # the candidates fitted and not kept since the model last changed (not ranked again until
     # it changes: they would fit the same way)
     tried: list[str] = field(default_factory=list)
+    # channels that carry no evidence in this record (analysis.visibility): not tested
+    silent: tuple[str, ...] = ()
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
-        return channel_residuals(self.run, out, start=self.start)
+        found = channel_residuals(self.run, out, start=self.start)
+        return {k: v for k, v in found.items() if k not in self.silent}
 
 
 def run_round(
@@ -224,14 +229,7 @@ def run_round(
             state.doc, state.found_free(), cand, ctx.drive, meas, opts.max_evaluations
         )
         if isinstance(tried, str):
-            ctx.notes.append(tried)
-            unfitted.append(
-                {
-                    "name": cand.name,
-                    "evidence": evidence(cand, unit_of(ctx.unit_twin, cand)),
-                    "reason": tried,
-                }
-            )
+            _not_fitted(ctx, cand, tried, unfitted)
             excluded.append(cand.name)
             continue
         edit, alone, new_twin, result = tried
@@ -251,6 +249,24 @@ def run_round(
         trials.append((cand, edit, alone, new_twin, result))
     if not trials:
         return ranking, True
+    for verdict, cand, edit, alone, new_twin, result in _judged(state, ctx, trials):
+        if verdict.significant:
+            _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
+            excluded.append(cand.name)
+            # the model changed: the rivals tried so far are ranked again on its residual (a
+            # backlash tried beside the Coulomb force that hid it is found once that is in)
+            ctx.tried.clear()
+            _reexamine(state, ctx, meas)
+            return ranking, True
+        ctx.notes.append(
+            f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
+        )
+    # the model did not change: the rivals would fit the same way next round
+    return ranking, True
+
+
+def _judged(state: State, ctx: Context, trials: list) -> list:
+    """The trials that are findings, each with its test against the model now, best first."""
     # each trial's test against the model now; the best by an information criterion on the
     # likelihood ratio (module docstring) that passes the test is kept (a drive gain that bends
     # the position at the effort's expense must not hide the holding force fitted beside it)
@@ -288,22 +304,7 @@ def run_round(
         for j, after in zip(judged, afters, strict=True)
     ]
     order = sorted(range(len(judged)), key=lambda k: scores[k], reverse=True)
-    for verdict, cand, edit, alone, new_twin, result in (judged[k] for k in order):
-        if verdict.significant:
-            _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
-            excluded.append(cand.name)
-            if result.message.endswith(AT_EDGE):  # a record slot's search said so
-                ctx.notes.append(f"{cand.name}: {result.message}")
-            # the model changed: the rivals tried so far are ranked again on its residual (a
-            # backlash tried beside the Coulomb force that hid it is found once that is in)
-            ctx.tried.clear()
-            _reexamine(state, ctx, meas)
-            return ranking, True
-        ctx.notes.append(
-            f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
-        )
-    # the model did not change: the rivals would fit the same way next round
-    return ranking, True
+    return [judged[k] for k in order]
 
 
 # the price of one added parameter in the likelihood ratio: the test's own threshold for one
@@ -361,6 +362,13 @@ def _no_feed_axis(name: str, edit: Edit, result) -> str | None:
     return None
 
 
+def _not_fitted(ctx: Context, cand: Candidate, why: str, unfitted: list[dict]) -> None:
+    """A candidate the model cannot carry: said, and kept as named but not fitted."""
+    ctx.notes.append(why)
+    evidence_ = evidence(cand, unit_of(ctx.unit_twin, cand))
+    unfitted.append({"name": cand.name, "evidence": evidence_, "reason": why})
+
+
 def _collapsed_in_fit(state: State, edit: Edit, alone: list[FreeParameter], result) -> bool:
     """The fit took the new effect's size parameters back to within COLLAPSE of the values
     without it, from where the ranking's weights started them: what the fit gained came from
@@ -412,8 +420,10 @@ def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
         )
     )
     state.doc, state.twin, state.outputs, state.cost = doc, new_twin, result.outputs, result.cost
-    shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in explained_by.items())
-    ctx.progress(f"  added {cand.name}: {params}; it removed {shares} residual energy")
+    values = ", ".join(with_unit(k, v) for k, v in params.items())
+    ctx.progress(f"  added {cand.name}: {values}; it {wording.shares(explained_by)}")
+    if result.message.endswith(AT_EDGE):  # a record slot's search said so
+        ctx.notes.append(f"{cand.name}: {result.message}")
 
 
 def drop_collapsed(state: State, ctx: Context, when: str) -> None:

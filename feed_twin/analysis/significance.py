@@ -125,12 +125,13 @@ class Verdict:
         return max(self.explained, key=self.explained.__getitem__)
 
     def words(self) -> str:
-        shares = ", ".join(f"{100 * v:.1f} % of the {k}" for k, v in self.explained.items())
+        from feed_twin.analysis.wording import shares
+
         worse = f", worse in the {self.own} residual it was named in" if self.worsens_own else ""
         on = f" in the {self.dominant} channel, which it dominates" if self.dominant else ""
         return (
-            f"removes {shares} residual energy "
-            f"(LR = {self.likelihood_ratio:.3g}{on}, p = {self.p_value:.2g}){worse}"
+            f"{shares(self.explained)} (LR = {self.likelihood_ratio:.3g}{on}, "
+            f"p = {self.p_value:.2g}){worse}"
         )
 
 

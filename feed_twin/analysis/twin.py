@@ -18,6 +18,7 @@ for the phase-current ADC: the fitting twin's CurrentSensor has neither rounding
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Mapping, Sequence
@@ -40,9 +41,13 @@ from feed_twin.analysis.model_doc import (
 from feed_twin.analysis.recorder import deaveraged, delayed, start_velocity, window_mean
 from feed_twin.core import signals
 from feed_twin.core.config import ConfigError
-from feed_twin.io.measured import MeasuredDataError, MeasuredRun, PlannedCommand
+from feed_twin.io.measured import PERIOD_RTOL, MeasuredDataError, MeasuredRun, PlannedCommand
 
+START_SAMPLES = 8  # the first trace samples a start is read off (Twin._started)
 SMOOTH_SENSOR_STEP = 1e-12  # [rad or m] sensor step of the fitting twin (see module docstring)
+# [s] a record sampled slower than this (a monitoring log) has its command interpolated by a
+# smooth cubic between its samples (Twin._inputs); faster traces, linearly (kept as they were)
+SLOW_COMMAND_S = 0.02
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -65,6 +70,9 @@ class Drive:
     # the command at the NC's own period (a program planned for the record): the setpoints
     # are taken from it instead of from the record's samples of pos_ref_m .. acc_ref_m_s2
     plan: PlannedCommand | None = None
+    # the measured position's samples: a trace of window means starts the twin from the
+    # position and velocity they are the means of (Twin._started)
+    x_meas_m: np.ndarray | None = None
 
     @classmethod
     def at_rest(
@@ -127,6 +135,7 @@ def drive_from_run(run: MeasuredRun) -> Drive:
         trace_mean=run.trace_filter == "mean",
         effort_actual=run.effort_sample == "actual",
         plan=run.plan,
+        x_meas_m=run["pos_meas_m"],
     )
 
 
@@ -230,10 +239,10 @@ class Twin:
         h = self.base_period_s
         period = float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
         dec = round(period / h)
-        if dec < 1 or abs(dec * h - period) > 1e-6 * period:
+        if dec < 1 or abs(dec * h - period) > PERIOD_RTOL * period:
             raise MeasuredDataError(
-                f"the record's sample period {period!r} s is not a whole multiple of the "
-                f"model's base period {h!r} s"
+                f"the record's sample period {period:.6g} s is not a whole multiple of the "
+                f"model's base period {h:.6g} s (within {PERIOD_RTOL:g} of it)"
             )
         n = len(drive.t_s) * dec
         hold = np.repeat  # known inputs are held between record samples
@@ -257,6 +266,8 @@ class Twin:
                 # each command sample is a mean over the trace's window: the smooth command
                 # whose window means they are (recorder.deaveraged)
                 set_nc_reference(ref, *deaveraged(drive.t_s, drive.pos_ref_m, fine, window_ticks))
+            elif period > SLOW_COMMAND_S:
+                set_nc_reference(ref, *_smooth_command(fine, drive.t_s, drive.pos_ref_m))
             else:
                 set_nc_reference(
                     ref,
@@ -422,8 +433,9 @@ class Twin:
             groups.setdefault(self._command_window(drive, slots), []).append(j)
         for window, members in groups.items() if len(rows) else ():
             ref, ext, n, dec = self._cached_inputs(drive, window)
-            x0 = self._x0(drive, P[rows[0]])
-            cs0 = self.start_controller(drive, ref)
+            start = self._started(drive, window)
+            x0 = self._x0(start, P[rows[0]])
+            cs0 = self.start_controller(start, ref)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
             if drive.effort_actual:
@@ -445,6 +457,21 @@ class Twin:
         ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
         declared = round(drive_period(drive) / h) if drive.trace_mean else 1
         return None if drive.plan is not None or ticks == declared else ticks
+
+    def _started(self, drive: Drive, window: int | None) -> Drive:
+        """The drive with the twin's start read off a trace of window means: the position and
+        velocity at the first stamp of the smooth motion whose means the samples are (the
+        first sample is the position half a window earlier: at full speed the twin started
+        behind its command and its start transient outlasted Twin.first_evidence)."""
+        h = self.base_period_s
+        dec = round(drive_period(drive) / h)
+        ticks = window if window is not None else (dec if drive.trace_mean else 1)
+        if ticks <= 1 or drive.x_meas_m is None or drive.v0_m_s == 0.0:
+            return drive
+        k = min(len(drive.t_s), START_SAMPLES)
+        fine = drive.t_s[0] + h * np.arange(dec * k)
+        x, v, _ = deaveraged(drive.t_s[:k], drive.x_meas_m[:k], fine, ticks)
+        return dataclasses.replace(drive, x0_m=float(x[0]), v0_m_s=float(v[0]))
 
     def _cached_inputs(self, drive: Drive, window: int | None):
         """Twin._inputs, kept per drive and window."""
@@ -531,6 +558,24 @@ class Twin:
         if lead is None:
             raise ConfigError(f"{self.doc.source}: controller.drive.lead_m is needed")
         return float(lead)
+
+
+def _smooth_command(
+    fine: np.ndarray, stamps: np.ndarray, pos_m: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(position, velocity, acceleration) of a slow record's command between its samples: a
+    shape-preserving cubic (PCHIP) through the positions and its derivatives. Linear pieces
+    100 ms long turn the velocity into steps at every sample, where the twin's effort is read:
+    the loop's answer to each step, not the machine's, would be compared."""
+    from scipy.interpolate import PchipInterpolator
+
+    inside = np.clip(fine, stamps[0], stamps[-1])  # held before the first and after the last
+    curve = PchipInterpolator(stamps, pos_m)
+    held = (fine < stamps[0]) | (fine > stamps[-1])
+    vel, acc = curve(inside, 1), curve(inside, 2)
+    vel[held] = 0.0
+    acc[held] = 0.0
+    return curve(inside), vel, acc
 
 
 def _pole_pairs(doc: ModelDoc) -> int | None:

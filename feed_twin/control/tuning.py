@@ -265,6 +265,11 @@ class TuningReport:
     velocity_bandwidth_hz: float | None
     position_design: PositionLoopDesign | None
     position_configured: Margins | None
+    # the gains of the config file, beside the margins they give
+    configured_current: str = ""  # e.g. "Kp = 21.33 V/A, Ti = 0.01143 s"
+    configured_velocity: str = ""
+    configured_position: str = ""
+    effort_per_m_s: str = "per m/s"  # the unit of the velocity loop's Kp
 
     def lines(self) -> list[str]:
         """Human-readable summary, one line per loop and variant."""
@@ -286,18 +291,19 @@ class TuningReport:
                 + fmt(d.margins)
             )
             out.append(
-                f"current  configured bw = {self.current_bandwidth_hz:.0f} Hz; "
-                + fmt(self.current_configured)
+                f"current  configured {self.configured_current}, "
+                f"bw = {self.current_bandwidth_hz:.0f} Hz; " + fmt(self.current_configured)
             )
         if self.velocity_design is not None:
             d = self.velocity_design
             out.append(
-                f"velocity design    Kp = {d.Kp:.4g} per m/s, Ti = {d.Ti_s:.4g} s, a = {d.a:.2f}, "
+                f"velocity design    Kp = {d.Kp:.4g} {self.effort_per_m_s}, Ti = {d.Ti_s:.4g} s, "
+                f"a = {d.a:.2f}, "
                 f"bw = {d.bandwidth_hz:.0f} Hz; " + fmt(d.margins)
             )
             out.append(
-                f"velocity configured bw = {self.velocity_bandwidth_hz:.0f} Hz; "
-                + fmt(self.velocity_configured)
+                f"velocity configured {self.configured_velocity}, "
+                f"bw = {self.velocity_bandwidth_hz:.0f} Hz; " + fmt(self.velocity_configured)
             )
         if self.position_design is not None:
             out.append(
@@ -305,7 +311,9 @@ class TuningReport:
                 f"(limited by {self.position_design.limited_by}); "
                 + fmt(self.position_design.margins)
             )
-            out.append("position configured " + fmt(self.position_configured))
+            out.append(
+                f"position configured {self.configured_position}; " + fmt(self.position_configured)
+            )
         return out
 
 
@@ -386,4 +394,18 @@ def tune_config(config: ControllerConfig, *, load_mode: LoadMode | None = None) 
         velocity_bandwidth_hz=vel_bw,
         position_design=pos_design,
         position_configured=pos_conf,
-    )
+        configured_current="" if cur is None else (
+            f"Kp = {cur.Kp_q_V_A:.4g} V/A, Ti = {cur.Ti_q_s:.4g} s"
+        ),
+        configured_velocity="" if vel is None else (
+            f"Kp = {vel.Kp:.4g} {_effort_per_m_s(cur is not None)}"
+            + ("" if vel.Ti_s is None else f", Ti = {vel.Ti_s:.4g} s")
+        ),
+        configured_position="" if pos is None else f"Kv = {pos.Kv_1_s:.4g} 1/s",
+        effort_per_m_s=_effort_per_m_s(cur is not None),
+    )  # fmt: skip
+
+
+def _effort_per_m_s(current_loop: bool) -> str:
+    """The velocity loop's gain unit: A s/m into a current loop, else drive input per m/s."""
+    return "A s/m" if current_loop else "per m/s (drive input unit)"

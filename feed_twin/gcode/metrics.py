@@ -244,7 +244,14 @@ def trajectory_figures(
     for corner in corners:
         vertex = np.array(corner.vertex_m)
         to_vertex = np.linalg.norm(pos - vertex, axis=1)
-        own = np.flatnonzero((seg == corner.index) | (seg == corner.index + 1))
+        own_seg = (seg == corner.index) | (seg == corner.index + 1)
+        if use_lines:
+            # A vertex the path passes twice (a square drawn again from the same point): a
+            # sample off both segments by more than REASSIGN_DISTANCE_M may have been given to
+            # the other visit's segments; its program line still says which corner it is at.
+            lines = (corner.line, segments[corner.index + 1].line)
+            own_seg |= np.isin(traj.line, lines) & (to_vertex < corner.zone_m)
+        own = np.flatnonzero(own_seg)
         in_zone[own[to_vertex[own] < corner.zone_m]] = True
         if len(own) == 0:
             corner_dev.append(math.nan)
@@ -291,4 +298,29 @@ def requirement_failures(figures: TrajectoryFigures, *, chord_tolerance_m: float
                 f"corner at line {corner.line} ({math.degrees(corner.angle_rad):.1f} deg): "
                 f"{dev * 1e6:.3f} um from the vertex (tolerance {corner.tolerance_m * 1e6:.3f} um)"
             )
+    return failures
+
+
+LIMIT_SLACK = 1e-6  # relative; differences of positions at rounding level stay inside
+
+
+def axis_limit_failures(
+    figures: TrajectoryFigures,
+    axes: tuple[str, ...],
+    *,
+    v_max: tuple[float, ...],
+    a_max: tuple[float, ...],
+    j_max: tuple[float, ...] | None,
+) -> list[str]:
+    """Axes whose peak velocity, acceleration or (with `j_max`) jerk, from differences of the
+    sampled positions, exceed their limits."""
+    checks = [("velocity", figures.peak_vel_m_s, v_max, "m/s")]
+    checks.append(("acceleration", figures.peak_acc_m_s2, a_max, "m/s^2"))
+    if j_max is not None:
+        checks.append(("jerk", figures.peak_jerk_m_s3, j_max, "m/s^3"))
+    failures = []
+    for kind, peaks, limits, unit in checks:
+        for axis, peak, limit in zip(axes, peaks, limits, strict=True):
+            if peak > limit * (1.0 + LIMIT_SLACK):
+                failures.append(f"axis {axis}: peak {kind} {peak:.6g} {unit} above {limit:.6g}")
     return failures

@@ -17,6 +17,7 @@ from feed_twin.gcode.metrics import TrajectoryFigures, requirement_failures, tra
 from feed_twin.gcode.trajectory import SampledTrajectory
 
 TIME_TOLERANCE = 0.05  # program times within 5 % of the reference's where the limits are the same
+JERK_TIME_LIMIT = 1.10  # a jerk-limited plan within 1.10 times an acceleration-limited one's time
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -8,8 +8,8 @@ half-width w <= 6*tol/|dU|, so that the path stays within tol of the corner (dev
 - gentle corners (chords of an arc, CAM polylines) may take whole moves (CHAIN_SHARE), so
   that neighbouring blends overlap into chains (next stage) with a continuous curvature.
 A corner is crossed at a speed whose curvature terms dU_i h' v^2 and dU_i h'' v^3 stay within
-every axis's a_max and j_max. A corner that is quicker to stop at than to round under the
-jerk limit becomes a stop. Nodes: node j is the start of move j (0..n).
+every axis's a_max and j_max. Every corner is rounded: the path stops only where the program
+says so (`NodeFlags.stop`). Nodes: node j is the start of move j (0..n).
 """
 
 from __future__ import annotations
@@ -23,9 +23,16 @@ from feed_twin.gcode.plan_limits import AxisLimits, MoveLimits
 
 BLEND_SHARE = 0.4  # largest part of a move a corner blended alone may use
 NEIGHBOUR_SHARE = 0.55  # the same for its neighbours, so that a straight piece stays between
+# With the jerk filter the straight piece holds the corner's speed T v / 2 beyond its blend:
+# the neighbours keep off more, so that it has room on short CAM moves.
+FILTER_NEIGHBOUR_SHARE = 0.3
 CHAIN_SHARE = 1.0  # elsewhere: blends may reach the neighbouring corner and overlap
 SHARP_CORNER = 0.25  # |u_out - u_in| above this (about 14 degrees) is a corner, not a curve
 COLLINEAR = 1e-12  # |u_out - u_in| below this is a straight joint, not a corner
+ZONE_SLACK = 1e-9  # share of a move below which a blend zone on it is a rounding error
+# With the jerk filter: a zone of one blend alone shorter than this share of its move (where
+# neighbouring chords differ a little) is a step of curvature, not a slope (`zone_coefficients`)
+KICK_ZONE = 0.1
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -43,73 +50,59 @@ class CornerBlends:
     """Blends at the nodes (arrays of n+1; (n+1, n_axes) for vectors)."""
 
     corner: np.ndarray  # the direction changes there
-    stop: np.ndarray  # at rest there (given, or chosen because stopping is quicker)
+    stop: np.ndarray  # at rest there (as the program says)
     alone: np.ndarray  # blended alone: not part of a chain
     w: np.ndarray  # [m] blend half-width (0: no blend)
     dU: np.ndarray  # direction change where blended, else 0
     cap: np.ndarray  # [m/s] speed cap of the corner (0 at stops)
     a_node: np.ndarray  # (n+1, n_axes) [1/m] largest |d2x/ds2| per axis around the node
     j_node: np.ndarray  # (n+1, n_axes) [1/m^2] largest |d3x/ds3| per axis around the node
+    k_node: np.ndarray  # (n+1, n_axes) [1/m] largest curvature step per axis around the node
 
 
 @dataclass(frozen=True, kw_only=True)
 class WindowStart:
-    """The first node of a window that continues committed motion (decided earlier)."""
+    """The committed context of a window that continues committed motion (decided earlier)."""
 
-    w: float  # [m] its blend half-width
-    stop: bool  # whether the path stops there
+    w: np.ndarray  # [m] blend half-widths of the listed nodes up to the first uncommitted one
+    stop: bool  # whether the path stops at that last one
 
 
 class _Blends(NamedTuple):
-    """One trial of blends for given shares (fields as in `CornerBlends`)."""
+    """Blends for given shares (fields as in `CornerBlends`)."""
 
     w: np.ndarray
     dU: np.ndarray
     cap: np.ndarray
     a_node: np.ndarray
     j_node: np.ndarray
+    k_node: np.ndarray
 
 
 def corner_blends(
     moves: MoveLimits, flags: NodeFlags, limits: AxisLimits, start: WindowStart | None
 ) -> CornerBlends:
-    """Blend every corner, stopping where that is quicker; `start` is None for a fresh path."""
+    """Blend every corner where the path does not stop; `start` is None for a fresh path."""
     n = len(moves.L)
-    first = 0 if start is None else 1
     du = np.zeros((n + 1, moves.u.shape[1]))
     du[1:n] = moves.u[1:] - moves.u[:-1]
     ndu = np.sqrt(np.einsum("ij,ij->i", du, du))
     corner = ndu >= COLLINEAR
     corner[0] = corner[n] = False
     stop = flags.stop.copy()
-    V, A, J = moves.V, moves.A, moves.J
-
-    def blends(share_in: np.ndarray, share_out: np.ndarray) -> _Blends:
-        return _blends(moves, limits, flags.tol, du, ndu, corner, stop, share_in, share_out, start)
-
-    # A tight corner is quicker to stop at than to round within the tolerance under a jerk
-    # limit; stop there when the local time estimate (with single blends) says so.
-    single = np.full(n + 1, BLEND_SHARE)
-    trial = blends(single, single)
-    if n > 1:
-        inner = slice(1, n)
-        w, cap = trial.w[inner], trial.cap[inner]
-        stop[inner] |= (w > 0.0) & (
-            corner_cost(cap, w, V, A, J, limits.jerk)
-            >= corner_cost(0.0 * cap, 0.0 * w, V, A, J, limits.jerk)
-        )
     if start is not None:
-        stop[first] = start.stop  # decided when it was committed; must not change
+        stop[len(start.w) - 1] = start.stop  # decided when it was committed; must not change
     alone = (flags.has_entries | flags.forced | (ndu > SHARP_CORNER)) & corner & ~stop
     share_in = np.full(n + 1, CHAIN_SHARE)
     share_out = np.full(n + 1, CHAIN_SHARE)
     # Next to a stop as well: a corner that ends up alone needs a body to get up to speed.
     keep_off = alone | stop
-    share_in[1:] = np.where(keep_off[:-1], NEIGHBOUR_SHARE, share_in[1:])
-    share_out[:-1] = np.where(keep_off[1:], NEIGHBOUR_SHARE, share_out[:-1])
+    neighbour = FILTER_NEIGHBOUR_SHARE if limits.window_s > 0.0 else NEIGHBOUR_SHARE
+    share_in[1:] = np.where(keep_off[:-1], neighbour, share_in[1:])
+    share_out[:-1] = np.where(keep_off[1:], neighbour, share_out[:-1])
     share_in = np.where(alone, BLEND_SHARE, share_in)
     share_out = np.where(alone, BLEND_SHARE, share_out)
-    final = blends(share_in, share_out)
+    final = _blends(moves, limits, flags.tol, du, ndu, corner, stop, share_in, share_out, start)
     return CornerBlends(
         corner=corner,
         stop=stop,
@@ -119,6 +112,7 @@ def corner_blends(
         cap=np.where(stop, 0.0, final.cap),
         a_node=final.a_node,
         j_node=final.j_node,
+        k_node=final.k_node,
     )
 
 
@@ -142,28 +136,35 @@ def _blends(
         w = np.minimum(6.0 * tol / ndu, np.minimum(share_in * L_in, share_out * L_out))
     w = np.where(corner & ~stop, w, 0.0)
     if start is not None:
-        w[1] = start.w
+        w[: len(start.w)] = start.w
     dU = np.where((w > 0.0)[:, None], du, 0.0)
-    a_s, a_e, j_s, j_e = zone_coefficients(L, w, dU)
+    a_s, a_e, j_s, j_e, kick = zone_coefficients(L, w, dU, steps=limits.window_s > 0.0)
     zero = np.zeros((1, du.shape[1]))
     # Per node: its blend runs through the end zone before it and the start zone after.
     a_node = np.maximum(np.vstack((zero, a_e)), np.vstack((a_s, zero)))
     j_node = np.maximum(np.vstack((zero, j_e)), np.vstack((j_s, zero)))
+    k_node = np.maximum(np.vstack((zero, kick)), np.vstack((kick, zero)))
     V_in = np.concatenate(([np.inf], V))
     V_out = np.concatenate((V, [np.inf]))
-    cap = np.minimum(np.minimum(V_in, V_out), limits.cruise_cap(a_node, j_node, 1.0, 1.0))
-    return _Blends(w, dU, cap, a_node, j_node)
+    cap = limits.cruise_cap(a_node, j_node, 1.0, 1.0, k_node)
+    cap = np.minimum(np.minimum(V_in, V_out), cap)
+    return _Blends(w, dU, cap, a_node, j_node, k_node)
 
 
 def zone_coefficients(
-    L: np.ndarray, w: np.ndarray, du: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Largest |d2x/ds2| and |d3x/ds3| per axis in the start and end blend zone of each move.
+    L: np.ndarray, w: np.ndarray, du: np.ndarray, *, steps: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Largest |d2x/ds2| and |d3x/ds3| per axis in the start and end blend zone of each move,
+    and its curvature steps.
 
     On move k the blends of node k (start, sigma in [0, w_k]) and node k+1 (end, sigma in
     [L - w_k+1, L]) may overlap; there d2x/ds2 = dU_k h'_k + dU_k+1 h'_k+1 is linear in
     sigma between the zone ends and d3x/ds3 = dU_k h''_k + dU_k+1 h''_k+1 is constant on
-    each part, so a few points bound them. Returns (a_start, a_end, j_start, j_end), (n, na).
+    each part, so a few points bound them. With `steps` a part of one blend alone shorter
+    than KICK_ZONE of the move (neighbouring chords of slightly different lengths) counts
+    as a curvature step K = |d3x/ds3| * its length, spread over the move (K / L in d3x/ds3;
+    the sampled jerk sees the step itself, `AxisLimits.kick_jerk`).
+    Returns (a_start, a_end, j_start, j_end, steps K), (n, na) each.
     """
     ws = w[:-1][:, None]
     we = w[1:][:, None]
@@ -185,33 +186,22 @@ def zone_coefficients(
     a_start = np.where(overlap, np.maximum(a_start, curvature(inner_end)), a_start)
     a_end = np.where(overlap, np.maximum(a_end, curvature(inner_start)), a_end)
     with np.errstate(divide="ignore", invalid="ignore"):
-        start_only = (ws > 0.0) & (np.minimum(ws, Lc - we) > 0.0)
-        end_only = (we > 0.0) & (Lc - np.maximum(ws, Lc - we) > 0.0)
+        # A zone shorter than a rounding error of the move is none (equal neighbouring chords
+        # give w_start + w_end = L up to rounding, and no stretch of a single blend between).
+        slack = ZONE_SLACK * Lc
+        alone_s = np.minimum(ws, Lc - we)  # length of the start blend alone
+        alone_e = Lc - np.maximum(ws, Lc - we)
+        start_only = (ws > 0.0) & (alone_s > slack)
+        end_only = (we > 0.0) & (alone_e > slack)
         j_s = np.where(start_only, np.abs(dus) / (ws * ws), 0.0)
         j_e = np.where(end_only, np.abs(due) / (we * we), 0.0)
         j_both = np.where(overlap, np.abs(due / (we * we) - dus / (ws * ws)), 0.0)
-    return a_start, a_end, np.maximum(j_s, j_both), np.maximum(j_e, j_both)
-
-
-def corner_cost(
-    v: np.ndarray, w: np.ndarray, V: np.ndarray, A: np.ndarray, J: np.ndarray, jerk: bool
-) -> np.ndarray:
-    """Time lost at each interior corner against cruising at the neighbouring caps.
-
-    Slowing from V to v takes T(V - v) and covers (V + v)/2 * T, which at V would take
-    (V + v)/(2V) * T: the loss is T * (V - v)/(2V). The blend itself adds 2w/v - 2w/V.
-    """
-    loss = np.zeros_like(v)
-    for V_s, A_s, J_s in ((V[:-1], A[:-1], J[:-1]), (V[1:], A[1:], J[1:])):
-        dv = np.maximum(V_s - v, 0.0)
-        if jerk:
-            short = dv * J_s < A_s * A_s
-            with np.errstate(invalid="ignore"):
-                T = np.where(short, 2.0 * np.sqrt(dv / J_s), dv / A_s + A_s / J_s)
-        else:
-            T = dv / A_s
-        loss += T * dv / (2.0 * V_s)
-    V_ref = np.minimum(V[:-1], V[1:])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        blend = np.where(w > 0.0, 2.0 * w / v - 2.0 * w / V_ref, 0.0)
-    return loss + blend
+    kick = np.zeros_like(j_s)
+    if steps:
+        short_s = overlap & (alone_s <= KICK_ZONE * Lc)
+        short_e = overlap & (alone_e <= KICK_ZONE * Lc)
+        kick = np.where(short_s, j_s * alone_s, 0.0) + np.where(short_e, j_e * alone_e, 0.0)
+        j_s = np.where(short_s, 0.0, j_s)
+        j_e = np.where(short_e, 0.0, j_e)
+        j_both = j_both + kick / Lc
+    return a_start, a_end, np.maximum(j_s, j_both), np.maximum(j_e, j_both), kick

@@ -5,6 +5,11 @@ chain, which the speed profile treats as one body (or a few, cut where its local
 changes by more than CHAIN_CUT) with the axis limits shared between the curvature terms and
 s'' and s''' (`chain_limits`). A corner blended alone is a 1-D node crossed at constant speed
 over its blend. Collinear joints with equal limits are passed through.
+
+With the jerk filter (`jerk_filter`) a chain is cut at every node, so its speed cap follows
+the curvature node by node (the raw plan needs no room for an S-curve per body); the caps
+and acceleration limits of its bodies are eroded over the distance a filter window spans,
+and stops, sharp corners and passing points are extended (speed held T v / 2 beyond the blend).
 """
 
 from __future__ import annotations
@@ -13,10 +18,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from feed_twin.gcode.plan_blends import CHAIN_SHARE, CornerBlends, NodeFlags
+from feed_twin.gcode.jerk_filter import erode
+from feed_twin.gcode.plan_blends import CHAIN_SHARE, SHARP_CORNER, CornerBlends, NodeFlags
 from feed_twin.gcode.plan_limits import AxisLimits, MoveLimits
 
 CHAIN_CUT = 1.3  # a chain is cut where its local speed cap changes by more than this factor
+# With the jerk filter: the share of each axis's jerk the curvature's own change (x''' v^3)
+# may take at a chain's speed cap; s''' and the cross term share the rest through A.
+CURVE_JERK_SHARE = 0.75
+# The trapezoid's share of each axis's acceleration for the curvature (x'' v^2) at a chain's
+# speed cap (half before); s'' takes what it leaves. The filtered plan keeps half: its s''
+# feeds the jerk too.
+CURVE_ACC_SHARE = 0.75
+SAME_CAP = 0.01  # neighbouring moves whose speed caps differ by less than this share: one cap
 
 # Kinds of 1-D node
 SINGLE = 0  # a corner blended alone (or a stop, or a passing point): cruise over its blend
@@ -39,6 +53,7 @@ class Bodies:
     V: np.ndarray  # (m,) [m/s] speed cap of each body
     A: np.ndarray  # (m,) [m/s^2] acceleration limit of s'' on each body
     J: np.ndarray  # (m,) [m/s^3] jerk limit of s''' on each body
+    extended: np.ndarray  # (m+1,) the raw plan holds the node's speed T v / 2 beyond its blend
 
 
 def chain_bodies(
@@ -74,16 +89,29 @@ def chain_bodies(
     sb = np.where(kind_q == SINGLE, S[node_q] + w[node_q], sa)
     if len(node_q) < 2:
         return None
-    in_chain = (kind_q[:-1] == CHAIN_ENTRY) | (kind_q[:-1] == CHAIN_CUT_NODE)
-    Vc, Ac, Jc = chain_limits(nodes_b, pos_q, blends, moves.u, V, limits)
+    length = np.maximum(sa[1:] - sb[:-1], 0.0)
+    if open_end:
+        length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
+    filtered = limits.window_s > 0.0
+    extended = np.zeros(len(kind_q), dtype=bool)
+    if filtered:
+        extended = _extended(kind_q, node_q, blends, V, length, limits.window_s)
+    if filtered:
+        # Bodies a filter window may share with a neighbour: planned as chains, eroded.
+        in_chain = ~(extended[:-1] & extended[1:])
+    else:
+        in_chain = (kind_q[:-1] == CHAIN_ENTRY) | (kind_q[:-1] == CHAIN_CUT_NODE)
+    quiet = np.zeros(len(nodes_b), dtype=bool)
+    quiet[pos_q] = extended
+    Vc, Ac, Jc = chain_limits(nodes_b, pos_q, blends, moves.u, V, limits, quiet)
+    if filtered:
+        Vc, Ac = _eroded(sb[:-1], sa[1:], Vc, Ac, in_chain, extended[:-1], limits.window_s)
     cap = blends.cap
     cap_q = cap[node_q].copy()
     cap_q[1:] = np.where(in_chain, np.minimum(cap_q[1:], Vc), cap_q[1:])
     cap_q[:-1] = np.where(in_chain, np.minimum(cap_q[:-1], Vc), cap_q[:-1])
-    cap_q = np.where(kind_q == SINGLE, cap[node_q], cap_q)
-    length = np.maximum(sa[1:] - sb[:-1], 0.0)
-    if open_end:
-        length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
+    if not filtered:
+        cap_q = np.where(kind_q == SINGLE, cap[node_q], cap_q)
     pairs = np.column_stack((node_q[:-1], node_q[1:])).ravel()
     pad = np.array([np.inf])
     Vb = np.minimum.reduceat(np.concatenate((V, pad)), pairs)[::2]
@@ -100,7 +128,60 @@ def chain_bodies(
         V=np.where(in_chain, Vc, Vb),
         A=np.where(in_chain, Ac, Ab),
         J=np.where(in_chain, Jc, Jb),
+        extended=extended,
     )
+
+
+def _extended(
+    kind_q: np.ndarray,
+    node_q: np.ndarray,
+    blends: CornerBlends,
+    V: np.ndarray,
+    length: np.ndarray,
+    T: float,
+) -> np.ndarray:
+    """1-D nodes whose speed the filtered raw plan holds T v / 2 beyond the blend
+    (`jerk_filter`): stops; sharp corners and passing points where the speed cap changes,
+    where the bodies on both sides leave any room; gentle corners where they leave room at
+    the corner's cap. Not a chain's nodes, nor passing points between moves of (nearly) the
+    same cap, nor gentle corners between short bodies: their neighbours' limits are eroded."""
+    gentle = blends.corner & (np.sqrt(np.einsum("ij,ij->i", blends.dU, blends.dU)) <= SHARP_CORNER)
+    V_in = np.concatenate(([np.inf], V))
+    V_out = np.concatenate((V, [np.inf]))
+    with np.errstate(invalid="ignore"):
+        same_cap = np.abs(V_in - V_out) <= SAME_CAP * np.minimum(V_in, V_out)
+    smooth = (gentle | (~blends.corner & same_cap)) & ~blends.stop
+    room = np.minimum(np.concatenate(([np.inf], length)), np.concatenate((length, [np.inf])))
+    wide = room >= 0.5 * T * blends.cap[node_q]
+    single = kind_q == SINGLE
+    return single & (
+        blends.stop[node_q]
+        | np.where(smooth[node_q] & gentle[node_q], wide, ~smooth[node_q] & (room > 0.0))
+    )
+
+
+def _eroded(
+    lo: np.ndarray,
+    hi: np.ndarray,
+    V: np.ndarray,
+    A: np.ndarray,
+    in_chain: np.ndarray,
+    after_extended: np.ndarray,
+    T: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Speed caps and acceleration limits of chain bodies (s from lo to hi) eroded within their
+    chain: a filtered speed at s averages raw speeds within T v / 2 of s, a filtered acceleration
+    raw ones within T v_max (`jerk_filter`). An
+    extended node between two chain bodies parts them."""
+    starts = (np.concatenate(([True], ~in_chain[:-1])) | after_extended) & in_chain
+    first_bodies = np.flatnonzero(starts)
+    if len(first_bodies) == 0:
+        return V, A
+    group = np.where(in_chain, np.cumsum(starts) - 1, -1)
+    V_far = np.where(np.isfinite(V), V, 0.0)
+    top = np.maximum.reduceat(V_far, first_bodies)  # per chain (and what follows it)
+    reach = np.where(in_chain, T * top[np.maximum(group, 0)], 0.0)
+    return erode(lo, hi, V, 0.5 * T * V_far, group), erode(lo, hi, A, reach, group)
 
 
 def _one_d_nodes(
@@ -126,11 +207,13 @@ def _one_d_nodes(
     chained = last_of > first_of
     # A chain is cut where its local speed cap changes a lot (typically where the
     # curvature ramps up at its ends), so that a slow end does not slow all of it.
-    local = limits.cruise_cap(blends.a_node[nodes_b], blends.j_node[nodes_b], 0.5, 1.0 / 3.0)
+    local = limits.cruise_cap(
+        blends.a_node[nodes_b], blends.j_node[nodes_b], 0.5, 1.0 / 3.0, blends.k_node[nodes_b]
+    )
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = local[1:] / local[:-1]  # inf/inf (straight stretches) gives nan: no cut
     cut = np.zeros(len(nodes_b), dtype=bool)
-    cut[1:] = (ratio > CHAIN_CUT) | (ratio < 1.0 / CHAIN_CUT)
+    cut[1:] = (ratio > CHAIN_CUT) | (ratio < 1.0 / CHAIN_CUT) | (limits.window_s > 0.0)
     cut &= chained & (in_group > first_of) & (in_group < last_of)
     emit = ~chained | (in_group == first_of) | (in_group == last_of) | cut
     pos_q = np.flatnonzero(emit)
@@ -153,38 +236,57 @@ def chain_limits(
     u: np.ndarray,
     V: np.ndarray,
     limits: AxisLimits,
+    quiet: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Speed cap, acceleration and jerk [SI] of the body from each 1-D node to the next,
-    as if it ran along a chain of overlapping blends (used where it does).
+    as if it ran along a chain of overlapping blends (used where it does); the blends of
+    `quiet` nodes (of `nodes_b`) are left out.
 
     Along a chain the axis motion is d(s) ds/dt with d a convex combination of the move
     directions (|d_i| <= max |u_i|), and
         a_i = d_i s'' + d'_i (s')^2,   j_i = d_i s''' + 3 d'_i s' s'' + d''_i (s')^3.
-    Half of each axis's acceleration goes to the curvature term (cap V) and half to s''
-    (A); a third of its jerk to each of the three jerk terms (V, then A, then J). The body
+    The curvature terms take a share of each axis's acceleration and jerk at the cap V
+    (trapezoid: CURVE_ACC_SHARE, no jerk; filtered: half and CURVE_JERK_SHARE, curvature
+    steps included), s'' the acceleration they leave (A); filtered, s''' <= 2 A / T and the
+    cross term share the jerk they leave. No jerk limit J of s''' itself (inf). The body
     from node p to node q meets the blends of nodes p..q, hence the maxima over them.
     """
     absu = np.abs(u)
     zero = np.zeros((1, absu.shape[1]))
     u_node = np.maximum(np.vstack((zero, absu)), np.vstack((absu, zero)))
     v_node = np.minimum(np.concatenate(([np.inf], V)), np.concatenate((V, [np.inf])))
+    u_node[nodes_b[quiet]] = 0.0
+    v_node[nodes_b[quiet]] = np.inf
     pairs = np.column_stack((pos_q[:-1], pos_q[1:] + 1)).ravel()
 
     def over_bodies(values: np.ndarray, reduce: np.ufunc) -> np.ndarray:
         padded = np.concatenate((values[nodes_b], values[nodes_b][-1:]))
         return reduce.reduceat(padded, pairs, axis=0)[::2]
 
-    a_g = over_bodies(blends.a_node, np.maximum)
-    j_g = over_bodies(blends.j_node, np.maximum)
+    seen = ~quiet[:, None]
+    a_node = np.zeros_like(blends.a_node)
+    j_node = np.zeros_like(blends.j_node)
+    k_node = np.zeros_like(blends.k_node)
+    a_node[nodes_b] = np.where(seen, blends.a_node[nodes_b], 0.0)
+    j_node[nodes_b] = np.where(seen, blends.j_node[nodes_b], 0.0)
+    k_node[nodes_b] = np.where(seen, blends.k_node[nodes_b], 0.0)
+    a_g = over_bodies(a_node, np.maximum)
+    j_g = over_bodies(j_node, np.maximum)
+    k_g = over_bodies(k_node, np.maximum)
     u_g = over_bodies(u_node, np.maximum)
-    Vc = np.minimum(over_bodies(v_node, np.minimum), limits.cruise_cap(a_g, j_g, 0.5, 1.0 / 3.0))
+    filtered = limits.window_s > 0.0
+    a_share, j_share = (0.5, CURVE_JERK_SHARE) if filtered else (CURVE_ACC_SHARE, 1.0)
+    local = limits.cruise_cap(a_g, j_g, a_share, j_share, k_g)
+    Vc = np.minimum(over_bodies(v_node, np.minimum), local)
     a_max, j_max = limits.a_max, limits.j_max
+    v = Vc[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        Ac = np.min(np.where(u_g > 0.0, 0.5 * a_max / u_g, np.inf), axis=1)
-        if limits.jerk:
-            cross = j_max / (9.0 * a_g * Vc[:, None])
-            Ac = np.minimum(Ac, np.min(np.where(a_g > 0.0, cross, np.inf), axis=1))
-            Jc = np.min(np.where(u_g > 0.0, j_max / (3.0 * u_g), np.inf), axis=1)
-        else:
-            Jc = np.full(len(Vc), np.inf)
+        a_left = (a_max - a_g * v * v) / u_g
+        if filtered:
+            # |s'''| <= 2 A / T (the raw s'' may change sign between bodies).
+            curve = j_g * v**3 + limits.kick_jerk(k_g) * v * v  # x''' v^3, steps included
+            j_left = (j_max - curve) / (2.0 * u_g / limits.window_s + 3.0 * a_g * v)
+            a_left = np.minimum(a_left, j_left)
+        Ac = np.min(np.where(u_g > 0.0, a_left, np.inf), axis=1)
+    Jc = np.full(len(Vc), np.inf)
     return Vc, Ac, Jc

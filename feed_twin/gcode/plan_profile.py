@@ -4,7 +4,6 @@ The bodies' boundary speeds come from a backward pass of braking bounds and a fo
 (`profile.plan_speeds`), each body's peak speed and phase durations from `profile.body_profiles`.
 The profile is a list of pieces, three per 1-D node: a hold (dwells, standstill), a cruise over
 the node's blend at constant speed, and the body to the next 1-D node; a last hold at the end.
-Every piece starts and ends at zero acceleration.
 """
 
 from __future__ import annotations
@@ -15,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from feed_twin.gcode.items import Event, Stop
+from feed_twin.gcode.jerk_filter import body_profiles_filtered, plan_speeds_filtered
 from feed_twin.gcode.plan_chains import CHAIN_ENTRY, Bodies
 from feed_twin.gcode.profile import BODY, CRUISE, HOLD, body_profiles, plan_speeds
 
@@ -31,13 +31,25 @@ class SpeedProfile:
     t_up: np.ndarray  # [s] speed-up phase
     t_cruise: np.ndarray  # [s] cruise at vp
     t_down: np.ndarray  # [s] slow-down phase
+    A: np.ndarray  # [m/s^2] acceleration of each body's speed-up and slow-down
 
 
-def speed_profile(bodies: Bodies, *, jerk: bool, v_first: float) -> SpeedProfile:
-    """The fastest profile within the bodies' limits that starts at v_first and ends at rest."""
-    v = plan_speeds(bodies.cap, bodies.length, bodies.A, bodies.J, jerk, v_first)
-    vp, t_up, t_cruise, t_down = body_profiles(v, bodies.length, bodies.V, bodies.A, bodies.J, jerk)
-    return SpeedProfile(v=v, vp=vp, t_up=t_up, t_cruise=t_cruise, t_down=t_down)
+def speed_profile(bodies: Bodies, *, v_first: float, window_s: float = 0.0) -> SpeedProfile:
+    """The fastest profile within the bodies' limits that starts at v_first and ends at rest.
+
+    With a jerk filter window T (`window_s` > 0) it is the raw plan of `jerk_filter`:
+    trapezoids, extended nodes, a cruise of T at every peak.
+    """
+    L, V, A = bodies.length, bodies.V, bodies.A
+    if window_s > 0.0:
+        v = plan_speeds_filtered(bodies.cap, L, A, bodies.extended, window_s, v_first)
+        vp, t_up, t_cruise, t_down, A = body_profiles_filtered(
+            v, L, V, A, bodies.extended, window_s
+        )
+    else:
+        v = plan_speeds(bodies.cap, L, A, v_first)
+        vp, t_up, t_cruise, t_down = body_profiles(v, L, V, A)
+    return SpeedProfile(v=v, vp=vp, t_up=t_up, t_cruise=t_cruise, t_down=t_down, A=A)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -52,7 +64,6 @@ class Pieces:
     vp: np.ndarray  # [m/s] peak speed (bodies)
     v1: np.ndarray  # [m/s] speed at the end (bodies)
     A: np.ndarray  # [m/s^2] acceleration limit (bodies; 1 elsewhere)
-    J: np.ndarray  # [m/s^3] jerk limit (bodies with jerk; 1 elsewhere)
     t_up: np.ndarray  # [s] speed-up phase (bodies)
     t_cruise: np.ndarray  # [s] cruise phase (bodies)
     line: np.ndarray  # source line shown while the piece runs (-1: the move's own)
@@ -60,9 +71,18 @@ class Pieces:
 
 
 def motion_pieces(
-    bodies: Bodies, speeds: SpeedProfile, *, q_commit: int, n_moves: int, jerk: bool
+    bodies: Bodies,
+    speeds: SpeedProfile,
+    *,
+    q_commit: int,
+    n_moves: int,
+    window_s: float = 0.0,
 ) -> Pieces:
-    """Hold, cruise and body pieces of the 1-D nodes before `q_commit`, and a last hold."""
+    """Hold, cruise and body pieces of the 1-D nodes before `q_commit`, and a last hold.
+
+    An extended node (jerk filter, window T = `window_s`) cruises T v / 2 before and after its
+    blend, where the bodies next to it start and end.
+    """
     q = np.arange(q_commit)
     nodes = bodies.node[: q_commit + 1]
     v_node = speeds.v[: q_commit + 1]
@@ -75,7 +95,6 @@ def motion_pieces(
     vpk = np.zeros(n_pieces)
     v1 = np.zeros(n_pieces)
     Ak = np.ones(n_pieces)
-    Jk = np.ones(n_pieces)
     tu = np.zeros(n_pieces)
     tc = np.zeros(n_pieces)
     # First move each piece runs on: a blend or a chain starts on the move before its node.
@@ -90,23 +109,23 @@ def motion_pieces(
     seg[body] = np.where(kind_q == CHAIN_ENTRY, before, np.minimum(nodes[:-1], n_moves - 1))
     seg[-1] = n_moves - 1
     kind[cruise] = CRUISE
-    span = sb[:q_commit] - sa[:q_commit]
+    reach = np.where(bodies.extended[: q_commit + 1], 0.5 * window_s * v_node, 0.0)
+    span = sb[:q_commit] - sa[:q_commit] + 2.0 * reach[:-1]
     with np.errstate(divide="ignore", invalid="ignore"):
         dur[cruise] = np.where(span > 0.0, span / v_node[:-1], 0.0)
-    s0[cruise] = sa[:q_commit]
+    s0[cruise] = sa[:q_commit] - reach[:-1]
     v0[cruise] = v_node[:-1]
-    s0[hold] = sa[:q_commit]
+    s0[hold] = sa[:q_commit] - reach[:-1]
     kind[body] = BODY
     dur[body] = speeds.t_up[:q_commit] + speeds.t_cruise[:q_commit] + speeds.t_down[:q_commit]
-    s0[body] = sb[:q_commit]
+    s0[body] = sb[:q_commit] + reach[:-1]
     v0[body] = v_node[:-1]
     vpk[body] = speeds.vp[:q_commit]
     v1[body] = v_node[1:]
-    Ak[body] = bodies.A[:q_commit]
-    Jk[body] = bodies.J[:q_commit] if jerk else 1.0
+    Ak[body] = speeds.A[:q_commit]
     tu[body] = speeds.t_up[:q_commit]
     tc[body] = speeds.t_cruise[:q_commit]
-    s0[-1] = sa[q_commit]
+    s0[-1] = sa[q_commit] - reach[-1]
     return Pieces(
         key=np.arange(n_pieces, dtype=float),
         kind=kind,
@@ -116,7 +135,6 @@ def motion_pieces(
         vp=vpk,
         v1=v1,
         A=Ak,
-        J=Jk,
         t_up=tu,
         t_cruise=tc,
         line=np.full(n_pieces, -1, dtype=np.int64),
@@ -127,7 +145,7 @@ def motion_pieces(
 class Dwell(NamedTuple):
     """A hold piece for a dwell at a 1-D node."""
 
-    key: float  # sort key: just before the node's hold slot
+    key: float  # sort key: just before the node's hold slot (stop holds before dwells)
     dur: float  # [s]
     s: float  # [m] path parameter of the node
     line: int  # source line of the dwell
@@ -158,6 +176,37 @@ def node_entries(
     return dwells, timed
 
 
+def stop_holds(
+    bodies: Bodies,
+    speeds: SpeedProfile,
+    *,
+    q_commit: int,
+    final: bool,
+    window_s: float,
+    period: float,
+) -> list[Dwell]:
+    """Holds at each 1-D node where the raw plan stops, so that the filtered plan (window T,
+    `jerk_filter`) comes to rest there too: T before the node's dwells and events, and one
+    period after them, so that its arrival and its departure (along different moves) never
+    share a sample. The program's end needs T alone.
+
+    The window's first node is left out where the path was at rest before it (the start).
+    """
+    if window_s <= 0.0:
+        return []
+    last = q_commit + 1 if final else q_commit
+    slots = np.flatnonzero(speeds.v[:last] == 0.0)
+    holds: list[Dwell] = []
+    for q in slots:
+        if q == 0 and not (speeds.v[0] == 0.0 and bodies.node[0] > 0):
+            continue
+        s, node = float(bodies.sa[q]), int(bodies.node[q])
+        holds.append(Dwell(PIECES_PER_NODE * int(q) - 0.9, window_s, s, -1, node))
+        if not (final and q == q_commit):
+            holds.append(Dwell(PIECES_PER_NODE * int(q) - 1e-6, period, s, -1, node))
+    return holds
+
+
 def with_dwells(pieces: Pieces, dwells: list[Dwell]) -> Pieces:
     """The pieces with a hold for each dwell, in time order."""
     if not dwells:
@@ -174,7 +223,6 @@ def with_dwells(pieces: Pieces, dwells: list[Dwell]) -> Pieces:
         vp=np.concatenate((pieces.vp, zeros)),
         v1=np.concatenate((pieces.v1, zeros)),
         A=np.concatenate((pieces.A, zeros + 1.0)),
-        J=np.concatenate((pieces.J, zeros + 1.0)),
         t_up=np.concatenate((pieces.t_up, zeros)),
         t_cruise=np.concatenate((pieces.t_cruise, zeros)),
         line=np.concatenate((pieces.line, [d.line for d in dwells])),

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from feed_twin.gcode.jerk_filter import box_filter, raw_samples
 from feed_twin.gcode.plan_limits import MoveLimits
 from feed_twin.gcode.plan_profile import CRUISE_SLOT, HOLD_SLOT, PIECES_PER_NODE, Pieces, TimedEvent
 from feed_twin.gcode.profile import evaluate_path, sample_pieces
@@ -62,8 +63,6 @@ def sample_path(
     moves: MoveLimits,
     w: np.ndarray,
     dU: np.ndarray,
-    *,
-    jerk: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(position, velocity, acceleration, piece, move) at each sample time."""
     n = len(moves.L)
@@ -78,10 +77,8 @@ def sample_path(
         pieces.vp,
         pieces.v1,
         pieces.A,
-        pieces.J,
         pieces.t_up,
         pieces.t_cruise,
-        jerk,
     )
     pos, vel, acc, seg = evaluate_path(
         s,
@@ -99,3 +96,55 @@ def sample_path(
         pieces.seg[piece],
     )
     return pos, vel, acc, piece, seg
+
+
+def sample_filtered(
+    times: np.ndarray,
+    pieces: Pieces,
+    t0: np.ndarray,
+    moves: MoveLimits,
+    w: np.ndarray,
+    dU: np.ndarray,
+    *,
+    history: np.ndarray,
+    F0: float,
+    span: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """(position, velocity, acceleration, piece, move, history, F_end) with the jerk filter.
+
+    The raw plan's s, ds/dt and F (the integral of s, F0 at the first piece's start) at the
+    sample times follow the `history` rows (s, ds/dt, F, t of the samples within `span`
+    before them); `jerk_filter.box_filter` averages them and the result is mapped onto the
+    path. Returned: the new history and F at the end of the pieces.
+    """
+    n = len(moves.L)
+    S = np.concatenate(([0.0], np.cumsum(moves.L)))
+    p = pieces
+    s, sd, F, piece, F_end = raw_samples(
+        times, p.kind, t0, p.dur, p.s0, p.v0, p.vp, p.A, p.t_up, p.t_cruise, F0
+    )
+    raw = np.column_stack((s, sd, F, times))
+    smooth = box_filter(history, raw, span)
+    # At a node itself a sample belongs to the move it leaves on once the raw plan is past it
+    # (arriving at a stop, the raw plan is at the node: the move it arrives on).
+    moving = s > smooth[:, 0]
+    first = np.where(
+        moving, np.searchsorted(S, smooth[:, 0], "right"), np.searchsorted(S, smooth[:, 0])
+    )
+    pos, vel, acc, seg = evaluate_path(
+        smooth[:, 0],
+        smooth[:, 1],
+        smooth[:, 2],
+        S[:-1],
+        moves.L,
+        moves.P[:-1],
+        moves.P[1:],
+        moves.u,
+        w[:n],
+        dU[:n],
+        w[1:],
+        dU[1:],
+        np.clip(first - 1, 0, n - 1),
+    )
+    joined = np.concatenate((history, raw))
+    return pos, vel, acc, piece, seg, joined[len(raw) :], float(F_end)

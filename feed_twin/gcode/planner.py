@@ -5,21 +5,27 @@ coordinates. A window of listed moves goes through five stages, each pure and in
 
 1. move limits (`plan_limits`): length, direction and the speed, acceleration and jerk along
    each move that keep every axis within its limits;
-2. corner blends (`plan_blends`): blend half-widths within the path tolerance, corner speeds,
-   and the corners where stopping is quicker;
+2. corner blends (`plan_blends`): blend half-widths within the path tolerance and corner
+   speeds; every G64 corner is rounded;
 3. chains (`plan_chains`): overlapping blends grouped into chains; the 1-D nodes and the
    bodies between them with their limits;
 4. speed profile (`plan_profile`): boundary speeds and the pieces of s(t), dwells included;
 5. sampling (`plan_sampling`): s(t) at t = k * period, mapped onto the blended path.
 
+The jerk profile plans s acceleration-limited (the raw plan) and averages it over a window
+T = max a_max/j_max (`jerk_filter`, docs/planner.md): the stages give the raw plan what the
+filter needs (sharp corners and stops hold their speed around the node, chains are cut at
+every node with their limits eroded over a window), and sampling applies the filter exactly.
+
 G60, G61, G9, dwells and stopping M-codes end a move at rest. After an exact stop (G60, G61,
 G61.1, G9) the setpoint is held for `exact_stop_settle_s`, a dwell on the stopping block's line
 before the next block's events: the fixed-time model of the NC's wait for the in-position
-window. Every profile piece starts and ends at zero acceleration.
+window. Profile pieces are trapezoids (acceleration-limited); the jerk profile filters them.
 
 Look-ahead: a backward pass of braking bounds and a forward pass over the boundary speeds of up
 to `lookahead_segments` moves, with the window's end at rest; the first half is committed,
-sampled and yielded, the rest is planned again with the next moves. Committed speeds stay
+sampled and yielded, the rest is planned again with the next moves (the moves the filter's
+window still runs on stay listed as context, with their blends). Committed speeds stay
 reachable as constraints relax (the braking bound is monotonic), so the result is always
 safe, and memory stays bounded.
 """
@@ -40,11 +46,18 @@ from feed_twin.gcode.lexer import Block, iter_source_lines, lex_line
 from feed_twin.gcode.plan_blends import NodeFlags, WindowStart, corner_blends
 from feed_twin.gcode.plan_chains import SINGLE, Bodies, chain_bodies
 from feed_twin.gcode.plan_limits import AxisLimits, move_limits
-from feed_twin.gcode.plan_profile import motion_pieces, node_entries, speed_profile, with_dwells
+from feed_twin.gcode.plan_profile import (
+    motion_pieces,
+    node_entries,
+    speed_profile,
+    stop_holds,
+    with_dwells,
+)
 from feed_twin.gcode.plan_sampling import (
     END_SLACK,
     event_times,
     piece_starts,
+    sample_filtered,
     sample_indices,
     sample_path,
 )
@@ -156,7 +169,8 @@ class _StreamPlanner:
         self.config = config
         self.axes = config.axis_names
         self.limits = AxisLimits.of(config)
-        self.jerk = self.limits.jerk
+        self.window_s = self.limits.window_s
+        self.n_filter = self.limits.filter_n
         self.period = config.interpolation_period_s
         self.settle_s = config.exact_stop_settle_s
         self.forced = max(2, config.lookahead_segments // 4)
@@ -169,16 +183,27 @@ class _StreamPlanner:
         self.tols: list[float] = []
         self.g0 = 0  # global index of listed move 0
         self.has_context = False
+        self.w_context = np.zeros(1)  # blend half-widths of the listed nodes up to the first
+        # Raw samples (s, ds/dt, F = integral of s dt, t) within the jerk filter's span before
+        # the next one, in the listed moves' s (at first the start point, at rest since t = 0);
+        # F at the end of the committed pieces.
+        k_before = np.arange(1 - self.n_filter, 0)
+        self.history = np.column_stack((0.0 * k_before, 0.0 * k_before, 0.0 * k_before,
+                                        k_before * self.period))  # fmt: skip
+        self.F_end = 0.0
         self.stops: set[int] = set()  # global node indices where the path is at rest
         self.entries: dict[int, list[Event | Stop]] = {}  # global node -> events and dwells
         self.v_first = 0.0
-        self.w_first = 0.0  # blend half-width at the first node of the next window
         self.first_stop = False  # whether the path stops there
         self.t_s = 0.0
         self.k_next = 0
 
+    def first(self) -> int:
+        """Listed moves kept as committed context before the first uncommitted node."""
+        return len(self.w_context) - 1 if self.has_context else 0
+
     def pending_moves(self) -> int:
-        return len(self.lines) - (1 if self.has_context else 0)
+        return len(self.lines) - self.first()
 
     def add(self, item: Move | Stop | Event) -> None:
         node = self.g0 + len(self.lines)
@@ -202,29 +227,48 @@ class _StreamPlanner:
         n = len(self.lines)
         if n == 0:
             return self._plan_standstill()
-        first = 1 if self.has_context else 0
+        first = self.first()
         moves = move_limits(self.points, self.rapids, self.feeds, self.limits)
         flags = self._node_flags(n)
-        start = WindowStart(w=self.w_first, stop=self.first_stop) if self.has_context else None
+        start = WindowStart(w=self.w_context, stop=self.first_stop) if self.has_context else None
         blends = corner_blends(moves, flags, self.limits, start)
         bodies = chain_bodies(moves, blends, flags, self.limits, first=first, open_end=not final)
         if bodies is None:
             return self._plan_standstill() if final else None
-        speeds = speed_profile(bodies, jerk=self.jerk, v_first=self.v_first)
+        speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
         q_commit = self._commit_point(bodies, first, n, final)
         if q_commit is None:
             return None  # nothing safely committable yet: wait for more moves
         end_node = int(bodies.node[q_commit])
-        pieces = motion_pieces(bodies, speeds, q_commit=q_commit, n_moves=n, jerk=self.jerk)
+        pieces = motion_pieces(bodies, speeds, q_commit=q_commit, n_moves=n, window_s=self.window_s)
         dwells, timed = node_entries(self._entries_at(bodies, q_commit, final), bodies.S)
-        pieces = with_dwells(pieces, dwells)
+        holds = stop_holds(
+            bodies,
+            speeds,
+            q_commit=q_commit,
+            final=final,
+            window_s=self.window_s,
+            period=self.period,
+        )
+        pieces = with_dwells(pieces, holds + dwells)
         t0, t_end = piece_starts(pieces, self.t_s)
         events = event_times(timed, pieces, t0, t_end, q_commit)
         k_start, k_stop = sample_indices(self.k_next, t_end, self.period, final=final)
         times = np.arange(k_start, k_stop) * self.period
-        pos, vel, acc, piece, seg = sample_path(
-            times, pieces, t0, moves, blends.w, blends.dU, jerk=self.jerk
-        )
+        if self.n_filter > 1:
+            pos, vel, acc, piece, seg, self.history, self.F_end = sample_filtered(
+                times,
+                pieces,
+                t0,
+                moves,
+                blends.w,
+                blends.dU,
+                history=self.history,
+                F0=self.F_end,
+                span=self.window_s,
+            )
+        else:
+            pos, vel, acc, piece, seg = sample_path(times, pieces, t0, moves, blends.w, blends.dU)
         lines = np.array(self.lines, dtype=np.int64)[seg]
         held = pieces.line[piece]
         lines = np.where(held >= 0, held, lines)
@@ -241,7 +285,7 @@ class _StreamPlanner:
         self.t_s = t_end
         self.v_first = float(speeds.v[q_commit])
         if not final:
-            self._drop_committed(end_node, float(blends.w[end_node]), bool(blends.stop[end_node]))
+            self._drop_committed(end_node, bodies.S, blends.w, bool(blends.stop[end_node]))
         return chunk
 
     def _node_flags(self, n: int) -> NodeFlags:
@@ -297,17 +341,27 @@ class _StreamPlanner:
                 out.append((slot, int(j), entries))
         return out
 
-    def _drop_committed(self, end_node: int, w_end: float, stop_end: bool) -> None:
-        """Forget the committed moves; the move that ends at the commit node stays as context."""
-        keep = end_node - 1
+    def _drop_committed(self, end_node: int, S: np.ndarray, w: np.ndarray, stop_end: bool) -> None:
+        """Forget the committed moves but the context: the move that ends at the commit node,
+        and those the jerk filter's history still runs on (from the move before it)."""
+        oldest = (
+            int(np.searchsorted(S, self.history[0, 0], side="right")) - 2
+            if len(self.history)
+            else end_node
+        )
+        keep = max(min(end_node - 1, oldest), 0)
         del self.points[:keep]
         del self.lines[:keep]
         del self.rapids[:keep]
         del self.feeds[:keep]
         del self.tols[:keep]
         self.g0 += keep
+        # s counted from the new first listed node: F = integral of s dt moves with it.
+        self.history[:, 0] -= S[keep]
+        self.history[:, 2] -= S[keep] * self.history[:, 3]
+        self.F_end -= S[keep] * self.t_s
         self.has_context = True
-        self.w_first = w_end
+        self.w_context = w[keep : end_node + 1].copy()
         self.first_stop = stop_end
         self.stops = {node for node in self.stops if node >= self.g0 + 1}
 

@@ -1,12 +1,11 @@
 """One-dimensional feed profiles along the path, and the blended path geometry (numba kernels).
 
 The planner moves a path parameter s [m] (arc length of the programmed polyline) with a
-profile made of pieces whose acceleration is zero at both ends:
+profile made of pieces:
 
-- body: speed changes v0 -> vp -> v1 with a cruise at vp between. Each speed change of size
-  dv is a jerk-limited S-curve (acceleration ramps at jerk J to at most A and back to zero):
-  T(dv) = dv/A + A/J when dv >= A^2/J, else 2*sqrt(dv/J); it covers (v_from + v_to)/2 * T by
-  symmetry. With `jerk` false the ramps vanish (trapezoid: T = dv/A).
+- body: speed changes v0 -> vp -> v1 at acceleration A with a cruise at vp between
+  (trapezoid: a change of dv takes dv/A and covers (v_from + v_to)/2 * dv/A). The jerk
+  profile filters such a plan (`jerk_filter`); S-curves per body are gone.
 - cruise: constant speed through a corner blend (ds/dt = v, d2s/dt2 = 0).
 - hold: standstill (dwell, pauses).
 
@@ -36,60 +35,35 @@ HOLD = 2
 
 
 @njit(cache=True)
-def phase_time(dv: float, A: float, J: float, jerk: bool) -> float:
-    """Duration [s] of a speed change of dv >= 0 that starts and ends at zero acceleration."""
+def phase_time(dv: float, A: float) -> float:
+    """Duration [s] of a speed change of dv >= 0 at acceleration A."""
     if dv <= 0.0:
         return 0.0
-    if not jerk:
-        return dv / A
-    if dv * J >= A * A:
-        return dv / A + A / J
-    return 2.0 * math.sqrt(dv / J)
+    return dv / A
 
 
 @njit(cache=True)
-def phase_distance(va: float, vb: float, A: float, J: float, jerk: bool) -> float:
-    return 0.5 * (va + vb) * phase_time(abs(vb - va), A, J, jerk)
+def phase_distance(va: float, vb: float, A: float) -> float:
+    return 0.5 * (va + vb) * phase_time(abs(vb - va), A)
 
 
 @njit(cache=True)
-def reach(v_known: float, L: float, A: float, J: float, jerk: bool, v_cap: float) -> float:
-    """Largest v <= v_cap from which one speed change to v_known fits in the length L.
-
-    Closed form of (v + v_known)/2 * T(v - v_known) = L for x = v - v_known:
-    trapezoid x^2 + 2 v_k x - 2AL = 0; jerk with x >= A^2/J
-    x^2 + (2 v_k + A^2/J) x + 2 v_k A^2/J - 2AL = 0; with x < A^2/J and y = sqrt(x/J)
-    J y^3 + 2 v_k y - L = 0 (one real root, by the hyperbolic form of Cardano's solution).
-    """
+def reach(v_known: float, L: float, A: float, v_cap: float) -> float:
+    """Largest v <= v_cap from which one speed change to v_known fits in the length L
+    (either way): x = v - v_known solves x^2 + 2 v_k x - 2AL = 0."""
     if v_cap <= v_known:
         return v_cap
     if L <= 0.0:
         return v_known
-    if phase_distance(v_cap, v_known, A, J, jerk) <= L:
+    if phase_distance(v_cap, v_known, A) <= L:
         return v_cap
-    if not jerk:
-        x = 2.0 * A * L / (v_known + math.sqrt(v_known * v_known + 2.0 * A * L))
-    else:
-        x0 = A * A / J
-        if (2.0 * v_known + x0) * A / J <= L:
-            b = 2.0 * v_known + x0
-            c = 2.0 * v_known * x0 - 2.0 * A * L
-            x = -2.0 * c / (b + math.sqrt(b * b - 4.0 * c))
-        else:
-            p = 2.0 * v_known / J
-            if p > 0.0:
-                q = -L / J
-                arg = 1.5 * q / p * math.sqrt(3.0 / p)
-                y = -2.0 * math.sqrt(p / 3.0) * math.sinh(math.asinh(arg) / 3.0)
-            else:
-                y = (L / J) ** (1.0 / 3.0)
-            x = J * y * y
+    x = 2.0 * A * L / (v_known + math.sqrt(v_known * v_known + 2.0 * A * L))
     v = min(v_known + x, v_cap)
     # v - v_known loses digits when x << v_known, so the distance can come out slightly above
     # L; step down (by growing relative amounts) until it fits, keeping the result feasible.
     shrink = 1e-15
     for _ in range(40):
-        if phase_distance(v, v_known, A, J, jerk) <= L:
+        if phase_distance(v, v_known, A) <= L:
             return v
         v = v_known + (v - v_known) * (1.0 - shrink)
         shrink *= 4.0
@@ -97,60 +71,22 @@ def reach(v_known: float, L: float, A: float, J: float, jerk: bool, v_cap: float
 
 
 @njit(cache=True)
-def braking_distance(v: float, v_to: float, A: float, J: float, jerk: bool) -> float:
-    """Room [m] needed to slow from v to v_to or to any speed between (v >= v_to).
-
-    Jerk-limited, slowing to a low speed can need more room than stopping: the distance of
-    v -> x rises for x below v/3 (or A^2/2J) and falls above. Planning with the largest
-    distance over [v_to, v] makes the bound monotonic in the target speed, so relaxing a later
-    constraint (more look-ahead) never lowers a speed planned earlier.
-    """
-    d = phase_distance(v, v_to, A, J, jerk)
-    if jerk:
-        for x in (v / 3.0, 0.5 * A * A / J):
-            if v_to < x < v:
-                d = max(d, phase_distance(v, x, A, J, jerk))
-    return d
-
-
-@njit(cache=True)
-def braking_reach(v_to: float, L: float, A: float, J: float, jerk: bool, v_cap: float) -> float:
-    """Largest v <= v_cap with braking_distance(v, v_to) <= L."""
-    v = reach(v_to, L, A, J, jerk, v_cap)
-    if braking_distance(v, v_to, A, J, jerk) <= L:
-        return v
-    lo = v_to
-    hi = v
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        if mid <= lo or mid >= hi:
-            break
-        if braking_distance(mid, v_to, A, J, jerk) <= L:
-            lo = mid
-        else:
-            hi = mid
-    return lo
-
-
-@njit(cache=True)
-def plan_speeds(
-    cap: np.ndarray, L: np.ndarray, A: np.ndarray, J: np.ndarray, jerk: bool, v_first: float
-) -> np.ndarray:
+def plan_speeds(cap: np.ndarray, L: np.ndarray, A: np.ndarray, v_first: float) -> np.ndarray:
     """Boundary speeds: backward (braking bounds) then forward pass over bodies i (node i ->
     node i+1). The forward pass takes the bound when slowing down, so it always fits."""
     m = L.shape[0]
     v = cap.copy()
     v[0] = v_first
     for i in range(m - 1, 0, -1):
-        v[i] = min(v[i], braking_reach(v[i + 1], L[i], A[i], J[i], jerk, v[i]))
+        v[i] = min(v[i], reach(v[i + 1], L[i], A[i], v[i]))
     for i in range(m):
-        v[i + 1] = min(v[i + 1], reach(v[i], L[i], A[i], J[i], jerk, v[i + 1]))
+        v[i + 1] = min(v[i + 1], reach(v[i], L[i], A[i], v[i + 1]))
     return v
 
 
 @njit(cache=True)
 def body_profiles(
-    v: np.ndarray, L: np.ndarray, V: np.ndarray, A: np.ndarray, J: np.ndarray, jerk: bool
+    v: np.ndarray, L: np.ndarray, V: np.ndarray, A: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Peak speed vp and durations (speed-up, cruise, slow-down) of each body."""
     m = L.shape[0]
@@ -162,61 +98,37 @@ def body_profiles(
         v0 = v[i]
         v1 = v[i + 1]
         a = A[i]
-        j = J[i]
         top = V[i]
-        if phase_distance(v0, top, a, j, jerk) + phase_distance(top, v1, a, j, jerk) > L[i]:
+        if phase_distance(v0, top, a) + phase_distance(top, v1, a) > L[i]:
             lo = max(v0, v1)
             hi = top
             for _ in range(48):
                 mid = 0.5 * (lo + hi)
                 if mid <= lo or mid >= hi:
                     break
-                d = phase_distance(v0, mid, a, j, jerk) + phase_distance(mid, v1, a, j, jerk)
-                if d <= L[i]:
+                if phase_distance(v0, mid, a) + phase_distance(mid, v1, a) <= L[i]:
                     lo = mid
                 else:
                     hi = mid
             top = lo
         vp[i] = top
-        t_up[i] = phase_time(top - v0, a, j, jerk)
-        t_down[i] = phase_time(top - v1, a, j, jerk)
-        rest = L[i] - phase_distance(v0, top, a, j, jerk) - phase_distance(top, v1, a, j, jerk)
+        t_up[i] = phase_time(top - v0, a)
+        t_down[i] = phase_time(top - v1, a)
+        rest = L[i] - phase_distance(v0, top, a) - phase_distance(top, v1, a)
         t_cruise[i] = rest / top if (top > 0.0 and rest > 0.0) else 0.0
     return vp, t_up, t_cruise, t_down
 
 
 @njit(cache=True)
-def _phase_eval(va: float, vb: float, A: float, J: float, jerk: bool, tau: float):
+def _phase_eval(va: float, vb: float, A: float, tau: float):
     """(s, v, a) at time tau into a speed change va -> vb; s counted from its start."""
     dv = vb - va
     if dv == 0.0:
         return va * tau, va, 0.0
     sg = 1.0 if dv > 0.0 else -1.0
-    adv = abs(dv)
-    if not jerk:
-        T = adv / A
-        tau = min(max(tau, 0.0), T)
-        return va * tau + 0.5 * sg * A * tau * tau, va + sg * A * tau, sg * A
-    if adv * J >= A * A:
-        tj = A / J
-        ta = adv / A - tj
-        peak = A
-    else:
-        tj = math.sqrt(adv / J)
-        ta = 0.0
-        peak = J * tj
-    T = 2.0 * tj + ta
+    T = abs(dv) / A
     tau = min(max(tau, 0.0), T)
-    if tau < tj:
-        return va * tau + sg * J * tau**3 / 6.0, va + 0.5 * sg * J * tau * tau, sg * J * tau
-    if tau < tj + ta:
-        v1 = va + 0.5 * sg * J * tj * tj
-        s1 = va * tj + sg * J * tj**3 / 6.0
-        t2 = tau - tj
-        return s1 + v1 * t2 + 0.5 * sg * peak * t2 * t2, v1 + sg * peak * t2, sg * peak
-    r = T - tau
-    total = 0.5 * (va + vb) * T
-    return total - (vb * r - sg * J * r**3 / 6.0), vb - 0.5 * sg * J * r * r, sg * J * r
+    return va * tau + 0.5 * sg * A * tau * tau, va + sg * A * tau, sg * A
 
 
 @njit(cache=True)
@@ -230,10 +142,8 @@ def sample_pieces(
     vp: np.ndarray,
     v1: np.ndarray,
     A: np.ndarray,
-    J: np.ndarray,
     t_up: np.ndarray,
     t_cruise: np.ndarray,
-    jerk: bool,
 ):
     """Path parameter s, ds/dt, d2s/dt2 and the active piece at increasing sample times."""
     n = times.shape[0]
@@ -259,15 +169,13 @@ def sample_pieces(
             sdd[k] = 0.0
         else:
             if tau < t_up[p]:
-                ds, vv, aa = _phase_eval(v0[p], vp[p], A[p], J[p], jerk, tau)
+                ds, vv, aa = _phase_eval(v0[p], vp[p], A[p], tau)
             elif tau < t_up[p] + t_cruise[p]:
                 d_up = 0.5 * (v0[p] + vp[p]) * t_up[p]
                 ds, vv, aa = d_up + vp[p] * (tau - t_up[p]), vp[p], 0.0
             else:
                 d_up = 0.5 * (v0[p] + vp[p]) * t_up[p]
-                ds, vv, aa = _phase_eval(
-                    vp[p], v1[p], A[p], J[p], jerk, tau - t_up[p] - t_cruise[p]
-                )
+                ds, vv, aa = _phase_eval(vp[p], v1[p], A[p], tau - t_up[p] - t_cruise[p])
                 ds += d_up + vp[p] * t_cruise[p]
             s[k] = s0[p] + ds
             sd[k] = vv

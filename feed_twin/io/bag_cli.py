@@ -70,10 +70,6 @@ def main(args: argparse.Namespace) -> int:
     except BagError as exc:
         print(f"feed-twin bag {args.bag_command}: {exc}", file=sys.stderr)
         return 1
-    state = "was already complete" if result.was_complete else "was truncated"
-    print(
-        f"recovered {result.messages_recovered} messages; the file {state}; "
-        f"metadata.yaml regenerated"
-    )
+    print(f"{result.text()}; metadata.yaml regenerated")
     print(with_simulated_duration(result.info, result.info.format()))
     return 0

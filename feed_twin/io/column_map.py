@@ -1,6 +1,7 @@
 """Column maps: how a measured file's own columns and units become feed_twin's canonical signals.
 
-A column map (YAML, read by `load_column_map`) names the time column and, for each canonical
+A column map (YAML, read by `load_column_map`) names the time column (or, for a log without
+one, the rate its rows were written at: `time: {index: true, rate_hz: 10}`) and, for each canonical
 signal, the file's column, its unit and how to turn it into SI: `(reading - offset) * unit
 factor * gain` (a negative gain flips a sign; a current mapped to a force or torque needs its
 constant as gain; `amplitude: rms` turns an RMS current into the peak), motor angles and encoder
@@ -66,11 +67,8 @@ _CANONICAL_DIMENSION: dict[str, str] = {
 _DISTURBANCE_SUFFIX = {"_N": "force", "_Nm": "torque", "_A": "current"}
 EFFORT_SIGNALS = ("force_cmd_N", "torque_cmd_Nm", "current_q_A")
 EFFORT_UNITS = {"force_cmd_N": "N", "torque_cmd_Nm": "N m", "current_q_A": "A"}
-VOLTAGE_SIGNALS = ("voltage_d_V", "voltage_q_V")
-EFFORT_SAMPLES = (
-    "actual",
-    "setpoint",
-)  # ColumnMap.effort_sample  # the current controller's voltage commands
+VOLTAGE_SIGNALS = ("voltage_d_V", "voltage_q_V")  # the current controller's voltage commands
+EFFORT_SAMPLES = ("actual", "setpoint")  # ColumnMap.effort_sample
 
 
 def canonical_dimension(name: str) -> str:
@@ -126,6 +124,27 @@ class ColumnSpec:
 
 
 @dataclass(frozen=True, kw_only=True)
+class RowTime:
+    """Time from the row index, t = row / rate_hz [s]: a monitoring log (MTConnect, OPC UA)
+    written at a fixed rate without a time column."""
+
+    index: bool  # must be true: the rows' order is their time
+    rate_hz: float  # [Hz] rows per second
+
+    def __post_init__(self) -> None:
+        if self.index is not True:
+            raise ValueError(
+                f"index = {self.index!r}: time from the row index needs index: true (or give "
+                "time: {column: ..., unit: ...})"
+            )
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0.0):
+            raise ValueError(f"rate_hz = {self.rate_hz!r}: must be a positive number of rows/s")
+
+
+TimeSpec = ColumnSpec | RowTime
+
+
+@dataclass(frozen=True, kw_only=True)
 class Conversion:
     """Machine data needed to turn motor angles and encoder counts into table travel."""
 
@@ -153,10 +172,10 @@ class Plausibility:
 
 @dataclass(frozen=True, kw_only=True)
 class _MapFile:
-    time: ColumnSpec
     position_sensor: Literal["motor_encoder", "linear_scale"]
     signals: Any  # name -> ColumnSpec mapping, parsed by load_column_map
     plausibility: Plausibility
+    time: Any = None  # a ColumnSpec or a RowTime mapping; None: the rate comes from --rate
     conversion: Conversion = field(default_factory=Conversion)
     trace_filter: Literal["none", "mean"] = "none"
     effort_sample: Literal["actual", "setpoint"] = "actual"
@@ -164,9 +183,10 @@ class _MapFile:
 
 @dataclass(frozen=True, kw_only=True)
 class ColumnMap:
-    """A parsed column map: the time column, the mapped signals, and the machine data."""
+    """A parsed column map: the time column (or the row rate), the mapped signals, and the
+    machine data. `time` None: the map leaves the rate to the command line (--rate)."""
 
-    time: ColumnSpec
+    time: TimeSpec | None
     position_sensor: Literal["motor_encoder", "linear_scale"]
     signals: tuple[tuple[str, ColumnSpec], ...]
     plausibility: Plausibility
@@ -239,15 +259,10 @@ def load_column_map(path: str | Path) -> ColumnMap:
         signals.append(
             (str(name), from_mapping(ColumnSpec, spec, source=source, path=f"signals.{name}"))
         )
-    if _UNITS[raw.time.unit][0] != "time":
-        raise ConfigError(f"{source}: time.unit = {raw.time.unit!r}: must be a time unit")
-    if raw.time.gain is not None and raw.time.gain < 0.0:
-        raise ConfigError(
-            f"{source}: time.gain = {raw.time.gain!r}: must be > 0 (time runs forwards)"
-        )
+    time = _time_spec(raw.time, source)
     try:
         return ColumnMap(
-            time=raw.time,
+            time=time,
             position_sensor=raw.position_sensor,
             signals=tuple(signals),
             plausibility=raw.plausibility,
@@ -258,3 +273,18 @@ def load_column_map(path: str | Path) -> ColumnMap:
         )
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None
+
+
+def _time_spec(data: Any, source: str) -> TimeSpec | None:
+    """The map's `time:`: a column (`{column, unit[, gain]}`), the row index at a rate
+    (`{index: true, rate_hz}`), or nothing (the rate is given on the command line)."""
+    if data is None:
+        return None
+    if isinstance(data, dict) and "index" in data:
+        return from_mapping(RowTime, data, source=source, path="time")
+    spec = from_mapping(ColumnSpec, data, source=source, path="time")
+    if _UNITS[spec.unit][0] != "time":
+        raise ConfigError(f"{source}: time.unit = {spec.unit!r}: must be a time unit")
+    if spec.gain is not None and spec.gain < 0.0:
+        raise ConfigError(f"{source}: time.gain = {spec.gain!r}: must be > 0 (time runs forwards)")
+    return spec

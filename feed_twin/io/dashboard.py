@@ -8,13 +8,14 @@ Panels (display units are converted here, once, at the edge; inputs are SI):
 | Following error [um]  | following_error_m [m]                                            |
 | Velocity [mm/s]       | v_cmd_m_s, v_m_s [m/s]                                           |
 | dq currents [A]       | i_q_ref_A, i_q_A, i_d_ref_A, i_d_A [A]                           |
-| Phase currents [A]    | i_a_A, i_b_A, i_c_A [A]                                          |
-| Voltages [V]          | u_d_V, u_q_V, u_dc_V [V]                                         |
+| Phase currents [A]    | i_a_A, i_b_A, i_c_A [A], the last 40 ms before the time cursor   |
+| dq voltages [V]       | u_d_V, u_q_V [V]                                                 |
+| DC bus [V]            | u_dc_V [V] (its own scale: 560 V would flatten u_d and u_q)      |
 | Friction force [N]    | f_friction_N [N]                                                 |
 | G-code                | the active program line, as a text log                           |
 
 `Dashboard` writes an `.rrd` file (always, when given a path) and optionally streams live to a
-viewer: `LiveViewer` starts Rerun's gRPC server and web viewer bound to 127.0.0.1 only, or the
+viewer: feed_twin.io.live.LiveViewer serves Rerun's web viewer (127.0.0.1 unless asked), or the
 dashboard connects to a viewer the user started (`rerun`, native). Samples are buffered and sent
 as columns, because one `log` call per scalar costs about 60 us.
 """
@@ -23,10 +24,6 @@ from __future__ import annotations
 
 import importlib.util
 import math
-import os
-import socket
-import subprocess
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,6 +61,10 @@ _BLUE, _ORANGE, _GREEN, _RED, _PURPLE = (
     (220, 40, 40),
     (160, 60, 220),
 )
+
+# the phase currents turn at the electrical frequency: over a whole run they fill the panel as a
+# solid band, so their panel shows a window that ends at the time cursor
+PHASE_WINDOW_S = 0.04
 
 PANELS: tuple[Panel, ...] = (
     Panel(
@@ -106,7 +107,7 @@ PANELS: tuple[Panel, ...] = (
         ),
     ),
     Panel(
-        title="Phase currents [A]",
+        title=f"Phase currents, last {PHASE_WINDOW_S * 1e3:g} ms [A]",
         origin="/current_phase",
         series=(
             Series(name="i_a_A", path="/current_phase/i_a", label="i_a", scale=1.0, color=_RED),
@@ -116,12 +117,18 @@ PANELS: tuple[Panel, ...] = (
         ),
     ),
     Panel(
-        title="Voltages [V]",
+        title="dq voltages [V]",
         origin="/voltage",
         series=(
             Series(name="u_d_V", path="/voltage/u_d", label="u_d", scale=1.0, color=_PURPLE),
             Series(name="u_q_V", path="/voltage/u_q", label="u_q", scale=1.0, color=_ORANGE),
-            Series(name="u_dc_V", path="/voltage/u_dc", label="u_dc", scale=1.0, color=_BLUE),
+        ),
+    ),
+    Panel(
+        title="DC bus [V]",
+        origin="/bus",
+        series=(
+            Series(name="u_dc_V", path="/bus/u_dc", label="u_dc", scale=1.0, color=_BLUE),
         ),
     ),
     Panel(
@@ -135,16 +142,22 @@ PANELS: tuple[Panel, ...] = (
 )  # fmt: skip
 SERIES: dict[str, Series] = {s.name: s for p in PANELS for s in p.series}
 SIGNALS: tuple[str, ...] = tuple(SERIES)
-GRID_COLUMNS = 2
+GRID_COLUMNS = 3
 
 
 def blueprint() -> rrb.Blueprint:
-    """The dashboard layout: a 2-column grid of time-series panels and the G-code log."""
+    """The dashboard layout: a 3-column grid of time-series panels and the G-code log."""
+    window = rrb.VisibleTimeRange(
+        TIMELINE,
+        start=rrb.TimeRangeBoundary.cursor_relative(seconds=-PHASE_WINDOW_S),
+        end=rrb.TimeRangeBoundary.cursor_relative(),
+    )
     views: list[rrb.View] = [
         rrb.TimeSeriesView(
             name=p.title,
             origin=p.origin,
             plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightBottom, visible=True),
+            time_ranges=window if p.origin == "/current_phase" else None,
         )
         for p in PANELS
     ]
@@ -153,12 +166,6 @@ def blueprint() -> rrb.Blueprint:
         rrb.Grid(*views, grid_columns=GRID_COLUMNS),
         collapse_panels=True,
     )
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def rerun_binary() -> Path:
@@ -170,72 +177,6 @@ def rerun_binary() -> Path:
     if not path.is_file():
         raise FileNotFoundError(f"the rerun viewer binary is missing: {path}")
     return path
-
-
-class LiveViewer:
-    """Rerun's gRPC server and web viewer in a child process, listening on 127.0.0.1 only."""
-
-    def __init__(
-        self,
-        *,
-        grpc_port: int | None = None,
-        web_port: int | None = None,
-        memory_limit: str = "1GiB",
-        startup_timeout_s: float = 15.0,
-    ) -> None:
-        self.grpc_port = grpc_port or _free_port()
-        self.web_port = web_port or _free_port()
-        cmd = [
-            str(rerun_binary()),
-            "--serve-web",
-            "--bind",
-            "127.0.0.1",
-            "--port",
-            str(self.grpc_port),
-            "--web-viewer-port",
-            str(self.web_port),
-            "--server-memory-limit",
-            memory_limit,
-        ]
-        self._proc = subprocess.Popen(
-            cmd,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            env={**os.environ, "RERUN_ANALYTICS": "false"},
-        )
-        deadline = time.monotonic() + startup_timeout_s
-        while not self._listening(self.grpc_port):
-            if self._proc.poll() is not None or time.monotonic() > deadline:
-                self.stop()
-                raise RuntimeError(
-                    f"the Rerun server did not start listening on 127.0.0.1:{self.grpc_port} "
-                    f"within {startup_timeout_s} s"
-                )
-            time.sleep(0.05)
-
-    @staticmethod
-    def _listening(port: int) -> bool:
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            s.settimeout(0.2)
-            return s.connect_ex(("127.0.0.1", port)) == 0
-
-    @property
-    def grpc_url(self) -> str:
-        return f"rerun+http://127.0.0.1:{self.grpc_port}/proxy"
-
-    @property
-    def web_url(self) -> str:
-        return f"http://127.0.0.1:{self.web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{self.grpc_port}%2Fproxy"
-
-    def stop(self) -> None:
-        if self._proc.poll() is None:
-            self._proc.terminate()
-            try:
-                self._proc.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                self._proc.kill()
-                self._proc.wait(timeout=5.0)
 
 
 class Dashboard:

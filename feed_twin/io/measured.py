@@ -19,10 +19,15 @@ column and the problem; a problem with a documented repair is repaired and repor
 - NaN or empty cells inside a column are linearly interpolated in time (edges held);
 - gaps in the time stamps (a step longer than 1.5 sample periods) are filled by resampling every
   column onto the uniform grid of the median sample period.
+Time comes from the map's time column, or from the row index at a rate (`time: {index: true,
+rate_hz: 10}` in the map, or `--rate HZ`): a monitoring log has no time column. Rows are named
+`file:line` (the header is line 1) in every complaint about them.
 Errors: a map naming a missing column, a non-numeric column, time that does not strictly
-increase, a record shorter than `MIN_SAMPLES` samples or `MIN_DURATION_S`, a command that never
-moves, and positions or speeds that are implausible for the axis declared in the map's
-`plausibility` section (the usual cause: millimetres declared as metres).
+increase (a repeated stamp, or rows out of order), a record shorter than `MIN_SAMPLES`
+samples or `MIN_DURATION_S`, a command that never moves, and positions or speeds that are
+implausible for the axis declared in the map's `plausibility` section (the usual cause:
+millimetres declared as metres, or a log's rows out of order). They look at the part of the
+record that is used (`load_measured(window=...)`).
 
 Example map (`config/emps_map.yaml`)::
 
@@ -57,6 +62,7 @@ from feed_twin.io.column_map import (  # noqa: F401  (the map's names, re-export
     ColumnSpec,
     Conversion,
     Plausibility,
+    RowTime,
     canonical_dimension,
     load_column_map,
 )
@@ -66,8 +72,15 @@ MIN_DURATION_S = 0.2
 MIN_COMMAND_TRAVEL_M = 1e-6  # below one micrometre of commanded travel nothing can be identified
 GAP_FACTOR = 1.5  # a time step longer than this many median periods is a gap
 MAX_NAN_FRACTION = 0.2  # more missing than this is not repaired
-MAX_PERIOD_S = 0.1  # [s] a drive trace is sampled at 10 Hz or faster
+MAX_PERIOD_S = 1.0  # [s] a record is sampled at 1 Hz or faster (monitoring logs: 1-100 Hz)
+# a sample period (and a period against the model's base period) is taken as equal within this
+# relative tolerance: 0.1 s stamps printed as 0.10000000000000142 are 0.1 s, and so are the
+# stamps of a `gain: 0.0999999` time column
+PERIOD_RTOL = 1e-4
 MAX_GRID_FACTOR = 2.0  # filling the gaps may at most double the samples
+# rows out of order: all positions jump at a few rows; at more than this fraction of the rows
+# the record as a whole is too fast (a unit mistake)
+MAX_JUMP_FRACTION = 0.05
 
 
 class MeasuredDataError(ValueError):
@@ -92,6 +105,9 @@ def segment(run: MeasuredRun, t0_s: float, t1_s: float) -> MeasuredRun:
         t_s=t[keep],
         signals={k: v[keep] for k, v in run.signals.items()},
         source=f"{run.source} [{t0_s:g} s to {t1_s:g} s]",
+        lines=None if run.lines is None else run.lines[keep],
+        file=run.file,
+        effort_blind=None if run.effort_blind is None else run.effort_blind[keep],
     )
 
 
@@ -145,6 +161,20 @@ class MeasuredRun:
     # the measured position's zero is not known (a command placed from the program, whose
     # offset is only estimated): the position channel compares shapes, not levels
     position_offset_free: bool = False
+    # the file line of each sample (the header is line 1; -1 where a gap was filled), and the
+    # file: rows are named `file:line` in every complaint about them
+    lines: np.ndarray | None = None
+    file: str = ""
+    # samples whose effort is no evidence for the model (a slow record's accelerations, which
+    # fall between its samples: analysis.visibility); left out of residuals and fits
+    effort_blind: np.ndarray | None = None
+
+    def where(self, sample: int) -> str:
+        """`file:line` of sample `sample`, or its time where the sample has no line."""
+        line = -1 if self.lines is None else int(self.lines[sample])
+        if line < 0:
+            return f"{self.source} at t = {float(self.t_s[sample]):.6g} s"
+        return f"{self.file or self.source}:{line}"
 
     def __getitem__(self, name: str) -> np.ndarray:
         try:
@@ -210,22 +240,47 @@ def read_csv_table(path: str | Path) -> tuple[list[str], np.ndarray]:
                 f"{path}: line {number} has {cells} cells but the header has {len(header)} "
                 "columns (a ragged or truncated file)"
             )
-    table = np.genfromtxt(lines[1:], delimiter=",", dtype=float, ndmin=2)
-    if table.size == 0:
-        table = np.empty((0, len(header)))
+    rows = [line for line in lines[1:] if line.strip()]
+    if not rows:
+        # numpy's genfromtxt would warn "Empty input file" on stderr and return nothing
+        raise MeasuredDataError(
+            f"{path}: has a header ({len(header)} columns) but no data rows; export the record "
+            "with its samples"
+        )
+    table = np.genfromtxt(rows, delimiter=",", dtype=float, ndmin=2)
     return header, table
 
 
-def load_measured(path: str | Path, column_map: ColumnMap | str | Path) -> MeasuredRun:
-    """Load a measured CSV file (or a rosbag2 recording) through a column map."""
+def load_measured(
+    path: str | Path,
+    column_map: ColumnMap | str | Path,
+    *,
+    rate_hz: float | None = None,
+    window: tuple[float, float] | None = None,
+) -> MeasuredRun:
+    """Load a measured CSV file (or a rosbag2 recording) through a column map.
+
+    `rate_hz`: time is the row index at this rate (a log without a time column; overrides the
+    map's time). `window` (t0, t1) [s]: only that part of the record is kept, and the
+    plausibility checks look at that part only."""
     if not isinstance(column_map, ColumnMap):
         column_map = load_column_map(column_map)
+    if rate_hz is not None:
+        if not (math.isfinite(rate_hz) and rate_hz > 0.0):
+            raise MeasuredDataError(f"--rate {rate_hz!r}: must be a positive number of rows/s")
+        column_map = dataclasses.replace(column_map, time=RowTime(index=True, rate_hz=rate_hz))
     path = Path(path)
     if path.is_dir() or path.suffix == ".mcap":
+        if not isinstance(column_map.time, ColumnSpec):
+            raise MeasuredDataError(f"{path}: a bag's time is a topic field, not a row rate")
         header, table = _read_bag_table(path, column_map)
     else:
         header, table = read_csv_table(path)
-    return build_run(str(path), header, table, column_map)
+    run = build_run(str(path), header, table, column_map, check=False)
+    if window is not None:
+        run = segment(run, *window)
+    check_plausible(run, column_map)
+    return run
 
 
 def _read_bag_table(path: Path, column_map: ColumnMap) -> tuple[list[str], np.ndarray]:
@@ -240,6 +295,7 @@ def _read_bag_table(path: Path, column_map: ColumnMap) -> tuple[list[str], np.nd
     """
     from feed_twin.io.bag import BagError, BagReader
 
+    assert isinstance(column_map.time, ColumnSpec)  # checked by load_measured
     specs = [column_map.time] + [spec for _, spec in column_map.signals]
     time_topic, _, time_field = column_map.time.column.partition(":")
     stamp = None if time_field == "log_time_s" else time_field
@@ -301,11 +357,23 @@ def _stamped_columns(reader, topic: str, fields: list[str], stamp: str | None):
         return reader.columns(topic, fields)
 
 
-def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap) -> MeasuredRun:
-    """Map, repair, convert and check a raw table; see the module docstring for the rules."""
+def build_run(
+    source: str, header: list[str], table: np.ndarray, cmap: ColumnMap, *, check: bool = True
+) -> MeasuredRun:
+    """Map, repair, convert and check a raw table; see the module docstring for the rules.
+    `check=False` leaves the plausibility checks to the caller (on the segment it uses)."""
     index = {name: j for j, name in enumerate(header)}
     notes: list[str] = []
-    wanted = [("t_s", cmap.time)] + list(cmap.signals)
+    if cmap.time is None:
+        raise MeasuredDataError(
+            f"{source}: the map {cmap.source} gives no time; name the time column (time: "
+            "{column: ..., unit: s}), or give the rows' rate (time: {index: true, rate_hz: 10} "
+            "or --rate HZ)"
+        )
+    timed = isinstance(cmap.time, ColumnSpec)
+    wanted = list(cmap.signals)
+    if isinstance(cmap.time, ColumnSpec):
+        wanted.insert(0, ("t_s", cmap.time))
     missing = [
         f"{spec.column!r} (for {name})"
         for name, spec in wanted
@@ -316,25 +384,10 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
             f"{source}: the map {cmap.source} names column(s) {', '.join(missing)} that the file "
             f"lacks; it has {', '.join(header)}"
         )
-    present = [(name, spec) for name, spec in wanted if spec.column in index]
-
-    t_raw = cmap.time.to_si(table[:, index[cmap.time.column]])
-    tcol = cmap.time.column
-    if np.isnan(t_raw).any():
-        row = int(np.flatnonzero(np.isnan(t_raw))[0])
-        raise MeasuredDataError(
-            f"{source}: time column {tcol!r} is empty or not a number at data row {row + 1}; "
-            "time stamps are not interpolated"
-        )
+    present = [(name, spec) for name, spec in cmap.signals if spec.column in index]
+    t_raw, tcol = _time_of(source, table, index, cmap)
     n = len(t_raw)
     dt = np.diff(t_raw)
-    if (dt <= 0).any():
-        row = int(np.flatnonzero(dt <= 0)[0]) + 1
-        raise MeasuredDataError(
-            f"{source}: time column {tcol!r} does not increase at data row {row + 1} "
-            f"(t = {float(t_raw[row])!r} s after {float(t_raw[row - 1])!r} s); sort the file "
-            "or fix the clock"
-        )
     if n < MIN_SAMPLES or (n and t_raw[-1] - t_raw[0] < MIN_DURATION_S):
         duration = float(t_raw[-1] - t_raw[0]) if n else 0.0
         raise MeasuredDataError(
@@ -342,11 +395,11 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
             f"need at least {MIN_SAMPLES} samples and {MIN_DURATION_S} s"
         )
     period = float(np.median(dt))
-    if period > MAX_PERIOD_S:
+    if period > MAX_PERIOD_S * (1.0 + PERIOD_RTOL):
         raise MeasuredDataError(
-            f"{source}: time column {tcol!r} (declared in {cmap.time.unit}) gives a sample "
-            f"period of {period:.4g} s, slower than any drive trace (> {MAX_PERIOD_S:g} s); is "
-            "the time unit wrong (ms declared as s)?"
+            f"{source}: time column {tcol!r} (declared in {getattr(cmap.time, 'unit', 's')}) "
+            f"gives a sample period of {period:.4g} s, slower than any record the twin can "
+            f"compare (> {MAX_PERIOD_S:g} s); is the time unit wrong (ms declared as s)?"
         )
     if (t_raw[-1] - t_raw[0]) / period > MAX_GRID_FACTOR * n:
         raise MeasuredDataError(
@@ -354,9 +407,11 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
             f"sampled every {period:.4g} s would take {int((t_raw[-1] - t_raw[0]) / period)} "
             f"samples to fill; cut the record at the gap (--segment t0:t1)"
         )
-
+    if timed and np.all(np.abs(dt - period) <= PERIOD_RTOL * period):
+        # stamps printed with float noise (0.1 s as 0.10000000000000142): the uniform grid
+        t_raw = np.linspace(t_raw[0], t_raw[-1], n)
     columns: dict[str, np.ndarray] = {}
-    for name, spec in present[1:]:
+    for name, spec in present:
         raw = table[:, index[spec.column]].astype(float)
         bad = ~np.isfinite(raw)
         if bad.all():
@@ -380,14 +435,18 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
 
     gaps = dt > GAP_FACTOR * period
     t = t_raw
+    lines = np.arange(n) + 2  # the header is line 1
     if gaps.any():
         t = t_raw[0] + period * np.arange(int(round((t_raw[-1] - t_raw[0]) / period)) + 1)
         columns = {k: np.interp(t, t_raw, v) for k, v in columns.items()}
-        largest = int(np.argmax(dt))
+        first, largest = int(np.flatnonzero(gaps)[0]), int(np.argmax(dt))
+        near = np.clip(np.searchsorted(t_raw, t - 0.5 * period), 0, n - 1)
+        lines = np.where(np.abs(t_raw[near] - t) < 0.5 * period, near + 2, -1)
         notes.append(
-            f"time column {tcol!r}: {int(gaps.sum())} gap(s) (largest {dt[largest]:.4g} s at "
-            f"t = {t_raw[largest]:.4g} s); {len(t) - n} sample(s) inserted by resampling "
-            f"every column onto a uniform {period:.4g} s grid"
+            f"time column {tcol!r}: {int(gaps.sum())} gap(s), rows missing (the first after "
+            f"{source}:{first + 2}, the largest {dt[largest]:.4g} s after {source}:"
+            f"{largest + 2}); {len(t) - n} sample(s) inserted by resampling every column onto a "
+            f"uniform {period:.4g} s grid"
         )
 
     run = MeasuredRun(
@@ -398,9 +457,46 @@ def build_run(source: str, header: list[str], table: np.ndarray, cmap: ColumnMap
         warnings=tuple(notes),
         trace_filter=cmap.trace_filter,
         effort_sample=cmap.effort_sample,
+        lines=lines,
+        file=source,
     )
-    _check_plausible(run, cmap)
+    if check:
+        check_plausible(run, cmap)
     return run
+
+
+def _time_of(
+    source: str, table: np.ndarray, index: dict[str, int], cmap: ColumnMap
+) -> tuple[np.ndarray, str]:
+    """(time stamps [s], what they come from) of a table: the time column, checked to rise
+    strictly with the offending rows named, or the row index at the map's rate."""
+    if isinstance(cmap.time, RowTime):
+        return np.arange(len(table)) / cmap.time.rate_hz, f"row index at {cmap.time.rate_hz:g} Hz"
+    assert cmap.time is not None
+    tcol = cmap.time.column
+    t_raw = cmap.time.to_si(table[:, index[tcol]])
+    if np.isnan(t_raw).any():
+        row = int(np.flatnonzero(np.isnan(t_raw))[0])
+        raise MeasuredDataError(
+            f"{source}:{row + 2}: time column {tcol!r} is empty or not a number; time stamps "
+            "are not interpolated"
+        )
+    dt = np.diff(t_raw)
+    if (dt <= 0).any():
+        row = int(np.flatnonzero(dt <= 0)[0]) + 1
+        now, before = float(t_raw[row]), float(t_raw[row - 1])
+        if now == before:
+            raise MeasuredDataError(
+                f"{source}:{row + 2}: time column {tcol!r} repeats t = {now!r} s of line "
+                f"{row + 1}; drop the repeated row (a logger that wrote one sample twice)"
+            )
+        later = int(np.flatnonzero(dt < 0).size)
+        raise MeasuredDataError(
+            f"{source}:{row + 2}: time column {tcol!r} goes back from {before!r} s to {now!r} s "
+            f"({later} such step(s) in the file): rows out of order; sort the file by its time "
+            "column"
+        )
+    return t_raw, tcol
 
 
 def _to_si(name: str, spec: ColumnSpec, raw: np.ndarray, conv: Conversion) -> np.ndarray:
@@ -416,7 +512,32 @@ def _to_si(name: str, spec: ColumnSpec, raw: np.ndarray, conv: Conversion) -> np
     return (raw - spec.offset) * (factor * gain)
 
 
-def _check_plausible(run: MeasuredRun, cmap: ColumnMap) -> None:
+def _check_row_order(run: MeasuredRun, cmap: ColumnMap) -> None:
+    """Rows out of order or missing in a log timed by its row index: every position channel
+    jumps at the same row by more than the axis can travel in one sample (a glitch of one
+    sensor moves one channel; a block of rows from elsewhere in the file moves them all)."""
+    names = [n for n in ("pos_cmd_m", "pos_meas_m") if n in run]
+    if not names:
+        return
+    limit = 2.0 * cmap.plausibility.max_speed_m_s * run.sample_period_s
+    jumps = np.all([np.abs(np.diff(run[n])) > limit for n in names], axis=0)
+    if not jumps.any() or jumps.mean() > MAX_JUMP_FRACTION:
+        return  # none, or the whole record too fast: a unit, not the rows (check_plausible)
+    first = int(np.flatnonzero(jumps)[0]) + 1
+    col = dict(cmap.signals)[names[0]].column
+    step = float(run[names[0]][first] - run[names[0]][first - 1])
+    raise MeasuredDataError(
+        f"{run.where(first)}: column {col!r} ({names[0]}) jumps {step:.4g} m from the row "
+        f"before, more than the axis travels in one sample ({limit:.4g} m at "
+        f"{cmap.plausibility.max_speed_m_s:.4g} m/s), as every position channel does there "
+        f"({int(jumps.sum())} such row(s)): rows out of order or missing; sort the file by its "
+        "time or sequence column, or cut the record there (--segment t0:t1)"
+    )
+
+
+def check_plausible(run: MeasuredRun, cmap: ColumnMap) -> None:
+    """Raise MeasuredDataError where the run's positions, speeds or channels cannot be the
+    axis's (see the module docstring)."""
     lim = cmap.plausibility
     h = run.sample_period_s
     spec_of = dict(cmap.signals)
@@ -427,6 +548,7 @@ def _check_plausible(run: MeasuredRun, cmap: ColumnMap) -> None:
                 f"({run[name][0]:.6g} in SI) all along; a frozen or unconnected channel "
                 "carries nothing to compare"
             )
+    _check_row_order(run, cmap)
     for name in ("pos_cmd_m", "pos_meas_m"):
         if name not in run:
             continue
@@ -441,12 +563,18 @@ def _check_plausible(run: MeasuredRun, cmap: ColumnMap) -> None:
                 f"(mm declared as m)?"
             )
         # 99.9th percentile so that one encoder glitch does not decide
-        speed = float(np.percentile(np.abs(np.diff(x)) / h, 99.9))
+        steps = np.abs(np.diff(x)) / h
+        speed = float(np.percentile(steps, 99.9))
         if speed > 2.0 * lim.max_speed_m_s:
+            jumps = np.flatnonzero(steps > 2.0 * lim.max_speed_m_s)
+            first = int(jumps[0]) + 1
             raise MeasuredDataError(
-                f"{run.source}: column {col!r} ({name}, declared in {unit}) implies a speed of "
-                f"{speed:.4g} m/s, more than twice the axis maximum of {lim.max_speed_m_s:.4g} "
-                "m/s; is the unit or the time unit wrong?"
+                f"{run.where(first)}: column {col!r} ({name}, declared in {unit}) jumps "
+                f"{float(x[first] - x[first - 1]):.4g} m in one sample "
+                f"({float(steps[first - 1]):.4g} m/s, more than twice the axis maximum of "
+                f"{lim.max_speed_m_s:.4g} m/s; "
+                f"{jumps.size} such step(s)): rows out of order or missing, or a wrong unit or "
+                "time unit?"
             )
     for name in ("vel_cmd_m_s", "vel_meas_m_s"):
         if name in run:

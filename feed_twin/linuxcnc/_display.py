@@ -225,6 +225,8 @@ def run_program(command, stat, errors, reader, run):
 def main(argv):
     with open(argv[-1], encoding="utf-8") as f:
         run = json.load(f)
+    # the INI's NML file (the linuxcnc script exports it), not the module's default
+    linuxcnc.nmlfile = os.environ.get("NMLFILE", linuxcnc.nmlfile)
     comp = hal.component("feedtwin-display")
     reader = Reader(comp, run)
     comp.ready()

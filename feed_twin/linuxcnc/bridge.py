@@ -12,6 +12,8 @@ makes of each batch of rows:
   produced in period k - 1, so row k's feedback is published stamped k - 1. The shadow twin's
   following error x_cmd(k - 1) - x_meas(k - 1) is then LinuxCNC's own f-error of row k.
 - counts: rows received, rows missing (gaps in the servo thread's tick counter), published.
+- the servo thread's own timing: start lateness and interval jitter of every received period
+  (feed_twin.linuxcnc.period_timing), reported as `servo_*`.
 - latency (CLOCK_MONOTONIC, the servo thread's clock too): the bridge latency is servo tick ->
   the period's samples handed to DDS (`mark_published`), which the twin receives one DDS hop
   later (half a round trip between processes, 0.1-0.2 ms on this machine); the start of each
@@ -26,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from feed_twin.linuxcnc.period_timing import period_timing
 from feed_twin.linuxcnc.samples import JOINT_LETTERS, ROW_HEADER, SampleLayout, rows_to_trace
 
 NS_PER_S = 1_000_000_000
@@ -69,6 +72,8 @@ class ServoBridge:
         self._last_tick: int | None = None
         self._pending: OrderedDict[int, float] = OrderedDict()  # stamp_ns -> tick time [s]
         self.publish_latency_s: list[np.ndarray] = []
+        self._ticks: list[np.ndarray] = []  # every received period's tick and start time
+        self._starts_s: list[np.ndarray] = []
         self.twin_latency_s: list[float] = []
 
     def take(self, rows: np.ndarray, *, now_s: float) -> BridgeBatch | None:
@@ -81,6 +86,8 @@ class ServoBridge:
         self.lost += int(ticks[-1] - previous) - len(ticks)
         self._last_tick = int(ticks[-1])
         trace = rows_to_trace(rows, self.layout, period_s=self.period_s)
+        self._ticks.append(ticks)
+        self._starts_s.append(trace.tick_time_s)
         if self.k0 is None:
             running = np.flatnonzero(trace.program_line != 0)
             if running.size == 0:
@@ -123,17 +130,27 @@ class ServoBridge:
         CLOCK_MONOTONIC)."""
         self.publish_latency_s.append(now_s - tick_time_s)
 
-    def report(self) -> dict[str, float | int | None]:
+    def report(self) -> dict[str, object]:
         publish = (
             np.concatenate(self.publish_latency_s) * 1e3 if self.publish_latency_s else np.empty(0)
         )
         twin = np.asarray(self.twin_latency_s) * 1e3
+        timing = {}
+        if self.received >= 2:
+            timing = period_timing(
+                np.concatenate(self._ticks), np.concatenate(self._starts_s), period_s=self.period_s
+            ).as_dict()
         return {
             "samples_received": self.received,
             "samples_lost": self.lost,
             "samples_published": self.published,
+            # periods of the program, first motion to the last period received (gaps included)
+            "program_periods": 0
+            if self.k0 is None or self._last_tick is None
+            else self._last_tick - self.k0 + 1,
             **_percentiles("bridge_latency", publish),
             **_percentiles("twin_output_latency", twin),
+            **{f"servo_{key}": value for key, value in timing.items()},
         }
 
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from feed_twin.core import signals as sig
 from feed_twin.linuxcnc.machine import machine_for_config
+from feed_twin.linuxcnc.period_timing import PeriodTiming
 from feed_twin.linuxcnc.runner import LinuxcncRun, RunOptions
 from feed_twin.linuxcnc.samples import JOINT_LETTERS, ROW_HEADER, ServoTrace, sample_layout
 
@@ -45,6 +46,11 @@ class CommissioningResult:
     twin_scale_m: np.ndarray  # [m] per row: the scale position sent back for that row's period
     missed_periods: int  # periods of the program in which LinuxCNC found no twin feedback
     program_periods: int  # periods of the program (for the share missed)
+
+    def period_timing(self) -> PeriodTiming:
+        """The servo thread's start lateness and jitter over the program (its own clock): a
+        period that started late left the twin less time to answer."""
+        return self.trace.cut(self.trace.program_span()).period_timing()
 
     @property
     def following_error_max_m(self) -> float:

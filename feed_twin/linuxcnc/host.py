@@ -126,33 +126,80 @@ def _owner_of(path: Path) -> int | None:
         return None
 
 
+_NML_KEYS = range(1001, 1006)  # the buffers of linuxcnc.nml, each a segment and a semaphore
+
+
+def _sysv_keys(kind: str) -> set[int]:
+    lines = Path(f"/proc/sysvipc/{kind}").read_text().splitlines()[1:]
+    return {int(line.split()[0]) for line in lines}
+
+
 def leftover_shared_memory() -> list[str]:
     """Keys of LinuxCNC's SysV shared-memory segments still present: the NML buffers of
     linuxcnc.nml (1001-1005), motion (100), RTAPI and HAL, the sampler and streamer FIFOs."""
-    lines = Path("/proc/sysvipc/shm").read_text().splitlines()[1:]
-    keys = {int(line.split()[0]) for line in lines}
-    ours = {100, *range(1001, 1006), 0x48484C34, 0x48414C32}
+    ours = {100, *_NML_KEYS, 0x48484C34, 0x48414C32}
     ours |= {base + channel for base in (0x48534130, 0x48535430) for channel in range(8)}
-    return [hex(k) for k in sorted(keys & ours)]
+    return [hex(k) for k in sorted(_sysv_keys("shm") & ours)]
+
+
+def leftover_semaphores() -> list[str]:
+    """Keys of the SysV semaphores of LinuxCNC's NML buffers still present. They are made with
+    mode 0700: one left by a run as one user makes another user's LinuxCNC fail ("semget:
+    Permission denied")."""
+    return [hex(k) for k in sorted(_sysv_keys("sem") & set(_NML_KEYS))]
+
+
+def loopback_nml(source: Path, target: Path) -> Path:
+    """Write `source`'s NML configuration to `target` without its network servers.
+
+    Every buffer of LinuxCNC's linuxcnc.nml carries `TCP=5005`, which makes `linuxcncsvr`
+    listen on 0.0.0.0:5005 and serve the command channel to any host; libnml has no option
+    that binds it to one address. Without the option the buffers stay shared memory between
+    the local processes (all of a run's) and nothing listens."""
+    lines = []
+    for line in source.read_text(encoding="utf-8").splitlines():
+        if line.startswith("B "):
+            line = " ".join(word for word in line.split() if not word.upper().startswith("TCP="))
+        lines.append(line)
+    target.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return target
+
+
+def _kill_processes_of(uid: int) -> bool:
+    """SIGKILL the user's LinuxCNC processes until two looks 50 ms apart find none (a halcmd
+    killed mid-way may just have started an rtapi_app, which is set-uid root and runs as root
+    until it has set itself up); True when there were any."""
+    killed = False
+    quiet_looks = 0
+    deadline = time.monotonic() + 3.0
+    while quiet_looks < 2 and time.monotonic() < deadline:
+        stale = [
+            pid
+            for pid, name in leftover_processes()
+            if process_owner(pid) == uid or (name == "rtapi_app" and process_owner(pid) == 0)
+        ]
+        quiet_looks = 0 if stale else quiet_looks + 1
+        for pid in stale:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+            killed = True
+        time.sleep(0.05)
+    return killed
 
 
 def remove_leftovers(user: str | None) -> None:
     """Remove what a LinuxCNC that did not shut down itself left: its processes (killed by
-    pid), its SysV shared memory and /tmp/linuxcnc.lock. Under the host lock no other run
-    can be using them."""
+    pid), its SysV shared memory and semaphores and /tmp/linuxcnc.lock. Under the host lock
+    no other run can be using them."""
     uid = pwd.getpwnam(user).pw_uid if user is not None else os.getuid()
-    stale = [pid for pid, _ in leftover_processes() if process_owner(pid) == uid]
-    for pid in stale:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
-    deadline = time.monotonic() + 2.0
-    while any(process_owner(pid) == uid for pid in stale) and time.monotonic() < deadline:
-        time.sleep(0.01)
+    killed = _kill_processes_of(uid)
     for key in leftover_shared_memory():
         subprocess.run(["ipcrm", "-M", key], capture_output=True, check=False)
+    for key in leftover_semaphores():
+        subprocess.run(["ipcrm", "-S", key], capture_output=True, check=False)
     with contextlib.suppress(FileNotFoundError, PermissionError):
         LINUXCNC_LOCKFILE.unlink()
-    if stale:
+    if killed:
         # the log files the killed script made with mktemp and would have removed
         for path in Path("/tmp").glob("linuxcnc.[dp][er][bi]*.*"):
             if _owner_of(path) == uid:
@@ -160,11 +207,13 @@ def remove_leftovers(user: str | None) -> None:
 
 
 def leftovers(say: Callable[[str], None] = lambda text: None) -> list[str]:
-    """What a LinuxCNC run left on this host (processes, shared memory, its lock file), looked
-    at under the host lock, so that a run in progress elsewhere is not mistaken for one."""
+    """What a LinuxCNC run left on this host (processes, shared memory, semaphores, its lock
+    file), looked at under the host lock, so that a run in progress elsewhere is not mistaken
+    for one."""
     with host_lock(say):
         found = [f"process {name} ({pid})" for pid, name in leftover_processes()]
         found += [f"shared memory {key}" for key in leftover_shared_memory()]
+        found += [f"semaphore {key}" for key in leftover_semaphores()]
         if LINUXCNC_LOCKFILE.exists():
             found.append(str(LINUXCNC_LOCKFILE))
     return found

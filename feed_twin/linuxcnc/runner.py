@@ -47,6 +47,7 @@ from feed_twin.linuxcnc.host import (
     check_installed,
     host_lock,
     leftover_processes,
+    loopback_nml,
     process_owner,
     remove_leftovers,
     run_user,
@@ -58,7 +59,17 @@ EVENT_PREFIX = "feed_twin-display: "
 _DISPLAY_SOURCE = Path(__file__).with_name("_display.py")
 _PIPE_SIZE = 1 << 20  # the largest pipe an unprivileged process may ask for
 GRACEFUL_S = 3.0  # [s] LinuxCNC's own shutdown takes 0.3-0.9 s
-DEATH_CHECK_S = 0.05  # [s] without rows before the runner looks whether rtapi_app still lives
+WATCH_S = 0.1  # [s] between two looks at whether each of LinuxCNC's processes still lives
+DEFAULT_NML = Path("/usr/share/linuxcnc/linuxcnc.nml")
+# LinuxCNC's long-lived processes, each a reason to stop the run when it dies: the servo thread
+# stops with rtapi_app; without milltask, io or linuxcncsvr the servo thread goes on sending idle
+# periods while nothing plans, runs or answers any more
+WATCHED = {
+    "rtapi_app": "realtime",
+    "milltask": "task",
+    "io": "I/O controller",
+    "linuxcncsvr": "NML server",
+}
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -68,7 +79,12 @@ class RunOptions:
     timeout_s: float = 600.0  # [s] longest program run before it is aborted
     settle_s: float = 0.1  # [s] periods recorded after the program's end
     start_timeout_s: float = 30.0  # [s] LinuxCNC start-up until the machine is homed
-    max_lag_s: float = 1.0  # [s] a row older than this when it arrives is a fault
+    # [s] a row older than this when it arrives is said once (the run goes on: the sampler's
+    # FIFO holds the periods, nothing is lost)
+    max_lag_s: float = 1.0
+    # [s] a row older than this is a fault: the sampler FIFO (HalServo.sample_depth periods)
+    # is about to overflow and periods would be lost; at most 90 % of the FIFO
+    lag_limit_s: float = 100.0
     # [s] no servo period for this long while running is a fault (LinuxCNC alive but stalled:
     # a loaded host without a realtime kernel stalls its threads for a few hundred ms)
     stall_s: float = 3.0
@@ -78,7 +94,7 @@ class RunOptions:
     machine_dir: Path | None = None
 
     def __post_init__(self) -> None:
-        for name in ("timeout_s", "start_timeout_s", "max_lag_s", "stall_s"):
+        for name in ("timeout_s", "start_timeout_s", "max_lag_s", "lag_limit_s", "stall_s"):
             require_positive(name, getattr(self, name))
         require_nonnegative("settle_s", self.settle_s)
         if isinstance(self.twin_delay, bool) or not isinstance(self.twin_delay, int):
@@ -136,8 +152,14 @@ class LinuxcncRun:
         self.ended = False
         self._dead = False  # LinuxCNC's servo thread or script died: no graceful shutdown
         self._closing = False  # shutting down: rows are only kept
-        self._rt: list[int] = []  # pids of rtapi_app (the servo thread's process)
+        self._watched: dict[int, str] = {}  # pid -> name of LinuxCNC's processes (WATCHED)
+        self._watch_wall = 0.0
         self.fault_wall: float | None = None
+        self.lag_max_s = 0.0  # [s] the oldest row's age at its arrival, over the run
+        self._lag_said = False
+        self._lag_limit_s = min(
+            options.lag_limit_s, 0.9 * servo.sample_depth * servo.servo_period_s
+        )
 
     def __enter__(self) -> LinuxcncRun:
         check_installed()
@@ -178,7 +200,7 @@ class LinuxcncRun:
             "samples_fifo": str(samples),
             "twin_fifo": None,
             "stop_file": str(workdir / "stop"),
-            "max_backlog_ticks": round(self.options.max_lag_s / self.servo.servo_period_s),
+            "max_backlog_ticks": round(self._lag_limit_s / self.servo.servo_period_s),
             "timeout_s": self.options.timeout_s,
             "settle_ticks": round(self.options.settle_s / self.servo.servo_period_s),
         }
@@ -192,7 +214,7 @@ class LinuxcncRun:
         )  # fmt: skip
         if not found:
             raise LinuxcncError(f"{ini.name}: no 'DISPLAY =' line in its [DISPLAY] section")
-        ini.write_text(text, encoding="utf-8")
+        ini.write_text(_without_network(text, workdir), encoding="utf-8")
         self.stop_file = Path(run["stop_file"])
         if user is not None:
             entry = pwd.getpwnam(user)
@@ -250,8 +272,12 @@ class LinuxcncRun:
             self._handle_events(timeout=0.01)
             if time.monotonic() > deadline:
                 self._fail(f"LinuxCNC did not start within {self.options.start_timeout_s} s")
-        # the servo thread's process, watched while rows do not come
-        self._rt = [pid for pid, name in leftover_processes() if name == "rtapi_app"]
+        # (under the host lock every LinuxCNC process on the host is this run's)
+        self._watched = {pid: name for pid, name in leftover_processes() if name in WATCHED}
+        missing = set(WATCHED) - set(self._watched.values())
+        if missing:
+            self._dead = True
+            self._fail(f"LinuxCNC started without its process(es) {', '.join(sorted(missing))}")
 
     def poll(self, timeout: float = 0.01) -> np.ndarray:
         """Rows (n, row_width) that arrived since the last call; empty once the run ended.
@@ -269,23 +295,27 @@ class LinuxcncRun:
             self._last_row_wall = now
             # the oldest row of the batch waited longest
             lag = now - rows[0, len(ROW_HEADER) + self.layout.index("tick_time_s")]
-            if lag > self.options.max_lag_s:
+            self.lag_max_s = max(self.lag_max_s, lag)
+            if lag > self._lag_limit_s:
                 self._fail(
                     f"the bridge fell behind: servo tick {int(self._tick(rows[0]))} arrived "
-                    f"{lag * 1e3:.0f} ms late (limit {self.options.max_lag_s * 1e3:.0f} ms)"
+                    f"{lag:.1f} s late (limit {self._lag_limit_s:.1f} s: LinuxCNC's sampler "
+                    "FIFO would overflow)"
+                )
+            if lag > self.options.max_lag_s and not self._lag_said:
+                self._lag_said = True
+                self.say(
+                    f"the bridge is behind LinuxCNC: servo tick {int(self._tick(rows[0]))} "
+                    f"arrived {lag * 1e3:.0f} ms late (bound {self.options.max_lag_s * 1e3:.0f} "
+                    "ms); the run goes on, every period is kept"
                 )
         elif self.state.end is not None:
             self._check_alive()
-        else:
+        if now - self._watch_wall > WATCH_S and self.state.end is None:
+            self._watch_wall = now
+            self._watch_processes()
+        if not rows.size and self.state.end is None:
             silent = now - getattr(self, "_last_row_wall", now)
-            if silent > DEATH_CHECK_S and not all(
-                process_owner(pid) is not None for pid in self._rt
-            ):
-                self._dead = True
-                self._fail(
-                    f"LinuxCNC died mid-run: its realtime process rtapi_app is gone (last tick "
-                    f"{self._last_tick}, {self._where()})"
-                )
             if silent > self.options.stall_s:
                 self._check_alive()
                 self._dead = True
@@ -296,6 +326,16 @@ class LinuxcncRun:
         if not new:
             return np.empty((0, self.layout.row_width))
         return new[0] if len(new) == 1 else np.concatenate(new)
+
+    def _watch_processes(self) -> None:
+        gone = [name for pid, name in self._watched.items() if process_owner(pid) is None]
+        if gone:
+            self._dead = True
+            name = gone[0]
+            self._fail(
+                f"LinuxCNC died mid-run: its {WATCHED[name]} process {name} is gone (last tick "
+                f"{self._last_tick}, {self._where()})"
+            )
 
     def send_twin(self, periods: np.ndarray, positions_m: np.ndarray) -> None:
         """Feedback positions [m] of the twin joint for the servo periods `periods`, in order."""
@@ -435,6 +475,24 @@ class LinuxcncRun:
         while leftover_processes() and time.monotonic() < deadline:
             time.sleep(0.02)
         remove_leftovers(user)
+
+
+def _without_network(ini_text: str, workdir: Path) -> str:
+    """The INI with its [EMC] NML_FILE replaced by a copy without network servers (see
+    host.loopback_nml), so that linuxcncsvr listens on no port."""
+    emc = re.search(r"^\[EMC\][^\[]*", ini_text, flags=re.MULTILINE)
+    if emc is None:
+        raise LinuxcncError("machine.ini: no [EMC] section")
+    given = re.search(r"^NML_FILE\s*=\s*(\S+)\s*$", emc.group(0), flags=re.MULTILINE)
+    source = DEFAULT_NML if given is None else workdir / given.group(1)
+    if not source.is_file():
+        raise LinuxcncError(f"machine.ini: [EMC] NML_FILE {source}: no such file")
+    nml = loopback_nml(source, workdir / "feed_twin-local.nml")
+    section = emc.group(0)
+    if given is not None:
+        section = section.replace(given.group(0), "")
+    section = section.replace("[EMC]\n", f"[EMC]\nNML_FILE = {nml}\n", 1)
+    return ini_text[: emc.start()] + section + ini_text[emc.end() :]
 
 
 # LinuxCNC's own words for why it stopped, most specific first: a HAL or INI file line,

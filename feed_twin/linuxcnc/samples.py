@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from feed_twin.linuxcnc.period_timing import PeriodTiming, period_timing
+
 if TYPE_CHECKING:
     from feed_twin.gcode.trajectory import SampledTrajectory
 
@@ -141,6 +143,10 @@ class ServoTrace:
         ticks = fields["tick"]
         fields["samples_lost"] = int(ticks[-1] + 1 - ticks.size) if ticks.size else 0
         return ServoTrace(**fields)
+
+    def period_timing(self) -> PeriodTiming:
+        """Start lateness and jitter of the recorded periods (feed_twin.linuxcnc.period_timing)."""
+        return period_timing(self.tick, self.tick_time_s, period_s=self.period_s)
 
     @property
     def reader_latency_s(self) -> np.ndarray:

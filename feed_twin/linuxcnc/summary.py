@@ -5,13 +5,14 @@
 - The figures: LinuxCNC's program time and largest following error of the twin's joint (from
   the bridge's `LINUXCNC {json}` report), the twin's largest following error (its residuals in
   the bag), the samples received and lost, the bridge latency servo tick -> published and the
-  latency servo tick -> the twin's output back at the bridge.
+  latency servo tick -> the twin's output back at the bridge, and the servo thread's own
+  timing (start lateness histogram and late periods, next to the tick count).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ import numpy as np
 from feed_twin.gcode.config import NcConfig
 from feed_twin.io.bag import BagReader
 from feed_twin.linuxcnc.machine import HalServo
+from feed_twin.linuxcnc.period_timing import PeriodTiming
 from feed_twin.nodeset.roles import node_role
 
 
@@ -63,15 +65,24 @@ class LinuxcncFigures:
     linuxcnc_following_error_max_m: float  # [m] the twin joint's, over the program
     twin_following_error_max_m: float  # [m] the twin's over the shadowed samples
     samples_received: int  # servo periods the bridge received
-    samples_lost: int  # servo periods missing (gaps in LinuxCNC's tick count)
+    # servo periods of the program that did not reach the bag on every topic: the largest of
+    # samples_lost_by_topic (gaps in LinuxCNC's tick count, periods never published, messages
+    # the recorder did not write); without the bridge's expected counts, the tick gaps alone
+    samples_lost: int
     bridge_latency_p50_ms: float  # [ms] servo tick -> its samples published to the twin
     bridge_latency_p99_ms: float  # [ms]
     twin_output_latency_p50_ms: float  # [ms] servo tick -> the twin's output back at the bridge
     twin_output_latency_p99_ms: float  # [ms]
     startup_s: float  # [s] LinuxCNC start-up to the machine homed
+    # the servo thread's start lateness and jitter (None from a bridge that did not report it)
+    servo_timing: PeriodTiming | None = None
+    bag_counts: dict[str, int] = field(default_factory=dict)  # messages per topic in the bag
+    samples_lost_by_topic: dict[str, int] = field(default_factory=dict)  # expected - in the bag
 
-    def as_dict(self) -> dict[str, float | int]:
-        return asdict(self)
+    def as_dict(self) -> dict:
+        out = asdict(self)
+        out["servo_timing"] = None if self.servo_timing is None else self.servo_timing.as_dict()
+        return out
 
     def format(self) -> str:
         return "\n".join(
@@ -80,7 +91,16 @@ class LinuxcncFigures:
                 f"max following error:  LinuxCNC {self.linuxcnc_following_error_max_m * 1e6:.3f}"
                 f" um, twin {self.twin_following_error_max_m * 1e6:.3f} um",
                 f"servo samples:         {self.samples_received} received, "
-                f"{self.samples_lost} lost",
+                f"{self.samples_lost} lost (not in the bag on every topic)",
+                *(
+                    [
+                        "lost per topic:        "
+                        + ", ".join(f"{t} {n}" for t, n in self.samples_lost_by_topic.items())
+                    ]
+                    if any(self.samples_lost_by_topic.values())
+                    else []
+                ),
+                *([self.servo_timing.format()] if self.servo_timing is not None else []),
                 f"bridge latency:        p50 {self.bridge_latency_p50_ms:.3f} ms, "
                 f"p99 {self.bridge_latency_p99_ms:.3f} ms (servo tick -> published)",
                 f"twin output latency:   p50 {self.twin_output_latency_p50_ms:.3f} ms, "
@@ -104,15 +124,35 @@ def linuxcnc_figures(bag: Path, *, twin_namespace: str, report: dict) -> Linuxcn
         value = report.get(key)
         return math.nan if value is None else float(value)
 
+    counts = {t.name: t.message_count for t in reader.info.topics}
+    expected = report.get("expected") or {}
+    lost_by_topic = {topic: int(n) - counts.get(topic, 0) for topic, n in expected.items()}
+    lost = int(report.get("samples_lost") or 0)
+    if lost_by_topic:
+        lost = max(0, *lost_by_topic.values())
+
     return LinuxcncFigures(
         program_time_s=number("program_time_s"),
         linuxcnc_following_error_max_m=number("linuxcnc_following_error_max_m"),
         twin_following_error_max_m=twin_fe,
         samples_received=int(report.get("samples_received") or 0),
-        samples_lost=int(report.get("samples_lost") or 0),
+        samples_lost=lost,
         bridge_latency_p50_ms=number("bridge_latency_p50_ms"),
         bridge_latency_p99_ms=number("bridge_latency_p99_ms"),
         twin_output_latency_p50_ms=number("twin_output_latency_p50_ms"),
         twin_output_latency_p99_ms=number("twin_output_latency_p99_ms"),
         startup_s=number("startup_s"),
+        servo_timing=servo_timing_from_report(report),
+        bag_counts={topic: counts.get(topic, 0) for topic in expected},
+        samples_lost_by_topic=lost_by_topic,
     )
+
+
+def servo_timing_from_report(report: dict) -> PeriodTiming | None:
+    """The bridge's `servo_*` figures (ServoBridge.report) as a PeriodTiming."""
+    names = [f.name for f in fields(PeriodTiming)]
+    if any(f"servo_{name}" not in report for name in names):
+        return None
+    values = {name: report[f"servo_{name}"] for name in names}
+    values["histogram"] = tuple(values["histogram"])
+    return PeriodTiming(**values)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -291,6 +291,9 @@ class MachineRecord:
     command_vel: np.ndarray  # (n, axes)
     actual: np.ndarray  # (n, axes) the twins' table positions; the command elsewhere
     contour: ContourError
+    # each simulated axis's AxisState.following_error over its whole recording: what its
+    # drive monitored (the fine setpoint less the table), up to the exchange it tripped at
+    drive_following_error: dict[str, np.ndarray] = field(default_factory=dict)
 
     def following_error(self, axis: str) -> np.ndarray:
         i = self.axes.index(axis)
@@ -299,7 +302,7 @@ class MachineRecord:
     def summary(self) -> dict[str, Any]:  # JSON values of several types
         out: dict[str, Any] = dict(self.contour.summary())
         out["following_error_max_m"] = {
-            a.lower(): float(np.max(np.abs(self.following_error(a)))) if len(self.t_s) else 0.0
+            a.lower(): _largest(self.drive_following_error.get(a, self.following_error(a)))
             for a in self.simulated
         }
         out["simulated_s"] = float(self.t_s[-1]) if len(self.t_s) else 0.0
@@ -315,6 +318,10 @@ def _held(t_cmd: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
     return values[k]
 
 
+def _largest(values: np.ndarray) -> float:
+    return float(np.max(np.abs(values))) if len(values) else 0.0
+
+
 def read_machine_bag(bag: Path, machine: MachineConfig, segments) -> MachineRecord:
     """Commands and twins of every axis from the bag; the contour error on the states' grid
     (the common stretch of all simulated axes when one axis stopped early)."""
@@ -325,7 +332,7 @@ def read_machine_bag(bag: Path, machine: MachineConfig, segments) -> MachineReco
     states = {
         a: reader.columns(
             AxisTopics(machine=machine.name, axis=a.lower()).state,
-            ["header.stamp", "table_position"],
+            ["header.stamp", "table_position", "following_error"],
         )
         for a in machine.axes
     }
@@ -359,4 +366,5 @@ def read_machine_bag(bag: Path, machine: MachineConfig, segments) -> MachineReco
         command_vel=command_vel,
         actual=actual,
         contour=contour,
+        drive_following_error={a: s["following_error"] for a, s in states.items()},
     )

@@ -19,15 +19,15 @@ anything moves. Outputs:
 `--in-process --shadow` adds the shadow twin of every simulated axis beside its stand-in
 (feed_twin.machine.shadow, over the program's samples): residuals and health per axis in the
 summary and under "shadow" in the JSON line. In-process, the node-set options (--realtime,
---single-process, --live, --no-gcode) are refused.
+--single-process, --no-gcode) are refused; --live shows the dashboard once written.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -41,8 +41,9 @@ from feed_twin.machine.simulate import MachineRun, simulate_machine
 from feed_twin.nodeset.config import StateSignals
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.nodeset.wire import NS_PER_S
+from feed_twin.sim.engine import DivergenceError
 
-NODE_SET_OPTIONS = ("realtime", "single_process", "live", "no_gcode")
+NODE_SET_OPTIONS = ("realtime", "single_process", "no_gcode")
 
 
 def _state_fields(
@@ -135,6 +136,7 @@ def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
     machine's NC; or the exit code after a one-line error."""
     from feed_twin.gcode import GcodeError
     from feed_twin.gcode.planner import validate_program
+    from feed_twin.nodeset.reach import check_reachable
 
     refused = [f"--{o.replace('_', '-')}" for o in NODE_SET_OPTIONS if getattr(args, o, False)]
     if refused and args.in_process:
@@ -150,6 +152,13 @@ def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
         if args.axes:
             machine = machine.select(args.axes.split(","))
         validate_program(args.program, machine.nc)
+        for name, axis in machine.axes.items():  # the node set checks each axis's file so
+            check_reachable(
+                axis,
+                dataclasses.replace(machine.nc, twin_axis=name),
+                None,
+                source=f"{machine.source}: axis {name}",
+            )
     except GcodeError as exc:
         return _error(args, f"G-code error, nothing was started: {exc}")
     except (ConfigError, ValueError, OSError) as exc:
@@ -160,17 +169,22 @@ def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
 def run_machine(args: argparse.Namespace) -> int:
     """The in-process `feed-twin run` of a machine config (module docstring)."""
     from feed_twin.gcode.geometry import programmed_path
+    from feed_twin.io.live import show_recording
     from feed_twin.machine.dashboard import write_machine_dashboard
 
     machine = prepare_machine(args)
     if isinstance(machine, int):
         return machine
-    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    name = args.name  # feed_twin.ros.preflight.run_name, before anything started
     args.out.mkdir(parents=True, exist_ok=True)
     bag_path, rrd_path = args.out / name, args.out / f"{name}.rrd"
-    run = simulate_machine(machine, args.program, settle_s=args.settle)
+    try:
+        run = simulate_machine(machine, args.program, settle_s=args.settle)
+    except DivergenceError as exc:
+        return _error(args, f"the machine's simulation failed: {exc}")
     write_machine_bag(run, machine, bag_path)
     write_machine_dashboard(run, programmed_path(args.program, machine.nc), rrd_path)
+    show_recording(getattr(args, "live_viewer", None), rrd_path)
     summary = run.summary()
     fe = ", ".join(f"{a} {v * 1e6:.2f} um" for a, v in summary["following_error_max_m"].items())
     print(

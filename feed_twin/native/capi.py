@@ -2,9 +2,12 @@
 
 Only arrays move here; every computation is in the translated functions the loop calls
 (`{tick}`: noise, angles, sensors, controller; `{integrate}`: the RK4 tick), in the order of
-the numba `advance` (feed_twin.sim.kernel). The parameters are copied into local arrays for a
-run: stores into the model's arrays then cannot alias them, and the C compiler hoists what
-depends on parameters alone out of the loop, as LLVM does with the numba kernel's tuples.
+the numba `advance` (feed_twin.sim.kernel). `ft_outputs_now` runs the first half of the next
+tick (sensors, controller) on copies of the controller state and sensor ring: the samples and
+commands at the current instant, which the next tick recomputes alike. The parameters are
+copied into local arrays for a run: stores into the model's arrays then cannot alias them, and
+the C compiler hoists what depends on parameters alone out of the loop, as LLVM does with the
+numba kernel's tuples.
 """
 
 LOOP_C = r"""
@@ -146,4 +149,25 @@ int64_t ft_run(ft_model *m, int64_t n, const double *ref, const double *drive,
 }}
 
 int64_t ft_step(ft_model *m, int64_t n) {{ return ft_run(m, n, 0, 0, 0, 0); }}
+
+void ft_outputs_now(const ft_model *m, double *meas, double *out)
+{{
+    double cs[FT_N_CS], ring[RING * FT_MEAS_SIZE], mraw[FT_MEAS_SIZE], mdelay[FT_MEAS_SIZE];
+    double sw[3] = {{0.0, 0.0, 0.0}};
+    double p[FT_N_P], cp[FT_N_CP], ref[FT_REF_SIZE], drive[FT_OUT_SIZE], ext[FT_N_EXT];
+    memcpy(cs, m->cs, sizeof cs);
+    memcpy(ring, m->ring, sizeof ring);
+    memcpy(p, m->p, sizeof p);
+    memcpy(cp, m->cp, sizeof cp);
+    memcpy(ref, m->ref, sizeof ref);
+    memcpy(drive, m->drive, sizeof drive);
+    memcpy(ext, m->ext, sizeof ext);
+    memcpy(out, m->out, FT_OUT_SIZE * sizeof(double));
+{load_x}
+    {{
+{decl_tr}
+        {tick}(m->k, ft_h, {x_args}, p, cp, cs, ref, drive, ext, ft_seed, ring, out, meas, mraw,
+               mdelay, sw, {tr_out});
+    }}
+}}
 """

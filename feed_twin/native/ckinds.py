@@ -154,8 +154,6 @@ def constant(value) -> Val:
 # C helpers with numba's semantics, emitted once at the top of every generated file
 PRELUDE = r"""
 #define FT_INLINE static inline __attribute__((always_inline))
-#pragma GCC diagnostic ignored "-Wunused-but-set-variable"
-#pragma GCC diagnostic ignored "-Wunused-variable"
 FT_INLINE double ft_max_d(double a, double v) { return v > a ? v : a; }
 FT_INLINE double ft_min_d(double a, double v) { return v < a ? v : a; }
 FT_INLINE int64_t ft_max_i(int64_t a, int64_t v) { return v > a ? v : a; }

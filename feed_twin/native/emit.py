@@ -79,6 +79,9 @@ void ft_set_ext(ft_model *m, const double *ext);     /* FT_N_EXT external forces
 int64_t ft_run(ft_model *m, int64_t n, const double *ref, const double *drive,
                const double *ext, double *rec);
 int64_t ft_step(ft_model *m, int64_t n); /* ft_run with the held inputs, nothing recorded */
+/* the sensor samples (FT_MEAS_SIZE) and controller outputs (FT_OUT_SIZE) of the current tick,
+   from the held inputs, as the next ft_run computes them; the model is not changed */
+void ft_outputs_now(const ft_model *m, double *meas, double *out);
 int64_t ft_tick(const ft_model *m);
 const double *ft_states(const ft_model *m);
 const double *ft_meas(const ft_model *m);

@@ -26,7 +26,9 @@ def main(args: argparse.Namespace) -> int:
         axis = load_axis_config(args.config)
         build_fmu(axis, out)
     except (ValueError, CompilerMissingError, RuntimeError) as exc:
-        print(f"feed-twin fmu: {exc}", file=sys.stderr)
+        # a compiler's message spans lines (ld's "No space left on device" among them)
+        said = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+        print(f"feed-twin fmu: {said}", file=sys.stderr)
         return 2
     print(f"{out}: FMI 2.0 co-simulation FMU of {args.config} ({out.stat().st_size} bytes)")
     return 0

@@ -81,6 +81,9 @@ SINE_PINS = (
     ("fault", "s"),
     ("time", "s"),
 )
+# the servo thread's own clock (config/linuxcnc/feedtwin_clock.comp, first in the thread): its
+# tick count and the CLOCK_MONOTONIC start [s] of each period
+CLOCK_PINS = (("clock_tick", "s", "tick"), ("clock_time_s", "f", "time-s"))
 
 
 def sine_loop(
@@ -94,7 +97,8 @@ def sine_loop(
     """The installed feed_twin_axis in a servo thread of its own with a sine position command
     [machine units] from siggen, its velocity and acceleration as feed-forward (scale), every
     period of `SINE_PINS` recorded by a sampler in the same thread; `time` is the component's
-    execution time per call (LinuxCNC's `<function>.time` pin, CPU clocks)."""
+    execution time per call (LinuxCNC's `<function>.time` pin, CPU clocks); `clock_tick` and
+    `clock_time_s` the thread's own clock (CLOCK_PINS) for its period timing."""
     w = 2.0 * math.pi * frequency_hz
     nets = "\n".join(
         [
@@ -107,14 +111,22 @@ def sine_loop(
                 for i, (name, _) in enumerate(SINE_PINS)
                 if i >= 3
             ),
+            *(
+                f"net {name} feedtwin-clock.0.{pin} => sampler.0.pin.{len(SINE_PINS) + i}"
+                for i, (name, _, pin) in enumerate(CLOCK_PINS)
+            ),
         ]
     )
+    cfg = "".join(kind for _, kind in SINE_PINS) + "".join(kind for _, kind, _ in CLOCK_PINS)
+    names = [name for name, _ in SINE_PINS] + [name for name, _, _ in CLOCK_PINS]
     script = f"""
 loadrt threads name1=servo-thread period1={servo_period_ns}
+loadrt feedtwin_clock
 loadrt feed_twin_axis
 loadrt siggen
 loadrt scale count=2
-loadrt sampler depth={n_periods + 1000} cfg={"".join(kind for _, kind in SINE_PINS)}
+loadrt sampler depth={n_periods + 1000} cfg={cfg}
+addf feedtwin-clock.0 servo-thread
 addf siggen.0.update servo-thread
 addf scale.0 servo-thread
 addf scale.1 servo-thread
@@ -134,11 +146,13 @@ loadusr -w sh sample.sh
 stop
 """
     sampler = f"halsampler -n {n_periods} > samples.txt\n"
-    with hal_session(script, files={"sample.sh": sampler}) as (log, workdir):
+    # the session runs the periods in (about) real time, plus LinuxCNC's start and stop
+    timeout = n_periods * servo_period_ns * 1e-9 + 60.0
+    with hal_session(script, files={"sample.sh": sampler}, timeout=timeout) as (log, workdir):
         path = workdir / "samples.txt"
         if not path.exists():
             raise RuntimeError(f"the HAL session recorded nothing:\n{log}")
         rows = np.loadtxt(path, ndmin=2)
-    if rows.shape != (n_periods, len(SINE_PINS)):
-        raise RuntimeError(f"the sampler gave {rows.shape}, not ({n_periods}, {len(SINE_PINS)})")
-    return {name: rows[:, i] for i, (name, _) in enumerate(SINE_PINS)}
+    if rows.shape != (n_periods, len(names)):
+        raise RuntimeError(f"the sampler gave {rows.shape}, not ({n_periods}, {len(names)})")
+    return {name: rows[:, i] for i, name in enumerate(names)}

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import ast
 import inspect
+import re
 import textwrap
 from dataclasses import dataclass, field
 
@@ -178,8 +179,21 @@ def _definition(fn: _Function, names: list[str], kinds: tuple, body: str) -> str
             decls.append(f"    double *{cx.var(name)};")
         else:
             decls += [f"    {t} {v} = 0;" for v, t in cx.flat_names(cx.var(name), kind)]
+    # a law's signature is shared by all its callers and tuple unpacking binds every slot, so a
+    # parameter or local may go unread: said per name, as C does, instead of silencing -Wextra
+    scalars = [p for p in params if "*" not in p] + [d for d in decls if "*" not in d]
+    unread = [d.split("=")[0].split()[-1].rstrip(";") for d in scalars]
+    unread = [name for name in unread if not _is_read(name, body)]
+    arrays = [p.rsplit(" ", 1)[-1].lstrip("*") for p in params + decls if "*" in p]
+    unread += [name for name in arrays if not re.search(rf"\b{name}\b", body)]
+    decls += [f"    (void){name};" for name in unread]
     head = f"FT_INLINE {rtype}\n{fn.name}({', '.join(params) or 'void'})"
     return f"/* {fn.where} */\n{head}\n{{\n" + "\n".join(decls) + "\n" + body + "}\n"
+
+
+def _is_read(name: str, body: str) -> bool:
+    """Whether the C `body` reads `name` anywhere (not only stores into it)."""
+    return re.search(rf"\b{re.escape(name)}\b(?!\s*=[^=])", body) is not None
 
 
 class _Body:

@@ -2,16 +2,14 @@
 
 Two independent checks, because rclpy (Jazzy) hands a subscription callback no publisher
 identity (its message info has timestamps and sequence numbers, not the writer's GID):
-- per message, a run token: `feed-twin run` draws a random token per run and gives it to its
-  nodes in their environment (RUN_TOKEN_ENV, not on the command line); the G-code and controller
-  nodes put it in `header.frame_id` of AxisCommand and DriveCommand and the G-code node as the
-  last word of its program_state texts (`... #token`), and the receiving node refuses a message
-  without it. This keeps out another run, a replayed bag or a test tool that
-  publishes on the same topics; it is no defence against someone who reads the topic and copies
-  the token (that needs DDS Security, see README);
-- per publisher, the graph: every second a guarded node lists the publishers of its command
+- per message, the run's signature (feed_twin.nodeset.auth): every node signs what it
+  publishes with the run's key, which only the run's processes hold, and every receiver admits
+  only messages whose signature checks, new ones (no replay) and unaltered. This keeps out
+  another run, a replayed bag, a test tool, and a process that reads the topics and sends
+  their messages again, altered or not;
+- per publisher, the graph: every second a guarded node lists the publishers of its input
   topics (node name, namespace, endpoint GID) and reports each one that is not a node of the
-  run, once, as a warning and a HealthStatus.
+  run, once, as a warning and a HealthStatus, and names it in the run's foreign messages.
 Then every admitted message is checked for values a drive can take (finite, within absurdity
 bounds); a malformed message is dropped with a warning, never a crash.
 
@@ -27,9 +25,7 @@ from dataclasses import dataclass, field
 
 from feed_twin.nodeset.roles import node_role, roles_where
 
-RUN_TOKEN_ENV = "FEED_TWIN_RUN_TOKEN"
 OPEN_NC_ENV = "FEED_TWIN_OPEN_NC"  # "1": AxisCommand comes from outside (an external NC)
-MAX_TOKEN_CHARS = 64
 UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"  # rmw's name for a node not yet discovered
 
 # Magnitudes no feed-axis command reaches; beyond them a value is garbage, not a setpoint.
@@ -44,14 +40,6 @@ ABSURD = {
     "u_q": 1.0e4,  # [V]
 }
 PROGRAM_WORDS = ("loaded", "running", "paused", "finished", "stopped", "error", "waiting")
-
-
-def run_token(environ: Mapping[str, str]) -> str:
-    """The run's token from the environment ('' when the node runs outside `feed-twin run`)."""
-    token = environ.get(RUN_TOKEN_ENV, "")
-    if len(token) > MAX_TOKEN_CHARS or not token.isalnum():
-        return ""
-    return token
 
 
 def check_values(values: Mapping[str, float]) -> str | None:
@@ -81,20 +69,11 @@ def within_bounds(values: Sequence[float], bounds: Sequence[float]) -> bool:
     return all(map(operator.le, map(abs, values), bounds))
 
 
-def sign_state(text: str, token: str) -> str:
-    """A program_state text as the run's G-code node sends it: the token as its last word."""
-    return f"{text} #{token}" if token else text
-
-
-def parse_program_state(text: str, token: str = "") -> tuple[str, int | None, str] | None:
-    """(word, time [ns] or None, text without the token) of a program_state message; None
-    when it is malformed or, with `token`, not signed with it (another publisher's)."""
+def parse_program_state(text: str) -> tuple[str, int | None, str] | None:
+    """(word, time [ns] or None, text) of a program_state message (its signature checked and
+    taken off, feed_twin.nodeset.auth); None when it is malformed."""
     if len(text) > 4096:
         return None
-    if token:
-        text, mark, signed = text.rpartition(" #")
-        if not mark or signed != token:
-            return None
     word, _, rest = text.partition(" ")
     if word not in PROGRAM_WORDS:
         return None

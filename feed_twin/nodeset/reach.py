@@ -2,8 +2,11 @@
 
 For the twin axis at the NC's fastest rate v (rapid and feed limit, each checked) while it
 accelerates at a_max:
-- current: i_q = (J_total * a * 2 pi / lead + F_friction(v) * lead / (2 pi eta)) / K_t must not
-  exceed the controller's current limit (controller.drive.effort_limit);
+- current: i_q = (J_total * a * 2 pi / lead + (F_friction(v) + |F_static|) * lead / (2 pi eta))
+  / K_t must not exceed the controller's current limit (controller.drive.effort_limit).
+  F_static is the load the drive holds at rest: the weight of every mass gravity pulls on
+  (Gravity components: a machine's `vertical.m_kg`) less the counterbalance (ConstantForce,
+  GasSpring), at its largest over the axis's travel; moving against it is the worst case;
 - voltage (a PMSM on a DC bus): the stator voltage in steady state of the dq model,
   u_q = R_s i_q + omega_e psi_pm and u_d = -omega_e L_q i_q with omega_e = p * 2 pi v / lead,
   must stay within the inverter's linear range voltage_margin * u_dc / sqrt(3) (space-vector
@@ -24,6 +27,9 @@ from feed_twin.core.config import ConfigError
 from feed_twin.plant.ball_screw import BallScrew
 from feed_twin.plant.component import Component
 from feed_twin.plant.dc_bus import DcBus
+from feed_twin.plant.external_force import ConstantForce
+from feed_twin.plant.gas_spring import GasSpring
+from feed_twin.plant.gravity import Gravity
 from feed_twin.plant.guide_friction import GuideFriction
 from feed_twin.plant.pmsm import Pmsm
 
@@ -41,6 +47,7 @@ class DriveCapability:
     current_limit_A: float  # [A]
     F_c_N: float  # [N] larger Coulomb friction of the guides
     F_v_N_s_m: float  # [N s/m] larger viscous friction of the guides
+    F_static_N: float = 0.0  # [N] largest |weight - counterbalance| over the travel
     # a PMSM on a DC bus (None: no voltage limit is checked, e.g. an ideal force source)
     R_s: float | None = None  # [ohm]
     L_q: float | None = None  # [H]
@@ -51,7 +58,7 @@ class DriveCapability:
     def current_at(self, v: float, a: float) -> float:
         """i_q [A] to move at v [m/s] while accelerating at a [m/s^2]."""
         ratio = 2.0 * math.pi / self.lead_m  # [rad/m]
-        friction = (self.F_c_N + self.F_v_N_s_m * v) / (ratio * self.efficiency)
+        friction = (self.F_c_N + self.F_v_N_s_m * v + self.F_static_N) / (ratio * self.efficiency)
         return (self.J_total_kg_m2 * a * ratio + friction) / self.K_t
 
     def voltage_at(self, v: float, a: float) -> float:
@@ -81,9 +88,28 @@ def _first(components: list[Component], kind: type[C]) -> C | None:
     return next((c for c in components if isinstance(c, kind)), None)
 
 
-def capability(axis) -> DriveCapability | None:
+def static_load(components: list[Component], travel_m: tuple[float, float]) -> float:
+    """The largest |net static force| [N] on the axis over its travel: every Gravity's weight
+    against the constant forces and gas springs pushing on it (linear in s: the ends bound
+    it)."""
+    worst = 0.0
+    for s in travel_m:
+        force = 0.0  # into the flange
+        for c in components:
+            if isinstance(c, Gravity):
+                force -= c.slots()["weight"]
+            elif isinstance(c, ConstantForce):
+                force += c.f_0
+            elif isinstance(c, GasSpring):
+                force += c.f_0 - c.k * (s - c.s_0)
+        worst = max(worst, abs(force))
+    return worst
+
+
+def capability(axis, travel_m: tuple[float, float] = (0.0, 0.0)) -> DriveCapability | None:
     """The drive capability of a feed_twin.sim.config.AxisConfig (None: no controller or no
-    ball screw: nothing to check against)."""
+    ball screw: nothing to check against); `travel_m` [m]: the slide's range, where a gas
+    spring's force is judged."""
     controller = axis.controller
     if controller is None:
         return None
@@ -113,16 +139,17 @@ def capability(axis) -> DriveCapability | None:
         current_limit_A=drive.effort_limit,
         F_c_N=0.0 if guides is None else max(guides.F_c_pos, guides.F_c_neg),
         F_v_N_s_m=0.0 if guides is None else max(guides.F_v_pos, guides.F_v_neg),
+        F_static_N=static_load(components, travel_m),
         **fields,
     )
 
 
 def check_reachable(axis, nc, speed_limit_m_s: float | None, *, source: str) -> None:
     """Raise ConfigError when the drive of the twin axis cannot reach the NC's limits."""
-    cap = capability(axis)
+    spec = next(a for a in nc.axes if a.name == nc.twin_axis)
+    cap = capability(axis, (spec.travel_min_m, spec.travel_max_m))
     if cap is None:
         return
-    spec = next(a for a in nc.axes if a.name == nc.twin_axis)
     a = spec.a_max_m_s2
     for name in ("rapid_m_s", "v_max_m_s"):
         v = getattr(spec, name)
@@ -135,7 +162,8 @@ def check_reachable(axis, nc, speed_limit_m_s: float | None, *, source: str) -> 
         i_q = cap.current_at(v, a)
         if i_q > cap.current_limit_A:
             raise ConfigError(
-                f"{field}: accelerating at a_max_m_s2 = {a!r} there needs {i_q:.1f} A, above "
+                f"{field}: accelerating at a_max_m_s2 = {a!r} there needs {i_q:.1f} A"
+                f"{_static_words(cap)}, above "
                 f"controller.drive.effort_limit = {cap.current_limit_A!r} A by "
                 f"{100.0 * (i_q / cap.current_limit_A - 1.0):.1f} %"
             )
@@ -148,3 +176,9 @@ def check_reachable(axis, nc, speed_limit_m_s: float | None, *, source: str) -> 
                 f"{100.0 * (u / cap.u_max_V - 1.0):.1f} %; the drive reaches "
                 f"{cap.reachable_speed(a):.3f} m/s at most"
             )
+
+
+def _static_words(cap: DriveCapability) -> str:
+    if cap.F_static_N == 0.0:
+        return ""
+    return f" (holding a static load of {cap.F_static_N:.0f} N: weight less counterbalance)"

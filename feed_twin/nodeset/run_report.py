@@ -114,15 +114,19 @@ class RunReport:
     timing: RunTiming = field(default_factory=RunTiming)
     figures: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
     figure_lines: tuple[str, ...] = ()
-    # topic -> messages refused as foreign (no run token) or sent by a node of no run
-    foreign_messages: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    # topic -> {"messages": n, "reasons": {reason: n}, "publishers": [...]}: what the nodes
+    # dropped as not the run's (feed_twin.nodeset.foreign.ForeignLedger.as_dict)
+    foreign_messages: Mapping[str, Mapping[str, Any]] = field(
+        default_factory=lambda: MappingProxyType({})
+    )
 
     def __post_init__(self) -> None:
         if not self.mode:
             raise ValueError("mode = '': must name the run's mode")
         # frozen all the way down: the mappings cannot be changed through the report
         object.__setattr__(self, "figures", MappingProxyType(dict(self.figures)))
-        object.__setattr__(self, "foreign_messages", MappingProxyType(dict(self.foreign_messages)))
+        foreign = {t: MappingProxyType(dict(e)) for t, e in self.foreign_messages.items()}
+        object.__setattr__(self, "foreign_messages", MappingProxyType(foreign))
 
     @property
     def interrupted(self) -> bool:
@@ -133,7 +137,10 @@ class RunReport:
         status = "ended normally" if self.exit_code == 0 else f"exit code {self.exit_code}"
         if self.interrupted:
             status = "interrupted: the figures cover the run until the stop"
-        foreign = ", ".join(f"{t}: {n}" for t, n in sorted(self.foreign_messages.items()))
+        foreign = "; ".join(
+            f"{t}: {e.get('messages', 0)} dropped, from {', '.join(e.get('publishers', ()))}"
+            for t, e in sorted(self.foreign_messages.items())
+        )
         domain = "the environment's" if self.ros_domain is None else str(self.ros_domain)
         recovered = ""
         if self.bag_recovered_messages is not None:
@@ -167,7 +174,10 @@ class RunReport:
             "logs": self.logs,
             "ros_domain": self.ros_domain,
             "samples": self.samples,
-            "foreign_messages": dict(self.foreign_messages),
+            "foreign_messages": {
+                t: {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in e.items()}
+                for t, e in self.foreign_messages.items()
+            },
         }
         # a figure of the same name (the node set's `samples`) does not hide the report's
         figures = {k: v for k, v in self.figures.items() if k not in base}

@@ -331,8 +331,24 @@ class PlantModel:
         force elements (couplings, compliances, backlash) so that no spring starts stretched.
         """
         x = np.zeros(len(self.state_names))
+        for c, (value, chain) in self._position_chains(positions or {}).items():
+            for multiply, divide in chain:
+                value = value * multiply / divide
+            x[self.state_index[self.coordinates[c].position_state]] = value
+        return x
+
+    def position_chains(self, body: str) -> dict[str, tuple[tuple[float, float], ...]]:
+        """Position state -> the (multiply, divide) ratio pairs, in order, that carry a position
+        of `body` to it in `initial_state` (x = ((s * m1) / d1) * m2 / d2 ...); an importer that
+        sets the start position (the FMU) repeats the same operations, so the same bits."""
+        chains = self._position_chains({body: 0.0})
+        return {self.coordinates[c].position_state: chain for c, (_, chain) in chains.items()}
+
+    def _position_chains(
+        self, positions: Mapping[str, float]
+    ) -> dict[int, tuple[float, tuple[tuple[float, float], ...]]]:
+        """Coordinate index -> (the body position it follows, the ratio pairs that carry it)."""
         p = self.nominal_params()
-        coord_pos: dict[int, float] = {}
         links: dict[int, list[tuple[int, float, float]]] = {}
         for name, comp in self.components.items():
             ports = [
@@ -345,7 +361,8 @@ class PlantModel:
             ra, rb = self._ratio_value(na, p), self._ratio_value(nb, p)
             links.setdefault(ca, []).append((cb, ra, rb))
             links.setdefault(cb, []).append((ca, rb, ra))
-        for body, value in (positions or {}).items():
+        chains: dict[int, tuple[float, tuple[tuple[float, float], ...]]] = {}
+        for body, value in positions.items():
             matches = [c for c in self.coordinates if c.name == body]
             if not matches:
                 raise KeyError(
@@ -353,17 +370,15 @@ class PlantModel:
                     f"{', '.join(c.name for c in self.coordinates)}"
                 )
             start = matches[0].index
-            coord_pos[start] = float(value)
+            chains[start] = (float(value), ())
             queue = [start]
             while queue:
                 c = queue.pop()
                 for other, r_self, r_other in links.get(c, []):
-                    if other not in coord_pos:
-                        coord_pos[other] = coord_pos[c] * r_self / r_other
+                    if other not in chains:
+                        chains[other] = (chains[c][0], chains[c][1] + ((r_self, r_other),))
                         queue.append(other)
-        for c in self.coordinates:
-            x[self.state_index[c.position_state]] = coord_pos.get(c.index, 0.0)
-        return x
+        return chains
 
     def _ratio_value(self, node: int, p: np.ndarray) -> float:
         return float(p[self.param_index[f"derived.ratio_n{node}"]])

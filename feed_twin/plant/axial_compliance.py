@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, Quantity, SlotReader
+from feed_twin.plant.component import Component, Emitter, Quantity, SlotReader, SlotSpec
 from feed_twin.plant.effect_api import (
     Document,
     Edit,
@@ -205,6 +205,10 @@ def _stiffness_signature(m: Motion) -> dict[str, np.ndarray]:
 class AxialCompliance(Component):
     TYPE = "AxialCompliance"
     PORTS = {"a": "translational", "b": "translational"}
+    COMPUTED_SLOTS = {
+        "EA": SlotSpec(unit="N", low=0.0, low_open=True),  # E pi d_root^2 / 4
+        "lead_error_wavenumber": SlotSpec(unit="rad/m", low=0.0),  # 2 pi / period, 0: none
+    }
     EFFECTS = (
         Effect(
             name="lead_error",

@@ -22,7 +22,7 @@ from numba import njit
 
 from feed_twin.core.smooth import smooth_sign
 from feed_twin.core.validate import require_positive, require_range
-from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.component import Component, Emitter, SlotSpec
 
 P_REG = 1e-3  # power scale of the smooth direction switch [W]
 
@@ -41,10 +41,11 @@ def efficiency_factor(force: float, velocity: float, eta: float) -> tuple[float,
 class BallScrew(Component):
     TYPE = "BallScrew"
     PORTS = {"rot": "rotational", "trans": "translational"}
+    COMPUTED_SLOTS = {"ratio": SlotSpec(unit="m/rad", low=0.0, low_open=True)}  # lead / 2 pi
     TRANSFORMER = ("rot", "trans", "ratio")  # across(trans) = p[ratio] * across(rot)
 
     lead: float  # travel per screw revolution [m]
-    efficiency: float  # mechanical efficiency of the nut in (0, 1]
+    efficiency: float  # mechanical efficiency of the nut, in (0, 1] [1]
 
     def __post_init__(self) -> None:
         require_positive("lead", self.lead)

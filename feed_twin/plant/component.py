@@ -37,6 +37,7 @@ forces of their output node). `sense` runs only when the sensors are sampled.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -92,6 +93,20 @@ class Quantity:
 
 
 @dataclass(frozen=True, kw_only=True)
+class SlotSpec:
+    """Unit and physical range of a parameter slot computed from several fields (a shaft's
+    torsional stiffness from G, d_root and length), which no field comment or range check
+    states. A slot that is a field takes both from the field (feed_twin.plant.slot_specs)."""
+
+    unit: str  # "1" for a pure number
+    low: float = -math.inf  # smallest value allowed
+    low_open: bool = False  # the value must exceed `low`, not reach it
+    high: float = math.inf
+    high_open: bool = False  # the value must stay below `high`
+    integer: bool = False
+
+
+@dataclass(frozen=True, kw_only=True)
 class Component:
     """Base of every plant component; subclasses are frozen keyword-only dataclasses.
 
@@ -107,6 +122,12 @@ class Component:
     PORTS: ClassVar[dict[str, PortKind]]
     EFFECTS: ClassVar[tuple[Effect, ...]] = ()  # effects the workflow may add with it
     QUANTITIES: ClassVar[dict[str, Quantity]] = {}  # slots made of several parameters
+    COMPUTED_SLOTS: ClassVar[Mapping[str, SlotSpec]] = {}  # slots() entries that are no field
+
+    @classmethod
+    def computed_slot(cls, name: str) -> SlotSpec | None:
+        """Unit and range of the computed slot `name` (None: not a computed slot)."""
+        return cls.COMPUTED_SLOTS.get(name)
 
     @classmethod
     def quantity(cls, name: str) -> Quantity | None:

@@ -29,12 +29,18 @@ from feed_twin.plant.effect_api import (
     symmetric,
 )
 
+# where a model keeps the constant that turns force into the recorded effort, first found
+# first: the drive gain of an EffortSource, else the motor's flux (K_t = 1.5 p psi_pm) or the
+# DC motor's k; each divides the recorded effort (the current the drive needs for a force)
+_EFFORT_CONSTANTS = (("EffortSource", "gain"), ("Pmsm", "psi_pm"), ("DcMotor", "k"))
+
 
 def _gain_slot(doc: Document) -> str:
-    g = doc.gain_slot()
-    if g is None:
-        raise LookupError("the model has no EffortSource component")
-    return g
+    for kind, field_name in _EFFORT_CONSTANTS:
+        found = doc.of_type(kind)
+        if found:
+            return f"{found[0]}.{field_name}"
+    raise LookupError("the model has no EffortSource, Pmsm or DcMotor whose constant to fit")
 
 
 def _gain_edit(doc: Document, cand: Weights) -> Edit:
@@ -45,13 +51,17 @@ def _gain_edit(doc: Document, cand: Weights) -> Edit:
     guess = value / (1.0 + cand.coefficients.get("effort", 0.0))
     doc = doc.set(g, guess)
     own = [FreeParameter(name=g, initial=guess, scale=abs(value))]
-    # the gain scales every force of the model at once: fitted together with the mass and
-    # friction it would be degenerate, so it is fitted alone
-    return make_edit(doc, own, {"gain": slot_reader(g)}, interacts=False)
+    # the constant scales every force of the model at once: fitted together with the mass and
+    # friction it would be degenerate, so it is fitted alone (the report says the correlation)
+    report = {"gain": slot_reader(g), "effort_scale": lambda v: value / v[g]}
+    return make_edit(doc, own, report, interacts=False)
 
 
 def _gain_truth(doc: Document, p: Mapping[str, float]) -> Document:
-    return doc.set(_gain_slot(doc), p["gain"])
+    g = _gain_slot(doc)
+    if "effort_scale" in p:
+        return doc.set(g, doc.get(g) / p["effort_scale"])
+    return doc.set(g, p["gain"])
 
 
 def _effort_signature(m: Motion) -> dict[str, np.ndarray]:
@@ -68,8 +78,9 @@ class EffortSource(Component):
             name="torque_constant_error",
             domain="effort",
             words="the whole effort is off by a fixed ratio: the torque (force) constant of the "
-            "drive differs from the data sheet",
-            parameters="gain",
+            "drive differs from the data sheet, or the record's current has another scale (the "
+            "first unknown of a foreign machine)",
+            parameters="gain (a motor model: Pmsm.psi_pm or DcMotor.k)",
             needs=("effort_sim",),
             signature=_effort_signature,
             edit=_gain_edit,

@@ -13,13 +13,14 @@ import math
 from dataclasses import dataclass
 
 from feed_twin.core.validate import require_nonnegative, require_positive, require_range
-from feed_twin.plant.component import Component, Emitter, InertiaSpec
+from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotSpec
 
 
 @dataclass(frozen=True, kw_only=True)
 class Gravity(Component):
     TYPE = "Gravity"
     PORTS = {"flange": "translational"}
+    COMPUTED_SLOTS = {"weight": SlotSpec(unit="N")}  # along the axis, either sign
 
     m: float  # mass the gravity pulls on (slide + workpiece) [kg]
     g: float  # gravitational acceleration [m/s^2]

@@ -31,7 +31,7 @@ from numba import njit
 
 from feed_twin.core.smooth import smooth_sign, smooth_sign_array
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, Quantity
+from feed_twin.plant.component import Component, Emitter, Quantity, SlotSpec
 from feed_twin.plant.effect_api import (
     Document,
     Edit,
@@ -162,6 +162,7 @@ def _set_dead_fraction(params: dict[str, Any], value: float) -> None:
 class Inverter(Component):
     TYPE = "Inverter"
     PORTS = {"dc": "dc", "ac": "ac3"}
+    COMPUTED_SLOTS = {"dead_fraction": SlotSpec(unit="1", low=0.0, high=1.0)}  # t_dead * f_pwm
     EFFECTS = (
         Effect(
             name="dead_time",

@@ -42,6 +42,7 @@ from feed_twin.plant.component import (
     InertiaSpec,
     Quantity,
     SlotReader,
+    SlotSpec,
     StateSpec,
 )
 from feed_twin.plant.effect_api import (
@@ -221,6 +222,20 @@ def _set_torque_constant(params: dict[str, Any], value: float) -> None:
 class Pmsm(Component):
     TYPE = "Pmsm"
     PORTS = {"ac": "ac3", "flange": "rotational"}
+    COMPUTED_SLOTS = {"G_fe": SlotSpec(unit="S", low=0.0)}  # 1 / R_fe, 0 without iron loss
+    _COGGING_SLOTS = {
+        "order": SlotSpec(unit="1", low=1.0, integer=True),
+        "amplitude": SlotSpec(unit="N m", low=0.0),
+        "phase": SlotSpec(unit="rad"),
+    }
+
+    @classmethod
+    def computed_slot(cls, name: str) -> SlotSpec | None:
+        harmonic = re.fullmatch(r"cog\d+_(\w+)", name)
+        if harmonic is None:
+            return super().computed_slot(name)
+        return cls._COGGING_SLOTS.get(harmonic.group(1))
+
     EFFECTS = (
         Effect(
             name="cogging_torque",
@@ -264,7 +279,7 @@ class Pmsm(Component):
     L_d: float  # d-axis inductance [H]
     L_q: float  # q-axis inductance [H]
     psi_pm: float  # permanent-magnet flux linkage, amplitude [V s]
-    p: int  # pole pairs
+    p: int  # pole pairs [1]
     R_fe: float | None  # iron-loss resistance [ohm]; null for no iron loss
     J: float  # rotor inertia [kg m^2]
     T_c: float  # bearing/seal Coulomb friction torque [N m]

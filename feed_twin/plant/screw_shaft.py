@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 
 from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader
+from feed_twin.plant.component import Component, Emitter, InertiaSpec, SlotReader, SlotSpec
 from feed_twin.plant.coupling import emit_two_port
 
 
@@ -23,6 +23,10 @@ from feed_twin.plant.coupling import emit_two_port
 class ScrewShaft(Component):
     TYPE = "ScrewShaft"
     PORTS = {"a": "rotational", "b": "rotational"}
+    COMPUTED_SLOTS = {
+        "k_t": SlotSpec(unit="N m/rad", low=0.0, low_open=True),  # G pi d_root^4 / (32 length)
+        "J": SlotSpec(unit="kg m^2", low=0.0, low_open=True),  # rho pi d_nominal^4 length / 32
+    }
 
     d_root: float  # root (core) diameter of the screw [m]
     d_nominal: float  # nominal diameter of the screw [m]

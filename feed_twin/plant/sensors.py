@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter
+from feed_twin.plant.component import Component, Emitter, SlotSpec
 from feed_twin.plant.effect_api import (
     Document,
     Edit,
@@ -89,6 +89,7 @@ def _delay_truth(doc: Document, p: Mapping[str, float]) -> Document:
 class Encoder(Component):
     TYPE = "Encoder"
     PORTS = {"flange": "rotational"}
+    COMPUTED_SLOTS = {"step": SlotSpec(unit="rad", low=0.0, low_open=True)}  # 2 pi / counts
     EFFECTS = (
         Effect(
             name="measurement_delay",
@@ -104,7 +105,7 @@ class Encoder(Component):
     )
 
     counts_per_rev: int  # counts per revolution after quadrature decoding
-    delay_ticks: int  # sample delay in base periods
+    delay_ticks: int  # sample delay in base periods [1]
 
     def __post_init__(self) -> None:
         if self.counts_per_rev < 1:
@@ -130,7 +131,7 @@ class LinearScale(Component):
     PORTS = {"flange": "translational"}
 
     resolution: float  # measuring step [m]
-    delay_ticks: int  # sample delay in base periods
+    delay_ticks: int  # sample delay in base periods [1]
 
     def __post_init__(self) -> None:
         require_positive("resolution", self.resolution)
@@ -194,6 +195,7 @@ def _offset_truth(doc: Document, p: Mapping[str, float]) -> Document:
 class CurrentSensor(Component):
     TYPE = "CurrentSensor"
     PORTS = {"ac": "ac3"}
+    COMPUTED_SLOTS = {"step": SlotSpec(unit="A", low=0.0, low_open=True)}  # ADC quantum
     EFFECTS = (
         Effect(
             name="current_offset",
@@ -213,7 +215,7 @@ class CurrentSensor(Component):
     noise_std: float  # white-noise standard deviation per sample [A]
     adc_bits: int  # ADC resolution [bit]
     range_A: float  # ADC full scale, +/- [A]
-    delay_ticks: int  # sample delay in base periods
+    delay_ticks: int  # sample delay in base periods [1]
     offset_a: float = 0.0  # offset of phase a alone, on top of `offset` [A]
     offset_b: float = 0.0  # offset of phase b alone [A]
     offset_c: float = 0.0  # offset of phase c alone [A]

@@ -115,6 +115,7 @@ def _travelled(m: Motion) -> dict[str, np.ndarray]:
 class ThermalGrowth(Component):
     TYPE = "ThermalGrowth"
     PORTS = {"a": "translational", "b": "translational"}
+    COMPUTED_SLOTS = AxialCompliance.COMPUTED_SLOTS
     EFFECTS = (
         Effect(
             name="thermal_drift",

@@ -55,12 +55,12 @@ DRIVE_COMMAND = FlatCodec(msg_types.DRIVE_COMMAND)
 class MessageIO:
     """The controller node's message conversions, fast for its axis label (any label decodes)."""
 
-    def __init__(self, axis_label: str, token: str = "", nc_token: str = "") -> None:
-        # token: the run's (feed_twin.nodeset.guard) in the DriveCommands this node sends;
-        # nc_token: the one the AxisCommands must carry ('' for an external NC)
-        self.command = AXIS_COMMAND.fixed({"axis": axis_label, "header.frame_id": nc_token})
+    def __init__(self, axis_label: str) -> None:
+        # messages as the nodes make them: an empty frame_id, which the run's signature fills
+        # on the wire (feed_twin.nodeset.auth; the node signs and admits)
+        self.command = AXIS_COMMAND.fixed({"axis": axis_label})
         self.feedback = AXIS_FEEDBACK.fixed({"axis": axis_label})
-        self.drive = DRIVE_COMMAND.fixed({"axis": axis_label, "header.frame_id": token})
+        self.drive = DRIVE_COMMAND.fixed({"axis": axis_label})
         self._nc = operator.itemgetter(*(self.command.index(n) for n in _NC_FIELDS))
         self._fb = operator.itemgetter(
             *(
@@ -146,10 +146,13 @@ class ControllerNode(FeedTwinNode):
         self.exchange_ns = round(exchange_period_s * NS_PER_S)
         # where the NC setpoints come from: one AxisCommand each, or packed (--command-batch)
         command_topic = self.topics.command_batch if command_batch else self.topics.command
-        self._guard = InputGuard(self, (command_topic, self.topics.program_state), axis_label)
-        token = self._guard.token
-        self._nc_token = self._guard.nc_token
-        self.io = MessageIO(axis_label, token, self._nc_token)
+        self._guard = InputGuard(
+            self,
+            (command_topic, self.topics.program_state, self.topics.feedback),
+            axis_label,
+            nc_topics=(self.topics.command, self.topics.program_state),
+        )
+        self.io = MessageIO(axis_label)
         self.nc = NcBuffer()
         self.end = RunEnd(round(settle_s * NS_PER_S))
         self._pending: collections.deque[bytes] = collections.deque()
@@ -217,9 +220,10 @@ class ControllerNode(FeedTwinNode):
 
     def _take_command(self, data: bytes, topic: str) -> bool:
         """Check one AxisCommand and add its setpoint; False: refused."""
-        if self._nc_token and not self.io.command.matches(data):
-            self._guard.refuse("token", topic, "not from this run's G-code node (run token)")
+        admitted = self._guard.admit(self.topics.command, data)
+        if admitted is None:
             return False
+        data = admitted
         try:
             values = self.io.nc_values(data)
         except Exception as exc:  # noqa: BLE001 - any undecodable message is dropped, not fatal
@@ -237,16 +241,22 @@ class ControllerNode(FeedTwinNode):
         return True
 
     def _on_feedback(self, data: bytes) -> None:
-        self._pending.append(data)
+        admitted = self._guard.admit(self.topics.feedback, data)
+        if admitted is None:
+            return  # not the sim's: it neither moves the axis nor ends the run
+        self._pending.append(admitted)
         self._feedback_dog.feed()
         self._serve()
 
     def _on_program_state(self, msg: String) -> None:
-        parsed = parse_program_state(msg.data, self._nc_token)
+        text = self._guard.admit_text(self.topics.program_state, msg.data)
+        if text is None:
+            return
+        parsed = parse_program_state(text)
         if parsed is None:
             self._guard.refuse(
                 "program_state", self.topics.program_state,
-                f"{msg.data[:80]!r} (malformed, or not from this run's G-code node)",
+                f"{text[:80]!r} (malformed)",
             )  # fmt: skip
             return
         state, stamp_ns, _ = parsed
@@ -272,7 +282,7 @@ class ControllerNode(FeedTwinNode):
             except ValueError as exc:
                 self.finish(EXIT_ERROR, f"controller: at t = {t_ns * 1e-9:.6f} s: {exc}")
                 return
-            data = self.io.drive_command(setpoint)
+            data = self.auth.sign(self.topics.drive_command, self.io.drive_command(setpoint))
             self._pub.publish(data)
             if self._record is not None:
                 self._record.add(0, data)  # DriveCommand, its only topic

@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import functools
 import math
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -57,7 +56,6 @@ from std_srvs.srv import Trigger
 from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_config, plan_program
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
-from feed_twin.nodeset.guard import run_token, sign_state
 from feed_twin.nodeset.record_batch import RecordBatch
 from feed_twin.nodeset.topics import GCODE_NODE, AxisTopics
 from feed_twin.nodeset.wire import NS_PER_S
@@ -162,8 +160,6 @@ class GcodeNode(FeedTwinNode):
         self.running = False
         self._clock_ns = 0
         self._realtime = False
-        # The run's token (feed_twin.nodeset.guard) marks the commands as this run's.
-        self._token = run_token(os.environ)
         served = options.axis_topics()
         commanded = [(nc.twin_axis, self.topics)] + [
             (a.upper(), AxisTopics(machine=options.machine, axis=a))
@@ -171,10 +167,11 @@ class GcodeNode(FeedTwinNode):
         ]
         self._labels = tuple(label for label, _ in commanded)
         self._commands = [
-            AXIS_COMMAND.fixed({"axis": label, "header.frame_id": self._token})
+            AXIS_COMMAND.fixed({"axis": label})  # the run's signature fills the frame_id
             for label in self._labels
         ]
         self._pubs = [self.create_publisher(AxisCommand, t.command, DATA_QOS) for _, t in commanded]
+        self._command_topics = [t.command for _, t in commanded]
         # (batch, its publisher) per commanded axis; None for an axis without a controller.
         # Sent after each _publish_ahead (`_send_batches`); the batch's exchange count is not
         # used, so its capacity (lookahead: the most one clock message lets it publish) is
@@ -231,7 +228,7 @@ class GcodeNode(FeedTwinNode):
 
     def _state(self, text: str) -> None:
         for pub in self._state_pubs:
-            pub.publish(String(data=sign_state(text, self._token)))
+            pub.publish(String(data=self.auth.sign_text(pub.topic_name, text)))
         self.get_logger().info(f"program: {text}")
 
     def load(self, program: str) -> bool:
@@ -280,13 +277,19 @@ class GcodeNode(FeedTwinNode):
             return
         horizon = self._clock_ns + self.lookahead * self.period_ns
         was_paused = stream.paused
-        outputs = list(zip(self.streams, self._commands, self._pubs, self._batches, strict=True))
+        outputs = list(
+            zip(
+                self.streams, self._commands, self._pubs, self._batches, self._command_topics,
+                strict=True,
+            )
+        )  # fmt: skip
         now_ns = time.time_ns()  # the batches' publish time (not read by the controllers)
+        sign = self.auth.sign
         while not stream.finished and stream.next_t_ns <= horizon:
-            for each, command, pub, batch in outputs:
+            for each, command, pub, batch, topic in outputs:
                 t_ns, x, v, a, line = each.next_sample()
                 sec, nsec = divmod(t_ns, NS_PER_S)
-                data = command.encode((sec, nsec, x, v, a, line))
+                data = sign(topic, command.encode((sec, nsec, x, v, a, line)))
                 pub.publish(data)
                 if batch is not None:
                     batch[0].add(0, data, now_ns)

@@ -4,7 +4,7 @@
 one process per name (a node, or a node host running several: feed_twin/ros/host.py), each
 with its log file; a failed process ends the run, SIGINT/SIGTERM reach the producers first and
 the recorder last, a deadline bounds the whole run. `log_record` reads the `PREFIX {json}` lines
-the nodes print (TIMING, SHADOW).
+the nodes print (TIMING, SHADOW), `foreign_messages` the FOREIGN lines of every node.
 """
 
 from __future__ import annotations
@@ -13,10 +13,12 @@ import contextlib
 import ctypes
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,6 +36,15 @@ def _die_with_parent() -> None:
     parent's pid (feed_twin.ros.runtime) covers the race of a runner that died before this."""
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+
+
+def key_fds(env: dict[str, str]) -> tuple[int, ...]:
+    """The run key's descriptor (feed_twin.nodeset.auth.KEY_FD_ENV), inherited by the nodes
+    only: it is close-on-exec everywhere else."""
+    from feed_twin.nodeset.auth import KEY_FD_ENV
+
+    text = env.get(KEY_FD_ENV, "")
+    return (int(text),) if text.isdigit() else ()
 
 
 class _Stop:
@@ -93,6 +104,7 @@ def launch(
                     env={**env, PARENT_PID_ENV: str(os.getpid())},
                     start_new_session=True,  # a terminal's Ctrl-C reaches the runner only
                     preexec_fn=_die_with_parent,
+                    pass_fds=key_fds(env),
                 )
         progress = _Progress(enabled=show_progress)
         while any(p.poll() is None for p in procs.values()):
@@ -215,6 +227,29 @@ def log_record(log: Path, prefix: str) -> dict | None:
     return None
 
 
+_SLOW = re.compile(r"node '([^']+)' is slow: no heartbeat for (\S+) s")
+
+
+def slow_nodes(logs: Path) -> dict[str, float]:
+    """Nodes some peer said slow during the run (feed_twin.nodeset.liveness), with the
+    longest silence said [s], from the nodes' logs in `logs`."""
+    found: dict[str, float] = {}
+    for log in sorted(Path(logs).glob("*.log")):
+        with contextlib.suppress(OSError):
+            for name, seconds in _SLOW.findall(log.read_text(errors="replace")):
+                found[name] = max(found.get(name, 0.0), float(seconds))
+    return found
+
+
+def slow_line(logs: Path) -> str | None:
+    """One line naming the slow (not gone) nodes, or None."""
+    slow = slow_nodes(logs)
+    if not slow:
+        return None
+    named = ", ".join(f"'{n}' ({s:.2f} s without heartbeat)" for n, s in sorted(slow.items()))
+    return f"slow, not gone (the run went on): {named}"
+
+
 class _Progress:
     """Simulated time on stderr (a terminal only), from a node's PROGRESS log lines."""
 
@@ -250,3 +285,15 @@ class _Progress:
     def close(self) -> None:
         if self.enabled:
             print(file=sys.stderr)
+
+
+def foreign_messages(logs: Iterable[Path]):
+    """What the run's nodes refused as foreign, merged over their logs
+    (feed_twin.nodeset.foreign.ForeignLedger)."""
+    from feed_twin.nodeset.foreign import merge, parse_log
+
+    records = []
+    for log in logs:
+        with contextlib.suppress(OSError):
+            records += parse_log(log.read_text(errors="replace"))
+    return merge(records)

@@ -22,6 +22,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from feed_twin_msgs.msg import AxisCommand, TwinResidual
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
@@ -108,12 +109,14 @@ class MachineLinuxcncNode(LinuxcncNode):
             for axis, (j, command, cmd_pub, js_pub) in self._axes.items():
                 values = (sec, nsec, float(b.pos_cmd_m[i, j]), float(b.vel_cmd_m_s[i, j]),
                           float(b.acc_cmd_m_s2[i, j]), line)  # fmt: skip
-                cmd_pub.publish(command.encode(values))
+                sign = self.auth.sign  # the run's signature (feed_twin.nodeset.auth)
+                cmd_pub.publish(sign(cmd_pub.topic_name, command.encode(values)))
                 if stamp > 0:  # row k's feedback is period k - 1's (feed_twin.linuxcnc.bridge)
                     fb = float(b.pos_fb_m[i, j])
-                    js_pub.publish(encode_joint_state(stamp - period_ns, [axis.lower()], [fb],
-                                                      [], []))  # fmt: skip
-            self._servo_pub.publish(_servo_sample(b, i, sec, nsec, self._first))
+                    js = encode_joint_state(stamp - period_ns, [axis.lower()], [fb], [], [])
+                    js_pub.publish(sign(js_pub.topic_name, js))
+            servo = serialize_message(_servo_sample(b, i, sec, nsec, self._first))
+            self._servo_pub.publish(self.auth.sign(self._servo_pub.topic_name, servo))
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -23,13 +23,13 @@ import argparse
 import json
 import os
 import sys
-import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from feed_twin.core.config import ConfigError
 from feed_twin.io import msg_types
+from feed_twin.io.live import show_recording
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import (
     RECORDER_PROCESS,
@@ -41,12 +41,12 @@ from feed_twin.machine.nodes import (
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, host_argv
-from feed_twin.ros.launch import Launched, launch, log_record
+from feed_twin.ros.launch import Launched, foreign_messages, launch, log_record
 
 if TYPE_CHECKING:
     from feed_twin.ros.domain import DomainReservation
 
-REFUSED = ("single_process", "live", "no_gcode", "shadow")
+REFUSED = ("single_process", "no_gcode", "shadow")
 
 
 def check_plan(machine: MachineConfig, files: Mapping[str, Path], *, shadow: bool = False) -> None:
@@ -66,7 +66,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     refused = [f"--{o.replace('_', '-')}" for o in REFUSED if getattr(args, o, False)]
     if refused:
         return _error(args, f"{', '.join(refused)}: not available for a machine's node set")
-    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    name = args.name  # feed_twin.ros.preflight.run_name, before anything started
     bag, logs = args.out / name, args.out / f"{name}.logs"
     try:
         plan = node_plan(machine, settle_s=args.settle)
@@ -94,21 +94,27 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         summary, problem = _finish(bag, machine, args.program)
         if summary is not None:
             summary["rrd"] = str(bag.with_name(f"{bag.name}.rrd"))
+            show_recording(getattr(args, "live_viewer", None), summary["rrd"])
     else:
         print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
     failed = result.code != 0 or (summary is None and RECORDER_PROCESS in here)
     code = preflight.exit_status(result.code) if result.code else int(failed)
-    _report(machine, _named(result.reason, plan), problem, summary, timing, clock)
+    reason = _with_trip_line(_named(result.reason, plan), bag, machine, args.program)
+    foreign = foreign_messages(result.logs.values())
+    for line in foreign.lines():
+        print(line)  # the run's own output names who sent what it dropped
+    _report(machine, reason, problem, summary, timing, clock)
     print(f"bag: {bag if bag.exists() else '(none)'}")
     if args.json:
         from feed_twin.nodeset.summary import json_line
 
         print(json_line({
             "exit_code": code,
-            "reason": _named(result.reason, plan) or problem,
+            "reason": reason or problem,
             "bag": str(bag) if bag.exists() else None,
             "logs": str(logs),
             "processes": here,
+            "foreign_messages": foreign.as_dict(),
             **(summary or {}),
             **{f"timing_{k}": v for k, v in timing.items()},
         }))  # fmt: skip
@@ -144,6 +150,7 @@ def launch_processes(
     finally:
         if reservation is not None:
             reservation.release()
+        preflight.end_environment(env)
 
 
 def _report(
@@ -174,6 +181,26 @@ def _named(reason: str, plan: NodePlan) -> str:
     if not axes:
         return reason
     return f"axis {axes[0]}: {reason}" if len(axes) == 1 else f"axes {', '.join(axes)}: {reason}"
+
+
+def _with_trip_line(reason: str, bag: Path, machine: MachineConfig, program: Path) -> str:
+    """`reason` with the program line active at a drive fault's time added to the fault's
+    line (feed_twin.nodeset.protection.describe_trip), read from the tripped axis's commands."""
+    from feed_twin.io.bag import BagError, BagReader
+    from feed_twin.nodeset.protection import describe_trip
+    from feed_twin.ros.gcode_node import program_lines
+
+    head, _, rest = reason.partition("\n")
+    axis = head.removeprefix("axis ").partition(":")[0]
+    if "drive fault " not in head or axis not in machine.axes or not bag.exists():
+        return reason
+    topic = AxisTopics(machine=machine.name, axis=axis.lower()).command
+    try:
+        run = {topic: BagReader(bag).columns(topic, ["header.stamp", "line"])}
+    except (BagError, ValueError, OSError):
+        return reason
+    head = describe_trip(head, run, topic, program_lines(program))
+    return f"{head}\n{rest}" if rest else head
 
 
 def readable_bag(bag: Path) -> str:

@@ -21,20 +21,20 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 from feed_twin.core.config import ConfigError
+from feed_twin.io.live import show_recording
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.shadow_nodes import MODULES, ShadowPlan, shadow_plan
 from feed_twin.ros import preflight
-from feed_twin.ros.launch import log_record
+from feed_twin.ros.launch import foreign_messages, log_record
 from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
 
 # the node set plays the program in lockstep, all axes in one bag, started here
-REFUSED = ("single_process", "live", "no_gcode", "realtime", "start")
+REFUSED = ("single_process", "no_gcode", "realtime", "start")
 
 
 def refused_options(args: argparse.Namespace) -> str:
@@ -50,7 +50,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     problem = refused_options(args)
     if problem:
         return _error(args, problem)
-    name = args.name or f"{args.program.stem}_{time.strftime('%Y%m%d_%H%M%S')}"
+    name = args.name  # feed_twin.ros.preflight.run_name, before anything started
     bag, logs = args.out / name, args.out / f"{name}.logs"
     linuxcnc = args.nc == "linuxcnc"
     try:
@@ -88,6 +88,9 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     bridge = linuxcnc_figures(bag, plan, report, figures) if linuxcnc and figures else None
     if figures is not None:
         print_figures(plan, figures)
+        for axis in plan.axes:
+            if plan.rrd(bag, axis).exists():
+                show_recording(getattr(args, "live_viewer", None), plan.rrd(bag, axis))
     if bridge is not None:
         said = {k: "?" if v is None else f"{v:.3f}" for k, v in bridge.items()}
         print(
@@ -95,6 +98,14 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
             f"latency p99 {said['bridge_latency_p99_ms']} ms"
         )
+        from feed_twin.linuxcnc.summary import servo_timing_from_report
+
+        servo_timing = servo_timing_from_report(report)
+        if servo_timing is not None:
+            print(servo_timing.format())
+    foreign = foreign_messages(result.logs.values())
+    for line in foreign.lines():
+        print(line)  # the run's own output names who sent what it dropped
     print(f"bag: {bag if bag.exists() else '(none)'}")
     if args.json:
         from feed_twin.nodeset.summary import json_line
@@ -105,6 +116,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             "bag": str(bag) if bag.exists() else None,
             "logs": str(logs),
             "processes": list(processes),
+            "foreign_messages": foreign.as_dict(),
             "axes": [a.lower() for a in plan.axes],
             "shadow": figures,
             "rrd": {a.lower(): preflight.shown_output(plan.rrd(bag, a), rrd=True)

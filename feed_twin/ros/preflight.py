@@ -64,6 +64,44 @@ def check_run_config(config: Path, *, shadow: bool):
     return ros, nc
 
 
+# What a run named N writes into --out (single-axis and machine runs, every mode).
+RUN_OUTPUT_SUFFIXES = ("", ".rrd", ".logs", "_map.yaml")
+MAX_NAME_CHARS = 200  # and a suffix: within a file system's 255-byte names
+
+
+def run_outputs_of(out: Path, name: str) -> list[Path]:
+    """The outputs of a run named `name` that already exist in `out`."""
+    paths = [out / f"{name}{suffix}" for suffix in RUN_OUTPUT_SUFFIXES]
+    return [path for path in paths if path.exists() or path.is_symlink()]
+
+
+def run_name(out: Path, name: str | None, stem: str, stamp: str) -> str:
+    """The run's name: `name` (--name), which must be a file name and must not be used in `out`
+    yet (nothing a run wrote is overwritten); or, without one, `<stem>_<stamp>`, with `_2`,
+    `_3`, ... when a run of the same second is there. Raises ConfigError (one line)."""
+    if name is None:
+        chosen, k = f"{stem}_{stamp}", 1
+        while run_outputs_of(out, chosen):
+            k += 1
+            chosen = f"{stem}_{stamp}_{k}"
+        return chosen
+    shown = name if len(name) <= 40 else f"{name[:40]}..."
+    if not name or name in (".", "..") or "/" in name or "\0" in name:
+        raise ConfigError(
+            f"--name {shown!r}: must be a file name inside --out, not a path (no '/', not "
+            "'.' or '..')"
+        )
+    if len(name.encode()) > MAX_NAME_CHARS:
+        raise ConfigError(f"--name {shown!r}: longer than {MAX_NAME_CHARS} bytes")
+    used = run_outputs_of(out, name)
+    if used:
+        raise ConfigError(
+            f"--name {name}: already used in {out} ({', '.join(p.name for p in used)}); choose "
+            "another name or --out, nothing was started"
+        )
+    return name
+
+
 def estimate_bag_bytes(duration_s: float, exchange_period_s: float) -> int:
     """Bytes the run's bag will take for `duration_s` of simulated time."""
     return int(duration_s / exchange_period_s * BAG_BYTES_PER_EXCHANGE)
@@ -137,20 +175,34 @@ def estimate_run_bytes(args, ros, nc) -> int:
 
 def run_environment(args, environ):
     """Put the run into its own ROS domain (feed_twin.ros.domain.run_domain) and give its
-    nodes the run token (feed_twin.nodeset.guard) through `environ`; returns the domain
-    reservation to hold for the run's life (None: the user named the domain)."""
-    import secrets
-
-    from feed_twin.nodeset.guard import OPEN_NC_ENV, RUN_TOKEN_ENV
+    nodes the run key (feed_twin.nodeset.auth): a sealed memfd whose number goes into
+    `environ` (KEY_FD_ENV; feed_twin.ros.launch passes the descriptor to the node processes,
+    nothing else carries the key); returns the domain reservation to hold for the run's life
+    (None: the user named the domain)."""
+    from feed_twin.nodeset.auth import KEY_FD_ENV, KEY_FILE_ENV, key_memfd, new_key
+    from feed_twin.nodeset.guard import OPEN_NC_ENV
     from feed_twin.ros.domain import run_domain
 
     reservation, domain_id = run_domain(args.domain_id)
     environ["ROS_DOMAIN_ID"] = str(domain_id)
-    # a run spread over several computers (`--start`) shares the token the user set on each
-    if not (getattr(args, "start", None) and environ.get(RUN_TOKEN_ENV)):
-        environ[RUN_TOKEN_ENV] = secrets.token_hex(8)
+    # a run spread over several computers (`--start`) shares the key file the user made
+    # (0600, KEY_FILE_ENV) on each; every other run draws its own key
+    if not environ.get(KEY_FILE_ENV):
+        environ[KEY_FD_ENV] = str(key_memfd(new_key()))
     environ[OPEN_NC_ENV] = "1" if args.no_gcode else "0"
     return reservation
+
+
+def end_environment(environ) -> None:
+    """The run is over: its key's descriptor is closed and its number leaves `environ`."""
+    import contextlib
+
+    from feed_twin.nodeset.auth import KEY_FD_ENV
+
+    text = environ.pop(KEY_FD_ENV, "")
+    if text.isdigit():
+        with contextlib.suppress(OSError):  # a single-process run's node closed it already
+            os.close(int(text))
 
 
 def shown_output(path: Path, *, rrd: bool = False) -> str | None:

@@ -27,6 +27,13 @@ A machine's recorder (`--machine-axes`, `--command-axes`; feed_twin.machine.node
 every axis of the machine into the one bag: the node-set topics of each axis with nodes, the
 command of each axis without, and whatever else appears under `/<machine>/`.
 
+Only the run's own messages are recorded (feed_twin.nodeset.auth): a message whose type has a
+place for the run's signature (a Header first, or a String) is written as its node made it once
+its signature checks, and dropped, counted by topic and reason, with the topic's foreign
+publishers named, otherwise (feed_twin.nodeset.foreign; the runner reports them). Under
+`--no-gcode` the external NC's commands and program states are recorded unsigned. Types with
+no such place (the clock, /rosout, RecordBatch) are recorded as they come.
+
 The run ends when the sim node (of every axis) announces it on `run_state`; the recorder then
 drains what is still in flight (until 0.3 s without a message and no shadow twin left in the
 graph, at most 30 s) and closes the bag. On SIGINT, SIGTERM or a lost peer it closes the bag as
@@ -36,12 +43,14 @@ well.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib
 import os
 import re
+import struct
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from feed_twin_msgs.msg import RecordBatch as RecordBatchMsg
@@ -51,7 +60,9 @@ from rclpy.subscription import Subscription
 
 from feed_twin.io import msg_types
 from feed_twin.io.bag import BagError, BagWriter, QosProfile
-from feed_twin.nodeset.guard import run_token
+from feed_twin.io.cdr import FlatCodec
+from feed_twin.nodeset.auth import RunAuth
+from feed_twin.nodeset.guard import OPEN_NC_ENV
 from feed_twin.nodeset.record_batch import unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.summary import LiveFeed
@@ -66,8 +77,10 @@ from feed_twin.ros.runtime import (
     FeedTwinNode,
     NodeOptions,
     node_main,
+    process_key,
 )
 
+Check = Callable[[bytes], "bytes | None"]  # a message as its node made it, or None: foreign
 DRAIN_QUIET_S = 0.3
 # a shadow twin's output (under <axis>/twin, feed_twin.shadow.replay.twin_namespace): the last
 # topic of a run to end
@@ -76,6 +89,15 @@ DRAIN_MAX_S = 30.0  # a recorder starved of CPU may lag seconds behind the graph
 SCAN_PERIOD_S = 0.2
 DRAIN_PERIOD_S = 0.005  # [s] between two drains of the data subscriptions
 EXTRA_GLOBAL_TOPICS = ("/rosout",)
+# The types whose messages carry the run's signature in header.frame_id (a Header first).
+SIGNED_TYPES = frozenset(
+    (
+        msg_types.AXIS_COMMAND, msg_types.AXIS_FEEDBACK, msg_types.AXIS_STATE,
+        msg_types.DRIVE_COMMAND, msg_types.HEALTH_STATUS, msg_types.TWIN_RESIDUAL,
+        msg_types.JOINT_STATE, "feed_twin_msgs/msg/ServoSample",
+    )
+)  # fmt: skip
+STRING = FlatCodec(msg_types.STRING)
 
 
 def message_class(type_name: str) -> type:
@@ -123,8 +145,9 @@ class RecorderNode(FeedTwinNode):
         self._data_node = Node(
             f"{RECORDER_NODE}_data", namespace=self.topics.namespace, context=self.context
         )
-        # (topic, subscription, counts: True, False or the run token to look for, live feed)
-        self._takers: list[tuple[str, Subscription, bytes | bool, LiveFeed | None]] = []
+        # (topic, subscription, counts, the run's check or None, live feed): `counts` when
+        # its messages show the run still sending (not heartbeats)
+        self._takers: list[tuple[str, Subscription, bool, Check | None, LiveFeed | None]] = []
         # (batch topic, subscription, the topics it may carry); record_batch > 0
         self._batch_takers: list[tuple[str, Subscription, frozenset[str]]] = []
         self._next_drain = 0.0
@@ -137,7 +160,8 @@ class RecorderNode(FeedTwinNode):
         self._twin_states: set[str] = set()
         served = list(options.axis_topics().values())
         known: dict[str, str] = {}
-        self._signed_topics: set[str] = set()
+        self._record_auth = RunAuth(process_key())
+        self._open_topics: set[str] = set()  # recorded unsigned: an external NC's
         qos_for = {}
         self._heartbeats = set()
         for topics in served:
@@ -145,7 +169,8 @@ class RecorderNode(FeedTwinNode):
             # the G-code node's packed copies for the controllers (gcode_node --command-batch):
             # recorded from `command` instead, so the graph scan passes them by
             self._recorded[topics.command_batch] = None
-            self._signed_topics |= {topics.command, topics.drive_command, topics.program_state}
+            if os.environ.get(OPEN_NC_ENV) == "1":
+                self._open_topics |= {topics.command, topics.program_state}
             qos_for[topics.program_state] = qos_for[topics.run_state] = LATCHED_QOS
             qos_for[topics.heartbeat] = HEARTBEAT_QOS
             self._heartbeats.add(topics.heartbeat)
@@ -157,11 +182,8 @@ class RecorderNode(FeedTwinNode):
         for axis in options.command_axes:
             command = AxisTopics(machine=options.machine, axis=axis).command
             known[command] = msg_types.AXIS_COMMAND
-            self._signed_topics.add(command)
         machine = options.other_axes or options.command_axes
         self._scan_prefix = f"/{options.machine}/" if machine else None
-        token = run_token(os.environ)
-        self._token = token.encode() if token else b""
         if twin_namespace is not None:
             # a shadow run: the twin's output is known in advance, so it is recorded from its
             # first message instead of from whenever the graph scan finds it (late under load)
@@ -188,9 +210,39 @@ class RecorderNode(FeedTwinNode):
         self._recorded[topic] = subscription
         if topic.endswith(TWIN_STATE_SUFFIX):
             self._twin_states.add(topic)
-        counts = self._counts(topic)
+        counts = topic not in self._heartbeats  # heartbeats go on while peers live
         live = self.live if self.live is not None and self.live.wants(topic) else None
-        self._takers.append((topic, subscription, counts, live))
+        self._takers.append((topic, subscription, counts, self._check(topic, type_name), live))
+
+    def _check(self, topic: str, type_name: str) -> Check | None:
+        """How `topic`'s messages are told to be the run's (None: they cannot be)."""
+        if topic in self._open_topics or not self.auth.enabled:
+            return None
+        if type_name in SIGNED_TYPES:
+            return functools.partial(self._admit_recorded, topic)
+        if type_name == msg_types.STRING:
+            return functools.partial(self._admit_string, topic)
+        return None
+
+    def _admit_recorded(self, topic: str, data: bytes) -> bytes | None:
+        # the recording's own verifiers: the node's hear run_state (and may hear more) too,
+        # and each message passes a verifier once
+        body = self._record_auth.verify(topic, data)
+        if body is None:
+            self.refuse_foreign(topic, self._record_auth.last_refusal(topic))
+        return body
+
+    def _admit_string(self, topic: str, data: bytes) -> bytes | None:
+        try:
+            (text,) = STRING.decode(data)
+        except (ValueError, UnicodeDecodeError, struct.error):
+            self.refuse_foreign(topic, "malformed")
+            return None
+        body = self._record_auth.verify_text(topic, text)
+        if body is None:
+            self.refuse_foreign(topic, self._record_auth.last_refusal(topic))
+            return None
+        return STRING.encode((body,))
 
     def _record_batched(
         self, topics: AxisTopics, role: str, known: dict[str, str], record_batch: int
@@ -208,17 +260,6 @@ class RecorderNode(FeedTwinNode):
         self._recorded[batch] = subscription
         self._batch_takers.append((batch, subscription, frozenset(inner)))
 
-    def _counts(self, topic: str) -> bytes | bool:
-        """Whether a message of `topic` shows the run still sending (True, False, or the run
-        token a message must hold to count)."""
-        # Heartbeats go on while peers live; only data counts when judging "quiet".
-        counts = topic not in self._heartbeats
-        if counts and self._token and topic in self._signed_topics:
-            # Only the run's own messages (signed with its token) count: a foreign publisher
-            # that goes on sending must not hold the recording open after the run.
-            return self._token
-        return counts
-
     def poll(self) -> float | None:
         now = time.monotonic()
         if now >= self._next_drain:
@@ -230,7 +271,7 @@ class RecorderNode(FeedTwinNode):
         """Write every message waiting in the data subscriptions; returns how many."""
         write = self.bag.write
         total = 0
-        for topic, subscription, counts, live in self._takers:
+        for topic, subscription, counts, check, live in self._takers:
             handle = subscription.handle
             msg_type = subscription.msg_type
             n = 0
@@ -241,6 +282,12 @@ class RecorderNode(FeedTwinNode):
                     if taken is None:
                         break
                     data, info = taken
+                    if check is not None:
+                        # a foreign message is dropped here: it must not be recorded, nor
+                        # hold the recording open after the run
+                        data = check(data)
+                        if data is None:
+                            continue
                     received = info["received_timestamp"]
                     write(
                         topic,
@@ -251,8 +298,7 @@ class RecorderNode(FeedTwinNode):
                     if live is not None:
                         live.feed(topic, data)
                     n += 1
-                    if counts is True or counts and counts in data:
-                        own += 1
+                    own += counts
             if own:
                 self._last_message = time.monotonic()
             total += n
@@ -277,17 +323,18 @@ class RecorderNode(FeedTwinNode):
                             throttle_duration_sec=1.0,
                         )
                         continue
-                    for topic, stamp_ns, data in messages:
+                    for topic, stamp_ns, signed in messages:
                         if topic not in allowed:
                             continue  # only the topics this batch's node publishes
+                        data = self._admit_recorded(topic, signed) if self.auth.enabled else signed
+                        if data is None:
+                            continue
                         # the publish time: a batch arrives up to record_batch exchanges late
                         write(topic, data, log_time_ns=stamp_ns, publish_time_ns=stamp_ns)
                         if self.live is not None and self.live.wants(topic):
                             self.live.feed(topic, data)
-                        counts = self._counts(topic)
                         total += 1
-                        if counts is True or counts and counts in data:
-                            own += 1
+                        own += 1
         if own:
             self._last_message = time.monotonic()
         return total

@@ -25,22 +25,22 @@ shadow figures (feed_twin.shadow.summary). Processes are started and watched by 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from feed_twin.core.config import ConfigError
-from feed_twin.nodeset.guard import RUN_TOKEN_ENV
+from feed_twin.io.live import add_live_options, linger, start_live
+from feed_twin.nodeset.foreign import ForeignLedger, merge
 from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
 from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
-from feed_twin.ros.launch import launch, log_record
+from feed_twin.ros.launch import foreign_messages, launch, log_record, slow_line
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
@@ -48,6 +48,7 @@ if TYPE_CHECKING:
     from feed_twin.shadow.summary import ShadowFigures
 
 ROLES = (RECORDER_NODE, "controller", "sim", "gcode")
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "axis_default.yaml"
 # --shadow: the stand-in plays the real machine (drive and axis), the twin shadows it
 SHADOW_ROLES = ("recorder", "twin", "standin", "gcode")
 # --nc linuxcnc --shadow: LinuxCNC is the NC and the machine (feed_twin/ros/linuxcnc_node.py)
@@ -56,19 +57,28 @@ LINUXCNC_ROLES = ("recorder", "twin", "linuxcnc")
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("program", type=Path, nargs="?", help="G-code program")
-    parser.add_argument("--config", type=Path, default=Path("config/axis_default.yaml"))
+    parser.add_argument(
+        "--config", type=Path, default=DEFAULT_CONFIG,
+        help=f"axis or machine YAML (default: {DEFAULT_CONFIG}, this checkout's)",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("bags"), help="output directory")
     parser.add_argument("--name", default=None, help="bag name (default: program + time)")
     parser.add_argument("--realtime", action="store_true", help="pace by the wall clock")
     parser.add_argument("--json", action="store_true", help="last line: one JSON object")
-    parser.add_argument("--single-process", action="store_true")
-    parser.add_argument("--live", action="store_true", help="serve a live web viewer")
+    parser.add_argument(
+        "--single-process", action="store_true",
+        help="every node in this one process on one executor (no DDS between processes)",
+    )  # fmt: skip
+    add_live_options(parser)
     parser.add_argument("--optional-stop", action="store_true", help="M1 pauses")
     parser.add_argument("--max-time", type=float, default=None, help="simulated seconds at most")
     parser.add_argument(
         "--input-timeout", type=float, default=10.0, help="silence on an input topic [s]"
     )
-    parser.add_argument("--startup-timeout", type=float, default=120.0)
+    parser.add_argument(
+        "--startup-timeout", type=float, default=120.0,
+        help="[s] for every node to come up and see its peers (default 120)",
+    )  # fmt: skip
     parser.add_argument(
         "--shadow",
         action="store_true",
@@ -121,12 +131,12 @@ class Outputs:
     map: Path  # --shadow: the column map of the machine's topics in the bag
     run: dict | None = None  # the bag's signals once read (feed_twin.nodeset.summary.read_run)
     recovered: int | None = None  # messages kept when the bag had to be recovered
+    # what the nodes refused as foreign (feed_twin.nodeset.foreign)
+    foreign: ForeignLedger = field(default_factory=ForeignLedger)
 
 
 def _outputs(args: argparse.Namespace) -> Outputs:
-    stem = args.program.stem if args.program is not None else "external"
-    name = args.name or f"{stem}_{time.strftime('%Y%m%d_%H%M%S')}"
-    out = args.out
+    name, out = args.name, args.out  # checked by preflight.run_name
     return Outputs(
         bag=out / name,
         rrd=out / f"{name}.rrd",
@@ -264,6 +274,7 @@ def _run_processes(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, st
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     clock = _clock_role(args)
     result = launch(commands, out.logs, env=env, progress_role=clock, show_progress=not args.json)
+    out.foreign = foreign_messages(result.logs.values())
     return result.code, result.reason, _timing(result.logs[clock])
 
 
@@ -279,6 +290,7 @@ def _run_single_process(args: argparse.Namespace, ros, out: Outputs) -> tuple[in
     context = init_context()
     nodes = build_nodes([(r, _node_args(r, args, ros, out)) for r in _roles(args)], context)
     code = spin_nodes(nodes, context, until_all_done=True)
+    out.foreign = merge([n.foreign_record().as_dict() for n in nodes])
     reason = next((n.exit_message for n in nodes if n.exit_code and n.exit_message), "")
     sim = next(n for n in nodes if n.role == "sim")
     return code, reason, sim.timing_report()
@@ -303,7 +315,7 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
     topics = AxisTopics(machine=ros.machine, axis=ros.axis)
     if args.shadow:
         return _finish_shadow(args, topics, out)
-    run = out.run = read_run(out.bag, topics, token=os.environ.get(RUN_TOKEN_ENV))
+    run = out.run = read_run(out.bag, topics)  # only the run's messages were recorded
     lines = program_lines(args.program) if args.program is not None else None
     if room := preflight.dashboard_room(out):
         print(f"feed-twin run: {room}", file=sys.stderr)
@@ -329,6 +341,8 @@ def _finish_shadow(args: argparse.Namespace, topics, out: Outputs):
             twin_namespace=twin_namespace(topics.command),
             effort_unit=report.get("effort_unit") or _effort_unit(args.config),
             lag_p99_ms=float(lag) if lag is not None else math.nan,
+            config=args.config,
+            column_map=out.map,
         )
     except ValueError as exc:
         return None, str(exc)
@@ -339,7 +353,29 @@ def _finish_shadow(args: argparse.Namespace, topics, out: Outputs):
         report = log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}
         namespace = twin_namespace(topics.command)
         extra = linuxcnc_figures(out.bag, twin_namespace=namespace, report=report)
+        _linuxcnc_dashboard(args, topics, out, extra.format())
     return _ShadowSummary(run, figures, extra), ""
+
+
+def _linuxcnc_dashboard(args: argparse.Namespace, topics, out: Outputs, figures: str) -> None:
+    """`<run>_linuxcnc.rrd` beside the twin's: LinuxCNC's servo samples, PID output, timing."""
+    import numpy as np
+
+    from feed_twin.io.bag import BagError
+    from feed_twin.io.live import show_recording
+    from feed_twin.linuxcnc.dashboard import read_servo_trace, write_linuxcnc_dashboard
+
+    try:
+        trace = read_servo_trace(out.bag, f"{topics.namespace}/linuxcnc/servo")
+    except (BagError, ValueError) as exc:
+        print(f"feed-twin run: no LinuxCNC dashboard: {exc}", file=sys.stderr)
+        return
+    if len(trace.t_s) < 2:
+        return
+    rrd = out.bag.with_name(f"{out.bag.name}_linuxcnc.rrd")
+    period = float(np.median(np.diff(trace.t_s)))
+    write_linuxcnc_dashboard(trace, topics.axis.upper(), period, figures, rrd)
+    show_recording(getattr(args, "live_viewer", None), rrd)
 
 
 def _effort_unit(config: Path) -> str:
@@ -364,29 +400,35 @@ class _ShadowSummary:
 
 
 def main(args: argparse.Namespace) -> int:
+    """The run in any mode; with --live, its dashboards served in a browser during the run (or
+    once written, for the modes that write them at the end) and after it (feed_twin.io.live)."""
+    try:
+        viewer = start_live(args)
+    except (ValueError, RuntimeError) as exc:
+        return _early_error(args, str(exc))
+    args.live_viewer = viewer
+    args.live_url = None if viewer is None else viewer.grpc_url
+    try:
+        code = _run(args)
+    except BaseException:
+        if viewer is not None:
+            viewer.stop()
+        raise
+    if code == 2 and viewer is not None:  # nothing ran: nothing to show
+        viewer.stop()
+        return code
+    linger(viewer, args.live_linger)
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
     from feed_twin.gcode import GcodeError
 
+    problem = _name_and_out(args)
+    if problem:
+        return _early_error(args, problem)
     if _is_machine_config(args.config):
-        from feed_twin.machine.run_cli import prepare_machine, run_machine
-
-        if args.nc == "linuxcnc" and (args.in_process or not args.shadow):
-            return _early_error(
-                args,
-                "--nc linuxcnc runs the program on LinuxCNC with the machine's twins beside it: "
-                "add --shadow (without --in-process)",
-            )
-        if args.in_process:
-            return run_machine(args)
-        machine = prepare_machine(args)
-        if isinstance(machine, int):
-            return machine
-        if args.shadow:
-            from feed_twin.ros.machine_shadow_run import run_machine_shadow
-
-            return run_machine_shadow(args, machine)
-        from feed_twin.ros.machine_run import run_machine_nodes
-
-        return run_machine_nodes(args, machine)
+        return _main_machine(args)
     if args.axes is not None or args.in_process:
         option = "--axes" if args.axes is not None else "--in-process"
         return _early_error(args, f"{option} needs a machine config; {args.config} is one axis")
@@ -422,29 +464,16 @@ def main(args: argparse.Namespace) -> int:
             _write_shadow_map(args, ros, nc, out)
         except (ConfigError, ValueError, OSError) as exc:
             return _early_error(args, str(exc))
-    viewer = None
-    args.live_url = None
-    if args.live:
-        from feed_twin.io.dashboard import LiveViewer
-
-        viewer = LiveViewer()
-        args.live_url = viewer.grpc_url
-        print(f"live viewer (127.0.0.1 only): {viewer.web_url}", file=sys.stderr)
     try:
         if args.single_process:
             code, reason, timing = _run_single_process(args, ros, out)
         else:
             code, reason, timing = _run_processes(args, ros, out)
         summary, problem = _finish_outputs(args, ros, out)
-        if viewer is not None and sys.stdin.isatty():
-            print("the live viewer stays up; press Enter to stop it", file=sys.stderr)
-            with contextlib.suppress(KeyboardInterrupt, EOFError):
-                input()
     finally:
-        if viewer is not None:
-            viewer.stop()
         if reservation is not None:
             reservation.release()
+        preflight.end_environment(os.environ)
     code = 1 if code == 0 and summary is None else preflight.exit_status(code)
     reason = preflight.explain(reason, out, ros, args.program)
     if code == 130:
@@ -456,6 +485,9 @@ def main(args: argparse.Namespace) -> int:
         print(f"feed-twin run: {reason}", file=sys.stderr)
     if summary is None and problem:
         print(f"feed-twin run: {problem}", file=sys.stderr)
+    slow = slow_line(out.logs)
+    if slow:
+        print(f"feed-twin run: {slow}", file=sys.stderr)
     preflight.remove_incomplete_rrd(out.rrd)
     report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
     print(report.format())
@@ -464,6 +496,44 @@ def main(args: argparse.Namespace) -> int:
 
         print(json_line(report.as_dict()))
     return code
+
+
+def _main_machine(args: argparse.Namespace) -> int:
+    """`feed-twin run` of a machine config: in-process, its node set or its shadow node set."""
+    from feed_twin.machine.run_cli import prepare_machine, run_machine
+
+    if args.nc == "linuxcnc" and (args.in_process or not args.shadow):
+        return _early_error(
+            args,
+            "--nc linuxcnc runs the program on LinuxCNC with the machine's twins beside it: "
+            "add --shadow (without --in-process)",
+        )
+    if args.in_process:
+        return run_machine(args)
+    machine = prepare_machine(args)
+    if isinstance(machine, int):
+        return machine
+    if args.shadow:
+        from feed_twin.ros.machine_shadow_run import run_machine_shadow
+
+        return run_machine_shadow(args, machine)
+    from feed_twin.ros.machine_run import run_machine_nodes
+
+    return run_machine_nodes(args, machine)
+
+
+def _name_and_out(args: argparse.Namespace) -> str:
+    """Why the run's name or (machine config) --out cannot be used ("": they can); sets
+    args.name to the run's name (preflight.run_name) for every mode."""
+    stem = args.program.stem if args.program is not None else "external"
+    try:
+        args.name = preflight.run_name(args.out, args.name, stem, time.strftime("%Y%m%d_%H%M%S"))
+        if _is_machine_config(args.config):
+            # the machine's bag is sized by its axes' nodes; here: that --out takes files
+            preflight.check_output_dir(args.out, 0)
+    except ConfigError as exc:
+        return str(exc)
+    return ""
 
 
 def _mode(args: argparse.Namespace) -> str:
@@ -476,6 +546,8 @@ def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, s
     """The run's end as `RunReport`: outputs, domain, timing and the mode's figures."""
     from feed_twin.nodeset.run_report import RunReport, RunTiming
 
+    if args.nc == "linuxcnc" and not timing:
+        timing = _linuxcnc_timing(out)
     run_timing = RunTiming.from_report(timing)
     figures = summary.as_dict() if summary is not None else {}
     samples = run_timing.steps if run_timing.steps is not None else figures.get("samples")
@@ -495,7 +567,24 @@ def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, s
         timing=run_timing,
         figures=figures,
         figure_lines=tuple(summary.format().splitlines()) if summary is not None else (),
+        foreign_messages=out.foreign.as_dict(),
     )
+
+
+def _linuxcnc_timing(out: Outputs) -> dict:
+    """Beside LinuxCNC the run is paced by LinuxCNC's servo thread: its lateness is how late
+    the twin shadows it, servo tick -> the twin's output back at the bridge (LINUXCNC record)."""
+    report = log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}
+    if not report.get("twin_output_latency_count"):
+        return {}
+    return {
+        "steps": report.get("samples_published"),
+        "sim_time_s": report.get("program_time_s"),
+        "wall_time_s": report.get("wall_s"),
+        "lateness_p50_ms": report.get("twin_output_latency_p50_ms"),
+        "lateness_p99_ms": report.get("twin_output_latency_p99_ms"),
+        "lateness_max_ms": report.get("twin_output_latency_max_ms"),
+    }
 
 
 def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:

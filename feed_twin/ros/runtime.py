@@ -1,9 +1,11 @@
 """What every feed_twin node shares: liveness, input watchdogs, and the spin loop.
 
-- Liveness: each node publishes a heartbeat (its role) every 0.1 s of wall time on
-  `/<machine>/<axis>/heartbeat` and watches its peers' heartbeats. A peer that was seen and then
-  stays silent for `peer_timeout_s` (0.8 s) is gone: the node names it and stops with exit code
-  `EXIT_PEER_LOST`. A peer never seen within `startup_timeout_s` is reported as not started.
+- Liveness: each node publishes a heartbeat (its role, process id and host) every 0.1 s of wall
+  time on `/<machine>/<axis>/heartbeat` and watches its peers' heartbeats. A peer that was seen
+  and then stays silent for `peer_timeout_s` (0.8 s) is gone when its process is dead: the node
+  names it and stops with exit code `EXIT_PEER_LOST`; when its process lives it is slow (a busy
+  host): said once, the run goes on, up to `hung_s` (feed_twin.nodeset.liveness). A peer never
+  seen within `startup_timeout_s` is reported as not started.
   Heartbeats begin only after a node's set-up (numba compilation included), so a slow start is
   not mistaken for a crash, and (with `start_heartbeat(when=...)`) only once the recorder
   listens to the node's data topics, so that no run starts before its bag can hold everything.
@@ -29,6 +31,7 @@ import contextlib
 import faulthandler
 import functools
 import gc
+import math
 import os
 import resource
 import signal
@@ -49,10 +52,20 @@ from rclpy.node import Node
 from rclpy.task import Future
 from std_msgs.msg import String
 
+from feed_twin.nodeset.auth import RunAuth, key_from_environ
+from feed_twin.nodeset.foreign import ForeignLedger, merge
+from feed_twin.nodeset.liveness import (
+    HUNG_S,
+    Beat,
+    heartbeat_text,
+    parse_heartbeat,
+    silence_verdict,
+)
 from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
 from feed_twin.ros.dds import HEARTBEAT_QOS, LATCHED_QOS, init_context
 from feed_twin.ros.exit_timer import exit_after
 
+FOREIGN_GRAPH_S = 0.5  # [s] between two looks for the publishers of a topic with refusals
 EXIT_OK = 0
 EXIT_ERROR = 1  # a configuration, program or runtime error; the message says which
 EXIT_PEER_LOST = 3  # another node of the set disappeared
@@ -91,14 +104,15 @@ class NodeOptions:
     peers: tuple[str, ...]  # roles whose heartbeat this node watches
     startup_timeout_s: float = 60.0  # [s] wall time for peers to appear
     input_timeout_s: float = 10.0  # [s] wall time an expected topic may stay silent
-    peer_timeout_s: float = PEER_TIMEOUT_S  # [s]
+    peer_timeout_s: float = PEER_TIMEOUT_S  # [s] silent this long: slow, or gone if dead
+    hung_s: float = HUNG_S  # [s] a peer whose process lives but is silent this long is hung
     # A machine's G-code and recorder node serve several axes (feed_twin.machine.nodes): they
     # also beat, watch peers (named `<axis>/<role>`) and wait for the run's end there.
     other_axes: tuple[str, ...] = ()
     command_axes: tuple[str, ...] = ()  # NC axes without nodes: commanded and recorded only
 
     def __post_init__(self) -> None:
-        for name in ("startup_timeout_s", "input_timeout_s", "peer_timeout_s"):
+        for name in ("startup_timeout_s", "input_timeout_s", "peer_timeout_s", "hung_s"):
             value = getattr(self, name)
             if not value > 0.0:
                 raise ValueError(f"{name} = {value!r}: must be > 0")
@@ -126,6 +140,13 @@ class NodeOptions:
         return f"{self.topics.namespace}/{peer}"
 
 
+@functools.cache
+def process_key() -> bytes | None:
+    """The run's key (feed_twin.nodeset.auth), read once per process: a node host's nodes
+    share it, and its descriptor is closed once read."""
+    return key_from_environ(os.environ)
+
+
 class Liveness:
     """Heartbeats sent and watched from a thread with its own node, without an executor.
 
@@ -143,19 +164,26 @@ class Liveness:
         self.role = role
         self.options = options
         self.node = Node(f"{role}_liveness", namespace=options.topics.namespace, context=context)
+        # heartbeats are signed too: a foreign one must not keep a dead peer "alive"
+        self.auth = RunAuth(process_key())
+        self.foreign = ForeignLedger()
         served = options.axis_topics()
         self._pubs = [
-            self.node.create_publisher(String, t.heartbeat, HEARTBEAT_QOS) for t in served.values()
+            (t.heartbeat, self.node.create_publisher(String, t.heartbeat, HEARTBEAT_QOS))
+            for t in served.values()
         ]
         self._subs = [
             (
                 prefix,
+                t.heartbeat,
                 self.node.create_subscription(String, t.heartbeat, _never_called, HEARTBEAT_QOS),
             )
             for prefix, t in served.items()
         ]
         self._lock = threading.Lock()
         self._seen: dict[str, float] = {}
+        self._beats: dict[str, Beat] = {}  # the latest beat of each peer (its process)
+        self._text = heartbeat_text(role)
         self._beating = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"{role}-liveness", daemon=True)
@@ -169,17 +197,23 @@ class Liveness:
         return self._beating
 
     def _take(self) -> None:
-        for prefix, sub in self._subs:
+        for prefix, topic, sub in self._subs:
             handle = sub.handle
             with handle:
                 while True:
                     taken = handle.take_message(String, False)
                     if taken is None:
                         break
-                    peer = taken[0].data
-                    if peer != self.role:
+                    text = self.auth.verify_text(topic, taken[0].data)
+                    if text is None:
                         with self._lock:
-                            self._seen[prefix + peer] = time.monotonic()
+                            self.foreign.refuse(topic, self.auth.last_refusal(topic))
+                        continue
+                    beat = parse_heartbeat(text)
+                    if beat.role != self.role:
+                        with self._lock:
+                            self._seen[prefix + beat.role] = time.monotonic()
+                            self._beats[prefix + beat.role] = beat
 
     def _run(self) -> None:
         next_beat = time.monotonic()
@@ -189,13 +223,17 @@ class Liveness:
             now = time.monotonic()
             if self._beating and now >= next_beat:
                 next_beat = now + HEARTBEAT_PERIOD_S
-                for pub in self._pubs:
+                for topic, pub in self._pubs:
                     with contextlib.suppress(Exception):
-                        pub.publish(String(data=self.role))
+                        pub.publish(String(data=self.auth.sign_text(topic, self._text)))
 
     def seen(self) -> dict[str, float]:
         with self._lock:
             return dict(self._seen)
+
+    def beat(self, peer: str) -> Beat | None:
+        with self._lock:
+            return self._beats.get(peer)
 
     def stop(self) -> None:
         """Stop beating and listening (idempotent); `seen` keeps the last times heard."""
@@ -230,10 +268,16 @@ class FeedTwinNode(Node):
         self._created = time.monotonic()
         self._watchdogs: list[_Watchdog] = []
         self.liveness = Liveness(role, options, self.context)
+        # the run's message authentication (feed_twin.nodeset.auth) and what it refused
+        self.auth = RunAuth(process_key())
+        self.foreign = ForeignLedger()
+        self._named_at: dict[str, float] = {}  # topic -> when its publishers were last read
         self._heartbeat_on = False
         self._beat_when: Callable[[], bool] | None = None
         self.setup_cpu_s = 0.0  # CPU time of this process when set-up ended [s]
         self.run_ended = False
+        self._slow_since: dict[str, float] = {}  # slow peers (silent, their process lives)
+        self.slow_peers: list[str] = []  # every peer said slow during the run
         self._not_done = set(options.axis_topics())  # axes whose sim has not announced the end
         for prefix, topics in options.axis_topics().items():
             self.create_subscription(
@@ -309,7 +353,58 @@ class FeedTwinNode(Node):
     def on_run_state(self, text: str) -> None:
         """Any other run_state announcement (the sim's "realtime" at the start); default: none."""
 
+    def admit(self, topic: str, data: bytes) -> bytes | None:
+        """A message of the run as its node made it, or None: refused, counted and its
+        publisher looked for (feed_twin.nodeset.auth, feed_twin.nodeset.foreign)."""
+        body = self.auth.verify(topic, data)
+        if body is None:
+            self.refuse_foreign(topic, self.auth.last_refusal(topic))
+        return body
+
+    def admit_text(self, topic: str, text: str) -> str | None:
+        """A text message of the run without its signature, or None (as `admit`)."""
+        body = self.auth.verify_text(topic, text)
+        if body is None:
+            self.refuse_foreign(topic, self.auth.last_refusal(topic))
+        return body
+
+    def refuse_foreign(self, topic: str, reason: str) -> None:
+        """Count one dropped message; warn on the first and every 1000th; name the topic's
+        foreign publishers (the graph is read at most every FOREIGN_GRAPH_S per topic)."""
+        count = self.foreign.refuse(topic, reason)
+        if count == 1 or count % 1000 == 0:
+            self.get_logger().warning(
+                f"refused {count} foreign message(s) on {topic} ({reason}): not signed by "
+                "this run's nodes"
+            )
+        now = time.monotonic()
+        if now - self._named_at.get(topic, -math.inf) >= FOREIGN_GRAPH_S:
+            self._named_at[topic] = now
+            self.name_foreign(topic)
+
+    def name_foreign(self, topic: str) -> list[str]:
+        """The publishers of `topic` that are not nodes of the run, added to the ledger;
+        returns the ones new to it."""
+        from feed_twin.ros.guarded import foreign_publishers
+
+        try:
+            found = foreign_publishers(self, topic)
+        except Exception:  # noqa: BLE001 - the graph is read again at the next refusal
+            return []
+        return [p for p in found if self.foreign.name(topic, p)]
+
+    def foreign_record(self) -> ForeignLedger:
+        """What this node and its liveness node refused, as one ledger."""
+        with self.liveness._lock:
+            heartbeats = self.liveness.foreign.as_dict()
+        return merge([self.foreign.as_dict(), heartbeats])
+
     def _on_run_state(self, msg: String, prefix: str = "") -> None:
+        topic = self.options.axis_topics()[prefix].run_state
+        text = self.admit_text(topic, msg.data)
+        if text is None:
+            return
+        msg = String(data=text)
         if not msg.data.startswith("done"):
             self.on_run_state(msg.data)
             return
@@ -378,16 +473,7 @@ class FeedTwinNode(Node):
                     )
             else:
                 silent[peer] = now - seen
-        if any(s > self.options.peer_timeout_s for s in silent.values()):
-            # Peers that went silent together (nodes sharing a process, feed_twin.ros.host) are
-            # named together: the others beat every 0.1 s, so half the timeout tells them apart.
-            self.on_peer_lost(
-                "; ".join(
-                    f"node '{self.options.peer_path(peer)}' is gone: no heartbeat for {s:.2f} s"
-                    for peer, s in sorted(silent.items(), key=lambda item: -item[1])
-                    if s > 0.5 * self.options.peer_timeout_s
-                )
-            )
+        self._judge_silence(silent)
         for dog in self._watchdogs:
             if not dog.armed():
                 dog.last = now
@@ -399,6 +485,43 @@ class FeedTwinNode(Node):
                     EXIT_INPUT_TIMEOUT,
                     self.describe_silence(dog.topic, dog.type_name, dog.timeout_s),
                 )
+
+    def _judge_silence(self, silent: dict[str, float]) -> None:
+        """Slow peers said once (and again when they beat again), gone or hung ones end the
+        node (feed_twin.nodeset.liveness)."""
+        timeout = self.options.peer_timeout_s
+        verdicts = {
+            peer: silence_verdict(
+                self.liveness.beat(peer), s, timeout_s=timeout, hung_s=self.options.hung_s
+            )
+            for peer, s in silent.items()
+        }
+        for peer, verdict in verdicts.items():
+            path = self.options.peer_path(peer)
+            if verdict == "slow" and peer not in self._slow_since:
+                self._slow_since[peer] = time.monotonic() - silent[peer]
+                self.slow_peers.append(path)
+                self.get_logger().warning(
+                    f"node '{path}' is slow: no heartbeat for {silent[peer]:.2f} s, its process "
+                    f"lives (a busy host); the run goes on (hung after {self.options.hung_s:g} s)"
+                )
+            elif verdict == "ok" and peer in self._slow_since:
+                late = time.monotonic() - self._slow_since.pop(peer)
+                self.get_logger().info(f"node '{path}' beats again after {late:.2f} s")
+        if not any(v in ("gone", "hung") for v in verdicts.values()):
+            return
+        # Peers that went silent together (nodes sharing a process, feed_twin.ros.host) are
+        # named together: the others beat every 0.1 s, so half the timeout tells them apart.
+        lines = []
+        for peer, s in sorted(silent.items(), key=lambda item: -item[1]):
+            path = self.options.peer_path(peer)
+            if verdicts[peer] == "hung":
+                lines.append(
+                    f"node '{path}' is hung: no heartbeat for {s:.2f} s, its process lives"
+                )
+            elif verdicts[peer] == "gone" or (verdicts[peer] == "ok" and s > 0.5 * timeout):
+                lines.append(f"node '{path}' is gone: no heartbeat for {s:.2f} s")
+        self.on_peer_lost("; ".join(lines))
 
     def recorder_alive(self) -> bool:
         """The recorder's heartbeat is recent (it will acknowledge what this node sent)."""
@@ -523,6 +646,10 @@ def spin_nodes(
                 node.on_shutdown(reason)
             except Exception as exc:  # noqa: BLE001 - one node's cleanup must not skip another's
                 print(f"{node.role}: error while shutting down: {exc}", file=sys.stderr)
+        for node in nodes:
+            ledger = node.foreign_record()
+            if ledger.topics:
+                print(ledger.log_line(), file=sys.stderr, flush=True)
         # A finished node stops beating: a recorder sharing this process has closed its bag, and
         # the ack wait below (here and in other processes) must not take it for alive.
         for node in nodes:

@@ -32,7 +32,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", required=True, type=Path, help="model YAML with shadow:")
     parser.add_argument("--duration", type=float, default=60.0, help="[s] of machine program")
     parser.add_argument("--raise-friction-at", type=float, help="[s] raise the truth friction")
-    parser.add_argument("--friction-scale", type=float, default=1.35)
+    parser.add_argument(
+        "--friction-scale", type=float, default=1.35,
+        help="factor on the truth friction from --raise-friction-at on (default 1.35)",
+    )  # fmt: skip
     parser.add_argument(
         "--jitter", type=float, help="[s] largest send delay (default: shadow.standin.jitter_s)"
     )
@@ -68,7 +71,7 @@ def run_shadow(args: argparse.Namespace) -> tuple[int, dict | None, str]:
         standin_cmd += ["--raise-friction-at", str(args.raise_friction_at)]
     try:
         if args.live:
-            from feed_twin.io.dashboard import LiveViewer
+            from feed_twin.io.live import LiveViewer
 
             viewer = LiveViewer()
             twin_cmd += ["--rerun-url", viewer.grpc_url]

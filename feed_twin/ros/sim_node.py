@@ -106,11 +106,11 @@ _CHECKED_BOUNDS = bounds_of(_CHECKED)
 
 
 class CommandReader:
-    """DriveCommand bytes -> DriveSetpoint, fast for the axis label (and run token in
-    header.frame_id, feed_twin.nodeset.guard) this node expects."""
+    """DriveCommand bytes (as the controller made them, before the run's signature went on
+    and after it came off) -> DriveSetpoint, fast for the axis label this node expects."""
 
-    def __init__(self, axis_label: str, token: str = "") -> None:
-        self.layout = DRIVE_COMMAND.fixed({"axis": axis_label, "header.frame_id": token})
+    def __init__(self, axis_label: str) -> None:
+        self.layout = DRIVE_COMMAND.fixed({"axis": axis_label})
         self._pick = operator.itemgetter(*(self.layout.index(n) for n in _COMMAND_FIELDS))
 
     def values(self, data: bytes) -> tuple:
@@ -212,9 +212,12 @@ class SimNode(FeedTwinNode):
         self._joint = JointStateLayout(joint_name)
         self._clock = Clock()
         self._guard = InputGuard(
-            self, (self.topics.drive_command, self.topics.program_state), axis_label
+            self,
+            (self.topics.drive_command, self.topics.program_state),
+            axis_label,
+            nc_topics=(self.topics.program_state,),
         )
-        self._read_command = CommandReader(axis_label, self._guard.token)
+        self._read_command = CommandReader(axis_label)
         self._feedback_layout = AXIS_FEEDBACK.fixed({"axis": axis_label})
         self._state_layout = AXIS_STATE.fixed({"axis": axis_label})
         if self._feedback_layout.numbers != FEEDBACK_NUMBERS:
@@ -232,7 +235,7 @@ class SimNode(FeedTwinNode):
             self.get_logger().info(f"scheduling: {note}")
         if realtime:
             # The controller raises its own priority on this announcement (latched).
-            self._run_pub.publish(String(data=f"realtime priority {realtime_priority}"))
+            self._run_pub.publish(self._run_text(f"realtime priority {realtime_priority}"))
         outputs = (
             (self._feedback_pub, self._state_pub, self._joint_pub)
             if self._record is None
@@ -285,12 +288,14 @@ class SimNode(FeedTwinNode):
         )
 
     def _on_program_state(self, msg: String) -> None:
-        parsed = parse_program_state(msg.data, self._guard.nc_token)
+        text = self._guard.admit_text(self.topics.program_state, msg.data)
+        if text is None:
+            return
+        parsed = parse_program_state(text)
         if parsed is None:
             self._guard.refuse(
-                "program_state", self.topics.program_state,
-                f"{msg.data[:80]!r} (malformed, or not from this run's G-code node)",
-            )  # fmt: skip
+                "program_state", self.topics.program_state, f"{text[:80]!r} (malformed)"
+            )
             return
         word, stamp_ns, text = parsed
         if word == "running":
@@ -318,8 +323,11 @@ class SimNode(FeedTwinNode):
         self.wall_end = time.monotonic()
         if self._record is not None:
             self._record.flush()  # the recorder's copies before the end they precede
-        self._run_pub.publish(String(data=text))
+        self._run_pub.publish(self._run_text(text))
         self.finish(code, "" if code == EXIT_OK else text)
+
+    def _run_text(self, text: str) -> String:
+        return String(data=self.auth.sign_text(self.topics.run_state, text))
 
     def _on_command(self, data: bytes) -> None:
         setpoint = self._admit(data)
@@ -345,9 +353,10 @@ class SimNode(FeedTwinNode):
         with a warning: another publisher's message, garbage, NaN)."""
         topic = self.topics.drive_command
         reader = self._read_command
-        if self._guard.token and not reader.layout.matches(data):
-            self._guard.refuse("token", topic, "not from this run's controller (run token)")
-            return None
+        admitted = self._guard.admit(topic, data)
+        if admitted is None:
+            return None  # not the controller's: it does not move the axis
+        data = admitted
         try:
             values = reader.values(data)
         except Exception as exc:  # noqa: BLE001 - any undecodable message is dropped, not fatal
@@ -393,8 +402,10 @@ class SimNode(FeedTwinNode):
                 (STATUS_ENABLED if enabled else 0) | (STATUS_FAULT if fault else 0), fault,
             )
         )  # fmt: skip
+        sign = self.auth.sign
+        feedback = sign(self.topics.feedback, feedback)
         self._feedback_pub.publish(feedback)
-        state = self._state_layout.encode((sec, nsec, *truth))
+        state = sign(self.topics.state, self._state_layout.encode((sec, nsec, *truth)))
         self._state_pub.publish(state)
         record = self._record
         if record is not None:
@@ -423,8 +434,11 @@ class SimNode(FeedTwinNode):
             return
         sec, nsec = divmod(t_ns, NS_PER_S)
         # Tools get joint states and the clock at a lower rate; every message carries its stamp.
-        joint = self._joint.encode(
-            sec, nsec, truth[self._i_position], truth[self._i_velocity], truth[self._i_screw]
+        joint = self.auth.sign(
+            self.topics.joint_states,
+            self._joint.encode(
+                sec, nsec, truth[self._i_position], truth[self._i_velocity], truth[self._i_screw]
+            ),
         )
         # The clock reads the time the simulation has reached: the end of this exchange.
         csec, cnsec = divmod(t_ns + host.exchange_ns, NS_PER_S)
@@ -460,7 +474,7 @@ class SimNode(FeedTwinNode):
         if not self.done or self.exit_code != EXIT_OK:
             # The context may already be shutting down; the others also stop on lost heartbeats.
             with contextlib.suppress(Exception):
-                self._run_pub.publish(String(data=f"done error: {reason or 'stopped'}"))
+                self._run_pub.publish(self._run_text(f"done error: {reason or 'stopped'}"))
         print("TIMING " + json.dumps(self.timing_report()), file=sys.stderr, flush=True)
 
 

@@ -228,11 +228,12 @@ class StandInNode(FeedTwinNode):
             wait = None
         while self._queue and self._queue[0][0] <= now:
             _, _, topic, data = heapq.heappop(self._queue)
-            self._publisher(topic).publish(data)
+            self._send(topic, data)
         if self._ended() and not self._queue:
             if self._done_at is None:
                 self.wall_end = now
-                self._run_pub.publish(String(data="done: program finished"))
+                done = self.auth.sign_text(self.topics.run_state, "done: program finished")
+                self._run_pub.publish(String(data=done))
                 self._done_at = now
             # stay a moment: a writer that leaves at once can take unacknowledged samples along
             if now - self._done_at > LINGER_S:
@@ -262,6 +263,11 @@ class StandInNode(FeedTwinNode):
             "; ".join(lines) + f": another run on ROS domain {domain}? Stop it, or run this one "
             "in another domain (ROS_DOMAIN_ID) or under other ros.machine/ros.axis names"
         )
+
+    def _send(self, topic: str, data: bytes) -> None:
+        """Publish with the run's signature (feed_twin.nodeset.auth)."""
+        pub = self._publisher(topic)
+        pub.publish(self.auth.sign(pub.topic_name, data))
 
     def _publisher(self, topic: str) -> Publisher:
         if topic != "command":
@@ -351,7 +357,7 @@ class StandInNode(FeedTwinNode):
                 heapq.heappush(self._queue, (release, self._seq, topic, data))
                 self._seq += 1
             else:
-                self._publisher(topic).publish(data)
+                self._send(topic, data)
         self._last_cmd = command
         self.k += 1
         if self.follow and self.k % self.clock_divider == 0:

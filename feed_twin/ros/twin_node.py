@@ -56,6 +56,10 @@ MESSAGE_TYPES = {
 }
 DRAIN_QUIET_S = 0.5  # [s] without messages after the run's end before the node finishes
 FINAL_AFTER_S = 0.1  # [s] without messages after the run's end: the streams have ended
+# [s] measured samples are paired and the twin advanced at most this often: a twin that fell
+# behind (messages queued) advances a whole batch per wake-up with its compiled engine instead of
+# one sample per message, which is how it catches up; poll() steps what waits in between
+STEP_EVERY_S = 0.002
 LAG_SAMPLES = 600_000  # lags kept for the report (10 min at 1 kHz): bounded memory
 STATE = FlatCodec(msg_types.AXIS_STATE)
 RESIDUAL = FlatCodec(msg_types.TWIN_RESIDUAL)
@@ -112,6 +116,7 @@ class TwinNode(FeedTwinNode):
         self._health_pub = self.create_publisher(
             HealthStatus, out(out_namespace, "health"), DATA_QOS
         )
+        self._command_topic, self._measured_topic = command.topic.name, measured.topic.name
         for source, callback in ((command, self._on_command), (measured, self._on_measured)):
             topic = source.topic
             self.create_subscription(
@@ -130,12 +135,19 @@ class TwinNode(FeedTwinNode):
         self.lags_ms: deque[float] = deque(maxlen=LAG_SAMPLES)
         self.samples = 0
         self._waiting_for_command = False  # measured samples are there, not yet paired
+        self._stepped_at = 0.0  # [s] monotonic time of the last step
+        self._unstepped = False  # samples arrived since the last step
         self.errors = 0
         self._rss_start = _rss_mb()
         outputs = (self._state_pub, self._residual_pub, self._health_pub)
         self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
     def _on_command(self, data: bytes) -> None:
+        if self.auth.enabled:  # a run's twin: only the run's NC (a bare shadow: any stream)
+            admitted = self.admit(self._command_topic, data)
+            if admitted is None:
+                return
+            data = admitted
         self._seen_command = True
         self._last_message = time.monotonic()
         try:
@@ -152,6 +164,11 @@ class TwinNode(FeedTwinNode):
             self._step()
 
     def _on_measured(self, data: bytes) -> None:
+        if self.auth.enabled:
+            admitted = self.admit(self._measured_topic, data)
+            if admitted is None:
+                return
+            data = admitted
         arrived = time.perf_counter()
         self._last_message = time.monotonic()
         self._measured_dog.feed()
@@ -164,7 +181,9 @@ class TwinNode(FeedTwinNode):
         outcome = self.shadow.push_measured(t, v["pos_meas_m"], effort)
         if outcome in ("accepted", "reordered"):
             self._arrival[self.shadow.measured.slot_of(t)[0]] = arrived
-        self._step()
+        self._unstepped = True
+        if self._last_message - self._stepped_at >= STEP_EVERY_S:
+            self._step()
 
     def _bad(self, exc: Exception) -> None:
         self.errors += 1
@@ -172,6 +191,8 @@ class TwinNode(FeedTwinNode):
             self.get_logger().error(f"undecodable message dropped: {exc}")
 
     def _step(self, *, final: bool = False) -> None:
+        self._stepped_at = time.monotonic()
+        self._unstepped = False
         block = self.shadow.process(final=final)
         if block is not None and len(block):
             self._publish(block)
@@ -201,23 +222,27 @@ class TwinNode(FeedTwinNode):
             }
             if self._is_current:
                 state["i_q"] = float(b.effort_twin[k])
-            self._state_pub.publish(STATE.encode_map(state))
+            sign = self.auth.sign
+            self._state_pub.publish(sign(self._state_pub.topic_name, STATE.encode_map(state)))
             self._residual_pub.publish(
-                RESIDUAL.encode_map(
-                    {
-                        "header.stamp.sec": sec,
-                        "header.stamp.nanosec": nsec,
-                        "axis": self.axis_label,
-                        "following_error_measured": float(b.x_cmd_m[k] - b.x_meas_m[k]),
-                        "following_error_twin": fe_twin,
-                        "following_error_deviation": float(b.fe_dev_m[k]),
-                        "effort_measured": float(b.effort_meas[k]),
-                        "effort_twin": float(b.effort_twin[k]),
-                        "effort_deviation": float(b.effort_dev[k]),
-                        "rms_window": window,
-                        "following_error_deviation_rms": float(b.fe_dev_rms_m[k]),
-                        "effort_deviation_rms": float(b.effort_dev_rms[k]),
-                    }
+                sign(
+                    self._residual_pub.topic_name,
+                    RESIDUAL.encode_map(
+                        {
+                            "header.stamp.sec": sec,
+                            "header.stamp.nanosec": nsec,
+                            "axis": self.axis_label,
+                            "following_error_measured": float(b.x_cmd_m[k] - b.x_meas_m[k]),
+                            "following_error_twin": fe_twin,
+                            "following_error_deviation": float(b.fe_dev_m[k]),
+                            "effort_measured": float(b.effort_meas[k]),
+                            "effort_twin": float(b.effort_twin[k]),
+                            "effort_deviation": float(b.effort_dev[k]),
+                            "rms_window": window,
+                            "following_error_deviation_rms": float(b.fe_dev_rms_m[k]),
+                            "effort_deviation_rms": float(b.effort_dev_rms[k]),
+                        }
+                    ),
                 )
             )
             arrived = self._arrival.pop(round((t - t0) / period), None)
@@ -228,7 +253,8 @@ class TwinNode(FeedTwinNode):
             self.dashboard.log_block(b)
 
     def _verdict(self, v: Verdict) -> None:
-        self._health_pub.publish(HEALTH.encode(health_values(HEALTH.names, v, self.axis_label)))
+        health = HEALTH.encode(health_values(HEALTH.names, v, self.axis_label))
+        self._health_pub.publish(self.auth.sign(self._health_pub.topic_name, health))
         text = f"health {v.level_name} at t = {v.t_s:.3f} s: {v.message}"
         # one call site per severity: rclpy refuses a call site whose severity changes
         if v.level == 2:
@@ -276,6 +302,11 @@ class TwinNode(FeedTwinNode):
         self._draining_since = time.monotonic()
 
     def poll(self) -> float | None:
+        if self._unstepped and not self.done:
+            wait = self._stepped_at + STEP_EVERY_S - time.monotonic()
+            if wait > 0.0:
+                return wait
+            self._step()
         if self._draining_since is not None and not self.done:
             quiet = time.monotonic() - max(self._last_message, self._draining_since)
             if quiet > FINAL_AFTER_S and not self._final_done:

@@ -18,8 +18,17 @@ with ITSELF at the start of the run:
   against the model's value: "coulomb_friction +35 % since start";
 - STALE when the measured stream has lost `missing_flag_after` samples in a row.
 
-A machine that reports no effort (`has_effort=False`) is judged on the FE deviation alone, and
-the position-domain signatures of the library are ranked on it (weights in m, no parameter).
+A machine that reports no effort (`has_effort=False`, a controller such as LinuxCNC beside the
+twin) is judged on the FE deviation alone. Its servo loop is rarely the twin's (other gains,
+feed-forward, drive lag), and two linear servos that follow one command differ in following
+error by, to first order, `c0 + c_v v + c_a a`: the baseline learns those three weights on its
+window (the model gap), and the window RMS compared with the baseline is that of what the gap
+model leaves, so a gap that was there from the start raises no alarm when the program's speed
+changes. A gap larger than the warn threshold is said once, as a model gap (effect
+`model_gap`, WARN), with the `feed-twin diagnose` command that fits the model to this machine,
+and GAP_TOLERANCE of its RMS is added to the FE limits (the fit extrapolates to other motion);
+the position-domain signatures of the library are ranked on what the gap model leaves (weights
+in m, no parameter).
 
 In a `Verdict`, `nominal_value` is the model's value of the parameter, `estimated_value` that
 value plus the change since the start, and `relative_change` the change over |nominal_value|
@@ -52,6 +61,11 @@ MAX_BASELINE_EFFECTS = 4  # effects the baseline residual model may hold
 # An effect whose fitted terms cancel each other more than this is not identified on the window
 # (|v| and "moving" on a cruise at one speed): its weights would be reported as its size.
 MAX_CANCELLATION = 10.0
+# The model gap is learnt on the baseline window's motion only; on other motion (a reversal the
+# baseline did not hold, another speed) it extrapolates to within a few per cent of the gap.
+# That share of the gap's RMS is added to the FE limits, so a 66 um gap does not warn over a
+# 2 um mismatch of its own fit (the README's LinuxCNC example gave 52 such warnings).
+GAP_TOLERANCE = 0.1
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -149,6 +163,13 @@ class HealthMonitor:
         self._t_last = math.nan
         self._named_at: float | None = None
         self.last: Verdict | None = None
+        self._gap: np.ndarray | None = None  # [m, s, s^2] FE deviation per (1, v, a) at baseline
+        self.model_gap: Verdict | None = None  # said once when the baseline is set
+
+    @property
+    def gap_model(self) -> np.ndarray | None:
+        """[m, s, s^2] the FE deviation's weights on (1, v, a) learnt at baseline (no effort)."""
+        return None if self._gap is None else self._gap.copy()
 
     @property
     def baseline_ready(self) -> bool:
@@ -171,6 +192,8 @@ class HealthMonitor:
                 self._set_baseline(np.concatenate(self._baseline_rows))
                 self._baseline_rows = []
                 baseline_ready_at = int(np.flatnonzero(valid)[need - 1]) + 1
+                if self.model_gap is not None:
+                    out.append(self.model_gap)
             else:
                 baseline_ready_at = len(rows) + 1
         start, n = 0, len(rows)
@@ -203,7 +226,7 @@ class HealthMonitor:
             return None
         w = self._window.data
         b = self.baseline or {"fe_dev_rms_m": math.nan, "effort_dev_rms": math.nan}
-        fe_rms = math.nan if empty else float(np.sqrt(np.mean(w[:, 2] ** 2)))
+        fe_rms = math.nan if empty else float(np.sqrt(np.mean(self._fe_change(w) ** 2)))
         eff_rms = math.nan if empty else float(np.sqrt(np.mean(w[:, 3] ** 2)))
         common: dict[str, Any] = dict(  # the fields every verdict of this cycle shares
             t_s=self._t_last if stale else float(w[-1, 0]),
@@ -222,10 +245,11 @@ class HealthMonitor:
         else:
             rise_fe = fe_rms - b["fe_dev_rms_m"]
             rise_eff = eff_rms - b["effort_dev_rms"]
+            gap = GAP_TOLERANCE * self.model_gap.fe_dev_rms_m if self.model_gap else 0.0
             level = OK
-            if rise_fe > c.fe_dev_rms_error_m or rise_eff > c.effort_dev_rms_error:
+            if rise_fe > c.fe_dev_rms_error_m + gap or rise_eff > c.effort_dev_rms_error:
                 level = ERROR
-            elif rise_fe > c.fe_dev_rms_warn_m or rise_eff > c.effort_dev_rms_warn:
+            elif rise_fe > c.fe_dev_rms_warn_m + gap or rise_eff > c.effort_dev_rms_warn:
                 level = WARN
             if level == OK:
                 verdict = Verdict(level=OK, message="residuals at their baseline", **common)
@@ -266,11 +290,36 @@ class HealthMonitor:
         h = self.config.sample_period_s
         return len(x) > 20 and float(np.max(np.abs(np.diff(x)))) / h > MIN_SPEED_M_S
 
+    def _gap_regressors(self, w: np.ndarray) -> np.ndarray:
+        """Columns 1, v, a of the window (velocity and acceleration of the measured position)."""
+        t, x = w[:, 0], w[:, 1]
+        if len(t) < 3:
+            return np.ones((len(t), 1))
+        v = np.gradient(x, t)
+        return np.column_stack([np.ones_like(t), v, np.gradient(v, t)])
+
+    def _fe_change(self, w: np.ndarray) -> np.ndarray:
+        """The window's FE deviation less the model gap learnt at baseline [m]."""
+        if self._gap is None:
+            return w[:, 2]
+        return w[:, 2] - self._gap_regressors(w) @ self._gap
+
     def _set_baseline(self, rows: np.ndarray) -> None:
+        raw_fe_rms = float(np.sqrt(np.mean(rows[:, 2] ** 2)))
+        if not self.has_effort and self._moving(rows):
+            Z = self._gap_regressors(rows)
+            scale = np.linalg.norm(Z, axis=0)
+            scale[scale == 0.0] = 1.0
+            fitted, *_ = np.linalg.lstsq(Z / scale, rows[:, 2], rcond=1e-10)
+            self._gap = fitted / scale
         self.baseline = {
-            "fe_dev_rms_m": float(np.sqrt(np.mean(rows[:, 2] ** 2))),
+            "fe_dev_rms_m": float(np.sqrt(np.mean(self._fe_change(rows) ** 2))),
             "effort_dev_rms": float(np.sqrt(np.mean(rows[:, 3] ** 2))),
         }
+        if not self.has_effort and raw_fe_rms > self.config.fe_dev_rms_warn_m:
+            self.model_gap = self._model_gap_verdict(rows, raw_fe_rms)
+            self.verdicts.append(self.model_gap)
+            self.last = self.model_gap
         if not self._moving(rows) or not self.has_effort:
             return
         rows = _decimated(rows)
@@ -279,6 +328,28 @@ class HealthMonitor:
             self._baseline_model = self._fit_baseline(motion, rows[:, 3])
         except (np.linalg.LinAlgError, ValueError) as exc:
             self._baseline_note = f"baseline residual model not fitted: {exc}"
+
+    def _model_gap_verdict(self, rows: np.ndarray, raw_fe_rms: float) -> Verdict:
+        gap = self._gap if self._gap is not None and len(self._gap) == 3 else np.full(3, np.nan)
+        c0, c_v, c_a = (float(c) for c in gap)
+        left = self.baseline["fe_dev_rms_m"] if self.baseline else math.nan
+        return Verdict(
+            t_s=float(rows[-1, 0]),
+            level=WARN,
+            fe_dev_rms_m=raw_fe_rms,
+            effort_dev_rms=math.nan,
+            baseline_fe_dev_rms_m=left,
+            baseline_effort_dev_rms=math.nan,
+            effect="model_gap",
+            message=(
+                f"model gap from the start: FE deviation RMS {raw_fe_rms * 1e6:.3g} um over the "
+                f"first {self.config.baseline_s:g} s (offset {c0 * 1e6:+.3g} um, "
+                f"{c_v * 1e3:+.3g} um per mm/s, {c_a * 1e6:+.3g} um per m/s^2: the twin's servo "
+                f"or plant is not this machine's; {left * 1e6:.3g} um RMS left), learnt as the "
+                "baseline: alarms are for changes against it. To fit the model to this machine: "
+                "feed-twin diagnose <this run's bag> --config <axis config> --out <dir>"
+            ),
+        )
 
     def _fit_baseline(self, motion, effort_dev: np.ndarray) -> list:
         """The effects the baseline window's effort deviation already holds, added one at a time
@@ -347,9 +418,10 @@ class HealthMonitor:
                 change = w[:, 3] - self.baseline_prediction(motion)
                 ranked = rank(motion, effort_residual=change, position_residual=None)
             else:
-                # no measured effort: the position-domain signatures on the FE deviation
+                # no measured effort: the position-domain signatures on what the model gap
+                # learnt at baseline leaves of the FE deviation
                 unit = "m"
-                ranked = rank(motion, effort_residual=None, position_residual=w[:, 2])
+                ranked = rank(motion, effort_residual=None, position_residual=self._fe_change(w))
         except (np.linalg.LinAlgError, ValueError) as exc:
             # a twin must never stop over its diagnosis: report and go on
             return {"message": f"the effect ranking failed on this window ({exc})"}

@@ -45,6 +45,10 @@ class ShadowFigures:
     warnings: int  # WARN and ERROR verdicts
     last_warning: str  # message of the last WARN/ERROR verdict, "" if none
     lag_p99_ms: float  # [ms] wall clock, NaN when the twin reported none
+    first_warning_s: float = math.nan  # [s] stamp of the first WARN/ERROR verdict
+    # the `feed-twin diagnose` command that names the effect on this bag ("" without a warning
+    # or without the config and column map to give it)
+    diagnose: str = ""
 
     def as_dict(self) -> dict[str, float | int | str]:
         return {f"shadow_{k}": v for k, v in asdict(self).items()}
@@ -61,7 +65,20 @@ class ShadowFigures:
         ]
         if self.last_warning:
             lines.append(f"last warning:          {self.last_warning}")
+        if self.diagnose:
+            lines.append(f"name the effect:       {self.diagnose}")
         return "\n".join(lines)
+
+
+def diagnose_command(
+    bag: str | Path, *, config: str | Path, column_map: str | Path, start_s: float, end_s: float
+) -> str:
+    """The `feed-twin diagnose` line for the part of `bag` after the first warning: the
+    workflow then sees the changed machine alone, and names what changed."""
+    return (
+        f"feed-twin diagnose {bag} --config {config} --map {column_map} "
+        f"--segment {start_s:.3f}:{end_s:.3f} --out {bag}_diagnosis"
+    )
 
 
 def _rms(a: np.ndarray) -> float:
@@ -81,8 +98,11 @@ def summarise_shadow(
     twin_namespace: str,
     effort_unit: str,
     lag_p99_ms: float = math.nan,
+    config: str | Path | None = None,
+    column_map: str | Path | None = None,
 ) -> tuple[RunSummary, ShadowFigures]:
-    """The run and shadow figures of a recorded shadow run (module docstring)."""
+    """The run and shadow figures of a recorded shadow run (module docstring); with the run's
+    `config` and `column_map`, the diagnose command for a warning."""
     reader = BagReader(bag)
     present = {t.name for t in reader.info.topics if t.message_count > 0}
     residual_topic = node_role("twin").topic(twin_namespace, "residual")
@@ -110,13 +130,19 @@ def summarise_shadow(
         samples=int(t.size),
     )
     health_topic = node_role("twin").topic(twin_namespace, "health")
-    warnings, last = 0, ""
+    warnings, last, first_s = 0, "", math.nan
     if health_topic in present:
-        h = reader.columns(health_topic, ("level", "message"))
+        h = reader.columns(health_topic, ("header.stamp", "level", "message"))
         flagged = np.isin(h["level"], (WARN, ERROR))
         warnings = int(np.count_nonzero(flagged))
         if warnings:
             last = str(h["message"][np.flatnonzero(flagged)[-1]])
+            first_s = float(h["header.stamp"][np.flatnonzero(flagged)[0]])
+    command = ""
+    if warnings and config is not None and column_map is not None:
+        command = diagnose_command(
+            bag, config=config, column_map=column_map, start_s=first_s, end_s=float(t[-1])
+        )
     figures = ShadowFigures(
         samples=int(t.size),
         fe_dev_rms_m=_rms(r["following_error_deviation"]),
@@ -127,5 +153,7 @@ def summarise_shadow(
         warnings=warnings,
         last_warning=last,
         lag_p99_ms=lag_p99_ms,
+        first_warning_s=first_s,
+        diagnose=command,
     )
     return run, figures

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -101,8 +102,8 @@ class BagInfo:
             f"bag:       {self.path}",
             f"file:      {self.mcap_path.name} ({self.mcap_path.stat().st_size} bytes)",
             f"duration:  {self.duration_s:.6f} s",
-            f"start:     {self.start_ns * 1e-9:.9f} s",
-            f"end:       {self.end_ns * 1e-9:.9f} s",
+            f"start:     {_utc(self.start_ns)}",
+            f"end:       {_utc(self.end_ns)}",
             f"messages:  {self.message_count}",
             f"topics:    {len(self.topics)}",
         ]
@@ -111,6 +112,20 @@ class BagInfo:
                 f"  {t.name:<{width}}  {t.type_name:<{type_width}}  {t.message_count:>9} msgs"
             )
         return "\n".join(lines)
+
+
+Y2K_NS = 946_684_800 * 1_000_000_000  # earlier receive times are a simulated clock's
+
+
+def _utc(ns: int) -> str:
+    """A receive time (ns since the epoch) as a reader wants it: 2026-11-28 10:03:25.123456 UTC
+    (the epoch seconds follow in brackets, for scripts); a bag written on a simulated clock
+    (an in-process run: times from 0) gives its seconds."""
+    if ns < Y2K_NS:
+        return f"{ns * 1e-9:.6f} s (simulated clock, not a date)"
+    when = datetime.datetime.fromtimestamp(ns // 1_000_000_000, tz=datetime.UTC)
+    micros = (ns % 1_000_000_000) // 1000
+    return f"{when:%Y-%m-%d %H:%M:%S}.{micros:06d} UTC ({ns * 1e-9:.3f} s since 1970)"
 
 
 def bag_paths(path: str | Path) -> tuple[Path, Path]:

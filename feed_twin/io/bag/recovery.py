@@ -7,11 +7,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from mcap.exceptions import McapError
-from mcap.records import Channel, Footer, Message, Schema
+from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from feed_twin.io.bag.index import CutBagError, index_in_place
 from feed_twin.io.bag.layout import (
     MESSAGE_ENCODING,
     METADATA_FILE,
@@ -33,60 +33,58 @@ class RecoverResult:
     info: BagInfo
     messages_recovered: int
     was_complete: bool  # the file already had a valid footer
+    chunks: int = 0  # complete chunks kept
+    kept_bytes: int = 0  # [bytes] of the file as the writer flushed it
+    dropped_bytes: int = 0  # [bytes] the incomplete record at the end, cut off
+
+    def text(self) -> str:
+        """How much was kept, for a person."""
+        if self.was_complete:
+            return f"the recording was complete: {self.messages_recovered} messages"
+        dropped = (
+            f"the last {self.dropped_bytes} bytes, an incomplete record, dropped"
+            if self.dropped_bytes
+            else "nothing after them"
+        )
+        return (
+            f"recovered {self.messages_recovered} messages in {self.chunks} complete chunks "
+            f"({self.kept_bytes} bytes kept, {dropped}); indexed in place"
+        )
 
 
 def recover(path: str | Path) -> RecoverResult:
-    """Make a killed recording readable: keep every complete message, rewrite, re-index.
-
-    The original file is replaced only after the rewritten one is complete on disk.
-    """
+    """Make a cut recording readable: every complete chunk is kept and the file is indexed in
+    place (feed_twin.io.bag.index), never copied, so a full disk loses nothing that was
+    flushed; metadata.yaml is written again. Raises BagError (one line) when nothing can be
+    kept or there is no room for the index (the file is then left as flushed)."""
     directory, mcap_path = bag_paths(path)
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    messages: list[Message] = []
-    complete = False
-    with open(mcap_path, "rb") as f:
-        reader = StreamReader(f, skip_magic=False, emit_chunks=False, validate_crcs=True)
-        try:
-            for record in reader.records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Message):
-                    messages.append(record)
-                if isinstance(record, Footer):
-                    complete = True
-        except (McapError, EOFError, ValueError, KeyError) as exc:
-            if not messages and not channels:
-                raise BagError(
-                    f"{mcap_path}: nothing recoverable ({type(exc).__name__}: {exc})"
-                ) from None
-    if not channels:
-        raise BagError(f"{mcap_path}: nothing recoverable (no channel records)")
-    tmp = mcap_path.with_name(mcap_path.name + ".recovering")
     try:
-        text, counts = _write_recovered(tmp, schemas, channels, messages, mcap_path.name)
-        os.replace(tmp, mcap_path)
+        indexed, found = index_in_place(mcap_path)
+    except CutBagError as exc:
+        raise BagError(str(exc)) from None
     except OSError as exc:
-        # No room for a second copy (a full disk is how many recordings end): the messages are
-        # in memory, so the truncated original itself is rewritten.
-        tmp.unlink(missing_ok=True)
-        try:
-            text, counts = _write_recovered(mcap_path, schemas, channels, messages, mcap_path.name)
-        except OSError as again:
-            raise BagError(
-                f"{mcap_path}: cannot write the recovered recording ({again.strerror}; first "
-                f"{exc.strerror})"
-            ) from None
+        raise BagError(f"{mcap_path}: cannot read or index it ({exc.strerror})") from None
+    chunks = [c.record for c in found.chunks]
+    text = metadata_yaml(
+        mcap_name=mcap_path.name,
+        start_ns=min((c.message_start_time for c in chunks), default=0),
+        end_ns=max((c.message_end_time for c in chunks), default=0),
+        topics=topic_infos(found.channels, found.schemas, found.counts),
+    )
     try:
         write_atomically(directory / METADATA_FILE, text)
     except OSError as exc:
-        raise BagError(f"{directory / METADATA_FILE}: cannot write it ({exc.strerror})") from None
+        raise BagError(
+            f"{directory / METADATA_FILE}: cannot write it ({exc.strerror}); the recording "
+            f"itself is indexed ({indexed.messages} messages kept)"
+        ) from None
     return RecoverResult(
         info=info(directory),
-        messages_recovered=sum(counts.values()),
-        was_complete=complete,
+        messages_recovered=indexed.messages,
+        was_complete=indexed.finished,
+        chunks=indexed.chunks,
+        kept_bytes=indexed.kept_bytes,
+        dropped_bytes=indexed.dropped_bytes,
     )
 
 

@@ -1,0 +1,247 @@
+"""The jerk limit as a moving average of the path parameter (FIR), and the raw plan it needs.
+
+The jerk profile plans the path parameter acceleration-limited first (the raw plan: trapezoids,
+one speed per 1-D node, continuous over chains of short moves), samples it, and averages it
+over a window of N samples spanning T = (N - 1) * period >= max_i a_max_i / j_max_i:
+
+    s_f(t) = mean of s(t - T .. t),  s_f'' = (s'(t) - s'(t - T)) / T,
+    s_f''' = (s''(t) - s''(t - T)) / T
+
+so |s_f''| <= A where |s''| <= A, and |s_f'''| <= A / T while the raw acceleration does not
+change sign within T (2 A / T where it does). The filtered path parameter is mapped onto the
+same blended path: the filter smooths the feed, never the geometry. A full speed change costs
+T more than a trapezoid, the time an S-curve of the same A and J adds (A / J), and the raw
+plan needs no S-curve per body, so dense short moves keep their feed.
+
+What the raw plan does for the filter:
+- a 1-D node that is not a cut inside a chain (a corner blended alone, a stop, the entry and
+  exit of a chain) holds its speed v over its blend and T v beyond each end ("extended"): the
+  filtered speed is then exactly v over the blend (s_f'' = s_f''' = 0), so a corner is sized
+  by its curvature terms alone, and a straight body and its neighbours never share a window;
+- where the raw plan stops (v = 0) it holds still for T, so the filtered plan stops too;
+- a body whose speed rises and falls again cruises at its peak for at least T (no sign change
+  of s'' within a window); between the bodies of a chain the sign may change, so chain bodies
+  get half the jerk budget for s''' (`plan_chains.chain_limits`);
+- inside a chain, speed caps and acceleration limits are eroded (`erode`) over the distance a
+  window spans: the filtered speed at s is an average of raw speeds within T * v of s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from feed_twin.gcode.profile import CRUISE, HOLD
+
+
+@njit(cache=True)
+def _largest(c: float, b: float, A: float) -> float:
+    """Largest x >= 0 with x^2 / (2A) + b x <= c (0 when c <= 0)."""
+    if c <= 0.0:
+        return 0.0
+    return A * (-b + math.sqrt(b * b + 2.0 * c / A))
+
+
+@njit(cache=True)
+def plan_speeds_filtered(
+    cap: np.ndarray,
+    L: np.ndarray,
+    A: np.ndarray,
+    ext: np.ndarray,
+    T: float,
+    v_first: float,
+) -> np.ndarray:
+    """Boundary speeds of the raw plan: a body i (node i -> i+1) fits
+    |v_i^2 - v_i+1^2| / (2 A_i) + T / 2 (e_i v_i + e_i+1 v_i+1) <= L_i,
+    e = 1 at extended nodes. Each extended node's speed is first held to half of either
+    neighbouring body (T v / 2 <= L / 2), which keeps every pair feasible; then a backward pass
+    of braking bounds and a forward pass of speed-ups."""
+    m = L.shape[0]
+    v = cap.copy()
+    e = np.where(ext, 0.5 * T, 0.0)
+    for i in range(m + 1):
+        if e[i] > 0.0:
+            if i > 0:
+                v[i] = min(v[i], 0.5 * L[i - 1] / e[i])
+            if i < m:
+                v[i] = min(v[i], 0.5 * L[i] / e[i])
+    v[0] = v_first
+    for i in range(m - 1, 0, -1):
+        c = L[i] - e[i + 1] * v[i + 1] + v[i + 1] * v[i + 1] / (2.0 * A[i])
+        v[i] = min(v[i], _largest(c, e[i], A[i]))
+    for i in range(m):
+        c = L[i] - e[i] * v[i] + v[i] * v[i] / (2.0 * A[i])
+        v[i + 1] = min(v[i + 1], _largest(c, e[i + 1], A[i]))
+    return v
+
+
+@njit(cache=True)
+def _trapezoid(v0: float, v1: float, room: float, V: float, a: float, hold: float):
+    """(peak, t_up, t_cruise, t_down, total time) of a trapezoid over `room` at acceleration
+    a, cruising at least `hold` at a peak above both ends: vp^2 / a + hold vp <= room +
+    (v0^2 + v1^2) / (2a). The peak is never below an end (a body the planned ends fit)."""
+    c = room + (v0 * v0 + v1 * v1) / (2.0 * a)
+    top = 0.5 * a * (-hold + math.sqrt(hold * hold + 4.0 * c / a))
+    top = max(min(top, V), max(v0, v1))
+    t_up = (top - v0) / a
+    t_down = (top - v1) / a
+    rest = room - (top * top - v0 * v0) / (2.0 * a) - (top * top - v1 * v1) / (2.0 * a)
+    t_cruise = rest / top if (top > 0.0 and rest > 0.0) else 0.0
+    return top, t_up, t_cruise, t_down, t_up + t_cruise + t_down
+
+
+@njit(cache=True)
+def body_profiles_filtered(
+    v: np.ndarray, L: np.ndarray, V: np.ndarray, A: np.ndarray, ext: np.ndarray, T: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Peak speed, durations (speed-up, cruise, slow-down) and acceleration of each raw body:
+    a trapezoid over the length its nodes' extensions leave.
+
+    A body between two extended nodes (alone in its windows, A from the axes' a_max) either
+    cruises at least T at a peak above both ends (s'' keeps its sign within a window:
+    |s_f'''| <= A / T) or runs at A / 2 without that cruise (|s_f'''| <= 2 (A / 2) / T),
+    whichever is quicker. A chain body's A already budgets s'' changing sign within a window
+    (`plan_chains.chain_limits`): no cruise needed.
+    """
+    m = L.shape[0]
+    vp = np.empty(m)
+    t_up = np.empty(m)
+    t_cruise = np.empty(m)
+    t_down = np.empty(m)
+    a_used = np.empty(m)
+    for i in range(m):
+        v0 = v[i]
+        v1 = v[i + 1]
+        a = A[i]
+        room = L[i] - 0.5 * T * ((v0 if ext[i] else 0.0) + (v1 if ext[i + 1] else 0.0))
+        alone = ext[i] and ext[i + 1]
+        best = _trapezoid(v0, v1, room, V[i], a, T if alone else 0.0)
+        a_used[i] = a
+        if alone and abs(v0 * v0 - v1 * v1) <= a * room:  # the ends fit at A / 2
+            half = _trapezoid(v0, v1, room, V[i], 0.5 * a, 0.0)
+            if half[4] < best[4]:
+                best = half
+                a_used[i] = 0.5 * a
+        vp[i], t_up[i], t_cruise[i], t_down[i] = best[0], best[1], best[2], best[3]
+    return vp, t_up, t_cruise, t_down, a_used
+
+
+@njit(cache=True)
+def erode(
+    lo: np.ndarray, hi: np.ndarray, value: np.ndarray, reach: np.ndarray, group: np.ndarray
+) -> np.ndarray:
+    """Each item's value lowered to that of any item of its group within that item's reach.
+
+    Items are intervals [lo, hi] along s in order; item j reaches item i when the gap between
+    them is at most reach[j]. Items of group -1 are left alone and reach nothing.
+    """
+    n = lo.shape[0]
+    out = value.copy()
+    far = np.max(reach) if n > 0 else 0.0
+    for i in range(n):
+        if group[i] < 0:
+            continue
+        j = i + 1
+        while j < n and group[j] == group[i] and lo[j] - hi[i] <= far:
+            if lo[j] - hi[i] <= reach[j]:
+                out[i] = min(out[i], value[j])
+            j += 1
+        j = i - 1
+        while j >= 0 and group[j] == group[i] and lo[i] - hi[j] <= far:
+            if lo[i] - hi[j] <= reach[j]:
+                out[i] = min(out[i], value[j])
+            j -= 1
+    return out
+
+
+@njit(cache=True)
+def _piece_state(
+    kind: int, s0: float, v0: float, vp: float, A: float, t_up: float, t_cruise: float, tau: float
+):
+    """(s, ds/dt, integral of s from the piece's start) at tau >= 0 into a raw piece: a hold,
+    a cruise, or a trapezoid body (up at +A, cruise at vp, down at -A)."""
+    if kind == HOLD:
+        return s0, 0.0, s0 * tau
+    if kind == CRUISE:
+        return s0 + v0 * tau, v0, s0 * tau + 0.5 * v0 * tau * tau
+    s = s0
+    v = v0
+    G = 0.0
+    dt = min(tau, t_up)
+    G += s * dt + 0.5 * v * dt * dt + A * dt**3 / 6.0
+    s += v * dt + 0.5 * A * dt * dt
+    v += A * dt
+    rest = tau - dt
+    if rest > 0.0:
+        dt = min(rest, t_cruise)
+        G += s * dt + 0.5 * v * dt * dt
+        s += v * dt
+        rest -= dt
+    if rest > 0.0:
+        dt = min(rest, max(v / A, 0.0))
+        G += s * dt + 0.5 * v * dt * dt - A * dt**3 / 6.0
+        s += v * dt - 0.5 * A * dt * dt
+        v -= A * dt
+        rest -= dt
+        G += s * rest
+    return s, max(v, 0.0), G
+
+
+@njit(cache=True)
+def raw_samples(
+    times: np.ndarray,
+    kind: np.ndarray,
+    t0: np.ndarray,
+    dur: np.ndarray,
+    s0: np.ndarray,
+    v0: np.ndarray,
+    vp: np.ndarray,
+    A: np.ndarray,
+    t_up: np.ndarray,
+    t_cruise: np.ndarray,
+    F0: float,
+):
+    """s, ds/dt, F = F0 + integral of s from t0[0], and the piece, at increasing sample times
+    of raw (trapezoid) pieces; F at the end of the last piece is returned too."""
+    m = t0.shape[0]
+    F_start = np.empty(m + 1)
+    F_start[0] = F0
+    for p in range(m):
+        _, _, G = _piece_state(kind[p], s0[p], v0[p], vp[p], A[p], t_up[p], t_cruise[p], dur[p])
+        F_start[p + 1] = F_start[p] + G
+    n = times.shape[0]
+    s = np.empty(n)
+    sd = np.empty(n)
+    F = np.empty(n)
+    piece = np.empty(n, dtype=np.int64)
+    p = 0
+    for k in range(n):
+        t = times[k]
+        while p < m - 1 and t >= t0[p] + dur[p]:
+            p += 1
+        tau = t - t0[p]
+        if tau < 0.0:  # a rounding error before the first piece: at its start point
+            s[k], sd[k] = s0[p], 0.0
+            F[k] = F_start[p] + s0[p] * tau
+        else:
+            s[k], sd[k], G = _piece_state(
+                kind[p], s0[p], v0[p], vp[p], A[p], t_up[p], t_cruise[p], tau
+            )
+            F[k] = F_start[p] + G
+        piece[k] = p
+    return s, sd, F, piece, F_start[m]
+
+
+def box_filter(history: np.ndarray, raw: np.ndarray, span: float) -> np.ndarray:
+    """The raw samples (rows s, ds/dt, F) averaged over the last `span` [s]: s_f, ds_f/dt and
+    d2s_f/dt2 at each row of `raw`, `history` holding the n - 1 rows before it (n - 1 = span /
+    period). Exact: s_f = (F(t) - F(t - span)) / span and so on."""
+    lag = len(history)
+    joined = np.concatenate((history, raw))
+    now, then = joined[lag:], joined[: len(joined) - lag]
+    # The mean lies between the window's ends: held there, the rounding of F cannot carry it
+    # past a stop (onto the next move) before it comes to rest, and at rest it is exact.
+    s = np.clip((now[:, 2] - then[:, 2]) / span, then[:, 0], now[:, 0])
+    return np.column_stack((s, (now[:, 0] - then[:, 0]) / span, (now[:, 1] - then[:, 1]) / span))

@@ -1,0 +1,88 @@
+"""The jerk filter's kernels on their own: raw speeds, raw bodies, erosion, the box filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from feed_twin.gcode.jerk_filter import (
+    body_profiles_filtered,
+    box_filter,
+    erode,
+    plan_speeds_filtered,
+    raw_samples,
+)
+from feed_twin.gcode.profile import BODY
+
+T = 0.05  # [s] filter window
+
+
+def test_raw_speeds_fit_every_body_with_the_held_stretches():
+    rng = np.random.default_rng(3)
+    m = 40
+    L = rng.uniform(1e-4, 2e-2, m)
+    A = rng.uniform(0.5, 3.0, m)
+    cap = rng.uniform(0.01, 0.3, m + 1)
+    cap[-1] = 0.0
+    ext = rng.random(m + 1) < 0.5
+    v = plan_speeds_filtered(cap, L, A, ext, T, 0.0)
+    assert v[0] == 0.0 and v[-1] == 0.0 and np.all(v <= cap + 1e-15)
+    held = 0.5 * T * np.where(ext, v, 0.0)
+    need = np.abs(v[1:] ** 2 - v[:-1] ** 2) / (2.0 * A) + held[:-1] + held[1:]
+    assert np.all(need <= L * (1 + 1e-12))
+    # Bodies: they fill their length; a body alone (both ends extended) with a peak above
+    # both ends cruises at least T at A, or runs at A / 2; chain bodies keep their A.
+    V = np.full(m, 0.3)
+    vp, t_up, t_cruise, t_down, a_used = body_profiles_filtered(v, L, V, A, ext, T)
+    room = L - held[:-1] - held[1:]
+    covered = 0.5 * (v[:-1] + vp) * t_up + vp * t_cruise + 0.5 * (vp + v[1:]) * t_down
+    np.testing.assert_allclose(covered, room, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(t_up, (vp - v[:-1]) / a_used, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(t_down, (vp - v[1:]) / a_used, rtol=1e-12, atol=1e-15)
+    alone = ext[:-1] & ext[1:]
+    peaked = vp > np.maximum(v[:-1], v[1:]) * (1 + 1e-12)
+    at_full = alone & peaked & (a_used == A)
+    assert np.all(t_cruise[at_full] >= T * (1 - 1e-9))
+    assert np.all((a_used == A) | (alone & (a_used == 0.5 * A)))
+    assert np.any(alone & (a_used == 0.5 * A))  # the shorter bodies take the half rate
+    assert np.all(vp <= V)
+
+
+def test_erode_lowers_an_item_to_any_neighbour_within_that_neighbours_reach():
+    lo = np.array([0.0, 1.0, 2.0, 5.0, 6.0])
+    hi = np.array([1.0, 2.0, 3.0, 6.0, 7.0])
+    value = np.array([5.0, 4.0, 1.0, 3.0, 0.5])
+    reach = np.array([0.0, 0.0, 1.5, 0.0, 0.0])  # item 2 reaches 1.5 beyond its ends
+    group = np.array([0, 0, 0, 0, 1])  # item 4 is another chain
+    out = erode(lo, hi, value, reach, group)
+    # Item 0 (gap 1.0) and 1 (touching) take item 2's 1.0; item 3 (gap 2.0) is beyond reach.
+    np.testing.assert_array_equal(out, [1.0, 1.0, 1.0, 3.0, 0.5])
+    assert erode(lo, hi, value, reach, np.full(5, -1)).tolist() == value.tolist()
+
+
+def test_box_filter_of_a_trapezoid_is_the_s_curve_in_closed_form():
+    # Raw: from rest at A = 2 m/s^2 for 0.1 s, then 0.2 m/s. Filtered over T: the S-curve
+    # ramp of jerk A / T = 40 m/s^3: s = J t^3 / 6 for t < T.
+    A, t_up = 2.0, 0.1
+    period = 1e-3
+    times = np.arange(0, 301) * period
+    pieces = dict(
+        kind=np.array([BODY]), t0=np.array([0.0]), dur=np.array([0.3]), s0=np.array([0.0]),
+        v0=np.array([0.0]), vp=np.array([A * t_up]), A=np.array([A]),
+        t_up=np.array([t_up]), t_cruise=np.array([0.2]),
+    )  # fmt: skip
+    s, sd, F, _, F_end = raw_samples(times, **pieces, F0=0.0)
+    n = int(round(T / period))
+    before = -np.arange(n, 0, -1) * period
+    history = np.column_stack((0 * before, 0 * before, 0 * before, before))
+    smooth = box_filter(history, np.column_stack((s, sd, F, times)), T)
+    J = A / T
+    early = times < T
+    np.testing.assert_allclose(smooth[early, 0], J * times[early] ** 3 / 6, rtol=1e-9, atol=1e-16)
+    np.testing.assert_allclose(smooth[early, 1], J * times[early] ** 2 / 2, rtol=1e-9, atol=1e-16)
+    np.testing.assert_allclose(smooth[early, 2], J * times[early], rtol=1e-9, atol=1e-14)
+    # At cruise the filtered plan runs T / 2 behind the raw one, at the same speed.
+    late = times > t_up + T + 1e-9
+    np.testing.assert_allclose(smooth[late, 1], A * t_up, rtol=1e-12)
+    np.testing.assert_allclose(smooth[late, 0], s[late] - A * t_up * T / 2, rtol=1e-12)
+    assert F_end == pytest.approx(A * t_up**3 / 6 + (A * t_up**2 / 2) * 0.2 + A * t_up * 0.02)
