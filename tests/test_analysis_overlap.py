@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from known_gaps import PLANNER_MOTION
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.reexamine import Found, collapsed, neutral_values
@@ -68,6 +69,7 @@ def test_an_effect_whose_size_fell_back_to_neutral_has_collapsed():
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=PLANNER_MOTION)
 def test_vertical_axis_keeps_the_weight_and_the_coulomb_friction(tmp_path):
     """The weight takes 98 % of the effort residual; the friction that is left halves what
     remains many times over and must not be judged by the position channel's noise."""

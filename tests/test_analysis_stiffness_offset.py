@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from known_gaps import PLANNER_MOTION
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.effects import BY_NAME
@@ -127,6 +128,7 @@ def test_fitting_twin_reads_phase_currents_without_rounding_or_noise():
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=PLANNER_MOTION)
 def test_position_dependent_stiffness_is_found_in_closed_loop_on_the_linear_scale(tmp_path):
     nominal = ModelDoc.load(AXIS)
     assert nominal.data["controller"]["position"]["feedback"] == "linear_scale"
@@ -170,6 +172,7 @@ def test_once_per_electrical_revolution_is_not_searched_as_cogging():
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=PLANNER_MOTION)
 def test_current_offset_is_found_as_a_ripple_once_per_electrical_revolution(tmp_path):
     nominal = ModelDoc.load(AXIS)
     truth = {"offset_a_A": 0.3, "offset_b_A": -0.25, "offset_c_A": 0.15}  # ADC step 0.024 A
@@ -201,6 +204,7 @@ def test_machine_tool_run_without_hidden_effect_names_nothing(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=PLANNER_MOTION)
 def test_stiffness_and_current_offset_hidden_together_are_both_named(tmp_path):
     """About 40 s: each effect is fitted in its own round, then both jointly."""
     nominal = ModelDoc.load(AXIS)
