@@ -11,3 +11,10 @@ PLANNER_MOTION = (
     "leave a residual that a ~1 N Stribeck hump fits (or that hides the small effect the test "
     "hides); on the old planner's records the same workflow passes (measured: 18 of 18)"
 )
+
+WORN_GUIDE_MOTION = (
+    "open: the #30 jerk profile changed this program's motion (it passes on the planner before "
+    "it, dbeced3, and fails from 3f52e5b on); in the last health window the machine shadow now "
+    "names viscous_friction +435 % (400 -> 2141 N s/m) for the doubled guide friction: on the "
+    "new window the residual model cannot tell a speed-proportional change from a constant one"
+)

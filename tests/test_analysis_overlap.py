@@ -109,6 +109,7 @@ def test_clean_record_names_nothing(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=PLANNER_MOTION)
 def test_stiffness_and_coulomb_friction_are_both_named(tmp_path):
     """Machine-tool axis, loop on the linear scale: a softer screw and more Coulomb friction
     (160 N where the model has 120 N); about a minute. Before the edits started from the
