@@ -19,7 +19,7 @@ the record can show:
 - a command that is a staircase of rounding (a slow move advances less than one step per
   sample, so the rounded value stands still between steps) is smoothed through the midpoints
   of its steps (`dequantize`) before it drives the twin; fed as it is, the twin would stop and
-  go and name a stiction from it.
+  go and name a holding friction from it.
 Each effect not searched is listed, with its reason, as "cannot be seen in this record".
 """
 
