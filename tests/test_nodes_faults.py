@@ -133,8 +133,10 @@ def test_killed_node_is_noticed_named_and_bag_readable(
                 proc.kill()
                 proc.communicate(timeout=10)
     assert proc.returncode != 0
+    # named either by the peers (no heartbeat) or, when the launcher sees the exit first, by
+    # the launcher with the signal: both name the killed node and nothing else
     gone = f"node '/cnc/x/{victim}' is gone"
-    assert gone in err
+    assert gone in err or f"{victim} node was killed by SIGKILL" in err, err
     # Every other node noticed by itself (no heartbeat for 0.8 s) and ended promptly.
     for role in others:
         text = (logs / f"{role}.log").read_text(errors="replace")
@@ -335,7 +337,10 @@ def test_a_stopped_node_is_slow_not_gone_and_the_run_completes(config: Path) -> 
     assert text.count("[cnc.x.sim]: node '/cnc/x/gcode' is slow") == 1  # said once
     assert "node '/cnc/x/gcode' beats again after " in text
     assert "is gone" not in text
-    assert "feed-twin run: slow, not gone (the run went on): '/cnc/x/gcode' (" in err
+    # the stopped node is in the run's slow line (on a loaded host its waiting peers can be
+    # said slow beside it; the sim's own log above says the stopped one once)
+    slow_line = next(ln for ln in err.splitlines() if "slow, not gone (the run went on):" in ln)
+    assert "'/cnc/x/gcode' (" in slow_line, err
     # the whole program, without a gap
     states = BagReader(config.parent / "bags" / name).columns("/cnc/x/state", ["header.stamp"])
     np.testing.assert_allclose(np.diff(states["header.stamp"]), 1e-3, atol=1e-9)
