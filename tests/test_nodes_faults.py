@@ -140,6 +140,10 @@ def test_killed_node_is_noticed_named_and_bag_readable(
     # Every other node noticed by itself (no heartbeat for 0.8 s) and ended promptly.
     for role in others:
         text = (logs / f"{role}.log").read_text(errors="replace")
+        if victim == "recorder" and "ended: run done" in text and gone not in text:
+            # the recorder is outside the control loop: a fast node set may finish the program
+            # before its peer timeout names the lost recorder (the launcher named it, above)
+            continue
         assert gone in text, role
         if victim == "sim":  # the recorder in its process is named with it
             assert "node '/cnc/x/recorder' is gone" in text, role
