@@ -80,6 +80,11 @@ def resolution(x: np.ndarray) -> float:
     return found
 
 
+def position_resolution(raw: MeasuredRun) -> float:
+    """[m] The coarser step of the record's position channels as recorded (0: not rounded)."""
+    return max((resolution(raw[n]) for n in ("pos_cmd_m", "pos_meas_m") if n in raw), default=0.0)
+
+
 def staircase_fraction(x: np.ndarray, q: float) -> float:
     """Share of the samples inside slow moves that stand still: between two single steps of q
     in the same direction, the rounded value holds while the axis moves on."""
@@ -257,7 +262,7 @@ def assess(
     `pos_cmd_m`); `raw`: the run as recorded (before `smooth_staircases`), whose rounding is
     the resolution. See the module docstring for the rules."""
     h = run.sample_period_s
-    q = max(resolution(raw[n]) for n in ("pos_cmd_m", "pos_meas_m") if n in raw)
+    q = position_resolution(raw)
     name = run.effort_name
     qe = resolution(raw[name]) if name is not None else 0.0
     v = np.gradient(pos_cmd_m, h)
@@ -276,10 +281,7 @@ def assess(
     unseen += _slow_motion_effects(twin, v, moving, h, q)
     blind = None
     if "mass_error" in [u.name for u in unseen]:
-        # any acceleration above the rounding's noise, and the samples next to it: the
-        # machine's acceleration lasts part of a sample, the record's is smeared over two
-        accel = _accelerating(v, h, q, factor=BLIND_NOISE_FACTOR)
-        blind = accel | np.roll(accel, 1) | np.roll(accel, -1)
+        blind = unresolved(v, h, q)
         unseen.append(
             Unseen(
                 name="torque_constant_error",
@@ -382,6 +384,14 @@ def _slow_motion_effects(
     return out
 
 
+def unresolved(v: np.ndarray, h: float, q: float) -> np.ndarray:
+    """Samples whose effort carries an acceleration of the command `v` [m/s] above the
+    rounding's noise, and the samples next to them: the machine's acceleration lasts part of
+    a sample, the record's is smeared over two."""
+    accel = _accelerating(v, h, q, factor=BLIND_NOISE_FACTOR)
+    return accel | np.roll(accel, 1) | np.roll(accel, -1)
+
+
 def _accelerating(
     v: np.ndarray, h: float, q: float, *, factor: float = ACCEL_NOISE_FACTOR
 ) -> np.ndarray:
@@ -441,7 +451,9 @@ __all__ = [
     "assess",
     "dequantize",
     "force_constant_correlation",
+    "position_resolution",
     "resolution",
     "smooth_staircases",
+    "unresolved",
     "with_floor",
 ]
