@@ -37,8 +37,12 @@ def test_the_axis_reduces_to_its_mechanics_and_loops():
         assert gone not in kinds
     assert kinds["motor"] == "Inertia" and kinds["screw_shaft"] == "Inertia"
     assert kinds["axial"] == "AxialCompliance"  # the lossy screw needs its massless flange
-    assert doc.base_period() == pytest.approx(1.25e-4)  # the velocity loop's period
-    assert "current" not in doc.data["controller"]
+    ctrl = doc.data["controller"]
+    assert doc.base_period() == pytest.approx(1e-3)  # the NC's period
+    assert "current" not in ctrl and ctrl["computation_delay"] is False
+    # the velocity loop re-tuned for 1 ms (symmetric optimum, as the controller node's)
+    assert ctrl["velocity"]["period_s"] == pytest.approx(1e-3)
+    assert ctrl["velocity"]["Kp"] < full.data["controller"]["velocity"]["Kp"] / 5
     k_t = 1.5 * 4 * 0.3167  # 1.5 p psi_pm [N m/A]
     assert doc.get("motor_torque.gain") == pytest.approx(k_t)
     # the screw shaft's inertia stays: rho pi d^4 L / 32
@@ -57,7 +61,7 @@ def test_the_axis_reduces_to_its_mechanics_and_loops():
 
 def test_a_model_at_its_scale_is_not_reduced():
     doc, why = reduce(ModelDoc.load(MILL / "mill_nominal.yaml"), resolution_m=Q)
-    assert doc is None and why == ["the model runs at its loops' step already"]
+    assert doc is None and why == ["the model runs at its NC period already"]
 
 
 def test_a_wide_backlash_stays():

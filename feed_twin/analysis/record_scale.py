@@ -17,11 +17,13 @@ the same axis as the record sees it:
 - an elastic two-port (Coupling, ScrewShaft, AxialCompliance; a Backlash whose gap is below the
   record's resolution) is rigid: its two ports are one node, and the inertia it carries stays
   (a ScrewShaft: an Inertia of its J);
-- the controller runs at the NC's interpolation period (the command has nothing finer): no
-  current loop and no computation delay (the closed current loop lags a fifth of that step),
-  the position and velocity loops at that period with the velocity loop re-tuned as the
+- the model runs at the NC's interpolation period (the command has nothing finer): no current
+  loop and no computation delay (the closed current loop lags a fifth of that step), the
+  position and velocity loops at that period with the velocity loop re-tuned as the
   controller node re-tunes it for its exchange (nodeset.controller_core); sensor delays are
-  counted again in the new ticks.
+  counted again in the new ticks. Rigid, the axis allows that step: the one spring left (a
+  lossy screw's axial spring, about 160 Hz on the default axis) takes RK4 sub-steps, which
+  the twin chooses (Twin.compile).
 
 The reduction is checked on each record before it is used (`at_record_scale`): the full model
 and the reduced one are simulated once on the record's command, and the reduced one is used
@@ -82,19 +84,20 @@ def reduce(doc: ModelDoc, *, resolution_m: float) -> tuple[ModelDoc | None, list
     """The model at its NC period, rigid and driven by an ideal torque source (module
     docstring), and one line per change; (None, [reason]) when there is nothing to reduce (the
     model runs at that period already and has no current loop) or it cannot be reduced."""
-    step = _loop_step(doc)
+    step = _record_step(doc)
     kinds = {e["type"] for e in doc.data["plant"]["components"]}
     if doc.base_period() >= step * (1.0 - 1e-9) and not kinds & {"Pmsm", *DRIVE_TYPES}:
-        return None, ["the model runs at its loops' step already"]
+        return None, ["the model runs at its NC period already"]
     if "DcMotor" in kinds:
         return None, ["a DcMotor's voltage drive is not reduced to a torque source"]
     try:
         limit = float(doc.data["controller"]["drive"]["effort_limit"])
         plant, changes = _plant(doc, step, limit, resolution_m)
+        controller, tuned = _controller(doc, step)
     except (ConfigError, LookupError, ValueError) as exc:
         return None, [f"cannot be reduced: {exc}"]
     data = copy.deepcopy(doc.data)
-    data["plant"], data["controller"] = plant, _controller(doc, step)
+    data["plant"], data["controller"] = plant, controller
     if "engine" in data:
         data["engine"] = {**data["engine"], "base_period_s": step, "substeps": 1}
     motors = doc.of_type("Pmsm")
@@ -105,22 +108,35 @@ def reduce(doc: ModelDoc, *, resolution_m: float) -> tuple[ModelDoc | None, list
         data[ANALYSIS_SECTION] = analysis
     reduced = ModelDoc(data=data, source=doc.source)
     step_ms = f"{doc.base_period() * 1e3:.4g} ms -> {step * 1e3:.4g} ms"
-    return reduced, [f"step {step_ms} (no current loop)", *changes]
+    return reduced, [f"step {step_ms} (no current loop)", *changes, *tuned]
 
 
-def _loop_step(doc: ModelDoc) -> float:
-    """[s] The period of the fastest loop but the current loop: the reduced model's step."""
-    ctrl = doc.data["controller"]
-    periods = [float(ctrl[n]["period_s"]) for n in ("position", "velocity") if ctrl.get(n)]
-    return min(periods, default=float(ctrl.get("nc_period_s", doc.base_period())))
+def _record_step(doc: ModelDoc) -> float:
+    """[s] The reduced model's step: the NC's interpolation period (the command has nothing
+    finer, and a 10 Hz record samples every hundredth of it)."""
+    return float(doc.data["controller"].get("nc_period_s", doc.base_period()))
 
 
-def _controller(doc: ModelDoc, step: float) -> dict[str, Any]:
-    """The controller section at `step`, without its current loop (its gains as written)."""
+def _controller(doc: ModelDoc, step: float) -> tuple[dict[str, Any], list[str]]:
+    """The controller section at `step`, without its current loop: its position and velocity
+    loops at `step`, the velocity loop re-tuned and the position gain capped as the controller
+    node does for an exchange of that period (nodeset.controller_core); no computation delay
+    (the closed current loop it stood for lags a fraction of the step)."""
+    from feed_twin.control.config import load_controller_config
+    from feed_twin.nodeset.controller_core import controller_node_config
+
+    config = load_controller_config(doc.data["controller"], source=doc.source)
+    derived, notes = controller_node_config(config, step)
     out = copy.deepcopy(doc.data["controller"])
     out.pop("current", None)
     out["base_period_s"] = step
-    return out
+    out["computation_delay"] = False
+    for name, keys in (("position", ("Kv_1_s",)), ("velocity", ("Kp", "Ti_s"))):
+        loop = getattr(derived, name)
+        if loop is not None:
+            out[name]["period_s"] = loop.period_s
+            out[name].update({k: float(getattr(loop, k)) for k in keys})
+    return out, [n for n in notes if "re-tuned" in n or "capped" in n]
 
 
 def _plant(
