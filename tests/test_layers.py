@@ -33,6 +33,7 @@ LAYERS: tuple[frozenset[str], ...] = (
     frozenset({"machine"}),  # several axes
     frozenset({"linuxcnc"}),  # LinuxCNC configs and runs
     frozenset({"native"}),  # compiled backends (HAL component, FMU)
+    frozenset({"launch"}),  # the run plan: processes and their nodes, plain data
     frozenset({"ros"}),  # the thin ROS 2 shells and the runners
     frozenset({"info_cli"}),  # `feed-twin info`
     frozenset({"cli", "__init__"}),  # the command line
