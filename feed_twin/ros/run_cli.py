@@ -38,6 +38,7 @@ from feed_twin.io.live import add_live_options, linger, start_live
 from feed_twin.launch.axis import AxisRunFiles, axis_plan
 from feed_twin.launch.plan import RunPlan
 from feed_twin.launch.request import RunRequest
+from feed_twin.machine.config import is_machine_file
 from feed_twin.nodeset.foreign import ForeignLedger, merge
 from feed_twin.nodeset.run_report import emit
 from feed_twin.ros import preflight
@@ -342,11 +343,12 @@ def _run(args: argparse.Namespace) -> int:
     problem = _name_and_out(args)
     if problem:
         return _early_error(args, problem)
-    if _is_machine_config(args.config):
-        return _main_machine(args)
-    if args.axes is not None or args.in_process:
-        option = "--axes" if args.axes is not None else "--in-process"
-        return _early_error(args, f"{option} needs a machine config; {args.config} is one axis")
+    if is_machine_file(args.config) or args.in_process:
+        return _main_machine(args)  # in-process, an axis file runs as a one-axis machine
+    if args.axes is not None:
+        return _early_error(
+            args, f"--axes needs a machine config or --in-process; {args.config} is one axis"
+        )
     if args.program is None and not args.no_gcode:
         print(
             "feed-twin run: a PROGRAM is needed (or --no-gcode for an external NC)", file=sys.stderr
@@ -438,7 +440,7 @@ def _name_and_out(args: argparse.Namespace) -> str:
     stem = args.program.stem if args.program is not None else "external"
     try:
         args.name = preflight.run_name(args.out, args.name, stem, time.strftime("%Y%m%d_%H%M%S"))
-        if _is_machine_config(args.config):
+        if is_machine_file(args.config):
             # the machine's bag is sized by its axes' nodes; here: that --out takes files
             preflight.check_output_dir(args.out, 0)
     except ConfigError as exc:
@@ -504,21 +506,10 @@ def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:
         return str(exc)
 
 
-def _is_machine_config(path: Path) -> bool:
-    """A machine YAML (feed_twin.machine.config) rather than one axis's; unreadable: no."""
-    from feed_twin.core.config import load_yaml
-    from feed_twin.machine.config import is_machine_config
-
-    try:
-        return is_machine_config(load_yaml(path))
-    except ConfigError:
-        return False
-
-
 def _early_error(args: argparse.Namespace, message: str) -> int:
     """A run refused before anything started: the reason, then the report of every mode."""
     from feed_twin.nodeset.run_report import early_error_report, emit, mode_name
 
     print(f"feed-twin run: {message}", file=sys.stderr)
-    machine = _is_machine_config(args.config)
+    machine = is_machine_file(args.config)
     return emit(early_error_report(mode_name(args, machine=machine), message), json_out=args.json)
