@@ -28,7 +28,10 @@ LAYERS: tuple[frozenset[str], ...] = (
     # the engines that run plant + control on a program; the independent truth machine (its own
     # equations, only the G-code planner below it)
     frozenset({"sim", "truth"}),
-    frozenset({"analysis", "nodeset"}),  # identification; the node set as plain Python
+    frozenset({"nodeset"}),  # the node set as plain Python (config, wire, controller core)
+    # identification (its reduced model for slow records derives its loops as the controller
+    # node does, nodeset.controller_core)
+    frozenset({"analysis"}),
     frozenset({"shadow"}),  # the shadow twin beside a measured axis
     frozenset({"machine"}),  # several axes
     frozenset({"linuxcnc"}),  # LinuxCNC configs and runs
