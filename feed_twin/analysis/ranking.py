@@ -130,7 +130,7 @@ def test_regressors(
     return explained, f_stat, p_value, n_eff, dict(zip(names, map(float, coef), strict=True))
 
 
-test_regressors.__test__ = False  # a library function, not a pytest test
+test_regressors.__test__ = False  # pyright: ignore[reportFunctionMemberAccess] - pytest's mark: a library function, not a test
 
 
 def domain_of(effect: Effect, domains: set[str]) -> str | None:

@@ -248,7 +248,10 @@ def run_round(
         return ranking, True
     for verdict, cand, edit, alone, new_twin, result in _judged(state, ctx, trials):
         if verdict.significant:
-            _add(state, ctx, cand, edit, alone, new_twin, result, verdict.explained)
+            _add(
+                state, ctx, cand, edit=edit, alone=alone, new_twin=new_twin, result=result,
+                explained_by=verdict.explained,
+            )  # fmt: skip
             excluded.append(cand.name)
             # the model changed: the rivals tried so far are ranked again on its residual (a
             # backlash tried beside the Coulomb force that hid it is found once that is in)
@@ -387,7 +390,7 @@ def _searched(cand: Candidate, edit: Edit, rivals: int) -> int:
     return max(cand.searched, 1 if nested else len(edit.grid), 1) * rivals
 
 
-def _add(state, ctx, cand, edit, alone, new_twin, result, explained_by) -> None:
+def _add(state, ctx, cand, *, edit, alone, new_twin, result, explained_by) -> None:
     """Adopt the fitted effect into the state."""
     before = state.doc
     doc = model_of(edit.doc)

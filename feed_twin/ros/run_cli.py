@@ -338,49 +338,20 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from feed_twin.gcode import GcodeError
-
     problem = _name_and_out(args)
     if problem:
         return _early_error(args, problem)
     if is_machine_file(args.config) or args.in_process:
         return _main_machine(args)  # in-process, an axis file runs as a one-axis machine
-    if args.axes is not None:
-        return _early_error(
-            args, f"--axes needs a machine config or --in-process; {args.config} is one axis"
-        )
     if args.program is None and not args.no_gcode:
         print(
             "feed-twin run: a PROGRAM is needed (or --no-gcode for an external NC)", file=sys.stderr
         )
         return 2
-    if args.shadow and (args.single_process or args.no_gcode):
-        return _early_error(
-            args,
-            "--shadow runs the G-code node, the stand-in machine and the twin as separate "
-            "processes: it cannot be combined with --single-process or --no-gcode",
-        )
-    if args.nc == "linuxcnc":
-        problem = _linuxcnc_precheck(args)
-        if problem:
-            return _early_error(args, problem)
-    try:
-        ros, nc = _check_inputs(args)
-        preflight.check_output_dir(args.out, preflight.estimate_run_bytes(args, ros, nc))
-    except GcodeError as exc:
-        return _early_error(args, f"G-code error, nothing was started: {exc}")
-    except (ConfigError, ValueError, OSError) as exc:
-        return _early_error(args, str(exc))
-    out = _outputs(args)
-    try:
-        reservation = preflight.run_environment(args, os.environ)
-    except (ValueError, RuntimeError) as exc:
-        return _early_error(args, str(exc))
-    if args.shadow:
-        try:
-            _write_shadow_map(args, ros, nc, out)
-        except (ConfigError, ValueError, OSError) as exc:
-            return _early_error(args, str(exc))
+    prepared = _option_problem(args) or _prepare(args)
+    if isinstance(prepared, str):
+        return _early_error(args, prepared)
+    ros, nc, out, reservation = prepared
     try:
         if args.single_process:
             code, reason, timing = _run_single_process(args, ros, out)
@@ -393,21 +364,68 @@ def _run(args: argparse.Namespace) -> int:
         preflight.end_environment(os.environ)
     code = 1 if code == 0 and summary is None else preflight.exit_status(code)
     reason = preflight.explain(reason, out, ros, args.program)
+    reason = _said(args, out, code, reason, problem if summary is None else "")
+    preflight.remove_incomplete_rrd(out.rrd)
+    report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
+    return emit(report, json_out=args.json)
+
+
+def _option_problem(args: argparse.Namespace) -> str:
+    """Why the axis run's options cannot run together ("" when they can)."""
+    if args.axes is not None:
+        return f"--axes needs a machine config or --in-process; {args.config} is one axis"
+    if args.shadow and (args.single_process or args.no_gcode):
+        return (
+            "--shadow runs the G-code node, the stand-in machine and the twin as separate "
+            "processes: it cannot be combined with --single-process or --no-gcode"
+        )
+    return (_linuxcnc_precheck(args) or "") if args.nc == "linuxcnc" else ""
+
+
+def _prepare(args: argparse.Namespace):
+    """The checked config sections, the outputs, the run's domain and (shadow) the column map;
+    or the one line why not, before any node started."""
+    from feed_twin.gcode import GcodeError
+
+    try:
+        ros, nc = _check_inputs(args)
+        preflight.check_output_dir(args.out, preflight.estimate_run_bytes(args, ros, nc))
+    except GcodeError as exc:
+        return f"G-code error, nothing was started: {exc}"
+    except (ConfigError, ValueError, OSError) as exc:
+        return str(exc)
+    out = _outputs(args)
+    try:
+        reservation = preflight.run_environment(args, os.environ)
+    except (ValueError, RuntimeError) as exc:
+        return str(exc)
+    if args.shadow:
+        try:
+            _write_shadow_map(args, ros, nc, out)
+        except (ConfigError, ValueError, OSError) as exc:
+            if reservation is not None:
+                reservation.release()
+            preflight.end_environment(os.environ)
+            return str(exc)
+    return ros, nc, out, reservation
+
+
+def _said(args: argparse.Namespace, out: Outputs, code: int, reason: str, problem: str) -> str:
+    """Print why the run ended as it did (interrupted, a node's reason, what kept the figures
+    from the bag, slow nodes); returns the reason (for LinuxCNC, the bridge's own line for its
+    fault)."""
     if code == 130:
         print("feed-twin run: interrupted: the figures below cover the run until the stop")
     if reason and args.nc == "linuxcnc":
         # the bridge's own line for a LinuxCNC fault, without the log record's prefix
         reason = (log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}).get("fault") or reason
-    if reason:
-        print(f"feed-twin run: {reason}", file=sys.stderr)
-    if summary is None and problem:
-        print(f"feed-twin run: {problem}", file=sys.stderr)
+    for said in (reason, problem):
+        if said:
+            print(f"feed-twin run: {said}", file=sys.stderr)
     slow = slow_line(out.logs)
     if slow:
         print(f"feed-twin run: {slow}", file=sys.stderr)
-    preflight.remove_incomplete_rrd(out.rrd)
-    report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
-    return emit(report, json_out=args.json)
+    return reason
 
 
 def _main_machine(args: argparse.Namespace) -> int:
