@@ -36,17 +36,21 @@ def test_the_axis_reduces_to_its_mechanics_and_loops():
     for gone in ("bus", "inverter", "current_sensor", "coupling", "backlash"):
         assert gone not in kinds
     assert kinds["motor"] == "Inertia" and kinds["screw_shaft"] == "Inertia"
-    assert kinds["axial"] == "AxialCompliance"  # the lossy screw needs its massless flange
+    assert "axial" not in kinds and doc.get("screw.efficiency") == 1.0
     ctrl = doc.data["controller"]
     assert doc.base_period() == pytest.approx(1e-3)  # the NC's period
     assert "current" not in ctrl and ctrl["computation_delay"] is False
     # the velocity loop re-tuned for 1 ms (symmetric optimum, as the controller node's)
     assert ctrl["velocity"]["period_s"] == pytest.approx(1e-3)
     assert ctrl["velocity"]["Kp"] < full.data["controller"]["velocity"]["Kp"] / 5
-    k_t = 1.5 * 4 * 0.3167  # 1.5 p psi_pm [N m/A]
-    assert doc.get("motor_torque.gain") == pytest.approx(k_t)
+    k_t, eta = 1.5 * 4 * 0.3167, 0.9  # 1.5 p psi_pm [N m/A]; the screw's efficiency
+    # the screw's loss on the motor's side: torque and rotor inertias times eta
+    assert doc.get("motor_torque.gain") == pytest.approx(k_t * eta)
+    assert doc.get("motor.J") == pytest.approx(3.1e-3 * eta)
     # the screw shaft's inertia stays: rho pi d^4 L / 32
-    assert doc.get("screw_shaft.J") == pytest.approx(7850 * math.pi * 0.04**4 / 32)
+    assert doc.get("screw_shaft.J") == pytest.approx(eta * 7850 * math.pi * 0.04**4 / 32)
+    # newtons at the table per ampere, as in the full model: K_t 2 pi eta / lead
+    assert doc.force_per_effort("A") == pytest.approx(full.force_per_effort("A"))
     # the rotor's friction at the table, in the same current: T_c through the screw (2 pi eta /
     # lead), its viscous b plus the iron loss's K_t p psi_pm / R_fe per rad/s
     per_torque = 2 * math.pi * 0.9 / 0.01
@@ -55,7 +59,6 @@ def test_the_axis_reduces_to_its_mechanics_and_loops():
     assert doc.get("motor_friction.F_v_pos") == pytest.approx(b * 2 * math.pi / 0.01 * per_torque)
     twin = Twin.compile(doc)
     assert twin.effort_name == "current_q_A" and twin.effort_unit == "A"
-    assert doc.torque_constant() == pytest.approx(full.torque_constant())
     assert doc.friction() == "guides"  # the effects still edit the guides
 
 

@@ -63,13 +63,14 @@ from feed_twin.analysis.rounds import (
     noop,
     run_round,
 )
-from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
+from feed_twin.analysis.twin import SLOW_COMMAND_S, Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.analysis.visibility import (
     assess,
     force_constant_correlation,
     position_resolution,
     smooth_staircases,
+    too_small,
     with_floor,
 )
 from feed_twin.io.measured import EFFORT_UNITS, MeasuredRun
@@ -215,6 +216,14 @@ def diagnose(
     }
     after = run_metrics(run, state.outputs)
     leftover = _leftover(run, state.outputs, floors, start, motion)
+    small = (
+        too_small(vis, [f.name for f in state.found], ranking)
+        if vis.sample_period_s > SLOW_COMMAND_S
+        else []
+    )
+    for u in small:
+        said.append(f"cannot be seen in this record: {u.name}: {u.reason}")
+        progress(said[-1])
     validation, validation_traces = None, None
     if validate is not None:
         validate, smoothed_v = smooth_staircases(validate)
@@ -249,7 +258,11 @@ def diagnose(
         named_not_fitted=tuple(unfitted),
         notes=tuple(notes),
         timings_s=timings,
-        visibility={**vis.as_dict(), "said": said},
+        visibility={
+            **vis.as_dict(),
+            "said": said,
+            "too_small": {u.name: u.reason for u in small},
+        },
     )
     return diagnosis, state.doc, motion
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from feed_twin.analysis.effects import CHANNEL_DELAY_PERIODS
 from feed_twin.analysis.fit import SimOutputs
+from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.rounding import (
     length_text,
     mixed_steps,
@@ -303,6 +304,34 @@ def force_constant_correlation(run: MeasuredRun, out0: SimOutputs, v: np.ndarray
     )
 
 
+def too_small(vis: Visibility, named: list[str], ranking: list[Candidate]) -> list[Unseen]:
+    """Visible effects the search did not name although their signature shows, said: a viscous
+    friction whose signature explains some of the effort residual at the final model (the
+    last ranking) but less than the MIN_EXPLAINED an effect must remove to be named (on a
+    1 mm, 10 Hz record the residual is mostly the rounding's, through the twin's inertia, and a
+    small viscous excess drowns in it), with its share and the excess its weight suggests (a
+    low estimate: the sliding friction and the weight take part of it)."""
+    from feed_twin.analysis.significance import MIN_EXPLAINED
+
+    out = []
+    for cand in ranking:
+        if cand.name != "viscous_friction" or cand.name in named + list(vis.unseen_names):
+            continue
+        share = cand.support_fraction or cand.explained_fraction
+        if not 0.0 < share < MIN_EXPLAINED:
+            continue
+        out.append(
+            Unseen(
+                name=cand.name,
+                reason=f"not named: its signature explains {100 * share:.2g} % of the effort "
+                f"residual left (an excess of about {abs(cand.force('v')):.2g} N s/m over the "
+                f"model's), under the {100 * MIN_EXPLAINED:g} % an effect must remove: too "
+                "small against this record's rounding",
+            )
+        )
+    return out
+
+
 def with_floor(floors: dict[str, float], vis: Visibility) -> dict[str, float]:
     """A slow record's noise floors raised to their rounding noise (q / sqrt(12)); a position
     channel without evidence to SILENT_FACTOR times its resolution (it must not steer a fit
@@ -329,6 +358,7 @@ __all__ = [
     "position_resolution",
     "resolution",
     "smooth_staircases",
+    "too_small",
     "unresolved",
     "with_floor",
 ]
