@@ -43,7 +43,11 @@ REFERENCE_GAIN_KEY = "effort_reference_gain"
 # as the column map's trace_filter says), `effort_ripple_sin`/`_cos` the ripple [effort SI unit]
 # once per electrical revolution that offsets on the drive's phase-current sensors leave in the
 # recorded effort of a twin without a CurrentSensor of its own. Trace side, outside every loop.
+# `command_delay_s`: how much later than the twin's own loops the drive follows the recorded
+# command (its setpoint latency, which no user knows): every output of the twin is stamped this
+# much later, on top of the channels' own delays. Command side, before every loop.
 RECORD_SLOTS = (
+    "command_delay_s",
     "effort_delay_s",
     "position_delay_s",
     "trace_window_s",
@@ -54,6 +58,7 @@ RIPPLE_SLOTS = (f"{ANALYSIS_SECTION}.effort_ripple_sin", f"{ANALYSIS_SECTION}.ef
 # `analysis.pole_pairs`: the motor's pole pairs, for a twin that models the drive as an effort
 # source (no Pmsm to carry them): the electrical angle of a phase-current offset's ripple
 POLE_PAIRS_KEY = "pole_pairs"
+COMMAND_DELAY_SLOT = f"{ANALYSIS_SECTION}.command_delay_s"
 EFFORT_DELAY_SLOT = f"{ANALYSIS_SECTION}.effort_delay_s"
 POSITION_DELAY_SLOT = f"{ANALYSIS_SECTION}.position_delay_s"
 TRACE_WINDOW_SLOT = f"{ANALYSIS_SECTION}.trace_window_s"

@@ -207,6 +207,8 @@ def write(path: str | Path, columns: Mapping[str, np.ndarray], trace: Trace) -> 
         },
         "plausibility": {"travel_m": 1.0, "max_speed_m_s": 0.5},
     }
+    if trace.effort_source == "setpoint":
+        column_map["effort_sample"] = "setpoint"  # the drive's current setpoint, not its actual
     if trace.average and trace.declare_average:
         column_map["trace_filter"] = "mean"
     map_path = path.with_name(f"{path.stem}_map.yaml")
