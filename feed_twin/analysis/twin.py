@@ -599,14 +599,16 @@ def _shifted(y: np.ndarray, t_s: np.ndarray, delay: float) -> np.ndarray:
     return y if delay == 0.0 else delayed(y, t_s, delay)
 
 
-def acted(effort: np.ndarray) -> np.ndarray:
+def acted(effort: np.ndarray, before: np.ndarray | None = None) -> np.ndarray:
     """The effort that acted up to each base tick, from the commands issued at each tick
     (rows = sets): the controller's command of tick k drives the plant over (k, k + 1], so a
     drive's actual current (force) sampled at tick k, before that command takes effect, is the
-    command of tick k - 1 (at the first tick, the first command: the loop held it at rest)."""
+    command of tick k - 1. At the first tick, `before` (one column: the command of the tick
+    before, for a run continued in pieces) or, at a run's start, the first command (the loop
+    held it at rest)."""
     out = np.empty_like(effort)
     out[:, 1:] = effort[:, :-1]
-    out[:, :1] = effort[:, :1]
+    out[:, :1] = effort[:, :1] if before is None else before
     return out
 
 
