@@ -196,8 +196,8 @@ def test_the_records_rounding_floors_its_noise():
 def test_a_command_followed_a_fraction_of_a_tick_late_is_named_to_its_step(tmp_path):
     """A drive that follows its command 0.3 ms later than the twin's 1 kHz loops (a setpoint
     latency no user knows): command_delay named, searched in steps of COMMAND_DELAY_STEP of a
-    tick (half a tick could not find the truth machine's 0.12 ms, which left 12.9 um RMS of
-    position residual). The position's whole delay (the command's plus the recorded
+    tick (half a tick, the other delays' step, would land at 0 or 0.5 ms). The position's
+    whole delay (the command's plus the recorded
     position's own, which has the same signature there and may be named beside it) within
     0.1 ms: the synthetic truth's own encoder steps (its sensors are not smoothed) put its
     effort about 0.1 ms apart from the fitting twin's."""
