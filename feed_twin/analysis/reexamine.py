@@ -14,7 +14,10 @@ examined jointly with the others:
   setting each member to its neutral value;
 - otherwise it is removed (its parameters set to neutral), the others are fitted again without
   it, and the likelihood-ratio test of analysis.significance decides whether the model with it
-  is significantly better; if not, removing it costs nothing and it is dropped.
+  is significantly better; if not, removing it costs nothing and it is dropped. A searched
+  effect (a record delay, the trace's window: no least-squares parameters) is examined alike:
+  a 4.5 ms effort delay fitted first on a 50 Hz averaged trace made the effort 6x worse once
+  the trace's window was in, and stayed.
 """
 
 from __future__ import annotations

@@ -452,7 +452,7 @@ def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
     if any(collapsed(f, state.doc) for f in state.found[:-1]):
         drop_collapsed(state, ctx, "once a later effect was in the model")
     for target in list(state.found):
-        if not removable([target], state.doc) or target.own == ():
+        if not removable([target], state.doc):
             continue
         others = [f for f in state.found if f is not target]
         gone = without(
