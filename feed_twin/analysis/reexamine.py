@@ -33,6 +33,7 @@ from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import Verdict, compare
 from feed_twin.analysis.trials import fit_resumed
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
+from feed_twin.core.config import ConfigError
 
 COLLAPSE = 0.1  # share of its size at discovery below which a fitted effect has collapsed
 
@@ -191,7 +192,10 @@ def without(
     channels: Channels,
     max_evaluations: int,
 ) -> Without | None:
-    """Remove `target` from `doc`, fit the others again; None if the simulation fails."""
+    """Remove `target` from `doc`, fit the others again; None if the simulation fails or the
+    others' re-fit runs to a model no feed axis has (a bearing stiffness fitted to 3e61 N/m
+    in place of a current-sensor offset's ripple): the model without the effect is then no
+    rival, and the effect stays."""
     doc = removed(target, doc)
     free = [
         dataclasses.replace(p, initial=doc.get(p.name))
@@ -207,7 +211,10 @@ def without(
         result: FitResult = fit_resumed(twin, drive, free, meas, max_evaluations)
         for name, value in result.values.items():
             doc = doc.set(name, value)
-        twin = Twin.compile(doc)
+        try:
+            twin = Twin.compile(doc)
+        except ConfigError:
+            return None
         out, simulations = result.outputs, result.evaluations
     else:
         out, simulations = twin.simulate(drive, twin.nominal[None, :]), 1
