@@ -101,15 +101,16 @@ def test_clean_record_names_nothing(tmp_path):
     d = _diagnose(tmp_path, ModelDoc.load(EMPS), {})
     assert d.effects == (), d.notes
     # the truth's unmodelled lag leaves a position residual far above the encoder's noise: the
-    # verdict says so, with its signature, and does not call the record clean
+    # verdict says so, with its signature, and does not call the record clean (with the effort
+    # stamped as a drive's actual value it may add that the residual carries a stiffness's
+    # signature, which this model cannot carry: 6.5 % of it, p = 0.0008)
     assert not d.verdict.startswith("no significant missing effect"), d.verdict
-    assert d.verdict.startswith("no effect of the library is missing, but"), d.verdict
+    assert "a residual far above the noise remains that no effect of the library" in d.verdict
     assert "position residual RMS" in d.verdict and "x its sample noise" in d.verdict
     assert "while accelerating" in d.verdict, d.verdict
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=PLANNER_MOTION)
 def test_stiffness_and_coulomb_friction_are_both_named(tmp_path):
     """Machine-tool axis, loop on the linear scale: a softer screw and more Coulomb friction
     (160 N where the model has 120 N); about a minute. Before the edits started from the
