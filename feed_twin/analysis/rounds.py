@@ -147,8 +147,14 @@ def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> st
     doc = state.doc
     for name, value in joint.values.items():
         doc = doc.set(name, value)
-    state.doc = doc
-    state.twin = Twin.compile(doc)
+    try:
+        twin = Twin.compile(doc)
+    except ConfigError as exc:  # a stiffness run off to infinity: no feed axis
+        return (
+            f"the joint re-fit of the found effects and the nominal parameters ran to a model "
+            f"no feed axis has ({exc}); kept the effect-by-effect fit"
+        )
+    state.doc, state.twin = doc, twin
     state.outputs, state.cost = joint.outputs, joint.cost
     return None
 
@@ -452,7 +458,7 @@ def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
     if any(collapsed(f, state.doc) for f in state.found[:-1]):
         drop_collapsed(state, ctx, "once a later effect was in the model")
     for target in list(state.found):
-        if not removable([target], state.doc) or target.own == ():
+        if not removable([target], state.doc):
             continue
         others = [f for f in state.found if f is not target]
         gone = without(
