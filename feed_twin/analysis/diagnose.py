@@ -63,6 +63,7 @@ from feed_twin.analysis.rounds import (
     noop,
     run_round,
 )
+from feed_twin.analysis.timing import split_timing, timing_line
 from feed_twin.analysis.twin import SLOW_COMMAND_S, Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.analysis.visibility import (
@@ -215,6 +216,10 @@ def diagnose(
         "seconds": time.perf_counter() - clock,
     }
     after = run_metrics(run, state.outputs)
+    named, timing = split_timing((f.effect for f in state.found), twin.base_period_s)
+    for t in timing:
+        notes.append(timing_line(t, twin.base_period_s))
+        progress(notes[-1])
     leftover = _leftover(run, state.outputs, floors, start, motion)
     small = (
         too_small(vis, [f.name for f in state.found], ranking)
@@ -240,9 +245,9 @@ def diagnose(
         after=after,
         before_trace=_trace("nominal", run, drive, out0),
         after_trace=_trace("augmented", run, drive, state.outputs),
-        effects=tuple(f.effect for f in state.found),
+        effects=tuple(named),
         verdict=verdict(
-            [f.name for f in state.found],
+            [e.name for e in named],
             [u["name"] for u in unfitted],
             leftover,
             [str(d["summary"]) for d in appraisal.drifts],
