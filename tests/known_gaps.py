@@ -12,13 +12,6 @@ PLANNER_MOTION = (
     "hides); on the old planner's records the same workflow passes (measured: 18 of 18)"
 )
 
-WORN_GUIDE_MOTION = (
-    "open: the #30 jerk profile changed this program's motion (it passes on the planner before "
-    "it, dbeced3, and fails from 3f52e5b on); in the last health window the machine shadow now "
-    "names viscous_friction +435 % (400 -> 2141 N s/m) for the doubled guide friction: on the "
-    "new window the residual model cannot tell a speed-proportional change from a constant one"
-)
-
 CROSS_COUPLING_FIT = (
     "open: on the #30 jerk profile's motion the least-squares fit of u_d_ref against "
     "-omega_e i_q over the node-set run gives L_q = 4.32 mH for the configured 4.0 mH (8 % off, "
