@@ -19,9 +19,3 @@ CROSS_COUPLING_FIT = (
     "current loop's own dynamics, which the new motion excites more); the back-EMF constant "
     "still fits within 5 %"
 )
-
-STICTION_MOTION = (
-    "issue #27, open: passes on the planner before #30 (dbeced3), fails from 3f52e5b on: on the "
-    "new synthetic motion the EMPS stiction record names coulomb_friction instead of stiction "
-    "(a Stribeck fit beside it is refused for a Stribeck speed above every speed of the record)"
-)
