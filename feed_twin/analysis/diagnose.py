@@ -179,7 +179,7 @@ def diagnose(
     start = twin.first_evidence(drive)
     floors = with_floor(noise_floors(run, out0, start=start), vis)
     meas = weighted_channels(run, out0, stride, floors, start=start)
-    motion = _motion(run, twin, out0)
+    motion = _motion(run, twin, out0, drive)
     re0, rp0 = residuals(run, out0, start=start)
     location = locate(
         run.t_s,
@@ -286,8 +286,9 @@ def _simulate_nominal(
     return drive, twin, out0
 
 
-def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs) -> Motion:
-    """The measured motion the effects' signatures are built from."""
+def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Motion:
+    """The measured motion the effects' signatures are built from (with the command's
+    velocity the twin was driven with)."""
     effort_name = run.effort_name
     return motion_from_position(
         run.t_s,
@@ -297,6 +298,7 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs) -> Motion:
         pole_pairs=twin.pole_pairs,
         travel_m=max(float(np.ptp(run["pos_meas_m"])), 1e-6),
         current_q_A=run.signals.get("current_q_A"),
+        v_cmd_m_s=drive.vel_ref_m_s,
     )
 
 
