@@ -171,17 +171,19 @@ def _eroded(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Speed caps and acceleration limits of chain bodies (s from lo to hi) eroded within their
     chain: a filtered speed at s averages raw speeds within T v / 2 of s, a filtered acceleration
-    raw ones within T v_max (`jerk_filter`). An
-    extended node between two chain bodies parts them."""
+    raw ones within the distance the raw plan covers in T, at most T times the highest speed
+    cap of the bodies between (`jerk_filter`). An extended node between two chain bodies parts
+    them."""
     starts = (np.concatenate(([True], ~in_chain[:-1])) | after_extended) & in_chain
-    first_bodies = np.flatnonzero(starts)
-    if len(first_bodies) == 0:
+    if not np.any(starts):
         return V, A
     group = np.where(in_chain, np.cumsum(starts) - 1, -1)
     V_far = np.where(np.isfinite(V), V, 0.0)
-    top = np.maximum.reduceat(V_far, first_bodies)  # per chain (and what follows it)
-    reach = np.where(in_chain, T * top[np.maximum(group, 0)], 0.0)
-    return erode(lo, hi, V, 0.5 * T * V_far, group), erode(lo, hi, A, reach, group)
+    none = np.zeros(len(V))
+    return (
+        erode(lo, hi, V, 0.5 * T * V_far, group, none, 0.0),
+        erode(lo, hi, A, none, group, V_far, T),
+    )
 
 
 def _one_d_nodes(

@@ -43,7 +43,7 @@ from feed_twin.gcode.errors import GcodeError
 from feed_twin.gcode.interpreter import Interpreter
 from feed_twin.gcode.items import Event, Move, Stop
 from feed_twin.gcode.lexer import Block, iter_source_lines, lex_line
-from feed_twin.gcode.plan_blends import NodeFlags, WindowStart, corner_blends
+from feed_twin.gcode.plan_blends import NodeFlags, WindowStart, corner_blends, fitted_widths
 from feed_twin.gcode.plan_chains import SINGLE, Bodies, chain_bodies
 from feed_twin.gcode.plan_limits import AxisLimits, move_limits
 from feed_twin.gcode.plan_profile import (
@@ -236,6 +236,14 @@ class _StreamPlanner:
         if bodies is None:
             return self._plan_standstill() if final else None
         speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
+        w_limit = fitted_widths(blends, bodies.node, speeds.v, self.limits)
+        if w_limit is not None:  # corners slower than their blends allow: narrower blends
+            blends = corner_blends(moves, flags, self.limits, start, w_limit=w_limit)
+            bodies = chain_bodies(
+                moves, blends, flags, self.limits, first=first, open_end=not final
+            )
+            assert bodies is not None  # the same 1-D nodes: only widths changed
+            speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
         q_commit = self._commit_point(bodies, first, n, final)
         if q_commit is None:
             return None  # nothing safely committable yet: wait for more moves
