@@ -122,7 +122,8 @@ def test_a_corner_crossed_below_its_cap_is_narrowed_to_the_width_that_speed_need
     cap = blends.cap[1]
     assert blends.alone[1] and blends.w[1] == pytest.approx(6 * tol / np.sqrt(2), rel=1e-12)
     v = np.array([0.0, cap / 3.0, 0.0])
-    w_limit = fitted_widths(blends, node, v, LIMITS)
+    held = np.ones(3, dtype=bool)  # extended: the raw plan holds each node's speed around it
+    w_limit = fitted_widths(blends, node, v, LIMITS, extended=held, last=2)
     assert w_limit is not None and np.isinf(w_limit[[0, 2]]).all()
     w_jerk = np.sqrt(v[1] ** 3 / LIMITS.j_max[0])
     w_acc = v[1] ** 2 / LIMITS.a_max[1]
@@ -130,10 +131,14 @@ def test_a_corner_crossed_below_its_cap_is_narrowed_to_the_width_that_speed_need
     narrow = corner_blends(moves, _flags(2, tol), LIMITS, None, w_limit=w_limit)
     assert narrow.w[1] == w_limit[1] < blends.w[1]
     assert narrow.cap[1] == pytest.approx(v[1], rel=1e-5) and narrow.cap[1] >= v[1]
-    # At its cap (or without a jerk limit) nothing narrows.
-    assert fitted_widths(blends, node, np.array([0.0, cap, 0.0]), LIMITS) is None
+    # At its cap, beyond what the window commits, not extended (its blend counts in the
+    # chains' limits) or without a jerk limit, nothing narrows.
+    at_cap = np.array([0.0, cap, 0.0])
+    assert fitted_widths(blends, node, at_cap, LIMITS, extended=held, last=2) is None
+    assert fitted_widths(blends, node, v, LIMITS, extended=held, last=0) is None
+    assert fitted_widths(blends, node, v, LIMITS, extended=~held, last=2) is None
     trapezoid = AxisLimits(**{**LIMITS.__dict__, "jerk": False})
-    assert fitted_widths(blends, node, v, trapezoid) is None
+    assert fitted_widths(blends, node, v, trapezoid, extended=held, last=2) is None
 
 
 def test_speed_profile_keeps_v_a_within_limits_and_integrates_to_the_length():

@@ -168,20 +168,31 @@ def _blends(
 
 
 def fitted_widths(
-    blends: CornerBlends, node: np.ndarray, v: np.ndarray, limits: AxisLimits
+    blends: CornerBlends,
+    node: np.ndarray,
+    v: np.ndarray,
+    limits: AxisLimits,
+    *,
+    extended: np.ndarray,
+    last: int,
 ) -> np.ndarray | None:
-    """Half-widths [m] of the corners blended alone (at polyline nodes `node`) narrowed to
-    what their planned speeds `v` [m/s] need, for the jerk profile; None where none narrows.
+    """Half-widths [m] of the sharp corners blended alone at 1-D nodes (polyline nodes `node`)
+    narrowed to what their planned speeds `v` [m/s] need, for the jerk profile; None where none
+    narrows. Only `extended` ones (their blends count in no chain's limits) up to polyline node
+    `last` (what the window commits: later windows see the same geometry beyond it).
 
     A corner blended alone is crossed at constant speed v over 2 w and its raw plan holds v
     for T beyond (`jerk_filter`). Where the plan crosses it below the speed its blend allows
     (the bodies next to it too short to hold a faster one for T, or braking), a narrower blend
     allows that speed too and takes less time: |dU_i| v^2 / w <= a_max_i and
     |dU_i| v^3 / w^2 <= j_max_i give the smallest w, its cost 2 w / v = 2 sqrt(|dU_i| v / j_i)
-    falls with v where the tolerance's width costs 2 w_P / v. Planned again with these widths,
-    the corner keeps its speed (its cap is v) and its neighbours gain the room it gives up.
+    falls with v where the tolerance's width costs 2 w_P / v. Planned again with these widths
+    (and the same extended nodes), the corner keeps its speed (its cap is v) and its
+    neighbours gain the room it gives up: every constraint relaxes, none tightens.
     """
-    alone = blends.alone[node] & (blends.w[node] > 0.0) & (v > 0.0)
+    sharp = np.sqrt(np.einsum("ij,ij->i", blends.dU, blends.dU)) > SHARP_CORNER
+    alone = blends.alone[node] & sharp[node] & extended & (node <= last)
+    alone &= (blends.w[node] > 0.0) & (v > 0.0)
     if not limits.jerk or not np.any(alone):
         return None
     dU = np.abs(blends.dU[node[alone]])

@@ -64,11 +64,13 @@ def chain_bodies(
     *,
     first: int,
     open_end: bool,
+    extended_as: np.ndarray | None = None,
 ) -> Bodies | None:
     """Group the nodes from `first` on into 1-D nodes and bodies; None if fewer than two.
 
     With `open_end` the window's last body stops short of the last move, where the next
-    window may put a blend: every speed planned now stays reachable later.
+    window may put a blend: every speed planned now stays reachable later. `extended_as`
+    gives the extended 1-D nodes (of the same 1-D nodes) instead of choosing them.
     """
     L, V, A, J = moves.L, moves.V, moves.A, moves.J
     n = len(L)
@@ -94,7 +96,9 @@ def chain_bodies(
         length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
     filtered = limits.window_s > 0.0
     extended = np.zeros(len(kind_q), dtype=bool)
-    if filtered:
+    if extended_as is not None:
+        extended = extended_as
+    elif filtered:
         extended = _extended(kind_q, node_q, blends, V, length, limits.window_s)
     if filtered:
         # Bodies a filter window may share with a neighbour: planned as chains, eroded.
