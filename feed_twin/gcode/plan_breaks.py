@@ -51,6 +51,27 @@ def forced_breaks(
     n = len(P) - 1
     forced = np.zeros(n + 1, dtype=bool)
     index = np.arange(n + 1)
+    candidates = [int(i) for i in index[(index + g0) % spacing == 0] if int(i) + g0 not in decided]
+    if candidates and not final:
+        _decide(P, natural, candidates, g0=g0, spacing=spacing, stable=stable, decided=decided)
+    # Breaks decided, of candidates listed or not (just before the first listed node).
+    at = np.array([node for node in decided.values() if g0 <= node <= g0 + n], dtype=int)
+    forced[at - g0] = True
+    return forced
+
+
+def _decide(
+    P: np.ndarray,
+    natural: np.ndarray,
+    candidates: list[int],
+    *,
+    g0: int,
+    spacing: int,
+    stable: int,
+    decided: dict[int, int],
+) -> None:
+    """Decide the new candidates (listed indices) into `decided` (see `forced_breaks`)."""
+    n = len(P) - 1
     delta = np.diff(P, axis=0)
     length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -61,10 +82,8 @@ def forced_breaks(
     breaks[stable + 1 :] = False
     radius = spacing // 4
     shift = spacing // 8
-    for i in index[(index + g0) % spacing == 0]:
-        key = int(i) + g0
-        if key in decided or final:
-            continue  # decided; or planned at once to its end: no window to commit
+    for i in candidates:
+        key = i + g0
         if i + radius > stable:
             decided[key] = key  # its neighbourhood is not all listed yet: where it is
         elif np.any(breaks[max(i - radius, 0) : i + radius + 1]):
@@ -72,8 +91,4 @@ def forced_breaks(
         else:
             lo = max(i - shift, 1)
             best = lo + int(np.argmin(turn[lo : i + shift + 1]))
-            decided[key] = g0 + (best if turn[best] < SHIFT_GAIN * turn[i] else int(i))
-    # Breaks decided earlier, of candidates listed or not (just before the first listed node).
-    at = np.array([node for node in decided.values() if g0 <= node <= g0 + n], dtype=int)
-    forced[at - g0] = True
-    return forced
+            decided[key] = g0 + (best if turn[best] < SHIFT_GAIN * turn[i] else i)

@@ -64,14 +64,13 @@ def movable_vertices(
 def smooth_vertices(P: np.ndarray, movable: np.ndarray, limit: np.ndarray, reach: int):
     """The vertices with each movable one replaced by its local quadratic's value, moved by
     at most limit[j] [m] (see the module docstring)."""
-    n1 = P.shape[0]
-    na = P.shape[1]
+    n1, na = P.shape
     S = np.zeros(n1)
     for i in range(1, n1):
         S[i] = S[i - 1] + np.sqrt(np.sum((P[i] - P[i - 1]) ** 2))
     out = P.copy()
-    M = np.empty((3, 3))
-    rhs = np.empty((3, na))
+    m = np.empty(5)  # sums of t^k over the run
+    r = np.empty((3, na))  # sums of t^k P
     for j in range(n1):
         if not movable[j]:
             continue
@@ -81,23 +80,36 @@ def smooth_vertices(P: np.ndarray, movable: np.ndarray, limit: np.ndarray, reach
         hi = j + 1
         while hi < n1 - 1 and hi - j < reach and movable[hi]:
             hi += 1
+        # The least-squares quadratic c0 + c1 t + c2 t^2 through P[lo..hi] in
+        # t = (S - S[j]) / (S[hi] - S[lo]); its value at j is c0 (Cramer's rule on the
+        # normal equations, whose matrix [[m0 m1 m2] [m1 m2 m3] [m2 m3 m4]] is symmetric).
         scale = S[hi] - S[lo]
-        M[:, :] = 0.0
-        rhs[:, :] = 0.0
+        m[:] = 0.0
+        r[:, :] = 0.0
         for i in range(lo, hi + 1):
             t = (S[i] - S[j]) / scale
-            basis = (1.0, t, t * t)
-            for r in range(3):
-                for c in range(3):
-                    M[r, c] += basis[r] * basis[c]
-                for a in range(na):
-                    rhs[r, a] += basis[r] * P[i, a]
-        coef = np.linalg.solve(M, rhs)
-        shift = coef[0] - P[j]
-        size = np.sqrt(np.sum(shift * shift))
-        if size > limit[j]:
-            shift *= limit[j] / size
-        out[j] = P[j] + shift
+            t2 = t * t
+            m[0] += 1.0
+            m[1] += t
+            m[2] += t2
+            m[3] += t2 * t
+            m[4] += t2 * t2
+            for a in range(na):
+                r[0, a] += P[i, a]
+                r[1, a] += t * P[i, a]
+                r[2, a] += t2 * P[i, a]
+        c0 = m[2] * m[4] - m[3] * m[3]
+        c1 = m[2] * m[3] - m[1] * m[4]
+        c2 = m[1] * m[3] - m[2] * m[2]
+        det = m[0] * c0 + m[1] * c1 + m[2] * c2
+        size = 0.0
+        for a in range(na):
+            out[j, a] = (c0 * r[0, a] + c1 * r[1, a] + c2 * r[2, a]) / det - P[j, a]
+            size += out[j, a] * out[j, a]
+        size = np.sqrt(size)
+        keep = limit[j] / size if size > limit[j] else 1.0
+        for a in range(na):
+            out[j, a] = P[j, a] + keep * out[j, a]
     return out
 
 

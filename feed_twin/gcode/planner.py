@@ -246,8 +246,9 @@ class _StreamPlanner:
         if n == 0:
             return self._plan_standstill()
         first = self.first()
-        flags = self._node_flags(n, final)
-        points, movable = self._smoothed(flags)
+        listed = np.array(self.points)
+        flags = self._node_flags(n, final, listed)
+        points, movable = self._smoothed(flags, listed)
         if np.any(movable):
             flags = dataclasses.replace(flags, tol=blend_tolerance(flags.tol, movable))
         moves = move_limits(points, self.rapids, self.feeds, self.limits)
@@ -326,7 +327,7 @@ class _StreamPlanner:
             self._drop_committed(end_node, bodies.S, blends.w, bool(blends.stop[end_node]), points)
         return chunk
 
-    def _node_flags(self, n: int, final: bool) -> NodeFlags:
+    def _node_flags(self, n: int, final: bool, listed: np.ndarray) -> NodeFlags:
         """Tolerances, stops, entries and forced breaks at the listed nodes 0..n."""
         g = self.g0
         stop = np.zeros(n + 1, dtype=bool)
@@ -343,7 +344,7 @@ class _StreamPlanner:
         tol[1:n] = self.tols[:-1]
         natural = stop | has_entries
         forced = forced_breaks(
-            np.array(self.points),
+            listed,
             natural,
             g0=g,
             spacing=self.forced,
@@ -353,10 +354,9 @@ class _StreamPlanner:
         )
         return NodeFlags(tol=tol, stop=stop, has_entries=has_entries, forced=forced)
 
-    def _smoothed(self, flags: NodeFlags) -> tuple[np.ndarray, np.ndarray]:
+    def _smoothed(self, flags: NodeFlags, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The listed points with CAM polylines smoothed (jerk profile, `plan_smoothing`), and
         which of them moved; the frozen ones (committed) stay."""
-        P = np.array(self.points)
         fixed = flags.stop | flags.has_entries | flags.forced
         fixed[: self.n_frozen] = True
         if self.window_s <= 0.0:
