@@ -168,6 +168,35 @@ def available(effect: Effect, motion: Motion, domains: set[str]) -> bool:
     return all(getattr(motion, need) is not None for need in effect.needs)
 
 
+def _domain_residuals(
+    motion: Motion,
+    offset: np.ndarray,
+    *,
+    effort_residual: np.ndarray | None,
+    position_residual: np.ndarray | None,
+    loop_stiffness: float | None,
+    voltage_residual: np.ndarray | None,
+) -> dict[str, np.ndarray]:
+    """The residual each domain's effects are ranked on (see `rank`): the position residual
+    without its effort-driven part; a record without effort ranks forces on K * position."""
+    if effort_residual is None and position_residual is not None and loop_stiffness:
+        effort_residual = loop_stiffness * np.asarray(position_residual, dtype=float)
+        position_residual = None
+    residual_of: dict[str, np.ndarray] = {}
+    if effort_residual is not None:
+        residual_of["effort"] = np.asarray(effort_residual, dtype=float)
+    if position_residual is not None:
+        rp = np.asarray(position_residual, dtype=float)
+        if effort_residual is not None:
+            coupled = {"effort_residual": _lowpass(residual_of["effort"], motion)}
+            _, _, _, _, coef = test_regressors(rp, coupled, offset)
+            rp = rp - coef["effort_residual"] * coupled["effort_residual"]
+        residual_of["position"] = rp
+    if voltage_residual is not None:
+        residual_of["voltage"] = np.asarray(voltage_residual, dtype=float)
+    return residual_of
+
+
 def rank(
     motion: Motion,
     *,
@@ -186,28 +215,17 @@ def rank(
     `loop_stiffness * position residual` [N/m * m]: a stiff position loop turns a missing force
     d into a following-error change d / K, so that is the force the twin lacks.
     """
-    if effort_residual is None and position_residual is not None and loop_stiffness:
-        rp = np.asarray(position_residual, dtype=float)
-        effort_residual = loop_stiffness * rp
-        position_residual = None
-    domains = set()
     # a constant position offset belongs to the alignment, not to any effect
     offset = np.ones_like(motion.t_s)
-    residual_of: dict[str, np.ndarray] = {}
-    if effort_residual is not None:
-        domains.add("effort")
-        residual_of["effort"] = np.asarray(effort_residual, dtype=float)
-    if position_residual is not None:
-        domains.add("position")
-        rp = np.asarray(position_residual, dtype=float)
-        if effort_residual is not None:
-            coupled = {"effort_residual": _lowpass(residual_of["effort"], motion)}
-            _, _, _, _, coef = test_regressors(rp, coupled, offset)
-            rp = rp - coef["effort_residual"] * coupled["effort_residual"]
-        residual_of["position"] = rp
-    if voltage_residual is not None:
-        domains.add("voltage")
-        residual_of["voltage"] = np.asarray(voltage_residual, dtype=float)
+    residual_of = _domain_residuals(
+        motion,
+        offset,
+        effort_residual=effort_residual,
+        position_residual=position_residual,
+        loop_stiffness=loop_stiffness,
+        voltage_residual=voltage_residual,
+    )
+    domains = set(residual_of)
     best_of: list[tuple[Effect, str, dict[str, np.ndarray], tuple, int, str]] = []
     for effect in LIBRARY:
         if not available(effect, motion, domains):
