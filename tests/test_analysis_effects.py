@@ -31,6 +31,7 @@ REQUIRED = {
     "channel_delay",
     "position_delay",  # issue 27: the trace between machine and record
     "trace_window",
+    "command_delay",  # the drive's setpoint latency against the twin's loops
 }
 
 

@@ -43,7 +43,11 @@ REFERENCE_GAIN_KEY = "effort_reference_gain"
 # as the column map's trace_filter says), `effort_ripple_sin`/`_cos` the ripple [effort SI unit]
 # once per electrical revolution that offsets on the drive's phase-current sensors leave in the
 # recorded effort of a twin without a CurrentSensor of its own. Trace side, outside every loop.
+# `command_delay_s`: how much later than the twin's own loops the drive follows the recorded
+# command (its setpoint latency, which no user knows): every output of the twin is stamped this
+# much later, on top of the channels' own delays. Command side, before every loop.
 RECORD_SLOTS = (
+    "command_delay_s",
     "effort_delay_s",
     "position_delay_s",
     "trace_window_s",
@@ -58,6 +62,7 @@ POLE_PAIRS_KEY = "pole_pairs"
 # q-current [A] (its EffortSource's gain a torque constant): its effort is that current, as a
 # PMSM twin's is (a PMSM axis at a slow record's scale, analysis.record_scale)
 EFFORT_SIGNAL_KEY = "effort_signal"
+COMMAND_DELAY_SLOT = f"{ANALYSIS_SECTION}.command_delay_s"
 EFFORT_DELAY_SLOT = f"{ANALYSIS_SECTION}.effort_delay_s"
 POSITION_DELAY_SLOT = f"{ANALYSIS_SECTION}.position_delay_s"
 TRACE_WINDOW_SLOT = f"{ANALYSIS_SECTION}.trace_window_s"
