@@ -50,6 +50,7 @@ from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
 from feed_twin.analysis.locate import locate
 from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.redecide import redecide
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.rounds import (
     Context,
@@ -293,6 +294,7 @@ def _identify(
         ranking, more = run_round(round_no, state, context, excluded, unfitted)
         if not more:
             break
+    redecide(state, context, excluded, unfitted)
     if state.found:
         context.progress("re-fitting the found effects together with the nominal parameters")
         meas = weighted_channels(

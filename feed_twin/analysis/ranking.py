@@ -209,9 +209,7 @@ def rank(
         domains.add("voltage")
         residual_of["voltage"] = np.asarray(voltage_residual, dtype=float)
     best_of: list[tuple[Effect, str, dict[str, np.ndarray], tuple, int, str]] = []
-    for effect in LIBRARY:
-        if not available(effect, motion, domains):
-            continue
+    for effect in (e for e in LIBRARY if available(e, motion, domains)):
         domain = domain_of(effect, domains)
         assert domain is not None
         r = residual_of[domain]
@@ -238,9 +236,9 @@ def rank(
     }
     full_rank = {d: _rank_of(noise[d][1]) for d in domains}
     out: list[Candidate] = []
-    for effect, label, regs, result, n_variants, domain in best_of:
-        if effect.name in exclude:
-            continue  # its structure is no noise (noise above), but it is not proposed again
+    # an excluded effect's structure is no noise (above), but it is not proposed again
+    proposed = [b for b in best_of if b[0].name not in exclude]
+    for effect, label, regs, result, n_variants, domain in proposed:
         explained, _, _, _, coef = result
         r = residual_of[domain]
         if domain == "position":
