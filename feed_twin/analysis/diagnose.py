@@ -8,6 +8,7 @@
          candidates add the effect to the model and fit its own parameters (and those of the
          effects found before) by simulation-based least squares; keep the candidate with
          the best likelihood ratio less a price per added parameter that passes the test
+      -> decide each found effect again with the later ones in the model (analysis.redecide)
       -> re-fit all found effects jointly with the nominal parameters they interact with
       -> metrics "after", optional validation on a second run, report.
 
