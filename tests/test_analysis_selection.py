@@ -133,17 +133,7 @@ def test_the_leader_of_every_residual_is_fitted_beside_the_leading_rivals():
         _candidate("channel_delay", "effort", 0.27),
     ]
     chosen = [c.name for c in choose_rivals(ranked, Options())]
-    assert chosen == [
-        "trace_window",
-        "position_delay",
-        "lead_error",
-        "measurement_delay",
-        "channel_delay",
-    ]
+    assert chosen == ["trace_window", "position_delay", "lead_error", "measurement_delay"]
     # within one residual the share still decides: one rival at half the leader's share
     chosen = [c.name for c in choose_rivals(ranked[2:5], Options())]
     assert chosen == ["lead_error", "measurement_delay"]
-    assert [c.name for c in choose_rivals(ranked, Options(candidates_per_round=1))] == [
-        "trace_window",
-        "measurement_delay",
-    ]

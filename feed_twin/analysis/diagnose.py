@@ -8,7 +8,6 @@
          candidates add the effect to the model and fit its own parameters (and those of the
          effects found before) by simulation-based least squares; keep the candidate with
          the best likelihood ratio less a price per added parameter that passes the test
-      -> decide each found effect again with the later ones in the model (analysis.redecide)
       -> re-fit all found effects jointly with the nominal parameters they interact with
       -> metrics "after", optional validation on a second run, report.
 
@@ -51,7 +50,6 @@ from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
 from feed_twin.analysis.locate import locate
 from feed_twin.analysis.ranking import Candidate
-from feed_twin.analysis.redecide import redecide
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.rounds import (
     Context,
@@ -295,7 +293,6 @@ def _identify(
         ranking, more = run_round(round_no, state, context, excluded, unfitted)
         if not more:
             break
-    redecide(state, context, excluded, unfitted)
     if state.found:
         context.progress("re-fitting the found effects together with the nominal parameters")
         meas = weighted_channels(

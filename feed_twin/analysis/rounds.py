@@ -55,7 +55,7 @@ Progress = Callable[[str], None]
 @dataclass(frozen=True, kw_only=True)
 class Options:
     max_effects: int = 5  # rounds of add-and-fit at most
-    candidates_per_round: int = 3  # candidates per residual fitted by simulation per round
+    candidates_per_round: int = 3  # significant candidates fitted by simulation per round
     rival_ratio: float = 0.5  # fit a rival only if it explains this share of the leader's part
     max_evaluations: int = 30  # least-squares function evaluations per fit
     fit_samples: int = 6000  # cost samples per channel (the record is strided down to this)
@@ -255,23 +255,20 @@ def run_round(
 
 
 def choose_rivals(ranked: list[Candidate], opts: Options) -> list[Candidate]:
-    """The candidates of one round fitted by simulation: per residual ranked, its leading ones
-    (at most candidates_per_round, each explaining rival_ratio of that residual's leader's
-    share), in the ranking's order. Shares of different residuals do not compare: a feedback
-    delay in the loop (27 % of the effort residual) lost its place to three timings of the
-    record that each took 98 % of the position's, and the one of them kept took the loop's
-    delay too; a table's mass lost to a drive gain beside them."""
-    leader: dict[str, Candidate] = {}
-    count: dict[str, int] = {}
-    rivals = []
+    """The candidates of one round fitted by simulation: the leading ones (at most
+    candidates_per_round, each explaining rival_ratio of the leader's share), and the leader of
+    every other residual. Shares of different residuals do not compare: a feedback delay in
+    the loop (27 % of the effort residual) lost its place to three timings of the record that
+    each took 98 % of the position's, and the one of them kept took the loop's delay too."""
+    lead = ranked[0]
+    rivals = [
+        c
+        for c in ranked[: opts.candidates_per_round]
+        if c.explained_fraction >= opts.rival_ratio * lead.explained_fraction
+    ]
     for c in ranked:
-        domain = c.residual_domain
-        lead = leader.setdefault(domain, c)
-        if count.get(domain, 0) >= opts.candidates_per_round:
-            continue
-        if c.explained_fraction >= opts.rival_ratio * lead.explained_fraction:
-            rivals.append(c)
-            count[domain] = count.get(domain, 0) + 1
+        if all(r.residual_domain != c.residual_domain for r in rivals):
+            rivals.append(c)  # the first of its residual's: the ranking's order
     return rivals
 
 
@@ -453,20 +450,6 @@ def drop_collapsed(state: State, ctx: Context, when: str) -> None:
     state.simulations += 1
 
 
-def found_without(target: Found, state: State, ctx: Context, meas: Measured):
-    """The model without `target`, the other found effects fitted again (reexamine.without)."""
-    return without(
-        target,
-        [f for f in state.found if f is not target],
-        state.doc,
-        state.outputs,
-        drive=ctx.drive,
-        meas=meas,
-        channels=ctx.channels,
-        max_evaluations=ctx.opts.max_evaluations,
-    )
-
-
 def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
     """Examine the effects found jointly (analysis.reexamine), the newest one too: its fit
     re-fitted the effects found before, and what that alone gains is no evidence for it."""
@@ -478,7 +461,17 @@ def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
     for target in list(state.found):
         if not removable([target], state.doc) or target.own == ():
             continue
-        gone = found_without(target, state, ctx, meas)
+        others = [f for f in state.found if f is not target]
+        gone = without(
+            target,
+            others,
+            state.doc,
+            state.outputs,
+            drive=ctx.drive,
+            meas=meas,
+            channels=ctx.channels,
+            max_evaluations=ctx.opts.max_evaluations,
+        )
         state.simulations += 1 if gone is None else gone.simulations
         if gone is None or gone.verdict.significant:
             continue
