@@ -69,7 +69,6 @@ def test_an_effect_whose_size_fell_back_to_neutral_has_collapsed():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=PLANNER_MOTION)
 def test_vertical_axis_keeps_the_weight_and_the_coulomb_friction(tmp_path):
     """The weight takes 98 % of the effort residual; the friction that is left halves what
     remains many times over and must not be judged by the position channel's noise."""
