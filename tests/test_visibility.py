@@ -9,14 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from feed_twin.analysis.visibility import (
-    Unseen,
-    Visibility,
-    dequantize,
-    resolution,
-    staircase_fraction,
-    with_floor,
-)
+from feed_twin.analysis.rounding import dequantize, resolution, staircase_fraction
+from feed_twin.analysis.visibility import Unseen, Visibility, with_floor
 
 
 @pytest.mark.parametrize("q", [1e-3, 1e-4, 5e-6, 1e-8])

@@ -50,6 +50,7 @@ from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
 from feed_twin.analysis.locate import locate
 from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.record_scale import at_record_scale
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.rounds import (
     Context,
@@ -67,6 +68,7 @@ from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.analysis.visibility import (
     assess,
     force_constant_correlation,
+    position_resolution,
     smooth_staircases,
     with_floor,
 )
@@ -148,6 +150,11 @@ def diagnose(
     notes = list(run.warnings)
     raw = run
     run, smoothed = smooth_staircases(run)
+    # a slow record is simulated on the model at its scale (analysis.record_scale): the model
+    # the workflow fits and writes from here on
+    scaled: list[str] = []
+    if opts.record_scale:
+        nominal, scaled = at_record_scale(run, nominal, resolution_m=position_resolution(raw))
     drive, twin, out0 = _simulate_nominal(run, nominal, progress)
     timings["nominal_s"] = time.perf_counter() - clock
     check_effort_sign(run, out0)
@@ -156,13 +163,13 @@ def diagnose(
     vis = assess(run, twin, drive.pos_ref_m, out0, raw=raw)
     if vis.blind is not None:
         run = dataclasses.replace(run, effort_blind=vis.blind)
-    said = [*smoothed, *vis.lines()]
+    said = [*smoothed, *scaled, *vis.lines()]
     kt = force_constant_correlation(run, out0, drive.vel_ref_m_s)
     if kt is not None and "torque_constant_error" not in vis.unseen_names:
         said.append(kt)
     for line in said:
         progress(line)
-    notes.extend(smoothed)
+    notes.extend([*smoothed, *scaled])
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
     before = run_metrics(run, out0)
     stride = max(1, len(run.t_s) // opts.fit_samples)

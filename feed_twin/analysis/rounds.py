@@ -59,6 +59,9 @@ class Options:
     rival_ratio: float = 0.5  # fit a rival only if it explains this share of the leader's part
     max_evaluations: int = 30  # least-squares function evaluations per fit
     fit_samples: int = 6000  # cost samples per channel (the record is strided down to this)
+    # a slow record is simulated on the model at its scale (analysis.record_scale); False: on
+    # the model as written (the cross-check of the two)
+    record_scale: bool = True
 
     def __post_init__(self) -> None:
         for name in ("max_effects", "candidates_per_round", "max_evaluations", "fit_samples"):

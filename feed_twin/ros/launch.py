@@ -225,8 +225,10 @@ def _last_error(log: Path) -> str:
     return "\n    ".join(block)
 
 
-def log_record(log: Path, prefix: str) -> dict | None:
-    """The last `PREFIX {json}` line a node printed."""
+def log_record(log: Path | None, prefix: str) -> dict | None:
+    """The last `PREFIX {json}` line a node printed (None: none, or no log)."""
+    if log is None:
+        return None
     try:
         for line in reversed(log.read_text(errors="replace").splitlines()):
             if line.startswith(f"{prefix} "):
