@@ -238,7 +238,9 @@ def rank(
     )
     domains = set(residual_of)
     best_of: list[tuple[Effect, str, dict[str, np.ndarray], tuple, int, str]] = []
-    for effect in (e for e in LIBRARY if available(e, motion, domains)):
+    for effect in LIBRARY:
+        if not available(effect, motion, domains):
+            continue
         domain = domain_of(effect, domains)
         assert domain is not None
         r = residual_of[domain]
@@ -265,9 +267,9 @@ def rank(
     }
     full_rank = {d: _rank_of(noise[d][1]) for d in domains}
     out: list[Candidate] = []
-    # an excluded effect's structure is no noise (above), but it is not proposed again
-    proposed = [b for b in best_of if b[0].name not in exclude]
-    for effect, label, regs, result, n_variants, domain in proposed:
+    for effect, label, regs, result, n_variants, domain in best_of:
+        if effect.name in exclude:
+            continue  # its structure is no noise (noise above), but it is not proposed again
         explained, _, _, _, coef = result
         r = _projected(residual_of[domain], nuisance_of(effect, domain, motion, offset))
         e_all, Z_all = noise[domain]
