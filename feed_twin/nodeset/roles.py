@@ -191,9 +191,9 @@ ROLES: dict[str, Role] = {
             repeatable=False,
             guarded=False,
             own_node=False,  # publishes no topic a guarded node reads
+            # command, joint_states and servo packed (feed_twin/ros/linuxcnc_node.py)
             topics=(
-                _out("command", msg_types.AXIS_COMMAND),
-                _out("joint_states", msg_types.JOINT_STATE),
+                _out("linuxcnc/batch", msg_types.RECORD_BATCH),
                 _out("run_state", msg_types.STRING),
                 *_LIVENESS,
             ),

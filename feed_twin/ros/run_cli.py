@@ -246,6 +246,11 @@ def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[s
     elif role == "twin":
         argv += ["--map", str(out.map), "--machine", ros.machine, "--axis", ros.axis]
         argv += ["--rrd", str(out.rrd)]
+        if args.nc == "linuxcnc":  # the bridge sends its periods packed (linuxcnc_node)
+            from feed_twin.nodeset.topics import AxisTopics
+
+            batch = AxisTopics(machine=ros.machine, axis=ros.axis).bridge_batch
+            argv += ["--batch-topic", batch]
         if args.live_url:
             argv += ["--rerun-url", args.live_url]
     return argv
@@ -376,7 +381,7 @@ def _linuxcnc_dashboard(args: argparse.Namespace, topics, out: Outputs, figures:
     from feed_twin.linuxcnc.dashboard import read_servo_trace, write_linuxcnc_dashboard
 
     try:
-        trace = read_servo_trace(out.bag, f"{topics.namespace}/linuxcnc/servo")
+        trace = read_servo_trace(out.bag, topics.servo)
     except (BagError, ValueError) as exc:
         print(f"feed-twin run: no LinuxCNC dashboard: {exc}", file=sys.stderr)
         return

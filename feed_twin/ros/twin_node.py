@@ -13,6 +13,10 @@ and publishes, per slot, under `--out-namespace` (default `<command namespace>/t
   RMS;
 - `health` (HealthStatus): every verdict; WARN/ERROR also go to the log with the named effect.
 
+`--batch-topic` (the LinuxCNC bridge, feed_twin/ros/linuxcnc_node.py): the command and measured
+messages come packed in RecordBatches on that topic (feed_twin.nodeset.record_batch), each as
+on its own topic; the twin takes a whole batch per wake-up and advances over it at once.
+
 `--rrd` / `--rerun-url` feed the shadow dashboard (feed_twin.shadow.dashboard). At the end of
 the run (run_state "done", a signal, or `--max-time`) the node processes what is left and
 prints `SHADOW {json}` on stderr: fault counts, the last verdict and the lag of its output
@@ -33,12 +37,14 @@ from pathlib import Path
 
 import numpy as np
 from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState, HealthStatus, TwinResidual
+from feed_twin_msgs.msg import RecordBatch as RecordBatchMsg
 from sensor_msgs.msg import JointState
 
 from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.measured import load_column_map
+from feed_twin.nodeset.record_batch import unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import Topic
 from feed_twin.ros.dds import DATA_QOS
@@ -94,8 +100,11 @@ class TwinNode(FeedTwinNode):
         axis_label: str,
         dashboard=None,
         max_time_s: float | None = None,
+        batch_topic: str | None = None,
         context=None,
     ) -> None:
+        """`batch_topic`: take command and measured messages packed there (module docstring)
+        instead of from their own topics."""
         super().__init__("twin", options, context=context)
         self.shadow = shadow
         self.axis_label = axis_label
@@ -117,15 +126,22 @@ class TwinNode(FeedTwinNode):
             HealthStatus, out(out_namespace, "health"), DATA_QOS
         )
         self._command_topic, self._measured_topic = command.topic.name, measured.topic.name
-        for source, callback in ((command, self._on_command), (measured, self._on_measured)):
-            topic = source.topic
+        watched = measured.topic
+        if batch_topic is None:
+            for source, callback in ((command, self._on_command), (measured, self._on_measured)):
+                topic = source.topic
+                self.create_subscription(
+                    MESSAGE_TYPES[topic.type_name], topic.name, callback, DATA_QOS, raw=True
+                )
+        else:
             self.create_subscription(
-                MESSAGE_TYPES[topic.type_name], topic.name, callback, DATA_QOS, raw=True
+                RecordBatchMsg, batch_topic, self._on_batch, DATA_QOS, raw=True
             )
+            watched = Topic(name=batch_topic, type_name=msg_types.RECORD_BATCH)
         self._seen_command = False
         self._measured_dog = self.watch_input(
-            measured.topic.name,
-            measured.topic.type_name,
+            watched.name,
+            watched.type_name,
             armed=lambda: self._seen_command and not self.run_ended,
         )
         self._arrival: dict[int, float] = {}
@@ -143,6 +159,32 @@ class TwinNode(FeedTwinNode):
         self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
     def _on_command(self, data: bytes) -> None:
+        self._take_command(data)
+        if self._waiting_for_command:
+            self._step()
+
+    def _on_measured(self, data: bytes) -> None:
+        self._take_measured(data)
+        self._measured_dog.feed()
+        if self._last_message - self._stepped_at >= STEP_EVERY_S:
+            self._step()
+
+    def _on_batch(self, data: bytes) -> None:
+        self._measured_dog.feed()
+        try:
+            messages = unpack(data)
+        except ValueError as exc:
+            self._bad(exc)
+            return
+        for topic, _, message in messages:
+            if topic == self._command_topic:
+                self._take_command(message)
+            elif topic == self._measured_topic:
+                self._take_measured(message)
+        if self._unstepped and self._last_message - self._stepped_at >= STEP_EVERY_S:
+            self._step()
+
+    def _take_command(self, data: bytes) -> None:
         if self.auth.enabled:  # a run's twin: only the run's NC (a bare shadow: any stream)
             admitted = self.admit(self._command_topic, data)
             if admitted is None:
@@ -158,12 +200,10 @@ class TwinNode(FeedTwinNode):
         # the twin advances when a measured sample arrives (nothing can be paired earlier);
         # processing on every command too would double the per-cycle work for nothing, but a
         # measured sample that came before its command (transport jitter, a late-joining
-        # command stream) waits for this one
+        # command stream) waits for this one (_on_command)
         self.shadow.push_command(t, v["pos_cmd_m"], v.get("vel_cmd_m_s"))
-        if self._waiting_for_command:
-            self._step()
 
-    def _on_measured(self, data: bytes) -> None:
+    def _take_measured(self, data: bytes) -> None:
         if self.auth.enabled:
             admitted = self.admit(self._measured_topic, data)
             if admitted is None:
@@ -171,7 +211,6 @@ class TwinNode(FeedTwinNode):
             data = admitted
         arrived = time.perf_counter()
         self._last_message = time.monotonic()
-        self._measured_dog.feed()
         try:
             t, v = self._meas_fields(data)
         except ValueError as exc:
@@ -182,8 +221,6 @@ class TwinNode(FeedTwinNode):
         if outcome in ("accepted", "reordered"):
             self._arrival[self.shadow.measured.slot_of(t)[0]] = arrived
         self._unstepped = True
-        if self._last_message - self._stepped_at >= STEP_EVERY_S:
-            self._step()
 
     def _bad(self, exc: Exception) -> None:
         self.errors += 1
@@ -339,6 +376,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rrd", type=Path, help="write the shadow dashboard here")
     parser.add_argument("--rerun-url", help="stream the dashboard to this viewer")
     parser.add_argument("--max-time", type=float, help="stop after this many shadowed seconds")
+    parser.add_argument("--batch-topic", help="take the command and measured messages packed "
+                        "in RecordBatches on this topic (the LinuxCNC bridge's)")  # fmt: skip
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
@@ -392,6 +431,7 @@ def build(args: argparse.Namespace, context) -> TwinNode:
         axis_label=args.axis.upper(),
         dashboard=dashboard,
         max_time_s=args.max_time,
+        batch_topic=args.batch_topic,
         context=context,
     )  # fmt: skip
 
