@@ -63,7 +63,9 @@ def _bridge_twin(tmp_path: Path, context, *batch: str):
     node = twin_node.build(args, context)
     sent: list[bytes] = []
     node._residual_pub.publish = sent.append
-    node._state_pub.publish = lambda data: None
+    states: list[bytes] = []
+    node._state_pub.publish = states.append
+    node.states = states  # (what went out on <ns>/twin/state)
     return node, sent
 
 
@@ -127,7 +129,14 @@ def test_a_twin_fed_packed_periods_gives_the_output_it_gives_fed_one_message_eac
         assert len(single_out) == len(periods) - 1  # every measured sample shadowed
         from feed_twin.ros.twin_node import RESIDUAL
 
+        # the fixed-layout bytes are what the general encoder makes of the same values
+        assert all(RESIDUAL.encode_map(RESIDUAL.decode_map(d)) == d for d in packed_out)
+        from feed_twin.ros.twin_node import STATE
+
+        states = [STATE.decode_map(d) for d in packed.states]
+        assert all(STATE.encode_map(m) == d for m, d in zip(states, packed.states, strict=True))
         got = [RESIDUAL.decode_map(d) for d in packed_out]
+        assert [m["following_error"] for m in states] == [m["following_error_twin"] for m in got]
         want = [RESIDUAL.decode_map(d) for d in single_out]
         assert len(got) == len(want)
         for g, w in zip(got, want, strict=True):

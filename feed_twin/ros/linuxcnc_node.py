@@ -67,8 +67,10 @@ LINGER_S = 1.0  # [s] after the end, so that readers receive everything
 # periods published ahead of the twin's output at most: what is in flight between the bridge
 # and the twin. It bounds the throughput to WINDOW periods per round trip bridge -> twin ->
 # bridge, which takes 0.1-0.3 s on a loaded host: 100 made the twin fall seconds behind
-# there. It stays well inside DATA_QOS's history (5000), so nothing in flight is dropped.
-WINDOW = 1000
+# there, and with 1000 a twin a second behind held the bridge back (bridge latency p99 0.3-0.4
+# s at load 14-25). A batch holds at least one period, so WINDOW periods stay inside DATA_QOS's
+# history of the batch topic (5000 messages): nothing in flight is dropped.
+WINDOW = 4000
 # periods in one RecordBatch at most: a catch-up after a stall goes out in pieces of a few tens
 # of kB instead of one message of a second's periods
 BATCH_PERIODS = 100
@@ -329,18 +331,20 @@ class LinuxcncNode(FeedTwinNode):
             )
 
     def _expected(self, periods: int) -> dict[str, int]:
-        """Messages each topic of the run should hold in the bag: one per program period on
-        command and servo, one fewer on joint_states (row k's feedback is period k - 1's) and
-        on the twin's output, which shadows every measured sample."""
-        twin = twin_namespace(self.topics.command)
+        """Messages each topic of the run should hold in the bag, per shadowed axis: one per
+        program period on command (and servo), one fewer on joint_states (row k's feedback is
+        period k - 1's) and on the twin's output, which shadows every measured sample."""
         measured = max(0, periods - 1)
-        return {
-            self.topics.command: periods,
-            self.topics.servo: periods,
-            self.topics.joint_states: measured,
-            node_role("twin").topic(twin, "residual"): measured,
-            node_role("twin").topic(twin, "state"): measured,
-        }
+        out: dict[str, int] = {}
+        for axis in self._axes.values():
+            twin = twin_namespace(axis.topics.command)
+            out[axis.topics.command] = periods
+            if axis.servo:
+                out[axis.topics.servo] = periods
+            out[axis.topics.joint_states] = measured
+            out[node_role("twin").topic(twin, "residual")] = measured
+            out[node_role("twin").topic(twin, "state")] = measured
+        return out
 
     def on_shutdown(self, reason: str) -> None:
         self._close_run()

@@ -54,6 +54,7 @@ from feed_twin.ros.launch import (
     launch,
     log_record,
     planned_duration_s,
+    slow_line,
 )
 
 if TYPE_CHECKING:
@@ -117,7 +118,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     foreign = foreign_messages(result.logs.values())
     for line in foreign.lines():
         print(line)  # the run's own output names who sent what it dropped
-    for said in (reason, problem):
+    for said in (reason, problem, slow_line(logs)):
         if said:
             print(f"feed-twin run: {said}", file=sys.stderr)
     run_timing = RunTiming.from_report(timing)

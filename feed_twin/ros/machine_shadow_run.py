@@ -39,7 +39,7 @@ from feed_twin.nodeset.run_report import (
     shown,
 )
 from feed_twin.ros import preflight
-from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s
+from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s, slow_line
 from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
 
 # the node set plays the program in lockstep, all axes in one bag, started here
@@ -91,7 +91,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     bridge_said = (log_record(result.logs[clock], "LINUXCNC") or {}) if linuxcnc else {}
     if reason and bridge_said.get("fault"):
         reason = bridge_said["fault"]  # the bridge's own line for a LinuxCNC fault
-    for said in (reason, problem):
+    for said in (reason, problem, slow_line(logs)):
         if said:
             print(f"feed-twin run: {said}", file=sys.stderr)
     timing = RunTiming.from_report(log_record(result.logs[clock], "TIMING") or {})
@@ -108,6 +108,9 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
             f"latency p99 {shown(bridge['bridge_latency_p99_ms'], 'ms')}"
         )
+        if any(bridge["samples_lost_by_topic"].values()):
+            lost = bridge["samples_lost_by_topic"].items()
+            lines.append("samples lost by topic: " + ", ".join(f"{t} {n}" for t, n in lost))
         from feed_twin.linuxcnc.summary import servo_timing_from_report
 
         servo_timing = servo_timing_from_report(bridge_said)
@@ -156,18 +159,22 @@ def linuxcnc_figures(bag: Path, plan: ShadowPlan, report: dict, figures: dict) -
     in the bag) added to `figures`; the bridge's counts and latencies (its LINUXCNC report)."""
     from feed_twin.io.bag import BagReader
     from feed_twin.linuxcnc.machine import JOINT_AXES
+    from feed_twin.linuxcnc.summary import counts_against_expected
 
     fields = [f"following_error[{JOINT_AXES.index(a)}]" for a in plan.axes]
-    servo = BagReader(bag).columns(f"{plan.namespace(plan.axes[0])}/linuxcnc/servo", fields)
+    reader = BagReader(bag)
+    servo = reader.columns(f"{plan.namespace(plan.axes[0])}/linuxcnc/servo", fields)
     for axis, field in zip(plan.axes, fields, strict=True):
         fe = servo[field]
         figures[axis.lower()]["linuxcnc_following_error_max_m"] = (
             float(np.max(np.abs(fe))) if fe.size else None
         )
-    keys = ("program_time_s", "samples_received", "samples_lost", "samples_published",
+    keys = ("program_time_s", "samples_received", "samples_published",
             "bridge_latency_p50_ms", "bridge_latency_p99_ms", "twin_output_latency_p50_ms",
             "twin_output_latency_p99_ms", "startup_s")  # fmt: skip
-    return {k: report.get(k) for k in keys}
+    bag_counts, lost_by_topic, lost = counts_against_expected(reader, report)
+    return {**{k: report.get(k) for k in keys}, "samples_lost": lost, "bag_counts": bag_counts,
+            "samples_lost_by_topic": lost_by_topic}  # fmt: skip
 
 
 def finish(bag: Path, plan: ShadowPlan) -> tuple[dict | None, str]:

@@ -117,6 +117,11 @@ class TwinNode(FeedTwinNode):
             (n for n in measured.fields.signal_names if n != "pos_meas_m"), None
         )
         self._is_current = shadow.twin.effort_unit == "A"
+        self._state = STATE.fixed({"header.frame_id": "", "axis": axis_label})
+        self._residual = RESIDUAL.fixed({"header.frame_id": "", "axis": axis_label})
+        for layout in (self._state, self._residual):
+            if layout.numbers[:2] != ("header.stamp.sec", "header.stamp.nanosec"):
+                raise ValueError(f"{layout.codec.type_name}: the stamp is not its first numbers")
         out = node_role("twin").topic
         self._state_pub = self.create_publisher(AxisState, out(out_namespace, "state"), DATA_QOS)
         self._residual_pub = self.create_publisher(
@@ -241,51 +246,47 @@ class TwinNode(FeedTwinNode):
             self.finish(EXIT_OK, f"twin: {self.max_time_s:g} s shadowed")
 
     def _publish(self, b: ResidualBlock) -> None:
+        """Each slot's state and residual, packed with the run's fixed strings (one struct
+        call each: encoding them field by field was a third of the twin's CPU at 1 kHz)."""
+        n = len(b)
         period = self.shadow.config.sample_period_s
         t0 = self.shadow.commands.t0_s or 0.0
-        window = self.shadow.config.window_s
-        for k in range(len(b)):
-            t = float(b.t_s[k])
-            ns = round(t * 1e9)
-            sec, nsec = divmod(ns, 1_000_000_000)
-            fe_twin = float(b.x_cmd_m[k] - b.x_twin_m[k])
-            state = {
-                "header.stamp.sec": sec,
-                "header.stamp.nanosec": nsec,
-                "axis": self.axis_label,
-                "position_setpoint": float(b.x_cmd_m[k]),
-                "table_position": float(b.x_twin_m[k]),
-                "following_error": fe_twin,
-            }
-            if self._is_current:
-                state["i_q"] = float(b.effort_twin[k])
-            sign = self.auth.sign
-            self._state_pub.publish(sign(self._state_pub.topic_name, STATE.encode_map(state)))
+        stamps = np.round(b.t_s * 1e9).astype(np.int64)
+        sec, nsec = np.divmod(stamps, 1_000_000_000)
+        fe_twin = b.x_cmd_m - b.x_twin_m
+        state = np.zeros((n, len(self._state.numbers) - 2))  # the numbers after the stamp
+        columns = {"position_setpoint": b.x_cmd_m, "table_position": b.x_twin_m,
+                   "following_error": fe_twin}  # fmt: skip
+        if self._is_current:
+            columns["i_q"] = b.effort_twin
+        for name, values in columns.items():
+            state[:, self._state.index(name) - 2] = values
+        residual = np.zeros((n, len(self._residual.numbers) - 2))
+        for name, values in {
+            "following_error_measured": b.x_cmd_m - b.x_meas_m,
+            "following_error_twin": fe_twin,
+            "following_error_deviation": b.fe_dev_m,
+            "effort_measured": b.effort_meas,
+            "effort_twin": b.effort_twin,
+            "effort_deviation": b.effort_dev,
+            "rms_window": self.shadow.config.window_s,
+            "following_error_deviation_rms": b.fe_dev_rms_m,
+            "effort_deviation_rms": b.effort_dev_rms,
+        }.items():
+            residual[:, self._residual.index(name) - 2] = values
+        sign = self.auth.sign
+        state_topic, residual_topic = self._state_pub.topic_name, self._residual_pub.topic_name
+        rows = zip(sec.tolist(), nsec.tolist(), state.tolist(), residual.tolist(),
+                   b.t_s.tolist(), strict=True)  # fmt: skip
+        for s, ns, state_row, residual_row, t in rows:
+            self._state_pub.publish(sign(state_topic, self._state.encode((s, ns, *state_row))))
             self._residual_pub.publish(
-                sign(
-                    self._residual_pub.topic_name,
-                    RESIDUAL.encode_map(
-                        {
-                            "header.stamp.sec": sec,
-                            "header.stamp.nanosec": nsec,
-                            "axis": self.axis_label,
-                            "following_error_measured": float(b.x_cmd_m[k] - b.x_meas_m[k]),
-                            "following_error_twin": fe_twin,
-                            "following_error_deviation": float(b.fe_dev_m[k]),
-                            "effort_measured": float(b.effort_meas[k]),
-                            "effort_twin": float(b.effort_twin[k]),
-                            "effort_deviation": float(b.effort_dev[k]),
-                            "rms_window": window,
-                            "following_error_deviation_rms": float(b.fe_dev_rms_m[k]),
-                            "effort_deviation_rms": float(b.effort_dev_rms[k]),
-                        }
-                    ),
-                )
+                sign(residual_topic, self._residual.encode((s, ns, *residual_row)))
             )
             arrived = self._arrival.pop(round((t - t0) / period), None)
             if arrived is not None:
                 self.lags_ms.append((time.perf_counter() - arrived) * 1e3)
-        self.samples += len(b)
+        self.samples += n
         if self.dashboard is not None:
             self.dashboard.log_block(b)
 
