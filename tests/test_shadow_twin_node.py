@@ -51,7 +51,8 @@ AXIS_CONFIG = Path("config/axis_default.yaml")
 
 
 def _bridge_twin(tmp_path: Path, context, *batch: str):
-    """A twin node as the LinuxCNC bridge's run builds it (no effort), outputs captured."""
+    """A twin node as the LinuxCNC bridge's run builds it (no effort), its residuals and
+    states captured (packed with --batch-topic: `unpacked` takes them out)."""
     from feed_twin.ros import twin_node
 
     twin = Twin.compile(ModelDoc.load(AXIS_CONFIG))
@@ -62,11 +63,24 @@ def _bridge_twin(tmp_path: Path, context, *batch: str):
     args = parser.parse_args(["--config", str(AXIS_CONFIG), "--map", str(map_path), *batch])
     node = twin_node.build(args, context)
     sent: list[bytes] = []
-    node._residual_pub.publish = sent.append
     states: list[bytes] = []
-    node._state_pub.publish = states.append
-    node.states = states  # (what went out on <ns>/twin/state)
-    return node, sent
+    if batch:
+        node._batch_pub.publish = sent.append  # unpacked by `unpacked`
+    else:
+        node._residual_pub.publish = sent.append
+        node._state_pub.publish = states.append
+    return node, sent, states
+
+
+def unpacked(batches: list[bytes]) -> tuple[list[bytes], list[bytes]]:
+    """The residuals and states in a twin's packed outputs, each in order."""
+    from feed_twin.nodeset.record_batch import unpack
+
+    out: dict[str, list[bytes]] = {"/cnc/x/twin/residual": [], "/cnc/x/twin/state": []}
+    for data in batches:
+        for topic, _, message in unpack(data):
+            out[topic].append(message)
+    return out["/cnc/x/twin/residual"], out["/cnc/x/twin/state"]
 
 
 def _periods(n: int) -> list[tuple[int, bytes, bytes | None]]:
@@ -98,13 +112,13 @@ def test_a_twin_fed_packed_periods_gives_the_output_it_gives_fed_one_message_eac
     periods = _periods(400)
     context = init_context()
     try:
-        single, single_out = _bridge_twin(tmp_path / "a", context)
+        single, single_out, _ = _bridge_twin(tmp_path / "a", context)
         for _, cmd, js in periods:
             single._on_command(cmd)
             if js is not None:
                 single._on_measured(js)
         single._step(final=True)
-        packed, packed_out = _bridge_twin(
+        packed, packed_batches, _ = _bridge_twin(
             tmp_path / "b", context, "--batch-topic", "/cnc/x/linuxcnc/batch"
         )
         batch = RecordBatch(["/cnc/x/command", "/cnc/x/joint_states", "/cnc/x/other"], 1)
@@ -127,14 +141,17 @@ def test_a_twin_fed_packed_periods_gives_the_output_it_gives_fed_one_message_eac
         packed._on_batch(b"\x00\x00\x00\x00 not a batch")
         packed._step(final=True)
         assert len(single_out) == len(periods) - 1  # every measured sample shadowed
+        # a packed output per step, at most OUT_BATCH_SAMPLES slots each
+        assert 1 < len(packed_batches) < len(periods) / 10
+        packed_out, packed_states = unpacked(packed_batches)
         from feed_twin.ros.twin_node import RESIDUAL
 
         # the fixed-layout bytes are what the general encoder makes of the same values
         assert all(RESIDUAL.encode_map(RESIDUAL.decode_map(d)) == d for d in packed_out)
         from feed_twin.ros.twin_node import STATE
 
-        states = [STATE.decode_map(d) for d in packed.states]
-        assert all(STATE.encode_map(m) == d for m, d in zip(states, packed.states, strict=True))
+        states = [STATE.decode_map(d) for d in packed_states]
+        assert all(STATE.encode_map(m) == d for m, d in zip(states, packed_states, strict=True))
         got = [RESIDUAL.decode_map(d) for d in packed_out]
         assert [m["following_error"] for m in states] == [m["following_error_twin"] for m in got]
         want = [RESIDUAL.decode_map(d) for d in single_out]

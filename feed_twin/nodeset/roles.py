@@ -163,6 +163,8 @@ ROLES: dict[str, Role] = {
                 _out("state", msg_types.AXIS_STATE),
                 _out("residual", msg_types.TWIN_RESIDUAL),
                 _out("health", msg_types.HEALTH_STATUS),
+                # state and residual packed beside the LinuxCNC bridge (twin_node --batch-topic)
+                _out("batch", msg_types.RECORD_BATCH),
             ),
             arguments=("--map", "--machine", "--axis", "--rrd", "--rerun-url", "--max-time"),
         ),

@@ -20,7 +20,8 @@ wake-up (twin_node --batch-topic); the recorder writes each message under its ow
 the bag holds what per-period publishing gave.
 
 Latency (feed_twin.linuxcnc.bridge): servo tick -> published, and servo tick -> the twin's
-`<ns>/twin/residual` for that period back at the bridge. At the
+`<ns>/twin/residual` for that period back at the bridge (in the twin's packed output,
+`<ns>/twin/batch`). At the
 program's end it announces `done: program finished` on run_state; a LinuxCNC fault (a program it
 rejects, LinuxCNC dying, the bridge falling so far behind that LinuxCNC's sampler FIFO would
 overflow) ends the run with `done: LinuxCNC fault` and
@@ -32,6 +33,7 @@ latency, LinuxCNC's program time and following error, start-up).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import struct
 import sys
@@ -43,7 +45,6 @@ from pathlib import Path
 
 import numpy as np
 from feed_twin_msgs.msg import RecordBatch as RecordBatchMsg
-from feed_twin_msgs.msg import TwinResidual
 from rclpy.publisher import Publisher
 from std_msgs.msg import String
 
@@ -54,7 +55,7 @@ from feed_twin.linuxcnc.host import LinuxcncError
 from feed_twin.linuxcnc.machine import machine_for_config
 from feed_twin.linuxcnc.runner import LinuxcncRun, RunOptions
 from feed_twin.linuxcnc.servo_cdr import ServoSampleLayout
-from feed_twin.nodeset.record_batch import RecordBatch
+from feed_twin.nodeset.record_batch import RecordBatch, unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
@@ -78,7 +79,8 @@ LATENCY_BOUND_S = 0.2  # [s] servo tick -> published above this is said once (th
 PROGRESS_PERIOD_S = 0.5
 _STAMP = struct.Struct("<iI")  # header.stamp right after the 4-byte CDR encapsulation
 SERVO_JOINTS = ("X", "Y", "Z")  # the joints of every ServoSample (LinuxCNC's joints 0, 1, 2)
-TWIN_NODE = node_role("twin").node_name
+TWIN = node_role("twin")
+TWIN_NODE = TWIN.node_name
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -92,6 +94,7 @@ class AxisOut:
     batch: RecordBatch  # command, joint_states (and servo) of the periods not yet sent
     publisher: Publisher  # on topics.bridge_batch
     servo: bool  # its batch carries the ServoSample of every joint (the first axis's)
+    residual: str  # the topic of its twin's residuals, which come packed on the twin's batch
 
 
 class LinuxcncNode(FeedTwinNode):
@@ -111,17 +114,11 @@ class LinuxcncNode(FeedTwinNode):
         self.period_s = period_s
         self._label = options.axis.upper()
         self._axes: dict[str, AxisOut] = {}
+        self._twin_stamps: dict[str, int] = {}  # per axis the stamp of its twin's latest output
         self.add_axis(self._label, joint, self.topics)
         self._servo = ServoSampleLayout(self._label, SERVO_JOINTS)
         # where the end of the run is announced (a machine's node: every axis's run_state)
         self._run_pubs = [self.create_publisher(String, self.topics.run_state, LATCHED_QOS)]
-        self.create_subscription(
-            TwinResidual,
-            node_role("twin").topic(twin_namespace(self.topics.command), "residual"),
-            self._on_twin_output,
-            DATA_QOS,
-            raw=True,
-        )
         self.run: LinuxcncRun | None = None
         self.run_ended = False  # LinuxCNC has been stopped (run is None again)
         self.bridge: ServoBridge | None = None
@@ -146,6 +143,7 @@ class LinuxcncNode(FeedTwinNode):
             raise ValueError(f"AxisCommand's numbers are {command.numbers}")
         servo = not self._axes
         packed = [topics.command, topics.joint_states] + ([topics.servo] if servo else [])
+        twin = twin_namespace(topics.command)
         self._axes[label] = AxisOut(
             label=label,
             joint=joint,
@@ -154,6 +152,15 @@ class LinuxcncNode(FeedTwinNode):
             batch=RecordBatch(packed, 1),
             publisher=self.create_publisher(RecordBatchMsg, topics.bridge_batch, DATA_QOS),
             servo=servo,
+            residual=TWIN.topic(twin, "residual"),
+        )
+        self._twin_stamps[label] = -1
+        self.create_subscription(
+            RecordBatchMsg,
+            TWIN.topic(twin, "batch"),
+            functools.partial(self._on_twin_output, label),
+            DATA_QOS,
+            raw=True,
         )
 
     def poll(self) -> float | None:
@@ -285,12 +292,30 @@ class LinuxcncNode(FeedTwinNode):
         """This node announces the end itself (and hears its own announcement): it finishes
         after LINGER_S with the code of its run, not at the announcement."""
 
-    def _on_twin_output(self, data: bytes) -> None:
-        if self.bridge is not None:
-            sec, nsec = _STAMP.unpack_from(data, 4)
-            stamp = sec * 1_000_000_000 + nsec
-            self._twin_ns = max(self._twin_ns, stamp)
-            self.bridge.twin_output(stamp, now_s=time.monotonic())
+    def _on_twin_output(self, label: str, data: bytes) -> None:
+        """Axis `label`'s twin sent its output (packed: twin_node --batch-topic): the window
+        follows the slowest twin, none is flooded; the latency is the first axis's."""
+        axis = self._axes[label]
+        try:
+            stamps = [
+                sec * 1_000_000_000 + nsec
+                for topic, _, message in unpack(data)
+                if topic == axis.residual
+                for sec, nsec in (_STAMP.unpack_from(message, 4),)
+            ]
+        except (ValueError, struct.error) as exc:
+            self.get_logger().warning(
+                f"{label}: a malformed twin output dropped ({exc})", throttle_duration_sec=1.0
+            )
+            return
+        if not stamps:
+            return
+        self._twin_stamps[label] = max(self._twin_stamps[label], *stamps)
+        self._twin_ns = min(self._twin_stamps.values())
+        if axis.servo and self.bridge is not None:
+            now = time.monotonic()
+            for stamp in stamps:
+                self.bridge.twin_output(stamp, now_s=now)
 
     def _end(self, code: int, message: str) -> None:
         """Stop LinuxCNC, announce the end of the run, stay LINGER_S, then finish."""

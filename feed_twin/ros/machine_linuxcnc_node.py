@@ -15,27 +15,18 @@ twin's output are the first axis's.
 from __future__ import annotations
 
 import argparse
-import functools
-import struct
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from feed_twin_msgs.msg import TwinResidual
 from std_msgs.msg import String
 
 from feed_twin.linuxcnc.runner import LinuxcncRun
-from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import AxisTopics
-from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
+from feed_twin.ros.dds import LATCHED_QOS
 from feed_twin.ros.linuxcnc_node import LinuxcncNode, run_starter
 from feed_twin.ros.linuxcnc_node import configure as bridge_configure
 from feed_twin.ros.runtime import PEER_TIMEOUT_S, NodeOptions, start_node
-from feed_twin.shadow.replay import twin_namespace
-
-NS_PER_S = 1_000_000_000
-_STAMP = struct.Struct("<iI")  # header.stamp right after the 4-byte CDR encapsulation
 
 
 class MachineLinuxcncNode(LinuxcncNode):
@@ -54,33 +45,12 @@ class MachineLinuxcncNode(LinuxcncNode):
         super().__init__(
             options, start_run=start_run, joint=joints[first], period_s=period_s, context=context
         )
-        self._twin_stamps = dict.fromkeys(joints, -1)  # latest twin output per axis [ns]
         for axis, joint in joints.items():
             if axis == first:
                 continue
             topics = AxisTopics(machine=options.machine, axis=axis.lower())
             self.add_axis(axis, joint, topics)
             self._run_pubs.append(self.create_publisher(String, topics.run_state, LATCHED_QOS))
-            self.create_subscription(
-                TwinResidual,
-                node_role("twin").topic(twin_namespace(topics.command), "residual"),
-                functools.partial(self._on_axis_output, axis),
-                DATA_QOS,
-                raw=True,
-            )
-        self._first = first
-
-    def _on_twin_output(self, data: bytes) -> None:
-        self._on_axis_output(self._first, data)
-
-    def _on_axis_output(self, axis: str, data: bytes) -> None:
-        sec, nsec = _STAMP.unpack_from(data, 4)
-        stamp = sec * NS_PER_S + nsec
-        self._twin_stamps[axis] = max(self._twin_stamps[axis], stamp)
-        # the window follows the slowest twin: none is flooded
-        self._twin_ns = min(self._twin_stamps.values())
-        if axis == self._first and self.bridge is not None:
-            self.bridge.twin_output(stamp, now_s=time.monotonic())
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

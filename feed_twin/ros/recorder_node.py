@@ -191,7 +191,9 @@ class RecorderNode(FeedTwinNode):
         if twin_namespace is not None:
             # a shadow run: the twin's output is known in advance, so it is recorded from its
             # first message instead of from whenever the graph scan finds it (late under load)
-            known.update(node_role("twin").topic_types(twin_namespace))
+            outputs = node_role("twin").topic_types(twin_namespace)
+            # (its packed outputs: beside a LinuxCNC bridge only, recorded by _record_bridge)
+            known.update({t: k for t, k in outputs.items() if k != msg_types.RECORD_BATCH})
         if LINUXCNC_NODE in options.peers:
             for topics in served:
                 self._record_bridge(topics, known)
@@ -267,6 +269,17 @@ class RecorderNode(FeedTwinNode):
         if topics.namespace == self.topics.namespace:
             inner[topics.servo] = msg_types.SERVO_SAMPLE
         self._record_packed(topics.bridge_batch, inner, DATA_QOS)
+        # the axis's twin sends its state and residual packed as well (twin_node --batch-topic)
+        twin = node_role("twin")
+        namespace = f"{topics.namespace}/twin"  # (feed_twin.shadow.replay.twin_namespace)
+        types = twin.topic_types(namespace)
+        outputs = {twin.topic(namespace, name): "" for name in ("state", "residual")}
+        for topic in outputs:
+            outputs[topic] = types[topic]
+            known.pop(topic, None)
+        batch = twin.topic(namespace, "batch")
+        self._record_packed(batch, outputs, DATA_QOS)
+        self._twin_states.add(batch)  # the twin is there while it publishes its batches
 
     def _record_packed(self, batch: str, inner: dict[str, str], qos: QoSProfile) -> None:
         """Record topics `inner` (name -> type) from the RecordBatches on `batch` instead of
