@@ -47,10 +47,6 @@ SEEDS = (101, 102, 103)  # the tests use other seeds (tests/test_truth_machine.p
 REL = 0.10
 VALIDATION_RATIO = 1.5
 NOISE_RATIO = 10.0
-# a clean truth record's current already trails the twin's effort by one twin tick: the twin's
-# effort at tick k is the command it applies after k, a drive's current sampled at k follows
-# the command of k-1 (1 ms on clean records, also with the twin at 0.5 and 0.25 ms ticks)
-TWIN_TICK_S = 1e-3
 MID_RECORD_S = 6.4  # [s] the middle of a PROGRAM record: where a drifting friction is its mean
 NOT_AMPLITUDES = ("phase_rad", "order")
 SINGLE = (
@@ -107,7 +103,7 @@ def cases(seeds: tuple[int, ...]) -> list[Case]:
             effects=("coulomb_friction", "current_offset"),
             seed=seed,
             trace={"average": True, "delay_effort_s": 2e-3},
-            record_effects={"channel_delay": {"delay_s": 2e-3 + TWIN_TICK_S}},
+            record_effects={"channel_delay": {"delay_s": 2e-3}},
         )
     )
     return out

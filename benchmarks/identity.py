@@ -113,6 +113,7 @@ def standin(model: str, program: str) -> tuple[str, tuple[np.ndarray, np.ndarray
 def shadow(model: str, program: str, measured: tuple[np.ndarray, np.ndarray]) -> dict[str, str]:
     from feed_twin.analysis.twin import ModelDoc, Twin
     from feed_twin.shadow.config import load_shadow_config
+    from feed_twin.shadow.standin import EFFORT_SAMPLE
     from feed_twin.shadow.twin import ResidualBlock, ShadowTwin
 
     t, x, v, _, _ = planned(program)
@@ -122,7 +123,13 @@ def shadow(model: str, program: str, measured: tuple[np.ndarray, np.ndarray]) ->
     doc = ModelDoc.load(ROOT / model)
     out: dict[str, str] = {}
     for with_velocity in (True, False):
-        twin = ShadowTwin(Twin.compile(doc), config, command_velocity=with_velocity, travel_m=1.0)
+        twin = ShadowTwin(
+            Twin.compile(doc),
+            config,
+            command_velocity=with_velocity,
+            travel_m=1.0,
+            effort_sample=EFFORT_SAMPLE,  # the stand-in's
+        )
         blocks = []
         for k in range(len(t)):
             twin.push_command(t[k], x[k], v[k] if with_velocity else None)

@@ -38,7 +38,7 @@ from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.io.measured import load_column_map
 from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.replay import replay
-from feed_twin.shadow.standin import StandIn, program_command, record_bag
+from feed_twin.shadow.standin import EFFORT_SAMPLE, StandIn, program_command, record_bag
 from feed_twin.shadow.twin import ShadowTwin
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -84,7 +84,9 @@ def paced_lag(duration_s: float) -> tuple[np.ndarray, int]:
     t, x, v, a = program_command(duration_s, T)
     standin = StandIn(doc, hidden={}, unmodelled=Unmodelled(), sample_period_s=T, x0_m=x[0])
     xm, em = standin.step(x, v, a)
-    shadow = ShadowTwin(Twin.compile(doc), cfg, command_velocity=True, travel_m=0.3)
+    shadow = ShadowTwin(
+        Twin.compile(doc), cfg, command_velocity=True, travel_m=0.3, effort_sample=EFFORT_SAMPLE
+    )
     n = len(t)
     arrival = np.full(n, np.nan)
     done = np.full(n, np.nan)

@@ -19,7 +19,7 @@ from feed_twin.analysis.synthetic import Unmodelled
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 from feed_twin.shadow.config import load_shadow_config
 from feed_twin.shadow.health import OK, STALE, WARN
-from feed_twin.shadow.standin import StandIn, program_command
+from feed_twin.shadow.standin import EFFORT_SAMPLE, StandIn, program_command
 from feed_twin.shadow.twin import ResidualBlock, ShadowTwin
 
 T = 1e-3
@@ -70,8 +70,17 @@ def clean(doc) -> dict:
     return machine_run(doc, 3.0)
 
 
-def shadow_of(doc, config, *, command_velocity: bool = True) -> ShadowTwin:
-    return ShadowTwin(Twin.compile(doc), config, command_velocity=command_velocity, travel_m=0.3)
+def shadow_of(
+    doc, config, *, command_velocity: bool = True, effort_sample: str = EFFORT_SAMPLE
+) -> ShadowTwin:
+    """The shadow of the stand-in (its effort: the command issued at each stamp)."""
+    return ShadowTwin(
+        Twin.compile(doc),
+        config,
+        command_velocity=command_velocity,
+        travel_m=0.3,
+        effort_sample=effort_sample,  # type: ignore[arg-type]
+    )
 
 
 def stream_through(shadow: ShadowTwin, run: dict, *, with_velocity: bool = True) -> ResidualBlock:
@@ -90,7 +99,18 @@ def stream_through(shadow: ShadowTwin, run: dict, *, with_velocity: bool = True)
     return ResidualBlock.concat(blocks)
 
 
-def offline(doc: ModelDoc, run: dict, vel: np.ndarray):
+def shadow_without_effort(doc, config) -> ShadowTwin:
+    return ShadowTwin(
+        Twin.compile(doc),
+        config,
+        command_velocity=True,
+        travel_m=0.3,
+        effort_sample=EFFORT_SAMPLE,
+        measured_effort=False,
+    )
+
+
+def offline(doc: ModelDoc, run: dict, vel: np.ndarray, effort_actual: bool = False):
     twin = Twin.compile(doc)
     drive = Drive(
         t_s=run["t"],
@@ -101,19 +121,28 @@ def offline(doc: ModelDoc, run: dict, vel: np.ndarray):
         force_ext_N=None,
         x0_m=float(run["xm"][0]),
         sensor="motor_encoder",
+        effort_actual=effort_actual,
     )
     out = twin.simulate(drive, twin.nominal[None, :])
+    assert out.effort is not None
     return out.x_m[0], out.effort[0]
 
 
-@pytest.mark.parametrize("with_velocity", [True, False])
+@pytest.mark.parametrize(
+    ("with_velocity", "effort_sample"),
+    [(True, "setpoint"), (False, "setpoint"), (True, "actual")],
+)
 def test_streamed_twin_is_bit_identical_to_the_batch_simulation(
-    doc, config, clean, with_velocity
+    doc, config, clean, with_velocity, effort_sample
 ) -> None:
-    shadow = shadow_of(doc, config, command_velocity=with_velocity)
+    """Also with the effort stamped as a drive's actual value (the command of the base tick
+    before each sample), carried across the streamed path's advances: config/emps.yaml runs
+    10 sub-steps per tick (its engine.substeps), both paths alike."""
+    shadow = shadow_of(doc, config, command_velocity=with_velocity, effort_sample=effort_sample)
+    assert shadow.engine.nsub == doc.data["engine"]["substeps"] == 10
     got = stream_through(shadow, clean, with_velocity=with_velocity)
     vel = clean["v"] if with_velocity else np.gradient(clean["x"], T)
-    x_ref, effort_ref = offline(doc, clean, vel)
+    x_ref, effort_ref = offline(doc, clean, vel, effort_actual=effort_sample == "actual")
     assert len(got) == len(clean["t"])
     np.testing.assert_array_equal(got.x_twin_m, x_ref)
     np.testing.assert_array_equal(got.effort_twin, effort_ref)
@@ -231,6 +260,11 @@ def test_sample_period_must_fit_the_model(doc) -> None:
         shadow_of(doc, cfg)
 
 
+def test_the_effort_sample_must_be_one_a_column_map_knows(doc, config) -> None:
+    with pytest.raises(ValueError, match="effort_sample = 'measured': must be one of actual, "):
+        shadow_of(doc, config, effort_sample="measured")
+
+
 def test_command_velocity_is_required_when_configured(doc, config) -> None:
     shadow = shadow_of(doc, config)
     with pytest.raises(ValueError, match="push_command: this twin takes the command velocity"):
@@ -268,9 +302,7 @@ def test_without_measured_effort_the_fe_deviation_warns_and_a_position_effect_is
 
     run = machine_run(doc, 14.0, raise_at_s=7.0)
     run["em"] = np.full_like(run["em"], np.nan)  # the machine reports no effort
-    shadow = ShadowTwin(
-        Twin.compile(doc), config, command_velocity=True, travel_m=0.3, measured_effort=False
-    )
+    shadow = shadow_without_effort(doc, config)
     got = stream_through(shadow, run)
     assert np.isnan(got.effort_dev).all()
     verdicts = shadow.health.verdicts
@@ -290,9 +322,7 @@ def test_a_model_gap_from_the_start_is_said_once_and_is_not_an_alarm(doc, config
     a = np.gradient(run["v"], T)
     run["xm"] = run["xm"] - (5e-6 + 5e-4 * run["v"] + 2e-5 * a)
     run["em"] = np.full_like(run["em"], np.nan)
-    shadow = ShadowTwin(
-        Twin.compile(doc), config, command_velocity=True, travel_m=0.3, measured_effort=False
-    )
+    shadow = shadow_without_effort(doc, config)
     stream_through(shadow, run)
     verdicts = shadow.health.verdicts
     gaps = [v for v in verdicts if v.effect == "model_gap"]

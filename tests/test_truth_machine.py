@@ -28,6 +28,7 @@ from feed_twin.truth import (
 )
 from feed_twin.truth.effects import EFFECTS
 from feed_twin.truth.machine import G_N_KG
+from feed_twin.truth.record import START_M
 from feed_twin.truth.trace import quantise, sample
 
 TRUTH_DIR = Path(feed_twin.__file__).resolve().parent / "truth"
@@ -124,6 +125,26 @@ def test_trace_mean_delay_and_decimation_are_exact() -> None:
     late = sample(y, fast, t, delay_s=0.25e-3, window_s=0.0)
     assert late == pytest.approx([5.0, 13.0, 37.0])
     assert quantise(np.array([1.04e-3, -0.96e-3]), 1e-4) == pytest.approx([1.0e-3, -1.0e-3])
+
+
+def test_a_trace_at_the_nc_rate_records_the_nc_points(tmp_path: Path) -> None:
+    """The recorded command at each stamp is the NC's setpoint of that stamp (to the record's
+    10 nm rounding), not the value held over the current period before it: that one lagged by
+    0.125 ms (25 um at the program's 0.2 m/s), and every record named a setpoint latency the
+    machine did not have."""
+    trace = Trace(effort_noise_A=0.0)
+    rec = make_record(tmp_path / "r.csv", trace=trace)
+    data = np.genfromtxt(rec.csv, delimiter=",", names=True)
+    t_nc, x_nc = command()
+    t = data["time_ms"] * 1e-3
+    inside = t <= t_nc[-1]
+    assert inside.sum() > 10_000  # the whole program, at 1 kHz on the NC's own grid
+    nc_at_stamps = np.interp(t[inside], t_nc, x_nc + START_M)
+    np.testing.assert_allclose(
+        data["x_cmd_mm"][inside] * 1e-3, nc_at_stamps, rtol=0.0, atol=0.5e-8 + 1e-12
+    )
+    stale = np.interp(t[inside] - 0.125e-3, t_nc, x_nc + START_M)
+    assert np.abs(stale - nc_at_stamps).max() > 2e-5  # the test tells the two apart
 
 
 def test_record_rounds_delays_and_flips_as_asked(tmp_path: Path) -> None:

@@ -48,8 +48,9 @@ from feed_twin.analysis.compare import Metrics, align, compute_metrics
 from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
-from feed_twin.analysis.locate import locate
+from feed_twin.analysis.locate import Location, locate
 from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.record_scale import at_record_scale
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.rounds import (
     Context,
@@ -62,12 +63,17 @@ from feed_twin.analysis.rounds import (
     noop,
     run_round,
 )
-from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
+from feed_twin.analysis.timing import split_timing, timing_line
+from feed_twin.analysis.twin import SLOW_COMMAND_S, Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.analysis.visibility import (
+    Unseen,
+    Visibility,
     assess,
     force_constant_correlation,
+    position_resolution,
     smooth_staircases,
+    too_small,
     with_floor,
 )
 from feed_twin.io.measured import EFFORT_UNITS, MeasuredRun
@@ -148,6 +154,11 @@ def diagnose(
     notes = list(run.warnings)
     raw = run
     run, smoothed = smooth_staircases(run)
+    # a slow record is simulated on the model at its scale (analysis.record_scale): the model
+    # the workflow fits and writes from here on
+    scaled: list[str] = []
+    if opts.record_scale:
+        nominal, scaled = at_record_scale(run, nominal, resolution_m=position_resolution(raw))
     drive, twin, out0 = _simulate_nominal(run, nominal, progress)
     timings["nominal_s"] = time.perf_counter() - clock
     check_effort_sign(run, out0)
@@ -156,13 +167,13 @@ def diagnose(
     vis = assess(run, twin, drive.pos_ref_m, out0, raw=raw)
     if vis.blind is not None:
         run = dataclasses.replace(run, effort_blind=vis.blind)
-    said = [*smoothed, *vis.lines()]
+    said = [*smoothed, *scaled, *vis.lines()]
     kt = force_constant_correlation(run, out0, drive.vel_ref_m_s)
     if kt is not None and "torque_constant_error" not in vis.unseen_names:
         said.append(kt)
     for line in said:
         progress(line)
-    notes.extend(smoothed)
+    notes.extend([*smoothed, *scaled])
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
     before = run_metrics(run, out0)
     stride = max(1, len(run.t_s) // opts.fit_samples)
@@ -170,18 +181,9 @@ def diagnose(
     start = twin.first_evidence(drive)
     floors = with_floor(noise_floors(run, out0, start=start), vis)
     meas = weighted_channels(run, out0, stride, floors, start=start)
-    motion = _motion(run, twin, out0)
+    motion = _motion(run, twin, out0, drive)
     re0, rp0 = residuals(run, out0, start=start)
-    location = locate(
-        run.t_s,
-        re0 if re0 is not None else rp0,
-        run["pos_meas_m"],
-        motion.v_m_s,
-        residual_name="effort residual" if re0 is not None else "position residual",
-        unit=twin.effort_unit if re0 is not None else "m",
-        lead_m=twin.lead_m,
-        pole_pairs=twin.pole_pairs,
-    )
+    location = _locate(run, twin, motion, re0, rp0)
     state = State(doc=nominal, twin=twin, outputs=out0, cost=cost_of(meas, out0))
     context = Context(
         run=run,
@@ -207,13 +209,16 @@ def diagnose(
         "seconds": time.perf_counter() - clock,
     }
     after = run_metrics(run, state.outputs)
+    named, timing = split_timing((f.effect for f in state.found), twin.base_period_s)
+    for t in timing:
+        notes.append(timing_line(t, twin.base_period_s))
+        progress(notes[-1])
     leftover = _leftover(run, state.outputs, floors, start, motion)
-    validation, validation_traces = None, None
-    if validate is not None:
-        validate, smoothed_v = smooth_staircases(validate)
-        notes.extend(f"validation: {n}" for n in smoothed_v)
-        validation, validation_traces = _validate(validate, twin, state.twin, progress)
-        notes.extend(validate.warnings)
+    small = _too_small(vis, state, ranking)
+    for u in small:
+        said.append(f"cannot be seen in this record: {u.name}: {u.reason}")
+        progress(said[-1])
+    validation, validation_traces = _validate(validate, twin, state.twin, progress, notes)
     timings["total_s"] = time.perf_counter() - clock
     diagnosis = Diagnosis(
         measured=run.source,
@@ -224,9 +229,9 @@ def diagnose(
         after=after,
         before_trace=_trace("nominal", run, drive, out0),
         after_trace=_trace("augmented", run, drive, state.outputs),
-        effects=tuple(f.effect for f in state.found),
+        effects=tuple(named),
         verdict=verdict(
-            [f.name for f in state.found],
+            [e.name for e in named],
             [u["name"] for u in unfitted],
             leftover,
             [str(d["summary"]) for d in appraisal.drifts],
@@ -242,9 +247,42 @@ def diagnose(
         named_not_fitted=tuple(unfitted),
         notes=tuple(notes),
         timings_s=timings,
-        visibility={**vis.as_dict(), "said": said},
+        visibility={
+            **vis.as_dict(),
+            "said": said,
+            "too_small": {u.name: u.reason for u in small},
+        },
     )
     return diagnosis, state.doc, motion
+
+
+def _locate(
+    run: MeasuredRun,
+    twin: Twin,
+    motion: Motion,
+    re0: np.ndarray | None,
+    rp0: np.ndarray | None,
+) -> Location:
+    """Where the nominal model's residual lives (effort if recorded, else position)."""
+    residual = re0 if re0 is not None else rp0
+    assert residual is not None, "a record has an effort or a position residual"
+    return locate(
+        run.t_s,
+        residual,
+        run["pos_meas_m"],
+        motion.v_m_s,
+        residual_name="effort residual" if re0 is not None else "position residual",
+        unit=twin.effort_unit if re0 is not None else "m",
+        lead_m=twin.lead_m,
+        pole_pairs=twin.pole_pairs,
+    )
+
+
+def _too_small(vis: Visibility, state: State, ranking: list[Candidate]) -> list[Unseen]:
+    """On a slow record, the ranked effects that stayed below its resolution (visibility)."""
+    if vis.sample_period_s <= SLOW_COMMAND_S:
+        return []
+    return list(too_small(vis, [f.name for f in state.found], ranking))
 
 
 def _simulate_nominal(
@@ -261,8 +299,9 @@ def _simulate_nominal(
     return drive, twin, out0
 
 
-def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs) -> Motion:
-    """The measured motion the effects' signatures are built from."""
+def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Motion:
+    """The measured motion the effects' signatures are built from (with the command's
+    velocity the twin was driven with)."""
     effort_name = run.effort_name
     return motion_from_position(
         run.t_s,
@@ -272,6 +311,7 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs) -> Motion:
         pole_pairs=twin.pole_pairs,
         travel_m=max(float(np.ptp(run["pos_meas_m"])), 1e-6),
         current_q_A=run.signals.get("current_q_A"),
+        v_cmd_m_s=drive.vel_ref_m_s,
     )
 
 
@@ -335,9 +375,19 @@ def _leftover(
 
 
 def _validate(
-    validate: MeasuredRun, nominal: Twin, augmented: Twin, progress: Progress
-) -> tuple[dict[str, object], tuple[Trace, Trace]]:
-    """Metrics and traces of the nominal and the augmented twin on a second run."""
+    validate: MeasuredRun | None,
+    nominal: Twin,
+    augmented: Twin,
+    progress: Progress,
+    notes: list[str],
+) -> tuple[dict[str, object] | None, tuple[Trace, Trace] | None]:
+    """Metrics and traces of the nominal and the augmented twin on a second run (its staircases
+    smoothed and its warnings added to `notes`); None without one."""
+    if validate is None:
+        return None, None
+    validate, smoothed_v = smooth_staircases(validate)
+    notes.extend(f"validation: {n}" for n in smoothed_v)
+    notes.extend(validate.warnings)
     progress(f"validating on {validate.source}")
     vdrive = drive_from_run(validate)
     v0 = nominal.simulate(vdrive, nominal.nominal[None, :])

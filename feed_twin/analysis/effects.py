@@ -24,6 +24,7 @@ import numpy as np
 
 from feed_twin.analysis.model_doc import (
     ANALYSIS_SECTION,
+    COMMAND_DELAY_SLOT,
     EFFORT_DELAY_SLOT,
     POLE_PAIRS_KEY,
     POSITION_DELAY_SLOT,
@@ -85,6 +86,11 @@ def _channel_delay_edit(doc: Document, cand: Weights) -> Edit:
     return _record_delay_edit(doc, EFFORT_DELAY_SLOT)
 
 
+def _command_delay_edit(doc: Document, cand: Weights) -> Edit:
+    del cand
+    return _record_delay_edit(doc, COMMAND_DELAY_SLOT)
+
+
 def _position_delay_edit(doc: Document, cand: Weights) -> Edit:
     del cand
     return _record_delay_edit(doc, POSITION_DELAY_SLOT)
@@ -131,6 +137,17 @@ RECORD_EFFECTS = (
         signature=effort_rate,
         edit=_channel_delay_edit,
         truth=_slot_truth(EFFORT_DELAY_SLOT, "delay_s"),
+    ),
+    Effect(
+        name="command_delay",
+        domain="position",
+        words="the drive follows the recorded command later (or earlier) than the twin's "
+        "loops do (its setpoint latency): position and effort both follow the twin's shifted "
+        "in time",
+        parameters="the record: analysis.command_delay_s (command side, before every loop)",
+        signature=_position_rate,
+        edit=_command_delay_edit,
+        truth=_slot_truth(COMMAND_DELAY_SLOT, "delay_s"),
     ),
     Effect(
         name="position_delay",

@@ -1,4 +1,5 @@
-"""The record's own slots searched: the delays of the recorded position and effort, the
+"""The record's own slots searched: the command's delay (the drive's setpoint latency against
+the twin's), the delays of the recorded position and effort, the
 trace's averaging window and a current-offset ripple (analysis.effects' record effects).
 
 The twin runs once; each value is applied to its outputs (Twin.simulate with `record`). The
@@ -6,7 +7,8 @@ delays' first range is +/- DELAY_RECORD_SAMPLES of the record's sample periods, 
 edit's own grid (+/- 20 base periods: a 1 kHz drive's 1.25 ms was too narrow for a 2 ms lag
 between two channels, and a 50 Hz trace's channels drift by tens of milliseconds), searched in
 GRID_POINTS steps, widened (doubled, WIDENINGS times at most) while the best value lies at its
-edge, then refined to half a base period around the best. A best delay still at the edge is
+edge, then refined to half a base period around the best (the command's delay to
+COMMAND_DELAY_STEP of one: it differs by fractions of a tick). A best delay still at the edge is
 said (`AT_EDGE` ends the result's message), not passed off as found. The window is one of the
 two ways controllers export a trace: each sample taken as it is (one base tick) or the mean
 over its sample period (windows in between stood in for the command's reconstruction from its
@@ -19,6 +21,7 @@ import numpy as np
 
 from feed_twin.analysis.fit import FitResult, Measured, SimOutputs, cost_of
 from feed_twin.analysis.model_doc import (
+    COMMAND_DELAY_SLOT,
     EFFORT_DELAY_SLOT,
     POSITION_DELAY_SLOT,
     RIPPLE_SLOTS,
@@ -27,11 +30,18 @@ from feed_twin.analysis.model_doc import (
 from feed_twin.analysis.twin import Drive, Twin, drive_period
 from feed_twin.plant.effect_api import Edit
 
-RECORD_SEARCHED = (EFFORT_DELAY_SLOT, POSITION_DELAY_SLOT, TRACE_WINDOW_SLOT, RIPPLE_SLOTS[0])
+RECORD_SEARCHED = (
+    COMMAND_DELAY_SLOT,
+    EFFORT_DELAY_SLOT,
+    POSITION_DELAY_SLOT,
+    TRACE_WINDOW_SLOT,
+    RIPPLE_SLOTS[0],
+)
 DELAY_RECORD_SAMPLES = 3  # the delays' first range: +/- this many record sample periods
 GRID_POINTS = 41  # values per pass
 WIDENINGS = 3  # the range is doubled at most this often while the best lies at its edge
 AT_EDGE = "at the edge of the range searched"
+COMMAND_DELAY_STEP = 0.025  # the command delay's finest step [base periods]
 
 
 def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
@@ -44,7 +54,9 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
     if slot == TRACE_WINDOW_SLOT:
         return _trace_mode(twin, drive, meas, current)
     reach = max(DELAY_RECORD_SAMPLES * drive_period(drive), max(abs(g) for g in edit.grid))
-    finest = 0.5 * twin.base_period_s
+    # a drive's setpoint latency differs from the twin's by any fraction of a tick: at 0.2 m/s
+    # an eighth of a 1 ms tick is 25 um of position
+    finest = twin.base_period_s * (COMMAND_DELAY_STEP if slot == COMMAND_DELAY_SLOT else 0.5)
     tried: dict[float, tuple[float, SimOutputs]] = {}
 
     def evaluate(values: np.ndarray) -> None:
@@ -57,6 +69,7 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
 
     evaluate(np.array([current]))
     at_edge = False
+    lo, values = -reach, np.linspace(-reach, reach, GRID_POINTS)
     for widening in range(WIDENINGS + 1):
         lo = -reach
         values = np.linspace(lo, reach, GRID_POINTS)

@@ -30,6 +30,7 @@ import numpy as np
 from feed_twin.analysis.fit import SimOutputs
 from feed_twin.analysis.model_doc import (
     ANALYSIS_SECTION,
+    COMMAND_DELAY_SLOT,
     EFFORT_DELAY_SLOT,
     POLE_PAIRS_KEY,
     POSITION_DELAY_SLOT,
@@ -63,6 +64,9 @@ class Drive:
     sensor: str  # motor_encoder or linear_scale
     v0_m_s: float = 0.0  # measured velocity at the start (a record that begins mid-motion)
     trace_mean: bool = False  # each record sample is the mean over its period (a drive trace)
+    # the recorded effort is the one that acted up to its stamp (a measured current), not the
+    # command issued at it (MeasuredRun.effort_sample)
+    effort_actual: bool = True
     # the command at the NC's own period (a program planned for the record): the setpoints
     # are taken from it instead of from the record's samples of pos_ref_m .. acc_ref_m_s2
     plan: PlannedCommand | None = None
@@ -129,6 +133,7 @@ def drive_from_run(run: MeasuredRun) -> Drive:
         sensor=run.position_sensor,
         v0_m_s=start_velocity(run.t_s, run["pos_meas_m"]),
         trace_mean=run.trace_filter == "mean",
+        effort_actual=run.effort_sample == "actual",
         plan=run.plan,
         x_meas_m=run["pos_meas_m"],
     )
@@ -174,7 +179,7 @@ class Twin:
                 nominal[plant.param_index[f"{name}.noise_std"]] = 0.0
         kinds = {e["type"] for e in doc.data["plant"]["components"]}
         has_voltage = "Pmsm" in kinds
-        if "Pmsm" in kinds or "DcMotor" in kinds:
+        if "Pmsm" in kinds or "DcMotor" in kinds or doc.effort_signal() == "current_q_A":
             effort_name, unit = "current_q_A", "A"
         else:
             source = doc.of_type("EffortSource")
@@ -182,7 +187,13 @@ class Twin:
             effort_name, unit = (
                 ("torque_cmd_Nm", "N m") if domain == "rotational" else ("force_cmd_N", "N")
             )
-        nsub = max(min_substeps, _substeps(plant, nominal, controller.base_period_s))
+        # the model's own engine.substeps, when it gives more than stability needs
+        given = (doc.data.get("engine") or {}).get("substeps", 1)
+        if isinstance(given, bool) or not isinstance(given, int) or given < 1:
+            raise ConfigError(
+                f"{doc.source}: engine.substeps = {given!r}: must be a whole number >= 1"
+            )
+        nsub = max(min_substeps, given, _substeps(plant, nominal, controller.base_period_s))
         engine = Engine(
             plant,
             base_period_s=controller.base_period_s,
@@ -370,6 +381,7 @@ class Twin:
         declared = drive_period(drive) if drive.trace_mean else h
         window = self.doc.get(TRACE_WINDOW_SLOT) if self.doc.has_slot(TRACE_WINDOW_SLOT) else None
         return {
+            COMMAND_DELAY_SLOT: self.doc.get(COMMAND_DELAY_SLOT),
             EFFORT_DELAY_SLOT: self.doc.get(EFFORT_DELAY_SLOT),
             POSITION_DELAY_SLOT: self.doc.get(POSITION_DELAY_SLOT),
             TRACE_WINDOW_SLOT: declared if window is None else window,
@@ -426,6 +438,8 @@ class Twin:
             cs0 = self.start_controller(start, ref)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
+            if drive.effort_actual:
+                eff = acted(eff)
             volt = res["out.u_q_ref_V"] if u_q is not None else None
             for j in members:
                 recorded = self._as_recorded(drive, dec, pos, eff, volt, trace[j])
@@ -435,6 +449,24 @@ class Twin:
                     u_q[rows * k + j] = recorded[2][:, :T]
             ok[rows] &= ~res.diverged
         return SimOutputs(x_m=x, effort=effort, ok=np.repeat(ok, k), voltage_q=u_q)
+
+    def sample_means(self, drive: Drive, params: np.ndarray) -> SimOutputs:
+        """Each row of `params` on the drive's command, its position and effort the mean over
+        each record sample's period up to it: what a slow record can resolve of a motion that
+        changes between its samples (a stick-slip of a few milliseconds). The record's own
+        slots (delays, ripple) are not applied; no voltage."""
+        from feed_twin.sim.batch import run_batch
+
+        P = np.array(params, dtype=float, ndmin=2)
+        for row in P:
+            self.plant.fill_derived(row)
+        ref, ext, n, dec = self._cached_inputs(drive, None)
+        start = self._started(drive, None)
+        x0, cs0 = self._x0(start, P[0]), self.start_controller(start, ref)
+        res = run_batch(self.engine, P, n, ref=ref, ext=ext, x0=x0, cs0=cs0)
+        T = len(drive.t_s)
+        pos, eff = (window_mean(y, dec)[:, :T] for y in self._measured_signals(res, 1))
+        return SimOutputs(x_m=pos, effort=eff, ok=~res.diverged, voltage_q=None)
 
     def _command_window(self, drive: Drive, slots: dict[str, float]) -> int | None:
         """The window [base ticks] over which the record's command samples are means, None for
@@ -481,29 +513,29 @@ class Twin:
         """(position, effort, q-voltage) on the record's samples from the base ticks' values,
         as the record's trace takes them (`slots`: Twin.record_slots): each the mean over the
         trace's window ending at its sample (one tick: the tick itself), the position and the
-        effort stamped their delays [s] late."""
+        effort stamped their delays [s] late, every output the command's delay later (a loop
+        that follows its command d later answers d later: the twin is time invariant)."""
         h = self.base_period_s
         ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
-        delays = ((0, slots[POSITION_DELAY_SLOT]), (1, slots[EFFORT_DELAY_SLOT]))
+        common = slots[COMMAND_DELAY_SLOT]
         signals = [pos, self._with_ripple(pos, eff, slots)]
+        delays = [slots[POSITION_DELAY_SLOT] + common, slots[EFFORT_DELAY_SLOT] + common]
+        if volt is not None:
+            signals.append(volt)
+            delays.append(common)
         fine = dec > 1 or ticks > 1
         if fine:
             # on the base ticks: a trace's samples are too far apart to shift a transient by
             # a few milliseconds, and a delay commutes with the trace's mean
-            for i, delay in delays:
-                if delay != 0.0:
-                    signals[i] = delayed(signals[i], h * np.arange(signals[i].shape[1]), delay)
+            fine_t = h * np.arange(pos.shape[1])
+            signals = [_shifted(y, fine_t, d) for y, d in zip(signals, delays, strict=True)]
         if ticks > 1:
             signals = [window_mean(y, dec, ticks) for y in signals]
-            volt = None if volt is None else window_mean(volt, dec, ticks)
         else:
             signals = [y[:, ::dec] for y in signals]
-            volt = None if volt is None else volt[:, ::dec]
         if not fine:
-            for i, delay in delays:
-                if delay != 0.0:
-                    signals[i] = delayed(signals[i], drive.t_s, delay)
-        return signals[0], signals[1], volt
+            signals = [_shifted(y, drive.t_s, d) for y, d in zip(signals, delays, strict=True)]
+        return signals[0], signals[1], signals[2] if volt is not None else None
 
     def _with_ripple(self, pos: np.ndarray, eff: np.ndarray, slots: dict[str, float]):
         """The effort with the ripple of the record's current-sensor offsets (RIPPLE_SLOTS: sin
@@ -581,6 +613,23 @@ def _pole_pairs(doc: ModelDoc) -> int | None:
     return given
 
 
+def _shifted(y: np.ndarray, t_s: np.ndarray, delay: float) -> np.ndarray:
+    return y if delay == 0.0 else delayed(y, t_s, delay)
+
+
+def acted(effort: np.ndarray, before: np.ndarray | None = None) -> np.ndarray:
+    """The effort that acted up to each base tick, from the commands issued at each tick
+    (rows = sets): the controller's command of tick k drives the plant over (k, k + 1], so a
+    drive's actual current (force) sampled at tick k, before that command takes effect, is the
+    command of tick k - 1. At the first tick, `before` (one column: the command of the tick
+    before, for a run continued in pieces) or, at a run's start, the first command (the loop
+    held it at rest)."""
+    out = np.empty_like(effort)
+    out[:, 1:] = effort[:, :-1]
+    out[:, :1] = effort[:, :1] if before is None else before
+    return out
+
+
 def drive_period(drive: Drive) -> float:
     """[s] The record's sample period."""
     return float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
@@ -592,10 +641,15 @@ def _recorded(has_voltage: bool) -> list[str]:
 
 
 def _substeps(plant: Any, p: np.ndarray, h: float) -> int:
-    """The fewest RK4 sub-steps the engine accepts for these parameters (1, 2, 4, ... 64)."""
-    from feed_twin.sim.engine import check_step
+    """The fewest RK4 sub-steps (1, 2, 4, ... 64) the engine accepts for these parameters
+    (the damping slopes, engine.check_step) and that keep RK4 stable on the fastest spring's
+    oscillation (engine.oscillation_rate: h / nsub * omega < RK4_STABILITY_MARGIN)."""
+    from feed_twin.sim.engine import RK4_STABILITY_MARGIN, check_step, oscillation_rate
 
+    omega = oscillation_rate(plant, p)
     for nsub in (1, 2, 4, 8, 16, 32, 64):
+        if h / nsub * omega >= RK4_STABILITY_MARGIN:
+            continue
         try:
             check_step(plant, p, h, nsub)
             return nsub

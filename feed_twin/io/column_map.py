@@ -6,7 +6,7 @@ signal, the file's column, its unit and how to turn it into SI: `(reading - offs
 factor * gain` (a negative gain flips a sign; a current mapped to a force or torque needs its
 constant as gain; `amplitude: rms` turns an RMS current into the peak), motor angles and encoder
 counts through the lead, plus what the axis can do (`plausibility`) and how the recorder made
-a sample (`trace_filter`). feed_twin.io.measured applies it to a file.
+a sample (`trace_filter`, `effort_sample`). feed_twin.io.measured applies it to a file.
 """
 
 from __future__ import annotations
@@ -68,6 +68,7 @@ _DISTURBANCE_SUFFIX = {"_N": "force", "_Nm": "torque", "_A": "current"}
 EFFORT_SIGNALS = ("force_cmd_N", "torque_cmd_Nm", "current_q_A")
 EFFORT_UNITS = {"force_cmd_N": "N", "torque_cmd_Nm": "N m", "current_q_A": "A"}
 VOLTAGE_SIGNALS = ("voltage_d_V", "voltage_q_V")  # the current controller's voltage commands
+EFFORT_SAMPLES = ("actual", "setpoint")  # ColumnMap.effort_sample
 
 
 def canonical_dimension(name: str) -> str:
@@ -177,6 +178,7 @@ class _MapFile:
     time: Any = None  # a ColumnSpec or a RowTime mapping; None: the rate comes from --rate
     conversion: Conversion = field(default_factory=Conversion)
     trace_filter: Literal["none", "mean"] = "none"
+    effort_sample: Literal["actual", "setpoint"] = "actual"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -193,8 +195,17 @@ class ColumnMap:
     # how the recorder made a sample: "none", the signal at the stamp; "mean", its mean over the
     # sample period ending at the stamp (a drive's trace of a faster loop)
     trace_filter: Literal["none", "mean"] = "none"
+    # what the effort column holds at a stamp: "actual", the effort that acted up to it (a
+    # measured current or force, sampled before the drive applies the command of that tick);
+    # "setpoint", the command the controller issued at it (EMPS's control voltage)
+    effort_sample: Literal["actual", "setpoint"] = "actual"
 
     def __post_init__(self) -> None:
+        if self.effort_sample not in EFFORT_SAMPLES:
+            raise ValueError(
+                f"effort_sample = {self.effort_sample!r}: must be one of "
+                f"{', '.join(EFFORT_SAMPLES)}"
+            )
         for name, spec in self.signals:
             _check_convertible(name, spec, self.conversion)
 
@@ -258,6 +269,7 @@ def load_column_map(path: str | Path) -> ColumnMap:
             conversion=raw.conversion,
             source=source,
             trace_filter=raw.trace_filter,
+            effort_sample=raw.effort_sample,
         )
     except ValueError as exc:
         raise ConfigError(f"{source}: {exc}") from None

@@ -156,6 +156,7 @@ class MeasuredRun:
     position_sensor: str
     warnings: tuple[str, ...] = ()
     trace_filter: Literal["none", "mean"] = "none"  # see ColumnMap.trace_filter
+    effort_sample: Literal["actual", "setpoint"] = "actual"  # see ColumnMap.effort_sample
     plan: PlannedCommand | None = None  # the command at the NC's period, if planned
     # the measured position's zero is not known (a command placed from the program, whose
     # offset is only estimated): the position channel compares shapes, not levels
@@ -464,6 +465,7 @@ def build_run(
         position_sensor=cmap.position_sensor,
         warnings=tuple(notes),
         trace_filter=cmap.trace_filter,
+        effort_sample=cmap.effort_sample,
         lines=lines,
         file=source,
     )

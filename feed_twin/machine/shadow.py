@@ -29,7 +29,7 @@ from feed_twin.machine.config import MachineConfig
 from feed_twin.nodeset.run_report import shown
 from feed_twin.shadow.config import ShadowConfig, load_shadow_config
 from feed_twin.shadow.health import LEVEL_NAMES, OK, Verdict
-from feed_twin.shadow.standin import StandIn
+from feed_twin.shadow.standin import EFFORT_SAMPLE, StandIn
 from feed_twin.shadow.twin import ResidualBlock, ShadowTwin
 from feed_twin.sim.program import with_settle
 
@@ -143,6 +143,7 @@ def _shadow_axis(machine: MachineConfig, axis: str, cfg: ShadowConfig, traj) -> 
         cfg,
         command_velocity=True,
         travel_m=nc_axis.travel_max_m - nc_axis.travel_min_m,
+        effort_sample=EFFORT_SAMPLE,
     )
     nominal = {name: standin.parameter(name) for name in standin.friction_parameters()}
     # the sample each step acts from, as the stand-in node plays it (first k * period >= at_s)

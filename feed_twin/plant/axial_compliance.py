@@ -309,6 +309,10 @@ class AxialCompliance(Component):
     def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
         return {"a": slot("d"), "b": slot("d")}
 
+    def stiffness_bound(self, slot: SlotReader) -> float:
+        # bearings and nut in series: the screw section only adds compliance (axial_stiffness)
+        return 1.0 / (1.0 / slot("k_bearing") + 1.0 / slot("k_nut"))
+
     def structure(self) -> tuple:
         return (self.arrangement,)
 

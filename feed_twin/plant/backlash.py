@@ -106,6 +106,9 @@ class Backlash(Component):
     def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
         return {"a": slot("d"), "b": slot("d")}
 
+    def stiffness_bound(self, slot: SlotReader) -> float:
+        return slot("k")
+
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "dynamics":
             emit_two_port(

@@ -182,6 +182,17 @@ class Component:
         del slot
         return {}
 
+    def stiffness_bound(self, slot: SlotReader) -> float:
+        """Largest stiffness between ports a and b [N/m or N m/rad] of a two-port spring, from
+        the parameter values `slot(name)` of the set being run; 0 for none.
+
+        The twin chooses its RK4 sub-steps so that h * omega < RK4_STABILITY_MARGIN for the
+        oscillation omega^2 = k (1/M_a + 1/M_b) this spring makes between its two coordinates
+        (explicit RK4 is stable on the imaginary axis for h |lambda| < 2.83).
+        """
+        del slot
+        return 0.0
+
     def structure(self) -> tuple:
         """What of this component shapes the generated code (beyond its type and ports)."""
         return ()

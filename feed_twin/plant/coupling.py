@@ -55,6 +55,9 @@ class Coupling(Component):
     def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
         return {"a": slot("d"), "b": slot("d")}
 
+    def stiffness_bound(self, slot: SlotReader) -> float:
+        return slot("k")
+
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "dynamics":
             emit_two_port(g, "feed_twin.plant.coupling.spring_damper", (g.p("k"), g.p("d")))

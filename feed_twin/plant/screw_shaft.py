@@ -59,6 +59,9 @@ class ScrewShaft(Component):
     def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
         return {"a": slot("d"), "b": slot("d")}
 
+    def stiffness_bound(self, slot: SlotReader) -> float:
+        return slot("k_t")
+
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "dynamics":
             emit_two_port(g, "feed_twin.plant.coupling.spring_damper", (g.p("k_t"), g.p("d")))

@@ -430,6 +430,7 @@ def build(args: argparse.Namespace, context) -> TwinNode:
         config,
         command_velocity="vel_cmd_m_s" in groups["command"],
         travel_m=cmap.plausibility.travel_m,
+        effort_sample=cmap.effort_sample,
         measured_effort=any(n != "pos_meas_m" for n in groups["measured"]),
     )
     # compile before the first heartbeat: the engine's first advance loads the kernel

@@ -78,6 +78,7 @@ def replay(bag: str | Path, doc: ModelDoc, cmap: ColumnMap, config: ShadowConfig
         config,
         command_velocity="vel_cmd_m_s" in cmd.signals,
         travel_m=cmap.plausibility.travel_m,
+        effort_sample=cmap.effort_sample,
         measured_effort=effort_name is not None,
     )
     start = min(int(cmd.log_time_ns[0]), int(meas.log_time_ns[0]))

@@ -4,9 +4,10 @@ The truth is the nominal model document with hidden effects and unmodelled dynam
 the discrepancy workflow's synthetic-data generator (feed_twin.analysis.synthetic.truth_model:
 the same components the workflow would add, a current-loop lag, the encoder's real count) and
 run on the same engine, one NC period at a time, state kept between calls. The recorded effort
-gets white noise as a real current measurement has. `set_parameter` changes a parameter of the
-running truth (e.g. raises the Coulomb friction to play a worn screw); the change acts from the
-next call on.
+is the command the truth's controller issues at the sample (EFFORT_SAMPLE: a setpoint trace,
+as its column map says) with white noise as a real current measurement has. `set_parameter`
+changes a parameter of the running truth (e.g. raises the Coulomb friction to play a worn
+screw); the change acts from the next call on.
 """
 
 from __future__ import annotations
@@ -24,6 +25,9 @@ from feed_twin.nodeset.roles import node_role
 from feed_twin.shadow.config import StandInConfig
 from feed_twin.shadow.twin import _Rows
 from feed_twin.sim.program import nc_reference
+
+# what the stand-in's effort holds at a stamp (ColumnMap.effort_sample): the command issued at it
+EFFORT_SAMPLE = "setpoint"
 
 
 def program_command(
@@ -135,6 +139,7 @@ signals:
   vel_cmd_m_s: {{column: "{command}:velocity", unit: m/s}}
   pos_meas_m: {{column: "{joints}:position[0]", unit: m}}
 {effort_line}plausibility: {{travel_m: {travel!r}, max_speed_m_s: {speed!r}}}
+effort_sample: {effort_sample}
 """
 EFFORT_LINE = """  {effort}: {{column: "{joints}:effort[0]", unit: {unit}}}
 """
@@ -242,6 +247,7 @@ def write_map(
             effort_line=effort_line if with_effort else "",
             travel=travel_m,
             speed=max_speed_m_s,
+            effort_sample=EFFORT_SAMPLE,
         )
     )
     return path

@@ -13,7 +13,9 @@ twin sample with the machine's measured sample of the same slot:
 plus their RMS over the last `window_s` and the health verdicts of `HealthMonitor`.
 
 Identity with the offline workflow (feed_twin.analysis.twin.Twin.simulate): the same compiled
-twin (smooth sensors, the same sub-steps), the same start (at rest at the measured position of
+twin (smooth sensors, the same sub-steps), the effort stamped as the machine's map says
+(`effort_sample`: the command that acted up to the stamp, carried from one advance to the
+next, or the one issued at it), the same start (at rest at the measured position of
 the first slot), commands held over the slot's base ticks, the velocity (when the
 machine sends none) and the acceleration from `numpy.gradient` over the command samples (central
 differences inside, one-sided at both ends). Central differences need the next command sample,
@@ -34,11 +36,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
-from feed_twin.analysis.twin import Twin
+from feed_twin.analysis.twin import Twin, acted
+from feed_twin.io.column_map import EFFORT_SAMPLES
 from feed_twin.shadow.config import ShadowConfig
 from feed_twin.shadow.health import HealthMonitor, PhysicalEffect, Verdict
 from feed_twin.shadow.stream import SlotStream
@@ -210,9 +213,18 @@ class ShadowTwin:
         *,
         command_velocity: bool,
         travel_m: float,
+        effort_sample: Literal["actual", "setpoint"],
         measured_effort: bool = True,
     ) -> None:
+        if effort_sample not in EFFORT_SAMPLES:
+            raise ValueError(
+                f"effort_sample = {effort_sample!r}: must be one of {', '.join(EFFORT_SAMPLES)}"
+            )
         self.twin = twin
+        # the machine's effort at a stamp is the one that acted up to it (the twin's command
+        # of the base tick before) or the command issued at it (ColumnMap.effort_sample)
+        self.effort_actual = effort_sample == "actual"
+        self._effort_before: np.ndarray | None = None  # the last base tick's command
         self.config = config
         self.engine = twin.engine
         h = config.sample_period_s
@@ -368,6 +380,7 @@ class ShadowTwin:
 
     def _restart(self, x0_m: float) -> None:
         self.engine.reset(x0=self.twin.initial_state(x0_m, self.engine.p))
+        self._effort_before = None
 
     def _derived(self, final: bool) -> tuple[np.ndarray, np.ndarray] | None:
         """(rows [pos, vel, acc], filled) of the slots whose derivatives are decided."""
@@ -402,8 +415,12 @@ class ShadowTwin:
         slots = np.arange(self._next_sim, self._next_sim + n)
         try:
             res = self.engine.advance(n * self.dec, ref=ref)
-            x, eff = self.twin.measured_signals(_Rows(res), self.dec)
-            x_twin, eff_twin = x[0], eff[0]
+            x, eff = self.twin.measured_signals(_Rows(res), 1)  # every base tick
+            if self.effort_actual:
+                issued = eff
+                eff = acted(issued, self._effort_before)
+                self._effort_before = issued[:, -1:]
+            x_twin, eff_twin = x[0, :: self.dec], eff[0, :: self.dec]
         except DivergenceError as exc:
             self.twin_restarts += 1
             self.last_restart_message = str(exc)

@@ -19,6 +19,7 @@ samples as the controller saw them (`meas.<MEAS name>`), the controller outputs
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from types import ModuleType
@@ -407,6 +408,34 @@ def divergence_message(model: PlantModel, status: np.ndarray, h: float) -> str:
         f"simulation diverged at t = {(k + 1) * h:.6g} s (tick {k}): state {state} of {owner} "
         f"= {value!r}, limit {float(model.state_limits[i])!r}"
     )
+
+
+def oscillation_rate(model: PlantModel, p: np.ndarray) -> float:
+    """[rad/s] The fastest oscillation a two-port spring makes between the coordinates of its
+    ports for the parameter vector p (derived slots filled): omega^2 = k (r_a^2 / M_a +
+    r_b^2 / M_b) with each coordinate's inertia M and the port's ratio r to it, the frequency
+    of the two inertias on the spring alone (Component.stiffness_bound; an upper bound where
+    a coordinate is held by more than this spring's inertias). 0 without springs."""
+    fastest = 0.0
+    for name, comp in model.components.items():
+
+        def slot(field: str, name: str = name) -> float:
+            return float(p[model.param_index[f"{name}.{field}"]])
+
+        k = comp.stiffness_bound(slot)
+        if k <= 0.0:
+            continue
+        ends = [model.node_of[f"{name}.{port}"] for port in ("a", "b")]
+        coords = [model.coordinate_of[n] for n in ends]
+        if coords[0] == coords[1]:
+            continue  # both ends move together: the spring is never stretched
+        mobility = 0.0
+        for node, c in zip(ends, coords, strict=True):
+            r = float(p[model.param_index[f"derived.ratio_n{node}"]])
+            inv = float(p[model.param_index[f"derived.inv_inertia.{model.coordinates[c].name}"]])
+            mobility += r * r * inv
+        fastest = max(fastest, math.sqrt(k * mobility))
+    return fastest
 
 
 def check_step(model: PlantModel, p: np.ndarray, h: float, nsub: int) -> None:
