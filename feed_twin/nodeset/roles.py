@@ -189,6 +189,7 @@ ROLES: dict[str, Role] = {
                 "--rerun-url",
                 "--max-time",
                 PEER_TIMEOUT,
+                "--batch-topic",  # beside the LinuxCNC bridge
             ),  # fmt: skip
         ),
         Role(
