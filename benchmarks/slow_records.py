@@ -9,7 +9,9 @@ and actual positions rounded to 1 mm or 0.1 mm, the current to 10 mA. Each recor
 against the truth machine's data sheet (config/truth_nominal.yaml), in-process.
 
 Figures per case: what the record said it cannot see; each hidden effect either named with its
-parameter's error, or listed as not visible (then it must never be named); what else was named;
+parameter's error, or listed as not visible (then it must never be named), or said to show
+too little to be named (visibility.too_small: its signature under the 5 % an effect must
+remove, counted with the not visible); what else was named;
 the diagnose time (rows ~1000). Last printed line: one JSON object.
 
     .venv/bin/python benchmarks/slow_records.py [--seeds 11 12 13] [--resolutions 1e-3 1e-4]
@@ -87,6 +89,8 @@ def one(seed: int, resolution_m: float, workdir: Path) -> dict[str, object]:
     vis = diagnosis.visibility or {}
     unseen = dict(vis.get("cannot_be_seen", {}))
     named = {e.name: e.parameters for e in diagnosis.effects}
+    # a visible effect whose signature shows but is too small to name, said so: listed
+    unseen.update(vis.get("too_small", {}))
     effects: dict[str, object] = {}
     for name in HIDDEN:
         truth = hidden[name][KEY[name]]
@@ -130,7 +134,8 @@ def main() -> None:
                 parts = []
                 for name, e in case["effects"].items():  # type: ignore[union-attr]
                     if not e["visible"]:
-                        parts.append(f"{name}: not visible{', NAMED' if e['named'] else ''}")
+                        what = "too small" if e["reason"].startswith("not named") else "not visible"
+                        parts.append(f"{name}: {what}{', NAMED' if e['named'] else ''}")
                     elif e["named"]:
                         parts.append(f"{name}: {e['fitted']:.4g} vs {e['truth']:.4g}")
                     else:

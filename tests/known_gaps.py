@@ -12,13 +12,6 @@ PLANNER_MOTION = (
     "hides); on the old planner's records the same workflow passes (measured: 18 of 18)"
 )
 
-WORN_GUIDE_MOTION = (
-    "open: the #30 jerk profile changed this program's motion (it passes on the planner before "
-    "it, dbeced3, and fails from 3f52e5b on); in the last health window the machine shadow now "
-    "names viscous_friction +435 % (400 -> 2141 N s/m) for the doubled guide friction: on the "
-    "new window the residual model cannot tell a speed-proportional change from a constant one"
-)
-
 CROSS_COUPLING_FIT = (
     "open, cause measured: the fit takes the drive's voltage references for the stator's "
     "voltage, and they differ by the drive's own voltage errors, which the #30 motion's higher "
@@ -31,12 +24,6 @@ CROSS_COUPLING_FIT = (
     "dead-time compensation acts on phase currents latched 1.5 periods before it is applied. "
     "The motor's own voltages (AxisState) give 3.8-4.27 mH over these four drives: at 1 kHz "
     "the 16 kHz loop's L di/dt is noise; the back-EMF constant fits within 2 %"
-)
-
-STICTION_MOTION = (
-    "issue #27, open: passes on the planner before #30 (dbeced3), fails from 3f52e5b on: on the "
-    "new synthetic motion the EMPS stiction record names coulomb_friction instead of stiction "
-    "(a Stribeck fit beside it is refused for a Stribeck speed above every speed of the record)"
 )
 
 BACKLASH_FIT_BUDGET = (

@@ -99,3 +99,41 @@ def test_a_stribeck_law_above_every_speed_of_the_record_is_no_finding():
         "stribeck_friction was fitted with a Stribeck speed of 1.13 m/s, above every speed of "
         f"the record (at most {v_max:.3g} m/s): not a Stribeck law"
     )
+
+
+def _candidate(name: str, domain: str, share: float):
+    from feed_twin.analysis.effects import BY_NAME
+    from feed_twin.analysis.ranking import Candidate
+
+    return Candidate(
+        effect=BY_NAME[name],
+        variant="",
+        explained_fraction=share,
+        f_statistic=100.0,
+        p_value=1e-9,
+        n_eff=100.0,
+        coefficients={},
+        significant=True,
+        domain=domain,
+    )
+
+
+def test_the_leader_of_every_residual_is_fitted_beside_the_leading_rivals():
+    """Three timings of the record take 98 % of the position residual; a feedback delay in the
+    loop 27 % of the effort's: shares of different residuals do not compare, so it is fitted
+    too (the truth machine's 4 ms feedback delay was named a command delay)."""
+    from feed_twin.analysis.rounds import Options, choose_rivals
+
+    ranked = [
+        _candidate("trace_window", "position", 0.98),
+        _candidate("position_delay", "position", 0.98),
+        _candidate("lead_error", "position", 0.97),
+        _candidate("backlash", "position", 0.46),
+        _candidate("measurement_delay", "effort", 0.27),
+        _candidate("channel_delay", "effort", 0.27),
+    ]
+    chosen = [c.name for c in choose_rivals(ranked, Options())]
+    assert chosen == ["trace_window", "position_delay", "lead_error", "measurement_delay"]
+    # within one residual the share still decides: one rival at half the leader's share
+    chosen = [c.name for c in choose_rivals(ranked[2:5], Options())]
+    assert chosen == ["lead_error", "measurement_delay"]

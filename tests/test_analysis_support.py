@@ -105,3 +105,30 @@ def test_an_effect_whose_fit_fell_back_to_neutral_is_recognised():
     assert fell_back(neutral, start, {"thermal.heating": 5.6e-11, "thermal.phase": 0.9})
     assert not fell_back(neutral, start, {"thermal.heating": 0.5, "thermal.phase": 0.0})
     assert not fell_back(neutral, start, {"thermal.phase": 0.0})  # no size parameter
+
+
+def _lead_error_in_a_smooth_model_error(share: float) -> dict:
+    """A position residual: a 2 um lead error (once per 10 mm revolution) with a smooth model
+    error that no signature explains (a slow wobble), sized so the lead error is `share` of the
+    energy. Sampled at 1 kHz, it is smooth from sample to sample: few effective samples."""
+    t, x = _moves_with_short_rests()
+    m = motion_from_position(t, x, effort_sim=None, lead_m=0.01, pole_pairs=None, travel_m=0.1)
+    lead = 2e-6 * np.sin(2 * np.pi * x / 0.01 + 0.4)
+    wobble = np.sin(2 * np.pi * 0.23 * t + 2.0 * np.sin(2 * np.pi * 0.071 * t))
+    wobble -= wobble.mean()
+    lead_energy = float(np.dot(lead - lead.mean(), lead - lead.mean()))
+    wobble *= np.sqrt(lead_energy * (1.0 - share) / share / float(np.dot(wobble, wobble)))
+    ranked = rank(m, effort_residual=None, position_residual=lead + wobble)
+    return {c.name: c for c in ranked}
+
+
+def test_a_signature_that_explains_most_of_a_smooth_residual_is_fitted_not_vetoed():
+    """A lead error that explains 70 % of a smooth position residual: the screen's AR(1) count
+    of a smooth residual is a handful of samples, so its F-test fails, but the simulation's
+    test is to decide (analysis.ranking, "Dominant"); at 25 % it is not fitted."""
+    lead = _lead_error_in_a_smooth_model_error(0.7)["lead_error"]
+    assert lead.explained_fraction == pytest.approx(0.7, abs=0.1)
+    assert not lead.significant and lead.p_value > 1e-3
+    assert lead.worth_fitting
+    weak = _lead_error_in_a_smooth_model_error(0.25)["lead_error"]
+    assert not weak.significant and not weak.worth_fitting

@@ -28,11 +28,15 @@ LAYERS: tuple[frozenset[str], ...] = (
     # the engines that run plant + control on a program; the independent truth machine (its own
     # equations, only the G-code planner below it)
     frozenset({"sim", "truth"}),
-    frozenset({"analysis", "nodeset"}),  # identification; the node set as plain Python
+    frozenset({"nodeset"}),  # the node set as plain Python (config, wire, controller core)
+    # identification (its reduced model for slow records derives its loops as the controller
+    # node does, nodeset.controller_core)
+    frozenset({"analysis"}),
     frozenset({"shadow"}),  # the shadow twin beside a measured axis
     frozenset({"machine"}),  # several axes
     frozenset({"linuxcnc"}),  # LinuxCNC configs and runs
     frozenset({"native"}),  # compiled backends (HAL component, FMU)
+    frozenset({"launch"}),  # the run plan: processes and their nodes, plain data
     frozenset({"ros"}),  # the thin ROS 2 shells and the runners
     frozenset({"info_cli"}),  # `feed-twin info`
     frozenset({"cli", "__init__"}),  # the command line

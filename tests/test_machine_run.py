@@ -14,8 +14,10 @@ import pytest
 from feed_twin.cli import main as cli_main
 from feed_twin.io.bag import BagError, BagReader
 from feed_twin.io.dashboard import rerun_binary
-from feed_twin.machine.config import load_machine_config
+from feed_twin.machine.config import load_machine_config, load_run_config
 from feed_twin.machine.simulate import simulate_machine
+from feed_twin.sim.config import load_axis_config
+from feed_twin.sim.program import simulate_program
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = ROOT / "config" / "machine_default.yaml"
@@ -54,6 +56,28 @@ def test_machine_run_records_every_axis_and_the_contour_error(tmp_path, capsys):
     subprocess.run([str(rerun_binary()), "rrd", "verify", record["rrd"]], check=True, timeout=60)
 
 
+def test_an_axis_file_runs_in_process_as_a_one_axis_machine(tmp_path, capsys):
+    program = "G90 G54\nG1 X5 F3000\nG0 X0\nM2\n"
+    code, record, _ = run(tmp_path, capsys, program=program, config=AXIS)
+    assert code == 0, record
+    assert record["axes"] == ["x"] and record["mode"] == "axis in-process"
+    machine = load_run_config(AXIS)
+    assert (machine.name, machine.simulated, machine.axis_file) == ("cnc", ("X",), True)
+    expected = simulate_program(load_axis_config(AXIS), tmp_path / "part.ngc", settle_s=0.05)
+    state = BagReader(record["bag"]).columns("/cnc/x/state", ["table_position"])
+    assert np.array_equal(state["table_position"], expected.actual[:, 0])
+
+
+def test_axes_on_an_axis_file_need_in_process(tmp_path, capsys):
+    path = tmp_path / "part.ngc"
+    path.write_text("G1 X5 F3000\n")
+    argv = ["run", str(path), "--config", str(AXIS), "--out", str(tmp_path), "--axes", "X"]
+    assert cli_main([*argv, "--json"]) == 1
+    reason = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["reason"]
+    assert re.fullmatch(r"--axes needs a machine config or --in-process; .*axis_default.yaml is "
+                        r"one axis", reason)  # fmt: skip
+
+
 def test_axes_subset_simulates_only_those(tmp_path, capsys):
     code, record, _ = run(tmp_path, capsys, "--axes", "X,z")
     assert code == 0, record
@@ -71,7 +95,8 @@ def test_axes_subset_simulates_only_those(tmp_path, capsys):
          r"G-code error, nothing was started: .*part.ngc:1:7: word 'A5': unknown word \(axis A"),
         (("--axes", "X,B"), PROGRAM, MACHINE, r"--axes X,B: axis B has no plant"),
         (("--realtime",), PROGRAM, MACHINE, r"--realtime: not available .* run in-process"),
-        (("--axes", "X"), PROGRAM, AXIS, r"--axes needs a machine config; .*axis_default.yaml is"),
+        (("--axes", "Y"), "G1 X5 F3000\n", AXIS,
+         r"--axes Y: axis Y has no plant \(simulated axes: X\)"),
     ],
 )  # fmt: skip
 def test_refusals_are_one_line_before_anything_runs(

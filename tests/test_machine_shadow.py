@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-from known_gaps import WORN_GUIDE_MOTION
 
 from feed_twin.cli import main as cli_main
 from feed_twin.machine.config import load_machine_config
@@ -58,7 +57,6 @@ def test_a_worn_x_guide_warns_on_x_only(tmp_path, capsys):
     assert "shadow x: FE deviation RMS" in out
 
 
-@pytest.mark.xfail(strict=True, reason=WORN_GUIDE_MOTION)
 def test_the_worn_guide_is_estimated_near_its_true_change(tmp_path):
     """Once the health window holds only worn motion, the estimate is the truth's step: the guide
     friction doubles (+100 %). The baseline residual model must stay well-posed on a one-way

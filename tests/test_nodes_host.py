@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from nodes_support import AXIS_CONFIG, node_env
 
+from feed_twin.launch.axis import AxisRunFiles, axis_plan
+from feed_twin.launch.plan import host_argv
+from feed_twin.launch.request import RunRequest
 from feed_twin.nodeset.config import load_node_set_config
 from feed_twin.ros.domain import reserve_domain_id
-from feed_twin.ros.host import host_argv, split_argv, stops_at_first_failure
-from feed_twin.ros.run_cli import _processes
+from feed_twin.ros.host import split_argv, stops_at_first_failure
 
 
 def test_a_host_command_line_names_each_node_with_its_own_arguments() -> None:
@@ -96,12 +98,17 @@ def test_a_bad_host_command_line_exits_with_one_line() -> None:
     ]
 
 
+def _processes(request: RunRequest, ros) -> dict[str, tuple[str, ...]]:
+    files = AxisRunFiles(bag=Path("b"), rrd=Path("b.rrd"), map=Path("b_map.yaml"))
+    return {p.name: p.roles for p in axis_plan(request, ros, files).processes}
+
+
 def test_the_recorder_records_in_the_sims_process_in_lockstep_unless_configured_otherwise() -> None:
     ros = load_node_set_config(AXIS_CONFIG)
     assert ros.recorder_host == "auto"
-    lockstep = argparse.Namespace(shadow=False, no_gcode=False, realtime=False, nc="feed_twin")
-    realtime = argparse.Namespace(shadow=False, no_gcode=False, realtime=True, nc="feed_twin")
-    shadow = argparse.Namespace(shadow=True, no_gcode=False, realtime=False, nc="feed_twin")
+    lockstep = RunRequest(config=AXIS_CONFIG, program=Path("p.ngc"))
+    realtime = dataclasses.replace(lockstep, realtime=True)
+    shadow = dataclasses.replace(lockstep, shadow=True)
     together = {"controller": ("controller",), "sim": ("sim", "recorder"), "gcode": ("gcode",)}
     apart = {r: (r,) for r in ("recorder", "controller", "sim", "gcode")}
     assert _processes(lockstep, ros) == together

@@ -6,13 +6,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from known_gaps import STICTION_MOTION
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.effects import BY_NAME
 from feed_twin.analysis.synthetic import Unmodelled, generate, write_csv
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io.measured import load_measured
+from feed_twin.plant.effect_api import Motion
 from feed_twin.plant.registry import COMPONENT_TYPES
 from feed_twin.plant.stiction_friction import StictionFriction, stiction_force
 
@@ -72,6 +72,41 @@ def test_one_component_file_and_one_registry_line_make_a_library_effect():
     assert BY_NAME["stribeck_friction"].component == "GuideFriction.dF_s, v_s"  # the field
 
 
+def _stops_motion(*, with_command: bool):
+    """+20 mm/s for 0.3 s, a 0.2 s dwell, -20 mm/s for 0.3 s; then a reversal whose table
+    sticks 20 ms while its command turns through zero speed and moves on (+20 mm/s)."""
+    h = 1e-3
+    v_cmd = np.r_[np.full(300, 0.02), np.zeros(200), np.full(300, -0.02), np.full(300, 0.02)]
+    v_cmd[799:801] = 0.0  # the command turns through zero speed
+    v = v_cmd.copy()
+    v[800:820] = 0.0  # the table sticks while the command moves on
+    t = h * np.arange(len(v))
+    return Motion(
+        t_s=t, x_m=np.cumsum(v) * h, v_m_s=v, a_m_s2=np.gradient(v, h), effort_sim=None,
+        lead_m=None, pole_pairs=None, travel_m=0.1,
+        v_cmd_m_s=v_cmd if with_command else None,
+    )  # fmt: skip
+
+
+def test_a_stop_is_held_where_its_command_rests_and_stuck_where_it_moves_on():
+    """The signature splits the rest of each stop by the share of it the command rests too:
+    at a dwell the table holds the force the loop left (held), at a reversal it is stuck while
+    the drive's force swings through the band (stuck); without a command, one regressor."""
+    signature = BY_NAME["stiction"].signature
+    assert signature is not None
+    regs = signature(_stops_motion(with_command=True))
+    dwell, reversal = slice(305, 495), slice(802, 818)
+    assert regs["held"][dwell] == pytest.approx(1.0)  # after the +20 mm/s leg
+    assert regs["stuck"][dwell] == pytest.approx(0.0)
+    # after the -20 mm/s leg: the command rests on 2 of the 21 samples the table stands
+    assert regs["stuck"][reversal] == pytest.approx(-19 / 21)
+    assert regs["held"][reversal] == pytest.approx(-2 / 21)
+    alone = signature(_stops_motion(with_command=False))
+    assert set(alone) == {"held"}
+    assert alone["held"] == pytest.approx(regs["held"] + regs["stuck"])
+    assert np.abs(alone["held"][:300]).max() < 1e-12  # moving: nothing held
+
+
 def _rests(columns, gain: float):
     """(effort, table position) over the second half of each dwell longer than 80 ms."""
     x_cmd = columns["x_cmd_mm"] * 1e-3
@@ -104,7 +139,6 @@ def test_the_table_is_held_at_rest_where_smoothed_coulomb_friction_creeps():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=STICTION_MOTION)
 def test_stiction_is_named_and_takes_over_the_coulomb_friction_found_first(tmp_path):
     nominal = ModelDoc.load(EMPS)
     columns = generate(nominal, {"stiction": {"F_hold_N": F_HOLD}})

@@ -35,6 +35,7 @@ def _run(tmp_path: Path, capsys, config: Path, *extra: str, program: str = PROGR
          "cannot be combined with --single-process"),
         (AXIS, ("--nc", "linuxcnc"), "axis LinuxCNC shadow", "add --shadow"),
         (MACHINE, ("--in-process", "--axes", "X,B"), "machine in-process", "axis B has no plant"),
+        (AXIS, ("--in-process", "--axes", "Y"), "axis in-process", "axis Y has no plant"),
         (MACHINE, ("--single-process",), "machine nodes, one process", "not available"),
         (MACHINE, ("--shadow", "--realtime"), "machine nodes shadow", "--realtime: not available"),
         (MACHINE, ("--nc", "linuxcnc"), "machine LinuxCNC shadow", "add --shadow"),

@@ -9,14 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from feed_twin.analysis.visibility import (
-    Unseen,
-    Visibility,
-    dequantize,
-    resolution,
-    staircase_fraction,
-    with_floor,
-)
+from feed_twin.analysis.rounding import dequantize, resolution, staircase_fraction
+from feed_twin.analysis.visibility import Unseen, Visibility, with_floor
 
 
 @pytest.mark.parametrize("q", [1e-3, 1e-4, 5e-6, 1e-8])
@@ -96,3 +90,43 @@ def test_force_constant_against_friction_and_weight_is_said():
     out = SimOutputs(x_m=t[None, :], effort=inertia[None, :], ok=np.ones(1, bool))
     line = force_constant_correlation(run, out, v)  # type: ignore[arg-type]
     assert line is not None and "the accelerations tell them apart" in line
+
+
+def _viscous_candidate(share: float):
+    from feed_twin.analysis.effects import BY_NAME
+    from feed_twin.analysis.ranking import Candidate
+
+    return Candidate(
+        effect=BY_NAME["viscous_friction"],
+        variant="",
+        explained_fraction=share,
+        f_statistic=20.0,
+        p_value=1e-5,
+        n_eff=500.0,
+        coefficients={"v": 0.5},
+        significant=False,
+        force_per_unit=262.0,  # [N per N m]: 0.5 N m s/m is 131 N s/m
+    )
+
+
+def test_a_visible_viscous_friction_too_small_to_name_is_said():
+    from feed_twin.analysis.visibility import too_small
+
+    vis = Visibility(
+        sample_period_s=0.1,
+        position_resolution_m=1e-3,
+        effort_resolution=0.0,
+        fe_expected_max_m=1e-4,
+        position_evidence=False,
+        velocity_resolution_m_s=0.01,
+        unseen=(),
+    )
+    (said,) = too_small(vis, ["coulomb_friction"], [_viscous_candidate(0.023)])
+    assert said.name == "viscous_friction"
+    assert said.reason == (
+        "not named: its signature explains 2.3 % of the effort residual left (an excess of "
+        "about 1.3e+02 N s/m over the model's), under the 5 % an effect must remove: too small "
+        "against this record's rounding"
+    )
+    assert too_small(vis, ["viscous_friction"], [_viscous_candidate(0.023)]) == []
+    assert too_small(vis, [], [_viscous_candidate(0.08)]) == []  # large enough: a fit's call

@@ -50,6 +50,7 @@ from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
 from feed_twin.analysis.locate import locate
 from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.record_scale import at_record_scale
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
 from feed_twin.analysis.rounds import (
     Context,
@@ -62,12 +63,15 @@ from feed_twin.analysis.rounds import (
     noop,
     run_round,
 )
-from feed_twin.analysis.twin import Drive, ModelDoc, Twin, drive_from_run
+from feed_twin.analysis.timing import split_timing, timing_line
+from feed_twin.analysis.twin import SLOW_COMMAND_S, Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.analysis.visibility import (
     assess,
     force_constant_correlation,
+    position_resolution,
     smooth_staircases,
+    too_small,
     with_floor,
 )
 from feed_twin.io.measured import EFFORT_UNITS, MeasuredRun
@@ -148,6 +152,11 @@ def diagnose(
     notes = list(run.warnings)
     raw = run
     run, smoothed = smooth_staircases(run)
+    # a slow record is simulated on the model at its scale (analysis.record_scale): the model
+    # the workflow fits and writes from here on
+    scaled: list[str] = []
+    if opts.record_scale:
+        nominal, scaled = at_record_scale(run, nominal, resolution_m=position_resolution(raw))
     drive, twin, out0 = _simulate_nominal(run, nominal, progress)
     timings["nominal_s"] = time.perf_counter() - clock
     check_effort_sign(run, out0)
@@ -156,13 +165,13 @@ def diagnose(
     vis = assess(run, twin, drive.pos_ref_m, out0, raw=raw)
     if vis.blind is not None:
         run = dataclasses.replace(run, effort_blind=vis.blind)
-    said = [*smoothed, *vis.lines()]
+    said = [*smoothed, *scaled, *vis.lines()]
     kt = force_constant_correlation(run, out0, drive.vel_ref_m_s)
     if kt is not None and "torque_constant_error" not in vis.unseen_names:
         said.append(kt)
     for line in said:
         progress(line)
-    notes.extend(smoothed)
+    notes.extend([*smoothed, *scaled])
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
     before = run_metrics(run, out0)
     stride = max(1, len(run.t_s) // opts.fit_samples)
@@ -170,7 +179,7 @@ def diagnose(
     start = twin.first_evidence(drive)
     floors = with_floor(noise_floors(run, out0, start=start), vis)
     meas = weighted_channels(run, out0, stride, floors, start=start)
-    motion = _motion(run, twin, out0)
+    motion = _motion(run, twin, out0, drive)
     re0, rp0 = residuals(run, out0, start=start)
     location = locate(
         run.t_s,
@@ -207,7 +216,19 @@ def diagnose(
         "seconds": time.perf_counter() - clock,
     }
     after = run_metrics(run, state.outputs)
+    named, timing = split_timing((f.effect for f in state.found), twin.base_period_s)
+    for t in timing:
+        notes.append(timing_line(t, twin.base_period_s))
+        progress(notes[-1])
     leftover = _leftover(run, state.outputs, floors, start, motion)
+    small = (
+        too_small(vis, [f.name for f in state.found], ranking)
+        if vis.sample_period_s > SLOW_COMMAND_S
+        else []
+    )
+    for u in small:
+        said.append(f"cannot be seen in this record: {u.name}: {u.reason}")
+        progress(said[-1])
     validation, validation_traces = None, None
     if validate is not None:
         validate, smoothed_v = smooth_staircases(validate)
@@ -224,9 +245,9 @@ def diagnose(
         after=after,
         before_trace=_trace("nominal", run, drive, out0),
         after_trace=_trace("augmented", run, drive, state.outputs),
-        effects=tuple(f.effect for f in state.found),
+        effects=tuple(named),
         verdict=verdict(
-            [f.name for f in state.found],
+            [e.name for e in named],
             [u["name"] for u in unfitted],
             leftover,
             [str(d["summary"]) for d in appraisal.drifts],
@@ -242,7 +263,11 @@ def diagnose(
         named_not_fitted=tuple(unfitted),
         notes=tuple(notes),
         timings_s=timings,
-        visibility={**vis.as_dict(), "said": said},
+        visibility={
+            **vis.as_dict(),
+            "said": said,
+            "too_small": {u.name: u.reason for u in small},
+        },
     )
     return diagnosis, state.doc, motion
 
@@ -261,8 +286,9 @@ def _simulate_nominal(
     return drive, twin, out0
 
 
-def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs) -> Motion:
-    """The measured motion the effects' signatures are built from."""
+def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Motion:
+    """The measured motion the effects' signatures are built from (with the command's
+    velocity the twin was driven with)."""
     effort_name = run.effort_name
     return motion_from_position(
         run.t_s,
@@ -272,6 +298,7 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs) -> Motion:
         pole_pairs=twin.pole_pairs,
         travel_m=max(float(np.ptp(run["pos_meas_m"])), 1e-6),
         current_q_A=run.signals.get("current_q_A"),
+        v_cmd_m_s=drive.vel_ref_m_s,
     )
 
 

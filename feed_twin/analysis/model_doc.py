@@ -58,6 +58,10 @@ RIPPLE_SLOTS = (f"{ANALYSIS_SECTION}.effort_ripple_sin", f"{ANALYSIS_SECTION}.ef
 # `analysis.pole_pairs`: the motor's pole pairs, for a twin that models the drive as an effort
 # source (no Pmsm to carry them): the electrical angle of a phase-current offset's ripple
 POLE_PAIRS_KEY = "pole_pairs"
+# `analysis.effort_signal: current_q_A`: an effort-source twin whose command is the drive's
+# q-current [A] (its EffortSource's gain a torque constant): its effort is that current, as a
+# PMSM twin's is (a PMSM axis at a slow record's scale, analysis.record_scale)
+EFFORT_SIGNAL_KEY = "effort_signal"
 COMMAND_DELAY_SLOT = f"{ANALYSIS_SECTION}.command_delay_s"
 EFFORT_DELAY_SLOT = f"{ANALYSIS_SECTION}.effort_delay_s"
 POSITION_DELAY_SLOT = f"{ANALYSIS_SECTION}.position_delay_s"
@@ -118,6 +122,17 @@ class ModelDoc:
     def gain_slot(self) -> str | None:
         found = self.of_type(EffortSource.TYPE)
         return f"{found[0]}.gain" if found else None
+
+    def effort_signal(self) -> str | None:
+        """The recorded effort the model's drive command stands for (EFFORT_SIGNAL_KEY), None
+        where the model's drive says it (a motor's current, an effort source's force)."""
+        given = (self.data.get(ANALYSIS_SECTION) or {}).get(EFFORT_SIGNAL_KEY)
+        if given is not None and given != "current_q_A":
+            raise ConfigError(
+                f"{self.source}: {ANALYSIS_SECTION}.{EFFORT_SIGNAL_KEY} = {given!r}: the only "
+                "effort an effort source's command can stand for is 'current_q_A'"
+            )
+        return given
 
     def base_period(self) -> float:
         """The controller's base period [s] (the engine's tick)."""
@@ -265,12 +280,16 @@ class ModelDoc:
 
     def torque_constant(self) -> float | None:
         """The torque constant [N m/A] of the first Pmsm (its `K_t` = 1.5 p psi_pm) or else the
-        first DcMotor (its `k`), None without a motor."""
+        first DcMotor (its `k`) or else, where the drive command is a current (`effort_signal`),
+        the EffortSource's gain; None without any."""
         motors = self.of_type(Pmsm.TYPE)
         if motors:
             return self.get(f"{motors[0]}.K_t")
         motors = self.of_type(DcMotor.TYPE)
-        return self.get(f"{motors[0]}.k") if motors else None
+        if motors:
+            return self.get(f"{motors[0]}.k")
+        gain = self.gain_slot()
+        return self.get(gain) if gain is not None and self.effort_signal() else None
 
     def force_per_effort(self, effort_unit: str, *, resisting: bool = True) -> float | None:
         """Newtons at the table per unit of the drive's effort in `effort_unit` (N, N m or A).

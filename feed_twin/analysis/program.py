@@ -159,7 +159,9 @@ def command_from_program(
             trial = commanded(delta, offset)
             if warp:
                 assert shifts is not None
-                offset = _refine_blocks(twin, trial, commanded, shifts, moves, delta, offset)
+                offset = _refine_blocks(
+                    twin, trial, commanded, shifts=shifts, moves=moves, delta=delta, offset=offset
+                )
                 trial = commanded(delta, offset)
     shift += delta
     _check_fit(run, program, trial, len(moves))
@@ -171,6 +173,7 @@ def _refine_blocks(
     twin: Any,
     trial: MeasuredRun,
     commanded: Any,
+    *,
     shifts: np.ndarray,
     moves: list[tuple[float, float]],
     delta: float,

@@ -69,6 +69,7 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
 
     evaluate(np.array([current]))
     at_edge = False
+    lo, values = -reach, np.linspace(-reach, reach, GRID_POINTS)
     for widening in range(WIDENINGS + 1):
         lo = -reach
         values = np.linspace(lo, reach, GRID_POINTS)

@@ -179,7 +179,7 @@ class Twin:
                 nominal[plant.param_index[f"{name}.noise_std"]] = 0.0
         kinds = {e["type"] for e in doc.data["plant"]["components"]}
         has_voltage = "Pmsm" in kinds
-        if "Pmsm" in kinds or "DcMotor" in kinds:
+        if "Pmsm" in kinds or "DcMotor" in kinds or doc.effort_signal() == "current_q_A":
             effort_name, unit = "current_q_A", "A"
         else:
             source = doc.of_type("EffortSource")
@@ -449,6 +449,24 @@ class Twin:
                     u_q[rows * k + j] = recorded[2][:, :T]
             ok[rows] &= ~res.diverged
         return SimOutputs(x_m=x, effort=effort, ok=np.repeat(ok, k), voltage_q=u_q)
+
+    def sample_means(self, drive: Drive, params: np.ndarray) -> SimOutputs:
+        """Each row of `params` on the drive's command, its position and effort the mean over
+        each record sample's period up to it: what a slow record can resolve of a motion that
+        changes between its samples (a stick-slip of a few milliseconds). The record's own
+        slots (delays, ripple) are not applied; no voltage."""
+        from feed_twin.sim.batch import run_batch
+
+        P = np.array(params, dtype=float, ndmin=2)
+        for row in P:
+            self.plant.fill_derived(row)
+        ref, ext, n, dec = self._cached_inputs(drive, None)
+        start = self._started(drive, None)
+        x0, cs0 = self._x0(start, P[0]), self.start_controller(start, ref)
+        res = run_batch(self.engine, P, n, ref=ref, ext=ext, x0=x0, cs0=cs0)
+        T = len(drive.t_s)
+        pos, eff = (window_mean(y, dec)[:, :T] for y in self._measured_signals(res, 1))
+        return SimOutputs(x_m=pos, effort=eff, ok=~res.diverged, voltage_q=None)
 
     def _command_window(self, drive: Drive, slots: dict[str, float]) -> int | None:
         """The window [base ticks] over which the record's command samples are means, None for

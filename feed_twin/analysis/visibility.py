@@ -16,10 +16,9 @@ the record can show:
   an inertia whose accelerations last fewer than MIN_ACCEL_SAMPLES samples, a Stribeck region
   below the record's velocity resolution q / h, a viscous friction when the record moves at one
   speed only;
-- a command that is a staircase of rounding (a slow move advances less than one step per
-  sample, so the rounded value stands still between steps) is smoothed through the midpoints
-  of its steps (`dequantize`) before it drives the twin; fed as it is, the twin would stop and
-  go and name a holding friction from it.
+- a command that is a staircase of rounding is smoothed before it drives the twin
+  (analysis.rounding); where the step grows with the value (significant figures), what the
+  record can show is decided at its coarsest step.
 Each effect not searched is listed, with its reason, as "cannot be seen in this record".
 """
 
@@ -32,14 +31,17 @@ import numpy as np
 
 from feed_twin.analysis.effects import CHANNEL_DELAY_PERIODS
 from feed_twin.analysis.fit import SimOutputs
+from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.rounding import (
+    length_text,
+    mixed_steps,
+    position_resolution,
+    resolution,
+    smooth_staircases,
+)
 from feed_twin.analysis.twin import SLOW_COMMAND_S, Twin
 from feed_twin.io.measured import MeasuredRun
 
-# quanta tried by `resolution`: 1, 2, 5 x 10^k m (or A) from 1e-12 to 0.5
-_LADDER = tuple(m * 10.0**k for k in range(-12, 0) for m in (1.0, 2.0, 5.0))
-ON_GRID_FRACTION = 0.98  # a quantum holds when this share of the samples are its multiples
-ON_GRID_TOL = 1e-3  # [quanta] how close to a multiple counts as on it (float noise)
-STAIRCASE_FRACTION = 0.2  # a staircase: this share of the moving samples stand still
 SLOW_RECORD_S = 2e-3  # [s] a record sampled slower than this cannot show a dead time
 DELAY_SAMPLES = 4.0  # a delay search shorter than 1/this of the sample period is not searched
 SILENT_FACTOR = 100.0  # a channel without evidence is weighted at this many resolution steps
@@ -60,74 +62,6 @@ POSITION_EFFECTS = (
 DELAY_EFFECTS = ("channel_delay", "measurement_delay", "position_delay")
 # ripples per motor revolution, with the order of their slowest harmonic
 RIPPLE_ORDERS = {"cogging_torque": 2, "current_offset": 1}
-
-
-def resolution(x: np.ndarray) -> float:
-    """The step [signal unit] a signal is rounded to: the largest quantum of 1, 2 or 5 x 10^k
-    of which nearly all (ON_GRID_FRACTION) of its samples are multiples; 0 for a signal that is
-    not rounded to any (a float computation, a fine encoder). Nearly all, not most: a command
-    that dwells on whole millimetres keeps its finer step, and a log printed to 3 significant
-    figures (0.1 mm below 100 mm, 1 mm above) reads as its finer step."""
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    if len(x) == 0:
-        return 0.0
-    found = 0.0
-    for q in _LADDER:
-        r = x / q
-        if np.mean(np.abs(r - np.round(r)) < ON_GRID_TOL) >= ON_GRID_FRACTION:
-            found = q
-    return found
-
-
-def staircase_fraction(x: np.ndarray, q: float) -> float:
-    """Share of the samples inside slow moves that stand still: between two single steps of q
-    in the same direction, the rounded value holds while the axis moves on."""
-    if q <= 0.0:
-        return 0.0
-    steps = np.flatnonzero(np.diff(x) != 0.0) + 1
-    if len(steps) < 2:
-        return 0.0
-    d = np.diff(x)[steps - 1]
-    single = np.abs(np.abs(d) - q) < 0.5 * q
-    same = (np.sign(d[1:]) == np.sign(d[:-1])) & single[1:] & single[:-1]
-    held = np.sum(np.diff(steps)[same] - 1)
-    moving = np.sum(np.diff(steps)[same])
-    return float(held / moving) if moving else 0.0
-
-
-def dequantize(t: np.ndarray, x: np.ndarray, q: float) -> np.ndarray:
-    """A rounded staircase smoothed through the midpoints of its steps.
-
-    A value rounded to q changes when the true value crosses a midpoint between two levels, so
-    each single step of q marks a point of the true motion: half-way between the two samples,
-    at the mid level. Between two such points in the same direction the axis moved on (linear
-    interpolation); a level held between steps of opposite direction, or at the record's ends,
-    is a rest and is held. Steps of several q (a fast move) keep their samples."""
-    t = np.asarray(t, dtype=float)
-    x = np.asarray(x, dtype=float)
-    change = np.flatnonzero(np.diff(x) != 0.0) + 1
-    if len(change) == 0:
-        return x.copy()
-    d = x[change] - x[change - 1]
-    # a staircase step: one q, with the level held for a sample before or after it (a move
-    # slower than a step per sample); at a step or more per sample the samples are the motion
-    held_before = np.concatenate(([True], np.diff(change) > 1))
-    held_after = np.concatenate((np.diff(change) > 1, [True]))
-    single = (np.abs(np.abs(d) - q) < 0.5 * q) & (held_before | held_after)
-    # a step joins the next when both are single steps in the same direction: a slow move
-    joined = single[1:] & single[:-1] & (np.sign(d[1:]) == np.sign(d[:-1]))
-    knots = [(float(t[0]), float(x[0]))]
-    for j, i in enumerate(change):
-        if not (j > 0 and joined[j - 1]):  # the level before was held up to this step
-            knots.append((float(t[i - 1]), float(x[i - 1])))
-        if single[j]:
-            knots.append((float(0.5 * (t[i - 1] + t[i])), float(0.5 * (x[i - 1] + x[i]))))
-        if not (j + 1 < len(change) and joined[j]):  # the new level is held from here
-            knots.append((float(t[i]), float(x[i])))
-    knots.append((float(t[-1]), float(x[-1])))
-    kt, first = np.unique(np.array([k[0] for k in knots]), return_index=True)
-    return np.interp(t, kt, np.array([k[1] for k in knots])[first])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -165,8 +99,8 @@ class Visibility:
         rate = 1.0 / self.sample_period_s
         head = (
             f"record: {rate:.4g} Hz, position resolution "
-            + (f"{_length(q)}" if q > 0 else "finer than the numbers' precision")
-            + f", following error of the nominal twin up to {_length(self.fe_expected_max_m)}"
+            + (f"{length_text(q)}" if q > 0 else "finer than the numbers' precision")
+            + f", following error of the nominal twin up to {length_text(self.fe_expected_max_m)}"
         )
         out = [head]
         if not self.position_evidence:
@@ -196,60 +130,6 @@ class Visibility:
         }
 
 
-def _length(x: float) -> str:
-    """A length [m] in the unit that reads best, to 2 (mm) or 3 significant figures."""
-    if x >= 1e-3:
-        return f"{x * 1e3:.2g} mm"
-    if x >= 1e-6:
-        return f"{x * 1e6:.3g} um"
-    return f"{x * 1e9:.3g} nm"
-
-
-def smooth_staircases(run: MeasuredRun) -> tuple[MeasuredRun, list[str]]:
-    """The run with its rounded position channels smoothed (module docstring), and a note for
-    each, in a record slower than SLOW_COMMAND_S (whose command the twin interpolates by a
-    cubic): staircases through the midpoints of their steps, then the rounding's jitter at the
-    Nyquist frequency (steps of 1 and 2 q alternating at 1.5 q per sample) removed by the
-    [1 2 1] / 4 filter, which keeps straight moves and rests as they are. Fed as it is, that
-    jitter made the twin's effort at the samples swing by a hundred newtons."""
-    notes = []
-    changed = {}
-    slow = run.sample_period_s > SLOW_COMMAND_S
-    for name in ("pos_cmd_m", "pos_meas_m"):
-        if name not in run:
-            continue
-        x = run[name]
-        q = resolution(x)
-        if q <= 0.0 or not slow:
-            continue
-        share = staircase_fraction(x, q)
-        if share >= STAIRCASE_FRACTION:
-            x = dequantize(run.t_s, x, q)
-        changed[name] = _binomial(x)
-        notes.append(
-            f"{name} is rounded to {_length(q)}"
-            + (
-                f" and a staircase ({100 * share:.0f} % of its samples in slow moves stand "
-                "still): smoothed through the midpoints of its steps, not fed to the twin as "
-                "stop-and-go, and"
-                if share >= STAIRCASE_FRACTION
-                else ":"
-            )
-            + " its rounding jitter filtered ([1 2 1] / 4)"
-        )
-    if not changed:
-        return run, notes
-    return run.with_signals(**changed), notes
-
-
-def _binomial(x: np.ndarray) -> np.ndarray:
-    """[1 2 1] / 4 over the samples, the ends kept: zero gain at the Nyquist frequency, exact
-    on straight lines."""
-    y = x.copy()
-    y[1:-1] = 0.25 * x[:-2] + 0.5 * x[1:-1] + 0.25 * x[2:]
-    return y
-
-
 def assess(
     run: MeasuredRun, twin: Twin, pos_cmd_m: np.ndarray, out0: SimOutputs, *, raw: MeasuredRun
 ) -> Visibility:
@@ -257,7 +137,7 @@ def assess(
     `pos_cmd_m`); `raw`: the run as recorded (before `smooth_staircases`), whose rounding is
     the resolution. See the module docstring for the rules."""
     h = run.sample_period_s
-    q = max(resolution(raw[n]) for n in ("pos_cmd_m", "pos_meas_m") if n in raw)
+    q = position_resolution(raw)
     name = run.effort_name
     qe = resolution(raw[name]) if name is not None else 0.0
     v = np.gradient(pos_cmd_m, h)
@@ -269,17 +149,15 @@ def assess(
     unseen: list[Unseen] = []
     if q > 0.0 and (not position_evidence or q > POSITION_SIGNATURE_M):
         why = (
-            f"its signature on the position (microns) is below the record's resolution {_length(q)}"
+            "its signature on the position (microns) is below the record's resolution "
+            f"{length_text(q)}"
         )
         unseen += [Unseen(name=e, reason=why) for e in POSITION_EFFECTS]
     unseen += _fast_effects(run, twin, speed[moving], h)
     unseen += _slow_motion_effects(twin, v, moving, h, q)
     blind = None
     if "mass_error" in [u.name for u in unseen]:
-        # any acceleration above the rounding's noise, and the samples next to it: the
-        # machine's acceleration lasts part of a sample, the record's is smeared over two
-        accel = _accelerating(v, h, q, factor=BLIND_NOISE_FACTOR)
-        blind = accel | np.roll(accel, 1) | np.roll(accel, -1)
+        blind = unresolved(v, h, q)
         unseen.append(
             Unseen(
                 name="torque_constant_error",
@@ -296,6 +174,7 @@ def assess(
         position_evidence=position_evidence,
         velocity_resolution_m_s=q / h,
         unseen=tuple(unseen),
+        notes=tuple(n for n in (mixed_steps(raw),) if n is not None),
         blind=blind,
     )
 
@@ -382,6 +261,14 @@ def _slow_motion_effects(
     return out
 
 
+def unresolved(v: np.ndarray, h: float, q: float) -> np.ndarray:
+    """Samples whose effort carries an acceleration of the command `v` [m/s] above the
+    rounding's noise, and the samples next to them: the machine's acceleration lasts part of
+    a sample, the record's is smeared over two."""
+    accel = _accelerating(v, h, q, factor=BLIND_NOISE_FACTOR)
+    return accel | np.roll(accel, 1) | np.roll(accel, -1)
+
+
 def _accelerating(
     v: np.ndarray, h: float, q: float, *, factor: float = ACCEL_NOISE_FACTOR
 ) -> np.ndarray:
@@ -417,6 +304,34 @@ def force_constant_correlation(run: MeasuredRun, out0: SimOutputs, v: np.ndarray
     )
 
 
+def too_small(vis: Visibility, named: list[str], ranking: list[Candidate]) -> list[Unseen]:
+    """Visible effects the search did not name although their signature shows, said: a viscous
+    friction whose signature explains some of the effort residual at the final model (the
+    last ranking) but less than the MIN_EXPLAINED an effect must remove to be named (on a
+    1 mm, 10 Hz record the residual is mostly the rounding's, through the twin's inertia, and a
+    small viscous excess drowns in it), with its share and the excess its weight suggests (a
+    low estimate: the sliding friction and the weight take part of it)."""
+    from feed_twin.analysis.significance import MIN_EXPLAINED
+
+    out = []
+    for cand in ranking:
+        if cand.name != "viscous_friction" or cand.name in named + list(vis.unseen_names):
+            continue
+        share = cand.support_fraction or cand.explained_fraction
+        if not 0.0 < share < MIN_EXPLAINED:
+            continue
+        out.append(
+            Unseen(
+                name=cand.name,
+                reason=f"not named: its signature explains {100 * share:.2g} % of the effort "
+                f"residual left (an excess of about {abs(cand.force('v')):.2g} N s/m over the "
+                f"model's), under the {100 * MIN_EXPLAINED:g} % an effect must remove: too "
+                "small against this record's rounding",
+            )
+        )
+    return out
+
+
 def with_floor(floors: dict[str, float], vis: Visibility) -> dict[str, float]:
     """A slow record's noise floors raised to their rounding noise (q / sqrt(12)); a position
     channel without evidence to SILENT_FACTOR times its resolution (it must not steer a fit
@@ -439,9 +354,11 @@ __all__ = [
     "Unseen",
     "Visibility",
     "assess",
-    "dequantize",
     "force_constant_correlation",
+    "position_resolution",
     "resolution",
     "smooth_staircases",
+    "too_small",
+    "unresolved",
     "with_floor",
 ]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import types
 import typing
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
@@ -106,58 +107,62 @@ def _join(path: str, name: str | int) -> str:
 
 def _convert(hint: Any, value: Any, *, source: str, path: str) -> Any:
     origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    where = f"{source}: {path}"
     if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        options = [a for a in args if a is not type(None)]
-        errors = []
-        for option in options:
-            try:
-                return _convert(option, value, source=source, path=path)
-            except ConfigError as exc:
-                errors.append(str(exc))
-        raise ConfigError(
-            errors[0] if len(errors) == 1 else f"{where} = {value!r}: " + "; ".join(errors)
-        )
+        return _convert_union(hint, value, source=source, path=path)
     if origin is Literal:
+        args = typing.get_args(hint)
         if value not in args:
             choices = ", ".join(repr(a) for a in args)
-            raise ConfigError(f"{where} = {value!r}: must be one of {choices}")
+            raise ConfigError(f"{source}: {path} = {value!r}: must be one of {choices}")
         return value
     if origin is tuple:
-        if not isinstance(value, list | tuple):
-            raise ConfigError(f"{where} = {value!r}: expected a list")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(
-                _convert(args[0], v, source=source, path=_join(path, i))
-                for i, v in enumerate(value)
-            )
-        if len(args) != len(value):
-            raise ConfigError(f"{where} = {value!r}: expected {len(args)} entries")
-        return tuple(
-            _convert(a, v, source=source, path=_join(path, i))
-            for i, (a, v) in enumerate(zip(args, value, strict=True))
-        )
+        return _convert_tuple(hint, value, source=source, path=path)
     if isinstance(hint, type) and dataclasses.is_dataclass(hint):
         return from_mapping(hint, value, source=source, path=path)
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{where} = {value!r}: expected a number")
-        return float(value)
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where} = {value!r}: expected a whole number")
-        return value
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where} = {value!r}: expected true or false")
-        return value
-    if hint is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where} = {value!r}: expected a string")
-        return value
     if hint is Any:
         return value
-    raise TypeError(f"from_mapping cannot convert to {hint!r} (field {path})")
+    if hint not in _SCALARS:
+        raise TypeError(f"from_mapping cannot convert to {hint!r} (field {path})")
+    accepts, expected = _SCALARS[hint]
+    if not accepts(value):
+        raise ConfigError(f"{source}: {path} = {value!r}: expected {expected}")
+    return float(value) if hint is float else value
+
+
+# scalar type -> (does a YAML value convert to it, what the message says is expected); a bool
+# is not a number here, although Python's bool is an int
+_SCALARS: dict[Any, tuple[Callable[[Any], bool], str]] = {
+    float: (lambda v: not isinstance(v, bool) and isinstance(v, int | float), "a number"),
+    int: (lambda v: not isinstance(v, bool) and isinstance(v, int), "a whole number"),
+    bool: (lambda v: isinstance(v, bool), "true or false"),
+    str: (lambda v: isinstance(v, str), "a string"),
+}
+
+
+def _convert_union(hint: Any, value: Any, *, source: str, path: str) -> Any:
+    args = typing.get_args(hint)
+    if value is None and type(None) in args:
+        return None
+    errors = []
+    for option in (a for a in args if a is not type(None)):
+        try:
+            return _convert(option, value, source=source, path=path)
+        except ConfigError as exc:
+            errors.append(str(exc))
+    raise ConfigError(
+        errors[0] if len(errors) == 1 else f"{source}: {path} = {value!r}: " + "; ".join(errors)
+    )
+
+
+def _convert_tuple(hint: Any, value: Any, *, source: str, path: str) -> tuple:
+    args = typing.get_args(hint)
+    if not isinstance(value, list | tuple):
+        raise ConfigError(f"{source}: {path} = {value!r}: expected a list")
+    if len(args) == 2 and args[1] is Ellipsis:
+        args = (args[0],) * len(value)
+    elif len(args) != len(value):
+        raise ConfigError(f"{source}: {path} = {value!r}: expected {len(args)} entries")
+    return tuple(
+        _convert(a, v, source=source, path=_join(path, i))
+        for i, (a, v) in enumerate(zip(args, value, strict=True))
+    )

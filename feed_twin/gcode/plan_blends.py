@@ -102,7 +102,10 @@ def corner_blends(
     share_out[:-1] = np.where(keep_off[1:], neighbour, share_out[:-1])
     share_in = np.where(alone, BLEND_SHARE, share_in)
     share_out = np.where(alone, BLEND_SHARE, share_out)
-    final = _blends(moves, limits, flags.tol, du, ndu, corner, stop, share_in, share_out, start)
+    final = _blends(
+        moves, limits, tol=flags.tol, du=du, ndu=ndu, corner=corner, stop=stop,
+        share_in=share_in, share_out=share_out, start=start,
+    )  # fmt: skip
     return CornerBlends(
         corner=corner,
         stop=stop,
@@ -119,6 +122,7 @@ def corner_blends(
 def _blends(
     moves: MoveLimits,
     limits: AxisLimits,
+    *,
     tol: np.ndarray,
     du: np.ndarray,
     ndu: np.ndarray,

@@ -103,9 +103,12 @@ def chain_bodies(
         in_chain = (kind_q[:-1] == CHAIN_ENTRY) | (kind_q[:-1] == CHAIN_CUT_NODE)
     quiet = np.zeros(len(nodes_b), dtype=bool)
     quiet[pos_q] = extended
-    Vc, Ac, Jc = chain_limits(nodes_b, pos_q, blends, moves.u, V, limits, quiet)
+    Vc, Ac, Jc = chain_limits(nodes_b, pos_q, blends, u=moves.u, V=V, limits=limits, quiet=quiet)
     if filtered:
-        Vc, Ac = _eroded(sb[:-1], sa[1:], Vc, Ac, in_chain, extended[:-1], limits.window_s)
+        Vc, Ac = _eroded(
+            sb[:-1], sa[1:], Vc, Ac, in_chain=in_chain, after_extended=extended[:-1],
+            T=limits.window_s,
+        )  # fmt: skip
     cap = blends.cap
     cap_q = cap[node_q].copy()
     cap_q[1:] = np.where(in_chain, np.minimum(cap_q[1:], Vc), cap_q[1:])
@@ -165,6 +168,7 @@ def _eroded(
     hi: np.ndarray,
     V: np.ndarray,
     A: np.ndarray,
+    *,
     in_chain: np.ndarray,
     after_extended: np.ndarray,
     T: float,
@@ -233,6 +237,7 @@ def chain_limits(
     nodes_b: np.ndarray,
     pos_q: np.ndarray,
     blends: CornerBlends,
+    *,
     u: np.ndarray,
     V: np.ndarray,
     limits: AxisLimits,

@@ -85,6 +85,7 @@ class MachineConfig:
     nc: NcConfig
     axes: dict[str, AxisConfig]  # NC axis name -> its plant, engine and controller
     verticals: dict[str, Vertical]  # the vertical axes among them
+    axis_file: bool = False  # an axis YAML run as a one-axis machine (load_run_config)
 
     @property
     def simulated(self) -> tuple[str, ...]:
@@ -110,12 +111,46 @@ class MachineConfig:
             nc=self.nc,
             axes={a: self.axes[a] for a in order},
             verticals={a: v for a, v in self.verticals.items() if a in chosen},
+            axis_file=self.axis_file,
         )
 
 
 def is_machine_config(data: Mapping[str, Any]) -> bool:
     """A machine file has an `axes:` mapping at the top; an axis file has `plant:`."""
     return isinstance(data.get("axes"), Mapping) and "plant" not in data
+
+
+def is_machine_file(path: str | Path) -> bool:
+    """A machine YAML rather than one axis's; an unreadable file is not."""
+    try:
+        return is_machine_config(load_yaml(Path(path)))
+    except ConfigError:
+        return False
+
+
+def load_run_config(path: str | Path) -> MachineConfig:
+    """Any config a run takes as a machine: a machine YAML as `load_machine_config`, an axis
+    YAML as a one-axis machine (its `nc:` section's NC, its `ros.machine` name, its plant as
+    the NC's twin_axis). Errors name the file and field."""
+    if is_machine_config(load_yaml(Path(path))):
+        return load_machine_config(path)
+    return one_axis_machine(load_axis_config(path))
+
+
+def one_axis_machine(axis: AxisConfig) -> MachineConfig:
+    """The axis as a machine of one simulated axis, the NC's twin_axis (its other NC axes, if
+    any, are commands only)."""
+    if axis.nc is None:
+        raise ConfigError(f"{axis.source}: running a program needs an nc: section")
+    nc = nc_config_from_mapping(axis.nc, source=axis.source)
+    ros = axis.ros if isinstance(axis.ros, Mapping) else {}
+    name = ros.get("machine", "cnc")
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ConfigError(
+            f"{axis.source}: ros.machine = {name!r}: must be a ROS name (letters, _, digits)"
+        )
+    return MachineConfig(source=axis.source, name=name, nc=nc, axes={nc.twin_axis: axis},
+                         verticals={}, axis_file=True)  # fmt: skip
 
 
 def load_machine_config(path: str | Path) -> MachineConfig:

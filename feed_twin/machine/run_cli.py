@@ -3,10 +3,10 @@
 By default the machine runs as its ROS node set (feed_twin.ros.machine_run: a sim and a
 controller node per axis, each in its own process; with `--shadow`
 feed_twin.ros.machine_shadow_run: a stand-in and a twin node per axis). With `--in-process` a
-machine config (feed_twin.machine.config) runs every simulated axis of the machine on the
-engine in this process (feed_twin.machine.simulate), in lockstep on the NC's sample grid; the
-program and the config are checked first and a bad one stops the run with one line before
-anything moves. Outputs:
+machine config (feed_twin.machine.config), or an axis config as a one-axis machine
+(`load_run_config`), runs every simulated axis of the machine on the engine in this process
+(feed_twin.machine.simulate), in lockstep on the NC's sample grid; the program and the config
+are checked first and a bad one stops the run with one line before anything moves. Outputs:
 - the bag `<out>/<name>` (rosbag2 MCAP): per NC axis `/<machine>/<axis>/command` (AxisCommand;
   a rotary axis's position in rad), per simulated axis `/<machine>/<axis>/state` (AxisState from
   the engine's signals: setpoint, table truth, motor, currents, voltages, forces), and the
@@ -35,7 +35,7 @@ from feed_twin.core.config import ConfigError
 from feed_twin.io import msg_types
 from feed_twin.io.bag import BagWriter
 from feed_twin.io.cdr import FlatCodec
-from feed_twin.machine.config import MachineConfig, load_machine_config
+from feed_twin.machine.config import MachineConfig, is_machine_file, load_run_config
 from feed_twin.machine.simulate import MachineRun, simulate_machine
 from feed_twin.nodeset.config import StateSignals
 from feed_twin.nodeset.run_report import (
@@ -155,7 +155,7 @@ def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
     if args.program is None:
         return _error(args, "a PROGRAM is needed")
     try:
-        machine = load_machine_config(args.config)
+        machine = load_run_config(args.config)
         if args.axes:
             machine = machine.select(args.axes.split(","))
         validate_program(args.program, machine.nc)
@@ -251,7 +251,7 @@ def _report(
         lines += [format_axis_figures(axis, f) for axis, f in shadow.items()]
         figures["shadow"] = shadow
     return RunReport(
-        mode=mode_name(args, machine=True),
+        mode=mode_name(args, machine=not machine.axis_file),
         exit_code=0,
         bag=str(bag),
         rrd=str(rrd),
@@ -294,5 +294,5 @@ def _shadow(args: argparse.Namespace, machine: MachineConfig) -> dict | str:
 
 def _error(args: argparse.Namespace, message: str) -> int:
     print(f"feed-twin run: {message}", file=sys.stderr)
-    report = early_error_report(mode_name(args, machine=True), message)
+    report = early_error_report(mode_name(args, machine=is_machine_file(args.config)), message)
     return emit(report, json_out=getattr(args, "json", False))

@@ -38,11 +38,6 @@ from feed_twin.nodeset.roles import node_role
 
 RECORDER_PROCESS = "recorder"  # hosts the recorder (and the G-code node beside stand-ins)
 LINUXCNC_PROCESS = "linuxcnc"
-# role in the plan -> its node module: the registry's, with the machine's LinuxCNC bridge
-MODULES = {
-    **{name: node_role(name).module for name in ("recorder", "gcode", "standin", "twin")},
-    "linuxcnc": node_role("machine_linuxcnc").module,
-}
 TWIN = node_role("twin")
 
 
@@ -92,8 +87,8 @@ class ShadowPlan:
     def processes(
         self, *, program: Path, bag: Path, common: list[str]
     ) -> dict[str, list[tuple[str, list[str]]]]:
-        """Process name -> its nodes (role, arguments); `common`: the timeouts every node takes
-        (the peer timeout is added here)."""
+        """Process name -> its nodes (role of feed_twin.nodeset.roles, arguments); `common`: the
+        timeouts every node takes (the peer timeout is added here)."""
         first, others = self.axes[0], self.axes[1:]
         common = [*common, "--peer-timeout", str(PEER_TIMEOUT_S)]
         served = [
@@ -116,8 +111,10 @@ class ShadowPlan:
             argv = ["--config", str(self.files[first]), "--peers", peers, *common, *hub[role]]
             # beside stand-ins the G-code node shares the recorder's process (the machine run's
             # layout); LinuxCNC's bridge has its own
-            name = LINUXCNC_PROCESS if role == "linuxcnc" else RECORDER_PROCESS
-            out.setdefault(name, []).append((role, argv))
+            if role == "linuxcnc":  # the registry's role of the machine's LinuxCNC bridge
+                out[LINUXCNC_PROCESS] = [("machine_linuxcnc", argv)]
+            else:
+                out.setdefault(RECORDER_PROCESS, []).append((role, argv))
         for axis in self.axes:
             for role in self.axis_roles:
                 mates = (*hub_roles, *self.axis_roles)

@@ -23,6 +23,13 @@ from feed_twin.io import msg_types
 Direction = Literal["publishes", "subscribes"]
 # the arguments every node of a run takes (feed_twin/ros/runtime.py node_parser)
 COMMON_ARGUMENTS = ("--config", "--peers", "--startup-timeout", "--input-timeout")
+# a machine's nodes wait longer for a silent peer (feed_twin.machine.nodes.PEER_TIMEOUT_S)
+PEER_TIMEOUT = "--peer-timeout"
+# the arguments of a node that serves further axes of a machine (its G-code node, recorder)
+MACHINE_ARGUMENTS = (PEER_TIMEOUT, "--machine-axes", "--command-axes")
+# the process that hosts several hostable nodes, and the separator of their command lines
+HOST_MODULE = "feed_twin.ros.host"
+HOST_SEPARATOR = "--and"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -91,7 +98,7 @@ ROLES: dict[str, Role] = {
             guarded=False,
             own_node=True,
             topics=_LIVENESS,
-            arguments=("--bag", "--live-url"),
+            arguments=("--bag", "--live-url", "--twin-namespace", *MACHINE_ARGUMENTS),
         ),
         Role(
             name="controller",
@@ -110,6 +117,7 @@ ROLES: dict[str, Role] = {
                 _out("health", msg_types.HEALTH_STATUS),
                 *_LIVENESS,
             ),
+            arguments=("--command-batch", PEER_TIMEOUT),
         ),
         Role(
             name="sim",
@@ -129,7 +137,7 @@ ROLES: dict[str, Role] = {
                 _out("health", msg_types.HEALTH_STATUS),
                 *_LIVENESS,
             ),
-            arguments=("--realtime", "--max-time"),
+            arguments=("--realtime", "--max-time", "--axis-clock", PEER_TIMEOUT),
         ),
         Role(
             name="gcode",
@@ -147,7 +155,14 @@ ROLES: dict[str, Role] = {
                 _in("run_state", msg_types.STRING),  # and the global /clock
                 *_LIVENESS,
             ),
-            arguments=("--program", "--autostart", "--optional-stop"),
+            arguments=(
+                "--program",
+                "--autostart",
+                "--optional-stop",
+                "--axis-clock",
+                "--command-batch",
+                *MACHINE_ARGUMENTS,
+            ),  # fmt: skip
         ),
         Role(
             name="twin",
@@ -164,7 +179,15 @@ ROLES: dict[str, Role] = {
                 _out("residual", msg_types.TWIN_RESIDUAL),
                 _out("health", msg_types.HEALTH_STATUS),
             ),
-            arguments=("--map", "--machine", "--axis", "--rrd", "--rerun-url", "--max-time"),
+            arguments=(
+                "--map",
+                "--machine",
+                "--axis",
+                "--rrd",
+                "--rerun-url",
+                "--max-time",
+                PEER_TIMEOUT,
+            ),  # fmt: skip
         ),
         Role(
             name="standin",
@@ -181,7 +204,19 @@ ROLES: dict[str, Role] = {
                 _out("run_state", msg_types.STRING),
                 *_LIVENESS,
             ),
-            arguments=("--follow", "--machine", "--axis", "--realtime", "--duration"),
+            arguments=(
+                "--follow",
+                "--machine",
+                "--axis",
+                "--realtime",
+                "--duration",
+                "--jitter",
+                "--friction-scale",
+                "--raise-friction-at",
+                "--axis-clock",
+                "--period",
+                PEER_TIMEOUT,
+            ),  # fmt: skip
         ),
         Role(
             name="linuxcnc",
@@ -208,7 +243,7 @@ ROLES: dict[str, Role] = {
             guarded=False,
             own_node=False,
             machine_wide=True,  # one LinuxCNC for every axis of the machine
-            arguments=("--machine-config", "--axes"),
+            arguments=("--machine-config", "--axes", "--program", PEER_TIMEOUT),
         ),
     )
 }

@@ -24,6 +24,8 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 SMOOTH_VELOCITY_S = 0.005  # [s] smoothing window for velocity and acceleration estimates
+# a table is moving, for the direction of its last move, above this many Motion.speed_eps
+MOVING_SPEEDS = 5.0
 
 Domain = Literal["effort", "position", "voltage"]
 
@@ -41,6 +43,7 @@ class Motion:
     pole_pairs: int | None
     travel_m: float  # [m] stroke of the axis (for stiffness that depends on position)
     current_q_A: np.ndarray | None = None  # measured q-current (or its command) [A]
+    v_cmd_m_s: np.ndarray | None = None  # commanded velocity [m/s] (None: the record has none)
 
     @property
     def speed_eps(self) -> float:
@@ -57,6 +60,7 @@ def motion_from_position(
     pole_pairs: int | None,
     travel_m: float,
     current_q_A: np.ndarray | None = None,
+    v_cmd_m_s: np.ndarray | None = None,
 ) -> Motion:
     """Velocity and acceleration from a measured position by Savitzky-Golay differentiation.
 
@@ -79,6 +83,7 @@ def motion_from_position(
         pole_pairs=pole_pairs,
         travel_m=travel_m,
         current_q_A=None if current_q_A is None else np.asarray(current_q_A, dtype=float),
+        v_cmd_m_s=None if v_cmd_m_s is None else np.asarray(v_cmd_m_s, dtype=float),
     )
 
 
@@ -126,7 +131,7 @@ def last_direction(m: Motion) -> np.ndarray:
     side, and it stays there while the axis stands still (friction holds the table), so the
     position error follows the direction of the LAST move, not sign(v), which is 0 at rest.
     """
-    is_moving = np.abs(m.v_m_s) > 5.0 * m.speed_eps
+    is_moving = np.abs(m.v_m_s) > MOVING_SPEEDS * m.speed_eps
     heading = np.where(is_moving, np.sign(m.v_m_s), 0.0)
     last = np.maximum.accumulate(np.where(is_moving, np.arange(len(heading)), 0))
     held = heading[last]

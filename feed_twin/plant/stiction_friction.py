@@ -34,6 +34,7 @@ from numba import njit
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader, StateSpec
 from feed_twin.plant.effect_api import (
+    MOVING_SPEEDS,
     Document,
     Edit,
     Effect,
@@ -70,10 +71,37 @@ def stiction_force(
 
 
 def _held(m: Motion) -> dict[str, np.ndarray]:
-    # at rest the stuck table keeps the force it had when it stopped: the loop stops it short of
-    # the command (or past it, the EMPS loop's proportional velocity law overshoots), the same
-    # way after every move of one direction, so the held force follows the last direction
-    return {"held": last_direction(m) * (1.0 - moving(m))}
+    """At rest the stuck table keeps the force it had when it stopped: the loop stops it short
+    of the command (or past it, the EMPS loop's proportional velocity law overshoots), the same
+    way after every move of one direction, so the held force follows the last direction.
+
+    That holds where the command rests too (a dwell). Where the table stops while its command
+    moves on (a reversal, or the creeping end of a jerk-limited stop), it is stuck while the
+    drive's force swings through the holding band, and a twin whose friction slides reverses
+    at once: there the residual follows the last direction with a size and sign of its own
+    (a jerk-limited reversal sticks for 20-30 ms, about 2 F_hold against the twin; fitted as
+    one with the dwells' held force, it hid the stiction of a record). So, with a command, the
+    rest of each stop is split by the share of it the command rests too: held and stuck.
+    """
+    rest = 1.0 - moving(m)
+    last = last_direction(m)
+    if m.v_cmd_m_s is None:
+        return {"held": last * rest}
+    commanded = _stop_shares(m, rest, 1.0 - np.abs(np.tanh(m.v_cmd_m_s / m.speed_eps)))
+    return {"held": last * rest * commanded, "stuck": last * rest * (1.0 - commanded)}
+
+
+def _stop_shares(m: Motion, rest: np.ndarray, command_rest: np.ndarray) -> np.ndarray:
+    """On each stop of the table (a run of samples below last_direction's moving speed), the
+    rest-weighted mean of `command_rest` over it; 0 while moving."""
+    still = ~(np.abs(m.v_m_s) > MOVING_SPEEDS * m.speed_eps)
+    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
+    share = np.zeros_like(rest)
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        weight = float(np.sum(rest[a:b]))
+        if weight > 0.0:
+            share[a:b] = float(np.dot(rest[a:b], command_rest[a:b])) / weight
+    return share
 
 
 def _edit(doc: Document, cand: Weights) -> Edit:

@@ -34,10 +34,11 @@ from feed_twin.core import signals as sig
 from feed_twin.core.config import ConfigError, load_yaml
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
-from feed_twin.nodeset.config import Boundary, NodeLoopGains
+from feed_twin.nodeset.config import NodeLoopGains
 from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
 from feed_twin.nodeset.nc_buffer import NcBuffer
+from feed_twin.nodeset.node_settings import ControllerSettings
 from feed_twin.nodeset.record_batch import messages_of
 from feed_twin.nodeset.run_end import RunEnd
 from feed_twin.nodeset.topics import CONTROLLER_NODE
@@ -124,21 +125,17 @@ class ControllerNode(FeedTwinNode):
         self,
         options: NodeOptions,
         config: ControllerConfig,
+        settings: ControllerSettings,
         *,
-        boundary: Boundary,
-        exchange_period_s: float,
-        settle_s: float,
-        axis_label: str,
         gains: NodeLoopGains | None = None,
-        exchange_cpu: int = -1,
-        record_batch: int = 0,
-        command_batch: bool = False,
         context=None,
     ) -> None:
         super().__init__(CONTROLLER_NODE, options, context=context)
+        exchange_period_s = settings.exchange_period_s
         self.core = ControllerCore(
-            config, boundary=boundary, exchange_period_s=exchange_period_s, gains=gains
+            config, boundary=settings.boundary, exchange_period_s=exchange_period_s, gains=gains
         )
+        axis_label, command_batch = settings.axis_label, settings.command_batch
         for note in self.core.notes:
             self.get_logger().info(note)
         self.core.warm_up()
@@ -154,19 +151,19 @@ class ControllerNode(FeedTwinNode):
         )
         self.io = MessageIO(axis_label)
         self.nc = NcBuffer()
-        self.end = RunEnd(round(settle_s * NS_PER_S))
+        self.end = RunEnd(round(settings.settle_s * NS_PER_S))
         self._pending: collections.deque[bytes] = collections.deque()
         self._paused = False
         self._meas = np.zeros(sig.MEAS_SIZE)
         self.steps = 0
         self._pub = self.create_publisher(DriveCommand, self.topics.drive_command, DATA_QOS)
         self._record = None
-        if record_batch:
+        if settings.record_batch:
             self._record = RecordSender(
                 self,
                 self.topics.record(CONTROLLER_NODE),
                 self.topics.batched(CONTROLLER_NODE),
-                record_batch,
+                settings.record_batch,
             )
         if command_batch:
             self.create_subscription(
@@ -193,7 +190,7 @@ class ControllerNode(FeedTwinNode):
             msg_types.AXIS_FEEDBACK,
             armed=lambda: self.peers_alive() and self.nc.latest_ns is not None and not self.steps,
         )
-        for note in apply_scheduling(cpu=exchange_cpu):
+        for note in apply_scheduling(cpu=settings.exchange_cpu):
             self.get_logger().info(f"scheduling: {note}")
         outputs = (self._pub,) if self._record is None else (self._record.publisher,)
         self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
@@ -315,14 +312,8 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> Contr
     return ControllerNode(
         options,
         load_node_controller_config(args.config),
-        boundary=ros.boundary,
-        exchange_period_s=ros.exchange_period_s,
-        settle_s=ros.settle_s,
-        axis_label=ros.axis.upper(),
+        ControllerSettings.of(ros, command_batch=args.command_batch),
         gains=ros.node_gains,
-        exchange_cpu=ros.exchange_cpu,
-        record_batch=ros.record_batch,
-        command_batch=args.command_batch,
         context=context,
     )
 

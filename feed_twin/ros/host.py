@@ -22,23 +22,15 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from feed_twin.nodeset.roles import ROLES, roles_where
+from feed_twin.nodeset.roles import HOST_SEPARATOR, ROLES, roles_where
 
 # role -> its node module (feed_twin.nodeset.roles)
 NODE_MODULES = {name: entry.module for name, entry in ROLES.items()}
-AND = "--and"  # separates the nodes on the command line
+AND = HOST_SEPARATOR  # separates the nodes on the command line (launch.plan.host_argv)
 HOSTABLE = roles_where(hostable=True)  # built by node_main's configure/build
 # Roles a process may host several times, each in another axis's namespace: a machine's one
 # controller process holds every axis's controller node (feed_twin/machine/nodes.py).
 REPEATABLE = roles_where(repeatable=True)
-
-
-def host_argv(nodes: Sequence[tuple[str, Sequence[str]]]) -> list[str]:
-    """The command line of `main` for (role, node arguments) pairs."""
-    argv: list[str] = []
-    for role, args in nodes:
-        argv += ([AND] if argv else []) + [role, *args]
-    return argv
 
 
 def split_argv(argv: Sequence[str]) -> list[tuple[str, list[str]]]:

@@ -150,30 +150,34 @@ def launch(
                 p.wait(timeout=10)
         for s, handler in previous.items():
             signal.signal(s, handler)
+    returncodes = {r: p.returncode for r, p in procs.items()}
     if stop.signum is not None:
         code = 130
     elif timed_out:
         code = 1
         reason = f"the run took longer than {deadline_s:g} s; every node was stopped"
-    elif first_failure is None:
-        failed = {r: p.returncode for r, p in procs.items() if p.returncode}
-        if failed:
-            role, code = next(iter(failed.items()))
-            reason = _exit_text(role, code, logs[role])
     else:
-        reason = _exit_text(first_failure, code, logs[first_failure])
-        # What the others said: they name the node they lost.
-        reason += "".join(
-            f"\n  {_exit_text(role, p.returncode, logs[role])}"
-            for role, p in procs.items()
-            if role != first_failure and p.returncode
-        )
-    return Launched(
-        code=code,
-        reason=reason,
-        logs=logs,
-        returncodes={r: p.returncode for r, p in procs.items()},
+        code, reason = _failure(first_failure, code, returncodes, logs)
+    return Launched(code=code, reason=reason, logs=logs, returncodes=returncodes)
+
+
+def _failure(
+    first: str | None, code: int, returncodes: dict[str, int | None], logs: dict[str, Path]
+) -> tuple[int, str]:
+    """The run's exit code and reason after its processes ended: the first failure seen while
+    watching, with what the others said; else the first process that failed at its end."""
+    failed = {r: rc for r, rc in returncodes.items() if rc}
+    if first is None:
+        if not failed:
+            return code, ""
+        first, code = next(iter(failed.items()))
+        return code, _exit_text(first, code, logs[first])
+    reason = _exit_text(first, code, logs[first])
+    # What the others said: they name the node they lost.
+    reason += "".join(
+        f"\n  {_exit_text(role, rc, logs[role])}" for role, rc in failed.items() if role != first
     )
+    return code, reason
 
 
 def _stop_in_order(procs: dict[str, subprocess.Popen], signum: int) -> None:
@@ -225,8 +229,10 @@ def _last_error(log: Path) -> str:
     return "\n    ".join(block)
 
 
-def log_record(log: Path, prefix: str) -> dict | None:
-    """The last `PREFIX {json}` line a node printed."""
+def log_record(log: Path | None, prefix: str) -> dict | None:
+    """The last `PREFIX {json}` line a node printed (None: none, or no log)."""
+    if log is None:
+        return None
     try:
         for line in reversed(log.read_text(errors="replace").splitlines()):
             if line.startswith(f"{prefix} "):

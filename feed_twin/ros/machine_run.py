@@ -29,14 +29,11 @@ from typing import TYPE_CHECKING
 from feed_twin.core.config import ConfigError
 from feed_twin.io import msg_types
 from feed_twin.io.live import show_recording
+from feed_twin.launch.machine import machine_plan
+from feed_twin.launch.plan import RunPlan
+from feed_twin.launch.request import RunRequest
 from feed_twin.machine.config import MachineConfig
-from feed_twin.machine.nodes import (
-    RECORDER_PROCESS,
-    NodePlan,
-    chosen_processes,
-    node_plan,
-    read_machine_bag,
-)
+from feed_twin.machine.nodes import RECORDER_PROCESS, NodePlan, node_plan, read_machine_bag
 from feed_twin.nodeset.run_report import (
     RunReport,
     RunTiming,
@@ -47,14 +44,8 @@ from feed_twin.nodeset.run_report import (
 )
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros import preflight
-from feed_twin.ros.host import NODE_MODULES, host_argv
-from feed_twin.ros.launch import (
-    Launched,
-    foreign_messages,
-    launch,
-    log_record,
-    planned_duration_s,
-)
+from feed_twin.ros.executors import run_processes
+from feed_twin.ros.launch import Launched, foreign_messages, log_record, planned_duration_s
 
 if TYPE_CHECKING:
     from feed_twin.ros.domain import DomainReservation
@@ -84,26 +75,18 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     try:
         plan = node_plan(machine, settle_s=args.settle)
         check_plan(machine, plan.files)
-        common = ["--startup-timeout", str(args.startup_timeout),
-                  "--input-timeout", str(args.input_timeout)]  # fmt: skip
-        processes = plan.processes(
-            program=args.program, bag=bag, realtime=args.realtime, common=common
-        )
-        here = chosen_processes(processes, getattr(args, "start", None))
+        run = machine_plan(plan, RunRequest.from_args(args), bag)
     except (ConfigError, ValueError, OSError) as exc:
         return _error(args, str(exc))
+    here = list(run.names)
     env = dict(os.environ)
     try:
         reservation = preflight.run_environment(args, env)
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
-    clock = next((n for n in here if processes[n][0][0] == "sim"), None)
     total = planned_duration_s(args.program, machine.nc, settle_s=args.settle, json_out=args.json)
-    result = launch_processes(
-        {n: processes[n] for n in here}, logs, env, reservation, clock=clock, quiet=args.json,
-        total_s=total,
-    )  # fmt: skip
-    timing = (log_record(result.logs[clock], "TIMING") or {}) if clock else {}
+    result = run_reserved(run, logs, env, reservation, quiet=args.json, total_s=total)
+    timing = log_record(run.clock_log(result.logs), "TIMING") or {}
     summary, problem = None, ""
     if RECORDER_PROCESS in here:
         summary, problem = _finish(bag, machine, args.program)
@@ -138,34 +121,19 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     return emit(report, json_out=args.json)
 
 
-def launch_processes(
-    processes: dict[str, list[tuple[str, list[str]]]],
+def run_reserved(
+    plan: RunPlan,
     logs: Path,
     env: dict[str, str],
     reservation: DomainReservation | None,
     *,
-    clock: str | None,
     quiet: bool,
-    modules: Mapping[str, str] = NODE_MODULES,
     total_s: float | None = None,
 ) -> Launched:
-    """Start each process (one node: its module from `modules`; several: feed_twin.ros.host),
-    watch them until all have ended (one failing stops the others at once, the recorder last;
-    `clock` shows progress unless `quiet`, `total_s` [s simulated] its 100 %), then release
-    the run's domain reservation."""
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    commands = {}
-    for n, nodes in processes.items():
-        if len(nodes) == 1:
-            role, argv = nodes[0]
-            commands[n] = [sys.executable, "-m", modules[role], *argv]
-        else:
-            commands[n] = [sys.executable, "-m", "feed_twin.ros.host", *host_argv(nodes)]
+    """Run `plan`'s processes (feed_twin.ros.executors.run_processes), then release the run's
+    domain reservation."""
     try:
-        return launch(
-            commands, logs, env=env, progress_role=clock, show_progress=not quiet,
-            stop_on_failure=True, progress_total_s=total_s,
-        )  # fmt: skip
+        return run_processes(plan, logs, env, quiet=quiet, total_s=total_s)
     finally:
         if reservation is not None:
             reservation.release()

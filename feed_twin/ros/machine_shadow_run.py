@@ -27,8 +27,10 @@ import numpy as np
 
 from feed_twin.core.config import ConfigError
 from feed_twin.io.live import show_recording
+from feed_twin.launch.machine import machine_shadow_plan
+from feed_twin.launch.request import RunRequest
 from feed_twin.machine.config import MachineConfig
-from feed_twin.machine.shadow_nodes import MODULES, ShadowPlan, shadow_plan
+from feed_twin.machine.shadow_nodes import ShadowPlan, shadow_plan
 from feed_twin.nodeset.run_report import (
     RunReport,
     RunTiming,
@@ -40,7 +42,7 @@ from feed_twin.nodeset.run_report import (
 )
 from feed_twin.ros import preflight
 from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s
-from feed_twin.ros.machine_run import check_plan, launch_processes, readable_bag
+from feed_twin.ros.machine_run import check_plan, readable_bag, run_reserved
 
 # the node set plays the program in lockstep, all axes in one bag, started here
 REFUSED = ("single_process", "no_gcode", "realtime", "start")
@@ -69,9 +71,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
                 return _error(args, problem)
         plan = shadow_plan(machine, bag, linuxcnc=linuxcnc)
         check_plan(machine, plan.files, shadow=True)
-        common = ["--startup-timeout", str(args.startup_timeout),
-                  "--input-timeout", str(args.input_timeout)]  # fmt: skip
-        processes = plan.processes(program=args.program, bag=bag, common=common)
+        run = machine_shadow_plan(plan, RunRequest.from_args(args), bag)
     except (ConfigError, ValueError, OSError) as exc:
         return _error(args, str(exc))
     env = dict(os.environ)
@@ -79,22 +79,18 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
         reservation = preflight.run_environment(args, env)
     except (ValueError, RuntimeError) as exc:
         return _error(args, str(exc))
-    clock = next(n for n in processes if processes[n][0][0] in ("standin", "linuxcnc"))
     total = planned_duration_s(args.program, machine.nc, json_out=args.json)
-    result = launch_processes(
-        processes, logs, env, reservation, clock=clock, quiet=args.json, modules=MODULES,
-        total_s=total,
-    )  # fmt: skip
+    result = run_reserved(run, logs, env, reservation, quiet=args.json, total_s=total)
     figures, problem = finish(bag, plan)
     code = preflight.exit_status(result.code) if result.code else int(figures is None)
     reason = _named(result.reason, plan)
-    bridge_said = (log_record(result.logs[clock], "LINUXCNC") or {}) if linuxcnc else {}
+    bridge_said = (log_record(run.clock_log(result.logs), "LINUXCNC") or {}) if linuxcnc else {}
     if reason and bridge_said.get("fault"):
         reason = bridge_said["fault"]  # the bridge's own line for a LinuxCNC fault
     for said in (reason, problem):
         if said:
             print(f"feed-twin run: {said}", file=sys.stderr)
-    timing = RunTiming.from_report(log_record(result.logs[clock], "TIMING") or {})
+    timing = RunTiming.from_report(log_record(run.clock_log(result.logs), "TIMING") or {})
     bridge = linuxcnc_figures(bag, plan, bridge_said, figures) if linuxcnc and figures else None
     lines: list[str] = []
     if figures is not None:
@@ -129,7 +125,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
         ros_domain=ros_domain(env),
         samples=timing.steps,
         timing=timing,
-        figures={"processes": list(processes), **extra, **({"linuxcnc": bridge} if bridge else {})},
+        figures={"processes": list(run.names), **extra, **({"linuxcnc": bridge} if bridge else {})},
         figure_lines=tuple(lines),
         foreign_messages=foreign.as_dict(),
     )

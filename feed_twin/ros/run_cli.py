@@ -35,30 +35,22 @@ from typing import TYPE_CHECKING
 
 from feed_twin.core.config import ConfigError
 from feed_twin.io.live import add_live_options, linger, start_live
+from feed_twin.launch.axis import AxisRunFiles, axis_plan
+from feed_twin.launch.plan import RunPlan
+from feed_twin.launch.request import RunRequest
+from feed_twin.machine.config import is_machine_file
 from feed_twin.nodeset.foreign import ForeignLedger, merge
 from feed_twin.nodeset.run_report import emit
-from feed_twin.nodeset.topics import RECORDER_NODE
 from feed_twin.ros import preflight
-from feed_twin.ros.host import NODE_MODULES, build_nodes, host_argv
-from feed_twin.ros.launch import (
-    foreign_messages,
-    launch,
-    log_record,
-    planned_duration_s,
-    slow_line,
-)
+from feed_twin.ros.executors import run_in_this_process, run_processes
+from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s, slow_line
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
     from feed_twin.nodeset.summary import RunSummary
     from feed_twin.shadow.summary import ShadowFigures
 
-ROLES = (RECORDER_NODE, "controller", "sim", "gcode")
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "config" / "axis_default.yaml"
-# --shadow: the stand-in plays the real machine (drive and axis), the twin shadows it
-SHADOW_ROLES = ("recorder", "twin", "standin", "gcode")
-# --nc linuxcnc --shadow: LinuxCNC is the NC and the machine (feed_twin/ros/linuxcnc_node.py)
-LINUXCNC_ROLES = ("recorder", "twin", "linuxcnc")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -178,20 +170,6 @@ def _check_inputs(args: argparse.Namespace):
     return ros, nc
 
 
-def _roles(args: argparse.Namespace) -> tuple[str, ...]:
-    if args.nc == "linuxcnc":
-        return LINUXCNC_ROLES
-    roles = SHADOW_ROLES if args.shadow else ROLES
-    return tuple(r for r in roles if not (r == "gcode" and args.no_gcode))
-
-
-def _clock_role(args: argparse.Namespace) -> str:
-    """The node that sets the pace and reports PROGRESS and TIMING."""
-    if args.nc == "linuxcnc":
-        return "linuxcnc"
-    return "standin" if args.shadow else "sim"
-
-
 def _write_shadow_map(args: argparse.Namespace, ros, nc, out: Outputs) -> None:
     """The column map of the machine's topics (the twin node reads it; so can `replay`)."""
     from feed_twin.analysis.twin import ModelDoc, Twin
@@ -211,95 +189,23 @@ def _write_shadow_map(args: argparse.Namespace, ros, nc, out: Outputs) -> None:
     )
 
 
-def _node_args(role: str, args: argparse.Namespace, ros, out: Outputs) -> list[str]:
-    peers = ",".join(r for r in _roles(args) if r != role)
-    argv = [
-        "--config", str(args.config), "--peers", peers,
-        "--startup-timeout", str(args.startup_timeout),
-        "--input-timeout", str(args.input_timeout),
-    ]  # fmt: skip
-    if role == "recorder":
-        argv += ["--bag", str(out.bag)]
-        if args.live_url and not args.shadow:
-            argv += ["--live-url", args.live_url]
-        if args.shadow:
-            from feed_twin.nodeset.topics import AxisTopics
-            from feed_twin.shadow.replay import twin_namespace
-
-            command = AxisTopics(machine=ros.machine, axis=ros.axis).command
-            argv += ["--twin-namespace", twin_namespace(command)]
-    elif role == "gcode":
-        argv += ["--program", str(args.program), "--autostart"]
-        if args.optional_stop:
-            argv.append("--optional-stop")
-    elif role == "sim":
-        if args.realtime:
-            argv.append("--realtime")
-        if args.max_time is not None:
-            argv += ["--max-time", str(args.max_time)]
-    elif role == "standin":
-        argv += ["--follow", "--machine", ros.machine, "--axis", ros.axis]
-        if args.realtime:
-            argv.append("--realtime")
-    elif role == "linuxcnc":
-        argv += ["--program", str(args.program)]
-    elif role == "twin":
-        argv += ["--map", str(out.map), "--machine", ros.machine, "--axis", ros.axis]
-        argv += ["--rrd", str(out.rrd)]
-        if args.live_url:
-            argv += ["--rerun-url", args.live_url]
-    return argv
-
-
-def _processes(args: argparse.Namespace, ros) -> dict[str, tuple[str, ...]]:
-    """Process name (its log file) -> the roles it hosts: one each, except the recorder
-    recording inside the sim's process with `ros.recorder_host` sim, or auto in lockstep
-    (feed_twin.ros.host)."""
-    roles = _roles(args)
-    own = ros.recorder_host == "own" or (ros.recorder_host == "auto" and args.realtime)
-    if args.shadow or own:
-        return {role: (role,) for role in roles}
-    return {
-        role: (role, RECORDER_NODE) if role == "sim" else (role,)
-        for role in roles
-        if role != RECORDER_NODE
-    }
+def _plan(args: argparse.Namespace, ros, out: Outputs) -> RunPlan:
+    """The run's processes and their nodes (feed_twin.launch.axis)."""
+    files = AxisRunFiles(bag=out.bag, rrd=out.rrd, map=out.map)
+    return axis_plan(RunRequest.from_args(args), ros, files)
 
 
 def _run_processes(args: argparse.Namespace, ros, nc, out: Outputs) -> tuple[int, str, dict]:
-    commands = {}
-    for name, roles in _processes(args, ros).items():
-        if len(roles) == 1:
-            module, node_argv = NODE_MODULES[name], _node_args(name, args, ros, out)
-        else:
-            module = "feed_twin.ros.host"
-            node_argv = host_argv([(r, _node_args(r, args, ros, out)) for r in roles])
-        commands[name] = [sys.executable, "-m", module, *node_argv]
-    env = dict(os.environ)
-    # Discovery stays on this host unless the user chose otherwise.
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    clock = _clock_role(args)
+    plan = _plan(args, ros, out)
     total = planned_duration_s(args.program, nc, settle_s=ros.settle_s, json_out=args.json)
-    result = launch(
-        commands, out.logs, env=env, progress_role=clock, show_progress=not args.json,
-        progress_total_s=total,
-    )  # fmt: skip
+    result = run_processes(plan, out.logs, dict(os.environ), quiet=args.json, total_s=total)
     out.foreign = foreign_messages(result.logs.values())
-    return result.code, result.reason, _timing(result.logs[clock])
-
-
-def _timing(log: Path) -> dict:
-    return log_record(log, "TIMING") or {}
+    return result.code, result.reason, log_record(plan.clock_log(result.logs), "TIMING") or {}
 
 
 def _run_single_process(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
     """The same nodes, built by their own modules from the same arguments, in one executor."""
-    from feed_twin.ros.dds import init_context
-    from feed_twin.ros.runtime import spin_nodes
-
-    context = init_context()
-    nodes = build_nodes([(r, _node_args(r, args, ros, out)) for r in _roles(args)], context)
-    code = spin_nodes(nodes, context, until_all_done=True)
+    code, nodes = run_in_this_process(_plan(args, ros, out))
     out.foreign = merge([n.foreign_record().as_dict() for n in nodes])
     reason = next((n.exit_message for n in nodes if n.exit_code and n.exit_message), "")
     sim = next(n for n in nodes if n.role == "sim")
@@ -432,48 +338,20 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from feed_twin.gcode import GcodeError
-
     problem = _name_and_out(args)
     if problem:
         return _early_error(args, problem)
-    if _is_machine_config(args.config):
-        return _main_machine(args)
-    if args.axes is not None or args.in_process:
-        option = "--axes" if args.axes is not None else "--in-process"
-        return _early_error(args, f"{option} needs a machine config; {args.config} is one axis")
+    if is_machine_file(args.config) or args.in_process:
+        return _main_machine(args)  # in-process, an axis file runs as a one-axis machine
     if args.program is None and not args.no_gcode:
         print(
             "feed-twin run: a PROGRAM is needed (or --no-gcode for an external NC)", file=sys.stderr
         )
         return 2
-    if args.shadow and (args.single_process or args.no_gcode):
-        return _early_error(
-            args,
-            "--shadow runs the G-code node, the stand-in machine and the twin as separate "
-            "processes: it cannot be combined with --single-process or --no-gcode",
-        )
-    if args.nc == "linuxcnc":
-        problem = _linuxcnc_precheck(args)
-        if problem:
-            return _early_error(args, problem)
-    try:
-        ros, nc = _check_inputs(args)
-        preflight.check_output_dir(args.out, preflight.estimate_run_bytes(args, ros, nc))
-    except GcodeError as exc:
-        return _early_error(args, f"G-code error, nothing was started: {exc}")
-    except (ConfigError, ValueError, OSError) as exc:
-        return _early_error(args, str(exc))
-    out = _outputs(args)
-    try:
-        reservation = preflight.run_environment(args, os.environ)
-    except (ValueError, RuntimeError) as exc:
-        return _early_error(args, str(exc))
-    if args.shadow:
-        try:
-            _write_shadow_map(args, ros, nc, out)
-        except (ConfigError, ValueError, OSError) as exc:
-            return _early_error(args, str(exc))
+    prepared = _option_problem(args) or _prepare(args)
+    if isinstance(prepared, str):
+        return _early_error(args, prepared)
+    ros, nc, out, reservation = prepared
     try:
         if args.single_process:
             code, reason, timing = _run_single_process(args, ros, out)
@@ -486,21 +364,68 @@ def _run(args: argparse.Namespace) -> int:
         preflight.end_environment(os.environ)
     code = 1 if code == 0 and summary is None else preflight.exit_status(code)
     reason = preflight.explain(reason, out, ros, args.program)
+    reason = _said(args, out, code, reason, problem if summary is None else "")
+    preflight.remove_incomplete_rrd(out.rrd)
+    report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
+    return emit(report, json_out=args.json)
+
+
+def _option_problem(args: argparse.Namespace) -> str:
+    """Why the axis run's options cannot run together ("" when they can)."""
+    if args.axes is not None:
+        return f"--axes needs a machine config or --in-process; {args.config} is one axis"
+    if args.shadow and (args.single_process or args.no_gcode):
+        return (
+            "--shadow runs the G-code node, the stand-in machine and the twin as separate "
+            "processes: it cannot be combined with --single-process or --no-gcode"
+        )
+    return (_linuxcnc_precheck(args) or "") if args.nc == "linuxcnc" else ""
+
+
+def _prepare(args: argparse.Namespace):
+    """The checked config sections, the outputs, the run's domain and (shadow) the column map;
+    or the one line why not, before any node started."""
+    from feed_twin.gcode import GcodeError
+
+    try:
+        ros, nc = _check_inputs(args)
+        preflight.check_output_dir(args.out, preflight.estimate_run_bytes(args, ros, nc))
+    except GcodeError as exc:
+        return f"G-code error, nothing was started: {exc}"
+    except (ConfigError, ValueError, OSError) as exc:
+        return str(exc)
+    out = _outputs(args)
+    try:
+        reservation = preflight.run_environment(args, os.environ)
+    except (ValueError, RuntimeError) as exc:
+        return str(exc)
+    if args.shadow:
+        try:
+            _write_shadow_map(args, ros, nc, out)
+        except (ConfigError, ValueError, OSError) as exc:
+            if reservation is not None:
+                reservation.release()
+            preflight.end_environment(os.environ)
+            return str(exc)
+    return ros, nc, out, reservation
+
+
+def _said(args: argparse.Namespace, out: Outputs, code: int, reason: str, problem: str) -> str:
+    """Print why the run ended as it did (interrupted, a node's reason, what kept the figures
+    from the bag, slow nodes); returns the reason (for LinuxCNC, the bridge's own line for its
+    fault)."""
     if code == 130:
         print("feed-twin run: interrupted: the figures below cover the run until the stop")
     if reason and args.nc == "linuxcnc":
         # the bridge's own line for a LinuxCNC fault, without the log record's prefix
         reason = (log_record(out.logs / "linuxcnc.log", "LINUXCNC") or {}).get("fault") or reason
-    if reason:
-        print(f"feed-twin run: {reason}", file=sys.stderr)
-    if summary is None and problem:
-        print(f"feed-twin run: {problem}", file=sys.stderr)
+    for said in (reason, problem):
+        if said:
+            print(f"feed-twin run: {said}", file=sys.stderr)
     slow = slow_line(out.logs)
     if slow:
         print(f"feed-twin run: {slow}", file=sys.stderr)
-    preflight.remove_incomplete_rrd(out.rrd)
-    report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
-    return emit(report, json_out=args.json)
+    return reason
 
 
 def _main_machine(args: argparse.Namespace) -> int:
@@ -533,7 +458,7 @@ def _name_and_out(args: argparse.Namespace) -> str:
     stem = args.program.stem if args.program is not None else "external"
     try:
         args.name = preflight.run_name(args.out, args.name, stem, time.strftime("%Y%m%d_%H%M%S"))
-        if _is_machine_config(args.config):
+        if is_machine_file(args.config):
             # the machine's bag is sized by its axes' nodes; here: that --out takes files
             preflight.check_output_dir(args.out, 0)
     except ConfigError as exc:
@@ -599,21 +524,10 @@ def _linuxcnc_precheck(args: argparse.Namespace) -> str | None:
         return str(exc)
 
 
-def _is_machine_config(path: Path) -> bool:
-    """A machine YAML (feed_twin.machine.config) rather than one axis's; unreadable: no."""
-    from feed_twin.core.config import load_yaml
-    from feed_twin.machine.config import is_machine_config
-
-    try:
-        return is_machine_config(load_yaml(path))
-    except ConfigError:
-        return False
-
-
 def _early_error(args: argparse.Namespace, message: str) -> int:
     """A run refused before anything started: the reason, then the report of every mode."""
     from feed_twin.nodeset.run_report import early_error_report, emit, mode_name
 
     print(f"feed-twin run: {message}", file=sys.stderr)
-    machine = _is_machine_config(args.config)
+    machine = is_machine_file(args.config)
     return emit(early_error_report(mode_name(args, machine=machine), message), json_out=args.json)

@@ -587,6 +587,52 @@ def _cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+def _spun_enough(
+    nodes: Sequence[FeedTwinNode],
+    signalled_at: float | None,
+    until_all_done: bool,
+    stop_on_failure: bool,
+) -> bool:
+    """Whether `spin_nodes` stops spinning (its docstring)."""
+    if signalled_at is not None:
+        # After a signal, nodes that drain (the recorder) finish on their own.
+        return all(n.done for n in nodes) or time.monotonic() - signalled_at > SIGNAL_DRAIN_S
+    if until_all_done:
+        failed = stop_on_failure and any(n.exit_code not in (None, EXIT_OK) for n in nodes)
+        return failed or all(n.done for n in nodes)
+    return any(n.done for n in nodes)
+
+
+def _shut_down(nodes: Sequence[FeedTwinNode], reason: str) -> None:
+    """Every node's `on_shutdown`, its foreign ledger, its heartbeat stopped; then the wait for
+    the acknowledgements of what the nodes published."""
+    for node in nodes:
+        try:
+            node.on_shutdown(reason)
+        except Exception as exc:  # noqa: BLE001 - one node's cleanup must not skip another's
+            print(f"{node.role}: error while shutting down: {exc}", file=sys.stderr)
+    for node in nodes:
+        ledger = node.foreign_record()
+        if ledger.topics:
+            print(ledger.log_line(), file=sys.stderr, flush=True)
+    # A finished node stops beating: a recorder sharing this process has closed its bag, and
+    # the ack wait below (here and in other processes) must not take it for alive.
+    for node in nodes:
+        node.liveness.stop()
+    # Reliable data still in flight (the end-of-run message, the last samples) reaches the
+    # recorder only while the writers exist: wait for the acknowledgements while the
+    # recorder is alive (it may lag behind on a busy host), briefly once it is gone.
+    started = time.monotonic()
+    pending = [p for n in nodes for p in n.publishers]
+    while pending and time.monotonic() - started < ACK_WAIT_ALIVE_S:
+        slice_ = Duration(nanoseconds=50_000_000)
+        with contextlib.suppress(Exception):
+            pending = [p for p in pending if not p.wait_for_all_acked(slice_)]
+        waited = time.monotonic() - started
+        if waited > ACK_WAIT_S and not any(n.recorder_alive() for n in nodes):
+            break
+
+
 def spin_nodes(
     nodes: Sequence[FeedTwinNode],
     context: Context,
@@ -620,15 +666,7 @@ def spin_nodes(
                 name = signal.Signals(flag.received).name
                 for node in nodes:
                     node.on_signal(name)
-            if signalled_at is not None:
-                # After a signal, nodes that drain (the recorder) finish on their own.
-                if all(n.done for n in nodes) or time.monotonic() - signalled_at > SIGNAL_DRAIN_S:
-                    break
-            elif until_all_done:
-                failed = stop_on_failure and any(n.exit_code not in (None, EXIT_OK) for n in nodes)
-                if failed or all(n.done for n in nodes):
-                    break
-            elif any(n.done for n in nodes):
+            if _spun_enough(nodes, signalled_at, until_all_done, stop_on_failure):
                 break
             waits = [w for w in (n.poll() for n in nodes) if w is not None]
             if stall_dump_s > 0.0:
@@ -641,31 +679,7 @@ def spin_nodes(
             if flag.received is not None
             else next((n.exit_message for n in nodes if n.done and n.exit_message), "")
         )
-        for node in nodes:
-            try:
-                node.on_shutdown(reason)
-            except Exception as exc:  # noqa: BLE001 - one node's cleanup must not skip another's
-                print(f"{node.role}: error while shutting down: {exc}", file=sys.stderr)
-        for node in nodes:
-            ledger = node.foreign_record()
-            if ledger.topics:
-                print(ledger.log_line(), file=sys.stderr, flush=True)
-        # A finished node stops beating: a recorder sharing this process has closed its bag, and
-        # the ack wait below (here and in other processes) must not take it for alive.
-        for node in nodes:
-            node.liveness.stop()
-        # Reliable data still in flight (the end-of-run message, the last samples) reaches the
-        # recorder only while the writers exist: wait for the acknowledgements while the
-        # recorder is alive (it may lag behind on a busy host), briefly once it is gone.
-        started = time.monotonic()
-        pending = [p for n in nodes for p in n.publishers]
-        while pending and time.monotonic() - started < ACK_WAIT_ALIVE_S:
-            slice_ = Duration(nanoseconds=50_000_000)
-            with contextlib.suppress(Exception):
-                pending = [p for p in pending if not p.wait_for_all_acked(slice_)]
-            waited = time.monotonic() - started
-            if waited > ACK_WAIT_S and not any(n.recorder_alive() for n in nodes):
-                break
+        _shut_down(nodes, reason)
         total = _cpu_seconds()
         setup = max(n.setup_cpu_s for n in nodes)
         roles = "+".join(n.role for n in nodes)

@@ -23,8 +23,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-from feed_twin.nodeset.roles import node_role
-
 NAMESPACE = "/cnc/x"
 
 
@@ -43,11 +41,31 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--live", action="store_true", help="serve a live Rerun web viewer")
 
 
+def shadow_plan(args: argparse.Namespace, map_path: Path, rrd: Path, live_url: str | None):
+    """The twin and the stand-in on its built-in program, each in its own process; the stand-in
+    is the clock (feed_twin.launch.plan)."""
+    from feed_twin.launch.plan import RunPlan
+
+    twin = ["--config", str(args.config), "--map", str(map_path), "--rrd", str(rrd),
+            "--peers", "standin"]  # fmt: skip
+    if live_url is not None:
+        twin += ["--rerun-url", live_url]
+    standin = ["--config", str(args.config), "--duration", str(args.duration),
+               "--friction-scale", str(args.friction_scale), "--peers", "twin"]  # fmt: skip
+    if args.jitter is not None:
+        standin += ["--jitter", str(args.jitter)]
+    if args.raise_friction_at is not None:
+        standin += ["--raise-friction-at", str(args.raise_friction_at)]
+    return RunPlan.of({"twin": [("twin", twin)], "standin": [("standin", standin)]},
+                      clock="standin")  # fmt: skip
+
+
 def run_shadow(args: argparse.Namespace) -> tuple[int, dict | None, str]:
     """Run both nodes; (exit code, the twin's report, the twin's and the stand-in's logs)."""
     from feed_twin.analysis.twin import ModelDoc, Twin
     from feed_twin.ros.domain import private_graph_env, reserve_domain_id
-    from feed_twin.ros.launch import launch, log_record
+    from feed_twin.ros.executors import run_processes
+    from feed_twin.ros.launch import log_record
     from feed_twin.shadow.standin import write_map
 
     out = args.out or Path(tempfile.mkdtemp(prefix="feed_twin_shadow_"))
@@ -56,38 +74,20 @@ def run_shadow(args: argparse.Namespace) -> tuple[int, dict | None, str]:
         out / "standin_map.yaml", Twin.compile(ModelDoc.load(args.config)), NAMESPACE
     )
     viewer = None
-    twin_cmd = [
-        sys.executable, "-m", node_role("twin").module, "--config", str(args.config),
-        "--map", str(map_path), "--rrd", str(out / "shadow.rrd"), "--peers", "standin",
-    ]  # fmt: skip
-    standin_cmd = [
-        sys.executable, "-m", node_role("standin").module, "--config", str(args.config),
-        "--duration", str(args.duration), "--friction-scale", str(args.friction_scale),
-        "--peers", "twin",
-    ]  # fmt: skip
-    if args.jitter is not None:
-        standin_cmd += ["--jitter", str(args.jitter)]
-    if args.raise_friction_at is not None:
-        standin_cmd += ["--raise-friction-at", str(args.raise_friction_at)]
     try:
         if args.live:
             from feed_twin.io.live import LiveViewer
 
             viewer = LiveViewer()
-            twin_cmd += ["--rerun-url", viewer.grpc_url]
             print(f"[shadow] live dashboard: {viewer.web_url}", flush=True)
+        plan = shadow_plan(args, map_path, out / "shadow.rrd", viewer and viewer.grpc_url)
         with reserve_domain_id() as domain:
             env = {**os.environ, **private_graph_env(domain.domain_id)}
             # the stand-in's program sets the run's length; start-up (numba) and drain on top
-            result = launch(
-                {"twin": twin_cmd, "standin": standin_cmd},
-                out,
-                env=env,
-                progress_role="standin",
-                show_progress=True,
+            result = run_processes(
+                plan, out, env, quiet=False, total_s=args.duration,
                 deadline_s=args.duration + 120.0,
-                progress_total_s=args.duration,
-            )
+            )  # fmt: skip
     finally:
         if viewer is not None:
             viewer.stop()

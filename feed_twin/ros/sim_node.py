@@ -41,6 +41,7 @@ from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec, JointStateLayout
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost, build_drive_host
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
+from feed_twin.nodeset.node_settings import SimSettings
 from feed_twin.nodeset.pacing import pacing_report
 from feed_twin.nodeset.protection import DriveProtection, Trip, protection_for_config
 from feed_twin.nodeset.run_end import RunEnd
@@ -148,29 +149,21 @@ class SimNode(FeedTwinNode):
         self,
         options: NodeOptions,
         host: DriveHost,
+        settings: SimSettings,
         *,
-        settle_s: float,
-        joint_name: str,
-        axis_label: str,
-        realtime: bool = False,
-        max_time_s: float | None = None,
-        clock_divider: int = 1,
-        exchange_cpu: int = -1,
-        realtime_priority: int = 0,
-        cpu_latency_us: int = -1,
         protection: DriveProtection | None = None,
-        clock_topic: str = "/clock",
-        record_batch: int = 0,
         context=None,
     ) -> None:
         super().__init__(SIM_NODE, options, context=context)
         self.host = host
         self.protection = protection
-        self.end = RunEnd(round(settle_s * NS_PER_S))
-        self.axis_label = axis_label
-        self.joint_name = joint_name
-        self.realtime = realtime
-        self.clock_divider = clock_divider
+        self.settings = settings
+        self.end = RunEnd(round(settings.settle_s * NS_PER_S))
+        self.axis_label = axis_label = settings.axis_label
+        self.joint_name = settings.joint_name
+        self.realtime = realtime = settings.realtime
+        self.clock_divider = settings.clock_divider
+        max_time_s = settings.max_time_s
         self.max_ns = None if max_time_s is None else round(max_time_s * NS_PER_S)
         self.started = False
         self.steps = 0
@@ -181,17 +174,18 @@ class SimNode(FeedTwinNode):
         self._pending: dict[int, DriveSetpoint] = {}
         # a machine's sim (its own axis clock) starts with the program, which the G-code node
         # starts once every axis is up: all axes then start together, also in real time
-        self._go = clock_topic == "/clock"
+        self._go = settings.clock_topic == "/clock"
         self._progress_at = 0.0
         self._feedback_pub = self.create_publisher(AxisFeedback, self.topics.feedback, DATA_QOS)
         self._state_pub = self.create_publisher(AxisState, self.topics.state, DATA_QOS)
         self._joint_pub = self.create_publisher(JointState, self.topics.joint_states, DATA_QOS)
-        self._clock_pub = self.create_publisher(Clock, clock_topic, DATA_QOS)
+        self._clock_pub = self.create_publisher(Clock, settings.clock_topic, DATA_QOS)
         self._run_pub = self.create_publisher(String, self.topics.run_state, LATCHED_QOS)
         self._record = None
-        if record_batch:
+        if settings.record_batch:
             batched = self.topics.batched(SIM_NODE)
-            self._record = RecordSender(self, self.topics.record(SIM_NODE), batched, record_batch)
+            record = self.topics.record(SIM_NODE)
+            self._record = RecordSender(self, record, batched, settings.record_batch)
             self._record_feedback = self._record.index(self.topics.feedback)
             self._record_state = self._record.index(self.topics.state)
             self._record_joint = self._record.index(self.topics.joint_states)
@@ -209,7 +203,7 @@ class SimNode(FeedTwinNode):
             armed=lambda: self.started and not self.done and not self.realtime,
             timeout_s=2.0 * options.input_timeout_s,
         )
-        self._joint = JointStateLayout(joint_name)
+        self._joint = JointStateLayout(settings.joint_name)
         self._clock = Clock()
         self._guard = InputGuard(
             self,
@@ -228,14 +222,15 @@ class SimNode(FeedTwinNode):
         self._i_velocity = TRUTH_FIELDS.index("table_velocity")
         self._i_screw = TRUTH_FIELDS.index("screw_force")
         for note in apply_scheduling(
-            cpu=exchange_cpu,
-            priority=realtime_priority if realtime else 0,
-            cpu_latency_us=cpu_latency_us,
+            cpu=settings.exchange_cpu,
+            priority=settings.realtime_priority if realtime else 0,
+            cpu_latency_us=settings.cpu_latency_us,
         ):
             self.get_logger().info(f"scheduling: {note}")
         if realtime:
             # The controller raises its own priority on this announcement (latched).
-            self._run_pub.publish(self._run_text(f"realtime priority {realtime_priority}"))
+            priority = settings.realtime_priority
+            self._run_pub.publish(self._run_text(f"realtime priority {priority}"))
         outputs = (
             (self._feedback_pub, self._state_pub, self._joint_pub)
             if self._record is None
@@ -496,21 +491,15 @@ def build(args: argparse.Namespace, ros, options: NodeOptions, context) -> SimNo
     host = build_drive_host(args.config, ros)
     host.warm_up()  # before the first heartbeat: a compiling node must not look dead
     stage("sim: waiting for its peers")
+    clock_topic = f"{options.topics.namespace}/clock" if args.axis_clock else "/clock"
+    settings = SimSettings.of(
+        ros, realtime=args.realtime, max_time_s=args.max_time, clock_topic=clock_topic
+    )
     return SimNode(
         options,
         host,
-        settle_s=ros.settle_s,
-        joint_name=ros.axis,
-        axis_label=ros.axis.upper(),
-        realtime=args.realtime,
-        max_time_s=args.max_time,
-        clock_divider=ros.clock_divider,
-        exchange_cpu=ros.exchange_cpu,
-        realtime_priority=ros.realtime_priority,
-        cpu_latency_us=ros.cpu_latency_us,
+        settings,
         protection=protection_for_config(args.config, ros, host.exchange_ns),
-        clock_topic=f"{options.topics.namespace}/clock" if args.axis_clock else "/clock",
-        record_batch=ros.record_batch,
         context=context,
     )
 

@@ -59,6 +59,7 @@ from std_msgs.msg import String
 from feed_twin.analysis.twin import ModelDoc
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
+from feed_twin.nodeset.node_settings import StandinSettings
 from feed_twin.nodeset.roles import node_role
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import (
@@ -88,31 +89,25 @@ class StandInNode(FeedTwinNode):
     def __init__(
         self,
         options: NodeOptions,
+        settings: StandinSettings,
         *,
         standin: StandIn,
-        period_s: float,
-        jitter_s: float,
         program: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
-        realtime: bool = True,
-        clock_divider: int = 10,
         schedule: Sequence[tuple[float, float]] = (),
-        seed: int = 0,
-        clock_topic: str = "/clock",
         context=None,
     ) -> None:
-        """`program`: (t, x, v, a) of the built-in program; None follows `<ns>/command`.
-        `clock_topic`: where a follower publishes the machine time (a machine's axis: its
-        `<ns>/clock`, which the G-code node reads with --axis-clock)."""
+        """`program`: (t, x, v, a) of the built-in program; None follows `<ns>/command`."""
         super().__init__("standin", options, context=context)
         self.standin = standin
-        self.period_s = period_s
+        self.period_s = period_s = settings.period_s
         self.period_ns = round(period_s * NS)
         self.follow = program is None
-        self.realtime = realtime or not self.follow
-        self.jitter_s = jitter_s if self.realtime else 0.0
-        self.clock_divider = clock_divider
+        self.realtime = settings.realtime or not self.follow
+        self.jitter_s = settings.jitter_s if self.realtime else 0.0
+        self.clock_divider = settings.clock_divider
+        clock_topic = settings.clock_topic
         self.k = 0
-        self._rng = np.random.default_rng(seed)
+        self._rng = np.random.default_rng(settings.seed)
         self._schedule = sorted(schedule)
         self._queue: list[tuple[float, int, str, bytes]] = []  # (release, seq, topic, data)
         self._seq = 0
@@ -486,15 +481,17 @@ def build(args: argparse.Namespace, context) -> StandInNode:
             input_timeout_s=args.input_timeout,
             peer_timeout_s=args.peer_timeout,
         ),
+        StandinSettings(
+            period_s=args.period,
+            jitter_s=jitter,
+            realtime=args.realtime,
+            clock_divider=divider,
+            seed=config.seed,
+            clock_topic=f"/{machine}/{axis}/clock" if args.axis_clock else "/clock",
+        ),
         standin=standin,
-        period_s=args.period,
-        jitter_s=jitter,
         program=program,
-        realtime=args.realtime,
-        clock_divider=divider,
         schedule=schedule,
-        seed=config.seed,
-        clock_topic=f"/{machine}/{axis}/clock" if args.axis_clock else "/clock",
         context=context,
     )
 

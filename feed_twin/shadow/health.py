@@ -15,7 +15,9 @@ with ITSELF at the start of the run:
   window's motion (what changed since the start) is ranked with the library's `rank`; the
   leading significant effect is named, and its least-squares weight converted to the physical
   parameter it belongs to (Coulomb and viscous friction, moving mass, constant force) and set
-  against the model's value: "coulomb_friction +35 % since start";
+  against the model's value: "coulomb_friction +35 % since start". A window that cannot tell
+  the first candidate from the effect an earlier window identified (adding its signature to
+  that effect's is not significant) keeps the earlier name, and says so;
 - STALE when the measured stream has lost `missing_flag_after` samples in a row.
 
 A machine that reports no effort (`has_effort=False`, a controller such as LinuxCNC beside the
@@ -47,7 +49,8 @@ from typing import Any
 import numpy as np
 
 from feed_twin.analysis.effects import BY_NAME, motion_from_position
-from feed_twin.analysis.ranking import Candidate, rank
+from feed_twin.analysis.ranking import Candidate, rank, test_regressors
+from feed_twin.analysis.significance import ALPHA
 from feed_twin.shadow.config import ShadowConfig
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -162,6 +165,9 @@ class HealthMonitor:
         self._invalid_run = 0  # consecutive rows without a real measured sample
         self._t_last = math.nan
         self._named_at: float | None = None
+        # the effect the last window that identified one named (None after an OK verdict): a
+        # window that cannot tell another effect from it does not rename it (_name_effect)
+        self._identified: str | None = None
         self.last: Verdict | None = None
         self._gap: np.ndarray | None = None  # [m, s, s^2] FE deviation per (1, v, a) at baseline
         self.model_gap: Verdict | None = None  # said once when the baseline is set
@@ -252,6 +258,7 @@ class HealthMonitor:
             elif rise_fe > c.fe_dev_rms_warn_m + gap or rise_eff > c.effort_dev_rms_warn:
                 level = WARN
             if level == OK:
+                self._identified = None
                 verdict = Verdict(level=OK, message="residuals at their baseline", **common)
             else:
                 rises = (
@@ -421,13 +428,56 @@ class HealthMonitor:
                 # no measured effort: the position-domain signatures on what the model gap
                 # learnt at baseline leaves of the FE deviation
                 unit = "m"
-                ranked = rank(motion, effort_residual=None, position_residual=self._fe_change(w))
+                change = self._fe_change(w)
+                ranked = rank(motion, effort_residual=None, position_residual=change)
+            found = _first_identified(ranked)
+            kept = self._kept(ranked, found, motion, change)
         except (np.linalg.LinAlgError, ValueError) as exc:
             # a twin must never stop over its diagnosis: report and go on
             return {"message": f"the effect ranking failed on this window ({exc})"}
-        found = _first_identified(ranked)
         if found is None:
             return {"message": "no effect of the library explains the change"}
+        alike = ""
+        if kept is not None:
+            alike = f"; this window alone cannot tell it from {found.name}"
+            found = kept
+        self._identified = found.name
+        naming = self._sized(found, motion, unit)
+        naming["message"] += alike
+        return naming
+
+    def _kept(self, ranked, found: Candidate | None, motion, residual) -> Candidate | None:
+        """The effect an earlier window identified, where this window cannot tell `found` from
+        it: on a one-way cruise at one speed a Coulomb, a viscous and a constant force, a
+        Stribeck excess and a torque-constant error are all one offset, and the ranking's order
+        among them is chance (a worn guide was once named viscous_friction +435 % there,
+        Coulomb friction +100 % on the windows around). Kept while adding `found`'s signature
+        to the earlier effect's explains nothing significant (a partial F-test, as ranking's)."""
+        if found is None or self._identified in (None, found.name):
+            return None
+        earlier = next(
+            (
+                c
+                for c in ranked
+                if c.name == self._identified
+                and c.significant
+                and c.cancellation <= MAX_CANCELLATION
+            ),
+            None,
+        )
+        if earlier is None:
+            return None
+        held, _ = self._regressors(motion, [(earlier.name, earlier.variant)])
+        added, _ = self._regressors(motion, [(found.name, found.variant)])
+        nuisance = list(held.values())
+        if found.residual_domain == "position":
+            nuisance.append(np.ones_like(motion.t_s))  # the alignment's offset, as in rank
+        _, _, p_value, _, _ = test_regressors(residual, added, np.column_stack(nuisance))
+        return earlier if p_value >= ALPHA else None
+
+    def _sized(self, found: Candidate, motion, unit: str) -> dict:
+        """The verdict's naming of `found`: its parameter's change where one applies, else the
+        effort it adds in the window."""
         phys = self.physical.get(found.name)
         if phys is None or phys.regressor not in found.coefficients:
             # its weights are sizes only where the window shows the whole signature (a Stribeck

@@ -209,7 +209,7 @@ def _advance_blocks(
         list(pool.map(run_block, range(n_blocks)))
 
 
-def run_batch(
+def run_batch(  # noqa: PLR0913 - the batch's optional input arrays, each keyword-only
     engine: Engine,
     params: np.ndarray,
     n_ticks: int,

@@ -41,9 +41,9 @@ def reference_run(
     ref = np.zeros((n_ticks, signals.REF_SIZE)) if ref is None else ref
     drive = np.zeros((n_ticks, signals.OUT_SIZE)) if drive is None else drive
     ext = np.zeros((n_ticks, engine.n_ext)) if ext is None else ext
+    from feed_twin.control.cascade import cascade_tick
+
     cs = np.array(engine.controller.initial_state()) if engine.controller is not None else None
-    if cs is not None:
-        from feed_twin.control.cascade import cascade_tick
     out = np.zeros(signals.OUT_SIZE)
     sw = np.zeros(3)
     ring = np.zeros((RING, signals.MEAS_SIZE))

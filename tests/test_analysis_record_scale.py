@@ -1,0 +1,128 @@
+"""The model at a slow record's scale (analysis.record_scale): the 16 kHz axis reduced to its
+mechanics and loops, checked against the full model on the 10 Hz mill log (two paths), and
+what the reduction keeps and refuses."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from feed_twin.analysis.model_doc import ModelDoc
+from feed_twin.analysis.record_scale import EFFORT_AGREEMENT, agreement, at_record_scale, reduce
+from feed_twin.analysis.twin import Twin
+from feed_twin.analysis.visibility import smooth_staircases
+from feed_twin.core.config import ConfigError
+from feed_twin.io.measured import load_measured, segment
+
+ROOT = Path(__file__).resolve().parents[1]
+AXIS = ROOT / "config" / "axis_default.yaml"
+MILL = ROOT / "tests" / "fixtures" / "umich_mill"
+Q = 1e-3  # [m] the mill log's X resolution
+
+
+def _reduced() -> ModelDoc:
+    doc, _ = reduce(ModelDoc.load(AXIS), resolution_m=Q)
+    assert doc is not None
+    return doc
+
+
+def test_the_axis_reduces_to_its_mechanics_and_loops():
+    full = ModelDoc.load(AXIS)
+    doc = _reduced()
+    kinds = {e["name"]: e["type"] for e in doc.data["plant"]["components"]}
+    for gone in ("bus", "inverter", "current_sensor", "coupling", "backlash"):
+        assert gone not in kinds
+    assert kinds["motor"] == "Inertia" and kinds["screw_shaft"] == "Inertia"
+    assert "axial" not in kinds and doc.get("screw.efficiency") == 1.0
+    ctrl = doc.data["controller"]
+    assert doc.base_period() == pytest.approx(1e-3)  # the NC's period
+    assert "current" not in ctrl and ctrl["computation_delay"] is False
+    # the velocity loop re-tuned for 1 ms (symmetric optimum, as the controller node's)
+    assert ctrl["velocity"]["period_s"] == pytest.approx(1e-3)
+    assert ctrl["velocity"]["Kp"] < full.data["controller"]["velocity"]["Kp"] / 5
+    k_t, eta = 1.5 * 4 * 0.3167, 0.9  # 1.5 p psi_pm [N m/A]; the screw's efficiency
+    # the screw's loss on the motor's side: torque and rotor inertias times eta
+    assert doc.get("motor_torque.gain") == pytest.approx(k_t * eta)
+    assert doc.get("motor.J") == pytest.approx(3.1e-3 * eta)
+    # the screw shaft's inertia stays: rho pi d^4 L / 32
+    assert doc.get("screw_shaft.J") == pytest.approx(eta * 7850 * math.pi * 0.04**4 / 32)
+    # newtons at the table per ampere, as in the full model: K_t 2 pi eta / lead
+    assert doc.force_per_effort("A") == pytest.approx(full.force_per_effort("A"))
+    # the rotor's friction at the table, in the same current: T_c through the screw (2 pi eta /
+    # lead), its viscous b plus the iron loss's K_t p psi_pm / R_fe per rad/s
+    per_torque = 2 * math.pi * 0.9 / 0.01
+    assert doc.get("motor_friction.F_c_pos") == pytest.approx(0.03 * per_torque)
+    b = 2e-4 + k_t * 4 * 0.3167 / 1500.0
+    assert doc.get("motor_friction.F_v_pos") == pytest.approx(b * 2 * math.pi / 0.01 * per_torque)
+    twin = Twin.compile(doc)
+    assert twin.effort_name == "current_q_A" and twin.effort_unit == "A"
+    assert doc.friction() == "guides"  # the effects still edit the guides
+
+
+def test_a_model_at_its_scale_is_not_reduced():
+    doc, why = reduce(ModelDoc.load(MILL / "mill_nominal.yaml"), resolution_m=Q)
+    assert doc is None and why == ["the model runs at its NC period already"]
+
+
+def test_a_wide_backlash_stays():
+    full = ModelDoc.load(AXIS).set("backlash.gap", 2e-3)
+    doc, _ = reduce(full, resolution_m=Q)
+    assert doc is not None and doc.of_type("Backlash") == ["backlash"]
+
+
+def test_only_a_current_can_stand_for_an_effort_source_command():
+    doc = ModelDoc.load(MILL / "mill_nominal.yaml")
+    doc.data["analysis"] = {"effort_signal": "voltage_q_V"}
+    with pytest.raises(ConfigError, match=r"analysis.effort_signal = 'voltage_q_V': the only"):
+        doc.effort_signal()
+
+
+def test_the_reduced_and_the_full_model_agree_on_the_mill_log():
+    """Two paths: the 16 kHz axis with its PMSM, inverter, coupling and screw springs, and its
+    reduction, driven by 20 s of the 10 Hz log's command. Where the command moves, the sample
+    means of their efforts agree within EFFORT_AGREEMENT (2 %) of its RMS, their positions
+    within half the log's 1 mm; the reduction is used and says so."""
+    raw = load_measured(MILL / "experiment_01.csv", MILL / "x_map_axis.yaml")
+    run, _ = smooth_staircases(segment(raw, 0.0, 20.0))
+    full = ModelDoc.load(AXIS)
+    agree = agreement(Twin.compile(full), Twin.compile(_reduced()), run, resolution_m=Q)
+    assert agree.effort_share < EFFORT_AGREEMENT
+    assert agree.position_max_m < 0.5 * Q
+    doc, said = at_record_scale(run, full, resolution_m=Q)
+    assert doc.of_type("Pmsm") == []
+    (line,) = said
+    assert line.startswith("model at the record's scale (what a 10 Hz record can show): step ")
+    assert "checked on this record against the full model" in line
+
+
+def test_a_reduction_that_disagrees_keeps_the_full_model():
+    """A backlash of 0.5 mm is below the 1 mm resolution, so the reduction drops it; but the
+    lost motion moves the table 0.25 mm off the rigid twin's at each reversal: the full model
+    is kept and the line says why."""
+    raw = load_measured(MILL / "experiment_01.csv", MILL / "x_map_axis.yaml")
+    run, _ = smooth_staircases(segment(raw, 0.0, 20.0))
+    full = ModelDoc.load(AXIS).set("backlash.gap", 5e-4)
+    doc, said = at_record_scale(run, full, resolution_m=Q)
+    assert doc is full
+    (line,) = said
+    assert line.startswith("the model at the record's scale does not agree with the full one")
+    assert line.endswith("the full model is simulated")
+
+
+def test_a_drive_trace_keeps_its_model(tmp_path):
+    """A 1 kHz trace can show what the reduction drops: nothing is reduced or simulated."""
+    t = np.arange(0.0, 1.0, 1e-3)
+    x = 0.4 + 0.01 * t
+    rows = "\n".join(f"{a:.3f},{b:.6f},{b:.6f},{0.1 + a:.3f}" for a, b in zip(t, x, strict=True))
+    (tmp_path / "run.csv").write_text("t,cmd,act,iq\n" + rows + "\n")
+    (tmp_path / "map.yaml").write_text(
+        "time: {column: t, unit: s}\nposition_sensor: linear_scale\nsignals:\n"
+        "  pos_cmd_m: {column: cmd, unit: m}\n  pos_meas_m: {column: act, unit: m}\n"
+        "  current_q_A: {column: iq, unit: A}\nplausibility: {travel_m: 1.0, max_speed_m_s: 0.5}\n"
+    )
+    run = load_measured(tmp_path / "run.csv", tmp_path / "map.yaml")
+    full = ModelDoc.load(AXIS)
+    assert at_record_scale(run, full, resolution_m=0.0) == (full, [])

@@ -1,0 +1,175 @@
+"""The run plan (feed_twin.launch): a plan's processes, their command lines, every axis mode's
+nodes, and the refusals of a plan that cannot run. Plain data, no ROS."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from pathlib import Path
+
+import pytest
+
+from feed_twin.launch.axis import ARGUMENTS, AxisRunFiles, axis_plan, roles
+from feed_twin.launch.plan import NodeSpec, ProcessSpec, RunPlan, host_argv
+from feed_twin.launch.request import RunRequest
+from feed_twin.nodeset.config import load_node_set_config
+from feed_twin.nodeset.roles import COMMON_ARGUMENTS, HOST_MODULE, node_role
+
+ROOT = Path(__file__).resolve().parents[1]
+AXIS = ROOT / "config" / "axis_default.yaml"
+FILES = AxisRunFiles(bag=Path("out/run"), rrd=Path("out/run.rrd"), map=Path("out/run_map.yaml"))
+REQUEST = RunRequest(config=AXIS, program=Path("p.ngc"))
+
+
+def _spec(role: str, *argv: str) -> NodeSpec:
+    return NodeSpec(role=role, argv=argv)
+
+
+def test_one_node_runs_its_module_and_several_share_the_host() -> None:
+    alone = ProcessSpec(name="gcode", nodes=(_spec("gcode", "--program", "p.ngc"),))
+    assert alone.command("py") == ["py", "-m", "feed_twin.ros.gcode_node", "--program", "p.ngc"]
+    shared = ProcessSpec(name="sim", nodes=(_spec("sim", "--realtime"), _spec("recorder", "-b")))
+    assert shared.command("py") == ["py", "-m", HOST_MODULE, "sim", "--realtime", "--and",
+                                    "recorder", "-b"]  # fmt: skip
+    assert shared.roles == ("sim", "recorder")
+    assert host_argv([("sim", ["--realtime"])]) == ["sim", "--realtime"]
+
+
+@pytest.mark.parametrize(
+    ("build", "message"),
+    [
+        (lambda: _spec("planner"), "node role 'planner': must be one of recorder, controller"),
+        (lambda: ProcessSpec(name="p", nodes=()), "process 'p': hosts no node"),
+        (
+            lambda: ProcessSpec(name="p", nodes=(_spec("twin"), _spec("recorder"))),
+            "process 'p': role 'twin' runs in a process of its own (not hostable)",
+        ),
+        (
+            lambda: ProcessSpec(name="p", nodes=(_spec("sim"), _spec("sim"))),
+            "process 'p': role 'sim' given twice",
+        ),
+        (
+            lambda: RunPlan.of({"a": [("sim", [])], "b": [("gcode", [])]}, clock="c"),
+            "run plan: clock process 'c' is not one of a, b",
+        ),
+        (
+            lambda: RunPlan(
+                processes=(ProcessSpec(name="a", nodes=(_spec("sim"),)),) * 2, clock=None
+            ),  # fmt: skip
+            "run plan: process a given twice",
+        ),
+        (
+            lambda: RunPlan.of({"a": [("sim", [])]}, clock="a").process("b"),
+            "run plan: no process 'b' (processes: a)",
+        ),
+        (lambda: RunRequest(config=AXIS, program=None, nc="fanuc"), "nc = 'fanuc': must be one"),
+        (
+            lambda: RunRequest(config=AXIS, program=None, startup_timeout_s=0.0),
+            "startup_timeout_s = 0.0: must be > 0",
+        ),
+        (
+            lambda: RunRequest(config=AXIS, program=None, input_timeout_s=-1.0),
+            "input_timeout_s = -1.0: must be > 0",
+        ),
+    ],
+)
+def test_a_plan_that_cannot_run_is_refused_naming_what(build, message) -> None:
+    with pytest.raises(
+        (ValueError, KeyError), match=message.replace("(", r"\(").replace(")", r"\)")
+    ):
+        build()
+
+
+def test_a_repeatable_role_may_run_twice_in_one_process() -> None:
+    controllers = ProcessSpec(name="c", nodes=(_spec("controller", "-x"), _spec("controller")))
+    assert controllers.roles == ("controller", "controller")
+
+
+def test_the_lockstep_axis_run_records_in_the_sims_process() -> None:
+    plan = axis_plan(REQUEST, load_node_set_config(AXIS), FILES)
+    assert plan.names == ("controller", "sim", "gcode") and plan.clock == "sim"
+    sim = plan.process("sim")
+    assert sim.roles == ("sim", "recorder")
+    assert sim.nodes[1].argv == (
+        "--config", str(AXIS), "--peers", "controller,sim,gcode", "--startup-timeout", "120.0",
+        "--input-timeout", "10.0", "--bag", "out/run",
+    )  # fmt: skip
+    # one process: every node in role order, the recorder first
+    one = axis_plan(dataclasses.replace(REQUEST, transport="single_process"),
+                    load_node_set_config(AXIS), FILES)  # fmt: skip
+    assert [n.role for n in one.nodes()] == ["recorder", "controller", "sim", "gcode"]
+
+
+def test_each_mode_starts_its_roles_with_its_clock() -> None:
+    ros = load_node_set_config(AXIS)
+    shadow = dataclasses.replace(REQUEST, shadow=True)
+    linuxcnc = dataclasses.replace(shadow, nc="linuxcnc")
+    external = dataclasses.replace(REQUEST, no_gcode=True)
+    assert axis_plan(shadow, ros, FILES).clock == "standin"
+    assert axis_plan(linuxcnc, ros, FILES).names == ("recorder", "twin", "linuxcnc")
+    assert axis_plan(linuxcnc, ros, FILES).clock == "linuxcnc"
+    assert roles(external) == ("recorder", "controller", "sim")
+    twin = axis_plan(dataclasses.replace(shadow, live_url="rerun+http://h"), ros, FILES)
+    assert twin.process("twin").nodes[0].argv[-2:] == ("--rerun-url", "rerun+http://h")
+    assert twin.process("recorder").nodes[0].argv[-2:] == ("--twin-namespace", "/cnc/x/twin")
+
+
+def test_every_launch_argument_is_one_the_registry_declares_for_its_role() -> None:
+    ros = load_node_set_config(AXIS)
+    assert set(ARGUMENTS) >= {r for request in _every_request() for r in roles(request)}
+    for request in _every_request():
+        for node in axis_plan(request, ros, FILES).nodes():
+            options = {a for a in node.argv if a.startswith("--")}
+            allowed = set(COMMON_ARGUMENTS) | set(node_role(node.role).arguments)
+            assert options <= allowed, (node.role, options - allowed)
+
+
+def _every_request():
+    for shadow, nc, realtime, live, max_time, stop in itertools.product(
+        (False, True), ("feed_twin", "linuxcnc"), (False, True), (None, "rerun+http://h"),
+        (None, 2.5), (False, True),
+    ):  # fmt: skip
+        if nc == "linuxcnc" and not shadow:
+            continue
+        yield dataclasses.replace(
+            REQUEST, shadow=shadow, nc=nc, realtime=realtime, live_url=live, max_time_s=max_time,
+            optional_stop=stop,
+        )  # fmt: skip
+
+
+def test_only_keeps_the_named_processes_and_finds_their_clock() -> None:
+    plan = RunPlan.of(
+        {"recorder": [("recorder", []), ("gcode", [])], "x_sim": [("sim", [])],
+         "y_sim": [("sim", [])]},
+        clock="x_sim", stop_on_failure=True,
+    )  # fmt: skip
+    elsewhere = plan.only(["recorder", "y_sim"])
+    assert elsewhere.names == ("recorder", "y_sim") and elsewhere.clock == "y_sim"
+    assert elsewhere.stop_on_failure
+    assert plan.only(["recorder"]).clock is None
+    assert plan.only(["recorder"]).clock_log({"recorder": Path("r.log")}) is None
+    assert plan.clock_log({"x_sim": Path("x.log")}) == Path("x.log")
+
+
+def test_every_machine_launch_argument_is_one_the_registry_declares(tmp_path) -> None:
+    from feed_twin.launch.machine import machine_plan, machine_shadow_plan
+    from feed_twin.machine.config import load_machine_config
+    from feed_twin.machine.nodes import node_plan
+    from feed_twin.machine.shadow_nodes import shadow_plan
+
+    config = ROOT / "config" / "machine_default.yaml"
+    machine = load_machine_config(config)
+    request = RunRequest(config=config, program=Path("p.ngc"), realtime=True)
+    bag = tmp_path / "run"
+    plans = [
+        machine_plan(node_plan(machine, tmp_path), request, bag),
+        machine_shadow_plan(shadow_plan(machine, bag), request, bag),
+        machine_shadow_plan(shadow_plan(machine, bag, linuxcnc=True), request, bag),
+    ]
+    assert [p.clock for p in plans] == ["x_sim", "x_standin", "linuxcnc"]
+    assert all(p.stop_on_failure for p in plans)
+    for plan in plans:
+        for node in plan.nodes():
+            options = {a for a in node.argv if a.startswith("--")}
+            allowed = set(COMMON_ARGUMENTS) | set(node_role(node.role).arguments)
+            assert options <= allowed, (node.role, options - allowed)
