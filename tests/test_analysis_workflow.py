@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from known_gaps import PLANNER_MOTION
+from known_gaps import REVERSAL_IMPACTS
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.synthetic import generate, write_csv
@@ -82,7 +82,7 @@ def test_two_simultaneous_effects_are_both_named(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=PLANNER_MOTION)
+@pytest.mark.xfail(strict=True, reason=REVERSAL_IMPACTS)
 def test_cogging_is_found_on_the_machine_tool_axis(tmp_path):
     """PMSM axis (16 kHz current loop, scale feedback): cogging is named, order and amplitude.
 

@@ -54,10 +54,26 @@ def test_erode_lowers_an_item_to_any_neighbour_within_that_neighbours_reach():
     value = np.array([5.0, 4.0, 1.0, 3.0, 0.5])
     reach = np.array([0.0, 0.0, 1.5, 0.0, 0.0])  # item 2 reaches 1.5 beyond its ends
     group = np.array([0, 0, 0, 0, 1])  # item 4 is another chain
-    out = erode(lo, hi, value, reach, group)
+    none = np.zeros(5)
+    out = erode(lo, hi, value, reach, group, none, 0.0)
     # Item 0 (gap 1.0) and 1 (touching) take item 2's 1.0; item 3 (gap 2.0) is beyond reach.
     np.testing.assert_array_equal(out, [1.0, 1.0, 1.0, 3.0, 0.5])
-    assert erode(lo, hi, value, reach, np.full(5, -1)).tolist() == value.tolist()
+    assert erode(lo, hi, value, reach, np.full(5, -1), none, 0.0).tolist() == value.tolist()
+
+
+def test_erode_by_travel_reaches_as_far_as_the_fastest_item_between_covers_in_the_span():
+    # A window of span T covers at most T times the highest speed cap on its way: a slow item
+    # between two fast ones is reached from both; an item behind slow ones only nearby.
+    lo = np.array([0.0, 1.0, 2.0, 3.0, 4.0])
+    hi = lo + 1.0
+    value = np.array([9.0, 8.0, 1.0, 7.0, 6.0])
+    speed = np.array([4.0, 4.0, 1.0, 0.5, 0.5])  # [m/s]
+    span = 0.5  # [s]
+    none = np.zeros(5)
+    out = erode(lo, hi, value, none, np.zeros(5, dtype=np.int64), speed, span)
+    # Items 0, 1 reach item 2 through speed 4 (gaps 1 and 0 <= 2); item 3 touches it; item 4
+    # (gap 1) sees only speeds 1 and 0.5 on the way: 0.5 m, out of reach.
+    np.testing.assert_array_equal(out, [1.0, 1.0, 1.0, 1.0, 6.0])
 
 
 def test_box_filter_of_a_trapezoid_is_the_s_curve_in_closed_form():

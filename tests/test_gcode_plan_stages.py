@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from feed_twin.gcode.plan_blends import NodeFlags, corner_blends, zone_coefficients
+from feed_twin.gcode.plan_blends import (
+    NodeFlags,
+    corner_blends,
+    fitted_widths,
+    zone_coefficients,
+)
 from feed_twin.gcode.plan_chains import chain_bodies
 from feed_twin.gcode.plan_limits import AxisLimits, move_limits
 from feed_twin.gcode.plan_profile import Pieces, motion_pieces, speed_profile
@@ -104,6 +109,36 @@ def test_corner_blend_stays_within_the_tolerance_and_its_speed_within_the_axis_l
         closest = np.min(np.linalg.norm(pos - moves.P[k], axis=1))
         assert closest == pytest.approx(deviation[k], rel=1e-3)
         assert closest <= tol * (1.0 + 1e-6)  # sampled s: at or just above the apex
+
+
+def test_a_corner_crossed_below_its_cap_is_narrowed_to_the_width_that_speed_needs():
+    # A 90-degree corner (dU = (-1, 1)): its blend of the tolerance's width allows cap; crossed
+    # at cap / 3, the narrowest blend for that speed has |dU_i| v^3 / w^2 = j_max_i (X binds:
+    # j 20 against Y's 40) or |dU_i| v^2 / w = a_max_i, whichever is wider.
+    tol = 2e-5
+    points = [(0.0, 0.0), (0.01, 0.0), (0.01, 0.01)]
+    moves, blends, _, _ = _pieces(points, [0.05, 0.05], LIMITS, tol)
+    node = np.array([0, 1, 2])
+    cap = blends.cap[1]
+    assert blends.alone[1] and blends.w[1] == pytest.approx(6 * tol / np.sqrt(2), rel=1e-12)
+    v = np.array([0.0, cap / 3.0, 0.0])
+    held = np.ones(3, dtype=bool)  # extended: the raw plan holds each node's speed around it
+    w_limit = fitted_widths(blends, node, v, LIMITS, extended=held, last=2)
+    assert w_limit is not None and np.isinf(w_limit[[0, 2]]).all()
+    w_jerk = np.sqrt(v[1] ** 3 / LIMITS.j_max[0])
+    w_acc = v[1] ** 2 / LIMITS.a_max[1]
+    assert w_limit[1] == pytest.approx(max(w_jerk, w_acc), rel=1e-5)
+    narrow = corner_blends(moves, _flags(2, tol), LIMITS, None, w_limit=w_limit)
+    assert narrow.w[1] == w_limit[1] < blends.w[1]
+    assert narrow.cap[1] == pytest.approx(v[1], rel=1e-5) and narrow.cap[1] >= v[1]
+    # At its cap, beyond what the window commits, not extended (its blend counts in the
+    # chains' limits) or without a jerk limit, nothing narrows.
+    at_cap = np.array([0.0, cap, 0.0])
+    assert fitted_widths(blends, node, at_cap, LIMITS, extended=held, last=2) is None
+    assert fitted_widths(blends, node, v, LIMITS, extended=held, last=0) is None
+    assert fitted_widths(blends, node, v, LIMITS, extended=~held, last=2) is None
+    trapezoid = AxisLimits(**{**LIMITS.__dict__, "jerk": False})
+    assert fitted_widths(blends, node, v, trapezoid, extended=held, last=2) is None
 
 
 def test_speed_profile_keeps_v_a_within_limits_and_integrates_to_the_length():

@@ -110,6 +110,35 @@ def test_tight_corner_is_rounded_not_stopped_at():
     assert_limits(tight, CONFIG)
 
 
+def _row_end(tolerance_mm: str) -> str:
+    """A raster's row end: 0.2 mm moves over a wavy Z (a chain), two 90-degree corners 0.5 mm
+    apart, and back."""
+    xs = np.round(np.arange(26) * 0.2, 1)
+    z = 0.3 * np.sin(xs / 2.0)
+    row = "\n".join(f"X{x:.1f} Z{h:.4f}" for x, h in zip(xs[1:], z[1:], strict=True))
+    back = "\n".join(f"X{x:.1f} Z{h:.4f}" for x, h in zip(xs[-2::-1], z[-2::-1], strict=True))
+    return f"G21 G90 G64 P{tolerance_mm} G1 X0 Y0 Z{z[0]:.4f} F4000\n{row}\nY0.5\n{back}\nM2"
+
+
+def test_a_wider_tolerance_does_not_slow_a_corner_its_neighbours_keep_slow():
+    # The short moves next to the row end's corners let the jerk profile cross them at about
+    # 1-2 mm/s, whatever the tolerance; the blend is narrowed to what that speed needs, so a
+    # wider tolerance (a wider blend, crawled through at that speed) costs no time.
+    corners = np.array([(5.0, 0.0, 0.3 * math.sin(2.5)), (5.0, 0.5, 0.3 * math.sin(2.5))]) * MM
+    times = {}
+    for tolerance_mm in ("0.005", "0.02"):
+        traj = plan_program(_row_end(tolerance_mm), CONFIG)
+        assert_limits(traj, CONFIG)
+        speed = np.linalg.norm(traj.vel_m_s, axis=1)
+        for corner in corners:
+            distance = np.linalg.norm(traj.pos_m - corner, axis=1)
+            closest = np.argmin(distance)
+            assert distance[closest] <= 0.5 * 0.02 * MM  # narrower than the wide tolerance
+            assert speed[closest] > 0.5 * MM  # rounded, not stopped at
+        times[tolerance_mm] = traj.t_s[-1]
+    assert times["0.02"] <= times["0.005"] * 1.02
+
+
 @pytest.mark.parametrize(
     ("program", "centre_mm", "plane"),
     [

@@ -33,7 +33,7 @@ import math
 import numpy as np
 from numba import njit
 
-from feed_twin.gcode.profile import CRUISE, HOLD
+from feed_twin.gcode.profile import CRUISE, HOLD, piece_of_samples
 
 
 @njit(cache=True)
@@ -130,29 +130,38 @@ def body_profiles_filtered(
 
 @njit(cache=True)
 def erode(
-    lo: np.ndarray, hi: np.ndarray, value: np.ndarray, reach: np.ndarray, group: np.ndarray
+    lo: np.ndarray,
+    hi: np.ndarray,
+    value: np.ndarray,
+    reach: np.ndarray,
+    group: np.ndarray,
+    speed: np.ndarray,
+    span: float,
 ) -> np.ndarray:
     """Each item's value lowered to that of any item of its group within that item's reach.
 
     Items are intervals [lo, hi] along s in order; item j reaches item i when the gap between
-    them is at most reach[j]. Items of group -1 are left alone and reach nothing.
+    them is at most reach[j], or at most `span` times the highest speed of the items from i to
+    j (the distance a window of `span` [s] can cover between them). Items of group -1 are left
+    alone and reach nothing.
     """
     n = lo.shape[0]
     out = value.copy()
-    far = np.max(reach) if n > 0 else 0.0
+    far = max(np.max(reach), span * np.max(speed)) if n > 0 else 0.0
     for i in range(n):
         if group[i] < 0:
             continue
-        j = i + 1
-        while j < n and group[j] == group[i] and lo[j] - hi[i] <= far:
-            if lo[j] - hi[i] <= reach[j]:
-                out[i] = min(out[i], value[j])
-            j += 1
-        j = i - 1
-        while j >= 0 and group[j] == group[i] and lo[i] - hi[j] <= far:
-            if lo[i] - hi[j] <= reach[j]:
-                out[i] = min(out[i], value[j])
-            j -= 1
+        for step in (1, -1):
+            j = i + step
+            top = speed[i]
+            while 0 <= j < n and group[j] == group[i]:
+                gap = lo[j] - hi[i] if step > 0 else lo[i] - hi[j]
+                if gap > far:
+                    break
+                top = max(top, speed[j])
+                if gap <= max(reach[j], span * top):
+                    out[i] = min(out[i], value[j])
+                j += step
     return out
 
 
@@ -215,13 +224,10 @@ def raw_samples(
     s = np.empty(n)
     sd = np.empty(n)
     F = np.empty(n)
-    piece = np.empty(n, dtype=np.int64)
-    p = 0
+    piece = piece_of_samples(times, t0, dur)
     for k in range(n):
-        t = times[k]
-        while p < m - 1 and t >= t0[p] + dur[p]:
-            p += 1
-        tau = t - t0[p]
+        p = int(piece[k])
+        tau = times[k] - t0[p]
         if tau < 0.0:  # a rounding error before the first piece: at its start point
             s[k], sd[k] = s0[p], 0.0
             F[k] = F_start[p] + s0[p] * tau
@@ -230,7 +236,6 @@ def raw_samples(
                 kind[p], s0[p], v0[p], vp[p], A[p], t_up[p], t_cruise[p], tau
             )
             F[k] = F_start[p] + G
-        piece[k] = p
     return s, sd, F, piece, F_start[m]
 
 

@@ -33,6 +33,10 @@ ZONE_SLACK = 1e-9  # share of a move below which a blend zone on it is a roundin
 # With the jerk filter: a zone of one blend alone shorter than this share of its move (where
 # neighbouring chords differ a little) is a step of curvature, not a slope (`zone_coefficients`)
 KICK_ZONE = 0.1
+# A corner blended alone is narrowed to the width its planned speed needs (`fitted_widths`)
+# where that is below this share of its width, with the speed raised by WIDTH_MARGIN (rounding).
+NARROWER = 0.9
+WIDTH_MARGIN = 1e-6
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -80,9 +84,16 @@ class _Blends(NamedTuple):
 
 
 def corner_blends(
-    moves: MoveLimits, flags: NodeFlags, limits: AxisLimits, start: WindowStart | None
+    moves: MoveLimits,
+    flags: NodeFlags,
+    limits: AxisLimits,
+    start: WindowStart | None,
+    *,
+    w_limit: np.ndarray | None = None,
 ) -> CornerBlends:
-    """Blend every corner where the path does not stop; `start` is None for a fresh path."""
+    """Blend every corner where the path does not stop; `start` is None for a fresh path.
+
+    `w_limit` (n+1) [m] bounds the half-widths further (`fitted_widths`)."""
     n = len(moves.L)
     du = np.zeros((n + 1, moves.u.shape[1]))
     du[1:n] = moves.u[1:] - moves.u[:-1]
@@ -104,7 +115,7 @@ def corner_blends(
     share_out = np.where(alone, BLEND_SHARE, share_out)
     final = _blends(
         moves, limits, tol=flags.tol, du=du, ndu=ndu, corner=corner, stop=stop,
-        share_in=share_in, share_out=share_out, start=start,
+        share_in=share_in, share_out=share_out, start=start, w_limit=w_limit,
     )  # fmt: skip
     return CornerBlends(
         corner=corner,
@@ -119,7 +130,7 @@ def corner_blends(
     )
 
 
-def _blends(
+def _blends(  # noqa: PLR0913 (the corner geometry, its shares and the window; all keyword-only)
     moves: MoveLimits,
     limits: AxisLimits,
     *,
@@ -131,6 +142,7 @@ def _blends(
     share_in: np.ndarray,
     share_out: np.ndarray,
     start: WindowStart | None,
+    w_limit: np.ndarray | None,
 ) -> _Blends:
     """Blend half-widths, blend vectors and corner speed caps for shares of the moves."""
     L, V = moves.L, moves.V
@@ -139,6 +151,8 @@ def _blends(
     with np.errstate(divide="ignore", invalid="ignore"):
         w = np.minimum(6.0 * tol / ndu, np.minimum(share_in * L_in, share_out * L_out))
     w = np.where(corner & ~stop, w, 0.0)
+    if w_limit is not None:
+        w = np.minimum(w, w_limit)
     if start is not None:
         w[: len(start.w)] = start.w
     dU = np.where((w > 0.0)[:, None], du, 0.0)
@@ -153,6 +167,47 @@ def _blends(
     cap = limits.cruise_cap(a_node, j_node, 1.0, 1.0, k_node)
     cap = np.minimum(np.minimum(V_in, V_out), cap)
     return _Blends(w, dU, cap, a_node, j_node, k_node)
+
+
+def fitted_widths(
+    blends: CornerBlends,
+    node: np.ndarray,
+    v: np.ndarray,
+    limits: AxisLimits,
+    *,
+    extended: np.ndarray,
+    last: int,
+) -> np.ndarray | None:
+    """Half-widths [m] of the sharp corners blended alone at 1-D nodes (polyline nodes `node`)
+    narrowed to what their planned speeds `v` [m/s] need, for the jerk profile; None where none
+    narrows. Only `extended` ones (their blends count in no chain's limits) up to polyline node
+    `last` (what the window commits: later windows see the same geometry beyond it).
+
+    A corner blended alone is crossed at constant speed v over 2 w and its raw plan holds v
+    for T beyond (`jerk_filter`). Where the plan crosses it below the speed its blend allows
+    (the bodies next to it too short to hold a faster one for T, or braking), a narrower blend
+    allows that speed too and takes less time: |dU_i| v^2 / w <= a_max_i and
+    |dU_i| v^3 / w^2 <= j_max_i give the smallest w, its cost 2 w / v = 2 sqrt(|dU_i| v / j_i)
+    falls with v where the tolerance's width costs 2 w_P / v. Planned again with these widths
+    (and the same extended nodes), the corner keeps its speed (its cap is v) and its
+    neighbours gain the room it gives up: every constraint relaxes, none tightens.
+    """
+    sharp = np.sqrt(np.einsum("ij,ij->i", blends.dU, blends.dU)) > SHARP_CORNER
+    alone = blends.alone[node] & sharp[node] & extended & (node <= last)
+    alone &= (blends.w[node] > 0.0) & (v > 0.0)
+    if not limits.jerk or not np.any(alone):
+        return None
+    dU = np.abs(blends.dU[node[alone]])
+    vq = v[alone][:, None] * (1.0 + WIDTH_MARGIN)
+    need = np.max(
+        np.maximum(dU * vq * vq / limits.a_max, np.sqrt(dU * vq**3 / limits.j_max)), axis=1
+    )
+    w_limit = np.full(len(blends.w), np.inf)
+    narrower = need < NARROWER * blends.w[node[alone]]
+    if not np.any(narrower):
+        return None
+    w_limit[node[alone][narrower]] = need[narrower]
+    return w_limit
 
 
 def zone_coefficients(

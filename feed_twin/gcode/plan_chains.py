@@ -64,11 +64,13 @@ def chain_bodies(
     *,
     first: int,
     open_end: bool,
+    extended_as: np.ndarray | None = None,
 ) -> Bodies | None:
     """Group the nodes from `first` on into 1-D nodes and bodies; None if fewer than two.
 
     With `open_end` the window's last body stops short of the last move, where the next
-    window may put a blend: every speed planned now stays reachable later.
+    window may put a blend: every speed planned now stays reachable later. `extended_as`
+    gives the extended 1-D nodes (of the same 1-D nodes) instead of choosing them.
     """
     L, V, A, J = moves.L, moves.V, moves.A, moves.J
     n = len(L)
@@ -94,7 +96,9 @@ def chain_bodies(
         length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
     filtered = limits.window_s > 0.0
     extended = np.zeros(len(kind_q), dtype=bool)
-    if filtered:
+    if extended_as is not None:
+        extended = extended_as
+    elif filtered:
         extended = _extended(kind_q, node_q, blends, V, length, limits.window_s)
     if filtered:
         # Bodies a filter window may share with a neighbour: planned as chains, eroded.
@@ -175,17 +179,19 @@ def _eroded(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Speed caps and acceleration limits of chain bodies (s from lo to hi) eroded within their
     chain: a filtered speed at s averages raw speeds within T v / 2 of s, a filtered acceleration
-    raw ones within T v_max (`jerk_filter`). An
-    extended node between two chain bodies parts them."""
+    raw ones within the distance the raw plan covers in T, at most T times the highest speed
+    cap of the bodies between (`jerk_filter`). An extended node between two chain bodies parts
+    them."""
     starts = (np.concatenate(([True], ~in_chain[:-1])) | after_extended) & in_chain
-    first_bodies = np.flatnonzero(starts)
-    if len(first_bodies) == 0:
+    if not np.any(starts):
         return V, A
     group = np.where(in_chain, np.cumsum(starts) - 1, -1)
     V_far = np.where(np.isfinite(V), V, 0.0)
-    top = np.maximum.reduceat(V_far, first_bodies)  # per chain (and what follows it)
-    reach = np.where(in_chain, T * top[np.maximum(group, 0)], 0.0)
-    return erode(lo, hi, V, 0.5 * T * V_far, group), erode(lo, hi, A, reach, group)
+    none = np.zeros(len(V))
+    return (
+        erode(lo, hi, V, 0.5 * T * V_far, group, none, 0.0),
+        erode(lo, hi, A, none, group, V_far, T),
+    )
 
 
 def _one_d_nodes(

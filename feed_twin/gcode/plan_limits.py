@@ -116,7 +116,7 @@ class MoveLimits:
 
 
 def move_limits(
-    points: list[tuple[float, ...]],
+    points: list[tuple[float, ...]] | np.ndarray,
     rapids: list[bool],
     feeds: list[float],
     limits: AxisLimits,

@@ -1,12 +1,17 @@
 """Planner: interpreter items -> time-parameterised, jerk-limited multi-axis setpoints.
 
 The interpreter's straight moves (arcs already chords) form a polyline in machine
-coordinates. A window of listed moves goes through five stages, each pure and in its own file:
+coordinates. A window of listed moves goes through five stages, each pure and in its own file,
+after two for the jerk profile: the vertices of CAM polylines smoothed within a quarter of the
+tolerance (`plan_smoothing`) and forced breaks of long chains placed where they cost least
+(`plan_breaks`), both frozen once committed:
 
 1. move limits (`plan_limits`): length, direction and the speed, acceleration and jerk along
    each move that keep every axis within its limits;
 2. corner blends (`plan_blends`): blend half-widths within the path tolerance and corner
-   speeds; every G64 corner is rounded;
+   speeds; every G64 corner is rounded (with the jerk filter, a sharp corner the plan
+   crosses slower than its blend allows is planned again with a narrower one,
+   `fitted_widths`);
 3. chains (`plan_chains`): overlapping blends grouped into chains; the 1-D nodes and the
    bodies between them with their limits;
 4. speed profile (`plan_profile`): boundary speeds and the pieces of s(t), dwells included;
@@ -32,6 +37,7 @@ safe, and memory stays bounded.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterator
 from pathlib import Path
@@ -43,7 +49,8 @@ from feed_twin.gcode.errors import GcodeError
 from feed_twin.gcode.interpreter import Interpreter
 from feed_twin.gcode.items import Event, Move, Stop
 from feed_twin.gcode.lexer import Block, iter_source_lines, lex_line
-from feed_twin.gcode.plan_blends import NodeFlags, WindowStart, corner_blends
+from feed_twin.gcode.plan_blends import NodeFlags, WindowStart, corner_blends, fitted_widths
+from feed_twin.gcode.plan_breaks import forced_breaks
 from feed_twin.gcode.plan_chains import SINGLE, Bodies, chain_bodies
 from feed_twin.gcode.plan_limits import AxisLimits, move_limits
 from feed_twin.gcode.plan_profile import (
@@ -60,6 +67,13 @@ from feed_twin.gcode.plan_sampling import (
     sample_filtered,
     sample_indices,
     sample_path,
+)
+from feed_twin.gcode.plan_smoothing import (
+    SMOOTH_REACH,
+    SMOOTH_SHARE,
+    blend_tolerance,
+    movable_vertices,
+    smooth_vertices,
 )
 from feed_twin.gcode.trajectory import NcEvent, SampledTrajectory
 
@@ -173,12 +187,15 @@ class _StreamPlanner:
         self.n_filter = self.limits.filter_n
         self.period = config.interpolation_period_s
         self.settle_s = config.exact_stop_settle_s
-        self.forced = max(2, config.lookahead_segments // 4)
+        self.forced = max(2, config.lookahead_segments // 4)  # spacing of forced breaks
+        self.decided: dict[int, int] = {}  # global candidate -> its forced break (-1: none)
         # Listed moves: the not yet committed ones, preceded by one committed context move
         # (its end blend reaches into the next chunk) once anything was committed.
         self.points: list[tuple[float, ...]] = [config.start_position]
         self.lines: list[int] = []
         self.rapids: list[bool] = []
+        self.arcs: list[bool] = []  # the move is a chord of an arc
+        self.n_frozen = 1  # listed points that are final (smoothed and committed): the start
         self.feeds: list[float] = []
         self.tols: list[float] = []
         self.g0 = 0  # global index of listed move 0
@@ -211,6 +228,7 @@ class _StreamPlanner:
             self.points.append(item.end_m)
             self.lines.append(item.line)
             self.rapids.append(item.rapid)
+            self.arcs.append(item.arc is not None)
             self.feeds.append(item.feed_m_s)
             self.tols.append(item.tolerance_m)
             if item.exact_stop:
@@ -228,18 +246,39 @@ class _StreamPlanner:
         if n == 0:
             return self._plan_standstill()
         first = self.first()
-        moves = move_limits(self.points, self.rapids, self.feeds, self.limits)
-        flags = self._node_flags(n)
+        listed = np.array(self.points)
+        flags = self._node_flags(n, final, listed)
+        points, movable = self._smoothed(flags, listed)
+        if np.any(movable):
+            flags = dataclasses.replace(flags, tol=blend_tolerance(flags.tol, movable))
+        moves = move_limits(points, self.rapids, self.feeds, self.limits)
         start = WindowStart(w=self.w_context, stop=self.first_stop) if self.has_context else None
         blends = corner_blends(moves, flags, self.limits, start)
         bodies = chain_bodies(moves, blends, flags, self.limits, first=first, open_end=not final)
         if bodies is None:
             return self._plan_standstill() if final else None
         speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
-        q_commit = self._commit_point(bodies, first, n, final)
+        q_commit = self._commit_point(bodies, movable, first, n, final)
         if q_commit is None:
             return None  # nothing safely committable yet: wait for more moves
         end_node = int(bodies.node[q_commit])
+        w_limit = fitted_widths(
+            blends, bodies.node, speeds.v, self.limits, extended=bodies.extended, last=end_node
+        )
+        if w_limit is not None:  # corners slower than their blends allow: narrower blends
+            blends = corner_blends(moves, flags, self.limits, start, w_limit=w_limit)
+            narrowed = chain_bodies(
+                moves,
+                blends,
+                flags,
+                self.limits,
+                first=first,
+                open_end=not final,
+                extended_as=bodies.extended,
+            )
+            assert narrowed is not None  # the same 1-D nodes: only widths changed
+            bodies = narrowed
+            speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
         pieces = motion_pieces(bodies, speeds, q_commit=q_commit, n_moves=n, window_s=self.window_s)
         dwells, timed = node_entries(self._entries_at(bodies, q_commit, final), bodies.S)
         holds = stop_holds(
@@ -285,10 +324,10 @@ class _StreamPlanner:
         self.t_s = t_end
         self.v_first = float(speeds.v[q_commit])
         if not final:
-            self._drop_committed(end_node, bodies.S, blends.w, bool(blends.stop[end_node]))
+            self._drop_committed(end_node, bodies.S, blends.w, bool(blends.stop[end_node]), points)
         return chunk
 
-    def _node_flags(self, n: int) -> NodeFlags:
+    def _node_flags(self, n: int, final: bool, listed: np.ndarray) -> NodeFlags:
         """Tolerances, stops, entries and forced breaks at the listed nodes 0..n."""
         g = self.g0
         stop = np.zeros(n + 1, dtype=bool)
@@ -303,25 +342,52 @@ class _StreamPlanner:
                 has_entries[node - g] = True
         tol = np.zeros(n + 1)
         tol[1:n] = self.tols[:-1]
-        return NodeFlags(
-            tol=tol,
-            stop=stop,
-            has_entries=has_entries,
-            forced=(np.arange(n + 1) + g) % self.forced == 0,
+        natural = stop | has_entries
+        forced = forced_breaks(
+            listed,
+            natural,
+            g0=g,
+            spacing=self.forced,
+            stable=n if final else n - (SMOOTH_REACH + 2),
+            final=final,
+            decided=self.decided,
         )
+        return NodeFlags(tol=tol, stop=stop, has_entries=has_entries, forced=forced)
 
-    def _commit_point(self, bodies: Bodies, first: int, n: int, final: bool) -> int | None:
+    def _smoothed(self, flags: NodeFlags, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The listed points with CAM polylines smoothed (jerk profile, `plan_smoothing`), and
+        which of them moved; the frozen ones (committed) stay."""
+        fixed = flags.stop | flags.has_entries | flags.forced
+        fixed[: self.n_frozen] = True
+        if self.window_s <= 0.0:
+            return P, np.zeros(len(P), dtype=bool)
+        movable = movable_vertices(P, np.array(self.rapids), np.array(self.arcs), fixed)
+        if not np.any(movable):
+            return P, movable
+        limit = SMOOTH_SHARE * flags.tol
+        return smooth_vertices(P, movable, limit, SMOOTH_REACH), movable
+
+    def _commit_point(
+        self, bodies: Bodies, movable: np.ndarray, first: int, n: int, final: bool
+    ) -> int | None:
         """The 1-D node up to which the window is committed (None: none is safe yet).
 
         Up to a single corner well inside the window, so that the next window starting there
-        sees the same geometry around it.
+        sees the same geometry around it: a vertex that smoothing does not move, with the
+        smoothing runs of the next vertex inside the window (`plan_smoothing`).
         """
         if final:
             return len(bodies.length)
-        half = first + (n - first) // 2
+        # About half the window; the forced breaks lie within an eighth of their spacing of
+        # every spacing-th node (`plan_breaks`), the last commit too: the one past half counts.
+        half = first + (n - first) // 2 + self.forced // 4
         node_q, kind_q = bodies.node, bodies.kind
+        margin = max(3, SMOOTH_REACH + 1) if np.any(movable) else 3
         candidates = np.flatnonzero(
-            (kind_q[1:] == SINGLE) & (node_q[1:] <= half) & (node_q[1:] + 3 < n)
+            (kind_q[1:] == SINGLE)
+            & (node_q[1:] <= half)
+            & (node_q[1:] + margin < n)
+            & ~movable[node_q[1:]]
         )
         if len(candidates) == 0:
             return None
@@ -341,9 +407,14 @@ class _StreamPlanner:
                 out.append((slot, int(j), entries))
         return out
 
-    def _drop_committed(self, end_node: int, S: np.ndarray, w: np.ndarray, stop_end: bool) -> None:
+    def _drop_committed(
+        self, end_node: int, S: np.ndarray, w: np.ndarray, stop_end: bool, points: np.ndarray
+    ) -> None:
         """Forget the committed moves but the context: the move that ends at the commit node,
-        and those the jerk filter's history still runs on (from the move before it)."""
+        and those the jerk filter's history still runs on (from the move before it). The
+        points up to the one after the commit node, as planned (`points`), are frozen."""
+        frozen = end_node + 2
+        self.points[:frozen] = [tuple(p) for p in points[:frozen].tolist()]
         oldest = (
             int(np.searchsorted(S, self.history[0, 0], side="right")) - 2
             if len(self.history)
@@ -353,6 +424,7 @@ class _StreamPlanner:
         del self.points[:keep]
         del self.lines[:keep]
         del self.rapids[:keep]
+        del self.arcs[:keep]
         del self.feeds[:keep]
         del self.tols[:keep]
         self.g0 += keep
@@ -360,10 +432,12 @@ class _StreamPlanner:
         self.history[:, 0] -= S[keep]
         self.history[:, 2] -= S[keep] * self.history[:, 3]
         self.F_end -= S[keep] * self.t_s
+        self.n_frozen = frozen - keep
         self.has_context = True
         self.w_context = w[keep : end_node + 1].copy()
         self.first_stop = stop_end
         self.stops = {node for node in self.stops if node >= self.g0 + 1}
+        self.decided = {node: at for node, at in self.decided.items() if max(node, at) >= self.g0}
 
     def _plan_standstill(self) -> SampledTrajectory:
         """A program (or tail) without moves: only dwells and events at the current point."""

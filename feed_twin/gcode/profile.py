@@ -132,6 +132,21 @@ def _phase_eval(va: float, vb: float, A: float, tau: float):
 
 
 @njit(cache=True)
+def piece_of_samples(times: np.ndarray, t0: np.ndarray, dur: np.ndarray) -> np.ndarray:
+    """Index of the piece (starts t0, durations dur, in time order) running at each of the
+    increasing sample times; the last piece runs on past its end."""
+    n = times.shape[0]
+    m = t0.shape[0]
+    piece = np.empty(n, dtype=np.int64)
+    p = 0
+    for k in range(n):
+        while p < m - 1 and times[k] >= t0[p] + dur[p]:
+            p += 1
+        piece[k] = p
+    return piece
+
+
+@njit(cache=True)
 def sample_pieces(
     times: np.ndarray,
     kind: np.ndarray,
@@ -147,18 +162,13 @@ def sample_pieces(
 ):
     """Path parameter s, ds/dt, d2s/dt2 and the active piece at increasing sample times."""
     n = times.shape[0]
-    m = t0.shape[0]
     s = np.empty(n)
     sd = np.empty(n)
     sdd = np.empty(n)
-    piece = np.empty(n, dtype=np.int64)
-    p = 0
+    piece = piece_of_samples(times, t0, dur)
     for k in range(n):
-        t = times[k]
-        while p < m - 1 and t >= t0[p] + dur[p]:
-            p += 1
-        tau = min(max(t - t0[p], 0.0), dur[p])
-        piece[k] = p
+        p = int(piece[k])
+        tau = min(max(times[k] - t0[p], 0.0), dur[p])
         if kind[p] == HOLD:
             s[k] = s0[p]
             sd[k] = 0.0
