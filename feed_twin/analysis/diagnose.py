@@ -48,7 +48,7 @@ from feed_twin.analysis.compare import Metrics, align, compute_metrics
 from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
-from feed_twin.analysis.locate import locate
+from feed_twin.analysis.locate import Location, locate
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.record_scale import at_record_scale
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
@@ -67,6 +67,8 @@ from feed_twin.analysis.timing import split_timing, timing_line
 from feed_twin.analysis.twin import SLOW_COMMAND_S, Drive, ModelDoc, Twin, drive_from_run
 from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.analysis.visibility import (
+    Unseen,
+    Visibility,
     assess,
     force_constant_correlation,
     position_resolution,
@@ -181,16 +183,7 @@ def diagnose(
     meas = weighted_channels(run, out0, stride, floors, start=start)
     motion = _motion(run, twin, out0, drive)
     re0, rp0 = residuals(run, out0, start=start)
-    location = locate(
-        run.t_s,
-        re0 if re0 is not None else rp0,
-        run["pos_meas_m"],
-        motion.v_m_s,
-        residual_name="effort residual" if re0 is not None else "position residual",
-        unit=twin.effort_unit if re0 is not None else "m",
-        lead_m=twin.lead_m,
-        pole_pairs=twin.pole_pairs,
-    )
+    location = _locate(run, twin, motion, re0, rp0)
     state = State(doc=nominal, twin=twin, outputs=out0, cost=cost_of(meas, out0))
     context = Context(
         run=run,
@@ -221,20 +214,11 @@ def diagnose(
         notes.append(timing_line(t, twin.base_period_s))
         progress(notes[-1])
     leftover = _leftover(run, state.outputs, floors, start, motion)
-    small = (
-        too_small(vis, [f.name for f in state.found], ranking)
-        if vis.sample_period_s > SLOW_COMMAND_S
-        else []
-    )
+    small = _too_small(vis, state, ranking)
     for u in small:
         said.append(f"cannot be seen in this record: {u.name}: {u.reason}")
         progress(said[-1])
-    validation, validation_traces = None, None
-    if validate is not None:
-        validate, smoothed_v = smooth_staircases(validate)
-        notes.extend(f"validation: {n}" for n in smoothed_v)
-        validation, validation_traces = _validate(validate, twin, state.twin, progress)
-        notes.extend(validate.warnings)
+    validation, validation_traces = _validate(validate, twin, state.twin, progress, notes)
     timings["total_s"] = time.perf_counter() - clock
     diagnosis = Diagnosis(
         measured=run.source,
@@ -270,6 +254,35 @@ def diagnose(
         },
     )
     return diagnosis, state.doc, motion
+
+
+def _locate(
+    run: MeasuredRun,
+    twin: Twin,
+    motion: Motion,
+    re0: np.ndarray | None,
+    rp0: np.ndarray | None,
+) -> Location:
+    """Where the nominal model's residual lives (effort if recorded, else position)."""
+    residual = re0 if re0 is not None else rp0
+    assert residual is not None, "a record has an effort or a position residual"
+    return locate(
+        run.t_s,
+        residual,
+        run["pos_meas_m"],
+        motion.v_m_s,
+        residual_name="effort residual" if re0 is not None else "position residual",
+        unit=twin.effort_unit if re0 is not None else "m",
+        lead_m=twin.lead_m,
+        pole_pairs=twin.pole_pairs,
+    )
+
+
+def _too_small(vis: Visibility, state: State, ranking: list[Candidate]) -> list[Unseen]:
+    """On a slow record, the ranked effects that stayed below its resolution (visibility)."""
+    if vis.sample_period_s <= SLOW_COMMAND_S:
+        return []
+    return list(too_small(vis, [f.name for f in state.found], ranking))
 
 
 def _simulate_nominal(
@@ -362,9 +375,19 @@ def _leftover(
 
 
 def _validate(
-    validate: MeasuredRun, nominal: Twin, augmented: Twin, progress: Progress
-) -> tuple[dict[str, object], tuple[Trace, Trace]]:
-    """Metrics and traces of the nominal and the augmented twin on a second run."""
+    validate: MeasuredRun | None,
+    nominal: Twin,
+    augmented: Twin,
+    progress: Progress,
+    notes: list[str],
+) -> tuple[dict[str, object] | None, tuple[Trace, Trace] | None]:
+    """Metrics and traces of the nominal and the augmented twin on a second run (its staircases
+    smoothed and its warnings added to `notes`); None without one."""
+    if validate is None:
+        return None, None
+    validate, smoothed_v = smooth_staircases(validate)
+    notes.extend(f"validation: {n}" for n in smoothed_v)
+    notes.extend(validate.warnings)
     progress(f"validating on {validate.source}")
     vdrive = drive_from_run(validate)
     v0 = nominal.simulate(vdrive, nominal.nominal[None, :])

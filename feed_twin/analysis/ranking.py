@@ -32,6 +32,15 @@ dominant-channel rule asks the same share of one channel) decides whether it is 
 noise is what remains after every signature of the domain, those not proposed again this round
 (tried, or found already) too: their structure is no noise.
 
+Beyond the effort's rate. A drive whose current loop lags its command by T (every real one,
+and the synthetic truth's) records a command that leads the twin's by T dF/dt: on a
+jerk-limited start or stop that is m T j while the speed is still low, a hump of the direction
+of motion that a Stribeck law of a few mm/s fits (about 1 N on the EMPS records of the #30
+planner). So an effort-domain effect's share is taken beyond the rate of the twin's effort
+(projected out first, Frisch-Waugh, as the alignment's constant is on the position): what the
+drive's own fast dynamics, or a sub-tick delay, would explain is no evidence for it. The effects
+whose signature is that rate (a delay of the effort) are ranked on the residual as it is.
+
 A missing force also moves the following error through the closed loop, so before
 position-domain effects are ranked, the part of the position residual that the effort residual
 explains (through a low-pass, the loop's disturbance compliance) is removed.
@@ -48,7 +57,9 @@ from scipy import stats
 
 from feed_twin.analysis.effects import LIBRARY, Effect, Motion
 from feed_twin.analysis.significance import ALPHA, DOMINANT, MIN_EXPLAINED
+from feed_twin.plant.effect_api import effort_rate
 
+RATE = "effort_rate"  # the key of the effort's rate in a signature (plant.effect_api)
 SUPPORT_LEVEL = 1e-2  # a regressor this small against its peak carries 1e-4 of its energy
 # A support with fewer effective samples than this cannot give its own noise level: a few
 # neighbouring samples of a smooth residual fit any regressor there almost exactly.
@@ -233,7 +244,7 @@ def rank(
         domain = domain_of(effect, domains)
         assert domain is not None
         r = residual_of[domain]
-        nuisance = offset if domain == "position" else None
+        nuisance = nuisance_of(effect, domain, motion, offset)
         variants = effect.variants(motion)
         signatures = [(label, sig(motion)) for label, sig in variants]
         peaks = [_peak(regs) for _, regs in signatures]
@@ -260,9 +271,7 @@ def rank(
         if effect.name in exclude:
             continue  # its structure is no noise (noise above), but it is not proposed again
         explained, _, _, _, coef = result
-        r = residual_of[domain]
-        if domain == "position":
-            r = r - r.mean()
+        r = _projected(residual_of[domain], nuisance_of(effect, domain, motion, offset))
         e_all, Z_all = noise[domain]
         p = len(regs)
         ess = explained * float(np.dot(r, r))
@@ -308,6 +317,32 @@ def rank(
         )
     out.sort(key=lambda c: (c.worth_fitting, c.explained_fraction), reverse=True)
     return out
+
+
+def nuisance_of(
+    effect: Effect, domain: str, motion: Motion, offset: np.ndarray
+) -> np.ndarray | None:
+    """The columns an effect's share is taken beyond (module docstring): a constant on the
+    position (the alignment's), the rate of the twin's effort on the effort (the drive's own
+    fast dynamics), none for an effect whose signature is that rate."""
+    if domain == "position":
+        return offset
+    if domain != "effort" or motion.effort_sim is None:
+        return None
+    if any(key == RATE for key in _signature_keys(effect, motion)):
+        return None
+    return effort_rate(motion)[RATE]
+
+
+def _signature_keys(effect: Effect, motion: Motion) -> set[str]:
+    return {key for _, sig in effect.variants(motion)[:1] for key in sig(motion)}
+
+
+def _projected(r: np.ndarray, nuisance: np.ndarray | None) -> np.ndarray:
+    if nuisance is None:
+        return r
+    q, _ = np.linalg.qr(nuisance.reshape(len(r), -1))
+    return r - q @ (q.T @ r)
 
 
 def cancellation(regressors: dict[str, np.ndarray], coefficients: dict[str, float]) -> float:

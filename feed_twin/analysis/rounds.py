@@ -24,7 +24,7 @@ from feed_twin.analysis.channels import (
     weighted_channels,
 )
 from feed_twin.analysis.effects import Motion
-from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, cost_of, fit
+from feed_twin.analysis.fit import FreeParameter, Measured, SimOutputs, cost_of
 from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.plausible import outside_record
 from feed_twin.analysis.ranking import Candidate, evidence, rank
@@ -42,7 +42,7 @@ from feed_twin.analysis.reexamine import (
 )
 from feed_twin.analysis.report import FoundEffect
 from feed_twin.analysis.significance import ALPHA, compare, effective_samples
-from feed_twin.analysis.trials import try_candidate
+from feed_twin.analysis.trials import fit_resumed, try_candidate
 from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
@@ -130,14 +130,10 @@ def final_joint(state: State, drive: Drive, meas: Measured, opts: Options) -> st
     """
     free = joint_free(state)
     twin = Twin.compile(state.doc)
-    joint = fit(
-        lambda params: twin.simulate(drive, params),
-        twin.nominal,
-        twin.index,
-        free,
-        meas,
-        max_evaluations=opts.max_evaluations,
-    )
+    # resumed once if it ran out of evaluations on the way down, as every fit of a round is:
+    # eight parameters (three phase offsets, the mass and four friction terms) take about
+    # three Jacobians of the budget, and the effect-by-effect fit it would have improved stayed
+    joint = fit_resumed(twin, drive, free, meas, opts.max_evaluations)
     state.simulations += joint.evaluations
     if not joint.converged or joint.cost > state.cost:
         return (
