@@ -72,6 +72,7 @@ def one_run(program: Path, out: Path, name: str, timeout_s: float) -> dict:
                "--json"]  # fmt: skip
     t0 = time.monotonic()
     done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
+    run_s = time.monotonic() - t0  # the whole `feed-twin run`, start-up and summary included
     lines = done.stdout.strip().splitlines()
     try:
         figures = json.loads(lines[-1]) if lines else {}
@@ -83,7 +84,9 @@ def one_run(program: Path, out: Path, name: str, timeout_s: float) -> dict:
     return {
         "exit_code": done.returncode,
         "reason": figures.get("reason") or (done.stderr.strip().splitlines() or [""])[-1],
-        "wall_s": round(time.monotonic() - t0, 1),
+        "wall_s": round(run_s, 1),
+        # besides the program: start-up, the nodes' shutdown and the runner's summary
+        "outside_program_s": round(run_s - (figures.get("program_time_s") or 0.0), 1),
         "program_time_s": figures.get("program_time_s"),
         "samples_lost": figures.get("samples_lost"),
         "samples_lost_by_topic": figures.get("samples_lost_by_topic"),

@@ -40,7 +40,7 @@ def test_a_joint_fit_to_an_infinite_stiffness_is_not_kept(monkeypatch):
     twin = Twin.compile(doc)
     outputs, ran_off = _ran_off(math.inf)
     state = State(doc=doc, twin=twin, outputs=outputs, cost=1.0)
-    monkeypatch.setattr(rounds, "fit", lambda *args, **kwargs: ran_off)
+    monkeypatch.setattr(rounds, "fit_resumed", lambda *args, **kwargs: ran_off)
     monkeypatch.setattr(rounds, "joint_free", lambda state: [])
     note = final_joint(state, None, None, Options())  # type: ignore[arg-type]
     assert note is not None and "ran to a model no feed axis has" in note

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from known_gaps import PLACED_REPETITIONS_VISCOUS
 
 from feed_twin.analysis.repetitions import find_period, find_starts, split_repetitions
 from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, generate, write_csv, write_with_nc
@@ -132,6 +133,7 @@ def test_identify_on_the_first_run_and_validate_on_the_others(record, tmp_path, 
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=PLACED_REPETITIONS_VISCOUS)
 def test_the_program_of_one_run_is_placed_on_each_repetition(record, tmp_path, capsys):
     """A record without a command: --program names one run, which --repetitions places on
     each repetition (the whole record against one run of the program correlates poorly)."""

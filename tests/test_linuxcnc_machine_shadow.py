@@ -17,6 +17,7 @@ from run_report_support import assert_report
 
 from feed_twin.cli import main as cli_main
 from feed_twin.io.bag import BagReader
+from feed_twin.io.bag.counts import mcap_counts
 from feed_twin.linuxcnc.host import leftovers
 from feed_twin.ros.domain import reserve_domain_id
 
@@ -57,6 +58,14 @@ def test_every_axis_of_linuxcnc_is_shadowed_by_its_own_twin(tmp_path: Path) -> N
     assert record["processes"] == ["recorder", "linuxcnc", "x_twin", "y_twin", "z_twin"]
     bridge = record["linuxcnc"]
     assert bridge["samples_lost"] == 0
+    # every axis's topics counted against what the bridge published, and the counts are the
+    # bag's as the mcap library reads them (the bridge sends them packed: linuxcnc_node)
+    expected = {f"/cnc/{a}/{t}" for a in "xyz" for t in ("command", "joint_states",
+                "twin/residual", "twin/state")} | {"/cnc/x/linuxcnc/servo"}  # fmt: skip
+    assert set(bridge["samples_lost_by_topic"]) == expected
+    assert not any(bridge["samples_lost_by_topic"].values())
+    counts = mcap_counts(Path(record["bag"]))
+    assert bridge["bag_counts"] == {topic: counts[topic] for topic in expected}
     reader = BagReader(record["bag"])
     fields = [f"{name}[{j}]" for name in ("following_error", "velocity_command") for j in range(3)]
     servo = reader.columns("/cnc/x/linuxcnc/servo", ["header.stamp", *fields])

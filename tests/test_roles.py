@@ -64,6 +64,7 @@ def test_topic_names_and_types_under_a_namespace():
         "/cnc/x/twin/state": msg_types.AXIS_STATE,
         "/cnc/x/twin/residual": msg_types.TWIN_RESIDUAL,
         "/cnc/x/twin/health": msg_types.HEALTH_STATUS,
+        "/cnc/x/twin/batch": msg_types.RECORD_BATCH,
     }
     assert node_role("sim").topic_types("/cnc/x", "subscribes") == {
         "/cnc/x/drive_command": msg_types.DRIVE_COMMAND,

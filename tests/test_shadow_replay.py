@@ -222,8 +222,8 @@ def test_cli_reports_bad_input_on_stderr(recording, tmp_path, capsys) -> None:
 
 
 def test_fixed_layout_offsets_follow_the_strings() -> None:
+    from feed_twin.io.bag.raw import flat_offsets
     from feed_twin.io.cdr import FlatCodec
-    from feed_twin.shadow.bagstreams import flat_offsets
 
     codec = FlatCodec("feed_twin_msgs/msg/AxisCommand")
     for axis in ("x", "spindle_axis"):

@@ -3,9 +3,11 @@
 A twin whose loops run at a base period h cannot say where within a tick a drive samples,
 computes and applies. Its effort at tick k is the command it applies after k, where a drive's
 current sampled at k follows the command of k - 1 (one tick later: every clean record of the
-independent truth machine named a 1 ms channel_delay); a drive whose loops run faster than the
-twin's follows its setpoints a fraction of a tick earlier (the truth machine's, 0.12 ms ahead of
-a 1 kHz twin: a 13 um position residual that follows the speed). A delay of the record's own
+independent truth machine named a 1 ms channel_delay, before the twin stamped a drive's actual
+effort so); a drive may follow its setpoints a fraction of a tick earlier or later than the
+twin's loops (the truth machine's 0.125 ms lead, 13 um of position, was its trace recording the
+command one 8 kHz period stale, since fixed: with it recorded at its stamp the lead is 0 for a
+twin at 1, 0.5 or 0.25 ms ticks alike). A delay of the record's own
 (analysis.effects' RECORD_EFFECTS) fitted within one tick, |d| <= h, therefore shows the twin's
 timing, not the recorder's or the machine's: it stays in the model (the rounds after it rank
 what it leaves, and model.yaml keeps it), and the report says it as the twin's alignment, but

@@ -1,3 +1,5 @@
+# pyright: reportUntypedFunctionDecorator=false
+# (numba's njit carries no types; the laws are typed by their own annotations)
 """The cascaded drive controller: the compiled tick.
 
 The configuration dataclasses and their loader live in feed_twin.control.config; the flat

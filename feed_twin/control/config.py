@@ -165,7 +165,8 @@ class CurrentLoopConfig:
 
     def __post_init__(self) -> None:
         require_positive("period_s", self.period_s)
-        if isinstance(self.pole_pairs, bool) or not isinstance(self.pole_pairs, int):
+        # YAML may give a float or a bool where the annotation says int
+        if isinstance(self.pole_pairs, bool) or not isinstance(self.pole_pairs, int):  # pyright: ignore[reportUnnecessaryIsInstance]
             raise ValueError(f"pole_pairs = {self.pole_pairs!r}: must be a whole number")
         require_positive("pole_pairs", self.pole_pairs)
         require_positive("R_s_ohm", self.R_s_ohm)

@@ -14,9 +14,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
-from scipy.optimize import brentq
+
+# scipy ships no stubs: brentq is typed here, once
+from scipy.optimize import brentq  # pyright: ignore[reportMissingTypeStubs, reportUnknownVariableType]
 
 EPS = float(np.finfo(float).eps)
 
@@ -37,8 +40,9 @@ def frequency_response(loop: TransferFunction, omega: np.ndarray) -> np.ndarray:
     return np.asarray(loop(1j * np.asarray(omega, dtype=np.float64)), dtype=np.complex128)
 
 
-def _unwrapped_phase(loop: TransferFunction, omega: np.ndarray) -> np.ndarray:
-    return np.unwrap(np.angle(frequency_response(loop, omega)))
+def unity(s: np.ndarray) -> np.ndarray:
+    """The transfer function 1 (an absent stage), at every s."""
+    return 1.0 + 0.0 * s
 
 
 def loop_margins(
@@ -77,9 +81,8 @@ def loop_margins(
 
 def find_root(f: Callable[[float], float], lo: float, hi: float, *, rtol: float = 4 * EPS) -> float:
     """The root of f in [lo, hi] by Brent's method (scipy's brentq, its default tolerances)."""
-    root = brentq(f, lo, hi, rtol=np.float64(rtol))
-    assert isinstance(root, float)  # full_output was not asked for
-    return root
+    root = cast(float, brentq(f, lo, hi, rtol=np.float64(rtol)))  # a float: no full_output
+    return float(root)
 
 
 def _phase_at(loop: TransferFunction, w: float, w_ref: float, phase_ref: float) -> float:
@@ -140,7 +143,7 @@ def velocity_forward(
     """Forward path PI(s) G_ci(s) F/(m s) e^{-s T_hold} from velocity error to true velocity,
     load side; the estimator delay belongs to the feedback path (see `closed`)."""
     pi = pi_controller(Kp, Ti_s)
-    inner = current_closed_loop or (lambda s: 1.0 + 0.0 * s)
+    inner = current_closed_loop or unity
     return lambda s: pi(s) * inner(s) * force_per_unit / (m_eq_kg * s) * np.exp(-s * T_hold_s)
 
 

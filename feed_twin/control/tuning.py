@@ -40,6 +40,7 @@ from feed_twin.control.loop_response import (
     loop_margins,
     position_open_loop,
     series,
+    unity,
     velocity_forward,
 )
 
@@ -231,7 +232,7 @@ def tune_position_loop(
         raise ValueError(f"phase_margin_deg = {phase_margin_deg!r}: must lie in (0, 90)")
     if not mode_gain_margin >= 1.0:
         raise ValueError(f"mode_gain_margin = {mode_gain_margin!r}: must be >= 1")
-    mode = load_mode.transfer() if load_mode is not None else (lambda s: 1.0 + 0.0 * s)
+    mode = load_mode.transfer() if load_mode is not None else unity
 
     def loop_for(Kv: float) -> TransferFunction:
         rigid = position_open_loop(
@@ -273,7 +274,7 @@ class TuningReport:
 
     def lines(self) -> list[str]:
         """Human-readable summary, one line per loop and variant."""
-        out = []
+        out: list[str] = []
 
         def fmt(m: Margins | None) -> str:
             if m is None:

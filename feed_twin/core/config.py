@@ -14,7 +14,7 @@ import types
 import typing
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, TypeVar, cast
 
 import yaml
 
@@ -62,7 +62,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: the file is empty")
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping, not {type(data).__name__}")
-    return data
+    return cast(dict[str, Any], data)
 
 
 def from_mapping(cls: type[T], data: Any, *, source: str, path: str = "") -> T:
@@ -70,6 +70,7 @@ def from_mapping(cls: type[T], data: Any, *, source: str, path: str = "") -> T:
     where = f"{source}: {path}" if path else source
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__} {data!r}")
+    data = cast(dict[str, Any], data)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - set(fields))
     if unknown:
@@ -143,7 +144,7 @@ def _convert_union(hint: Any, value: Any, *, source: str, path: str) -> Any:
     args = typing.get_args(hint)
     if value is None and type(None) in args:
         return None
-    errors = []
+    errors: list[str] = []
     for option in (a for a in args if a is not type(None)):
         try:
             return _convert(option, value, source=source, path=path)
@@ -154,10 +155,11 @@ def _convert_union(hint: Any, value: Any, *, source: str, path: str) -> Any:
     )
 
 
-def _convert_tuple(hint: Any, value: Any, *, source: str, path: str) -> tuple:
-    args = typing.get_args(hint)
+def _convert_tuple(hint: Any, value: Any, *, source: str, path: str) -> tuple[Any, ...]:
+    args: tuple[Any, ...] = typing.get_args(hint)
     if not isinstance(value, list | tuple):
         raise ConfigError(f"{source}: {path} = {value!r}: expected a list")
+    value = cast(list[Any] | tuple[Any, ...], value)
     if len(args) == 2 and args[1] is Ellipsis:
         args = (args[0],) * len(value)
     elif len(args) != len(value):

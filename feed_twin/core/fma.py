@@ -1,3 +1,6 @@
+# pyright: basic
+# (numba's extension API, `intrinsic` and `overload`, hands untyped typing contexts and IR
+# builders to these hooks: strict typing cannot follow it)
 """Fused multiply-add for the compiled hot loop: fma(a, b, c) = a*b + c, rounded once.
 
 In numba-compiled code `fma` is LLVM's `llvm.fma.f64`: one instruction on a CPU with FMA, and a

@@ -10,7 +10,9 @@ import math
 
 
 def require_finite(name: str, value: float) -> None:
-    if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
+    # the annotation is the contract; the check is for what a YAML file or a caller hands in
+    wrong_type = not isinstance(value, int | float)  # pyright: ignore[reportUnnecessaryIsInstance]
+    if wrong_type or isinstance(value, bool) or not math.isfinite(value):
         raise ValueError(f"{name} = {value!r}: must be a finite number")
 
 

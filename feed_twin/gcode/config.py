@@ -166,9 +166,9 @@ class NcConfig:
         require_nonnegative("arc_radius_tolerance_m", self.arc_radius_tolerance_m)
         require_positive("interpolation_period_s", self.interpolation_period_s)
         require_nonnegative("exact_stop_settle_s", self.exact_stop_settle_s)
-        if isinstance(self.lookahead_segments, bool) or not isinstance(
-            self.lookahead_segments, int
-        ):
+        # YAML may give a float or a bool where the annotation says int
+        lookahead = self.lookahead_segments
+        if isinstance(lookahead, bool) or not isinstance(lookahead, int):  # pyright: ignore[reportUnnecessaryIsInstance]
             raise ValueError(f"lookahead_segments = {self.lookahead_segments!r}: must be an int")
         if self.lookahead_segments < 8:
             raise ValueError(f"lookahead_segments = {self.lookahead_segments!r}: must be >= 8")

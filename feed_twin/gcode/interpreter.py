@@ -1,3 +1,5 @@
+# pyright: reportPrivateUsage=false
+# (MODE_ACTIONS, the table of modal codes, names the interpreter's own _set_* methods)
 """Modal interpreter: blocks of words -> straight moves in machine coordinates (SI) and events.
 
 The interpreter keeps the modal state of an RS274/NGC-style control (motion mode, plane,
@@ -221,7 +223,7 @@ class Interpreter:
         self, m_codes: list[tuple[int, Word]], out: list[Item], line: int
     ) -> list[tuple[int, Word]]:
         """Events of M6, M3-M5, M7-M9; returns the stopping ones (M0, M1, M2, M30) for later."""
-        stop_codes = []
+        stop_codes: list[tuple[int, Word]] = []
         for code, w in m_codes:
             if code == 6:
                 out.append(Event(line, "tool_change", self.tool, f"M6 T{self.tool:g}", True))
@@ -308,7 +310,7 @@ class Interpreter:
         """
         target = list(self.position)
         index = self.index
-        seen = set()
+        seen: set[str] = set()
         feed = None
         motion = self.motion
         unit = self.length_unit

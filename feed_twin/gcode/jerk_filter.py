@@ -1,3 +1,5 @@
+# pyright: reportConstantRedefinition=false
+# (G, J, A are the field's symbols for an integral, a jerk and an acceleration, not constants)
 """The jerk limit as a moving average of the path parameter (FIR), and the raw plan it needs.
 
 The jerk profile plans the path parameter acceleration-limited first (the raw plan: trapezoids,

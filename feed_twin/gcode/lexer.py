@@ -83,7 +83,7 @@ def lex_line(text: str, line: int, *, file: str, block_delete: bool) -> Block | 
             ),
             (),
         )
-    words = []
+    words: list[Word] = []
     notes: list[Note] = []
     for m in _TOKEN.finditer(text, start):
         kind = m.lastgroup
@@ -134,14 +134,17 @@ def iter_source_lines(source: str | Path) -> tuple[str, Iterator[tuple[int, str]
     file is an error; any other string is the program text itself. Binary data raises a
     `GcodeError`.
     """
+    # a caller may hand anything: the type checks below are for it, not for the annotation
     if isinstance(source, Path) or (
-        isinstance(source, str) and "\n" not in source and _is_file(source)
+        isinstance(source, str)  # pyright: ignore[reportUnnecessaryIsInstance]
+        and "\n" not in source
+        and _is_file(source)
     ):
         path = Path(source)
         if not path.is_file():
             raise GcodeError("no such G-code file", file=str(path))
         return str(path), _file_lines(path)
-    if not isinstance(source, str):
+    if not isinstance(source, str):  # pyright: ignore[reportUnnecessaryIsInstance]
         raise TypeError(f"expected a path or program text, got {type(source).__name__}")
     if "\n" not in source and Path(source).suffix.lower() in _PROGRAM_SUFFIXES:
         raise GcodeError("no such G-code file", file=source)

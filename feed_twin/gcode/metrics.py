@@ -81,7 +81,7 @@ def blended_corners(segments: tuple[PathSegment, ...]) -> tuple[Corner, ...]:
     a blend with a triangular curvature profile reaches 3 tol / sin(angle/2) (feed_twin), a
     circular one tol / tan(angle/4) (LinuxCNC); the larger, with a margin.
     """
-    corners = []
+    corners: list[Corner] = []
     for k in range(len(segments) - 1):
         segment = segments[k]
         if segment.stops_after:
@@ -238,8 +238,8 @@ def trajectory_figures(
     rms = float(np.sqrt(np.mean(dist[moving] ** 2))) if np.any(moving) else 0.0
 
     corners = blended_corners(segments)
-    corner_dev = []
-    corner_speed = []
+    corner_dev: list[float] = []
+    corner_speed: list[float] = []
     in_zone = np.zeros(n, dtype=bool)
     for corner in corners:
         vertex = np.array(corner.vertex_m)
@@ -286,7 +286,7 @@ def trajectory_figures(
 
 def requirement_failures(figures: TrajectoryFigures, *, chord_tolerance_m: float) -> list[str]:
     """What the trajectory breaks: arc samples off their circle, corners beyond tolerance."""
-    failures = []
+    failures: list[str] = []
     if figures.arc_dev_max_m > chord_tolerance_m:
         failures.append(
             f"arc sample {figures.arc_dev_max_m * 1e6:.3f} um from its circle "
@@ -318,7 +318,7 @@ def axis_limit_failures(
     checks.append(("acceleration", figures.peak_acc_m_s2, a_max, "m/s^2"))
     if j_max is not None:
         checks.append(("jerk", figures.peak_jerk_m_s3, j_max, "m/s^3"))
-    failures = []
+    failures: list[str] = []
     for kind, peaks, limits, unit in checks:
         for axis, peak, limit in zip(axes, peaks, limits, strict=True):
             if peak > limit * (1.0 + LIMIT_SLACK):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 from feed_twin.gcode.geometry import PathSegment
 from feed_twin.gcode.metrics import TrajectoryFigures, requirement_failures, trajectory_figures
@@ -68,7 +69,7 @@ def time_ratio(side: Side, reference: Side) -> float | None:
     return side.figures.program_time_s / reference.figures.program_time_s
 
 
-def side_summary(side: Side) -> dict:
+def side_summary(side: Side) -> dict[str, Any]:
     """The side's figures as plain numbers (SI) for a JSON report."""
     if side.figures is None:
         return {"accepted": False, "error": side.error}

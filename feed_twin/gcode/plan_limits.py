@@ -1,3 +1,5 @@
+# pyright: reportConstantRedefinition=false
+# (G, J, A are the field's symbols for an integral, a jerk and an acceleration, not constants)
 """Planner stage 1, move limits: each straight move's length, direction and the speed,
 acceleration and jerk along it that keep every axis within its own limits.
 

@@ -1,3 +1,5 @@
+# pyright: reportConstantRedefinition=false
+# (G, J, A are the field's symbols for an integral, a jerk and an acceleration, not constants)
 """Planner stage 4, speed profile: boundary speeds of the bodies, then s(t) as pieces.
 
 The bodies' boundary speeds come from a backward pass of braking bounds and a forward pass

@@ -416,7 +416,7 @@ class _StreamPlanner:
         frozen = end_node + 2
         self.points[:frozen] = [tuple(p) for p in points[:frozen].tolist()]
         oldest = (
-            int(np.searchsorted(S, self.history[0, 0], side="right")) - 2
+            int(np.searchsorted(S, float(self.history[0, 0]), side="right")) - 2
             if len(self.history)
             else end_node
         )
@@ -444,7 +444,7 @@ class _StreamPlanner:
         node = self.g0 + len(self.lines)
         entries = self.entries.pop(node, [])
         t = self.t_s
-        events = []
+        events: list[NcEvent] = []
         spans: list[tuple[float, float, int]] = []
         for entry in entries:
             if isinstance(entry, Stop):

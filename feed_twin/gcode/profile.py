@@ -1,3 +1,5 @@
+# pyright: reportConstantRedefinition=false
+# (G, J, A are the field's symbols for an integral, a jerk and an acceleration, not constants)
 """One-dimensional feed profiles along the path, and the blended path geometry (numba kernels).
 
 The planner moves a path parameter s [m] (arc length of the programmed polyline) with a

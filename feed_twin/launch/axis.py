@@ -86,6 +86,8 @@ def _linuxcnc(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> l
 def _twin(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> list[str]:
     argv = ["--map", str(files.map), "--machine", ros.machine, "--axis", ros.axis]
     argv += ["--rrd", str(files.rrd)]
+    if request.nc == "linuxcnc":  # the bridge sends its periods packed (ros/linuxcnc_node.py)
+        argv += ["--batch-topic", AxisTopics(machine=ros.machine, axis=ros.axis).bridge_batch]
     return argv + (["--rerun-url", request.live_url] if request.live_url else [])
 
 

@@ -20,6 +20,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from feed_twin.linuxcnc.servo_cdr import ServoSampleLayout
+
 TIMELINE = "sim_time"
 JOINT_COLORS = ((31, 119, 230), (255, 127, 14), (44, 190, 44))
 COMMAND, FEEDBACK, JITTER = (44, 190, 44), (31, 119, 230), (220, 40, 40)
@@ -43,14 +45,30 @@ class ServoTrace:
 def read_servo_trace(
     bag: Path, topic: str, joints: tuple[str, ...] = ("X", "Y", "Z")
 ) -> ServoTrace:
-    """The ServoSample columns of `topic` in the bag."""
+    """The ServoSample columns of `topic` in the bag (read at byte offsets when every sample
+    has one layout, as the bridge's have: feed_twin.linuxcnc.servo_cdr)."""
     from feed_twin.io.bag import BagReader
+    from feed_twin.io.bag.raw import raw_messages
 
     fields = ("position_command", "position_feedback", "following_error", "servo_output")
     names = ["header.stamp", "tick_time"] + [
         f"{f}[{j}]" for f in fields for j in range(len(joints))
     ]
-    cols = BagReader(bag).columns(topic, names)
+    reader = BagReader(bag)
+    reader.topic(topic)  # BagError naming the bag's topics when it has no such topic
+    raw = raw_messages(reader.info.mcap_path, {topic})[topic]
+    cols = None
+    if raw.table is not None and len(raw.table):
+        table = raw.table[np.argsort(raw.log_time_ns, kind="stable")]
+        try:
+            read = ServoSampleLayout.from_message(table[0].tobytes()).read(table)
+        except ValueError:
+            read = {}
+        if all(name in read or name == "header.stamp" for name in names):
+            stamp = read["header.stamp.sec"].astype(float) + read["header.stamp.nanosec"] * 1e-9
+            cols = {"header.stamp": stamp, **read}
+    if cols is None:
+        cols = reader.columns(topic, names)
     per_joint = {
         f: np.column_stack([cols[f"{f}[{j}]"] for j in range(len(joints))]) for f in fields
     }

@@ -127,12 +127,7 @@ def linuxcnc_figures(bag: Path, *, twin_namespace: str, report: dict) -> Linuxcn
         value = report.get(key)
         return math.nan if value is None else float(value)
 
-    counts = {t.name: t.message_count for t in reader.info.topics}
-    expected = report.get("expected") or {}
-    lost_by_topic = {topic: int(n) - counts.get(topic, 0) for topic, n in expected.items()}
-    lost = int(report.get("samples_lost") or 0)
-    if lost_by_topic:
-        lost = max(0, *lost_by_topic.values())
+    bag_counts, lost_by_topic, lost = counts_against_expected(reader, report)
 
     return LinuxcncFigures(
         program_time_s=number("program_time_s"),
@@ -146,9 +141,24 @@ def linuxcnc_figures(bag: Path, *, twin_namespace: str, report: dict) -> Linuxcn
         twin_output_latency_p99_ms=number("twin_output_latency_p99_ms"),
         startup_s=number("startup_s"),
         servo_timing=servo_timing_from_report(report),
-        bag_counts={topic: counts.get(topic, 0) for topic in expected},
+        bag_counts=bag_counts,
         samples_lost_by_topic=lost_by_topic,
     )
+
+
+def counts_against_expected(
+    reader: BagReader, report: dict
+) -> tuple[dict[str, int], dict[str, int], int]:
+    """The bag's count of every topic the bridge's report expects (`expected`), the shortfall
+    per topic, and the samples lost: the largest shortfall (the bridge's own count of periods
+    missing between LinuxCNC and the bridge when the report expects nothing)."""
+    counts = {t.name: t.message_count for t in reader.info.topics}
+    expected = report.get("expected") or {}
+    lost_by_topic = {topic: int(n) - counts.get(topic, 0) for topic, n in expected.items()}
+    lost = int(report.get("samples_lost") or 0)
+    if lost_by_topic:
+        lost = max(0, *lost_by_topic.values())
+    return {topic: counts.get(topic, 0) for topic in expected}, lost_by_topic, lost
 
 
 def servo_timing_from_report(report: dict) -> PeriodTiming | None:

@@ -35,6 +35,7 @@ from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.nodes import PEER_TIMEOUT_S, axis_documents, process_name, write_documents
 from feed_twin.machine.shadow import axis_figures, axis_shadow_config
 from feed_twin.nodeset.roles import node_role
+from feed_twin.nodeset.topics import AxisTopics
 
 RECORDER_PROCESS = "recorder"  # hosts the recorder (and the G-code node beside stand-ins)
 LINUXCNC_PROCESS = "linuxcnc"
@@ -125,6 +126,9 @@ class ShadowPlan:
                 else:
                     argv += ["--map", str(self.maps[axis]), "--machine", self.machine,
                              "--axis", axis.lower(), "--rrd", str(self.rrd(bag, axis))]  # fmt: skip
+                    if self.linuxcnc:  # the bridge sends its periods packed (linuxcnc_node)
+                        topics = AxisTopics(machine=self.machine, axis=axis.lower())
+                        argv += ["--batch-topic", topics.bridge_batch]
                 out[process_name(axis, role)] = [(role, argv)]
         return out
 

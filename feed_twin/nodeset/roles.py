@@ -178,6 +178,8 @@ ROLES: dict[str, Role] = {
                 _out("state", msg_types.AXIS_STATE),
                 _out("residual", msg_types.TWIN_RESIDUAL),
                 _out("health", msg_types.HEALTH_STATUS),
+                # state and residual packed beside the LinuxCNC bridge (twin_node --batch-topic)
+                _out("batch", msg_types.RECORD_BATCH),
             ),
             arguments=(
                 "--map",
@@ -187,6 +189,7 @@ ROLES: dict[str, Role] = {
                 "--rerun-url",
                 "--max-time",
                 PEER_TIMEOUT,
+                "--batch-topic",  # beside the LinuxCNC bridge
             ),  # fmt: skip
         ),
         Role(
@@ -226,9 +229,9 @@ ROLES: dict[str, Role] = {
             repeatable=False,
             guarded=False,
             own_node=False,  # publishes no topic a guarded node reads
+            # command, joint_states and servo packed (feed_twin/ros/linuxcnc_node.py)
             topics=(
-                _out("command", msg_types.AXIS_COMMAND),
-                _out("joint_states", msg_types.JOINT_STATE),
+                _out("linuxcnc/batch", msg_types.RECORD_BATCH),
                 _out("run_state", msg_types.STRING),
                 *_LIVENESS,
             ),

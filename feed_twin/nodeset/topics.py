@@ -93,6 +93,17 @@ class AxisTopics:
     def heartbeat(self) -> str:  # every node -> every node: liveness
         return f"{self.namespace}/heartbeat"
 
+    @property
+    def servo(self) -> str:  # LinuxCNC bridge -> recorder: every joint of a servo period
+        return f"{self.namespace}/linuxcnc/servo"
+
+    @property
+    def bridge_batch(self) -> str:
+        """LinuxCNC bridge -> twin and recorder: the servo periods' `command`, `joint_states`
+        (and on the first axis `servo`) packed in RecordBatches (feed_twin/ros/linuxcnc_node.py);
+        the recorder writes each message under its own topic."""
+        return f"{self.namespace}/linuxcnc/batch"
+
     clock = "/clock"
 
     def record(self, role: str) -> str:  # node -> recorder: its messages packed (record_batch)

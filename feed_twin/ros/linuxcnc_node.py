@@ -1,8 +1,8 @@
 """LinuxCNC as the NC and the machine of the shadow twin: the bridge node.
 
 Runs one program on LinuxCNC (feed_twin.linuxcnc.runner: headless, every 1 kHz servo period)
-once its peers are up and the twin listens, and publishes each period (stamps and pairing:
-feed_twin.linuxcnc.bridge):
+once its peers are up and the twin listens, and makes three messages of each period (stamps
+and pairing: feed_twin.linuxcnc.bridge):
 
 - `<ns>/command` (AxisCommand): LinuxCNC's commanded position, velocity, acceleration and
   program line of the twin's joint, as the G-code node would publish them;
@@ -12,8 +12,16 @@ feed_twin.linuxcnc.bridge):
 - `<ns>/linuxcnc/servo` (ServoSample): every joint's command, feedback, following error and
   PID output, for the bag.
 
+They go out packed, each signed for its own topic, in one RecordBatch on `<ns>/linuxcnc/batch`
+per look at LinuxCNC's rows (at most BATCH_PERIODS periods): three messages a period, each a
+datagram to the twin and one to the recorder, made the bridge's latency p99 reach a second on a
+busy host, where every wake-up of a process costs. The twin advances over a whole batch per
+wake-up (twin_node --batch-topic); the recorder writes each message under its own topic, so
+the bag holds what per-period publishing gave.
+
 Latency (feed_twin.linuxcnc.bridge): servo tick -> published, and servo tick -> the twin's
-`<ns>/twin/residual` for that period back at the bridge. At the
+`<ns>/twin/residual` for that period back at the bridge (in the twin's packed output,
+`<ns>/twin/batch`). At the
 program's end it announces `done: program finished` on run_state; a LinuxCNC fault (a program it
 rejects, LinuxCNC dying, the bridge falling so far behind that LinuxCNC's sampler FIFO would
 overflow) ends the run with `done: LinuxCNC fault` and
@@ -25,27 +33,31 @@ latency, LinuxCNC's program time and following error, start-up).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import struct
 import sys
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from feed_twin_msgs.msg import AxisCommand, ServoSample, TwinResidual
-from rclpy.serialization import serialize_message
-from sensor_msgs.msg import JointState
+from feed_twin_msgs.msg import RecordBatch as RecordBatchMsg
+from rclpy.publisher import Publisher
 from std_msgs.msg import String
 
 from feed_twin.io import msg_types
-from feed_twin.io.cdr import FlatCodec
+from feed_twin.io.cdr import FixedLayout, FlatCodec
 from feed_twin.linuxcnc.bridge import BridgeBatch, ServoBridge
 from feed_twin.linuxcnc.host import LinuxcncError
 from feed_twin.linuxcnc.machine import machine_for_config
 from feed_twin.linuxcnc.runner import LinuxcncRun, RunOptions
+from feed_twin.linuxcnc.servo_cdr import ServoSampleLayout
+from feed_twin.nodeset.record_batch import RecordBatch, unpack
 from feed_twin.nodeset.roles import node_role
+from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
 from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import encode_joint_state
@@ -56,11 +68,33 @@ LINGER_S = 1.0  # [s] after the end, so that readers receive everything
 # periods published ahead of the twin's output at most: what is in flight between the bridge
 # and the twin. It bounds the throughput to WINDOW periods per round trip bridge -> twin ->
 # bridge, which takes 0.1-0.3 s on a loaded host: 100 made the twin fall seconds behind
-# there. It stays well inside DATA_QOS's history (5000), so nothing in flight is dropped.
-WINDOW = 1000
+# there, and with 1000 a twin a second behind held the bridge back (bridge latency p99 0.3-0.4
+# s at load 14-25). A batch holds at least one period, so WINDOW periods stay inside DATA_QOS's
+# history of the batch topic (5000 messages): nothing in flight is dropped.
+WINDOW = 4000
+# periods in one RecordBatch at most: a catch-up after a stall goes out in pieces of a few tens
+# of kB instead of one message of a second's periods
+BATCH_PERIODS = 100
 LATENCY_BOUND_S = 0.2  # [s] servo tick -> published above this is said once (the run goes on)
 PROGRESS_PERIOD_S = 0.5
 _STAMP = struct.Struct("<iI")  # header.stamp right after the 4-byte CDR encapsulation
+SERVO_JOINTS = ("X", "Y", "Z")  # the joints of every ServoSample (LinuxCNC's joints 0, 1, 2)
+TWIN = node_role("twin")
+TWIN_NODE = TWIN.node_name
+
+
+@dataclass(frozen=True, kw_only=True)
+class AxisOut:
+    """What the bridge sends one shadowed axis: its joint's periods, packed on its batch topic."""
+
+    label: str  # the NC axis, e.g. "X"
+    joint: int  # LinuxCNC's joint of that axis
+    topics: AxisTopics
+    command: FixedLayout  # the axis's AxisCommand
+    batch: RecordBatch  # command, joint_states (and servo) of the periods not yet sent
+    publisher: Publisher  # on topics.bridge_batch
+    servo: bool  # its batch carries the ServoSample of every joint (the first axis's)
+    residual: str  # the topic of its twin's residuals, which come packed on the twin's batch
 
 
 class LinuxcncNode(FeedTwinNode):
@@ -79,23 +113,12 @@ class LinuxcncNode(FeedTwinNode):
         self.joint = joint
         self.period_s = period_s
         self._label = options.axis.upper()
-        self._cmd_pub = self.create_publisher(AxisCommand, self.topics.command, DATA_QOS)
-        self._js_pub = self.create_publisher(JointState, self.topics.joint_states, DATA_QOS)
-        self._servo_pub = self.create_publisher(
-            ServoSample, f"{self.topics.namespace}/linuxcnc/servo", DATA_QOS
-        )
+        self._axes: dict[str, AxisOut] = {}
+        self._twin_stamps: dict[str, int] = {}  # per axis the stamp of its twin's latest output
+        self.add_axis(self._label, joint, self.topics)
+        self._servo = ServoSampleLayout(self._label, SERVO_JOINTS)
         # where the end of the run is announced (a machine's node: every axis's run_state)
         self._run_pubs = [self.create_publisher(String, self.topics.run_state, LATCHED_QOS)]
-        self.create_subscription(
-            TwinResidual,
-            node_role("twin").topic(twin_namespace(self.topics.command), "residual"),
-            self._on_twin_output,
-            DATA_QOS,
-            raw=True,
-        )
-        self._command = COMMAND.fixed({"header.frame_id": "", "axis": self._label})
-        if self._command.numbers != _COMMAND_ORDER:
-            raise ValueError(f"AxisCommand's numbers are {self._command.numbers}")
         self.run: LinuxcncRun | None = None
         self.run_ended = False  # LinuxCNC has been stopped (run is None again)
         self.bridge: ServoBridge | None = None
@@ -108,8 +131,37 @@ class LinuxcncNode(FeedTwinNode):
         self._t_start = 0.0
         self.latency_bound_s = latency_bound_s
         self._latency_said = False
-        publishers = (self._cmd_pub, self._js_pub, self._servo_pub)
-        self.start_heartbeat(when=lambda: self.recorder_listens(publishers))
+        self.start_heartbeat(
+            when=lambda: self.recorder_listens([a.publisher for a in self._axes.values()])
+        )
+
+    def add_axis(self, label: str, joint: int, topics: AxisTopics) -> None:
+        """Shadow NC axis `label` (LinuxCNC's joint `joint`) on `topics`; the first axis added
+        carries the servo samples."""
+        command = COMMAND.fixed({"header.frame_id": "", "axis": label})
+        if command.numbers != _COMMAND_ORDER:
+            raise ValueError(f"AxisCommand's numbers are {command.numbers}")
+        servo = not self._axes
+        packed = [topics.command, topics.joint_states] + ([topics.servo] if servo else [])
+        twin = twin_namespace(topics.command)
+        self._axes[label] = AxisOut(
+            label=label,
+            joint=joint,
+            topics=topics,
+            command=command,
+            batch=RecordBatch(packed, 1),
+            publisher=self.create_publisher(RecordBatchMsg, topics.bridge_batch, DATA_QOS),
+            servo=servo,
+            residual=TWIN.topic(twin, "residual"),
+        )
+        self._twin_stamps[label] = -1
+        self.create_subscription(
+            RecordBatchMsg,
+            TWIN.topic(twin, "batch"),
+            functools.partial(self._on_twin_output, label),
+            DATA_QOS,
+            raw=True,
+        )
 
     def poll(self) -> float | None:
         if self.done:
@@ -153,8 +205,16 @@ class LinuxcncNode(FeedTwinNode):
         return 0.001
 
     def _ready(self) -> bool:
-        """LinuxCNC may start: the peers beat and the twin listens."""
-        return self.peers_alive() and self._js_pub.get_subscription_count() > 0
+        """LinuxCNC may start: the peers beat, every axis's twin listens, and the recorder."""
+        publishers = [a.publisher for a in self._axes.values()]
+        return (
+            self.peers_alive()
+            and all(
+                any(i.node_name == TWIN_NODE for i in self.get_subscriptions_info_by_topic(name))
+                for name in (p.topic_name for p in publishers)
+            )
+            and self.recorder_listens(publishers)
+        )
 
     def _publish_window(self) -> None:
         """Publish what waits, at most WINDOW periods ahead of the twin's output: LinuxCNC
@@ -165,7 +225,8 @@ class LinuxcncNode(FeedTwinNode):
         while self._backlog and bridge is not None:
             batch, start = self._backlog[0]
             stop = start
-            while stop < len(batch) and batch.stamp_ns[stop] <= window_end:
+            last = min(len(batch), start + BATCH_PERIODS)
+            while stop < last and batch.stamp_ns[stop] <= window_end:
                 stop += 1
             if stop == start:
                 return
@@ -187,33 +248,74 @@ class LinuxcncNode(FeedTwinNode):
                 self._backlog[0][1] = stop
 
     def _publish(self, b: BridgeBatch, start: int, stop: int) -> None:
-        j = self.joint
+        """Periods `start` to `stop` of `b` in one RecordBatch per axis (module docstring)."""
         period_ns = round(self.period_s * 1e9)
-        joint = [self._label.lower()]
-        for i in range(start, stop):
-            stamp = int(b.stamp_ns[i])
+        stamps = b.stamp_ns[start:stop].tolist()
+        lines = b.line[start:stop].tolist()
+        now_ns = time.time_ns()
+        sign = self.auth.sign  # the run's signature (feed_twin.nodeset.auth)
+        for axis in self._axes.values():
+            j, topics, batch = axis.joint, axis.topics, axis.batch
+            encode = axis.command.encode
+            rows = zip(stamps, b.pos_cmd_m[start:stop, j].tolist(),
+                       b.vel_cmd_m_s[start:stop, j].tolist(),
+                       b.acc_cmd_m_s2[start:stop, j].tolist(), lines,
+                       b.pos_fb_m[start:stop, j].tolist(), strict=True)  # fmt: skip
+            joint = [axis.label.lower()]
+            for stamp, x, v, a, line, fb in rows:
+                sec, nsec = divmod(stamp, 1_000_000_000)
+                batch.add(0, sign(topics.command, encode((sec, nsec, x, v, a, line))), now_ns)
+                if stamp > 0:  # row k's feedback is period k - 1's (feed_twin.linuxcnc.bridge)
+                    js = encode_joint_state(stamp - period_ns, joint, [fb], [], [])
+                    batch.add(1, sign(topics.joint_states, js), now_ns)
+            if axis.servo:
+                self._add_servo(batch, b, start, stop, now_ns)
+            data = batch.take()
+            if data is not None:
+                axis.publisher.publish(data)
+
+    def _add_servo(self, batch: RecordBatch, b: BridgeBatch, start: int, stop: int, now_ns: int):
+        topic = batch.topics[2]
+        values = np.hstack(
+            (b.pos_cmd_m, b.vel_cmd_m_s, b.acc_cmd_m_s2, b.pos_fb_m, b.f_error_m, b.pid_output_m_s)
+        )[start:stop].tolist()
+        rows = zip(b.stamp_ns[start:stop].tolist(), b.tick[start:stop].tolist(),
+                   b.tick_time_s[start:stop].tolist(), b.line[start:stop].tolist(), values,
+                   strict=True)  # fmt: skip
+        encode, sign = self._servo.encode, self.auth.sign
+        for stamp, tick, tick_time, line, row in rows:
             sec, nsec = divmod(stamp, 1_000_000_000)
-            values = (sec, nsec, float(b.pos_cmd_m[i, j]), float(b.vel_cmd_m_s[i, j]),
-                      float(b.acc_cmd_m_s2[i, j]), int(b.line[i]))  # fmt: skip
-            sign = self.auth.sign  # the run's signature (feed_twin.nodeset.auth)
-            self._cmd_pub.publish(sign(self._cmd_pub.topic_name, self._command.encode(values)))
-            servo = serialize_message(_servo_sample(b, i, sec, nsec, self._label))
-            self._servo_pub.publish(sign(self._servo_pub.topic_name, servo))
-            if stamp > 0:  # row k's feedback is period k - 1's (feed_twin.linuxcnc.bridge)
-                fb = float(b.pos_fb_m[i, j])
-                js = encode_joint_state(stamp - period_ns, joint, [fb], [], [])
-                self._js_pub.publish(sign(self._js_pub.topic_name, js))
+            servo = encode(sec, nsec, tick, tick_time, max(0, line), row)
+            batch.add(2, sign(topic, servo), now_ns)
 
     def on_run_done(self, text: str) -> None:
         """This node announces the end itself (and hears its own announcement): it finishes
         after LINGER_S with the code of its run, not at the announcement."""
 
-    def _on_twin_output(self, data: bytes) -> None:
-        if self.bridge is not None:
-            sec, nsec = _STAMP.unpack_from(data, 4)
-            stamp = sec * 1_000_000_000 + nsec
-            self._twin_ns = max(self._twin_ns, stamp)
-            self.bridge.twin_output(stamp, now_s=time.monotonic())
+    def _on_twin_output(self, label: str, data: bytes) -> None:
+        """Axis `label`'s twin sent its output (packed: twin_node --batch-topic): the window
+        follows the slowest twin, none is flooded; the latency is the first axis's."""
+        axis = self._axes[label]
+        try:
+            stamps = [
+                sec * 1_000_000_000 + nsec
+                for topic, _, message in unpack(data)
+                if topic == axis.residual
+                for sec, nsec in (_STAMP.unpack_from(message, 4),)
+            ]
+        except (ValueError, struct.error) as exc:
+            self.get_logger().warning(
+                f"{label}: a malformed twin output dropped ({exc})", throttle_duration_sec=1.0
+            )
+            return
+        if not stamps:
+            return
+        self._twin_stamps[label] = max(self._twin_stamps[label], *stamps)
+        self._twin_ns = min(self._twin_stamps.values())
+        if axis.servo and self.bridge is not None:
+            now = time.monotonic()
+            for stamp in stamps:
+                self.bridge.twin_output(stamp, now_s=now)
 
     def _end(self, code: int, message: str) -> None:
         """Stop LinuxCNC, announce the end of the run, stay LINGER_S, then finish."""
@@ -254,18 +356,20 @@ class LinuxcncNode(FeedTwinNode):
             )
 
     def _expected(self, periods: int) -> dict[str, int]:
-        """Messages each topic of the run should hold in the bag: one per program period on
-        command and servo, one fewer on joint_states (row k's feedback is period k - 1's) and
-        on the twin's output, which shadows every measured sample."""
-        twin = twin_namespace(self.topics.command)
+        """Messages each topic of the run should hold in the bag, per shadowed axis: one per
+        program period on command (and servo), one fewer on joint_states (row k's feedback is
+        period k - 1's) and on the twin's output, which shadows every measured sample."""
         measured = max(0, periods - 1)
-        return {
-            self.topics.command: periods,
-            f"{self.topics.namespace}/linuxcnc/servo": periods,
-            self.topics.joint_states: measured,
-            node_role("twin").topic(twin, "residual"): measured,
-            node_role("twin").topic(twin, "state"): measured,
-        }
+        out: dict[str, int] = {}
+        for axis in self._axes.values():
+            twin = twin_namespace(axis.topics.command)
+            out[axis.topics.command] = periods
+            if axis.servo:
+                out[axis.topics.servo] = periods
+            out[axis.topics.joint_states] = measured
+            out[node_role("twin").topic(twin, "residual")] = measured
+            out[node_role("twin").topic(twin, "state")] = measured
+        return out
 
     def on_shutdown(self, reason: str) -> None:
         self._close_run()
@@ -281,23 +385,6 @@ class LinuxcncNode(FeedTwinNode):
 _COMMAND_ORDER = (
     "header.stamp.sec", "header.stamp.nanosec", "position", "velocity", "acceleration", "line",
 )  # fmt: skip
-
-
-def _servo_sample(b: BridgeBatch, i: int, sec: int, nsec: int, axis: str) -> ServoSample:
-    msg = ServoSample()
-    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nsec
-    msg.axis = axis
-    msg.tick = int(b.tick[i])
-    msg.tick_time = float(b.tick_time_s[i])
-    msg.line = max(0, int(b.line[i]))
-    msg.joints = ["X", "Y", "Z"]
-    msg.position_command = b.pos_cmd_m[i].tolist()
-    msg.velocity_command = b.vel_cmd_m_s[i].tolist()
-    msg.acceleration_command = b.acc_cmd_m_s2[i].tolist()
-    msg.position_feedback = b.pos_fb_m[i].tolist()
-    msg.following_error = b.f_error_m[i].tolist()
-    msg.servo_output = b.pid_output_m_s[i].tolist()
-    return msg
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

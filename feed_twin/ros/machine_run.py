@@ -45,7 +45,13 @@ from feed_twin.nodeset.run_report import (
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.ros import preflight
 from feed_twin.ros.executors import run_processes
-from feed_twin.ros.launch import Launched, foreign_messages, log_record, planned_duration_s
+from feed_twin.ros.launch import (
+    Launched,
+    foreign_messages,
+    log_record,
+    planned_duration_s,
+    slow_line,
+)
 
 if TYPE_CHECKING:
     from feed_twin.ros.domain import DomainReservation
@@ -100,7 +106,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
     foreign = foreign_messages(result.logs.values())
     for line in foreign.lines():
         print(line)  # the run's own output names who sent what it dropped
-    for said in (reason, problem):
+    for said in (reason, problem, slow_line(logs)):
         if said:
             print(f"feed-twin run: {said}", file=sys.stderr)
     run_timing = RunTiming.from_report(timing)

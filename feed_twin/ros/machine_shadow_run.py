@@ -41,7 +41,7 @@ from feed_twin.nodeset.run_report import (
     shown,
 )
 from feed_twin.ros import preflight
-from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s
+from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s, slow_line
 from feed_twin.ros.machine_run import check_plan, readable_bag, run_reserved
 
 # the node set plays the program in lockstep, all axes in one bag, started here
@@ -87,7 +87,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     bridge_said = (log_record(run.clock_log(result.logs), "LINUXCNC") or {}) if linuxcnc else {}
     if reason and bridge_said.get("fault"):
         reason = bridge_said["fault"]  # the bridge's own line for a LinuxCNC fault
-    for said in (reason, problem):
+    for said in (reason, problem, slow_line(logs)):
         if said:
             print(f"feed-twin run: {said}", file=sys.stderr)
     timing = RunTiming.from_report(log_record(run.clock_log(result.logs), "TIMING") or {})
@@ -99,16 +99,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
             if plan.rrd(bag, axis).exists():
                 show_recording(getattr(args, "live_viewer", None), plan.rrd(bag, axis))
     if bridge is not None:
-        lines.append(
-            f"LinuxCNC: program time {shown(bridge['program_time_s'], 's')}, servo samples "
-            f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
-            f"latency p99 {shown(bridge['bridge_latency_p99_ms'], 'ms')}"
-        )
-        from feed_twin.linuxcnc.summary import servo_timing_from_report
-
-        servo_timing = servo_timing_from_report(bridge_said)
-        if servo_timing is not None:
-            lines.append(servo_timing.format())
+        lines += bridge_lines(bridge, bridge_said)
     foreign = foreign_messages(result.logs.values())
     for line in foreign.lines():
         print(line)  # the run's own output names who sent what it dropped
@@ -152,18 +143,40 @@ def linuxcnc_figures(bag: Path, plan: ShadowPlan, report: dict, figures: dict) -
     in the bag) added to `figures`; the bridge's counts and latencies (its LINUXCNC report)."""
     from feed_twin.io.bag import BagReader
     from feed_twin.linuxcnc.machine import JOINT_AXES
+    from feed_twin.linuxcnc.summary import counts_against_expected
 
     fields = [f"following_error[{JOINT_AXES.index(a)}]" for a in plan.axes]
-    servo = BagReader(bag).columns(f"{plan.namespace(plan.axes[0])}/linuxcnc/servo", fields)
+    reader = BagReader(bag)
+    servo = reader.columns(f"{plan.namespace(plan.axes[0])}/linuxcnc/servo", fields)
     for axis, field in zip(plan.axes, fields, strict=True):
         fe = servo[field]
         figures[axis.lower()]["linuxcnc_following_error_max_m"] = (
             float(np.max(np.abs(fe))) if fe.size else None
         )
-    keys = ("program_time_s", "samples_received", "samples_lost", "samples_published",
+    keys = ("program_time_s", "samples_received", "samples_published",
             "bridge_latency_p50_ms", "bridge_latency_p99_ms", "twin_output_latency_p50_ms",
             "twin_output_latency_p99_ms", "startup_s")  # fmt: skip
-    return {k: report.get(k) for k in keys}
+    bag_counts, lost_by_topic, lost = counts_against_expected(reader, report)
+    return {**{k: report.get(k) for k in keys}, "samples_lost": lost, "bag_counts": bag_counts,
+            "samples_lost_by_topic": lost_by_topic}  # fmt: skip
+
+
+def bridge_lines(bridge: dict, report: dict) -> list[str]:
+    """The summary's lines of LinuxCNC's side (`linuxcnc_figures`, the bridge's report)."""
+    from feed_twin.linuxcnc.summary import servo_timing_from_report
+
+    lines = [
+        f"LinuxCNC: program time {shown(bridge['program_time_s'], 's')}, servo samples "
+        f"{bridge['samples_received']} received, {bridge['samples_lost']} lost; bridge "
+        f"latency p99 {shown(bridge['bridge_latency_p99_ms'], 'ms')}"
+    ]
+    if any(bridge["samples_lost_by_topic"].values()):
+        lost = bridge["samples_lost_by_topic"].items()
+        lines.append("samples lost by topic: " + ", ".join(f"{t} {n}" for t, n in lost))
+    servo_timing = servo_timing_from_report(report)
+    if servo_timing is not None:
+        lines.append(servo_timing.format())
+    return lines
 
 
 def finish(bag: Path, plan: ShadowPlan) -> tuple[dict | None, str]:

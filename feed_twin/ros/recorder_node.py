@@ -19,9 +19,11 @@ With `ros.record_batch` N > 0 (a machine's node set) the sim's feedback, state a
 and the controller's DriveCommand come packed, N exchanges to a RecordBatch on
 `<namespace>/record/<role>` (feed_twin.nodeset.record_batch): the recorder subscribes to those
 instead of to the topics themselves and writes each message under its own topic, logged at its
-publish time. Producers of those topics other than the sim and controller nodes (a stand-in, a
-LinuxCNC bridge) do not pack: the recorder reads the packed copies of a role only where its
-peers include that role's node (`--peers`), and the topics themselves elsewhere.
+publish time. Producers of those topics other than the sim and controller nodes (a stand-in)
+do not pack: the recorder reads the packed copies of a role only where its peers include that
+role's node (`--peers`), and the topics themselves elsewhere. A LinuxCNC bridge among the peers
+always packs: each axis's command and joint states (and the first axis's servo samples) come
+in RecordBatches on `<namespace>/linuxcnc/batch` (feed_twin/ros/linuxcnc_node.py).
 
 A machine's recorder (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes) records
 every axis of the machine into the one bag: the node-set topics of each axis with nodes, the
@@ -79,6 +81,8 @@ from feed_twin.ros.runtime import (
     node_main,
     process_key,
 )
+
+LINUXCNC_NODE = node_role("linuxcnc").name  # a peer whose messages come packed
 
 Check = Callable[[bytes], "bytes | None"]  # a message as its node made it, or None: foreign
 DRAIN_QUIET_S = 0.3
@@ -187,7 +191,12 @@ class RecorderNode(FeedTwinNode):
         if twin_namespace is not None:
             # a shadow run: the twin's output is known in advance, so it is recorded from its
             # first message instead of from whenever the graph scan finds it (late under load)
-            known.update(node_role("twin").topic_types(twin_namespace))
+            outputs = node_role("twin").topic_types(twin_namespace)
+            # (its packed outputs: beside a LinuxCNC bridge only, recorded by _record_bridge)
+            known.update({t: k for t, k in outputs.items() if k != msg_types.RECORD_BATCH})
+        if LINUXCNC_NODE in options.peers:
+            for topics in served:
+                self._record_bridge(topics, known)
         for prefix, topics in options.axis_topics().items():
             for role in (SIM_NODE, CONTROLLER_NODE):
                 # only a sim or controller node packs: the topics of other producers (a
@@ -249,13 +258,37 @@ class RecorderNode(FeedTwinNode):
     ) -> None:
         """Record `role`'s packed topics from its RecordBatch (feed_twin.nodeset.record_batch)
         instead of from their own topics; they leave `known`."""
-        inner = topics.batched(role)
-        for topic in inner:
-            self.bag.add_topic(topic, known.pop(topic), qos=(_bag_qos(DATA_QOS),))
+        inner = {topic: known.pop(topic) for topic in topics.batched(role)}
+        self._record_packed(topics.record(role), inner, batch_qos(record_batch))
+
+    def _record_bridge(self, topics: AxisTopics, known: dict[str, str]) -> None:
+        """Record the LinuxCNC bridge's messages of axis `topics` from its RecordBatches
+        (feed_twin/ros/linuxcnc_node.py): command and joint states, and on this node's own axis
+        (the bridge's first) the servo samples of every joint."""
+        inner = {topic: known.pop(topic) for topic in (topics.command, topics.joint_states)}
+        if topics.namespace == self.topics.namespace:
+            inner[topics.servo] = msg_types.SERVO_SAMPLE
+        self._record_packed(topics.bridge_batch, inner, DATA_QOS)
+        # the axis's twin sends its state and residual packed as well (twin_node --batch-topic)
+        twin = node_role("twin")
+        namespace = f"{topics.namespace}/twin"  # (feed_twin.shadow.replay.twin_namespace)
+        types = twin.topic_types(namespace)
+        outputs = {twin.topic(namespace, name): "" for name in ("state", "residual")}
+        for topic in outputs:
+            outputs[topic] = types[topic]
+            known.pop(topic, None)
+        batch = twin.topic(namespace, "batch")
+        self._record_packed(batch, outputs, DATA_QOS)
+        self._twin_states.add(batch)  # the twin is there while it publishes its batches
+
+    def _record_packed(self, batch: str, inner: dict[str, str], qos: QoSProfile) -> None:
+        """Record topics `inner` (name -> type) from the RecordBatches on `batch` instead of
+        from their own topics."""
+        for topic, type_name in inner.items():
+            self.bag.add_topic(topic, type_name, qos=(_bag_qos(DATA_QOS),))
             self._recorded[topic] = None  # from the batch: the graph scan passes it by
-        batch = topics.record(role)
         subscription = self._data_node.create_subscription(
-            RecordBatchMsg, batch, _never_called, batch_qos(record_batch), raw=True
+            RecordBatchMsg, batch, _never_called, qos, raw=True
         )
         self._recorded[batch] = subscription
         self._batch_takers.append((batch, subscription, frozenset(inner)))

@@ -282,7 +282,7 @@ def _linuxcnc_dashboard(args: argparse.Namespace, topics, out: Outputs, figures:
     from feed_twin.linuxcnc.dashboard import read_servo_trace, write_linuxcnc_dashboard
 
     try:
-        trace = read_servo_trace(out.bag, f"{topics.namespace}/linuxcnc/servo")
+        trace = read_servo_trace(out.bag, topics.servo)
     except (BagError, ValueError) as exc:
         print(f"feed-twin run: no LinuxCNC dashboard: {exc}", file=sys.stderr)
         return

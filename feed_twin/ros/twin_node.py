@@ -13,6 +13,14 @@ and publishes, per slot, under `--out-namespace` (default `<command namespace>/t
   RMS;
 - `health` (HealthStatus): every verdict; WARN/ERROR also go to the log with the named effect.
 
+`--batch-topic` (the LinuxCNC bridge, feed_twin/ros/linuxcnc_node.py): the command and measured
+messages come packed in RecordBatches on that topic (feed_twin.nodeset.record_batch), each as
+on its own topic; the twin takes a whole batch per wake-up and advances over it at once, and
+sends its state and residual packed too, one RecordBatch per step on `<out namespace>/batch`
+(the bridge reads the residuals' stamps from it, the recorder writes each message under its own
+topic): at 1 kHz two messages a period to two readers were most of the twin's and the bridge's
+per-message work. Health verdicts stay on their topic.
+
 `--rrd` / `--rerun-url` feed the shadow dashboard (feed_twin.shadow.dashboard). At the end of
 the run (run_state "done", a signal, or `--max-time`) the node processes what is left and
 prints `SHADOW {json}` on stderr: fault counts, the last verdict and the lag of its output
@@ -33,12 +41,14 @@ from pathlib import Path
 
 import numpy as np
 from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState, HealthStatus, TwinResidual
+from feed_twin_msgs.msg import RecordBatch as RecordBatchMsg
 from sensor_msgs.msg import JointState
 
 from feed_twin.analysis.twin import ModelDoc, Twin
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
 from feed_twin.io.measured import load_column_map
+from feed_twin.nodeset.record_batch import RecordBatch, unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import Topic
 from feed_twin.ros.dds import DATA_QOS
@@ -60,6 +70,7 @@ FINAL_AFTER_S = 0.1  # [s] without messages after the run's end: the streams hav
 # behind (messages queued) advances a whole batch per wake-up with its compiled engine instead of
 # one sample per message, which is how it catches up; poll() steps what waits in between
 STEP_EVERY_S = 0.002
+OUT_BATCH_SAMPLES = 200  # slots in one packed output at most (--batch-topic)
 LAG_SAMPLES = 600_000  # lags kept for the report (10 min at 1 kHz): bounded memory
 STATE = FlatCodec(msg_types.AXIS_STATE)
 RESIDUAL = FlatCodec(msg_types.TWIN_RESIDUAL)
@@ -94,8 +105,11 @@ class TwinNode(FeedTwinNode):
         axis_label: str,
         dashboard=None,
         max_time_s: float | None = None,
+        batch_topic: str | None = None,
         context=None,
     ) -> None:
+        """`batch_topic`: take command and measured messages packed there (module docstring)
+        instead of from their own topics."""
         super().__init__("twin", options, context=context)
         self.shadow = shadow
         self.axis_label = axis_label
@@ -108,24 +122,46 @@ class TwinNode(FeedTwinNode):
             (n for n in measured.fields.signal_names if n != "pos_meas_m"), None
         )
         self._is_current = shadow.twin.effort_unit == "A"
+        self._state = STATE.fixed({"header.frame_id": "", "axis": axis_label})
+        self._residual = RESIDUAL.fixed({"header.frame_id": "", "axis": axis_label})
+        for layout in (self._state, self._residual):
+            if layout.numbers[:2] != ("header.stamp.sec", "header.stamp.nanosec"):
+                raise ValueError(f"{layout.codec.type_name}: the stamp is not its first numbers")
         out = node_role("twin").topic
-        self._state_pub = self.create_publisher(AxisState, out(out_namespace, "state"), DATA_QOS)
-        self._residual_pub = self.create_publisher(
-            TwinResidual, out(out_namespace, "residual"), DATA_QOS
-        )
+        self._state_topic = out(out_namespace, "state")
+        self._residual_topic = out(out_namespace, "residual")
+        # beside the LinuxCNC bridge (--batch-topic) the outputs go out packed as well
+        self._packed: RecordBatch | None = None
+        if batch_topic is None:
+            self._state_pub = self.create_publisher(AxisState, self._state_topic, DATA_QOS)
+            self._residual_pub = self.create_publisher(TwinResidual, self._residual_topic, DATA_QOS)
+            outputs = [self._state_pub, self._residual_pub]
+        else:
+            self._packed = RecordBatch([self._state_topic, self._residual_topic], 1)
+            self._batch_pub = self.create_publisher(
+                RecordBatchMsg, out(out_namespace, "batch"), DATA_QOS
+            )
+            outputs = [self._batch_pub]
         self._health_pub = self.create_publisher(
             HealthStatus, out(out_namespace, "health"), DATA_QOS
         )
         self._command_topic, self._measured_topic = command.topic.name, measured.topic.name
-        for source, callback in ((command, self._on_command), (measured, self._on_measured)):
-            topic = source.topic
+        watched = measured.topic
+        if batch_topic is None:
+            for source, callback in ((command, self._on_command), (measured, self._on_measured)):
+                topic = source.topic
+                self.create_subscription(
+                    MESSAGE_TYPES[topic.type_name], topic.name, callback, DATA_QOS, raw=True
+                )
+        else:
             self.create_subscription(
-                MESSAGE_TYPES[topic.type_name], topic.name, callback, DATA_QOS, raw=True
+                RecordBatchMsg, batch_topic, self._on_batch, DATA_QOS, raw=True
             )
+            watched = Topic(name=batch_topic, type_name=msg_types.RECORD_BATCH)
         self._seen_command = False
         self._measured_dog = self.watch_input(
-            measured.topic.name,
-            measured.topic.type_name,
+            watched.name,
+            watched.type_name,
             armed=lambda: self._seen_command and not self.run_ended,
         )
         self._arrival: dict[int, float] = {}
@@ -139,10 +175,36 @@ class TwinNode(FeedTwinNode):
         self._unstepped = False  # samples arrived since the last step
         self.errors = 0
         self._rss_start = _rss_mb()
-        outputs = (self._state_pub, self._residual_pub, self._health_pub)
+        outputs.append(self._health_pub)
         self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
     def _on_command(self, data: bytes) -> None:
+        self._take_command(data)
+        if self._waiting_for_command:
+            self._step()
+
+    def _on_measured(self, data: bytes) -> None:
+        self._take_measured(data)
+        self._measured_dog.feed()
+        if self._last_message - self._stepped_at >= STEP_EVERY_S:
+            self._step()
+
+    def _on_batch(self, data: bytes) -> None:
+        self._measured_dog.feed()
+        try:
+            messages = unpack(data)
+        except ValueError as exc:
+            self._bad(exc)
+            return
+        for topic, _, message in messages:
+            if topic == self._command_topic:
+                self._take_command(message)
+            elif topic == self._measured_topic:
+                self._take_measured(message)
+        if self._unstepped and self._last_message - self._stepped_at >= STEP_EVERY_S:
+            self._step()
+
+    def _take_command(self, data: bytes) -> None:
         if self.auth.enabled:  # a run's twin: only the run's NC (a bare shadow: any stream)
             admitted = self.admit(self._command_topic, data)
             if admitted is None:
@@ -158,12 +220,10 @@ class TwinNode(FeedTwinNode):
         # the twin advances when a measured sample arrives (nothing can be paired earlier);
         # processing on every command too would double the per-cycle work for nothing, but a
         # measured sample that came before its command (transport jitter, a late-joining
-        # command stream) waits for this one
+        # command stream) waits for this one (_on_command)
         self.shadow.push_command(t, v["pos_cmd_m"], v.get("vel_cmd_m_s"))
-        if self._waiting_for_command:
-            self._step()
 
-    def _on_measured(self, data: bytes) -> None:
+    def _take_measured(self, data: bytes) -> None:
         if self.auth.enabled:
             admitted = self.admit(self._measured_topic, data)
             if admitted is None:
@@ -171,7 +231,6 @@ class TwinNode(FeedTwinNode):
             data = admitted
         arrived = time.perf_counter()
         self._last_message = time.monotonic()
-        self._measured_dog.feed()
         try:
             t, v = self._meas_fields(data)
         except ValueError as exc:
@@ -182,8 +241,6 @@ class TwinNode(FeedTwinNode):
         if outcome in ("accepted", "reordered"):
             self._arrival[self.shadow.measured.slot_of(t)[0]] = arrived
         self._unstepped = True
-        if self._last_message - self._stepped_at >= STEP_EVERY_S:
-            self._step()
 
     def _bad(self, exc: Exception) -> None:
         self.errors += 1
@@ -204,53 +261,68 @@ class TwinNode(FeedTwinNode):
             self.finish(EXIT_OK, f"twin: {self.max_time_s:g} s shadowed")
 
     def _publish(self, b: ResidualBlock) -> None:
+        """Each slot's state and residual, packed with the run's fixed strings (one struct
+        call each: encoding them field by field was a third of the twin's CPU at 1 kHz)."""
+        n = len(b)
         period = self.shadow.config.sample_period_s
         t0 = self.shadow.commands.t0_s or 0.0
-        window = self.shadow.config.window_s
-        for k in range(len(b)):
-            t = float(b.t_s[k])
-            ns = round(t * 1e9)
-            sec, nsec = divmod(ns, 1_000_000_000)
-            fe_twin = float(b.x_cmd_m[k] - b.x_twin_m[k])
-            state = {
-                "header.stamp.sec": sec,
-                "header.stamp.nanosec": nsec,
-                "axis": self.axis_label,
-                "position_setpoint": float(b.x_cmd_m[k]),
-                "table_position": float(b.x_twin_m[k]),
-                "following_error": fe_twin,
-            }
-            if self._is_current:
-                state["i_q"] = float(b.effort_twin[k])
-            sign = self.auth.sign
-            self._state_pub.publish(sign(self._state_pub.topic_name, STATE.encode_map(state)))
-            self._residual_pub.publish(
-                sign(
-                    self._residual_pub.topic_name,
-                    RESIDUAL.encode_map(
-                        {
-                            "header.stamp.sec": sec,
-                            "header.stamp.nanosec": nsec,
-                            "axis": self.axis_label,
-                            "following_error_measured": float(b.x_cmd_m[k] - b.x_meas_m[k]),
-                            "following_error_twin": fe_twin,
-                            "following_error_deviation": float(b.fe_dev_m[k]),
-                            "effort_measured": float(b.effort_meas[k]),
-                            "effort_twin": float(b.effort_twin[k]),
-                            "effort_deviation": float(b.effort_dev[k]),
-                            "rms_window": window,
-                            "following_error_deviation_rms": float(b.fe_dev_rms_m[k]),
-                            "effort_deviation_rms": float(b.effort_dev_rms[k]),
-                        }
-                    ),
-                )
+        stamps = np.round(b.t_s * 1e9).astype(np.int64)
+        sec, nsec = np.divmod(stamps, 1_000_000_000)
+        fe_twin = b.x_cmd_m - b.x_twin_m
+        state = np.zeros((n, len(self._state.numbers) - 2))  # the numbers after the stamp
+        columns = {"position_setpoint": b.x_cmd_m, "table_position": b.x_twin_m,
+                   "following_error": fe_twin}  # fmt: skip
+        if self._is_current:
+            columns["i_q"] = b.effort_twin
+        for name, values in columns.items():
+            state[:, self._state.index(name) - 2] = values
+        residual = np.zeros((n, len(self._residual.numbers) - 2))
+        for name, values in {
+            "following_error_measured": b.x_cmd_m - b.x_meas_m,
+            "following_error_twin": fe_twin,
+            "following_error_deviation": b.fe_dev_m,
+            "effort_measured": b.effort_meas,
+            "effort_twin": b.effort_twin,
+            "effort_deviation": b.effort_dev,
+            "rms_window": self.shadow.config.window_s,
+            "following_error_deviation_rms": b.fe_dev_rms_m,
+            "effort_deviation_rms": b.effort_dev_rms,
+        }.items():
+            residual[:, self._residual.index(name) - 2] = values
+        sign = self.auth.sign
+        state_topic, residual_topic = self._state_topic, self._residual_topic
+        rows = zip(sec.tolist(), nsec.tolist(), state.tolist(), residual.tolist(),
+                   b.t_s.tolist(), strict=True)  # fmt: skip
+        for s, ns, state_row, residual_row, t in rows:
+            self._send(
+                sign(state_topic, self._state.encode((s, ns, *state_row))),
+                sign(residual_topic, self._residual.encode((s, ns, *residual_row))),
             )
             arrived = self._arrival.pop(round((t - t0) / period), None)
             if arrived is not None:
                 self.lags_ms.append((time.perf_counter() - arrived) * 1e3)
-        self.samples += len(b)
+        self._flush()
+        self.samples += n
         if self.dashboard is not None:
             self.dashboard.log_block(b)
+
+    def _send(self, state: bytes, residual: bytes) -> None:
+        """One slot's state and residual: on their topics, or packed (OUT_BATCH_SAMPLES at
+        most to a RecordBatch, so that a catch-up goes out in pieces)."""
+        if self._packed is None:
+            self._state_pub.publish(state)
+            self._residual_pub.publish(residual)
+            return
+        now_ns = time.time_ns()
+        self._packed.add(0, state, now_ns)
+        self._packed.add(1, residual, now_ns)
+        if len(self._packed) >= 2 * OUT_BATCH_SAMPLES:
+            self._flush()
+
+    def _flush(self) -> None:
+        data = None if self._packed is None else self._packed.take()
+        if data is not None:
+            self._batch_pub.publish(data)
 
     def _verdict(self, v: Verdict) -> None:
         health = HEALTH.encode(health_values(HEALTH.names, v, self.axis_label))
@@ -339,6 +411,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rrd", type=Path, help="write the shadow dashboard here")
     parser.add_argument("--rerun-url", help="stream the dashboard to this viewer")
     parser.add_argument("--max-time", type=float, help="stop after this many shadowed seconds")
+    parser.add_argument("--batch-topic", help="take the command and measured messages packed "
+                        "in RecordBatches on this topic (the LinuxCNC bridge's)")  # fmt: skip
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
@@ -393,6 +467,7 @@ def build(args: argparse.Namespace, context) -> TwinNode:
         axis_label=args.axis.upper(),
         dashboard=dashboard,
         max_time_s=args.max_time,
+        batch_topic=args.batch_topic,
         context=context,
     )  # fmt: skip
 

@@ -20,10 +20,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from mcap.reader import make_reader
 
 from feed_twin.io import msg_types
-from feed_twin.io.bag import BagReader, info
+from feed_twin.io.bag import BagError, BagReader, info
+from feed_twin.io.bag.raw import RawTopic, column, flat_offsets, raw_messages
 from feed_twin.io.cdr import FlatCodec, NotFlatError
 from feed_twin.io.measured import ColumnMap, ColumnSpec, MeasuredDataError, _to_si
 
@@ -121,47 +121,6 @@ def _joint_state(data: bytes) -> tuple[dict[str, object], dict[str, tuple[int, s
     return out, where
 
 
-def flat_offsets(codec: FlatCodec, data: bytes) -> dict[str, tuple[int, str]]:
-    """(byte offset in `data`, numpy code) of each numeric field of a flat message, laid out
-    as in `data` (its strings fix the offsets of what follows them)."""
-    values = codec.decode(data)
-    where: dict[str, tuple[int, str]] = {}
-    offset = 0
-    for (name, kind), value in zip(codec.fields, values, strict=True):
-        if kind == "string":
-            offset += -offset % 4
-            offset += 4 + len(value.encode("utf-8")) + 1
-            continue
-        code = _NUMPY[kind]
-        size = np.dtype(code).itemsize
-        offset += -offset % size
-        where[name] = (4 + offset, code)
-        offset += size
-    return where
-
-
-_NUMPY = {
-    "bool": "?",
-    "byte": "u1",
-    "char": "u1",
-    "int8": "i1",
-    "uint8": "u1",
-    "int16": "<i2",
-    "uint16": "<u2",
-    "int32": "<i4",
-    "uint32": "<u4",
-    "int64": "<i8",
-    "uint64": "<u8",
-    "float32": "<f4",
-    "float64": "<f8",
-}
-
-
-def _column(table: np.ndarray, offset: int, code: str) -> np.ndarray:
-    dtype = np.dtype(code)
-    return np.ascontiguousarray(table[:, offset : offset + dtype.itemsize]).view(dtype)[:, 0]
-
-
 def encode_joint_state(stamp_ns: int, names: list[str], position, velocity, effort) -> bytes:
     """CDR bytes of a sensor_msgs/JointState (frame_id empty), exactly as rmw lays them out."""
     buf = bytearray(b"\x00\x01\x00\x00")
@@ -225,7 +184,10 @@ def read_streams(bag: str | Path, cmap: ColumnMap) -> dict[str, Stream]:
         for topic, _, _ in wanted.values()
         if types[topic] == msg_types.JOINT_STATE or _flat(types[topic])
     }
-    collected = raw_messages(bag_info.mcap_path, fast) if fast else {}
+    try:
+        collected = raw_messages(bag_info.mcap_path, fast) if fast else {}
+    except BagError as exc:
+        raise MeasuredDataError(str(exc)) from None
     out: dict[str, Stream] = {}
     for kind, (topic, fields, specs) in wanted.items():
         if topic in fast:
@@ -244,117 +206,6 @@ def read_streams(bag: str | Path, cmap: ColumnMap) -> dict[str, Stream]:
             },
         )
     return out
-
-
-_CHUNK_OPCODE = 0x06
-_MESSAGE_INDEX_OPCODE = 0x07
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class RawTopic:
-    """The messages of one topic: log times [ns] and CDR bytes, as a table when all messages
-    have one size (rows of `table`), else as a list (`datas`)."""
-
-    log_time_ns: np.ndarray
-    table: np.ndarray | None  # (n, size) uint8
-    datas: list[bytes] | None
-
-
-def raw_messages(mcap_path: Path, topics: set[str]) -> dict[str, RawTopic]:
-    """Every message on `topics`, in file order.
-
-    The mcap package parses each record in Python (about 10 us a message), and a replay reads
-    120 000 messages a minute of a 1 kHz axis. A finished bag has a summary with a chunk index
-    and, per chunk and channel, a message index (log time, offset of each message): with them
-    each chunk is decompressed once and the messages of one size are gathered with numpy.
-    A file without that index goes through the mcap reader.
-    """
-    logs: dict[str, list[np.ndarray]] = {t: [] for t in topics}
-    parts: dict[str, list[np.ndarray | list[bytes]]] = {t: [] for t in topics}
-    with open(mcap_path, "rb") as f:
-        summary = make_reader(f).get_summary()
-        if summary is None or not summary.chunk_indexes:
-            return _raw_messages_slow(mcap_path, topics)
-        channels = {cid: ch.topic for cid, ch in summary.channels.items() if ch.topic in topics}
-        for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
-            f.seek(index.chunk_start_offset)
-            opcode, length = struct.unpack("<BQ", f.read(9))
-            if opcode != _CHUNK_OPCODE:
-                raise MeasuredDataError(
-                    f"{mcap_path}: no chunk at offset {index.chunk_start_offset}"
-                )
-            records = np.frombuffer(_chunk_records(f.read(length), mcap_path), dtype=np.uint8)
-            for cid, topic in channels.items():
-                where = index.message_index_offsets.get(cid)
-                if where is None:
-                    continue
-                f.seek(where)
-                opcode, length = struct.unpack("<BQ", f.read(9))
-                entries = np.frombuffer(f.read(length)[6:], dtype="<u8").reshape(-1, 2)
-                if opcode != _MESSAGE_INDEX_OPCODE or not len(entries):
-                    continue
-                offsets = entries[:, 1].astype(np.int64)
-                record_length = _gather(records, offsets + 1, 8).view("<u8")[:, 0].astype(np.int64)
-                data_start = offsets + 9 + 22
-                data_length = record_length - 22
-                logs[topic].append(entries[:, 0].astype(np.int64))
-                if np.all(data_length == data_length[0]):
-                    parts[topic].append(_gather(records, data_start, int(data_length[0])))
-                else:
-                    raw = records.tobytes()
-                    spans = zip(data_start.tolist(), data_length.tolist(), strict=True)
-                    parts[topic].append([raw[a : a + n] for a, n in spans])
-    out: dict[str, RawTopic] = {}
-    for topic in topics:
-        log = np.concatenate(logs[topic]) if logs[topic] else np.zeros(0, dtype=np.int64)
-        chunks = parts[topic]
-        tables = [p for p in chunks if isinstance(p, np.ndarray)]
-        if len(tables) == len(chunks) and len({t.shape[1] for t in tables}) <= 1:
-            table = np.concatenate(tables) if tables else np.zeros((0, 0), dtype=np.uint8)
-            out[topic] = RawTopic(log_time_ns=log, table=table, datas=None)
-        else:
-            datas: list[bytes] = []
-            for p in chunks:
-                datas += [row.tobytes() for row in p] if isinstance(p, np.ndarray) else p
-            out[topic] = RawTopic(log_time_ns=log, table=None, datas=datas)
-    return out
-
-
-def _gather(records: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
-    return records[starts[:, None] + np.arange(width)[None, :]]
-
-
-def _raw_messages_slow(mcap_path: Path, topics: set[str]) -> dict[str, RawTopic]:
-    logs: dict[str, list[int]] = {t: [] for t in topics}
-    datas: dict[str, list[bytes]] = {t: [] for t in topics}
-    with open(mcap_path, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(topics=sorted(topics)):
-            logs[channel.topic].append(message.log_time)
-            datas[channel.topic].append(message.data)
-    return {
-        t: RawTopic(log_time_ns=np.asarray(logs[t], dtype=np.int64), table=None, datas=datas[t])
-        for t in topics
-    }
-
-
-def _chunk_records(chunk: bytes, source: Path) -> bytes:
-    _, _, size, _, name_length = struct.unpack_from("<QQQII", chunk, 0)
-    offset = 32
-    compression = chunk[offset : offset + name_length].decode("utf-8")
-    offset += name_length
-    (data_length,) = struct.unpack_from("<Q", chunk, offset)
-    data = chunk[offset + 8 : offset + 8 + data_length]
-    if compression == "":
-        return data
-    if compression == "zstd":
-        import zstandard
-
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        import lz4.frame
-
-        return lz4.frame.decompress(data)
-    raise MeasuredDataError(f"{source}: chunk compression {compression!r} is not supported")
 
 
 def _flat(type_name: str) -> bool:
@@ -389,9 +240,9 @@ def _decode_fast(
                     f"topic {topic!r}: message has no numeric field {missing[0]!r}; it has "
                     f"{', '.join(first)}"
                 )
-            sec = _column(table, *first["header.stamp.sec"]).astype(float)
-            nsec = _column(table, *first["header.stamp.nanosec"]).astype(float)
-            cols = {n: _column(table, *first[path]).astype(float) for n, path in fields.items()}
+            sec = column(table, *first["header.stamp.sec"]).astype(float)
+            nsec = column(table, *first["header.stamp.nanosec"]).astype(float)
+            cols = {n: column(table, *first[path]).astype(float) for n, path in fields.items()}
             return log_ns, sec + nsec * 1e-9, cols
         datas = [row.tobytes() for row in table]
     else:

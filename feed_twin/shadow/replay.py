@@ -32,6 +32,7 @@ import numpy as np
 
 from feed_twin.analysis.compare import Metrics, compute_metrics
 from feed_twin.analysis.twin import ModelDoc, Twin
+from feed_twin.io import msg_types
 from feed_twin.io.bag import QosProfile
 from feed_twin.io.measured import ColumnMap, MeasuredDataError
 from feed_twin.nodeset.roles import node_role
@@ -155,7 +156,8 @@ def write_comparison_bag(bag: str | Path, result: ReplayResult, out: Path, axis:
     topics = {
         t.name: (node_role("twin").topic(ns, t.name), t.type_name)
         for t in node_role("twin").topics
-        if t.direction == "publishes"
+        # (its packed outputs beside a LinuxCNC bridge are these topics' messages again)
+        if t.direction == "publishes" and t.type_name != msg_types.RECORD_BATCH
     }
     meas = result.streams["measured"]
     offset_ns = int(np.median(meas.log_time_ns - np.round(meas.stamp_s * NS).astype(np.int64)))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,6 +14,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from feed_twin.io.bag.layout import BagError, BagInfo, TopicInfo
 from feed_twin.io.bag.metadata import info
+from feed_twin.io.bag.raw import column, raw_messages, uniform_offsets
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -64,20 +66,76 @@ class BagReader:
         """Arrays of the named fields of every message on `topic`, plus `log_time_s`.
 
         A field is a dotted path (`header.stamp`, `position[0]`); a builtin_interfaces/Time
-        value becomes seconds as float64, strings stay as an object array.
+        value becomes seconds as float64, strings stay as an object array. Numbers of a flat
+        message type whose messages share one layout are read at their byte offsets
+        (feed_twin.io.bag.raw), anything else through the message decoder.
         """
+        fast = self._flat_columns(topic, fields)
+        if fast is not None:
+            return fast
         values: dict[str, list] = {name: [] for name in fields}
-        times: list[float] = []
-        for item in self.messages([topic]):
-            times.append(item.log_time_ns * 1e-9)
+        log_ns, messages = self._decoded(topic)
+        for msg in messages:
             for name in fields:
-                values[name].append(_field_value(item.msg, name, topic))
-        out: dict[str, np.ndarray] = {"log_time_s": np.asarray(times, dtype=float)}
-        for name, column in values.items():
-            if column and isinstance(column[0], str):
-                out[name] = np.asarray(column, dtype=object)
+                values[name].append(_field_value(msg, name, topic))
+        out: dict[str, np.ndarray] = {"log_time_s": np.asarray(log_ns, dtype=float) * 1e-9}
+        for name, taken in values.items():
+            if taken and isinstance(taken[0], str):
+                out[name] = np.asarray(taken, dtype=object)
             else:
-                out[name] = np.asarray(column, dtype=float)
+                out[name] = np.asarray(taken, dtype=float)
+        return out
+
+    def _decoded(self, topic: str) -> tuple[np.ndarray | list[int], list[Any]]:
+        """Log times [ns] and decoded messages of `topic` in log-time order: the messages taken
+        by the bag's index (feed_twin.io.bag.raw), not by parsing every record of the file."""
+        self.topic(topic)
+        with open(self.info.mcap_path, "rb") as f:
+            summary = make_reader(f).get_summary()
+        if summary is None or not summary.chunk_indexes:
+            items = list(self.messages([topic]))
+            return [i.log_time_ns for i in items], [i.msg for i in items]
+        channel = next(c for c in summary.channels.values() if c.topic == topic)
+        decode = DecoderFactory().decoder_for(
+            channel.message_encoding, summary.schemas.get(channel.schema_id)
+        )
+        if decode is None:
+            raise BagError(f"{self.path}: {topic}: no decoder for {channel.message_encoding!r}")
+        raw = raw_messages(self.info.mcap_path, {topic})[topic]
+        datas = [row.tobytes() for row in raw.table] if raw.table is not None else raw.datas or []
+        order = np.argsort(raw.log_time_ns, kind="stable")
+        return raw.log_time_ns[order], [decode(datas[i]) for i in order]
+
+    def _flat_columns(self, topic: str, fields: Sequence[str]) -> dict[str, np.ndarray] | None:
+        """`columns` read at byte offsets, or None: not a flat type, messages of several
+        layouts or none, or a field that is not a number (the decoder's path says why)."""
+        # (imported here: feed_twin.io.cdr reads message definitions through this package)
+        from feed_twin.io.cdr import FlatCodec, NotFlatError
+
+        try:
+            codec = FlatCodec(self.topic(topic).type_name)
+        except (NotFlatError, LookupError):
+            return None
+        raw = raw_messages(self.info.mcap_path, {topic})[topic]
+        if raw.table is None or not len(raw.table):
+            return None
+        order = np.argsort(raw.log_time_ns, kind="stable")  # log-time order, as `messages`
+        table = raw.table[order]
+        try:
+            where = uniform_offsets(codec, table)
+        except (ValueError, struct.error):  # not what FlatCodec reads: the decoder's business
+            where = None
+        if where is None:
+            return None
+        out = {"log_time_s": raw.log_time_ns[order] * 1e-9}
+        for name in fields:
+            if name in where:
+                out[name] = column(table, *where[name]).astype(float)
+            elif f"{name}.sec" in where and f"{name}.nanosec" in where:
+                sec = column(table, *where[f"{name}.sec"]).astype(float)
+                out[name] = sec + column(table, *where[f"{name}.nanosec"]) * 1e-9
+            else:
+                return None
         return out
 
 
