@@ -130,3 +130,16 @@ def test_a_visible_viscous_friction_too_small_to_name_is_said():
     )
     assert too_small(vis, ["viscous_friction"], [_viscous_candidate(0.023)]) == []
     assert too_small(vis, [], [_viscous_candidate(0.08)]) == []  # large enough: a fit's call
+
+
+def test_every_delay_of_the_library_is_listed_unseen_on_a_slow_record():
+    """Each delay effect is searched within a few base periods, so a 10 Hz record cannot show
+    one: the list that visibility refuses on such a record names every delay of the library
+    (command_delay was missing and was named on two 1 mm, 10 Hz records of the slow-record
+    benchmark)."""
+    from feed_twin.analysis.effects import LIBRARY
+    from feed_twin.analysis.visibility import DELAY_EFFECTS
+
+    delays = {e.name for e in LIBRARY if e.name.endswith("_delay")}
+    assert delays, "the library has delay effects"
+    assert delays <= set(DELAY_EFFECTS)

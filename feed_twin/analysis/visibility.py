@@ -59,7 +59,7 @@ POSITION_EFFECTS = (
     "thermal_drift",
 )
 # effects that live within a few base periods of the model: delays and the inverter
-DELAY_EFFECTS = ("channel_delay", "measurement_delay", "position_delay")
+DELAY_EFFECTS = ("channel_delay", "command_delay", "measurement_delay", "position_delay")
 # ripples per motor revolution, with the order of their slowest harmonic
 RIPPLE_ORDERS = {"cogging_torque": 2, "current_offset": 1}
 
