@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from known_gaps import CLEAN_TRUTH_MASS
 
 import feed_twin
 from feed_twin.analysis.report import FoundEffect
@@ -44,13 +45,7 @@ def test_a_tick_must_be_positive() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue #27, open: with the twin's effort stamp and the truth's command stamp fixed "
-    "(i27r), no delay is named on clean records, but a table mass 2 % heavier is (153.0 kg for "
-    "150 kg: it removes 9 % of the effort residual energy, 1.6 % of the position's, which is "
-    "4.6 um RMS during accelerations: the twin's 1 kHz loops against the drive's 4 and 2 kHz)",
-)
+@pytest.mark.xfail(strict=True, reason=CLEAN_TRUTH_MASS)
 def test_a_clean_truth_record_names_nothing(tmp_path: Path) -> None:
     """The independent truth machine with nothing hidden, with a seed the benchmarks do not
     use: no effect named; the twin's timing against it is said, not named."""

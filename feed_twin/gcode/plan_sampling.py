@@ -56,6 +56,37 @@ def sample_indices(k_next: int, t_end: float, period: float, *, final: bool) -> 
     return k_next, max(math.ceil(t_end / period - WINDOW_SLACK), k_next)
 
 
+def _on_path(
+    s: np.ndarray,
+    sd: np.ndarray,
+    sdd: np.ndarray,
+    *,
+    S: np.ndarray,
+    moves: MoveLimits,
+    w: np.ndarray,
+    dU: np.ndarray,
+    move: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Path length s, ds/dt and d2s/dt2 mapped onto the blended path from each sample's first
+    move (`evaluate_path`): position, velocity, acceleration and the move each is on."""
+    n = len(moves.L)
+    return evaluate_path(
+        s,
+        sd,
+        sdd,
+        S[:-1],
+        moves.L,
+        moves.P[:-1],
+        moves.P[1:],
+        moves.u,
+        w[:n],
+        dU[:n],
+        w[1:],
+        dU[1:],
+        move,
+    )
+
+
 def sample_path(
     times: np.ndarray,
     pieces: Pieces,
@@ -65,7 +96,6 @@ def sample_path(
     dU: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(position, velocity, acceleration, piece, move) at each sample time."""
-    n = len(moves.L)
     S = np.concatenate(([0.0], np.cumsum(moves.L)))
     s, sd, sdd, piece = sample_pieces(
         times,
@@ -80,21 +110,7 @@ def sample_path(
         pieces.t_up,
         pieces.t_cruise,
     )
-    pos, vel, acc, seg = evaluate_path(
-        s,
-        sd,
-        sdd,
-        S[:-1],
-        moves.L,
-        moves.P[:-1],
-        moves.P[1:],
-        moves.u,
-        w[:n],
-        dU[:n],
-        w[1:],
-        dU[1:],
-        pieces.seg[piece],
-    )
+    pos, vel, acc, seg = _on_path(s, sd, sdd, S=S, moves=moves, w=w, dU=dU, move=pieces.seg[piece])
     return pos, vel, acc, piece, seg
 
 
@@ -131,20 +147,15 @@ def sample_filtered(
     first = np.where(
         moving, np.searchsorted(S, smooth[:, 0], "right"), np.searchsorted(S, smooth[:, 0])
     )
-    pos, vel, acc, seg = evaluate_path(
+    pos, vel, acc, seg = _on_path(
         smooth[:, 0],
         smooth[:, 1],
         smooth[:, 2],
-        S[:-1],
-        moves.L,
-        moves.P[:-1],
-        moves.P[1:],
-        moves.u,
-        w[:n],
-        dU[:n],
-        w[1:],
-        dU[1:],
-        np.clip(first - 1, 0, n - 1),
+        S=S,
+        moves=moves,
+        w=w,
+        dU=dU,
+        move=np.clip(first - 1, 0, n - 1),
     )
     joined = np.concatenate((history, raw))
     return pos, vel, acc, piece, seg, joined[len(raw) :], float(F_end)
