@@ -228,6 +228,12 @@ class Twin:
     def base_period_s(self) -> float:
         return float(self.controller.base_period_s)
 
+    def _cubic_setpoints(self) -> bool:
+        """The controller fine-interpolates the NC setpoints by a cubic (`interpolation:
+        cubic`)."""
+        position = self.controller.config.position
+        return position is not None and position.interpolation == "cubic"
+
     def _inputs(
         self, drive: Drive, window_ticks: int | None = None
     ) -> tuple[np.ndarray, np.ndarray | None, int, int]:
@@ -266,7 +272,13 @@ class Twin:
                 # each command sample is a mean over the trace's window: the smooth command
                 # whose window means they are (recorder.deaveraged)
                 set_nc_reference(ref, *deaveraged(drive.t_s, drive.pos_ref_m, fine, window_ticks))
-            elif period > SLOW_COMMAND_S:
+            elif period > SLOW_COMMAND_S or (
+                self._cubic_setpoints() and period > self.controller.config.nc_period_s
+            ):
+                # a drive that fine-interpolates a cubic through the NC points' positions and
+                # velocities needs the two to agree: the linear pieces' velocities are not
+                # their positions' slopes, and its cubic wiggled between them (a 20 ms trace's
+                # effort came out of phase with the machine's)
                 set_nc_reference(ref, *_smooth_command(fine, drive.t_s, drive.pos_ref_m))
             else:
                 set_nc_reference(
