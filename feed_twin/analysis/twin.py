@@ -193,7 +193,7 @@ class Twin:
             raise ConfigError(
                 f"{doc.source}: engine.substeps = {given!r}: must be a whole number >= 1"
             )
-        nsub = max(min_substeps, given, _substeps(plant, nominal, controller.base_period_s))
+        nsub = max(min_substeps, given, substeps_needed(plant, nominal, controller.base_period_s))
         engine = Engine(
             plant,
             base_period_s=controller.base_period_s,
@@ -652,7 +652,7 @@ def _recorded(has_voltage: bool) -> list[str]:
     return names + (["out.u_q_ref_V"] if has_voltage else [])
 
 
-def _substeps(plant: Any, p: np.ndarray, h: float) -> int:
+def substeps_needed(plant: Any, p: np.ndarray, h: float) -> int:
     """The fewest RK4 sub-steps (1, 2, 4, ... 64) the engine accepts for these parameters
     (the damping slopes, engine.check_step) and that keep RK4 stable on the fastest spring's
     oscillation (engine.oscillation_rate: h / nsub * omega < RK4_STABILITY_MARGIN)."""
