@@ -32,7 +32,7 @@ is counted.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import find_peaks
+from numba import njit
 
 from feed_twin.gcode.trajectory import SampledTrajectory
 
@@ -83,17 +83,44 @@ def stretch_time(
     return t_changes + cruise
 
 
+@njit(cache=True)
+def _peak_beside(v: np.ndarray, k: int, step: int) -> float:
+    """Highest speed from sample k on (step +-1) before a speed below v[k] or the end."""
+    top = v[k]
+    i = k + step
+    while 0 <= i < v.shape[0] and v[i] >= v[k]:
+        top = max(top, v[i])
+        i += step
+    return top
+
+
+@njit(cache=True)
+def _deep_minima(v: np.ndarray, share: float) -> np.ndarray:
+    """Whether each sample is the first of a local minimum (plateaus included) at most
+    `share` times the lower of the peaks beside it."""
+    n = v.shape[0]
+    deep = np.zeros(n, dtype=np.bool_)
+    k = 1
+    while k < n - 1:
+        end = k
+        while end + 1 < n and v[end + 1] == v[k]:
+            end += 1
+        if end < n - 1 and v[k - 1] > v[k] and v[end + 1] > v[k]:
+            peak = min(_peak_beside(v, k, -1), _peak_beside(v, end, 1))
+            deep[k] = v[k] <= share * peak
+        k = end + 1
+    return deep
+
+
 def near_stops(speed: np.ndarray) -> np.ndarray:
     """Sample indices of the near-stops of a path speed profile, its first and last sample
     included: minima at most NEAR_STOP times the lower of the highest speeds on either side
-    before a lower minimum (their prominence at least (1 / NEAR_STOP - 1) times their speed)."""
+    before a lower speed."""
     n = len(speed)
-    if n < 3:
-        return np.array([0, n - 1]) if n > 1 else np.zeros(1, dtype=int)
-    floor = 1e-6 * float(np.max(speed))
-    at, props = find_peaks(-speed, prominence=floor, plateau_size=1)
-    deep = props["prominences"] >= (1.0 / NEAR_STOP - 1.0) * speed[at]
-    return np.unique(np.concatenate(([0], at[deep], [n - 1])))
+    if n < 2:
+        return np.zeros(n, dtype=np.int64)
+    inner = np.flatnonzero(_deep_minima(speed, NEAR_STOP))
+    return np.unique(np.concatenate(([0], inner, [n - 1]))).astype(np.int64)
 
 
 def jerk_floor_extra(
