@@ -58,16 +58,19 @@ def plan_speeds_filtered(
     """Boundary speeds of the raw plan: a body i (node i -> i+1) fits
     |v_i^2 - v_i+1^2| / (2 A_i) + h_out_i v_i + h_in_i+1 v_i+1 <= L_i, the node's speed held
     for h_in [s] before its blend and h_out [s] after it (T / 2 each side at extended nodes).
-    Each held node's speed is first held to half of either neighbouring body (h v <= L / 2),
-    which keeps every pair feasible; then a backward pass of braking bounds and a forward
+    Each held node's speed is first held to half of either neighbouring body (h v <= L / 2;
+    all of it where the body's other end holds nothing there), which keeps every pair
+    feasible; then a backward pass of braking bounds and a forward
     pass of speed-ups."""
     m = L.shape[0]
     v = cap.copy()
     for i in range(m + 1):
         if i > 0 and hold_in[i] > 0.0:
-            v[i] = min(v[i], 0.5 * L[i - 1] / hold_in[i])
+            share = 0.5 if hold_out[i - 1] > 0.0 else 1.0
+            v[i] = min(v[i], share * L[i - 1] / hold_in[i])
         if i < m and hold_out[i] > 0.0:
-            v[i] = min(v[i], 0.5 * L[i] / hold_out[i])
+            share = 0.5 if hold_in[i + 1] > 0.0 else 1.0
+            v[i] = min(v[i], share * L[i] / hold_out[i])
     v[0] = v_first
     for i in range(m - 1, 0, -1):
         c = L[i] - hold_in[i + 1] * v[i + 1] + v[i + 1] * v[i + 1] / (2.0 * A[i])
