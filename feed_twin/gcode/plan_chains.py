@@ -25,7 +25,10 @@ from feed_twin.gcode.plan_limits import AxisLimits, MoveLimits
 CHAIN_CUT = 1.3  # a chain is cut where its local speed cap changes by more than this factor
 # With the jerk filter: the share of each axis's jerk the curvature's own change (x''' v^3)
 # may take at a chain's speed cap; s''' and the cross term share the rest through A.
-CURVE_JERK_SHARE = 0.75
+# A higher share lifts the cap and leaves less to A: over the peer corpus 0.6-0.65 gave the
+# shortest times of 0.4-0.85 (0.75 before: cam_trochoidal_pocket 9.913 -> 9.786 s,
+# incremental 3.639 -> 3.553 s; dense_segments and inch about 0.4 % slower).
+CURVE_JERK_SHARE = 0.65
 # The trapezoid's share of each axis's acceleration for the curvature (x'' v^2) at a chain's
 # speed cap (half before); s'' takes what it leaves. The filtered plan keeps half: its s''
 # feeds the jerk too.
