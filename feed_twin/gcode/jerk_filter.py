@@ -20,6 +20,9 @@ What the raw plan does for the filter:
   exit of a chain) holds its speed v over its blend and T v beyond each end ("extended"): the
   filtered speed is then exactly v over the blend (s_f'' = s_f''' = 0), so a corner is sized
   by its curvature terms alone, and a straight body and its neighbours never share a window;
+- a chain's entry (exit) next to a straight move whose far end is held too holds its speed T
+  before (after) its blend, on the straight side only (`plan_chains._held_chain_ends`): the
+  straight move runs at its own limits, and no window spans its braking and the chain;
 - where the raw plan stops (v = 0) it holds still for T, so the filtered plan stops too;
 - a body whose speed rises and falls again cruises at its peak for at least T (no sign change
   of s'' within a window); between the bodies of a chain the sign may change, so chain bodies

@@ -10,6 +10,8 @@ With the jerk filter (`jerk_filter`) a chain is cut at every node, so its speed 
 the curvature node by node (the raw plan needs no room for an S-curve per body); the caps
 and acceleration limits of its bodies are eroded over the distance a filter window spans,
 and stops, sharp corners and passing points are extended (speed held T v / 2 beyond the blend).
+A chain's end next to a straight move whose far end is held is held T on the straight side
+(`_held_chain_ends`), so that move is planned with its own limits, not the chain's.
 """
 
 from __future__ import annotations
