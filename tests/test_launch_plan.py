@@ -163,7 +163,9 @@ def test_every_machine_launch_argument_is_one_the_registry_declares(tmp_path) ->
 
     config = ROOT / "config" / "machine_default.yaml"
     machine = load_machine_config(config)
-    request = RunRequest(config=config, program=Path("p.ngc"), realtime=True)
+    request = RunRequest(
+        config=config, program=Path("p.ngc"), realtime=True, live_url="rerun+http://h"
+    )
     bag = tmp_path / "run"
     plans = [
         machine_plan(node_plan(machine, tmp_path), request, bag),
@@ -172,6 +174,11 @@ def test_every_machine_launch_argument_is_one_the_registry_declares(tmp_path) ->
     ]
     assert [p.clock for p in plans] == ["x_sim", "x_standin", "linuxcnc"]
     assert all(p.stop_on_failure for p in plans)
+    # --live: the node set's recorder streams every axis, each shadow twin its dashboard
+    recorder = next(n for n in plans[0].nodes() if n.role == "recorder")
+    assert recorder.argv[-2:] == ("--live-url", "rerun+http://h")
+    twins = [n for plan in plans[1:] for n in plan.nodes() if n.role == "twin"]
+    assert len(twins) == 6 and all("rerun+http://h" in n.argv for n in twins)
     axis = node_plan(load_run_config(AXIS))  # every option of an axis's node set
     plans += [machine_plan(axis, r, bag) for r in _every_request(shadow_only=False) if not r.shadow]
     for plan in plans:
