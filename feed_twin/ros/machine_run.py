@@ -117,13 +117,17 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         result = run_reserved(run, logs, processes_env, reservation, quiet=args.json, total_s=total)
         timing = log_record(run.clock_log(result.logs), "TIMING") or {}
         ran = Ran(result.code, result.reason, timing, foreign_messages(result.logs.values()))
-    finished = None
+    finished, recovered = None, None
     if any(n.role == "recorder" for n in run.nodes()):
+        problem, recovered = make_readable(bag)
         finish = _finish_axis if machine.axis_file else _finish
-        finished = finish(bag, machine, args.program)
+        finished = (None, problem) if problem else finish(bag, machine, args.program)
     else:
         print(f"started here: {', '.join(here)}; the recorder runs elsewhere")
-    return _end(args, machine, plan=plan, ran=ran, finished=finished, here=here, bag=bag, env=env)
+    return _end(
+        args, machine, plan=plan, ran=ran, finished=finished, recovered=recovered, here=here,
+        bag=bag, env=env,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -190,13 +194,14 @@ def _end(
     plan: NodePlan,
     ran: Ran,
     finished: tuple[Figures | None, str] | None,
+    recovered: int | None,
     here: list[str],
     bag: Path,
     env: Mapping[str, str],
 ) -> int:
     """The run's report (RunReport): the exit code, the reason said, the outputs, the mode's
     figures; `finished`: the figures or why there are none (None: the recorder ran
-    elsewhere)."""
+    elsewhere); `recovered`: the messages kept when the bag had to be recovered."""
     rrd = bag.with_name(f"{bag.name}.rrd")
     summary, problem = finished if finished is not None else (None, "")
     if summary is not None and not machine.axis_file:
@@ -229,6 +234,7 @@ def _end(
         logs=str(args.out / f"{bag.name}.logs"),
         ros_domain=ros_domain(env),
         samples=samples,
+        bag_recovered_messages=recovered,
         timing=run_timing,
         figures=figures,
         figure_lines=() if summary is None else summary.lines,
@@ -301,32 +307,36 @@ def _topics(machine: MachineConfig, axis: str) -> AxisTopics:
 def readable_bag(bag: Path) -> str:
     """ "" when the run's bag can be read (recovered first when the recording was cut short),
     else why not."""
+    return make_readable(bag)[0]
+
+
+def make_readable(bag: Path) -> tuple[str, int | None]:
+    """("", messages kept or None) when the run's bag can be read (recovered first when the
+    recording was cut short), else (why not, None)."""
     from feed_twin.io.bag import BagError, info, recover
 
     if not bag.exists():
-        return "no bag was written"
+        return "no bag was written", None
     try:
         info(bag)
     except BagError:
         try:
             kept = recover(bag).messages_recovered
         except BagError as exc:
-            return f"the bag is unreadable: {exc}"
+            return f"the bag is unreadable: {exc}", None
         print(f"bag: the recording was incomplete; recovered {kept} messages")
-    return ""
+        return "", kept
+    return "", None
 
 
 def _finish(bag: Path, machine: MachineConfig, program: Path | None) -> tuple[Figures | None, str]:
-    """The bag made readable, the contour error added to it, and the run's figures."""
+    """The contour error added to the (readable) bag, and the run's figures."""
     import numpy as np
 
     from feed_twin.gcode.geometry import programmed_path
     from feed_twin.io.bag import BagError, BagReader, add_topics
     from feed_twin.io.cdr import FlatCodec
 
-    problem = readable_bag(bag)
-    if problem:
-        return None, problem
     if program is None:
         return None, "a machine's figures need its PROGRAM"
     try:
@@ -364,14 +374,11 @@ def _finish(bag: Path, machine: MachineConfig, program: Path | None) -> tuple[Fi
 def _finish_axis(
     bag: Path, machine: MachineConfig, program: Path | None
 ) -> tuple[Figures | None, str]:
-    """An axis file's run: the bag made readable, its dashboard and the axis's figures
+    """An axis file's run: its dashboard and the axis's figures from the (readable) bag
     (feed_twin.nodeset.summary)."""
     from feed_twin.nodeset.summary import read_run, summarise, write_dashboard
     from feed_twin.ros.gcode_node import program_lines
 
-    problem = readable_bag(bag)
-    if problem:
-        return None, problem
     topics = _topics(machine, machine.simulated[0])
     run = read_run(bag, topics)  # only the run's messages were recorded
     rrd = bag.with_name(f"{bag.name}.rrd")
