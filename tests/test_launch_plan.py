@@ -67,6 +67,16 @@ def test_one_node_runs_its_module_and_several_share_the_host() -> None:
         ),
         (lambda: RunRequest(config=AXIS, program=None, nc="fanuc"), "nc = 'fanuc': must be one"),
         (
+            lambda: dataclasses.replace(node_plan(load_run_config(AXIS)), recorder_with="disk"),
+            "recorder_with = 'disk': must be one of gcode, sim, own, auto",
+        ),
+        (
+            lambda: machine_plan(
+                node_plan(load_run_config(AXIS)), RunRequest(config=AXIS, program=None), Path("b")
+            ),
+            "a node set needs a PROGRAM (or --no-gcode)",
+        ),
+        (
             lambda: RunRequest(config=AXIS, program=None, startup_timeout_s=0.0),
             "startup_timeout_s = 0.0: must be > 0",
         ),
