@@ -21,8 +21,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -235,7 +236,7 @@ class PlantModel:
             for slot, value in comp.slots().items():
                 params.append((f"{name}.{slot}", value))
         self._component_params = params
-        derived = []
+        derived: list[str] = []
         for c in self.coordinates:
             for n in c.nodes:
                 derived.append(f"derived.ratio_n{n}")
@@ -383,14 +384,18 @@ class PlantModel:
     def _ratio_value(self, node: int, p: np.ndarray) -> float:
         return float(p[self.param_index[f"derived.ratio_n{node}"]])
 
-    def namespace(self) -> dict:
-        """The plant functions executed as plain Python (un-jitted numba callees inside)."""
+    def namespace(self) -> dict[str, Any]:
+        """The plant functions executed as plain Python (un-jitted numba callees inside).
+
+        The generated module's globals: their types are the generated text's (`rhs`, `outputs`,
+        `sense`, `angles`, ... with the signatures `codegen` writes), which no checker can see.
+        """
         if not hasattr(self, "_namespace"):
             # the same source, with njit as the identity: plain Python calling the jitted
             # component functions, for the reference integration and linearisation
-            namespace: dict = {}
+            namespace: dict[str, Any] = {}
             text = self.source_code.replace("from numba import njit\n", "")
-            namespace["njit"] = lambda **_: lambda f: f
+            namespace["njit"] = _identity_decorator
             exec(compile(text, f"<plant {self.structure_digest}>", "exec"), namespace)
             self._namespace = namespace
         return self._namespace
@@ -443,6 +448,18 @@ class PlantModel:
             source=self.source,
             track_energy=track_energy,
         )
+
+
+_F = TypeVar("_F", bound=Callable[..., object])
+
+
+def _identity_decorator(**_options: object) -> Callable[[_F], _F]:
+    """`@njit(...)` of the generated text, run as plain Python: the function itself."""
+
+    def identity(f: _F) -> _F:
+        return f
+
+    return identity
 
 
 def assemble(

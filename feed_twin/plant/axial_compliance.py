@@ -37,6 +37,7 @@ from feed_twin.plant.effect_api import (
     Effect,
     FreeParameter,
     Motion,
+    Report,
     Weights,
     first_of,
     make_edit,
@@ -144,7 +145,7 @@ def _lead_error_edit(doc: Document, cand: Weights) -> Edit:
         ),
         FreeParameter(name=f"{name}.lead_error_phase", initial=phase, scale=1.0),
     ]
-    report = {
+    report: Report = {
         "amplitude_m": lambda v: v[f"{name}.lead_error_amplitude"],
         "phase_rad": lambda v: v[f"{name}.lead_error_phase"],
         "period_m": lambda v: lead,
@@ -181,7 +182,7 @@ def _stiffness_edit(doc: Document, cand: Weights) -> Edit:
         FreeParameter(name=slot, initial=doc.get(slot), scale=doc.get(slot), lower=0.0, log=True)
         for slot in slots
     ]
-    report = {"k_bearing_N_m": lambda v: v[slots[0]], "EA_N": lambda v: v[slots[1]]}
+    report: Report = {"k_bearing_N_m": lambda v: v[slots[0]], "EA_N": lambda v: v[slots[1]]}
     return make_edit(doc, own, report, interacts=False)
 
 
@@ -312,9 +313,6 @@ class AxialCompliance(Component):
     def stiffness_bound(self, slot: SlotReader) -> float:
         # bearings and nut in series: the screw section only adds compliance (axial_stiffness)
         return 1.0 / (1.0 / slot("k_bearing") + 1.0 / slot("k_nut"))
-
-    def structure(self) -> tuple:
-        return (self.arrangement,)
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage != "dynamics":

@@ -112,7 +112,8 @@ class Component:
 
     Subclasses set `TYPE` (the YAML `type:`), `PORTS` (port name -> kind) and override what they
     need: `slots()` (parameter slot name -> value, default every float field), `states()`,
-    `inertias()`, `structure()` (anything that changes the generated code) and `emit()`. For
+    `inertias()` and `emit()` (what changes the generated code needs no declaration: the kernel
+    is keyed by the generated source's digest). For
     the discrepancy workflow they declare the effects they can carry (`EFFECTS`, see
     feed_twin.plant.effect_api) and the quantities made of several of their parameters
     (`QUANTITIES`, or `quantity()` for a family of slots).
@@ -192,10 +193,6 @@ class Component:
         """
         del slot
         return 0.0
-
-    def structure(self) -> tuple:
-        """What of this component shapes the generated code (beyond its type and ports)."""
-        return ()
 
     def emit(self, stage: str, g: Emitter) -> None:
         """Write this component's glue for `stage` through the emitter `g`."""

@@ -106,7 +106,8 @@ def _savgol(y: np.ndarray, window: int, deriv: int, h: float) -> np.ndarray:
     """Quadratic Savitzky-Golay derivative of order `deriv` of samples `h` [s] apart."""
     # imported here: every process that builds an engine imports this module (plant.component)
     # and scipy.signal takes most of a second to import; only the analysis differentiates
-    from scipy.signal import savgol_filter
+    # scipy has no stubs: typed by the np.asarray below
+    from scipy.signal import savgol_filter  # pyright: ignore[reportMissingTypeStubs, reportUnknownVariableType]
 
     return np.asarray(savgol_filter(y, window, 2, deriv=deriv, delta=h), dtype=float)
 
@@ -271,7 +272,7 @@ def symmetric(doc: Document) -> Document:
 def interacting(doc: Document) -> list[FreeParameter]:
     """The rigid-body parameters every force-like effect trades off against, re-fitted with it:
     the moving mass, the friction terms the model already has, a constant force."""
-    free = []
+    free: list[FreeParameter] = []
     m = doc.mass_slot()
     if m is not None:
         value = doc.get(m)

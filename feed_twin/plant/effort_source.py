@@ -23,6 +23,7 @@ from feed_twin.plant.effect_api import (
     Effect,
     FreeParameter,
     Motion,
+    Report,
     Weights,
     make_edit,
     slot_reader,
@@ -53,7 +54,7 @@ def _gain_edit(doc: Document, cand: Weights) -> Edit:
     own = [FreeParameter(name=g, initial=guess, scale=abs(value))]
     # the constant scales every force of the model at once: fitted together with the mass and
     # friction it would be degenerate, so it is fitted alone (the report says the correlation)
-    report = {"gain": slot_reader(g), "effort_scale": lambda v: value / v[g]}
+    report: Report = {"gain": slot_reader(g), "effort_scale": lambda v: value / v[g]}
     return make_edit(doc, own, report, interacts=False)
 
 
@@ -106,9 +107,6 @@ class EffortSource(Component):
         if self.T_lag > 0.0:
             return (StateSpec(name="effort", unit=unit, limit=self.f_max),)
         return ()
-
-    def structure(self) -> tuple:
-        return (self.domain, self.T_lag > 0.0)
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage != "dynamics":

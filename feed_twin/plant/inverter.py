@@ -216,13 +216,10 @@ class Inverter(Component):
             "i_reg": self.i_reg,
         }
 
-    def structure(self) -> tuple:
-        return (self.model,)
-
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "dc_current":
             enabled = g.drive("OUT_ENABLED")
-            terms = []
+            terms: list[str] = []
             for n, x in enumerate(PHASES):
                 command = g.switch(n) if self.switching else g.drive(DUTY_SLOTS[n])
                 duty, sgn = g.local(f"d_{x}"), g.local(f"sgn_{x}")
@@ -236,7 +233,7 @@ class Inverter(Component):
             g.line(f"{g.el('dc', 'i')} = {' + '.join(terms)}")
         elif stage == "voltages":
             u_dc = g.el("dc", "u")
-            loss = []
+            loss: list[str] = []
             for x in PHASES:
                 u, i = g.el("ac", f"u_{x}"), g.el("ac", f"i_{x}")
                 duty, sgn = g.local(f"d_{x}"), g.local(f"sgn_{x}")

@@ -170,9 +170,6 @@ class ThermalGrowth(Component):
         own = {"alpha": self.alpha, "heating": self.heating, "tau": self.tau}
         return own | {k: geometry[k] for k in STIFFNESS_SLOTS}
 
-    def structure(self) -> tuple:
-        return (self.arrangement,)
-
     def states(self) -> tuple[StateSpec, ...]:
         return (StateSpec(name="dT", unit="K", limit=TEMPERATURE_LIMIT_K),)
 
