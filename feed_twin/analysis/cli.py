@@ -148,12 +148,22 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
 def main_diagnose(args: argparse.Namespace) -> int:
     from feed_twin.analysis import wording
     from feed_twin.analysis.diagnose import diagnose, write_model
+    from feed_twin.analysis.passes import Pass
     from feed_twin.analysis.placed import diagnose_program, place
     from feed_twin.analysis.report_files import write_report
     from feed_twin.analysis.twin import ModelDoc
+    from feed_twin.io.progress import PassBar, wanted
+
+    # a person at a terminal sees each pass, its percent and ETA on a bar below the lines
+    bar = PassBar(enabled=wanted(json_out=False))
+    last: list[Pass] = []
 
     def progress(text: str) -> None:
-        print(f"[diagnose] {text}", flush=True)
+        bar.say(f"[diagnose] {text}")
+
+    def passes(step: Pass) -> None:
+        last[:] = [step]
+        bar.begin(step.name, done=step.done, planned=step.planned, simulated_s=step.simulated_s)
 
     from feed_twin.gcode.errors import GcodeError
 
@@ -191,21 +201,30 @@ def main_diagnose(args: argparse.Namespace) -> int:
     try:
         if program is None:
             diagnosis, final_doc, motion = diagnose(
-                run, doc, validate=other, progress=progress, model_path=str(model_path)
-            )
+                run, doc, validate=other, progress=progress, passes=passes,
+                model_path=str(model_path),
+            )  # fmt: skip
         else:
             diagnosis, final_doc, motion, placed = diagnose_program(
-                measured, program, doc, progress=progress, model_path=str(model_path),
-                placed=placed, placing_s=placing_s,
+                measured, program, doc, progress=progress, passes=passes,
+                model_path=str(model_path), placed=placed, placing_s=placing_s,
             )  # fmt: skip
             more = [r for r in placed[2:] if r is not None]
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
+        bar.close()
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
         return 2
+    except BaseException:
+        bar.close()  # a traceback is not written over a bar
+        raise
     if more:
         diagnosis = _validate_more(diagnosis, final_doc, more, progress)
+    if last:  # the plots and the recording take seconds too
+        bar.begin("writing the report", done=last[0].planned, planned=last[0].planned,
+                  simulated_s=last[0].simulated_s)  # fmt: skip
     write_model(final_doc, model_path, diagnosis.effects)
     written = write_report(diagnosis, out, v_m_s=motion.v_m_s)
+    bar.close()
     from feed_twin.plant.slot_specs import with_unit
 
     progress(diagnosis.verdict)
