@@ -29,6 +29,7 @@ from typing import Any, Literal
 import numpy as np
 from numba import njit
 
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, Quantity, SlotReader, SlotSpec
 from feed_twin.plant.effect_api import (
@@ -191,7 +192,7 @@ def _stiffness_truth(doc: Document, p: Mapping[str, float]) -> Document:
     return doc.set(f"{name}.k_bearing", p["k_bearing_N_m"]).set(f"{name}.EA", p["EA_N"])
 
 
-def _stiffness_signature(m: Motion) -> dict[str, np.ndarray]:
+def _stiffness_signature(m: Motion) -> dict[str, FloatArray]:
     # the table lags the nut by F * c(x): a screw held at one end (fixed-free) has c linear
     # in the distance to the bearing, one held at both ends (fixed-fixed) c ~ x (L - x); a
     # quadratic in the position covers both (the constant part: bearings and nut). The twin's

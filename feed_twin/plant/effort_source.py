@@ -13,8 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-import numpy as np
-
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, PortKind, StateSpec
 from feed_twin.plant.effect_api import (
@@ -65,7 +64,7 @@ def _gain_truth(doc: Document, p: Mapping[str, float]) -> Document:
     return doc.set(g, p["gain"])
 
 
-def _effort_signature(m: Motion) -> dict[str, np.ndarray]:
+def _effort_signature(m: Motion) -> dict[str, FloatArray]:
     assert m.effort_sim is not None  # the effect needs effort_sim
     return {"effort": m.effort_sim}
 

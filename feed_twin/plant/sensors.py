@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotSpec
 from feed_twin.plant.effect_api import (
@@ -149,7 +150,7 @@ class LinearScale(Component):
             )
 
 
-def _electrical(m: Motion) -> dict[str, np.ndarray]:
+def _electrical(m: Motion) -> dict[str, FloatArray]:
     assert m.pole_pairs is not None
     theta = m.pole_pairs * motor_angle(m)
     return {"sin": np.sin(theta), "cos": np.cos(theta)}
