@@ -10,6 +10,7 @@ import pty
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -100,9 +101,10 @@ def test_a_run_on_a_terminal_shows_progress_and_under_json_does_not(tmp_path):
 def test_a_job_of_passes_shows_each_pass_its_percent_and_the_record_simulated():
     controller, terminal = pty.openpty()
     with os.fdopen(terminal, "w", closefd=True) as stream:
-        bar = PassBar(enabled=True, stream=stream, min_interval_s=0.0)
+        bar = PassBar(enabled=True, stream=stream, min_interval_s=0.0, tick_s=0.02)
         bar.begin("compiling the nominal model", done=0, planned=8, simulated_s=0.0)
         bar.begin("round 1 of at most 5", done=1, planned=8, simulated_s=24.8)
+        time.sleep(0.5)  # a long pass: the bar is drawn again while it goes on
         bar.say("[diagnose] round 1: fitting coulomb_friction", stream)
         bar.begin("final joint re-fit", done=6, planned=8, simulated_s=1190.4)
         bar.close()
@@ -111,6 +113,7 @@ def test_a_job_of_passes_shows_each_pass_its_percent_and_the_record_simulated():
     assert "compiling the nominal model:   0%|" in shown, shown
     assert re.search(r"round 1 of at most 5:  12%\|.*\| pass 1/8, 25 s simulated \[", shown)
     assert re.search(r"final joint re-fit:  75%\|.*\| pass 6/8, 1190 s simulated \[", shown)
+    assert shown.count("round 1 of at most 5: ") >= 5, shown
     # the job's own line is whole: the bar is cleared before it and drawn again below it
     assert "\n[diagnose] round 1: fitting coulomb_friction" in shown.replace("\r", "\n"), shown
 

@@ -11,13 +11,16 @@ the simulated time and the wall time only).
 `PassBar` is the bar of a job made of passes of unknown length (`feed-twin diagnose`: the
 nominal model, the rounds, the joint re-fit; feed_twin.analysis.passes): the pass by name, the
 percent of the passes planned, the record time simulated so far and the ETA from the passes'
-pace. Its `say` writes a line of the job's own output above the bar, which stays below it.
+pace. A pass can take a minute: a thread redraws the bar every second, so that its clock
+moves while the job works. Its `say` writes a line of the job's own output above the bar,
+which stays below it.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+import threading
 from typing import NoReturn, TextIO
 
 from tqdm import tqdm
@@ -119,11 +122,15 @@ class PassBar:
         enabled: bool,
         stream: TextIO | None = None,
         min_interval_s: float = 0.1,  # [s wall] between redraws
+        tick_s: float = 1.0,  # [s wall] between the redraws of a pass that goes on
     ) -> None:
         self.enabled = enabled
         self._stream = stream
         self._min_interval_s = min_interval_s
+        self._tick_s = tick_s
         self._bar: tqdm[NoReturn] | None = None  # drawn from the first pass on
+        self._stop = threading.Event()
+        self._ticker: threading.Thread | None = None
 
     def begin(self, name: str, *, done: int, planned: int, simulated_s: float) -> None:
         """Pass `name` begins after `done` of `planned`, `simulated_s` [s] of record simulated."""
@@ -133,24 +140,42 @@ class PassBar:
             self._bar = _bar(
                 self._stream, total=planned, bar_format=_PASSES, min_interval_s=self._min_interval_s
             )
+            self._stop.clear()
+            self._ticker = threading.Thread(
+                target=self._tick, args=(self._bar,), name="progress", daemon=True
+            )
+            self._ticker.start()
         bar = self._bar
-        if done < bar.n:  # the job starts over (a program placed again): a new pace
-            bar.reset(total=planned)
-        bar.total = planned
-        bar.set_description_str(f"{name}: ", refresh=False)
-        bar.set_postfix_str(f"{simulated_s:.0f} s simulated", refresh=False)
-        bar.update(done - bar.n)
-        bar.refresh()
+        with bar.get_lock():  # not drawn half-changed by the ticker
+            if done < bar.n:  # the job starts over (a program placed again): a new pace
+                bar.reset(total=planned)
+            bar.total = planned
+            bar.set_description_str(f"{name}: ", refresh=False)
+            bar.set_postfix_str(f"{simulated_s:.0f} s simulated", refresh=False)
+            bar.update(done - bar.n)
+            bar.refresh()
+
+    def _tick(self, bar: tqdm[NoReturn]) -> None:
+        while not self._stop.wait(self._tick_s):
+            bar.refresh()
 
     def say(self, line: str, stream: TextIO | None = None) -> None:
         """Print `line` (to stdout by default) above the bar, which is drawn again below it."""
-        if self._bar is not None:
-            self._bar.clear()
-        print(line, file=sys.stdout if stream is None else stream, flush=True)
-        if self._bar is not None:
-            self._bar.refresh()
+        out = sys.stdout if stream is None else stream
+        bar = self._bar
+        if bar is None:
+            print(line, file=out, flush=True)
+            return
+        with bar.get_lock():
+            bar.clear(nolock=True)
+            print(line, file=out, flush=True)
+            bar.refresh(nolock=True)
 
     def close(self) -> None:
+        self._stop.set()
+        if self._ticker is not None:
+            self._ticker.join()
+            self._ticker = None
         if self._bar is not None:
             self._bar.close()
             self._bar = None
