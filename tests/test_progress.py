@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from feed_twin.analysis.cli import simulate_traces
 from feed_twin.analysis.diagnose import Options, diagnose
 from feed_twin.analysis.passes import Pass
 from feed_twin.analysis.synthetic import generate, write_csv
@@ -183,3 +184,26 @@ def test_a_diagnosis_on_a_terminal_shows_its_passes_and_into_a_pipe_does_not(tmp
     assert code == 0, shown
     assert "[diagnose] round 1: fitting coulomb_friction" in shown, shown
     assert "%|" not in shown and "s simulated [" not in shown, shown
+
+
+def test_a_job_of_steps_without_a_simulated_time_shows_none():
+    controller, terminal = pty.openpty()
+    with os.fdopen(terminal, "w", closefd=True) as stream:
+        bar = PassBar(enabled=True, stream=stream, min_interval_s=0.0)
+        bar.begin("compiling the model", done=0, planned=2)
+        bar.begin("simulating the record", done=1, planned=2)
+        bar.close()
+    shown = _read_all(controller)
+    os.close(controller)
+    assert re.search(r"simulating the record:  50%\|.*\| pass 1/2 \[", shown), shown
+    assert "simulated [" not in shown and not shown.lstrip().startswith("0%"), shown
+
+
+def test_simulate_names_its_steps(tmp_path):
+    nominal, csv, map_path = _synthetic_record(tmp_path)
+    steps: list[tuple[str, int]] = []
+    columns = simulate_traces(
+        load_measured(csv, map_path), nominal, lambda name, done: steps.append((name, done))
+    )
+    assert steps == [("compiling the model", 0), ("simulating the record", 1)]
+    assert "sim_pos_meas_m" in columns

@@ -24,6 +24,7 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 # One BLAS thread, set before numpy loads OpenBLAS (feed_twin.cli imports this module first):
@@ -312,12 +313,19 @@ def _rate_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def simulate_traces(run: MeasuredRun, doc) -> dict[str, np.ndarray]:
-    """t_s, every measured canonical signal and its simulated `sim_` twin."""
+def simulate_traces(
+    run: MeasuredRun, doc, step: Callable[[str, int], None] | None = None
+) -> dict[str, np.ndarray]:
+    """t_s, every measured canonical signal and its simulated `sim_` twin; `step(name, done)`
+    hears each of its two steps begin (the compilation, the simulation)."""
     from feed_twin.analysis.twin import Twin, drive_from_run
 
+    if step is not None:
+        step("compiling the model", 0)
     twin = Twin.compile(doc)
     drive = drive_from_run(run)
+    if step is not None:
+        step("simulating the record", 1)
     out = twin.simulate(drive, twin.nominal[None, :])
     if not out.ok[0]:
         raise RuntimeError(f"{doc.source} diverged on {run.source}")
@@ -350,11 +358,21 @@ def main_simulate(args: argparse.Namespace) -> int:
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin simulate: {exc}", file=sys.stderr)
         return 2
+    from feed_twin.io.progress import PassBar, wanted
+
+    # compiling a model and simulating a long record take seconds: said on a terminal
+    bar = PassBar(enabled=wanted(json_out=False))
+
+    def step(name: str, done: int) -> None:
+        bar.begin(name, done=done, planned=2)
+
     try:
-        columns = simulate_traces(run, doc)
+        columns = simulate_traces(run, doc, step)
     except (MeasuredDataError, ConfigError) as exc:
         print(f"feed-twin simulate: {exc}", file=sys.stderr)
         return 2
+    finally:
+        bar.close()
     names = list(columns)
     table = np.column_stack([columns[n] for n in names])
     out = Path(args.out)

@@ -48,13 +48,19 @@ def _columns(stream: TextIO) -> int:
 
 
 def _bar(
-    stream: TextIO | None, *, total: float | None, bar_format: str, min_interval_s: float
+    stream: TextIO | None,
+    *,
+    total: float | None,
+    bar_format: str,
+    min_interval_s: float,
+    desc: str = "",
 ) -> tqdm[NoReturn]:
     """A bar on `stream` (stderr by default), removed when closed (updated by hand: no
     iterable, hence NoReturn in the stubs)."""
     file = sys.stderr if stream is None else stream
     return tqdm(
         total=total,
+        desc=desc,
         file=file,
         bar_format=bar_format,
         ncols=_columns(file),
@@ -132,13 +138,20 @@ class PassBar:
         self._stop = threading.Event()
         self._ticker: threading.Thread | None = None
 
-    def begin(self, name: str, *, done: int, planned: int, simulated_s: float) -> None:
-        """Pass `name` begins after `done` of `planned`, `simulated_s` [s] of record simulated."""
+    def begin(
+        self, name: str, *, done: int, planned: int, simulated_s: float | None = None
+    ) -> None:
+        """Pass `name` begins after `done` of `planned`, `simulated_s` [s] of record simulated
+        (None: not counted)."""
         if not self.enabled:
             return
         if self._bar is None:
             self._bar = _bar(
-                self._stream, total=planned, bar_format=_PASSES, min_interval_s=self._min_interval_s
+                self._stream,
+                total=planned,
+                bar_format=_PASSES,
+                min_interval_s=self._min_interval_s,
+                desc=f"{name}: ",  # tqdm draws at once: with the name, not a bare 0 %
             )
             self._stop.clear()
             self._ticker = threading.Thread(
@@ -151,7 +164,8 @@ class PassBar:
                 bar.reset(total=planned)
             bar.total = planned
             bar.set_description_str(f"{name}: ", refresh=False)
-            bar.set_postfix_str(f"{simulated_s:.0f} s simulated", refresh=False)
+            simulated = "" if simulated_s is None else f"{simulated_s:.0f} s simulated"
+            bar.set_postfix_str(simulated, refresh=False)
             bar.update(done - bar.n)
             bar.refresh()
 
