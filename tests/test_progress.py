@@ -74,10 +74,10 @@ def _run_on_a_terminal(tmp_path: Path, *extra: str) -> tuple[int, str]:
     program.write_text("G90 G54 G17\nG1 X20 Y10 F3000\nG0 X0 Y0\nM2\n")
     argv = [sys.executable, "-m", "feed_twin.cli", "run", str(program), "--config", str(MACHINE),
             "--in-process", "--settle", "0.05", "--out", str(tmp_path), *extra]  # fmt: skip
-    return _on_a_terminal(argv)
+    return on_a_terminal(argv)
 
 
-def _on_a_terminal(argv: list[str]) -> tuple[int, str]:
+def on_a_terminal(argv: list[str]) -> tuple[int, str]:
     """Exit code and everything `argv` wrote, its stdout and stderr on one terminal."""
     controller, terminal = pty.openpty()
     env = {**os.environ, "COLUMNS": "160"}
@@ -167,7 +167,7 @@ def _diagnose_on(tmp_path: Path, csv: Path, map_path: Path, out: str, *, termina
     argv = [sys.executable, "-m", "feed_twin.cli", "diagnose", str(csv), "--config",
             str(EMPS_NOMINAL), "--map", str(map_path), "--out", str(tmp_path / out)]  # fmt: skip
     if terminal:
-        return _on_a_terminal(argv)
+        return on_a_terminal(argv)
     done = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT)
     return done.returncode, done.stdout + done.stderr
 
