@@ -52,18 +52,20 @@ def last_json(stdout: str) -> dict:
 
 def wait_for(path: Path, pattern: str, proc, timeout_s: float = 120.0) -> None:
     """Until `pattern` appears in the log `path` of the run `proc` (which must not end first)."""
-    wait_for_all(path.parent, [pattern], proc, timeout_s)
+    wait_for_all(path.parent, [pattern], proc, timeout_s, files=path.name)
 
 
-def wait_for_all(logs: Path, patterns: Iterable[str], proc, timeout_s: float) -> None:
-    """Until every regex of `patterns` appears in one of the run's logs (`logs`/*.log); fails
+def wait_for_all(
+    logs: Path, patterns: Iterable[str], proc, timeout_s: float, files: str = "*.log"
+) -> None:
+    """Until every regex of `patterns` appears in one of the run's logs (`logs`/`files`); fails
     naming the ones that never did, or at once when the run `proc` ends first."""
     missing = list(patterns)
     deadline = time.monotonic() + timeout_s
     while missing and time.monotonic() < deadline:
         if proc.poll() is not None:
             raise AssertionError(f"the run ended early: {proc.stderr.read()}")
-        text = "".join(p.read_text(errors="replace") for p in sorted(logs.glob("*.log")))
+        text = "".join(p.read_text(errors="replace") for p in sorted(logs.glob(files)))
         missing = [m for m in missing if not re.search(m, text)]
         if missing:
             time.sleep(0.1)
