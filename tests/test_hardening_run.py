@@ -43,21 +43,24 @@ command = node.create_publisher(AxisCommand, "/cnc/x/command", DATA_QOS)
 feedback = node.create_publisher(AxisFeedback, "/cnc/x/feedback", DATA_QOS)
 state = node.create_publisher(AxisState, "/cnc/x/state", DATA_QOS)
 # The run's own signed commands, to send again altered and replayed. This reader hears the
-# intruder's own (unsigned) commands too: taking one message a pass, it had a queue of 5000 of
-# its own ahead of the run's first and heard that 2-3 s late, so each pass takes every message
-# and keeps the newest signed one.
+# intruder's own commands too: taking one message a pass, it had 5000 of its own queued ahead
+# of the run's first and heard the run 2-3 s late, and it went on to replay and alter its own
+# altered copies (bad tags, not replays). So each pass takes every message and keeps the
+# newest signed one whose sequence number (the signature's first 16 hex digits) is new.
 heard = node.create_subscription(
     AxisCommand, "/cnc/x/command", lambda _: None, DATA_QOS, raw=True
 )
 end = time.monotonic() + float(sys.argv[1])
 k = 0
+newest = ""
 print("publishing", flush=True)
 while time.monotonic() < end:
     signed = None
     with heard.handle:
         while (taken := heard.handle.take_message(AxisCommand, True)) is not None:
-            if deserialize_message(taken[0], AxisCommand).header.frame_id:
-                signed = bytearray(taken[0])
+            seq = deserialize_message(taken[0], AxisCommand).header.frame_id[:16]
+            if seq > newest:
+                newest, signed = seq, bytearray(taken[0])
     # setpoints 100 mm away from the program's, alternating: a lethal stream if taken
     command.publish(AxisCommand(axis="X", position=0.3 + 0.2 * (k % 2), line=99))
     feedback.publish(AxisFeedback(axis="X", scale_position=0.77, i_q=25.0))
