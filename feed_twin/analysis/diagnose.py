@@ -49,6 +49,7 @@ from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
 from feed_twin.analysis.locate import Location, locate
+from feed_twin.analysis.passes import Passes, PassListener, ignore
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.record_scale import at_record_scale
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
@@ -145,9 +146,11 @@ def diagnose(
     validate: MeasuredRun | None = None,
     options: Options | None = None,
     progress: Progress = noop,
+    passes: PassListener = ignore,
     model_path: str = "model.yaml",
 ) -> tuple[Diagnosis, ModelDoc, Motion]:
-    """Run the workflow on `run`; returns the diagnosis, the final model and the motion used."""
+    """Run the workflow on `run`; returns the diagnosis, the final model and the motion used.
+    `progress` hears what it says, `passes` each pass as it begins (analysis.passes)."""
     opts = options or Options()
     clock = time.perf_counter()
     timings: dict[str, float] = {}
@@ -159,7 +162,8 @@ def diagnose(
     scaled: list[str] = []
     if opts.record_scale:
         nominal, scaled = at_record_scale(run, nominal, resolution_m=position_resolution(raw))
-    drive, twin, out0 = _simulate_nominal(run, nominal, progress)
+    counter = Passes(passes, rounds=opts.max_effects, validating=validate is not None, t_s=run.t_s)
+    drive, twin, out0 = _simulate_nominal(run, nominal, progress, counter)
     timings["nominal_s"] = time.perf_counter() - clock
     check_effort_sign(run, out0)
     # what the record can show (analysis.visibility): said before fitting, and what it cannot
@@ -167,12 +171,7 @@ def diagnose(
     vis = assess(run, twin, drive.pos_ref_m, out0, raw=raw)
     if vis.blind is not None:
         run = dataclasses.replace(run, effort_blind=vis.blind)
-    said = [*smoothed, *scaled, *vis.lines()]
-    kt = force_constant_correlation(run, out0, drive.vel_ref_m_s)
-    if kt is not None and "torque_constant_error" not in vis.unseen_names:
-        said.append(kt)
-    for line in said:
-        progress(line)
+    said = _said([*smoothed, *scaled], run, out0, drive, vis, progress)
     notes.extend([*smoothed, *scaled])
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
     before = run_metrics(run, out0)
@@ -199,8 +198,9 @@ def diagnose(
         start=start,
         silent=() if vis.position_evidence else ("position",),
     )
-    ranking, unfitted = _identify(state, context, list(vis.unseen_names))
+    ranking, unfitted = _identify(state, context, list(vis.unseen_names), counter)
     timings["identify_s"] = time.perf_counter() - clock
+    counter.appraisal(state.simulations)
     progress("appraising the final model: intervals, correlations, plausibility, drift")
     appraisal = appraise(state, context, nominal)
     timings["appraise_s"] = appraisal.seconds
@@ -218,6 +218,7 @@ def diagnose(
     for u in small:
         said.append(f"cannot be seen in this record: {u.name}: {u.reason}")
         progress(said[-1])
+    counter.validation(validate, state.simulations + appraisal.simulations)
     validation, validation_traces = _validate(validate, twin, state.twin, progress, notes)
     timings["total_s"] = time.perf_counter() - clock
     diagnosis = Diagnosis(
@@ -256,6 +257,25 @@ def diagnose(
     return diagnosis, state.doc, motion
 
 
+def _said(
+    said: list[str],
+    run: MeasuredRun,
+    out0: SimOutputs,
+    drive: Drive,
+    vis: Visibility,
+    progress: Progress,
+) -> list[str]:
+    """What is said of the record before fitting (`said` so far, what it can show, a force
+    constant that friction and weight could hide), each line told to `progress` too."""
+    said = [*said, *vis.lines()]
+    kt = force_constant_correlation(run, out0, drive.vel_ref_m_s)
+    if kt is not None and "torque_constant_error" not in vis.unseen_names:
+        said.append(kt)
+    for line in said:
+        progress(line)
+    return said
+
+
 def _locate(
     run: MeasuredRun,
     twin: Twin,
@@ -286,12 +306,14 @@ def _too_small(vis: Visibility, state: State, ranking: list[Candidate]) -> list[
 
 
 def _simulate_nominal(
-    run: MeasuredRun, nominal: ModelDoc, progress: Progress
+    run: MeasuredRun, nominal: ModelDoc, progress: Progress, counter: Passes
 ) -> tuple[Drive, Twin, SimOutputs]:
     """The measured command as the twin's drive, the compiled nominal twin and its response."""
     drive = drive_from_run(run)
+    counter.nominal("compiling the nominal model")
     progress(f"compiling the nominal model {nominal.source}")
     twin = Twin.compile(nominal)
+    counter.nominal("simulating the nominal twin")
     progress("simulating the nominal twin on the measured command")
     out0 = twin.simulate(drive, twin.nominal[None, :])
     if not out0.ok[0]:
@@ -316,7 +338,7 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Mot
 
 
 def _identify(
-    state: State, context: Context, excluded: list[str]
+    state: State, context: Context, excluded: list[str], counter: Passes
 ) -> tuple[list[Candidate], list[dict]]:
     """The rounds of ranking, fitting and testing, then the joint re-fit of what they found;
     `state` ends with the augmented model. `excluded`: effects not searched (those the record
@@ -325,10 +347,12 @@ def _identify(
     ranking: list[Candidate] = []
     unfitted: list[dict] = []
     for round_no in range(1, opts.max_effects + 1):
+        counter.round(round_no, state.simulations)
         ranking, more = run_round(round_no, state, context, excluded, unfitted)
         if not more:
             break
     if state.found:
+        counter.joint(state.simulations)
         context.progress("re-fitting the found effects together with the nominal parameters")
         meas = weighted_channels(
             context.run, state.outputs, context.stride, context.floors, start=context.start
