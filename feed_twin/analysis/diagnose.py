@@ -51,7 +51,7 @@ from feed_twin.analysis.compare import Metrics, align, compute_metrics
 from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
-from feed_twin.analysis.joint import JointSearch, joint_select, searched_again
+from feed_twin.analysis.joint import JointSearch, joint_select
 from feed_twin.analysis.locate import Location, locate
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.record_scale import at_record_scale
@@ -340,7 +340,6 @@ def _identify(
         )
         state.cost = cost_of(meas, state.outputs)
         joint = joint_select(state, context, meas)
-        searched_again(state, context, meas)
         context.progress("re-fitting the found effects together with the nominal parameters")
         note = final_joint(state, context.drive, meas, opts)
         if note is not None:

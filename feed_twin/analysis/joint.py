@@ -20,11 +20,20 @@ nor by its parameter count. A set that could win only by losing some of its othe
 parameters (the viscous term the drive gain needed) is pruned first, as the rounds prune
 (rounds.reexamine_found: collapsed effects and those whose removal costs nothing are dropped),
 and scored as pruned. The best swap that scores better than the set now by SWAP_MARGIN is
-kept, and the search repeats on the new set, MAX_SWAPS times at most.
+kept, and the search repeats on the new set, MAX_SWAPS times at most. Last, the found effects'
+searched parameters are searched again with the others in (`searched_again`).
 
-Cost: one least-squares fit per (found effect, runner-up) pair, whose Jacobians are batches of
-the engine (analysis.fit), plus the removal tests of the sets worth pruning; counted in the
-search's simulations and said in the progress and the report.
+Which runners-up are tried for an effect: those that the residual of the set without it (one
+simulation) ranks as worth fitting, in the same residual, explaining at least rival_ratio of
+what the effect's own signature explains there (a round's rule for its rivals). Every pair
+would fit twelve sets on the heavier slide (a trace window for a constant force, ...) where
+these fit two.
+
+Cost: one simulation per found effect, one least-squares fit per pair tried (its Jacobians
+are batches of the engine, analysis.fit), the removal tests of the sets worth pruning, and the
+searches again (one simulation and shifts of its output each); counted in the search's
+simulations (Diagnosis.search: joint_trials, joint_simulations, joint_seconds) and said in the
+report. On the truth machine's heavier slide: 3 sets, 231 of 741 simulations.
 """
 
 from __future__ import annotations
@@ -78,7 +87,7 @@ class JointSearch:
     trials: int  # sets fitted
     simulations: int  # parameter sets simulated
     seconds: float
-    swaps: tuple[str, ...]  # the swaps kept, in words
+    swaps: tuple[str, ...]  # the swaps kept and the searched values moved, in words
 
     def as_dict(self) -> dict[str, float]:
         """The search's cost, as Diagnosis.search holds it (the swaps are in the notes)."""
@@ -104,8 +113,9 @@ def score(ctx: Context, now: State, trial: State) -> float:
 
 
 def joint_select(state: State, ctx: Context, meas: Measured) -> JointSearch:
-    """Swap found effects for runners-up while a swap scores better (module docstring);
-    `state` ends with the chosen set. Returns the search's cost and what it swapped."""
+    """Swap found effects for runners-up while a swap scores better, then search the searched
+    parameters again (module docstring); `state` ends with the chosen set. Returns the
+    search's cost and what it changed."""
     clock, start_sims = time.perf_counter(), state.simulations
     trials, kept = 0, []
     for _ in range(MAX_SWAPS):
@@ -133,6 +143,7 @@ def joint_select(state: State, ctx: Context, meas: Measured) -> JointSearch:
         if best is None:
             break
         kept.append(_keep(state, ctx, best))
+    kept += searched_again(state, ctx, meas)
     return JointSearch(
         trials=trials,
         simulations=state.simulations - start_sims,
