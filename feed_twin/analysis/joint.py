@@ -119,7 +119,7 @@ def joint_select(state: State, ctx: Context, meas: Measured) -> JointSearch:
     clock, start_sims = time.perf_counter(), state.simulations
     trials, kept = 0, []
     for _ in range(MAX_SWAPS):
-        pool = {n for n in ctx.runners_up if n not in {f.name for f in state.found}}
+        pool = ctx.runners_up - {f.name for f in state.found}
         pairs = [
             (f, c)
             for f in state.found

@@ -175,9 +175,9 @@ class Context:
     tried: list[str] = field(default_factory=list)
     # channels that carry no evidence in this record (analysis.visibility): not tested
     silent: tuple[str, ...] = ()
-    # the rivals fitted to a feed axis's model in some round and not kept (by name): the
-    # alternatives the joint selection swaps in for the effects found (analysis.joint)
-    runners_up: dict[str, Candidate] = field(default_factory=dict)
+    # the rivals fitted to a feed axis's model in some round and not kept: the alternatives
+    # the joint selection swaps in for the effects found (analysis.joint)
+    runners_up: set[str] = field(default_factory=set)
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
         found = channel_residuals(self.run, out, start=self.start)
@@ -232,11 +232,10 @@ def run_round(
     if not trials:
         return ranking, True
     judged = _judged(state, ctx, trials)
-    for _, cand, *_rest in judged:
-        ctx.runners_up[cand.name] = cand
+    ctx.runners_up.update(j[1].name for j in judged)
     for verdict, cand, edit, alone, new_twin, result in judged:
         if verdict.significant:
-            ctx.runners_up.pop(cand.name, None)
+            ctx.runners_up.discard(cand.name)
             adopt(
                 state, ctx, cand, edit=edit, alone=alone, new_twin=new_twin, result=result,
                 explained_by=verdict.explained,
