@@ -19,7 +19,8 @@ compliance, friction and trace; feed_twin.truth), with effect sizes drawn at ran
   the friction at the record's middle).
 - verdicts: cases whose verdict says "no significant missing effect" while a residual is more
   than 10x its sample noise (target 0).
-The last line is one JSON object {"single", "clean", "combo", "verdicts", "cases"}.
+- search: parameter sets simulated per case and the joint selection's share of them.
+The last line is one JSON object {"single", "clean", "combo", "verdicts", "search", "cases"}.
 
     .venv/bin/python benchmarks/blind_truth.py                     # all, 3 seeds, 2 processes
     .venv/bin/python benchmarks/blind_truth.py --seeds 1 --only coulomb_friction clean
@@ -209,6 +210,8 @@ def run_case(case: Case) -> dict[str, Any]:
                     {k: x[k] for k in ("parameter", "value", "rate_per_s")}
                     for x in d.appraisal.get("drifts", ())
                 ],
+                "simulations": d.search.get("simulations", 0.0),
+                "joint_simulations": d.search.get("joint_simulations", 0.0),
                 "effort_before_pct": d.before.effort_rel_err_pct,
                 "effort_after_pct": d.after.effort_rel_err_pct,
             }
@@ -276,6 +279,20 @@ def _drift_misses(r: dict[str, Any], rate: float) -> list[str]:
     return [] if err <= REL else [f"drift rate error {err:.3g}"]
 
 
+def _search_cost(results: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """Parameter sets simulated per case (median, max) and the joint selection's share of all
+    of them (analysis.joint), over the cases that ran."""
+    ran = [r for r in results.values() if "simulations" in r]
+    if not ran:
+        return {}
+    total = sum(r["simulations"] for r in ran)
+    return {
+        "simulations_median": statistics.median(r["simulations"] for r in ran),
+        "simulations_max": max(r["simulations"] for r in ran),
+        "joint_share_pct": round(100.0 * sum(r["joint_simulations"] for r in ran) / total, 1),
+    }
+
+
 def _verdict_misses(results: dict[str, dict[str, Any]]) -> list[str]:
     return [
         name
@@ -330,6 +347,7 @@ def summary(results: dict[str, dict[str, Any]]) -> dict[str, Any]:
         },
         "verdicts": {"no_effect_above_10x_noise": _verdict_misses(results)},
         "diagnose_median_s": round(statistics.median(r["seconds"] for r in results.values()), 1),
+        "search": _search_cost(results),
     }
 
 
