@@ -143,21 +143,24 @@ def test_a_diagnosis_announces_its_passes_with_the_record_time_simulated(tmp_pat
     d, _, _ = diagnose(run, nominal, options=Options(max_effects=1), passes=seen.append)
     assert [e.name for e in d.effects] == ["coulomb_friction"]
     names = [p.name for p in seen]
-    # one round planned: the nominal, the round, the joint re-fit, the appraisal
+    # one round planned: the nominal, the round, the joint selection, the joint re-fit, the
+    # appraisal
     assert names == [
         "compiling the nominal model",
         "simulating the nominal twin",
         "round 1 of at most 1",
+        "joint selection",
         "final joint re-fit",
         "appraising the final model",
     ], names
-    assert [p.done for p in seen] == [0, 0, 1, 2, 3]
-    assert {p.planned for p in seen} == {4}
+    assert [p.done for p in seen] == [0, 0, 1, 2, 3, 4]
+    assert {p.planned for p in seen} == {5}
     record_s = float(run.t_s[-1] - run.t_s[0])
     # the first round starts after the nominal simulation, one record long; the round's fits
     # simulate the record again for each parameter set
     assert seen[2].simulated_s == pytest.approx(record_s)
     assert seen[3].simulated_s > 10 * record_s
+    assert seen[4].simulated_s >= seen[3].simulated_s
     counts = [p.simulated_s / record_s for p in seen]
     assert counts == sorted(counts) and all(c == pytest.approx(round(c)) for c in counts)
 

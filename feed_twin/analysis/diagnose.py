@@ -8,6 +8,9 @@
          candidates add the effect to the model and fit its own parameters (and those of the
          effects found before) by simulation-based least squares; keep the candidate with
          the best likelihood ratio less a price per added parameter that passes the test
+      -> joint selection (analysis.joint): swap found effects for the rounds' runners-up while
+         the set's likelihood less a price per parameter gets better; search the searched
+         parameters (record delays, a current-offset ripple) again with the others in
       -> re-fit all found effects jointly with the nominal parameters they interact with
       -> metrics "after", optional validation on a second run, report.
 
@@ -48,6 +51,7 @@ from feed_twin.analysis.compare import Metrics, align, compute_metrics
 from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
+from feed_twin.analysis.joint import JointSearch, joint_select
 from feed_twin.analysis.locate import Location, locate
 from feed_twin.analysis.passes import Passes, PassListener, ignore
 from feed_twin.analysis.ranking import Candidate
@@ -198,7 +202,7 @@ def diagnose(
         start=start,
         silent=() if vis.position_evidence else ("position",),
     )
-    ranking, unfitted = _identify(state, context, list(vis.unseen_names), counter)
+    ranking, unfitted, joint = _identify(state, context, list(vis.unseen_names), counter)
     timings["identify_s"] = time.perf_counter() - clock
     counter.appraisal(state.simulations)
     progress("appraising the final model: intervals, correlations, plausibility, drift")
@@ -207,6 +211,7 @@ def diagnose(
     search = {
         "simulations": state.simulations + appraisal.simulations,
         "seconds": time.perf_counter() - clock,
+        **(joint.as_dict() if joint is not None else {}),
     }
     after = run_metrics(run, state.outputs)
     named, timing = split_timing((f.effect for f in state.found), twin.base_period_s)
@@ -339,25 +344,28 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Mot
 
 def _identify(
     state: State, context: Context, excluded: list[str], counter: Passes
-) -> tuple[list[Candidate], list[dict]]:
+) -> tuple[list[Candidate], list[dict], JointSearch | None]:
     """The rounds of ranking, fitting and testing, then the joint re-fit of what they found;
     `state` ends with the augmented model. `excluded`: effects not searched (those the record
     cannot show). Returns the last ranking and the named effects that could not be fitted."""
     opts = context.opts
     ranking: list[Candidate] = []
     unfitted: list[dict] = []
+    joint = None
     for round_no in range(1, opts.max_effects + 1):
         counter.round(round_no, state.simulations)
         ranking, more = run_round(round_no, state, context, excluded, unfitted)
         if not more:
             break
     if state.found:
-        counter.joint(state.simulations)
-        context.progress("re-fitting the found effects together with the nominal parameters")
         meas = weighted_channels(
             context.run, state.outputs, context.stride, context.floors, start=context.start
         )
         state.cost = cost_of(meas, state.outputs)
+        counter.selection(state.simulations)
+        joint = joint_select(state, context, meas)
+        counter.joint(state.simulations)
+        context.progress("re-fitting the found effects together with the nominal parameters")
         note = final_joint(state, context.drive, meas, opts)
         if note is not None:
             context.notes.append(note)
@@ -372,7 +380,7 @@ def _identify(
             )
             for f in state.found
         ]
-    return ranking, unfitted
+    return ranking, unfitted, joint
 
 
 def _leftover(

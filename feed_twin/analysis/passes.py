@@ -3,11 +3,12 @@
 A diagnosis of a long record (a 60 s record, a 10 Hz mill log) runs for many seconds; its work
 comes in passes of unknown length: the nominal model (compiled, then simulated), the rounds of
 rank-fit-test (at most Options.max_effects, fewer when the library has nothing more to
-explain), the final joint re-fit, the appraisal and the validation. The workflow announces each
-pass as it begins, with the passes done before it, the passes planned and the record time
-simulated so far (parameter sets simulated x the record's duration); a round not needed is
-skipped, so `done` may jump. The listener decides what to show: the command line's bar
-(feed_twin.io.progress.PassBar), nothing in a library call. No terminal code here.
+explain), the joint selection (analysis.joint), the final joint re-fit, the appraisal and the
+validation. The workflow announces each pass as it begins, with the passes done before it, the
+passes planned and the record time simulated so far (parameter sets simulated x the record's
+duration); a round not needed is skipped, so `done` may jump. The listener decides what to
+show: the command line's bar (feed_twin.io.progress.PassBar), nothing in a library call. No
+terminal code here.
 """
 
 from __future__ import annotations
@@ -48,8 +49,9 @@ class Passes:
         self.rounds = rounds
         # [s] the record time one simulation covers (`t_s`: the record's sample times)
         self.record_s = float(t_s[-1] - t_s[0])
-        # nominal, the rounds, the joint re-fit, the appraisal, the validation if asked
-        self.planned = 1 + rounds + 2 + (1 if validating else 0)
+        # nominal, the rounds, the joint selection, the joint re-fit, the appraisal, the
+        # validation if asked
+        self.planned = 1 + rounds + 3 + (1 if validating else 0)
 
     def _begin(self, name: str, done: int, simulations: int) -> None:
         self.listener(
@@ -69,13 +71,17 @@ class Passes:
         """Round `number` (1-based) of ranking, fitting and testing begins."""
         self._begin(f"round {number} of at most {self.rounds}", number, simulations)
 
+    def selection(self, simulations: int) -> None:
+        """The joint selection (swaps of found effects for runners-up) begins."""
+        self._begin("joint selection", 1 + self.rounds, simulations)
+
     def joint(self, simulations: int) -> None:
-        self._begin("final joint re-fit", 1 + self.rounds, simulations)
+        self._begin("final joint re-fit", 2 + self.rounds, simulations)
 
     def appraisal(self, simulations: int) -> None:
-        self._begin("appraising the final model", 2 + self.rounds, simulations)
+        self._begin("appraising the final model", 3 + self.rounds, simulations)
 
     def validation(self, run: MeasuredRun | None, simulations: int) -> None:
         """The validation on `run` begins (nothing without one)."""
         if run is not None:
-            self._begin(f"validating on {run.source}", 3 + self.rounds, simulations)
+            self._begin(f"validating on {run.source}", 4 + self.rounds, simulations)
