@@ -7,10 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from twin_support import simulate_command
 
 from feed_twin.analysis.model_doc import ModelDoc
-from feed_twin.analysis.twin import Twin, drive_from_run
-from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.axial_compliance import AxialCompliance, axial_force
 from feed_twin.plant.backlash import gap_slot
 
@@ -81,16 +80,7 @@ def _run(doc: ModelDoc) -> tuple[np.ndarray, np.ndarray]:
 
     v = 0.05 * (ramp(0.1) - 2.0 * ramp(0.6) + ramp(1.2))
     x_cmd = 0.2 + np.cumsum(v) * h
-    run = MeasuredRun(
-        source="cruise",
-        t_s=t,
-        signals={"pos_cmd_m": x_cmd, "pos_meas_m": x_cmd},
-        position_sensor="linear_scale",
-    )
-    twin = Twin.compile(doc)
-    out = twin.simulate(drive_from_run(run), twin.nominal[None, :])
-    assert out.ok[0]
-    return t, out.x_m[0]
+    return t, simulate_command(doc, t, x_cmd).x_m[0]
 
 
 def test_the_table_cruises_half_the_gap_behind_the_nut():
