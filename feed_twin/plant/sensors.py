@@ -66,10 +66,24 @@ def _position_sensors(doc: Document) -> list[str]:
     return sensors
 
 
+def _loop_sensors(doc: Document) -> list[str]:
+    """The position sensors the loops read: the motor encoders (the speed), and the linear
+    scales where the position loop is closed on one. In a semi-closed loop the scale only
+    records, and a delay of the loops' measurement leaves the record's position on time (the
+    scale delayed with the encoder shifted the twin's recorded position: a 1-4 ms feedback
+    delay of the truth machine was named a command or position delay)."""
+    feedback = (doc.data.get("controller") or {}).get("position", {}).get("feedback")
+    encoders = doc.of_type(Encoder.TYPE)
+    if encoders and feedback == "motor_encoder":
+        return encoders
+    return _position_sensors(doc)
+
+
 def _delay_edit(doc: Document, cand: Weights) -> Edit:
-    """One sample delay for every position sensor, searched over whole base periods."""
+    """One sample delay for every position sensor the loops read, searched over whole base
+    periods."""
     del cand
-    slots = tuple(f"{s}.delay_ticks" for s in _position_sensors(doc))
+    slots = tuple(f"{s}.delay_ticks" for s in _loop_sensors(doc))
     name = "sensors.delay_ticks"
     doc = doc.tie(name, slots)
     period = doc.base_period()
@@ -80,7 +94,7 @@ def _delay_edit(doc: Document, cand: Weights) -> Edit:
 
 
 def _delay_truth(doc: Document, p: Mapping[str, float]) -> Document:
-    for name in _position_sensors(doc):
+    for name in _loop_sensors(doc):
         doc = doc.set(f"{name}.delay_ticks", int(p["delay_ticks"]))
     return doc
 
