@@ -94,8 +94,10 @@ def _delay_edit(doc: Document, cand: Weights) -> Edit:
 
 
 def _delay_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    """The loops' sensors `delay_ticks` late, or `delay_s` in whole base periods."""
+    ticks = p["delay_ticks"] if "delay_ticks" in p else round(p["delay_s"] / doc.base_period())
     for name in _loop_sensors(doc):
-        doc = doc.set(f"{name}.delay_ticks", int(p["delay_ticks"]))
+        doc = doc.set(f"{name}.delay_ticks", int(ticks))
     return doc
 
 
