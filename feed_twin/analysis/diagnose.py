@@ -216,7 +216,7 @@ def diagnose(
     leftover = _leftover(run, state.outputs, floors, start, motion)
     small = _too_small(vis, state, ranking)
     for u in small:
-        said.append(f"cannot be seen in this record: {u.name}: {u.reason}")
+        said.append(u.line())
         progress(said[-1])
     validation, validation_traces = _validate(validate, twin, state.twin, progress, notes)
     timings["total_s"] = time.perf_counter() - clock
@@ -235,6 +235,7 @@ def diagnose(
             [u["name"] for u in unfitted],
             leftover,
             [str(d["summary"]) for d in appraisal.drifts],
+            [u.name for u in vis.unseen if u.by_model],
         ),
         leftover=tuple(c.as_dict() for c in leftover),
         appraisal=appraisal.as_dict(),
