@@ -56,3 +56,5 @@ def test_the_verdict_says_what_was_not_searched():
     text = verdict([], [], left, unsearched=["dead_time"])
     assert text.startswith("no effect of the library is missing, but a residual"), text
     assert text.endswith("; not searched, the model cannot carry them: dead_time"), text
+    quiet = [Leftover(channel="effort", unit="N m", rms=0.005, noise_ratio=1.0, signature="")]
+    assert "not searched" not in verdict([], [], quiet, unsearched=["dead_time"])

@@ -112,12 +112,13 @@ def verdict(
     unsearched: Sequence[str] = (),
 ) -> str:
     """The verdict's sentence: what the model misses, what changed over the record
-    (analysis.drift), what is left far above the noise, and the effects the model could not
-    carry and were not searched (analysis.visibility: the record may show them)."""
+    (analysis.drift), what is left far above the noise, and then the effects the model could
+    not carry and were not searched (analysis.visibility: what is left may be theirs)."""
     text = _verdict(found, unfitted, leftover)
     if drifts:
         text += "; and something changed over the record: " + "; ".join(drifts)
-    if unsearched:
+    if unsearched and any(c.far_above_noise for c in leftover):
+        # what is left might be theirs: said where a residual far above the noise remains
         text += f"; not searched, the model cannot carry them: {', '.join(unsearched)}"
     return text
 

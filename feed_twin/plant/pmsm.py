@@ -223,9 +223,12 @@ def _cogging_choices(m: Motion) -> list[tuple[str, Signature]]:
             "cos": np.cos(k * motor_angle(mm)),
         }
 
-    # once per electrical revolution (order = pole pairs) is current_offset's signature: a
-    # cogging torque repeats lcm(slots, 2 p) times per revolution, never p times
-    orders = [k for k in COGGING_ORDERS if k != m.pole_pairs]
+    # once per electrical revolution (order = pole pairs) is current_offset's signature, once
+    # per revolution a lead error's or an eccentricity's (on a direct-drive screw): a cogging
+    # torque repeats lcm(slots, 2 p) >= 2 times per revolution, never once and never p times
+    # (the truth machine's lead error was named a cogging of order 1 when its twin could carry
+    # one)
+    orders = [k for k in COGGING_ORDERS if k > 1 and k != m.pole_pairs]
     return [(f"order {k} per motor revolution", make(k)) for k in orders]
 
 
