@@ -27,7 +27,7 @@ class CoggingTorque(Component):
     phase: float  # phase at phi = 0 [rad]
 
     def __post_init__(self) -> None:
-        if isinstance(self.order, bool) or not isinstance(self.order, int) or self.order < 1:
+        if self.order < 1:
             raise ValueError(f"order = {self.order!r}: must be a whole number >= 1")
         require_nonnegative("amplitude", self.amplitude)
         require_finite("phase", self.phase)

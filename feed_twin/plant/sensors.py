@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -75,7 +76,9 @@ def _loop_sensors(doc: Document) -> list[str]:
     records, and a delay of the loops' measurement leaves the record's position on time (the
     scale delayed with the encoder shifted the twin's recorded position: a 1-4 ms feedback
     delay of the truth machine was named a command or position delay)."""
-    feedback = (doc.data.get("controller") or {}).get("position", {}).get("feedback")
+    controller: dict[str, Any] = doc.data.get("controller") or {}
+    position: dict[str, Any] = controller.get("position") or {}
+    feedback = position.get("feedback")
     encoders = doc.of_type(Encoder.TYPE)
     if encoders and feedback == "motor_encoder":
         return encoders
