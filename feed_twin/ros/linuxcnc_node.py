@@ -177,7 +177,8 @@ class LinuxcncNode(FeedTwinNode):
                 return 0.01
             self._t_start = now
             try:
-                run = self._start_run()
+                with self.waiting():  # for another run's host lock, then LinuxCNC's start-up
+                    run = self._start_run()
             except LinuxcncError as exc:
                 self._end(EXIT_ERROR, str(exc))
                 return 0.05
