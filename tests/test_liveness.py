@@ -130,12 +130,13 @@ def test_the_runner_names_slow_nodes_from_the_logs(tmp_path) -> None:
         "[WARN] [1.2] [cnc.x.twin]: node '/cnc/x/gcode' is slow: no heartbeat for 1.30 s, its "
         "process lives\n[WARN] [1.3] [cnc.x.twin]: node '/cnc/x/sim' is slow: no heartbeat for "
         "0.90 s, its process lives\n[WARN] [1.4] [cnc.x.twin]: node '/cnc/x/sim' is slow: no "
-        "progress for 1.10 s (it beats, its loop does not turn; tolerance 0.80 s)\n"
+        "progress for 1.10 s (it beats, its loop does not turn; tolerance 0.80 s)\n[INFO] [1.9] "
+        "[cnc.x.twin]: node '/cnc/x/sim' moves again after 1.60 s\n"
     )
-    assert slow_nodes(tmp_path) == {"/cnc/x/gcode": 1.3, "/cnc/x/sim": 1.1}
+    assert slow_nodes(tmp_path) == {"/cnc/x/gcode": 1.3, "/cnc/x/sim": 1.6}
     assert slow_line(tmp_path) == (
         "slow, not gone (the run went on): '/cnc/x/gcode' (1.30 s without progress), "
-        "'/cnc/x/sim' (1.10 s without progress)"
+        "'/cnc/x/sim' (1.60 s without progress)"
     )
     assert slow_line(tmp_path / "empty") is None
 

@@ -347,6 +347,8 @@ def test_a_stopped_node_is_slow_not_gone_and_the_run_completes(config: Path) -> 
     # said slow beside it; the sim's own log above says the stopped one once)
     slow_line = next(ln for ln in err.splitlines() if "slow, not gone (the run went on):" in ln)
     assert "'/cnc/x/gcode' (" in slow_line, err
+    # the run's report gives the whole stop (said when the node moved again)
+    assert 2.5 <= last_json(out)["slow_nodes"]["/cnc/x/gcode"] < 5.0, out[-2000:]
     # the whole program, without a gap
     states = BagReader(config.parent / "bags" / name).columns("/cnc/x/state", ["header.stamp"])
     np.testing.assert_allclose(np.diff(states["header.stamp"]), 1e-3, atol=1e-9)

@@ -242,12 +242,15 @@ def log_record(log: Path | None, prefix: str) -> dict | None:
     return None
 
 
-_SLOW = re.compile(r"node '([^']+)' is slow: no (?:heartbeat|progress) for (\S+) s")
+_SLOW = re.compile(
+    r"node '([^']+)' (?:is slow: no (?:heartbeat|progress) for|moves again after) (\S+) s"
+)
 
 
 def slow_nodes(logs: Path) -> dict[str, float]:
     """Nodes some peer said slow during the run (feed_twin.nodeset.liveness), with the
-    longest time without progress said [s], from the nodes' logs in `logs`."""
+    longest time without progress said [s] (when said slow, or when it moved again), from the
+    nodes' logs in `logs`."""
     found: dict[str, float] = {}
     for log in sorted(Path(logs).glob("*.log")):
         with contextlib.suppress(OSError):

@@ -51,6 +51,7 @@ from feed_twin.ros.launch import (
     log_record,
     planned_duration_s,
     slow_line,
+    slow_nodes,
 )
 
 if TYPE_CHECKING:
@@ -123,6 +124,7 @@ def run_machine_nodes(args: argparse.Namespace, machine: MachineConfig) -> int:
         figures={"processes": here, **(summary or {})},
         figure_lines=tuple(_figure_lines(machine, summary)) if summary is not None else (),
         foreign_messages=foreign.as_dict(),
+        slow_nodes=slow_nodes(logs),
     )
     return emit(report, json_out=args.json)
 

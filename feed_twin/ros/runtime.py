@@ -253,7 +253,11 @@ class Liveness:
                         pub.publish(String(data=self.auth.sign_text(topic, text)))
 
     def late(self, due: float) -> None:
-        """A wake-up of one of the node's threads that was due at `due` [s, monotonic]."""
+        """A wake-up of one of the node's threads that was due at `due` [s, monotonic]; counted
+        from the first beat on (set-up's numba compilation holds the GIL for seconds: that is
+        not the host's jitter)."""
+        if not self._beating:
+            return
         now = time.monotonic()
         with self._lock:
             self.jitter.add(now, now - due)
