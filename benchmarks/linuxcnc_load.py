@@ -93,7 +93,9 @@ def one_run(program: Path, out: Path, name: str, timeout_s: float) -> dict:
     timing = figures.get("servo_timing") or {}
     return {
         "exit_code": done.returncode,
-        "reason": figures.get("reason") or (done.stderr.strip().splitlines() or [""])[-1],
+        "reason": ""
+        if done.returncode == 0
+        else figures.get("reason") or (done.stderr.strip().splitlines() or [""])[-1],
         "wall_s": round(run_s, 1),
         # besides the program: start-up, the nodes' shutdown and the runner's summary
         "outside_program_s": round(run_s - (figures.get("program_time_s") or 0.0), 1),

@@ -242,9 +242,7 @@ def log_record(log: Path | None, prefix: str) -> dict | None:
     return None
 
 
-_SLOW = re.compile(
-    r"node '([^']+)' (?:is slow: no (?:heartbeat|progress) for|moves again after) (\S+) s"
-)
+_SLOW = re.compile(r"node '([^']+)' (?:is slow: no progress for|moves again after) (\S+) s")
 
 
 def slow_nodes(logs: Path) -> dict[str, float]:

@@ -624,10 +624,15 @@ class FeedTwinNode(Node):
 def _stillness(state: PeerState, tolerance_s: float) -> str:
     """How a peer has made no progress, with the tolerance it went past: its beats stopped
     (more than a few beat periods without one), or only its loop did."""
-    allowed = f"tolerance {tolerance_s:.2f} s from this host's jitter"
-    if state.silent_s > BEATS_MISSED * HEARTBEAT_PERIOD_S:
-        return f"no heartbeat for {state.silent_s:.2f} s ({allowed})"
-    return f"no progress for {state.still_s:.2f} s (it beats, its loop does not turn; {allowed})"
+    how = (
+        f"no heartbeat for {state.silent_s:.2f} s"
+        if state.silent_s > BEATS_MISSED * HEARTBEAT_PERIOD_S
+        else "it beats, its loop does not turn"
+    )
+    return (
+        f"no progress for {state.still_s:.2f} s ({how}; tolerance {tolerance_s:.2f} s from "
+        "this host's jitter)"
+    )
 
 
 def _peer_prefix(peer: str) -> str:
