@@ -213,3 +213,19 @@ def test_slow_and_gone_are_told_apart_on_real_nodes(tmp_path: Path) -> None:
     assert gone is not None, a
     assert float(gone[1]) < 1.5
     assert ended_s < 5.0
+
+
+@pytest.mark.ros
+def test_a_node_pays_its_first_log_call_at_set_up() -> None:
+    """rclpy's logger finds its caller through inspect, whose first call reads every loaded
+    module's path (seconds on a loaded host): warmed up at set-up, never mid-run."""
+    script = (
+        "import inspect, os, sys\n"
+        "from feed_twin.ros import runtime\n"
+        "before = len(inspect.modulesbyfile)\n"
+        "runtime.warm_up_logging()\n"
+        "print(before, os.path.realpath(runtime.__file__) in inspect.modulesbyfile,"
+        " len(inspect.modulesbyfile) > len(sys.modules) // 2)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.stdout.split() == ["0", "True", "True"], done.stderr
