@@ -335,8 +335,9 @@ class LinuxcncNode(FeedTwinNode):
         if run is None:
             return
         fault_at = run.fault_wall
-        run.__exit__(None, None, None)
-        trace = run.trace()
+        with self.waiting():  # LinuxCNC's shutdown and its trace: about a second, not a stall
+            run.__exit__(None, None, None)
+            trace = run.trace()
         span = trace.program_span()
         program = trace.cut(span)
         self.report.update(
