@@ -14,11 +14,13 @@ compliance, friction and trace; feed_twin.truth), with effect sizes drawn at ran
   delays and offsets. A case passes when every hidden effect is named, each parameter within
   10 %, and the augmented twin's effort error on a second trajectory (VALIDATION_PROGRAM on the
   same machine) is within 1.5x of the true model's (the nominal twin with the truth's values set
-  by the library's own truth functions). A drift is counted as named when the report mentions a
-  drift; its parameter is not checked.
+  by the library's own truth functions). A friction drift is named when the appraisal says a
+  drift of the guides' friction at a rate within 10 % of the truth's (its share per second of
+  the friction at the record's middle).
 - verdicts: cases whose verdict says "no significant missing effect" while a residual is more
   than 10x its sample noise (target 0).
-The last line is one JSON object {"single", "clean", "combo", "verdicts", "cases"}.
+- search: parameter sets simulated per case and the joint selection's share of them.
+The last line is one JSON object {"single", "clean", "combo", "verdicts", "search", "cases"}.
 
     .venv/bin/python benchmarks/blind_truth.py                     # all, 3 seeds, 2 processes
     .venv/bin/python benchmarks/blind_truth.py --seeds 1 --only coulomb_friction clean
@@ -49,6 +51,10 @@ VALIDATION_RATIO = 1.5
 NOISE_RATIO = 10.0
 MID_RECORD_S = 6.4  # [s] the middle of a PROGRAM record: where a drifting friction is its mean
 NOT_AMPLITUDES = ("phase_rad", "order")
+# the effects a friction drift grows (their truth at the record's middle), and the nominal
+# twin's friction component (config/truth_nominal.yaml), whose drift the report must say
+DRIFTING = ("coulomb_friction", "viscous_friction")
+FRICTION_COMPONENT = "guides"
 SINGLE = (
     "coulomb_friction",
     "viscous_friction",
@@ -85,6 +91,7 @@ COMBOS = {
     "coulomb+backlash": ("coulomb_friction", "backlash"),
     "force+asymmetric": ("constant_force", "asymmetric_friction"),
     "coulomb+drift": ("coulomb_friction", "friction_drift"),
+    "viscous+drift": ("viscous_friction", "friction_drift"),
     "weight+coulomb+mass": ("constant_force", "coulomb_friction", "mass_error"),
 }
 
@@ -199,6 +206,12 @@ def run_case(case: Case) -> dict[str, Any]:
                 "named_not_fitted": [u["name"] for u in d.named_not_fitted],
                 "verdict": d.verdict,
                 "drift_said": "drift" in text.lower() or any("drift" in n for n in named),
+                "drifts": [
+                    {k: x[k] for k in ("parameter", "value", "rate_per_s")}
+                    for x in d.appraisal.get("drifts", ())
+                ],
+                "simulations": d.search.get("simulations", 0.0),
+                "joint_simulations": d.search.get("joint_simulations", 0.0),
                 "effort_before_pct": d.before.effort_rel_err_pct,
                 "effort_after_pct": d.after.effort_rel_err_pct,
             }
@@ -233,15 +246,14 @@ def _judge(case: Case, r: dict[str, Any]) -> tuple[bool, list[str]]:
     expected = dict(r["hidden"]) | case.record_effects
     for effect, truth in expected.items():
         if effect == "friction_drift":
-            if not r["drift_said"]:
-                misses.append("drift not said")
+            misses += _drift_misses(r, truth["rate_per_s"])
             continue
         if effect not in found:
             misses.append(f"{effect} not named")
             continue
-        if effect == "coulomb_friction" and "friction_drift" in expected:
+        if effect in DRIFTING and "friction_drift" in expected:
             rate = expected["friction_drift"]["rate_per_s"]
-            truth = {"F_c_N": truth["F_c_N"] * (1.0 + rate * MID_RECORD_S)}
+            truth = {k: v * (1.0 + rate * MID_RECORD_S) for k, v in truth.items()}
         err = _amplitude_error(found[effect], _observable(effect, truth))
         if not err <= REL:
             misses.append(f"{effect} parameter error {err:.3g}")
@@ -249,6 +261,36 @@ def _judge(case: Case, r: dict[str, Any]) -> tuple[bool, list[str]]:
     if not aug <= VALIDATION_RATIO * true:
         misses.append(f"validation effort error {aug:.3g} % vs true model {true:.3g} %")
     return not misses, misses
+
+
+def _drift_misses(r: dict[str, Any], rate: float) -> list[str]:
+    """A friction drift must be said, as a drift of the guides' friction (every term, or one
+    of them), at a rate within REL of the truth's: its share per second of the friction at
+    the record's middle, rate / (1 + rate MID_RECORD_S)."""
+    if not r["drift_said"]:
+        return ["drift not said"]
+    guides = [d for d in r.get("drifts", []) if d["parameter"].startswith(FRICTION_COMPONENT)]
+    if not guides:
+        return [f"no drift of {FRICTION_COMPONENT} ({[d['parameter'] for d in r['drifts']]})"]
+    d = guides[0]
+    share = d["rate_per_s"] if d["parameter"].endswith(".*") else d["rate_per_s"] / d["value"]
+    truth = rate / (1.0 + rate * MID_RECORD_S)
+    err = abs(share - truth) / truth
+    return [] if err <= REL else [f"drift rate error {err:.3g}"]
+
+
+def _search_cost(results: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """Parameter sets simulated per case (median, max) and the joint selection's share of all
+    of them (analysis.joint), over the cases that ran."""
+    ran = [r for r in results.values() if "simulations" in r]
+    if not ran:
+        return {}
+    total = sum(r["simulations"] for r in ran)
+    return {
+        "simulations_median": statistics.median(r["simulations"] for r in ran),
+        "simulations_max": max(r["simulations"] for r in ran),
+        "joint_share_pct": round(100.0 * sum(r["joint_simulations"] for r in ran) / total, 1),
+    }
 
 
 def _verdict_misses(results: dict[str, dict[str, Any]]) -> list[str]:
@@ -305,6 +347,7 @@ def summary(results: dict[str, dict[str, Any]]) -> dict[str, Any]:
         },
         "verdicts": {"no_effect_above_10x_noise": _verdict_misses(results)},
         "diagnose_median_s": round(statistics.median(r["seconds"] for r in results.values()), 1),
+        "search": _search_cost(results),
     }
 
 

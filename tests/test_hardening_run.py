@@ -13,7 +13,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, last_json, node_env, run, start_run
+from nodes_support import (
+    AXIS_CONFIG,
+    SHORT_PROGRAM,
+    Operator,
+    last_json,
+    node_env,
+    run,
+    start_run,
+    wait_for_all,
+)
 from run_report_support import assert_report
 
 from feed_twin.io.bag import BagReader
@@ -25,6 +34,7 @@ FAR_PROGRAM = "G21 G90 G54\nG0 X-200\nM30\n"  # a 200 mm rapid: the axis's large
 
 INTRUDER = """
 import struct, sys, time, rclpy
+from rclpy.serialization import deserialize_message
 from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState
 from feed_twin.ros.dds import DATA_QOS
 rclpy.init()
@@ -32,19 +42,30 @@ node = rclpy.create_node("intruder")
 command = node.create_publisher(AxisCommand, "/cnc/x/command", DATA_QOS)
 feedback = node.create_publisher(AxisFeedback, "/cnc/x/feedback", DATA_QOS)
 state = node.create_publisher(AxisState, "/cnc/x/state", DATA_QOS)
-heard = []  # the run's own signed commands, to send again altered and replayed
-node.create_subscription(AxisCommand, "/cnc/x/command", heard.append, DATA_QOS, raw=True)
+# The run's own signed commands, to send again altered and replayed. This reader hears the
+# intruder's own commands too: taking one message a pass, it had 5000 of its own queued ahead
+# of the run's first and heard the run 2-3 s late, and it went on to replay and alter its own
+# altered copies (bad tags, not replays). So each pass takes every message and keeps the
+# newest signed one whose sequence number (the signature's first 16 hex digits) is new.
+heard = node.create_subscription(
+    AxisCommand, "/cnc/x/command", lambda _: None, DATA_QOS, raw=True
+)
 end = time.monotonic() + float(sys.argv[1])
 k = 0
+newest = ""
 print("publishing", flush=True)
 while time.monotonic() < end:
-    rclpy.spin_once(node, timeout_sec=0.0)
+    signed = None
+    with heard.handle:
+        while (taken := heard.handle.take_message(AxisCommand, True)) is not None:
+            seq = deserialize_message(taken[0], AxisCommand).header.frame_id[:16]
+            if seq > newest:
+                newest, signed = seq, bytearray(taken[0])
     # setpoints 100 mm away from the program's, alternating: a lethal stream if taken
     command.publish(AxisCommand(axis="X", position=0.3 + 0.2 * (k % 2), line=99))
     feedback.publish(AxisFeedback(axis="X", scale_position=0.77, i_q=25.0))
     state.publish(AxisState(axis="X", table_position=0.77, following_error=0.5))
-    if heard:
-        signed = bytearray(heard.pop(0))
+    if signed is not None:
         command.publish(bytes(signed))  # replayed as it was
         struct.pack_into("<d", signed, len(signed) - 28, 0.0015)  # its position 1.5 mm
         command.publish(bytes(signed))  # altered, the signature kept
@@ -89,10 +110,21 @@ def test_following_error_limit_stops_the_run_naming_limit_time_and_line(tmp_path
     assert np.all(feedback["fault_code"][:-1] == 0)
 
 
-# A 6 s dwell, then the short move: DDS discovery of a participant that was up before the run
-# (the intruder) can wait for its next announcement, 3 s apart, and a lockstep run of the short
-# move alone ended in CI before the controller had matched the intruder.
-DISCOVERY_PROGRAM = SHORT_PROGRAM.replace("G1 X10", "G4 P6\nG1 X10")
+# The run holds at M0 until the test presses start, which it does once the nodes' logs show
+# that the recorder has refused and named the intruder on every topic and the controller its
+# feedback, and that the run's own commands came back replayed and altered. Discovery of a
+# participant that was up before the run (the intruder) took 0-3 s here, and a lockstep run
+# goes faster than real time: the 6 s dwell this test had (simulated) lasted 1.3 s of wall time
+# on a quiet host, and the run sometimes ended before the sim's process had met the intruder.
+PAUSED_PROGRAM = SHORT_PROGRAM.replace("G1 X10", "M0\nG1 X10")
+FOREIGN_TOPICS = ("/cnc/x/command", "/cnc/x/feedback", "/cnc/x/state")
+REFUSED = r"refused \d+ foreign message\(s\) on "  # feed_twin.ros.runtime.refuse_foreign
+FOREIGN_SEEN = [
+    *(rf"\[cnc\.x\.recorder\]: {REFUSED}{t} " for t in FOREIGN_TOPICS),
+    *(rf"\[cnc\.x\.recorder\]: foreign publisher on {t}: node '/intruder'" for t in FOREIGN_TOPICS),
+    rf"\[cnc\.x\.controller\]: {REFUSED}/cnc/x/feedback ",
+    *(rf"{REFUSED}/cnc/x/command \({why}\)" for why in ("unsigned", "replayed", "bad tag")),
+]
 
 
 def test_foreign_publishers_on_every_topic_are_dropped_counted_and_named(tmp_path):
@@ -100,34 +132,41 @@ def test_foreign_publishers_on_every_topic_are_dropped_counted_and_named(tmp_pat
     (#29): none is recorded, none moves the axis or ends the run, and the run names the
     intruder in its own output and JSON."""
     program = tmp_path / "move.ngc"
-    program.write_text(DISCOVERY_PROGRAM)
+    program.write_text(PAUSED_PROGRAM)
     with reserve_domain_id() as domain:
         intruder = subprocess.Popen(
-            [sys.executable, "-c", INTRUDER, "60"],
+            [sys.executable, "-c", INTRUDER, "300"],
             env=node_env(domain.domain_id),
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
             text=True,
         )
         try:
-            # The run is short: it must start once the intruder publishes (its start-up takes
-            # seconds on a loaded host), or it may end before anyone could see the intruder.
             assert intruder.stdout is not None
             assert intruder.stdout.readline().strip() == "publishing"
-            code, out, err = run(
-                [str(program), "--out", str(tmp_path / "bags"), "--name", "mixed", "--json"],
-                domain.domain_id,
-            )
+            with Operator(domain.domain_id) as operator:
+                proc = start_run(
+                    [str(program), "--out", str(tmp_path / "bags"), "--name", "mixed", "--json"],
+                    domain.domain_id,
+                )
+                try:
+                    wait_for_all(tmp_path / "bags" / "mixed.logs", FOREIGN_SEEN, proc, 90.0)
+                    assert operator.press("/cnc/x/gcode/start") == "resumed"
+                    out, err = proc.communicate(timeout=240)
+                finally:
+                    if proc.poll() is None:
+                        proc.kill()
+                        proc.communicate(timeout=10)
         finally:
             intruder.kill()
             intruder.wait(timeout=10)
     record = last_json(out)
-    assert code == 0, err
+    assert proc.returncode == 0, err
     # The program moves 10 mm at 3 m/min: following error of a fraction of a millimetre, not
     # the 100 mm the intruder's setpoints would give, nor its 0.5 m state.
     assert record["following_error_max_m"] < 5e-4
     foreign = record["foreign_messages"]
-    for topic in ("/cnc/x/command", "/cnc/x/feedback", "/cnc/x/state"):
+    for topic in FOREIGN_TOPICS:
         assert foreign[topic]["messages"] > 0, foreign
         assert any("node '/intruder'" in p for p in foreign[topic]["publishers"]), foreign
         assert f"{topic}: {foreign[topic]['messages']} dropped, from node '/intruder'" in out

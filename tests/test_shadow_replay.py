@@ -10,12 +10,14 @@ from __future__ import annotations
 import json
 import math
 import struct
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from test_progress import on_a_terminal
 
 from feed_twin.analysis.cli import simulate_traces
 from feed_twin.analysis.compare import compute_metrics
@@ -137,6 +139,19 @@ def test_replay_cli_writes_comparison_bag_rrd_and_report(recording, tmp_path, co
         math.sqrt(np.mean(np.square(fe_dev))), rel=1e-12
     )
     assert effects[-1] == "coulomb_friction"
+
+
+@pytest.mark.slow
+def test_replay_on_a_terminal_names_its_steps(recording, tmp_path, config) -> None:
+    code, shown = on_a_terminal(
+        [sys.executable, "-m", "feed_twin.cli", "replay", str(recording["bag"]), "--config",
+         "config/emps.yaml", "--shadow", str(config), "--out", str(tmp_path / "out")]
+    )  # fmt: skip
+    assert code == 0, shown
+    for n, name in enumerate(("replaying the bag", "writing the comparison bag",
+                              "writing the recording", "writing the report")):  # fmt: skip
+        assert f"{name}: {round(100 * n / 4):3d}%|" in shown, shown
+    assert "[replay] 14000 samples (13.999 s)" in shown, shown
 
 
 def test_joint_state_codec_matches_the_generic_decoder(tmp_path) -> None:

@@ -24,6 +24,7 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 # One BLAS thread, set before numpy loads OpenBLAS (feed_twin.cli imports this module first):
@@ -148,12 +149,22 @@ def configure_diagnose(parser: argparse.ArgumentParser) -> None:
 def main_diagnose(args: argparse.Namespace) -> int:
     from feed_twin.analysis import wording
     from feed_twin.analysis.diagnose import diagnose, write_model
+    from feed_twin.analysis.passes import Pass
     from feed_twin.analysis.placed import diagnose_program, place
     from feed_twin.analysis.report_files import write_report
     from feed_twin.analysis.twin import ModelDoc
+    from feed_twin.io.progress import PassBar, wanted
+
+    # a person at a terminal sees each pass, its percent and ETA on a bar below the lines
+    bar = PassBar(enabled=wanted(json_out=False))
+    last: list[Pass] = []
 
     def progress(text: str) -> None:
-        print(f"[diagnose] {text}", flush=True)
+        bar.say(f"[diagnose] {text}")
+
+    def passes(step: Pass) -> None:
+        last[:] = [step]
+        bar.begin(step.name, done=step.done, planned=step.planned, simulated_s=step.simulated_s)
 
     from feed_twin.gcode.errors import GcodeError
 
@@ -191,21 +202,30 @@ def main_diagnose(args: argparse.Namespace) -> int:
     try:
         if program is None:
             diagnosis, final_doc, motion = diagnose(
-                run, doc, validate=other, progress=progress, model_path=str(model_path)
-            )
+                run, doc, validate=other, progress=progress, passes=passes,
+                model_path=str(model_path),
+            )  # fmt: skip
         else:
             diagnosis, final_doc, motion, placed = diagnose_program(
-                measured, program, doc, progress=progress, model_path=str(model_path),
-                placed=placed, placing_s=placing_s,
+                measured, program, doc, progress=progress, passes=passes,
+                model_path=str(model_path), placed=placed, placing_s=placing_s,
             )  # fmt: skip
             more = [r for r in placed[2:] if r is not None]
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
+        bar.close()
         print(f"feed-twin diagnose: {exc}", file=sys.stderr)
         return 2
+    except BaseException:
+        bar.close()  # a traceback is not written over a bar
+        raise
     if more:
         diagnosis = _validate_more(diagnosis, final_doc, more, progress)
+    if last:  # the plots and the recording take seconds too
+        bar.begin("writing the report", done=last[0].planned, planned=last[0].planned,
+                  simulated_s=last[0].simulated_s)  # fmt: skip
     write_model(final_doc, model_path, diagnosis.effects)
     written = write_report(diagnosis, out, v_m_s=motion.v_m_s)
+    bar.close()
     from feed_twin.plant.slot_specs import with_unit
 
     progress(diagnosis.verdict)
@@ -293,12 +313,19 @@ def _rate_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def simulate_traces(run: MeasuredRun, doc) -> dict[str, np.ndarray]:
-    """t_s, every measured canonical signal and its simulated `sim_` twin."""
+def simulate_traces(
+    run: MeasuredRun, doc, step: Callable[[str, int], None] | None = None
+) -> dict[str, np.ndarray]:
+    """t_s, every measured canonical signal and its simulated `sim_` twin; `step(name, done)`
+    hears each of its two steps begin (the compilation, the simulation)."""
     from feed_twin.analysis.twin import Twin, drive_from_run
 
+    if step is not None:
+        step("compiling the model", 0)
     twin = Twin.compile(doc)
     drive = drive_from_run(run)
+    if step is not None:
+        step("simulating the record", 1)
     out = twin.simulate(drive, twin.nominal[None, :])
     if not out.ok[0]:
         raise RuntimeError(f"{doc.source} diverged on {run.source}")
@@ -331,11 +358,21 @@ def main_simulate(args: argparse.Namespace) -> int:
     except (MeasuredDataError, ConfigError, GcodeError) as exc:
         print(f"feed-twin simulate: {exc}", file=sys.stderr)
         return 2
+    from feed_twin.io.progress import PassBar, wanted
+
+    # compiling a model and simulating a long record take seconds: said on a terminal
+    bar = PassBar(enabled=wanted(json_out=False))
+
+    def step(name: str, done: int) -> None:
+        bar.begin(name, done=done, planned=2)
+
     try:
-        columns = simulate_traces(run, doc)
+        columns = simulate_traces(run, doc, step)
     except (MeasuredDataError, ConfigError) as exc:
         print(f"feed-twin simulate: {exc}", file=sys.stderr)
         return 2
+    finally:
+        bar.close()
     names = list(columns)
     table = np.column_stack([columns[n] for n in names])
     out = Path(args.out)

@@ -8,6 +8,9 @@
          candidates add the effect to the model and fit its own parameters (and those of the
          effects found before) by simulation-based least squares; keep the candidate with
          the best likelihood ratio less a price per added parameter that passes the test
+      -> joint selection (analysis.joint): swap found effects for the rounds' runners-up while
+         the set's likelihood less a price per parameter gets better; search the searched
+         parameters (record delays, a current-offset ripple) again with the others in
       -> re-fit all found effects jointly with the nominal parameters they interact with
       -> metrics "after", optional validation on a second run, report.
 
@@ -48,7 +51,9 @@ from feed_twin.analysis.compare import Metrics, align, compute_metrics
 from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
+from feed_twin.analysis.joint import JointSearch, joint_select
 from feed_twin.analysis.locate import Location, locate
+from feed_twin.analysis.passes import Passes, PassListener, ignore
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.record_scale import at_record_scale
 from feed_twin.analysis.report import Diagnosis, FoundEffect, Trace
@@ -145,9 +150,11 @@ def diagnose(
     validate: MeasuredRun | None = None,
     options: Options | None = None,
     progress: Progress = noop,
+    passes: PassListener = ignore,
     model_path: str = "model.yaml",
 ) -> tuple[Diagnosis, ModelDoc, Motion]:
-    """Run the workflow on `run`; returns the diagnosis, the final model and the motion used."""
+    """Run the workflow on `run`; returns the diagnosis, the final model and the motion used.
+    `progress` hears what it says, `passes` each pass as it begins (analysis.passes)."""
     opts = options or Options()
     clock = time.perf_counter()
     timings: dict[str, float] = {}
@@ -159,7 +166,8 @@ def diagnose(
     scaled: list[str] = []
     if opts.record_scale:
         nominal, scaled = at_record_scale(run, nominal, resolution_m=position_resolution(raw))
-    drive, twin, out0 = _simulate_nominal(run, nominal, progress)
+    counter = Passes(passes, rounds=opts.max_effects, validating=validate is not None, t_s=run.t_s)
+    drive, twin, out0 = _simulate_nominal(run, nominal, progress, counter)
     timings["nominal_s"] = time.perf_counter() - clock
     check_effort_sign(run, out0)
     # what the record can show (analysis.visibility): said before fitting, and what it cannot
@@ -167,12 +175,7 @@ def diagnose(
     vis = assess(run, twin, drive.pos_ref_m, out0, raw=raw)
     if vis.blind is not None:
         run = dataclasses.replace(run, effort_blind=vis.blind)
-    said = [*smoothed, *scaled, *vis.lines()]
-    kt = force_constant_correlation(run, out0, drive.vel_ref_m_s)
-    if kt is not None and "torque_constant_error" not in vis.unseen_names:
-        said.append(kt)
-    for line in said:
-        progress(line)
+    said = _said([*smoothed, *scaled], run, out0, drive, vis, progress)
     notes.extend([*smoothed, *scaled])
     alignment = align(run.t_s, run["pos_meas_m"], out0.x_m[0], max_shift_s=0.1)
     before = run_metrics(run, out0)
@@ -199,14 +202,16 @@ def diagnose(
         start=start,
         silent=() if vis.position_evidence else ("position",),
     )
-    ranking, unfitted = _identify(state, context, list(vis.unseen_names))
+    ranking, unfitted, joint = _identify(state, context, list(vis.unseen_names), counter)
     timings["identify_s"] = time.perf_counter() - clock
+    counter.appraisal(state.simulations)
     progress("appraising the final model: intervals, correlations, plausibility, drift")
     appraisal = appraise(state, context, nominal)
     timings["appraise_s"] = appraisal.seconds
     search = {
         "simulations": state.simulations + appraisal.simulations,
         "seconds": time.perf_counter() - clock,
+        **(joint.as_dict() if joint is not None else {}),
     }
     after = run_metrics(run, state.outputs)
     named, timing = split_timing((f.effect for f in state.found), twin.base_period_s)
@@ -218,6 +223,7 @@ def diagnose(
     for u in small:
         said.append(f"cannot be seen in this record: {u.name}: {u.reason}")
         progress(said[-1])
+    counter.validation(validate, state.simulations + appraisal.simulations)
     validation, validation_traces = _validate(validate, twin, state.twin, progress, notes)
     timings["total_s"] = time.perf_counter() - clock
     diagnosis = Diagnosis(
@@ -256,6 +262,25 @@ def diagnose(
     return diagnosis, state.doc, motion
 
 
+def _said(
+    said: list[str],
+    run: MeasuredRun,
+    out0: SimOutputs,
+    drive: Drive,
+    vis: Visibility,
+    progress: Progress,
+) -> list[str]:
+    """What is said of the record before fitting (`said` so far, what it can show, a force
+    constant that friction and weight could hide), each line told to `progress` too."""
+    said = [*said, *vis.lines()]
+    kt = force_constant_correlation(run, out0, drive.vel_ref_m_s)
+    if kt is not None and "torque_constant_error" not in vis.unseen_names:
+        said.append(kt)
+    for line in said:
+        progress(line)
+    return said
+
+
 def _locate(
     run: MeasuredRun,
     twin: Twin,
@@ -286,12 +311,14 @@ def _too_small(vis: Visibility, state: State, ranking: list[Candidate]) -> list[
 
 
 def _simulate_nominal(
-    run: MeasuredRun, nominal: ModelDoc, progress: Progress
+    run: MeasuredRun, nominal: ModelDoc, progress: Progress, counter: Passes
 ) -> tuple[Drive, Twin, SimOutputs]:
     """The measured command as the twin's drive, the compiled nominal twin and its response."""
     drive = drive_from_run(run)
+    counter.nominal("compiling the nominal model")
     progress(f"compiling the nominal model {nominal.source}")
     twin = Twin.compile(nominal)
+    counter.nominal("simulating the nominal twin")
     progress("simulating the nominal twin on the measured command")
     out0 = twin.simulate(drive, twin.nominal[None, :])
     if not out0.ok[0]:
@@ -316,24 +343,29 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Mot
 
 
 def _identify(
-    state: State, context: Context, excluded: list[str]
-) -> tuple[list[Candidate], list[dict]]:
+    state: State, context: Context, excluded: list[str], counter: Passes
+) -> tuple[list[Candidate], list[dict], JointSearch | None]:
     """The rounds of ranking, fitting and testing, then the joint re-fit of what they found;
     `state` ends with the augmented model. `excluded`: effects not searched (those the record
     cannot show). Returns the last ranking and the named effects that could not be fitted."""
     opts = context.opts
     ranking: list[Candidate] = []
     unfitted: list[dict] = []
+    joint = None
     for round_no in range(1, opts.max_effects + 1):
+        counter.round(round_no, state.simulations)
         ranking, more = run_round(round_no, state, context, excluded, unfitted)
         if not more:
             break
     if state.found:
-        context.progress("re-fitting the found effects together with the nominal parameters")
         meas = weighted_channels(
             context.run, state.outputs, context.stride, context.floors, start=context.start
         )
         state.cost = cost_of(meas, state.outputs)
+        counter.selection(state.simulations)
+        joint = joint_select(state, context, meas)
+        counter.joint(state.simulations)
+        context.progress("re-fitting the found effects together with the nominal parameters")
         note = final_joint(state, context.drive, meas, opts)
         if note is not None:
             context.notes.append(note)
@@ -348,7 +380,7 @@ def _identify(
             )
             for f in state.found
         ]
-    return ranking, unfitted
+    return ranking, unfitted, joint
 
 
 def _leftover(

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.effects import Motion
+from feed_twin.analysis.passes import PassListener, ignore
 from feed_twin.analysis.program import command_from_program, nc_of_model
 from feed_twin.analysis.report import Diagnosis
 from feed_twin.analysis.rounds import Progress, noop
@@ -53,6 +54,7 @@ def diagnose_program(
     nominal: ModelDoc,
     *,
     progress: Progress = noop,
+    passes: PassListener = ignore,
     model_path: str = "model.yaml",
     placed: list[MeasuredRun | None] | None = None,
     placing_s: float = 0.0,
@@ -61,13 +63,14 @@ def diagnose_program(
     each run (module docstring); also returns the runs as placed for the result. `placed`: the
     runs as `place(runs, program, nominal)` gave them, if the caller has placed them already
     (to report a program that does not fit the record before anything is written), and the
-    seconds that took (`placing_s`, counted in the timings' total)."""
+    seconds that took (`placing_s`, counted in the timings' total). `passes` hears each pass of
+    each diagnosis (analysis.passes): the second, on the program placed again, starts over."""
     clock = time.perf_counter() - placing_s
     timings = {"placing_s": placing_s}
     if placed is None:
         placed = place(runs, program, nominal)
         timings["placing_s"] = time.perf_counter() - clock
-    diagnosis, doc, motion = _diagnose_placed(runs, placed, nominal, progress, model_path)
+    diagnosis, doc, motion = _diagnose_placed(runs, placed, nominal, progress, passes, model_path)
     if not diagnosis.effects:
         return _timed(diagnosis, timings, {}, clock), doc, motion, placed
     first = {f"first_pass_{k}": v for k, v in diagnosis.timings_s.items()}
@@ -76,7 +79,7 @@ def diagnose_program(
     again_at = time.perf_counter()
     placed = place(runs, program, nominal, doc)
     timings["placing_again_s"] = time.perf_counter() - again_at
-    diagnosis, doc, motion = _diagnose_placed(runs, placed, nominal, progress, model_path)
+    diagnosis, doc, motion = _diagnose_placed(runs, placed, nominal, progress, passes, model_path)
     again = f"the program was placed again against the response of the model with {found}"
     diagnosis = dataclasses.replace(diagnosis, notes=(again, *diagnosis.notes))
     return _timed(diagnosis, timings, first, clock), doc, motion, placed
@@ -100,10 +103,13 @@ def _diagnose_placed(
     placed: list[MeasuredRun | None],
     nominal: ModelDoc,
     progress: Progress,
+    passes: PassListener,
     model_path: str,
 ) -> tuple[Diagnosis, ModelDoc, Motion]:
     first, validate = placed[0], placed[1] if len(placed) > 1 else None
     assert first is not None and runs[0] is not None
     for note in first.warnings[len(runs[0].warnings) :]:
         progress(f"warning: {note}")  # where the program was placed
-    return diagnose(first, nominal, validate=validate, progress=progress, model_path=model_path)
+    return diagnose(
+        first, nominal, validate=validate, progress=progress, passes=passes, model_path=model_path
+    )

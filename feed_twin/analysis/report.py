@@ -182,7 +182,14 @@ def markdown(d: Diagnosis, plots: list[str]) -> str:
         lines += [
             "",
             f"Search: {d.search['simulations']:.0f} parameter sets simulated (in batches of the "
-            f"engine) in {d.search['seconds']:.2f} s.",
+            f"engine) in {d.search['seconds']:.2f} s"
+            + (
+                f", of which the joint selection (analysis.joint) fitted "
+                f"{d.search['joint_trials']:.0f} swapped sets with "
+                f"{d.search['joint_simulations']:.0f} in {d.search['joint_seconds']:.2f} s."
+                if d.search.get("joint_trials")
+                else "."
+            ),
         ]
     if d.appraisal_lines:
         lines += ["", "## How far to trust the fit", ""] + list(d.appraisal_lines)

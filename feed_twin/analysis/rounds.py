@@ -175,6 +175,9 @@ class Context:
     tried: list[str] = field(default_factory=list)
     # channels that carry no evidence in this record (analysis.visibility): not tested
     silent: tuple[str, ...] = ()
+    # the rivals fitted to a feed axis's model in some round and not kept: the alternatives
+    # the joint selection swaps in for the effects found (analysis.joint)
+    runners_up: set[str] = field(default_factory=set)
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
         found = channel_residuals(self.run, out, start=self.start)
@@ -187,22 +190,7 @@ def run_round(
     """One round: rank, fit the leading candidates, keep the best one if the test passes, then
     re-examine the effects found before. Returns the ranking and whether to go on."""
     run, opts, progress = ctx.run, ctx.opts, ctx.progress
-    re, rp = residuals(run, state.outputs, start=ctx.start)
-    ranking = rank(
-        ctx.motion,
-        effort_residual=re,
-        position_residual=rp,
-        exclude=tuple(excluded + ctx.tried),
-        loop_stiffness=ctx.stiffness,
-        voltage_residual=voltage_residual(run, state.outputs, start=ctx.start),
-    )
-    # the edits take force-like weights as forces at the table, converted as for a friction
-    # (they are starting values of the fit); without a screw they stay in the effort's unit
-    per_effort = ctx.unit_twin.doc.force_per_effort(ctx.unit_twin.effort_unit) or 1.0
-    ranking = [
-        dataclasses.replace(c, force_per_unit=per_effort) if c.residual_domain == "effort" else c
-        for c in ranking
-    ]
+    ranking = ranked(ctx, state.outputs, tuple(excluded + ctx.tried))
     significant = [c for c in ranking if c.worth_fitting]
     if not significant:
         progress(f"round {round_no}: no effect of the library explains a significant part")
@@ -243,9 +231,12 @@ def run_round(
         trials.append((cand, edit, alone, new_twin, result))
     if not trials:
         return ranking, True
-    for verdict, cand, edit, alone, new_twin, result in _judged(state, ctx, trials):
+    judged = _judged(state, ctx, trials)
+    ctx.runners_up.update(j[1].name for j in judged)
+    for verdict, cand, edit, alone, new_twin, result in judged:
         if verdict.significant:
-            _add(
+            ctx.runners_up.discard(cand.name)
+            adopt(
                 state, ctx, cand, edit=edit, alone=alone, new_twin=new_twin, result=result,
                 explained_by=verdict.explained,
             )  # fmt: skip
@@ -253,13 +244,34 @@ def run_round(
             # the model changed: the rivals tried so far are ranked again on its residual (a
             # backlash tried beside the Coulomb force that hid it is found once that is in)
             ctx.tried.clear()
-            _reexamine(state, ctx, meas)
+            reexamine_found(state, ctx, meas)
             return ranking, True
         ctx.notes.append(
             f"{cand.name} was fitted but is not significant: it {verdict.words()}; not kept"
         )
     # the model did not change: the rivals would fit the same way next round
     return ranking, True
+
+
+def ranked(ctx: Context, outputs: SimOutputs, exclude: tuple[str, ...]) -> list[Candidate]:
+    """The library ranked on the residuals of `outputs` (analysis.ranking), its force-like
+    weights as forces at the table."""
+    re, rp = residuals(ctx.run, outputs, start=ctx.start)
+    ranking = rank(
+        ctx.motion,
+        effort_residual=re,
+        position_residual=rp,
+        exclude=exclude,
+        loop_stiffness=ctx.stiffness,
+        voltage_residual=voltage_residual(ctx.run, outputs, start=ctx.start),
+    )
+    # the edits take force-like weights as forces at the table, converted as for a friction
+    # (they are starting values of the fit); without a screw they stay in the effort's unit
+    per_effort = ctx.unit_twin.doc.force_per_effort(ctx.unit_twin.effort_unit) or 1.0
+    return [
+        dataclasses.replace(c, force_per_unit=per_effort) if c.residual_domain == "effort" else c
+        for c in ranking
+    ]
 
 
 def choose_rivals(ranked: list[Candidate], opts: Options) -> list[Candidate]:
@@ -288,15 +300,7 @@ def _judged(state: State, ctx: Context, trials: list) -> list:
     judged = []
     for cand, edit, alone, new_twin, result in trials:
         ctx.tried.append(cand.name)
-        if _collapsed_in_fit(state, edit, alone, result):
-            ctx.notes.append(
-                f"{cand.name} was fitted but its parameters fell back to the values without it "
-                f"({', '.join(f'{k} = {v:.4g}' for k, v in result.values.items())}); not kept"
-            )
-            continue
-        meaningless = outside_record(cand.name, _fitted(edit, result), ctx.motion)
-        if meaningless is None:
-            meaningless = _no_feed_axis(cand.name, edit, result)
+        meaningless = no_finding(state, ctx, cand, edit, alone, result)
         if meaningless is not None:
             ctx.notes.append(f"{meaningless}; not kept")
             continue
@@ -320,6 +324,21 @@ def _judged(state: State, ctx: Context, trials: list) -> list:
     ]
     order = sorted(range(len(judged)), key=lambda k: scores[k], reverse=True)
     return [judged[k] for k in order]
+
+
+def no_finding(
+    state: State, ctx: Context, cand: Candidate, edit: Edit, alone, result
+) -> str | None:
+    """Why a converged fit of a candidate is no finding (its parameters fell back to the values
+    without it, they lie outside what the record holds, or the model is no feed axis's), None
+    if it is one."""
+    if _collapsed_in_fit(state, edit, alone, result):
+        return (
+            f"{cand.name} was fitted but its parameters fell back to the values without it "
+            f"({', '.join(f'{k} = {v:.4g}' for k, v in result.values.items())})"
+        )
+    meaningless = outside_record(cand.name, _fitted(edit, result), ctx.motion)
+    return meaningless if meaningless is not None else _no_feed_axis(cand.name, edit, result)
 
 
 # the price of one added parameter in the likelihood ratio: the test's own threshold for one
@@ -405,7 +424,7 @@ def _searched(cand: Candidate, edit: Edit, rivals: int) -> int:
     return max(cand.searched, 1 if nested else len(edit.grid), 1) * rivals
 
 
-def _add(state, ctx, cand, *, edit, alone, new_twin, result, explained_by) -> None:
+def adopt(state, ctx, cand, *, edit, alone, new_twin, result, explained_by) -> None:
     """Adopt the fitted effect into the state."""
     before = state.doc
     doc = model_of(edit.doc)
@@ -458,7 +477,7 @@ def drop_collapsed(state: State, ctx: Context, when: str) -> None:
     state.simulations += 1
 
 
-def _reexamine(state: State, ctx: Context, meas: Measured) -> None:
+def reexamine_found(state: State, ctx: Context, meas: Measured) -> None:
     """Examine the effects found jointly (analysis.reexamine), the newest one too: its fit
     re-fitted the effects found before, and what that alone gains is no evidence for it."""
     if len(state.found) < 2:

@@ -43,6 +43,10 @@ def fit_resumed(
     )
     if result.converged or not result.cost < result.cost_initial:
         return result
+    if not all(np.isfinite(v) for v in result.values.values()):
+        # a log parameter (a stiffness) that ran off to infinity on the way down: no start for
+        # a second fit (it raised on the friction drift of the truth machine), and no model
+        return result
     resumed = fit(
         lambda params: twin.simulate(drive, params),
         twin.nominal,

@@ -83,6 +83,11 @@ class ForeignLedger:
         return out
 
 
+def foreign_publisher_text(topic: str, publisher: str) -> str:
+    """The log and health line of a node that names a foreign publisher of `topic`."""
+    return f"foreign publisher on {topic}: {publisher}; its messages are refused"
+
+
 def merge(records: Iterable[Mapping[str, Mapping]]) -> ForeignLedger:
     """One ledger from the nodes' `as_dict()` records (module docstring)."""
     ledger = ForeignLedger()

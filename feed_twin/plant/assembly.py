@@ -21,12 +21,14 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import numpy as np
 
 from feed_twin.core import signals
+from feed_twin.core.arrays import FloatArray
 from feed_twin.plant.codegen import Generator, acceleration_name, const_name
 from feed_twin.plant.component import STAGES, AssemblyError, Component, check_name
 from feed_twin.plant.view import AssemblyView, Coordinate
@@ -235,7 +237,7 @@ class PlantModel:
             for slot, value in comp.slots().items():
                 params.append((f"{name}.{slot}", value))
         self._component_params = params
-        derived = []
+        derived: list[str] = []
         for c in self.coordinates:
             for n in c.nodes:
                 derived.append(f"derived.ratio_n{n}")
@@ -289,11 +291,11 @@ class PlantModel:
         self.source_code = gen.module_source()
         self.structure_digest = hashlib.sha256(self.source_code.encode()).hexdigest()[:16]
 
-    def nominal_params(self) -> np.ndarray:
+    def nominal_params(self) -> FloatArray:
         """The parameter vector of the components as configured (derived slots filled)."""
         return self.param_vector()
 
-    def param_vector(self, overrides: Mapping[str, float] | None = None) -> np.ndarray:
+    def param_vector(self, overrides: Mapping[str, float] | None = None) -> FloatArray:
         """Nominal parameters with named slots replaced, derived slots recomputed."""
         p = np.zeros(len(self.param_names))
         for i, (_, value) in enumerate(self._component_params):
@@ -304,7 +306,7 @@ class PlantModel:
             p[self.param_index[name]] = float(value)
         return self.fill_derived(p)
 
-    def fill_derived(self, p: np.ndarray) -> np.ndarray:
+    def fill_derived(self, p: FloatArray) -> FloatArray:
         """Recompute the derived slots of p in place (also the batch form p[N, P]); returns p."""
         namespace = self.namespace()
         rows = p.reshape(-1, p.shape[-1])
@@ -324,7 +326,7 @@ class PlantModel:
                     )
         return p
 
-    def initial_state(self, positions: Mapping[str, float] | None = None) -> np.ndarray:
+    def initial_state(self, positions: Mapping[str, float] | None = None) -> FloatArray:
         """State at rest with all springs relaxed; `positions` sets bodies, e.g. {"table": 0.1}.
 
         A position given for one body moves every coordinate linked to it through two-port
@@ -380,31 +382,35 @@ class PlantModel:
                         queue.append(other)
         return chains
 
-    def _ratio_value(self, node: int, p: np.ndarray) -> float:
+    def _ratio_value(self, node: int, p: FloatArray) -> float:
         return float(p[self.param_index[f"derived.ratio_n{node}"]])
 
-    def namespace(self) -> dict:
-        """The plant functions executed as plain Python (un-jitted numba callees inside)."""
+    def namespace(self) -> dict[str, Any]:
+        """The plant functions executed as plain Python (un-jitted numba callees inside).
+
+        The generated module's globals: their types are the generated text's (`rhs`, `outputs`,
+        `sense`, `angles`, ... with the signatures `codegen` writes), which no checker can see.
+        """
         if not hasattr(self, "_namespace"):
             # the same source, with njit as the identity: plain Python calling the jitted
             # component functions, for the reference integration and linearisation
-            namespace: dict = {}
+            namespace: dict[str, Any] = {}
             text = self.source_code.replace("from numba import njit\n", "")
-            namespace["njit"] = lambda **_: lambda f: f
+            namespace["njit"] = _identity_decorator
             exec(compile(text, f"<plant {self.structure_digest}>", "exec"), namespace)
             self._namespace = namespace
         return self._namespace
 
     def linearize(
         self,
-        x: np.ndarray,
-        p: np.ndarray,
-        out: np.ndarray | None = None,
-        ext: np.ndarray | None = None,
+        x: FloatArray,
+        p: FloatArray,
+        out: FloatArray | None = None,
+        ext: FloatArray | None = None,
         *,
         states: Sequence[str] | None = None,
         rel_step: float = 1e-6,
-    ) -> np.ndarray:
+    ) -> FloatArray:
         """Jacobian d(rhs)/dx at (x, p) by central differences over the named states."""
         rhs = self.namespace()["rhs"]
         out = np.zeros(signals.OUT_SIZE) if out is None else out
@@ -443,6 +449,18 @@ class PlantModel:
             source=self.source,
             track_energy=track_energy,
         )
+
+
+_F = TypeVar("_F", bound=Callable[..., object])
+
+
+def _identity_decorator(**_options: object) -> Callable[[_F], _F]:
+    """`@njit(...)` of the generated text, run as plain Python: the function itself."""
+
+    def identity(f: _F) -> _F:
+        return f
+
+    return identity
 
 
 def assemble(

@@ -29,6 +29,7 @@ from typing import Any, Literal
 import numpy as np
 from numba import njit
 
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, Quantity, SlotReader, SlotSpec
 from feed_twin.plant.effect_api import (
@@ -37,6 +38,7 @@ from feed_twin.plant.effect_api import (
     Effect,
     FreeParameter,
     Motion,
+    Report,
     Weights,
     first_of,
     make_edit,
@@ -144,7 +146,7 @@ def _lead_error_edit(doc: Document, cand: Weights) -> Edit:
         ),
         FreeParameter(name=f"{name}.lead_error_phase", initial=phase, scale=1.0),
     ]
-    report = {
+    report: Report = {
         "amplitude_m": lambda v: v[f"{name}.lead_error_amplitude"],
         "phase_rad": lambda v: v[f"{name}.lead_error_phase"],
         "period_m": lambda v: lead,
@@ -181,7 +183,7 @@ def _stiffness_edit(doc: Document, cand: Weights) -> Edit:
         FreeParameter(name=slot, initial=doc.get(slot), scale=doc.get(slot), lower=0.0, log=True)
         for slot in slots
     ]
-    report = {"k_bearing_N_m": lambda v: v[slots[0]], "EA_N": lambda v: v[slots[1]]}
+    report: Report = {"k_bearing_N_m": lambda v: v[slots[0]], "EA_N": lambda v: v[slots[1]]}
     return make_edit(doc, own, report, interacts=False)
 
 
@@ -190,7 +192,7 @@ def _stiffness_truth(doc: Document, p: Mapping[str, float]) -> Document:
     return doc.set(f"{name}.k_bearing", p["k_bearing_N_m"]).set(f"{name}.EA", p["EA_N"])
 
 
-def _stiffness_signature(m: Motion) -> dict[str, np.ndarray]:
+def _stiffness_signature(m: Motion) -> dict[str, FloatArray]:
     # the table lags the nut by F * c(x): a screw held at one end (fixed-free) has c linear
     # in the distance to the bearing, one held at both ends (fixed-fixed) c ~ x (L - x); a
     # quadratic in the position covers both (the constant part: bearings and nut). The twin's
@@ -312,9 +314,6 @@ class AxialCompliance(Component):
     def stiffness_bound(self, slot: SlotReader) -> float:
         # bearings and nut in series: the screw section only adds compliance (axial_stiffness)
         return 1.0 / (1.0 / slot("k_bearing") + 1.0 / slot("k_nut"))
-
-    def structure(self) -> tuple:
-        return (self.arrangement,)
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage != "dynamics":

@@ -14,9 +14,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-import numpy as np
 from numba import njit
 
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader
 from feed_twin.plant.coupling import emit_two_port
@@ -49,7 +49,7 @@ def backlash_force(
     return f, 0.5 * f_e * f_e / k, (f - f_e) * delta_rate
 
 
-def _last_direction(m: Motion) -> dict[str, np.ndarray]:
+def _last_direction(m: Motion) -> dict[str, FloatArray]:
     return {"last_direction": last_direction(m)}
 
 

@@ -72,9 +72,6 @@ class BallScrew(Component):
         c = mean + half if resisting else mean
         return 2.0 * math.pi / (self.lead * c)
 
-    def structure(self) -> tuple:
-        return (self.lossy,)
-
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "transmit" and self.lossy:
             _, v = g.across("trans")

@@ -187,7 +187,7 @@ class Generator(Emitter):
     def _angles(self) -> list[str]:
         """`angles(t, x, p)`: (theta, cos, sin) of each declared angle, flat; (0.0,) for none."""
         lines = list(self._preamble())
-        items = []
+        items: list[str] = []
         for i, (_, prefix) in enumerate(self.angles):
             lines += self._angle_lines("angles", i)
             items += [f"{prefix}theta", f"{prefix}cos", f"{prefix}sin"]
@@ -203,7 +203,7 @@ class Generator(Emitter):
     def _reexpand(self, lines: list[str], function: str) -> list[str]:
         """`lines` of `rhs` with each angle's lines as `function` writes them."""
         full = {self._angle_lines("rhs", i)[1]: i for i in range(len(self.angles))}
-        out = []
+        out: list[str] = []
         for code in lines:
             if code in full:
                 out += self._angle_lines(function, full[code])[-1:]
@@ -237,7 +237,8 @@ class Generator(Emitter):
         slots = [const_name("X_", s) for s in self.m.core_state_names] + [
             const_name("X_", s) for s in self.energy_states
         ]
-        lines, assigned = [], set()
+        lines: list[str] = []
+        assigned: set[str] = set()
         for code in rhs_lines:
             match = re.fullmatch(r"dx\[(X_\w+)\] = (.*)", code)
             if match:
@@ -311,7 +312,7 @@ class Generator(Emitter):
 
     def _preamble(self) -> list[str]:
         m = self.m
-        lines = []
+        lines: list[str] = []
         for c in m.coordinates:
             q = f"x[{const_name('X_', c.position_state)}]"
             w = f"x[{const_name('X_', c.velocity_state)}]"
@@ -332,7 +333,7 @@ class Generator(Emitter):
         m = self.m
         lines: list[tuple[str, str]] = []
         for c in m.coordinates:
-            terms = []
+            terms: list[str] = []
             for n in c.nodes:
                 f = f"F_n{n}"
                 if n in self.node_scale:
@@ -363,12 +364,12 @@ class Generator(Emitter):
 
     def _fill_derived(self) -> list[str]:
         m = self.m
-        body = []
+        body: list[str] = []
         for c in m.coordinates:
             for n in c.nodes:
                 expr = c.ratios[n]
                 body.append(f"    p[{const_name('P_', f'derived.ratio_n{n}')}] = {expr}")
-            terms = []
+            terms: list[str] = []
             for n in c.nodes:
                 for comp, slot, factor in m.inertia_nodes.get(n, ()):
                     r = f"p[{const_name('P_', f'derived.ratio_n{n}')}]"
@@ -394,7 +395,7 @@ class Generator(Emitter):
             head.append(f"from {SIGNALS} import {', '.join(sorted(self.signal_names))}")
         head += sorted(set(self.imports.values()))
         body_all = self._preamble()
-        funcs = []
+        funcs: list[str] = []
         specs = (
             ("rhs", "t, x, p, out, ext, sw, dx", {"all", "dx"}),
             ("outputs", "t, x, p, out, ext, sw, aux", {"all", "aux"}),

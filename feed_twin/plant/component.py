@@ -41,7 +41,7 @@ import math
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, Protocol
 
 from feed_twin.plant.effect_api import Effect
 
@@ -112,7 +112,8 @@ class Component:
 
     Subclasses set `TYPE` (the YAML `type:`), `PORTS` (port name -> kind) and override what they
     need: `slots()` (parameter slot name -> value, default every float field), `states()`,
-    `inertias()`, `structure()` (anything that changes the generated code) and `emit()`. For
+    `inertias()` and `emit()` (what changes the generated code needs no declaration: the kernel
+    is keyed by the generated source's digest). For
     the discrepancy workflow they declare the effects they can carry (`EFFECTS`, see
     feed_twin.plant.effect_api) and the quantities made of several of their parameters
     (`QUANTITIES`, or `quantity()` for a family of slots).
@@ -193,82 +194,77 @@ class Component:
         del slot
         return 0.0
 
-    def structure(self) -> tuple:
-        """What of this component shapes the generated code (beyond its type and ports)."""
-        return ()
-
     def emit(self, stage: str, g: Emitter) -> None:
         """Write this component's glue for `stage` through the emitter `g`."""
         del stage, g
 
 
-class Emitter:
-    """What a component sees while the assembler generates code (implemented in assembly.py).
+class Emitter(Protocol):
+    """What a component sees while the assembler generates code (plant.codegen.Generator).
 
     Every method returns a Python expression or records a line; names are resolved to named
     constants of the generated module, so the generated source reads like hand-written glue.
     """
 
     def p(self, slot: str) -> str:  # parameter slot of the emitting component
-        raise NotImplementedError
+        ...
 
     def x(self, state: str) -> str:  # own state value
-        raise NotImplementedError
+        ...
 
     def d(self, state: str, expr: str) -> None:  # own state derivative
-        raise NotImplementedError
+        ...
 
     def local(self, name: str) -> str:  # a local variable private to the component
-        raise NotImplementedError
+        ...
 
-    def line(self, code: str) -> None:
-        raise NotImplementedError
+    def line(self, code: str) -> None: ...
 
     def call(self, targets: tuple[str, ...], func: str, args: tuple[str, ...]) -> None:
         """`targets = func(args)` where func is a numba function imported by its dotted path."""
-        raise NotImplementedError
+        ...
 
     def across(self, port: str) -> tuple[str, str]:  # (position, velocity) of a mechanical port
-        raise NotImplementedError
+        ...
 
     def apply(self, port: str, expr: str) -> None:  # add a through force/torque at a port
-        raise NotImplementedError
+        ...
 
     def node_force(self, port: str) -> str:  # sum of forces other elements apply at the node
-        raise NotImplementedError
+        ...
 
     def scale_node(self, port: str, expr: str) -> None:  # multiply that sum before it is applied
-        raise NotImplementedError
+        ...
 
     def el(self, port: str, var: str) -> str:  # variable of an electrical node, e.g. ("ac", "i_a")
-        raise NotImplementedError
+        ...
 
     def drive(self, slot: str) -> str:  # controller output OUT_* held over the tick
-        raise NotImplementedError
+        ...
 
     def switch(self, phase: int) -> str:  # switching inverter: state 0/1 of a phase leg
-        raise NotImplementedError
+        ...
 
     def ext(self) -> str:  # this component's external input channel (a force [N])
-        raise NotImplementedError
+        ...
 
     def aux(self, name: str, expr: str) -> None:  # a named auxiliary output
-        raise NotImplementedError
+        ...
 
     def power(self, kind: Literal["source", "loss"], name: str, expr: str) -> None:
         """Power [W] into the system from outside ("source") or dissipated ("loss")."""
-        raise NotImplementedError
+        ...
 
     def stored(self, name: str, expr: str) -> None:  # stored energy [J] (springs, fields, gravity)
-        raise NotImplementedError
+        ...
 
     def meas(self, slot: str, expr: str, delay: str = "0") -> None:  # MEAS_* sample, its delay
-        raise NotImplementedError
+        ...
 
     def noise(self, channel: int, scale: str) -> str:
         """`scale` times a standard normal sample, seeded, per tick and channel (0 when the
         scale is 0, without drawing)."""
-        raise NotImplementedError
+        ...
 
     def angle(self, expr: str) -> tuple[str, str]:
         """(cos, sin) of an angle [rad] made of states, across variables and parameters only
@@ -279,7 +275,7 @@ class Emitter:
         derivative call inside the tick rotates it by the angle's increment since
         (`feed_twin.core.trig.sincos_near`, a quarter of the work of a sine and a cosine).
         """
-        raise NotImplementedError
+        ...
 
 
 def check_name(name: str) -> None:

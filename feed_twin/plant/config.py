@@ -14,7 +14,7 @@ missing fields and non-physical values fail as `file: plant.<name>.<field> = val
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import cast
 
 from feed_twin.core.config import ConfigError, from_mapping
 from feed_twin.plant.assembly import AssemblyError, PlantModel
@@ -25,50 +25,64 @@ from feed_twin.plant.registry import COMPONENT_TYPES
 _ENTRY_KEYS = ("name", "type", "params")
 
 
-def load_plant(data: Any, *, source: str) -> PlantModel:
+def load_plant(data: object, *, source: str) -> PlantModel:
     """Assemble the PlantModel described by the `plant:` mapping `data`."""
     if not isinstance(data, Mapping):
         raise ConfigError(f"{source}: plant: expected a mapping, got {type(data).__name__}")
+    data = cast(Mapping[str, object], data)  # YAML: keys and values are checked below
     unknown = sorted(set(data) - {"components", "connect", "unusual"})
     if unknown:
         raise ConfigError(
             f"{source}: plant: unknown key(s) {', '.join(map(str, unknown))}; "
             "allowed: components, connect, unusual"
         )
-    unusual = data.get("unusual") or []
-    if not isinstance(unusual, list) or not all(isinstance(n, str) for n in unusual):
+    unusual = _list(data.get("unusual") or [])
+    names = [n for n in unusual or () if isinstance(n, str)]
+    if unusual is None or len(names) != len(unusual):
         raise ConfigError(
-            f"{source}: plant.unusual = {unusual!r}: expected a list of component.parameter"
+            f"{source}: plant.unusual = {data.get('unusual')!r}: expected a list of "
+            "component.parameter"
         )
+    lists: dict[str, list[object]] = {}
     for key in ("components", "connect"):
         if key not in data:
             raise ConfigError(f"{source}: plant: missing required field(s) {key}")
-        if not isinstance(data[key], list):
+        value = _list(data[key])
+        if value is None:
             raise ConfigError(f"{source}: plant.{key}: expected a list, got {data[key]!r}")
-    components = [_component(entry, i, source) for i, entry in enumerate(data["components"])]
-    connections = []
-    for i, pair in enumerate(data["connect"]):
+        lists[key] = value
+    components = [_component(entry, i, source) for i, entry in enumerate(lists["components"])]
+    connections: list[tuple[str, str]] = []
+    for i, entry in enumerate(lists["connect"]):
+        pair = _list(entry)
         if (
-            not isinstance(pair, list)
+            pair is None
             or len(pair) != 2
-            or not all(isinstance(p, str) for p in pair)
+            or not isinstance(pair[0], str)
+            or not isinstance(pair[1], str)
         ):
             raise ConfigError(
-                f"{source}: plant.connect[{i}] = {pair!r}: expected [component.port, "
+                f"{source}: plant.connect[{i}] = {entry!r}: expected [component.port, "
                 "component.port]"
             )
         connections.append((pair[0], pair[1]))
-    check_plausible(dict(components), unusual, source)
+    check_plausible(dict(components), names, source)
     try:
         return PlantModel(components, connections, source=source)
     except AssemblyError as exc:
         raise ConfigError(str(exc)) from None
 
 
-def _component(entry: Any, i: int, source: str) -> tuple[str, Component]:
+def _list(value: object) -> list[object] | None:
+    """A YAML sequence with its items still to be checked, None if `value` is not one."""
+    return cast(list[object], value) if isinstance(value, list) else None
+
+
+def _component(entry: object, i: int, source: str) -> tuple[str, Component]:
     where = f"{source}: plant.components[{i}]"
     if not isinstance(entry, Mapping):
         raise ConfigError(f"{where} = {entry!r}: expected a mapping with name, type, params")
+    entry = cast(Mapping[str, object], entry)  # YAML: keys and values are checked below
     unknown = sorted(set(entry) - set(_ENTRY_KEYS))
     if unknown:
         raise ConfigError(
@@ -85,10 +99,12 @@ def _component(entry: Any, i: int, source: str) -> tuple[str, Component]:
     except ValueError as exc:
         raise ConfigError(f"{where}.{exc}") from None
     kind = entry["type"]
-    if kind not in COMPONENT_TYPES:
+    if not isinstance(kind, str) or kind not in COMPONENT_TYPES:
         raise ConfigError(
             f"{source}: plant.{name}.type = {kind!r}: unknown component type; "
             f"known: {', '.join(sorted(COMPONENT_TYPES))}"
         )
-    params = entry["params"] if entry["params"] is not None else {}
-    return name, from_mapping(COMPONENT_TYPES[kind], params, source=source, path=f"plant.{name}")
+    params = entry["params"]
+    return name, from_mapping(
+        COMPONENT_TYPES[kind], {} if params is None else params, source=source, path=f"plant.{name}"
+    )

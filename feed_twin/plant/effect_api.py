@@ -23,6 +23,8 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
+from feed_twin.core.arrays import FloatArray
+
 SMOOTH_VELOCITY_S = 0.005  # [s] smoothing window for velocity and acceleration estimates
 # a table is moving, for the direction of its last move, above this many Motion.speed_eps
 MOVING_SPEEDS = 5.0
@@ -34,16 +36,16 @@ Domain = Literal["effort", "position", "voltage"]
 class Motion:
     """Measured motion and machine data the signatures are functions of (SI, one time base)."""
 
-    t_s: np.ndarray
-    x_m: np.ndarray  # measured table position
-    v_m_s: np.ndarray  # velocity estimate
-    a_m_s2: np.ndarray  # acceleration estimate
-    effort_sim: np.ndarray | None  # the twin's effort on this run (for gain errors)
+    t_s: FloatArray
+    x_m: FloatArray  # measured table position
+    v_m_s: FloatArray  # velocity estimate
+    a_m_s2: FloatArray  # acceleration estimate
+    effort_sim: FloatArray | None  # the twin's effort on this run (for gain errors)
     lead_m: float | None  # [m/rev] screw lead (motor angle = 2 pi x / lead for a direct drive)
     pole_pairs: int | None
     travel_m: float  # [m] stroke of the axis (for stiffness that depends on position)
-    current_q_A: np.ndarray | None = None  # measured q-current (or its command) [A]
-    v_cmd_m_s: np.ndarray | None = None  # commanded velocity [m/s] (None: the record has none)
+    current_q_A: FloatArray | None = None  # measured q-current (or its command) [A]
+    v_cmd_m_s: FloatArray | None = None  # commanded velocity [m/s] (None: the record has none)
 
     @property
     def speed_eps(self) -> float:
@@ -52,15 +54,15 @@ class Motion:
 
 
 def motion_from_position(
-    t_s: np.ndarray,
-    x_m: np.ndarray,
+    t_s: FloatArray,
+    x_m: FloatArray,
     *,
-    effort_sim: np.ndarray | None,
+    effort_sim: FloatArray | None,
     lead_m: float | None,
     pole_pairs: int | None,
     travel_m: float,
-    current_q_A: np.ndarray | None = None,
-    v_cmd_m_s: np.ndarray | None = None,
+    current_q_A: FloatArray | None = None,
+    v_cmd_m_s: FloatArray | None = None,
 ) -> Motion:
     """Velocity and acceleration from a measured position by Savitzky-Golay differentiation.
 
@@ -87,44 +89,45 @@ def motion_from_position(
     )
 
 
-def direction(m: Motion) -> np.ndarray:
+def direction(m: Motion) -> FloatArray:
     """sign(v), regularised over Motion.speed_eps."""
     return np.tanh(m.v_m_s / m.speed_eps)
 
 
-def moving(m: Motion) -> np.ndarray:
+def moving(m: Motion) -> FloatArray:
     return np.abs(direction(m))
 
 
-def rate(y: np.ndarray, t: np.ndarray) -> np.ndarray:
+def rate(y: FloatArray, t: FloatArray) -> FloatArray:
     """Time derivative by a 5-sample quadratic Savitzky-Golay filter (smooths the sample noise)."""
     h = float((t[-1] - t[0]) / (len(t) - 1))
     return _savgol(np.asarray(y, dtype=float), 5, 1, h)
 
 
-def _savgol(y: np.ndarray, window: int, deriv: int, h: float) -> np.ndarray:
+def _savgol(y: FloatArray, window: int, deriv: int, h: float) -> FloatArray:
     """Quadratic Savitzky-Golay derivative of order `deriv` of samples `h` [s] apart."""
     # imported here: every process that builds an engine imports this module (plant.component)
     # and scipy.signal takes most of a second to import; only the analysis differentiates
-    from scipy.signal import savgol_filter
+    # scipy has no stubs: typed by the np.asarray below
+    from scipy.signal import savgol_filter  # pyright: ignore[reportMissingTypeStubs, reportUnknownVariableType]
 
     return np.asarray(savgol_filter(y, window, 2, deriv=deriv, delta=h), dtype=float)
 
 
-def effort_rate(m: Motion) -> dict[str, np.ndarray]:
+def effort_rate(m: Motion) -> dict[str, FloatArray]:
     """The signature of a delay of the effort: the rate of the twin's effort (y(t - d) is
     y(t) - d dy/dt to first order)."""
     assert m.effort_sim is not None
     return {"effort_rate": rate(m.effort_sim, m.t_s)}
 
 
-def motor_angle(m: Motion) -> np.ndarray:
+def motor_angle(m: Motion) -> FloatArray:
     """Motor angle [rad] of a direct-drive screw: 2 pi x / lead."""
     assert m.lead_m is not None
     return 2.0 * math.pi * m.x_m / m.lead_m
 
 
-def last_direction(m: Motion) -> np.ndarray:
+def last_direction(m: Motion) -> FloatArray:
     """Direction of the last motion, held through stops: +1, -1, or 0 before the first move.
 
     Lost motion at a reversal leaves the table behind the nut by the half gap on the trailing
@@ -139,7 +142,7 @@ def last_direction(m: Motion) -> np.ndarray:
     return held
 
 
-Signature = Callable[[Motion], dict[str, np.ndarray]]
+Signature = Callable[[Motion], dict[str, FloatArray]]
 
 
 class Weights(Protocol):
@@ -271,7 +274,7 @@ def symmetric(doc: Document) -> Document:
 def interacting(doc: Document) -> list[FreeParameter]:
     """The rigid-body parameters every force-like effect trades off against, re-fitted with it:
     the moving mass, the friction terms the model already has, a constant force."""
-    free = []
+    free: list[FreeParameter] = []
     m = doc.mass_slot()
     if m is not None:
         value = doc.get(m)

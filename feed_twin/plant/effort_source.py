@@ -13,8 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
-import numpy as np
-
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, PortKind, StateSpec
 from feed_twin.plant.effect_api import (
@@ -23,6 +22,7 @@ from feed_twin.plant.effect_api import (
     Effect,
     FreeParameter,
     Motion,
+    Report,
     Weights,
     make_edit,
     slot_reader,
@@ -53,7 +53,7 @@ def _gain_edit(doc: Document, cand: Weights) -> Edit:
     own = [FreeParameter(name=g, initial=guess, scale=abs(value))]
     # the constant scales every force of the model at once: fitted together with the mass and
     # friction it would be degenerate, so it is fitted alone (the report says the correlation)
-    report = {"gain": slot_reader(g), "effort_scale": lambda v: value / v[g]}
+    report: Report = {"gain": slot_reader(g), "effort_scale": lambda v: value / v[g]}
     return make_edit(doc, own, report, interacts=False)
 
 
@@ -64,7 +64,7 @@ def _gain_truth(doc: Document, p: Mapping[str, float]) -> Document:
     return doc.set(g, p["gain"])
 
 
-def _effort_signature(m: Motion) -> dict[str, np.ndarray]:
+def _effort_signature(m: Motion) -> dict[str, FloatArray]:
     assert m.effort_sim is not None  # the effect needs effort_sim
     return {"effort": m.effort_sim}
 
@@ -106,9 +106,6 @@ class EffortSource(Component):
         if self.T_lag > 0.0:
             return (StateSpec(name="effort", unit=unit, limit=self.f_max),)
         return ()
-
-    def structure(self) -> tuple:
-        return (self.domain, self.T_lag > 0.0)
 
     def emit(self, stage: str, g: Emitter) -> None:
         if stage != "dynamics":

@@ -33,7 +33,7 @@ class GasSpring(Component):
     def emit(self, stage: str, g: Emitter) -> None:
         if stage != "dynamics":
             return
-        s, v = g.across("flange")
+        s, _ = g.across("flange")
         ds = g.local("ds")
         g.line(f"{ds} = {s} - {g.p('s_0')}")
         f = f"({g.p('f_0')} - {g.p('k')} * {ds})"

@@ -29,6 +29,7 @@ from typing import Any, Literal
 import numpy as np
 from numba import njit
 
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.smooth import smooth_sign, smooth_sign_array
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, Quantity, SlotSpec
@@ -70,8 +71,8 @@ DEAD_TIME_CURRENT_SCALES_A = (0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0
 
 
 def dead_time_voltage(
-    i_q_A: np.ndarray, theta_e_rad: np.ndarray, i_reg_A: float
-) -> dict[str, np.ndarray]:
+    i_q_A: FloatArray, theta_e_rad: FloatArray, i_reg_A: float
+) -> dict[str, FloatArray]:
     """d/q components of the three phases' smooth sgn(i_x / i_reg) at i_d = 0.
 
     A two-level inverter leg with interlock time T_d at PWM period T_s loses about
@@ -101,7 +102,7 @@ def _dead_time_choices(m: Motion) -> list[tuple[str, Signature]]:
     # the weight of the q part computed from the measured q-current at the electrical angle
     # p 2 pi x / lead is u_dc Delta T_d / T_s, the extra volts the controller must command
     def make(i_reg: float) -> Signature:
-        def signature(mm: Motion) -> dict[str, np.ndarray]:
+        def signature(mm: Motion) -> dict[str, FloatArray]:
             assert mm.current_q_A is not None and mm.pole_pairs is not None
             theta_e = mm.pole_pairs * motor_angle(mm)
             return {"sgn_i_q": dead_time_voltage(mm.current_q_A, theta_e, i_reg)["q"]}
@@ -216,13 +217,10 @@ class Inverter(Component):
             "i_reg": self.i_reg,
         }
 
-    def structure(self) -> tuple:
-        return (self.model,)
-
     def emit(self, stage: str, g: Emitter) -> None:
         if stage == "dc_current":
             enabled = g.drive("OUT_ENABLED")
-            terms = []
+            terms: list[str] = []
             for n, x in enumerate(PHASES):
                 command = g.switch(n) if self.switching else g.drive(DUTY_SLOTS[n])
                 duty, sgn = g.local(f"d_{x}"), g.local(f"sgn_{x}")
@@ -236,7 +234,7 @@ class Inverter(Component):
             g.line(f"{g.el('dc', 'i')} = {' + '.join(terms)}")
         elif stage == "voltages":
             u_dc = g.el("dc", "u")
-            loss = []
+            loss: list[str] = []
             for x in PHASES:
                 u, i = g.el("ac", f"u_{x}"), g.el("ac", f"i_{x}")
                 duty, sgn = g.local(f"d_{x}"), g.local(f"sgn_{x}")

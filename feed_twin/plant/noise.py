@@ -26,6 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
+from feed_twin.core.arrays import FloatArray
+
 LAYERS = 128
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -70,7 +72,7 @@ R = _solve_r()  # right edge of the base strip
 V = _strip_area(R)  # area of every strip under exp(-x^2/2)
 
 
-def _tables() -> tuple[np.ndarray, np.ndarray]:
+def _tables() -> tuple[FloatArray, FloatArray]:
     """(X, F): strip edges X[0..LAYERS] and F = exp(-X^2/2), by the recurrence
     X[i+1] = f^-1(V / X[i] + f(X[i]))."""
     x = np.zeros(LAYERS + 1)

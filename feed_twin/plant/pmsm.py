@@ -51,6 +51,7 @@ from feed_twin.plant.effect_api import (
     Effect,
     FreeParameter,
     Motion,
+    Report,
     Signature,
     Weights,
     first_of,
@@ -175,7 +176,7 @@ def _cogging_edit(doc: Document, cand: Weights) -> Edit:
         FreeParameter(name=f"{prefix}amplitude", initial=amplitude, scale=amplitude, lower=0.0),
         FreeParameter(name=f"{prefix}phase", initial=phase, scale=1.0),
     ]
-    report = {
+    report: Report = {
         "order": lambda v: float(order),
         "amplitude_Nm": lambda v: v[f"{prefix}amplitude"],
         "phase_rad": lambda v: v[f"{prefix}phase"],
@@ -330,9 +331,6 @@ class Pmsm(Component):
 
     def damping_bounds(self, slot: SlotReader) -> dict[str, float]:
         return {"flange": slot("T_c") / slot("omega_reg") + slot("b")}
-
-    def structure(self) -> tuple:
-        return (len(self.cogging),)
 
     def emit(self, stage: str, g: Emitter) -> None:
         phi, omega = g.across("flange")

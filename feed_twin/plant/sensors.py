@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotSpec
 from feed_twin.plant.effect_api import (
@@ -32,11 +33,13 @@ from feed_twin.plant.effect_api import (
     Effect,
     FreeParameter,
     Motion,
+    Report,
     Weights,
     effort_rate,
     first_of,
     make_edit,
     motor_angle,
+    slot_reader,
 )
 
 MAX_DELAY_TICKS = 15  # the engine keeps the last 16 samples
@@ -74,7 +77,7 @@ def _delay_edit(doc: Document, cand: Weights) -> Edit:
     doc = doc.tie(name, slots)
     period = doc.base_period()
     own = [FreeParameter(name=name, initial=doc.get(name), scale=1.0, lower=0.0)]
-    report = {"delay_ticks": lambda v: v[name], "delay_s": lambda v: v[name] * period}
+    report: Report = {"delay_ticks": lambda v: v[name], "delay_s": lambda v: v[name] * period}
     # a delay in whole sensor samples: searched, not differentiated
     return make_edit(doc, own, report, interacts=False, grid=tuple(range(SEARCHED_DELAY_TICKS + 1)))
 
@@ -147,7 +150,7 @@ class LinearScale(Component):
             )
 
 
-def _electrical(m: Motion) -> dict[str, np.ndarray]:
+def _electrical(m: Motion) -> dict[str, FloatArray]:
     assert m.pole_pairs is not None
     theta = m.pole_pairs * motor_angle(m)
     return {"sin": np.sin(theta), "cos": np.cos(theta)}
@@ -178,7 +181,7 @@ def _offset_edit(doc: Document, cand: Weights) -> Edit:
     for slot, guess in zip(slots, guesses, strict=True):
         doc = doc.set(slot, float(params.get(slot.split(".")[1], 0.0)) + guess)
     own = [FreeParameter(name=slot, initial=doc.get(slot), scale=scale) for slot in slots]
-    report = {f"{slot.split('.')[1]}_A": (lambda s: lambda v: v[s])(slot) for slot in slots}
+    report: Report = {f"{slot.split('.')[1]}_A": slot_reader(slot) for slot in slots}
     return make_edit(doc, own, report, interacts=False)
 
 

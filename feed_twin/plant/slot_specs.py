@@ -16,6 +16,7 @@ import inspect
 import math
 import re
 import struct
+from collections.abc import Callable
 from functools import cache
 
 from feed_twin.plant.component import Component, SlotSpec
@@ -65,7 +66,7 @@ def field_units(cls: type) -> dict[str, str]:
 def describe(spec: SlotSpec) -> str:
     """The range in words, with the unit: "> 0 kg", "a whole number >= 0 and <= 256"."""
     unit = "" if spec.unit == "1" else f" {spec.unit}"
-    parts = []
+    parts: list[str] = []
     if spec.low > -math.inf:
         parts.append(f"{'>' if spec.low_open else '>='} {_number(spec.low)}{unit}")
     if spec.high < math.inf:
@@ -100,7 +101,7 @@ def _probed(component: Component, name: str, unit: str) -> SlotSpec:
     return SlotSpec(unit=unit, low=low, low_open=low_open, high=high, high_open=high_open)
 
 
-def _integer_edge(accepts, inside: int, outside: int) -> float:
+def _integer_edge(accepts: Callable[[float], bool], inside: int, outside: int) -> float:
     """The last accepted integer from `inside` towards `outside` (+-inf when all are)."""
     if accepts(outside):
         return math.copysign(math.inf, outside)
@@ -110,7 +111,9 @@ def _integer_edge(accepts, inside: int, outside: int) -> float:
     return float(inside)
 
 
-def _float_edge(accepts, inside: float, outside: float) -> tuple[float, bool]:
+def _float_edge(
+    accepts: Callable[[float], bool], inside: float, outside: float
+) -> tuple[float, bool]:
     """(bound, open) where the accepted values from `inside` towards `outside` end: the last
     accepted double, or the first refused one when that is the rounder number (0 for > 0)."""
     if accepts(outside):

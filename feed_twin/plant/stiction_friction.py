@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.component import Component, Emitter, SlotReader, StateSpec
 from feed_twin.plant.effect_api import (
@@ -70,7 +71,7 @@ def stiction_force(
     return f, rate, stored, loss
 
 
-def _held(m: Motion) -> dict[str, np.ndarray]:
+def _held(m: Motion) -> dict[str, FloatArray]:
     """At rest the stuck table keeps the force it had when it stopped: the loop stops it short
     of the command (or past it, the EMPS loop's proportional velocity law overshoots), the same
     way after every move of one direction, so the held force follows the last direction.
@@ -91,7 +92,7 @@ def _held(m: Motion) -> dict[str, np.ndarray]:
     return {"held": last * rest * commanded, "stuck": last * rest * (1.0 - commanded)}
 
 
-def _stop_shares(m: Motion, rest: np.ndarray, command_rest: np.ndarray) -> np.ndarray:
+def _stop_shares(m: Motion, rest: FloatArray, command_rest: FloatArray) -> FloatArray:
     """On each stop of the table (a run of samples below last_direction's moving speed), the
     rest-weighted mean of `command_rest` over it; 0 while moving."""
     still = ~(np.abs(m.v_m_s) > MOVING_SPEEDS * m.speed_eps)

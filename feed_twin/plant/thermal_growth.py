@@ -27,6 +27,7 @@ from typing import Literal
 import numpy as np
 from numba import njit
 
+from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.axial_compliance import AxialCompliance, fixed_fixed_flag
 from feed_twin.plant.component import Component, Emitter, StateSpec
@@ -102,7 +103,7 @@ def _thermal_truth(doc: Document, p: Mapping[str, float]) -> Document:
     return with_thermal_growth(doc, p["heating_K_m"])[0]
 
 
-def _travelled(m: Motion) -> dict[str, np.ndarray]:
+def _travelled(m: Motion) -> dict[str, FloatArray]:
     # a screw still far from thermal equilibrium warms in proportion to the distance travelled
     # D(t); its heated length from the fixed bearing is x_0 + x with x_0 unknown here, so the
     # elongation alpha dT (x_0 + x) is a combination of D x and D
@@ -169,9 +170,6 @@ class ThermalGrowth(Component):
         geometry = self._compliance().slots()
         own = {"alpha": self.alpha, "heating": self.heating, "tau": self.tau}
         return own | {k: geometry[k] for k in STIFFNESS_SLOTS}
-
-    def structure(self) -> tuple:
-        return (self.arrangement,)
 
     def states(self) -> tuple[StateSpec, ...]:
         return (StateSpec(name="dT", unit="K", limit=TEMPERATURE_LIMIT_K),)

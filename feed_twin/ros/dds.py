@@ -88,8 +88,9 @@ def dds_environment(env: Mapping[str, str]) -> dict[str, str | None]:
     }
 
 
-def init_context(args: Sequence[str] | None = None) -> Context:
-    """A fresh rclpy context without rclpy's own signal handlers (spin_nodes handles them)."""
+def init_context(args: Sequence[str] | None = None, *, domain_id: int | None = None) -> Context:
+    """A fresh rclpy context without rclpy's own signal handlers (spin_nodes handles them), in
+    `domain_id` (default: ROS_DOMAIN_ID's)."""
     # Fast DDS reads its default profiles when the first participant is created, rmw the
     # discovery range at every init.
     for name, value in dds_environment(os.environ).items():
@@ -101,6 +102,7 @@ def init_context(args: Sequence[str] | None = None) -> Context:
     rclpy.init(
         args=None if args is None else list(args),
         context=context,
+        domain_id=domain_id,
         signal_handler_options=SignalHandlerOptions.NO,
     )
     return context

@@ -18,6 +18,7 @@ from feed_twin_msgs.msg import HealthStatus
 
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
+from feed_twin.nodeset.foreign import foreign_publisher_text
 from feed_twin.nodeset.guard import OPEN_NC_ENV, CommandGuard, Endpoint
 from feed_twin.nodeset.roles import node_role, roles_where
 from feed_twin.ros.dds import LATCHED_QOS
@@ -106,9 +107,9 @@ class InputGuard:
             except Exception:  # noqa: BLE001 - the graph is read again in a second
                 return
             for e in self.guard.foreign(endpoints):
-                self.node.foreign.name(topic, e.describe())
-                text = f"foreign publisher on {topic}: {e.describe()}; its messages are refused"
-                self.node.get_logger().warning(text)
+                text = foreign_publisher_text(topic, e.describe())
+                if self.node.foreign.name(topic, e.describe()):  # else the node logged it
+                    self.node.get_logger().warning(text)
                 self._publish(text)
 
     def _publish(self, text: str) -> None:

@@ -56,7 +56,7 @@ from rclpy.task import Future
 from std_msgs.msg import String
 
 from feed_twin.nodeset.auth import RunAuth, key_from_environ
-from feed_twin.nodeset.foreign import ForeignLedger, merge
+from feed_twin.nodeset.foreign import ForeignLedger, foreign_publisher_text, merge
 from feed_twin.nodeset.liveness import (
     HEARTBEAT_PERIOD_S,
     HUNG_S,
@@ -433,10 +433,14 @@ class FeedTwinNode(Node):
         return body
 
     def refuse_foreign(self, topic: str, reason: str) -> None:
-        """Count one dropped message; warn on the first and every 1000th; name the topic's
-        foreign publishers (the graph is read at most every FOREIGN_GRAPH_S per topic)."""
+        """Count one dropped message; warn on the first of each reason on a topic (a replayed
+        or altered message is news even among thousands of unsigned ones) and on every 1000th;
+        name the topic's foreign publishers (the graph is read at most every FOREIGN_GRAPH_S
+        per topic), each new one in the log too."""
+        entry = self.foreign.topics.get(topic)
+        new_reason = entry is None or reason not in entry.reasons
         count = self.foreign.refuse(topic, reason)
-        if count == 1 or count % 1000 == 0:
+        if new_reason or count % 1000 == 0:
             self.get_logger().warning(
                 f"refused {count} foreign message(s) on {topic} ({reason}): not signed by "
                 "this run's nodes"
@@ -444,7 +448,8 @@ class FeedTwinNode(Node):
         now = time.monotonic()
         if now - self._named_at.get(topic, -math.inf) >= FOREIGN_GRAPH_S:
             self._named_at[topic] = now
-            self.name_foreign(topic)
+            for publisher in self.name_foreign(topic):
+                self.get_logger().warning(foreign_publisher_text(topic, publisher))
 
     def name_foreign(self, topic: str) -> list[str]:
         """The publishers of `topic` that are not nodes of the run, added to the ledger;

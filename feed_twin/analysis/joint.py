@@ -1,0 +1,298 @@
+"""Joint selection: the effects the rounds found one at a time, re-examined as a set.
+
+The rounds (analysis.rounds) are a forward selection: each adds the best of its rivals on the
+residual of the model so far, and re-examines the effects found before by removing each one.
+Neither step can replace an effect chosen early by one that only a later effect shows to be
+right. On a machine with a heavier slide, a weight and more Coulomb friction, a drive gain 27 %
+low scales every force at once and took the second round ahead of the mass (the forces found
+later were then fitted 27 % small, and a viscous term absorbed the rest): a set with one
+parameter more that fits no better than the true one.
+
+So once the rounds end, each found effect is swapped for each runner-up of the rounds (a rival
+fitted in some round to the model of a feed axis and not kept; Context.runners_up): the
+runner-up is fitted into the model without the found effect together with the others' own
+parameters, exactly as a round fits a candidate (analysis.trials), and must be a finding there
+(rounds.no_finding). The set with it is scored against the set now by the likelihood of both
+channels, position and effort together, each weighed by its effective samples (the concentrated
+likelihood sum_c n_c ln RSS_c, rounds.information) less PARAMETER_PRICE per parameter: an
+effect that removes most of one channel's residual is not hidden by a few per cent of another,
+nor by its parameter count. A set that could win only by losing some of its other effects'
+parameters (the viscous term the drive gain needed) is pruned first, as the rounds prune
+(rounds.reexamine_found: collapsed effects and those whose removal costs nothing are dropped),
+and scored as pruned. The best swap that scores better than the set now by SWAP_MARGIN is
+kept, and the search repeats on the new set, MAX_SWAPS times at most. Last, the found effects'
+searched parameters are searched again with the others in (`searched_again`).
+
+Which runners-up are tried for an effect: those that the residual of the set without it (one
+simulation) ranks as worth fitting, in the same residual, explaining at least rival_ratio of
+what the effect's own signature explains there (a round's rule for its rivals). Every pair
+would fit twelve sets on the heavier slide (a trace window for a constant force, ...) where
+these fit two.
+
+Cost: one simulation per found effect, one least-squares fit per pair tried (its Jacobians
+are batches of the engine, analysis.fit), the removal tests of the sets worth pruning, and the
+searches again (one simulation and shifts of its output each); counted in the search's
+simulations (Diagnosis.search: joint_trials, joint_simulations, joint_seconds) and said in the
+report. On the truth machine's heavier slide: 3 sets, 231 of 741 simulations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+from feed_twin.analysis.fit import Measured, cost_of
+from feed_twin.analysis.model_doc import model_of
+from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.reexamine import Found, removable, removed
+from feed_twin.analysis.rounds import (
+    PARAMETER_PRICE,
+    Context,
+    State,
+    adopt,
+    effective_counts,
+    information,
+    no_finding,
+    noop,
+    ranked,
+    reexamine_found,
+)
+from feed_twin.analysis.significance import compare
+from feed_twin.analysis.trials import grid_search, try_candidate
+from feed_twin.analysis.twin import Twin
+
+MAX_SWAPS = 2  # swaps kept at most (each one followed by a new search over the new set)
+# how much better (in the likelihood's units, rounds.information) a swapped set must score than
+# the set the rounds chose: half a parameter's price, so that a rival that fits alike with as
+# many parameters (an alias) does not flip the rounds' choice on the float noise of its fit
+SWAP_MARGIN = 0.5 * PARAMETER_PRICE
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Swap:
+    """A set with one found effect replaced by a runner-up, fitted and pruned."""
+
+    out: str  # the found effect taken out
+    into: str  # the runner-up put in
+    state: State  # the set, fitted
+    score: float  # its information against the set now (positive: better)
+    dropped: tuple[str, ...]  # the effects the pruning removed besides `out`
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointSearch:
+    """What the joint selection did, for the report."""
+
+    trials: int  # sets fitted
+    simulations: int  # parameter sets simulated
+    seconds: float
+    swaps: tuple[str, ...]  # the swaps kept and the searched values moved, in words
+
+    def as_dict(self) -> dict[str, float]:
+        """The search's cost, as Diagnosis.search holds it (the swaps are in the notes)."""
+        return {
+            "joint_trials": float(self.trials),
+            "joint_simulations": float(self.simulations),
+            "joint_seconds": self.seconds,
+        }
+
+
+def parameters(found: list[Found]) -> int:
+    """The degrees of freedom a set of effects adds to the nominal model."""
+    return sum(f.added for f in found)
+
+
+def score(ctx: Context, now: State, trial: State) -> float:
+    """The trial set's information against the set now (rounds.information), both channels'
+    effective samples counted at the better-fitting of the two."""
+    before, after = ctx.channels(now.outputs), ctx.channels(trial.outputs)
+    counts = effective_counts(after if trial.cost < now.cost else before)
+    added = parameters(trial.found) - parameters(now.found)
+    return information(before, after, counts, added)
+
+
+def joint_select(state: State, ctx: Context, meas: Measured) -> JointSearch:
+    """Swap found effects for runners-up while a swap scores better, then search the searched
+    parameters again (module docstring); `state` ends with the chosen set. Returns the
+    search's cost and what it changed."""
+    clock, start_sims = time.perf_counter(), state.simulations
+    trials, kept = 0, []
+    for _ in range(MAX_SWAPS):
+        pool = ctx.runners_up - {f.name for f in state.found}
+        pairs = [
+            (f, c)
+            for f in state.found
+            if pool and removable([f], state.doc)
+            for c in _rivals(state, ctx, f, pool)
+        ]
+        if not pairs:
+            break
+        ctx.progress(
+            f"joint selection: {len(pairs)} swaps of the {len(state.found)} found effects for "
+            f"the runners-up ({', '.join(f'{c.name} for {f.name}' for f, c in pairs)})"
+        )
+        best: Swap | None = None
+        for target, cand in pairs:
+            trials += 1
+            swap = _swapped(state, ctx, meas, target, cand)
+            if swap is None or swap.score <= SWAP_MARGIN:
+                continue
+            if best is None or swap.score > best.score:
+                best = swap
+        if best is None:
+            break
+        kept.append(_keep(state, ctx, best))
+    kept += searched_again(state, ctx, meas)
+    return JointSearch(
+        trials=trials,
+        simulations=state.simulations - start_sims,
+        seconds=time.perf_counter() - clock,
+        swaps=tuple(kept),
+    )
+
+
+def _rivals(state: State, ctx: Context, target: Found, pool: set[str]) -> list[Candidate]:
+    """The runners-up worth swapping in for `target`: ranked on the residual of the set without
+    it (one simulation), they are worth fitting there and explain at least rival_ratio of what
+    the target's own signature explains, as a round's rivals must (rounds.choose_rivals). The
+    candidates carry that ranking's weights (the fit's starting values)."""
+    twin = Twin.compile(removed(target, state.doc))
+    out = twin.simulate(ctx.drive, twin.nominal[None, :])
+    state.simulations += 1
+    if not out.ok[0]:
+        return []
+    others = tuple(f.name for f in state.found if f is not target)
+    ranking = ranked(ctx, out, others)
+    own = next((c.explained_fraction for c in ranking if c.name == target.name), 0.0)
+    domain = next((c.residual_domain for c in ranking if c.name == target.name), None)
+    return [
+        c
+        for c in ranking
+        if c.name in pool
+        and c.worth_fitting
+        and c.residual_domain == domain
+        and c.explained_fraction >= ctx.opts.rival_ratio * own
+    ]
+
+
+def _keep(state: State, ctx: Context, swap: Swap) -> str:
+    """Adopt the swapped (and pruned) set into `state`; the swap in words."""
+    new = swap.state
+    state.doc, state.twin, state.outputs, state.cost = new.doc, new.twin, new.outputs, new.cost
+    state.found = new.found
+    also = f", without {', '.join(swap.dropped)}" if swap.dropped else ""
+    words = (
+        f"joint selection: {swap.into} in place of {swap.out}{also}; the set scores "
+        f"{swap.score:.3g} better (the likelihood of all channels less {PARAMETER_PRICE:.3g} "
+        "per parameter)"
+    )
+    ctx.notes.append(words)
+    ctx.progress(f"  {words}")
+    return words
+
+
+def _swapped(
+    state: State, ctx: Context, meas: Measured, target: Found, cand: Candidate
+) -> Swap | None:
+    """The set with `target` replaced by `cand`, fitted and (where that could make it win)
+    pruned; None if the runner-up is no finding there. The simulations count in `state`."""
+    others = [f for f in state.found if f is not target]
+    doc = removed(target, state.doc)
+    free = [
+        dataclasses.replace(p, initial=doc.get(p.name))
+        for f in others
+        for p in f.own
+        if doc.has_slot(p.name)
+    ]
+    tried = try_candidate(doc, free, cand, ctx.drive, meas, ctx.opts.max_evaluations)
+    if isinstance(tried, str):
+        return None
+    edit, alone, new_twin, result = tried
+    state.simulations += result.evaluations
+    quiet = dataclasses.replace(ctx, notes=[], progress=noop, tried=[])
+    base = State(
+        doc=doc, twin=state.twin, outputs=state.outputs, cost=state.cost, found=list(others)
+    )
+    if not result.converged or no_finding(base, quiet, cand, edit, alone, result) is not None:
+        return None
+    trial = dataclasses.replace(base, simulations=0)
+    verdict = compare(ctx.channels(state.outputs), ctx.channels(result.outputs), added=edit.added)
+    adopt(
+        trial, quiet, cand, edit=edit, alone=alone, new_twin=new_twin, result=result,
+        explained_by=verdict.explained,
+    )  # fmt: skip
+    # in the target's place: the report lists the effects in the order the search took them
+    trial.found.insert(state.found.index(target), trial.found.pop())
+    gain = score(ctx, state, trial)
+    # pruned when it could win (pruning can at most take back the price of the other effects'
+    # parameters), a winner too: a runner-up that splits a tie (asymmetric friction in place of
+    # a viscous one) is itself removed by tying the pair at its mean, which keeps the effect it
+    # replaced in the model with no name
+    if gain + PARAMETER_PRICE * parameters(others) > SWAP_MARGIN:
+        names = {f.name for f in trial.found}
+        reexamine_found(trial, quiet, meas)
+        trial.cost = cost_of(meas, trial.outputs)
+        dropped = tuple(sorted(names - {f.name for f in trial.found}))
+        if cand.name in dropped:
+            # the runner-up itself removed: a removal of the target, which the rounds' own
+            # re-examination tested (and the runner-up's split of a tie stayed in the model)
+            state.simulations += trial.simulations
+            return None
+        gain = score(ctx, state, trial)
+    else:
+        dropped = ()
+    state.simulations += trial.simulations
+    ctx.progress(
+        f"  {cand.name} for {target.name}"
+        + (f" (without {', '.join(dropped)})" if dropped else "")
+        + f": cost {state.cost:.4g} -> {trial.cost:.4g}, score {gain:+.3g}"
+    )
+    return Swap(out=target.name, into=cand.name, state=trial, score=gain, dropped=dropped)
+
+
+# passes over the searched effects at most (analysis.joint.searched_again)
+SEARCH_PASSES = 3
+
+
+def searched_again(state: State, ctx: Context, meas: Measured) -> list[str]:
+    """Search the found effects' searched parameters again (a record's delays, a current-offset
+    ripple, a delay in ticks: no least-squares parameters, so no joint re-fit moves them), each
+    with the others at their values now, in turn, until none moves (SEARCH_PASSES at most).
+    Each was searched once, in its round, with the effects found after it still missing: an
+    effort delay searched beside a current-offset ripple fitted without it took 2.5 ms for 2
+    (the ripple's phase took the rest), and the ripple then stayed 30 % small. Returns the
+    changes in words (also notes)."""
+    said: list[str] = []
+    for _ in range(SEARCH_PASSES):
+        moved = False
+        for found in [f for f in state.found if not f.own and removable([f], state.doc)]:
+            ranking = {c.name: c for c in ranked(ctx, state.outputs, ())}
+            cand = ranking.get(found.name)
+            if cand is None:
+                continue
+            try:
+                edit = cand.effect.edit(state.doc, cand)
+            except LookupError:
+                continue
+            twin = Twin.compile(model_of(edit.doc))
+            result = grid_search(twin, edit, ctx.drive, meas)
+            state.simulations += result.evaluations
+            if not result.converged or not result.cost < state.cost * (1.0 - 1e-9):
+                continue
+            doc = model_of(edit.doc)
+            for name, value in result.values.items():
+                doc = doc.set(name, value)
+            before = {k: state.doc.get(k) for k in result.values}
+            state.doc, state.twin = doc, Twin.compile(doc)
+            state.outputs, state.cost = result.outputs, result.cost
+            words = f"{found.name} searched again with the other effects in: " + ", ".join(
+                f"{k} {before[k]:.4g} -> {v:.4g}" for k, v in result.values.items()
+            )
+            said.append(words)
+            ctx.notes.append(words)
+            ctx.progress(f"  {words}")
+            moved = True
+        if not moved:
+            break
+    return said
