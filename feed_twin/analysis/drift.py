@@ -36,7 +36,8 @@ DRIFT_EXPLAINED = 0.2
 MIN_CHANGE = 0.05  # [1] of the parameter's value over the record
 # the laws' shapes (a Stribeck speed, a phase, a period) do not drift; their sizes do: a
 # Stribeck speed that "drifted" by 9 % on a clean record took a model error of the loop
-SHAPES = ("v_s", "phase", "period")
+# a drift's own rate (plant.guide_friction's friction_drift) does not drift either
+SHAPES = ("v_s", "phase", "period", "drift_per_s")
 
 
 @dataclass(frozen=True, kw_only=True)
