@@ -171,9 +171,10 @@ def _drift_edit(doc: Document, cand: Weights) -> Edit:
     docstring): one parameter, the rate, fitted with the friction's own terms (they interact).
     The ranking's weights start it: a friction F_0 (1 + r t) that the model holds at its mean
     over the record, F_0 (1 + r t_mid), leaves F_0 r (t - t_mid) times the law's shape, so the
-    weight over the friction at the record's start is the rate; the friction's terms are then
-    scaled back to their start, which keeps the friction at the record's middle. A model whose
-    guides have no friction yet has nothing to drift."""
+    weight over the friction at the record's start is the rate. The terms stay as they are: a
+    term the rounds fitted (at its mean) is fitted again with the rate (analysis.trials), a
+    term of the data sheet they did not touch is the machine's at the start of the run, which
+    is where the drift counts from. A model whose guides have no friction has nothing to drift."""
     fr = doc.friction()
     if fr is None or not any(doc.get(f"{fr}.{n}") > 0.0 for n in DRIFT_SIZES):
         raise LookupError("the model has no guide friction to drift")
@@ -186,13 +187,12 @@ def _drift_edit(doc: Document, cand: Weights) -> Edit:
         (cand.force("t_sign_v"), coulomb) if coulomb > 0.0 else (cand.force("t_v"), viscous)
     )
     start = term - weight * t_mid
-    rate = weight / start if term > 0.0 and start > 0.0 else 0.0
+    rate = (doc.get(slot) if doc.has_slot(slot) else 0.0) + (
+        weight / start if term > 0.0 and start > 0.0 else 0.0
+    )
     if rate == 0.0:
         rate = 0.01  # [1/s] a start the fit moves (0 would compile the model without drift)
     rate = min(max(rate, -0.5 * DRIFT_LIMIT_PER_S), 0.5 * DRIFT_LIMIT_PER_S)
-    shrink = 1.0 / (1.0 + rate * t_mid) if 1.0 + rate * t_mid > 0.0 else 1.0
-    for name in DRIFT_SIZES:
-        doc = doc.set(f"{fr}.{name}", doc.get(f"{fr}.{name}") * shrink)
     doc = doc.set(slot, rate)
     own = [
         FreeParameter(
