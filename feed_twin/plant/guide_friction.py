@@ -187,7 +187,7 @@ def _drift_edit(doc: Document, cand: Weights) -> Edit:
         (cand.force("t_sign_v"), coulomb) if coulomb > 0.0 else (cand.force("t_v"), viscous)
     )
     start = term - weight * t_mid
-    rate = (doc.get(slot) if doc.has_slot(slot) else 0.0) + (
+    rate = float(doc.component(fr)["params"].get("drift_per_s", 0.0)) + (
         weight / start if term > 0.0 and start > 0.0 else 0.0
     )
     if rate == 0.0:
