@@ -17,6 +17,10 @@ force and a viscous one on a record at one speed) are not both named.
 
 A friction that grows by 30 % over the record is then said as such ("guide.F_c drifts by
 +0.22 N/s, +30 % over the record"), not taken for a law of speed that the record cannot hold.
+The guides' friction drift is also an effect of the library (friction_drift, plant.guide_friction:
+every term times 1 + rate t), which the rounds fit with the other effects, so that the effects
+found beside it are fitted to a drifting friction; what this module finds is the drift left
+beside the effects found (its rate is a SHAPE: it does not drift itself).
 """
 
 from __future__ import annotations
