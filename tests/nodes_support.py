@@ -50,6 +50,20 @@ def last_json(stdout: str) -> dict:
     return json.loads(stdout.strip().splitlines()[-1])
 
 
+def raw_topics(bag: str) -> dict[str, list[bytes]]:
+    """Every topic's message bytes in the bag, in the order written (as the nodes made them:
+    the run's signatures do not reach the bag)."""
+    from mcap.reader import make_reader
+
+    from feed_twin.io.bag import info
+
+    out: dict[str, list[bytes]] = {}
+    with open(info(bag).mcap_path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            out.setdefault(channel.topic, []).append(message.data)
+    return out
+
+
 def wait_for(path: Path, pattern: str, proc, timeout_s: float = 120.0) -> None:
     """Until `pattern` appears in the log `path` of the run `proc` (which must not end first)."""
     wait_for_all(path.parent, [pattern], proc, timeout_s, files=path.name)

@@ -10,8 +10,11 @@ from pathlib import Path
 import pytest
 
 from feed_twin.launch.axis import ARGUMENTS, AxisRunFiles, axis_plan, roles
+from feed_twin.launch.machine import machine_plan
 from feed_twin.launch.plan import NodeSpec, ProcessSpec, RunPlan, host_argv
 from feed_twin.launch.request import RunRequest
+from feed_twin.machine.config import load_run_config
+from feed_twin.machine.nodes import node_plan
 from feed_twin.nodeset.config import load_node_set_config
 from feed_twin.nodeset.roles import COMMON_ARGUMENTS, HOST_MODULE, node_role
 
@@ -64,6 +67,16 @@ def test_one_node_runs_its_module_and_several_share_the_host() -> None:
         ),
         (lambda: RunRequest(config=AXIS, program=None, nc="fanuc"), "nc = 'fanuc': must be one"),
         (
+            lambda: dataclasses.replace(node_plan(load_run_config(AXIS)), recorder_with="disk"),
+            "recorder_with = 'disk': must be one of gcode, sim, own, auto",
+        ),
+        (
+            lambda: machine_plan(
+                node_plan(load_run_config(AXIS)), RunRequest(config=AXIS, program=None), Path("b")
+            ),
+            "a node set needs a PROGRAM (or --no-gcode)",
+        ),
+        (
             lambda: RunRequest(config=AXIS, program=None, startup_timeout_s=0.0),
             "startup_timeout_s = 0.0: must be > 0",
         ),
@@ -86,29 +99,30 @@ def test_a_repeatable_role_may_run_twice_in_one_process() -> None:
 
 
 def test_the_lockstep_axis_run_records_in_the_sims_process() -> None:
-    plan = axis_plan(REQUEST, load_node_set_config(AXIS), FILES)
+    """An axis's node set is its one-axis machine's plan, with the nodes of the axis run."""
+    plan = machine_plan(node_plan(load_run_config(AXIS)), REQUEST, Path("out/run"))
     assert plan.names == ("controller", "sim", "gcode") and plan.clock == "sim"
+    assert not plan.stop_on_failure  # the axis's nodes watch each other
     sim = plan.process("sim")
     assert sim.roles == ("sim", "recorder")
     assert sim.nodes[1].argv == (
-        "--config", str(AXIS), "--peers", "controller,sim,gcode", "--startup-timeout", "120.0",
-        "--input-timeout", "10.0", "--bag", "out/run",
+        "--config", str(AXIS), "--peers", "gcode,controller,sim", "--startup-timeout", "120.0",
+        "--input-timeout", "10.0", "--machine-axes", "", "--command-axes", "", "--bag", "out/run",
     )  # fmt: skip
-    # one process: every node in role order, the recorder first
-    one = axis_plan(dataclasses.replace(REQUEST, transport="single_process"),
-                    load_node_set_config(AXIS), FILES)  # fmt: skip
-    assert [n.role for n in one.nodes()] == ["recorder", "controller", "sim", "gcode"]
+    # the sim publishes /clock (no --axis-clock) and the G-code node commands X alone
+    assert plan.process("sim").nodes[0].argv[-1] == "10.0"
+    assert "--axis-clock" not in plan.process("gcode").nodes[0].argv
+    # one process: every node in plan order
+    assert [n.role for n in plan.nodes()] == ["controller", "sim", "recorder", "gcode"]
 
 
 def test_each_mode_starts_its_roles_with_its_clock() -> None:
     ros = load_node_set_config(AXIS)
     shadow = dataclasses.replace(REQUEST, shadow=True)
     linuxcnc = dataclasses.replace(shadow, nc="linuxcnc")
-    external = dataclasses.replace(REQUEST, no_gcode=True)
     assert axis_plan(shadow, ros, FILES).clock == "standin"
     assert axis_plan(linuxcnc, ros, FILES).names == ("recorder", "twin", "linuxcnc")
     assert axis_plan(linuxcnc, ros, FILES).clock == "linuxcnc"
-    assert roles(external) == ("recorder", "controller", "sim")
     twin = axis_plan(dataclasses.replace(shadow, live_url="rerun+http://h"), ros, FILES)
     assert twin.process("twin").nodes[0].argv[-2:] == ("--rerun-url", "rerun+http://h")
     assert twin.process("recorder").nodes[0].argv[-2:] == ("--twin-namespace", "/cnc/x/twin")
@@ -124,12 +138,12 @@ def test_every_launch_argument_is_one_the_registry_declares_for_its_role() -> No
             assert options <= allowed, (node.role, options - allowed)
 
 
-def _every_request():
+def _every_request(shadow_only: bool = True):
     for shadow, nc, realtime, live, max_time, stop in itertools.product(
         (False, True), ("feed_twin", "linuxcnc"), (False, True), (None, "rerun+http://h"),
         (None, 2.5), (False, True),
     ):  # fmt: skip
-        if nc == "linuxcnc" and not shadow:
+        if (nc == "linuxcnc" or shadow_only) and not shadow:
             continue
         yield dataclasses.replace(
             REQUEST, shadow=shadow, nc=nc, realtime=realtime, live_url=live, max_time_s=max_time,
@@ -159,7 +173,9 @@ def test_every_machine_launch_argument_is_one_the_registry_declares(tmp_path) ->
 
     config = ROOT / "config" / "machine_default.yaml"
     machine = load_machine_config(config)
-    request = RunRequest(config=config, program=Path("p.ngc"), realtime=True)
+    request = RunRequest(
+        config=config, program=Path("p.ngc"), realtime=True, live_url="rerun+http://h"
+    )
     bag = tmp_path / "run"
     plans = [
         machine_plan(node_plan(machine, tmp_path), request, bag),
@@ -168,6 +184,13 @@ def test_every_machine_launch_argument_is_one_the_registry_declares(tmp_path) ->
     ]
     assert [p.clock for p in plans] == ["x_sim", "x_standin", "linuxcnc"]
     assert all(p.stop_on_failure for p in plans)
+    # --live: the node set's recorder streams every axis, each shadow twin its dashboard
+    recorder = next(n for n in plans[0].nodes() if n.role == "recorder")
+    assert recorder.argv[-2:] == ("--live-url", "rerun+http://h")
+    twins = [n for plan in plans[1:] for n in plan.nodes() if n.role == "twin"]
+    assert len(twins) == 6 and all("rerun+http://h" in n.argv for n in twins)
+    axis = node_plan(load_run_config(AXIS))  # every option of an axis's node set
+    plans += [machine_plan(axis, r, bag) for r in _every_request(shadow_only=False) if not r.shadow]
     for plan in plans:
         for node in plan.nodes():
             options = {a for a in node.argv if a.startswith("--")}

@@ -18,13 +18,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from mcap.reader import make_reader
-from nodes_support import last_json, run, start_run
+from nodes_support import last_json, raw_topics, run, start_run
 from run_report_support import assert_report
 
 from feed_twin.cli import main as cli_main
 from feed_twin.gcode import load_nc_config, plan_program
-from feed_twin.io.bag import BagReader, info
+from feed_twin.io.bag import BagReader
 from feed_twin.machine.config import load_machine_config
 from feed_twin.machine.nodes import chosen_processes, node_plan, write_axis_files
 from feed_twin.nodeset.config import load_node_set_config
@@ -126,16 +125,6 @@ def test_three_axes_in_their_own_nodes_equal_their_in_process_exchanges(helix):
     assert contour[-1] < 0.2 * contour.max()
 
 
-def _raw_topics(bag: str) -> dict[str, list[bytes]]:
-    """Every topic's message bytes in the bag, in the order written (as the nodes made them:
-    the run's signatures do not reach the bag)."""
-    out: dict[str, list[bytes]] = {}
-    with open(info(bag).mcap_path, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            out.setdefault(channel.topic, []).append(message.data)
-    return out
-
-
 @pytest.mark.ros
 @pytest.mark.slow
 @pytest.mark.parametrize(
@@ -153,7 +142,7 @@ def test_every_controller_layout_records_the_same_bytes(helix, tmp_path, ros, pr
     config = machine_file(tmp_path, **ros)
     other = run_helix(tmp_path / "out", program, config)  # program_state names its path
     assert sorted(p.stem for p in Path(other["logs"]).glob("*.log")) == processes
-    a, b = _raw_topics(default["bag"]), _raw_topics(other["bag"])
+    a, b = raw_topics(default["bag"]), raw_topics(other["bag"])
     assert set(a) == set(b)
     # heartbeats and log lines carry wall time; every other topic is the run's result
     compared = [t for t in a if not t.endswith("/heartbeat") and t != "/rosout"]

@@ -12,8 +12,11 @@ import pytest
 from nodes_support import AXIS_CONFIG, node_env
 
 from feed_twin.launch.axis import AxisRunFiles, axis_plan
+from feed_twin.launch.machine import machine_plan
 from feed_twin.launch.plan import host_argv
 from feed_twin.launch.request import RunRequest
+from feed_twin.machine.config import load_run_config
+from feed_twin.machine.nodes import NodePlan, node_plan
 from feed_twin.nodeset.config import load_node_set_config
 from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.ros.host import split_argv, stops_at_first_failure
@@ -98,21 +101,26 @@ def test_a_bad_host_command_line_exits_with_one_line() -> None:
     ]
 
 
-def _processes(request: RunRequest, ros) -> dict[str, tuple[str, ...]]:
-    files = AxisRunFiles(bag=Path("b"), rrd=Path("b.rrd"), map=Path("b_map.yaml"))
-    return {p.name: p.roles for p in axis_plan(request, ros, files).processes}
+def _processes(request: RunRequest, plan: NodePlan) -> dict[str, tuple[str, ...]]:
+    return {p.name: p.roles for p in machine_plan(plan, request, Path("b")).processes}
 
 
 def test_the_recorder_records_in_the_sims_process_in_lockstep_unless_configured_otherwise() -> None:
-    ros = load_node_set_config(AXIS_CONFIG)
-    assert ros.recorder_host == "auto"
+    assert load_node_set_config(AXIS_CONFIG).recorder_host == "auto"
+    plan = node_plan(load_run_config(AXIS_CONFIG))  # the axis's node set: a one-axis machine
+    assert (plan.axis_file, plan.recorder_with) == (True, "auto")
     lockstep = RunRequest(config=AXIS_CONFIG, program=Path("p.ngc"))
     realtime = dataclasses.replace(lockstep, realtime=True)
-    shadow = dataclasses.replace(lockstep, shadow=True)
+    external = dataclasses.replace(lockstep, no_gcode=True, program=None)
     together = {"controller": ("controller",), "sim": ("sim", "recorder"), "gcode": ("gcode",)}
     apart = {r: (r,) for r in ("recorder", "controller", "sim", "gcode")}
-    assert _processes(lockstep, ros) == together
-    assert _processes(realtime, ros) == apart  # the sim must not wait for bag writing
-    assert _processes(lockstep, dataclasses.replace(ros, recorder_host="own")) == apart
-    assert _processes(realtime, dataclasses.replace(ros, recorder_host="sim")) == together
-    assert _processes(shadow, ros) == {r: (r,) for r in ("recorder", "twin", "standin", "gcode")}
+    assert _processes(lockstep, plan) == together
+    assert _processes(realtime, plan) == apart  # the sim must not wait for bag writing
+    assert _processes(lockstep, dataclasses.replace(plan, recorder_with="own")) == apart
+    assert _processes(realtime, dataclasses.replace(plan, recorder_with="sim")) == together
+    assert _processes(external, plan) == {"controller": ("controller",), "sim": ("sim", "recorder")}
+    shadow = dataclasses.replace(lockstep, shadow=True)
+    files = AxisRunFiles(bag=Path("b"), rrd=Path("b.rrd"), map=Path("b_map.yaml"))
+    ros = load_node_set_config(AXIS_CONFIG)
+    shadow_processes = {p.name: p.roles for p in axis_plan(shadow, ros, files).processes}
+    assert shadow_processes == {r: (r,) for r in ("recorder", "twin", "standin", "gcode")}

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from known_gaps import CROSS_COUPLING_FIT
-from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, last_json, run
+from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, raw_topics, run
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from run_report_support import assert_report
@@ -170,7 +170,16 @@ def test_single_process_gives_the_same_trajectory(setup: dict, multi: dict) -> N
             domain.domain_id,
         )  # fmt: skip
     assert code == 0, err
-    single = last_json(out)
+    single = assert_report(out)  # the report of every mode, with the same figures
+    assert (single["mode"], multi["mode"]) == ("axis nodes, one process", "axis nodes")
+    assert set(single) == set(multi)
     a = BagReader(single["bag"]).columns("/cnc/x/state", ["table_position"])["table_position"]
     b = BagReader(multi["bag"]).columns("/cnc/x/state", ["table_position"])["table_position"]
     np.testing.assert_array_equal(a, b)
+    # the same bytes on every topic of the run's result (heartbeats and logs carry wall time)
+    one, several = raw_topics(single["bag"]), raw_topics(multi["bag"])
+    assert set(one) == set(several)
+    compared = [t for t in one if not t.endswith("/heartbeat") and t != "/rosout"]
+    assert "/clock" in compared and len(compared) == 8
+    for topic in compared:
+        assert one[topic] == several[topic], topic

@@ -1,15 +1,13 @@
-"""The run plan of one axis's node set, in each mode of `feed-twin run`.
+"""The run plan of one axis's shadow node set (`feed-twin run --shadow`, and `--nc linuxcnc`).
 
-Roles by mode (the NC, and whether the stand-in machine and the shadow twin run):
+Roles by NC:
 
-    feed_twin NC           recorder, controller, sim, gcode
-    feed_twin NC, shadow   recorder, twin, standin, gcode
-    LinuxCNC, shadow       recorder, twin, linuxcnc
+    feed_twin NC   recorder, twin, standin, gcode
+    LinuxCNC       recorder, twin, linuxcnc
 
-Each node runs in its own process (with `--single-process` all in this one, in role order),
-except that in lockstep the recorder records inside the sim's process (`ros.recorder_host`
-auto or sim; feed_twin/ros/host.py). The clock process is the one whose node paces the run:
-the sim, the stand-in, or LinuxCNC's bridge. `--no-gcode` leaves the G-code node out.
+Each node runs in its own process. The clock process is the one whose node paces the run: the
+stand-in, or LinuxCNC's bridge. An axis's node set without the shadow twin is its one-axis
+machine's (feed_twin.machine.nodes, launch/machine.py).
 """
 
 from __future__ import annotations
@@ -21,9 +19,7 @@ from pathlib import Path
 from feed_twin.launch.plan import NodeSpec, ProcessSpec, RunPlan
 from feed_twin.launch.request import RunRequest
 from feed_twin.nodeset.config import NodeSetConfig
-from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
-
-AXIS_ROLES = (RECORDER_NODE, "controller", "sim", "gcode")
+from feed_twin.nodeset.topics import AxisTopics
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -39,39 +35,24 @@ def roles(request: RunRequest) -> tuple[str, ...]:
     """The run's node roles (module docstring), in start order."""
     if request.nc == "linuxcnc":
         return ("recorder", "twin", "linuxcnc")
-    every = ("recorder", "twin", "standin", "gcode") if request.shadow else AXIS_ROLES
-    return tuple(r for r in every if not (r == "gcode" and request.no_gcode))
+    return ("recorder", "twin", "standin", "gcode")
 
 
 def clock_role(request: RunRequest) -> str:
     """The node that sets the pace and reports PROGRESS and TIMING."""
-    if request.nc == "linuxcnc":
-        return "linuxcnc"
-    return "standin" if request.shadow else "sim"
+    return "linuxcnc" if request.nc == "linuxcnc" else "standin"
 
 
 def _recorder(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> list[str]:
-    argv = ["--bag", str(files.bag)]
-    if request.live_url and not request.shadow:
-        argv += ["--live-url", request.live_url]
-    if request.shadow:
-        from feed_twin.shadow.replay import twin_namespace
+    from feed_twin.shadow.replay import twin_namespace
 
-        command = AxisTopics(machine=ros.machine, axis=ros.axis).command
-        argv += ["--twin-namespace", twin_namespace(command)]
-    return argv
+    command = AxisTopics(machine=ros.machine, axis=ros.axis).command
+    return ["--bag", str(files.bag), "--twin-namespace", twin_namespace(command)]
 
 
 def _gcode(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> list[str]:
     argv = ["--program", str(request.program), "--autostart"]
     return argv + (["--optional-stop"] if request.optional_stop else [])
-
-
-def _sim(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> list[str]:
-    argv = ["--realtime"] if request.realtime else []
-    if request.max_time_s is not None:
-        argv += ["--max-time", str(request.max_time_s)]
-    return argv
 
 
 def _standin(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> list[str]:
@@ -95,11 +76,9 @@ def _twin(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> list[
 ARGUMENTS: dict[str, Callable[[RunRequest, NodeSetConfig, AxisRunFiles], list[str]]] = {
     "recorder": _recorder,
     "gcode": _gcode,
-    "sim": _sim,
     "standin": _standin,
     "linuxcnc": _linuxcnc,
     "twin": _twin,
-    "controller": lambda request, ros, files: [],
 }
 
 
@@ -111,20 +90,9 @@ def node_spec(role: str, request: RunRequest, ros: NodeSetConfig, files: AxisRun
 
 
 def axis_plan(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> RunPlan:
-    """The processes of the run (module docstring)."""
-    names = roles(request)
-    nodes = {role: node_spec(role, request, ros, files) for role in names}
-    own = ros.recorder_host == "own" or (ros.recorder_host == "auto" and request.realtime)
-    # one process: the nodes in role order on one executor (the plan's nodes())
-    alone = own or request.shadow or request.transport == "single_process"
-    if alone or RECORDER_NODE not in names:
-        processes = [ProcessSpec(name=r, nodes=(nodes[r],)) for r in names]
-    else:
-        processes = [
-            ProcessSpec(
-                name=r, nodes=(nodes[r], nodes[RECORDER_NODE]) if r == "sim" else (nodes[r],)
-            )
-            for r in names
-            if r != RECORDER_NODE
-        ]
+    """The processes of the run, one per node (module docstring)."""
+    processes = [
+        ProcessSpec(name=role, nodes=(node_spec(role, request, ros, files),))
+        for role in roles(request)
+    ]
     return RunPlan(processes=tuple(processes), clock=clock_role(request))

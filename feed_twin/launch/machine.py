@@ -2,7 +2,8 @@
 node set (feed_twin.machine.shadow_nodes), as `RunPlan`s the executors run.
 
 One process failing stops the others at once (`stop_on_failure`): an axis's nodes do not watch
-the other axes' nodes. The clock is the first axis's sim (node set) or stand-in (shadow), or
+the other axes' nodes (an axis file's one-axis machine: its nodes watch each other, as they
+did). The clock is the first axis's sim (node set) or stand-in (shadow), or
 LinuxCNC's bridge when LinuxCNC is the machine.
 """
 
@@ -12,7 +13,7 @@ from pathlib import Path
 
 from feed_twin.launch.plan import RunPlan
 from feed_twin.launch.request import RunRequest
-from feed_twin.machine.nodes import NodePlan, chosen_processes
+from feed_twin.machine.nodes import NodePlan, NodeRunOptions, chosen_processes
 from feed_twin.machine.shadow_nodes import ShadowPlan
 
 CLOCK_ROLES = ("sim", "standin", "machine_linuxcnc")  # the roles that pace a machine's run
@@ -24,19 +25,32 @@ def _clock(processes: dict[str, list[tuple[str, list[str]]]]) -> str | None:
 
 def machine_plan(plan: NodePlan, request: RunRequest, bag: Path) -> RunPlan:
     """The machine's node set, only the processes `request.start` names (ValueError naming a
-    name that is neither a process nor a role, feed_twin.machine.nodes.chosen_processes)."""
-    if request.program is None:
-        raise ValueError("a machine's node set needs a PROGRAM")
+    name that is neither a process nor a role, feed_twin.machine.nodes.chosen_processes; and
+    without a PROGRAM unless --no-gcode)."""
+    options = NodeRunOptions(
+        no_gcode=request.no_gcode,
+        optional_stop=request.optional_stop,
+        max_time_s=request.max_time_s,
+        live_url=request.live_url,
+    )
     processes = plan.processes(
-        program=request.program, bag=bag, realtime=request.realtime, common=request.common_argv()
+        program=request.program,
+        bag=bag,
+        realtime=request.realtime,
+        common=request.common_argv(),
+        options=options,
     )
     here = chosen_processes(processes, request.start)
-    return RunPlan.of(processes, clock=_clock(processes), stop_on_failure=True).only(here)
+    # an axis file's nodes watch each other (NodePlan's docstring)
+    stop = not plan.axis_file
+    return RunPlan.of(processes, clock=_clock(processes), stop_on_failure=stop).only(here)
 
 
 def machine_shadow_plan(plan: ShadowPlan, request: RunRequest, bag: Path) -> RunPlan:
     """The machine's shadow node set: per axis a stand-in (or LinuxCNC for all) and a twin."""
     if request.program is None:
         raise ValueError("a machine's shadow node set needs a PROGRAM")
-    processes = plan.processes(program=request.program, bag=bag, common=request.common_argv())
+    processes = plan.processes(
+        program=request.program, bag=bag, common=request.common_argv(), live_url=request.live_url
+    )
     return RunPlan.of(processes, clock=_clock(processes), stop_on_failure=True)

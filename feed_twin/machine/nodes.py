@@ -45,6 +45,10 @@ from feed_twin.nodeset.topics import AxisTopics
 NODE_ROS_NAME_KEYS = ("axis",)  # the machine's axes name their nodes' namespaces themselves
 RECORDER_PROCESS = "recorder"  # hosts the recorder and the G-code node
 CONTROLLER_PROCESS = "controller"  # hosts every axis's controller node (shared layout)
+GCODE_PROCESS = "gcode"  # the G-code node alone, when the recorder runs elsewhere
+# where the recorder runs: beside the G-code node (a machine's), or an axis file's
+# ros.recorder_host: in its sim's process (sim), its own (own), or auto (NodePlan._recorder_place)
+RECORDER_PLACES = ("gcode", "sim", "own", "auto")
 # ros.controller_processes: "with_sim" (the default), each axis's controller node in its sim's
 # process (`<axis>_sim`): the exchange's DriveCommand and feedback pass within one process and
 # one thread, without a datagram or a wake-up; "shared", one process for every axis's
@@ -163,13 +167,30 @@ def write_documents(
     return files
 
 
+@dataclass(frozen=True, kw_only=True)
+class NodeRunOptions:
+    """The run's options that reach the nodes beyond the program, bag and pace."""
+
+    no_gcode: bool = False  # no G-code node: the commands come from an external NC
+    optional_stop: bool = False  # M1 pauses
+    max_time_s: float | None = None  # [s] simulated at most (each sim's --max-time)
+    live_url: str | None = None  # the live viewer the recorder streams to
+
+
 def process_name(axis: str, role: str) -> str:
     return f"{axis.lower()}_{role}"
 
 
 @dataclass(frozen=True, kw_only=True)
 class NodePlan:
-    """The processes of a machine run: name -> (node module role, its arguments)."""
+    """The processes of a machine run: name -> (node module role, its arguments).
+
+    An axis file run as a one-axis machine (`axis_file`, `node_plan`) keeps the single-axis
+    run's node set: its sim publishes `/clock` (the ROS sim-time topic) instead of
+    `<namespace>/clock`, the G-code node commands the twin_axis only, the controller runs in
+    a process of its own, the recorder where `ros.recorder_host` says (`recorder_with`), the
+    processes are named by role (`sim`, `controller`, `gcode`, `recorder`) and their nodes
+    notice a lost peer by its heartbeat (no `stop_on_failure`)."""
 
     machine: str
     axes: tuple[str, ...]  # simulated NC axes, in the NC's order
@@ -177,47 +198,101 @@ class NodePlan:
     files: dict[str, Path]  # simulated axis -> its config file
     controller_processes: str = DEFAULT_CONTROLLER_LAYOUT  # CONTROLLER_LAYOUTS
     command_batch: bool = True  # setpoints packed from the G-code node to the controllers
+    axis_file: bool = False  # an axis YAML as a one-axis machine (class docstring)
+    recorder_with: str = "gcode"  # RECORDER_PLACES: the process the recorder runs in
+
+    def __post_init__(self) -> None:
+        if self.recorder_with not in RECORDER_PLACES:
+            raise ValueError(
+                f"recorder_with = {self.recorder_with!r}: must be one of "
+                f"{', '.join(RECORDER_PLACES)}"
+            )
+
+    def process_name(self, axis: str, role: str) -> str:
+        """`<axis>_<role>`; an axis file's processes by role alone (`sim`, as before)."""
+        return role if self.axis_file else process_name(axis, role)
 
     def processes(
-        self, *, program: Path, bag: Path, realtime: bool, common: list[str]
+        self,
+        *,
+        program: Path | None,
+        bag: Path,
+        realtime: bool,
+        common: list[str],
+        options: NodeRunOptions | None = None,
     ) -> dict[str, list[tuple[str, list[str]]]]:
         """Process name -> its nodes (role, arguments); `common`: arguments every node takes
-        (timeouts; the peer timeout is added here). The G-code node runs inside the recorder's
-        process (one DDS participant, feed_twin/ros/host.py): its commands reach the recorder
-        by a function call instead of a datagram each, and the process is stopped last."""
+        (timeouts; a machine's peer timeout is added here). A machine's G-code node runs inside
+        the recorder's process (one DDS participant, feed_twin/ros/host.py): its commands
+        reach the recorder by a function call instead of a datagram each, and the process is
+        stopped last."""
+        options = options or NodeRunOptions()
+        if program is None and not options.no_gcode:
+            raise ValueError("a node set needs a PROGRAM (or --no-gcode)")
         first, others = self.axes[0], self.axes[1:]
-        common = [*common, "--peer-timeout", str(PEER_TIMEOUT_S)]
+        if not self.axis_file:
+            common = [*common, "--peer-timeout", str(PEER_TIMEOUT_S)]
+        clock = [] if self.axis_file else ["--axis-clock"]
         axis_roles = ("controller", "sim")
         shared = [
             "--machine-axes", ",".join(a.lower() for a in others),
             "--command-axes", ",".join(a.lower() for a in self.command_axes),
         ]  # fmt: skip
-        everyone = ["recorder", "gcode", *axis_roles]
+        front = ("recorder",) if options.no_gcode else ("recorder", "gcode")
+        everyone = [*front, *axis_roles]
         everyone += [f"{a.lower()}/{r}" for a in others for r in axis_roles]
-        batch = ["--command-batch"] if self.command_batch else []
-        out: dict[str, list[tuple[str, list[str]]]] = {RECORDER_PROCESS: []}
-        for role, extra in (("recorder", ["--bag", str(bag)]),
-                            ("gcode", ["--program", str(program), "--autostart",
-                                       "--axis-clock", *batch])):  # fmt: skip
+        batch = ["--command-batch"] if self.command_batch and not options.no_gcode else []
+        recorder = ["--bag", str(bag)]
+        recorder += ["--live-url", options.live_url] if options.live_url else []
+        gcode = ["--program", str(program), "--autostart", *clock, *batch]
+        gcode += ["--optional-stop"] if options.optional_stop else []
+        front_nodes: dict[str, tuple[str, list[str]]] = {}
+        for role, extra in (("recorder", recorder), ("gcode", gcode))[: len(front)]:
             peers = ",".join(p for p in everyone if p != role)
-            out[RECORDER_PROCESS].append((role, ["--config", str(self.files[first]), "--peers",
-                                                 peers, *common, *shared, *extra]))  # fmt: skip
+            front_nodes[role] = (role, ["--config", str(self.files[first]), "--peers", peers,
+                                        *common, *shared, *extra])  # fmt: skip
+        sim_extra = [*clock, *(["--realtime"] if realtime else [])]
+        if options.max_time_s is not None:
+            sim_extra += ["--max-time", str(options.max_time_s)]
+        place = self._recorder_place(realtime)
+        out = self._front(front_nodes, place)
         for axis in self.axes:
             nodes = {}
             for role in axis_roles:
-                peers = ",".join(p for p in ("recorder", "gcode", *axis_roles) if p != role)
-                extra = {"sim": ["--axis-clock"] + (["--realtime"] if realtime else []),
-                         "controller": batch}[role]  # fmt: skip
+                peers = ",".join(p for p in (*front, *axis_roles) if p != role)
+                extra = {"sim": sim_extra, "controller": batch}[role]
                 argv = ["--config", str(self.files[axis]), "--peers", peers, *common]
                 nodes[role] = (role, argv + extra)
             if self.controller_processes == "shared":
                 out.setdefault(CONTROLLER_PROCESS, []).append(nodes["controller"])
             elif self.controller_processes == "per_axis":
-                out[process_name(axis, "controller")] = [nodes["controller"]]
+                out[self.process_name(axis, "controller")] = [nodes["controller"]]
             # with_sim: the sim first (the run's clock and timing are its process's first node)
             with_sim = [nodes["controller"]] if self.controller_processes == "with_sim" else []
-            out[process_name(axis, "sim")] = [nodes["sim"], *with_sim]
+            beside = [front_nodes["recorder"]] if place == "sim" and axis == first else []
+            out[self.process_name(axis, "sim")] = [nodes["sim"], *with_sim, *beside]
+        if self.axis_file and GCODE_PROCESS in out:  # started last, as the axis run did
+            out[GCODE_PROCESS] = out.pop(GCODE_PROCESS)
         return out
+
+    def _recorder_place(self, realtime: bool) -> str:
+        """Where the recorder runs; an axis file's `auto`: in the sim's process in lockstep,
+        its own in real time (the sim must not wait for bag writing)."""
+        if self.recorder_with == "auto":
+            return "own" if realtime else "sim"
+        return self.recorder_with
+
+    @staticmethod
+    def _front(
+        nodes: dict[str, tuple[str, list[str]]], place: str
+    ) -> dict[str, list[tuple[str, list[str]]]]:
+        """The recorder's and the G-code node's processes (the recorder in the first sim's
+        process is added there by `processes`)."""
+        recorder, gcode = nodes["recorder"], nodes.get("gcode")
+        if place == "gcode" and gcode is not None:
+            return {RECORDER_PROCESS: [recorder, gcode]}
+        out = {} if place == "sim" else {RECORDER_PROCESS: [recorder]}
+        return out | ({GCODE_PROCESS: [gcode]} if gcode is not None else {})
 
     def axes_of_process(self, name: str) -> tuple[str, ...]:
         """The NC axes whose nodes run in process `name` (none: the G-code node and recorder)."""
@@ -230,7 +305,11 @@ class NodePlan:
 def node_plan(
     machine: MachineConfig, directory: Path | None = None, *, settle_s: float | None = None
 ) -> NodePlan:
-    """Write the axis files and plan the processes (ConfigError before anything starts)."""
+    """Write the axis files and plan the processes (ConfigError before anything starts). An
+    axis file's nodes read the file itself (its ros.settle_s; `settle_s` is the machine
+    file's)."""
+    if machine.axis_file:
+        return _axis_file_plan(machine)
     files = write_axis_files(machine, directory, settle_s=settle_s)
     layout, command_batch = machine_settings(machine)
     return NodePlan(
@@ -240,6 +319,24 @@ def node_plan(
         files=files,
         controller_processes=layout,
         command_batch=command_batch,
+    )
+
+
+def _axis_file_plan(machine: MachineConfig) -> NodePlan:
+    """An axis file's one-axis machine (NodePlan's docstring): its nodes read the file as it is
+    (a file of the same text elsewhere would compile the plant's kernel again,
+    write_documents)."""
+    from feed_twin.nodeset.config import load_node_set_config
+
+    return NodePlan(
+        machine=machine.name,
+        axes=tuple(machine.axes),
+        command_axes=(),
+        files={axis: Path(machine.source) for axis in machine.axes},
+        controller_processes="per_axis",
+        command_batch=False,
+        axis_file=True,
+        recorder_with=load_node_set_config(machine.source).recorder_host,
     )
 
 

@@ -152,13 +152,15 @@ def prepare_machine(args: argparse.Namespace) -> MachineConfig | int:
             f"{', '.join(refused)}: not available for a machine config run in-process "
             f"({args.config}; without --in-process it runs as ROS nodes)",
         )
-    if args.program is None:
+    external = getattr(args, "no_gcode", False) and not args.in_process  # an axis file's
+    if args.program is None and not external:
         return _error(args, "a PROGRAM is needed")
     try:
         machine = load_run_config(args.config)
         if args.axes:
             machine = machine.select(args.axes.split(","))
-        validate_program(args.program, machine.nc)
+        if args.program is not None:
+            validate_program(args.program, machine.nc)
         for name, axis in machine.axes.items():  # the node set checks each axis's file so
             check_reachable(
                 axis,

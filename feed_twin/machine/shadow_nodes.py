@@ -86,10 +86,11 @@ class ShadowPlan:
         return ("twin",) if self.linuxcnc else ("standin", "twin")
 
     def processes(
-        self, *, program: Path, bag: Path, common: list[str]
+        self, *, program: Path, bag: Path, common: list[str], live_url: str | None = None
     ) -> dict[str, list[tuple[str, list[str]]]]:
         """Process name -> its nodes (role of feed_twin.nodeset.roles, arguments); `common`: the
-        timeouts every node takes (the peer timeout is added here)."""
+        timeouts every node takes (the peer timeout is added here); `live_url`: the live viewer
+        every twin streams its dashboard to (each axis's a recording of its own)."""
         first, others = self.axes[0], self.axes[1:]
         common = [*common, "--peer-timeout", str(PEER_TIMEOUT_S)]
         served = [
@@ -126,6 +127,7 @@ class ShadowPlan:
                 else:
                     argv += ["--map", str(self.maps[axis]), "--machine", self.machine,
                              "--axis", axis.lower(), "--rrd", str(self.rrd(bag, axis))]  # fmt: skip
+                    argv += ["--rerun-url", live_url] if live_url else []
                     if self.linuxcnc:  # the bridge sends its periods packed (linuxcnc_node)
                         topics = AxisTopics(machine=self.machine, axis=axis.lower())
                         argv += ["--batch-topic", topics.bridge_batch]

@@ -14,6 +14,8 @@ Figures:
 
 from __future__ import annotations
 
+import uuid
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -186,12 +188,21 @@ class LiveFeed:
     is decoded (`cdr.FlatCodec`) and appended to a `Dashboard` that streams to `live_url`.
     """
 
-    def __init__(self, topics: AxisTopics, live_url: str, *, decimation: int = 10) -> None:
+    def __init__(
+        self,
+        topics: AxisTopics,
+        live_url: str,
+        *,
+        decimation: int = 10,
+        recording_id: str | None = None,
+    ) -> None:
         from feed_twin.io.cdr import FlatCodec
 
         if decimation < 1:
             raise ValueError(f"decimation = {decimation!r}: must be >= 1")
-        self.dashboard = Dashboard(rrd_path=None, live_url=live_url, batch=50)
+        self.dashboard = Dashboard(
+            rrd_path=None, live_url=live_url, recording_id=recording_id, batch=50
+        )
         self.decimation = decimation
         self._count: dict[str, int] = {}
         self._codecs = {
@@ -202,6 +213,11 @@ class LiveFeed:
         }
         self._topics = topics
         self._line = -2
+
+    @property
+    def fed_topics(self) -> frozenset[str]:
+        """The topics it shows."""
+        return frozenset(self._codecs)
 
     def wants(self, topic: str) -> bool:
         return topic in self._codecs
@@ -239,3 +255,34 @@ class LiveFeed:
 
     def close(self) -> None:
         self.dashboard.close()
+
+
+class LiveFeeds:
+    """The live view of every axis a recorder serves: a `LiveFeed` per axis, one axis alone
+    as before, a machine's axes each as a recording of its own on the viewer (named by the
+    run and the axis's namespace: the axes' dashboards have the same panels)."""
+
+    def __init__(self, topics: Sequence[AxisTopics], live_url: str, *, decimation: int = 10):
+        if not topics:
+            raise ValueError("LiveFeeds needs the topics of at least one axis")
+        run = uuid.uuid4().hex[:12]
+        self.feeds = {
+            t.namespace: LiveFeed(
+                t,
+                live_url,
+                decimation=decimation,
+                recording_id=None if len(topics) == 1 else f"{run}{t.namespace.replace('/', '-')}",
+            )
+            for t in topics
+        }
+        self._by_topic = {topic: f for f in self.feeds.values() for topic in f.fed_topics}
+
+    def wants(self, topic: str) -> bool:
+        return topic in self._by_topic
+
+    def feed(self, topic: str, data: bytes) -> None:
+        self._by_topic[topic].feed(topic, data)
+
+    def close(self) -> None:
+        for feed in self.feeds.values():
+            feed.close()

@@ -8,7 +8,8 @@
    ROS domain with its run token; one process that fails stops the others at once, the
    recorder last, and the reason names the axis.
 3. Afterwards: the bag (recovered if needed), per axis the shadow dashboard its twin wrote
-   (`<bag>_<axis>.rrd`), and per axis the residuals and health (feed_twin.machine.shadow.
+   (`<bag>_<axis>.rrd`; with `--live` each twin streams it to the viewer while it runs, a
+   recording per axis), and per axis the residuals and health (feed_twin.machine.shadow.
    axis_figures: FE and effort deviation RMS, worst health level, first warning, the named
    effect) in the summary and under "shadow" in the `--json` line, as `--in-process --shadow`
    gives them.
@@ -26,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.core.config import ConfigError
-from feed_twin.io.live import show_recording
 from feed_twin.launch.machine import machine_shadow_plan
 from feed_twin.launch.request import RunRequest
 from feed_twin.machine.config import MachineConfig
@@ -41,7 +41,13 @@ from feed_twin.nodeset.run_report import (
     shown,
 )
 from feed_twin.ros import preflight
-from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s, slow_line
+from feed_twin.ros.launch import (
+    foreign_messages,
+    log_record,
+    planned_duration_s,
+    slow_line,
+    slow_nodes,
+)
 from feed_twin.ros.machine_run import check_plan, readable_bag, run_reserved
 
 # the node set plays the program in lockstep, all axes in one bag, started here
@@ -93,11 +99,8 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     timing = RunTiming.from_report(log_record(run.clock_log(result.logs), "TIMING") or {})
     bridge = linuxcnc_figures(bag, plan, bridge_said, figures) if linuxcnc and figures else None
     lines: list[str] = []
-    if figures is not None:
+    if figures is not None:  # (with --live every twin streamed its dashboard as it ran)
         lines = figure_lines(plan, figures)
-        for axis in plan.axes:
-            if plan.rrd(bag, axis).exists():
-                show_recording(getattr(args, "live_viewer", None), plan.rrd(bag, axis))
     if bridge is not None:
         lines += bridge_lines(bridge, bridge_said)
     foreign = foreign_messages(result.logs.values())
@@ -119,6 +122,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
         figures={"processes": list(run.names), **extra, **({"linuxcnc": bridge} if bridge else {})},
         figure_lines=tuple(lines),
         foreign_messages=foreign.as_dict(),
+        slow_nodes=slow_nodes(logs),
     )
     return emit(report, json_out=args.json)
 

@@ -43,6 +43,11 @@ def check_run_config(config: Path, *, shadow: bool):
 
     ros = load_node_set_config(config)
     nc = load_nc_config(config)
+    if nc.interpolation_period_s < ros.exchange_period_s - 1e-12:
+        raise ConfigError(
+            f"{config}: nc.interpolation_period_s = {nc.interpolation_period_s!r}: must not "
+            f"be shorter than ros.exchange_period_s = {ros.exchange_period_s!r}"
+        )
     axis = load_axis_config(config)
     if axis.controller is None:
         raise ConfigError(f"{config}: the node set needs a controller section")
@@ -224,35 +229,24 @@ def exit_status(code: int) -> int:
     return 128 - code if code < 0 else code
 
 
-def explain(reason: str, out, ros, program: Path | None) -> str:
-    """The run's end reason, with the program line of a drive fault added."""
-    from feed_twin.nodeset.protection import describe_trip
-    from feed_twin.nodeset.topics import AxisTopics
-
-    if reason and shutil.disk_usage(out.bag.parent).free < FULL_BYTES:
+def with_disk_full(reason: str, bag: Path) -> str:
+    """A run's end `reason` with the full file system of the bag said first."""
+    if reason and shutil.disk_usage(bag.parent).free < FULL_BYTES:
         # The nodes' logs live there too, so a node's own words may be lost: say it here.
-        free = shutil.disk_usage(out.bag.parent).free
+        free = shutil.disk_usage(bag.parent).free
         reason = f"the file system of --out is full ({free // 1024} kB free); {reason}"
-    if not reason or out.run is None:
-        return reason
-    lines = None
-    if program is not None:
-        from feed_twin.ros.gcode_node import program_lines
-
-        lines = program_lines(program)
-    command = AxisTopics(machine=ros.machine, axis=ros.axis).command
-    return describe_trip(reason, out.run, command, lines)
+    return reason
 
 
-def dashboard_room(out) -> str:
-    """'' when the output directory has room for the run's .rrd (about the bag's size),
+def dashboard_room(bag: Path, rrd: Path) -> str:
+    """'' when the output directory has room for the run's .rrd `rrd` (about the bag's size),
     else why not: Rerun's file sink does not raise on a full disk, it blocks its flush."""
-    bag_bytes = sum(p.stat().st_size for p in out.bag.glob("*") if p.is_file())
+    bag_bytes = sum(p.stat().st_size for p in bag.glob("*") if p.is_file())
     need = int(bag_bytes * 1.2) + SPARE_BYTES // 4
-    free = shutil.disk_usage(out.bag.parent).free
+    free = shutil.disk_usage(bag.parent).free
     if free < need:
         return (
-            f"no room for the dashboard {out.rrd} ({free / 1e6:.1f} MB free, about "
+            f"no room for the dashboard {rrd} ({free / 1e6:.1f} MB free, about "
             f"{need / 1e6:.1f} MB needed); the bag has the whole recording"
         )
     return ""

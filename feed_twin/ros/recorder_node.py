@@ -67,7 +67,7 @@ from feed_twin.nodeset.auth import RunAuth
 from feed_twin.nodeset.guard import OPEN_NC_ENV
 from feed_twin.nodeset.record_batch import unpack
 from feed_twin.nodeset.roles import node_role
-from feed_twin.nodeset.summary import LiveFeed
+from feed_twin.nodeset.summary import LiveFeeds
 from feed_twin.nodeset.topics import CONTROLLER_NODE, RECORDER_NODE, SIM_NODE, AxisTopics
 from feed_twin.ros.batched import batch_qos
 from feed_twin.ros.dds import DATA_QOS, HEARTBEAT_QOS, LATCHED_QOS
@@ -142,7 +142,9 @@ class RecorderNode(FeedTwinNode):
     ) -> None:
         super().__init__(RECORDER_NODE, options, context=context)
         self.bag = BagWriter(bag_path)
-        self.live = LiveFeed(self.topics, live_url) if live_url else None
+        # every served axis (a machine's recorder serves them all)
+        served = list(options.axis_topics().values())
+        self.live = LiveFeeds(served, live_url) if live_url else None
         self.bag_path = bag_path
         self._recorded: dict[str, object] = {}
         # Spun by nobody: `_drain` takes its messages (see the module docstring).
@@ -151,7 +153,7 @@ class RecorderNode(FeedTwinNode):
         )
         # (topic, subscription, counts, the run's check or None, live feed): `counts` when
         # its messages show the run still sending (not heartbeats)
-        self._takers: list[tuple[str, Subscription, bool, Check | None, LiveFeed | None]] = []
+        self._takers: list[tuple[str, Subscription, bool, Check | None, LiveFeeds | None]] = []
         # (batch topic, subscription, the topics it may carry); record_batch > 0
         self._batch_takers: list[tuple[str, Subscription, frozenset[str]]] = []
         self._next_drain = 0.0

@@ -1,25 +1,24 @@
-"""`feed-twin run PROGRAM --config CONFIG`: the G-code, controller, sim and recorder nodes.
+"""`feed-twin run PROGRAM --config CONFIG`: the run of an axis or machine config, in every mode.
 
-1. Checks the config, the program and the output directory in-process first
-   (feed_twin/ros/preflight.py: every section, the drive's reach of the NC's limits, room for
-   the bag): an error stops the run before any node starts, with one line. The run gets its
-   own ROS domain and run token (feed_twin/nodeset/guard.py) unless `--domain-id` names one.
-2. Starts the four nodes in three processes (default: the recorder records inside the sim's
-   process, `ros.recorder_host`, feed_twin/ros/host.py), four (`recorder_host: own`) or this
-   one (`--single-process`), in the current ROS domain, and shows progress (simulated time).
-3. Watches them: a node that exits with an error ends the run; the others notice a killed node
-   by its missing heartbeat within 1 s and stop too. SIGINT/SIGTERM stop every node cleanly.
-4. Afterwards: the bag (recovered if the recorder was killed), the `.rrd` next to it, and the
-   summary (cycle time, max/RMS following error, peak current, peak velocity); `--json` makes
-   the last line one JSON object with these figures, the timing and the output paths.
+Without `--shadow` (and `--nc linuxcnc`) an axis file runs as its one-axis machine
+(feed_twin.machine.config.load_run_config): its node set through feed_twin.ros.machine_run
+(the G-code, controller, sim and recorder nodes of the single-axis run, in the processes
+`ros.recorder_host` chooses, or this one with `--single-process`), in-process
+(`--in-process`) through feed_twin.machine.run_cli, as a machine file does. Every run checks
+the config, the program and the output directory in-process first (feed_twin/ros/preflight.py)
+and ends with the report of every mode (feed_twin.nodeset.run_report); `--json` makes its last
+line one JSON object.
 
-`--shadow` (the config's shadow: section): the G-code, stand-in (the "real machine", following
-the G-code node's commands; feed_twin.ros.standin_node --follow), twin and recorder nodes, as
-separate processes. The runner writes the column map `<run>_map.yaml` of the machine's topics
-first; the twin node writes the `.rrd` (the shadow dashboard; `--live` streams it); the summary
-is the machine's (following error x_setpoint - x_measured, peak measured current) plus the
-shadow figures (feed_twin.shadow.summary). Processes are started and watched by `launch`, which
-`feed-twin shadow` uses too.
+`--shadow` (the axis config's shadow: section): the G-code, stand-in (the "real machine",
+following the G-code node's commands; feed_twin.ros.standin_node --follow), twin and recorder
+nodes, as separate processes (feed_twin.launch.axis). The runner writes the column map
+`<run>_map.yaml` of the machine's topics first; the twin node writes the `.rrd` (the shadow
+dashboard; `--live` streams it); the summary is the machine's (following error x_setpoint -
+x_measured, peak measured current) plus the shadow figures (feed_twin.shadow.summary). With
+`--nc linuxcnc` LinuxCNC runs the program headless in the stand-in's place. A machine config's
+shadow node set: feed_twin.ros.machine_shadow_run. Processes are started and watched by
+`launch`, which `feed-twin shadow` uses too. SIGINT/SIGTERM stop every node cleanly; the bag
+is recovered if the recorder was killed.
 """
 
 from __future__ import annotations
@@ -39,11 +38,17 @@ from feed_twin.launch.axis import AxisRunFiles, axis_plan
 from feed_twin.launch.plan import RunPlan
 from feed_twin.launch.request import RunRequest
 from feed_twin.machine.config import is_machine_file
-from feed_twin.nodeset.foreign import ForeignLedger, merge
+from feed_twin.nodeset.foreign import ForeignLedger
 from feed_twin.nodeset.run_report import emit
 from feed_twin.ros import preflight
-from feed_twin.ros.executors import run_in_this_process, run_processes
-from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s, slow_line
+from feed_twin.ros.executors import run_processes
+from feed_twin.ros.launch import (
+    foreign_messages,
+    log_record,
+    planned_duration_s,
+    slow_line,
+    slow_nodes,
+)
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
@@ -127,7 +132,6 @@ class Outputs:
     rrd: Path
     logs: Path
     map: Path  # --shadow: the column map of the machine's topics in the bag
-    run: dict | None = None  # the bag's signals once read (feed_twin.nodeset.summary.read_run)
     recovered: int | None = None  # messages kept when the bag had to be recovered
     # what the nodes refused as foreign (feed_twin.nodeset.foreign)
     foreign: ForeignLedger = field(default_factory=ForeignLedger)
@@ -148,13 +152,6 @@ def _check_inputs(args: argparse.Namespace):
     from feed_twin.gcode import validate_program
 
     ros, nc = preflight.check_run_config(args.config, shadow=args.shadow)
-    if abs(nc.interpolation_period_s - ros.exchange_period_s) > 1e-12 and (
-        nc.interpolation_period_s < ros.exchange_period_s
-    ):
-        raise ConfigError(
-            f"{args.config}: nc.interpolation_period_s = {nc.interpolation_period_s!r}: must not "
-            f"be shorter than ros.exchange_period_s = {ros.exchange_period_s!r}"
-        )
     if args.program is not None:
         validate_program(args.program, nc)
     if args.shadow:
@@ -190,7 +187,7 @@ def _write_shadow_map(args: argparse.Namespace, ros, nc, out: Outputs) -> None:
 
 
 def _plan(args: argparse.Namespace, ros, out: Outputs) -> RunPlan:
-    """The run's processes and their nodes (feed_twin.launch.axis)."""
+    """The shadow run's processes and their nodes (feed_twin.launch.axis)."""
     files = AxisRunFiles(bag=out.bag, rrd=out.rrd, map=out.map)
     return axis_plan(RunRequest.from_args(args), ros, files)
 
@@ -203,20 +200,10 @@ def _run_processes(args: argparse.Namespace, ros, nc, out: Outputs) -> tuple[int
     return result.code, result.reason, log_record(plan.clock_log(result.logs), "TIMING") or {}
 
 
-def _run_single_process(args: argparse.Namespace, ros, out: Outputs) -> tuple[int, str, dict]:
-    """The same nodes, built by their own modules from the same arguments, in one executor."""
-    code, nodes = run_in_this_process(_plan(args, ros, out))
-    out.foreign = merge([n.foreign_record().as_dict() for n in nodes])
-    reason = next((n.exit_message for n in nodes if n.exit_code and n.exit_message), "")
-    sim = next(n for n in nodes if n.role == "sim")
-    return code, reason, sim.timing_report()
-
-
 def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
+    """The bag made readable (recovered if the recorder was killed) and the shadow figures."""
     from feed_twin.io.bag import BagError, info, recover
-    from feed_twin.nodeset.summary import read_run, summarise, write_dashboard
     from feed_twin.nodeset.topics import AxisTopics
-    from feed_twin.ros.gcode_node import program_lines
 
     if not out.bag.exists():
         return None, "no bag was written"
@@ -228,19 +215,7 @@ def _finish_outputs(args: argparse.Namespace, ros, out: Outputs):
         except BagError as exc:
             return None, f"the bag is unreadable: {exc}"
         print(f"bag: the recording was incomplete; recovered {out.recovered} messages")
-    topics = AxisTopics(machine=ros.machine, axis=ros.axis)
-    if args.shadow:
-        return _finish_shadow(args, topics, out)
-    run = out.run = read_run(out.bag, topics)  # only the run's messages were recorded
-    lines = program_lines(args.program) if args.program is not None else None
-    if room := preflight.dashboard_room(out):
-        print(f"feed-twin run: {room}", file=sys.stderr)
-    else:
-        write_dashboard(run, topics, out.rrd, program_lines=lines)
-    try:
-        return summarise(run, topics), ""
-    except ValueError as exc:
-        return None, str(exc)
+    return _finish_shadow(args, AxisTopics(machine=ros.machine, axis=ros.axis), out)
 
 
 def _finish_shadow(args: argparse.Namespace, topics, out: Outputs):
@@ -348,22 +323,21 @@ def _run(args: argparse.Namespace) -> int:
             "feed-twin run: a PROGRAM is needed (or --no-gcode for an external NC)", file=sys.stderr
         )
         return 2
+    if not args.shadow and args.nc == "feed_twin" and args.axes is None:
+        return _main_machine(args)  # an axis's node set is its one-axis machine's
     prepared = _option_problem(args) or _prepare(args)
     if isinstance(prepared, str):
         return _early_error(args, prepared)
     ros, nc, out, reservation = prepared
     try:
-        if args.single_process:
-            code, reason, timing = _run_single_process(args, ros, out)
-        else:
-            code, reason, timing = _run_processes(args, ros, nc, out)
+        code, reason, timing = _run_processes(args, ros, nc, out)
         summary, problem = _finish_outputs(args, ros, out)
     finally:
         if reservation is not None:
             reservation.release()
         preflight.end_environment(os.environ)
     code = 1 if code == 0 and summary is None else preflight.exit_status(code)
-    reason = preflight.explain(reason, out, ros, args.program)
+    reason = preflight.with_disk_full(reason, out.bag)
     reason = _said(args, out, code, reason, problem if summary is None else "")
     preflight.remove_incomplete_rrd(out.rrd)
     report = _report(args, out, code=code, reason=reason, summary=summary, timing=timing)
@@ -491,6 +465,7 @@ def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, s
         figures=figures,
         figure_lines=tuple(summary.format().splitlines()) if summary is not None else (),
         foreign_messages=out.foreign.as_dict(),
+        slow_nodes=slow_nodes(out.logs),
     )
 
 
