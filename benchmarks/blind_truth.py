@@ -14,9 +14,12 @@ compliance, friction and trace; feed_twin.truth), with effect sizes drawn at ran
   delays and offsets. A case passes when every hidden effect is named, each parameter within
   10 %, and the augmented twin's effort error on a second trajectory (VALIDATION_PROGRAM on the
   same machine) is within 1.5x of the true model's (the nominal twin with the truth's values set
-  by the library's own truth functions). A friction drift is named when the appraisal says a
-  drift of the guides' friction at a rate within 10 % of the truth's (its share per second of
-  the friction at the record's middle).
+  by the library's own truth functions). A friction drift is named as the effect
+  friction_drift (the guides' friction times 1 + rate t, fitted with the others: its rate and
+  the friction at the record's start within 10 % of the truth's), or else when the appraisal
+  says a drift of the guides' friction at a rate within 10 % of the truth's (its share per
+  second of the friction at the record's middle, and the friction there). An effect named
+  beside the hidden ones is a miss ("X named but not hidden"; listed in each case's "extra").
 - verdicts: cases whose verdict says "no significant missing effect" while a residual is more
   than 10x its sample noise (target 0).
 - search: parameter sets simulated per case and the joint selection's share of them.
@@ -244,14 +247,19 @@ def _judge(case: Case, r: dict[str, Any]) -> tuple[bool, list[str]]:
             misses.append(f"parameter error {err:.3g}")
         return not misses, misses
     expected = dict(r["hidden"]) | case.record_effects
+    # an effect named beside the hidden ones is a wrong name, not a harmless extra
+    r["extra"] = [n for n in named if n not in expected]
+    misses += [f"{n} named but not hidden" for n in r["extra"]]
+    drift_fitted = "friction_drift" in found
     for effect, truth in expected.items():
-        if effect == "friction_drift":
+        if effect == "friction_drift" and not drift_fitted:
             misses += _drift_misses(r, truth["rate_per_s"])
             continue
         if effect not in found:
             misses.append(f"{effect} not named")
             continue
-        if effect in DRIFTING and "friction_drift" in expected:
+        if effect in DRIFTING and "friction_drift" in expected and not drift_fitted:
+            # said after the fit (the appraisal): the fit holds the friction's mean
             rate = expected["friction_drift"]["rate_per_s"]
             truth = {k: v * (1.0 + rate * MID_RECORD_S) for k, v in truth.items()}
         err = _amplitude_error(found[effect], _observable(effect, truth))

@@ -32,6 +32,7 @@ REQUIRED = {
     "position_delay",  # issue 27: the trace between machine and record
     "trace_window",
     "command_delay",  # the drive's setpoint latency against the twin's loops
+    "friction_drift",  # issue 27: a friction that changes over the record
 }
 
 

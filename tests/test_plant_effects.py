@@ -113,6 +113,7 @@ def _weights(effect: str, force_per_unit: float = 1.0, **coefficients: float) ->
             2.0,
         ),
         ("channel_delay", EMPS, {"delay_s": 0.003}, {}, "analysis.effort_delay_s", 0.003),
+        ("friction_drift", AXIS, {"rate_per_s": 0.02}, {}, "guides.drift_per_s", 0.02),
     ],
 )
 def test_a_truth_sets_what_the_edit_of_the_same_effect_fits(
@@ -139,3 +140,23 @@ def test_force_weights_of_a_current_record_enter_the_model_as_newtons():
     )
     assert model_of(edit.doc).get("guides.F_c") == pytest.approx(120.0 + 40.0, rel=1e-12)
     assert ModelDoc.load(EMPS).force_per_effort("N") == 1.0  # a force record
+
+
+def test_a_friction_drift_starts_from_the_ranking_and_needs_a_friction():
+    """A friction F_0 (1 + r t) that the model holds at its mean over the record, F_0 (1 + r
+    t_mid), leaves F_0 r (t - t_mid) sign(v): F_0 = 120 N, r = 0.02 1/s, t_mid = 5 s (the
+    variant the ranking carries) is a weight of 2.4 N/s with the model at 132 N, and the edit
+    starts the rate at 2.4 / (132 - 2.4 * 5) = 0.02 1/s. Guides without friction cannot drift."""
+    nominal = ModelDoc.load(AXIS)
+    held = nominal.set("guides.F_c_pos", 132.0).set("guides.F_c_neg", 132.0)
+    weights = dataclasses.replace(
+        _weights("friction_drift", t_sign_v=2.4, t_v=0.0), variant="t_mid = 5 s"
+    )
+    edit = BY_NAME["friction_drift"].edit(held, weights)
+    assert [p.name for p in edit.own] == ["guides.drift_per_s"]
+    assert model_of(edit.doc).get("guides.drift_per_s") == pytest.approx(0.02, rel=1e-12)
+    bare = nominal
+    for name in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg", "dF_s"):
+        bare = bare.set(f"guides.{name}", 0.0)
+    with pytest.raises(LookupError, match="the model has no guide friction to drift"):
+        BY_NAME["friction_drift"].edit(bare, weights)

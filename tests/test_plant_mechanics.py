@@ -316,3 +316,44 @@ def test_mechanical_energy_is_conserved_with_damping_and_friction_off():
     stored = sum(res[n] for n in plant.stored_names)
     assert stored[0] == pytest.approx(0.25 + 0.5 * 3.0e4 * 2e-3**2, rel=0.05)
     np.testing.assert_allclose(stored, stored[0], rtol=2e-5)
+
+
+def test_a_drifting_friction_grows_by_its_rate_per_second():
+    """GuideFriction with drift_per_s: the law times (1 + rate * t), t the run's time (its age
+    state). Viscous only, a constant force: the force it reports is F_v (1 + r t) v at every
+    sample, and the table slows to f / (F_v (1 + r T)) (quasi-steady: m / F_v = 0.07 s is
+    short against the drift). Without a drift the component has no age state and no drift
+    slot (the code a model without drift runs is the code it always ran)."""
+    F_v, rate, force, h = 300.0, 0.05, 30.0, 1e-4
+    comp = _viscous("friction", F_v)
+    comp["params"]["drift_per_s"] = rate
+    plant = load_plant(
+        {
+            "components": [
+                {"name": "table", "type": "Mass", "params": {"m": 20.0}},
+                comp,
+                _source(),
+            ],
+            "connect": [["table.flange", "friction.flange"], ["table.flange", "drive.flange"]],
+        },
+        source="friction",
+    )
+    n = 20000  # 2 s
+    engine = Engine(plant, base_period_s=h, substeps=4, record=["table.v", "friction.force"])
+    res = engine.run(n, drive=_effort_drive(n, force))
+    t = h * np.arange(n)  # the force at each period's start (the age then)
+    v, f = res["table.v"], res["friction.force"]
+    assert f == pytest.approx(F_v * (1.0 + rate * t) * v, rel=1e-9, abs=1e-12)
+    assert v[-1] == pytest.approx(force / (F_v * (1.0 + rate * t[-1])), rel=1e-2)
+    from feed_twin.plant.guide_friction import GuideFriction
+
+    still = GuideFriction(**_viscous("friction", F_v)["params"])
+    assert still.states() == () and "drift_per_s" not in still.slots()
+
+
+def test_a_drift_rate_out_of_range_is_refused():
+    from feed_twin.plant.guide_friction import GuideFriction
+
+    params = dict(_viscous("friction", 300.0)["params"], drift_per_s=2.0)
+    with pytest.raises(ValueError, match=r"drift_per_s = 2.0: must lie in \[-1.0, 1.0\]"):
+        GuideFriction(**params)

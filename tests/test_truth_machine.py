@@ -244,6 +244,31 @@ def test_diagnose_names_the_weight_of_a_truth_record(tmp_path: Path) -> None:
     assert found["constant_force"]["f_0_N"] == pytest.approx(truth, rel=0.10)
 
 
+@pytest.mark.slow
+def test_diagnose_names_a_drifting_coulomb_friction_and_nothing_else(tmp_path: Path) -> None:
+    """A Coulomb friction that grows over the record on the truth machine (seed 7, which the
+    benchmarks do not use): named as coulomb_friction (its value at the record's start) and
+    friction_drift (every friction term times 1 + rate t), each within 10 %, and no other
+    effect (a drift said only after the fit left asymmetric friction named beside it)."""
+    from feed_twin.analysis.diagnose import diagnose
+    from feed_twin.analysis.model_doc import ModelDoc
+    from feed_twin.io.measured import load_measured
+
+    hidden = draw_all(["coulomb_friction", "friction_drift"], seed=7)
+    rec = make_record(tmp_path / "run.csv", hidden=hidden, seed=7)
+    nominal = ModelDoc.load(
+        Path(feed_twin.__file__).resolve().parent.parent / "config/truth_nominal.yaml"
+    )
+    d = diagnose(load_measured(rec.csv, rec.map), nominal)[0]
+    found = {e.name: e.parameters for e in d.effects}
+    assert sorted(found) == ["coulomb_friction", "friction_drift"], d.verdict
+    rate = hidden["friction_drift"]["rate_per_s"]
+    assert found["friction_drift"]["rate_per_s"] == pytest.approx(rate, rel=0.10)
+    truth = hidden["coulomb_friction"]["F_c_N"]
+    assert found["coulomb_friction"]["F_c_N"] == pytest.approx(truth, rel=0.10)
+    assert "friction_drift" in d.verdict  # the user is told
+
+
 def test_command_line_writes_a_record(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from feed_twin.truth.__main__ import main
 

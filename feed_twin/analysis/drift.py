@@ -17,6 +17,10 @@ force and a viscous one on a record at one speed) are not both named.
 
 A friction that grows by 30 % over the record is then said as such ("guide.F_c drifts by
 +0.22 N/s, +30 % over the record"), not taken for a law of speed that the record cannot hold.
+The guides' friction drift is also an effect of the library (friction_drift, plant.guide_friction:
+every term times 1 + rate t), which the rounds fit with the other effects, so that the effects
+found beside it are fitted to a drifting friction; what this module finds is the drift left
+beside the effects found (its rate is a SHAPE: it does not drift itself).
 """
 
 from __future__ import annotations
@@ -36,7 +40,8 @@ DRIFT_EXPLAINED = 0.2
 MIN_CHANGE = 0.05  # [1] of the parameter's value over the record
 # the laws' shapes (a Stribeck speed, a phase, a period) do not drift; their sizes do: a
 # Stribeck speed that "drifted" by 9 % on a clean record took a model error of the loop
-SHAPES = ("v_s", "phase", "period")
+# a drift's own rate (plant.guide_friction's friction_drift) does not drift either
+SHAPES = ("v_s", "phase", "period", "drift_per_s")
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -19,6 +19,11 @@ c0 = (F_c + dF_s)/v_reg + F_v; an explicit RK4 step h on a body of effective mas
 h*c0/m < 2.78. `damping_bounds` reports c0 and the engine refuses a step that violates h*c0/m <
 2.5, so the regularisation velocity v_reg must be chosen with the step (e.g. 1e-4 m/s for a
 200 kg table at 62.5 us). The price is a creep velocity of order v_reg under sub-Coulomb forces.
+A friction that changes over the record (the lubricant warming, a seal running in) is the law
+times (1 + drift_per_s * age), age [s] the time since the run started (a state of its own,
+d(age)/dt = 1, present only while drift_per_s is not 0, so a model without drift runs the code it
+always ran): every term grows by the same share per second, which the workflow fits as the
+effect `friction_drift` beside the friction's own terms (one parameter, its rate).
 Port: `flange` (translational: s [m], v [m/s], f [N] into the flange).
 """
 
@@ -31,12 +36,13 @@ import numpy as np
 from numba import njit
 
 from feed_twin.core.smooth import smooth_sign
-from feed_twin.core.validate import require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, SlotReader
+from feed_twin.core.validate import require_nonnegative, require_positive, require_range
+from feed_twin.plant.component import Component, Emitter, SlotReader, StateSpec
 from feed_twin.plant.effect_api import (
     Document,
     Edit,
     Effect,
+    FreeParameter,
     Motion,
     Signature,
     Weights,
@@ -80,6 +86,10 @@ def friction_force(
         stribeck = dF_s * exp_neg(r2)
     return (F_c + stribeck) * sgn + F_v * v
 
+
+# [1/s] a drift rate's bound: the friction doubling (or gone) within a second is no drift
+DRIFT_LIMIT_PER_S = 1.0
+AGE_LIMIT_S = 1e9  # [s] the drift's age state: above this is a runaway
 
 STRIBECK_SPEEDS_M_S = (0.001, 0.002, 0.004, 0.007, 0.01, 0.015, 0.02, 0.03)  # searched v_s
 # what the workflow adds to a model without guide friction (all zero, v_reg of a fitting twin)
@@ -153,6 +163,64 @@ def _asymmetric_edit(doc: Document, cand: Weights) -> Edit:
     return make_edit(doc, own, report, added=len(names) // 2)
 
 
+DRIFT_SIZES = ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg", "dF_s")  # the terms a drift grows
+
+
+def _drift_edit(doc: Document, cand: Weights) -> Edit:
+    """Every term of the guides' friction grown by the same share per second (module
+    docstring): one parameter, the rate, fitted with the friction's own terms (they interact).
+    The ranking's weights start it: a friction F_0 (1 + r t) that the model holds at its mean
+    over the record, F_0 (1 + r t_mid), leaves F_0 r (t - t_mid) times the law's shape, so the
+    weight over the friction at the record's start is the rate. The terms stay as they are: a
+    term the rounds fitted (at its mean) is fitted again with the rate (analysis.trials), a
+    term of the data sheet they did not touch is the machine's at the start of the run, which
+    is where the drift counts from. A model whose guides have no friction has nothing to drift."""
+    fr = doc.friction()
+    if fr is None or not any(doc.get(f"{fr}.{n}") > 0.0 for n in DRIFT_SIZES):
+        raise LookupError("the model has no guide friction to drift")
+    slot = f"{fr}.drift_per_s"
+    t_mid = float(cand.variant.split("=")[1].split()[0]) if cand.variant else 0.0
+    coulomb = 0.5 * (doc.get(f"{fr}.F_c_pos") + doc.get(f"{fr}.F_c_neg"))
+    viscous = 0.5 * (doc.get(f"{fr}.F_v_pos") + doc.get(f"{fr}.F_v_neg"))
+    # the better-held of the two terms' weights, over that term at the record's start
+    weight, term = (
+        (cand.force("t_sign_v"), coulomb) if coulomb > 0.0 else (cand.force("t_v"), viscous)
+    )
+    start = term - weight * t_mid
+    rate = float(doc.component(fr)["params"].get("drift_per_s", 0.0)) + (
+        weight / start if term > 0.0 and start > 0.0 else 0.0
+    )
+    if rate == 0.0:
+        rate = 0.01  # [1/s] a start the fit moves (0 would compile the model without drift)
+    rate = min(max(rate, -0.5 * DRIFT_LIMIT_PER_S), 0.5 * DRIFT_LIMIT_PER_S)
+    doc = doc.set(slot, rate)
+    own = [
+        FreeParameter(
+            name=slot, initial=rate, scale=max(abs(rate), 0.01),
+            lower=-DRIFT_LIMIT_PER_S, upper=DRIFT_LIMIT_PER_S,
+        )
+    ]  # fmt: skip
+    return make_edit(doc, own, {"rate_per_s": slot_reader(slot)})
+
+
+def _drift_choices(m: Motion) -> list[tuple[str, Signature]]:
+    """A friction grown by r t, held at its mean: Coulomb's sign(v) and viscous's v times the
+    time from the record's middle (one variant, which carries that middle to the edit)."""
+    t_mid = 0.5 * (float(m.t_s[0]) + float(m.t_s[-1]))
+
+    def signature(mm: Motion) -> dict[str, np.ndarray]:
+        # the age the twin's drift counts from the run's start (the record's first sample)
+        centred = mm.t_s - mm.t_s[0] - t_mid + float(m.t_s[0])
+        return {"t_sign_v": centred * direction(mm), "t_v": centred * mm.v_m_s}
+
+    return [(f"t_mid = {t_mid - float(m.t_s[0]):.6g} s", signature)]
+
+
+def _drift_truth(doc: Document, p: Mapping[str, float]) -> Document:
+    doc, fr = with_friction(doc)
+    return doc.set(f"{fr}.drift_per_s", p["rate_per_s"])
+
+
 def _truth(doc: Document, p: Mapping[str, float]) -> Document:
     """The friction a synthetic record hides: any of F_c_N, F_v_N_s_m (both directions),
     dF_s_N with v_s_m_s, or the per-direction F_c_pos, F_c_neg, F_v_pos, F_v_neg."""
@@ -217,6 +285,16 @@ class GuideFriction(Component):
             edit=_asymmetric_edit,
             truth=_truth,
         ),
+        Effect(
+            name="friction_drift",
+            domain="effort",
+            words="a friction that changes over the record, every term by the same share per "
+            "second (the lubricant warming, a seal running in)",
+            parameters="drift_per_s",
+            choices=_drift_choices,
+            edit=_drift_edit,
+            truth=_drift_truth,
+        ),
     )
     STATE_OUTPUTS = {"friction_force": "-force"}  # force is F(v); the table receives -F
 
@@ -227,12 +305,27 @@ class GuideFriction(Component):
     dF_s: float  # Stribeck excess of the breakaway force over Coulomb [N]
     v_s: float  # Stribeck velocity [m/s]
     v_reg: float  # regularisation velocity of the sign function [m/s]
+    # every term grows by this share of itself per second of the run (0: no drift) [1/s]
+    drift_per_s: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg", "dF_s"):
+        for name in DRIFT_SIZES:
             require_nonnegative(name, getattr(self, name))
         require_positive("v_s", self.v_s)
         require_positive("v_reg", self.v_reg)
+        require_range("drift_per_s", self.drift_per_s, -DRIFT_LIMIT_PER_S, DRIFT_LIMIT_PER_S)
+
+    def slots(self) -> dict[str, float]:
+        # without a drift no drift slot: the code it would scale is not generated (emit)
+        out = super().slots()
+        if self.drift_per_s == 0.0:
+            del out["drift_per_s"]
+        return out
+
+    def states(self) -> tuple[StateSpec, ...]:
+        if self.drift_per_s == 0.0:
+            return ()
+        return (StateSpec(name="age", unit="s", limit=AGE_LIMIT_S),)
 
     def force(self, v: float) -> float:
         """F(v) [N] in plain Python (the flange receives -F(v))."""
@@ -263,6 +356,9 @@ class GuideFriction(Component):
             + tuple(g.p(n) for n in ("F_c_pos", "F_c_neg", "F_v_pos", "F_v_neg"))
             + (g.p("dF_s"), g.p("v_s"), g.p("v_reg")),
         )
+        if self.drift_per_s != 0.0:
+            g.d("age", "1.0")
+            g.line(f"{f} = {f} * (1.0 + {g.p('drift_per_s')} * {g.x('age')})")
         g.apply("flange", f"-{f}")
         g.aux("force", f)
         g.power("loss", "friction", f"{f} * {v}")

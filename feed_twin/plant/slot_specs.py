@@ -142,6 +142,7 @@ def _double(i: int) -> float:
 # unit suffixes of the workflow's report names (m_kg, F_v_N_s_m, heating_K_m), longest first
 _REPORT_SUFFIXES = (
     ("_N_s_m", "N s/m"),
+    ("_per_s", "1/s"),
     ("_m_s", "m/s"),
     ("_N_m", "N/m"),
     ("_K_m", "K/m"),
