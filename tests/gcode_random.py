@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from feed_twin.gcode import NcConfig, SampledTrajectory
+from feed_twin.gcode.metrics import LIMIT_SLACK
 
 
 def random_program(rng: np.random.Generator, n: int) -> str:
@@ -38,12 +39,17 @@ ROUNDING_M = 1e-12  # [m] positions differ by this much where the raw plan's pie
 
 def sampled_limit_ratios(traj: SampledTrajectory, config: NcConfig) -> tuple[float, float, float]:
     """Worst peak |v|, |a|, |j| over every axis from differences of the sampled positions,
-    each as a share of its limit (the n-th difference carries up to 2^n ROUNDING_M)."""
+    each as a share of its limit: with LIMIT_SLACK of it (the plan reaches a limit to rounding)
+    and the 2^n ROUNDING_M the n-th difference of positions may carry."""
     period = config.interpolation_period_s
     v_max = np.maximum(config.v_max, config.rapid)
     limits = (v_max, np.array(config.a_max), np.array(config.j_max))
     ratios = []
     for order, limit in enumerate(limits, start=1):
         peak = np.max(np.abs(np.diff(traj.pos_m, order, axis=0)), axis=0) / period**order
-        ratios.append(float(np.max(peak / (limit + 2**order * ROUNDING_M / period**order))))
+        ratios.append(
+            float(
+                np.max(peak / (limit * (1.0 + LIMIT_SLACK) + 2**order * ROUNDING_M / period**order))
+            )
+        )
     return ratios[0], ratios[1], ratios[2]
