@@ -25,9 +25,11 @@ def test_a_semi_closed_loop_delays_its_encoder_and_records_the_scale_on_time():
     assert _tied(ROOT / "config" / "truth_nominal.yaml") == ("encoder.delay_ticks",)
     doc = DELAY.truth(ModelDoc.load(ROOT / "config" / "truth_nominal.yaml"), {"delay_ticks": 3})
     assert (doc.get("encoder.delay_ticks"), doc.get("scale.delay_ticks")) == (3, 0)
-    # a delay in seconds (the truth machine's, feed_twin.truth) in the twin's 1 ms ticks
+    # a delay in seconds (the truth machine's, feed_twin.truth) in the twin's ticks (0.25 ms:
+    # the drive's velocity-loop period)
     doc = DELAY.truth(ModelDoc.load(ROOT / "config" / "truth_nominal.yaml"), {"delay_s": 2e-3})
-    assert doc.get("encoder.delay_ticks") == 2
+    assert doc.base_period() == 2.5e-4
+    assert doc.get("encoder.delay_ticks") == 8
 
 
 def test_a_loop_closed_on_the_scale_delays_both_sensors_it_reads():
