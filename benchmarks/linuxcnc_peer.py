@@ -14,17 +14,28 @@ corners within their G64 tolerance; every axis's peak velocity and acceleration 
 jerk profile, jerk) from differences of the sampled positions within its limits; the
 trapezoid's program time within 5 % of LinuxCNC's and the jerk profile's at most 1.10 times
 LinuxCNC's (LinuxCNC is acceleration-limited: a jerk limit may cost a little time, not more).
+Beside them the floor of the jerk profile's time (`feed_twin.gcode.jerk_floor`): the
+trapezoid's time plus what the jerk limit must add at each of its near-stops (the closed form
+of a jerk-limited stop-and-go against an acceleration-limited one), computed from our own plan
+alone: how far the jerk profile is from what the limits allow, and how far that is from 1.10.
 The programs in peer/disagree/ are accepted by one side only: they are reported, as a program
 one side refuses must never silently run on the other. Last printed line: one JSON object with
 every figure. Exit status 1 when a requirement is broken.
 
     .venv/bin/python benchmarks/linuxcnc_peer.py [--config config/axis_default.yaml] [-k NAME]
+        [--linuxcnc-cache DIR]
+
+With --linuxcnc-cache DIR, LinuxCNC's trajectory of each program is saved there
+(`NAME.npz`, keyed by the program text and the machine's limits) and reused while neither
+changes: LinuxCNC takes about 5 min for the corpus (one run at a time per host), and while our
+planner changes LinuxCNC's side does not.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import math
 import re
@@ -33,8 +44,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, plan_program
 from feed_twin.gcode.geometry import programmed_path
+from feed_twin.gcode.jerk_floor import jerk_floor_extra
 from feed_twin.gcode.metrics import axis_limit_failures
 from feed_twin.gcode.peer import (
     JERK_TIME_LIMIT,
@@ -109,10 +123,64 @@ def linuxcnc(
     return trace.commanded_trajectory(nc.axis_names)
 
 
-def run_one(program: Path, nc: NcConfig, servo: HalServo, machine: Path) -> dict:
+def cache_key(program: Path, nc: NcConfig, servo: HalServo) -> str:
+    """What LinuxCNC's run depends on: the program's text, the limits and the servo."""
+    text = program.read_bytes() + repr((nc, servo)).encode()
+    return hashlib.sha256(text).hexdigest()
+
+
+def cached_linuxcnc(
+    program: Path, nc: NcConfig, servo: HalServo, machine: Path, cache: Path | None
+) -> SampledTrajectory | str:
+    """LinuxCNC's trajectory (or its refusal), from `cache` when it holds this run (refusals
+    and failed runs are not saved: a refusal is found before LinuxCNC starts)."""
+    if cache is None:
+        return linuxcnc(program, nc, servo, machine)
+    file = cache / f"{program.stem}.npz"
+    key = cache_key(program, nc, servo)
+    if file.exists():
+        with np.load(file, allow_pickle=False) as data:
+            if str(data["key"]) == key:
+                return SampledTrajectory(
+                    t_s=data["t_s"],
+                    axes=tuple(str(a) for a in data["axes"]),
+                    pos_m=data["pos_m"],
+                    vel_m_s=data["vel_m_s"],
+                    acc_m_s2=data["acc_m_s2"],
+                    line=data["line"],
+                    events=(),
+                )
+    result = linuxcnc(program, nc, servo, machine)
+    if not isinstance(result, str):
+        cache.mkdir(parents=True, exist_ok=True)
+        np.savez(
+            file,
+            key=key,
+            t_s=result.t_s,
+            axes=np.array(result.axes),
+            pos_m=result.pos_m,
+            vel_m_s=result.vel_m_s,
+            acc_m_s2=result.acc_m_s2,
+            line=result.line,
+        )
+    return result
+
+
+def jerk_floor(trapezoid: SampledTrajectory | str, side: Side, nc: NcConfig) -> dict | None:
+    """The floor of the jerk profile's time (`feed_twin.gcode.jerk_floor`): the trapezoid's
+    time plus what the jerk limit must add at its near-stops."""
+    if isinstance(trapezoid, str) or side.figures is None:
+        return None
+    extra, stops = jerk_floor_extra(trapezoid, np.array(nc.a_max), np.array(nc.j_max))
+    return {"time_s": side.figures.program_time_s + extra, "extra_s": extra, "near_stops": stops}
+
+
+def run_one(
+    program: Path, nc: NcConfig, servo: HalServo, machine: Path, cache: Path | None = None
+) -> dict:
     """The three sides of one program, measured, with the requirements and the time ratios."""
     results = {
-        "linuxcnc": linuxcnc(program, nc, servo, machine),
+        "linuxcnc": cached_linuxcnc(program, nc, servo, machine, cache),
         "jerk": ours(program, dataclasses.replace(nc, profile="jerk")),
         "trapezoid": ours(program, dataclasses.replace(nc, profile="trapezoid")),
     }
@@ -129,6 +197,7 @@ def run_one(program: Path, nc: NcConfig, servo: HalServo, machine: Path) -> dict
         else:
             sides.append(Side(name=name, error=None, figures=None, failures=()))
     by_name = {s.name: s for s in sides}
+    floor = jerk_floor(results["trapezoid"], by_name["trapezoid"], nc)
     ratio_trap = time_ratio(by_name["trapezoid"], by_name["linuxcnc"])
     ratio_jerk = time_ratio(by_name["jerk"], by_name["linuxcnc"])
     # The requirements are ours to meet; what LinuxCNC breaks is reported as a finding.
@@ -159,6 +228,7 @@ def run_one(program: Path, nc: NcConfig, servo: HalServo, machine: Path) -> dict
         "mismatch": acceptance_mismatch(sides),
         "ratio_trapezoid": ratio_trap,
         "ratio_jerk": ratio_jerk,
+        "floor": floor,
         "problems": problems,
         "findings": findings,
     }
@@ -195,6 +265,20 @@ def print_program(name: str, outcome: dict) -> None:
             f"{f.arc_dev_max_m * UM:7.3f} {_triple(f.peak_vel_m_s, MM, 1):>17s} "
             f"{_triple(f.peak_acc_m_s2, 1.0, 2):>15s} {_triple(f.peak_jerk_m_s3, 1.0, 0):>18s}"
         )
+    floor = outcome["floor"]
+    linuxcnc_side = next((s for s in outcome["sides"] if s.name == "linuxcnc"), None)
+    jerk_side = next((s for s in outcome["sides"] if s.name == "jerk"), None)
+    if floor is not None and linuxcnc_side is not None and linuxcnc_side.figures is not None:
+        ours_over = (
+            ""
+            if jerk_side is None or jerk_side.figures is None
+            else f"; jerk / floor {jerk_side.figures.program_time_s / floor['time_s']:.3f}"
+        )
+        print(
+            f"  {'floor':10s} {floor['time_s']:7.3f} "
+            f"{floor['time_s'] / linuxcnc_side.figures.program_time_s:6.3f}  "
+            f"(trapezoid + {floor['extra_s']:.3f} s at {floor['near_stops']} near-stops{ours_over})"
+        )
     if outcome["mismatch"]:
         print(f"  REPORTED: {outcome['mismatch']}")
     for text in outcome["problems"]:
@@ -208,10 +292,24 @@ def print_program(name: str, outcome: dict) -> None:
         print(f"  LinuxCNC: {worst}")
 
 
+def _floor_ratio(outcome: dict) -> float | None:
+    """The jerk profile's floor over LinuxCNC's time."""
+    linuxcnc_side = next(s for s in outcome["sides"] if s.name == "linuxcnc")
+    if outcome["floor"] is None or linuxcnc_side.figures is None:
+        return None
+    return outcome["floor"]["time_s"] / linuxcnc_side.figures.program_time_s
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", type=Path, default=ROOT / "config" / "axis_default.yaml")
     parser.add_argument("-k", dest="only", default="", help="only programs whose name has this")
+    parser.add_argument(
+        "--linuxcnc-cache",
+        type=Path,
+        default=None,
+        help="directory where LinuxCNC's trajectories are saved and reused (see above)",
+    )
     args = parser.parse_args(argv)
     nc, servo = machine_for_config(args.config)
     programs = sorted(CORPUS.glob("*.ngc")) + sorted((CORPUS / "disagree").glob("*.ngc"))
@@ -221,7 +319,7 @@ def main(argv: list[str] | None = None) -> int:
     started = time.monotonic()
     machine = peer_machine(Path(tempfile.mkdtemp(prefix="feed_twin-peer-")), nc, servo)
     for program in programs:
-        outcome = run_one(program, nc, servo, machine)
+        outcome = run_one(program, nc, servo, machine, args.linuxcnc_cache)
         name = str(program.relative_to(CORPUS))
         print_program(name, outcome)
         expected_mismatch = program.parent.name == "disagree"
@@ -234,11 +332,14 @@ def main(argv: list[str] | None = None) -> int:
             **{s.name: side_summary(s) for s in outcome["sides"]},
             "ratio_trapezoid": outcome["ratio_trapezoid"],
             "ratio_jerk": outcome["ratio_jerk"],
+            "floor": outcome["floor"],
+            "ratio_floor": _floor_ratio(outcome),
             "mismatch": outcome["mismatch"],
             "linuxcnc_findings": len(outcome["findings"]),
         }
     trap = [r["ratio_trapezoid"] for r in report.values() if r["ratio_trapezoid"] is not None]
     jerk = [r["ratio_jerk"] for r in report.values() if r["ratio_jerk"] is not None]
+    floor = [r["ratio_floor"] for r in report.values() if r["ratio_floor"] is not None]
     print(f"\n{len(programs)} programs in {time.monotonic() - started:.0f} s; ", end="")
     print("requirements met" if not failed else f"{len(failed)} requirements broken")
     summary = {
@@ -250,6 +351,8 @@ def main(argv: list[str] | None = None) -> int:
         "ratio_trapezoid_max": max(trap, default=None),
         "ratio_jerk_min": min(jerk, default=None),
         "ratio_jerk_max": max(jerk, default=None),
+        "ratio_floor_min": min(floor, default=None),
+        "ratio_floor_max": max(floor, default=None),
         "per_program": report,
     }
     print(json.dumps(summary))

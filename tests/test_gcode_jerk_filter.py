@@ -24,22 +24,24 @@ def test_raw_speeds_fit_every_body_with_the_held_stretches():
     A = rng.uniform(0.5, 3.0, m)
     cap = rng.uniform(0.01, 0.3, m + 1)
     cap[-1] = 0.0
-    ext = rng.random(m + 1) < 0.5
-    v = plan_speeds_filtered(cap, L, A, ext, T, 0.0)
+    # Holds of T / 2 each side (extended nodes), or of T on one side (held chain ends).
+    hold_in = rng.choice([0.0, 0.5 * T, T], m + 1)
+    hold_out = rng.choice([0.0, 0.5 * T, T], m + 1)
+    v = plan_speeds_filtered(cap, L, A, hold_in, hold_out, 0.0)
     assert v[0] == 0.0 and v[-1] == 0.0 and np.all(v <= cap + 1e-15)
-    held = 0.5 * T * np.where(ext, v, 0.0)
-    need = np.abs(v[1:] ** 2 - v[:-1] ** 2) / (2.0 * A) + held[:-1] + held[1:]
+    held_in, held_out = hold_in * v, hold_out * v
+    need = np.abs(v[1:] ** 2 - v[:-1] ** 2) / (2.0 * A) + held_out[:-1] + held_in[1:]
     assert np.all(need <= L * (1 + 1e-12))
-    # Bodies: they fill their length; a body alone (both ends extended) with a peak above
-    # both ends cruises at least T at A, or runs at A / 2; chain bodies keep their A.
+    # Bodies: they fill their length; a body alone (both ends held on its side) with a peak
+    # above both ends cruises at least T at A, or runs at A / 2; chain bodies keep their A.
     V = np.full(m, 0.3)
-    vp, t_up, t_cruise, t_down, a_used = body_profiles_filtered(v, L, V, A, ext, T)
-    room = L - held[:-1] - held[1:]
+    vp, t_up, t_cruise, t_down, a_used = body_profiles_filtered(v, L, V, A, hold_in, hold_out, T)
+    room = L - held_out[:-1] - held_in[1:]
     covered = 0.5 * (v[:-1] + vp) * t_up + vp * t_cruise + 0.5 * (vp + v[1:]) * t_down
     np.testing.assert_allclose(covered, room, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(t_up, (vp - v[:-1]) / a_used, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(t_down, (vp - v[1:]) / a_used, rtol=1e-12, atol=1e-15)
-    alone = ext[:-1] & ext[1:]
+    alone = (hold_out[:-1] > 0.0) & (hold_in[1:] > 0.0)
     peaked = vp > np.maximum(v[:-1], v[1:]) * (1 + 1e-12)
     at_full = alone & peaked & (a_used == A)
     assert np.all(t_cruise[at_full] >= T * (1 - 1e-9))

@@ -20,6 +20,9 @@ What the raw plan does for the filter:
   exit of a chain) holds its speed v over its blend and T v beyond each end ("extended"): the
   filtered speed is then exactly v over the blend (s_f'' = s_f''' = 0), so a corner is sized
   by its curvature terms alone, and a straight body and its neighbours never share a window;
+- a chain's entry (exit) next to a straight move whose far end is held too holds its speed T
+  before (after) its blend, on the straight side only (`plan_chains._held_chain_ends`): the
+  straight move runs at its own limits, and no window spans its braking and the chain;
 - where the raw plan stops (v = 0) it holds still for T, so the filtered plan stops too;
 - a body whose speed rises and falls again cruises at its peak for at least T (no sign change
   of s'' within a window); between the bodies of a chain the sign may change, so chain bodies
@@ -51,31 +54,33 @@ def plan_speeds_filtered(
     cap: np.ndarray,
     L: np.ndarray,
     A: np.ndarray,
-    ext: np.ndarray,
-    T: float,
+    hold_in: np.ndarray,
+    hold_out: np.ndarray,
     v_first: float,
 ) -> np.ndarray:
     """Boundary speeds of the raw plan: a body i (node i -> i+1) fits
-    |v_i^2 - v_i+1^2| / (2 A_i) + T / 2 (e_i v_i + e_i+1 v_i+1) <= L_i,
-    e = 1 at extended nodes. Each extended node's speed is first held to half of either
-    neighbouring body (T v / 2 <= L / 2), which keeps every pair feasible; then a backward pass
-    of braking bounds and a forward pass of speed-ups."""
+    |v_i^2 - v_i+1^2| / (2 A_i) + h_out_i v_i + h_in_i+1 v_i+1 <= L_i, the node's speed held
+    for h_in [s] before its blend and h_out [s] after it (T / 2 each side at extended nodes).
+    Each held node's speed is first held to half of either neighbouring body (h v <= L / 2;
+    all of it where the body's other end holds nothing there), which keeps every pair
+    feasible; then a backward pass of braking bounds and a forward
+    pass of speed-ups."""
     m = L.shape[0]
     v = cap.copy()
-    e = np.where(ext, 0.5 * T, 0.0)
     for i in range(m + 1):
-        if e[i] > 0.0:
-            if i > 0:
-                v[i] = min(v[i], 0.5 * L[i - 1] / e[i])
-            if i < m:
-                v[i] = min(v[i], 0.5 * L[i] / e[i])
+        if i > 0 and hold_in[i] > 0.0:
+            share = 0.5 if hold_out[i - 1] > 0.0 else 1.0
+            v[i] = min(v[i], share * L[i - 1] / hold_in[i])
+        if i < m and hold_out[i] > 0.0:
+            share = 0.5 if hold_in[i + 1] > 0.0 else 1.0
+            v[i] = min(v[i], share * L[i] / hold_out[i])
     v[0] = v_first
     for i in range(m - 1, 0, -1):
-        c = L[i] - e[i + 1] * v[i + 1] + v[i + 1] * v[i + 1] / (2.0 * A[i])
-        v[i] = min(v[i], _largest(c, e[i], A[i]))
+        c = L[i] - hold_in[i + 1] * v[i + 1] + v[i + 1] * v[i + 1] / (2.0 * A[i])
+        v[i] = min(v[i], _largest(c, hold_out[i], A[i]))
     for i in range(m):
-        c = L[i] - e[i] * v[i] + v[i] * v[i] / (2.0 * A[i])
-        v[i + 1] = min(v[i + 1], _largest(c, e[i + 1], A[i]))
+        c = L[i] - hold_out[i] * v[i] + v[i] * v[i] / (2.0 * A[i])
+        v[i + 1] = min(v[i + 1], _largest(c, hold_in[i + 1], A[i]))
     return v
 
 
@@ -96,13 +101,19 @@ def _trapezoid(v0: float, v1: float, room: float, V: float, a: float, hold: floa
 
 @njit(cache=True)
 def body_profiles_filtered(
-    v: np.ndarray, L: np.ndarray, V: np.ndarray, A: np.ndarray, ext: np.ndarray, T: float
+    v: np.ndarray,
+    L: np.ndarray,
+    V: np.ndarray,
+    A: np.ndarray,
+    hold_in: np.ndarray,
+    hold_out: np.ndarray,
+    T: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Peak speed, durations (speed-up, cruise, slow-down) and acceleration of each raw body:
-    a trapezoid over the length its nodes' extensions leave.
+    a trapezoid over the length its nodes' holds (`plan_speeds_filtered`) leave.
 
-    A body between two extended nodes (alone in its windows, A from the axes' a_max) either
-    cruises at least T at a peak above both ends (s'' keeps its sign within a window:
+    A body between two nodes held on its side (alone in its windows, A from the axes' a_max)
+    either cruises at least T at a peak above both ends (s'' keeps its sign within a window:
     |s_f'''| <= A / T) or runs at A / 2 without that cruise (|s_f'''| <= 2 (A / 2) / T),
     whichever is quicker. A chain body's A already budgets s'' changing sign within a window
     (`plan_chains.chain_limits`): no cruise needed.
@@ -117,8 +128,8 @@ def body_profiles_filtered(
         v0 = v[i]
         v1 = v[i + 1]
         a = A[i]
-        room = L[i] - 0.5 * T * ((v0 if ext[i] else 0.0) + (v1 if ext[i + 1] else 0.0))
-        alone = ext[i] and ext[i + 1]
+        room = L[i] - hold_out[i] * v0 - hold_in[i + 1] * v1
+        alone = hold_out[i] > 0.0 and hold_in[i + 1] > 0.0
         best = _trapezoid(v0, v1, room, V[i], a, T if alone else 0.0)
         a_used[i] = a
         if alone and abs(v0 * v0 - v1 * v1) <= a * room:  # the ends fit at A / 2

@@ -10,6 +10,8 @@ With the jerk filter (`jerk_filter`) a chain is cut at every node, so its speed 
 the curvature node by node (the raw plan needs no room for an S-curve per body); the caps
 and acceleration limits of its bodies are eroded over the distance a filter window spans,
 and stops, sharp corners and passing points are extended (speed held T v / 2 beyond the blend).
+A chain's end next to a straight move whose far end is held is held T on the straight side
+(`_held_chain_ends`), so that move is planned with its own limits, not the chain's.
 """
 
 from __future__ import annotations
@@ -25,7 +27,10 @@ from feed_twin.gcode.plan_limits import AxisLimits, MoveLimits
 CHAIN_CUT = 1.3  # a chain is cut where its local speed cap changes by more than this factor
 # With the jerk filter: the share of each axis's jerk the curvature's own change (x''' v^3)
 # may take at a chain's speed cap; s''' and the cross term share the rest through A.
-CURVE_JERK_SHARE = 0.75
+# A higher share lifts the cap and leaves less to A: over the peer corpus 0.6-0.65 gave the
+# shortest times of 0.4-0.85 (0.75 before: cam_trochoidal_pocket 9.913 -> 9.786 s,
+# incremental 3.639 -> 3.553 s; dense_segments and inch about 0.4 % slower).
+CURVE_JERK_SHARE = 0.65
 # The trapezoid's share of each axis's acceleration for the curvature (x'' v^2) at a chain's
 # speed cap (half before); s'' takes what it leaves. The filtered plan keeps half: its s''
 # feeds the jerk too.
@@ -54,6 +59,8 @@ class Bodies:
     A: np.ndarray  # (m,) [m/s^2] acceleration limit of s'' on each body
     J: np.ndarray  # (m,) [m/s^3] jerk limit of s''' on each body
     extended: np.ndarray  # (m+1,) the raw plan holds the node's speed T v / 2 beyond its blend
+    hold_in: np.ndarray  # (m+1,) [s] the raw plan holds the node's speed v this long before it
+    hold_out: np.ndarray  # (m+1,) [s] and this long after it (T / 2 each where extended)
 
 
 def chain_bodies(
@@ -64,13 +71,13 @@ def chain_bodies(
     *,
     first: int,
     open_end: bool,
-    extended_as: np.ndarray | None = None,
+    holds_as: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> Bodies | None:
     """Group the nodes from `first` on into 1-D nodes and bodies; None if fewer than two.
 
     With `open_end` the window's last body stops short of the last move, where the next
-    window may put a blend: every speed planned now stays reachable later. `extended_as`
-    gives the extended 1-D nodes (of the same 1-D nodes) instead of choosing them.
+    window may put a blend: every speed planned now stays reachable later. `holds_as` gives
+    the extended 1-D nodes and the holds (of the same 1-D nodes) instead of choosing them.
     """
     L, V, A, J = moves.L, moves.V, moves.A, moves.J
     n = len(L)
@@ -95,14 +102,20 @@ def chain_bodies(
     if open_end:
         length[-1] = max(length[-1] - CHAIN_SHARE * L[n - 1], 0.0)
     filtered = limits.window_s > 0.0
+    T = limits.window_s
     extended = np.zeros(len(kind_q), dtype=bool)
-    if extended_as is not None:
-        extended = extended_as
+    hold_in = np.zeros(len(kind_q))
+    hold_out = np.zeros(len(kind_q))
+    if holds_as is not None:
+        extended, hold_in, hold_out = holds_as
     elif filtered:
-        extended = _extended(kind_q, node_q, blends, V, length, limits.window_s)
+        extended = _extended(kind_q, node_q, blends, V, length, T)
+        end_in, end_out = _held_chain_ends(kind_q, blends.cap[node_q], length, extended, T)
+        hold_in = np.where(extended, 0.5 * T, np.where(end_in, T, 0.0))
+        hold_out = np.where(extended, 0.5 * T, np.where(end_out, T, 0.0))
     if filtered:
         # Bodies a filter window may share with a neighbour: planned as chains, eroded.
-        in_chain = ~(extended[:-1] & extended[1:])
+        in_chain = ~((hold_out[:-1] > 0.0) & (hold_in[1:] > 0.0))
     else:
         in_chain = (kind_q[:-1] == CHAIN_ENTRY) | (kind_q[:-1] == CHAIN_CUT_NODE)
     quiet = np.zeros(len(nodes_b), dtype=bool)
@@ -110,8 +123,8 @@ def chain_bodies(
     Vc, Ac, Jc = chain_limits(nodes_b, pos_q, blends, u=moves.u, V=V, limits=limits, quiet=quiet)
     if filtered:
         Vc, Ac = _eroded(
-            sb[:-1], sa[1:], Vc, Ac, in_chain=in_chain, after_extended=extended[:-1],
-            T=limits.window_s,
+            sb[:-1], sa[1:], Vc, Ac, in_chain=in_chain, after_extended=hold_out[:-1] > 0.0,
+            T=T,
         )  # fmt: skip
     cap = blends.cap
     cap_q = cap[node_q].copy()
@@ -136,6 +149,8 @@ def chain_bodies(
         A=np.where(in_chain, Ac, Ab),
         J=np.where(in_chain, Jc, Jb),
         extended=extended,
+        hold_in=hold_in,
+        hold_out=hold_out,
     )
 
 
@@ -165,6 +180,33 @@ def _extended(
         blends.stop[node_q]
         | np.where(smooth[node_q] & gentle[node_q], wide, ~smooth[node_q] & (room > 0.0))
     )
+
+
+def _held_chain_ends(
+    kind_q: np.ndarray,
+    cap: np.ndarray,
+    length: np.ndarray,
+    extended: np.ndarray,
+    T: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Chain entries held T before their blend and chain exits held T after it: where the
+    body on that side is a straight move whose other end is held too (an extended node, or
+    the other chain's end), with room for both holds at the node's cap (2 T cap).
+
+    Such a body is alone in every filter window (not a chain body): it runs at its move's
+    limits and brakes to the chain's speed before the hold, where otherwise the whole move
+    would take the chain's (eroded) speed cap. The hold is T, not T / 2: a window never
+    spans both the body's braking and the chain (whose s'' may have either sign), so the
+    filtered jerk stays within what each side budgets; the chain side needs no hold, its caps
+    and accelerations are eroded within the chain."""
+    m = len(length)
+    room_before = np.concatenate(([0.0], length))
+    room_after = np.concatenate((length, [0.0]))
+    entry = (kind_q == CHAIN_ENTRY) & (room_before >= 2.0 * T * cap)
+    exit_ = (kind_q == CHAIN_EXIT) & (room_after >= 2.0 * T * cap)
+    held_before = np.concatenate(([False], extended[:m] | exit_[:m]))
+    held_after = np.concatenate((extended[1:] | entry[1:], [False]))
+    return entry & held_before, exit_ & held_after
 
 
 def _eroded(

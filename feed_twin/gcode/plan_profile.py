@@ -44,9 +44,9 @@ def speed_profile(bodies: Bodies, *, v_first: float, window_s: float = 0.0) -> S
     """
     L, V, A = bodies.length, bodies.V, bodies.A
     if window_s > 0.0:
-        v = plan_speeds_filtered(bodies.cap, L, A, bodies.extended, window_s, v_first)
+        v = plan_speeds_filtered(bodies.cap, L, A, bodies.hold_in, bodies.hold_out, v_first)
         vp, t_up, t_cruise, t_down, A = body_profiles_filtered(
-            v, L, V, A, bodies.extended, window_s
+            v, L, V, A, bodies.hold_in, bodies.hold_out, window_s
         )
     else:
         v = plan_speeds(bodies.cap, L, A, v_first)
@@ -78,12 +78,11 @@ def motion_pieces(
     *,
     q_commit: int,
     n_moves: int,
-    window_s: float = 0.0,
 ) -> Pieces:
     """Hold, cruise and body pieces of the 1-D nodes before `q_commit`, and a last hold.
 
-    An extended node (jerk filter, window T = `window_s`) cruises T v / 2 before and after its
-    blend, where the bodies next to it start and end.
+    A held node (jerk filter) cruises hold_in v before its blend and hold_out v after it
+    (T v / 2 each at an extended node), where the bodies next to it start and end.
     """
     q = np.arange(q_commit)
     nodes = bodies.node[: q_commit + 1]
@@ -111,23 +110,24 @@ def motion_pieces(
     seg[body] = np.where(kind_q == CHAIN_ENTRY, before, np.minimum(nodes[:-1], n_moves - 1))
     seg[-1] = n_moves - 1
     kind[cruise] = CRUISE
-    reach = np.where(bodies.extended[: q_commit + 1], 0.5 * window_s * v_node, 0.0)
-    span = sb[:q_commit] - sa[:q_commit] + 2.0 * reach[:-1]
+    reach_in = bodies.hold_in[: q_commit + 1] * v_node
+    reach_out = bodies.hold_out[:q_commit] * v_node[:-1]
+    span = sb[:q_commit] - sa[:q_commit] + reach_in[:-1] + reach_out
     with np.errstate(divide="ignore", invalid="ignore"):
         dur[cruise] = np.where(span > 0.0, span / v_node[:-1], 0.0)
-    s0[cruise] = sa[:q_commit] - reach[:-1]
+    s0[cruise] = sa[:q_commit] - reach_in[:-1]
     v0[cruise] = v_node[:-1]
-    s0[hold] = sa[:q_commit] - reach[:-1]
+    s0[hold] = sa[:q_commit] - reach_in[:-1]
     kind[body] = BODY
     dur[body] = speeds.t_up[:q_commit] + speeds.t_cruise[:q_commit] + speeds.t_down[:q_commit]
-    s0[body] = sb[:q_commit] + reach[:-1]
+    s0[body] = sb[:q_commit] + reach_out
     v0[body] = v_node[:-1]
     vpk[body] = speeds.vp[:q_commit]
     v1[body] = v_node[1:]
     Ak[body] = speeds.A[:q_commit]
     tu[body] = speeds.t_up[:q_commit]
     tc[body] = speeds.t_cruise[:q_commit]
-    s0[-1] = sa[q_commit] - reach[-1]
+    s0[-1] = sa[q_commit] - reach_in[-1]
     return Pieces(
         key=np.arange(n_pieces, dtype=float),
         kind=kind,

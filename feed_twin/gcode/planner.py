@@ -274,12 +274,12 @@ class _StreamPlanner:
                 self.limits,
                 first=first,
                 open_end=not final,
-                extended_as=bodies.extended,
+                holds_as=(bodies.extended, bodies.hold_in, bodies.hold_out),
             )
             assert narrowed is not None  # the same 1-D nodes: only widths changed
             bodies = narrowed
             speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
-        pieces = motion_pieces(bodies, speeds, q_commit=q_commit, n_moves=n, window_s=self.window_s)
+        pieces = motion_pieces(bodies, speeds, q_commit=q_commit, n_moves=n)
         dwells, timed = node_entries(self._entries_at(bodies, q_commit, final), bodies.S)
         holds = stop_holds(
             bodies,
