@@ -17,7 +17,8 @@
   up to `lookahead` periods ahead of the latest /clock so the controller never waits for them.
   In real time the node runs under SCHED_FIFO one priority below the sim's announced exchange
   priority (feed_twin.nodeset.pacing.setpoint_priority): under normal scheduling on a loaded
-  host it waited for a CPU longer than its lead.
+  host it waited for a CPU longer than its lead. The nodes it shares a process with run so too
+  (a machine's recorder); a process that runs higher already keeps its priority.
 - A machine (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes): `--autostart`
   waits until every node of every axis beats, and one node commands
   every NC axis, each on its own `/<machine>/<axis>/command`, and announces `program_state` to
