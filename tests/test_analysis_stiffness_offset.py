@@ -195,6 +195,8 @@ def test_once_per_electrical_revolution_is_not_searched_as_cogging():
     )
     labels = [label for label, _ in BY_NAME["cogging_torque"].variants(motion)]
     assert "order 4 per motor revolution" not in labels
+    # once per revolution is a lead error's or an eccentricity's, never a cogging torque's
+    assert "order 1 per motor revolution" not in labels
     assert "order 3 per motor revolution" in labels and "order 8 per motor revolution" in labels
 
 

@@ -21,9 +21,11 @@ J_ROTOR, J_SCREW, K_COUPLING = 6.0e-4, 4.0e-4, 1.2e4  # the truth machine's data
 
 def _with_coupling(engine: dict | None = None) -> ModelDoc:
     """The truth machine's nominal twin with its bellows coupling between rotor and screw,
-    not lumped into one inertia."""
+    not lumped into one inertia, and its loops at a 1 ms tick."""
     doc = ModelDoc.load(TRUTH_NOMINAL)
     data = copy.deepcopy(doc.data)
+    ctrl = data["controller"]
+    ctrl["base_period_s"] = ctrl["position"]["period_s"] = ctrl["velocity"]["period_s"] = 1e-3
     comps = data["plant"]["components"]
     next(c for c in comps if c["name"] == "motor")["params"]["J"] = J_ROTOR
     comps += [

@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from known_gaps import CLEAN_TRUTH_MASS
 
 import feed_twin
 from feed_twin.analysis.report import FoundEffect
@@ -45,10 +44,12 @@ def test_a_tick_must_be_positive() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=CLEAN_TRUTH_MASS)
 def test_a_clean_truth_record_names_nothing(tmp_path: Path) -> None:
     """The independent truth machine with nothing hidden, with a seed the benchmarks do not
-    use: no effect named; the twin's timing against it is said, not named."""
+    use: no effect named. The nominal twin runs its loops at the drive's rates, with its fine
+    interpolation and feed-forward (config/truth_nominal.yaml): its following error is within
+    1 um RMS of the machine's (4.6 um with every loop at 1 kHz, and a 2 % heavier table was
+    named), and no delay within a tick is needed to say its timing."""
     from feed_twin.analysis.diagnose import diagnose
     from feed_twin.analysis.model_doc import ModelDoc
     from feed_twin.io.measured import load_measured
@@ -60,6 +61,6 @@ def test_a_clean_truth_record_names_nothing(tmp_path: Path) -> None:
     )
     d = diagnose(load_measured(rec.csv, rec.map), nominal)[0]
     assert [e.name for e in d.effects] == [], d.verdict
-    said = [n for n in d.notes if n.startswith("the twin's timing against the machine")]
-    assert said, d.notes
+    assert d.before.fe_dev_rms_m < 1e-6
+    assert not [n for n in d.notes if n.startswith("the twin's timing against the machine")]
     assert not d.verdict.startswith("the nominal model misses")

@@ -161,7 +161,7 @@ def _ramp_rig(interpolation: str) -> tuple[Rig, float, float]:
     return Rig(config), 0.2, config.nc_period_s
 
 
-@pytest.mark.parametrize("interpolation", ["hold", "linear", "extrapolate"])
+@pytest.mark.parametrize("interpolation", ["hold", "linear", "extrapolate", "cubic"])
 def test_fine_interpolation_of_an_nc_ramp(interpolation):
     rig, v, t_nc = _ramp_rig(interpolation)
     base = AXIS.base_period_s
@@ -179,8 +179,77 @@ def test_fine_interpolation_of_an_nc_ramp(interpolation):
             "hold": v * (k - k % nc_div) * base,
             "linear": v * (t - t_nc),
             "extrapolate": v * t,
+            "cubic": v * (t - t_nc),
         }[interpolation]
         assert out[sig.OUT_POS_REF_M] == pytest.approx(expected, rel=1e-12, abs=1e-15)
+
+
+def _cubic(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x, v, a of x(t) = 0.1 + 0.2 t - 3 t^2 + 40 t^3 [m, s]."""
+    return 0.1 + 0.2 * t - 3.0 * t**2 + 40.0 * t**3, 0.2 - 6.0 * t + 120.0 * t**2, -6.0 + 240.0 * t
+
+
+def test_cubic_interpolation_reproduces_a_cubic_one_nc_period_late():
+    """A Hermite segment through two samples' positions and velocities is the cubic itself."""
+    t_nc, t0 = 1e-3, 0.02
+    prev = tuple(float(y) for y in _cubic(np.array(t0)))
+    cur = tuple(float(y) for y in _cubic(np.array(t0 + t_nc)))
+    for s in (0.0, 0.25, 0.5, 0.875, 1.0):
+        x, v, a = cc.interpolate(ccfg.INTERP_CUBIC, s, t_nc, prev, cur)
+        want = _cubic(np.array(t0 + s * t_nc))
+        assert (x, v, a) == pytest.approx(tuple(float(y) for y in want), rel=1e-9, abs=1e-12)
+
+
+def test_cubic_interpolation_equals_scipys_hermite_spline():
+    """On arbitrary samples (no polynomial behind them): scipy's CubicHermiteSpline through
+    the same positions and velocities, its value and first two derivatives."""
+    from scipy.interpolate import CubicHermiteSpline
+
+    rng = np.random.default_rng(3)
+    t_nc = 1e-3
+    x, v = rng.normal(0.0, 1e-4, 2), rng.normal(0.0, 0.1, 2)
+    spline = CubicHermiteSpline([0.0, t_nc], x, v)
+    for s in np.linspace(0.0, 1.0, 9):
+        got = cc.interpolate(ccfg.INTERP_CUBIC, s, t_nc, (x[0], v[0], 0.0), (x[1], v[1], 0.0))
+        want = tuple(float(spline(s * t_nc, nu)) for nu in range(3))
+        assert got == pytest.approx(want, rel=1e-9, abs=1e-12)
+
+
+@pytest.mark.parametrize("rate", ["position", "velocity"])
+def test_feed_forward_at_the_velocity_rate_holds_only_the_position_loops_part(rate):
+    """An NC ramp of the speed (constant acceleration): at the position rate the whole
+    velocity command is held between position samples; at the velocity rate the speed
+    feed-forward is interpolated at each velocity sample and only Kv e is held."""
+    position = dataclasses.replace(AXIS.position, feed_forward_rate=rate, acceleration_ff=0.0)
+    rig = Rig(dataclasses.replace(AXIS, position=position))
+    base, t_nc, acc = AXIS.base_period_s, AXIS.nc_period_s, 2.0
+    nc_div = round(t_nc / base)
+    pos_div = round(position.period_s / base)
+    vel_div = round(AXIS.velocity.period_s / base)
+    assert pos_div == 2 * vel_div  # the axis' position loop runs at half the velocity rate
+    x_meas = -1e-4
+    rig.meas[sig.MEAS_X_SCALE_M] = x_meas
+    for k in range(3 * nc_div):
+        t = k * base
+        if k % nc_div == 0:
+            rig.ref[sig.REF_POS_M : sig.REF_ACC_M_S2 + 1] = (0.5 * acc * t * t, acc * t, acc)
+        out = rig.tick(k)
+        if k < nc_div or k % vel_div:
+            continue
+        t_pos = (k - k % pos_div) * base  # the latest position-loop sample
+        e = _chord(acc, t_pos, t_nc) - x_meas
+        t_ff = t if rate == "velocity" else t_pos
+        v_ff = acc * (t_ff - t_nc)  # the speed ramps linearly: linear interpolation is exact
+        want = AXIS.position.Kv_1_s * e + v_ff
+        assert out[sig.OUT_VEL_REF_M_S] == pytest.approx(want, rel=1e-12, abs=1e-15)
+
+
+def _chord(acc: float, t: float, t_nc: float) -> float:
+    """The linear interpolator's position at t on NC samples of 0.5 acc t^2: the chord between
+    the two samples one NC period back."""
+    latched = math.floor(t / t_nc + 1e-9) * t_nc
+    s = (t - latched) / t_nc
+    return 0.5 * acc * ((1.0 - s) * (latched - t_nc) ** 2 + s * latched**2)
 
 
 def test_position_loop_law_with_feed_forward():

@@ -175,6 +175,18 @@ def test_with_mode_switches_the_boundary():
             "'velocity', 'torque'",
         ),
         (
+            "position.feed_forward_rate",
+            "current",
+            "config/test.yaml: controller.position.feed_forward_rate = 'current': must be one of "
+            "'position', 'velocity'",
+        ),
+        (
+            "position.interpolation",
+            "spline",
+            "config/test.yaml: controller.position.interpolation = 'spline': must be one of "
+            "'hold', 'linear', 'extrapolate', 'cubic'",
+        ),
+        (
             "velocity.notch.frequency_hz",
             5000.0,
             "config/test.yaml: controller.velocity.notch.frequency_hz = 5000.0: must lie below "
@@ -271,6 +283,12 @@ def test_source_digest_names_the_kernel_sources():
         (
             lambda: ccfg.PositionLoopConfig(period_s=1e-3, Kv_1_s=10.0, feedback="tacho"),
             "feedback = 'tacho': must be one of 'motor_encoder', 'linear_scale'",
+        ),
+        (
+            lambda: ccfg.PositionLoopConfig(
+                period_s=1e-3, Kv_1_s=10.0, feedback="linear_scale", feed_forward_rate="nc"
+            ),
+            "feed_forward_rate = 'nc': must be one of 'position', 'velocity'",
         ),
         (
             lambda: ccfg.NotchConfig(frequency_hz=100.0, bandwidth_hz=10.0, depth=1.5),

@@ -67,6 +67,16 @@ def test_axis_default_c_kernel_equals_numba_over_a_whole_program():
     _compare(load_axis_config(ROOT / "config" / "axis_default.yaml"))
 
 
+@pytest.mark.slow
+def test_cubic_interpolation_and_feed_forward_at_the_velocity_rate_in_c():
+    """The truth-nominal drive's setpoint path (feed_twin.control.cascade: `hermite`,
+    `refresh_feed_forward`) on the default axis, whose position loop runs at half its
+    velocity loop's rate."""
+    raw = load_yaml(ROOT / "config" / "axis_default.yaml")
+    raw["controller"]["position"] |= {"interpolation": "cubic", "feed_forward_rate": "velocity"}
+    _compare(load_axis_config(raw, source="axis_default.yaml, cubic, feed-forward at 8 kHz"), 1.0)
+
+
 def test_emps_c_kernel_equals_numba_over_a_whole_program():
     _compare(load_axis_config(ROOT / "config" / "emps.yaml"))
 

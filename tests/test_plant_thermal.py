@@ -112,3 +112,7 @@ def test_backlash_edit_needs_a_backlash_component():
     edit = BY_NAME["backlash"].edit(ModelDoc.load("config/axis_default.yaml"), cand)
     # nominal gap 2 um plus twice the half-gap weight
     assert edit.doc.get("backlash.gap") == pytest.approx(2e-6 + 8e-6)
+    # without a Backlash, the gap an AxialCompliance declares (tests/test_axial_gap.py)
+    edit = BY_NAME["backlash"].edit(ModelDoc.load("config/truth_nominal.yaml"), cand)
+    assert edit.doc.get("axial.gap") == pytest.approx(8e-6)
+    assert [p.name for p in edit.own] == ["axial.gap"]

@@ -65,6 +65,7 @@ def test_every_mode_formats_the_same_fields_with_units_and_no_raw_values():
             ros_domain=17,
             bag_recovered_messages=40,
             bag="bags/b",
+            slow_nodes={"/cnc/x/gcode": 2.5, "/cnc/x/controller": 0.91},
         ),
         RunReport(mode="axis nodes", exit_code=130),
     ]
@@ -81,6 +82,11 @@ def test_every_mode_formats_the_same_fields_with_units_and_no_raw_values():
     assert "p50 0.300 ms, p99 3.019 ms, max 3.100 ms; missed steps 1" in shadow
     assert f"/cnc/x/state: 12 dropped, from {INTRUDER}" in shadow
     assert "ROS domain:           17" in shadow
+    assert (
+        "slow nodes:           /cnc/x/controller 0.91 s, /cnc/x/gcode 2.50 s without progress "
+        "(not gone: the run went on)"
+    ) in shadow
+    assert "slow nodes:           none" in reports[0].format()
     assert "bags/b (incomplete: 40 messages recovered)" in shadow
     assert "interrupted" in reports[2].format() and reports[2].interrupted
 
@@ -99,6 +105,9 @@ def test_json_is_the_same_object_strict_and_keeps_the_earlier_keys():
     assert record["current_peak_A"] is None  # NaN is null in strict JSON
     assert record["foreign_messages"] == FOREIGN
     assert record["timing_missed_steps"] == 1 and record["mode"] == "axis nodes"
+    assert record["slow_nodes"] == {}
+    slow = RunReport(mode="axis nodes", exit_code=0, slow_nodes={"/cnc/x/sim": 1.25})
+    assert json.loads(json_line(slow.as_dict()))["slow_nodes"] == {"/cnc/x/sim": 1.25}
 
 
 def test_the_report_is_frozen_with_its_mappings():

@@ -221,7 +221,7 @@ def diagnose(
     leftover = _leftover(run, state.outputs, floors, start, motion)
     small = _too_small(vis, state, ranking)
     for u in small:
-        said.append(f"cannot be seen in this record: {u.name}: {u.reason}")
+        said.append(u.line())
         progress(said[-1])
     counter.validation(validate, state.simulations + appraisal.simulations)
     validation, validation_traces = _validate(validate, twin, state.twin, progress, notes)
@@ -241,6 +241,7 @@ def diagnose(
             [u["name"] for u in unfitted],
             leftover,
             [str(d["summary"]) for d in appraisal.drifts],
+            [u.name for u in vis.unseen if u.by_model],
         ),
         leftover=tuple(c.as_dict() for c in leftover),
         appraisal=appraisal.as_dict(),

@@ -16,11 +16,13 @@ the same axis as the record sees it:
   same current, through the screw's force per torque while driving;
 - an elastic two-port (Coupling, ScrewShaft, AxialCompliance; a Backlash whose gap is below the
   record's resolution) is rigid: its two ports are one node, and the inertia it carries stays
-  (a ScrewShaft: an Inertia of its J);
+  (a ScrewShaft: an Inertia of its J). On an axis without an electrical drive whose springs the
+  step resolves in one RK4 step they stay: rigid saves nothing there;
 - the model runs at the NC's interpolation period (the command has nothing finer): no current
   loop and no computation delay (the closed current loop lags a fifth of that step), the
   position and velocity loops at that period with the velocity loop re-tuned as the
-  controller node re-tunes it for its exchange (nodeset.controller_core); sensor delays are
+  controller node re-tunes it for its exchange (nodeset.controller_core), but keeping the
+  drive's own Kp and Ti where they lie within the re-tuned ones; sensor delays are
   counted again in the new ticks. Rigid, the axis is one body and allows that step (the
   friction's stiff sign at rest takes the RK4 sub-steps Twin.compile chooses);
 - a lossy screw (which needs a massless flange, so a spring behind it) becomes lossless with
@@ -93,7 +95,15 @@ def reduce(doc: ModelDoc, *, resolution_m: float) -> tuple[ModelDoc | None, list
         return None, ["a DcMotor's voltage drive is not reduced to a torque source"]
     try:
         limit = float(doc.data["controller"]["drive"]["effort_limit"])
-        plant, changes = _plant(doc, step, limit, resolution_m)
+        plant, changes = _plant(doc, step, limit, resolution_m, rigid=True)
+        if not kinds & {"Pmsm", *DRIVE_TYPES}:
+            # a torque-source axis whose springs the step resolves in one RK4 step gains
+            # nothing from making them rigid: they stay (rigid, the truth machine's nominal
+            # twin named an asymmetric friction for a Coulomb force and a weight on 10 Hz logs
+            # that its compliant model at the same step named right)
+            elastic, kept = _plant(doc, step, limit, resolution_m, rigid=False)
+            if _resolved(elastic, step, doc.source):
+                plant, changes = elastic, kept
         screws = doc.of_type(BallScrew.TYPE)
         eta = doc.get(f"{screws[0]}.efficiency") if len(screws) == 1 else 1.0
         if eta < 1.0:
@@ -112,7 +122,9 @@ def reduce(doc: ModelDoc, *, resolution_m: float) -> tuple[ModelDoc | None, list
         analysis[EFFORT_SIGNAL_KEY] = "current_q_A"
         analysis.setdefault(POLE_PAIRS_KEY, int(doc.component(motors[0])["params"]["p"]))
         data[ANALYSIS_SECTION] = analysis
-    reduced = ModelDoc(data=data, source=doc.source)
+    # the recorded effort's conversion stays the model's (an EffortSource's gain: without it
+    # the reduced twin's effort came out in the drive's unit, 1/K_t of the full one's)
+    reduced = ModelDoc(data=data, source=doc.source, reference_gain=doc.reference_gain)
     step_ms = f"{doc.base_period() * 1e3:.4g} ms -> {step * 1e3:.4g} ms"
     return reduced, [f"step {step_ms} (no current loop)", *changes, *tuned]
 
@@ -133,6 +145,7 @@ def _controller(doc: ModelDoc, step: float) -> tuple[dict[str, Any], list[str]]:
 
     config = load_controller_config(doc.data["controller"], source=doc.source)
     derived, notes = controller_node_config(config, step)
+    notes = [n for n in notes if "capped" in n]
     out = copy.deepcopy(doc.data["controller"])
     out.pop("current", None)
     out["base_period_s"] = step
@@ -142,13 +155,40 @@ def _controller(doc: ModelDoc, step: float) -> tuple[dict[str, Any], list[str]]:
         if loop is not None:
             out[name]["period_s"] = loop.period_s
             out[name].update({k: float(getattr(loop, k)) for k in keys})
-    return out, [n for n in notes if "re-tuned" in n or "capped" in n]
+    own, tuned = config.velocity, derived.velocity
+    if own is not None and tuned is not None and tuned.Ti_s is not None:
+        # the drive's own gains where they lie within the re-tuned ones (a Kp no higher, an
+        # integral no faster): they are stable at the step and answer as the machine does (the
+        # truth machine's 4 kHz loop, re-tuned for 1 ms, got Ti 8 ms for its 16 ms, and its
+        # 10 Hz records named an asymmetric friction for a Coulomb force and a weight)
+        Kp = min(own.Kp, tuned.Kp)
+        Ti = tuned.Ti_s if own.Ti_s is None else max(own.Ti_s, tuned.Ti_s)
+        out["velocity"].update({"Kp": Kp, "Ti_s": Ti})
+        if (Kp, Ti) != (own.Kp, own.Ti_s):
+            notes.append(
+                f"velocity loop re-tuned for the step: Kp {own.Kp:g} -> {Kp:.4g}, "
+                f"Ti {own.Ti_s!r} -> {Ti:.4g} s"
+            )
+    return out, notes
+
+
+def _resolved(plant: dict[str, Any], step: float, source: str) -> bool:
+    """The plant section's modes need no RK4 sub-step at `step` (Twin.compile's rule)."""
+    from feed_twin.analysis.twin import substeps_needed
+    from feed_twin.plant.config import load_plant
+
+    model = load_plant(plant, source=source)
+    try:
+        return substeps_needed(model, model.nominal_params(), step) == 1
+    except ConfigError:  # no sub-step count makes it stable
+        return False
 
 
 def _plant(
-    doc: ModelDoc, step: float, effort_limit: float, resolution_m: float
+    doc: ModelDoc, step: float, effort_limit: float, resolution_m: float, *, rigid: bool
 ) -> tuple[dict[str, Any], list[str]]:
-    """The plant section, rigid and torque-driven (module docstring), and what changed."""
+    """The plant section, torque-driven and (`rigid`) with its elastic two-ports rigid (module
+    docstring), and what changed."""
     ratio = doc.base_period() / step
     parent: dict[str, str] = {}
 
@@ -175,7 +215,9 @@ def _plant(
                 f"{name} (Pmsm) -> rotor inertia + torque source of K_t"
                 + (" (its cogging dropped)" if params.get("cogging") else "")
             )
-        elif kind in ELASTIC_TYPES or (kind == "Backlash" and float(params["gap"]) < resolution_m):
+        elif (rigid and kind in ELASTIC_TYPES) or (
+            kind == "Backlash" and float(params["gap"]) < resolution_m
+        ):
             join(f"{name}.a", f"{name}.b")
             j = _carried_inertia(entry)
             if j > 0.0:

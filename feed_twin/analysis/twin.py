@@ -193,7 +193,7 @@ class Twin:
             raise ConfigError(
                 f"{doc.source}: engine.substeps = {given!r}: must be a whole number >= 1"
             )
-        nsub = max(min_substeps, given, _substeps(plant, nominal, controller.base_period_s))
+        nsub = max(min_substeps, given, substeps_needed(plant, nominal, controller.base_period_s))
         engine = Engine(
             plant,
             base_period_s=controller.base_period_s,
@@ -227,6 +227,12 @@ class Twin:
     @property
     def base_period_s(self) -> float:
         return float(self.controller.base_period_s)
+
+    def _cubic_setpoints(self) -> bool:
+        """The controller fine-interpolates the NC setpoints by a cubic (`interpolation:
+        cubic`)."""
+        position = self.controller.config.position
+        return position is not None and position.interpolation == "cubic"
 
     def _inputs(
         self, drive: Drive, window_ticks: int | None = None
@@ -266,7 +272,13 @@ class Twin:
                 # each command sample is a mean over the trace's window: the smooth command
                 # whose window means they are (recorder.deaveraged)
                 set_nc_reference(ref, *deaveraged(drive.t_s, drive.pos_ref_m, fine, window_ticks))
-            elif period > SLOW_COMMAND_S:
+            elif period > SLOW_COMMAND_S or (
+                self._cubic_setpoints() and period > self.controller.config.nc_period_s
+            ):
+                # a drive that fine-interpolates a cubic through the NC points' positions and
+                # velocities needs the two to agree: the linear pieces' velocities are not
+                # their positions' slopes, and its cubic wiggled between them (a 20 ms trace's
+                # effort came out of phase with the machine's)
                 set_nc_reference(ref, *_smooth_command(fine, drive.t_s, drive.pos_ref_m))
             else:
                 set_nc_reference(
@@ -640,7 +652,7 @@ def _recorded(has_voltage: bool) -> list[str]:
     return names + (["out.u_q_ref_V"] if has_voltage else [])
 
 
-def _substeps(plant: Any, p: np.ndarray, h: float) -> int:
+def substeps_needed(plant: Any, p: np.ndarray, h: float) -> int:
     """The fewest RK4 sub-steps (1, 2, 4, ... 64) the engine accepts for these parameters
     (the damping slopes, engine.check_step) and that keep RK4 stable on the fastest spring's
     oscillation (engine.oscillation_rate: h / nsub * omega < RK4_STABILITY_MARGIN)."""

@@ -105,13 +105,21 @@ def _correlation(r: np.ndarray, q: np.ndarray) -> float:
 
 
 def verdict(
-    found: list[str], unfitted: list[str], leftover: list[Leftover], drifts: Sequence[str] = ()
+    found: list[str],
+    unfitted: list[str],
+    leftover: list[Leftover],
+    drifts: Sequence[str] = (),
+    unsearched: Sequence[str] = (),
 ) -> str:
     """The verdict's sentence: what the model misses, what changed over the record
-    (analysis.drift), and what is left far above the noise."""
+    (analysis.drift), what is left far above the noise, and then the effects the model could
+    not carry and were not searched (analysis.visibility: what is left may be theirs)."""
     text = _verdict(found, unfitted, leftover)
     if drifts:
         text += "; and something changed over the record: " + "; ".join(drifts)
+    if unsearched and any(c.far_above_noise for c in leftover):
+        # what is left might be theirs: said where a residual far above the noise remains
+        text += f"; not searched, the model cannot carry them: {', '.join(unsearched)}"
     return text
 
 

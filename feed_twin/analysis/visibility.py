@@ -66,10 +66,16 @@ RIPPLE_ORDERS = {"cogging_torque": 2, "current_offset": 1}
 
 @dataclass(frozen=True, kw_only=True)
 class Unseen:
-    """An effect the record cannot show, and why (one line)."""
+    """An effect the record cannot show (or the model cannot carry: `by_model`), and why (one
+    line)."""
 
     name: str
     reason: str
+    by_model: bool = False
+
+    def line(self) -> str:
+        where = "not searched with this model" if self.by_model else "cannot be seen in this record"
+        return f"{where}: {self.name}: {self.reason}"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -108,7 +114,7 @@ class Visibility:
                 "the position channel carries no evidence: the following error is below the "
                 "resolution, so set minus actual shows the rounding; it is not fitted or tested"
             )
-        out += [f"cannot be seen in this record: {u.name}: {u.reason}" for u in self.unseen]
+        out += [u.line() for u in self.unseen]
         if self.blind is not None and self.blind.any():
             out.append(
                 f"{int(self.blind.sum())} samples ({100 * float(self.blind.mean()):.2g} %) fall "
@@ -154,6 +160,7 @@ def assess(
         )
         unseen += [Unseen(name=e, reason=why) for e in POSITION_EFFECTS]
     unseen += _fast_effects(run, twin, speed[moving], h)
+    unseen += [u for u in _uncarried(run, twin) if u.name not in {v.name for v in unseen}]
     unseen += _slow_motion_effects(twin, v, moving, h, q)
     blind = None
     if "mass_error" in [u.name for u in unseen]:
@@ -215,6 +222,25 @@ def _fast_effects(run: MeasuredRun, twin: Twin, speeds: np.ndarray, h: float) ->
                     )
                 )
     return out
+
+
+def _uncarried(run: MeasuredRun, twin: Twin) -> list[Unseen]:
+    """Effects the model has nothing to carry and the ranking cannot even weigh in this record,
+    said rather than left out in silence: the inverter's dead time in a model without an
+    Inverter (an effort source behind an ideal current loop) on a record without the drive's
+    q-current (its signature is a function of the current's sign)."""
+    if twin.doc.of_type("Inverter") or run.signals.get("current_q_A") is not None:
+        return []
+    return [
+        Unseen(
+            name="dead_time",
+            reason="the model drives its motor through an ideal current loop (no Inverter): the "
+            "inverter's dead time, volts its current loop makes up after every reversal of the "
+            "phase currents (the actual current dips for a few ms there), has nothing to act "
+            "on; a model with an Inverter and its current loop can name it",
+            by_model=True,
+        )
+    ]
 
 
 def _slow_motion_effects(

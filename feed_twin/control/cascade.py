@@ -11,6 +11,9 @@ period; all positions and velocities load side, SI):
 
 Position loop (period T_p), P with feed-forward, on the fine-interpolated NC setpoint x_r:
     v_cmd = Kv * (x_r - x_fb) + k_vff * v_r,      i_ff = k_aff * a_r * (2*pi/lead) * J_total / K_t
+    (x_r, v_r, a_r from the NC samples held, linearly or cubically (Hermite) interpolated one NC
+    period late, or extrapolated; with `feed_forward_rate: velocity` v_r and a_r are
+    interpolated anew at every velocity-loop sample, Kv * (x_r - x_fb) held between)
     x_fb = theta_enc * lead / (2*pi)   (semi-closed loop)   or   x_scale   (closed loop)
 Velocity loop (period T_v), PI with clamping anti-windup and the effort (current) limit:
     i_q* = clip(Kp * (e_v + (T_v/Ti) * sum e_v) + i_ff + effort_add, +/- effort_limit)
@@ -52,6 +55,7 @@ from numba import njit
 from feed_twin.control import layout as lay
 from feed_twin.control.blocks import biquad_update, pi_integrate, pi_update
 from feed_twin.control.config import (
+    INTERP_CUBIC,
     INTERP_HOLD,
     INTERP_LINEAR,
     MODE_POSITION,
@@ -99,8 +103,39 @@ def interpolate(
             prev[1] + frac * (cur[1] - prev[1]),
             prev[2] + frac * (cur[2] - prev[2]),
         )
+    if method == INTERP_CUBIC:
+        return hermite(frac, nc_period_s, prev, cur)
     dt = frac * nc_period_s
     return (cur[0] + cur[1] * dt + 0.5 * cur[2] * dt * dt, cur[1] + cur[2] * dt, cur[2])
+
+
+@njit(forceinline=True)
+def hermite(
+    s: float, span_s: float, prev: tuple[float, float, float], cur: tuple[float, float, float]
+) -> tuple[float, float, float]:
+    """Cubic Hermite spline from `prev` (s = 0) to `cur` (s = 1) through both samples' positions
+    with both samples' velocities, over span_s: (x, dx/dt, d2x/dt2) at the fraction s. One NC
+    period late like the linear interpolator, but its position follows the curve the velocities
+    describe (the linear one runs on the chord) and its velocity is that curve's slope."""
+    s2 = s * s
+    s3 = s2 * s
+    x0, v0 = prev[0], prev[1] * span_s  # the slopes per unit of s
+    x1, v1 = cur[0], cur[1] * span_s
+    x = (2.0 * s3 - 3.0 * s2 + 1.0) * x0 + (s3 - 2.0 * s2 + s) * v0
+    x += (3.0 * s2 - 2.0 * s3) * x1 + (s3 - s2) * v1
+    dx = (
+        (6.0 * s2 - 6.0 * s) * (x0 - x1)
+        + (3.0 * s2 - 4.0 * s + 1.0) * v0
+        + (3.0 * s2 - 2.0 * s) * v1
+    )
+    ddx = (12.0 * s - 6.0) * (x0 - x1) + (6.0 * s - 4.0) * v0 + (6.0 * s - 2.0) * v1
+    return x, dx / span_s, ddx / (span_s * span_s)
+
+
+@njit(forceinline=True)
+def velocity_command(e: float, v_r: float, Kv: float, vff: float, v_limit: float) -> float:
+    """The position loop's velocity command from its following error e and the speed v_r."""
+    return min(max(Kv * e + vff * v_r, -v_limit), v_limit)
 
 
 @njit(forceinline=True)
@@ -116,8 +151,7 @@ def position_law(
 ) -> tuple[float, float, float]:
     """P position loop: (velocity command [m/s], effort feed-forward, following error [m])."""
     e = x_r - x_fb
-    v_cmd = min(max(Kv * e + vff * v_r, -v_limit), v_limit)
-    return v_cmd, acc_ff_gain * a_r, e
+    return velocity_command(e, v_r, Kv, vff, v_limit), acc_ff_gain * a_r, e
 
 
 @njit(_nrt=False, forceinline=True)  # pyright: ignore[reportCallIssue]  numba-only options
@@ -232,6 +266,30 @@ def estimate_velocity(cp: np.ndarray, cs: np.ndarray, x_enc: float) -> None:
 
 
 @njit(inline="always")
+def setpoint(cp: np.ndarray, cs: np.ndarray, k: int) -> tuple[float, float, float]:
+    """The fine-interpolated NC setpoint (x, v, a) at tick k."""
+    return interpolate(
+        int(cp[lay.P_INTERPOLATION]),
+        (k - cs[lay.S_NC_TICK]) * cp[lay.P_NC_DIV_INV],
+        cp[lay.P_NC_DIV] * cp[lay.P_BASE_PERIOD],
+        (cs[lay.S_NC_PREV_POS], cs[lay.S_NC_PREV_POS + 1], cs[lay.S_NC_PREV_POS + 2]),
+        (cs[lay.S_NC_POS], cs[lay.S_NC_POS + 1], cs[lay.S_NC_POS + 2]),
+    )
+
+
+@njit(inline="always")
+def refresh_feed_forward(cp: np.ndarray, cs: np.ndarray, k: int) -> None:
+    """A velocity-loop sample between position-loop samples (feed_forward_rate: velocity): the
+    speed and acceleration feed-forwards fine-interpolated anew, the position loop's own part
+    (Kv times its latest following error) held."""
+    _, v_r, a_r = setpoint(cp, cs, k)
+    cs[lay.S_VEL_CMD] = velocity_command(
+        cs[lay.S_FOLLOWING_ERROR], v_r, cp[lay.P_KV], cp[lay.P_VFF], cp[lay.P_V_LIMIT]
+    )
+    cs[lay.S_EFFORT_FF] = cp[lay.P_ACC_FF_GAIN] * a_r
+
+
+@njit(inline="always")
 def position_loop(
     cp: np.ndarray,
     cs: np.ndarray,
@@ -242,14 +300,7 @@ def position_loop(
 ) -> None:
     """Fine interpolation of the NC setpoint and the P position loop; latches
     FAULT_FOLLOWING_ERROR beyond the limit when `watch_following_error`."""
-    nc_div = cp[lay.P_NC_DIV]
-    x_r, v_r, a_r = interpolate(
-        int(cp[lay.P_INTERPOLATION]),
-        (k - cs[lay.S_NC_TICK]) * cp[lay.P_NC_DIV_INV],
-        nc_div * cp[lay.P_BASE_PERIOD],
-        (cs[lay.S_NC_PREV_POS], cs[lay.S_NC_PREV_POS + 1], cs[lay.S_NC_PREV_POS + 2]),
-        (cs[lay.S_NC_POS], cs[lay.S_NC_POS + 1], cs[lay.S_NC_POS + 2]),
-    )
+    x_r, v_r, a_r = setpoint(cp, cs, k)
     closed = cp[lay.P_FEEDBACK_SCALE] == lay.FEEDBACK_SCALE
     x_fb = meas[sig.MEAS_X_SCALE_M] if closed else x_enc
     v_cmd, effort_ff, e = position_law(
@@ -408,6 +459,8 @@ def cascade_tick(
         estimate_velocity(cp, cs, x_enc)
     if has_position and due(k, cp[lay.P_POS_DIV]):
         position_loop(cp, cs, k, meas, x_enc, active and mode == MODE_POSITION)
+    elif has_position and vel_due and cp[lay.P_FF_RATE] == lay.FF_AT_VELOCITY:
+        refresh_feed_forward(cp, cs, k)
 
     active = is_active(cs)
     if mode == MODE_VELOCITY:

@@ -30,11 +30,14 @@ MODE_POSITION = 0
 MODE_VELOCITY = 1
 MODE_TORQUE = 2
 
-Interpolation = Literal["hold", "linear", "extrapolate"]
-INTERPOLATION_CODES = {"hold": 0, "linear": 1, "extrapolate": 2}
+Interpolation = Literal["hold", "linear", "extrapolate", "cubic"]
+INTERPOLATION_CODES = {"hold": 0, "linear": 1, "extrapolate": 2, "cubic": 3}
 INTERP_HOLD = 0
 INTERP_LINEAR = 1
 INTERP_EXTRAPOLATE = 2
+INTERP_CUBIC = 3
+
+FeedForwardRate = Literal["position", "velocity"]
 
 
 def require_choice(name: str, value: str, choices: tuple[str, ...]) -> None:
@@ -73,6 +76,9 @@ class PositionLoopConfig:
     velocity_ff: float = 0.0  # velocity feed-forward gain [-], 0..1
     acceleration_ff: float = 0.0  # acceleration feed-forward gain [-], 0..1
     interpolation: Interpolation = "linear"  # fine interpolation of the NC setpoints
+    # where the feed-forwards are fine-interpolated and added: once per position-loop sample
+    # (held over it), or once per velocity-loop sample (the position loop's own output held)
+    feed_forward_rate: FeedForwardRate = "position"
     following_error_limit_m: float | None = None  # trip level [m]; None: no monitoring
     velocity_limit_m_s: float | None = None  # clamp of the velocity command [m/s]
 
@@ -80,6 +86,7 @@ class PositionLoopConfig:
         require_positive("period_s", self.period_s)
         require_choice("feedback", self.feedback, ("motor_encoder", "linear_scale"))
         require_choice("interpolation", self.interpolation, tuple(INTERPOLATION_CODES))
+        require_choice("feed_forward_rate", self.feed_forward_rate, ("position", "velocity"))
         require_nonnegative("Kv_1_s", self.Kv_1_s)
         require_range("velocity_ff", self.velocity_ff, 0.0, 1.0)
         require_range("acceleration_ff", self.acceleration_ff, 0.0, 1.0)

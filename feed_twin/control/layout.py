@@ -46,6 +46,7 @@ PARAM_NAMES = (
     "acc_ff_gain",
     "feedback_scale",  # FEEDBACK_ENCODER or FEEDBACK_SCALE
     "interpolation",  # a config.INTERP_* code
+    "ff_rate",  # FF_AT_POSITION or FF_AT_VELOCITY: where the feed-forwards are added
     "fe_limit_m",
     "v_limit_m_s",
     "has_velocity",
@@ -143,6 +144,7 @@ P_VFF = _slot(PARAM_NAMES, "velocity_ff")
 P_ACC_FF_GAIN = _slot(PARAM_NAMES, "acc_ff_gain")
 P_FEEDBACK_SCALE = _slot(PARAM_NAMES, "feedback_scale")
 P_INTERPOLATION = _slot(PARAM_NAMES, "interpolation")
+P_FF_RATE = _slot(PARAM_NAMES, "ff_rate")
 P_FE_LIMIT = _slot(PARAM_NAMES, "fe_limit_m")
 P_V_LIMIT = _slot(PARAM_NAMES, "v_limit_m_s")
 P_HAS_VELOCITY = _slot(PARAM_NAMES, "has_velocity")
@@ -212,13 +214,15 @@ S_FIR_HIST = len(STATE_NAMES)  # the FIR difference history follows the named sl
 LOOP_ABSENT, LOOP_PRESENT = 0, 1  # has_position, has_velocity, has_current
 FEEDBACK_ENCODER, FEEDBACK_SCALE = 0, 1  # feedback_scale: semi-closed or closed position loop
 DELAY_NONE, DELAY_ONE_SAMPLE = 0, 1  # computation_delay
+FF_AT_POSITION, FF_AT_VELOCITY = 0, 1  # ff_rate: the position loop's rate or the velocity loop's
 PENDING, STARTED = 0, 1  # initialised: the first tick latches the setpoint and the encoder
 STAGE_OFF, STAGE_ON = 0, 1  # enable_cmd: the power stage as requested (CiA 402 controlword)
 
 # The cascade's structure: its mode, which loops exist and at what rates, the feedback source,
-# the interpolation, the FIR's length and the computation delay. The engine compiles these slots
-# into its kernel as constants (one kernel per structure, as a Modelica tool evaluates structural
-# parameters), so the tick has no branch on them; every other slot is read as the loop runs.
+# the interpolation and the feed-forward's rate, the FIR's length and the computation delay. The
+# engine compiles these slots into its kernel as constants (one kernel per structure, as a
+# Modelica tool evaluates structural parameters), so the tick has no branch on them; every other
+# slot is read as the loop runs.
 STRUCTURE_NAMES = (
     "base_period_s",
     "mode",
@@ -229,6 +233,7 @@ STRUCTURE_NAMES = (
     "pos_div",
     "feedback_scale",
     "interpolation",
+    "ff_rate",
     "has_velocity",
     "vel_div",
     "fir_n",
@@ -296,6 +301,7 @@ def build_cascade(config: ControllerConfig) -> CompiledCascade:
         )
         p[P_FEEDBACK_SCALE] = FEEDBACK_SCALE if pos.feedback == "linear_scale" else FEEDBACK_ENCODER
         p[P_INTERPOLATION] = INTERPOLATION_CODES[pos.interpolation]
+        p[P_FF_RATE] = FF_AT_VELOCITY if pos.feed_forward_rate == "velocity" else FF_AT_POSITION
         if pos.following_error_limit_m is not None:
             p[P_FE_LIMIT] = pos.following_error_limit_m
         if pos.velocity_limit_m_s is not None:

@@ -131,6 +131,9 @@ class RunReport:
     foreign_messages: Mapping[str, Mapping[str, Any]] = field(
         default_factory=lambda: MappingProxyType({})
     )
+    # node -> its longest time without progress [s] said by a peer: slow, not gone, the run
+    # went on (feed_twin.nodeset.liveness)
+    slow_nodes: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
     def __post_init__(self) -> None:
         if not self.mode:
@@ -138,6 +141,7 @@ class RunReport:
         # frozen all the way down: the mappings cannot be changed through the report
         object.__setattr__(self, "figures", MappingProxyType(dict(self.figures)))
         object.__setattr__(self, "rrd_per_axis", MappingProxyType(dict(self.rrd_per_axis)))
+        object.__setattr__(self, "slow_nodes", MappingProxyType(dict(self.slow_nodes)))
         foreign = {t: MappingProxyType(dict(e)) for t, e in self.foreign_messages.items()}
         object.__setattr__(self, "foreign_messages", MappingProxyType(foreign))
 
@@ -166,6 +170,7 @@ class RunReport:
             ("lateness", self.timing.lateness_text()),
             ("samples", "not counted" if self.samples is None else str(self.samples)),
             ("foreign messages", foreign or "none"),
+            ("slow nodes", self._slow_text()),
             ("ROS domain", domain),
             ("bag", (self.bag or "none") + (recovered if self.bag else "")),
             ("rerun", self._rrd_text()),
@@ -174,6 +179,10 @@ class RunReport:
         ]
         lines = [*self.figure_lines, *(f"{k + ':':<{_LABEL_WIDTH}}{v}" for k, v in rows)]
         return "\n".join(lines)
+
+    def _slow_text(self) -> str:
+        slow = ", ".join(f"{n} {s:.2f} s" for n, s in sorted(self.slow_nodes.items()))
+        return f"{slow} without progress (not gone: the run went on)" if slow else "none"
 
     def _rrd_text(self) -> str:
         per_axis = ", ".join(f"{a}: {p or 'none'}" for a, p in self.rrd_per_axis.items())
@@ -198,6 +207,7 @@ class RunReport:
                 t: {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in e.items()}
                 for t, e in self.foreign_messages.items()
             },
+            "slow_nodes": dict(self.slow_nodes),
         }
         # a figure of the same name (the node set's `samples`) does not hide the report's
         figures = {k: v for k, v in self.figures.items() if k not in base}

@@ -14,6 +14,12 @@ Periodic lead error: the screw's thread deviates from the ideal helix by
 e(s_a) = A*sin(2*pi*s_a/P + phase) (P = the lead for the once-per-revolution error of the
 accuracy classes, s_a = r*phi the ideal nut travel), so the spring sees delta = s_a + e(s_a) - s_b,
 and the screw side receives -f*(1 + e'(s_a)) (virtual work: still conservative).
+Lost motion of the nut (`gap` > 0, default 0): the spring acts on delta less the half gap
+b = gap/2 beyond it and not at all within it, f_e = k(x) * (delta -+ b) for |delta| > b, 0
+inside, the damper only in contact and limited so that f never changes the sign of f_e (a
+contact pushes, never pulls; plant.backlash's law). It is the dead zone of a Backlash in series
+with the spring without a nut mass between them: a Backlash needs that mass, and a nut of a few
+kilograms on the contact would oscillate at kilohertz, many sub-steps per tick of a 1 kHz twin.
 The bearing arrangement is structure, not a parameter: the generated code passes the law a
 constant (`fixed_fixed_flag`), so the compiled loop has no branch on it.
 Ports: `a`, `b` (translational: s [m], v [m/s], f [N]).
@@ -99,10 +105,13 @@ def axial_force(
     fixed_fixed: float,
     x_min: float,
     d: float,
+    gap: float,
 ) -> tuple[float, float, float, float, float]:
     """(cut force a->b, extra force on b from dk/dx, stiffness, stored energy, loss power)."""
     k, dk = axial_stiffness(x, L, EA, k_bearing, k_nut, fixed_fixed, x_min)
     damping = d * delta_rate
+    if gap > 0.0:
+        return _lost_motion(delta, delta_rate, 0.5 * gap, k, dk, damping)
     return (
         k * delta + damping,
         -0.5 * dk * delta * delta,
@@ -110,6 +119,23 @@ def axial_force(
         0.5 * k * delta * delta,
         damping * delta_rate,
     )
+
+
+@njit(error_model="numpy", forceinline=True)
+def _lost_motion(
+    delta: float, delta_rate: float, half: float, k: float, dk: float, damping: float
+) -> tuple[float, float, float, float, float]:
+    """axial_force's terms with the nut's lost motion `half` either side (module docstring)."""
+    if delta > half:
+        spring = delta - half
+        f = max(k * spring + damping, 0.0)
+    elif delta < -half:
+        spring = delta + half
+        f = min(k * spring + damping, 0.0)
+    else:
+        return 0.0, 0.0, k, 0.0, 0.0
+    energy = 0.5 * k * spring * spring
+    return f, -0.5 * dk * spring * spring, k, energy, (f - k * spring) * delta_rate
 
 
 def axial_rigidity(E: float, d_root: float) -> float:
@@ -255,6 +281,7 @@ class AxialCompliance(Component):
     lead_error_amplitude: float = 0.0  # amplitude A of the periodic lead error [m]; 0: none
     lead_error_period: float | None = None  # its period P in nut travel [m], usually the lead
     lead_error_phase: float = 0.0  # its phase [rad]
+    gap: float = 0.0  # lost motion of the nut, total [m] (module docstring); 0: none
 
     def __post_init__(self) -> None:
         require_positive("E", self.E)
@@ -270,6 +297,7 @@ class AxialCompliance(Component):
         require_positive("k_nut", self.k_nut)
         require_nonnegative("d", self.d)
         require_nonnegative("lead_error_amplitude", self.lead_error_amplitude)
+        require_nonnegative("gap", self.gap)
         if self.lead_error_period is not None:
             require_positive("lead_error_period", self.lead_error_period)
         elif self.lead_error_amplitude > 0.0:
@@ -292,6 +320,7 @@ class AxialCompliance(Component):
                 0.0 if self.lead_error_period is None else 2.0 * math.pi / self.lead_error_period
             ),
             "lead_error_phase": self.lead_error_phase,
+            "gap": self.gap,
         }
 
     def stiffness(self, s_b: float) -> float:
@@ -346,6 +375,7 @@ class AxialCompliance(Component):
                 fixed_fixed_flag(self.arrangement),
                 g.p("x_min"),
                 g.p("d"),
+                g.p("gap"),
             ),
         )
         g.apply("a", f"-{f} * (1.0 + {slope})")

@@ -53,18 +53,30 @@ def _last_direction(m: Motion) -> dict[str, FloatArray]:
     return {"last_direction": last_direction(m)}
 
 
+def gap_slot(doc: Document) -> str:
+    """The slot that carries the lost motion between nut and table: the model's Backlash gap,
+    else the gap of an AxialCompliance whose parameters declare one (the nut's lost motion in
+    series with the screw's spring, no nut mass: plant.axial_compliance); a LookupError says
+    what the model lacks."""
+    found = doc.of_type(Backlash.TYPE)
+    if found:
+        return f"{found[0]}.gap"
+    for name in doc.of_type("AxialCompliance"):
+        if "gap" in doc.component(name).get("params", {}):
+            return f"{name}.gap"
+    raise LookupError(
+        "the model has no Backlash between a nut mass and the table, nor an AxialCompliance "
+        "that declares the nut's gap, to carry the gap"
+    )
+
+
 def _gap_edit(doc: Document, cand: Weights) -> Edit:
     """The gap of the model's Backlash (lost motion between nut and table) is fitted.
 
     A move in +x leaves the table b = gap/2 behind the nut, a move in -x b ahead, so the
     position residual (twin minus measured) is (gap_true - gap_model)/2 * last direction.
     """
-    found = doc.of_type(Backlash.TYPE)
-    if not found:
-        raise LookupError(
-            "the model has no Backlash between a nut mass and the table to carry the gap"
-        )
-    slot = f"{found[0]}.gap"
+    slot = gap_slot(doc)
     nominal = doc.get(slot)
     guess = max(nominal + 2.0 * cand.coefficients.get("last_direction", 0.0), 1e-7)
     doc = doc.set(slot, guess)
@@ -73,7 +85,7 @@ def _gap_edit(doc: Document, cand: Weights) -> Edit:
 
 
 def _gap_truth(doc: Document, p: Mapping[str, float]) -> Document:
-    return doc.set(f"{doc.of_type(Backlash.TYPE)[0]}.gap", p["gap_m"])
+    return doc.set(gap_slot(doc), p["gap_m"])
 
 
 @dataclass(frozen=True, kw_only=True)

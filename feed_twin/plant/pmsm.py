@@ -36,6 +36,7 @@ import numpy as np
 from numba import njit
 
 from feed_twin.core.validate import require_nonnegative, require_positive
+from feed_twin.plant.cogging_torque import CoggingTorque
 from feed_twin.plant.component import (
     Component,
     Emitter,
@@ -147,11 +148,40 @@ class CoggingHarmonic:
 
 
 def with_cogging(doc: Document, order: int, amplitude: float, phase: float) -> tuple[Document, str]:
-    """The document with a cogging harmonic on its (first) Pmsm; (document, slot prefix)."""
+    """The document with a cogging harmonic on its (first) Pmsm, or, in a model without one, a
+    CoggingTorque on the flange of its rotational EffortSource (the rotor of a drive behind its
+    current loop); (document, slot prefix)."""
+    if not doc.of_type(Pmsm.TYPE):
+        source = _rotor_source(doc)
+        params = {"order": int(order), "amplitude": float(amplitude), "phase": float(phase)}
+        doc, name = doc.with_component(
+            "cogging", CoggingTorque.TYPE, params, [["{name}.flange", f"{source}.flange"]]
+        )
+        return doc, f"{name}."
     motor = first_of(doc, Pmsm.TYPE, "to carry cogging")
     harmonics = list(doc.component(motor)["params"].get("cogging", []))
     harmonics.append({"order": int(order), "amplitude": float(amplitude), "phase": float(phase)})
     return doc.set_raw(motor, "cogging", harmonics), f"{motor}.cog{len(harmonics) - 1}_"
+
+
+def _rotor_source(doc: Document) -> str:
+    """The model's EffortSource that drives a rotor flange, or a LookupError."""
+    for name in doc.of_type("EffortSource"):
+        if doc.component(name).get("params", {}).get("domain") == "rotational":
+            return name
+    raise LookupError(
+        "the model has no Pmsm, nor an EffortSource on a rotor flange, to carry cogging"
+    )
+
+
+def _torque_per_effort(doc: Document, cand: Weights) -> float:
+    """[N m per unit of the effort residual] the motor's K_t (a current), else, on an effort
+    source's rotor, the weight's force at the table back through the screw (a starting value:
+    the amplitude is fitted)."""
+    if doc.of_type(Pmsm.TYPE):
+        return torque_constant(doc)
+    screw = first_of(doc, "BallScrew", "whose lead turns the table's force into torque")
+    return cand.force_per_unit * doc.get(f"{screw}.lead") / (2.0 * math.pi)
 
 
 def torque_constant(doc: Document) -> float:
@@ -166,10 +196,9 @@ def _cogging_edit(doc: Document, cand: Weights) -> Edit:
     -(A/K_t) sin(k phi + psi): the weights (s, c) of (sin, cos) give A = K_t sqrt(s^2 + c^2)
     and psi = atan2(-c, -s).
     """
-    k_t = torque_constant(doc)
     order = int(cand.variant.split()[1]) if cand.variant else 6
     s_w, c_w = cand.coefficients.get("sin", 0.0), cand.coefficients.get("cos", 0.0)
-    amplitude = max(k_t * math.hypot(s_w, c_w), 1e-4)
+    amplitude = max(_torque_per_effort(doc, cand) * math.hypot(s_w, c_w), 1e-4)
     phase = math.atan2(-c_w, -s_w)
     doc, prefix = with_cogging(doc, order, amplitude, phase)
     own = [
@@ -195,9 +224,12 @@ def _cogging_choices(m: Motion) -> list[tuple[str, Signature]]:
             "cos": np.cos(k * motor_angle(mm)),
         }
 
-    # once per electrical revolution (order = pole pairs) is current_offset's signature: a
-    # cogging torque repeats lcm(slots, 2 p) times per revolution, never p times
-    orders = [k for k in COGGING_ORDERS if k != m.pole_pairs]
+    # once per electrical revolution (order = pole pairs) is current_offset's signature, once
+    # per revolution a lead error's or an eccentricity's (on a direct-drive screw): a cogging
+    # torque repeats lcm(slots, 2 p) >= 2 times per revolution, never once and never p times
+    # (the truth machine's lead error was named a cogging of order 1 when its twin could carry
+    # one)
+    orders = [k for k in COGGING_ORDERS if k > 1 and k != m.pole_pairs]
     return [(f"order {k} per motor revolution", make(k)) for k in orders]
 
 

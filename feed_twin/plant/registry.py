@@ -11,6 +11,7 @@ import dataclasses
 from feed_twin.plant.axial_compliance import AxialCompliance
 from feed_twin.plant.backlash import Backlash
 from feed_twin.plant.ball_screw import BallScrew
+from feed_twin.plant.cogging_torque import CoggingTorque
 from feed_twin.plant.component import Component
 from feed_twin.plant.coupling import Coupling
 from feed_twin.plant.dc_bus import DcBus
@@ -36,6 +37,7 @@ COMPONENT_TYPES: dict[str, type[Component]] = {
         AxialCompliance,
         Backlash,
         BallScrew,
+        CoggingTorque,
         ConstantForce,
         Coupling,
         CurrentSensor,

@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -69,10 +70,26 @@ def _position_sensors(doc: Document) -> list[str]:
     return sensors
 
 
+def _loop_sensors(doc: Document) -> list[str]:
+    """The position sensors the loops read: the motor encoders (the speed), and the linear
+    scales where the position loop is closed on one. In a semi-closed loop the scale only
+    records, and a delay of the loops' measurement leaves the record's position on time (the
+    scale delayed with the encoder shifted the twin's recorded position: a 1-4 ms feedback
+    delay of the truth machine was named a command or position delay)."""
+    controller: dict[str, Any] = doc.data.get("controller") or {}
+    position: dict[str, Any] = controller.get("position") or {}
+    feedback = position.get("feedback")
+    encoders = doc.of_type(Encoder.TYPE)
+    if encoders and feedback == "motor_encoder":
+        return encoders
+    return _position_sensors(doc)
+
+
 def _delay_edit(doc: Document, cand: Weights) -> Edit:
-    """One sample delay for every position sensor, searched over whole base periods."""
+    """One sample delay for every position sensor the loops read, searched over whole base
+    periods."""
     del cand
-    slots = tuple(f"{s}.delay_ticks" for s in _position_sensors(doc))
+    slots = tuple(f"{s}.delay_ticks" for s in _loop_sensors(doc))
     name = "sensors.delay_ticks"
     doc = doc.tie(name, slots)
     period = doc.base_period()
@@ -83,8 +100,10 @@ def _delay_edit(doc: Document, cand: Weights) -> Edit:
 
 
 def _delay_truth(doc: Document, p: Mapping[str, float]) -> Document:
-    for name in _position_sensors(doc):
-        doc = doc.set(f"{name}.delay_ticks", int(p["delay_ticks"]))
+    """The loops' sensors `delay_ticks` late, or `delay_s` in whole base periods."""
+    ticks = p["delay_ticks"] if "delay_ticks" in p else round(p["delay_s"] / doc.base_period())
+    for name in _loop_sensors(doc):
+        doc = doc.set(f"{name}.delay_ticks", int(ticks))
     return doc
 
 

@@ -242,12 +242,13 @@ def log_record(log: Path | None, prefix: str) -> dict | None:
     return None
 
 
-_SLOW = re.compile(r"node '([^']+)' is slow: no heartbeat for (\S+) s")
+_SLOW = re.compile(r"node '([^']+)' (?:is slow: no progress for|moves again after) (\S+) s")
 
 
 def slow_nodes(logs: Path) -> dict[str, float]:
     """Nodes some peer said slow during the run (feed_twin.nodeset.liveness), with the
-    longest silence said [s], from the nodes' logs in `logs`."""
+    longest time without progress said [s] (when said slow, or when it moved again), from the
+    nodes' logs in `logs`."""
     found: dict[str, float] = {}
     for log in sorted(Path(logs).glob("*.log")):
         with contextlib.suppress(OSError):
@@ -261,7 +262,7 @@ def slow_line(logs: Path) -> str | None:
     slow = slow_nodes(logs)
     if not slow:
         return None
-    named = ", ".join(f"'{n}' ({s:.2f} s without heartbeat)" for n, s in sorted(slow.items()))
+    named = ", ".join(f"'{n}' ({s:.2f} s without progress)" for n, s in sorted(slow.items()))
     return f"slow, not gone (the run went on): {named}"
 
 

@@ -177,7 +177,8 @@ class LinuxcncNode(FeedTwinNode):
                 return 0.01
             self._t_start = now
             try:
-                run = self._start_run()
+                with self.waiting():  # for another run's host lock, then LinuxCNC's start-up
+                    run = self._start_run()
             except LinuxcncError as exc:
                 self._end(EXIT_ERROR, str(exc))
                 return 0.05
@@ -334,8 +335,9 @@ class LinuxcncNode(FeedTwinNode):
         if run is None:
             return
         fault_at = run.fault_wall
-        run.__exit__(None, None, None)
-        trace = run.trace()
+        with self.waiting():  # LinuxCNC's shutdown and its trace: about a second, not a stall
+            run.__exit__(None, None, None)
+            trace = run.trace()
         span = trace.program_span()
         program = trace.cut(span)
         self.report.update(

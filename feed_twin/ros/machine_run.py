@@ -65,6 +65,7 @@ from feed_twin.ros.launch import (
     log_record,
     planned_duration_s,
     slow_line,
+    slow_nodes,
 )
 
 if TYPE_CHECKING:
@@ -216,7 +217,8 @@ def _end(
         print("feed-twin run: interrupted: the figures below cover the run until the stop")
     for line in ran.foreign.lines():
         print(line)  # the run's own output names who sent what it dropped
-    for said in (reason, problem, slow_line(args.out / f"{bag.name}.logs")):
+    logs = args.out / f"{bag.name}.logs"
+    for said in (reason, problem, slow_line(logs)):
         if said:
             print(f"feed-twin run: {said}", file=sys.stderr)
     preflight.remove_incomplete_rrd(rrd)
@@ -239,6 +241,7 @@ def _end(
         figures=figures,
         figure_lines=() if summary is None else summary.lines,
         foreign_messages=ran.foreign.as_dict(),
+        slow_nodes=slow_nodes(logs),
     )
     return emit(report, json_out=args.json)
 

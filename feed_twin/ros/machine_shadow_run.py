@@ -41,7 +41,13 @@ from feed_twin.nodeset.run_report import (
     shown,
 )
 from feed_twin.ros import preflight
-from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s, slow_line
+from feed_twin.ros.launch import (
+    foreign_messages,
+    log_record,
+    planned_duration_s,
+    slow_line,
+    slow_nodes,
+)
 from feed_twin.ros.machine_run import check_plan, readable_bag, run_reserved
 
 # the node set plays the program in lockstep, all axes in one bag, started here
@@ -116,6 +122,7 @@ def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
         figures={"processes": list(run.names), **extra, **({"linuxcnc": bridge} if bridge else {})},
         figure_lines=tuple(lines),
         foreign_messages=foreign.as_dict(),
+        slow_nodes=slow_nodes(logs),
     )
     return emit(report, json_out=args.json)
 

@@ -42,7 +42,13 @@ from feed_twin.nodeset.foreign import ForeignLedger
 from feed_twin.nodeset.run_report import emit
 from feed_twin.ros import preflight
 from feed_twin.ros.executors import run_processes
-from feed_twin.ros.launch import foreign_messages, log_record, planned_duration_s, slow_line
+from feed_twin.ros.launch import (
+    foreign_messages,
+    log_record,
+    planned_duration_s,
+    slow_line,
+    slow_nodes,
+)
 
 if TYPE_CHECKING:
     from feed_twin.linuxcnc.summary import LinuxcncFigures
@@ -459,6 +465,7 @@ def _report(args: argparse.Namespace, out: Outputs, *, code: int, reason: str, s
         figures=figures,
         figure_lines=tuple(summary.format().splitlines()) if summary is not None else (),
         foreign_messages=out.foreign.as_dict(),
+        slow_nodes=slow_nodes(out.logs),
     )
 
 

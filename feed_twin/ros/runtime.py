@@ -1,11 +1,13 @@
 """What every feed_twin node shares: liveness, input watchdogs, and the spin loop.
 
-- Liveness: each node publishes a heartbeat (its role, process id and host) every 0.1 s of wall
-  time on `/<machine>/<axis>/heartbeat` and watches its peers' heartbeats. A peer that was seen
-  and then stays silent for `peer_timeout_s` (0.8 s) is gone when its process is dead: the node
-  names it and stops with exit code `EXIT_PEER_LOST`; when its process lives it is slow (a busy
-  host): said once, the run goes on, up to `hung_s` (feed_twin.nodeset.liveness). A peer never
-  seen within `startup_timeout_s` is reported as not started.
+- Liveness: each node publishes a heartbeat (its role, process id, host and how many times its
+  own loop has turned) every 0.1 s of wall time on `/<machine>/<axis>/heartbeat` and watches its
+  peers' heartbeats. A peer is judged on its progress (feed_twin.nodeset.liveness): one whose
+  beats stop for `peer_timeout_s` (0.8 s) is gone when its process is dead: the node names it
+  and stops with exit code `EXIT_PEER_LOST`; one that makes no progress for longer than the
+  tolerance (the floor `peer_timeout_s`, more when this host has been stalling the node's own
+  threads) while its process lives is slow: said once, the run goes on, up to `hung_s`. A peer
+  never seen within `startup_timeout_s` is reported as not started.
   Heartbeats begin only after a node's set-up (numba compilation included), so a slow start is
   not mistaken for a crash, and (with `start_heartbeat(when=...)`) only once the recorder
   listens to the node's data topics, so that no run starts before its bag can hold everything.
@@ -31,6 +33,7 @@ import contextlib
 import faulthandler
 import functools
 import gc
+import inspect
 import math
 import os
 import resource
@@ -38,7 +41,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -55,11 +58,14 @@ from std_msgs.msg import String
 from feed_twin.nodeset.auth import RunAuth, key_from_environ
 from feed_twin.nodeset.foreign import ForeignLedger, foreign_publisher_text, merge
 from feed_twin.nodeset.liveness import (
+    HEARTBEAT_PERIOD_S,
     HUNG_S,
     Beat,
+    JitterMeter,
+    PeerState,
     heartbeat_text,
     parse_heartbeat,
-    silence_verdict,
+    verdict,
 )
 from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
 from feed_twin.ros.dds import HEARTBEAT_QOS, LATCHED_QOS, init_context
@@ -72,7 +78,6 @@ EXIT_PEER_LOST = 3  # another node of the set disappeared
 EXIT_INPUT_TIMEOUT = 4  # an expected topic stayed silent
 EXIT_SIGNAL = 130  # stopped by SIGINT/SIGTERM (after a clean shutdown)
 
-HEARTBEAT_PERIOD_S = 0.1
 # Before reporting that nobody offers a silent topic's type, the graph is re-read for up to this
 # long: a participant whose first announcements were missed is found at its next periodic one
 # (Fast DDS: every 3 s), and the report would otherwise miss the publisher it should name.
@@ -87,6 +92,7 @@ TEARDOWN_LIMIT_S = 2.0
 # [s] after that, the process leaves from outside Python: a teardown that spins in rclpy's events
 # executor with the GIL held (a DDS thread waiting for the GIL) stops every Python thread
 GIL_HELD_GRACE_S = 1.0
+BEATS_MISSED = 4  # a peer this many beat periods silent has stopped beating (not only its loop)
 PEER_TIMEOUT_S = 0.8  # noticed within 0.9 s; 0.6 s gave false alarms on a machine at load 9
 # Diagnosis: with FEED_TWIN_STALL_DUMP_S=0.5 in its environment, a node whose spin loop does not
 # come back within 0.5 s prints every thread's Python stack to its log (faulthandler: it works
@@ -104,8 +110,9 @@ class NodeOptions:
     peers: tuple[str, ...]  # roles whose heartbeat this node watches
     startup_timeout_s: float = 60.0  # [s] wall time for peers to appear
     input_timeout_s: float = 10.0  # [s] wall time an expected topic may stay silent
-    peer_timeout_s: float = PEER_TIMEOUT_S  # [s] silent this long: slow, or gone if dead
-    hung_s: float = HUNG_S  # [s] a peer whose process lives but is silent this long is hung
+    # [s] the floor of the tolerance: no beat this long is gone if dead, no progress slow
+    peer_timeout_s: float = PEER_TIMEOUT_S
+    hung_s: float = HUNG_S  # [s] a peer whose process lives without progress this long is hung
     # A machine's G-code and recorder node serve several axes (feed_twin.machine.nodes): they
     # also beat, watch peers (named `<axis>/<role>`) and wait for the run's end there.
     other_axes: tuple[str, ...] = ()
@@ -152,9 +159,11 @@ class Liveness:
 
     The data path of a node can be busy for a while (a backlog of messages in the recorder, a
     slow callback on a loaded machine); liveness must not depend on it. A second, tiny node
-    (`<role>_liveness`) publishes the role every HEARTBEAT_PERIOD_S and records when each peer
-    was last heard, on a daemon thread that wakes every LIVENESS_POLL_S and takes the waiting
-    heartbeats itself. No executor: a default executor's Python bookkeeping held the GIL for a
+    (`<role>_liveness`) publishes the role and the node's loop turns (`turns`, counted by the
+    node's own loop) every HEARTBEAT_PERIOD_S and records when each peer was last heard and when
+    its turns last moved, on a daemon thread that wakes every LIVENESS_POLL_S, takes the waiting
+    heartbeats itself and measures how late it wakes (`jitter`: this host's stalls).
+    No executor: a default executor's Python bookkeeping held the GIL for a
     fraction of a millisecond per heartbeat and delayed the data thread's exchanges (about ten
     missed real-time steps per second), and a second EventsExecutor in the process lost
     heartbeats.
@@ -182,8 +191,11 @@ class Liveness:
         ]
         self._lock = threading.Lock()
         self._seen: dict[str, float] = {}
+        self._moved: dict[str, float] = {}  # when each peer's turns were last heard to move
         self._beats: dict[str, Beat] = {}  # the latest beat of each peer (its process)
-        self._text = heartbeat_text(role)
+        self.jitter = JitterMeter()  # guarded by _lock: both of the node's threads feed it
+        self.turns = 0  # the node's loop turns (an int: set by one thread, read by another)
+        self.waiting = False  # the node's loop is in a wait it knows of (FeedTwinNode.waiting)
         self._beating = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"{role}-liveness", daemon=True)
@@ -211,25 +223,63 @@ class Liveness:
                         continue
                     beat = parse_heartbeat(text)
                     if beat.role != self.role:
-                        with self._lock:
-                            self._seen[prefix + beat.role] = time.monotonic()
-                            self._beats[prefix + beat.role] = beat
+                        self._heard(prefix + beat.role, beat)
+
+    def _heard(self, peer: str, beat: Beat) -> None:
+        now = time.monotonic()
+        with self._lock:
+            last = self._beats.get(peer)
+            if last is None or beat.turns is None or beat.turns != last.turns:
+                self._moved[peer] = now
+            self._seen[peer] = now
+            self._beats[peer] = beat
 
     def _run(self) -> None:
         next_beat = time.monotonic()
-        while not self._stop.wait(LIVENESS_POLL_S):
+        while True:
+            before = time.monotonic()
+            if self._stop.wait(LIVENESS_POLL_S):
+                break
+            self.late(before + LIVENESS_POLL_S)
             with contextlib.suppress(Exception):
                 self._take()
             now = time.monotonic()
             if self._beating and now >= next_beat:
                 next_beat = now + HEARTBEAT_PERIOD_S
+                if self.waiting:
+                    self.turns += 1  # the loop is not turning, but it waits as it should
+                text = heartbeat_text(self.role, self.turns)
                 for topic, pub in self._pubs:
                     with contextlib.suppress(Exception):
-                        pub.publish(String(data=self.auth.sign_text(topic, self._text)))
+                        pub.publish(String(data=self.auth.sign_text(topic, text)))
+
+    def late(self, due: float) -> None:
+        """A wake-up of one of the node's threads that was due at `due` [s, monotonic]; counted
+        from the first beat on (set-up's numba compilation holds the GIL for seconds: that is
+        not the host's jitter)."""
+        if not self._beating:
+            return
+        now = time.monotonic()
+        with self._lock:
+            self.jitter.add(now, now - due)
+
+    def tolerance_s(self) -> float:
+        """[s] how long a peer may make no progress before it is slow (from this host's jitter)."""
+        with self._lock:
+            return self.jitter.tolerance_s(self.options.peer_timeout_s)
 
     def seen(self) -> dict[str, float]:
         with self._lock:
             return dict(self._seen)
+
+    def peer_state(self, peer: str, now: float) -> PeerState:
+        """What is known of `peer` (heard at least once) at `now` [s, monotonic]."""
+        with self._lock:
+            return PeerState(
+                beat=self._beats.get(peer),
+                silent_s=now - self._seen[peer],
+                still_s=now - self._moved[peer],
+            )
 
     def beat(self, peer: str) -> Beat | None:
         with self._lock:
@@ -286,6 +336,7 @@ class FeedTwinNode(Node):
                 functools.partial(self._on_run_state, prefix=prefix),
                 LATCHED_QOS,
             )
+        self._tick_due = time.monotonic() + HEARTBEAT_PERIOD_S
         self.create_timer(HEARTBEAT_PERIOD_S, self._tick, clock=self.wall)
 
     def start_heartbeat(self, *, when: Callable[[], bool] | None = None) -> None:
@@ -295,6 +346,7 @@ class FeedTwinNode(Node):
         tick): a producer starts the run only once every peer beats, so a node can hold the
         run back until, for example, the recorder listens to its outputs (`recorder_listens`).
         """
+        warm_up_logging()
         self.setup_cpu_s = _cpu_seconds()
         # What set-up built (numba dispatchers, message types, the plant) lives to the end:
         # moved out of the collector's generations, a full collection no longer walks it and
@@ -306,6 +358,18 @@ class FeedTwinNode(Node):
         if when is None or when():
             self._beat_when = None
             self.liveness.start_beating()
+
+    @contextlib.contextmanager
+    def waiting(self) -> Iterator[None]:
+        """A wait in the node's own loop that the node knows of and bounds itself (another
+        run's host lock, a controller's start-up): its beats go on saying progress, so that
+        its peers do not take it for slow or hung, and the wait is not counted as jitter."""
+        self.liveness.waiting = True
+        try:
+            yield
+        finally:
+            self.liveness.waiting = False
+            self._tick_due = time.monotonic() + HEARTBEAT_PERIOD_S
 
     def recorder_listens(self, publishers: Sequence[Any]) -> bool:
         """The recorder's reader is in the graph on every one of `publishers`' topics (True
@@ -447,6 +511,11 @@ class FeedTwinNode(Node):
         return dog
 
     def _tick(self) -> None:
+        # This loop's own lateness counts as the host's jitter too: after a stop of the whole
+        # process it may run before the liveness thread has measured the stop.
+        self.liveness.late(self._tick_due)
+        self._tick_due = time.monotonic() + HEARTBEAT_PERIOD_S
+        self.liveness.turns += 1
         if self.done:
             return
         if self._beat_when is not None:
@@ -463,22 +532,18 @@ class FeedTwinNode(Node):
                 return
         now = time.monotonic()
         heard = self.liveness.seen()
-        silent: dict[str, float] = {}
         # the nodes of an axis that has ended its run leave: not a fault (a machine's axes end
         # one after the other)
         watched = [p for p in self.options.peers if _peer_prefix(p) in self._not_done]
         for peer in () if self.run_ended else watched:
-            seen = heard.get(peer)
-            if seen is None:
-                if self._heartbeat_on and now - self._created > self.options.startup_timeout_s:
-                    self.finish(
-                        EXIT_PEER_LOST,
-                        f"node '{self.options.peer_path(peer)}' did not start within "
-                        f"{self.options.startup_timeout_s:g} s",
-                    )
-            else:
-                silent[peer] = now - seen
-        self._judge_silence(silent)
+            late = now - self._created > self.options.startup_timeout_s
+            if peer not in heard and self._heartbeat_on and late:
+                self.finish(
+                    EXIT_PEER_LOST,
+                    f"node '{self.options.peer_path(peer)}' did not start within "
+                    f"{self.options.startup_timeout_s:g} s",
+                )
+        self._judge_peers([p for p in watched if p in heard and not self.run_ended])
         for dog in self._watchdogs:
             if not dog.armed():
                 dog.last = now
@@ -491,41 +556,43 @@ class FeedTwinNode(Node):
                     self.describe_silence(dog.topic, dog.type_name, dog.timeout_s),
                 )
 
-    def _judge_silence(self, silent: dict[str, float]) -> None:
-        """Slow peers said once (and again when they beat again), gone or hung ones end the
+    def _judge_peers(self, peers: Sequence[str]) -> None:
+        """Slow peers said once (and again when they move again), gone or hung ones end the
         node (feed_twin.nodeset.liveness)."""
-        timeout = self.options.peer_timeout_s
+        now = time.monotonic()
+        floor, tolerance = self.options.peer_timeout_s, self.liveness.tolerance_s()
+        states = {peer: self.liveness.peer_state(peer, now) for peer in peers}
         verdicts = {
-            peer: silence_verdict(
-                self.liveness.beat(peer), s, timeout_s=timeout, hung_s=self.options.hung_s
-            )
-            for peer, s in silent.items()
+            peer: verdict(state, floor_s=floor, tolerance_s=tolerance, hung_s=self.options.hung_s)
+            for peer, state in states.items()
         }
-        for peer, verdict in verdicts.items():
+        for peer, said in verdicts.items():
             path = self.options.peer_path(peer)
-            if verdict == "slow" and peer not in self._slow_since:
-                self._slow_since[peer] = time.monotonic() - silent[peer]
+            if said == "slow" and peer not in self._slow_since:
+                self._slow_since[peer] = now - states[peer].still_s
                 self.slow_peers.append(path)
                 self.get_logger().warning(
-                    f"node '{path}' is slow: no heartbeat for {silent[peer]:.2f} s, its process "
+                    f"node '{path}' is slow: {_stillness(states[peer], tolerance)}, its process "
                     f"lives (a busy host); the run goes on (hung after {self.options.hung_s:g} s)"
                 )
-            elif verdict == "ok" and peer in self._slow_since:
-                late = time.monotonic() - self._slow_since.pop(peer)
-                self.get_logger().info(f"node '{path}' beats again after {late:.2f} s")
+            elif said == "ok" and peer in self._slow_since:
+                late = now - self._slow_since.pop(peer)
+                self.get_logger().info(f"node '{path}' moves again after {late:.2f} s")
         if not any(v in ("gone", "hung") for v in verdicts.values()):
             return
         # Peers that went silent together (nodes sharing a process, feed_twin.ros.host) are
-        # named together: the others beat every 0.1 s, so half the timeout tells them apart.
+        # named together: the others beat every 0.1 s, so a few missed beats tell them apart.
         lines = []
-        for peer, s in sorted(silent.items(), key=lambda item: -item[1]):
+        for peer, state in sorted(states.items(), key=lambda item: -item[1].silent_s):
             path = self.options.peer_path(peer)
             if verdicts[peer] == "hung":
                 lines.append(
-                    f"node '{path}' is hung: no heartbeat for {s:.2f} s, its process lives"
+                    f"node '{path}' is hung: {_stillness(state, tolerance)}, its process lives"
                 )
-            elif verdicts[peer] == "gone" or (verdicts[peer] == "ok" and s > 0.5 * timeout):
-                lines.append(f"node '{path}' is gone: no heartbeat for {s:.2f} s")
+            elif verdicts[peer] == "gone" or (
+                verdicts[peer] == "ok" and state.silent_s > BEATS_MISSED * HEARTBEAT_PERIOD_S
+            ):
+                lines.append(f"node '{path}' is gone: no heartbeat for {state.silent_s:.2f} s")
         self.on_peer_lost("; ".join(lines))
 
     def recorder_alive(self) -> bool:
@@ -559,6 +626,31 @@ class FeedTwinNode(Node):
         if similar:
             lines.append(f"  {type_name} is published on: {', '.join(similar)} (wrong namespace?)")
         return "\n".join(lines)
+
+
+def warm_up_logging() -> None:
+    """Pay rclpy's first log call now, at set-up. Its logger finds the caller with
+    inspect.getframeinfo, whose first call walks every loaded module (a realpath each, about
+    2000 modules): 0.25-0.4 s of CPU on this host, seconds when loaded. Paid mid-run it stalled
+    the twin's loop at its first health warning and the LinuxCNC bridge's at its first line
+    (the bridge latency p99 of a 30 s run rose from about 10 to 215 ms)."""
+    frame = inspect.currentframe()
+    if frame is not None:
+        inspect.getframeinfo(frame)
+
+
+def _stillness(state: PeerState, tolerance_s: float) -> str:
+    """How a peer has made no progress, with the tolerance it went past: its beats stopped
+    (more than a few beat periods without one), or only its loop did."""
+    how = (
+        f"no heartbeat for {state.silent_s:.2f} s"
+        if state.silent_s > BEATS_MISSED * HEARTBEAT_PERIOD_S
+        else "it beats, its loop does not turn"
+    )
+    return (
+        f"no progress for {state.still_s:.2f} s ({how}; tolerance {tolerance_s:.2f} s from "
+        "this host's jitter)"
+    )
 
 
 def _peer_prefix(peer: str) -> str:

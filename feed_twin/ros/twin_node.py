@@ -68,8 +68,13 @@ DRAIN_QUIET_S = 0.5  # [s] without messages after the run's end before the node 
 FINAL_AFTER_S = 0.1  # [s] without messages after the run's end: the streams have ended
 # [s] measured samples are paired and the twin advanced at most this often: a twin that fell
 # behind (messages queued) advances a whole batch per wake-up with its compiled engine instead of
-# one sample per message, which is how it catches up; poll() steps what waits in between
-STEP_EVERY_S = 0.002
+# one sample per message, which is how it catches up; poll() steps what waits in between.
+# A step has a fixed cost (pairing, the health checks, the packed output, the dashboard: numpy
+# calls on short arrays): 128 us of CPU per 1 ms period stepping every 2 periods, 38 us every
+# 10, 33 us every 20 (benchmarks/twin_step_cost.py); beside LinuxCNC, stepping every 2 ms, the
+# twin took 140 us a period (perf) and fell seconds behind on a busy host. 10 ms adds at most
+# 10 ms to the twin's output latency.
+STEP_EVERY_S = 0.01
 OUT_BATCH_SAMPLES = 200  # slots in one packed output at most (--batch-topic)
 LAG_SAMPLES = 600_000  # lags kept for the report (10 min at 1 kHz): bounded memory
 STATE = FlatCodec(msg_types.AXIS_STATE)

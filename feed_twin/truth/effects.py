@@ -14,7 +14,7 @@ the data sheet (and the nominal twin, config/truth_nominal.yaml) says 60 N.
     constant_force           an unbalanced hanging mass of 15 f kg: f_0 = -15 f g N
     mass_error               table + load 150 + 100 f kg (m_kg: the table mass)
     torque_constant_error    K_t off by +-8 f % (sign drawn)
-    measurement_delay        the loops' position 1-4 ms late (round(2 f) ms, >= 1)
+    measurement_delay        the loops' position 1-4 ms late (delay_s: round(2 f) ms, >= 1)
     stiction                 Karnopp sticking of the data sheet's Coulomb friction: held at rest
                              up to the sliding force, F_hold = 60 N (no size: on or off; the
                              twin's stiction holds with its sliding force too)
@@ -72,7 +72,7 @@ def _gain(mc: Machine, p: Mapping[str, float]) -> Machine:
 
 
 def _delay(mc: Machine, p: Mapping[str, float]) -> Machine:
-    return dataclasses.replace(mc, feedback_delay_s=p["delay_ticks"] * 1e-3)
+    return dataclasses.replace(mc, feedback_delay_s=p["delay_s"])
 
 
 def _stiction(mc: Machine, p: Mapping[str, float]) -> Machine:
@@ -147,7 +147,8 @@ EFFECTS: dict[str, tuple[Apply, Draw]] = {
         _gain,
         lambda f, r: {"gain": NOMINAL.K_t * (1.0 + 0.08 * f * _sign(r))},
     ),
-    "measurement_delay": (_delay, lambda f, r: {"delay_ticks": float(max(1, round(2.0 * f)))}),
+    # in seconds, not in the twin's ticks: the workflow reports both, and a twin's tick is its own
+    "measurement_delay": (_delay, lambda f, r: {"delay_s": 1e-3 * max(1, round(2.0 * f))}),
     "stiction": (_stiction, lambda f, r: {"F_hold_N": NOMINAL.F_c_pos}),
     "backlash": (_backlash, lambda f, r: {"gap_m": 10e-6 * f}),
     "lead_error": (_lead, lambda f, r: {"amplitude_m": 3e-6 * f, "phase_rad": _phase(r)}),
