@@ -11,6 +11,8 @@ import pytest
 from nodes_support import AXIS_CONFIG, Operator, last_json, start_run, wait_for
 
 from feed_twin.io.bag import BagReader
+from feed_twin.nodeset.config import load_node_set_config
+from feed_twin.nodeset.pacing import setpoint_priority
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 PAUSING = "%\nG21 G90 G54 G64\nG1 X10 F3000\nM0\nG1 X0\nM30\n%\n"
@@ -72,3 +74,10 @@ def test_realtime_mode_paces_and_reports_lateness(tmp_path: Path, ros_domain_id:
     assert record["timing_lateness_p99_ms"] <= record["timing_lateness_max_ms"]
     assert 0 <= record["timing_missed_steps"] <= record["timing_steps"]
     assert "lateness_p99_ms" in out and "missed steps" in out
+    # the setpoints the controller waits for come from a node one priority below the exchange
+    # (feed_twin.nodeset.pacing.setpoint_priority; granted or refused, it is asked for)
+    priority = setpoint_priority(load_node_set_config(config).realtime_priority)
+    gcode_log = (Path(record["logs"]) / "gcode.log").read_text()
+    assert f"scheduling: SCHED_FIFO priority {priority}" in gcode_log or (
+        f"scheduling: normal scheduling, SCHED_FIFO priority {priority} refused" in gcode_log
+    ), gcode_log[-2000:]

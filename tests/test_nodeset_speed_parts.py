@@ -102,6 +102,54 @@ def test_scheduling_that_the_os_refuses_is_reported_not_raised() -> None:
     assert len(notes) == 1 and notes[0].startswith("not pinned to CPU 1023: ")
 
 
+def test_the_setpoint_stream_runs_one_priority_below_the_announced_exchange() -> None:
+    from feed_twin.nodeset.pacing import (
+        announced_priority,
+        realtime_announcement,
+        setpoint_priority,
+    )
+
+    assert announced_priority(realtime_announcement(50)) == 50
+    assert announced_priority(realtime_announcement(0)) == 0
+    for other in ("done ok", "realtime", "realtime priority -3", "lockstep priority 50"):
+        assert announced_priority(other) is None, other
+    assert [setpoint_priority(p) for p in (50, 2, 1, 0)] == [49, 1, 1, 0]
+
+
+RAISE_PROBE = """
+import os, sys
+from feed_twin.ros.dds import raise_priority
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+except OSError:
+    sys.exit(3)
+print(raise_priority(49)[0])
+print(raise_priority(0))
+print(os.sched_getparam(0).sched_priority)
+print(raise_priority(51)[0])
+print(os.sched_getparam(0).sched_priority)
+"""
+
+
+def test_raising_the_priority_never_lowers_a_process_that_runs_the_exchange() -> None:
+    import subprocess
+
+    # a process of its own: the test process keeps its scheduling
+    done = subprocess.run(
+        [sys.executable, "-c", RAISE_PROBE], capture_output=True, text=True, timeout=60
+    )
+    if done.returncode == 3:
+        pytest.skip("SCHED_FIFO is refused here (no CAP_SYS_NICE)")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == [
+        "SCHED_FIFO priority 50 kept (asked 49)",
+        "[]",
+        "50",
+        "SCHED_FIFO priority 51",
+        "51",
+    ]
+
+
 def test_a_cpu_latency_request_is_held_open_or_its_refusal_reported(tmp_path) -> None:
     from feed_twin.ros import dds
 

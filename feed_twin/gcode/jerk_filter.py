@@ -64,7 +64,17 @@ def plan_speeds_filtered(
     Each held node's speed is first held to half of either neighbouring body (h v <= L / 2;
     all of it where the body's other end holds nothing there), which keeps every pair
     feasible; then a backward pass of braking bounds and a forward
-    pass of speed-ups."""
+    pass of speed-ups.
+
+    The braking bound is not monotonic in the next node's speed where that node is held: a
+    higher speed there takes more of the body for its hold. A window that goes on from a
+    committed one (v_first) may so find the next node's bound below what v_first can brake
+    to (a node the committed window saw slower, a hold it saw shorter). The forward pass
+    then brakes as far as the body allows (`_braked_to`): to the fastest speed at or below
+    the planned one that still leaves room for the next node's hold, else (the body too
+    short to brake further) to the slowest speed it can reach: above the node's cap, but
+    with s and ds/dt continuous, where the next window's constraints are tighter than the
+    committed window's (a rare case that remains, see docs/planner.md)."""
     m = L.shape[0]
     v = cap.copy()
     for i in range(m + 1):
@@ -81,7 +91,29 @@ def plan_speeds_filtered(
     for i in range(m):
         c = L[i] - hold_out[i] * v[i] + v[i] * v[i] / (2.0 * A[i])
         v[i + 1] = min(v[i + 1], _largest(c, hold_in[i + 1], A[i]))
+        if v[i + 1] < v[i]:
+            v[i + 1] = _braked_to(v[i], v[i + 1], L[i], A[i], hold_out[i], hold_in[i + 1])
     return v
+
+
+BRAKE_SLACK = 1e-12  # relative: a body this much too short still fits (rounding)
+
+
+@njit(cache=True)
+def _braked_to(v0: float, v1: float, L: float, A: float, h0: float, h1: float) -> float:
+    """The speed at the end of a braking body (v0 > v1, length L, acceleration A, holds h0 v0
+    and h1 v1 at its ends): v1 where (v0^2 - v1^2) / (2A) + h0 v0 + h1 v1 <= L; else the
+    lower root of that bound (the body brakes further, to leave room for the hold), or where
+    v0 cannot stop within the body the upper one (it brakes as far as the body allows)."""
+    excess = (v0 * v0 - v1 * v1) / (2.0 * A) + h0 * v0 + h1 * v1 - L
+    if excess <= BRAKE_SLACK * L:
+        return v1
+    # x^2 - 2 A h1 x - K >= 0 with K = v0^2 + 2 A h0 v0 - 2 A L; roots A h1 -+ sqrt(...)
+    K = v0 * v0 + 2.0 * A * (h0 * v0 - L)
+    root = math.sqrt(max(A * A * h1 * h1 + K, 0.0))
+    if K <= 0.0:
+        return A * h1 - root
+    return A * h1 + root
 
 
 @njit(cache=True)

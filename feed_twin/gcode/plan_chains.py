@@ -17,6 +17,7 @@ A chain's end next to a straight move whose far end is held is held T on the str
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -63,6 +64,14 @@ class Bodies:
     hold_out: np.ndarray  # (m+1,) [s] and this long after it (T / 2 each where extended)
 
 
+class StartHolds(NamedTuple):
+    """The holds of a window's first 1-D node, as the window that committed it planned them."""
+
+    extended: bool
+    hold_in: float  # [s]
+    hold_out: float  # [s]
+
+
 def chain_bodies(
     moves: MoveLimits,
     blends: CornerBlends,
@@ -72,12 +81,16 @@ def chain_bodies(
     first: int,
     open_end: bool,
     holds_as: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    start_holds: StartHolds | None = None,
 ) -> Bodies | None:
     """Group the nodes from `first` on into 1-D nodes and bodies; None if fewer than two.
 
     With `open_end` the window's last body stops short of the last move, where the next
     window may put a blend: every speed planned now stays reachable later. `holds_as` gives
     the extended 1-D nodes and the holds (of the same 1-D nodes) instead of choosing them.
+    `start_holds` fixes those of the first 1-D node: a window that goes on from a committed
+    one keeps the holds the committed raw plan already ran (it ended hold_in v before the
+    node), so that s goes on where it stopped.
     """
     L, V, A, J = moves.L, moves.V, moves.A, moves.J
     n = len(L)
@@ -110,9 +123,13 @@ def chain_bodies(
         extended, hold_in, hold_out = holds_as
     elif filtered:
         extended = _extended(kind_q, node_q, blends, V, length, T)
+        if start_holds is not None:
+            extended[0] = start_holds.extended
         end_in, end_out = _held_chain_ends(kind_q, blends.cap[node_q], length, extended, T)
         hold_in = np.where(extended, 0.5 * T, np.where(end_in, T, 0.0))
         hold_out = np.where(extended, 0.5 * T, np.where(end_out, T, 0.0))
+        if start_holds is not None:
+            hold_in[0], hold_out[0] = start_holds.hold_in, start_holds.hold_out
     if filtered:
         # Bodies a filter window may share with a neighbour: planned as chains, eroded.
         in_chain = ~((hold_out[:-1] > 0.0) & (hold_in[1:] > 0.0))

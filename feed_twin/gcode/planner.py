@@ -51,7 +51,7 @@ from feed_twin.gcode.items import Event, Move, Stop
 from feed_twin.gcode.lexer import Block, iter_source_lines, lex_line
 from feed_twin.gcode.plan_blends import NodeFlags, WindowStart, corner_blends, fitted_widths
 from feed_twin.gcode.plan_breaks import forced_breaks
-from feed_twin.gcode.plan_chains import SINGLE, Bodies, chain_bodies
+from feed_twin.gcode.plan_chains import SINGLE, Bodies, StartHolds, chain_bodies
 from feed_twin.gcode.plan_limits import AxisLimits, move_limits
 from feed_twin.gcode.plan_profile import (
     motion_pieces,
@@ -212,6 +212,7 @@ class _StreamPlanner:
         self.entries: dict[int, list[Event | Stop]] = {}  # global node -> events and dwells
         self.v_first = 0.0
         self.first_stop = False  # whether the path stops there
+        self.start_holds: StartHolds | None = None  # its holds, as committed (jerk filter)
         self.t_s = 0.0
         self.k_next = 0
 
@@ -254,7 +255,15 @@ class _StreamPlanner:
         moves = move_limits(points, self.rapids, self.feeds, self.limits)
         start = WindowStart(w=self.w_context, stop=self.first_stop) if self.has_context else None
         blends = corner_blends(moves, flags, self.limits, start)
-        bodies = chain_bodies(moves, blends, flags, self.limits, first=first, open_end=not final)
+        bodies = chain_bodies(
+            moves,
+            blends,
+            flags,
+            self.limits,
+            first=first,
+            open_end=not final,
+            start_holds=self.start_holds if self.has_context else None,
+        )
         if bodies is None:
             return self._plan_standstill() if final else None
         speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
@@ -323,6 +332,11 @@ class _StreamPlanner:
         self.k_next = k_stop
         self.t_s = t_end
         self.v_first = float(speeds.v[q_commit])
+        self.start_holds = StartHolds(
+            extended=bool(bodies.extended[q_commit]),
+            hold_in=float(bodies.hold_in[q_commit]),
+            hold_out=float(bodies.hold_out[q_commit]),
+        )
         if not final:
             self._drop_committed(end_node, bodies.S, blends.w, bool(blends.stop[end_node]), points)
         return chunk

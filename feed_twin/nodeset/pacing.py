@@ -3,6 +3,14 @@
 steps * period_s simulated over wall_s seconds of wall time: realtime_factor = sim / wall.
 In real-time mode every step k is due at wall t0 + k * period_s; lateness is how much after
 that it started, reported as p50/p99/max in ms, with the steps counted as missed.
+
+In real time the sim announces its pace on `run_state` (`realtime_announcement`) with the
+SCHED_FIFO priority of the exchange. The controller takes that priority; the G-code node takes
+the one below (`setpoint_priority`): its setpoints are due `ros.lookahead` periods ahead of the
+exchange, and under normal scheduling on a loaded host (load 10-20 on 2 cores) it waited
+longer than that for a CPU, its lead fell below zero and the drive tripped on its following
+error (benchmarks/realtime_faults.py). One below, it runs before every normal process and
+never ahead of the exchange.
 """
 
 from __future__ import annotations
@@ -11,6 +19,29 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+
+REALTIME_WORD = "realtime"  # the first word of the sim's real-time announcement
+
+
+def realtime_announcement(priority: int) -> str:
+    """The sim's `run_state` text when it paces by the wall clock: the SCHED_FIFO priority of
+    the exchange (0: normal scheduling)."""
+    return f"{REALTIME_WORD} priority {priority}"
+
+
+def announced_priority(text: str) -> int | None:
+    """The exchange's SCHED_FIFO priority of a real-time announcement (0: normal scheduling);
+    None when `text` is not one."""
+    word, _, priority = text.partition(" priority ")
+    if word != REALTIME_WORD or not priority.isdigit():
+        return None
+    return int(priority)
+
+
+def setpoint_priority(exchange_priority: int) -> int:
+    """The G-code node's SCHED_FIFO priority under an exchange at `exchange_priority`: one
+    below it, at least 1 (module docstring); 0 (normal) beside a normal exchange."""
+    return max(exchange_priority - 1, 1) if exchange_priority > 0 else 0
 
 
 def pacing_report(

@@ -39,6 +39,7 @@ from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
 from feed_twin.nodeset.nc_buffer import NcBuffer
 from feed_twin.nodeset.node_settings import ControllerSettings
+from feed_twin.nodeset.pacing import announced_priority
 from feed_twin.nodeset.record_batch import messages_of
 from feed_twin.nodeset.run_end import RunEnd
 from feed_twin.nodeset.topics import CONTROLLER_NODE
@@ -196,9 +197,9 @@ class ControllerNode(FeedTwinNode):
         self.start_heartbeat(when=lambda: self.recorder_listens(outputs))
 
     def on_run_state(self, text: str) -> None:
-        word, _, priority = text.partition(" priority ")
-        if word == "realtime" and priority.isdigit() and int(priority) > 0:
-            for note in apply_scheduling(priority=int(priority)):
+        priority = announced_priority(text)
+        if priority is not None and priority > 0:
+            for note in apply_scheduling(priority=priority):
                 self.get_logger().info(f"scheduling: {note}")
 
     def _on_command(self, data: bytes) -> None:

@@ -9,7 +9,9 @@
   controller process, and on a virtual machine a wake-up across cores costs several times one on
   the same core, so `ros.exchange_cpu` pins both to one CPU (measured: both on one CPU beat one
   each). In real-time mode `ros.realtime_priority` runs both under SCHED_FIFO, which bounds the
-  lateness by the kernel's wake-up latency instead of by whatever else the machine runs. Both
+  lateness by the kernel's wake-up latency instead of by whatever else the machine runs; the
+  G-code node, whose setpoints the controller waits for, runs one priority below them
+  (feed_twin.nodeset.pacing.setpoint_priority). Both
   apply to every thread of the process (the DDS receive threads deliver the messages); where
   the OS refuses (no CAP_SYS_NICE, no such CPU) the node logs why and runs unpinned/normal.
   `ros.cpu_latency_us` (the sim node, for the whole run) asks the kernel's PM QoS
@@ -156,6 +158,21 @@ def apply_scheduling(*, cpu: int = -1, priority: int = 0, cpu_latency_us: int = 
         except (OSError, AttributeError) as exc:
             notes.append(f"normal scheduling, SCHED_FIFO priority {priority} refused: {exc}")
     return notes
+
+
+def raise_priority(priority: int) -> list[str]:
+    """SCHED_FIFO at `priority` for every thread of this process, unless it runs at that
+    priority or above already (nodes that share a process: the G-code node beside the sim in
+    one process must not lower the exchange's priority); apply_scheduling's notes."""
+    if priority <= 0:
+        return []
+    try:
+        current = os.sched_getparam(0).sched_priority
+        if os.sched_getscheduler(0) == os.SCHED_FIFO and current >= priority:
+            return [f"SCHED_FIFO priority {current} kept (asked {priority})"]
+    except (OSError, AttributeError):
+        pass  # apply_scheduling says why it cannot
+    return apply_scheduling(priority=priority)
 
 
 def peers_profile(interface: str, peers: Sequence[str], *, participants: int = 32) -> str:

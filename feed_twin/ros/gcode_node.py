@@ -15,6 +15,10 @@
   axis's machine positions minus its start position.
 - Timing: setpoints are stamped in simulation time, one per interpolation period, and published
   up to `lookahead` periods ahead of the latest /clock so the controller never waits for them.
+  In real time the node runs under SCHED_FIFO one priority below the sim's announced exchange
+  priority (feed_twin.nodeset.pacing.setpoint_priority): under normal scheduling on a loaded
+  host it waited for a CPU longer than its lead. The nodes it shares a process with run so too
+  (a machine's recorder); a process that runs higher already keeps its priority.
 - A machine (`--machine-axes`, `--command-axes`; feed_twin.machine.nodes): `--autostart`
   waits until every node of every axis beats, and one node commands
   every NC axis, each on its own `/<machine>/<axis>/command`, and announces `program_state` to
@@ -56,10 +60,11 @@ from std_srvs.srv import Trigger
 from feed_twin.gcode import GcodeError, NcConfig, SampledTrajectory, load_nc_config, plan_program
 from feed_twin.io import msg_types
 from feed_twin.io.cdr import FlatCodec
+from feed_twin.nodeset.pacing import announced_priority, setpoint_priority
 from feed_twin.nodeset.record_batch import RecordBatch
 from feed_twin.nodeset.topics import GCODE_NODE, AxisTopics
 from feed_twin.nodeset.wire import NS_PER_S
-from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
+from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, raise_priority
 from feed_twin.ros.runtime import EXIT_ERROR, FeedTwinNode, NodeOptions, node_main
 
 AXIS_COMMAND = FlatCodec(msg_types.AXIS_COMMAND)
@@ -326,8 +331,13 @@ class GcodeNode(FeedTwinNode):
 
     def on_run_state(self, text: str) -> None:
         # the sims announce real-time pacing on run_state (latched), before their first step
-        if text.startswith("realtime"):
-            self._realtime = True
+        priority = announced_priority(text)
+        if priority is None or self._realtime:
+            return
+        self._realtime = True
+        # the controller waits for the setpoints: they must not wait behind the host's load
+        for note in raise_priority(setpoint_priority(priority)):
+            self.get_logger().info(f"scheduling: {note}")
 
     def _on_parameters(self, params: list[Parameter]) -> SetParametersResult:
         for p in params:

@@ -42,7 +42,7 @@ from feed_twin.io.cdr import FlatCodec, JointStateLayout
 from feed_twin.nodeset.drive_host import TRUTH_FIELDS, DriveHost, build_drive_host
 from feed_twin.nodeset.guard import bounds_of, check_values, parse_program_state, within_bounds
 from feed_twin.nodeset.node_settings import SimSettings
-from feed_twin.nodeset.pacing import pacing_report
+from feed_twin.nodeset.pacing import pacing_report, realtime_announcement
 from feed_twin.nodeset.protection import DriveProtection, Trip, protection_for_config
 from feed_twin.nodeset.run_end import RunEnd
 from feed_twin.nodeset.topics import SIM_NODE
@@ -230,7 +230,7 @@ class SimNode(FeedTwinNode):
         if realtime:
             # The controller raises its own priority on this announcement (latched).
             priority = settings.realtime_priority
-            self._run_pub.publish(self._run_text(f"realtime priority {priority}"))
+            self._run_pub.publish(self._run_text(realtime_announcement(priority)))
         outputs = (
             (self._feedback_pub, self._state_pub, self._joint_pub)
             if self._record is None
