@@ -339,8 +339,10 @@ def _motor(
 
 def agreement(full: Twin, reduced: Twin, run: MeasuredRun, *, resolution_m: float) -> Agreement:
     """The two twins' nominal responses on the record's command, each sample the mean over
-    its period (Twin.sample_means: a stick-slip of a few milliseconds is no evidence at 10 Hz),
-    compared where the command moves, but next to an acceleration the record does not resolve
+    its period (Twin.sample_means: a stick-slip of a few milliseconds is no evidence at 10 Hz;
+    the same time span at either twin's tick, not the last dec ticks, whose half-tick offset
+    put a 1 ms twin 0.375 ms ahead of its 0.25 ms original, 56 um at 150 mm/s), compared
+    where the command moves, but next to an acceleration the record does not resolve
     (visibility.unresolved: where a move starts within a sample, a fraction of a millisecond
     of either twin's loop delays puts the sample before or after the start). At rest the
     force held is any within the friction's breakaway (the full twin's rotor holds its bearing

@@ -38,7 +38,13 @@ from feed_twin.analysis.model_doc import (
     TRACE_WINDOW_SLOT,
     ModelDoc,
 )
-from feed_twin.analysis.recorder import deaveraged, delayed, start_velocity, window_mean
+from feed_twin.analysis.recorder import (
+    deaveraged,
+    delayed,
+    period_mean,
+    start_velocity,
+    window_mean,
+)
 from feed_twin.core import signals
 from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import PERIOD_RTOL, MeasuredDataError, MeasuredRun, PlannedCommand
@@ -465,8 +471,9 @@ class Twin:
     def sample_means(self, drive: Drive, params: np.ndarray) -> SimOutputs:
         """Each row of `params` on the drive's command, its position and effort the mean over
         each record sample's period up to it: what a slow record can resolve of a motion that
-        changes between its samples (a stick-slip of a few milliseconds). The record's own
-        slots (delays, ripple) are not applied; no voltage."""
+        changes between its samples (a stick-slip of a few milliseconds), over the same time
+        at any base period (recorder.period_mean: twins of one axis at different ticks compare
+        like for like). The record's own slots (delays, ripple) are not applied; no voltage."""
         from feed_twin.sim.batch import run_batch
 
         P = np.array(params, dtype=float, ndmin=2)
@@ -477,7 +484,7 @@ class Twin:
         x0, cs0 = self._x0(start, P[0]), self.start_controller(start, ref)
         res = run_batch(self.engine, P, n, ref=ref, ext=ext, x0=x0, cs0=cs0)
         T = len(drive.t_s)
-        pos, eff = (window_mean(y, dec)[:, :T] for y in self._measured_signals(res, 1))
+        pos, eff = (period_mean(y, dec)[:, :T] for y in self._measured_signals(res, 1))
         return SimOutputs(x_m=pos, effort=eff, ok=~res.diverged, voltage_q=None)
 
     def _command_window(self, drive: Drive, slots: dict[str, float]) -> int | None:
