@@ -88,7 +88,7 @@ def test_current_at_its_limit_trips_only_after_the_allowed_time():
 
 def test_describe_trip_names_the_program_line():
     run = {"/c": {"header.stamp": np.array([0.0, 0.05, 0.1]), "line": np.array([-1, 2, 3])}}
-    reason = "sim node exited: done error: drive fault 1 at t = 0.0700 s: following error"
+    reason = "sim node (cnc/x) exited with code 1: drive fault 1 at t = 0.0700 s: following error"
     text = describe_trip(reason, run, "/c", {2: "G0 X-200", 3: "M30"})
     assert text.endswith("(program line 2: G0 X-200)")
     assert describe_trip("other", run, "/c", None) == "other"

@@ -97,7 +97,10 @@ def test_following_error_limit_stops_the_run_naming_limit_time_and_line(tmp_path
     record = last_json(out)
     assert code == 1 and record["exit_code"] == 1, err
     reason = record["reason"]
-    assert "drive fault 1 at t = 0.0" in reason
+    # the node and its namespace, then its own words: no log prefix, no run_state word
+    assert reason.startswith("sim node (cnc/x) exited with code 1: drive fault 1 at t = 0.0"), (
+        reason
+    )
     assert "exceeds the limit 0.200 mm (controller.position.following_error_limit_m)" in reason
     assert reason.endswith("(program line 2: G0 X-200)")
     feedback = BagReader(record["bag"]).columns(

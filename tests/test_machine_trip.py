@@ -47,11 +47,11 @@ def test_the_summary_gives_the_following_error_the_drives_monitored(machine_bag)
 def test_a_drive_fault_names_its_program_line(machine_bag):
     machine, program, bag = machine_bag
     fault = (
-        "axis Z: z_sim node exited with code 1: done error: drive fault 1 at t = 0.0600 s: "
+        "axis Z: z_sim node (cnc/z) exited with code 1: drive fault 1 at t = 0.0600 s: "
         "following error 0.022 mm exceeds the limit 0.020 mm "
         "(controller.position.following_error_limit_m)"
     )
-    others = "  x_sim node exited with code 130: stopped by SIGTERM"
+    others = "  x_sim node (cnc/x) exited with code 130: stopped by SIGTERM"
     named = _with_trip_line(f"{fault}\n{others}", bag, machine, program)
     command = BagReader(bag).columns("/cnc/z/command", ["header.stamp", "line"])
     at = int(np.searchsorted(command["header.stamp"], 0.06 + 1e-12, side="right")) - 1

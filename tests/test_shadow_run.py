@@ -324,7 +324,9 @@ def test_another_command_publisher_on_the_domain_stops_the_run(tmp_path) -> None
         finally:
             context.try_shutdown()
     assert code != 0
-    assert "standin node exited with code 1" in err, err[-3000:]
+    assert "standin node (cnc/x) exited with code 1: /cnc/x/command has 2 publishers" in err, err[
+        -3000:
+    ]
     assert (
         f"/cnc/x/command has 2 publishers, not 1: another run on ROS domain {domain.domain_id}? "
         "Stop it, or run this one in another domain (ROS_DOMAIN_ID)"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import json
 import os
 import re
@@ -21,6 +22,8 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+
+from feed_twin.ros.node_log import LogRecord, records
 
 STOP_GRACE_S = 10.0  # [s] for nodes to finish after SIGTERM
 PEER_NOTICE_S = 5.0  # [s] for nodes to notice a lost peer (0.9 s) and finish before SIGTERM
@@ -206,27 +209,51 @@ def _wait_all(procs: dict[str, subprocess.Popen], grace_s: float) -> None:
             p.wait(timeout=max(0.0, deadline - time.monotonic()))
 
 
-def _exit_text(role: str, code: int, log: Path) -> str:
+def _exit_text(process: str, code: int, log: Path) -> str:
+    """`<process> node (<namespace>) exited with code <code>: <what it said last>`, the
+    node's own words without rclpy's severity, time and logger (feed_twin.ros.node_log)."""
+    said = _last_error(log)
+    who = f"{process} node{_where(process, said)}"
     if code < 0:
-        said = _last_error(log)
-        tail = f" (it had said: {said})" if "[ERROR]" in said else ""
-        return f"{role} node was killed by {signal.Signals(-code).name}{tail}"
-    return f"{role} node exited with code {code}: {_last_error(log)}"
+        tail = f" (it had said: {said.message})" if said.is_error else ""
+        return f"{who} was killed by {signal.Signals(-code).name}{tail}"
+    return f"{who} exited with code {code}: {said.message}"
 
 
-def _last_error(log: Path) -> str:
-    """The node's last error record, continuation lines included, else its last lines."""
+def _where(process: str, said: LogRecord) -> str:
+    """` (cnc/x)`: the namespace of the node that said the error, its name too where the
+    process is not named for it (a node host's other nodes); empty when no node said it."""
+    node = said.node
+    if node is None:
+        return ""
+    namespace, name = node
+    if process != name and not process.endswith(f"_{name}"):
+        return f" ({namespace}/{name})" if namespace else f" ({name})"
+    return f" ({namespace})" if namespace else ""
+
+
+_MACHINE_LINES = ("PROGRESS ", "STAGE ", "TIMING ", "CPU ", "FOREIGN ", "SHADOW ")
+_CONTINUATION_LINES = 6  # at most, after an error's first line
+
+
+def _last_error(log: Path) -> LogRecord:
+    """The node's last error record (feed_twin.ros.node_log), at most 6 further lines kept
+    and indented under its first, else its last 3 lines joined (naming no node: a process
+    hosting several, say a machine's controllers, was not said by its last line to have
+    failed); an empty log or one that cannot be read says so."""
     try:
-        lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+        text = log.read_text(errors="replace")
     except OSError:
-        return "(no log)"
-    lines = [ln for ln in lines if not ln.startswith(("PROGRESS ", "STAGE ", "TIMING ", "CPU "))]
-    starts = [i for i, ln in enumerate(lines) if "[ERROR]" in ln or "Error" in ln]
-    if not starts:
-        return " | ".join(lines[-3:]) or "(empty log)"
-    block = [lines[starts[-1]]]
-    block += [ln for ln in lines[starts[-1] + 1 :] if ln.startswith("  ")][:6]
-    return "\n    ".join(block)
+        return LogRecord(message="(no log)")
+    said = list(records(text, skip=_MACHINE_LINES))
+    errors = [r for r in said if r.is_error]
+    if not errors:
+        if not said:
+            return LogRecord(message="(empty log)")
+        return LogRecord(message=" | ".join(r.message.replace("\n", " ") for r in said[-3:]))
+    first, *more = errors[-1].message.split("\n")
+    lines = [first, *(ln.strip() for ln in more[:_CONTINUATION_LINES])]
+    return dataclasses.replace(errors[-1], message="\n    ".join(lines))
 
 
 def log_record(log: Path | None, prefix: str) -> dict | None:

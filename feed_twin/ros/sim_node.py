@@ -319,7 +319,9 @@ class SimNode(FeedTwinNode):
         if self._record is not None:
             self._record.flush()  # the recorder's copies before the end they precede
         self._run_pub.publish(self._run_text(text))
-        self.finish(code, "" if code == EXIT_OK else text)
+        # "done error" is the run_state word for the peers; the log (and the run's reason,
+        # feed_twin.ros.launch) says what went wrong only.
+        self.finish(code, "" if code == EXIT_OK else text.removeprefix("done error: "))
 
     def _run_text(self, text: str) -> String:
         return String(data=self.auth.sign_text(self.topics.run_state, text))
