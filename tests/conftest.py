@@ -30,3 +30,23 @@ def ros_domain_id() -> Iterator[int]:
                     os.environ.pop(name, None)
                 else:
                     os.environ[name] = value
+
+
+# What feed_twin.ros.dds.init_context rewrites in this process's environment (dds_environment):
+# a test that runs nodes in the pytest process must not pass its DDS set-up on to the next test.
+_DDS_VARIABLES = (
+    "FASTRTPS_DEFAULT_PROFILES_FILE",
+    "ROS_AUTOMATIC_DISCOVERY_RANGE",
+    "ROS_LOCALHOST_ONLY",
+)
+
+
+@pytest.fixture(autouse=True)
+def _dds_environment_restored() -> Iterator[None]:
+    saved = {name: os.environ.get(name) for name in _DDS_VARIABLES}
+    yield
+    for name, value in saved.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value

@@ -37,14 +37,6 @@ CROSS_COUPLING_FIT = (
     "the 16 kHz loop's L di/dt is noise; the back-EMF constant fits within 2 %"
 )
 
-BACKLASH_FIT_BUDGET = (
-    "open: with the effort stamped as a drive's actual value (truth and twin alike: the "
-    "command of the base tick before each sample) the backlash fit of this record does not "
-    "converge in its budget (120 simulations, cost 2.35e4 -> 1.52e4); stamped as issued, as "
-    "before, it converges in 95 (2.35e4 -> 1.67e4). Left unfitted, a 62.5 us position_delay "
-    "takes its place: at 0.16 m/s one tick of delay is the 10 um gap's offset"
-)
-
 PLACED_REPETITIONS_VISCOUS = (
     "open, since the effort stamp and sub-steps were restored (it passes on main before them; "
     "the re-examined delays do not change it): on the thrice-run EMPS record placed from "

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from known_gaps import BACKLASH_FIT_BUDGET, JOINT_RIDGE
+from known_gaps import JOINT_RIDGE
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.reexamine import Found, collapsed, neutral_values
@@ -133,7 +133,6 @@ def test_stiffness_and_coulomb_friction_are_both_named(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=BACKLASH_FIT_BUDGET)
 def test_backlash_and_coulomb_friction_are_both_named(tmp_path):
     """Semi-closed loop, the scale reads the table: 10 um of lost motion (2 um nominal) and
     160 N of Coulomb friction (120 N nominal). Behind the gap the friction decides whether the

@@ -181,7 +181,8 @@ def test_a_diagnosis_on_a_terminal_shows_its_passes_and_into_a_pipe_does_not(tmp
     code, shown = _diagnose_on(tmp_path, csv, map_path, "a", terminal=True)
     assert code == 0, shown
     assert "compiling the nominal model: " in shown, shown
-    assert re.search(r"round 1 of at most 5: +\d+%\|.*\| pass 1/8, \d+ s simulated \[", shown)
+    # the nominal, 5 rounds at most, the joint selection, the joint re-fit, the appraisal
+    assert re.search(r"round 1 of at most 5: +\d+%\|.*\| pass 1/9, \d+ s simulated \[", shown)
     assert "writing the report: 100%|" in shown, shown
     code, shown = _diagnose_on(tmp_path, csv, map_path, "b", terminal=False)
     assert code == 0, shown

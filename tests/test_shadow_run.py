@@ -198,8 +198,11 @@ def test_raised_friction_is_named_in_the_health_topic(worn) -> None:
     assert flagged[0][0] > RAISE_AT_S
     # while the 1 s window straddles the change, its residual is a step in time as much as a
     # friction signature, and the ranking may prefer another friction effect; once the window
-    # holds only doubled friction, the verdict is Coulomb friction
-    assert all(m.effect.endswith("_friction") for _, m in flagged), [m.message for _, m in flagged]
+    # holds only doubled friction, the verdict is Coulomb friction (a step inside the window is
+    # also a friction that grows over it: friction_drift)
+    assert all(
+        m.effect.endswith("_friction") or m.effect == "friction_drift" for _, m in flagged
+    ), [m.message for _, m in flagged]
     settled = [m for ti, m in flagged if ti > RAISE_AT_S + WINDOW_S]
     assert settled and all(m.effect == "coulomb_friction" for m in settled), [
         m.message for m in settled
