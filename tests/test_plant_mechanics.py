@@ -30,6 +30,22 @@ def _source(gain: float = 1.0) -> dict:
     }
 
 
+def _table_on(friction: dict):
+    """A 20 kg table on the guide-friction component `friction` (named friction), driven by a
+    force source."""
+    return load_plant(
+        {
+            "components": [
+                {"name": "table", "type": "Mass", "params": {"m": 20.0}},
+                friction,
+                _source(),
+            ],
+            "connect": [["table.flange", "friction.flange"], ["table.flange", "drive.flange"]],
+        },
+        source="friction",
+    )
+
+
 def _viscous(name: str, F_v: float, F_c: float = 0.0, dF_s: float = 0.0) -> dict:
     return {
         "name": name,
@@ -230,17 +246,7 @@ def test_friction_balances_the_drive_force_at_the_formula_velocity():
             "v_reg": v_reg,
         },
     }
-    plant = load_plant(
-        {
-            "components": [
-                {"name": "table", "type": "Mass", "params": {"m": 20.0}},
-                comp,
-                _source(),
-            ],
-            "connect": [["table.flange", "friction.flange"], ["table.flange", "drive.flange"]],
-        },
-        source="friction",
-    )
+    plant = _table_on(comp)
     forces = np.array([-80.0, -55.0, -42.0, 32.0, 40.0, 80.0])  # beyond breakaway
     engine = Engine(plant, base_period_s=1e-4, substeps=4, record=["table.v", "friction.force"])
     n = 20000  # 2 s, time constant m/F_v <= 0.1 s
@@ -327,17 +333,7 @@ def test_a_drifting_friction_grows_by_its_rate_per_second():
     F_v, rate, force, h = 300.0, 0.05, 30.0, 1e-4
     comp = _viscous("friction", F_v)
     comp["params"]["drift_per_s"] = rate
-    plant = load_plant(
-        {
-            "components": [
-                {"name": "table", "type": "Mass", "params": {"m": 20.0}},
-                comp,
-                _source(),
-            ],
-            "connect": [["table.flange", "friction.flange"], ["table.flange", "drive.flange"]],
-        },
-        source="friction",
-    )
+    plant = _table_on(comp)
     n = 20000  # 2 s
     engine = Engine(plant, base_period_s=h, substeps=4, record=["table.v", "friction.force"])
     res = engine.run(n, drive=_effort_drive(n, force))
