@@ -198,6 +198,32 @@ def test_the_records_rounding_floors_its_noise():
     assert floors["position"] == pytest.approx(q / np.sqrt(12.0), rel=1e-6)
 
 
+def test_a_scale_read_at_whole_steps_per_sample_keeps_its_rounding_noise():
+    """A 10 nm scale on moves at whole steps per sample (150 um per 1 ms sample, as a truth
+    machine's record at F9000) gives positions exactly linear over each move: the local cubic
+    of sample_noise leaves nothing on most samples, and with 96 % distinct values there are no
+    repeats to read a step from. Its floor is still the rounding noise q / sqrt(12), read off
+    the grid the values lie on, not the 1e-12 m least step (on the truth machine's records the
+    verdicts said 7e5 x the sample noise for a residual 250 x the rounding noise)."""
+    from feed_twin.analysis.channels import quantisation_step
+    from feed_twin.analysis.fit import SimOutputs
+    from feed_twin.io.measured import MeasuredRun
+
+    q = 1e-8
+    t = 1e-3 * np.arange(4000)
+    # 0.15 m/s, then 0.08 m/s back: whole steps per sample, with 0.4 s ramps between
+    v = np.interp(t, [0.0, 0.4, 1.8, 2.2, 4.0], [0.0, 0.15, 0.15, -0.08, -0.08])
+    x = 0.2 + np.cumsum(v) * 1e-3
+    rounded = np.round(x / q) * q
+    assert len(np.unique(rounded)) > 0.9 * len(t)
+    assert quantisation_step(rounded) == 0.0  # no repeats: the gap rule cannot read it
+    run = MeasuredRun(
+        source="trace.csv", t_s=t, signals={"pos_meas_m": rounded}, position_sensor="linear_scale"
+    )
+    out = SimOutputs(x_m=rounded[None, :] + 3e-7, effort=None, ok=np.ones(1, dtype=bool))
+    assert noise_floors(run, out)["position"] == pytest.approx(q / np.sqrt(12.0), rel=1e-6)
+
+
 def test_a_command_followed_a_fraction_of_a_tick_late_is_found_to_its_step(tmp_path):
     """A drive that follows its command 0.3 ms later than the twin's 1 kHz loops (a setpoint
     latency no user knows): command_delay found, searched in steps of COMMAND_DELAY_STEP of a
