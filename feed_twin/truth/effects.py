@@ -76,8 +76,7 @@ def _delay(mc: Machine, p: Mapping[str, float]) -> Machine:
 
 
 def _stiction(mc: Machine, p: Mapping[str, float]) -> Machine:
-    f = p["F_hold_N"]
-    return dataclasses.replace(mc, F_hold=f, F_c_pos=f, F_c_neg=f)
+    return dataclasses.replace(mc, F_hold=p["F_hold_N"])
 
 
 def _backlash(mc: Machine, p: Mapping[str, float]) -> Machine:
