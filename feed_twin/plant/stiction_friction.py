@@ -64,7 +64,7 @@ DEFLECTION_LIMIT_M = 1e-2  # |z| above this is a runaway
 # what the workflow gives a stiction it adds: the stuck table on the asperity spring rings at
 # 0.2 / h (h the twin's base period), damped at half the critical value; the asperities let go
 # where the sliding law has fallen to a tenth of its Coulomb force (sgn(0.1) = 0.1)
-ADDED_PRESLIDING_OMEGA_H = 0.2
+ADDED_PRESLIDING_OMEGA_H = 0.5
 ADDED_DAMPING_RATIO = 0.5
 ADDED_RELEASE_SHARE = 0.1  # v_release / v_reg
 ADDED_V_REG_M_S = 1e-3  # v_reg of a model without guide friction (GuideFriction's added one)
