@@ -1,4 +1,4 @@
-"""Stiction: a friction that holds the table at rest up to a holding force (Karnopp, elasto-plastic).
+"""Stiction: a friction that holds the table at rest up to a holding force (Karnopp).
 
 A sliding friction regularised around v = 0 (GuideFriction's smooth sign) cannot hold a load:
 under any force below the Coulomb level the table creeps at a speed of order v_reg, so a
