@@ -167,6 +167,14 @@ def test_a_stop_is_held_where_its_command_rests_and_stuck_where_it_moves_on():
     # after the -20 mm/s leg: the command rests on 2 of the 21 samples the table stands
     assert regs["stuck"][reversal] == pytest.approx(-19 / 21)
     assert regs["held"][reversal] == pytest.approx(-2 / 21)
+    # the dwell lasts: its own ramp over its rest, 0 at its start, 1 at its end, 0 elsewhere
+    # (the 20 ms reversal is too short for the loop's integrator to wind a force up)
+    ramps = sorted(k for k in regs if k.startswith("ramp"))
+    assert ramps == ["ramp0"]
+    ramp = regs["ramp0"]
+    assert ramp[300:500].max() == pytest.approx(1.0, abs=0.02)
+    assert np.all(np.diff(ramp[305:495]) > 0.0)
+    assert np.abs(ramp[:295]).max() == 0.0 and np.abs(ramp[505:]).max() == 0.0
     alone = signature(_stops_motion(with_command=False))
     assert set(alone) == {"held"}
     assert alone["held"] == pytest.approx(regs["held"] + regs["stuck"])
