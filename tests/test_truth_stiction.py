@@ -17,7 +17,7 @@ from feed_twin.truth import draw_all, make_record
 NOMINAL = Path(__file__).resolve().parents[1] / "config" / "truth_nominal.yaml"
 
 
-@pytest.mark.slow  # a truth record and a whole diagnose: about 10 s on a quiet host
+@pytest.mark.slow  # a truth record and a whole diagnose: about 15 s of CPU
 def test_stiction_is_named_with_its_holding_force_on_a_truth_record(tmp_path: Path):
     """Named alone, its holding force (the data sheet's Coulomb force, which it takes over)
     within 5 %; before the law held below a release speed and its presliding was as stiff as
