@@ -197,9 +197,9 @@ def test_the_table_is_held_at_rest_where_smoothed_coulomb_friction_creeps():
     and the drive keeps the force it had when the table stuck, below F_hold; a smoothed Coulomb
     friction of the same size lets it creep towards the command (hundreds of nm per 70 ms),
     the drive holding almost nothing. The table slides in on the regularised law until it is
-    slower than the release speed (a tenth of v_reg), so the force it sticks with is the loop's
-    at that speed (1.7 N here; 5-12 N when the law stopped the table as soon as the drive's
-    force fell below F_hold, at any speed)."""
+    slower than the release speed (0.3 v_reg), so the force it sticks with is the loop's at
+    that speed (5-12 N when the law stopped the table as soon as the drive's force fell below
+    F_hold, at any speed; 1.7 N with the release at 0.1 v_reg)."""
     nominal = ModelDoc.load(EMPS)
     exact = Unmodelled(effort_noise_std=0.0, current_lag_s=0.0, coupling_stiffness_factor=1.0)
     held = generate(nominal, {"stiction": {"F_hold_N": F_HOLD}}, unmodelled=exact)
