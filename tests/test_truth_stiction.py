@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from known_gaps import STICTION_ON_THE_TRUTH
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.model_doc import ModelDoc
@@ -17,12 +18,11 @@ from feed_twin.truth import draw_all, make_record
 NOMINAL = Path(__file__).resolve().parents[1] / "config" / "truth_nominal.yaml"
 
 
-@pytest.mark.slow  # a truth record and a whole diagnose: about 15 s of CPU
+@pytest.mark.slow  # a truth record and a whole diagnose: about 10 s of CPU
+@pytest.mark.xfail(strict=True, reason=STICTION_ON_THE_TRUTH)
 def test_stiction_is_named_with_its_holding_force_on_a_truth_record(tmp_path: Path):
     """Named alone, its holding force (the data sheet's Coulomb force, which it takes over)
-    within 5 %; before the law held below a release speed and its presliding was as stiff as
-    the step resolves, the twin's stiction stopped the table 2 um short and fitted worse than
-    no stiction (effort residual 0.029 A against 0.014 A), and it was never fitted."""
+    within 5 %, and the effort error smaller after the fit."""
     hidden = draw_all(["stiction"], seed=7)
     rec = make_record(tmp_path / "run.csv", hidden=hidden, seed=7)
     d = diagnose(load_measured(rec.csv, rec.map), ModelDoc.load(NOMINAL))[0]
