@@ -18,7 +18,7 @@ from feed_twin.truth import draw_all, make_record
 NOMINAL = Path(__file__).resolve().parents[1] / "config" / "truth_nominal.yaml"
 
 
-@pytest.mark.slow  # a truth record and a whole diagnose: about 10 s of CPU
+@pytest.mark.slow  # a truth record and a whole diagnose: 3-5 s on a quiet host, 40 s loaded
 @pytest.mark.xfail(strict=True, reason=STICTION_ON_THE_TRUTH)
 def test_stiction_is_named_with_its_holding_force_on_a_truth_record(tmp_path: Path):
     """Named alone, its holding force (the data sheet's Coulomb force, which it takes over)
