@@ -75,7 +75,7 @@ def shadow_run(directory: Path, name: str, friction_steps: list[dict]) -> dict:
     with reserve_domain_id() as domain:
         code, out, err = run(write_inputs(directory, name, friction_steps), domain.domain_id)
     assert code == 0, err[-4000:]
-    return assert_report(out)  # the report of every mode
+    return assert_report(out, mode="axis nodes shadow")  # the report of every mode
 
 
 def shadow_pids(directory: Path) -> dict[str, int]:
