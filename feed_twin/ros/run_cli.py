@@ -147,9 +147,10 @@ def _axis_option_problem(args: argparse.Namespace) -> str:
     one-axis machine is loaded: LinuxCNC's verdict on the program comes before feed_twin's."""
     if args.axes is not None:
         return f"--axes needs a machine config or --in-process; {args.config} is one axis"
-    if args.shadow and axis_shadow.refused_options(args):
-        return axis_shadow.refused_options(args)
-    return axis_shadow.linuxcnc_precheck(args) if args.nc == "linuxcnc" else ""
+    refused = axis_shadow.refused_options(args) if args.shadow else ""
+    if refused or args.nc != "linuxcnc":
+        return refused
+    return axis_shadow.linuxcnc_precheck(args)
 
 
 def _main_machine(args: argparse.Namespace) -> int:
