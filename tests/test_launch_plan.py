@@ -11,7 +11,7 @@ import pytest
 
 from feed_twin.launch.machine import machine_plan, machine_shadow_plan
 from feed_twin.launch.plan import NodeSpec, ProcessSpec, RunPlan, host_argv
-from feed_twin.launch.request import RunRequest
+from feed_twin.launch.request import NCS, RunRequest
 from feed_twin.machine.config import load_run_config
 from feed_twin.machine.nodes import node_plan
 from feed_twin.machine.shadow_nodes import shadow_plan
@@ -151,8 +151,10 @@ def test_each_mode_starts_its_roles_with_its_clock(tmp_path) -> None:
 
 
 def test_every_launch_argument_is_one_the_registry_declares_for_its_role(tmp_path) -> None:
+    bag, machine = tmp_path / "run", load_run_config(AXIS)
+    plans = {nc: shadow_plan(machine, bag, linuxcnc=nc == "linuxcnc") for nc in NCS}
     for request in _every_request():
-        for node in axis_shadow_plan(request, tmp_path / "run").nodes():
+        for node in machine_shadow_plan(plans[request.nc], request, bag).nodes():
             options = {a for a in node.argv if a.startswith("--")}
             allowed = set(COMMON_ARGUMENTS) | set(node_role(node.role).arguments)
             assert options <= allowed, (node.role, options - allowed)
