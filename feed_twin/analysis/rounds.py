@@ -175,9 +175,6 @@ class Context:
     tried: list[str] = field(default_factory=list)
     # channels that carry no evidence in this record (analysis.visibility): not tested
     silent: tuple[str, ...] = ()
-    # the rivals fitted to a feed axis's model in some round and not kept: the alternatives
-    # the joint selection swaps in for the effects found (analysis.joint)
-    runners_up: set[str] = field(default_factory=set)
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
         found = channel_residuals(self.run, out, start=self.start)
@@ -232,10 +229,8 @@ def run_round(
     if not trials:
         return ranking, True
     judged = _judged(state, ctx, trials)
-    ctx.runners_up.update(j[1].name for j in judged)
     for verdict, cand, edit, alone, new_twin, result in judged:
         if verdict.significant:
-            ctx.runners_up.discard(cand.name)
             adopt(
                 state, ctx, cand, edit=edit, alone=alone, new_twin=new_twin, result=result,
                 explained_by=verdict.explained,
