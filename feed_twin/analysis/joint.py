@@ -51,7 +51,7 @@ from dataclasses import dataclass
 from feed_twin.analysis.fit import Measured, cost_of
 from feed_twin.analysis.model_doc import model_of
 from feed_twin.analysis.ranking import Candidate
-from feed_twin.analysis.reexamine import Found, removable, removed, without
+from feed_twin.analysis.reexamine import Found, removable, removed
 from feed_twin.analysis.rounds import (
     PARAMETER_PRICE,
     Context,
@@ -63,6 +63,7 @@ from feed_twin.analysis.rounds import (
     noop,
     ranked,
     reexamine_found,
+    refitted_without,
 )
 from feed_twin.analysis.significance import compare
 from feed_twin.analysis.trials import grid_search, try_candidate
@@ -170,20 +171,9 @@ def _rivals(state: State, ctx: Context, meas: Measured, target: Found) -> list[C
     at least rival_ratio of what the target's own signature explains, as a round's rivals must
     (rounds.choose_rivals). The candidates carry that ranking's weights (the fit's starting
     values)."""
-    others = [f for f in state.found if f is not target]
-    gone = without(
-        target,
-        others,
-        state.doc,
-        state.outputs,
-        drive=ctx.drive,
-        meas=meas,
-        channels=ctx.channels,
-        max_evaluations=ctx.opts.max_evaluations,
-    )
+    gone = refitted_without(state, ctx, meas, target)
     if gone is None:
         return []
-    state.simulations += gone.simulations
     found = {f.name for f in state.found}
     ranking = ranked(ctx, gone.outputs, tuple(found - {target.name}))
     own = next((c.explained_fraction for c in ranking if c.name == target.name), 0.0)

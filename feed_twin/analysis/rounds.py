@@ -31,6 +31,7 @@ from feed_twin.analysis.ranking import Candidate, evidence, rank
 from feed_twin.analysis.record_search import AT_EDGE
 from feed_twin.analysis.reexamine import (
     Found,
+    Without,
     collapsed,
     fell_back,
     neutral_values,
@@ -472,6 +473,24 @@ def drop_collapsed(state: State, ctx: Context, when: str) -> None:
     state.simulations += 1
 
 
+def refitted_without(state: State, ctx: Context, meas: Measured, target: Found) -> Without | None:
+    """The set without `target`, the other effects found fitted again (reexamine.without); its
+    simulations count in `state`."""
+    others = [f for f in state.found if f is not target]
+    gone = without(
+        target,
+        others,
+        state.doc,
+        state.outputs,
+        drive=ctx.drive,
+        meas=meas,
+        channels=ctx.channels,
+        max_evaluations=ctx.opts.max_evaluations,
+    )
+    state.simulations += 1 if gone is None else gone.simulations
+    return gone
+
+
 def reexamine_found(state: State, ctx: Context, meas: Measured) -> None:
     """Examine the effects found jointly (analysis.reexamine), the newest one too: its fit
     re-fitted the effects found before, and what that alone gains is no evidence for it."""
@@ -483,18 +502,7 @@ def reexamine_found(state: State, ctx: Context, meas: Measured) -> None:
     for target in list(state.found):
         if not removable([target], state.doc):
             continue
-        others = [f for f in state.found if f is not target]
-        gone = without(
-            target,
-            others,
-            state.doc,
-            state.outputs,
-            drive=ctx.drive,
-            meas=meas,
-            channels=ctx.channels,
-            max_evaluations=ctx.opts.max_evaluations,
-        )
-        state.simulations += 1 if gone is None else gone.simulations
+        gone = refitted_without(state, ctx, meas, target)
         if gone is None or gone.verdict.significant:
             continue
         state.found.remove(target)
