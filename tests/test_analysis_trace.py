@@ -198,29 +198,29 @@ def test_the_records_rounding_floors_its_noise():
     assert floors["position"] == pytest.approx(q / np.sqrt(12.0), rel=1e-6)
 
 
-def test_a_scale_read_at_whole_steps_per_sample_keeps_its_rounding_noise():
-    """A 10 nm scale on moves at whole steps per sample (150 um per 1 ms sample, as a truth
-    machine's record at F9000) gives positions exactly linear over each move: the local cubic
-    of sample_noise leaves nothing on most samples, and with 96 % distinct values there are no
-    repeats to read a step from. Its floor is still the rounding noise q / sqrt(12), read off
-    the grid the values lie on, not the 1e-12 m least step (on the truth machine's records the
-    verdicts said 7e5 x the sample noise for a residual 250 x the rounding noise)."""
+def test_a_moving_channel_rounded_to_its_scale_floors_its_noise_at_its_rounding():
+    """A 1 kHz trace of a table that travels 0.3 m and rests a little, printed in
+    10 nm steps (mm to 5 decimals): 97 % of its values are distinct, and at constant speed the
+    rounding repeats, so its sample-to-sample noise reads 6e-16 m. Its step is found (values on
+    the grid, changes of many steps), read off the whole span (the smallest gap's float noise
+    over 3e7 steps was a fifth of a step), and floors the channel's noise at q / sqrt(12): the
+    truth machine's verdicts had said 9.3e5 x a sample noise of 1e-12 m."""
     from feed_twin.analysis.channels import quantisation_step
     from feed_twin.analysis.fit import SimOutputs
     from feed_twin.io.measured import MeasuredRun
 
     q = 1e-8
-    t = 1e-3 * np.arange(4000)
-    # 0.15 m/s, then 0.08 m/s back: whole steps per sample, with 0.4 s ramps between
-    v = np.interp(t, [0.0, 0.4, 1.8, 2.2, 4.0], [0.0, 0.15, 0.15, -0.08, -0.08])
-    x = 0.2 + np.cumsum(v) * 1e-3
-    rounded = np.round(x / q) * q
+    t = 1e-3 * np.arange(10000)
+    x = 0.2 + 0.15 * (1.0 - np.cos(np.pi * np.clip((t - 0.3) / 9.4, 0.0, 1.0)))  # rests 0.3 s
+    rounded = np.round(x * 1e3, 5) * 1e-3  # as a CSV in mm prints it
     assert len(np.unique(rounded)) > 0.9 * len(t)
-    assert quantisation_step(rounded) == 0.0  # no repeats: the gap rule cannot read it
+    assert quantisation_step(rounded) == pytest.approx(q, rel=1e-6)
+    assert quantisation_step(x + 1e-9 * np.sin(7.0 * t)) == 0.0  # not rounded
+    assert quantisation_step(0.2 + 0.1 * t) == 0.0  # a ramp's equal gaps are still no step
     run = MeasuredRun(
         source="trace.csv", t_s=t, signals={"pos_meas_m": rounded}, position_sensor="linear_scale"
     )
-    out = SimOutputs(x_m=rounded[None, :] + 3e-7, effort=None, ok=np.ones(1, dtype=bool))
+    out = SimOutputs(x_m=x[None, :], effort=None, ok=np.ones(1, dtype=bool))
     assert noise_floors(run, out)["position"] == pytest.approx(q / np.sqrt(12.0), rel=1e-6)
 
 
@@ -259,5 +259,6 @@ def test_a_cubic_interpolator_gets_setpoints_whose_velocities_are_their_slopes(t
     run = load_measured(rec.csv, rec.map)
     out = twin.simulate(drive_from_run(run), twin.nominal[None, :])
     effort = run["torque_cmd_Nm"]
+    assert out.effort is not None
     assert np.linalg.norm(out.effort[0] - effort) < 0.05 * np.linalg.norm(effort)
     assert np.sqrt(np.mean((out.x_m[0] - run["pos_meas_m"]) ** 2)) < 1e-6

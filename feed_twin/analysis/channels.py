@@ -14,7 +14,6 @@ import math
 import numpy as np
 
 from feed_twin.analysis.fit import Measured, SimOutputs
-from feed_twin.analysis.rounding import resolution
 from feed_twin.analysis.significance import sample_noise
 from feed_twin.io.measured import MeasuredRun
 
@@ -23,6 +22,9 @@ VOLTAGE_Q = "voltage_q_V"  # the canonical signal of the current controller's q-
 # rounding (a CSV's 10 significant digits), not the record's step
 QUANTISATION_RELATIVE = 1e-8
 REPEATED_SHARE = 0.9  # a rounded channel takes fewer distinct values than this share of samples
+# ... or, moving, changes between samples by many of its steps: a step below this share of its
+# median change is the record's rounding, not the spacing of a ramp's values
+FINE_STEP = 0.1
 
 
 def _from(r: np.ndarray, start: int) -> np.ndarray:
@@ -74,41 +76,45 @@ def channel_residuals(
 def quantisation_step(y: np.ndarray) -> float:
     """The step a recorded channel is rounded to (a scale's resolution, a current's ADC count,
     a trace's display digits): the smallest gap between the values it takes, where every value
-    lies on that step's grid and values repeat (a rounded channel dwells on its counts); 0 for
-    a channel that is not rounded (a smooth ramp's equal gaps are no step)."""
+    lies on that step's grid and values repeat (a rounded channel dwells on its counts) or the
+    channel moves by many steps from sample to sample (FINE_STEP: a 1 kHz trace of a table
+    that rests a fifth of the time, in 10 nm steps, takes 97 % distinct values); 0 for a
+    channel that is not rounded (a smooth ramp's equal gaps are no step)."""
     y = np.asarray(y, dtype=float)
     values = np.unique(y)
-    if len(values) < 2 or len(values) > REPEATED_SHARE * len(y):
+    if len(values) < 2:
         return 0.0
     gaps = np.diff(values)
     gaps = gaps[gaps > QUANTISATION_RELATIVE * float(np.max(np.abs(values)))]
     if not len(gaps):
         return 0.0
     q = float(gaps.min())
+    # the step read off the whole span (the smallest gap carries the values' float noise, which
+    # 3e7 steps of 10 nm over 0.3 m would add up to a fifth of a step)
+    span = float(values[-1] - values[0])
+    q = span / max(round(span / q), 1)
     counts = (values - values[0]) / q
-    on_grid = np.abs(counts - np.round(counts)) < 1e-3
-    return q if float(np.mean(on_grid)) >= 0.99 else 0.0
+    if float(np.mean(np.abs(counts - np.round(counts)) < 1e-3)) < 0.99:
+        return 0.0
+    if len(values) <= REPEATED_SHARE * len(y):
+        return q
+    changes = np.abs(np.diff(y))
+    changes = changes[changes > 0.5 * q]
+    return q if len(changes) and q < FINE_STEP * float(np.median(changes)) else 0.0
 
 
 def noise_floors(run: MeasuredRun, out: SimOutputs, *, start: int = 0) -> dict[str, float]:
     """Each channel's sample noise: the least its weight's noise level can be (see
     analysis.significance), never below the smallest step that means anything in its unit, nor
     below the rounding noise of the record's own step, q / sqrt(12) (a channel that rests
-    between two counts has no sample-to-sample noise, and its rounding is not an effect).
-    The step is the smallest gap between repeated values, or else the 1-2-5 x 10^k grid the
-    values lie on (analysis.rounding.resolution): a scale of 10 nm read at feeds of whole
-    steps per sample gives positions that are exactly linear over each move, whose local cubic
-    leaves nothing, and on the truth machine's records (96 % distinct values, no repeats to
-    read a step from) the position's floor had fallen to 1e-12 m, 2900 times below its
-    rounding noise."""
+    between two counts has no sample-to-sample noise, and its rounding is not an effect)."""
     least = {"effort": 1e-9, "position": 1e-12, "voltage": 1e-6}
     recorded = {"effort": run.effort_name, "position": "pos_meas_m", "voltage": VOLTAGE_Q}
     found = channel_residuals(run, out, start=start)
     floors = {}
     for k, r in found.items():
         name = recorded[k]
-        step = 0.0 if name is None else max(quantisation_step(run[name]), resolution(run[name]))
-        rounding = step / math.sqrt(12.0)
+        rounding = 0.0 if name is None else quantisation_step(run[name]) / math.sqrt(12.0)
         floors[k] = max(sample_noise(r[start:]), least[k], rounding)
     return floors
 
