@@ -60,6 +60,7 @@ from feed_twin.gcode.plan_profile import (
     stop_holds,
     with_dwells,
 )
+from feed_twin.gcode.plan_relax import relaxed_plan
 from feed_twin.gcode.plan_sampling import (
     END_SLACK,
     event_times,
@@ -288,6 +289,9 @@ class _StreamPlanner:
             assert narrowed is not None  # the same 1-D nodes: only widths changed
             bodies = narrowed
             speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
+        bodies, speeds = relaxed_plan(
+            bodies, speeds, self.limits, v_first=self.v_first, fixed_from=q_commit
+        )
         pieces = motion_pieces(bodies, speeds, q_commit=q_commit, n_moves=n)
         dwells, timed = node_entries(self._entries_at(bodies, q_commit, final), bodies.S)
         holds = stop_holds(
