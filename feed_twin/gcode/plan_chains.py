@@ -61,6 +61,7 @@ class ChainRelax(NamedTuple):
 
     terms: ChainTerms
     V: np.ndarray  # [m/s] the speed cap of each body before erosion (chain_limits)
+    node_cap: np.ndarray  # [m/s] the speed cap of each 1-D node's blend (m+1)
     group: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
@@ -167,7 +168,9 @@ def chain_bodies(
         group = erosion_groups(in_chain, hold_out[:-1] > 0.0)
         Vc_local = Vc
         Vc, Ac = _eroded(sb[:-1], sa[1:], Vc, Ac, group=group, T=T)
-        relax = ChainRelax(terms=terms, V=Vc_local, group=group, lo=sb[:-1], hi=sa[1:])
+        relax = ChainRelax(
+            terms=terms, V=Vc_local, node_cap=blends.cap[node_q], group=group, lo=sb[:-1], hi=sa[1:]
+        )
     cap = blends.cap
     cap_q = cap[node_q].copy()
     cap_q[1:] = np.where(in_chain, np.minimum(cap_q[1:], Vc), cap_q[1:])
