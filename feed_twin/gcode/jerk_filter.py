@@ -183,7 +183,8 @@ def erode(
     speed: np.ndarray,
     span: float,
 ) -> np.ndarray:
-    """Each item's value lowered to that of any item of its group within that item's reach.
+    """Each item's value lowered to that of any item of its group within that item's reach
+    (value (n,) or (n, k): each column alike, in one pass).
 
     Items are intervals [lo, hi] along s in order; item j reaches item i when the gap between
     them is at most reach[j], or at most `span` times the highest speed of the items from i to
@@ -191,7 +192,9 @@ def erode(
     alone and reach nothing.
     """
     n = lo.shape[0]
-    out = value.copy()
+    source = np.ascontiguousarray(value).reshape(n, -1)
+    out = source.copy()
+    columns = out.shape[1]
     far = max(np.max(reach), span * np.max(speed)) if n > 0 else 0.0
     for i in range(n):
         if group[i] < 0:
@@ -205,9 +208,10 @@ def erode(
                     break
                 top = max(top, speed[j])
                 if gap <= max(reach[j], span * top):
-                    out[i] = min(out[i], value[j])
+                    for c in range(columns):
+                        out[i, c] = min(out[i, c], source[j, c])
                 j += step
-    return out
+    return out.reshape(value.shape)
 
 
 @njit(cache=True)

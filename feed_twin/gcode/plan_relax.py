@@ -36,7 +36,6 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from feed_twin.gcode.jerk_filter import erode, raw_samples
 from feed_twin.gcode.plan_chains import Bodies, ChainRelax, ChainTerms, chain_acceleration
@@ -110,9 +109,7 @@ def relaxed_plan(
         if np.all(slower) and np.all(signs) and not np.any(over):
             return trial, planned
         U = np.maximum(assumed.U, found.U)
-        _, reached = _window_reach(
-            relax.lo, relax.hi, group, U, limits.window_s, np.zeros(len(U), dtype=np.int64)
-        )
+        _, reached = _window_reach(relax, U, limits.window_s, np.zeros(len(U), dtype=np.int64))
         assumed = _Assumed(
             U=U,
             one_sign=assumed.one_sign & found.one_sign,
@@ -136,7 +133,7 @@ def _assumed(
     U = np.where(fixed, cap, U)
     bits = np.where((speeds.t_up > 0.0) | fixed, RISES, 0)
     bits |= np.where((speeds.t_down > 0.0) | fixed, FALLS, 0)
-    near, reached = _window_reach(relax.lo, relax.hi, relax.group, U, limits.window_s, bits)
+    near, reached = _window_reach(relax, U, limits.window_s, bits)
     both = RISES | FALLS
     return _Assumed(U=U, one_sign=(near & both) != both, strict=fixed, reached=reached)
 
@@ -249,35 +246,12 @@ def _filtered(
     return s_f, (s1 - s0) / T, (sd1 - sd0) / T
 
 
-@njit(cache=True)
 def _window_reach(
-    lo: np.ndarray,
-    hi: np.ndarray,
-    group: np.ndarray,
-    speed: np.ndarray,
-    span: float,
-    bits: np.ndarray,
+    relax: ChainRelax, U: np.ndarray, span: float, bits: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(the bits of any item, the highest speed of any item) of its group within a window's
-    reach of each item: the gap between them at most `span` times the highest speed of the
-    items from one to the other (`jerk_filter.erode`'s reach; group -1: the item alone)."""
-    n = lo.shape[0]
-    near = bits.copy()
-    top_near = speed.copy()
-    far = span * np.max(speed) if n > 0 else 0.0
-    for i in range(n):
-        if group[i] < 0:
-            continue
-        for step in (1, -1):
-            j = i + step
-            top = speed[i]
-            while 0 <= j < n and group[j] == group[i]:
-                gap = lo[j] - hi[i] if step > 0 else lo[i] - hi[j]
-                if gap > far:
-                    break
-                top = max(top, speed[j])
-                if gap <= span * top:
-                    near[i] |= bits[j]
-                    top_near[i] = max(top_near[i], speed[j])
-                j += step
-    return near, top_near
+    """(the bits of any body, the highest U of any body) of its chain within a window's reach
+    of each body: the gap between them at most `span` times the highest U between."""
+    columns = -np.column_stack((bits & RISES, bits & FALLS, U)).astype(float)
+    none = np.zeros(len(U))
+    near = -erode(relax.lo, relax.hi, columns, none, relax.group, U, span)
+    return np.where(near[:, 0] > 0.0, RISES, 0) | np.where(near[:, 1] > 0.0, FALLS, 0), near[:, 2]
