@@ -146,8 +146,10 @@ def body_profiles_filtered(
 
     A body between two nodes held on its side (alone in its windows, A from the axes' a_max)
     either cruises at least T at a peak above both ends (s'' keeps its sign within a window:
-    |s_f'''| <= A / T) or runs at A / 2 without that cruise (|s_f'''| <= 2 (A / 2) / T),
-    whichever is quicker. A chain body's A already budgets s'' changing sign within a window
+    |s_f'''| <= A / T), or runs at A / 2 without that cruise (|s_f'''| <= 2 (A / 2) / T), or
+    at A where it takes at most T in all (a window then reaches into the holds on one side
+    or the other, where s'' = 0, and never holds both signs: |s_f'''| <= A / T), whichever
+    is quickest. A chain body's A already budgets s'' changing sign within a window
     (`plan_chains.chain_limits`): no cruise needed.
     """
     m = L.shape[0]
@@ -169,6 +171,11 @@ def body_profiles_filtered(
             if half[4] < best[4]:
                 best = half
                 a_used[i] = 0.5 * a
+        if alone:  # over at most T no window holds both signs of s'': at A, no cruise
+            short = _trapezoid(v0, v1, room, V[i], a, 0.0)
+            if short[4] <= T and short[4] < best[4]:
+                best = short
+                a_used[i] = a
         vp[i], t_up[i], t_cruise[i], t_down[i] = best[0], best[1], best[2], best[3]
     return vp, t_up, t_cruise, t_down, a_used
 
