@@ -15,6 +15,8 @@ tolerance (`plan_smoothing`) and forced breaks of long chains placed where they 
 3. chains (`plan_chains`): overlapping blends grouped into chains; the 1-D nodes and the
    bodies between them with their limits;
 4. speed profile (`plan_profile`): boundary speeds and the pieces of s(t), dwells included;
+   with the jerk filter the chains' limits are then taken at what that profile does and it
+   is planned again (`plan_relax`, a fixed point checked on the plan);
 5. sampling (`plan_sampling`): s(t) at t = k * period, mapped onto the blended path.
 
 The jerk profile plans s acceleration-limited (the raw plan) and averages it over a window
