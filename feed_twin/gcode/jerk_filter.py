@@ -202,10 +202,20 @@ def erode(
     source = np.ascontiguousarray(value).reshape(n, -1)
     out = source.copy()
     columns = out.shape[1]
-    far = max(np.max(reach), span * np.max(speed)) if n > 0 else 0.0
+    # No item reaches further than its run of one group's largest reach or span x speed.
+    far_of = np.zeros(n)
+    start = 0
+    for k in range(1, n + 1):
+        if k == n or group[k] != group[start]:
+            far = 0.0
+            for q in range(start, k):
+                far = max(far, reach[q], span * speed[q])
+            far_of[start:k] = far
+            start = k
     for i in range(n):
         if group[i] < 0:
             continue
+        far = far_of[i]
         for step in (1, -1):
             j = i + step
             top = speed[i]

@@ -89,10 +89,16 @@ def relaxed_plan(
         fixed |= group == group[fixed_from]
     if np.all(fixed | (group < 0)):
         return bodies, speeds
+    # The chains from the one spanning the commit node on are fixed and reach no other:
+    # the erosions run over the bodies before them alone.
+    live = fixed_from
+    if fixed_from < len(group) and group[fixed_from] >= 0:
+        live = int(np.flatnonzero(group == group[fixed_from])[0])
+    relax = relax._replace(lo=relax.lo[:live], hi=relax.hi[:live], group=group[:live])
     cap = np.where(np.isfinite(relax.V), relax.V, 0.0)
     assumed = _assumed(relax, speeds, limits, cap, fixed)
     for _ in range(RELAX_STEPS):
-        trial = _with_assumed(bodies, limits, assumed, fixed)
+        trial = _with_assumed(bodies, relax, limits, assumed, fixed)
         planned = speed_profile(trial, v_first=v_first, window_s=limits.window_s)
         found = _assumed(relax, planned, limits, cap, fixed)
         raised = trial.V > bodies.V * (1.0 + SPEED_SLACK)
@@ -139,21 +145,22 @@ def _assumed(
 
 
 def _with_assumed(
-    bodies: Bodies, limits: AxisLimits, assumed: _Assumed, fixed: np.ndarray
+    bodies: Bodies, live_relax: ChainRelax, limits: AxisLimits, assumed: _Assumed, fixed: np.ndarray
 ) -> Bodies:
     """The chain bodies' speed caps eroded over T U / 2 (T V / 2 where strict), their A from
     their curvature terms at the highest raw speed within a window's reach, with s''' of one
     sign where the plan keeps it, eroded over T times the highest speed between; the fixed
     bodies keep theirs, and the nodes' caps follow the bodies'."""
-    relax = bodies.relax
-    assert relax is not None
+    relax = live_relax
     T = limits.window_s
     U = assumed.U
     none = np.zeros(len(U))
-    chain = (relax.group >= 0) & ~fixed
+    chain = np.zeros(len(U), dtype=bool)
+    chain[: len(relax.group)] = relax.group >= 0
+    chain &= ~fixed
     V_far = np.where(np.isfinite(relax.V), relax.V, 0.0)
     reach = np.where(assumed.strict, 0.5 * T * V_far, 0.0)
-    V = erode(relax.lo, relax.hi, np.where(fixed, bodies.V, relax.V), reach, relax.group, none, 0.0)
+    V = _eroded_live(relax, np.where(fixed, bodies.V, relax.V), reach, none, 0.0)
     V = np.where(chain, V, bodies.V)
     idx = np.flatnonzero(chain)
     A = bodies.A.copy()
@@ -163,8 +170,9 @@ def _with_assumed(
         limits,
         one_sign=assumed.one_sign[idx],
     )
-    A = erode(relax.lo, relax.hi, A, none, relax.group, U, T)
-    in_chain = relax.group >= 0
+    A = _eroded_live(relax, A, none, U, T)
+    assert bodies.relax is not None
+    in_chain = bodies.relax.group >= 0
     node_cap = relax.node_cap.copy()
     node_cap[1:] = np.where(in_chain, np.minimum(node_cap[1:], V), node_cap[1:])
     node_cap[:-1] = np.where(in_chain, np.minimum(node_cap[:-1], V), node_cap[:-1])
@@ -252,6 +260,18 @@ def _window_reach(
     """(the bits of any body, the highest U of any body) of its chain within a window's reach
     of each body: the gap between them at most `span` times the highest U between."""
     columns = -np.column_stack((bits & RISES, bits & FALLS, U)).astype(float)
-    none = np.zeros(len(U))
-    near = -erode(relax.lo, relax.hi, columns, none, relax.group, U, span)
+    near = -_eroded_live(relax, columns, np.zeros(len(U)), U, span)
     return np.where(near[:, 0] > 0.0, RISES, 0) | np.where(near[:, 1] > 0.0, FALLS, 0), near[:, 2]
+
+
+def _eroded_live(
+    relax: ChainRelax, value: np.ndarray, reach: np.ndarray, speed: np.ndarray, span: float
+) -> np.ndarray:
+    """`jerk_filter.erode` over the bodies `relax` lists (lo, hi, group: the live ones), the
+    rest of `value` as it is."""
+    live = len(relax.group)
+    out = value.copy()
+    out[:live] = erode(
+        relax.lo, relax.hi, value[:live], reach[:live], relax.group, speed[:live], span
+    )
+    return out
