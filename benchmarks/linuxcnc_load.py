@@ -107,6 +107,7 @@ def one_run(program: Path, out: Path, name: str, timeout_s: float) -> dict:
         and all(read.get(t) == n for t, n in bag_counts.items()),
         "bridge_latency_p50_ms": figures.get("bridge_latency_p50_ms"),
         "bridge_latency_p99_ms": figures.get("bridge_latency_p99_ms"),
+        "bridge_latency_parts_p99_ms": figures.get("bridge_latency_parts_p99_ms"),
         "twin_output_latency_p99_ms": figures.get("twin_output_latency_p99_ms"),
         "servo_late_periods": timing.get("late_periods"),
         "servo_periods": timing.get("periods"),

@@ -182,14 +182,20 @@ def test_the_bridge_stamps_pairs_and_counts() -> None:
     assert first.measured_stamp_ns.tolist() == [0, 1_000_000]
     assert first.measured_pos_m == pytest.approx([0.404, 0.405])
     # a gap of two ticks (107, 108 missing) is counted, the stamps keep the tick count
-    second = bridge.take(rows[[6, 9]], now_s=0.0)
+    second = bridge.take(rows[[6, 9]], now_s=100.15)
     assert second.stamp_ns.tolist() == [3_000_000, 6_000_000]
     assert (bridge.received, bridge.lost, bridge.published) == (8, 2, 5)
     bridge.twin_output(3_000_000, now_s=100.0 + 106e-3 + 5e-3)
-    bridge.mark_published(second.tick_time_s, now_s=100.2)
+    bridge.mark_published(second, 0, 2, now_s=100.2)
     report = bridge.report()
     assert report["twin_output_latency_p50_ms"] == pytest.approx(5.0)
     assert report["bridge_latency_max_ms"] == pytest.approx((100.2 - 100.106) * 1e3)
+    # its parts: the reader took each row 0.2 ms after its tick (_rows), the bridge took the
+    # batch at 100.15 s (tick 106's row waited 43.8 ms for it) and published it 50 ms later
+    parts = report["bridge_latency_parts_p99_ms"]
+    assert parts["servo_to_reader"] == pytest.approx(0.2)
+    assert parts["reader_to_bridge"] == pytest.approx(43.8, abs=0.1)
+    assert parts["bridge_to_published"] == pytest.approx(50.0)
     # the servo thread's own timing over every received period (the rows are on time)
     assert report["servo_periods"] == 8
     assert report["servo_late_periods"] == 0

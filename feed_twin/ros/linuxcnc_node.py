@@ -187,11 +187,13 @@ class LinuxcncNode(FeedTwinNode):
             self.report["startup_s"] = time.monotonic() - now
         if self.run is not None and self.bridge is not None:
             try:
-                rows = self.run.poll(0.0)
+                with self.trace.span("rows"):
+                    rows = self.run.poll(0.0)
             except LinuxcncError as exc:
                 self._end(EXIT_ERROR, str(exc))
                 return 0.05
-            batch = self.bridge.take(rows, now_s=time.monotonic())
+            with self.trace.span("take", len(rows)):
+                batch = self.bridge.take(rows, now_s=time.monotonic())
             if batch is not None:
                 self._backlog.append([batch, 0])
             if self.run.ended:
@@ -231,9 +233,10 @@ class LinuxcncNode(FeedTwinNode):
                 stop += 1
             if stop == start:
                 return
-            self._publish(batch, start, stop)
+            with self.trace.span("publish", stop - start):
+                self._publish(batch, start, stop)
             now = time.monotonic()
-            bridge.mark_published(batch.tick_time_s[start:stop], now_s=now)
+            bridge.mark_published(batch, start, stop, now_s=now)
             late = now - float(batch.tick_time_s[start])
             if late > self.latency_bound_s and not self._latency_said:
                 self._latency_said = True
@@ -296,6 +299,10 @@ class LinuxcncNode(FeedTwinNode):
     def _on_twin_output(self, label: str, data: bytes) -> None:
         """Axis `label`'s twin sent its output (packed: twin_node --batch-topic): the window
         follows the slowest twin, none is flooded; the latency is the first axis's."""
+        with self.trace.span("twin_output"):
+            self._take_twin_output(label, data)
+
+    def _take_twin_output(self, label: str, data: bytes) -> None:
         axis = self._axes[label]
         try:
             stamps = [

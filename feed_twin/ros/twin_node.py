@@ -201,6 +201,9 @@ class TwinNode(FeedTwinNode):
         except ValueError as exc:
             self._bad(exc)
             return
+        if messages:  # for the trace: how long ago the bridge packed the batch [us]
+            now = time.monotonic_ns()
+            self.trace.add("batch_age", now, now, (time.time_ns() - messages[0][1]) // 1000)
         for topic, _, message in messages:
             if topic == self._command_topic:
                 self._take_command(message)
@@ -255,12 +258,15 @@ class TwinNode(FeedTwinNode):
     def _step(self, *, final: bool = False) -> None:
         self._stepped_at = time.monotonic()
         self._unstepped = False
-        block = self.shadow.process(final=final)
+        with self.trace.span("process"):
+            block = self.shadow.process(final=final)
         if block is not None and len(block):
-            self._publish(block)
+            with self.trace.span("publish", len(block)):
+                self._publish(block)
         self._waiting_for_command = self.samples < self.shadow.measured.counts.accepted
         for verdict in self.shadow.new_verdicts:
-            self._verdict(verdict)
+            with self.trace.span("verdict", verdict.level):
+                self._verdict(verdict)
         period = self.shadow.config.sample_period_s
         if self.max_time_s is not None and self.samples * period >= self.max_time_s:
             self.finish(EXIT_OK, f"twin: {self.max_time_s:g} s shadowed")
@@ -309,7 +315,8 @@ class TwinNode(FeedTwinNode):
         self._flush()
         self.samples += n
         if self.dashboard is not None:
-            self.dashboard.log_block(b)
+            with self.trace.span("dashboard", n):
+                self.dashboard.log_block(b)
 
     def _send(self, state: bytes, residual: bytes) -> None:
         """One slot's state and residual: on their topics, or packed (OUT_BATCH_SAMPLES at
