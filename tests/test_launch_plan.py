@@ -123,6 +123,11 @@ def test_each_mode_starts_its_roles_with_its_clock() -> None:
     assert axis_plan(shadow, ros, FILES).clock == "standin"
     assert axis_plan(linuxcnc, ros, FILES).names == ("recorder", "twin", "linuxcnc")
     assert axis_plan(linuxcnc, ros, FILES).clock == "linuxcnc"
+    # beside LinuxCNC the bridge and the twin run with a larger share of a busy CPU
+    for role in ("twin", "linuxcnc"):
+        argv = axis_plan(linuxcnc, ros, FILES).process(role).nodes[0].argv
+        assert argv[argv.index("--nice") + 1] == str(ros.linuxcnc_nice) == "-10"
+    assert "--nice" not in axis_plan(shadow, ros, FILES).process("twin").nodes[0].argv
     twin = axis_plan(dataclasses.replace(shadow, live_url="rerun+http://h"), ros, FILES)
     assert twin.process("twin").nodes[0].argv[-2:] == ("--rerun-url", "rerun+http://h")
     assert twin.process("recorder").nodes[0].argv[-2:] == ("--twin-namespace", "/cnc/x/twin")

@@ -80,6 +80,8 @@ def test_fixed_layout_errors_name_the_message_and_field() -> None:
         ("realtime_priority", 100, r"realtime_priority = 100: must be a whole number in \[0, 99\]"),
         ("realtime_priority", True, r"realtime_priority = True: must be a whole number"),
         ("cpu_latency_us", -2, r"cpu_latency_us = -2: must be a whole number"),
+        ("linuxcnc_nice", -21, r"linuxcnc_nice = -21: must be a whole number in \[-20, 19\]"),
+        ("linuxcnc_nice", 0.5, r"linuxcnc_nice = 0.5: must be a whole number in \[-20, 19\]"),
         ("record_batch", -1, r"record_batch = -1: must be a whole number in \[0, 1000\]"),
         ("record_batch", 2.0, r"record_batch = 2.0: must be a whole number in \[0, 1000\]"),
         (
@@ -100,6 +102,38 @@ def test_scheduling_that_the_os_refuses_is_reported_not_raised() -> None:
     assert apply_scheduling() == []  # nothing asked, nothing done
     notes = apply_scheduling(cpu=1023)  # no machine here has 1024 CPUs
     assert len(notes) == 1 and notes[0].startswith("not pinned to CPU 1023: ")
+
+
+NICE_PROBE = """
+import os, sys, threading
+from feed_twin.ros.dds import set_nice
+print(set_nice(0))
+before = threading.Thread(target=threading.Event().wait, args=(5,), daemon=True)
+before.start()
+print(set_nice(int(sys.argv[1]))[0])
+seen = {int(t): os.getpriority(os.PRIO_PROCESS, int(t)) for t in os.listdir("/proc/self/task")}
+later = threading.Thread(target=lambda: print(os.getpriority(os.PRIO_PROCESS, 0)))
+later.start()
+later.join()
+print(sorted(set(seen.values())))
+"""
+
+
+def test_nice_applies_to_every_thread_and_a_refusal_is_said() -> None:
+    """Both threads present and threads started later run at the nice value asked for; one
+    that the OS refuses (a lower value without CAP_SYS_NICE) is said, not raised."""
+    import subprocess
+
+    current = os.getpriority(os.PRIO_PROCESS, 0)
+    target = min(19, current + 3)  # raising the value needs no rights
+    done = subprocess.run([sys.executable, "-c", NICE_PROBE, str(target)], capture_output=True,
+                          text=True, check=True, timeout=60)  # fmt: skip
+    assert done.stdout.split("\n")[:4] == ["[]", f"nice {target}", str(target), f"[{target}]"]
+    if os.geteuid() == 0:
+        return  # root may lower it: nothing to refuse
+    refused = subprocess.run([sys.executable, "-c", NICE_PROBE, "-20"], capture_output=True,
+                             text=True, timeout=60)  # fmt: skip
+    assert "nice -20 refused (" in refused.stdout
 
 
 def test_the_setpoint_stream_runs_one_priority_below_the_announced_exchange() -> None:

@@ -61,7 +61,7 @@ def _standin(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> li
 
 
 def _linuxcnc(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> list[str]:
-    return ["--program", str(request.program)]
+    return ["--program", str(request.program), "--nice", str(ros.linuxcnc_nice)]
 
 
 def _twin(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> list[str]:
@@ -69,6 +69,7 @@ def _twin(request: RunRequest, ros: NodeSetConfig, files: AxisRunFiles) -> list[
     argv += ["--rrd", str(files.rrd)]
     if request.nc == "linuxcnc":  # the bridge sends its periods packed (ros/linuxcnc_node.py)
         argv += ["--batch-topic", AxisTopics(machine=ros.machine, axis=ros.axis).bridge_batch]
+        argv += ["--nice", str(ros.linuxcnc_nice)]  # as the bridge's (ros/dds.py, set_nice)
     return argv + (["--rerun-url", request.live_url] if request.live_url else [])
 
 

@@ -58,7 +58,7 @@ from feed_twin.linuxcnc.servo_cdr import ServoSampleLayout
 from feed_twin.nodeset.record_batch import RecordBatch, unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import AxisTopics
-from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
+from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, set_nice
 from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import encode_joint_state
 from feed_twin.shadow.replay import twin_namespace
@@ -405,6 +405,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
+    parser.add_argument("--nice", type=int, default=0,
+                        help="nice value of the process (ros.linuxcnc_nice)")  # fmt: skip
 
 
 def run_starter(args: argparse.Namespace, nc, servo) -> Callable[[], LinuxcncRun]:
@@ -424,7 +426,7 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
 
     ros = load_node_set_config(args.config)
     nc, servo = machine_for_config(args.config)
-    return LinuxcncNode(
+    node = LinuxcncNode(
         NodeOptions(
             machine=ros.machine,
             axis=ros.axis,
@@ -437,6 +439,9 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
         period_s=servo.servo_period_s,
         context=context,
     )
+    for note in set_nice(args.nice):
+        node.get_logger().info(f"scheduling: {note}")
+    return node
 
 
 def main(argv: Sequence[str] | None = None) -> int:

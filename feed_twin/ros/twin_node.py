@@ -51,7 +51,7 @@ from feed_twin.io.measured import load_column_map
 from feed_twin.nodeset.record_batch import RecordBatch, unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import Topic
-from feed_twin.ros.dds import DATA_QOS
+from feed_twin.ros.dds import DATA_QOS, set_nice
 from feed_twin.ros.runtime import EXIT_OK, PEER_TIMEOUT_S, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import MessageFields, plan
 from feed_twin.shadow.config import load_shadow_config
@@ -429,6 +429,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
     parser.add_argument("--peer-timeout", type=float, default=PEER_TIMEOUT_S, help="[s]")
+    parser.add_argument("--nice", type=int, default=0, help="nice value of the process "
+                        "(beside LinuxCNC: ros.linuxcnc_nice)")  # fmt: skip
 
 
 def build(args: argparse.Namespace, context) -> TwinNode:
@@ -461,7 +463,7 @@ def build(args: argparse.Namespace, context) -> TwinNode:
         dashboard = ShadowDashboard(
             effort_unit=twin.effort_unit, rrd_path=args.rrd, live_url=args.rerun_url
         )
-    return TwinNode(
+    node = TwinNode(
         NodeOptions(machine=args.machine, axis=args.axis,
                     peers=tuple(p for p in args.peers.split(",") if p),
                     input_timeout_s=args.input_timeout, startup_timeout_s=args.startup_timeout,
@@ -482,6 +484,9 @@ def build(args: argparse.Namespace, context) -> TwinNode:
         batch_topic=args.batch_topic,
         context=context,
     )  # fmt: skip
+    for note in set_nice(args.nice):
+        node.get_logger().info(f"scheduling: {note}")
+    return node
 
 
 def main(argv: Sequence[str] | None = None) -> int:
