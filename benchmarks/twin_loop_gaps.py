@@ -13,6 +13,10 @@ own figures (bridge latency and its parts, twin output latency, slow nodes) and 
 1-minute load average at the end (the host is shared).
 
     .venv/bin/python benchmarks/twin_loop_gaps.py [--minutes 1] [--load 2] [--top 5]
+        [--config CONFIG]
+
+Before/after of the bridge's and the twin's nice value (ros.linuxcnc_nice): a copy of
+config/axis_default.yaml with `linuxcnc_nice: 0` under `ros:` as `--config`.
 
 Last line: one JSON object.
 """
@@ -27,7 +31,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from linuxcnc_load import BUSY, one_run, write_program
+from linuxcnc_load import BUSY, CONFIG, one_run, write_program
 
 from feed_twin.nodeset.turn_trace import TRACE_ENV, LoadedTrace
 
@@ -39,6 +43,8 @@ def main() -> int:
     parser.add_argument("--minutes", type=float, default=1.0, help="program length [min]")
     parser.add_argument("--load", type=int, default=2, help="busy processes per core")
     parser.add_argument("--top", type=int, default=5, help="largest gaps shown per node")
+    parser.add_argument("--config", type=Path, default=CONFIG, help="axis config (an A/B of "
+                        "its ros: settings, e.g. linuxcnc_nice: 0)")  # fmt: skip
     args = parser.parse_args()
     out = Path(tempfile.mkdtemp(prefix="feed_twin-loop-gaps-"))
     traces = out / "traces"
@@ -47,12 +53,13 @@ def main() -> int:
     os.environ[TRACE_ENV] = str(traces)
     busy = [subprocess.Popen(BUSY) for _ in range(args.load * (os.cpu_count() or 1))]
     try:
-        run = one_run(program, out, "gaps", args.minutes * 60.0 * 4 + 300.0)
+        run = one_run(program, out, "gaps", args.minutes * 60.0 * 4 + 300.0, args.config)
     finally:
         for proc in busy:
             proc.kill()
             proc.wait()
-    result: dict = {"minutes": args.minutes, "load": args.load, "run": run}
+    result: dict = {"minutes": args.minutes, "load": args.load, "config": str(args.config),
+                    "run": run}  # fmt: skip
     for role in ROLES:
         found = sorted(traces.glob(f"{role}_*.npz"))
         if not found:
