@@ -9,15 +9,19 @@ spin loop) writes `DIR/<role>_<pid>.npz` at its end:
   running: starvation by other processes), both cumulative [ns];
 - one row per span the node marks (`span(kind, value)`: a callback, a step of the twin, a
   publish) with its start, end and a number the kind gives meaning to (messages, slots, the age
-  of a batch [us]);
-- one span per garbage collection (`gc.callbacks`), kind `gc<generation>`.
+  of a batch [us]); its start and end are signs of life of the thread, recorded as the turns
+  are (with the scheduler's figures);
+- one span per garbage collection (`gc.callbacks`), kind `gc<generation>`;
+- the datagrams the kernel dropped on the process's UDP sockets by its end (`udp_drops`).
 
-`gaps` splits the time between two turns into CPU, run-queue wait, the marked spans by kind,
-the collections and the rest: off the CPU without waiting for it, i.e. blocked (a lock, the GIL,
-a socket) or idle with nothing to do. The largest gaps name the cause of a stall.
+`LoadedTrace.summary` splits the time between two turns (`turn_gap`: the loop did not come
+back) and between two signs of life (`activity_gap`: the thread did nothing it marks) into CPU,
+run-queue wait, the marked spans by kind, the collections and the rest: off the CPU without
+waiting for it, i.e. blocked (a lock, the GIL, a socket) or idle with nothing to do. The
+largest gaps name the cause of a stall.
 
-Pure (no rclpy); reading the thread's schedstat costs about 4 us a turn, so the trace is for
-diagnosis only (benchmarks/twin_loop_gaps.py).
+Pure (no rclpy); reading the thread's schedstat costs about 4 us, twice a span, so the trace is
+for diagnosis only (benchmarks/twin_loop_gaps.py).
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ class TurnTrace:
         self.path = path
         # opened by the loop's thread: /proc/thread-self resolves to it at open time
         self._stat = open(SCHEDSTAT, "rb", buffering=0)  # noqa: SIM115 - closed in write()
-        # wall time, run and run-queue time, 1 for a loop turn (0: a span's end)
+        # wall time, run and run-queue time, 1 for a loop turn (0: another sign of life)
         self.turns: list[tuple[int, int, int, int]] = []
         self.spans: list[tuple[int, int, int, int]] = []
         self.kinds: dict[str, int] = {}
