@@ -139,7 +139,9 @@ def test_a_twin_fed_packed_periods_gives_the_output_it_gives_fed_one_message_eac
 
         packed.get_logger = Log
         packed._on_batch(b"\x00\x00\x00\x00 not a batch")
+        turns = packed.liveness.turns
         packed._step(final=True)
+        assert packed.liveness.turns == turns + 1  # a step is progress its beats carry
         assert len(single_out) == len(periods) - 1  # every measured sample shadowed
         # a packed output per step, at most OUT_BATCH_SAMPLES slots each
         assert 1 < len(packed_batches) < len(periods) / 10

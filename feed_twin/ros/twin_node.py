@@ -258,6 +258,7 @@ class TwinNode(FeedTwinNode):
     def _step(self, *, final: bool = False) -> None:
         self._stepped_at = time.monotonic()
         self._unstepped = False
+        self.progressed()
         with self.trace.span("process"):
             block = self.shadow.process(final=final)
         if block is not None and len(block):
