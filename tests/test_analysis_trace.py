@@ -285,3 +285,39 @@ def test_phase_offsets_on_the_truth_machine_are_fitted_through_its_loops(tmp_pat
     # the common part (+0.05 A) is invisible in the rotor frame
     for x, truth in zip("abc", (0.1, -0.2, 0.1), strict=True):
         assert found["current_offset"][f"offset_{x}_A"] == pytest.approx(truth, abs=0.01)
+
+
+def test_a_declared_mean_is_the_ramps_mean_over_each_period():
+    """Analytic: a map that declares `trace_filter: mean` makes the twin record a ramp
+    y = y0 + b t (base ticks h = 1 ms, 20 ms samples) as its mean over the period ending at
+    each sample, y0 + b (t - 10 ms), the law of recorder.period_mean (a trace averages over
+    time). The mean of the 20 ticks ending there, used before, lies b h / 2 later."""
+    from feed_twin.analysis.twin import Drive
+
+    twin = Twin.compile(ModelDoc.load(NOMINAL))
+    h, dec, b = twin.base_period_s, 20, 0.15
+    stamps = dec * h * np.arange(50)
+    drive = Drive.at_rest(stamps, trace_mean=True)
+    ramp = (0.2 + b * h * np.arange(50 * dec))[None, :]
+    pos, eff, _ = twin._as_recorded(drive, dec, ramp, 2.0 * ramp, None, twin.record_slots(drive))
+    expected = 0.2 + b * (stamps[1:] - 0.5 * dec * h)
+    assert pos[0, 1:] == pytest.approx(expected, abs=1e-12)
+    assert eff[0, 1:] == pytest.approx(2.0 * expected, abs=1e-12)
+
+
+def test_a_command_rebuilt_from_its_period_means_is_the_command():
+    """Analytic: x = a t^2 has the mean a (t^2 - t T + T^2 / 3) over the period T ending at t;
+    recorder.deaveraged rebuilds x, its rate and second rate from those means on the twin's
+    ticks (inside the record: the first window reaches back before it)."""
+    from feed_twin.analysis.recorder import deaveraged
+
+    a, period, h = 0.3, 0.02, 2.5e-4
+    ticks = round(period / h)
+    t = period * np.arange(1, 60)
+    means = a * (t**2 - t * period + period**2 / 3.0)
+    fine = t[0] + h * np.arange(ticks * len(t))
+    x, v, acc = deaveraged(t, means, fine, ticks)
+    inside = (fine > t[2]) & (fine < t[-3])
+    assert x[inside] == pytest.approx(a * fine[inside] ** 2, abs=1e-9)
+    assert v[inside] == pytest.approx(2.0 * a * fine[inside], abs=1e-7)
+    assert acc[inside] == pytest.approx(np.full(inside.sum(), 2.0 * a), abs=1e-4)
