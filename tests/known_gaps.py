@@ -46,17 +46,6 @@ PLACED_REPETITIONS_VISCOUS = (
     "noise). Cause not found yet"
 )
 
-UNDECLARED_WINDOW_SMOOTH_COMMAND = (
-    "issue #27, open since the truth machine's nominal twin runs its drive's cubic fine "
-    "interpolation: on a 50 Hz trace the twin reads the NC points between the samples off a "
-    "smooth curve whose velocities are its slopes (Twin._inputs). The 30 um position lag by "
-    "which trace_window was ranked (analysis.effects: its signature is the position's) came "
-    "from linear pieces whose velocities were not their slopes, and is 3 um now; the 20 ms "
-    "window removes 93 % of the effort error (51 % -> 3.5 %) but is not ranked, and a Coulomb "
-    "force of 116 N is named instead (nothing hidden). Needs an effort-side ranking of the "
-    "window"
-)
-
 HEAVIER_SLIDE_AT_DRIVE_RATES = (
     "issue #27, open since the truth machine's nominal twin runs the drive's loop rates (0.25 "
     "ms tick, velocity 4 kHz, position 2 kHz; the 4.6 um loop-rate residual of the 1 kHz twin "
