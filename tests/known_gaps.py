@@ -14,15 +14,6 @@ REVERSAL_IMPACTS = (
     "The workflow names the cogging first, order 6, 0.589 N m, 0.507 rad, and leaves 71 nm"
 )
 
-JOINT_RIDGE = (
-    "issue #27, open: on the #30 jerk profile's motion both effects are named (Coulomb 157.8 N, "
-    "EA 1.196e8 N), and the bearing stiffness is 3.85e8 N/m when it is added, but the final "
-    "joint re-fit with the mass and the friction moves it to 3.57e8 (10.7 % off, the test allows "
-    "10 %) along a ridge: k_bearing correlates +0.97 with the Coulomb force and +0.96 with the "
-    "mass (193 kg for 200), which the reversals' contact residual (the truth's ADC rounding "
-    "through the 2 um backlash) pulls along"
-)
-
 CROSS_COUPLING_FIT = (
     "open, cause measured: the fit takes the drive's voltage references for the stator's "
     "voltage, and they differ by the drive's own voltage errors, which the #30 motion's higher "
