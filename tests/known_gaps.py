@@ -36,4 +36,3 @@ PLACED_REPETITIONS_VISCOUS = (
     "the position's; what is left follows the speed (correlation 0.95, 0.55 um RMS, 63x the "
     "noise). Cause not found yet"
 )
-
