@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -14,6 +13,7 @@ from controller_support import position_loop, velocity_loop
 from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState, DriveCommand
 from rclpy.serialization import serialize_message
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags_support import decode
 
 from feed_twin.control.config import load_controller_config
 from feed_twin.core.config import ConfigError
@@ -88,8 +88,7 @@ def test_cdr_codec_matches_rclpy_and_rosbags(type_name: str, seed: int) -> None:
     assert codec.decode(ours) == tuple(values)
     store = get_typestore(Stores.EMPTY)
     store.register(get_types_from_msg(message_definition(type_name).schema_text, type_name))
-    # rosbags makes the message classes at run time from the definition: typed as object
-    decoded: Any = store.deserialize_cdr(ours, type_name)
+    decoded = decode(store, ours, type_name)
     assert decoded.axis == values[codec.index("axis")]
     assert decoded.header.stamp.sec == values[codec.index("header.stamp.sec")]
 
