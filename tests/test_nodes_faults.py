@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from nodes_support import AXIS_CONFIG, ROOT, last_json, node_env, run, start_run
+from nodes_support import AXIS_CONFIG, ROOT, found, last_json, node_env, run, start_run
 
 from feed_twin.io.bag import BagReader, info
 from feed_twin.ros.domain import reserve_domain_id
@@ -148,9 +148,7 @@ def test_killed_node_is_noticed_named_and_bag_readable(
         assert gone in text, role
         if victim == "sim":  # the recorder in its process is named with it
             assert "node '/cnc/x/recorder' is gone" in text, role
-        match = re.search(r"is gone: no heartbeat for (\S+) s", text)
-        assert match is not None, text
-        assert float(match[1]) < 1.0
+        assert float(found(r"is gone: no heartbeat for (\S+) s", text)[1]) < 1.0
         # The recorder first records what is still in flight (it may lag on a loaded machine).
         assert ended[role] < (30.0 if role == "recorder" else 5.0), (role, ended)
     bag = config.parent / "bags" / name
@@ -191,10 +189,7 @@ def test_signal_stops_every_node_and_finalises_the_bag(config: Path, signum: int
     summary = info(bag)
     counts = {t.name: t.message_count for t in summary.topics}
     # Nothing lost up to the stop: every exchange the sim made is in the bag.
-    sim_log = (logs / "sim.log").read_text()
-    steps_said = re.search(r'"steps": (\d+)', sim_log)
-    assert steps_said is not None, sim_log
-    steps = int(steps_said[1])
+    steps = int(found(r'"steps": (\d+)', (logs / "sim.log").read_text())[1])
     assert counts["/cnc/x/state"] == steps
 
 
