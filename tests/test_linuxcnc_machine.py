@@ -195,6 +195,7 @@ def test_the_bridge_stamps_pairs_and_counts() -> None:
     # its parts: the reader took each row 0.2 ms after its tick (_rows), the bridge took the
     # batch at 100.15 s (tick 106's row waited 43.8 ms for it) and published it 50 ms later
     parts = report["bridge_latency_parts_p99_ms"]
+    assert isinstance(parts, dict)
     assert parts["servo_to_reader"] == pytest.approx(0.2)
     assert parts["reader_to_bridge"] == pytest.approx(43.8, abs=0.1)
     assert parts["bridge_to_published"] == pytest.approx(50.0)
