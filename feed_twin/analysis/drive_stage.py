@@ -37,7 +37,7 @@ import numpy as np
 
 from feed_twin.analysis.model_doc import ANALYSIS_SECTION, POLE_PAIRS_KEY, ModelDoc, model_of
 from feed_twin.core.arrays import FloatArray
-from feed_twin.core.config import ConfigError, from_mapping
+from feed_twin.core.config import from_mapping
 from feed_twin.core.validate import require_positive
 from feed_twin.plant.effect_api import Edit, EditFn, Weights, make_edit
 from feed_twin.plant.effort_source import EffortSource
@@ -86,12 +86,9 @@ def drive_stage(doc: ModelDoc) -> DriveStage | None:
     given = (doc.data.get(ANALYSIS_SECTION) or {}).get(DRIVE_STAGE_KEY)
     if given is None:
         return None
-    try:
-        return from_mapping(
-            DriveStage, given, source=doc.source, path=f"{ANALYSIS_SECTION}.{DRIVE_STAGE_KEY}"
-        )
-    except ValueError as exc:
-        raise ConfigError(f"{doc.source}: {ANALYSIS_SECTION}.{DRIVE_STAGE_KEY}: {exc}") from exc
+    return from_mapping(
+        DriveStage, given, source=doc.source, path=f"{ANALYSIS_SECTION}.{DRIVE_STAGE_KEY}"
+    )
 
 
 def expandable(doc: ModelDoc) -> bool:
