@@ -62,8 +62,9 @@ def test_expand_writes_the_drive_stage_from_the_data_sheet() -> None:
     # the record's effort was converted with the source's gain: the expanded twin's too
     assert big.reference_gain == pytest.approx(0.45)
     # the stiffest dead time the fit may reach (u_dc 0.02 / i_reg, 3/2 of it in the rotor
-    # frame: 180 ohm on 2.5 mH) takes 4 RK4 steps per 125 us tick: h * 72 000 1/s = 2.3
-    assert big.data["engine"]["substeps"] == 4
+    # frame: 90 ohm on 2.5 mH) takes 2 RK4 steps per 125 us tick: h * 36 000 1/s = 2.3
+    assert big.data["engine"]["substeps"] == 2
+    assert expand(_with_stage(doc, i_reg_A=0.05)).data["engine"]["substeps"] == 4
     assert doc.of_type("EffortSource") == ["drive"]  # the nominal document is untouched
 
 
@@ -167,7 +168,7 @@ def test_expanded_twin_commands_the_dead_times_mean_volts(tmp_path: Path) -> Non
     gained = float(np.mean(out.voltage_q[1, window] - out.voltage_q[0, window]))
     i_q = float(np.mean(out.effort[1, window])) / 0.45
     theta = np.linspace(0.0, 2.0 * math.pi, 3601)[:-1]
-    law = dead_time_voltage(np.full_like(theta, i_q), theta, 0.05)["q"]
+    law = dead_time_voltage(np.full_like(theta, i_q), theta, 0.1)["q"]
     expected = u_dc * t_dead * f_pwm * float(np.mean(law))
     assert gained == pytest.approx(expected, rel=0.03)
     assert gained == pytest.approx(4.0 / math.pi * u_dc * t_dead * f_pwm, rel=0.15)

@@ -47,7 +47,7 @@ DRIVE_STAGE_KEY = "drive_stage"
 # allows no less than 1e-8)
 ROTOR_J = 1.0e-7
 # the largest dead time the fit may reach, as a share of the PWM period (2.5 us at 8 kHz;
-# plant.inverter's limit is 10 %): the RK4 sub-steps are chosen for it (`_substeps`), 4 at the
+# plant.inverter's limit is 10 %): the RK4 sub-steps are chosen for it (`_substeps`), 2 at the
 # truth machine's data sheet, and each doubling of this share doubles them
 MAX_DEAD_FRACTION = 0.02
 # where the fit of the dead time starts, as a share of MAX_DEAD_FRACTION: a record without
