@@ -86,6 +86,7 @@ def test_dead_time_edit_starts_halfway_and_bounds_the_fit() -> None:
     (own,) = edit.own
     assert own.name == "drive_inverter.dead_fraction"
     assert own.upper == MAX_DEAD_FRACTION
+    assert edit.restructures  # tested against the stage at t_dead = 0 (analysis.rounds)
     assert own.initial == pytest.approx(0.5 * MAX_DEAD_FRACTION)
     assert edit.doc.get("drive_inverter.dead_fraction") == pytest.approx(own.initial)
     # reported in seconds: the fraction over the PWM frequency

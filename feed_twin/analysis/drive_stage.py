@@ -167,7 +167,10 @@ def dead_time_edit(doc: ModelDoc, cand: Weights, inverter_edit: EditFn) -> Edit:
     start = START_SHARE * MAX_DEAD_FRACTION
     own = dataclasses.replace(own, initial=start, scale=start, upper=MAX_DEAD_FRACTION)
     fitted = model_of(edit.doc).set(own.name, start)
-    return make_edit(fitted, [own], edit.report, interacts=False)
+    # the stage changes the twin at any dead time (its current loop lags): the dead time is
+    # tested against the stage without it
+    edit = make_edit(fitted, [own], edit.report, interacts=False)
+    return dataclasses.replace(edit, restructures=True)
 
 
 def _plant(

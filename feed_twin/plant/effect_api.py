@@ -243,6 +243,10 @@ class Edit:
     # whole-number parameters are searched over these values instead of least squares
     grid: tuple[float, ...] = ()
     report: Report  # reported parameter name -> function of the fitted slot values
+    # the edit writes a new stage that changes the model even at the effect's neutral values
+    # (a drive's electrical stage for its dead time): the effect is tested against the edited
+    # model at those values, not against the model before (analysis.rounds)
+    restructures: bool = False
 
 
 def free_parameter(
