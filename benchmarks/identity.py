@@ -13,7 +13,11 @@ and bytes), per path:
 - `machine`: feed_twin.machine's simulate on config/machine_default.yaml;
 - `bag`: `feed-twin run` (lockstep over DDS), the decoded message data of the recorded topics
   (receive times and header.frame_id left out); skipped with --no-bag, alone
-  with --bag-only.
+  with --bag-only;
+- `shadow_bag`: `feed-twin run --shadow` of the axis file (the stand-in and the twin in
+  lockstep over DDS), the same for the topics such a run records the same each time
+  (tests/shadow_bag_support.py: the twin's residual without its two rolling RMS values);
+  with `bag`.
 
     .venv/bin/python benchmarks/identity.py [--no-bag | --bag-only] [--machine FILE] [--tree DIR]
 
@@ -44,6 +48,10 @@ NC_CONFIG = "config/axis_default.yaml"  # emps.yaml has no NC: it plans with the
 MACHINE = "config/machine_default.yaml"
 # the node set's topics whose message data is the run's result (heartbeats carry wall time)
 BAG_TOPICS = ("command", "drive_command", "feedback", "state", "joint_states")
+# the shadow node set's (the twin's health verdicts depend on how it grouped its samples)
+SHADOW_TOPICS = ("command", "joint_states", "twin/state", "twin/residual")
+# fields whose last bits depend on that grouping too (rolling sums over its blocks)
+GROUPED_FIELDS = ("following_error_deviation_rms", "effort_deviation_rms")
 
 
 def digest(*arrays: Any) -> str:
@@ -190,14 +198,16 @@ def machine(program: str, config: Path) -> str:
     return digest(*arrays)
 
 
-def _fields(msg: Any) -> Any:
+def _fields(msg: Any, left_out: tuple[str, ...] = ()) -> Any:
     """A decoded message as plain values (field order kept), for hashing; without the frame_id,
-    which carried a token new in every run (the run's signatures now stay out of the bag)."""
+    which carried a token new in every run (the run's signatures now stay out of the bag), and
+    the fields `left_out`."""
     slots = getattr(msg, "__slots__", None)
     if slots is None and hasattr(msg, "__dict__"):
         slots = list(vars(msg))
     if slots is not None:
-        return [(s, _fields(getattr(msg, s))) for s in slots if s != "frame_id"]
+        skip = ("frame_id", *left_out)
+        return [(s, _fields(getattr(msg, s))) for s in slots if s not in skip]
     if isinstance(msg, list | tuple):
         return [_fields(m) for m in msg]
     if isinstance(msg, float):
@@ -205,17 +215,19 @@ def _fields(msg: Any) -> Any:
     return msg
 
 
-def bag(program: str) -> dict[str, str]:
+def bag(program: str, *, shadow: bool = False) -> dict[str, str]:
+    """The hashes of the recorded topics of `feed-twin run` (`shadow`: with --shadow)."""
     from feed_twin.io.bag import BagReader
     from feed_twin.nodeset.config import load_node_set_config
     from feed_twin.nodeset.topics import AxisTopics
 
     ros = load_node_set_config(ROOT / NC_CONFIG)
-    topics = AxisTopics(machine=ros.machine, axis=ros.axis)
+    namespace = AxisTopics(machine=ros.machine, axis=ros.axis).namespace
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [
             str(Path(sys.executable).parent / "feed-twin"), "run", str(ROOT / program),
             "--config", str(ROOT / NC_CONFIG), "--out", tmp, "--name", "identity", "--json",
+            *(["--shadow"] if shadow else []),
         ]  # fmt: skip
         done = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600)
         if done.returncode != 0:
@@ -223,10 +235,10 @@ def bag(program: str) -> dict[str, str]:
         path = json.loads(done.stdout.strip().splitlines()[-1])["bag"]
         reader = BagReader(path)
         out = {}
-        for role in BAG_TOPICS:
-            name = getattr(topics, role)
-            text = repr([_fields(m.msg) for m in reader.messages([name])])
-            out[role] = hashlib.sha256(text.encode()).hexdigest()
+        for topic in SHADOW_TOPICS if shadow else BAG_TOPICS:
+            messages = reader.messages([f"{namespace}/{topic}"])
+            text = repr([_fields(m.msg, GROUPED_FIELDS) for m in messages])
+            out[topic] = hashlib.sha256(text.encode()).hexdigest()
     return out
 
 
@@ -270,6 +282,8 @@ def main() -> None:
     if not args.no_bag:
         for name, value in bag(PROGRAMS[1]).items():
             hashes[f"bag/{Path(PROGRAMS[1]).stem}/{name}"] = value
+        for name, value in bag(PROGRAMS[0], shadow=True).items():
+            hashes[f"shadow_bag/{Path(PROGRAMS[0]).stem}/{name}"] = value
     for name, value in hashes.items():
         print(f"{name:48s} {value[:16]}")
     print(json.dumps(hashes))

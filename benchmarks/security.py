@@ -42,7 +42,8 @@ COMPARED = {  # topic -> fields compared between the clean and the attacked bag
 }
 
 INTRUDER = r"""
-import sys, time, struct, rclpy
+import collections, sys, time, struct, rclpy
+from rclpy.serialization import serialize_message
 from rclpy.qos import QoSProfile
 from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState, DriveCommand
 from feed_twin.ros.dds import DATA_QOS
@@ -54,7 +55,26 @@ rclpy.init()
 node = rclpy.create_node("intruder")
 pub = node.create_publisher(msg_type, topic, DATA_QOS)
 heard = []
-node.create_subscription(msg_type, topic, heard.append, DATA_QOS, raw=True)
+# The subscription hears this process's own publications too: each message sent is counted and
+# dropped once when it comes back, so "altered" never alters its own copies and "replayed" never
+# replays them (the run's messages are signed per message, so no run message equals a copy).
+echoes = collections.Counter()
+
+
+def hear(data):
+    if echoes[data] > 0:
+        echoes[data] -= 1
+    else:
+        heard.append(data)
+
+
+def send(m):
+    data = m if isinstance(m, bytes) else serialize_message(m)
+    echoes[data] += 1
+    pub.publish(data)
+
+
+node.create_subscription(msg_type, topic, hear, DATA_QOS, raw=True)
 
 def fabricated(k):
     m = msg_type(axis="X")
@@ -88,16 +108,16 @@ end, k, sent = time.monotonic() + seconds, 0, 0
 while time.monotonic() < end:
     rclpy.spin_once(node, timeout_sec=0.0)
     if kind == "unsigned":
-        pub.publish(fabricated(k)); sent += 1
+        send(fabricated(k)); sent += 1
     elif kind == "copied_signature" and heard:
         m = fabricated(k)
         b = bytearray(heard[-1])
         m.header.frame_id = bytes(b[16:16 + struct.unpack_from("<I", b, 12)[0] - 1]).decode()
-        pub.publish(m); sent += 1
+        send(m); sent += 1
     elif kind == "altered" and heard:
-        pub.publish(altered(heard.pop(0))); sent += 1
+        send(altered(heard.pop(0))); sent += 1
     elif kind == "replayed" and len(heard) > 50:
-        pub.publish(heard.pop(0)); sent += 1
+        send(heard.pop(0)); sent += 1
     k += 1
     time.sleep(0.001)
 print(f"sent {sent}", flush=True)

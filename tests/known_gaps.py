@@ -56,12 +56,3 @@ UNDECLARED_WINDOW_SMOOTH_COMMAND = (
     "force of 116 N is named instead (nothing hidden). Needs an effort-side ranking of the "
     "window"
 )
-
-HEAVIER_SLIDE_AT_DRIVE_RATES = (
-    "issue #27, open since the truth machine's nominal twin runs the drive's loop rates (0.25 "
-    "ms tick, velocity 4 kHz, position 2 kHz; the 4.6 um loop-rate residual of the 1 kHz twin "
-    "is gone): on seed 2's weight + Coulomb + 172 kg heavier slide the drive gain stays named "
-    "beside the weight and the friction, where the joint selection put the mass in its place "
-    "at 1 kHz (an asymmetric friction is dropped once the others are in). Cause not measured "
-    "yet; the benchmark's weight+coulomb+mass (seed 101) names the mass"
-)

@@ -198,6 +198,32 @@ def test_the_records_rounding_floors_its_noise():
     assert floors["position"] == pytest.approx(q / np.sqrt(12.0), rel=1e-6)
 
 
+def test_a_moving_channel_rounded_to_its_scale_floors_its_noise_at_its_rounding():
+    """A 1 kHz trace of a table that travels 0.3 m and rests a little, printed in
+    10 nm steps (mm to 5 decimals): 97 % of its values are distinct, and at constant speed the
+    rounding repeats, so its sample-to-sample noise reads 6e-16 m. Its step is found (values on
+    the grid, changes of many steps), read off the whole span (the smallest gap's float noise
+    over 3e7 steps was a fifth of a step), and floors the channel's noise at q / sqrt(12): the
+    truth machine's verdicts had said 9.3e5 x a sample noise of 1e-12 m."""
+    from feed_twin.analysis.channels import quantisation_step
+    from feed_twin.analysis.fit import SimOutputs
+    from feed_twin.io.measured import MeasuredRun
+
+    q = 1e-8
+    t = 1e-3 * np.arange(10000)
+    x = 0.2 + 0.15 * (1.0 - np.cos(np.pi * np.clip((t - 0.3) / 9.4, 0.0, 1.0)))  # rests 0.3 s
+    rounded = np.round(x * 1e3, 5) * 1e-3  # as a CSV in mm prints it
+    assert len(np.unique(rounded)) > 0.9 * len(t)
+    assert quantisation_step(rounded) == pytest.approx(q, rel=1e-6)
+    assert quantisation_step(x + 1e-9 * np.sin(7.0 * t)) == 0.0  # not rounded
+    assert quantisation_step(0.2 + 0.1 * t) == 0.0  # a ramp's equal gaps are still no step
+    run = MeasuredRun(
+        source="trace.csv", t_s=t, signals={"pos_meas_m": rounded}, position_sensor="linear_scale"
+    )
+    out = SimOutputs(x_m=x[None, :], effort=None, ok=np.ones(1, dtype=bool))
+    assert noise_floors(run, out)["position"] == pytest.approx(q / np.sqrt(12.0), rel=1e-6)
+
+
 def test_a_command_followed_a_fraction_of_a_tick_late_is_found_to_its_step(tmp_path):
     """A drive that follows its command 0.3 ms later than the twin's 1 kHz loops (a setpoint
     latency no user knows): command_delay found, searched in steps of COMMAND_DELAY_STEP of a
@@ -233,5 +259,6 @@ def test_a_cubic_interpolator_gets_setpoints_whose_velocities_are_their_slopes(t
     run = load_measured(rec.csv, rec.map)
     out = twin.simulate(drive_from_run(run), twin.nominal[None, :])
     effort = run["torque_cmd_Nm"]
+    assert out.effort is not None
     assert np.linalg.norm(out.effort[0] - effort) < 0.05 * np.linalg.norm(effort)
     assert np.sqrt(np.mean((out.x_m[0] - run["pos_meas_m"]) ** 2)) < 1e-6

@@ -9,19 +9,23 @@ from pathlib import Path
 
 import pytest
 
-from feed_twin.launch.axis import ARGUMENTS, AxisRunFiles, axis_plan, roles
-from feed_twin.launch.machine import machine_plan
+from feed_twin.launch.machine import machine_plan, machine_shadow_plan
 from feed_twin.launch.plan import NodeSpec, ProcessSpec, RunPlan, host_argv
-from feed_twin.launch.request import RunRequest
+from feed_twin.launch.request import NCS, RunRequest
 from feed_twin.machine.config import load_run_config
 from feed_twin.machine.nodes import node_plan
-from feed_twin.nodeset.config import load_node_set_config
+from feed_twin.machine.shadow_nodes import shadow_plan
 from feed_twin.nodeset.roles import COMMON_ARGUMENTS, HOST_MODULE, node_role
 
 ROOT = Path(__file__).resolve().parents[1]
 AXIS = ROOT / "config" / "axis_default.yaml"
-FILES = AxisRunFiles(bag=Path("out/run"), rrd=Path("out/run.rrd"), map=Path("out/run_map.yaml"))
 REQUEST = RunRequest(config=AXIS, program=Path("p.ngc"))
+
+
+def axis_shadow_plan(request: RunRequest, bag: Path) -> RunPlan:
+    """The shadow node set of the axis file: its one-axis machine's (writes its column map)."""
+    plan = shadow_plan(load_run_config(AXIS), bag, linuxcnc=request.nc == "linuxcnc")
+    return machine_shadow_plan(plan, request, bag)
 
 
 def _spec(role: str, *argv: str) -> NodeSpec:
@@ -116,23 +120,41 @@ def test_the_lockstep_axis_run_records_in_the_sims_process() -> None:
     assert [n.role for n in plan.nodes()] == ["controller", "sim", "recorder", "gcode"]
 
 
-def test_each_mode_starts_its_roles_with_its_clock() -> None:
-    ros = load_node_set_config(AXIS)
+def test_each_mode_starts_its_roles_with_its_clock(tmp_path) -> None:
+    """An axis's shadow node set is its one-axis machine's plan, with the nodes, processes,
+    arguments and files of the single-axis shadow run."""
+    bag = tmp_path / "run"
     shadow = dataclasses.replace(REQUEST, shadow=True)
     linuxcnc = dataclasses.replace(shadow, nc="linuxcnc")
-    assert axis_plan(shadow, ros, FILES).clock == "standin"
-    assert axis_plan(linuxcnc, ros, FILES).names == ("recorder", "twin", "linuxcnc")
-    assert axis_plan(linuxcnc, ros, FILES).clock == "linuxcnc"
-    twin = axis_plan(dataclasses.replace(shadow, live_url="rerun+http://h"), ros, FILES)
+    plan = axis_shadow_plan(shadow, bag)
+    assert plan.names == ("recorder", "twin", "standin", "gcode") and plan.clock == "standin"
+    assert not plan.stop_on_failure  # the axis's nodes watch each other
+    assert plan.process("twin").nodes[0].argv == (
+        "--config", str(AXIS), "--peers", "recorder,standin,gcode", "--startup-timeout", "120.0",
+        "--input-timeout", "10.0", "--map", f"{bag}_map.yaml", "--machine", "cnc", "--axis", "x",
+        "--rrd", f"{bag}.rrd",
+    )  # fmt: skip
+    assert (tmp_path / "run_map.yaml").is_file()
+    # the stand-in publishes /clock (no --axis-clock) and paces by the wall clock when asked
+    assert plan.process("standin").nodes[0].argv[-5:] == ("--follow", "--machine", "cnc",
+                                                           "--axis", "x")  # fmt: skip
+    paced = axis_shadow_plan(dataclasses.replace(shadow, realtime=True), bag)
+    assert paced.process("standin").nodes[0].argv[-1] == "--realtime"
+    assert axis_shadow_plan(linuxcnc, bag).names == ("recorder", "twin", "linuxcnc")
+    assert axis_shadow_plan(linuxcnc, bag).clock == "linuxcnc"
+    assert axis_shadow_plan(linuxcnc, bag).process("twin").nodes[0].argv[-2:] == (
+        "--batch-topic", "/cnc/x/linuxcnc/batch",
+    )  # fmt: skip
+    twin = axis_shadow_plan(dataclasses.replace(shadow, live_url="rerun+http://h"), bag)
     assert twin.process("twin").nodes[0].argv[-2:] == ("--rerun-url", "rerun+http://h")
     assert twin.process("recorder").nodes[0].argv[-2:] == ("--twin-namespace", "/cnc/x/twin")
 
 
-def test_every_launch_argument_is_one_the_registry_declares_for_its_role() -> None:
-    ros = load_node_set_config(AXIS)
-    assert set(ARGUMENTS) >= {r for request in _every_request() for r in roles(request)}
+def test_every_launch_argument_is_one_the_registry_declares_for_its_role(tmp_path) -> None:
+    bag, machine = tmp_path / "run", load_run_config(AXIS)
+    plans = {nc: shadow_plan(machine, bag, linuxcnc=nc == "linuxcnc") for nc in NCS}
     for request in _every_request():
-        for node in axis_plan(request, ros, FILES).nodes():
+        for node in machine_shadow_plan(plans[request.nc], request, bag).nodes():
             options = {a for a in node.argv if a.startswith("--")}
             allowed = set(COMMON_ARGUMENTS) | set(node_role(node.role).arguments)
             assert options <= allowed, (node.role, options - allowed)

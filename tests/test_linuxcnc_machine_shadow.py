@@ -54,7 +54,7 @@ def test_every_axis_of_linuxcnc_is_shadowed_by_its_own_twin(tmp_path: Path) -> N
     with reserve_domain_id() as domain:
         code, out, err = run(argv, domain.domain_id, timeout_s=300)
     assert code == 0, err[-3000:]
-    record = assert_report(out)  # the report of every mode
+    record = assert_report(out, mode="machine LinuxCNC shadow")  # the report of every mode
     assert record["processes"] == ["recorder", "linuxcnc", "x_twin", "y_twin", "z_twin"]
     bridge = record["linuxcnc"]
     assert bridge["samples_lost"] == 0

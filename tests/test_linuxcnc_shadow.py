@@ -50,7 +50,7 @@ def test_a_minute_on_linuxcnc_shadowed_without_losing_a_servo_period(tmp_path: P
     )
     assert result.returncode == 0, result.stderr[-3000:]
     figures = _last_json(result.stdout)
-    assert_report(result.stdout)  # the report of every mode
+    assert_report(result.stdout, mode="axis LinuxCNC shadow")  # the report of every mode
     # 15 passes of 100 mm at 25 mm/s, each with a ramp of v/a = 25/3000 s, after the rapid
     passes = 15 * (0.1 / 0.025 + 0.025 / 3.0)
     assert passes < figures["program_time_s"] < passes + 0.6

@@ -77,7 +77,7 @@ def run_helix(directory: Path, program: Path, config: Path = MACHINE) -> dict:
     with reserve_domain_id() as domain:
         code, out, err = run([*argv, "--json"], domain.domain_id)
     assert code == 0, err
-    return assert_report(out)  # the report of every mode
+    return assert_report(out, mode="machine nodes")  # the report of every mode
 
 
 @pytest.fixture(scope="module")

@@ -57,7 +57,7 @@ def test_every_axis_shadowed_in_its_own_nodes_equals_the_in_process_shadow(tmp_p
     with reserve_domain_id() as domain:
         code, out, err = run([*argv, "--name", "s", "--json"], domain.domain_id, timeout_s=300)
     assert code == 0, err[-3000:]
-    record = assert_report(out)  # the report of every mode
+    record = assert_report(out, mode="machine nodes shadow")  # the report of every mode
     assert record["processes"] == ["recorder", "x_standin", "x_twin", "y_standin", "y_twin",
                                    "z_standin", "z_twin"]  # fmt: skip
     expected = shadow_machine(load_machine_config(config), program)

@@ -11,12 +11,12 @@ from pathlib import Path
 import pytest
 from nodes_support import AXIS_CONFIG, node_env
 
-from feed_twin.launch.axis import AxisRunFiles, axis_plan
-from feed_twin.launch.machine import machine_plan
+from feed_twin.launch.machine import machine_plan, machine_shadow_plan
 from feed_twin.launch.plan import host_argv
 from feed_twin.launch.request import RunRequest
 from feed_twin.machine.config import load_run_config
 from feed_twin.machine.nodes import NodePlan, node_plan
+from feed_twin.machine.shadow_nodes import shadow_plan
 from feed_twin.nodeset.config import load_node_set_config
 from feed_twin.ros.domain import reserve_domain_id
 from feed_twin.ros.host import split_argv, stops_at_first_failure
@@ -105,7 +105,9 @@ def _processes(request: RunRequest, plan: NodePlan) -> dict[str, tuple[str, ...]
     return {p.name: p.roles for p in machine_plan(plan, request, Path("b")).processes}
 
 
-def test_the_recorder_records_in_the_sims_process_in_lockstep_unless_configured_otherwise() -> None:
+def test_the_recorder_records_in_the_sims_process_in_lockstep_unless_configured_otherwise(
+    tmp_path,
+) -> None:
     assert load_node_set_config(AXIS_CONFIG).recorder_host == "auto"
     plan = node_plan(load_run_config(AXIS_CONFIG))  # the axis's node set: a one-axis machine
     assert (plan.axis_file, plan.recorder_with) == (True, "auto")
@@ -120,7 +122,8 @@ def test_the_recorder_records_in_the_sims_process_in_lockstep_unless_configured_
     assert _processes(realtime, dataclasses.replace(plan, recorder_with="sim")) == together
     assert _processes(external, plan) == {"controller": ("controller",), "sim": ("sim", "recorder")}
     shadow = dataclasses.replace(lockstep, shadow=True)
-    files = AxisRunFiles(bag=Path("b"), rrd=Path("b.rrd"), map=Path("b_map.yaml"))
-    ros = load_node_set_config(AXIS_CONFIG)
-    shadow_processes = {p.name: p.roles for p in axis_plan(shadow, ros, files).processes}
+    axis = shadow_plan(load_run_config(AXIS_CONFIG), tmp_path / "b")
+    shadow_processes = {
+        p.name: p.roles for p in machine_shadow_plan(axis, shadow, tmp_path / "b").processes
+    }
     assert shadow_processes == {r: (r,) for r in ("recorder", "twin", "standin", "gcode")}

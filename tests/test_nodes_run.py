@@ -47,7 +47,7 @@ def multi(setup: dict) -> dict:
             domain.domain_id,
         )  # fmt: skip
     assert code == 0, err
-    return assert_report(out)  # the report of every mode
+    return assert_report(out, mode="axis nodes")  # the report of every mode
 
 
 def in_process_samples(setup: dict, until_ns: int) -> dict[int, ExchangeSample]:

@@ -1,14 +1,15 @@
 """Every mode of `feed-twin run` ends with the same report (tests/run_report_support.py): the
 machine in-process run and its shadow here, a refusal before anything started in every mode;
-the node-set modes check it on their own runs (test_nodes_run, test_shadow_run,
-test_machine_nodes, test_machine_shadow_nodes, test_linuxcnc_machine_shadow)."""
+the node-set modes check it on their own runs (run_report_support.MODES: the axis and the
+machine config each in `run`, `run --shadow` and `run --nc linuxcnc --shadow`)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
-from run_report_support import assert_report
+from run_report_support import MODES, assert_report
 
 from feed_twin.cli import main as cli_main
 
@@ -53,6 +54,16 @@ def test_a_refusal_in_every_mode_ends_with_the_same_report(
     assert record["bag"] is None and record["timing_sim_time_s"] is None
     assert f"run:                  {mode}, exit code 1\n" in out
     assert not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize(("mode", "test_file"), sorted(MODES.items()))
+def test_every_mode_of_a_node_set_run_has_its_report_checked(mode, test_file):
+    """Each of the six node-set modes (axis and machine config, each in `run`, `run --shadow`
+    and `run --nc linuxcnc --shadow`) is named by a test that checks its finished run's report
+    with run_report_support.assert_report(..., mode=...)."""
+    text = (ROOT / "tests" / test_file).read_text()
+    call = re.compile(rf'assert_report\([\w.]+, mode="{re.escape(mode)}"\)')
+    assert call.search(text), f"{test_file} does not check the report of a {mode} run"
 
 
 @pytest.mark.parametrize("shadow", [(), ("--shadow",)])

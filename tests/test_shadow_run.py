@@ -24,6 +24,7 @@ from nodes_support import AXIS_CONFIG, last_json, run, start_run
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from run_report_support import assert_report
+from shadow_bag_support import VARYING_TOPICS, fingerprint
 from test_nodes_faults import alive, wait_for_progress
 
 from feed_twin.io.bag import BagReader, info
@@ -31,6 +32,7 @@ from feed_twin.io.dashboard import rerun_binary
 from feed_twin.ros.domain import reserve_domain_id
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
 
 SHUTTLE = """\
 %
@@ -73,7 +75,7 @@ def shadow_run(directory: Path, name: str, friction_steps: list[dict]) -> dict:
     with reserve_domain_id() as domain:
         code, out, err = run(write_inputs(directory, name, friction_steps), domain.domain_id)
     assert code == 0, err[-4000:]
-    return assert_report(out)  # the report of every mode
+    return assert_report(out, mode="axis nodes shadow")  # the report of every mode
 
 
 def shadow_pids(directory: Path) -> dict[str, int]:
@@ -124,8 +126,9 @@ def stamps(msgs: list) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def steady(tmp_path_factory) -> dict:
-    record = shadow_run(tmp_path_factory.mktemp("steady"), "steady", [])
-    return {"json": record, "bag": read_bag(record["bag"])}
+    directory = tmp_path_factory.mktemp("steady")
+    record = shadow_run(directory, "steady", [])
+    return {"json": record, "bag": read_bag(record["bag"]), "directory": directory}
 
 
 @pytest.fixture(scope="module")
@@ -165,6 +168,20 @@ def test_every_sample_is_followed_shadowed_and_recorded(steady) -> None:
     health = bag["messages"]["/cnc/x/twin/health"]
     assert len(health) == report["verdicts"]
     assert 1 <= len(health) <= n * NC_PERIOD_S / 0.25 + 1
+
+
+def test_the_shadow_bag_is_the_one_the_axis_only_runner_recorded(steady) -> None:
+    """The guard of the axis shadow's move onto the machine shadow's runner: the steady run's
+    bag, read back with rosbags, has the topics, types, counts and message data of the
+    reference recorded from main before the move (tests/shadow_bag_support.py says which
+    topics a lockstep run records the same each time; the digests are this host's floating
+    point: record the reference again from main on a host where main's differ)."""
+    reference = json.loads((FIXTURES / "shadow_bag" / "steady_shuttle.json").read_text())
+    got = fingerprint(steady["json"]["bag"], str(steady["directory"]))
+    assert {t: e["type"] for t, e in got.items()} == {t: e["type"] for t, e in reference.items()}
+    for topic, entry in reference.items():
+        assert got[topic] == entry, topic
+    assert set(VARYING_TOPICS) < set(got)  # what is left out is named by its real topic
 
 
 def test_unchanged_machine_stays_at_the_twin_and_never_warns(steady) -> None:

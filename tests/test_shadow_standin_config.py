@@ -114,6 +114,17 @@ def test_shadow_run_needs_separate_processes_and_the_gcode_node(tmp_path, capsys
     assert not (tmp_path / "o").exists()  # nothing started, nothing written
 
 
+def test_shadow_run_starts_every_node_here(tmp_path, capsys) -> None:
+    assert run_cli(tmp_path, AXIS, "--start", "twin") == 1
+    out, err = capsys.readouterr()
+    assert err.strip() == (
+        "feed-twin run: --start: not available for an axis's shadow node set (it starts every "
+        "node here)"
+    )
+    assert json.loads(out.strip().splitlines()[-1])["mode"] == "axis nodes shadow"
+    assert not (tmp_path / "o").exists()  # nothing started, nothing written
+
+
 def test_shadow_run_without_a_shadow_section_stops_before_starting(tmp_path, capsys) -> None:
     config = axis_with(tmp_path, lambda d: d.pop("shadow"))
     assert run_cli(tmp_path, config) == 1

@@ -8,8 +8,9 @@
          candidates add the effect to the model and fit its own parameters (and those of the
          effects found before) by simulation-based least squares; keep the candidate with
          the best likelihood ratio less a price per added parameter that passes the test
-      -> joint selection (analysis.joint): swap found effects for the rounds' runners-up while
-         the set's likelihood less a price per parameter gets better; search the searched
+      -> joint selection (analysis.joint): swap found effects for their rivals (ranked on the
+         set without them, the others re-fitted) while the set's likelihood less a price per
+         parameter gets better; search the searched
          parameters (record delays, a current-offset ripple) again with the others in
       -> re-fit all found effects jointly with the nominal parameters they interact with
       -> metrics "after", optional validation on a second run, report.

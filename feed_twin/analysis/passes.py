@@ -72,7 +72,7 @@ class Passes:
         self._begin(f"round {number} of at most {self.rounds}", number, simulations)
 
     def selection(self, simulations: int) -> None:
-        """The joint selection (swaps of found effects for runners-up) begins."""
+        """The joint selection (swaps of found effects for their rivals) begins."""
         self._begin("joint selection", 1 + self.rounds, simulations)
 
     def joint(self, simulations: int) -> None:

@@ -31,6 +31,7 @@ from feed_twin.analysis.ranking import Candidate, evidence, rank
 from feed_twin.analysis.record_search import AT_EDGE
 from feed_twin.analysis.reexamine import (
     Found,
+    Without,
     collapsed,
     fell_back,
     neutral_values,
@@ -175,9 +176,6 @@ class Context:
     tried: list[str] = field(default_factory=list)
     # channels that carry no evidence in this record (analysis.visibility): not tested
     silent: tuple[str, ...] = ()
-    # the rivals fitted to a feed axis's model in some round and not kept: the alternatives
-    # the joint selection swaps in for the effects found (analysis.joint)
-    runners_up: set[str] = field(default_factory=set)
 
     def channels(self, out: SimOutputs) -> dict[str, np.ndarray]:
         found = channel_residuals(self.run, out, start=self.start)
@@ -232,10 +230,8 @@ def run_round(
     if not trials:
         return ranking, True
     judged = _judged(state, ctx, trials)
-    ctx.runners_up.update(j[1].name for j in judged)
     for verdict, cand, edit, alone, new_twin, result in judged:
         if verdict.significant:
-            ctx.runners_up.discard(cand.name)
             adopt(
                 state, ctx, cand, edit=edit, alone=alone, new_twin=new_twin, result=result,
                 explained_by=verdict.explained,
@@ -493,6 +489,24 @@ def drop_collapsed(state: State, ctx: Context, when: str) -> None:
     state.simulations += 1
 
 
+def refitted_without(state: State, ctx: Context, meas: Measured, target: Found) -> Without | None:
+    """The set without `target`, the other effects found fitted again (reexamine.without); its
+    simulations count in `state`."""
+    others = [f for f in state.found if f is not target]
+    gone = without(
+        target,
+        others,
+        state.doc,
+        state.outputs,
+        drive=ctx.drive,
+        meas=meas,
+        channels=ctx.channels,
+        max_evaluations=ctx.opts.max_evaluations,
+    )
+    state.simulations += 1 if gone is None else gone.simulations
+    return gone
+
+
 def reexamine_found(state: State, ctx: Context, meas: Measured) -> None:
     """Examine the effects found jointly (analysis.reexamine), the newest one too: its fit
     re-fitted the effects found before, and what that alone gains is no evidence for it."""
@@ -504,18 +518,7 @@ def reexamine_found(state: State, ctx: Context, meas: Measured) -> None:
     for target in list(state.found):
         if not removable([target], state.doc):
             continue
-        others = [f for f in state.found if f is not target]
-        gone = without(
-            target,
-            others,
-            state.doc,
-            state.outputs,
-            drive=ctx.drive,
-            meas=meas,
-            channels=ctx.channels,
-            max_evaluations=ctx.opts.max_evaluations,
-        )
-        state.simulations += 1 if gone is None else gone.simulations
+        gone = refitted_without(state, ctx, meas, target)
         if gone is None or gone.verdict.significant:
             continue
         state.found.remove(target)

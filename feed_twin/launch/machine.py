@@ -1,10 +1,12 @@
 """The run plans of a machine's node sets: its node set (feed_twin.machine.nodes) and its shadow
 node set (feed_twin.machine.shadow_nodes), as `RunPlan`s the executors run.
 
-One process failing stops the others at once (`stop_on_failure`): an axis's nodes do not watch
-the other axes' nodes (an axis file's one-axis machine: its nodes watch each other, as they
-did). The clock is the first axis's sim (node set) or stand-in (shadow), or
-LinuxCNC's bridge when LinuxCNC is the machine.
+An axis file runs as its one-axis machine through the same two planners (NodePlan.axis_file,
+ShadowPlan.axis_file). One process failing stops the others at once (`stop_on_failure`): an
+axis's nodes do not watch the other axes' nodes (an axis file's one-axis machine: its nodes
+watch each other, as they did). The clock is the first axis's sim (node set) or stand-in
+(shadow), or LinuxCNC's bridge when LinuxCNC is the machine (an axis file's: the single-axis
+bridge).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from feed_twin.launch.request import RunRequest
 from feed_twin.machine.nodes import NodePlan, NodeRunOptions, chosen_processes
 from feed_twin.machine.shadow_nodes import ShadowPlan
 
-CLOCK_ROLES = ("sim", "standin", "machine_linuxcnc")  # the roles that pace a machine's run
+CLOCK_ROLES = ("sim", "standin", "machine_linuxcnc", "linuxcnc")  # the roles that pace a run
 
 
 def _clock(processes: dict[str, list[tuple[str, list[str]]]]) -> str | None:
@@ -51,6 +53,13 @@ def machine_shadow_plan(plan: ShadowPlan, request: RunRequest, bag: Path) -> Run
     if request.program is None:
         raise ValueError("a machine's shadow node set needs a PROGRAM")
     processes = plan.processes(
-        program=request.program, bag=bag, common=request.common_argv(), live_url=request.live_url
+        program=request.program,
+        bag=bag,
+        common=request.common_argv(),
+        live_url=request.live_url,
+        realtime=request.realtime,
+        optional_stop=request.optional_stop,
     )
-    return RunPlan.of(processes, clock=_clock(processes), stop_on_failure=True)
+    # an axis file's nodes watch each other (ShadowPlan's docstring)
+    stop = not plan.axis_file
+    return RunPlan.of(processes, clock=_clock(processes), stop_on_failure=stop)

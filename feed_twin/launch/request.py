@@ -1,6 +1,6 @@
 """What `feed-twin run` was asked for, typed: the config, the program, the mode and its options.
 
-`RunRequest.from_args` reads `feed-twin run`'s options once; the planners (axis.py, machine.py)
+`RunRequest.from_args` reads `feed-twin run`'s options once; the planner (machine.py)
 and the report's mode name (`mode_name`) read the request, not the argument namespace.
 """
 

@@ -15,6 +15,14 @@ live in one process, in the first axis's namespace, as in the machine run
 (feed_twin.machine.nodes, whose axis files these extend by the axis's `shadow:` section). A
 real multi-axis machine would replace the stand-ins: it publishes the same topics per axis.
 
+An axis file's shadow run is its one-axis machine's (`ShadowPlan.axis_file`), planned as the
+single-axis run had it: its nodes read the axis file as it is (no written copy, so its plant's
+kernel is the one already compiled), the stand-in publishes `/clock` (the ROS sim-time topic),
+every node runs in a process of its own named by its role (`recorder`, `twin`, `standin`,
+`gcode`; with LinuxCNC `recorder`, `twin`, `linuxcnc`: the single-axis bridge,
+feed_twin/ros/linuxcnc_node.py), the nodes notice a lost peer by its heartbeat, the column map
+is `<run>_map.yaml` and the dashboard `<run>.rrd`, and `--realtime` paces the stand-in.
+
 Lockstep across axes: each stand-in plays a sample as soon as its command is there and at most
 a window ahead of its twin's output, and the G-code node publishes at most `ros.lookahead`
 periods ahead of the slowest axis's clock. Each axis's stand-in and twin see exactly the
@@ -50,14 +58,19 @@ def shadow_documents(machine: MachineConfig) -> dict[str, dict[str, Any]]:
     nc_period = machine.nc.interpolation_period_s
     for axis, doc in docs.items():
         shadow = axis_shadow_config(machine, axis)
-        if abs(shadow.sample_period_s - nc_period) > 1e-12:
-            raise ConfigError(
-                f"{machine.axes[axis].source}: shadow.sample_period_s = "
-                f"{shadow.sample_period_s!r}: must equal nc.interpolation_period_s = "
-                f"{nc_period!r} (the twin shadows the NC's command stream)"
-            )
+        check_shadow_period(machine.axes[axis].source, shadow.sample_period_s, nc_period)
         doc["shadow"] = machine.axes[axis].shadow
     return docs
+
+
+def check_shadow_period(source: str | Path, sample_period_s: float, nc_period_s: float) -> None:
+    """ConfigError (one line, naming `source`) unless the shadow samples at the NC's period."""
+    if abs(sample_period_s - nc_period_s) > 1e-12:
+        raise ConfigError(
+            f"{source}: shadow.sample_period_s = {sample_period_s!r}: must equal "
+            f"nc.interpolation_period_s = {nc_period_s!r} (the twin shadows the NC's command "
+            "stream)"
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -73,12 +86,16 @@ class ShadowPlan:
     effort_units: dict[str, str]  # simulated axis -> the unit of its twin's effort (N, N m, A)
     period_s: float  # [s] the NC's interpolation period: one stand-in sample each
     linuxcnc: bool  # LinuxCNC is the machine (feed_twin/ros/machine_linuxcnc_node.py)
+    axis_file: bool = False  # an axis YAML as a one-axis machine (module docstring)
+    ros_axis: str = ""  # an axis file's ros.axis: its nodes' namespace /<machine>/<ros_axis>
 
     def namespace(self, axis: str) -> str:
-        return f"/{self.machine}/{axis.lower()}"
+        return f"/{self.machine}/{self.ros_axis if self.axis_file else axis.lower()}"
 
     def rrd(self, bag: Path, axis: str) -> Path:
-        """The shadow dashboard the axis's twin writes."""
+        """The shadow dashboard the axis's twin writes (an axis file's: `<run>.rrd`)."""
+        if self.axis_file:
+            return bag.with_name(f"{bag.name}.rrd")
         return bag.with_name(f"{bag.name}_{axis.lower()}.rrd")
 
     @property
@@ -86,11 +103,25 @@ class ShadowPlan:
         return ("twin",) if self.linuxcnc else ("standin", "twin")
 
     def processes(
-        self, *, program: Path, bag: Path, common: list[str], live_url: str | None = None
+        self,
+        *,
+        program: Path,
+        bag: Path,
+        common: list[str],
+        live_url: str | None = None,
+        realtime: bool = False,
+        optional_stop: bool = False,
     ) -> dict[str, list[tuple[str, list[str]]]]:
         """Process name -> its nodes (role of feed_twin.nodeset.roles, arguments); `common`: the
         timeouts every node takes (the peer timeout is added here); `live_url`: the live viewer
-        every twin streams its dashboard to (each axis's a recording of its own)."""
+        every twin streams its dashboard to (each axis's a recording of its own); `realtime`:
+        the stand-in paces by the wall clock (an axis file's only: a machine's axes run in
+        lockstep); `optional_stop`: M1 pauses."""
+        if self.axis_file:
+            return self._axis_file_processes(
+                program=program, bag=bag, common=common, live_url=live_url, realtime=realtime,
+                optional_stop=optional_stop,
+            )  # fmt: skip
         first, others = self.axes[0], self.axes[1:]
         common = [*common, "--peer-timeout", str(PEER_TIMEOUT_S)]
         served = [
@@ -100,7 +131,8 @@ class ShadowPlan:
         hub = {
             "recorder": [*served, "--bag", str(bag),
                          "--twin-namespace", f"{self.namespace(first)}/twin"],
-            "gcode": [*served, "--program", str(program), "--autostart", "--axis-clock"],
+            "gcode": [*served, "--program", str(program), "--autostart", "--axis-clock",
+                      *(["--optional-stop"] if optional_stop else [])],
             "linuxcnc": ["--machine-config", self.source, "--axes", ",".join(self.axes),
                          "--program", str(program)],
         }  # fmt: skip
@@ -134,25 +166,65 @@ class ShadowPlan:
                 out[process_name(axis, role)] = [(role, argv)]
         return out
 
+    def _axis_file_processes(
+        self,
+        *,
+        program: Path,
+        bag: Path,
+        common: list[str],
+        live_url: str | None,
+        realtime: bool,
+        optional_stop: bool,
+    ) -> dict[str, list[tuple[str, list[str]]]]:
+        """An axis file's processes (module docstring): each node in its own, named by its role,
+        in start order; the arguments of the single-axis run."""
+        (axis,) = self.axes
+        machine = ["--machine", self.machine, "--axis", self.ros_axis]
+        topics = AxisTopics(machine=self.machine, axis=self.ros_axis)
+        own = {
+            "recorder": ["--bag", str(bag), "--twin-namespace", f"{topics.namespace}/twin"],
+            "twin": ["--map", str(self.maps[axis]), *machine, "--rrd", str(self.rrd(bag, axis)),
+                     *(["--batch-topic", topics.bridge_batch] if self.linuxcnc else []),
+                     *(["--rerun-url", live_url] if live_url else [])],
+            "standin": ["--follow", *machine, *(["--realtime"] if realtime else [])],
+            "gcode": ["--program", str(program), "--autostart",
+                      *(["--optional-stop"] if optional_stop else [])],
+            "linuxcnc": ["--program", str(program)],
+        }  # fmt: skip
+        roles = ("recorder", "twin", "linuxcnc") if self.linuxcnc else tuple(own)[:4]
+        out: dict[str, list[tuple[str, list[str]]]] = {}
+        for role in roles:
+            peers = ",".join(r for r in roles if r != role)
+            argv = ["--config", str(self.files[axis]), "--peers", peers, *common, *own[role]]
+            out[role] = [(role, argv)]
+        return out
+
 
 def shadow_plan(machine: MachineConfig, bag: Path, *, linuxcnc: bool = False) -> ShadowPlan:
-    """Write the axis files and the column maps (`<bag>_map_<axis>.yaml`) and plan the
-    processes (ConfigError before anything starts). With `linuxcnc` the machine reports no
-    effort and its rapids reach the axis velocity limit (as the single-axis LinuxCNC run)."""
+    """Write the axis files and the column maps (`<bag>_map_<axis>.yaml`; an axis file's nodes
+    read the file itself, its map is `<bag>_map.yaml`) and plan the processes (ConfigError
+    before anything starts). With `linuxcnc` the machine reports no effort and its rapids reach
+    the axis velocity limit (as the single-axis LinuxCNC run)."""
     from feed_twin.analysis.twin import ModelDoc, Twin
+    from feed_twin.nodeset.config import load_node_set_config
     from feed_twin.shadow.standin import write_map
 
-    files = write_documents(machine, shadow_documents(machine), None)
+    if machine.axis_file:
+        files = {axis: Path(machine.source) for axis in machine.axes}
+        ros_axis = load_node_set_config(machine.source).axis
+    else:
+        files, ros_axis = write_documents(machine, shadow_documents(machine), None), ""
     bag.parent.mkdir(parents=True, exist_ok=True)
     maps, units = {}, {}
     for axis, path in files.items():
         nc_axis = machine.nc.axes[machine.nc.axis_index(axis)]
         twin = Twin.compile(ModelDoc.load(path))
         units[axis] = twin.effort_unit
+        suffix = "" if machine.axis_file else f"_{axis.lower()}"
         maps[axis] = write_map(
-            bag.with_name(f"{bag.name}_map_{axis.lower()}.yaml"),
+            bag.with_name(f"{bag.name}_map{suffix}.yaml"),
             twin,
-            f"/{machine.name}/{axis.lower()}",
+            f"/{machine.name}/{ros_axis or axis.lower()}",
             travel_m=nc_axis.travel_max_m - nc_axis.travel_min_m,
             with_effort=not linuxcnc,
             max_speed_m_s=1.5 * nc_axis.rapid_m_s if linuxcnc else 0.5,
@@ -167,6 +239,8 @@ def shadow_plan(machine: MachineConfig, bag: Path, *, linuxcnc: bool = False) ->
         effort_units=units,
         period_s=machine.nc.interpolation_period_s,
         linuxcnc=linuxcnc,
+        axis_file=machine.axis_file,
+        ros_axis=ros_axis,
     )
 
 

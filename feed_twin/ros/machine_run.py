@@ -307,12 +307,6 @@ def _topics(machine: MachineConfig, axis: str) -> AxisTopics:
     return AxisTopics(machine=machine.name, axis=axis.lower())
 
 
-def readable_bag(bag: Path) -> str:
-    """ "" when the run's bag can be read (recovered first when the recording was cut short),
-    else why not."""
-    return make_readable(bag)[0]
-
-
 def make_readable(bag: Path) -> tuple[str, int | None]:
     """("", messages kept or None) when the run's bag can be read (recovered first when the
     recording was cut short), else (why not, None)."""

@@ -14,7 +14,13 @@
    effect) in the summary and under "shadow" in the `--json` line, as `--in-process --shadow`
    gives them.
 
-`--nc linuxcnc` puts LinuxCNC in the stand-ins' place (feed_twin/ros/machine_linuxcnc_run.py).
+`--nc linuxcnc` puts LinuxCNC in the stand-ins' place (feed_twin/ros/machine_linuxcnc_node.py).
+
+An axis file (`feed-twin run PROGRAM [--config AXIS.yaml] --shadow [--nc linuxcnc]`) runs here
+as its one-axis machine, planned as the single-axis run had it
+(feed_twin.machine.shadow_nodes.ShadowPlan.axis_file: `/clock`, processes named by role, no
+stop on a first failure, `--realtime` allowed, LinuxCNC's single-axis bridge) and records the
+same messages; its checks before the run and its figures are feed_twin.ros.axis_shadow's.
 """
 
 from __future__ import annotations
@@ -28,9 +34,11 @@ import numpy as np
 
 from feed_twin.core.config import ConfigError
 from feed_twin.launch.machine import machine_shadow_plan
+from feed_twin.launch.plan import RunPlan
 from feed_twin.launch.request import RunRequest
 from feed_twin.machine.config import MachineConfig
 from feed_twin.machine.shadow_nodes import ShadowPlan, shadow_plan
+from feed_twin.nodeset.config import load_node_set_config
 from feed_twin.nodeset.run_report import (
     RunReport,
     RunTiming,
@@ -40,7 +48,7 @@ from feed_twin.nodeset.run_report import (
     ros_domain,
     shown,
 )
-from feed_twin.ros import preflight
+from feed_twin.ros import axis_shadow, preflight
 from feed_twin.ros.launch import (
     foreign_messages,
     log_record,
@@ -48,7 +56,7 @@ from feed_twin.ros.launch import (
     slow_line,
     slow_nodes,
 )
-from feed_twin.ros.machine_run import check_plan, readable_bag, run_reserved
+from feed_twin.ros.machine_run import check_plan, make_readable, run_reserved
 
 # the node set plays the program in lockstep, all axes in one bag, started here
 REFUSED = ("single_process", "no_gcode", "realtime", "start")
@@ -64,67 +72,131 @@ def refused_options(args: argparse.Namespace) -> str:
 
 def run_machine_shadow(args: argparse.Namespace, machine: MachineConfig) -> int:
     """The run (module docstring); returns the exit code."""
-    problem = refused_options(args)
-    if problem:
-        return _error(args, problem)
-    name = args.name  # feed_twin.ros.preflight.run_name, before anything started
-    bag, logs = args.out / name, args.out / f"{name}.logs"
-    linuxcnc = args.nc == "linuxcnc"
-    try:
-        if linuxcnc:
-            problem = linuxcnc_precheck(args.program, machine)
-            if problem:
-                return _error(args, problem)
-        plan = shadow_plan(machine, bag, linuxcnc=linuxcnc)
-        check_plan(machine, plan.files, shadow=True)
-        run = machine_shadow_plan(plan, RunRequest.from_args(args), bag)
-    except (ConfigError, ValueError, OSError) as exc:
-        return _error(args, str(exc))
+    planned = _plan(args, machine)
+    if isinstance(planned, str):
+        return _error(args, machine, planned)
+    plan, run = planned
+    bag, logs = args.out / args.name, args.out / f"{args.name}.logs"
     env = dict(os.environ)
     try:
         reservation = preflight.run_environment(args, env)
     except (ValueError, RuntimeError) as exc:
-        return _error(args, str(exc))
-    total = planned_duration_s(args.program, machine.nc, json_out=args.json)
+        return _error(args, machine, str(exc))
+    settle = load_node_set_config(args.config).settle_s if plan.axis_file else 0.0
+    total = planned_duration_s(args.program, machine.nc, settle_s=settle, json_out=args.json)
     result = run_reserved(run, logs, env, reservation, quiet=args.json, total_s=total)
-    figures, problem = finish(bag, plan)
-    code = preflight.exit_status(result.code) if result.code else int(figures is None)
+    problem, recovered = make_readable(bag)
+    summary = None
+    if not problem:
+        summary, problem = _finish(args, plan, bag, logs)
+    code = preflight.exit_status(result.code) if result.code else int(summary is None)
     reason = _named(result.reason, plan)
-    bridge_said = (log_record(run.clock_log(result.logs), "LINUXCNC") or {}) if linuxcnc else {}
+    clock_log = run.clock_log(result.logs)
+    bridge_said = (log_record(clock_log, "LINUXCNC") or {}) if plan.linuxcnc else {}
     if reason and bridge_said.get("fault"):
         reason = bridge_said["fault"]  # the bridge's own line for a LinuxCNC fault
+    reason = preflight.with_disk_full(reason, bag)
+    if code == 130:
+        print("feed-twin run: interrupted: the figures below cover the run until the stop")
     for said in (reason, problem, slow_line(logs)):
         if said:
             print(f"feed-twin run: {said}", file=sys.stderr)
-    timing = RunTiming.from_report(log_record(run.clock_log(result.logs), "TIMING") or {})
-    bridge = linuxcnc_figures(bag, plan, bridge_said, figures) if linuxcnc and figures else None
-    lines: list[str] = []
-    if figures is not None:  # (with --live every twin streamed its dashboard as it ran)
-        lines = figure_lines(plan, figures)
-    if bridge is not None:
-        lines += bridge_lines(bridge, bridge_said)
+    for rrd in [plan.rrd(bag, a) for a in plan.axes]:
+        preflight.remove_incomplete_rrd(rrd)
+    timing = log_record(clock_log, "TIMING") or {}
+    if plan.linuxcnc and not timing:
+        timing = axis_shadow.linuxcnc_timing(bridge_said)
     foreign = foreign_messages(result.logs.values())
     for line in foreign.lines():
         print(line)  # the run's own output names who sent what it dropped
-    extra = {"axes": [a.lower() for a in plan.axes], "shadow": figures}
+    figures, lines = _figures(plan, bag, summary, bridge_said)
+    run_timing = RunTiming.from_report(timing)
+    samples = run_timing.steps if run_timing.steps is not None else figures.get("samples")
     report = RunReport(
-        mode=mode_name(args, machine=True),
+        mode=mode_name(args, machine=not plan.axis_file),
         exit_code=code,
         reason=reason or problem,
         bag=preflight.shown_output(bag),
-        rrd_per_axis={
-            a.lower(): preflight.shown_output(plan.rrd(bag, a), rrd=True) for a in plan.axes
-        },
+        bag_recovered_messages=recovered,
         logs=str(logs),
         ros_domain=ros_domain(env),
-        samples=timing.steps,
-        timing=timing,
-        figures={"processes": list(run.names), **extra, **({"linuxcnc": bridge} if bridge else {})},
+        samples=samples,
+        timing=run_timing,
+        figures=figures if plan.axis_file else {"processes": list(run.names), **figures},
         figure_lines=tuple(lines),
         foreign_messages=foreign.as_dict(),
         slow_nodes=slow_nodes(logs),
+        **_dashboards(plan, bag),
     )
     return emit(report, json_out=args.json)
+
+
+def _plan(args: argparse.Namespace, machine: MachineConfig) -> tuple[ShadowPlan, RunPlan] | str:
+    """The checked plan of the run (its column maps written), or the one line why not."""
+    axis_file = machine.axis_file
+    problem = axis_shadow.refused_options(args) if axis_file else refused_options(args)
+    if problem:
+        return problem
+    bag = args.out / args.name  # feed_twin.ros.preflight.run_name, before anything started
+    linuxcnc = args.nc == "linuxcnc"
+    try:
+        # an axis file's LinuxCNC was checked before its program (axis_shadow.linuxcnc_precheck)
+        problem = linuxcnc_precheck(args.program, machine) if linuxcnc and not axis_file else ""
+        if problem:
+            return problem
+        if axis_file:
+            axis_shadow.check_inputs(args)  # the file its nodes read, as it is
+        plan = shadow_plan(machine, bag, linuxcnc=linuxcnc)
+        if not axis_file:
+            check_plan(machine, plan.files, shadow=True)
+        return plan, machine_shadow_plan(plan, RunRequest.from_args(args), bag)
+    except (ConfigError, ValueError, OSError) as exc:
+        return str(exc)
+
+
+def _finish(
+    args: argparse.Namespace, plan: ShadowPlan, bag: Path, logs: Path
+) -> tuple[axis_shadow.AxisShadowSummary | dict | None, str]:
+    """The figures from the readable bag: an axis file's (feed_twin.ros.axis_shadow), or every
+    axis's shadow figures."""
+    if plan.axis_file:
+        return axis_shadow.finish(args, plan, bag, logs)
+    return finish(bag, plan)
+
+
+def _figures(
+    plan: ShadowPlan, bag: Path, summary: axis_shadow.AxisShadowSummary | dict | None, said: dict
+) -> tuple[dict, list[str]]:
+    """The report's figures and the summary's lines: an axis file's as the single-axis run gave
+    them; a machine's per axis, with LinuxCNC's side."""
+    if isinstance(summary, axis_shadow.AxisShadowSummary):
+        return summary.as_dict(), summary.format().splitlines()
+    if plan.axis_file:
+        return {}, []
+    bridge = linuxcnc_figures(bag, plan, said, summary) if plan.linuxcnc and summary else None
+    lines: list[str] = []
+    if summary is not None:  # (with --live every twin streamed its dashboard as it ran)
+        lines = figure_lines(plan, summary)
+    if bridge is not None:
+        lines += bridge_lines(bridge, said)
+    extra = {"linuxcnc": bridge} if bridge else {}
+    return {"axes": [a.lower() for a in plan.axes], "shadow": summary, **extra}, lines
+
+
+def _dashboards(plan: ShadowPlan, bag: Path) -> dict:
+    """The report's dashboard fields: an axis file's `.rrd` and column map, a machine's `.rrd`
+    per axis."""
+    if plan.axis_file:
+        column_map = axis_shadow.column_map(plan)
+        return {
+            "rrd": preflight.shown_output(plan.rrd(bag, plan.axes[0]), rrd=True),
+            "column_map": str(column_map) if column_map.exists() else None,
+        }
+    return {
+        "rrd_per_axis": {
+            a.lower(): preflight.shown_output(plan.rrd(bag, a), rrd=True) for a in plan.axes
+        }
+    }
 
 
 def linuxcnc_precheck(program: Path, machine: MachineConfig) -> str:
@@ -184,13 +256,10 @@ def bridge_lines(bridge: dict, report: dict) -> list[str]:
 
 
 def finish(bag: Path, plan: ShadowPlan) -> tuple[dict | None, str]:
-    """The bag made readable and every axis's shadow figures read from it."""
+    """Every axis's shadow figures read from the (readable) bag."""
     from feed_twin.io.bag import BagError
     from feed_twin.machine.shadow_nodes import read_shadow_bag
 
-    problem = readable_bag(bag)
-    if problem:
-        return None, problem
     try:
         return read_shadow_bag(bag, plan.machine, plan.axes, plan.effort_units), ""
     except (BagError, ValueError) as exc:
@@ -217,7 +286,7 @@ def _named(reason: str, plan: ShadowPlan) -> str:
     return f"axis {axis}: {reason}" if axis is not None else reason
 
 
-def _error(args: argparse.Namespace, message: str) -> int:
+def _error(args: argparse.Namespace, machine: MachineConfig, message: str) -> int:
     print(f"feed-twin run: {message}", file=sys.stderr)
-    report = early_error_report(mode_name(args, machine=True), message)
+    report = early_error_report(mode_name(args, machine=not machine.axis_file), message)
     return emit(report, json_out=getattr(args, "json", False))
