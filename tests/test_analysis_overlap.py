@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from known_gaps import JOINT_RIDGE
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.reexamine import Found, collapsed, neutral_values
@@ -110,7 +109,6 @@ def test_clean_record_names_nothing(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=JOINT_RIDGE)
 def test_stiffness_and_coulomb_friction_are_both_named(tmp_path):
     """Machine-tool axis, loop on the linear scale: a softer screw and more Coulomb friction
     (160 N where the model has 120 N); about a minute. Before the edits started from the

@@ -33,7 +33,8 @@ def test_raw_speeds_fit_every_body_with_the_held_stretches():
     need = np.abs(v[1:] ** 2 - v[:-1] ** 2) / (2.0 * A) + held_out[:-1] + held_in[1:]
     assert np.all(need <= L * (1 + 1e-12))
     # Bodies: they fill their length; a body alone (both ends held on its side) with a peak
-    # above both ends cruises at least T at A, or runs at A / 2; chain bodies keep their A.
+    # above both ends cruises at least T at A, or takes at most T in all at A, or runs at
+    # A / 2; chain bodies keep their A.
     V = np.full(m, 0.3)
     vp, t_up, t_cruise, t_down, a_used = body_profiles_filtered(v, L, V, A, hold_in, hold_out, T)
     room = L - held_out[:-1] - held_in[1:]
@@ -44,10 +45,35 @@ def test_raw_speeds_fit_every_body_with_the_held_stretches():
     alone = (hold_out[:-1] > 0.0) & (hold_in[1:] > 0.0)
     peaked = vp > np.maximum(v[:-1], v[1:]) * (1 + 1e-12)
     at_full = alone & peaked & (a_used == A)
-    assert np.all(t_cruise[at_full] >= T * (1 - 1e-9))
+    total = t_up + t_cruise + t_down
+    assert np.all((t_cruise[at_full] >= T * (1 - 1e-9)) | (total[at_full] <= T))
+    assert np.any(at_full & (total <= T) & (t_cruise < T))  # short bodies alone run at A
     assert np.all((a_used == A) | (alone & (a_used == 0.5 * A)))
-    assert np.any(alone & (a_used == 0.5 * A))  # the shorter bodies take the half rate
     assert np.all(vp <= V)
+
+
+@pytest.mark.parametrize(
+    ("length", "a_used", "cruise"),
+    [(1e-3, 3.0, 0.0), (3e-3, 1.5, 0.0), (1e-2, 3.0, T)],
+    ids=["within-T-at-A", "at-A/2", "cruise-T-at-A"],
+)
+def test_a_body_alone_takes_the_quickest_profile_no_window_sees_both_signs_of_at_a(
+    length, a_used, cruise
+):
+    # A step-over between two corners crawled at 10 mm/s (held T / 2 on its side each):
+    # the 0.5 mm left rise and fall at A within 20 ms < T; 2.5 mm would take 69 ms at A
+    # without a cruise, so A / 2 (vp^2 = v^2 + (A / 2) room); 9.5 mm cruise T at A.
+    v = np.array([0.01, 0.01])
+    held = np.array([0.5 * T, 0.5 * T])
+    vp, t_up, t_cruise, t_down, a = body_profiles_filtered(
+        v, np.array([length]), np.array([0.3]), np.array([3.0]), held, held, T
+    )
+    room = length - T * 0.01
+    assert a[0] == a_used
+    assert t_cruise[0] == pytest.approx(cruise, abs=1e-12)
+    if cruise == 0.0:
+        assert vp[0] == pytest.approx(np.sqrt(0.01**2 + a_used * room), rel=1e-12)
+    assert (t_up[0] + t_down[0] <= T) == (length == 1e-3)
 
 
 def test_erode_lowers_an_item_to_any_neighbour_within_that_neighbours_reach():

@@ -162,7 +162,7 @@ def test_a_fixed_parameter_is_refused_after_initialisation(axis_fmu, name):
         ("motor.p", 0.0, "a whole number >= 1"),
         ("motor.p", 2.5, "a whole number >= 1"),
         ("bus.u_0", -560.0, "> 0 V and finite"),
-        ("scale.delay_ticks", 1e9, "a whole number >= 0 and <= 15"),
+        ("scale.delay_ticks", 1e9, "a whole number >= 0 and <= 63"),
         ("guides.F_c_pos", -1.0, ">= 0 N and finite"),
         ("screw_shaft.k_t", 0.0, "> 0 N m/rad"),
         ("max_step", 0.0, "> 0 s and finite"),
@@ -192,7 +192,7 @@ def test_every_parameter_has_a_unit_and_its_range_in_the_model_description(axis_
     ]:
         assert by_name[name].unit == unit, name
     delay = by_name["scale.delay_ticks"]
-    assert (delay.min, delay.max) == ("0.0", "15.0")
+    assert (delay.min, delay.max) == ("0.0", "63.0")
     assert by_name["table.m"].description == "> 0 kg and finite"
 
 

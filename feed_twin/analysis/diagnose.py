@@ -55,6 +55,7 @@ from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
 from feed_twin.analysis.joint import JointSearch, joint_select
 from feed_twin.analysis.locate import Location, locate
+from feed_twin.analysis.model_doc import TRACE_WINDOW_SLOT
 from feed_twin.analysis.passes import Passes, PassListener, ignore
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.record_scale import at_record_scale
@@ -71,7 +72,14 @@ from feed_twin.analysis.rounds import (
     run_round,
 )
 from feed_twin.analysis.timing import split_timing, timing_line
-from feed_twin.analysis.twin import SLOW_COMMAND_S, Drive, ModelDoc, Twin, drive_from_run
+from feed_twin.analysis.twin import (
+    SLOW_COMMAND_S,
+    Drive,
+    ModelDoc,
+    Twin,
+    drive_from_run,
+    drive_period,
+)
 from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.analysis.visibility import (
     Unseen,
@@ -331,8 +339,16 @@ def _simulate_nominal(
 
 def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Motion:
     """The measured motion the effects' signatures are built from (with the command's
-    velocity the twin was driven with)."""
+    velocity the twin was driven with, and the twin's effort as the trace's other mode
+    records it: trace_window's signature)."""
     effort_name = run.effort_name
+    other = None
+    period, h = drive_period(drive), twin.base_period_s
+    if out0.effort is not None and effort_name is not None and round(period / h) > 1:
+        now = twin.record_slots(drive)[TRACE_WINDOW_SLOT]
+        mode = h if round(now / h) > 1 else period
+        other = twin.simulate(drive, twin.nominal[None, :], record=[{TRACE_WINDOW_SLOT: mode}])
+        other = other.effort[0] if other.effort is not None and other.ok[0] else None
     return motion_from_position(
         run.t_s,
         run["pos_meas_m"],
@@ -343,6 +359,7 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Mot
         current_q_A=_current_q(run, twin),
         v_cmd_m_s=drive.vel_ref_m_s,
         current_answer=_current_answer(run, twin),
+        effort_other_mode=other,
     )
 
 

@@ -44,7 +44,6 @@ from feed_twin.analysis.recorder import (
     delayed,
     period_mean,
     start_velocity,
-    window_mean,
 )
 from feed_twin.core import signals
 from feed_twin.core.config import ConfigError
@@ -540,9 +539,10 @@ class Twin:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(position, effort, q-voltage) on the record's samples from the base ticks' values,
         as the record's trace takes them (`slots`: Twin.record_slots): each the mean over the
-        trace's window ending at its sample (one tick: the tick itself), the position and the
-        effort stamped their delays [s] late, every output the command's delay later (a loop
-        that follows its command d later answers d later: the twin is time invariant)."""
+        trace's window ending at its sample (recorder.period_mean; one tick: the tick itself),
+        the position and the effort stamped their delays [s] late, every output the command's
+        delay later (a loop that follows its command d later answers d later: the twin is time
+        invariant)."""
         h = self.base_period_s
         ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
         common = slots[COMMAND_DELAY_SLOT]
@@ -558,7 +558,7 @@ class Twin:
             fine_t = h * np.arange(pos.shape[1])
             signals = [_shifted(y, fine_t, d) for y, d in zip(signals, delays, strict=True)]
         if ticks > 1:
-            signals = [window_mean(y, dec, ticks) for y in signals]
+            signals = [period_mean(y, dec, ticks) for y in signals]
         else:
             signals = [y[:, ::dec] for y in signals]
         if not fine:

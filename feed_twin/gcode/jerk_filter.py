@@ -146,8 +146,10 @@ def body_profiles_filtered(
 
     A body between two nodes held on its side (alone in its windows, A from the axes' a_max)
     either cruises at least T at a peak above both ends (s'' keeps its sign within a window:
-    |s_f'''| <= A / T) or runs at A / 2 without that cruise (|s_f'''| <= 2 (A / 2) / T),
-    whichever is quicker. A chain body's A already budgets s'' changing sign within a window
+    |s_f'''| <= A / T), or runs at A / 2 without that cruise (|s_f'''| <= 2 (A / 2) / T), or
+    at A where it takes at most T in all (a window then reaches into the holds on one side
+    or the other, where s'' = 0, and never holds both signs: |s_f'''| <= A / T), whichever
+    is quickest. A chain body's A already budgets s'' changing sign within a window
     (`plan_chains.chain_limits`): no cruise needed.
     """
     m = L.shape[0]
@@ -169,6 +171,11 @@ def body_profiles_filtered(
             if half[4] < best[4]:
                 best = half
                 a_used[i] = 0.5 * a
+        if alone:  # over at most T no window holds both signs of s'': at A, no cruise
+            short = _trapezoid(v0, v1, room, V[i], a, 0.0)
+            if short[4] <= T and short[4] < best[4]:
+                best = short
+                a_used[i] = a
         vp[i], t_up[i], t_cruise[i], t_down[i] = best[0], best[1], best[2], best[3]
     return vp, t_up, t_cruise, t_down, a_used
 
@@ -183,7 +190,8 @@ def erode(
     speed: np.ndarray,
     span: float,
 ) -> np.ndarray:
-    """Each item's value lowered to that of any item of its group within that item's reach.
+    """Each item's value lowered to that of any item of its group within that item's reach
+    (value (n,) or (n, k): each column alike, in one pass).
 
     Items are intervals [lo, hi] along s in order; item j reaches item i when the gap between
     them is at most reach[j], or at most `span` times the highest speed of the items from i to
@@ -191,11 +199,23 @@ def erode(
     alone and reach nothing.
     """
     n = lo.shape[0]
-    out = value.copy()
-    far = max(np.max(reach), span * np.max(speed)) if n > 0 else 0.0
+    source = np.ascontiguousarray(value).reshape(n, -1)
+    out = source.copy()
+    columns = out.shape[1]
+    # No item reaches further than its run of one group's largest reach or span x speed.
+    far_of = np.zeros(n)
+    start = 0
+    for k in range(1, n + 1):
+        if k == n or group[k] != group[start]:
+            far = 0.0
+            for q in range(start, k):
+                far = max(far, reach[q], span * speed[q])
+            far_of[start:k] = far
+            start = k
     for i in range(n):
         if group[i] < 0:
             continue
+        far = far_of[i]
         for step in (1, -1):
             j = i + step
             top = speed[i]
@@ -205,9 +225,10 @@ def erode(
                     break
                 top = max(top, speed[j])
                 if gap <= max(reach[j], span * top):
-                    out[i] = min(out[i], value[j])
+                    for c in range(columns):
+                        out[i, c] = min(out[i, c], source[j, c])
                 j += step
-    return out
+    return out.reshape(value.shape)
 
 
 @njit(cache=True)

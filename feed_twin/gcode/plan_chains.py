@@ -45,6 +45,28 @@ CHAIN_EXIT = 2  # where a chain ends
 CHAIN_CUT_NODE = 3  # a cut inside a chain: bodies of the chain on both sides
 
 
+class ChainTerms(NamedTuple):
+    """Per body (m, n_axes), the largest over the blends it meets of |d_i''| (a_g [1/m]),
+    |d_i'''| (j_g [1/m^2]), the curvature steps (k_g [1/m]) and |d_i| (u_g)."""
+
+    a_g: np.ndarray
+    j_g: np.ndarray
+    k_g: np.ndarray
+    u_g: np.ndarray
+
+
+class ChainRelax(NamedTuple):
+    """What the chain bodies' acceleration limits come from (`plan_relax`): their curvature
+    terms, the chain each is eroded within (-1: none) and where each lies along s [m]."""
+
+    terms: ChainTerms
+    V: np.ndarray  # [m/s] the speed cap of each body before erosion (chain_limits)
+    node_cap: np.ndarray  # [m/s] the speed cap of each 1-D node's blend (m+1)
+    group: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+
 @dataclass(frozen=True, kw_only=True)
 class Bodies:
     """1-D nodes q (arrays of m+1) and the bodies between consecutive ones (arrays of m)."""
@@ -62,6 +84,7 @@ class Bodies:
     extended: np.ndarray  # (m+1,) the raw plan holds the node's speed T v / 2 beyond its blend
     hold_in: np.ndarray  # (m+1,) [s] the raw plan holds the node's speed v this long before it
     hold_out: np.ndarray  # (m+1,) [s] and this long after it (T / 2 each where extended)
+    relax: ChainRelax | None = None  # what `plan_relax` needs to raise the chains' A (filtered)
 
 
 class StartHolds(NamedTuple):
@@ -137,12 +160,17 @@ def chain_bodies(
         in_chain = (kind_q[:-1] == CHAIN_ENTRY) | (kind_q[:-1] == CHAIN_CUT_NODE)
     quiet = np.zeros(len(nodes_b), dtype=bool)
     quiet[pos_q] = extended
-    Vc, Ac, Jc = chain_limits(nodes_b, pos_q, blends, u=moves.u, V=V, limits=limits, quiet=quiet)
+    Vc, Ac, Jc, terms = chain_limits(
+        nodes_b, pos_q, blends, u=moves.u, V=V, limits=limits, quiet=quiet
+    )
+    relax = None
     if filtered:
-        Vc, Ac = _eroded(
-            sb[:-1], sa[1:], Vc, Ac, in_chain=in_chain, after_extended=hold_out[:-1] > 0.0,
-            T=T,
-        )  # fmt: skip
+        group = erosion_groups(in_chain, hold_out[:-1] > 0.0)
+        Vc_local = Vc
+        Vc, Ac = _eroded(sb[:-1], sa[1:], Vc, Ac, group=group, T=T)
+        relax = ChainRelax(
+            terms=terms, V=Vc_local, node_cap=blends.cap[node_q], group=group, lo=sb[:-1], hi=sa[1:]
+        )
     cap = blends.cap
     cap_q = cap[node_q].copy()
     cap_q[1:] = np.where(in_chain, np.minimum(cap_q[1:], Vc), cap_q[1:])
@@ -168,6 +196,7 @@ def chain_bodies(
         extended=extended,
         hold_in=hold_in,
         hold_out=hold_out,
+        relax=relax,
     )
 
 
@@ -226,25 +255,22 @@ def _held_chain_ends(
     return entry & held_before, exit_ & held_after
 
 
+def erosion_groups(in_chain: np.ndarray, after_extended: np.ndarray) -> np.ndarray:
+    """The chain (0, 1, ...) each body's limits are eroded within, -1 for bodies alone in
+    their windows: an extended node between two chain bodies parts them."""
+    starts = (np.concatenate(([True], ~in_chain[:-1])) | after_extended) & in_chain
+    return np.where(in_chain, np.cumsum(starts) - 1, -1)
+
+
 def _eroded(
-    lo: np.ndarray,
-    hi: np.ndarray,
-    V: np.ndarray,
-    A: np.ndarray,
-    *,
-    in_chain: np.ndarray,
-    after_extended: np.ndarray,
-    T: float,
+    lo: np.ndarray, hi: np.ndarray, V: np.ndarray, A: np.ndarray, *, group: np.ndarray, T: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Speed caps and acceleration limits of chain bodies (s from lo to hi) eroded within their
-    chain: a filtered speed at s averages raw speeds within T v / 2 of s, a filtered acceleration
-    raw ones within the distance the raw plan covers in T, at most T times the highest speed
-    cap of the bodies between (`jerk_filter`). An extended node between two chain bodies parts
-    them."""
-    starts = (np.concatenate(([True], ~in_chain[:-1])) | after_extended) & in_chain
-    if not np.any(starts):
+    chain (`group`): a filtered speed at s averages raw speeds within T v / 2 of s, a filtered
+    acceleration raw ones within the distance the raw plan covers in T, at most T times the
+    highest speed cap of the bodies between (`jerk_filter`)."""
+    if not np.any(group >= 0):
         return V, A
-    group = np.where(in_chain, np.cumsum(starts) - 1, -1)
     V_far = np.where(np.isfinite(V), V, 0.0)
     none = np.zeros(len(V))
     return (
@@ -307,7 +333,7 @@ def chain_limits(
     V: np.ndarray,
     limits: AxisLimits,
     quiet: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, ChainTerms]:
     """Speed cap, acceleration and jerk [SI] of the body from each 1-D node to the next,
     as if it ran along a chain of overlapping blends (used where it does); the blends of
     `quiet` nodes (of `nodes_b`) are left out.
@@ -319,7 +345,8 @@ def chain_limits(
     (trapezoid: CURVE_ACC_SHARE, no jerk; filtered: half and CURVE_JERK_SHARE, curvature
     steps included), s'' the acceleration they leave (A); filtered, s''' <= 2 A / T and the
     cross term share the jerk they leave. No jerk limit J of s''' itself (inf). The body
-    from node p to node q meets the blends of nodes p..q, hence the maxima over them.
+    from node p to node q meets the blends of nodes p..q, hence the maxima over them; those
+    maxima (`ChainTerms`) are returned too.
     """
     absu = np.abs(u)
     zero = np.zeros((1, absu.shape[1]))
@@ -348,15 +375,25 @@ def chain_limits(
     a_share, j_share = (0.5, CURVE_JERK_SHARE) if filtered else (CURVE_ACC_SHARE, 1.0)
     local = limits.cruise_cap(a_g, j_g, a_share, j_share, k_g)
     Vc = np.minimum(over_bodies(v_node, np.minimum), local)
+    terms = ChainTerms(a_g=a_g, j_g=j_g, k_g=k_g, u_g=u_g)
+    return Vc, chain_acceleration(terms, Vc, limits), np.full(len(Vc), np.inf), terms
+
+
+def chain_acceleration(
+    terms: ChainTerms, v: np.ndarray, limits: AxisLimits, *, one_sign: np.ndarray | None = None
+) -> np.ndarray:
+    """[m/s^2] The acceleration A of s'' that each body's curvature terms leave at speed v:
+    d_i s'' + d'_i v^2 within a_max_i; filtered, d_i s''' + 3 d'_i v A + d''_i v^3 + the
+    curvature steps' sampled jerk within j_max_i, with |s'''| <= 2 A / T (the raw s'' may
+    change sign within a window), or A / T where `one_sign` says it does not (`plan_relax`)."""
+    a_g, j_g, k_g, u_g = terms
     a_max, j_max = limits.a_max, limits.j_max
-    v = Vc[:, None]
+    vv = v[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        a_left = (a_max - a_g * v * v) / u_g
-        if filtered:
-            # |s'''| <= 2 A / T (the raw s'' may change sign between bodies).
-            curve = j_g * v**3 + limits.kick_jerk(k_g) * v * v  # x''' v^3, steps included
-            j_left = (j_max - curve) / (2.0 * u_g / limits.window_s + 3.0 * a_g * v)
+        a_left = (a_max - a_g * vv * vv) / u_g
+        if limits.window_s > 0.0:
+            turns = 2.0 if one_sign is None else np.where(one_sign, 1.0, 2.0)[:, None]
+            curve = j_g * vv**3 + limits.kick_jerk(k_g) * vv * vv
+            j_left = (j_max - curve) / (turns * u_g / limits.window_s + 3.0 * a_g * vv)
             a_left = np.minimum(a_left, j_left)
-        Ac = np.min(np.where(u_g > 0.0, a_left, np.inf), axis=1)
-    Jc = np.full(len(Vc), np.inf)
-    return Vc, Ac, Jc
+        return np.min(np.where(u_g > 0.0, a_left, np.inf), axis=1)

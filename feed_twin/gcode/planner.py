@@ -15,6 +15,8 @@ tolerance (`plan_smoothing`) and forced breaks of long chains placed where they 
 3. chains (`plan_chains`): overlapping blends grouped into chains; the 1-D nodes and the
    bodies between them with their limits;
 4. speed profile (`plan_profile`): boundary speeds and the pieces of s(t), dwells included;
+   with the jerk filter the chains' limits are then taken at what that profile does and it
+   is planned again (`plan_relax`, a fixed point checked on the plan);
 5. sampling (`plan_sampling`): s(t) at t = k * period, mapped onto the blended path.
 
 The jerk profile plans s acceleration-limited (the raw plan) and averages it over a window
@@ -60,6 +62,7 @@ from feed_twin.gcode.plan_profile import (
     stop_holds,
     with_dwells,
 )
+from feed_twin.gcode.plan_relax import relaxed_plan
 from feed_twin.gcode.plan_sampling import (
     END_SLACK,
     event_times,
@@ -288,6 +291,9 @@ class _StreamPlanner:
             assert narrowed is not None  # the same 1-D nodes: only widths changed
             bodies = narrowed
             speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
+        bodies, speeds = relaxed_plan(
+            bodies, speeds, self.limits, v_first=self.v_first, fixed_from=q_commit
+        )
         pieces = motion_pieces(bodies, speeds, q_commit=q_commit, n_moves=n)
         dwells, timed = node_entries(self._entries_at(bodies, q_commit, final), bodies.S)
         holds = stop_holds(

@@ -50,6 +50,10 @@ class Motion:
     # leaves (samples of one and of the other), for a twin that knows its current loop but has
     # no Inverter (analysis.drive_stage); None elsewhere
     current_answer: Callable[[FloatArray], FloatArray] | None = None
+    # the twin's effort as the trace's other mode records it: each sample the mean over its
+    # period where the twin takes it as it is, or the other way round (None: the record's
+    # period is the twin's tick, or no effort)
+    effort_other_mode: FloatArray | None = None
 
     @property
     def speed_eps(self) -> float:
@@ -68,6 +72,7 @@ def motion_from_position(
     current_q_A: FloatArray | None = None,
     v_cmd_m_s: FloatArray | None = None,
     current_answer: Callable[[FloatArray], FloatArray] | None = None,
+    effort_other_mode: FloatArray | None = None,
 ) -> Motion:
     """Velocity and acceleration from a measured position by Savitzky-Golay differentiation.
 
@@ -92,6 +97,7 @@ def motion_from_position(
         current_q_A=None if current_q_A is None else np.asarray(current_q_A, dtype=float),
         v_cmd_m_s=None if v_cmd_m_s is None else np.asarray(v_cmd_m_s, dtype=float),
         current_answer=current_answer,
+        effort_other_mode=effort_other_mode,
     )
 
 
