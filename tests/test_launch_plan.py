@@ -69,7 +69,11 @@ def test_one_node_runs_its_module_and_several_share_the_host() -> None:
             lambda: RunPlan.of({"a": [("sim", [])]}, clock="a").process("b"),
             "run plan: no process 'b' (processes: a)",
         ),
-        (lambda: RunRequest(config=AXIS, program=None, nc="fanuc"), "nc = 'fanuc': must be one"),
+        (
+            # the bad value under test
+            lambda: RunRequest(config=AXIS, program=None, nc="fanuc"),  # pyright: ignore[reportArgumentType]
+            "nc = 'fanuc': must be one",
+        ),
         (
             lambda: dataclasses.replace(node_plan(load_run_config(AXIS)), recorder_with="disk"),
             "recorder_with = 'disk': must be one of gcode, sim, own, auto",

@@ -7,9 +7,11 @@ import dataclasses
 import math
 import os
 import sys
+from typing import Any
 
 import numpy as np
 import pytest
+from controller_support import current_loop
 from nodes_support import AXIS_CONFIG
 
 from feed_twin.io.cdr import FlatCodec
@@ -90,8 +92,9 @@ def test_fixed_layout_errors_name_the_message_and_field() -> None:
     ],
 )
 def test_scheduling_settings_are_checked(field: str, value: object, message: str) -> None:
+    settings: dict[str, Any] = {field: value}  # a value of any type, the wrong ones included
     with pytest.raises(ValueError, match=message):
-        NodeSetConfig(**{field: value})
+        NodeSetConfig(**settings)
 
 
 def test_scheduling_that_the_os_refuses_is_reported_not_raised() -> None:
@@ -174,7 +177,7 @@ def test_a_cpu_latency_request_is_held_open_or_its_refusal_reported(tmp_path) ->
 def test_full_cascade_runs_the_current_loop_at_the_exchange_period() -> None:
     controller = load_axis_config(AXIS_CONFIG).controller
     derived, notes = controller_node_config(controller, 1e-3, with_current=True)
-    current = derived.current
+    current = current_loop(derived)
     assert current.period_s == 1e-3 and derived.base_period_s == 1e-3
     # Technical optimum for 1.5 periods of delay: Kp = L / (2 * 1.5 T), Ti = L / R.
     assert current.Kp_q_V_A == pytest.approx(4.0e-3 / 3.0e-3, rel=1e-12)
@@ -226,4 +229,5 @@ def test_pacing_report_figures() -> None:
     assert report["lateness_max_ms"] == pytest.approx(3.0)
     assert report["missed_steps"] == 1
     given = pacing_report(steps=1, period_s=1e-3, wall_s=1.0, lateness_s=[], missed_steps=7)
-    assert math.isnan(given["lateness_p99_ms"]) and given["missed_steps"] == 7
+    p99 = given["lateness_p99_ms"]
+    assert isinstance(p99, float) and math.isnan(p99) and given["missed_steps"] == 7

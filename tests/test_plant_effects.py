@@ -137,6 +137,7 @@ def test_force_weights_of_a_current_record_enter_the_model_as_newtons():
     table. Taken as newtons, the Coulomb edit started 40 N of missing friction at +0.03 N."""
     nominal = ModelDoc.load(AXIS)
     per_amp = nominal.force_per_effort("A")
+    assert per_amp is not None, "the axis model has a screw and a motor"
     assert per_amp == pytest.approx(1.9002 * 2.0 * math.pi * 0.9 / 0.01, rel=1e-12)
     edit = BY_NAME["coulomb_friction"].edit(
         nominal, _weights("coulomb_friction", per_amp, sign_v=40.0 / per_amp)
