@@ -23,6 +23,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from feed_twin.analysis.drive_stage import dead_time_edit, expand, expandable
 from feed_twin.analysis.model_doc import (
     ANALYSIS_SECTION,
     COMMAND_DELAY_SLOT,
@@ -31,6 +32,7 @@ from feed_twin.analysis.model_doc import (
     POSITION_DELAY_SLOT,
     RIPPLE_SLOTS,
     TRACE_WINDOW_SLOT,
+    model_of,
 )
 from feed_twin.plant.effect_api import (
     Document,
@@ -285,7 +287,23 @@ def _or_ripple(effect: Effect) -> Effect:
     return dataclasses.replace(effect, edit=edit, truth=truth)
 
 
+def _or_drive_stage(effect: Effect) -> Effect:
+    """dead_time, carried by the model's Inverter, else, in a torque-source twin that gives its
+    drive's data sheet, by the electrical stage analysis.drive_stage writes for it."""
+
+    def edit(doc: Document, cand: Weights) -> Edit:
+        if expandable(model_of(doc)):
+            return dead_time_edit(model_of(doc), cand, effect.edit)
+        return effect.edit(doc, cand)
+
+    def truth(doc: Document, p: Mapping[str, float]) -> Document:
+        return effect.truth(expand(model_of(doc)) if expandable(model_of(doc)) else doc, p)
+
+    return dataclasses.replace(effect, edit=edit, truth=truth)
+
+
+_WRAPPED = {"current_offset": _or_ripple, "dead_time": _or_drive_stage}
 LIBRARY: tuple[Effect, ...] = (
-    tuple(_or_ripple(e) if e.name == "current_offset" else e for e in EFFECTS) + RECORD_EFFECTS
+    tuple(_WRAPPED[e.name](e) if e.name in _WRAPPED else e for e in EFFECTS) + RECORD_EFFECTS
 )
 BY_NAME = {e.name: e for e in LIBRARY}
