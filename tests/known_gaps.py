@@ -14,15 +14,6 @@ REVERSAL_IMPACTS = (
     "The workflow names the cogging first, order 6, 0.589 N m, 0.507 rad, and leaves 71 nm"
 )
 
-JOINT_RIDGE = (
-    "issue #27, open: on the #30 jerk profile's motion both effects are named (Coulomb 157.8 N, "
-    "EA 1.196e8 N), and the bearing stiffness is 3.85e8 N/m when it is added, but the final "
-    "joint re-fit with the mass and the friction moves it to 3.57e8 (10.7 % off, the test allows "
-    "10 %) along a ridge: k_bearing correlates +0.97 with the Coulomb force and +0.96 with the "
-    "mass (193 kg for 200), which the reversals' contact residual (the truth's ADC rounding "
-    "through the 2 um backlash) pulls along"
-)
-
 CROSS_COUPLING_FIT = (
     "open, cause measured: the fit takes the drive's voltage references for the stator's "
     "voltage, and they differ by the drive's own voltage errors, which the #30 motion's higher "
@@ -45,18 +36,6 @@ PLACED_REPETITIONS_VISCOUS = (
     "the position's; what is left follows the speed (correlation 0.95, 0.55 um RMS, 63x the "
     "noise). Cause not found yet"
 )
-
-UNDECLARED_WINDOW_SMOOTH_COMMAND = (
-    "issue #27, open since the truth machine's nominal twin runs its drive's cubic fine "
-    "interpolation: on a 50 Hz trace the twin reads the NC points between the samples off a "
-    "smooth curve whose velocities are its slopes (Twin._inputs). The 30 um position lag by "
-    "which trace_window was ranked (analysis.effects: its signature is the position's) came "
-    "from linear pieces whose velocities were not their slopes, and is 3 um now; the 20 ms "
-    "window removes 93 % of the effort error (51 % -> 3.5 %) but is not ranked, and a Coulomb "
-    "force of 116 N is named instead (nothing hidden). Needs an effort-side ranking of the "
-    "window"
-)
-
 STICTION_ON_THE_TRUTH = (
     "issue #27, open, cause measured: the truth machine's stiction (Karnopp, F_hold = its 60 N "
     "Coulomb force, stuck below 10 um/s, sliding on an atan law at 2e-5 m/s) creeps to within "

@@ -293,15 +293,16 @@ def _judged(state: State, ctx: Context, trials: list) -> list:
     # each trial's test against the model now; the best by an information criterion on the
     # likelihood ratio (module docstring) that passes the test is kept (a drive gain that bends
     # the position at the effort's expense must not hide the holding force fitted beside it)
-    judged = []
+    judged, befores = [], []
     for cand, edit, alone, new_twin, result in trials:
         ctx.tried.append(cand.name)
         meaningless = no_finding(state, ctx, cand, edit, alone, result)
         if meaningless is not None:
             ctx.notes.append(f"{meaningless}; not kept")
             continue
+        before = ctx.channels(_baseline(state, ctx, edit, alone, new_twin))
         verdict = compare(
-            ctx.channels(state.outputs),
+            before,
             ctx.channels(result.outputs),
             added=edit.added,
             searched=_searched(cand, edit, len(trials)),
@@ -309,17 +310,32 @@ def _judged(state: State, ctx: Context, trials: list) -> list:
             support=cand.support,
         )
         judged.append((verdict, cand, edit, alone, new_twin, result))
-    before = ctx.channels(state.outputs)
+        befores.append(before)
     afters = [ctx.channels(j[-1].outputs) for j in judged]
     yardstick = (
         effective_counts(afters[int(np.argmin([j[-1].cost for j in judged]))]) if judged else {}
     )
     scores = [
         information(before, after, yardstick, j[2].added)
-        for j, after in zip(judged, afters, strict=True)
+        for j, before, after in zip(judged, befores, afters, strict=True)
     ]
     order = sorted(range(len(judged)), key=lambda k: scores[k], reverse=True)
     return [judged[k] for k in order]
+
+
+def _baseline(state: State, ctx: Context, edit: Edit, alone, new_twin: Twin) -> SimOutputs:
+    """What a trial is tested against: the model now, or, for an edit that writes a new stage
+    (Edit.restructures: a drive's electrical stage for its dead time), the edited model with
+    the effect's own parameters at their neutral values, so that what the new stage does at
+    any size (the current loop's lag) is not counted for the effect."""
+    if not edit.restructures:
+        return state.outputs
+    slots = tuple(p.name for p in alone)
+    row = new_twin.nominal.copy()
+    for slot, value in neutral_values(state.doc, model_of(edit.doc), slots).items():
+        for i in new_twin.index[slot]:
+            row[i] = value
+    return new_twin.simulate(ctx.drive, row[None, :])
 
 
 def no_finding(

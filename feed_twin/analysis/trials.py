@@ -18,7 +18,7 @@ import numpy as np
 from feed_twin.analysis.fit import FitResult, FreeParameter, Measured, SimOutputs, cost_of, fit
 from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate
-from feed_twin.analysis.record_search import RECORD_SEARCHED, search
+from feed_twin.analysis.record_search import RECORD_SEARCHED, one_row, search
 from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.plant.effect_api import Edit
 
@@ -140,31 +140,39 @@ def scanned_start(
 
 def grid_search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
     """A searched parameter (a delay in ticks, a recorded channel's delay): every grid value
-    in one batch, best kept. A record slot (analysis.*) changes no simulation: the twin runs
-    once and its output is shifted for each value, over a range the record sets
-    (analysis.record_search)."""
+    in one batch, best kept; while the best is the grid's last value and the parameter may go
+    further (its `upper`), the grid goes on in its own steps to twice its reach (a truth
+    machine's 4 ms feedback delay was fitted as the 2 ms at the edge of a fixed grid). A
+    record slot (analysis.*) changes no simulation: the twin runs once and its output is
+    shifted for each value, over a range the record sets (analysis.record_search)."""
     if edit.own[0].name in RECORD_SEARCHED:
         return search(twin, edit, drive, meas)
     (param,) = edit.own
-    batch = np.repeat(twin.nominal[None, :], len(edit.grid), axis=0)
-    for i in twin.index[param.name]:
-        batch[:, i] = edit.grid
-    out = twin.simulate(drive, batch)
-    costs = np.array([cost_of(meas, out, row) for row in range(len(edit.grid))])
+    grid = [float(g) for g in edit.grid]
+    values, costs, best_row = grid, [], None
+    while values:
+        batch = np.repeat(twin.nominal[None, :], len(values), axis=0)
+        for i in twin.index[param.name]:
+            batch[:, i] = values
+        out = twin.simulate(drive, batch)
+        fresh = [cost_of(meas, out, row) for row in range(len(values))]
+        if best_row is None or min(fresh) < min(costs):
+            best_row = one_row(out, int(np.argmin(fresh)))
+        costs += fresh
+        at_edge = int(np.argmin(costs)) == len(costs) - 1 and len(grid) > 1
+        step, last = grid[-1] - grid[-2], grid[-1]
+        reach = min(param.upper, 2.0 * last) if at_edge and step > 0.0 else last
+        values = [float(v) for v in np.arange(last + step, reach + 0.5 * step, step)]
+        grid += values
     best = int(np.argmin(costs))
-    start = int(np.argmin(np.abs(np.asarray(edit.grid) - param.initial)))
-    row = SimOutputs(
-        x_m=out.x_m[best : best + 1],
-        effort=None if out.effort is None else out.effort[best : best + 1],
-        ok=out.ok[best : best + 1],
-        voltage_q=None if out.voltage_q is None else out.voltage_q[best : best + 1],
-    )
+    start = int(np.argmin(np.abs(np.asarray(grid) - param.initial)))
+    assert best_row is not None
     return FitResult(
-        values={param.name: float(edit.grid[best])},
+        values={param.name: grid[best]},
         cost_initial=float(costs[start]),
         cost=float(costs[best]),
         converged=bool(np.isfinite(costs[best])),
-        message=f"grid search over {len(edit.grid)} values",
-        evaluations=len(edit.grid),
-        outputs=row,
+        message=f"grid search over {len(grid)} values",
+        evaluations=len(grid),
+        outputs=best_row,
     )

@@ -88,6 +88,9 @@ class ShadowPlan:
     linuxcnc: bool  # LinuxCNC is the machine (feed_twin/ros/machine_linuxcnc_node.py)
     axis_file: bool = False  # an axis YAML as a one-axis machine (module docstring)
     ros_axis: str = ""  # an axis file's ros.axis: its nodes' namespace /<machine>/<ros_axis>
+    # an axis file's ros.linuxcnc_nice: the nice value of LinuxCNC's bridge and the twin beside
+    # it (feed_twin/ros/dds.py, set_nice) [-]
+    linuxcnc_nice: int = 0
 
     def namespace(self, axis: str) -> str:
         return f"/{self.machine}/{self.ros_axis if self.axis_file else axis.lower()}"
@@ -181,15 +184,17 @@ class ShadowPlan:
         (axis,) = self.axes
         machine = ["--machine", self.machine, "--axis", self.ros_axis]
         topics = AxisTopics(machine=self.machine, axis=self.ros_axis)
+        # beside LinuxCNC the bridge and the twin run with a larger share of a busy CPU
+        nice = ["--nice", str(self.linuxcnc_nice)] if self.linuxcnc else []
         own = {
             "recorder": ["--bag", str(bag), "--twin-namespace", f"{topics.namespace}/twin"],
             "twin": ["--map", str(self.maps[axis]), *machine, "--rrd", str(self.rrd(bag, axis)),
-                     *(["--batch-topic", topics.bridge_batch] if self.linuxcnc else []),
+                     *(["--batch-topic", topics.bridge_batch, *nice] if self.linuxcnc else []),
                      *(["--rerun-url", live_url] if live_url else [])],
             "standin": ["--follow", *machine, *(["--realtime"] if realtime else [])],
             "gcode": ["--program", str(program), "--autostart",
                       *(["--optional-stop"] if optional_stop else [])],
-            "linuxcnc": ["--program", str(program)],
+            "linuxcnc": ["--program", str(program), *nice],
         }  # fmt: skip
         roles = ("recorder", "twin", "linuxcnc") if self.linuxcnc else tuple(own)[:4]
         out: dict[str, list[tuple[str, list[str]]]] = {}
@@ -209,9 +214,11 @@ def shadow_plan(machine: MachineConfig, bag: Path, *, linuxcnc: bool = False) ->
     from feed_twin.nodeset.config import load_node_set_config
     from feed_twin.shadow.standin import write_map
 
+    nice = 0
     if machine.axis_file:
         files = {axis: Path(machine.source) for axis in machine.axes}
-        ros_axis = load_node_set_config(machine.source).axis
+        ros = load_node_set_config(machine.source)
+        ros_axis, nice = ros.axis, ros.linuxcnc_nice
     else:
         files, ros_axis = write_documents(machine, shadow_documents(machine), None), ""
     bag.parent.mkdir(parents=True, exist_ok=True)
@@ -241,6 +248,7 @@ def shadow_plan(machine: MachineConfig, bag: Path, *, linuxcnc: bool = False) ->
         linuxcnc=linuxcnc,
         axis_file=machine.axis_file,
         ros_axis=ros_axis,
+        linuxcnc_nice=nice,
     )
 
 
