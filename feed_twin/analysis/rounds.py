@@ -273,9 +273,11 @@ def ranked(ctx: Context, outputs: SimOutputs, exclude: tuple[str, ...]) -> list[
 def choose_rivals(ranked: list[Candidate], opts: Options) -> list[Candidate]:
     """The candidates of one round fitted by simulation: the leading ones (at most
     candidates_per_round, each explaining rival_ratio of the leader's share), and the leader of
-    every other residual. Shares of different residuals do not compare: a feedback delay in
-    the loop (27 % of the effort residual) lost its place to three timings of the record that
-    each took 98 % of the position's, and the one of them kept took the loop's delay too."""
+    every other residual, and beside a residual's rival ranked there on its fallback residual
+    the best of the effects ranked there on their own. Shares of different residuals do not
+    compare: a feedback delay in the loop (27 % of the effort residual) lost its place to three
+    timings of the record that each took 98 % of the position's, and the one of them kept took
+    the loop's delay too."""
     lead = ranked[0]
     rivals = [
         c
@@ -285,6 +287,18 @@ def choose_rivals(ranked: list[Candidate], opts: Options) -> list[Candidate]:
     for c in ranked:
         if all(r.residual_domain != c.residual_domain for r in rivals):
             rivals.append(c)  # the first of its residual's: the ranking's order
+    for r in list(rivals):
+        if r.residual_domain == r.effect.domain:
+            continue
+        # a residual's rival ranked there on its fallback (a dead time without voltages, on
+        # the effort) takes no place from the best of that residual's own effects: a 4 ms
+        # feedback delay (measurement_delay) lost its effort slot to the dead time's current
+        # dip (53 % of the effort residual) and was named as a command delay
+        own = next(
+            (c for c in ranked if c.residual_domain == c.effect.domain == r.residual_domain), None
+        )
+        if own is not None and own not in rivals:
+            rivals.append(own)
     return rivals
 
 
