@@ -68,21 +68,26 @@ def test_expand_writes_the_drive_stage_from_the_data_sheet() -> None:
     assert doc.of_type("EffortSource") == ["drive"]  # the nominal document is untouched
 
 
-def test_dead_time_edit_starts_halfway_and_bounds_the_fit() -> None:
+def _dead_time_edit(share: float, weight: float):
+    """The dead time's edit on the nominal, ranked on the effort at `share` with `weight`."""
     from feed_twin.analysis.ranking import Candidate
 
     cand = Candidate(
         effect=BY_NAME["dead_time"],
-        variant="i_reg = 0.05 A",
-        explained_fraction=0.3,
+        variant="i_reg = 0.1 A",
+        explained_fraction=share,
         f_statistic=100.0,
         p_value=0.0,
         n_eff=1000.0,
-        coefficients={"sgn_i_q": 0.1},
+        coefficients={"sgn_i_q": weight},
         significant=True,
         domain="effort",
     )
-    edit = BY_NAME["dead_time"].edit(_nominal(), cand)
+    return BY_NAME["dead_time"].edit(_nominal(), cand)
+
+
+def test_dead_time_edit_starts_halfway_and_bounds_the_fit() -> None:
+    edit = _dead_time_edit(0.3, 0.1)
     (own,) = edit.own
     assert own.name == "drive_inverter.dead_fraction"
     assert own.upper == MAX_DEAD_FRACTION
@@ -190,3 +195,53 @@ def test_diagnose_names_the_dead_time_of_a_truth_record(tmp_path: Path) -> None:
     assert [e.name for e in d.effects][:1] == ["dead_time"], d.verdict
     found = d.effects[0].parameters["t_dead_s"]
     assert found == pytest.approx(hidden["dead_time"]["t_dead_s"], rel=0.05)
+
+
+class _LineTwin:
+    """A stand-in for a compiled twin with one parameter: its position is the parameter times
+    t, so the cost against a record of `truth` times t is (value - truth)^2 times sum t^2."""
+
+    def __init__(self, name: str, start: float) -> None:
+        self.nominal = np.array([start])
+        self.index = {name: (0,)}
+        self.t = np.linspace(0.0, 1.0, 101)
+        self.rows = 0
+
+    def simulate(self, drive: object, params: np.ndarray):
+        from feed_twin.analysis.fit import SimOutputs
+
+        self.rows += len(params)
+        x = params[:, :1] * self.t[None, :]
+        return SimOutputs(x_m=x, effort=None, ok=np.ones(len(params), dtype=bool))
+
+
+def test_a_new_stage_whose_cost_rises_from_its_lower_bound_is_not_fitted_further() -> None:
+    """On a clean record the dead time's cost falls to its bound t_dead = 0 and the least
+    squares took 24 simulations of the expanded twin to get there: two (the bound and
+    BOUND_STEP inside it) say the optimum lies at the values without it. Where the cost falls
+    inward, or for an edit that writes no new stage, the least squares runs (None)."""
+    import dataclasses
+
+    from feed_twin.analysis.fit import Measured
+    from feed_twin.analysis.trials import BOUND_STEP, optimum_at_bound
+
+    edit = _dead_time_edit(0.06, 1.47)  # a clean truth record's ranking
+    (own,) = edit.own
+    assert own.lower == 0.0  # the stage without a dead time: what the trial is tested against
+
+    def tried(truth: float, e=edit):
+        twin = _LineTwin(own.name, own.initial)
+        meas = Measured(x_m=truth * twin.t, effort=None, scale_x=1e-3, scale_effort=1.0)
+        return optimum_at_bound(twin, None, e, [own], meas), twin  # pyright: ignore[reportArgumentType]
+
+    at_bound, twin = tried(0.0)
+    assert at_bound is not None and twin.rows == 2 and at_bound.evaluations == 2
+    assert at_bound.values == {own.name: 0.0} and at_bound.converged
+    assert at_bound.cost == at_bound.cost_initial == pytest.approx(0.0)
+    assert at_bound.message == f"the cost rises from {own.name}'s lower bound 0 inward"
+    # a dead time a fifth of the way from the bound to BOUND_STEP: the cost still rises there
+    assert tried(0.2 * BOUND_STEP * own.scale)[0] is not None
+    # beyond half the step the cost falls inward: fitted by least squares
+    assert tried(0.6 * BOUND_STEP * own.scale)[0] is None
+    assert tried(own.initial)[0] is None
+    assert tried(0.0, dataclasses.replace(edit, restructures=False))[0] is None
