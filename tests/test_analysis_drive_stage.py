@@ -107,7 +107,12 @@ def test_current_answer_is_the_closed_loop_response_to_a_voltage_step() -> None:
     assert stage is not None
     t = np.arange(0.0, 0.03, 1e-4)
     d = 5.0
-    i = current_answer(stage, t)(np.full_like(t, d))
+    answer = current_answer(stage, t)
+    i = answer(np.full_like(t, d))
+    # asked again for the same voltages (every ranking of a diagnosis asks for the same
+    # signature), the answer is the one computed before, read-only, and not another's
+    assert answer(np.full_like(t, d)) is i and not i.flags.writeable
+    assert np.allclose(answer(np.full_like(t, 2.0 * d)), 2.0 * i)
     L, a, b = stage.L_H, stage.R_s_ohm + stage.Kp_V_A, stage.Kp_V_A / stage.Ti_s
     r1, r2 = np.roots([L, a, b])
     expected = d * (np.exp(r1 * t) - np.exp(r2 * t)) / (L * (r1 - r2))
