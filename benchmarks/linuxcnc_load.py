@@ -222,7 +222,7 @@ def _said(load: int, summary: dict) -> str:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--minutes", type=float, default=10.0, help="program length [min]")
     parser.add_argument("--program", type=Path, help="run this program instead (--minutes: "
                         "its length, for the timeout)")  # fmt: skip

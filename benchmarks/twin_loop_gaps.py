@@ -39,7 +39,7 @@ ROLES = ("twin", "linuxcnc", "recorder")
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--minutes", type=float, default=1.0, help="program length [min]")
     parser.add_argument("--load", type=int, default=2, help="busy processes per core")
     parser.add_argument("--top", type=int, default=5, help="largest gaps shown per node")

@@ -226,3 +226,37 @@ def test_every_machine_launch_argument_is_one_the_registry_declares(tmp_path) ->
             options = {a for a in node.argv if a.startswith("--")}
             allowed = set(COMMON_ARGUMENTS) | set(node_role(node.role).arguments)
             assert options <= allowed, (node.role, options - allowed)
+
+
+def test_beside_linuxcnc_a_machines_bridge_and_every_twin_run_at_its_nice(tmp_path) -> None:
+    """ros.linuxcnc_nice reaches a machine's LinuxCNC bridge and each axis's twin through the
+    shadow plan (the machine file's ros: section, or the default), as an axis file's does."""
+    from feed_twin.machine.config import load_machine_config
+
+    request = RunRequest(config=ROOT / "config" / "machine_default.yaml", program=Path("p.ngc"))
+    bag = tmp_path / "run"
+
+    def plan(path: Path, *, linuxcnc: bool) -> RunPlan:
+        return machine_shadow_plan(
+            shadow_plan(load_machine_config(path), bag, linuxcnc=linuxcnc), request, bag
+        )
+
+    def nice_of(plan: RunPlan) -> dict[str, str | None]:
+        return {
+            f"{name}/{node.role}": node.argv[node.argv.index("--nice") + 1]
+            if "--nice" in node.argv else None
+            for name in plan.names for node in plan.process(name).nodes
+        }  # fmt: skip
+
+    assert nice_of(plan(request.config, linuxcnc=True)) == {
+        "recorder/recorder": None, "linuxcnc/machine_linuxcnc": "-10", "x_twin/twin": "-10",
+        "y_twin/twin": "-10", "z_twin/twin": "-10",
+    }  # fmt: skip
+    # beside stand-ins nothing runs at another weight
+    assert set(nice_of(plan(request.config, linuxcnc=False)).values()) == {None}
+    # the machine file's own value, in its ros: section
+    (tmp_path / "axis_default.yaml").write_text(AXIS.read_text())
+    text = request.config.read_text().replace("\nros:\n", "\nros:\n  linuxcnc_nice: -5\n")
+    mine = tmp_path / "machine.yaml"
+    mine.write_text(text)
+    assert set(nice_of(plan(mine, linuxcnc=True)).values()) == {None, "-5"}

@@ -247,7 +247,8 @@ ROLES: dict[str, Role] = {
             guarded=False,
             own_node=False,
             machine_wide=True,  # one LinuxCNC for every axis of the machine
-            arguments=("--machine-config", "--axes", "--program", PEER_TIMEOUT),
+            # --nice: ros.linuxcnc_nice, as the single-axis bridge
+            arguments=("--machine-config", "--axes", "--program", PEER_TIMEOUT, "--nice"),
         ),
     )
 }

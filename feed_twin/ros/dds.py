@@ -20,7 +20,8 @@
   of halting. On a virtual machine waking a halted CPU goes through the host, which costs a
   cross-core message several times its send (docs/performance.md). The price is an idle CPU
   that keeps spinning while a run lasts. Needs root; refused, it is logged and skipped.
-- Weight beside LinuxCNC (`set_nice`, `ros.linuxcnc_nice`): the bridge and the twin run under
+- Weight beside LinuxCNC (`set_nice`, `ros.linuxcnc_nice`): the bridge and the twin (a
+  machine's bridge and each of its twins, as the shadow plan passes `--nice`) run under
   normal scheduling with a lower nice value, i.e. a larger share of a busy CPU. On this 2-core
   host at load 18 both spent 2-3 times as long waiting on a run queue as running (their
   loops' traces, feed_twin/nodeset/turn_trace.py): a process that needs a tenth of a CPU at
@@ -38,6 +39,7 @@ from pathlib import Path
 
 import rclpy
 from rclpy.context import Context
+from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
@@ -181,6 +183,12 @@ def set_nice(nice: int) -> list[str]:
     except OSError as exc:
         return [f"nice {nice} refused ({exc}): normal weight"]
     return [f"nice {nice}"]
+
+
+def apply_nice(node: Node, nice: int) -> None:
+    """`set_nice` for the process of `node`, its note in the node's log (`scheduling: ...`)."""
+    for note in set_nice(nice):
+        node.get_logger().info(f"scheduling: {note}")
 
 
 def raise_priority(priority: int) -> list[str]:

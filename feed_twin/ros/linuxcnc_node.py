@@ -58,7 +58,7 @@ from feed_twin.linuxcnc.servo_cdr import ServoSampleLayout
 from feed_twin.nodeset.record_batch import RecordBatch, unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import AxisTopics
-from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, set_nice
+from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_nice
 from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import encode_joint_state
 from feed_twin.shadow.replay import twin_namespace
@@ -439,8 +439,7 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
         period_s=servo.servo_period_s,
         context=context,
     )
-    for note in set_nice(args.nice):
-        node.get_logger().info(f"scheduling: {note}")
+    apply_nice(node, args.nice)
     return node
 
 

@@ -51,7 +51,7 @@ from feed_twin.io.measured import load_column_map
 from feed_twin.nodeset.record_batch import RecordBatch, unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import Topic
-from feed_twin.ros.dds import DATA_QOS, set_nice
+from feed_twin.ros.dds import DATA_QOS, apply_nice
 from feed_twin.ros.runtime import EXIT_OK, PEER_TIMEOUT_S, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import MessageFields, plan
 from feed_twin.shadow.config import load_shadow_config
@@ -485,8 +485,7 @@ def build(args: argparse.Namespace, context) -> TwinNode:
         batch_topic=args.batch_topic,
         context=context,
     )  # fmt: skip
-    for note in set_nice(args.nice):
-        node.get_logger().info(f"scheduling: {note}")
+    apply_nice(node, args.nice)
     return node
 
 
