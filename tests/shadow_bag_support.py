@@ -15,7 +15,9 @@ names the program's file: its directory is left out.
     python tests/shadow_bag_support.py BAG PROGRAM_DIR > tests/fixtures/shadow_bag/NAME.json
 
 writes a bag's fingerprint (the reference of tests/test_shadow_run.py's guard was recorded so
-from main before the move).
+from main before the move, and again so from the steady run's bag when the default jerk limit
+came from the axis's first mode: two runs gave the same fingerprint, and a run with the former
+limits, 60/60/50 m/s^3, gave the former reference exactly).
 """
 
 from __future__ import annotations
