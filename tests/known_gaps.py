@@ -56,27 +56,3 @@ UNDECLARED_WINDOW_SMOOTH_COMMAND = (
     "force of 116 N is named instead (nothing hidden). Needs an effort-side ranking of the "
     "window"
 )
-
-STICTION_ON_THE_TRUTH = (
-    "issue #27, open, cause measured: the truth machine's stiction (Karnopp, F_hold = its 60 N "
-    "Coulomb force, stuck below 10 um/s, sliding on an atan law at 2e-5 m/s) creeps to within "
-    "0.25 um of its target, sticks, and its velocity loop's integrator winds the held force up "
-    "until it breaks away (seed 101, t = 4.91-5.08 s: stuck 1.55 um past the target, the force "
-    "ramping to -58 N, then a slip). The library's StictionFriction slides at F_hold at any "
-    "speed on a 10 um presliding: it stops the table about 2 um short and the loop settles on "
-    "the asperity spring, so even at the truth's 60 N it fits worse than no stiction (effort "
-    "residual 0.029 A against 0.014 A; 0.023 A with a 100x stiffer presliding), and its "
-    "signature (the last direction at rest) explains 6 % of the effort residual (p = 0.43): it "
-    "is never fitted. A Karnopp form (the guides' regularised Coulomb force taken over, the "
-    "asperities catching the table below a release speed, a presliding as stiff as the step, "
-    "each stop's own ramp in the signature: 53 % explained) named it alone at 59.5-59.9 N on "
-    "seeds 101-103 with nothing on the clean records (branch i27stick, commit c608a99: the "
-    "asperities let go above 0.1 v_reg; reverted), but named it beside asymmetric_friction at "
-    "seeds 101 and 103, and fitted the 20 N stiction of the vertical axis in "
-    "tests/test_analysis_plan_drive.py at 3.3 N (its band off a P loop's equilibrium, "
-    "+-0.1 F_hold, is hidden on a 50 Hz mean trace). Letting go at 0.3 v_reg (commit ccb9d9c) "
-    "kept that axis at 20 N, but named a stiction beside the hidden effect on 11 of 26 other "
-    "single truth records and on clean seed 101: the truth's friction (atan at 2e-5 m/s) holds "
-    "the table ten times better than the nominal twin's (v_reg 2e-4), and a law that catches "
-    "the truth's creep catches that too"
-)
