@@ -12,8 +12,9 @@ API makes this script fail, and model_speed.py reports the ratio as null with th
 import math
 import time
 
-import motulator.drive.control.sm as control
-from motulator.drive import model
+# motulator runs in its own Python 3.12 venv (model_speed.py), not in .venv that pyright reads
+import motulator.drive.control.sm as control  # pyright: ignore[reportMissingImports]
+from motulator.drive import model  # pyright: ignore[reportMissingImports]
 
 T_S = 62.5e-6
 T_STOP = 1.0

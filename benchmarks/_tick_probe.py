@@ -19,8 +19,8 @@ import numpy as np  # noqa: E402
 
 try:
     from feed_twin.core import signals as sig
-except ImportError:  # a tree from before the core layer
-    from feed_twin.control import signals as sig
+except ImportError:  # a tree from before the core layer (pyright reads this one: no module)
+    from feed_twin.control import signals as sig  # pyright: ignore[reportAttributeAccessIssue]
 from feed_twin.sim.batch import run_batch  # noqa: E402
 from feed_twin.sim.config import build_engine, load_axis_config  # noqa: E402
 

@@ -218,7 +218,7 @@ def summarise(runs: list[dict[str, Any]], before: Path) -> dict[str, Any]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--before", type=Path, help="the other tree (a worktree)")
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--realtime-seconds", type=float, default=10.0)

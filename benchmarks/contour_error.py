@@ -107,7 +107,7 @@ def middle_turn(machine: MachineConfig, feed: float) -> dict[str, float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument(
         "--inline",
         action="store_true",

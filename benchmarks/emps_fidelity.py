@@ -41,6 +41,7 @@ def figures(twin: Twin, run, *, measured_start: bool) -> dict[str, float]:
     fe_max = float(np.max(np.abs(run["pos_cmd_m"] - x)))
     dev = np.abs(x_sim - x)
     early = run.t_s - run.t_s[0] < START_S
+    assert out.effort is not None, "emps_map.yaml maps force_cmd_N: the twin simulates the effort"
     f, f_sim = run["force_cmd_N"], out.effort[0]
     return {
         "fe_dev_max_pct": 100.0 * float(dev.max()) / fe_max,

@@ -243,7 +243,7 @@ def bag(program: str, *, shadow: bool = False) -> dict[str, str]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--no-bag", action="store_true", help="skip the node-set run over DDS")
     which.add_argument("--bag-only", action="store_true", help="only the node-set run over DDS")

@@ -32,7 +32,7 @@ Goals (issue #28): samples_lost 0 and bag counts equal on every topic; bridge la
 ms quiet and <= 200 ms loaded; no aborted run.
 
     .venv/bin/python benchmarks/linuxcnc_load.py [--minutes 10] [--repeats 5] [--loads 0,2]
-        [--latency-seconds 60] [--hal-seconds 60] [--program PROGRAM]
+        [--latency-seconds 60] [--hal-seconds 60] [--program PROGRAM] [--config CONFIG]
 
 The issue's figure is the defaults (10 min, 5 repeats, loads 0 and 2: about 2 h with start-up
 and summaries). A short check: `--minutes 0.5 --repeats 1 --latency-seconds 0 --hal-seconds
@@ -76,9 +76,9 @@ def write_program(path: Path, minutes: float) -> Path:
     return path
 
 
-def one_run(program: Path, out: Path, name: str, timeout_s: float) -> dict:
+def one_run(program: Path, out: Path, name: str, timeout_s: float, config: Path = CONFIG) -> dict:
     command = [sys.executable, "-m", "feed_twin.cli", "run", str(program), "--config",
-               str(CONFIG), "--nc", "linuxcnc", "--shadow", "--out", str(out), "--name", name,
+               str(config), "--nc", "linuxcnc", "--shadow", "--out", str(out), "--name", name,
                "--json"]  # fmt: skip
     t0 = time.monotonic()
     done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
@@ -107,6 +107,7 @@ def one_run(program: Path, out: Path, name: str, timeout_s: float) -> dict:
         and all(read.get(t) == n for t, n in bag_counts.items()),
         "bridge_latency_p50_ms": figures.get("bridge_latency_p50_ms"),
         "bridge_latency_p99_ms": figures.get("bridge_latency_p99_ms"),
+        "bridge_latency_parts_p99_ms": figures.get("bridge_latency_parts_p99_ms"),
         "twin_output_latency_p99_ms": figures.get("twin_output_latency_p99_ms"),
         "servo_late_periods": timing.get("late_periods"),
         "servo_periods": timing.get("periods"),
@@ -117,12 +118,14 @@ def one_run(program: Path, out: Path, name: str, timeout_s: float) -> dict:
     }
 
 
-def loaded_runs(program: Path, out: Path, load: int, repeats: int, timeout_s: float) -> list:
+def loaded_runs(
+    program: Path, out: Path, load: int, repeats: int, timeout_s: float, config: Path
+) -> list:
     busy = [subprocess.Popen(BUSY) for _ in range(load * (os.cpu_count() or 1))]
     try:
         runs = []
         for i in range(repeats):
-            run = one_run(program, out, f"load{load}_{i}", timeout_s)
+            run = one_run(program, out, f"load{load}_{i}", timeout_s, config)
             print(f"load {load}x cores, run {i + 1}/{repeats}: {json.dumps(run)}", flush=True)
             runs.append(run)
         return runs
@@ -219,7 +222,7 @@ def _said(load: int, summary: dict) -> str:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--minutes", type=float, default=10.0, help="program length [min]")
     parser.add_argument("--program", type=Path, help="run this program instead (--minutes: "
                         "its length, for the timeout)")  # fmt: skip
@@ -228,14 +231,16 @@ def main() -> int:
                         "('': none, for the latency test or the HAL component alone)")  # fmt: skip
     parser.add_argument("--latency-seconds", type=float, default=60.0, help="0: skip")
     parser.add_argument("--hal-seconds", type=float, default=60.0, help="0: skip")
+    parser.add_argument("--config", type=Path, default=CONFIG, help="axis config (an A/B of "
+                        "its ros: settings, e.g. linuxcnc_nice: 0)")  # fmt: skip
     args = parser.parse_args()
     out = Path(tempfile.mkdtemp(prefix="feed_twin-linuxcnc-load-"))
     program = args.program or write_program(out / "long.ngc", args.minutes)
     timeout_s = args.minutes * 60.0 * 4 + 300.0
     result: dict = {"program": str(program), "minutes": args.minutes, "repeats": args.repeats,
-                    "cores": os.cpu_count()}  # fmt: skip
+                    "cores": os.cpu_count(), "config": str(args.config)}  # fmt: skip
     for load in (int(x) for x in args.loads.split(",") if x.strip()):
-        runs = loaded_runs(program, out, load, args.repeats, timeout_s)
+        runs = loaded_runs(program, out, load, args.repeats, timeout_s, args.config)
         summary = _summary(runs, 20.0 if load == 0 else 200.0)
         print(_said(load, summary), flush=True)
         result[f"load{load}"] = {**summary, "each": runs}

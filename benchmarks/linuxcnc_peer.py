@@ -107,6 +107,7 @@ def linuxcnc(
     program: Path, nc: NcConfig, servo: HalServo, machine: Path
 ) -> SampledTrajectory | str:
     options = RunOptions(machine_dir=machine)
+    result = None
     for attempt in (1, 2):
         try:
             result = run_program(program, nc=nc, servo=servo, options=options, say=print)
@@ -116,6 +117,7 @@ def linuxcnc(
             if attempt == 2 or not str(exc).startswith(START_FAILURE):
                 return str(exc)
             print(f"{program.name}: {exc}; starting LinuxCNC again")
+    assert result is not None, "the loop ends with a run or returns the second failure"
     if result.trace.samples_lost or result.overruns:
         return f"{result.trace.samples_lost + result.overruns} servo periods lost from the record"
     # From the program's first motion to its last (before it: HAL start-up and homing).
@@ -301,7 +303,7 @@ def _floor_ratio(outcome: dict) -> float | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--config", type=Path, default=ROOT / "config" / "axis_default.yaml")
     parser.add_argument("-k", dest="only", default="", help="only programs whose name has this")
     parser.add_argument(

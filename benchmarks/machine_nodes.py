@@ -206,7 +206,7 @@ def link_round_trip(a, b) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--lockstep-seconds", type=float, default=10.0)
     parser.add_argument("--realtime-seconds", type=float, default=0.0)
     parser.add_argument("--hosts", action="store_true", help="also split over two namespaces")
@@ -257,13 +257,13 @@ def main() -> None:
             })  # fmt: skip
             print(f"two hosts: {hosts['timing_realtime_factor']:.2f}x real time, "
                   f"{two:.0f} us per exchange against {one:.0f} us on one host")  # fmt: skip
+        rt = None
         if args.realtime_seconds > 0:
             try:
                 rt = run(directory, "realtime", args.realtime_seconds, True)
             except SystemExit as exc:  # a trip on a loaded machine is a figure too
                 result["realtime_error"] = " ".join(str(exc).splitlines()[:2])[:300]
-                rt = None
-        if args.realtime_seconds > 0 and rt is not None:
+        if rt is not None:
             for key in ("lateness_p50_ms", "lateness_p99_ms", "lateness_max_ms", "missed_steps"):
                 result[f"realtime_{key}"] = rt.get(f"timing_{key}")
             result["realtime_steps"] = rt["timing_steps"]

@@ -241,7 +241,7 @@ def motulator_wall() -> tuple[float | None, str]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--skip-motulator", action="store_true")
     parser.add_argument("--native-only", action="store_true", help="only C next to numba")
     args = parser.parse_args()

@@ -97,6 +97,7 @@ def inline_chains(exe: Path, addresses: list[int]) -> dict[int, list[str]]:
             chains[current] = []
             i += 1
         else:
+            assert current is not None, f"perf's chains begin with an address, not {text[0]!r}"
             chains[current].append(readable(text[i]))
             i += 2  # the function's line, then its file:line
     return chains

@@ -106,7 +106,7 @@ def probe(seconds: float) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--lockstep-seconds", type=float, default=10.0)
     parser.add_argument("--realtime-seconds", type=float, default=60.0)
     parser.add_argument("--probe-seconds", type=float, default=30.0)

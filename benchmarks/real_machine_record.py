@@ -103,7 +103,9 @@ def hand_fit_rms(run, nominal: ModelDoc, start: int = 0) -> float:
     """RMS [N] of the effort left by a least-squares fit of the same effects by hand, on the
     samples from `start` on."""
     twin = Twin.compile(nominal)
-    e0 = twin.simulate(drive_from_run(run), twin.nominal[None, :]).effort[0]
+    e0 = twin.simulate(drive_from_run(run), twin.nominal[None, :]).effort
+    assert e0 is not None, "the record's map names an effort channel: the twin simulates it"
+    e0 = e0[0]
     m = motion_from_position(
         run.t_s, run["pos_meas_m"], effort_sim=e0, lead_m=None, pole_pairs=None, travel_m=0.1
     )
@@ -160,6 +162,8 @@ def main() -> None:
     start = twin.first_evidence(drive_from_run(runs[0]))
     trace = d.after_trace
     assert trace.effort_meas is not None and trace.effort_sim is not None
+    assert d.after.effort_rms is not None, "the record has an effort: its residual has an RMS"
+    assert d.validation is not None, "diagnose_program validates on the second repetition"
     after_evidence = float(np.sqrt(np.mean((trace.effort_meas - trace.effort_sim)[start:] ** 2)))
     hand_evidence = hand_fit_rms(runs[0], nominal, start)
     result = {

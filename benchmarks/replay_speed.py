@@ -150,7 +150,7 @@ def naming_ms() -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--duration", type=float, default=60.0, help="recording length [s]")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:

@@ -341,7 +341,7 @@ def input_cases() -> list[Case]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--skip-runs", action="store_true", help="input cases only")
     parser.add_argument("--only", default="", help="run the cases whose name contains this")
     args = parser.parse_args()

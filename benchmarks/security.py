@@ -179,6 +179,7 @@ def attack(work: Path, kind: str, topic: str, clean: dict, domain: int) -> dict:
         [sys.executable, "-c", INTRUDER, kind, topic, "120"],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=ROOT, env=env,
     )  # fmt: skip
+    assert intruder.stdout is not None, "started with stdout=PIPE"
     try:
         intruder.stdout.readline()  # "up"
         name = f"{kind}_{topic.rsplit('/', 1)[1]}"
@@ -231,7 +232,7 @@ def message_costs(repeats: int) -> dict[str, dict[str, float]]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--only", default="", help="the cases whose name contains this")
     parser.add_argument("--repeats", type=int, default=20000, help="for the per-message cost")
     parser.add_argument("--costs-only", action="store_true", help="no runs, the cost only")

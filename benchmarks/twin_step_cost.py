@@ -102,7 +102,7 @@ def cost(stream, per_step: int, tmp: Path, context, dashboard: bool) -> float:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").partition("\n")[0])
     parser.add_argument("--periods", type=int, default=10_000)
     parser.add_argument("--steps", default="1,2,5,10,20", help="periods per step, each timed")
     parser.add_argument("--no-dashboard", action="store_true", help="without the .rrd")

@@ -50,6 +50,13 @@ def last_json(stdout: str) -> dict:
     return json.loads(stdout.strip().splitlines()[-1])
 
 
+def found(pattern: str, text: str) -> re.Match[str]:
+    """The first match of `pattern` in `text` (a log the test reads); fails showing the text."""
+    match = re.search(pattern, text)
+    assert match is not None, f"{pattern!r} not in:\n{text}"
+    return match
+
+
 def raw_topics(bag: str) -> dict[str, list[bytes]]:
     """Every topic's message bytes in the bag, in the order written (as the nodes made them:
     the run's signatures do not reach the bag)."""

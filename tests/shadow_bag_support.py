@@ -56,6 +56,7 @@ def fingerprint(bag: str, directory: str) -> dict[str, dict[str, Any]]:
     data None on a topic without messages."""
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    from rosbags_support import decode
 
     store = get_typestore(Stores.EMPTY)
     out: dict[str, dict[str, Any]] = {}
@@ -72,7 +73,7 @@ def fingerprint(bag: str, directory: str) -> dict[str, dict[str, Any]]:
             if skipped is None:
                 h.update(raw)
                 continue
-            message = store.deserialize_cdr(raw, conn.msgtype)
+            message = decode(store, raw, conn.msgtype)
             kept = [_canonical(getattr(message, f.name), directory) for f in fields(message)
                     if f.name not in skipped]  # fmt: skip
             h.update(json.dumps(kept).encode())

@@ -106,6 +106,8 @@ def test_locate_finds_direction_position_and_screw_phase():
     amplitude = 2.0 / 12.0 * float(np.sum(phase_mean * np.cos(centres)))
     assert amplitude == pytest.approx(3.0 * np.sinc(30 / 360), abs=0.5)
     assert any("moving forward" in line for line in loc.summary())
-    assert loc.as_dict()["by_direction"]["labels"] == ["backward", "standstill", "forward"]
+    by_direction = loc.as_dict()["by_direction"]
+    assert isinstance(by_direction, dict)
+    assert by_direction["labels"] == ["backward", "standstill", "forward"]
     # the residual has a 20 N square wave at the 0.5 Hz reversal rhythm
     assert min(abs(f - 0.5) for f in loc.spectrum.peaks_hz[:2]) < 0.3

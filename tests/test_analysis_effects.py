@@ -37,7 +37,7 @@ REQUIRED = {
 
 
 def _motion(seed: int = 0):
-    t = H * np.arange(12000)
+    t = H * np.arange(12000, dtype=np.float64)
     # trapezoid-like back-and-forth moves of 0.1 m with dwell, plus a slow creep sweep
     x = 0.05 * (1 - np.cos(2 * math.pi * 0.25 * t)) ** 1.5 / 2**0.5 + 0.005 * np.sin(
         2 * math.pi * 0.9 * t

@@ -90,4 +90,6 @@ def test_the_twin_draws_the_current_the_factor_predicts():
     out = twin.simulate(_drive(t, 0.1), params)
     assert out.ok.all() and out.effort is not None
     d_i = float(np.mean(out.effort[1, steady] - out.effort[0, steady]))
-    assert d_i * twin.doc.force_per_effort("A") == pytest.approx(50.0, rel=0.01)
+    force_per_ampere = twin.doc.force_per_effort("A")
+    assert force_per_ampere is not None, "the axis model has a screw and a motor"
+    assert d_i * force_per_ampere == pytest.approx(50.0, rel=0.01)

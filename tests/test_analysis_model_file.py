@@ -20,6 +20,7 @@ EMPS = Path("/work/shared/data/emps")
 def test_a_fitted_gain_keeps_the_records_conversion_through_model_yaml(tmp_path):
     nominal = ModelDoc.load(ROOT / "config" / "emps_nominal.yaml")
     slot = nominal.gain_slot()
+    assert slot is not None, "emps_nominal.yaml's drive has a gain"
     fitted = nominal.set(slot, 0.85 * nominal.get(slot))  # a torque-constant error, fitted
     fitted.dump(tmp_path / "model.yaml", ["fitted"])
     again = ModelDoc.load(tmp_path / "model.yaml")

@@ -18,7 +18,7 @@ import yaml
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.placed import diagnose_program
 from feed_twin.analysis.program import command_from_program
-from feed_twin.analysis.recorder import window_mean
+from feed_twin.analysis.recorder import period_mean
 from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM, as_trace, generate, write_with_nc
 from feed_twin.analysis.twin import Drive, ModelDoc, Twin
 from feed_twin.core import signals
@@ -102,7 +102,7 @@ def test_the_channel_delay_on_the_base_ticks_commutes_with_the_trace_mean(nomina
     fine = twin.simulate(_drive(t_fine, plan, trace_mean=False), twin.nominal[None, :])
     trace = twin.simulate(_drive(t_trace, plan, trace_mean=True), twin.nominal[None, :])
     assert fine.effort is not None and trace.effort is not None
-    expected = window_mean(fine.effort, TRACE_TICKS)[0]
+    expected = period_mean(fine.effort, TRACE_TICKS)[0]
     scale = float(np.max(np.abs(expected)))
     assert np.max(np.abs(trace.effort[0] - expected)) < 1e-9 * scale
     # the delay search's path (one simulation, one row per delay) gives the same effort

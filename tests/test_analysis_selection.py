@@ -165,3 +165,28 @@ def test_a_support_that_is_nearly_the_whole_record_is_judged_as_the_record():
     few[:300] = True
     assert not supported(few, 4.0, 400.0)  # a few samples in a record of many
     assert supported(few, 12.0, 400.0) and supported(None, 1.0, 400.0)
+
+
+def test_a_rival_on_its_fallback_residual_leaves_a_place_for_that_residuals_own_leader():
+    """Without voltages the dead time is ranked on the effort (its fallback) and took 53 % of
+    it, the effort's one place beside the record's timings; the truth machine's 4 ms feedback
+    delay (24 % of the effort, measurement_delay's own residual) was then never fitted and the
+    delay was named a command delay. The best effect ranked on its own residual is fitted too;
+    one that already has a place is not fitted twice."""
+    from feed_twin.analysis.rounds import Options, choose_rivals
+
+    ranked = [
+        _candidate("command_delay", "position", 0.98),
+        _candidate("position_delay", "position", 0.98),
+        _candidate("dead_time", "effort", 0.53),
+        _candidate("channel_delay", "effort", 0.30),
+        _candidate("measurement_delay", "effort", 0.24),
+    ]
+    chosen = [c.name for c in choose_rivals(ranked, Options())]
+    assert chosen == ["command_delay", "position_delay", "dead_time", "channel_delay"]
+    # channel_delay is ranked on the effort as its own; without it the next such one is fitted
+    chosen = [c.name for c in choose_rivals(ranked[:3] + ranked[4:], Options())]
+    assert chosen == ["command_delay", "position_delay", "dead_time", "measurement_delay"]
+    # ranked on its own residual (a recorded q-voltage) the dead time takes the place alone
+    alone = [_candidate("dead_time", "voltage", 0.9), _candidate("constant_force", "effort", 0.5)]
+    assert [c.name for c in choose_rivals(alone, Options())] == ["dead_time", "constant_force"]

@@ -76,10 +76,12 @@ def test_a_50_hz_averaged_trace_is_matched_by_averaging_the_twin_and_interpolati
     drive = drive_from_run(run)
     assert drive.trace_mean
     f = run["force_cmd_N"]
-    averaged = twin.simulate(drive, twin.nominal[None, :]).effort[0]
+    averaged = twin.simulate(drive, twin.nominal[None, :]).effort
     pointwise = twin.simulate(
         dataclasses.replace(drive, trace_mean=False), twin.nominal[None, :]
-    ).effort[0]
+    ).effort
+    assert averaged is not None and pointwise is not None, "the map names force_cmd_N"
+    averaged, pointwise = averaged[0], pointwise[0]
     # past the first 0.2 s: the first samples average time before the record began
     late = run.t_s - run.t_s[0] > 0.2
     err = np.sqrt(np.mean((averaged - f)[late] ** 2))

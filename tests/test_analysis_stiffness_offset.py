@@ -189,7 +189,7 @@ def test_current_offset_edit_needs_a_current_sensor():
 def test_once_per_electrical_revolution_is_not_searched_as_cogging():
     from feed_twin.analysis.effects import motion_from_position
 
-    t = np.arange(2000) * 1e-3
+    t = np.arange(2000, dtype=np.float64) * 1e-3
     motion = motion_from_position(
         t, 0.05 * t, effort_sim=None, lead_m=0.01, pole_pairs=4, travel_m=0.1
     )

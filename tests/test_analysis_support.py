@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from feed_twin.analysis.effects import BY_NAME, motion_from_position
+from feed_twin.analysis.effects import BY_NAME, Motion, motion_from_position
 from feed_twin.analysis.ranking import rank, signature_support
 from feed_twin.analysis.reexamine import fell_back
 from feed_twin.analysis.rounds import _searched
@@ -30,10 +30,16 @@ def _moves_with_short_rests() -> tuple[np.ndarray, np.ndarray]:
     return t, np.convolve(x, kernel, mode="same")
 
 
+def _stiction_signature(m: Motion) -> dict[str, np.ndarray]:
+    signature = BY_NAME["stiction"].signature
+    assert signature is not None, "stiction is searched by its signature"
+    return signature(m)
+
+
 def test_the_support_of_a_held_force_is_the_samples_at_rest():
     t, x = _moves_with_short_rests()
     m = motion_from_position(t, x, effort_sim=None, lead_m=None, pole_pairs=None, travel_m=0.1)
-    held = BY_NAME["stiction"].signature(m)
+    held = _stiction_signature(m)
     support = signature_support(held)
     assert support is not None
     # at rest after the first move (before it, no force is held: no direction yet)
@@ -49,7 +55,7 @@ def test_a_held_force_diluted_by_an_error_while_moving_is_screened_where_it_live
     about 1 % of the whole residual, most of the residual at rest."""
     t, x = _moves_with_short_rests()
     m = motion_from_position(t, x, effort_sim=None, lead_m=None, pole_pairs=None, travel_m=0.1)
-    held = BY_NAME["stiction"].signature(m)["held"]
+    held = _stiction_signature(m)["held"]
     rng = np.random.default_rng(1)
     moving_error = 42.0 * np.sin(2 * np.pi * 7.3 * t + 3.0 * np.sin(2 * np.pi * 0.37 * t))
     r = 10.0 * held + moving_error * (1.0 - np.abs(held)) + 0.3 * rng.standard_normal(len(t))

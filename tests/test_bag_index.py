@@ -9,6 +9,7 @@ import re
 import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -51,7 +52,7 @@ def _read(path: Path) -> list[bytes]:
 
 
 @pytest.fixture
-def work() -> Path:
+def work() -> Iterator[Path]:
     """A RAM directory where there is one (fsync is free there), else a temporary one."""
     base = Path("/dev/shm") if Path("/dev/shm").is_dir() else Path("/tmp")
     path = base / f"feed_twin_bag_index_{os.getpid()}"

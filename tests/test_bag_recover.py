@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
+from rosbags_support import decode
 
 from feed_twin.cli import main as cli_main
 from feed_twin.io.bag import BagError, BagReader, info, recover
@@ -45,6 +46,7 @@ def run_and_kill(bag: Path, seconds: float) -> int:
     proc = subprocess.Popen(
         [sys.executable, "-c", CHILD, str(bag)], stdout=subprocess.PIPE, text=True
     )
+    assert proc.stdout is not None, "started with stdout=PIPE"
     written = 0
     try:
         deadline = time.monotonic() + 30.0
@@ -88,9 +90,7 @@ def test_sigkilled_recording_is_recovered_and_read_by_rosbags(
 
     store = get_typestore(Stores.ROS2_JAZZY)
     with Reader(bag) as reader:
-        values = [
-            store.deserialize_cdr(raw, conn.msgtype).data for conn, _, raw in reader.messages()
-        ]
+        values = [decode(store, raw, conn.msgtype).data for conn, _, raw in reader.messages()]
     kept = len(values)
     # Every message up to the last flush survives, in order; at most one flush period (plus
     # scheduling slack of one more) of the stream is lost.

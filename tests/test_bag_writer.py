@@ -13,6 +13,7 @@ import yaml
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags_support import offered_qos
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
@@ -96,7 +97,7 @@ def test_qos_and_type_hash_are_stored_per_topic(sample_bag: Path) -> None:
     with Reader(sample_bag) as reader:
         conns = {c.topic: c for c in reader.connections}
     scalar = conns["/m/x/scalar"]
-    (qos,) = scalar.ext.offered_qos_profiles
+    (qos,) = offered_qos(scalar)
     assert qos.depth == 1
     assert qos.reliability.name == "RELIABLE"
     assert qos.lifespan.sec == 0 and qos.lifespan.nsec == 250_000_000

@@ -62,7 +62,9 @@ def test_pi_integrator_resumes_when_the_error_reverses():
     assert u == pytest.approx(0.3) and x_i == pytest.approx(0.48)
 
 
-def _run_sine(coeffs, f_hz: float, period_s: float, cycles: int = 60) -> float:
+def _run_sine(
+    coeffs: tuple[float, float, float, float, float], f_hz: float, period_s: float, cycles: int = 60
+) -> float:
     s1 = s2 = 0.0
     n = int(cycles / (f_hz * period_s))
     y = np.empty(n)

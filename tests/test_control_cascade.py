@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from controller_support import current_loop, position_loop, velocity_loop
 
 from feed_twin.control import cascade as cc
 from feed_twin.control import config as ccfg
@@ -59,7 +60,7 @@ def _voltage_dq(out: np.ndarray, theta_e: float) -> tuple[float, float]:
 
 
 def test_duties_computed_at_tick_k_apply_from_tick_k_plus_one():
-    kp = AXIS.current.Kp_q_V_A
+    kp = current_loop(AXIS).Kp_q_V_A
     rig = Rig(dataclasses.replace(AXIS, mode="torque"))
     rig.ref[sig.REF_I_Q_EXT_A] = 2.0
     first = rig.tick(0)
@@ -74,7 +75,7 @@ def test_duties_computed_at_tick_k_apply_from_tick_k_plus_one():
 
 def test_park_angle_is_encoder_times_pole_pairs_and_decoupling_feeds_forward():
     config = dataclasses.replace(AXIS, mode="torque", computation_delay=False)
-    cur = config.current
+    cur = current_loop(config)
     rig = Rig(config)
     theta_m = 0.7
     theta_e = cur.pole_pairs * theta_m
@@ -87,7 +88,7 @@ def test_park_angle_is_encoder_times_pole_pairs_and_decoupling_feeds_forward():
     rig.cs[lay.S_VEL_EST] = v_load
     rig.cs[lay.S_ENC_POS_PREV] = theta_m * config.drive.lead_m / (2 * math.pi)
     rig.cs[lay.S_FIR_HIST : lay.S_FIR_HIST + 2] = v_load
-    rig.cs[lay.S_ENC_POS_PREV] -= v_load * config.velocity.period_s
+    rig.cs[lay.S_ENC_POS_PREV] -= v_load * velocity_loop(config).period_s
     out = rig.tick(0)
     omega_e = cur.pole_pairs * v_load * 2 * math.pi / config.drive.lead_m
     u_d_expected = cur.Kp_d_V_A * (0.0 - i_d) - omega_e * cur.L_q_H * i_q
@@ -101,7 +102,7 @@ def test_park_angle_is_encoder_times_pole_pairs_and_decoupling_feeds_forward():
 def test_angle_advance_rotates_the_output_vector():
     base = dataclasses.replace(AXIS, mode="torque", computation_delay=False)
     advanced = dataclasses.replace(
-        base, current=dataclasses.replace(base.current, angle_advance_periods=1.5)
+        base, current=dataclasses.replace(current_loop(base), angle_advance_periods=1.5)
     )
     outs = []
     for config in (base, advanced):
@@ -110,7 +111,7 @@ def test_angle_advance_rotates_the_output_vector():
         rig.cs[lay.S_INITIALISED] = lay.STARTED
         rig.cs[lay.S_VEL_EST] = 0.2
         rig.cs[lay.S_FIR_HIST : lay.S_FIR_HIST + 2] = 0.2
-        rig.cs[lay.S_ENC_POS_PREV] = -0.2 * config.velocity.period_s
+        rig.cs[lay.S_ENC_POS_PREV] = -0.2 * velocity_loop(config).period_s
         outs.append(rig.tick(0))
     omega_e = 4 * 0.2 * 2 * math.pi / 0.01
     angle = 1.5 * omega_e * 62.5e-6
@@ -156,7 +157,7 @@ def test_loops_run_at_their_own_rates():
 
 def _ramp_rig(interpolation: str) -> tuple[Rig, float, float]:
     config = dataclasses.replace(
-        AXIS, position=dataclasses.replace(AXIS.position, interpolation=interpolation)
+        AXIS, position=dataclasses.replace(position_loop(AXIS), interpolation=interpolation)
     )
     return Rig(config), 0.2, config.nc_period_s
 
@@ -166,7 +167,7 @@ def test_fine_interpolation_of_an_nc_ramp(interpolation):
     rig, v, t_nc = _ramp_rig(interpolation)
     base = AXIS.base_period_s
     nc_div = round(t_nc / base)
-    pos_div = round(AXIS.position.period_s / base)
+    pos_div = round(position_loop(AXIS).period_s / base)
     for k in range(0, 5 * nc_div):
         if k % nc_div == 0:
             rig.ref[sig.REF_POS_M] = v * k * base
@@ -184,7 +185,7 @@ def test_fine_interpolation_of_an_nc_ramp(interpolation):
         assert out[sig.OUT_POS_REF_M] == pytest.approx(expected, rel=1e-12, abs=1e-15)
 
 
-def _cubic(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _cubic(t: float) -> tuple[float, float, float]:
     """x, v, a of x(t) = 0.1 + 0.2 t - 3 t^2 + 40 t^3 [m, s]."""
     return 0.1 + 0.2 * t - 3.0 * t**2 + 40.0 * t**3, 0.2 - 6.0 * t + 120.0 * t**2, -6.0 + 240.0 * t
 
@@ -192,12 +193,11 @@ def _cubic(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def test_cubic_interpolation_reproduces_a_cubic_one_nc_period_late():
     """A Hermite segment through two samples' positions and velocities is the cubic itself."""
     t_nc, t0 = 1e-3, 0.02
-    prev = tuple(float(y) for y in _cubic(np.array(t0)))
-    cur = tuple(float(y) for y in _cubic(np.array(t0 + t_nc)))
+    prev = _cubic(t0)
+    cur = _cubic(t0 + t_nc)
     for s in (0.0, 0.25, 0.5, 0.875, 1.0):
         x, v, a = cc.interpolate(ccfg.INTERP_CUBIC, s, t_nc, prev, cur)
-        want = _cubic(np.array(t0 + s * t_nc))
-        assert (x, v, a) == pytest.approx(tuple(float(y) for y in want), rel=1e-9, abs=1e-12)
+        assert (x, v, a) == pytest.approx(_cubic(t0 + s * t_nc), rel=1e-9, abs=1e-12)
 
 
 def test_cubic_interpolation_equals_scipys_hermite_spline():
@@ -220,12 +220,12 @@ def test_feed_forward_at_the_velocity_rate_holds_only_the_position_loops_part(ra
     """An NC ramp of the speed (constant acceleration): at the position rate the whole
     velocity command is held between position samples; at the velocity rate the speed
     feed-forward is interpolated at each velocity sample and only Kv e is held."""
-    position = dataclasses.replace(AXIS.position, feed_forward_rate=rate, acceleration_ff=0.0)
+    position = dataclasses.replace(position_loop(AXIS), feed_forward_rate=rate, acceleration_ff=0.0)
     rig = Rig(dataclasses.replace(AXIS, position=position))
     base, t_nc, acc = AXIS.base_period_s, AXIS.nc_period_s, 2.0
     nc_div = round(t_nc / base)
     pos_div = round(position.period_s / base)
-    vel_div = round(AXIS.velocity.period_s / base)
+    vel_div = round(velocity_loop(AXIS).period_s / base)
     assert pos_div == 2 * vel_div  # the axis' position loop runs at half the velocity rate
     x_meas = -1e-4
     rig.meas[sig.MEAS_X_SCALE_M] = x_meas
@@ -240,7 +240,7 @@ def test_feed_forward_at_the_velocity_rate_holds_only_the_position_loops_part(ra
         e = _chord(acc, t_pos, t_nc) - x_meas
         t_ff = t if rate == "velocity" else t_pos
         v_ff = acc * (t_ff - t_nc)  # the speed ramps linearly: linear interpolation is exact
-        want = AXIS.position.Kv_1_s * e + v_ff
+        want = position_loop(AXIS).Kv_1_s * e + v_ff
         assert out[sig.OUT_VEL_REF_M_S] == pytest.approx(want, rel=1e-12, abs=1e-15)
 
 
@@ -273,7 +273,7 @@ def test_emps_velocity_mode_takes_the_external_setpoint():
 
 def test_following_error_trips_latches_and_clears():
     config = dataclasses.replace(
-        EMPS, position=dataclasses.replace(EMPS.position, following_error_limit_m=1e-3)
+        EMPS, position=dataclasses.replace(position_loop(EMPS), following_error_limit_m=1e-3)
     )
     rig = Rig(config)
     rig.ref[sig.REF_POS_M] = 1e-4
@@ -378,7 +378,7 @@ def test_fir_velocity_estimate_is_exact_on_a_ramp(taps):
     config = dataclasses.replace(
         EMPS,
         velocity=dataclasses.replace(
-            EMPS.velocity, estimator=ccfg.VelocityEstimatorConfig(fir_taps=taps)
+            velocity_loop(EMPS), estimator=ccfg.VelocityEstimatorConfig(fir_taps=taps)
         ),
     )
     loop = VelocityLoop(config)
@@ -409,7 +409,7 @@ def test_estimator_lowpass_is_first_order_with_its_corner_frequency():
     config = dataclasses.replace(
         EMPS,
         velocity=dataclasses.replace(
-            EMPS.velocity,
+            velocity_loop(EMPS),
             estimator=ccfg.VelocityEstimatorConfig(fir_taps=(1.0,), lowpass_hz=f_c),
         ),
     )
@@ -431,11 +431,13 @@ def test_notch_on_the_current_setpoint_attenuates_at_its_centre(depth):
     plain = dataclasses.replace(
         EMPS,
         velocity=dataclasses.replace(
-            EMPS.velocity, estimator=ccfg.VelocityEstimatorConfig(fir_taps=(1.0,))
+            velocity_loop(EMPS), estimator=ccfg.VelocityEstimatorConfig(fir_taps=(1.0,))
         ),
     )
     notch = ccfg.NotchConfig(frequency_hz=f0, bandwidth_hz=40.0, depth=depth)
-    notched = dataclasses.replace(plain, velocity=dataclasses.replace(plain.velocity, notch=notch))
+    notched = dataclasses.replace(
+        plain, velocity=dataclasses.replace(velocity_loop(plain), notch=notch)
+    )
     amplitudes = []
     for config in (plain, notched):
         loop = VelocityLoop(config)

@@ -281,12 +281,19 @@ def test_source_digest_names_the_kernel_sources():
             "pole_pairs = 2.0: must be a whole number",
         ),
         (
-            lambda: ccfg.PositionLoopConfig(period_s=1e-3, Kv_1_s=10.0, feedback="tacho"),
+            lambda: ccfg.PositionLoopConfig(
+                period_s=1e-3,
+                Kv_1_s=10.0,
+                feedback="tacho",  # pyright: ignore[reportArgumentType]  the bad value under test
+            ),
             "feedback = 'tacho': must be one of 'motor_encoder', 'linear_scale'",
         ),
         (
             lambda: ccfg.PositionLoopConfig(
-                period_s=1e-3, Kv_1_s=10.0, feedback="linear_scale", feed_forward_rate="nc"
+                period_s=1e-3,
+                Kv_1_s=10.0,
+                feedback="linear_scale",
+                feed_forward_rate="nc",  # pyright: ignore[reportArgumentType]  the bad value under test
             ),
             "feed_forward_rate = 'nc': must be one of 'position', 'velocity'",
         ),

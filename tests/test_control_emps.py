@@ -36,7 +36,9 @@ def _replay(csv_name: str, config_file: Path) -> tuple[np.ndarray, np.ndarray, n
     ref = np.zeros(sig.REF_SIZE)
     meas = np.zeros(sig.MEAS_SIZE)
     out = np.zeros(sig.OUT_SIZE)
-    pulses = data["pulses_N"] if "pulses_N" in data.dtype.names else np.zeros(len(data))
+    names = data.dtype.names
+    assert names is not None, "the EMPS record reads as a structured array of named columns"
+    pulses = data["pulses_N"] if "pulses_N" in names else np.zeros(len(data))
     rad_per_m = 2.0 * math.pi / config.drive.lead_m
     vir = np.empty(len(data))
     for k in range(len(data)):

@@ -21,7 +21,8 @@ RNG = np.random.default_rng(7)
 
 
 def _phases(amplitude: float, angle: float, zero_seq: float = 0.0) -> tuple[float, float, float]:
-    return tuple(amplitude * math.cos(angle - i * 2.0 * math.pi / 3.0) + zero_seq for i in range(3))
+    a, b, c = (amplitude * math.cos(angle - i * 2.0 * math.pi / 3.0) + zero_seq for i in range(3))
+    return a, b, c
 
 
 def test_clarke_of_balanced_set_has_the_phase_amplitude_and_angle():

@@ -3,6 +3,7 @@
 import argparse
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -201,7 +202,7 @@ def test_tune_subcommand_with_a_load_mode(capsys):
 
 
 def test_velocity_tuning_input_errors():
-    kwargs = dict(
+    kwargs: dict[str, Any] = dict(  # the arguments under test, one changed at a time
         J_total_kg_m2=1e-3,
         K_t=1.0,
         lead_m=0.01,

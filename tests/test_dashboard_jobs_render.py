@@ -5,6 +5,7 @@ LinuxCNC run and `diagnose`."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -97,7 +98,8 @@ def _machine_run():
     actual = traj.pos_m - np.outer(wobble, np.ones(traj.pos_m.shape[1]))
     normal = np.abs(wobble) * (1.0 + np.sin(3.0 * t) ** 2)
     errors = {a: traj.pos_m[:, k] - actual[:, k] for k, a in enumerate(nc.axis_names[:3])}
-    run = SimpleNamespace(
+    # the fields of a MachineRun that write_machine_dashboard reads
+    run: Any = SimpleNamespace(
         t_s=t,
         actual=actual,
         simulated=tuple(errors),
@@ -114,7 +116,7 @@ def test_the_machine_dashboard_shows_every_panel(tmp_path: Path) -> None:
     frames = {name: blank_frame for name, _, _ in machine_dash.VIEWS}
     empty = rr.RecordingStream("feed_twin")
     empty.save(tmp_path / "empty.rrd", default_blueprint=machine_dash.machine_blueprint(frames))
-    titles = list(machine_dash.PANEL_TITLES)
+    titles: list[str] = list(machine_dash.PANEL_TITLES)
     columns = machine_dash.GRID_COLUMNS
     full = grid_cells(render(tmp_path / "machine.rrd", tmp_path / "m.png"), len(titles), columns)
     blank = grid_cells(render(tmp_path / "empty.rrd", tmp_path / "e.png"), len(titles), columns)

@@ -56,7 +56,9 @@ def test_info_reports_the_installed_message_package():
     )
     msgs = Path(__file__).parents[1] / "msgs"
     sources = sorted(p.stem for p in (msgs / "msg").glob("*.msg"))
-    version = re.search(r"<version>(.+)</version>", (msgs / "package.xml").read_text())[1]
+    found = re.search(r"<version>(.+)</version>", (msgs / "package.xml").read_text())
+    assert found is not None, "msgs/package.xml names its version"
+    version = found[1]
     line = next(x for x in result.stdout.splitlines() if x.strip().startswith("feed_twin_msgs"))
     assert line.split(None, 1)[1] == f"{version} ({', '.join(sources)})"
 

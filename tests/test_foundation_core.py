@@ -38,6 +38,8 @@ def ros_imports(source: str, filename: str) -> list[str]:
     importlib.import_module("...") and __import__("...") with a literal name."""
     found = []
     for node in ast.walk(ast.parse(source, filename=filename)):
+        if not isinstance(node, (ast.stmt, ast.expr)):  # imports and calls: with a line
+            continue
         names: list[str] = []
         if isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]

@@ -46,6 +46,7 @@ def test_an_id_held_by_another_process_is_skipped_and_freed_when_it_dies(tmp_pat
         stdout=subprocess.PIPE,
         text=True,
     )
+    assert holder.stdout is not None, "started with stdout=PIPE"
     try:
         held = int(holder.stdout.readline())
         ours = []
@@ -157,6 +158,7 @@ def test_a_domain_a_participant_uses_without_a_lock_is_skipped(tmp_path):
         text=True,
         env={**os.environ, **private_graph_env(LAST_DOMAIN_ID)},
     )
+    assert probe.stdout is not None, "started with stdout=PIPE"
     try:
         assert probe.stdout.readline().strip() == "up"
         assert domain_in_use(LAST_DOMAIN_ID)

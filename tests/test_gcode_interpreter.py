@@ -30,6 +30,13 @@ def run(text: str, config=CONFIG):
     return list(Interpreter(config, file=file).run(blocks))
 
 
+def moves(text: str, config=CONFIG) -> list[Move]:
+    items = run(text, config)
+    found = [item for item in items if isinstance(item, Move)]
+    assert len(found) == len(items), f"not only moves: {items}"
+    return found
+
+
 def ends(text: str, config=CONFIG) -> np.ndarray:
     return np.array([item.end_m for item in run(text, config) if isinstance(item, Move)])
 
@@ -42,17 +49,17 @@ def test_absolute_incremental_and_metric():
 
 
 def test_inch_units_scale_geometry_and_feed():
-    items = run("G20 G1 X1 Y-0.5 F10")
+    items = moves("G20 G1 X1 Y-0.5 F10")
     np.testing.assert_allclose(items[0].end_m, [0.0254, -0.0127, 0.0], rtol=1e-15)
     assert items[0].feed_m_s == pytest.approx(10 * 0.0254 / 60, rel=1e-15)
 
 
 def test_sinumerik_g70_keeps_feed_metric_and_g700_switches_feed_too():
-    g70 = run("G70 G1 X1 F600")[0]
+    g70 = moves("G70 G1 X1 F600")[0]
     assert g70.end_m[0] == pytest.approx(0.0254) and g70.feed_m_s == pytest.approx(0.01)
-    g700 = run("G700 G1 X1 F60")[0]
+    g700 = moves("G700 G1 X1 F60")[0]
     assert g700.feed_m_s == pytest.approx(60 * 0.0254 / 60)
-    back = run("G700 G1 X1 F60\nG710 X10 F600")[1]
+    back = moves("G700 G1 X1 F60\nG710 X10 F600")[1]
     assert back.end_m[0] == pytest.approx(0.01) and back.feed_m_s == pytest.approx(0.01)
 
 
@@ -156,7 +163,7 @@ def test_dwell_units_and_fanuc_x_dwell():
 
 
 def test_path_control_modes_and_tolerance():
-    items = run("G1 X1 F100\nG61 X2\nG64 P0.005 X3\nX4 G9\nG64 X5\nG64 P0.003 Q0.001 X6")
+    items = moves("G1 X1 F100\nG61 X2\nG64 P0.005 X3\nX4 G9\nG64 X5\nG64 P0.003 Q0.001 X6")
     assert [i.exact_stop for i in items] == [False, True, False, True, False, False]
     assert [i.tolerance_m for i in items] == pytest.approx(
         [2e-5, 2e-5, 5e-6, 5e-6, CONFIG.path_tolerance_m, 3e-6]

@@ -5,11 +5,13 @@ from __future__ import annotations
 import pytest
 
 from feed_twin.gcode.errors import GcodeError
-from feed_twin.gcode.lexer import iter_source_lines, lex_line
+from feed_twin.gcode.lexer import Block, iter_source_lines, lex_line
 
 
-def lex(text: str, *, block_delete: bool = True):
-    return lex_line(text, 7, file="p.ngc", block_delete=block_delete)
+def lex(text: str, *, block_delete: bool = True) -> Block:
+    block = lex_line(text, 7, file="p.ngc", block_delete=block_delete)
+    assert block is not None, f"{text!r}: no block"
+    return block
 
 
 def test_words_letters_values_and_columns():
@@ -37,7 +39,7 @@ def test_whitespace_inside_words_and_no_spaces_between_words():
     "text", ["", "   ", "%", "(only a comment)", "; semicolon comment", "/G1 X5", "  % end"]
 )
 def test_lines_without_blocks(text):
-    assert lex(text) is None
+    assert lex_line(text, 7, file="p.ngc", block_delete=True) is None
 
 
 def test_block_delete_switch_off_keeps_the_block():

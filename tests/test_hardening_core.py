@@ -68,6 +68,7 @@ def test_following_error_trips_at_the_first_exceedance_and_latches():
 
 def test_speed_and_nan_trip():
     trip = DriveProtection(limits(), exchange_ns=MS).check(0, 0.0, 0.0, -0.43)
+    assert trip is not None, "430 mm/s is beyond the 420 mm/s limit: a trip"
     assert (
         trip.code == FAULT_OVERSPEED and "speed 430.0 mm/s exceeds the limit 420.0" in trip.text()
     )
@@ -82,8 +83,11 @@ def test_current_at_its_limit_trips_only_after_the_allowed_time():
         assert guard.check(k * MS, 0.0, 29.0, 0.1) is None
     assert guard.check(300 * MS, 0.0, 20.0, 0.1) is None
     trips = [guard.check((301 + k) * MS, 0.0, -28.6, 0.1) for k in range(501)]
-    assert all(t is None for t in trips[:500]) and trips[500].code == FAULT_CURRENT_LIMIT
-    assert "current 28.60 A at the limit 30.00 A" in trips[500].text()
+    assert all(t is None for t in trips[:500])
+    last = trips[500]
+    assert last is not None, "0.5 s at the current limit: a trip at the 501st exchange"
+    assert last.code == FAULT_CURRENT_LIMIT
+    assert "current 28.60 A at the limit 30.00 A" in last.text()
 
 
 def test_describe_trip_names_the_program_line():
@@ -99,6 +103,7 @@ def test_reachability_of_the_default_config_and_its_closed_forms():
     nc = load_nc_config(AXIS)
     check_reachable(axis, nc, None, source="x")  # the fixed default passes
     cap = capability(axis)
+    assert cap is not None, "the default config has a controller and a screw: a capability"
     # no acceleration, no friction: the voltage is the back-EMF p psi_pm omega_m (R_s, L i small)
     bare = dataclasses.replace(cap, F_c_N=0.0, F_v_N_s_m=0.0)
     omega_m = 2.0 * math.pi * 0.3 / 0.01
@@ -191,7 +196,7 @@ def test_command_values_and_program_states():
     # the per-exchange fast path agrees with check_values on every kind of value
     bounds = bounds_of(("position", "i_q"))
     for values in ((0.4, -1e4), (0.4, math.nan), (math.inf, 0.0), (-1e3, 2e4), (-1000.1, 0.0)):
-        named = dict(zip(("position", "i_q"), values, strict=True))
+        named: dict[str, float] = dict(zip(("position", "i_q"), values, strict=True))
         assert within_bounds(values, bounds) == (check_values(named) is None), values
     with pytest.raises(ValueError, match="no ABSURD bound for line"):
         bounds_of(("position", "line"))
@@ -237,9 +242,11 @@ def test_domain_of_a_run(monkeypatch):
     monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
     assert run_domain(17) == (None, 17)
     reservation, domain = run_domain(None)
+    assert reservation is not None, "without ROS_DOMAIN_ID a run reserves a domain"
     try:
-        assert reservation is not None and domain == reservation.domain_id
+        assert domain == reservation.domain_id
         other, second = run_domain(None)
+        assert other is not None, "a second run without ROS_DOMAIN_ID reserves one too"
         assert second != domain  # a second run on the host gets another domain
         other.release()
     finally:
@@ -380,6 +387,7 @@ def test_limits_of_the_default_config(tmp_path):
     from feed_twin.nodeset.protection import protection_for_config
 
     guard = protection_for_config(AXIS, load_node_set_config(AXIS), MS)
+    assert guard is not None, "the default config's protection is on"
     assert guard.limits == DriveLimits(
         following_error_m=2e-3, current_A=30.0, current_time_s=0.5, speed_m_s=1.2 * 0.35
     )

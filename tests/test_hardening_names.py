@@ -192,7 +192,9 @@ def test_the_reach_check_holds_the_weight_of_a_vertical_axis(tmp_path, capsys):
     # the default Z (202 kg, 1500 N balanced) is within reach; X carries no weight
     default = load_machine_config(MACHINE)
     check_reachable(default.axes["Z"], nc, None, source="m")
-    assert capability(default.axes["X"]).F_static_N == 0.0
+    cap_x = capability(default.axes["X"])
+    assert cap_x is not None, "the default X has a controller and a screw: a capability"
+    assert cap_x.F_static_N == 0.0
     code = cli_main(["run", str(_program(tmp_path)), "--config", str(tmp_path / "heavy.yaml"),
                      "--in-process", "--out", str(tmp_path / "o"), "--name", "h"])  # fmt: skip
     assert code == 1
@@ -212,4 +214,6 @@ def test_a_gas_spring_is_judged_at_the_worst_end_of_the_travel(tmp_path):
     z = load_machine_config(path).axes["Z"]
     weight = 202.0 * 9.80665
     # at s = 0.5 the spring pushes 1500 - 600 * 0.25 = 1350 N: the largest net load
-    assert capability(z, (0.0, 0.5)).F_static_N == pytest.approx(weight - 1350.0)
+    cap = capability(z, (0.0, 0.5))
+    assert cap is not None, "the default Z has a controller and a screw: a capability"
+    assert cap.F_static_N == pytest.approx(weight - 1350.0)

@@ -139,6 +139,14 @@ def test_segment_keeps_the_chosen_time_window(tmp_path):
         segment(run, 0.2, 0.3)
 
 
+def _nominal_gain() -> float:
+    from feed_twin.analysis.twin import ModelDoc
+
+    gain = ModelDoc.load(NOMINAL).reference_gain
+    assert gain is not None, f"{NOMINAL.name} records its effort's reference gain"
+    return gain
+
+
 def _emps_record(tmp_path: Path, *, gain: float) -> tuple[Path, Path]:
     from feed_twin.analysis.synthetic import generate, write_csv
     from feed_twin.analysis.twin import ModelDoc
@@ -153,9 +161,7 @@ def _emps_record(tmp_path: Path, *, gain: float) -> tuple[Path, Path]:
 
 @pytest.mark.slow
 def test_a_reversed_effort_sign_is_said_in_one_line(tmp_path, capsys):
-    from feed_twin.analysis.twin import ModelDoc
-
-    gain = ModelDoc.load(NOMINAL).reference_gain
+    gain = _nominal_gain()
     csv, map_path = _emps_record(tmp_path, gain=-gain)
     code = main(["diagnose", str(csv), "--config", str(NOMINAL), "--map", str(map_path),
                  "--out", str(tmp_path / "out")])  # fmt: skip
@@ -181,9 +187,8 @@ def test_out_naming_an_existing_file_is_refused(tmp_path, capsys):
 def test_simulate_from_the_program_on_a_segment(tmp_path, capsys):
     """A scope without command: simulate plans the G-code that ran and places it on the clock."""
     from feed_twin.analysis.synthetic import NC_CONFIG, PROGRAM
-    from feed_twin.analysis.twin import ModelDoc
 
-    gain = ModelDoc.load(NOMINAL).reference_gain
+    gain = _nominal_gain()
     csv, map_path = _emps_record(tmp_path, gain=gain)
     map_path.write_text(
         map_path.read_text().replace("  pos_cmd_m: {column: x_cmd_mm, unit: mm}\n", "")
@@ -206,9 +211,7 @@ def test_simulate_from_the_program_on_a_segment(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_report_json_keeps_the_efforts_unit(tmp_path):
-    from feed_twin.analysis.twin import ModelDoc
-
-    gain = ModelDoc.load(NOMINAL).reference_gain
+    gain = _nominal_gain()
     csv, map_path = _emps_record(tmp_path, gain=gain)
     code = main(["diagnose", str(csv), "--config", str(NOMINAL), "--map", str(map_path),
                  "--out", str(tmp_path / "out")])  # fmt: skip

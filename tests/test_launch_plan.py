@@ -69,7 +69,11 @@ def test_one_node_runs_its_module_and_several_share_the_host() -> None:
             lambda: RunPlan.of({"a": [("sim", [])]}, clock="a").process("b"),
             "run plan: no process 'b' (processes: a)",
         ),
-        (lambda: RunRequest(config=AXIS, program=None, nc="fanuc"), "nc = 'fanuc': must be one"),
+        (
+            # the bad value under test
+            lambda: RunRequest(config=AXIS, program=None, nc="fanuc"),  # pyright: ignore[reportArgumentType]
+            "nc = 'fanuc': must be one",
+        ),
         (
             lambda: dataclasses.replace(node_plan(load_run_config(AXIS)), recorder_with="disk"),
             "recorder_with = 'disk': must be one of gcode, sim, own, auto",
@@ -142,9 +146,13 @@ def test_each_mode_starts_its_roles_with_its_clock(tmp_path) -> None:
     assert paced.process("standin").nodes[0].argv[-1] == "--realtime"
     assert axis_shadow_plan(linuxcnc, bag).names == ("recorder", "twin", "linuxcnc")
     assert axis_shadow_plan(linuxcnc, bag).clock == "linuxcnc"
-    assert axis_shadow_plan(linuxcnc, bag).process("twin").nodes[0].argv[-2:] == (
-        "--batch-topic", "/cnc/x/linuxcnc/batch",
+    # beside LinuxCNC the bridge and the twin run with a larger share of a busy CPU
+    beside = axis_shadow_plan(linuxcnc, bag)
+    assert beside.process("twin").nodes[0].argv[-4:] == (
+        "--batch-topic", "/cnc/x/linuxcnc/batch", "--nice", "-10",
     )  # fmt: skip
+    assert beside.process("linuxcnc").nodes[0].argv[-2:] == ("--nice", "-10")
+    assert "--nice" not in plan.process("twin").nodes[0].argv
     twin = axis_shadow_plan(dataclasses.replace(shadow, live_url="rerun+http://h"), bag)
     assert twin.process("twin").nodes[0].argv[-2:] == ("--rerun-url", "rerun+http://h")
     assert twin.process("recorder").nodes[0].argv[-2:] == ("--twin-namespace", "/cnc/x/twin")
@@ -218,3 +226,37 @@ def test_every_machine_launch_argument_is_one_the_registry_declares(tmp_path) ->
             options = {a for a in node.argv if a.startswith("--")}
             allowed = set(COMMON_ARGUMENTS) | set(node_role(node.role).arguments)
             assert options <= allowed, (node.role, options - allowed)
+
+
+def test_beside_linuxcnc_a_machines_bridge_and_every_twin_run_at_its_nice(tmp_path) -> None:
+    """ros.linuxcnc_nice reaches a machine's LinuxCNC bridge and each axis's twin through the
+    shadow plan (the machine file's ros: section, or the default), as an axis file's does."""
+    from feed_twin.machine.config import load_machine_config
+
+    request = RunRequest(config=ROOT / "config" / "machine_default.yaml", program=Path("p.ngc"))
+    bag = tmp_path / "run"
+
+    def plan(path: Path, *, linuxcnc: bool) -> RunPlan:
+        return machine_shadow_plan(
+            shadow_plan(load_machine_config(path), bag, linuxcnc=linuxcnc), request, bag
+        )
+
+    def nice_of(plan: RunPlan) -> dict[str, str | None]:
+        return {
+            f"{name}/{node.role}": node.argv[node.argv.index("--nice") + 1]
+            if "--nice" in node.argv else None
+            for name in plan.names for node in plan.process(name).nodes
+        }  # fmt: skip
+
+    assert nice_of(plan(request.config, linuxcnc=True)) == {
+        "recorder/recorder": None, "linuxcnc/machine_linuxcnc": "-10", "x_twin/twin": "-10",
+        "y_twin/twin": "-10", "z_twin/twin": "-10",
+    }  # fmt: skip
+    # beside stand-ins nothing runs at another weight
+    assert set(nice_of(plan(request.config, linuxcnc=False)).values()) == {None}
+    # the machine file's own value, in its ros: section
+    (tmp_path / "axis_default.yaml").write_text(AXIS.read_text())
+    text = request.config.read_text().replace("\nros:\n", "\nros:\n  linuxcnc_nice: -5\n")
+    mine = tmp_path / "machine.yaml"
+    mine.write_text(text)
+    assert set(nice_of(plan(mine, linuxcnc=True)).values()) == {None, "-5"}

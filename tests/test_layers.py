@@ -59,7 +59,7 @@ def _layer_of(package: str) -> int:
 
 def _package(path: Path) -> str:
     parts = path.relative_to(PACKAGE).parts
-    return parts[0] if len(parts) > 1 else parts[0].removesuffix(".py")
+    return parts[0].removesuffix(".py")  # a subpackage's directory or a module's file
 
 
 def _uses(path: Path) -> list[tuple[int, str, bool]]:

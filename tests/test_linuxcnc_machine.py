@@ -24,7 +24,7 @@ CONFIG = REPO / "config" / "axis_default.yaml"
 
 def _ini(files: dict[str, str]) -> configparser.ConfigParser:
     parser = configparser.ConfigParser(strict=False, interpolation=None)
-    parser.optionxform = str
+    parser.optionxform = lambda optionstr: optionstr  # keys keep their case, as LinuxCNC's
     parser.read_string(files["machine.ini"])
     return parser
 
@@ -175,6 +175,7 @@ def test_the_bridge_stamps_pairs_and_counts() -> None:
     bridge = ServoBridge(layout, period_s=1e-3, joint=0)
     assert bridge.take(rows[:2], now_s=0.0) is None  # nothing to publish before the program
     first = bridge.take(rows[2:6], now_s=0.0)
+    assert first is not None, "rows of the program's motion are published"
     assert first.tick.tolist() == [103, 104, 105]
     assert first.stamp_ns.tolist() == [0, 1_000_000, 2_000_000]
     assert first.line.tolist() == [7, 7, 7]
@@ -182,19 +183,28 @@ def test_the_bridge_stamps_pairs_and_counts() -> None:
     assert first.measured_stamp_ns.tolist() == [0, 1_000_000]
     assert first.measured_pos_m == pytest.approx([0.404, 0.405])
     # a gap of two ticks (107, 108 missing) is counted, the stamps keep the tick count
-    second = bridge.take(rows[[6, 9]], now_s=0.0)
+    second = bridge.take(rows[[6, 9]], now_s=100.15)
+    assert second is not None, "rows of the program's motion are published"
     assert second.stamp_ns.tolist() == [3_000_000, 6_000_000]
     assert (bridge.received, bridge.lost, bridge.published) == (8, 2, 5)
     bridge.twin_output(3_000_000, now_s=100.0 + 106e-3 + 5e-3)
-    bridge.mark_published(second.tick_time_s, now_s=100.2)
+    bridge.mark_published(second, 0, 2, now_s=100.2)
     report = bridge.report()
     assert report["twin_output_latency_p50_ms"] == pytest.approx(5.0)
     assert report["bridge_latency_max_ms"] == pytest.approx((100.2 - 100.106) * 1e3)
+    # its parts: the reader took each row 0.2 ms after its tick (_rows), the bridge took the
+    # batch at 100.15 s (tick 106's row waited 43.8 ms for it) and published it 50 ms later
+    parts = report["bridge_latency_parts_p99_ms"]
+    assert isinstance(parts, dict)
+    assert parts["servo_to_reader"] == pytest.approx(0.2)
+    assert parts["reader_to_bridge"] == pytest.approx(43.8, abs=0.1)
+    assert parts["bridge_to_published"] == pytest.approx(50.0)
     # the servo thread's own timing over every received period (the rows are on time)
     assert report["servo_periods"] == 8
     assert report["servo_late_periods"] == 0
     assert report["servo_lateness_max_ms"] == pytest.approx(0.0, abs=1e-6)
-    assert sum(report["servo_histogram"]) == 8
+    histogram = report["servo_histogram"]
+    assert isinstance(histogram, list) and sum(histogram) == 8
     from feed_twin.linuxcnc.summary import servo_timing_from_report
 
     timing = servo_timing_from_report(report)

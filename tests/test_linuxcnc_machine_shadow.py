@@ -56,6 +56,11 @@ def test_every_axis_of_linuxcnc_is_shadowed_by_its_own_twin(tmp_path: Path) -> N
     assert code == 0, err[-3000:]
     record = assert_report(out, mode="machine LinuxCNC shadow")  # the report of every mode
     assert record["processes"] == ["recorder", "linuxcnc", "x_twin", "y_twin", "z_twin"]
+    # the bridge and every twin ran with a larger share of the CPU (ros.linuxcnc_nice), or said
+    # why not (`scheduling: nice -10 refused (...)`)
+    for process in record["processes"][1:]:
+        log = (tmp_path / "out" / "l.logs" / f"{process}.log").read_text()
+        assert "scheduling: nice -10" in log, process
     bridge = record["linuxcnc"]
     assert bridge["samples_lost"] == 0
     # every axis's topics counted against what the bridge published, and the counts are the

@@ -332,7 +332,7 @@ def test_a_program_only_one_interpreter_accepts_is_named_either_way() -> None:
         f"feed_twin's interpreter accepts the program but {sinumerik}:2: LinuxCNC rejects "
         "'N10 G71 G17 G90 G54 G64': G7x.x  requires a Q word; nothing was started"
     )
-    assert sides_disagree(PROGRAMS / "params.ngc", CONFIG).startswith(
-        "LinuxCNC accepts the program but feed_twin's interpreter rejects it: "
-    )
+    said = sides_disagree(PROGRAMS / "params.ngc", CONFIG)
+    assert said is not None, "the two interpreters disagree on params.ngc"
+    assert said.startswith("LinuxCNC accepts the program but feed_twin's interpreter rejects it: ")
     assert sides_disagree(PROGRAMS / "x_line.ngc", CONFIG) is None

@@ -67,6 +67,17 @@ def test_a_minute_on_linuxcnc_shadowed_without_losing_a_servo_period(tmp_path: P
     # (timings are the benchmark's business; here only that they were measured)
     for key in ("bridge_latency_p50_ms", "bridge_latency_p99_ms", "twin_output_latency_p50_ms"):
         assert figures[key] > 0.0
+    # where the bridge latency goes: each part of a period's latency is at most the whole, so
+    # is its p99
+    parts = figures["bridge_latency_parts_p99_ms"]
+    assert set(parts) == {"servo_to_reader", "reader_to_bridge", "bridge_to_published"}
+    for ms in parts.values():
+        assert 0.0 <= ms <= figures["bridge_latency_p99_ms"] + 1e-6
+    # the bridge and the twin ran with a larger share of the CPU (ros.linuxcnc_nice), or said
+    # why not
+    for role in ("linuxcnc", "twin"):
+        log = (tmp_path / "run.logs" / f"{role}.log").read_text()
+        assert "scheduling: nice -10" in log or "nice -10 refused" in log, role
     assert 0.0 < figures["linuxcnc_following_error_max_m"] < 2e-3
     assert 0.0 < figures["twin_following_error_max_m"] < 2e-3
     assert figures["shadow_samples"] >= figures["program_time_s"] / PERIOD_S

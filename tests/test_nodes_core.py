@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from controller_support import position_loop, velocity_loop
 from feed_twin_msgs.msg import AxisCommand, AxisFeedback, AxisState, DriveCommand
 from rclpy.serialization import serialize_message
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags_support import decode
 
 from feed_twin.control.config import load_controller_config
 from feed_twin.core.config import ConfigError
@@ -86,7 +88,7 @@ def test_cdr_codec_matches_rclpy_and_rosbags(type_name: str, seed: int) -> None:
     assert codec.decode(ours) == tuple(values)
     store = get_typestore(Stores.EMPTY)
     store.register(get_types_from_msg(message_definition(type_name).schema_text, type_name))
-    decoded = store.deserialize_cdr(ours, type_name)
+    decoded = decode(store, ours, type_name)
     assert decoded.axis == values[codec.index("axis")]
     assert decoded.header.stamp.sec == values[codec.index("header.stamp.sec")]
 
@@ -136,21 +138,23 @@ def test_controller_node_config_runs_loops_at_the_exchange() -> None:
     config = load_controller_config(yaml.safe_load(AXIS.read_text())["controller"], str(AXIS))
     derived, notes = controller_node_config(config, 1e-3)
     assert derived.current is None and derived.base_period_s == 1e-3
-    assert derived.velocity.period_s == 1e-3 and derived.position.period_s == 1e-3
+    velocity, position = velocity_loop(derived), position_loop(derived)
+    assert velocity.period_s == 1e-3 and position.period_s == 1e-3
     # The symmetric optimum for T_sigma = current lag + hold + estimator + one exchange of
     # transport: Kp = J (2 pi/lead) / (K_t a T_sigma) with a = 2.
     T_sigma = 3 * 62.5e-6 + 0.5e-3 + (0.5e-3 + 0.5e-3) + 1e-3
     drive = config.drive
     expected = drive.J_total_kg_m2 * (2 * math.pi / drive.lead_m) / (drive.K_t * 2 * T_sigma)
-    assert derived.velocity.Kp == pytest.approx(expected, rel=1e-9)
-    assert derived.velocity.Ti_s == pytest.approx(4 * T_sigma, rel=1e-9)
+    assert velocity.Kp == pytest.approx(expected, rel=1e-9)
+    assert velocity.Ti_s == pytest.approx(4 * T_sigma, rel=1e-9)
     assert any("re-tuned" in n for n in notes)
     fixed, _ = controller_node_config(
         config, 1e-3, NodeLoopGains(velocity_Kp=300.0, velocity_Ti_s=0.02, Kv_1_s=30.0)
     )
-    assert (fixed.velocity.Kp, fixed.velocity.Ti_s, fixed.position.Kv_1_s) == (300.0, 0.02, 30.0)
+    fixed_vel, fixed_pos = velocity_loop(fixed), position_loop(fixed)
+    assert (fixed_vel.Kp, fixed_vel.Ti_s, fixed_pos.Kv_1_s) == (300.0, 0.02, 30.0)
     slow = dataclasses.replace(
-        config, velocity=dataclasses.replace(config.velocity, period_s=1.5e-3)
+        config, velocity=dataclasses.replace(velocity_loop(config), period_s=1.5e-3)
     )
     with pytest.raises(ValueError, match=r"velocity.period_s = 0.0015: must be a multiple of the"):
         controller_node_config(slow, 1e-3)
@@ -164,16 +168,21 @@ def test_nc_buffer_picks_the_setpoint_for_each_exchange() -> None:
             t_ns=t_ms * 10**6, position_m=x, velocity_m_s=1.0, acceleration_m_s2=0.0, line=3
         )
 
+    def known(t_ns: int) -> NcSample:
+        setpoint = buffer.for_time(t_ns)
+        assert setpoint is not None, f"the buffer knows no setpoint for t = {t_ns} ns"
+        return setpoint
+
     assert buffer.for_time(0) is None
     buffer.add(sample(0, 0.0))
     buffer.add(sample(2, 0.002))
-    assert buffer.for_time(0).position_m == 0.0
+    assert known(0).position_m == 0.0
     # t = 1 ms: the setpoint of 0 ms still holds (2 ms is known, so nothing else can come).
-    assert buffer.for_time(10**6).position_m == 0.0
-    assert buffer.for_time(2 * 10**6).position_m == 0.002
+    assert known(10**6).position_m == 0.0
+    assert known(2 * 10**6).position_m == 0.002
     assert buffer.for_time(3 * 10**6) is None  # not known yet
     buffer.finish()
-    held = buffer.for_time(3 * 10**6)
+    held = known(3 * 10**6)
     assert (held.position_m, held.velocity_m_s, held.line) == (0.002, 0.0, -1)
 
 
@@ -198,8 +207,10 @@ def test_drive_reference_per_mode() -> None:
     assert not ref.any()
     with pytest.raises(ValueError, match=r"DriveCommand mode = 7: not one of -1, 8, 9, 10"):
         drive_reference(DriveSetpoint(t_ns=0, mode=7, enable=True), 1.9, ref)
+    config = load_controller_config(yaml.safe_load(AXIS.read_text())["controller"], str(AXIS))
     with pytest.raises(ValueError, match=r"boundary = 'current': must be one of"):
-        ControllerCore(None, boundary="current", exchange_period_s=1e-3)
+        # the bad value under test
+        ControllerCore(config, boundary="current", exchange_period_s=1e-3)  # pyright: ignore[reportArgumentType]
 
 
 PROGRAM = """G21 G90 G54 G64
@@ -245,6 +256,7 @@ def test_program_stream_stop_waits_for_standstill() -> None:
     last = None
     while not stream.finished:
         last = stream.next_sample()
+    assert last is not None, "the stream ended before its first sample after the stop request"
     assert stream.stopped
     assert abs(last[2]) < 1e-9  # at rest where it stopped
     assert stream.end_t_ns < len(trajectory) * 10**6
@@ -281,8 +293,10 @@ def test_program_stream_pause_request_waits_for_standstill() -> None:
     for _ in range(50):
         stream.next_sample()
     stream.pause_requested = True
+    last = None
     while stream.paused is None:
         last = stream.next_sample()
+    assert last is not None, "the stream paused before its first sample after the request"
     assert stream.paused == "by request" and abs(last[2]) < 1e-9
     hold = stream.next_sample()
     assert (hold[1], hold[2], hold[4]) == (last[1], 0.0, stream.paused_line)

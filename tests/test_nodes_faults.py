@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from nodes_support import AXIS_CONFIG, ROOT, last_json, node_env, run, start_run
+from nodes_support import AXIS_CONFIG, ROOT, found, last_json, node_env, run, start_run
 
 from feed_twin.io.bag import BagReader, info
 from feed_twin.ros.domain import reserve_domain_id
@@ -70,6 +70,7 @@ def node_pids(config: Path) -> dict[str, int]:
 def wait_for_progress(
     proc: subprocess.Popen, log: Path, sim_s: float, timeout_s: float = 120.0
 ) -> None:
+    assert proc.stderr is not None, "the run is started with stderr=PIPE"
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
@@ -147,8 +148,7 @@ def test_killed_node_is_noticed_named_and_bag_readable(
         assert gone in text, role
         if victim == "sim":  # the recorder in its process is named with it
             assert "node '/cnc/x/recorder' is gone" in text, role
-        match = re.search(r"is gone: no heartbeat for (\S+) s", text)
-        assert float(match[1]) < 1.0
+        assert float(found(r"is gone: no heartbeat for (\S+) s", text)[1]) < 1.0
         # The recorder first records what is still in flight (it may lag on a loaded machine).
         assert ended[role] < (30.0 if role == "recorder" else 5.0), (role, ended)
     bag = config.parent / "bags" / name
@@ -189,7 +189,7 @@ def test_signal_stops_every_node_and_finalises_the_bag(config: Path, signum: int
     summary = info(bag)
     counts = {t.name: t.message_count for t in summary.topics}
     # Nothing lost up to the stop: every exchange the sim made is in the bag.
-    steps = int(re.search(r'"steps": (\d+)', (logs / "sim.log").read_text())[1])
+    steps = int(found(r'"steps": (\d+)', (logs / "sim.log").read_text())[1])
     assert counts["/cnc/x/state"] == steps
 
 
@@ -253,6 +253,7 @@ def test_missing_or_mistyped_command_stream_is_reported(
             stdout=subprocess.PIPE,
             text=True,
         )
+        assert external.stdout is not None, "started with stdout=PIPE"
         try:
             assert external.stdout.readline().strip() == "ready"
             code, out, err = run(

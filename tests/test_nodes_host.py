@@ -70,7 +70,9 @@ def test_nodes_of_one_role_in_one_process_end_it_at_the_first_failure() -> None:
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip
     line = next(ln for ln in done.stdout.splitlines() if ln.startswith("RESULT"))
-    code, y_code, seconds = re.match(r"RESULT (\d+) \[1, (\w+)\] ([\d.]+)", line).groups()
+    result = re.match(r"RESULT (\d+) \[1, (\w+)\] ([\d.]+)", line)
+    assert result is not None, line
+    code, y_code, seconds = result.groups()
     assert (int(code), y_code) == (1, "None"), line  # Y was still running: not waited for
     assert float(seconds) < 2.0
     assert "controller: at t = 0.5 s: broken" in done.stderr

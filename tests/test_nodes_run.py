@@ -11,6 +11,7 @@ from known_gaps import CROSS_COUPLING_FIT
 from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, raw_topics, run
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags_support import decode
 from run_report_support import assert_report
 
 from feed_twin.gcode import load_nc_config, plan_program
@@ -88,7 +89,7 @@ def test_bag_read_back_by_rosbags(setup: dict, multi: dict) -> None:
             store.register(get_types_from_msg(conn.msgdef.data, conn.msgtype))
         state = [c for c in reader.connections if c.topic == "/cnc/x/state"]
         for conn, _, raw in reader.messages(connections=state):
-            msg = store.deserialize_cdr(raw, conn.msgtype)
+            msg = decode(store, raw, conn.msgtype)
             positions.append((msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec,
                               msg.table_position))  # fmt: skip
     steps = multi["timing_steps"]

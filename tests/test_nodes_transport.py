@@ -60,9 +60,15 @@ def test_network_discovery_uses_the_udp_profile_and_a_user_profile_is_kept() -> 
 def _writer_times(path) -> dict[str, float]:
     ns = {"p": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
     times = ET.parse(path).getroot().find("p:data_writer/p:times", ns)
+    assert times is not None, f"{path}: no data_writer/times"
+
+    def field(child: ET.Element, name: str) -> int:
+        found = child.find(f"p:{name}", ns)
+        assert found is not None and found.text is not None, f"{path}: {child.tag} has no {name}"
+        return int(found.text)
+
     return {
-        child.tag.split("}")[1]: int(child.find("p:sec", ns).text)
-        + int(child.find("p:nanosec", ns).text) * 1e-9
+        child.tag.split("}")[1]: field(child, "sec") + field(child, "nanosec") * 1e-9
         for child in times
     }
 

@@ -46,8 +46,8 @@ def _load(data: dict):
         (
             "encoder",
             "delay_ticks",
-            16,
-            r"config/emps.yaml: plant.encoder.delay_ticks = 16: must lie in \[0, 15\]",
+            64,
+            r"config/emps.yaml: plant.encoder.delay_ticks = 64: must lie in \[0, 63\]",
         ),
         (
             "drive",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -17,9 +18,10 @@ OFFSETS = {"offset": 0.05, "offset_a": 0.3, "offset_b": -0.2, "offset_c": 0.1}  
 
 
 def _sensor(**changes: float) -> CurrentSensor:
-    base = dict(gain=1.0, offset=0.0, noise_std=0.0, adc_bits=12, range_A=50.0, delay_ticks=0)
-    base.update(changes)
-    return CurrentSensor(**base)
+    base = CurrentSensor(
+        gain=1.0, offset=0.0, noise_std=0.0, adc_bits=12, range_A=50.0, delay_ticks=0
+    )
+    return dataclasses.replace(base, **changes)
 
 
 def test_per_phase_offsets_default_to_zero_and_are_slots():

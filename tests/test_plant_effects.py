@@ -45,10 +45,15 @@ def test_every_library_effect_is_carried_by_a_registered_component_or_the_record
     declared = EFFECTS + RECORD_EFFECTS
     assert [e.name for e in LIBRARY] == [e.name for e in declared]
     for used, own in zip(LIBRARY, declared, strict=True):
-        # the analysis wraps one edit: current offsets also fit a twin without a current sensor
-        # (a ripple once per electrical revolution on its effort); everything else is as declared
+        # the analysis wraps two effects: current offsets also fit (and are set in) a twin
+        # without a current sensor (a torque ripple once per electrical revolution on an
+        # effort source's rotor, else a ripple on its effort), and a dead time is carried by
+        # the drive's electrical stage in a torque-source twin with a drive data sheet
+        # (analysis.drive_stage); everything else is as declared
         assert used == (
-            dataclasses.replace(own, edit=used.edit) if own.name == "current_offset" else own
+            dataclasses.replace(own, edit=used.edit, truth=used.truth)
+            if own.name in {"current_offset", "dead_time"}
+            else own
         )
     for effect in EFFECTS:
         kind = COMPONENT_TYPES[effect.owner]
@@ -134,6 +139,7 @@ def test_force_weights_of_a_current_record_enter_the_model_as_newtons():
     table. Taken as newtons, the Coulomb edit started 40 N of missing friction at +0.03 N."""
     nominal = ModelDoc.load(AXIS)
     per_amp = nominal.force_per_effort("A")
+    assert per_amp is not None, "the axis model has a screw and a motor"
     assert per_amp == pytest.approx(1.9002 * 2.0 * math.pi * 0.9 / 0.01, rel=1e-12)
     edit = BY_NAME["coulomb_friction"].edit(
         nominal, _weights("coulomb_friction", per_amp, sign_v=40.0 / per_amp)

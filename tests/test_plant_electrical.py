@@ -161,7 +161,7 @@ def test_energy_balance_of_a_closed_loop_move_closes():
     }
     source = sum(e for n_, e in energy.items() if plant.energy_kinds[n_] == "source")
     losses = sum(e for n_, e in energy.items() if plant.energy_kinds[n_] == "loss")
-    stored = sum(res[n_] for n_ in plant.stored_names)
+    stored = np.sum([res[n_] for n_ in plant.stored_names], axis=0)
     # the energy states are integrals up to the end of the run: evaluate the stored energy there
     ns = plant.namespace()
     aux = np.zeros(len(plant.aux_names))

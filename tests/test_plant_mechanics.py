@@ -9,6 +9,7 @@ import pytest
 import scipy.linalg
 
 from feed_twin.core import signals as sig
+from feed_twin.plant.axial_compliance import AxialCompliance
 from feed_twin.plant.backlash import backlash_force
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.config import load_axis_config
@@ -168,6 +169,7 @@ def test_first_axial_mode_drops_as_the_table_moves_away_from_the_fixed_bearing()
     # and nut the axial stiffness drops 2.5x, and the mode (axial spring against table plus
     # the reflected rotor) by a good part of sqrt(2.5)
     axial = plant.components["axial"]
+    assert isinstance(axial, AxialCompliance), f"'axial' is a {type(axial).__name__}"
     k_ratio = axial.stiffness(positions[-1]) / axial.stiffness(positions[0])
     assert k_ratio == pytest.approx(0.405, abs=0.01)
     assert math.sqrt(k_ratio) < first[-1] / first[0] < 0.8
@@ -319,7 +321,7 @@ def test_mechanical_energy_is_conserved_with_damping_and_friction_off():
     x0[plant.state_index["table.v"]] = 0.05
     engine.reset(x0=x0)
     res = engine.advance(1600)
-    stored = sum(res[n] for n in plant.stored_names)
+    stored = np.sum([res[n] for n in plant.stored_names], axis=0)
     assert stored[0] == pytest.approx(0.25 + 0.5 * 3.0e4 * 2e-3**2, rel=0.05)
     np.testing.assert_allclose(stored, stored[0], rtol=2e-5)
 

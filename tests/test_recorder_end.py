@@ -15,10 +15,10 @@ pytestmark = [pytest.mark.ros]
 
 def _spin_until(node, predicate, limit_s: float) -> float:
     """Run the recorder's timers until `predicate()` or `limit_s`; the seconds it took."""
-    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
 
     start = time.monotonic()
-    executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
+    executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
     try:
         while not predicate() and time.monotonic() - start < limit_s:

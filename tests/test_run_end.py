@@ -10,10 +10,16 @@ from feed_twin.nodeset.run_end import RunEnd
 MS = 1_000_000
 
 
+def _parsed(text: str) -> tuple[str, int | None, str]:
+    state = parse_program_state(text)
+    assert state is not None, f"{text!r}: not a program state"
+    return state
+
+
 def test_the_end_is_settle_after_the_finish_stamp_and_the_exchange_at_the_end_still_runs():
     end = RunEnd(200 * MS)
     assert not end.passed(10**15)  # unknown: nothing is past it
-    word, stamp, _ = parse_program_state("finished 1000000000")
+    word, stamp, _ = _parsed("finished 1000000000")
     assert end.learn(word, stamp)
     assert end.end_ns == 1_200 * MS and end.word == "finished"
     assert not end.passed(1_200 * MS)
@@ -23,7 +29,7 @@ def test_the_end_is_settle_after_the_finish_stamp_and_the_exchange_at_the_end_st
 def test_a_state_without_a_stamp_sets_nothing_and_the_first_end_stands():
     end = RunEnd(0)
     for text in ("running", "paused line 3 (M0)", "error line 2: bad"):
-        word, stamp, _ = parse_program_state(text)
+        word, stamp, _ = _parsed(text)
         assert not end.learn(word, stamp)
     assert end.end_ns is None
     assert end.learn("stopped", 5 * MS)

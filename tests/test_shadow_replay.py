@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags_support import decode, offered_qos
 from test_progress import on_a_terminal
 
 from feed_twin.analysis.cli import simulate_traces
@@ -119,12 +120,12 @@ def test_replay_cli_writes_comparison_bag_rrd_and_report(recording, tmp_path, co
             store.register(get_types_from_msg(conn.msgdef.data, conn.msgtype))
         residual = [c for c in reader.connections if c.topic == "/cnc/x/twin/residual"]
         fe_dev = [
-            store.deserialize_cdr(raw, conn.msgtype).following_error_deviation
+            decode(store, raw, conn.msgtype).following_error_deviation
             for conn, _, raw in reader.messages(connections=residual)
         ]
         health = [c for c in reader.connections if c.topic == "/cnc/x/twin/health"]
         effects = [
-            store.deserialize_cdr(raw, conn.msgtype).effect
+            decode(store, raw, conn.msgtype).effect
             for conn, _, raw in reader.messages(connections=health)
         ]
     n = round(DURATION_S / T)
@@ -267,7 +268,7 @@ def test_comparison_bag_keeps_the_recorded_qos_of_the_original_topics(doc, confi
     )  # fmt: skip
     assert code == 0
     with Reader(out / "comparison") as reader:
-        qos = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+        qos = {c.topic: offered_qos(c) for c in reader.connections}
     (js,) = qos["/cnc/x/joint_states"]
     assert (js.reliability.name, js.durability.name, js.depth) == ("BEST_EFFORT", "VOLATILE", 1)
     assert (js.deadline.sec, js.deadline.nsec) == (0, 2_000_000)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shlex
 import signal
 import subprocess
@@ -20,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from nodes_support import AXIS_CONFIG, last_json, run, start_run
+from nodes_support import AXIS_CONFIG, found, last_json, run, start_run
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from run_report_support import assert_report
@@ -281,7 +280,7 @@ def test_killed_twin_is_noticed_named_and_the_bag_readable(tmp_path) -> None:
     for role in ("standin", "gcode", "recorder"):
         text = (logs / f"{role}.log").read_text(errors="replace")
         assert gone in text, role
-        assert float(re.search(r"is gone: no heartbeat for (\S+) s", text)[1]) < 1.0
+        assert float(found(r"is gone: no heartbeat for (\S+) s", text)[1]) < 1.0
         assert not alive(pids[role])
     bag = tmp_path / "out" / "kill_twin"
     counts = {t.name: t.message_count for t in info(bag).topics}
@@ -314,7 +313,7 @@ def test_sigint_stops_the_shadow_run_and_finalises_the_bag(tmp_path) -> None:
     assert (bag / "metadata.yaml").exists()  # closed by the recorder, not recovered
     counts = {t.name: t.message_count for t in info(bag).topics}
     # nothing lost up to the stop: every sample the stand-in played is in the bag
-    steps = int(re.search(r'"steps": (\d+)', (logs / "standin.log").read_text())[1])
+    steps = int(found(r'"steps": (\d+)', (logs / "standin.log").read_text())[1])
     assert counts["/cnc/x/joint_states"] == steps > 500
     assert 0 < counts["/cnc/x/twin/residual"] <= steps
     assert last_json(out)["exit_code"] == 130

@@ -6,6 +6,8 @@ linear interpolation of a straight line gives back the line.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,7 @@ from feed_twin.shadow.stream import MAX_JUMP_S, SlotStream
 T = 1e-3
 
 
-def stream(fill: str = "interpolate", window: int = 3) -> SlotStream:
+def stream(fill: Literal["hold", "interpolate"] = "interpolate", window: int = 3) -> SlotStream:
     s = SlotStream(name="measured", width=1, period_s=T, tolerance=0.25, window=window, fill=fill)
     s.set_origin(0.0)
     s.start(0)
@@ -153,6 +155,7 @@ def test_push_many_decides_exactly_as_single_pushes() -> None:
     for part in np.array_split(order, 17):
         b.push_many(part * T, (1e-3 * part)[:, None])
     ra, rb = a.release(final=True), b.release(final=True)
+    assert ra is not None and rb is not None, "both streams started and hold pushed samples"
     np.testing.assert_array_equal(ra.values, rb.values)
     np.testing.assert_array_equal(ra.filled, rb.filled)
     assert a.counts == b.counts

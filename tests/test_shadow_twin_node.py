@@ -36,7 +36,8 @@ def test_rising_verdicts_are_published_and_logged_without_killing_the_node(tmp_p
     try:
         node = twin_node.build(args, context)
         sent: list[bytes] = []
-        node._health_pub.publish = sent.append  # what goes out on <ns>/twin/health
+        # what goes out on <ns>/twin/health, caught by a stand-in for the publisher's method
+        node._health_pub.publish = sent.append  # pyright: ignore[reportAttributeAccessIssue]
         for level, t_s in ((WARN, 1.0), (ERROR, 2.0), (WARN, 3.0), (OK, 4.0), (ERROR, 5.0)):
             node._verdict(verdict(level, t_s))
         assert len(sent) == 5
@@ -64,11 +65,12 @@ def _bridge_twin(tmp_path: Path, context, *batch: str):
     node = twin_node.build(args, context)
     sent: list[bytes] = []
     states: list[bytes] = []
+    # stand-ins for the publishers' methods catch what goes out (a batch: read by `unpacked`)
     if batch:
-        node._batch_pub.publish = sent.append  # unpacked by `unpacked`
+        node._batch_pub.publish = sent.append  # pyright: ignore[reportAttributeAccessIssue]
     else:
-        node._residual_pub.publish = sent.append
-        node._state_pub.publish = states.append
+        node._residual_pub.publish = sent.append  # pyright: ignore[reportAttributeAccessIssue]
+        node._state_pub.publish = states.append  # pyright: ignore[reportAttributeAccessIssue]
     return node, sent, states
 
 
@@ -137,9 +139,11 @@ def test_a_twin_fed_packed_periods_gives_the_output_it_gives_fed_one_message_eac
             def error(self, text: str) -> None:
                 logged.append(text)
 
-        packed.get_logger = Log
+        packed.get_logger = Log  # pyright: ignore[reportAttributeAccessIssue]  a stand-in
         packed._on_batch(b"\x00\x00\x00\x00 not a batch")
+        turns = packed.liveness.turns
         packed._step(final=True)
+        assert packed.liveness.turns == turns + 1  # a step is progress its beats carry
         assert len(single_out) == len(periods) - 1  # every measured sample shadowed
         # a packed output per step, at most OUT_BATCH_SAMPLES slots each
         assert 1 < len(packed_batches) < len(periods) / 10

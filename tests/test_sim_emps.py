@@ -21,7 +21,9 @@ def _closed_loop(name: str):
     n = len(data)
     ref = np.zeros((n, sig.REF_SIZE))
     ref[:, sig.REF_POS_M] = data["qg_ref_m"]
-    if "pulses_N" in data.dtype.names:
+    names = data.dtype.names
+    assert names is not None, "the EMPS record reads as a structured array of named columns"
+    if "pulses_N" in names:
         ref[:, sig.REF_EFFORT_ADD] = data["pulses_N"]  # volts, added to the controller output
     # the encoder read qm[0]: the true position lies somewhere in that count; take its middle
     step = LEAD / 50000

@@ -9,6 +9,7 @@ import pytest
 
 from feed_twin.core import signals as sig
 from feed_twin.plant.config import load_plant
+from feed_twin.plant.sensors import MAX_DELAY_TICKS
 from feed_twin.sim import batch as batch_module
 from feed_twin.sim.batch import check_steps, run_batch
 from feed_twin.sim.config import build_engine, load_axis_config
@@ -175,7 +176,10 @@ def test_batch_flags_a_diverging_set_and_runs_the_others():
     assert np.isnan(batch["nut.s"][1, -1])
 
 
-def test_encoder_quantises_and_delays_its_samples():
+@pytest.mark.parametrize("delay", [3, MAX_DELAY_TICKS])
+def test_encoder_quantises_and_delays_its_samples(delay):
+    """Delays up to MAX_DELAY_TICKS (63: 15.75 ms at a drive's 0.25 ms tick; the ring kept
+    15 before, and a 4 ms feedback delay could not be fitted)."""
     plant = load_plant(
         {
             "components": [
@@ -188,7 +192,7 @@ def test_encoder_quantises_and_delays_its_samples():
                 {
                     "name": "encoder",
                     "type": "Encoder",
-                    "params": {"counts_per_rev": 1000, "delay_ticks": 3},
+                    "params": {"counts_per_rev": 1000, "delay_ticks": delay},
                 },
             ],
             "connect": [["rotor.flange", "drive.flange"], ["rotor.flange", "encoder.flange"]],
@@ -203,7 +207,7 @@ def test_encoder_quantises_and_delays_its_samples():
     res = engine.run(n, drive=drive)
     step = 2.0 * math.pi / 1000
     phi = res["rotor.phi"]
-    delayed = np.concatenate([np.full(3, phi[0]), phi[:-3]])
+    delayed = np.concatenate([np.full(delay, phi[0]), phi[:-delay]])
     np.testing.assert_array_equal(res["meas.theta_enc_rad"], np.floor(delayed / step) * step)
 
 

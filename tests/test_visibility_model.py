@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +27,13 @@ def _run(**signals: np.ndarray) -> MeasuredRun:
 
 
 def test_dead_time_without_an_inverter_is_said_not_searched():
-    twin = Twin.compile(ModelDoc.load(ROOT / "config" / "truth_nominal.yaml"))
+    doc = ModelDoc.load(ROOT / "config" / "truth_nominal.yaml")
     torque = {"torque_cmd_Nm": np.zeros(100)}
+    # with the drive's data sheet the effect writes the electrical stage it acts on
+    assert _uncarried(_run(**torque), Twin.compile(doc)) == []
+    data = copy.deepcopy(doc.data)
+    del data["analysis"]["drive_stage"]
+    twin = Twin.compile(ModelDoc(data=data, source=doc.source, reference_gain=doc.reference_gain))
     (unseen,) = _uncarried(_run(**torque), twin)
     assert unseen.name == "dead_time" and unseen.by_model
     assert unseen.line().startswith(

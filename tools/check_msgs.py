@@ -74,6 +74,8 @@ def check_package(msgs_dir: Path, prefix: Path) -> list[str]:
             if field.type.is_primitive_type():
                 continue
             base = BaseType(BaseType.__str__(field.type))
+            # parsed without a context package, a non-primitive type always names its own
+            assert base.pkg_name is not None, f"{path}: {field.name}: a type without a package"
             known = (base.pkg_name == package_name and base.type in own_types) or (
                 prefix / "share" / base.pkg_name / "msg" / f"{base.type}.msg"
             ).is_file()

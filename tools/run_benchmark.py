@@ -18,6 +18,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+USAGE = ".venv/bin/python tools/run_benchmark.py gcode_speed [ARGS...]"
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -50,7 +52,7 @@ def run(name: str, args: list[str]) -> dict:
 
 def main(argv: list[str]) -> int:
     if not argv:
-        print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
+        print(USAGE, file=sys.stderr)
         return 2
     result = run(argv[0], argv[1:])
     RESULTS.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The test command behind `make test` and `make test-fast`: ruff check, ruff format --check,
-# pyright (standard mode, feed_twin/; [tool.pyright] in pyproject.toml) and pytest, all four run
-# even when an earlier one fails (so pytest's summary line is always printed); the exit status
-# is non-zero when any failed. Arguments go to pytest.
+# pyright (standard mode over feed_twin/, tests/, benchmarks/, tools/; [tool.pyright] in
+# pyproject.toml) and pytest, all four run even when an earlier one fails (so pytest's summary
+# line is always printed); the exit status is non-zero when any failed. Arguments go to pytest.
 # pytest's exit status 5 (no tests collected) counts as success.
 
 set -o nounset

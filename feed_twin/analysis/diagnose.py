@@ -49,11 +49,13 @@ from feed_twin.analysis.channels import (
     weighted_channels,
 )
 from feed_twin.analysis.compare import Metrics, align, compute_metrics
+from feed_twin.analysis.drive_stage import current_answer, drive_stage, expandable
 from feed_twin.analysis.effects import Motion, motion_from_position
 from feed_twin.analysis.effort_sign import check_effort_sign
 from feed_twin.analysis.fit import SimOutputs, cost_of
 from feed_twin.analysis.joint import JointSearch, joint_select
 from feed_twin.analysis.locate import Location, locate
+from feed_twin.analysis.model_doc import TRACE_WINDOW_SLOT
 from feed_twin.analysis.passes import Passes, PassListener, ignore
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.record_scale import at_record_scale
@@ -70,7 +72,14 @@ from feed_twin.analysis.rounds import (
     run_round,
 )
 from feed_twin.analysis.timing import split_timing, timing_line
-from feed_twin.analysis.twin import SLOW_COMMAND_S, Drive, ModelDoc, Twin, drive_from_run
+from feed_twin.analysis.twin import (
+    SLOW_COMMAND_S,
+    Drive,
+    ModelDoc,
+    Twin,
+    drive_from_run,
+    drive_period,
+)
 from feed_twin.analysis.verdict import Leftover, signature, verdict
 from feed_twin.analysis.visibility import (
     Unseen,
@@ -330,8 +339,16 @@ def _simulate_nominal(
 
 def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Motion:
     """The measured motion the effects' signatures are built from (with the command's
-    velocity the twin was driven with)."""
+    velocity the twin was driven with, and the twin's effort as the trace's other mode
+    records it: trace_window's signature)."""
     effort_name = run.effort_name
+    other = None
+    period, h = drive_period(drive), twin.base_period_s
+    if out0.effort is not None and effort_name is not None and round(period / h) > 1:
+        now = twin.record_slots(drive)[TRACE_WINDOW_SLOT]
+        mode = h if round(now / h) > 1 else period
+        other = twin.simulate(drive, twin.nominal[None, :], record=[{TRACE_WINDOW_SLOT: mode}])
+        other = other.effort[0] if other.effort is not None and other.ok[0] else None
     return motion_from_position(
         run.t_s,
         run["pos_meas_m"],
@@ -339,9 +356,29 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Mot
         lead_m=twin.lead_m,
         pole_pairs=twin.pole_pairs,
         travel_m=max(float(np.ptp(run["pos_meas_m"])), 1e-6),
-        current_q_A=run.signals.get("current_q_A"),
+        current_q_A=_current_q(run, twin),
         v_cmd_m_s=drive.vel_ref_m_s,
+        current_answer=_current_answer(run, twin),
+        effort_other_mode=other,
     )
+
+
+def _current_answer(run: MeasuredRun, twin: Twin):
+    """The current loop's answer to a voltage error, for a twin that gives its drive's stage
+    but has no Inverter (analysis.drive_stage): the dead time's signature on the effort."""
+    stage = drive_stage(twin.doc) if expandable(twin.doc) else None
+    return None if stage is None else current_answer(stage, run.t_s)
+
+
+def _current_q(run: MeasuredRun, twin: Twin) -> np.ndarray | None:
+    """The record's q-current [A]: its own, else, for a torque-source twin that gives its
+    drive's electrical stage (analysis.drive_stage), the recorded torque over the gain it was
+    converted with (the record's current, as the drive measured it)."""
+    current = run.signals.get("current_q_A")
+    gain = twin.doc.reference_gain
+    if current is None and gain and run.effort_name == "torque_cmd_Nm" and expandable(twin.doc):
+        return run["torque_cmd_Nm"] / gain
+    return current
 
 
 def _identify(

@@ -270,11 +270,14 @@ def rank(
                 best = (label, regs, result)
         assert best is not None
         best_of.append((effect, best[0], best[1], best[2], len(variants), domain))
+    # the position's lag and its curvature (a trace window's over [t - w, t]) are no noise
+    # either: trace_window, ranked on the position before, brought them into its noise, and
+    # ranked on the effort without them a backlash at 41 % of the position residual was no
+    # longer significant (the truth machine's Coulomb + backlash)
+    lag = np.column_stack([offset, motion.v_m_s, motion.a_m_s2])
     noise = {
         d: _noise_level(
-            residual_of[d],
-            [b for b in best_of if b[5] == d],
-            offset if d == "position" else None,
+            residual_of[d], [b for b in best_of if b[5] == d], lag if d == "position" else None
         )
         for d in domains
     }

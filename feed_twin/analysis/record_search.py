@@ -65,7 +65,7 @@ def search(twin: Twin, edit: Edit, drive: Drive, meas: Measured) -> FitResult:
             return
         out = twin.simulate(drive, twin.nominal[None, :], record=[{slot: v} for v in fresh])
         for row, value in enumerate(fresh):
-            tried[value] = (cost_of(meas, out, row), _row(out, row))
+            tried[value] = (cost_of(meas, out, row), one_row(out, row))
 
     evaluate(np.array([current]))
     at_edge = False
@@ -118,7 +118,7 @@ def _trace_mode(twin: Twin, drive: Drive, meas: Measured, current: float) -> Fit
         converged=bool(np.isfinite(costs[best])),
         message=f"tried the trace sampled and averaged over its period ({len(values)} values)",
         evaluations=len(values),
-        outputs=_row(out, best),
+        outputs=one_row(out, best),
     )
 
 
@@ -151,7 +151,7 @@ def _ripple(twin: Twin, drive: Drive, meas: Measured) -> FitResult:
     )
 
 
-def _row(out: SimOutputs, row: int) -> SimOutputs:
+def one_row(out: SimOutputs, row: int) -> SimOutputs:
     return SimOutputs(
         x_m=out.x_m[row : row + 1],
         effort=None if out.effort is None else out.effort[row : row + 1],

@@ -44,20 +44,23 @@ def window_mean(rows: np.ndarray, dec: int, ticks: int | None = None) -> np.ndar
     return (c[:, ends + 1] - c[:, starts]) / (ends - starts + 1)
 
 
-def period_mean(rows: np.ndarray, dec: int) -> np.ndarray:
-    """Every dec-th column of `rows` replaced by the mean over the dec ticks' time ending
-    there, by the trapezoid rule over the dec + 1 columns that bound it (the first column
-    kept): the continuous signal's mean over the period whatever the tick. window_mean's
-    dec columns ending there centre the mean half a tick late, which differs between two
-    models of one axis at different ticks (a 1 ms and a 0.25 ms twin's means of a
-    150 mm/s move lay 0.375 ms, 56 um, apart)."""
+def period_mean(rows: np.ndarray, dec: int, ticks: int | None = None) -> np.ndarray:
+    """Every dec-th column of `rows` replaced by the mean over the `ticks` ticks' time ending
+    there (default: dec, the record's period), by the trapezoid rule over the ticks + 1
+    columns that bound it (fewer at the start; the first column kept): the continuous
+    signal's mean over that time whatever the tick, as a trace that averages over its period
+    (or a window of its own) records it. window_mean's columns ending there centre the mean
+    half a tick late, which differs between two models of one axis at different ticks (a 1 ms
+    and a 0.25 ms twin's means of a 150 mm/s move lay 0.375 ms, 56 um, apart) and from a
+    machine's trace, which averages over time, not over a twin's ticks."""
     rows = np.atleast_2d(rows)
+    width = dec if ticks is None else ticks
     c = np.concatenate((np.zeros((len(rows), 1)), np.cumsum(rows, axis=1)), axis=1)
     ends = np.arange(0, rows.shape[1], dec)
-    starts = np.maximum(ends - dec, 0)
-    width = np.maximum(ends - starts, 1)
+    starts = np.maximum(ends - width, 0)
+    span = np.maximum(ends - starts, 1)
     inner = c[:, ends + 1] - c[:, starts] - 0.5 * (rows[:, starts] + rows[:, ends])
-    return np.where(ends > starts, inner / width, rows[:, ends])
+    return np.where(ends > starts, inner / span, rows[:, ends])
 
 
 DEAVERAGE_ITERATIONS = 10  # corrections of the knots (each halves a smooth signal's error)
@@ -67,27 +70,24 @@ def deaveraged(
     t_s: np.ndarray, means: np.ndarray, fine_t: np.ndarray, ticks: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(value, rate, second rate) on `fine_t` (ticks h apart) of a smooth signal whose mean over
-    the `ticks` ticks ending at each stamp t_s[k] is means[k]: a cubic spline through knots at
-    the windows' centres, the knots corrected until its window means are the record's (the
-    first window too, which reaches back before the record). Interpolating the means
+    the `ticks` ticks' time ending at each stamp t_s[k], (t_s[k] - ticks h, t_s[k]], is
+    means[k] (period_mean's law): a cubic spline through knots at the windows' centres, the
+    knots corrected until its window means (exact integrals of the spline) are the record's
+    (the first window too, which reaches back before the record). Interpolating the means
     themselves smooths the signal twice once the twin's outputs are averaged too (a 50 Hz
     trace's accelerations, and with them the effort, came out flattened: `trace_filter: mean`
     made fits worse)."""
     from scipy.interpolate import CubicSpline
 
     h = float(fine_t[1] - fine_t[0])
-    dec = round(float(t_s[1] - t_s[0]) / h) if len(t_s) > 1 else 1
-    centres = t_s - 0.5 * (ticks - 1) * h
-    # every window on one grid: tick (ticks - 1) + k dec is the stamp t_s[k]
-    grid = t_s[0] - (ticks - 1) * h + h * np.arange((ticks - 1) + dec * (len(t_s) - 1) + 1)
-    ends = (ticks - 1) + dec * np.arange(len(t_s))
+    width = ticks * h
+    centres = t_s - 0.5 * width
     means = np.asarray(means, dtype=float)
     knots = means.copy()
     spline = CubicSpline(centres, knots)
     for _ in range(DEAVERAGE_ITERATIONS):
-        c = np.concatenate(([0.0], np.cumsum(spline(grid))))
-        seen = (c[ends + 1] - c[ends + 1 - ticks]) / ticks
-        knots += means - seen
+        area = spline.antiderivative()
+        knots += means - (area(t_s) - area(t_s - width)) / width
         spline = CubicSpline(centres, knots)
     inside = np.minimum(fine_t, centres[-1])  # held after the last centre
     moving = fine_t <= centres[-1]

@@ -273,9 +273,11 @@ def ranked(ctx: Context, outputs: SimOutputs, exclude: tuple[str, ...]) -> list[
 def choose_rivals(ranked: list[Candidate], opts: Options) -> list[Candidate]:
     """The candidates of one round fitted by simulation: the leading ones (at most
     candidates_per_round, each explaining rival_ratio of the leader's share), and the leader of
-    every other residual. Shares of different residuals do not compare: a feedback delay in
-    the loop (27 % of the effort residual) lost its place to three timings of the record that
-    each took 98 % of the position's, and the one of them kept took the loop's delay too."""
+    every other residual, and beside a residual's rival ranked there on its fallback residual
+    the best of the effects ranked there on their own. Shares of different residuals do not
+    compare: a feedback delay in the loop (27 % of the effort residual) lost its place to three
+    timings of the record that each took 98 % of the position's, and the one of them kept took
+    the loop's delay too."""
     lead = ranked[0]
     rivals = [
         c
@@ -285,6 +287,18 @@ def choose_rivals(ranked: list[Candidate], opts: Options) -> list[Candidate]:
     for c in ranked:
         if all(r.residual_domain != c.residual_domain for r in rivals):
             rivals.append(c)  # the first of its residual's: the ranking's order
+    for r in list(rivals):
+        if r.residual_domain == r.effect.domain:
+            continue
+        # a residual's rival ranked there on its fallback (a dead time without voltages, on
+        # the effort) takes no place from the best of that residual's own effects: a 4 ms
+        # feedback delay (measurement_delay) lost its effort slot to the dead time's current
+        # dip (53 % of the effort residual) and was named as a command delay
+        own = next(
+            (c for c in ranked if c.residual_domain == c.effect.domain == r.residual_domain), None
+        )
+        if own is not None and own not in rivals:
+            rivals.append(own)
     return rivals
 
 
@@ -293,15 +307,16 @@ def _judged(state: State, ctx: Context, trials: list) -> list:
     # each trial's test against the model now; the best by an information criterion on the
     # likelihood ratio (module docstring) that passes the test is kept (a drive gain that bends
     # the position at the effort's expense must not hide the holding force fitted beside it)
-    judged = []
+    judged, befores = [], []
     for cand, edit, alone, new_twin, result in trials:
         ctx.tried.append(cand.name)
         meaningless = no_finding(state, ctx, cand, edit, alone, result)
         if meaningless is not None:
             ctx.notes.append(f"{meaningless}; not kept")
             continue
+        before = ctx.channels(_baseline(state, ctx, edit, alone, new_twin))
         verdict = compare(
-            ctx.channels(state.outputs),
+            before,
             ctx.channels(result.outputs),
             added=edit.added,
             searched=_searched(cand, edit, len(trials)),
@@ -309,17 +324,32 @@ def _judged(state: State, ctx: Context, trials: list) -> list:
             support=cand.support,
         )
         judged.append((verdict, cand, edit, alone, new_twin, result))
-    before = ctx.channels(state.outputs)
+        befores.append(before)
     afters = [ctx.channels(j[-1].outputs) for j in judged]
     yardstick = (
         effective_counts(afters[int(np.argmin([j[-1].cost for j in judged]))]) if judged else {}
     )
     scores = [
         information(before, after, yardstick, j[2].added)
-        for j, after in zip(judged, afters, strict=True)
+        for j, before, after in zip(judged, befores, afters, strict=True)
     ]
     order = sorted(range(len(judged)), key=lambda k: scores[k], reverse=True)
     return [judged[k] for k in order]
+
+
+def _baseline(state: State, ctx: Context, edit: Edit, alone, new_twin: Twin) -> SimOutputs:
+    """What a trial is tested against: the model now, or, for an edit that writes a new stage
+    (Edit.restructures: a drive's electrical stage for its dead time), the edited model with
+    the effect's own parameters at their neutral values, so that what the new stage does at
+    any size (the current loop's lag) is not counted for the effect."""
+    if not edit.restructures:
+        return state.outputs
+    slots = tuple(p.name for p in alone)
+    row = new_twin.nominal.copy()
+    for slot, value in neutral_values(state.doc, model_of(edit.doc), slots).items():
+        for i in new_twin.index[slot]:
+            row[i] = value
+    return new_twin.simulate(ctx.drive, row[None, :])
 
 
 def no_finding(

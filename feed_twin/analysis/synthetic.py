@@ -25,6 +25,7 @@ import numpy as np
 
 from feed_twin.analysis.effects import LIBRARY
 from feed_twin.analysis.model_doc import ModelDoc, model_of
+from feed_twin.analysis.recorder import period_mean
 from feed_twin.analysis.twin import Drive, Twin
 from feed_twin.core.validate import require_nonnegative, require_positive
 from feed_twin.plant.effect_api import TruthFn
@@ -225,12 +226,16 @@ def _friction_growth(
 
 def as_trace(columns: Mapping[str, np.ndarray], period_ticks: int) -> dict[str, np.ndarray]:
     """The columns of a record at the base period as a drive's trace records them: each the
-    mean over `period_ticks` ticks, one sample per period, stamped (time_ms) at the end of its
-    window, as Twin.simulate takes a record whose map says `trace_filter: mean`."""
+    mean over the time of `period_ticks` ticks (recorder.period_mean, the value before the
+    record held), one sample per period, stamped (time_ms) at the end of its window, as
+    Twin.simulate takes a record whose map says `trace_filter: mean`."""
     if period_ticks < 1:
         raise ValueError(f"period_ticks = {period_ticks!r}: must be >= 1")
     n = len(columns["time_ms"]) // period_ticks * period_ticks
-    out = {k: v[:n].reshape(-1, period_ticks).mean(axis=1) for k, v in columns.items()}
+    out = {
+        k: period_mean(np.concatenate((v[:1], v[:n])), period_ticks)[0, 1:]
+        for k, v in columns.items()
+    }
     out["time_ms"] = columns["time_ms"][period_ticks - 1 : n : period_ticks].copy()
     return out
 

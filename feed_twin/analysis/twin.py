@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from feed_twin.analysis.drive_stage import expanded
 from feed_twin.analysis.fit import SimOutputs
 from feed_twin.analysis.model_doc import (
     ANALYSIS_SECTION,
@@ -43,7 +44,6 @@ from feed_twin.analysis.recorder import (
     delayed,
     period_mean,
     start_velocity,
-    window_mean,
 )
 from feed_twin.core import signals
 from feed_twin.core.config import ConfigError
@@ -160,6 +160,8 @@ class Twin:
     effort_name: str
     effort_unit: str
     has_voltage: bool = False  # the controller has a current loop whose u_q is recorded
+    # the Pmsm an expanded torque-source twin measures its effort on (analysis.drive_stage)
+    stage_motor: str | None = None
     _cache: dict = field(default_factory=dict)
 
     @classmethod
@@ -185,7 +187,12 @@ class Twin:
                 nominal[plant.param_index[f"{name}.noise_std"]] = 0.0
         kinds = {e["type"] for e in doc.data["plant"]["components"]}
         has_voltage = "Pmsm" in kinds
-        if "Pmsm" in kinds or "DcMotor" in kinds or doc.effort_signal() == "current_q_A":
+        stage_motor = _stage_motor(doc)
+        if stage_motor is not None:
+            # a torque-source twin with its drive's electrical stage (analysis.drive_stage):
+            # its effort is still the record's torque, now from the motor's actual current
+            effort_name, unit = "torque_cmd_Nm", "N m"
+        elif "Pmsm" in kinds or "DcMotor" in kinds or doc.effort_signal() == "current_q_A":
             effort_name, unit = "current_q_A", "A"
         else:
             source = doc.of_type("EffortSource")
@@ -206,7 +213,7 @@ class Twin:
             substeps=nsub,
             controller=controller,
             params=nominal,
-            record=_recorded(has_voltage),
+            record=_recorded(has_voltage, stage_motor),
         )
         index: dict[str, tuple[int, ...]] = {n: (i,) for i, n in enumerate(plant.param_names)}
         for name, members in doc.ties:
@@ -228,6 +235,7 @@ class Twin:
             effort_name=effort_name,
             effort_unit=unit,
             has_voltage=has_voltage,
+            stage_motor=stage_motor,
         )
 
     @property
@@ -531,9 +539,10 @@ class Twin:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(position, effort, q-voltage) on the record's samples from the base ticks' values,
         as the record's trace takes them (`slots`: Twin.record_slots): each the mean over the
-        trace's window ending at its sample (one tick: the tick itself), the position and the
-        effort stamped their delays [s] late, every output the command's delay later (a loop
-        that follows its command d later answers d later: the twin is time invariant)."""
+        trace's window ending at its sample (recorder.period_mean; one tick: the tick itself),
+        the position and the effort stamped their delays [s] late, every output the command's
+        delay later (a loop that follows its command d later answers d later: the twin is time
+        invariant)."""
         h = self.base_period_s
         ticks = max(1, round(slots[TRACE_WINDOW_SLOT] / h))
         common = slots[COMMAND_DELAY_SLOT]
@@ -549,7 +558,7 @@ class Twin:
             fine_t = h * np.arange(pos.shape[1])
             signals = [_shifted(y, fine_t, d) for y, d in zip(signals, delays, strict=True)]
         if ticks > 1:
-            signals = [window_mean(y, dec, ticks) for y in signals]
+            signals = [period_mean(y, dec, ticks) for y in signals]
         else:
             signals = [y[:, ::dec] for y in signals]
         if not fine:
@@ -583,7 +592,10 @@ class Twin:
         else:
             lead = self.controller_lead()
             pos = res["meas.theta_enc_rad"][:, sel] * lead / (2.0 * math.pi)
-        if self.effort_name == "current_q_A":
+        if self.stage_motor is not None:
+            # the drive's actual q-current (its sensor is exact), in the record's torque
+            eff = res[f"{self.stage_motor}.i_q"][:, sel] * (self.doc.reference_gain or 1.0)
+        elif self.effort_name == "current_q_A":
             eff = res["out.i_q_ref_A"][:, sel]
         else:
             gain = self.doc.reference_gain or 1.0
@@ -654,9 +666,16 @@ def drive_period(drive: Drive) -> float:
     return float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
 
 
-def _recorded(has_voltage: bool) -> list[str]:
+def _recorded(has_voltage: bool, stage_motor: str | None = None) -> list[str]:
     names = ["meas.theta_enc_rad", "meas.x_scale_m", "out.effort_cmd", "out.i_q_ref_A"]
+    names += [f"{stage_motor}.i_q"] if stage_motor is not None else []
     return names + (["out.u_q_ref_V"] if has_voltage else [])
+
+
+def _stage_motor(doc: ModelDoc) -> str | None:
+    """The Pmsm of a torque-source twin given its drive's electrical stage
+    (analysis.drive_stage.expand), None for any other model."""
+    return doc.of_type("Pmsm")[0] if expanded(doc) else None
 
 
 def substeps_needed(plant: Any, p: np.ndarray, h: float) -> int:

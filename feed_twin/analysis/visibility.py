@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from feed_twin.analysis.drive_stage import expandable
 from feed_twin.analysis.effects import CHANNEL_DELAY_PERIODS
 from feed_twin.analysis.fit import SimOutputs
 from feed_twin.analysis.ranking import Candidate
@@ -230,6 +231,8 @@ def _uncarried(run: MeasuredRun, twin: Twin) -> list[Unseen]:
     Inverter (an effort source behind an ideal current loop) on a record without the drive's
     q-current (its signature is a function of the current's sign)."""
     if twin.doc.of_type("Inverter") or run.signals.get("current_q_A") is not None:
+        return []
+    if expandable(twin.doc):  # its drive's data sheet gives the stage (analysis.drive_stage)
         return []
     return [
         Unseen(

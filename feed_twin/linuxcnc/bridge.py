@@ -33,6 +33,7 @@ from feed_twin.linuxcnc.samples import JOINT_LETTERS, ROW_HEADER, SampleLayout, 
 
 NS_PER_S = 1_000_000_000
 PENDING_LIMIT = 120_000  # stamps awaiting the twin's output (2 min at 1 kHz): bounded memory
+LATENCY_PARTS = ("servo_to_reader", "reader_to_bridge", "bridge_to_published")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -51,6 +52,8 @@ class BridgeBatch:
     pid_output_m_s: np.ndarray  # (n, 3) [m/s]
     measured_stamp_ns: np.ndarray  # int64, stamps of the measured samples (may be one shorter)
     measured_pos_m: np.ndarray  # [m] the twin joint's feedback for those stamps
+    receive_time_s: np.ndarray  # CLOCK_MONOTONIC when LinuxCNC's reader took each period [s]
+    taken_s: float  # CLOCK_MONOTONIC when the bridge took the batch [s]
 
     def __len__(self) -> int:
         return int(self.stamp_ns.size)
@@ -72,6 +75,7 @@ class ServoBridge:
         self._last_tick: int | None = None
         self._pending: OrderedDict[int, float] = OrderedDict()  # stamp_ns -> tick time [s]
         self.publish_latency_s: list[np.ndarray] = []
+        self._latency_parts: dict[str, list[np.ndarray]] = {part: [] for part in LATENCY_PARTS}
         self._ticks: list[np.ndarray] = []  # every received period's tick and start time
         self._starts_s: list[np.ndarray] = []
         self.twin_latency_s: list[float] = []
@@ -111,6 +115,8 @@ class ServoBridge:
             pid_output_m_s=trace.pid_output_m_s[keep],
             measured_stamp_ns=stamp[measured] - round(self.period_s * NS_PER_S),
             measured_pos_m=fb[measured, self.joint],
+            receive_time_s=trace.receive_time_s[keep],
+            taken_s=now_s,
         )
         self.published += len(batch)
         for s, t in zip(batch.stamp_ns.tolist(), batch.tick_time_s.tolist(), strict=True):
@@ -125,10 +131,17 @@ class ServoBridge:
         if tick_time is not None:
             self.twin_latency_s.append(now_s - tick_time)
 
-    def mark_published(self, tick_time_s: np.ndarray, *, now_s: float) -> None:
-        """The periods starting at `tick_time_s` were handed to DDS by `now_s` (both
-        CLOCK_MONOTONIC)."""
-        self.publish_latency_s.append(now_s - tick_time_s)
+    def mark_published(self, batch: BridgeBatch, start: int, stop: int, *, now_s: float) -> None:
+        """Periods `start` to `stop` of `batch` were handed to DDS by `now_s` (CLOCK_MONOTONIC).
+        Their latency in three parts: servo tick -> LinuxCNC's reader (the display program
+        draining the sampler FIFO), reader -> the bridge's batch (the pipe and the bridge's
+        loop), the bridge's batch -> published (packing, and the window to the twin)."""
+        tick, received = batch.tick_time_s[start:stop], batch.receive_time_s[start:stop]
+        self.publish_latency_s.append(now_s - tick)
+        self._latency_parts["servo_to_reader"].append(received - tick)
+        self._latency_parts["reader_to_bridge"].append(batch.taken_s - received)
+        waited = np.full(stop - start, now_s - batch.taken_s)
+        self._latency_parts["bridge_to_published"].append(waited)
 
     def report(self) -> dict[str, object]:
         publish = (
@@ -150,6 +163,11 @@ class ServoBridge:
             else self._last_tick - self.k0 + 1,
             **_percentiles("bridge_latency", publish),
             **_percentiles("twin_output_latency", twin),
+            # where the bridge latency goes (mark_published), p99 of each part [ms]
+            "bridge_latency_parts_p99_ms": {
+                part: float(np.percentile(np.concatenate(values), 99)) * 1e3 if values else None
+                for part, values in self._latency_parts.items()
+            },
             **{f"servo_{key}": value for key, value in timing.items()},
         }
 

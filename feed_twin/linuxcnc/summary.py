@@ -79,6 +79,9 @@ class LinuxcncFigures:
     servo_timing: PeriodTiming | None = None
     bag_counts: dict[str, int] = field(default_factory=dict)  # messages per topic in the bag
     samples_lost_by_topic: dict[str, int] = field(default_factory=dict)  # expected - in the bag
+    # [ms] p99 of the bridge latency's parts (ServoBridge.mark_published): servo tick ->
+    # LinuxCNC's reader, reader -> the bridge, the bridge -> published
+    bridge_latency_parts_p99_ms: dict[str, float | None] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         out = asdict(self)
@@ -105,6 +108,17 @@ class LinuxcncFigures:
                 *([self.servo_timing.format()] if self.servo_timing is not None else []),
                 f"bridge latency:        p50 {shown(self.bridge_latency_p50_ms, 'ms')}, "
                 f"p99 {shown(self.bridge_latency_p99_ms, 'ms')} (servo tick -> published)",
+                *(
+                    [
+                        "  its parts' p99:      "
+                        + ", ".join(
+                            f"{part.replace('_', ' ')} {shown(ms, 'ms')}"
+                            for part, ms in self.bridge_latency_parts_p99_ms.items()
+                        )
+                    ]
+                    if self.bridge_latency_parts_p99_ms
+                    else []
+                ),
                 f"twin output latency:   p50 {shown(self.twin_output_latency_p50_ms, 'ms')}, "
                 f"p99 {shown(self.twin_output_latency_p99_ms, 'ms')} "
                 "(servo tick -> twin's residual)",
@@ -143,6 +157,7 @@ def linuxcnc_figures(bag: Path, *, twin_namespace: str, report: dict) -> Linuxcn
         servo_timing=servo_timing_from_report(report),
         bag_counts=bag_counts,
         samples_lost_by_topic=lost_by_topic,
+        bridge_latency_parts_p99_ms=dict(report.get("bridge_latency_parts_p99_ms") or {}),
     )
 
 

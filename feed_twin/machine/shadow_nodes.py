@@ -88,6 +88,10 @@ class ShadowPlan:
     linuxcnc: bool  # LinuxCNC is the machine (feed_twin/ros/machine_linuxcnc_node.py)
     axis_file: bool = False  # an axis YAML as a one-axis machine (module docstring)
     ros_axis: str = ""  # an axis file's ros.axis: its nodes' namespace /<machine>/<ros_axis>
+    # ros.linuxcnc_nice of the first axis's file (an axis file's own, a machine's from its ros:
+    # section): the nice value of LinuxCNC's bridge and of every twin beside it
+    # (feed_twin/ros/dds.py, set_nice) [-]
+    linuxcnc_nice: int = 0
 
     def namespace(self, axis: str) -> str:
         return f"/{self.machine}/{self.ros_axis if self.axis_file else axis.lower()}"
@@ -101,6 +105,12 @@ class ShadowPlan:
     @property
     def axis_roles(self) -> tuple[str, ...]:
         return ("twin",) if self.linuxcnc else ("standin", "twin")
+
+    @property
+    def beside_linuxcnc(self) -> list[str]:
+        """The arguments of the bridge and of each twin beside LinuxCNC: a larger share of a
+        busy CPU (ros.linuxcnc_nice; LinuxCNC, started by the bridge, inherits it)."""
+        return ["--nice", str(self.linuxcnc_nice)] if self.linuxcnc else []
 
     def processes(
         self,
@@ -134,7 +144,7 @@ class ShadowPlan:
             "gcode": [*served, "--program", str(program), "--autostart", "--axis-clock",
                       *(["--optional-stop"] if optional_stop else [])],
             "linuxcnc": ["--machine-config", self.source, "--axes", ",".join(self.axes),
-                         "--program", str(program)],
+                         "--program", str(program), *self.beside_linuxcnc],
         }  # fmt: skip
         hub_roles = ("recorder", "linuxcnc") if self.linuxcnc else ("recorder", "gcode")
         everyone = [*hub_roles, *self.axis_roles]
@@ -162,7 +172,7 @@ class ShadowPlan:
                     argv += ["--rerun-url", live_url] if live_url else []
                     if self.linuxcnc:  # the bridge sends its periods packed (linuxcnc_node)
                         topics = AxisTopics(machine=self.machine, axis=axis.lower())
-                        argv += ["--batch-topic", topics.bridge_batch]
+                        argv += ["--batch-topic", topics.bridge_batch, *self.beside_linuxcnc]
                 out[process_name(axis, role)] = [(role, argv)]
         return out
 
@@ -181,15 +191,16 @@ class ShadowPlan:
         (axis,) = self.axes
         machine = ["--machine", self.machine, "--axis", self.ros_axis]
         topics = AxisTopics(machine=self.machine, axis=self.ros_axis)
+        nice = self.beside_linuxcnc
         own = {
             "recorder": ["--bag", str(bag), "--twin-namespace", f"{topics.namespace}/twin"],
             "twin": ["--map", str(self.maps[axis]), *machine, "--rrd", str(self.rrd(bag, axis)),
-                     *(["--batch-topic", topics.bridge_batch] if self.linuxcnc else []),
+                     *(["--batch-topic", topics.bridge_batch, *nice] if self.linuxcnc else []),
                      *(["--rerun-url", live_url] if live_url else [])],
             "standin": ["--follow", *machine, *(["--realtime"] if realtime else [])],
             "gcode": ["--program", str(program), "--autostart",
                       *(["--optional-stop"] if optional_stop else [])],
-            "linuxcnc": ["--program", str(program)],
+            "linuxcnc": ["--program", str(program), *nice],
         }  # fmt: skip
         roles = ("recorder", "twin", "linuxcnc") if self.linuxcnc else tuple(own)[:4]
         out: dict[str, list[tuple[str, list[str]]]] = {}
@@ -211,9 +222,11 @@ def shadow_plan(machine: MachineConfig, bag: Path, *, linuxcnc: bool = False) ->
 
     if machine.axis_file:
         files = {axis: Path(machine.source) for axis in machine.axes}
-        ros_axis = load_node_set_config(machine.source).axis
     else:
-        files, ros_axis = write_documents(machine, shadow_documents(machine), None), ""
+        files = write_documents(machine, shadow_documents(machine), None)
+    # the bridge reads the first axis's file too (machine_linuxcnc_node --config)
+    ros = load_node_set_config(next(iter(files.values())))
+    ros_axis = ros.axis if machine.axis_file else ""
     bag.parent.mkdir(parents=True, exist_ok=True)
     maps, units = {}, {}
     for axis, path in files.items():
@@ -241,6 +254,7 @@ def shadow_plan(machine: MachineConfig, bag: Path, *, linuxcnc: bool = False) ->
         linuxcnc=linuxcnc,
         axis_file=machine.axis_file,
         ros_axis=ros_axis,
+        linuxcnc_nice=ros.linuxcnc_nice,
     )
 
 

@@ -112,6 +112,9 @@ class NodeSetConfig:
     # feed_twin/ros/host.py); "own": a process of its own; "auto": with the sim in lockstep,
     # its own in real time (there the sim must not wait while the recorder writes its bag)
     recorder_host: RecorderHost = "auto"
+    # nice value of LinuxCNC's bridge and the twin beside it (`--nc linuxcnc`): a larger share
+    # of a busy host's CPUs (feed_twin/ros/dds.py); 0: leave; below 0 needs CAP_SYS_NICE [-]
+    linuxcnc_nice: int = -10
     # Exchanges per message to the recorder (feed_twin/nodeset/record_batch.py): the sim's
     # feedback, state and joint states and the controller's DriveCommand reach the recorder
     # packed, one message per this many exchanges, instead of one datagram each; 0: each on
@@ -154,6 +157,7 @@ class NodeSetConfig:
             ("exchange_cpu", -1, 1023),
             ("realtime_priority", 0, 99),
             ("cpu_latency_us", -1, 1_000_000),
+            ("linuxcnc_nice", -20, 19),
         ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:

@@ -190,6 +190,7 @@ ROLES: dict[str, Role] = {
                 "--max-time",
                 PEER_TIMEOUT,
                 "--batch-topic",  # beside the LinuxCNC bridge
+                "--nice",  # beside the LinuxCNC bridge: ros.linuxcnc_nice
             ),  # fmt: skip
         ),
         Role(
@@ -235,7 +236,7 @@ ROLES: dict[str, Role] = {
                 _out("run_state", msg_types.STRING),
                 *_LIVENESS,
             ),
-            arguments=("--program",),
+            arguments=("--program", "--nice"),
         ),
         Role(
             name="machine_linuxcnc",
@@ -246,7 +247,8 @@ ROLES: dict[str, Role] = {
             guarded=False,
             own_node=False,
             machine_wide=True,  # one LinuxCNC for every axis of the machine
-            arguments=("--machine-config", "--axes", "--program", PEER_TIMEOUT),
+            # --nice: ros.linuxcnc_nice, as the single-axis bridge
+            arguments=("--machine-config", "--axes", "--program", PEER_TIMEOUT, "--nice"),
         ),
     )
 }

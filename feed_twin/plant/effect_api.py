@@ -46,6 +46,14 @@ class Motion:
     travel_m: float  # [m] stroke of the axis (for stiffness that depends on position)
     current_q_A: FloatArray | None = None  # measured q-current (or its command) [A]
     v_cmd_m_s: FloatArray | None = None  # commanded velocity [m/s] (None: the record has none)
+    # the drive's current loop's answer: the q-current [A] a voltage error [V] on its windings
+    # leaves (samples of one and of the other), for a twin that knows its current loop but has
+    # no Inverter (analysis.drive_stage); None elsewhere
+    current_answer: Callable[[FloatArray], FloatArray] | None = None
+    # the twin's effort as the trace's other mode records it: each sample the mean over its
+    # period where the twin takes it as it is, or the other way round (None: the record's
+    # period is the twin's tick, or no effort)
+    effort_other_mode: FloatArray | None = None
 
     @property
     def speed_eps(self) -> float:
@@ -63,6 +71,8 @@ def motion_from_position(
     travel_m: float,
     current_q_A: FloatArray | None = None,
     v_cmd_m_s: FloatArray | None = None,
+    current_answer: Callable[[FloatArray], FloatArray] | None = None,
+    effort_other_mode: FloatArray | None = None,
 ) -> Motion:
     """Velocity and acceleration from a measured position by Savitzky-Golay differentiation.
 
@@ -86,6 +96,8 @@ def motion_from_position(
         travel_m=travel_m,
         current_q_A=None if current_q_A is None else np.asarray(current_q_A, dtype=float),
         v_cmd_m_s=None if v_cmd_m_s is None else np.asarray(v_cmd_m_s, dtype=float),
+        current_answer=current_answer,
+        effort_other_mode=effort_other_mode,
     )
 
 
@@ -237,6 +249,10 @@ class Edit:
     # whole-number parameters are searched over these values instead of least squares
     grid: tuple[float, ...] = ()
     report: Report  # reported parameter name -> function of the fitted slot values
+    # the edit writes a new stage that changes the model even at the effect's neutral values
+    # (a drive's electrical stage for its dead time): the effect is tested against the edited
+    # model at those values, not against the model before (analysis.rounds)
+    restructures: bool = False
 
 
 def free_parameter(

@@ -100,12 +100,16 @@ def dead_time_voltage(
 
 def _dead_time_choices(m: Motion) -> list[tuple[str, Signature]]:
     # the weight of the q part computed from the measured q-current at the electrical angle
-    # p 2 pi x / lead is u_dc Delta T_d / T_s, the extra volts the controller must command
+    # p 2 pi x / lead is u_dc Delta T_d / T_s, the extra volts the controller must command;
+    # where the motion knows the current loop's answer to a voltage error (a twin without an
+    # Inverter), the current dip it leaves after each reversal, ranked on the effort
     def make(i_reg: float) -> Signature:
         def signature(mm: Motion) -> dict[str, FloatArray]:
             assert mm.current_q_A is not None and mm.pole_pairs is not None
             theta_e = mm.pole_pairs * motor_angle(mm)
-            return {"sgn_i_q": dead_time_voltage(mm.current_q_A, theta_e, i_reg)["q"]}
+            volts = dead_time_voltage(mm.current_q_A, theta_e, i_reg)["q"]
+            answer = mm.current_answer
+            return {"sgn_i_q": volts if answer is None else answer(volts)}
 
         return signature
 

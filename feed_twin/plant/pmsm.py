@@ -152,7 +152,7 @@ def with_cogging(doc: Document, order: int, amplitude: float, phase: float) -> t
     CoggingTorque on the flange of its rotational EffortSource (the rotor of a drive behind its
     current loop); (document, slot prefix)."""
     if not doc.of_type(Pmsm.TYPE):
-        source = _rotor_source(doc)
+        source = rotor_source(doc)
         params = {"order": int(order), "amplitude": float(amplitude), "phase": float(phase)}
         doc, name = doc.with_component(
             "cogging", CoggingTorque.TYPE, params, [["{name}.flange", f"{source}.flange"]]
@@ -164,7 +164,7 @@ def with_cogging(doc: Document, order: int, amplitude: float, phase: float) -> t
     return doc.set_raw(motor, "cogging", harmonics), f"{motor}.cog{len(harmonics) - 1}_"
 
 
-def _rotor_source(doc: Document) -> str:
+def rotor_source(doc: Document) -> str:
     """The model's EffortSource that drives a rotor flange, or a LookupError."""
     for name in doc.of_type("EffortSource"):
         if doc.component(name).get("params", {}).get("domain") == "rotational":
@@ -190,13 +190,17 @@ def torque_constant(doc: Document) -> float:
 
 
 def _cogging_edit(doc: Document, cand: Weights) -> Edit:
-    """A cogging harmonic of the order the signature found; amplitude and phase are fitted.
+    """A cogging harmonic of the order the signature found (cogging_edit)."""
+    return cogging_edit(doc, cand, int(cand.variant.split()[1]) if cand.variant else 6)
+
+
+def cogging_edit(doc: Document, cand: Weights, order: int) -> Edit:
+    """A torque harmonic of `order` per motor revolution; amplitude and phase are fitted.
 
     The drive must supply -tau_cog = -A sin(k phi + psi), so the current residual is
     -(A/K_t) sin(k phi + psi): the weights (s, c) of (sin, cos) give A = K_t sqrt(s^2 + c^2)
     and psi = atan2(-c, -s).
     """
-    order = int(cand.variant.split()[1]) if cand.variant else 6
     s_w, c_w = cand.coefficients.get("sin", 0.0), cand.coefficients.get("cos", 0.0)
     amplitude = max(_torque_per_effort(doc, cand) * math.hypot(s_w, c_w), 1e-4)
     phase = math.atan2(-c_w, -s_w)

@@ -43,8 +43,15 @@ from feed_twin.plant.effect_api import (
     slot_reader,
 )
 
-MAX_DELAY_TICKS = 15  # the engine keeps the last 16 samples
-SEARCHED_DELAY_TICKS = 8  # sample delays the workflow searches for measurement_delay
+# the engine keeps the last MAX_DELAY_TICKS + 1 samples (sim.kernel.RING, a power of 2: the C
+# kernel's modulo is a mask): 15.75 ms at the 0.25 ms tick of a drive's velocity loop. With 16
+# kept a truth machine's 4 ms feedback delay was fitted as the 2 ms at the searched grid's edge
+MAX_DELAY_TICKS = 63
+# the sample delays the workflow searches for measurement_delay first: at least this many ticks
+# and this long [s]; widened while the best lies at the grid's edge (analysis.trials), up to
+# MAX_DELAY_TICKS
+SEARCHED_DELAY_TICKS = 8
+SEARCHED_DELAY_S = 5e-3
 
 
 @njit(error_model="numpy", forceinline=True)
@@ -93,10 +100,14 @@ def _delay_edit(doc: Document, cand: Weights) -> Edit:
     name = "sensors.delay_ticks"
     doc = doc.tie(name, slots)
     period = doc.base_period()
-    own = [FreeParameter(name=name, initial=doc.get(name), scale=1.0, lower=0.0)]
+    own = [
+        FreeParameter(name=name, initial=doc.get(name), scale=1.0, lower=0.0, upper=MAX_DELAY_TICKS)
+    ]
     report: Report = {"delay_ticks": lambda v: v[name], "delay_s": lambda v: v[name] * period}
     # a delay in whole sensor samples: searched, not differentiated
-    return make_edit(doc, own, report, interacts=False, grid=tuple(range(SEARCHED_DELAY_TICKS + 1)))
+    ticks = math.ceil(SEARCHED_DELAY_S / period - 1e-9)
+    reach = min(MAX_DELAY_TICKS, max(SEARCHED_DELAY_TICKS, ticks))
+    return make_edit(doc, own, report, interacts=False, grid=tuple(range(reach + 1)))
 
 
 def _delay_truth(doc: Document, p: Mapping[str, float]) -> Document:

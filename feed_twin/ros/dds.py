@@ -20,6 +20,14 @@
   of halting. On a virtual machine waking a halted CPU goes through the host, which costs a
   cross-core message several times its send (docs/performance.md). The price is an idle CPU
   that keeps spinning while a run lasts. Needs root; refused, it is logged and skipped.
+- Weight beside LinuxCNC (`set_nice`, `ros.linuxcnc_nice`): the bridge and the twin (a
+  machine's bridge and each of its twins, as the shadow plan passes `--nice`) run under
+  normal scheduling with a lower nice value, i.e. a larger share of a busy CPU. On this 2-core
+  host at load 18 both spent 2-3 times as long waiting on a run queue as running (their
+  loops' traces, feed_twin/nodeset/turn_trace.py): a process that needs a tenth of a CPU at
+  1 kHz gets about that as its fair share there, and any more work (a catch-up) falls behind.
+  Not SCHED_FIFO: LinuxCNC's own servo thread runs under normal scheduling when it has no
+  real-time rights, and a real-time twin catching up would stall it.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ from pathlib import Path
 
 import rclpy
 from rclpy.context import Context
+from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
@@ -158,6 +167,28 @@ def apply_scheduling(*, cpu: int = -1, priority: int = 0, cpu_latency_us: int = 
         except (OSError, AttributeError) as exc:
             notes.append(f"normal scheduling, SCHED_FIFO priority {priority} refused: {exc}")
     return notes
+
+
+def set_nice(nice: int) -> list[str]:
+    """Every thread of this process (and the ones it starts later) at nice `nice` (0: leave);
+    one note saying what took effect or why not (a lower value needs CAP_SYS_NICE)."""
+    if nice == 0:
+        return []
+    threads = (
+        [int(t) for t in os.listdir("/proc/self/task")] if os.path.isdir("/proc/self/task") else [0]
+    )
+    try:
+        for tid in threads:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+    except OSError as exc:
+        return [f"nice {nice} refused ({exc}): normal weight"]
+    return [f"nice {nice}"]
+
+
+def apply_nice(node: Node, nice: int) -> None:
+    """`set_nice` for the process of `node`, its note in the node's log (`scheduling: ...`)."""
+    for note in set_nice(nice):
+        node.get_logger().info(f"scheduling: {note}")
 
 
 def raise_priority(priority: int) -> list[str]:

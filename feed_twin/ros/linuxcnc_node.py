@@ -58,7 +58,7 @@ from feed_twin.linuxcnc.servo_cdr import ServoSampleLayout
 from feed_twin.nodeset.record_batch import RecordBatch, unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import AxisTopics
-from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS
+from feed_twin.ros.dds import DATA_QOS, LATCHED_QOS, apply_nice
 from feed_twin.ros.runtime import EXIT_ERROR, EXIT_OK, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import encode_joint_state
 from feed_twin.shadow.replay import twin_namespace
@@ -187,11 +187,13 @@ class LinuxcncNode(FeedTwinNode):
             self.report["startup_s"] = time.monotonic() - now
         if self.run is not None and self.bridge is not None:
             try:
-                rows = self.run.poll(0.0)
+                with self.trace.span("rows"):
+                    rows = self.run.poll(0.0)
             except LinuxcncError as exc:
                 self._end(EXIT_ERROR, str(exc))
                 return 0.05
-            batch = self.bridge.take(rows, now_s=time.monotonic())
+            with self.trace.span("take", len(rows)):
+                batch = self.bridge.take(rows, now_s=time.monotonic())
             if batch is not None:
                 self._backlog.append([batch, 0])
             if self.run.ended:
@@ -231,9 +233,10 @@ class LinuxcncNode(FeedTwinNode):
                 stop += 1
             if stop == start:
                 return
-            self._publish(batch, start, stop)
+            with self.trace.span("publish", stop - start):
+                self._publish(batch, start, stop)
             now = time.monotonic()
-            bridge.mark_published(batch.tick_time_s[start:stop], now_s=now)
+            bridge.mark_published(batch, start, stop, now_s=now)
             late = now - float(batch.tick_time_s[start])
             if late > self.latency_bound_s and not self._latency_said:
                 self._latency_said = True
@@ -296,6 +299,10 @@ class LinuxcncNode(FeedTwinNode):
     def _on_twin_output(self, label: str, data: bytes) -> None:
         """Axis `label`'s twin sent its output (packed: twin_node --batch-topic): the window
         follows the slowest twin, none is flooded; the latency is the first axis's."""
+        with self.trace.span("twin_output"):
+            self._take_twin_output(label, data)
+
+    def _take_twin_output(self, label: str, data: bytes) -> None:
         axis = self._axes[label]
         try:
             stamps = [
@@ -398,6 +405,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
     parser.add_argument("--input-timeout", type=float, default=10.0, help="[s]")
+    parser.add_argument("--nice", type=int, default=0,
+                        help="nice value of the process (ros.linuxcnc_nice)")  # fmt: skip
 
 
 def run_starter(args: argparse.Namespace, nc, servo) -> Callable[[], LinuxcncRun]:
@@ -417,7 +426,7 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
 
     ros = load_node_set_config(args.config)
     nc, servo = machine_for_config(args.config)
-    return LinuxcncNode(
+    node = LinuxcncNode(
         NodeOptions(
             machine=ros.machine,
             axis=ros.axis,
@@ -430,6 +439,8 @@ def build(args: argparse.Namespace, context) -> LinuxcncNode:
         period_s=servo.servo_period_s,
         context=context,
     )
+    apply_nice(node, args.nice)
+    return node
 
 
 def main(argv: Sequence[str] | None = None) -> int:

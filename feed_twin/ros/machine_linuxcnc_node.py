@@ -23,7 +23,7 @@ from std_msgs.msg import String
 
 from feed_twin.linuxcnc.runner import LinuxcncRun
 from feed_twin.nodeset.topics import AxisTopics
-from feed_twin.ros.dds import LATCHED_QOS
+from feed_twin.ros.dds import LATCHED_QOS, apply_nice
 from feed_twin.ros.linuxcnc_node import LinuxcncNode, run_starter
 from feed_twin.ros.linuxcnc_node import configure as bridge_configure
 from feed_twin.ros.runtime import PEER_TIMEOUT_S, NodeOptions, start_node
@@ -69,7 +69,7 @@ def build(args: argparse.Namespace, context) -> MachineLinuxcncNode:
     machine = load_machine_config(args.machine_config).select(args.axes.split(","))
     nc, servo = linuxcnc_machine(machine)
     joints = machine_joints(machine)
-    return MachineLinuxcncNode(
+    node = MachineLinuxcncNode(
         NodeOptions(
             machine=ros.machine,
             axis=ros.axis,
@@ -84,6 +84,8 @@ def build(args: argparse.Namespace, context) -> MachineLinuxcncNode:
         period_s=servo.servo_period_s,
         context=context,
     )
+    apply_nice(node, args.nice)  # ros.linuxcnc_nice (the plan's); LinuxCNC inherits it
+    return node
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -68,6 +68,7 @@ from feed_twin.nodeset.liveness import (
     verdict,
 )
 from feed_twin.nodeset.topics import RECORDER_NODE, AxisTopics
+from feed_twin.nodeset.turn_trace import NO_TRACE, NoTrace, TurnTrace, trace_from_environ
 from feed_twin.ros.dds import HEARTBEAT_QOS, LATCHED_QOS, init_context
 from feed_twin.ros.exit_timer import exit_after
 
@@ -321,6 +322,8 @@ class FeedTwinNode(Node):
         # the run's message authentication (feed_twin.nodeset.auth) and what it refused
         self.auth = RunAuth(process_key())
         self.foreign = ForeignLedger()
+        # a per-turn timing trace of the loop (feed_twin.nodeset.turn_trace), set by spin_nodes
+        self.trace: TurnTrace | NoTrace = NO_TRACE
         self._named_at: dict[str, float] = {}  # topic -> when its publishers were last read
         self._heartbeat_on = False
         self._beat_when: Callable[[], bool] | None = None
@@ -358,6 +361,13 @@ class FeedTwinNode(Node):
         if when is None or when():
             self._beat_when = None
             self.liveness.start_beating()
+
+    def progressed(self) -> None:
+        """The node did a piece of its work (a twin's step): progress its beats carry, also
+        while the executor, draining a backlog of callbacks, has not come back to the loop
+        (a twin that fell behind on a busy host did so for up to 1.9 s, delaying the loop's
+        timer 0.46 s: its traces, docs/linuxcnc.md) - catching up is not stalling."""
+        self.liveness.turns += 1
 
     @contextlib.contextmanager
     def waiting(self) -> Iterator[None]:
@@ -511,6 +521,10 @@ class FeedTwinNode(Node):
         return dog
 
     def _tick(self) -> None:
+        with self.trace.span("tick"):
+            self._tick_turn()
+
+    def _tick_turn(self) -> None:
         # This loop's own lateness counts as the host's jitter too: after a stop of the whole
         # process it may run before the liveness thread has measured the stop.
         self.liveness.late(self._tick_due)
@@ -753,6 +767,9 @@ def spin_nodes(
     for node in nodes:
         executor.add_node(node)
     never = Future()  # spin_until_future_complete then returns at its timeout
+    trace = trace_from_environ("+".join(n.role for n in nodes))
+    for node in nodes:
+        node.trace = trace
     stall_dump_s = float(os.environ.get(STALL_DUMP_ENV) or 0.0)
     signalled_at: float | None = None
     code = EXIT_ERROR  # until the nodes have ended normally
@@ -765,10 +782,13 @@ def spin_nodes(
                     node.on_signal(name)
             if _spun_enough(nodes, signalled_at, until_all_done, stop_on_failure):
                 break
-            waits = [w for w in (n.poll() for n in nodes) if w is not None]
+            trace.turn()
+            with trace.span("poll"):
+                waits = [w for w in (n.poll() for n in nodes) if w is not None]
             if stall_dump_s > 0.0:
                 faulthandler.dump_traceback_later(stall_dump_s, repeat=True)
-            executor.spin_until_future_complete(never, timeout_sec=min([poll_s, *waits]))
+            with trace.span("spin"):
+                executor.spin_until_future_complete(never, timeout_sec=min([poll_s, *waits]))
             if stall_dump_s > 0.0:
                 faulthandler.cancel_dump_traceback_later()
         reason = (
@@ -777,6 +797,9 @@ def spin_nodes(
             else next((n.exit_message for n in nodes if n.done and n.exit_message), "")
         )
         _shut_down(nodes, reason)
+        written = trace.write()
+        if written is not None:
+            print(f"turn trace: {written}", file=sys.stderr, flush=True)
         total = _cpu_seconds()
         setup = max(n.setup_cpu_s for n in nodes)
         roles = "+".join(n.role for n in nodes)

@@ -51,7 +51,7 @@ from feed_twin.io.measured import load_column_map
 from feed_twin.nodeset.record_batch import RecordBatch, unpack
 from feed_twin.nodeset.roles import node_role
 from feed_twin.nodeset.topics import Topic
-from feed_twin.ros.dds import DATA_QOS
+from feed_twin.ros.dds import DATA_QOS, apply_nice
 from feed_twin.ros.runtime import EXIT_OK, PEER_TIMEOUT_S, FeedTwinNode, NodeOptions, start_node
 from feed_twin.shadow.bagstreams import MessageFields, plan
 from feed_twin.shadow.config import load_shadow_config
@@ -201,6 +201,9 @@ class TwinNode(FeedTwinNode):
         except ValueError as exc:
             self._bad(exc)
             return
+        if messages:  # for the trace: how long ago the bridge packed the batch [us]
+            now = time.monotonic_ns()
+            self.trace.add("batch_age", now, now, (time.time_ns() - messages[0][1]) // 1000)
         for topic, _, message in messages:
             if topic == self._command_topic:
                 self._take_command(message)
@@ -255,12 +258,16 @@ class TwinNode(FeedTwinNode):
     def _step(self, *, final: bool = False) -> None:
         self._stepped_at = time.monotonic()
         self._unstepped = False
-        block = self.shadow.process(final=final)
+        self.progressed()
+        with self.trace.span("process"):
+            block = self.shadow.process(final=final)
         if block is not None and len(block):
-            self._publish(block)
+            with self.trace.span("publish", len(block)):
+                self._publish(block)
         self._waiting_for_command = self.samples < self.shadow.measured.counts.accepted
         for verdict in self.shadow.new_verdicts:
-            self._verdict(verdict)
+            with self.trace.span("verdict", verdict.level):
+                self._verdict(verdict)
         period = self.shadow.config.sample_period_s
         if self.max_time_s is not None and self.samples * period >= self.max_time_s:
             self.finish(EXIT_OK, f"twin: {self.max_time_s:g} s shadowed")
@@ -309,7 +316,8 @@ class TwinNode(FeedTwinNode):
         self._flush()
         self.samples += n
         if self.dashboard is not None:
-            self.dashboard.log_block(b)
+            with self.trace.span("dashboard", n):
+                self.dashboard.log_block(b)
 
     def _send(self, state: bytes, residual: bytes) -> None:
         """One slot's state and residual: on their topics, or packed (OUT_BATCH_SAMPLES at
@@ -422,6 +430,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--peers", default="", help="comma-separated roles to watch")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="[s]")
     parser.add_argument("--peer-timeout", type=float, default=PEER_TIMEOUT_S, help="[s]")
+    parser.add_argument("--nice", type=int, default=0, help="nice value of the process "
+                        "(beside LinuxCNC: ros.linuxcnc_nice)")  # fmt: skip
 
 
 def build(args: argparse.Namespace, context) -> TwinNode:
@@ -454,7 +464,7 @@ def build(args: argparse.Namespace, context) -> TwinNode:
         dashboard = ShadowDashboard(
             effort_unit=twin.effort_unit, rrd_path=args.rrd, live_url=args.rerun_url
         )
-    return TwinNode(
+    node = TwinNode(
         NodeOptions(machine=args.machine, axis=args.axis,
                     peers=tuple(p for p in args.peers.split(",") if p),
                     input_timeout_s=args.input_timeout, startup_timeout_s=args.startup_timeout,
@@ -475,6 +485,8 @@ def build(args: argparse.Namespace, context) -> TwinNode:
         batch_topic=args.batch_topic,
         context=context,
     )  # fmt: skip
+    apply_nice(node, args.nice)
+    return node
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -36,8 +36,9 @@ from types import ModuleType
 
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.codegen import SIGNALS, const_name
+from feed_twin.plant.sensors import MAX_DELAY_TICKS
 
-RING = 16  # sensor samples kept: delays up to RING - 1 ticks
+RING = MAX_DELAY_TICKS + 1  # sensor samples kept: delays up to RING - 1 ticks (a power of 2)
 
 _LOOP = '''
 
