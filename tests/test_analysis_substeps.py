@@ -28,10 +28,6 @@ def _with_coupling(engine: dict | None = None) -> ModelDoc:
     ctrl["base_period_s"] = ctrl["position"]["period_s"] = ctrl["velocity"]["period_s"] = 1e-3
     comps = data["plant"]["components"]
     next(c for c in comps if c["name"] == "motor")["params"]["J"] = J_ROTOR
-    # guides as sharp as one 1 ms step allows (h (F_c / v_reg + F_v) / m = 2.0), with the
-    # nominal's sub-steps for its sharper 0.25 ms guides left out: the mode alone needs more
-    next(c for c in comps if c["name"] == "guides")["params"]["v_reg"] = 2.0e-4
-    data.pop("engine", None)
     comps += [
         {"name": "coupling", "type": "Coupling", "params": {"k": K_COUPLING, "d": 0.05}},
         {"name": "hub", "type": "Inertia", "params": {"J": J_SCREW}},

@@ -15,7 +15,12 @@ from feed_twin.core.smooth import smooth_sign
 from feed_twin.io.measured import load_measured
 from feed_twin.plant.effect_api import Motion
 from feed_twin.plant.registry import COMPONENT_TYPES
-from feed_twin.plant.stiction_friction import StictionFriction, stiction_force
+from feed_twin.plant.stiction_friction import (
+    HOLD_MIN_S,
+    StictionFriction,
+    held_stops,
+    stiction_force,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 EMPS = ROOT / "config" / "emps_nominal.yaml"
@@ -158,8 +163,8 @@ def test_a_stop_is_held_where_its_command_rests_and_stuck_where_it_moves_on():
     """The signature splits the rest of each stop by the share of it the command rests too:
     at a dwell the table holds the force the loop left (held), at a reversal it is stuck while
     the drive's force swings through the band (stuck); without a command, one regressor."""
-    signature = BY_NAME["stiction"].signature
-    assert signature is not None
+    ((label, signature),) = BY_NAME["stiction"].variants(_stops_motion(with_command=True))
+    assert label == "held"
     regs = signature(_stops_motion(with_command=True))
     dwell, reversal = slice(305, 495), slice(802, 818)
     assert regs["held"][dwell] == pytest.approx(1.0)  # after the +20 mm/s leg
@@ -179,6 +184,37 @@ def test_a_stop_is_held_where_its_command_rests_and_stuck_where_it_moves_on():
     assert set(alone) == {"held"}
     assert alone["held"] == pytest.approx(regs["held"] + regs["stuck"])
     assert np.abs(alone["held"][:300]).max() < 1e-12  # moving: nothing held
+
+
+def _stopping(creep_m_s: float, rest_s: float) -> Motion:
+    """+20 mm/s for 0.3 s, then at rest for rest_s creeping at creep_m_s, then -20 mm/s for
+    0.3 s; the position counted in 10 nm steps, as the truth machine's scale counts it."""
+    h = 1e-3
+    n_rest = int(round(rest_s / h))
+    v = np.r_[np.full(300, 0.02), np.full(n_rest, creep_m_s), np.full(300, -0.02)]
+    t = h * np.arange(len(v), dtype=np.float64)
+    x = np.round(np.cumsum(v) * h / 1e-8) * 1e-8
+    return Motion(
+        t_s=t, x_m=x, v_m_s=v, a_m_s2=np.gradient(v, h), effort_sim=None, lead_m=None,
+        pole_pairs=None, travel_m=0.1,
+    )  # fmt: skip
+
+
+def test_only_a_table_held_still_is_evidence_of_stiction():
+    """A table that stays within a few counts for HOLD_MIN_S is held by friction; one that
+    creeps onto its target (a sliding friction: 1 um/s moves it 15 counts in 1.5 HOLD_MIN_S),
+    or stands still only as long as a sharp sliding law lets it (0.4 HOLD_MIN_S), is not:
+    there the effect has no signature and is not ranked."""
+    held = _stopping(0.0, 1.5 * HOLD_MIN_S)
+    spans = held_stops(held)
+    assert len(spans) == 1
+    a, b = spans[0]
+    assert held.t_s[a] == pytest.approx(0.3, abs=2e-3)
+    assert held.t_s[b - 1] - held.t_s[a] == pytest.approx(1.5 * HOLD_MIN_S, abs=3e-3)
+    assert [label for label, _ in BY_NAME["stiction"].variants(held)] == ["held"]
+    for creep, rest in ((1e-6, 1.5 * HOLD_MIN_S), (0.0, 0.4 * HOLD_MIN_S)):
+        assert held_stops(_stopping(creep, rest)) == []
+        assert BY_NAME["stiction"].variants(_stopping(creep, rest)) == []
 
 
 def _rests(columns, gain: float):

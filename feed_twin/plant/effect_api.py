@@ -359,7 +359,8 @@ class Effect:
     truth: TruthFn = field(repr=False)
     needs: tuple[str, ...] = ()  # Motion fields that must be known: lead_m, pole_pairs, ...
     signature: Signature | None = field(default=None, repr=False)
-    # variants over a nonlinear parameter (Stribeck speed, cogging order); the best one is used
+    # variants over a nonlinear parameter (Stribeck speed, cogging order); the best one is used;
+    # none where the record holds none of the effect's evidence (it is not ranked there)
     choices: Callable[[Motion], list[tuple[str, Signature]]] | None = field(
         default=None, repr=False
     )
