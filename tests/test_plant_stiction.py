@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -215,6 +216,22 @@ def test_only_a_table_held_still_is_evidence_of_stiction():
     for creep, rest in ((1e-6, 1.5 * HOLD_MIN_S), (0.0, 0.4 * HOLD_MIN_S)):
         assert held_stops(_stopping(creep, rest)) == []
         assert BY_NAME["stiction"].variants(_stopping(creep, rest)) == []
+
+
+def test_a_table_still_with_nothing_pushing_it_is_no_evidence_of_stiction():
+    """Where the record has an effort, a still table must hold a force the nominal twin does
+    not: one resting in a backlash gap stands still as long with nothing pushing it (the
+    effort residual is noise there), one held by stiction has its loop's integrator ramp the
+    force up (its RMS here 23 times the noise)."""
+    still = _stopping(0.0, 1.5 * HOLD_MIN_S)
+    noise = np.random.default_rng(3).normal(0.0, 0.01, len(still.t_s))
+    rest = (still.t_s >= 0.3) & (still.t_s < 0.3 + 1.5 * HOLD_MIN_S)
+    ramp = np.where(rest, 0.4 * (still.t_s - 0.3) / (1.5 * HOLD_MIN_S), 0.0)
+    twin = np.zeros_like(still.t_s)
+    loose = dataclasses.replace(still, effort_sim=twin, effort_meas=noise)
+    held = dataclasses.replace(still, effort_sim=twin, effort_meas=noise + ramp)
+    assert held_stops(loose) == [] and BY_NAME["stiction"].variants(loose) == []
+    assert len(held_stops(held)) == 1
 
 
 def _rests(columns, gain: float):

@@ -54,6 +54,8 @@ class Motion:
     # period where the twin takes it as it is, or the other way round (None: the record's
     # period is the twin's tick, or no effort)
     effort_other_mode: FloatArray | None = None
+    # the recorded effort, in effort_sim's unit (None: the record has none)
+    effort_meas: FloatArray | None = None
 
     @property
     def speed_eps(self) -> float:
