@@ -168,7 +168,8 @@ def held_stops(m: Motion) -> list[tuple[int, int]]:
         return []
     band = HOLD_BAND_STEPS * _position_step(x, slow)
     starts = np.flatnonzero(slow)
-    spans, a = [], int(np.argmax(~slow))  # after the first move: the contact's state is known
+    spans: list[tuple[int, int]] = []
+    a = int(np.argmax(~slow))  # after the first move: the contact's state is known
     while (nxt := np.searchsorted(starts, a)) < len(starts):
         a = int(starts[nxt])
         b = _still_until(x, a, band)
@@ -244,7 +245,7 @@ RAMP_MIN_S = 0.05
 def _stop_ramps(m: Motion, rest: FloatArray) -> list[FloatArray]:
     """Each stop's ramp (time since its start over its length, times the rest), for the stops
     that last RAMP_MIN_S at least."""
-    ramps = []
+    ramps: list[FloatArray] = []
     for a, b in _stops(m):
         span = float(m.t_s[b - 1] - m.t_s[a])
         if span < RAMP_MIN_S:
