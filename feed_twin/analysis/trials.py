@@ -240,12 +240,14 @@ def refined(
     the parameter's bounds) by a bounded scalar search (scipy's Brent on a bracket) to
     REFINE_TOLERANCE of a step, one simulation per value; kept where it is better.
 
-    Not a parabola through the grid's three best points: a sensor delay's cost has a kink at
-    every whole tick (the interpolation weights are piecewise linear in the delay) and is far
-    from a parabola between them. On the truth machine's 2 ms feedback delay (blind_truth
-    measurement_delay@103) the costs at 8, 9, 10 ticks were 1911, 1151, 1860 and their
-    parabola's vertex, 9.02 ticks, cost 1154; the bounded search found 8.45 ticks, cost 1069,
-    the minimum of a 41-point scan of [8, 10], in 9 simulations."""
+    Not a parabola through the grid's best point and its neighbours: a sensor delay's cost has
+    a kink at every whole tick (the interpolation weights are piecewise linear in the delay)
+    and is far from a parabola between them. On the truth machine's feedback delays
+    (blind_truth measurement_delay@101-103, the first round) the parabola's vertex, one more
+    simulation, cost more than the grid's best twice in three (4 ms: 15.71 ticks, cost 921
+    against 624 at 16; 2 ms: 9.02, 1154 against 1151 at 9), while the bounded search found the
+    minimum of a 41-point scan of the two ticks around the best each time (16.31, 3.98, 8.45
+    ticks; costs 452, 1644, 1069) in 6-9 simulations."""
     name = param.name
     centre = found.values[name]
     lo, hi = max(centre - step, param.lower), min(centre + step, param.upper)
