@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 from known_gaps import REVERSAL_IMPACTS
+from twin_support import assert_current_lag_taken_as_timing
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.synthetic import generate, write_csv
@@ -57,19 +58,7 @@ def test_hidden_effect_is_named_fitted_and_closes_the_gap(tmp_path, effect):
 
 @pytest.mark.slow
 def test_effect_free_run_names_nothing(tmp_path):
-    d = _blind_run(tmp_path, {})
-    assert d.effects == ()
-    # the truth's unmodelled 0.2 ms current-loop lag left a position residual 13x the encoder's
-    # noise; a sensor delay of a fraction of the 1 ms tick (the loops reading their position
-    # between samples) now takes it, as the twin's timing: said, kept, not named
-    timing = [n for n in d.notes if n.startswith("the twin's timing against the machine")]
-    assert len(timing) == 1 and "measurement_delay +0.1" in timing[0], d.notes
-    position = next(c for c in d.leftover if c["channel"] == "position")
-    assert position["noise_ratio"] < 2.0 and not position["far_above_noise"], position
-    assert d.after.fe_dev_rms_m < 0.2 * d.before.fe_dev_rms_m
-    # the stiffness's signature in the first residual (6.5 %, p = 0.0008), which this model
-    # cannot carry, is still said
-    assert "position_dependent_stiffness, which could not be fitted" in d.verdict, d.verdict
+    assert_current_lag_taken_as_timing(_blind_run(tmp_path, {}))
 
 
 @pytest.mark.slow
