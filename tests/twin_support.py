@@ -6,11 +6,11 @@ from typing import Any
 
 import numpy as np
 
-from feed_twin.analysis.report import Diagnosis
 from feed_twin.analysis.effects import BY_NAME
 from feed_twin.analysis.fit import SimOutputs
 from feed_twin.analysis.model_doc import ModelDoc
 from feed_twin.analysis.ranking import Candidate
+from feed_twin.analysis.report import Diagnosis
 from feed_twin.analysis.twin import Twin, drive_from_run
 from feed_twin.io.measured import MeasuredRun
 
