@@ -23,8 +23,9 @@ the same axis as the record sees it:
   position and velocity loops at that period with the velocity loop re-tuned as the
   controller node re-tunes it for its exchange (nodeset.controller_core), but keeping the
   drive's own Kp and Ti where they lie within the re-tuned ones; sensor delays are
-  counted again in the new ticks. Rigid, the axis is one body and allows that step (the
-  friction's stiff sign at rest takes the RK4 sub-steps Twin.compile chooses);
+  counted again in the new ticks (the same time: a fraction of a tick is interpolated). Rigid,
+  the axis is one body and allows that step (the friction's stiff sign at rest takes the RK4
+  sub-steps Twin.compile chooses);
 - a lossy screw (which needs a massless flange, so a spring behind it) becomes lossless with
   its efficiency moved to the motor's side (`_lossless`).
 
@@ -226,7 +227,8 @@ def _plant(
         else:
             entry = copy.deepcopy(entry)
             if kind in SENSOR_TYPES:
-                entry["params"]["delay_ticks"] = int(round(params["delay_ticks"] * ratio))
+                # the same time in the new ticks, a fraction of one interpolated
+                entry["params"]["delay_ticks"] = float(params["delay_ticks"]) * ratio
             kept.append(entry)
     ports = {f"{e['name']}.{p}" for e, _ in extra for p in _ports(e)}
     ports |= {f"{e['name']}.{p}" for e in kept for p in _ports(e)}
