@@ -188,3 +188,38 @@ def test_the_loop_stands_for_the_full_electrical_stage() -> None:
     effort = out["stage"].effort[0]
     de = out["loop"].effort[0] - effort
     assert math.sqrt(np.mean(de**2)) < 5e-3 * math.sqrt(np.mean(effort**2))
+
+
+def test_the_truth_twins_loop_is_its_drive_stages_data_sheet() -> None:
+    """config/truth_nominal.yaml gives the drive's data sheet twice: the loop on its source
+    and analysis.drive_stage (the full stage for the dead time); they must agree."""
+    from feed_twin.analysis.drive_stage import drive_stage
+    from feed_twin.analysis.model_doc import ModelDoc
+
+    doc = ModelDoc.load(ROOT / "config/truth_nominal.yaml")
+    stage = drive_stage(doc)
+    assert stage is not None
+    (source,) = doc.of_type("EffortSource")
+    params = doc.component(source)["params"]
+    assert (params["R_s"], params["L_s"]) == (stage.R_s_ohm, stage.L_H)
+    assert (params["Kp_i"], params["Ti_i"]) == (stage.Kp_V_A, stage.Ti_s)
+    assert params["emf_ratio"] == pytest.approx(2.0 / 3.0, rel=1e-15)  # PMSM, d/q
+    assert params["u_max"] == pytest.approx(stage.u_dc_V / math.sqrt(3.0), rel=1e-15)
+    assert not stage.back_emf_ff
+
+
+def test_a_loop_too_fast_for_the_step_is_refused() -> None:
+    """L = 2.5e-5 H puts the fast pole near 3.8e5 1/s: at 250 us that is h |s| = 94, RK4
+    diverges; check_step and the batch's check_steps both say so, and 64 sub-steps pass."""
+    from feed_twin.sim.batch import check_steps
+    from feed_twin.sim.engine import check_step
+
+    plant = _plant(1e-3, L_s=2.5e-5)
+    p = plant.nominal_params()
+    plant.fill_derived(p)
+    message = "plant.drive: step 0.00025 s times its states' fastest rate"
+    with pytest.raises(ValueError, match=re.escape(message)):
+        check_step(plant, p, 2.5e-4, 1)
+    assert message in check_steps(plant, p[None, :], 2.5e-4, 1)[0]
+    check_step(plant, p, 2.5e-4, 64)
+    assert check_steps(plant, np.vstack([p, p]), 2.5e-4, 64) == ["", ""]

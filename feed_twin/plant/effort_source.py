@@ -19,7 +19,7 @@ from typing import Literal
 
 from feed_twin.core.arrays import FloatArray
 from feed_twin.core.validate import require_finite, require_nonnegative, require_positive
-from feed_twin.plant.component import Component, Emitter, PortKind, StateSpec
+from feed_twin.plant.component import Component, Emitter, PortKind, SlotReader, StateSpec
 from feed_twin.plant.current_loop import fastest_rate
 from feed_twin.plant.effect_api import (
     Document,
@@ -138,12 +138,11 @@ class EffortSource(Component):
     def has_current_loop(self) -> bool:
         return self.R_s is not None
 
-    def loop_rate(self) -> float:
-        """[1/s] The current loop's fastest pole (0 without a loop): explicit RK4 needs
-        h |s| < 2.5 (engine.check_step)."""
-        if self.R_s is None or self.L_s is None or self.Kp_i is None or self.Ti_i is None:
+    def state_rate(self, slot: SlotReader) -> float:
+        """The current loop's fastest pole [1/s] (0 without a loop)."""
+        if not self.has_current_loop:
             return 0.0
-        return fastest_rate(self.R_s, self.L_s, self.Kp_i, self.Ti_i)
+        return fastest_rate(slot("R_s"), slot("L_s"), slot("Kp_i"), slot("Ti_i"))
 
     def ports(self) -> dict[str, PortKind]:
         return {"flange": self.domain}
