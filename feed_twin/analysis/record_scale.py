@@ -8,7 +8,8 @@ second of record for each parameter set (config/axis_default.yaml on the 105 s m
 million ticks, about a second, and the workflow simulates hundreds of sets). `reduce` writes
 the same axis as the record sees it:
 
-- the electrical drive is the ideal source of its torque: a Pmsm becomes its rotor (an Inertia
+- the electrical drive is the ideal source of its torque (an EffortSource loses its drive's
+  current loop, plant.current_loop): a Pmsm becomes its rotor (an Inertia
   of its J, same name) driven by an EffortSource of its torque constant K_t = 1.5 p psi_pm
   [N m/A], so the controller's current setpoint is the current the torque needs (the twin's
   effort is still `current_q_A`: `analysis.effort_signal`); DcBus, Inverter and CurrentSensor
@@ -55,6 +56,7 @@ from feed_twin.analysis.visibility import unresolved
 from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.ball_screw import BallScrew
+from feed_twin.plant.effort_source import CURRENT_LOOP_FIELDS, EffortSource
 
 # the electrical drive: gone at the record's scale (the motor becomes a torque source)
 DRIVE_TYPES = ("DcBus", "Inverter", "CurrentSensor")
@@ -224,10 +226,7 @@ def _plant(
                 extra.append(({"name": name, "type": "Inertia", "params": {"J": j}}, f"{name}.a"))
             changed.append(f"{name} ({kind}) rigid")
         else:
-            entry = copy.deepcopy(entry)
-            if kind in SENSOR_TYPES:
-                entry["params"]["delay_ticks"] = int(round(params["delay_ticks"] * ratio))
-            kept.append(entry)
+            kept.append(_kept(entry, ratio))
     ports = {f"{e['name']}.{p}" for e, _ in extra for p in _ports(e)}
     ports |= {f"{e['name']}.{p}" for e in kept for p in _ports(e)}
     for a, b in doc.data["plant"]["connect"]:
@@ -243,6 +242,19 @@ def _plant(
     connect = [[members[0], other] for members in nodes.values() for other in members[1:]]
     components = kept + [e for e, _ in extra]
     return {**doc.data["plant"], "components": components, "connect": connect}, changed
+
+
+def _kept(entry: dict[str, Any], ratio: float) -> dict[str, Any]:
+    """A component that stays, at the new step (`ratio`: old step over new): a sensor's delay
+    counted in the new ticks; an EffortSource an ideal source, its drive's current loop gone
+    with the step ("no current loop"; its fast pole would need RK4 sub-steps there)."""
+    entry = copy.deepcopy(entry)
+    if entry["type"] == EffortSource.TYPE:
+        for field in CURRENT_LOOP_FIELDS:
+            entry["params"].pop(field, None)
+    if entry["type"] in SENSOR_TYPES:
+        entry["params"]["delay_ticks"] = int(round(entry["params"]["delay_ticks"] * ratio))
+    return entry
 
 
 def _lossless(plant: dict[str, Any], eta: float) -> tuple[dict[str, Any], list[str]]:

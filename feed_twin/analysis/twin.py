@@ -341,6 +341,45 @@ class Twin:
                 x[self.plant.state_index[c.velocity_state]] = moving[i]
         return x
 
+    def _loop_started(
+        self,
+        drive: Drive,
+        x0: np.ndarray,
+        p: np.ndarray,
+        ref: np.ndarray,
+        ext: np.ndarray | None,
+        cs0: np.ndarray | None,
+    ) -> np.ndarray:
+        """The start state with the drive's current loop running (plant.current_loop), for a
+        record that begins mid-motion: the current at the controller's first setpoint and the
+        integral at the voltage that holds it, R i + k_e omega (an ideal source's effort
+        starts at that setpoint too: `acted`). At rest, or without a loop, x0 as it is."""
+        if self.loop_source is None or drive.v0_m_s == 0.0:
+            return x0
+        from feed_twin.sim.batch import run_batch
+
+        first = run_batch(
+            self.engine,
+            p[None, :],
+            1,
+            ref=ref[:1],
+            ext=None if ext is None else ext[:1],
+            x0=x0,
+            cs0=None if cs0 is None else cs0.copy(),
+        )
+        i0 = float(first["out.effort_cmd"][0, 0])
+        name, index = self.loop_source, self.plant.param_index
+        node = self.plant.node_of[f"{name}.flange"]
+        coord = self.plant.coordinates[self.plant.coordinate_of[node]]
+        omega = (
+            x0[self.plant.state_index[coord.velocity_state]] * p[index[f"derived.ratio_n{node}"]]
+        )
+        k_e = p[index[f"{name}.emf_ratio"]] * p[index[f"{name}.gain"]]
+        x = x0.copy()
+        x[self.plant.state_index[f"{name}.i"]] = i0
+        x[self.plant.state_index[f"{name}.z"]] = p[index[f"{name}.R_s"]] * i0 + k_e * omega
+        return x
+
     def start_controller(self, drive: Drive, ref: np.ndarray) -> np.ndarray | None:
         """The controller's state at the record's first sample, as if it had been running:
         interpolator at the first setpoint, velocity estimator (its last encoder sample and
@@ -469,6 +508,7 @@ class Twin:
             start = self._started(drive, window)
             x0 = self._x0(start, P[rows[0]])
             cs0 = self.start_controller(start, ref)
+            x0 = self._loop_started(start, x0, P[rows[0]], ref, ext, cs0)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
             if drive.effort_actual and self.loop_source is None:
@@ -498,6 +538,7 @@ class Twin:
         ref, ext, n, dec = self._cached_inputs(drive, None)
         start = self._started(drive, None)
         x0, cs0 = self._x0(start, P[0]), self.start_controller(start, ref)
+        x0 = self._loop_started(start, x0, P[0], ref, ext, cs0)
         res = run_batch(self.engine, P, n, ref=ref, ext=ext, x0=x0, cs0=cs0)
         T = len(drive.t_s)
         pos, eff = (period_mean(y, dec)[:, :T] for y in self._measured_signals(res, 1))
