@@ -163,7 +163,13 @@ def test_the_loop_stands_for_the_full_electrical_stage() -> None:
         if entry["type"] == "EffortSource":
             for name in CURRENT_LOOP_FIELDS:
                 del entry["params"][name]
-    ideal = ModelDoc(data=ideal_data, source="ideal", ties=doc.ties, asymmetric=doc.asymmetric)
+    ideal = ModelDoc(
+        data=ideal_data,
+        source="ideal",
+        ties=doc.ties,
+        asymmetric=doc.asymmetric,
+        reference_gain=doc.reference_gain,
+    )
     t_nc, x_nc = command()
     keep = t_nc <= 2.5  # the program's first moves
     t, x = t_nc[keep], x_nc[keep]
