@@ -62,6 +62,7 @@ from feed_twin.plant.effort_source import CURRENT_LOOP_FIELDS, EffortSource
 DRIVE_TYPES = ("DcBus", "Inverter", "CurrentSensor")
 # elastic two-ports whose ports become one node (Backlash only below the record's resolution)
 ELASTIC_TYPES = ("Coupling", "ScrewShaft", "AxialCompliance")
+TORSIONAL_TYPES = ("Coupling", "ScrewShaft")
 SENSOR_TYPES = ("Encoder", "LinearScale")
 # the reduced twin's effort may differ from the full twin's by this share of the full effort's
 # RMS: a fifth of the 10 % within which the workflow names an effect
@@ -97,15 +98,18 @@ def reduce(doc: ModelDoc, *, resolution_m: float) -> tuple[ModelDoc | None, list
         return None, ["a DcMotor's voltage drive is not reduced to a torque source"]
     try:
         limit = float(doc.data["controller"]["drive"]["effort_limit"])
-        plant, changes = _plant(doc, step, limit, resolution_m, rigid=True)
+        plant, changes = _plant(doc, step, limit, resolution_m, rigid=ELASTIC_TYPES)
         if not kinds & {"Pmsm", *DRIVE_TYPES}:
             # a torque-source axis whose springs the step resolves in one RK4 step gains
             # nothing from making them rigid: they stay (rigid, the truth machine's nominal
             # twin named an asymmetric friction for a Coulomb force and a weight on 10 Hz logs
-            # that its compliant model at the same step named right)
-            elastic, kept = _plant(doc, step, limit, resolution_m, rigid=False)
-            if _resolved(elastic, step, doc.source):
-                plant, changes = elastic, kept
+            # that its compliant model at the same step named right); a torsional spring the
+            # step does not resolve (its coupling's 1.1 kHz mode) is made rigid alone first
+            for rigid in ((), TORSIONAL_TYPES):
+                elastic, kept = _plant(doc, step, limit, resolution_m, rigid=rigid)
+                if _resolved(elastic, step, doc.source):
+                    plant, changes = elastic, kept
+                    break
         screws = doc.of_type(BallScrew.TYPE)
         eta = doc.get(f"{screws[0]}.efficiency") if len(screws) == 1 else 1.0
         if eta < 1.0:
@@ -187,10 +191,15 @@ def _resolved(plant: dict[str, Any], step: float, source: str) -> bool:
 
 
 def _plant(
-    doc: ModelDoc, step: float, effort_limit: float, resolution_m: float, *, rigid: bool
+    doc: ModelDoc,
+    step: float,
+    effort_limit: float,
+    resolution_m: float,
+    *,
+    rigid: tuple[str, ...],
 ) -> tuple[dict[str, Any], list[str]]:
-    """The plant section, torque-driven and (`rigid`) with its elastic two-ports rigid (module
-    docstring), and what changed."""
+    """The plant section, torque-driven, with its two-ports of the types `rigid` rigid
+    (module docstring), and what changed."""
     ratio = doc.base_period() / step
     parent: dict[str, str] = {}
 
@@ -217,9 +226,7 @@ def _plant(
                 f"{name} (Pmsm) -> rotor inertia + torque source of K_t"
                 + (" (its cogging dropped)" if params.get("cogging") else "")
             )
-        elif (rigid and kind in ELASTIC_TYPES) or (
-            kind == "Backlash" and float(params["gap"]) < resolution_m
-        ):
+        elif kind in rigid or (kind == "Backlash" and float(params["gap"]) < resolution_m):
             join(f"{name}.a", f"{name}.b")
             j = _carried_inertia(entry)
             if j > 0.0:
