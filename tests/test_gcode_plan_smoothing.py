@@ -133,6 +133,18 @@ def test_no_forced_break_near_a_natural_one_nor_in_the_last_window():
     assert tail[800] and not tail[400]
     last = forced_breaks(P, natural, g0=0, spacing=400, stable=999, final=True, decided={})
     assert not last.any()
+    # The last window keeps the breaks decided before it only within the committed motion's
+    # reach (`beyond` marks the rest).
+    decided = {400: 380, 800: 810}
+    beyond = np.arange(1000) > 600
+    kept = forced_breaks(
+        P, natural, g0=0, spacing=400, stable=999, final=True, decided=decided, beyond=beyond
+    )
+    assert np.flatnonzero(kept).tolist() == [380]
+    planned = forced_breaks(
+        P, natural, g0=0, spacing=400, stable=850, final=False, decided=decided, beyond=beyond
+    )
+    assert np.flatnonzero(planned).tolist() == [380, 810]
 
 
 def _cam_wave(count: int, tolerance_mm: float) -> tuple[str, np.ndarray]:
@@ -146,6 +158,17 @@ def _cam_wave(count: int, tolerance_mm: float) -> tuple[str, np.ndarray]:
     return program, vertices
 
 
+def _assert_within_limits(traj: SampledTrajectory, config) -> None:
+    """v, a and j of every axis from differences of the sampled positions within its limits."""
+    period = config.interpolation_period_s
+    v, a, j = (
+        np.max(np.abs(np.diff(traj.pos_m, n=k, axis=0)), axis=0) / period**k for k in (1, 2, 3)
+    )
+    assert np.all(v <= np.array(config.v_max) * (1 + 1e-6))
+    assert np.all(a <= np.array(config.a_max) * (1 + 1e-6))
+    assert np.all(j <= np.array(config.j_max) * (1 + 1e-6))
+
+
 def test_a_smoothed_cam_curve_streams_in_windows_as_planned_at_once_within_the_tolerance():
     # Windows of 40 moves commit at breaks (forced ones, smoothing frozen at each commit);
     # the joined trajectory holds the limits and the tolerance of the programmed polyline.
@@ -154,15 +177,25 @@ def test_a_smoothed_cam_curve_streams_in_windows_as_planned_at_once_within_the_t
     joined = SampledTrajectory.concatenate(list(plan_program_stream(program, small)))
     whole = plan_program(program, CONFIG)
     for traj, config in ((joined, small), (whole, CONFIG)):
-        period = config.interpolation_period_s
-        v, a, j = (
-            np.max(np.abs(np.diff(traj.pos_m, n=k, axis=0)), axis=0) / period**k for k in (1, 2, 3)
-        )
-        assert np.all(v <= np.array(config.v_max) * (1 + 1e-6))
-        assert np.all(a <= np.array(config.a_max) * (1 + 1e-6))
-        assert np.all(j <= np.array(config.j_max) * (1 + 1e-6))
+        _assert_within_limits(traj, config)
         figures = trajectory_figures(traj, programmed_path(program, config))
         assert figures.path_dev_max_m <= 1e-5 * (1 + 1e-6)
     np.testing.assert_allclose(joined.pos_m[-1], whole.pos_m[-1], atol=1e-15)
     assert joined.t_s[-1] >= whole.t_s[-1] - 1e-9
     assert math.isclose(whole.pos_m[-1, 0], vertices[-1, 0], abs_tol=1e-15)
+
+
+def test_a_streamed_cam_curve_slows_only_where_a_window_commits():
+    # A forced break squeezes its neighbours' blends: the curve slows there. Windows of 400
+    # moves (breaks every 100) plan only the break they commit at (and those after it, which
+    # a later window may commit at); the last window plans none beyond the committed
+    # motion's reach. So the speed dips once per commit, and once at the program's end.
+    program, _ = _cam_wave(1200, 0.01)
+    config = dataclasses.replace(CONFIG, lookahead_segments=400)
+    chunks = list(plan_program_stream(program, config))
+    traj = SampledTrajectory.concatenate(chunks)
+    _assert_within_limits(traj, config)
+    speed = np.linalg.norm(np.diff(traj.pos_m, axis=0), axis=1) / config.interpolation_period_s
+    slow = speed < 0.7 * np.max(speed)
+    dips = np.count_nonzero(slow[1:] & ~slow[:-1])
+    assert 1 <= dips <= len(chunks)  # commits: one fewer than the chunks

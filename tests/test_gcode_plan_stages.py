@@ -213,3 +213,43 @@ def test_a_short_zone_of_one_blend_is_a_curvature_step():
     assert kick[1, 0] == pytest.approx(0.02 / 0.95**2 * 0.05)
     both = abs(0.02 / 0.81 - 0.02 / 0.95**2)  # overlap, plus the step spread over the move
     assert j_s[1, 0] == pytest.approx(both + kick[1, 0] / 0.95)
+
+
+def test_isolated_curvature_steps_count_as_the_samples_see_them():
+    # Chords on a circle of R = 5 mm growing 6 um each (a constant X step across a curve):
+    # every move's end blend runs alone over the last 6 um, a curvature step next to each
+    # node. At 50 mm/s a sample travels 0.15 mm in 3 periods, less than the 0.2 mm where
+    # both blends of a move overlap: the third differences of the positions see one step at
+    # a time (3/4 K v^2 / period), half the two steps per node counted before.
+    filtered = AxisLimits(**{**LIMITS.__dict__, "window_s": 0.05, "filter_n": 51})
+    R, v, dt = 5e-3, 0.05, filtered.period_s
+    lengths = 2e-4 + 6e-6 * np.arange(16)
+    heading = np.concatenate(([0.0], np.cumsum(lengths[:-1] / R)))
+    steps = lengths[:, None] * np.column_stack((np.cos(heading), np.sin(heading)))
+    points = np.vstack(([0.0, 0.0], np.cumsum(steps, axis=0)))
+    n = len(lengths)
+    moves = move_limits(points, [False] * n, [v] * n, filtered)
+    blends = corner_blends(moves, _flags(n, 1e-4), filtered, None)
+    *_, kick = zone_coefficients(moves.L, blends.w, blends.dU, steps=True)
+    # Node k: the step ending it (move k-1's only one) at 3/4, where the larger of the moves'
+    # totals next to it counted twice before.
+    inner = slice(2, n - 2)
+    np.testing.assert_allclose(blends.k_node[1:n][inner], 0.5 * kick[:-1][inner], rtol=1e-12)
+    assert np.all(kick[:-1][inner] > 0.0)
+    # The samples at constant speed, at any phase, stay within what the caps count.
+    S = np.concatenate(([0.0], np.cumsum(moves.L)))
+    bound = np.max(
+        blends.j_node[3 : n - 2] * v**3 + filtered.kick_jerk(blends.k_node[3 : n - 2]) * v**2,
+        axis=0,
+    )
+    seen = np.zeros(2)
+    for phase in np.linspace(0.0, 1.0, 16, endpoint=False):
+        s = S[3] + v * dt * (phase + np.arange(int((S[n - 3] - S[3]) / (v * dt))))
+        pos, *_ = evaluate_path(
+            s, np.full(len(s), v), np.zeros(len(s)), S[:-1], moves.L, moves.P[:-1],
+            moves.P[1:], moves.u, blends.w[:n], blends.dU[:n], blends.w[1:], blends.dU[1:],
+            np.zeros(len(s), dtype=np.int64),
+        )  # fmt: skip
+        seen = np.maximum(seen, np.max(np.abs(np.diff(pos, n=3, axis=0)), axis=0) / dt**3)
+    assert np.all(seen <= bound), (seen, bound)
+    assert np.max(seen / bound) > 0.5, (seen, bound)

@@ -157,12 +157,15 @@ def _blends(  # noqa: PLR0913 (the corner geometry, its shares and the window; a
     if start is not None:
         w[: len(start.w)] = start.w
     dU = np.where((w > 0.0)[:, None], du, 0.0)
-    a_s, a_e, j_s, j_e, kick = zone_coefficients(L, w, dU, steps=limits.window_s > 0.0)
+    zones = _alone_zones(L, w, dU)
+    a_s, a_e, j_s, j_e, kick = zone_coefficients(L, w, dU, steps=limits.window_s > 0.0, zones=zones)
     zero = np.zeros((1, du.shape[1]))
     # Per node: its blend runs through the end zone before it and the start zone after.
     a_node = np.maximum(np.vstack((zero, a_e)), np.vstack((a_s, zero)))
     j_node = np.maximum(np.vstack((zero, j_e)), np.vstack((j_s, zero)))
     k_node = np.maximum(np.vstack((zero, kick)), np.vstack((kick, zero)))
+    if limits.window_s > 0.0:
+        k_node = _isolated_steps(zones, V * (3.0 * limits.period_s), k_node)
     V_in = np.concatenate(([np.inf], V))
     V_out = np.concatenate((V, [np.inf]))
     cap = limits.cruise_cap(a_node, j_node, 1.0, 1.0, k_node)
@@ -211,8 +214,74 @@ def fitted_widths(
     return w_limit
 
 
+def _isolated_steps(zones: _Zones, reach: np.ndarray, k_node: np.ndarray) -> np.ndarray:
+    """The curvature steps `k_node` (n+1, n_axes) [1/m] counted per node as the sampled jerk
+    sees them where that is less (`AxisLimits.kick_jerk` weighs a node's value 3/2).
+
+    A step lies next to a node: the end zone of move k-1 where its end blend runs alone ends
+    at node k, the start zone of move k where its start blend runs alone starts there. The
+    third differences of the positions see a step through a quadratic B-spline of 3 periods
+    (peak 3/4 per period), so two steps count together only if both lie within the distance
+    `reach` (n) [m] a sample travels in 3 periods at the move's speed limit. Where the overlap
+    of both blends on each move next to node k is at least that long, the steps of other
+    nodes lie beyond it and node k's own two count 3/4 each: half their sum, where
+    `zone_coefficients` keeps the larger total of the moves next to it (two steps of 3/4)."""
+    n = len(zones.overlap)
+    if n < 2:
+        return k_node
+    ks, ke, overlap = zones.k_s, zones.k_e, zones.overlap
+    isolated = np.zeros(n + 1, dtype=bool)
+    isolated[1:n] = (overlap[:-1] >= reach[:-1]) & (overlap[1:] >= reach[1:])
+    own = 0.5 * (ke[:-1] + ks[1:])  # the steps next to nodes 1..n-1
+    k_inner = np.where(isolated[1:n, None], np.minimum(own, k_node[1:n]), k_node[1:n])
+    return np.vstack((k_node[:1], k_inner, k_node[n:]))
+
+
+class _Zones(NamedTuple):
+    """Per move, where one blend runs alone at its start or end (`_alone_zones`)."""
+
+    j_s: np.ndarray  # (n, na) [1/m^2] |d3x/ds3| where the start blend runs alone (else 0)
+    j_e: np.ndarray  # (n, na) [1/m^2] the same for the end blend
+    short_s: np.ndarray  # (n, 1) that zone is a curvature step (shorter than KICK_ZONE)
+    short_e: np.ndarray  # (n, 1)
+    k_s: np.ndarray  # (n, na) [1/m] the step it makes (0 where not short)
+    k_e: np.ndarray  # (n, na) [1/m]
+    overlap: np.ndarray  # (n,) [m] length where both blends run
+
+
+def _alone_zones(L: np.ndarray, w: np.ndarray, du: np.ndarray) -> _Zones:
+    """Per move: the slopes |d3x/ds3| where its start or end blend runs alone, the curvature
+    steps those zones make where shorter than KICK_ZONE of the move, and the length where
+    both blends overlap."""
+    ws = w[:-1][:, None]
+    we = w[1:][:, None]
+    Lc = L[:, None]
+    overlap = (ws > 0.0) & (we > 0.0) & (ws > Lc - we)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # A zone shorter than a rounding error of the move is none (equal neighbouring chords
+        # give w_start + w_end = L up to rounding, and no stretch of a single blend between).
+        slack = ZONE_SLACK * Lc
+        alone_s = np.minimum(ws, Lc - we)  # length of the start blend alone
+        alone_e = Lc - np.maximum(ws, Lc - we)
+        start_only = (ws > 0.0) & (alone_s > slack)
+        end_only = (we > 0.0) & (alone_e > slack)
+        j_s = np.where(start_only, np.abs(du[:-1]) / (ws * ws), 0.0)
+        j_e = np.where(end_only, np.abs(du[1:]) / (we * we), 0.0)
+    short_s = overlap & (alone_s <= KICK_ZONE * Lc)
+    short_e = overlap & (alone_e <= KICK_ZONE * Lc)
+    ks = np.where(short_s, j_s * alone_s, 0.0)
+    ke = np.where(short_e, j_e * alone_e, 0.0)
+    both = np.where(overlap, ws + we - Lc, 0.0)[:, 0]
+    return _Zones(j_s, j_e, short_s, short_e, ks, ke, both)
+
+
 def zone_coefficients(
-    L: np.ndarray, w: np.ndarray, du: np.ndarray, *, steps: bool = False
+    L: np.ndarray,
+    w: np.ndarray,
+    du: np.ndarray,
+    *,
+    steps: bool = False,
+    zones: _Zones | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Largest |d2x/ds2| and |d3x/ds3| per axis in the start and end blend zone of each move,
     and its curvature steps.
@@ -224,7 +293,8 @@ def zone_coefficients(
     than KICK_ZONE of the move (neighbouring chords of slightly different lengths) counts
     as a curvature step K = |d3x/ds3| * its length, spread over the move (K / L in d3x/ds3;
     the sampled jerk sees the step itself, `AxisLimits.kick_jerk`).
-    Returns (a_start, a_end, j_start, j_end, steps K), (n, na) each.
+    Returns (a_start, a_end, j_start, j_end, steps K), (n, na) each; `zones` are those
+    `_alone_zones` gives for the same arguments, where computed already.
     """
     ws = w[:-1][:, None]
     we = w[1:][:, None]
@@ -245,22 +315,12 @@ def zone_coefficients(
     a_end = np.maximum(curvature(Lc), curvature(inner_end))
     a_start = np.where(overlap, np.maximum(a_start, curvature(inner_end)), a_start)
     a_end = np.where(overlap, np.maximum(a_end, curvature(inner_start)), a_end)
+    j_s, j_e, short_s, short_e, ks, ke, _ = _alone_zones(L, w, du) if zones is None else zones
     with np.errstate(divide="ignore", invalid="ignore"):
-        # A zone shorter than a rounding error of the move is none (equal neighbouring chords
-        # give w_start + w_end = L up to rounding, and no stretch of a single blend between).
-        slack = ZONE_SLACK * Lc
-        alone_s = np.minimum(ws, Lc - we)  # length of the start blend alone
-        alone_e = Lc - np.maximum(ws, Lc - we)
-        start_only = (ws > 0.0) & (alone_s > slack)
-        end_only = (we > 0.0) & (alone_e > slack)
-        j_s = np.where(start_only, np.abs(dus) / (ws * ws), 0.0)
-        j_e = np.where(end_only, np.abs(due) / (we * we), 0.0)
         j_both = np.where(overlap, np.abs(due / (we * we) - dus / (ws * ws)), 0.0)
     kick = np.zeros_like(j_s)
     if steps:
-        short_s = overlap & (alone_s <= KICK_ZONE * Lc)
-        short_e = overlap & (alone_e <= KICK_ZONE * Lc)
-        kick = np.where(short_s, j_s * alone_s, 0.0) + np.where(short_e, j_e * alone_e, 0.0)
+        kick = ks + ke
         j_s = np.where(short_s, 0.0, j_s)
         j_e = np.where(short_e, 0.0, j_e)
         j_both = j_both + kick / Lc

@@ -14,6 +14,12 @@ Each candidate is decided once, in the first window that lists it, and keeps tha
 geometry a window planned with never changes in a later one (the speeds it commits stay
 reachable). Where that window does not list its whole neighbourhood (its last nodes excluded,
 where the stop at its end is not the program's), the break stays on the candidate node.
+
+The last window commits the program's rest: it drops the breaks decided beyond the motion a
+filter window at its first node reaches (`beyond`). Without them its constraints only relax
+(wider blends, no squeezed neighbours, no holds), and the bodies whose limits the committed
+motion's samples share (within that reach, the erosion's) are planned as the committed window
+planned them.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ def forced_breaks(
     stable: int,
     final: bool,
     decided: dict[int, int],
+    beyond: np.ndarray | None = None,
 ) -> np.ndarray:
     """Which listed nodes (n+1) are forced breaks; new decisions are added to `decided`
     (global candidate node -> the global node of its forced break, -1 for none).
@@ -46,7 +53,8 @@ def forced_breaks(
     `P` (n+1, n_axes) are the listed vertices, node i is global node g0 + i; `natural` (n+1)
     marks the stops and nodes with events or dwells the program puts there; nodes above
     `stable` are not yet final (the window's end); `final`: the window plans the program's
-    rest at once.
+    rest at once, and then the breaks decided at the listed nodes `beyond` (n+1) marks are
+    dropped.
     """
     n = len(P) - 1
     forced = np.zeros(n + 1, dtype=bool)
@@ -57,6 +65,8 @@ def forced_breaks(
     # Breaks decided, of candidates listed or not (just before the first listed node).
     at = np.array([node for node in decided.values() if g0 <= node <= g0 + n], dtype=int)
     forced[at - g0] = True
+    if final and beyond is not None:
+        forced &= ~beyond
     return forced
 
 

@@ -371,8 +371,53 @@ class _StreamPlanner:
             stable=n if final else n - (SMOOTH_REACH + 2),
             final=final,
             decided=self.decided,
+            beyond=self._beyond_reach(listed) if final and self.has_context else None,
         )
+        if not final:
+            forced = self._commit_break_only(forced, listed, n)
         return NodeFlags(tol=tol, stop=stop, has_entries=has_entries, forced=forced)
+
+    def _commit_break_only(self, forced: np.ndarray, listed: np.ndarray, n: int) -> np.ndarray:
+        """The forced breaks without those the window neither commits at nor leaves for a
+        later window: of those from the first uncommitted node to the last one it may commit
+        at, all but the last (the commit point, `_commit_point`) where beyond what the
+        committed motion's filter windows reach. They lie in the committed part, where no
+        later window plans again, and without them the constraints only relax (a break
+        squeezes its neighbours' blends). Dropped for good (`decided`: none)."""
+        first = self.first()
+        top = min(self._commit_limit(n), n - max(3, SMOOTH_REACH + 1) - 1)
+        at = np.flatnonzero(forced[first + 1 : top + 1])[:-1] + first + 1
+        drop = at[self._beyond_reach(listed)[at]]
+        if len(drop) == 0:
+            return forced
+        gone = {int(node) + self.g0 for node in drop}
+        for key, node in self.decided.items():
+            if node in gone:
+                self.decided[key] = -1
+        out = forced.copy()
+        out[drop] = False
+        return out
+
+    def _commit_limit(self, n: int) -> int:
+        """The last listed node a window of n moves may commit up to: about half the window;
+        the forced breaks lie within an eighth of their spacing of every spacing-th node
+        (`plan_breaks`), the last commit too: the one past half counts."""
+        first = self.first()
+        return first + (n - first) // 2 + self.forced // 4
+
+    def _beyond_reach(self, listed: np.ndarray) -> np.ndarray:
+        """Which listed nodes (n+1) lie beyond what the committed motion's filter windows and
+        erosions reach from the first uncommitted node: 2 T times the highest speed a move
+        between may run at (a rapid: the fastest any axis allows; a feed move its feed).
+        The last window keeps the forced breaks up to there (`plan_breaks`)."""
+        first = self.first()
+        fastest = float(np.linalg.norm(self.limits.rapid))
+        V = np.where(np.array(self.rapids[first:]), fastest, np.array(self.feeds[first:]))
+        delta = np.diff(listed[first:], axis=0)
+        S = np.cumsum(np.sqrt(np.einsum("ij,ij->i", delta, delta)))
+        beyond = np.zeros(len(listed), dtype=bool)
+        beyond[first + 1 :] = 2.0 * self.window_s * np.maximum.accumulate(V) < S
+        return beyond
 
     def _smoothed(self, flags: NodeFlags, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The listed points with CAM polylines smoothed (jerk profile, `plan_smoothing`), and
@@ -398,9 +443,7 @@ class _StreamPlanner:
         """
         if final:
             return len(bodies.length)
-        # About half the window; the forced breaks lie within an eighth of their spacing of
-        # every spacing-th node (`plan_breaks`), the last commit too: the one past half counts.
-        half = first + (n - first) // 2 + self.forced // 4
+        half = self._commit_limit(n)
         node_q, kind_q = bodies.node, bodies.kind
         margin = max(3, SMOOTH_REACH + 1) if np.any(movable) else 3
         candidates = np.flatnonzero(
