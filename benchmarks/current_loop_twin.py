@@ -36,7 +36,7 @@ def main() -> None:
     from feed_twin.plant.effort_source import CURRENT_LOOP_FIELDS
     from feed_twin.truth import make_record
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description="the truth twin with and without its current loop")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--seed", type=int, default=5, help="the record's noise seed")
     args = ap.parse_args()
@@ -64,7 +64,7 @@ def main() -> None:
     for name, model in (("ideal", ideal), ("loop", doc), ("stage", expand(doc))):
         twin = Twin.compile(model)
         p = twin.nominal[None, :]
-        twin.simulate(drive, p)  # compiled and warm
+        sim = twin.simulate(drive, p)  # compiled and warm
         times = []
         for _ in range(args.repeats):
             clock = time.perf_counter()
