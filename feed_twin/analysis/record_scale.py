@@ -24,8 +24,9 @@ the same axis as the record sees it:
   position and velocity loops at that period with the velocity loop re-tuned as the
   controller node re-tunes it for its exchange (nodeset.controller_core), but keeping the
   drive's own Kp and Ti where they lie within the re-tuned ones; sensor delays are
-  counted again in the new ticks. Rigid, the axis is one body and allows that step (the
-  friction's stiff sign at rest takes the RK4 sub-steps Twin.compile chooses);
+  counted again in the new ticks (the same time: a fraction of a tick is interpolated). Rigid,
+  the axis is one body and allows that step (the friction's stiff sign at rest takes the RK4
+  sub-steps Twin.compile chooses);
 - a lossy screw (which needs a massless flange, so a spring behind it) becomes lossless with
   its efficiency moved to the motor's side (`_lossless`).
 
@@ -253,14 +254,15 @@ def _plant(
 
 def _kept(entry: dict[str, Any], ratio: float) -> dict[str, Any]:
     """A component that stays, at the new step (`ratio`: old step over new): a sensor's delay
-    counted in the new ticks; an EffortSource an ideal source, its drive's current loop gone
+    the same time in the new ticks; an EffortSource an ideal source, its drive's current loop gone
     with the step ("no current loop"; its fast pole would need RK4 sub-steps there)."""
     entry = copy.deepcopy(entry)
     if entry["type"] == EffortSource.TYPE:
         for field in CURRENT_LOOP_FIELDS:
             entry["params"].pop(field, None)
     if entry["type"] in SENSOR_TYPES:
-        entry["params"]["delay_ticks"] = int(round(entry["params"]["delay_ticks"] * ratio))
+        # the same time in the new ticks, a fraction of one interpolated
+        entry["params"]["delay_ticks"] = float(entry["params"]["delay_ticks"]) * ratio
     return entry
 
 

@@ -135,6 +135,14 @@ class Component:
         """The quantity `name` (a slot that is no single YAML parameter), None if undeclared."""
         return cls.QUANTITIES.get(name)
 
+    @classmethod
+    def whole_number(cls, name: str) -> bool:
+        """True for a field declared `int` (a count, pole pairs): set slot by slot, it stays a
+        whole number, while a float field configured as `0` in YAML (a delay in ticks, which
+        may be a fraction) stays a float."""
+        fields = {f.name: f.type for f in dataclasses.fields(cls)}
+        return fields.get(name) in (int, "int")
+
     # (rotational port, translational port, ratio slot) of an ideal transformer, whose nodes the
     # assembler merges into one coordinate: across(trans) = p[ratio] * across(rot)
     TRANSFORMER: ClassVar[tuple[str, str, str] | None] = None
