@@ -191,6 +191,14 @@ class Component:
         del slot
         return {}
 
+    def state_rate(self, slot: SlotReader) -> float:
+        """[1/s] The largest pole magnitude of the component's own states' linear dynamics
+        (a drive's current loop), from the parameter values `slot(name)` of the set being run;
+        0 for none. The engine checks h * rate < 2.5 (explicit RK4 is stable inside |h s| <
+        2.5 in every direction of the left half-plane)."""
+        del slot
+        return 0.0
+
     def stiffness_bound(self, slot: SlotReader) -> float:
         """Largest stiffness between ports a and b [N/m or N m/rad] of a two-port spring, from
         the parameter values `slot(name)` of the set being run; 0 for none.
