@@ -54,6 +54,8 @@ class Motion:
     # period where the twin takes it as it is, or the other way round (None: the record's
     # period is the twin's tick, or no effort)
     effort_other_mode: FloatArray | None = None
+    # the recorded effort, in effort_sim's unit (None: the record has none)
+    effort_meas: FloatArray | None = None
 
     @property
     def speed_eps(self) -> float:
@@ -364,7 +366,8 @@ class Effect:
     truth: TruthFn = field(repr=False)
     needs: tuple[str, ...] = ()  # Motion fields that must be known: lead_m, pole_pairs, ...
     signature: Signature | None = field(default=None, repr=False)
-    # variants over a nonlinear parameter (Stribeck speed, cogging order); the best one is used
+    # variants over a nonlinear parameter (Stribeck speed, cogging order); the best one is used;
+    # none where the record holds none of the effect's evidence (it is not ranked there)
     choices: Callable[[Motion], list[tuple[str, Signature]]] | None = field(
         default=None, repr=False
     )
