@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from known_gaps import HEAVIER_SLIDE_WITH_CURRENT_LOOP
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.model_doc import ModelDoc
@@ -18,6 +19,7 @@ NOMINAL = ROOT / "config" / "truth_nominal.yaml"
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=HEAVIER_SLIDE_WITH_CURRENT_LOOP)
 def test_a_heavier_slide_is_a_mass_not_a_drive_gain(tmp_path: Path):
     """A weight, more Coulomb friction and a slide 172 kg heavier: the rounds take a drive gain
     (it scales every force) first, then the weight and the mass in its scale; the Coulomb

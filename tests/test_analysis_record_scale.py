@@ -134,11 +134,12 @@ def test_a_torque_source_axis_keeps_its_resolved_springs_gains_and_effort_gain()
     loop 2 kHz) at a 10 Hz record's scale: its loops step to the NC's 1 ms with the drive's
     own gains (within what the symmetric optimum allows at 1 ms: Kp 481.7, Ti 8 ms), its axial
     spring stays (the step resolves it in one RK4 step: rigid saved nothing and changed what
-    was named), and its effort converts as the full model's (the EffortSource's gain)."""
+    was named) while its coupling, whose 1.1 kHz mode the step does not resolve, is rigid, and
+    its effort converts as the full model's (the EffortSource's gain)."""
     full = ModelDoc.load(ROOT / "config" / "truth_nominal.yaml")
     doc, changes = reduce(full, resolution_m=1e-4)
     assert doc is not None
-    assert changes == ["step 0.25 ms -> 1 ms (no current loop)"]
+    assert changes == ["step 0.25 ms -> 1 ms (no current loop)", "coupling (Coupling) rigid"]
     assert doc.base_period() == pytest.approx(1e-3)
     assert "axial" in {e["name"] for e in doc.data["plant"]["components"]}
     velocity = doc.data["controller"]["velocity"]

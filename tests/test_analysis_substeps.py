@@ -20,24 +20,15 @@ J_ROTOR, J_SCREW, K_COUPLING = 6.0e-4, 4.0e-4, 1.2e4  # the truth machine's data
 
 
 def _with_coupling(engine: dict | None = None) -> ModelDoc:
-    """The truth machine's nominal twin with its bellows coupling between rotor and screw,
-    not lumped into one inertia, and its loops at a 1 ms tick."""
+    """The truth machine's nominal twin (its bellows coupling between rotor and screw, not
+    lumped into one inertia) with its loops at a 1 ms tick."""
     doc = ModelDoc.load(TRUTH_NOMINAL)
+    assert doc.component("coupling")["params"]["k"] == K_COUPLING
+    assert doc.component("motor")["params"]["J"] == J_ROTOR
+    assert doc.component("screw_j")["params"]["J"] == J_SCREW
     data = copy.deepcopy(doc.data)
     ctrl = data["controller"]
     ctrl["base_period_s"] = ctrl["position"]["period_s"] = ctrl["velocity"]["period_s"] = 1e-3
-    comps = data["plant"]["components"]
-    next(c for c in comps if c["name"] == "motor")["params"]["J"] = J_ROTOR
-    comps += [
-        {"name": "coupling", "type": "Coupling", "params": {"k": K_COUPLING, "d": 0.05}},
-        {"name": "hub", "type": "Inertia", "params": {"J": J_SCREW}},
-    ]
-    connect = [c for c in data["plant"]["connect"] if c != ["motor.flange", "screw.rot"]]
-    data["plant"]["connect"] = connect + [
-        ["motor.flange", "coupling.a"],
-        ["coupling.b", "hub.flange"],
-        ["hub.flange", "screw.rot"],
-    ]
     if engine is not None:
         data["engine"] = engine
     return ModelDoc(data=data, source="<truth with coupling>")

@@ -18,12 +18,13 @@ H = 1e-3
 
 
 def _moves_with_short_rests() -> tuple[np.ndarray, np.ndarray]:
-    """Back and forth over 50 mm at 0.1 m/s (0.5 s a move), 50 ms at rest between moves:
-    about 9 % of the samples at rest."""
+    """Back and forth over 50 mm at 0.1 m/s (0.5 s a move), 150 ms at rest between moves (a
+    stiction's evidence is a table still for HOLD_MIN_S, 0.1 s): about 20 % of the samples at
+    rest."""
     t = H * np.arange(22000)
-    period = 1.1
+    period = 1.3
     phase = np.mod(t, period)
-    ramp = np.clip((phase - 0.05) / 0.5, 0.0, 1.0) - np.clip((phase - 0.6) / 0.5, 0.0, 1.0)
+    ramp = np.clip((phase - 0.15) / 0.5, 0.0, 1.0) - np.clip((phase - 0.8) / 0.5, 0.0, 1.0)
     x = 0.05 * ramp
     # a smooth start and stop: the ramps through a 20 ms moving average
     kernel = np.ones(20) / 20
@@ -31,8 +32,8 @@ def _moves_with_short_rests() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _stiction_signature(m: Motion) -> dict[str, np.ndarray]:
-    signature = BY_NAME["stiction"].signature
-    assert signature is not None, "stiction is searched by its signature"
+    # one variant where the record holds a table still (stiction_friction.held_stops)
+    ((_, signature),) = BY_NAME["stiction"].variants(m)
     return signature(m)
 
 

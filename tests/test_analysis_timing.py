@@ -32,6 +32,17 @@ def test_a_delay_within_one_tick_is_timing_beyond_it_a_finding() -> None:
     assert not within_tick(_found("channel_delay", delay_s=1.01e-3), TICK_S)
 
 
+def test_a_sensor_delay_below_one_whole_tick_is_timing_a_whole_tick_a_finding() -> None:
+    # a fraction of a tick (the refinement between ticks) is where within it the drive samples
+    fraction = _found("measurement_delay", delay_ticks=0.2, delay_s=0.2e-3)
+    one_tick = _found("measurement_delay", delay_ticks=1.0, delay_s=TICK_S)
+    late = _found("measurement_delay", delay_ticks=4.45, delay_s=4.45e-3)
+    named, timing = split_timing([fraction, one_tick, late], TICK_S)
+    assert (named, timing) == ([one_tick, late], [fraction])
+    line = timing_line(fraction, TICK_S)
+    assert "measurement_delay +0.2 ms, within one 1 ms tick" in line
+
+
 def test_the_timing_line_says_the_delay_and_the_tick() -> None:
     line = timing_line(_found("command_delay", delay_s=-0.125e-3), TICK_S)
     assert "command_delay -0.125 ms, within one 1 ms tick" in line

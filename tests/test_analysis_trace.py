@@ -235,7 +235,11 @@ def test_a_command_followed_a_fraction_of_a_tick_late_is_found_to_its_step(tmp_p
     d, doc, _ = diagnose(run, nominal)
     assert d.effects == ()
     said = [n for n in d.notes if n.startswith("the twin's timing against the machine: ")]
-    assert said and all(("command_delay" in n or "position_delay" in n) for n in said), d.notes
+    assert any(("command_delay" in n or "position_delay" in n) for n in said), d.notes
+    # beside it, a sensor delay of a fraction of a tick may stand in for the synthetic truth's
+    # 0.2 ms current-loop lag (as on its record with nothing hidden): timing too
+    delays = ("command_delay", "position_delay", "measurement_delay")
+    assert all(any(name in n for name in delays) for n in said), d.notes
     step = record_search.COMMAND_DELAY_STEP * nominal.base_period()
     on_position = doc.get(COMMAND_DELAY_SLOT) + doc.get(POSITION_DELAY_SLOT)
     assert on_position == pytest.approx(3e-4, abs=1e-4 + step)

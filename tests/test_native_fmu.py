@@ -169,7 +169,8 @@ def test_a_fixed_parameter_is_refused_after_initialisation(axis_fmu, name):
         ("motor.p", 0.0, "a whole number >= 1"),
         ("motor.p", 2.5, "a whole number >= 1"),
         ("bus.u_0", -560.0, "> 0 V and finite"),
-        ("scale.delay_ticks", 1e9, "a whole number >= 0 and <= 63"),
+        ("scale.delay_ticks", 1e9, ">= 0 and <= 63"),  # a fraction of a tick interpolates
+        ("scale.delay_ticks", 63.5, ">= 0 and <= 63"),
         ("guides.F_c_pos", -1.0, ">= 0 N and finite"),
         ("screw_shaft.k_t", 0.0, "> 0 N m/rad"),
         ("max_step", 0.0, "> 0 s and finite"),

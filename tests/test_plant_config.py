@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import math
 
 import pytest
 
@@ -47,7 +48,25 @@ def _load(data: dict):
             "encoder",
             "delay_ticks",
             64,
-            r"config/emps.yaml: plant.encoder.delay_ticks = 64: must lie in \[0, 63\]",
+            r"config/emps.yaml: plant.encoder.delay_ticks = 64.0: must lie in \[0, 63\]",
+        ),
+        (
+            "encoder",
+            "delay_ticks",
+            63.25,  # a fraction of a tick reads the sample 64 ticks back: beyond the ring
+            r"config/emps.yaml: plant.encoder.delay_ticks = 63.25: must lie in \[0, 63\]",
+        ),
+        (
+            "encoder",
+            "delay_ticks",
+            -0.5,
+            r"config/emps.yaml: plant.encoder.delay_ticks = -0.5: must lie in \[0, 63\]",
+        ),
+        (
+            "encoder",
+            "delay_ticks",
+            math.nan,
+            r"config/emps.yaml: plant.encoder.delay_ticks = nan: must lie in \[0, 63\]",
         ),
         (
             "drive",

@@ -34,10 +34,12 @@ def test_a_positive_mass_is_open_at_zero_and_finite():
     assert describe(spec) == "> 0 kg and finite"
 
 
-def test_an_integer_delay_is_bounded_by_the_ring():
+def test_a_delay_configured_whole_is_a_fraction_bounded_by_the_ring():
+    # the field is a float (fractions of a tick are interpolated): a YAML 1 is no whole number
     spec = slot_specs(LinearScale(resolution=1e-8, delay_ticks=1))["delay_ticks"]
-    assert (spec.unit, spec.low, spec.high, spec.integer) == ("1", 0.0, MAX_DELAY_TICKS, True)
-    assert describe(spec) == f"a whole number >= 0 and <= {MAX_DELAY_TICKS}"
+    assert (spec.unit, spec.low, spec.high, spec.integer) == ("1", 0.0, MAX_DELAY_TICKS, False)
+    assert (spec.low_open, spec.high_open) == (False, False)
+    assert describe(spec) == f">= 0 and <= {MAX_DELAY_TICKS}"
 
 
 @pytest.mark.parametrize("path", AXES, ids=lambda p: p.name)

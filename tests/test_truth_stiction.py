@@ -8,7 +8,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from known_gaps import STICTION_ON_THE_TRUTH
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.model_doc import ModelDoc
@@ -19,7 +18,6 @@ NOMINAL = Path(__file__).resolve().parents[1] / "config" / "truth_nominal.yaml"
 
 
 @pytest.mark.slow  # a truth record and a whole diagnose: 3-5 s on a quiet host, 40 s loaded
-@pytest.mark.xfail(strict=True, reason=STICTION_ON_THE_TRUTH)
 def test_stiction_is_named_with_its_holding_force_on_a_truth_record(tmp_path: Path):
     """Named alone, its holding force (the data sheet's Coulomb force, which it takes over)
     within 5 %, and the effort error smaller after the fit."""

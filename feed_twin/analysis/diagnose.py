@@ -349,7 +349,7 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Mot
         mode = h if round(now / h) > 1 else period
         other = twin.simulate(drive, twin.nominal[None, :], record=[{TRACE_WINDOW_SLOT: mode}])
         other = other.effort[0] if other.effort is not None and other.ok[0] else None
-    return motion_from_position(
+    motion = motion_from_position(
         run.t_s,
         run["pos_meas_m"],
         effort_sim=None if out0.effort is None or effort_name is None else out0.effort[0],
@@ -361,6 +361,9 @@ def _motion(run: MeasuredRun, twin: Twin, out0: SimOutputs, drive: Drive) -> Mot
         current_answer=_current_answer(run, twin),
         effort_other_mode=other,
     )
+    if effort_name is None:
+        return motion
+    return dataclasses.replace(motion, effort_meas=np.asarray(run[effort_name], dtype=float))
 
 
 def _current_answer(run: MeasuredRun, twin: Twin):

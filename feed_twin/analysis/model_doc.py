@@ -207,12 +207,13 @@ class ModelDoc:
                 new.data.setdefault(ANALYSIS_SECTION, {})[field_name] = float(value)
                 continue
             params, quantity = new._declared(comp, field_name)
+            kind = COMPONENT_TYPES.get(str(new.component(comp).get("type")))
             if quantity is not None and quantity.present(params):
                 quantity.write(params, value)
                 continue
-            old = params.get(field_name)
-            # whole-number fields (counts, delays in ticks) stay whole numbers in the YAML
-            keep_int = isinstance(old, int) and not isinstance(old, bool)
+            # whole-number fields (counts, pole pairs) stay whole numbers in the YAML; a delay in
+            # ticks configured as 0 takes a fraction
+            keep_int = kind is not None and kind.whole_number(field_name)
             params[field_name] = int(round(value)) if keep_int else float(value)
         return new
 

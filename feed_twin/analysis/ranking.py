@@ -259,6 +259,8 @@ def rank(
         r = residual_of[domain]
         nuisance = nuisance_of(effect, domain, motion, offset)
         variants = effect.variants(motion)
+        if not variants:
+            continue  # the record holds none of its evidence (Effect.choices said so)
         signatures = [(label, sig(motion)) for label, sig in variants]
         peaks = [_peak(regs) for _, regs in signatures]
         best = None

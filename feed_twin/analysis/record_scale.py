@@ -8,7 +8,8 @@ second of record for each parameter set (config/axis_default.yaml on the 105 s m
 million ticks, about a second, and the workflow simulates hundreds of sets). `reduce` writes
 the same axis as the record sees it:
 
-- the electrical drive is the ideal source of its torque: a Pmsm becomes its rotor (an Inertia
+- the electrical drive is the ideal source of its torque (an EffortSource loses its drive's
+  current loop, plant.current_loop): a Pmsm becomes its rotor (an Inertia
   of its J, same name) driven by an EffortSource of its torque constant K_t = 1.5 p psi_pm
   [N m/A], so the controller's current setpoint is the current the torque needs (the twin's
   effort is still `current_q_A`: `analysis.effort_signal`); DcBus, Inverter and CurrentSensor
@@ -23,8 +24,9 @@ the same axis as the record sees it:
   position and velocity loops at that period with the velocity loop re-tuned as the
   controller node re-tunes it for its exchange (nodeset.controller_core), but keeping the
   drive's own Kp and Ti where they lie within the re-tuned ones; sensor delays are
-  counted again in the new ticks. Rigid, the axis is one body and allows that step (the
-  friction's stiff sign at rest takes the RK4 sub-steps Twin.compile chooses);
+  counted again in the new ticks (the same time: a fraction of a tick is interpolated). Rigid,
+  the axis is one body and allows that step (the friction's stiff sign at rest takes the RK4
+  sub-steps Twin.compile chooses);
 - a lossy screw (which needs a massless flange, so a spring behind it) becomes lossless with
   its efficiency moved to the motor's side (`_lossless`).
 
@@ -55,11 +57,13 @@ from feed_twin.analysis.visibility import unresolved
 from feed_twin.core.config import ConfigError
 from feed_twin.io.measured import MeasuredRun
 from feed_twin.plant.ball_screw import BallScrew
+from feed_twin.plant.effort_source import CURRENT_LOOP_FIELDS, EffortSource
 
 # the electrical drive: gone at the record's scale (the motor becomes a torque source)
 DRIVE_TYPES = ("DcBus", "Inverter", "CurrentSensor")
 # elastic two-ports whose ports become one node (Backlash only below the record's resolution)
 ELASTIC_TYPES = ("Coupling", "ScrewShaft", "AxialCompliance")
+TORSIONAL_TYPES = ("Coupling", "ScrewShaft")
 SENSOR_TYPES = ("Encoder", "LinearScale")
 # the reduced twin's effort may differ from the full twin's by this share of the full effort's
 # RMS: a fifth of the 10 % within which the workflow names an effect
@@ -95,15 +99,18 @@ def reduce(doc: ModelDoc, *, resolution_m: float) -> tuple[ModelDoc | None, list
         return None, ["a DcMotor's voltage drive is not reduced to a torque source"]
     try:
         limit = float(doc.data["controller"]["drive"]["effort_limit"])
-        plant, changes = _plant(doc, step, limit, resolution_m, rigid=True)
+        plant, changes = _plant(doc, step, limit, resolution_m, rigid=ELASTIC_TYPES)
         if not kinds & {"Pmsm", *DRIVE_TYPES}:
             # a torque-source axis whose springs the step resolves in one RK4 step gains
             # nothing from making them rigid: they stay (rigid, the truth machine's nominal
             # twin named an asymmetric friction for a Coulomb force and a weight on 10 Hz logs
-            # that its compliant model at the same step named right)
-            elastic, kept = _plant(doc, step, limit, resolution_m, rigid=False)
-            if _resolved(elastic, step, doc.source):
-                plant, changes = elastic, kept
+            # that its compliant model at the same step named right); a torsional spring the
+            # step does not resolve (its coupling's 1.1 kHz mode) is made rigid alone first
+            for rigid in ((), TORSIONAL_TYPES):
+                elastic, kept = _plant(doc, step, limit, resolution_m, rigid=rigid)
+                if _resolved(elastic, step, doc.source):
+                    plant, changes = elastic, kept
+                    break
         screws = doc.of_type(BallScrew.TYPE)
         eta = doc.get(f"{screws[0]}.efficiency") if len(screws) == 1 else 1.0
         if eta < 1.0:
@@ -185,10 +192,15 @@ def _resolved(plant: dict[str, Any], step: float, source: str) -> bool:
 
 
 def _plant(
-    doc: ModelDoc, step: float, effort_limit: float, resolution_m: float, *, rigid: bool
+    doc: ModelDoc,
+    step: float,
+    effort_limit: float,
+    resolution_m: float,
+    *,
+    rigid: tuple[str, ...],
 ) -> tuple[dict[str, Any], list[str]]:
-    """The plant section, torque-driven and (`rigid`) with its elastic two-ports rigid (module
-    docstring), and what changed."""
+    """The plant section, torque-driven, with its two-ports of the types `rigid` rigid
+    (module docstring), and what changed."""
     ratio = doc.base_period() / step
     parent: dict[str, str] = {}
 
@@ -215,19 +227,14 @@ def _plant(
                 f"{name} (Pmsm) -> rotor inertia + torque source of K_t"
                 + (" (its cogging dropped)" if params.get("cogging") else "")
             )
-        elif (rigid and kind in ELASTIC_TYPES) or (
-            kind == "Backlash" and float(params["gap"]) < resolution_m
-        ):
+        elif kind in rigid or (kind == "Backlash" and float(params["gap"]) < resolution_m):
             join(f"{name}.a", f"{name}.b")
             j = _carried_inertia(entry)
             if j > 0.0:
                 extra.append(({"name": name, "type": "Inertia", "params": {"J": j}}, f"{name}.a"))
             changed.append(f"{name} ({kind}) rigid")
         else:
-            entry = copy.deepcopy(entry)
-            if kind in SENSOR_TYPES:
-                entry["params"]["delay_ticks"] = int(round(params["delay_ticks"] * ratio))
-            kept.append(entry)
+            kept.append(_kept(entry, ratio))
     ports = {f"{e['name']}.{p}" for e, _ in extra for p in _ports(e)}
     ports |= {f"{e['name']}.{p}" for e in kept for p in _ports(e)}
     for a, b in doc.data["plant"]["connect"]:
@@ -243,6 +250,20 @@ def _plant(
     connect = [[members[0], other] for members in nodes.values() for other in members[1:]]
     components = kept + [e for e, _ in extra]
     return {**doc.data["plant"], "components": components, "connect": connect}, changed
+
+
+def _kept(entry: dict[str, Any], ratio: float) -> dict[str, Any]:
+    """A component that stays, at the new step (`ratio`: old step over new): a sensor's delay
+    the same time in the new ticks; an EffortSource an ideal source, its drive's current loop gone
+    with the step ("no current loop"; its fast pole would need RK4 sub-steps there)."""
+    entry = copy.deepcopy(entry)
+    if entry["type"] == EffortSource.TYPE:
+        for field in CURRENT_LOOP_FIELDS:
+            entry["params"].pop(field, None)
+    if entry["type"] in SENSOR_TYPES:
+        # the same time in the new ticks, a fraction of one interpolated
+        entry["params"]["delay_ticks"] = float(entry["params"]["delay_ticks"]) * ratio
+    return entry
 
 
 def _lossless(plant: dict[str, Any], eta: float) -> tuple[dict[str, Any], list[str]]:

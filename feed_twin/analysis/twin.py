@@ -162,6 +162,9 @@ class Twin:
     has_voltage: bool = False  # the controller has a current loop whose u_q is recorded
     # the Pmsm an expanded torque-source twin measures its effort on (analysis.drive_stage)
     stage_motor: str | None = None
+    # the EffortSource that carries its drive's current loop (plant.current_loop): its effort
+    # is the loop's actual current
+    loop_source: str | None = None
     _cache: dict = field(default_factory=dict)
 
     @classmethod
@@ -188,6 +191,7 @@ class Twin:
         kinds = {e["type"] for e in doc.data["plant"]["components"]}
         has_voltage = "Pmsm" in kinds
         stage_motor = _stage_motor(doc)
+        loop_source = _loop_source(doc)
         if stage_motor is not None:
             # a torque-source twin with its drive's electrical stage (analysis.drive_stage):
             # its effort is still the record's torque, now from the motor's actual current
@@ -213,7 +217,9 @@ class Twin:
             substeps=nsub,
             controller=controller,
             params=nominal,
-            record=_recorded(has_voltage, stage_motor),
+            record=_recorded(
+                has_voltage, stage_motor or loop_source, "i_q" if stage_motor else "i"
+            ),
         )
         index: dict[str, tuple[int, ...]] = {n: (i,) for i, n in enumerate(plant.param_names)}
         for name, members in doc.ties:
@@ -236,6 +242,7 @@ class Twin:
             effort_unit=unit,
             has_voltage=has_voltage,
             stage_motor=stage_motor,
+            loop_source=loop_source,
         )
 
     @property
@@ -332,6 +339,45 @@ class Twin:
             for c in self.plant.coordinates:
                 i = self.plant.state_index[c.position_state]
                 x[self.plant.state_index[c.velocity_state]] = moving[i]
+        return x
+
+    def _loop_started(
+        self,
+        drive: Drive,
+        x0: np.ndarray,
+        p: np.ndarray,
+        ref: np.ndarray,
+        ext: np.ndarray | None,
+        cs0: np.ndarray | None,
+    ) -> np.ndarray:
+        """The start state with the drive's current loop running (plant.current_loop), for a
+        record that begins mid-motion: the current at the controller's first setpoint and the
+        integral at the voltage that holds it, R i + k_e omega (an ideal source's effort
+        starts at that setpoint too: `acted`). At rest, or without a loop, x0 as it is."""
+        if self.loop_source is None or drive.v0_m_s == 0.0:
+            return x0
+        from feed_twin.sim.batch import run_batch
+
+        first = run_batch(
+            self.engine,
+            p[None, :],
+            1,
+            ref=ref[:1],
+            ext=None if ext is None else ext[:1],
+            x0=x0,
+            cs0=None if cs0 is None else cs0.copy(),
+        )
+        i0 = float(first["out.effort_cmd"][0, 0])
+        name, index = self.loop_source, self.plant.param_index
+        node = self.plant.node_of[f"{name}.flange"]
+        coord = self.plant.coordinates[self.plant.coordinate_of[node]]
+        omega = (
+            x0[self.plant.state_index[coord.velocity_state]] * p[index[f"derived.ratio_n{node}"]]
+        )
+        k_e = p[index[f"{name}.emf_ratio"]] * p[index[f"{name}.gain"]]
+        x = x0.copy()
+        x[self.plant.state_index[f"{name}.i"]] = i0
+        x[self.plant.state_index[f"{name}.z"]] = p[index[f"{name}.R_s"]] * i0 + k_e * omega
         return x
 
     def start_controller(self, drive: Drive, ref: np.ndarray) -> np.ndarray | None:
@@ -462,9 +508,11 @@ class Twin:
             start = self._started(drive, window)
             x0 = self._x0(start, P[rows[0]])
             cs0 = self.start_controller(start, ref)
+            x0 = self._loop_started(start, x0, P[rows[0]], ref, ext, cs0)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
-            if drive.effort_actual:
+            if drive.effort_actual and self.loop_source is None:
+                # a command acts from the next tick; a current loop's current is the actual
                 eff = acted(eff)
             volt = res["out.u_q_ref_V"] if u_q is not None else None
             for j in members:
@@ -490,6 +538,7 @@ class Twin:
         ref, ext, n, dec = self._cached_inputs(drive, None)
         start = self._started(drive, None)
         x0, cs0 = self._x0(start, P[0]), self.start_controller(start, ref)
+        x0 = self._loop_started(start, x0, P[0], ref, ext, cs0)
         res = run_batch(self.engine, P, n, ref=ref, ext=ext, x0=x0, cs0=cs0)
         T = len(drive.t_s)
         pos, eff = (period_mean(y, dec)[:, :T] for y in self._measured_signals(res, 1))
@@ -595,6 +644,9 @@ class Twin:
         if self.stage_motor is not None:
             # the drive's actual q-current (its sensor is exact), in the record's torque
             eff = res[f"{self.stage_motor}.i_q"][:, sel] * (self.doc.reference_gain or 1.0)
+        elif self.loop_source is not None:
+            # the current loop's actual current, in the record's effort
+            eff = res[f"{self.loop_source}.i"][:, sel] * (self.doc.reference_gain or 1.0)
         elif self.effort_name == "current_q_A":
             eff = res["out.i_q_ref_A"][:, sel]
         else:
@@ -666,10 +718,20 @@ def drive_period(drive: Drive) -> float:
     return float((drive.t_s[-1] - drive.t_s[0]) / (len(drive.t_s) - 1))
 
 
-def _recorded(has_voltage: bool, stage_motor: str | None = None) -> list[str]:
+def _recorded(has_voltage: bool, current_of: str | None = None, state: str = "i_q") -> list[str]:
+    """The signals a twin records; `current_of`: the component whose current `state` is the
+    effort (an expanded model's motor, a current loop's source)."""
     names = ["meas.theta_enc_rad", "meas.x_scale_m", "out.effort_cmd", "out.i_q_ref_A"]
-    names += [f"{stage_motor}.i_q"] if stage_motor is not None else []
+    names += [f"{current_of}.{state}"] if current_of is not None else []
     return names + (["out.u_q_ref_V"] if has_voltage else [])
+
+
+def _loop_source(doc: ModelDoc) -> str | None:
+    """The EffortSource that carries its drive's current loop, None for any other model."""
+    for name in doc.of_type("EffortSource"):
+        if doc.component(name)["params"].get("R_s") is not None:
+            return name
+    return None
 
 
 def _stage_motor(doc: ModelDoc) -> str | None:

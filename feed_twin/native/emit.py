@@ -39,8 +39,12 @@ def tick_control(k, h, x, p, cp, cs, ref, drive, ext, seed, ring, out, meas, mra
     for m in range(MEAS_SIZE):
         ring[slot * MEAS_SIZE + m] = mraw[m]
     for m in range(MEAS_SIZE):
-        back = min(int(mdelay[m]), k)
-        meas[m] = ring[((k - back) % RING) * MEAS_SIZE + m]
+        newer, older, w = delay_taps(mdelay[m], k)
+        if w == 0.0:
+            meas[m] = ring[newer * MEAS_SIZE + m]
+        else:
+            a = ring[newer * MEAS_SIZE + m]
+            meas[m] = a + w * (ring[older * MEAS_SIZE + m] - a)
 {controller}
     return trig
 """

@@ -135,6 +135,14 @@ class Component:
         """The quantity `name` (a slot that is no single YAML parameter), None if undeclared."""
         return cls.QUANTITIES.get(name)
 
+    @classmethod
+    def whole_number(cls, name: str) -> bool:
+        """True for a field declared `int` (a count, pole pairs): set slot by slot, it stays a
+        whole number, while a float field configured as `0` in YAML (a delay in ticks, which
+        may be a fraction) stays a float."""
+        fields = {f.name: f.type for f in dataclasses.fields(cls)}
+        return fields.get(name) in (int, "int")
+
     # (rotational port, translational port, ratio slot) of an ideal transformer, whose nodes the
     # assembler merges into one coordinate: across(trans) = p[ratio] * across(rot)
     TRANSFORMER: ClassVar[tuple[str, str, str] | None] = None
@@ -182,6 +190,14 @@ class Component:
         """
         del slot
         return {}
+
+    def state_rate(self, slot: SlotReader) -> float:
+        """[1/s] The largest pole magnitude of the component's own states' linear dynamics
+        (a drive's current loop), from the parameter values `slot(name)` of the set being run;
+        0 for none. The engine checks h * rate < 2.5 (explicit RK4 is stable inside |h s| <
+        2.5 in every direction of the left half-plane)."""
+        del slot
+        return 0.0
 
     def stiffness_bound(self, slot: SlotReader) -> float:
         """Largest stiffness between ports a and b [N/m or N m/rad] of a two-port spring, from

@@ -54,6 +54,8 @@ class Motion:
     # period where the twin takes it as it is, or the other way round (None: the record's
     # period is the twin's tick, or no effort)
     effort_other_mode: FloatArray | None = None
+    # the recorded effort, in effort_sim's unit (None: the record has none)
+    effort_meas: FloatArray | None = None
 
     @property
     def speed_eps(self) -> float:
@@ -246,8 +248,11 @@ class Edit:
     own: list[FreeParameter]  # the effect's own parameters (fitted first, alone)
     free: list[FreeParameter]  # own + the interacting ones (the final, joint fit)
     added: int  # degrees of freedom the effect adds to the model (for the partial F-test)
-    # whole-number parameters are searched over these values instead of least squares
+    # parameters searched over these values instead of least squares (a delay in ticks)
     grid: tuple[float, ...] = ()
+    # the searched parameter takes values between the grid's too (a sensor delay interpolates
+    # between samples): the best grid value is refined between its neighbours (trials)
+    refine: bool = False
     report: Report  # reported parameter name -> function of the fitted slot values
     # the edit writes a new stage that changes the model even at the effect's neutral values
     # (a drive's electrical stage for its dead time): the effect is tested against the edited
@@ -321,6 +326,7 @@ def make_edit(
     added: int | None = None,
     interacts: bool = True,
     grid: tuple[float, ...] = (),
+    refine: bool = False,
 ) -> Edit:
     names = {p.name for p in own}
     others = [p for p in interacting(doc) if p.name not in names] if interacts else []
@@ -331,6 +337,7 @@ def make_edit(
         added=len(own) if added is None else added,
         report=report,
         grid=grid,
+        refine=refine,
     )
 
 
@@ -359,7 +366,8 @@ class Effect:
     truth: TruthFn = field(repr=False)
     needs: tuple[str, ...] = ()  # Motion fields that must be known: lead_m, pole_pairs, ...
     signature: Signature | None = field(default=None, repr=False)
-    # variants over a nonlinear parameter (Stribeck speed, cogging order); the best one is used
+    # variants over a nonlinear parameter (Stribeck speed, cogging order); the best one is used;
+    # none where the record holds none of the effect's evidence (it is not ranked there)
     choices: Callable[[Motion], list[tuple[str, Signature]]] | None = field(
         default=None, repr=False
     )

@@ -1,7 +1,13 @@
 """Sensors the drive samples once per base tick: encoder, linear scale, phase-current ADC.
 
 Each writes its MEAS_* slots (feed_twin.core.signals) at a sample instant; the engine delays
-the sample by `delay_ticks` whole base periods before the controller sees it.
+the sample by `delay_ticks` base periods before the controller sees it. A delay d = n + f
+(n whole, 0 <= f < 1) reads the ring of samples by linear interpolation between the samples
+n and n + 1 ticks back, y = y[k-n] + f (y[k-n-1] - y[k-n]) (`delay_taps`): the first-order hold
+of the sampled signal, exact for a ramp. A sine of frequency w through it keeps the lag
+w d h exactly where f = 0 or 1/2 and otherwise lags by it within the hold's small phase error,
+with the gain |1 - f + f e^{-j w h}| <= 1 (tests/test_sensor_fractional_delay.py); the noise of an
+interpolated current sample is smaller by sqrt((1-f)^2 + f^2).
 - Encoder on a rotational flange: theta = floor(phi / q) * q with q = 2*pi / counts_per_rev
   (an incremental count, so it truncates towards -inf like a counter does).
 - LinearScale on a translational flange: x = floor(s / q) * q with q = resolution.
@@ -47,6 +53,7 @@ from feed_twin.plant.effect_api import (
 # kernel's modulo is a mask): 15.75 ms at the 0.25 ms tick of a drive's velocity loop. With 16
 # kept a truth machine's 4 ms feedback delay was fitted as the 2 ms at the searched grid's edge
 MAX_DELAY_TICKS = 63
+DELAY_RING = MAX_DELAY_TICKS + 1  # the samples a delay reads from: tick k and 63 before it
 # the sample delays the workflow searches for measurement_delay first: at least this many ticks
 # and this long [s]; widened while the best lies at the grid's edge (analysis.trials), up to
 # MAX_DELAY_TICKS
@@ -65,8 +72,19 @@ def adc(value: float, step: float, full_scale: float) -> float:
     return math.floor(clipped * (1.0 / step) + 0.5) * step  # the loop hoists 1/step
 
 
-def _check_delay(delay_ticks: int) -> None:
-    if not 0 <= delay_ticks <= MAX_DELAY_TICKS:
+@njit(error_model="numpy", forceinline=True)
+def delay_taps(delay: float, k: int) -> tuple[int, int, float]:
+    """The ring slots of the samples a delay of `delay` base periods reads at tick k (the
+    newer, n = floor(delay) ticks back, and the older, n + 1 back; both clamped to tick 0: the
+    first sample is held before the record) and the older one's weight, delay - n."""
+    whole = int(delay)
+    newer = k - min(whole, k)
+    older = k - min(whole + 1, k)
+    return newer % DELAY_RING, older % DELAY_RING, delay - whole
+
+
+def _check_delay(delay_ticks: float) -> None:
+    if not (math.isfinite(delay_ticks) and 0.0 <= delay_ticks <= MAX_DELAY_TICKS):
         raise ValueError(f"delay_ticks = {delay_ticks!r}: must lie in [0, {MAX_DELAY_TICKS}]")
 
 
@@ -94,7 +112,8 @@ def _loop_sensors(doc: Document) -> list[str]:
 
 def _delay_edit(doc: Document, cand: Weights) -> Edit:
     """One sample delay for every position sensor the loops read, searched over whole base
-    periods."""
+    periods, then refined between the best one's neighbours (a fraction of a tick is
+    interpolated: a real trace's delay is no multiple of the twin's tick)."""
     del cand
     slots = tuple(f"{s}.delay_ticks" for s in _loop_sensors(doc))
     name = "sensors.delay_ticks"
@@ -104,17 +123,19 @@ def _delay_edit(doc: Document, cand: Weights) -> Edit:
         FreeParameter(name=name, initial=doc.get(name), scale=1.0, lower=0.0, upper=MAX_DELAY_TICKS)
     ]
     report: Report = {"delay_ticks": lambda v: v[name], "delay_s": lambda v: v[name] * period}
-    # a delay in whole sensor samples: searched, not differentiated
+    # searched, not differentiated: the cost has a kink at each whole tick (the interpolation
+    # weights are piecewise linear in the delay), where finite differences mislead
     ticks = math.ceil(SEARCHED_DELAY_S / period - 1e-9)
     reach = min(MAX_DELAY_TICKS, max(SEARCHED_DELAY_TICKS, ticks))
-    return make_edit(doc, own, report, interacts=False, grid=tuple(range(reach + 1)))
+    grid = tuple(float(k) for k in range(reach + 1))
+    return make_edit(doc, own, report, interacts=False, grid=grid, refine=True)
 
 
 def _delay_truth(doc: Document, p: Mapping[str, float]) -> Document:
-    """The loops' sensors `delay_ticks` late, or `delay_s` in whole base periods."""
-    ticks = p["delay_ticks"] if "delay_ticks" in p else round(p["delay_s"] / doc.base_period())
+    """The loops' sensors `delay_ticks` late, or `delay_s` (in base periods, a fraction too)."""
+    ticks = p["delay_ticks"] if "delay_ticks" in p else p["delay_s"] / doc.base_period()
     for name in _loop_sensors(doc):
-        doc = doc.set(f"{name}.delay_ticks", int(ticks))
+        doc = doc.set(f"{name}.delay_ticks", ticks)
     return doc
 
 
@@ -138,7 +159,7 @@ class Encoder(Component):
     )
 
     counts_per_rev: int  # counts per revolution after quadrature decoding
-    delay_ticks: int  # sample delay in base periods [1]
+    delay_ticks: float  # sample delay in base periods, fractions interpolated [1]
 
     def __post_init__(self) -> None:
         if self.counts_per_rev < 1:
@@ -164,7 +185,7 @@ class LinearScale(Component):
     PORTS = {"flange": "translational"}
 
     resolution: float  # measuring step [m]
-    delay_ticks: int  # sample delay in base periods [1]
+    delay_ticks: float  # sample delay in base periods, fractions interpolated [1]
 
     def __post_init__(self) -> None:
         require_positive("resolution", self.resolution)
@@ -248,7 +269,7 @@ class CurrentSensor(Component):
     noise_std: float  # white-noise standard deviation per sample [A]
     adc_bits: int  # ADC resolution [bit]
     range_A: float  # ADC full scale, +/- [A]
-    delay_ticks: int  # sample delay in base periods [1]
+    delay_ticks: float  # sample delay in base periods, fractions interpolated [1]
     offset_a: float = 0.0  # offset of phase a alone, on top of `offset` [A]
     offset_b: float = 0.0  # offset of phase b alone [A]
     offset_c: float = 0.0  # offset of phase c alone [A]

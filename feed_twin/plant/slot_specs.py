@@ -83,7 +83,7 @@ def _number(x: float) -> str:
 
 def _probed(component: Component, name: str, unit: str) -> SlotSpec:
     value = getattr(component, name)
-    integer = isinstance(value, int) and not isinstance(value, bool)
+    integer = type(component).whole_number(name)
 
     def accepts(v: float) -> bool:
         try:

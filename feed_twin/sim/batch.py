@@ -80,6 +80,7 @@ def check_steps(model: PlantModel, P: np.ndarray, h: float, nsub: int) -> list[s
                 inv = P[:, model.param_index[f"derived.inv_inertia.{coord.name}"]]
                 rate = hs * c * r * r * inv
                 refused |= mine & (rate >= RK4_STABILITY_MARGIN)
+        refused |= _fast_states(model, name, P, hs)
     messages = [""] * len(P)
     for b in np.flatnonzero(refused):
         try:
@@ -87,6 +88,28 @@ def check_steps(model: PlantModel, P: np.ndarray, h: float, nsub: int) -> list[s
         except ValueError as exc:
             messages[b] = str(exc)
     return messages
+
+
+def _fast_states(model: PlantModel, name: str, P: np.ndarray, hs: float) -> np.ndarray:
+    """The rows of P whose step is too long for the component's own states
+    (Component.state_rate), evaluated once per distinct value of the slots it reads."""
+    comp = model.components[name]
+    read: list[str] = []
+
+    def probe(field: str) -> float:
+        if field not in read:
+            read.append(field)
+        return float(P[0, model.param_index[f"{name}.{field}"]])
+
+    if len(P) == 0 or (comp.state_rate(probe) == 0.0 and not read):
+        return np.zeros(len(P), dtype=bool)
+    cols = [model.param_index[f"{name}.{f}"] for f in read]
+    groups, which = np.unique(P[:, cols], axis=0, return_inverse=True)
+    too_fast = np.zeros(len(groups), dtype=bool)
+    for i, values in enumerate(groups):
+        known = dict(zip(read, values.tolist(), strict=True))
+        too_fast[i] = hs * comp.state_rate(known.__getitem__) >= RK4_STABILITY_MARGIN
+    return too_fast[which.ravel()]
 
 
 BLOCKS_PER_THREAD = 16  # blocks of sets a batch thread takes from the queue, on average

@@ -439,7 +439,8 @@ def oscillation_rate(model: PlantModel, p: np.ndarray) -> float:
 
 
 def check_step(model: PlantModel, p: np.ndarray, h: float, nsub: int) -> None:
-    """Refuse a sub-step for which a regularised friction or damper makes RK4 unstable."""
+    """Refuse a sub-step for which a regularised friction or damper, or a component's own
+    fast states (Component.state_rate), make RK4 unstable."""
     hs = h / nsub
     for name, comp in model.components.items():
 
@@ -460,3 +461,10 @@ def check_step(model: PlantModel, p: np.ndarray, h: float, nsub: int) -> None:
                     f"{RK4_STABILITY_MARGIN} for explicit RK4: raise the regularisation "
                     "velocity or engine.substeps"
                 )
+        rate = hs * comp.state_rate(slot)
+        if rate >= RK4_STABILITY_MARGIN:
+            raise ValueError(
+                f"{model.source}: plant.{name}: step {hs:.6g} s times its states' fastest "
+                f"rate {comp.state_rate(slot):.6g} 1/s is {rate:.3g}, must be < "
+                f"{RK4_STABILITY_MARGIN} for explicit RK4: raise engine.substeps"
+            )

@@ -6,9 +6,10 @@ text (so a structure compiles once and a cold process reuses numba's on-disk cac
 and returns the module. Per base tick k (period h) the loop
   1. evaluates the Park angles of the tick's start state (`angles`), samples the sensors
      (`sense`) into a ring of the last RING samples and reads each MEAS_* slot with its own
-     delay (the tick's sensor noise is drawn, or taken from a table a batch drew once for all
-     sets of a seed; each sample depends on (seed, tick, channel) alone, so chunks and tables
-     never matter);
+     delay, a fraction of a tick by linear interpolation (feed_twin.plant.sensors.delay_taps;
+     the tick's sensor noise is drawn, or taken from a table a batch drew once for all sets of
+     a seed; each sample depends on (seed, tick, channel) alone, so chunks and tables never
+     matter);
   2. runs the controller, `cascade_tick(cp, cs, k, ref[k], meas, out)`, or copies the prescribed
      open-loop row `drive[k]` into `out`;
   3. records the selected signals when k is a multiple of the decimation;
@@ -36,9 +37,9 @@ from types import ModuleType
 
 from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.codegen import SIGNALS, const_name
-from feed_twin.plant.sensors import MAX_DELAY_TICKS
+from feed_twin.plant.sensors import DELAY_RING
 
-RING = MAX_DELAY_TICKS + 1  # sensor samples kept: delays up to RING - 1 ticks (a power of 2)
+RING = DELAY_RING  # sensor samples kept: delays up to RING - 1 ticks (a power of 2)
 
 _LOOP = '''
 
@@ -141,8 +142,12 @@ def advance(x, p, cp, cs, k0, n, ref, drive, ext, hold, seed, normals, ring, out
         for m in range(MEAS_SIZE):
             ring[slot, m] = mraw[m]
         for m in range(MEAS_SIZE):
-            back = min(int(mdelay[m]), k)
-            meas[m] = ring[(k - back) % RING, m]
+            newer, older, w = delay_taps(mdelay[m], k)
+            if w == 0.0:
+                meas[m] = ring[newer, m]
+            else:
+                a = ring[newer, m]
+                meas[m] = a + w * (ring[older, m] - a)
 {controller}
         if phase == 0:
             outputs(t, xs, pt, out, ext[u], sw, aux)
@@ -372,6 +377,7 @@ def kernel_source(
     signals = {"MEAS_SIZE", "OUT_SIZE"} | ({"OUT_DUTY_A", "OUT_ENABLED"} if switching else set())
     imports = [f"from {SIGNALS} import {', '.join(sorted(signals - model.signal_names))}"]
     imports.append("from feed_twin.core.fma import fma")
+    imports.append("from feed_twin.plant.sensors import delay_taps")
     if re.search(r"\bmath\.", loop):
         imports.append("import math")
     defs = ""

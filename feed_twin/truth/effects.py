@@ -18,13 +18,12 @@ the data sheet (and the nominal twin, config/truth_nominal.yaml) says 60 N.
     stiction                 Karnopp sticking of the data sheet's Coulomb friction: held at rest
                              (below 10 um/s) up to the sliding force, F_hold = 60 N. No size:
                              on or off. Drawn as a sticking Coulomb force of 60 (1 + 0.5 f) N,
-                             the record is a Coulomb change too (with a Karnopp law in the twin,
-                             coulomb_friction was named first, stiction beside it 8-9 % low); a
-                             break-away above the sliding force (F_hold 90 N on 60 N) barely
-                             shows on this program (its dwells end before the loop's integrator
-                             winds up to it: nominal effort residual 0.0146 A against 0.0138 A
-                             at 60 N), and the library's stiction, like this truth's, holds with
-                             its sliding force
+                             the record is a Coulomb change too, and coulomb_friction was named
+                             first with stiction beside it 8-9 % low; a break-away above the
+                             sliding force (F_hold 90 N on 60 N) barely shows on this program
+                             (its dwells end before the loop's integrator winds up to it:
+                             effort residual 0.0146 A against 0.0138 A at 60 N), and the
+                             library's stiction, like this truth's, holds with its sliding force
     backlash                 10 f um of lost motion between nut and table
     lead_error               3 f um once per screw revolution, phase uniform
     position_dependent_stiffness   bearing stiffness and EA both / (1 + f)
