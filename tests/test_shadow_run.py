@@ -1,7 +1,7 @@
 """`feed-twin run PROGRAM --shadow` end to end on the machine-tool axis (config/axis_default.yaml).
 
 Real processes (recorder, twin, stand-in, G-code node) in a private ROS domain, lockstep; the
-bag is read back with `rosbags`. The program shuttles X at 4-6 m/min for about 5.6 s, so the
+bag is read back with `rosbags`. The program shuttles X at 4-6 m/min for about 5.4 s, so the
 health baseline (1.5 s) and window (1 s) of the config have motion in them.
 """
 
