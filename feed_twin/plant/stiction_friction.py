@@ -200,7 +200,7 @@ def held_share(m: Motion, spans: list[tuple[int, int]]) -> float | None:
     constant, coulomb, _, _ = np.linalg.lstsq(split, e[is_moving], rcond=None)[0]
     if not coulomb > 0.0:
         return None
-    shares = []
+    shares: list[float] = []
     for a, b in spans:
         came = float(np.sign(np.sum(v[np.searchsorted(t, t[a] - HOLD_MIN_S) : a])))
         caught = slice(a, a + max(1, int(CATCH_SHARE * (b - a))))
