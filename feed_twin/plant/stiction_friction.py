@@ -35,6 +35,8 @@ Stored energy k_s clip(z)^2 / 2; loss F v - k_s clip(z) d(clip z)/dt (F_hold sgn
 sliding, plus d_s v^2 stuck).
 Port: `flange` (translational: s [m], v [m/s], f [N] into the flange). State: `z` [m], 0 at
 the start (nothing held).
+The effect this file declares has a second contact, ElastoPlasticFriction, that stops deflected
+the way it slid and holds its sliding force at rest; the record chooses (`_choices`).
 """
 
 from __future__ import annotations
