@@ -283,9 +283,11 @@ def test_the_contact_is_chosen_by_the_share_of_its_sliding_force_held_at_the_sto
     spans = held_stops(m)
     assert len(spans) == 1
     # the first quarter's mean of the ramp: held + (ramp_to - held) / 8
-    assert held_share(m, spans) == pytest.approx(held + (ramp_to - held) / 8.0, abs=0.02)
+    share = held_share(m, spans)
+    assert share is not None, "the record has an effort and a sliding force"
+    assert share == pytest.approx(held + (ramp_to - held) / 8.0, abs=0.02)
     assert [label for label, _ in BY_NAME["stiction"].variants(m)] == [variant]
-    assert (held_share(m, spans) >= DEFLECTED_SHARE) == (variant == "deflected")
+    assert (share >= DEFLECTED_SHARE) == (variant == "deflected")
 
 
 def test_without_an_effort_or_a_sliding_force_the_contact_is_karnopps():
@@ -296,8 +298,10 @@ def test_without_an_effort_or_a_sliding_force_the_contact_is_karnopps():
     assert held_share(dataclasses.replace(m, effort_meas=None), spans) is None
     assert [label for label, _ in BY_NAME["stiction"].variants(
         dataclasses.replace(m, effort_meas=None, effort_sim=None))] == ["held"]  # fmt: skip
-    pushed = dataclasses.replace(m, effort_meas=-np.abs(m.effort_meas))
-    assert held_share(pushed, spans) is None
+    assert m.effort_meas is not None
+    # an effort whose part in sign(v) helps the motion along: no sliding force to compare with
+    helping = dataclasses.replace(m, effort_meas=-np.abs(m.effort_meas))
+    assert held_share(helping, spans) is None
 
 
 def _rests(columns, gain: float):
