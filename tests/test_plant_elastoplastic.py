@@ -3,11 +3,16 @@ and against the Karnopp contact (StictionFriction) that lets go while sliding.""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
+from feed_twin.core import signals as sig
+from feed_twin.plant.config import load_plant
 from feed_twin.plant.elastoplastic_friction import ElastoPlasticFriction, elastoplastic_force
 from feed_twin.plant.stiction_friction import stiction_force
+from feed_twin.sim.engine import Engine
 
 LAW = elastoplastic_force.py_func
 F_HOLD, K_S, D_S, R_SLIP = 20.0, 1e7, 3e4, 1e3
@@ -99,6 +104,50 @@ def test_a_cycle_dissipates_the_area_of_its_parallelogram():
     # never negative but for a step that overshot z_max and backs off at F_hold before it has
     # fallen back (1e-5 of the peak power here)
     assert worst >= -1e-4 * F_HOLD * X * w
+
+
+def test_in_the_engine_a_table_is_held_slides_at_the_holding_force_and_stops_holding_the_drive():
+    """A 20 kg table on the contact (k_s as the workflow sets it: the table rings at 0.5 / h),
+    pushed by a force source with 0.6 F_hold (held: deflected 0.6 z_max, still), then 1.5 F_hold
+    (slides: accelerates at 0.5 F_hold / m exactly, the contact carrying F_hold), then 0.6 F_hold
+    again (decelerates at 0.4 F_hold / m, stops and is held with the drive's 0.6 F_hold); the
+    drive's work equals the friction's loss plus the energy stored at the end."""
+    m, f_hold, h = 20.0, 50.0, 1e-3
+    k_s = m * (0.5 / h) ** 2
+    contact = {"F_hold": f_hold, "k_s": k_s, "d_s": math.sqrt(k_s * m), "r_slip": 1.0 / h}
+    source = {"domain": "translational", "gain": 1.0, "T_lag": 0.0, "f_max": 1e6}
+    plant = load_plant(
+        {
+            "components": [
+                {"name": "table", "type": "Mass", "params": {"m": m}},
+                {"name": "contact", "type": "ElastoPlasticFriction", "params": contact},
+                {"name": "drive", "type": "EffortSource", "params": source},
+            ],
+            "connect": [["table.flange", "contact.flange"], ["table.flange", "drive.flange"]],
+        },
+        source="contact",
+    ).with_energy_tracking()
+    effort = np.r_[np.full(500, 0.6), np.full(500, 1.5), np.full(2000, 0.6)] * f_hold
+    drive = np.zeros((len(effort), sig.OUT_SIZE))
+    drive[:, sig.OUT_EFFORT_CMD] = effort
+    drive[:, sig.OUT_ENABLED] = 1.0
+    engine = Engine(plant, base_period_s=h)
+    res = engine.run(len(effort), drive=drive)
+    s, v, f = res["table.s"], res["table.v"], res["contact.force"]
+    assert s[100:500] == pytest.approx(0.6 * f_hold / k_s, rel=1e-6)
+    assert f[499] == pytest.approx(0.6 * f_hold, rel=1e-9)
+    sliding = slice(600, 1000)
+    assert f[sliding] == pytest.approx(f_hold, rel=1e-9)
+    assert np.gradient(v, h)[sliding] == pytest.approx(0.5 * f_hold / m, rel=1e-6)
+    # it comes to rest (its speed's first zero; the presliding spring then rings out at 0.5 / h)
+    stop = 1000 + int(np.argmax(v[1000:] <= 0.0))
+    assert (stop - 1000) * h == pytest.approx(v[999] / (0.4 * f_hold / m), abs=2 * h)
+    assert f[-1] == pytest.approx(0.6 * f_hold, rel=1e-9) and np.ptp(s[-1000:]) == 0.0
+    energy = {n: engine.x[plant.state_index[n]] for n in plant.state_names if "energy." in n}
+    stored = res["stored.contact.asperities"][-1] + res["stored.table.kinetic"][-1]
+    work, lost = energy["energy.drive.drive"], energy["energy.contact.friction"]
+    assert work - lost - stored == pytest.approx(0.0, abs=1e-5 * work)
+    assert np.min(res["contact.power.friction"]) >= 0.0
 
 
 @pytest.mark.parametrize(
