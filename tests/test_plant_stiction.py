@@ -16,14 +16,8 @@ from feed_twin.core.smooth import smooth_sign
 from feed_twin.io.measured import load_measured
 from feed_twin.plant.effect_api import Motion
 from feed_twin.plant.registry import COMPONENT_TYPES
-from feed_twin.plant.stiction_friction import (
-    DEFLECTED_SHARE,
-    HOLD_MIN_S,
-    StictionFriction,
-    held_share,
-    held_stops,
-    stiction_force,
-)
+from feed_twin.plant.stiction_evidence import HOLD_MIN_S, held_share, held_stops
+from feed_twin.plant.stiction_friction import DEFLECTED_SHARE, StictionFriction, stiction_force
 
 ROOT = Path(__file__).resolve().parents[1]
 EMPS = ROOT / "config" / "emps_nominal.yaml"
@@ -144,6 +138,7 @@ def test_one_component_file_and_one_registry_line_make_a_library_effect():
     assert naming == [
         "plant/elastoplastic_friction.py",  # the contact of the "deflected" variant
         "plant/registry.py",
+        "plant/stiction_evidence.py",  # where a record holds a table still, and how
         "plant/stiction_friction.py",
     ]
     assert BY_NAME["stiction"].component == "StictionFriction.F_hold"
