@@ -48,7 +48,7 @@ import dataclasses
 import time
 from dataclasses import dataclass
 
-from feed_twin.analysis.fit import Measured, cost_of
+from feed_twin.analysis.fit import FreeParameter, Measured, cost_of
 from feed_twin.analysis.model_doc import model_of
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.reexamine import Found, removable, removed
@@ -57,6 +57,7 @@ from feed_twin.analysis.rounds import (
     Context,
     State,
     adopt,
+    choose_rivals,
     effective_counts,
     information,
     no_finding,
@@ -85,6 +86,7 @@ class Swap:
     state: State  # the set, fitted
     score: float  # its information against the set now (positive: better)
     dropped: tuple[str, ...]  # the effects the pruning removed besides `out`
+    extra: str | None = None  # the effect fitted in beside `into` (analysis.joint._extended)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -193,7 +195,8 @@ def _keep(state: State, ctx: Context, swap: Swap) -> str:
     new = swap.state
     state.doc, state.twin, state.outputs, state.cost = new.doc, new.twin, new.outputs, new.cost
     state.found = new.found
-    also = f", without {', '.join(swap.dropped)}" if swap.dropped else ""
+    also = f" with {swap.extra}" if swap.extra else ""
+    also += f", without {', '.join(swap.dropped)}" if swap.dropped else ""
     words = (
         f"joint selection: {swap.into} in place of {swap.out}{also}; the set scores "
         f"{swap.score:.3g} better (the likelihood of all channels less {PARAMETER_PRICE:.3g} "
@@ -207,8 +210,9 @@ def _keep(state: State, ctx: Context, swap: Swap) -> str:
 def _swapped(
     state: State, ctx: Context, meas: Measured, target: Found, cand: Candidate
 ) -> Swap | None:
-    """The set with `target` replaced by `cand`, fitted and (where that could make it win)
-    pruned; None if the rival is no finding there. The simulations count in `state`."""
+    """The set with `target` replaced by `cand`, fitted, extended where the target had taken
+    another effect's place too (`_extended`), and (where that could make it win) pruned; None
+    if the rival is no finding there. The simulations count in `state`."""
     others = [f for f in state.found if f is not target]
     doc = removed(target, state.doc)
     free = [
@@ -217,36 +221,32 @@ def _swapped(
         for p in f.own
         if doc.has_slot(p.name)
     ]
-    tried = try_candidate(doc, free, cand, ctx.drive, meas, ctx.opts.max_evaluations)
-    if isinstance(tried, str):
-        return None
-    edit, alone, new_twin, result = tried
-    state.simulations += result.evaluations
     quiet = dataclasses.replace(ctx, notes=[], progress=noop, tried=[])
     base = State(
         doc=doc, twin=state.twin, outputs=state.outputs, cost=state.cost, found=list(others)
     )
-    if not result.converged or no_finding(base, quiet, cand, edit, alone, result) is not None:
+    trial = _fitted_in(base, quiet, meas, cand, free, state)
+    if trial is None:
         return None
-    trial = dataclasses.replace(base, simulations=0)
-    verdict = compare(ctx.channels(state.outputs), ctx.channels(result.outputs), added=edit.added)
-    adopt(
-        trial, quiet, cand, edit=edit, alone=alone, new_twin=new_twin, result=result,
-        explained_by=verdict.explained,
-    )  # fmt: skip
     # in the target's place: the report lists the effects in the order the search took them
     trial.found.insert(state.found.index(target), trial.found.pop())
     gain = score(ctx, state, trial)
+    extra: str | None = None
+    if gain <= SWAP_MARGIN:
+        extended = _extended(state, ctx, quiet, meas, trial, target)
+        if extended is not None and (more := score(ctx, state, extended)) > gain:
+            trial, gain, extra = extended, more, extended.found[-1].name
     # pruned when it could win (pruning can at most take back the price of the other effects'
     # parameters), a winner too: a rival that splits a tie (asymmetric friction in place of
     # a viscous one) is itself removed by tying the pair at its mean, which keeps the effect it
     # replaced in the model with no name
-    if gain + PARAMETER_PRICE * parameters(others) > SWAP_MARGIN:
+    kept = [f for f in trial.found if f.name not in (cand.name, extra)]
+    if gain + PARAMETER_PRICE * parameters(kept) > SWAP_MARGIN:
         names = {f.name for f in trial.found}
         reexamine_found(trial, quiet, meas)
         trial.cost = cost_of(meas, trial.outputs)
         dropped = tuple(sorted(names - {f.name for f in trial.found}))
-        if cand.name in dropped:
+        if cand.name in dropped or extra in dropped:
             # the rival itself removed: a removal of the target, which the rounds' own
             # re-examination tested (and the rival's split of a tie stayed in the model)
             state.simulations += trial.simulations
@@ -257,10 +257,76 @@ def _swapped(
     state.simulations += trial.simulations
     ctx.progress(
         f"  {cand.name} for {target.name}"
+        + (f" with {extra}" if extra else "")
         + (f" (without {', '.join(dropped)})" if dropped else "")
         + f": cost {state.cost:.4g} -> {trial.cost:.4g}, score {gain:+.3g}"
     )
-    return Swap(out=target.name, into=cand.name, state=trial, score=gain, dropped=dropped)
+    return Swap(
+        out=target.name, into=cand.name, state=trial, score=gain, dropped=dropped, extra=extra
+    )
+
+
+def _fitted_in(
+    base: State,
+    quiet: Context,
+    meas: Measured,
+    cand: Candidate,
+    free: list[FreeParameter],
+    counter: State,
+) -> State | None:
+    """`base` with `cand` fitted in together with the parameters `free`, exactly as a round
+    fits a candidate (analysis.trials), None if it is no finding there (rounds.no_finding); the
+    fit's simulations count in `counter`, the new state's own count starts at 0."""
+    tried = try_candidate(base.doc, free, cand, quiet.drive, meas, quiet.opts.max_evaluations)
+    if isinstance(tried, str):
+        return None
+    edit, alone, new_twin, result = tried
+    counter.simulations += result.evaluations
+    if not result.converged or no_finding(base, quiet, cand, edit, alone, result) is not None:
+        return None
+    trial = dataclasses.replace(base, found=list(base.found), simulations=0)
+    verdict = compare(
+        quiet.channels(base.outputs), quiet.channels(result.outputs), added=edit.added
+    )
+    adopt(
+        trial, quiet, cand, edit=edit, alone=alone, new_twin=new_twin, result=result,
+        explained_by=verdict.explained,
+    )  # fmt: skip
+    return trial
+
+
+def _extended(
+    state: State, ctx: Context, quiet: Context, meas: Measured, trial: State, target: Found
+) -> State | None:
+    """The swapped set `trial` with one more effect, as one more round would take it: the
+    library ranked on its residual (not the target, nor an effect in the set), its rivals
+    (rounds.choose_rivals) each fitted with the set's parameters, the best-scoring one that the
+    test keeps there (analysis.significance). A found effect can stand for two: a drive gain
+    scales every force, so with the current loop the truth machine's heavier slide (seed 2:
+    weight, Coulomb, mass) took the gain first and a viscous term for the Coulomb force the gain
+    scaled wrong; the mass in the gain's place then leaves the Coulomb force unexplained (a
+    Stribeck law leads its ranking beside the viscous term), and only the set with both (the
+    viscous term pruned) scores better. None if no such effect; the fits' simulations count in
+    `state`."""
+    exclude = tuple({f.name for f in trial.found} | {target.name})
+    worth = [c for c in ranked(ctx, trial.outputs, exclude) if c.worth_fitting]
+    best: tuple[float, State] | None = None
+    for cand in choose_rivals(worth, ctx.opts) if worth else []:
+        extended = _fitted_in(trial, quiet, meas, cand, trial.found_free(), state)
+        if extended is None:
+            continue
+        verdict = compare(
+            ctx.channels(trial.outputs),
+            ctx.channels(extended.outputs),
+            added=extended.found[-1].added,
+            own=cand.residual_domain,
+            support=cand.support,
+        )
+        gain = score(ctx, state, extended)
+        if verdict.significant and (best is None or gain > best[0]):
+            extended.simulations = trial.simulations
+            best = (gain, extended)
+    return None if best is None else best[1]
 
 
 # passes over the searched effects at most (analysis.joint.searched_again)
