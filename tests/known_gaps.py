@@ -46,12 +46,3 @@ FRACTIONAL_DELAY_BIAS = (
     "tick high. Candidate cause, not measured: the twin's loop is continuous, the truth's is "
     "sampled at 8 kHz with its own computation delay"
 )
-
-HEAVIER_SLIDE_WITH_CURRENT_LOOP = (
-    "issue #27, open, since the truth twin's torque source carries the drive's current loop and "
-    "the coupling (merge afca94f; it passes at 6e41574, just before): on seed 2's weight + "
-    "Coulomb + 172 kg heavier slide the workflow names constant_force, asymmetric friction "
-    "(dropped later), torque_constant_error and viscous_friction, where the hidden set is "
-    "constant_force, coulomb_friction and mass_error. The benchmark's combination of the same "
-    "three effects (weight+coulomb+mass, seeds 101-103) passes. Cause not measured yet"
-)
