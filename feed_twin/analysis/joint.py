@@ -247,7 +247,11 @@ def _swapped(
     trial.found.insert(state.found.index(target), trial.found.pop())
     gain = score(ctx, state, trial)
     extra: str | None = None
-    if gain <= SWAP_MARGIN:
+    # an extension adds a parameter at least and the pruning can at most take the others' out:
+    # where even that keeps more parameters than the set now (the rival of a lone effect with as
+    # many parameters), no extended set can be an exchange (below), and none is fitted
+    exchange = parameters(trial.found) + 1 - parameters(others) <= parameters(state.found)
+    if gain <= SWAP_MARGIN and exchange:
         extended = _extended(state, ctx, quiet, meas, trial, target)
         if extended is not None and (more := score(ctx, state, extended)) > gain:
             trial, gain, extra = extended, more, extended.found[-1].name
