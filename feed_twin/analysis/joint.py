@@ -27,10 +27,13 @@ and scored as pruned. The best swap that scores better than the set now by SWAP_
 kept, and the search repeats on the new set, MAX_SWAPS times at most. Last, the found effects'
 searched parameters are searched again with the others in (`searched_again`).
 
-A found effect can stand for two. A swap that does not win alone is extended as one more round
-would extend it (`_extended`): the library ranked on the swapped set's residual, its rivals
-fitted in with the set's parameters, the best-scoring one the test keeps there, then pruned and
-scored as above. On the truth machine's heavier slide (seed 2) with the drive's current loop in
+A found effect can stand for two. Where no swap wins, each found effect's best-scoring swap is
+extended as one more round would extend it (`_extended`: the library ranked on the swapped
+set's residual, its rivals fitted in with the set's parameters, the best-scoring one the test
+keeps there), then pruned and scored as above; an extended set must keep no more parameters
+than the set now (an exchange: whether the model needs one more effect is the rounds' test; a
+synthetic EMPS record's heavier table, named alone, scored 1310 better as a drive gain beside a
+viscous term). On the truth machine's heavier slide (seed 2) with the drive's current loop in
 the twin, the rounds take the drive gain first at 1.347 (the slide's inertia ratio is 1.316;
 the twin without the loop took 1.369, its missing back-EMF lag acting as extra inertia), then
 the weight; what is left is the friction the gain scaled wrong (Coulomb 60 x 1.347 for 117 N,
@@ -50,8 +53,8 @@ against the gain's 84 %. With the others fitted again it was the gain's rival, a
 {Coulomb, weight, mass} scored 119 better.
 
 Cost: one re-fit of the others per found effect, one least-squares fit per pair tried (its
-Jacobians are batches of the engine, analysis.fit), for a swap that does not win alone the fits
-of its residual's rivals (candidates_per_round at most), the removal tests of the sets worth
+Jacobians are batches of the engine, analysis.fit), where none wins the fits of each best
+swap's residual's rivals (candidates_per_round at most), the removal tests of the sets worth
 pruning, and the searches again (one simulation and shifts of its output each); counted in the
 search's simulations (Diagnosis.search: joint_trials, joint_simulations, joint_seconds) and
 said in the report.
@@ -162,13 +165,23 @@ def joint_select(state: State, ctx: Context, meas: Measured) -> JointSearch:
             f"their rivals ({', '.join(f'{c.name} for {f.name}' for f, c in pairs)})"
         )
         best: Swap | None = None
+        # each target's best-scoring swap that does not win, fitted (`_extended` extends it)
+        losers: dict[str, Fitted] = {}
         for target, cand in pairs:
             trials += 1
-            swap = _swapped(state, ctx, meas, target, cand)
-            if swap is None or swap.score <= SWAP_MARGIN:
+            fitted = _fitted_swap(state, ctx, meas, target, cand)
+            if fitted is None:
                 continue
-            if best is None or swap.score > best.score:
-                best = swap
+            swap = _pruned(state, ctx, meas, fitted.copy(), None)
+            if swap is not None and swap.score > SWAP_MARGIN:
+                best = _better(best, swap)
+            elif fitted.exchange and (
+                target.name not in losers or fitted.gain > losers[target.name].gain
+            ):
+                losers[target.name] = fitted
+        if best is None:
+            trials += len(losers)
+            best = _best_extended(state, ctx, meas, list(losers.values()))
         if best is None:
             break
         out.add(best.out)
@@ -222,12 +235,30 @@ def _keep(state: State, ctx: Context, swap: Swap) -> str:
     return words
 
 
-def _swapped(
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Fitted:
+    """A swap fitted, before its pruning: `trial` is the set with `target` replaced by
+    `cand`, `gain` its score against the set now."""
+
+    target: Found
+    cand: Candidate
+    trial: State
+    gain: float
+    # an extension of it could be an exchange (`_pruned`): one more effect (a parameter at
+    # least) with all the others pruned keeps no more parameters than the set now
+    exchange: bool
+
+    def copy(self) -> Fitted:
+        """The same swap with a set of its own (the pruning removes effects from it)."""
+        trial = dataclasses.replace(self.trial, found=list(self.trial.found))
+        return dataclasses.replace(self, trial=trial)
+
+
+def _fitted_swap(
     state: State, ctx: Context, meas: Measured, target: Found, cand: Candidate
-) -> Swap | None:
-    """The set with `target` replaced by `cand`, fitted, extended where the target had taken
-    another effect's place too (`_extended`), and (where that could make it win) pruned; None
-    if the rival is no finding there. The simulations count in `state`."""
+) -> Fitted | None:
+    """The set with `target` replaced by `cand`, fitted; None if the rival is no finding
+    there. The simulations count in `state`."""
     others = [f for f in state.found if f is not target]
     doc = removed(target, state.doc)
     free = [
@@ -236,25 +267,51 @@ def _swapped(
         for p in f.own
         if doc.has_slot(p.name)
     ]
-    quiet = dataclasses.replace(ctx, notes=[], progress=noop, tried=[])
     base = State(
         doc=doc, twin=state.twin, outputs=state.outputs, cost=state.cost, found=list(others)
     )
-    trial = _fitted_in(base, quiet, meas, cand, free, state)
+    trial = _fitted_in(base, _quiet(ctx), meas, cand, free, state)
     if trial is None:
         return None
     # in the target's place: the report lists the effects in the order the search took them
     trial.found.insert(state.found.index(target), trial.found.pop())
-    gain = score(ctx, state, trial)
-    extra: str | None = None
-    # an extension adds a parameter at least and the pruning can at most take the others' out:
-    # where even that keeps more parameters than the set now (the rival of a lone effect with as
-    # many parameters), no extended set can be an exchange (below), and none is fitted
     exchange = parameters(trial.found) + 1 - parameters(others) <= parameters(state.found)
-    if gain <= SWAP_MARGIN and exchange:
-        extended = _extended(state, ctx, quiet, meas, trial, target)
-        if extended is not None and (more := score(ctx, state, extended)) > gain:
-            trial, gain, extra = extended, more, extended.found[-1].name
+    return Fitted(
+        target=target, cand=cand, trial=trial, gain=score(ctx, state, trial), exchange=exchange
+    )
+
+
+def _quiet(ctx: Context) -> Context:
+    """The context of a trial set: its notes and progress go nowhere."""
+    return dataclasses.replace(ctx, notes=[], progress=noop, tried=[])
+
+
+def _best_extended(state: State, ctx: Context, meas: Measured, losers: list[Fitted]) -> Swap | None:
+    """The best of the swaps `losers` extended (`_extended`) and pruned that scores better
+    than the set now by SWAP_MARGIN, None if none does."""
+    best: Swap | None = None
+    for fitted in losers:
+        extended = _extended(state, ctx, meas, fitted.trial, fitted.target)
+        if extended is None:
+            continue
+        more = dataclasses.replace(fitted, trial=extended, gain=score(ctx, state, extended))
+        swap = _pruned(state, ctx, meas, more, extended.found[-1].name)
+        if swap is not None and swap.score > SWAP_MARGIN:
+            best = _better(best, swap)
+    return best
+
+
+def _better(best: Swap | None, swap: Swap) -> Swap:
+    return swap if best is None or swap.score > best.score else best
+
+
+def _pruned(
+    state: State, ctx: Context, meas: Measured, fitted: Fitted, extra: str | None
+) -> Swap | None:
+    """The swap `fitted` (extended by the effect `extra`, if given) pruned where that could
+    make it win; None if the pruning takes the rival out (or `extra`), or leaves an extended
+    set more parameters than the set now. The simulations count in `state`."""
+    trial, cand, gain = fitted.trial, fitted.cand, fitted.gain
     # pruned when it could win (pruning can at most take back the price of the other effects'
     # parameters), a winner too: a rival that splits a tie (asymmetric friction in place of
     # a viscous one) is itself removed by tying the pair at its mean, which keeps the effect it
@@ -262,14 +319,13 @@ def _swapped(
     kept = [f for f in trial.found if f.name not in (cand.name, extra)]
     if gain + PARAMETER_PRICE * parameters(kept) > SWAP_MARGIN:
         names = {f.name for f in trial.found}
-        reexamine_found(trial, quiet, meas)
+        reexamine_found(trial, _quiet(ctx), meas)
         trial.cost = cost_of(meas, trial.outputs)
         dropped = tuple(sorted(names - {f.name for f in trial.found}))
         # the rival itself removed: a removal of the target, which the rounds' own
         # re-examination tested (and the rival's split of a tie stayed in the model); an
         # extended set that keeps more parameters than the set now: a growth, which the rounds'
-        # own test of an addition decides, not an exchange (a synthetic EMPS record's heavier
-        # table, named alone, scored 1310 better as a drive gain beside a viscous term)
+        # own test of an addition decides, not an exchange (module docstring)
         grown = extra is not None and parameters(trial.found) > parameters(state.found)
         if cand.name in dropped or extra in dropped or grown:
             state.simulations += trial.simulations
@@ -278,15 +334,14 @@ def _swapped(
     else:
         dropped = ()
     state.simulations += trial.simulations
+    target = fitted.target.name
     ctx.progress(
-        f"  {cand.name} for {target.name}"
+        f"  {cand.name} for {target}"
         + (f" with {extra}" if extra else "")
         + (f" (without {', '.join(dropped)})" if dropped else "")
         + f": cost {state.cost:.4g} -> {trial.cost:.4g}, score {gain:+.3g}"
     )
-    return Swap(
-        out=target.name, into=cand.name, state=trial, score=gain, dropped=dropped, extra=extra
-    )
+    return Swap(out=target, into=cand.name, state=trial, score=gain, dropped=dropped, extra=extra)
 
 
 def _fitted_in(
@@ -319,7 +374,7 @@ def _fitted_in(
 
 
 def _extended(
-    state: State, ctx: Context, quiet: Context, meas: Measured, trial: State, target: Found
+    state: State, ctx: Context, meas: Measured, trial: State, target: Found
 ) -> State | None:
     """The swapped set `trial` with one more effect, as one more round would take it (module
     docstring): the library ranked on its residual (not the target, nor an effect in the set),
@@ -330,7 +385,7 @@ def _extended(
     worth = [c for c in ranked(ctx, trial.outputs, exclude) if c.worth_fitting]
     best: tuple[float, State] | None = None
     for cand in choose_rivals(worth, ctx.opts) if worth else []:
-        extended = _fitted_in(trial, quiet, meas, cand, trial.found_free(), state)
+        extended = _fitted_in(trial, _quiet(ctx), meas, cand, trial.found_free(), state)
         if extended is None:
             continue
         verdict = compare(
