@@ -36,13 +36,3 @@ PLACED_REPETITIONS_VISCOUS = (
     "the position's; what is left follows the speed (correlation 0.95, 0.55 um RMS, 63x the "
     "noise). Cause not found yet"
 )
-
-FRACTIONAL_DELAY_BIAS = (
-    "issue #27, open, since the truth twin's torque source carries the drive's current loop "
-    "(merged with the fractional delays the same evening; each branch passed alone): the truth's "
-    "1.125 ms position delay (4.5 ticks) is refined to 4.197 ticks, and blind_truth's "
-    "measurement_delay cases read 3.92 / 0.944 / 1.925 ms for 4 / 1 / 2 ms: a bias of about "
-    "-0.3 tick (-60 to -80 us) at every seed, where the twin without the loop read 0.02-0.45 "
-    "tick high. Candidate cause, not measured: the twin's loop is continuous, the truth's is "
-    "sampled at 8 kHz with its own computation delay"
-)

@@ -32,7 +32,7 @@ def _moves_with_short_rests() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _stiction_signature(m: Motion) -> dict[str, np.ndarray]:
-    # one variant where the record holds a table still (stiction_friction.held_stops)
+    # one variant where the record holds a table still (stiction_evidence.held_stops)
     ((_, signature),) = BY_NAME["stiction"].variants(m)
     return signature(m)
 

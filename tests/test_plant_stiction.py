@@ -16,12 +16,8 @@ from feed_twin.core.smooth import smooth_sign
 from feed_twin.io.measured import load_measured
 from feed_twin.plant.effect_api import Motion
 from feed_twin.plant.registry import COMPONENT_TYPES
-from feed_twin.plant.stiction_friction import (
-    HOLD_MIN_S,
-    StictionFriction,
-    held_stops,
-    stiction_force,
-)
+from feed_twin.plant.stiction_evidence import HOLD_MIN_S, held_share, held_stops
+from feed_twin.plant.stiction_friction import DEFLECTED_SHARE, StictionFriction, stiction_force
 
 ROOT = Path(__file__).resolve().parents[1]
 EMPS = ROOT / "config" / "emps_nominal.yaml"
@@ -139,7 +135,12 @@ def test_one_component_file_and_one_registry_line_make_a_library_effect():
         if ("StictionFriction" in path.read_text() or "stiction" in path.read_text())
         and path.relative_to(package).parts[0] != "truth"
     )
-    assert naming == ["plant/registry.py", "plant/stiction_friction.py"]
+    assert naming == [
+        "plant/elastoplastic_friction.py",  # the contact of the "deflected" variant
+        "plant/registry.py",
+        "plant/stiction_evidence.py",  # where a record holds a table still, and how
+        "plant/stiction_friction.py",
+    ]
     assert BY_NAME["stiction"].component == "StictionFriction.F_hold"
     assert BY_NAME["stribeck_friction"].component == "GuideFriction.dF_s, v_s"  # the field
 
@@ -232,6 +233,70 @@ def test_a_table_still_with_nothing_pushing_it_is_no_evidence_of_stiction():
     held = dataclasses.replace(still, effort_sim=twin, effort_meas=noise + ramp)
     assert held_stops(loose) == [] and BY_NAME["stiction"].variants(loose) == []
     assert len(held_stops(held)) == 1
+
+
+def _holding_drive(held: float, ramp_to: float) -> Motion:
+    """+20 mm/s and +5 mm/s for 0.15 s each, held still for 1.5 HOLD_MIN_S, then -20 and -5
+    mm/s (10 nm counts); the drive's effort a weight 30 N + Coulomb 50 N sgn(v) + 2000 N s/m v
+    + 150 kg a while moving; at rest it holds 50 N `held` at the stop's start, wound linearly
+    to 50 N `ramp_to` at its end; 0.3 N noise."""
+    h, n_rest = 1e-3, int(round(1.5 * HOLD_MIN_S / 1e-3))
+    v = np.r_[np.full(150, 0.02), np.full(150, 0.005), np.zeros(n_rest)]
+    v = np.r_[v, np.full(150, -0.02), np.full(150, -0.005)]
+    t = h * np.arange(len(v), dtype=np.float64)
+    x = np.round(np.cumsum(v) * h / 1e-8) * 1e-8
+    a = np.gradient(v, h)
+    rest = (t >= 0.3) & (t < 0.3 + 1.5 * HOLD_MIN_S)
+    s = np.where(rest, (t - 0.3) / (1.5 * HOLD_MIN_S), 0.0)
+    moving = 30.0 + 50.0 * np.sign(v) + 2000.0 * v + 150.0 * a
+    effort = np.where(rest, 30.0 + 50.0 * (held + (ramp_to - held) * s), moving)
+    noise = np.random.default_rng(5).normal(0.0, 0.3, len(t))
+    return Motion(
+        t_s=t, x_m=x, v_m_s=v, a_m_s2=a, effort_sim=np.zeros_like(t), lead_m=None,
+        pole_pairs=None, travel_m=0.1, effort_meas=effort + noise,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("held", "ramp_to", "variant"),
+    [
+        (1.0, 1.0, "deflected"),  # stops deflected: holds the sliding force
+        (0.8, 1.1, "deflected"),  # the loop takes a little off, or winds on
+        (0.25, -1.0, "held"),  # caught at the release speed, wound to the other break-away
+        (0.05, 0.9, "held"),  # caught with nearly nothing, wound up to break away onward
+    ],
+)
+def test_the_contact_is_chosen_by_the_share_of_its_sliding_force_held_at_the_stop(
+    held: float, ramp_to: float, variant: str
+):
+    """The drive that holds its sliding force as its table comes to rest has a contact that
+    stops deflected (elasto-plastic, "deflected"); one caught with a small share of it has one
+    that let go while sliding (Karnopp, "held"). The share is measured over the stop's first
+    quarter against the Coulomb part of the moving effort (its weight, viscous and inertial
+    parts split off), whatever the loop's integrator does afterwards."""
+    m = _holding_drive(held, ramp_to)
+    spans = held_stops(m)
+    assert len(spans) == 1
+    # the first quarter's mean of the ramp: held + (ramp_to - held) / 8
+    share = held_share(m, spans)
+    assert share is not None, "the record has an effort and a sliding force"
+    assert share == pytest.approx(held + (ramp_to - held) / 8.0, abs=0.02)
+    assert [label for label, _ in BY_NAME["stiction"].variants(m)] == [variant]
+    assert (share >= DEFLECTED_SHARE) == (variant == "deflected")
+
+
+def test_without_an_effort_or_a_sliding_force_the_contact_is_karnopps():
+    """No effort recorded (the position alone shows the held table) or no sliding force in it:
+    nothing tells how the contact stops, and the Karnopp contact is kept."""
+    m = _holding_drive(1.0, 1.0)
+    spans = held_stops(m)
+    assert held_share(dataclasses.replace(m, effort_meas=None), spans) is None
+    assert [label for label, _ in BY_NAME["stiction"].variants(
+        dataclasses.replace(m, effort_meas=None, effort_sim=None))] == ["held"]  # fmt: skip
+    assert m.effort_meas is not None
+    # an effort whose part in sign(v) helps the motion along: no sliding force to compare with
+    helping = dataclasses.replace(m, effort_meas=-np.abs(m.effort_meas))
+    assert held_share(helping, spans) is None
 
 
 def _rests(columns, gain: float):

@@ -17,7 +17,15 @@ from functools import partial
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from feed_twin.analysis.fit import FitResult, FreeParameter, Measured, SimOutputs, cost_of, fit
+from feed_twin.analysis.fit import (
+    FitResult,
+    FreeParameter,
+    Measured,
+    SimOutputs,
+    cost_of,
+    fit,
+    profile_cost,
+)
 from feed_twin.analysis.model_doc import ModelDoc, model_of
 from feed_twin.analysis.ranking import Candidate
 from feed_twin.analysis.record_search import RECORD_SEARCHED, one_row, search
@@ -240,14 +248,21 @@ def refined(
     the parameter's bounds) by a bounded scalar search (scipy's Brent on a bracket) to
     REFINE_TOLERANCE of a step, one simulation per value; kept where it is better.
 
+    Better by the channels' likelihood with their noise levels unknown (fit.profile_cost), not
+    by J under the weights set at the model before the delay. There the position's weight is
+    the delay's own residual (112 um RMS for the truth machine's 1.125 ms feedback delay, 4.5
+    ticks), and the effort channel decided alone: the twin's effort cannot follow the
+    truth's lightly damped axial ring (233 Hz, zeta 0.003 with that delay, about 1 Hz apart
+    from the twin's, so out of phase within a few tenths of a second), the loop damps that
+    ring more at a shorter delay, and J preferred the twin's ring small: 4.197 ticks, where
+    the position, 0.25 um RMS at 4.5 ticks against 2.5 um at 4.4, says 4.5 (blind_truth's
+    4 / 1 / 2 ms read 3.92 / 0.944 / 1.925 ms; docs/diagnose.md). The grid's whole ticks are
+    ranked by J as before.
+
     Not a parabola through the grid's best point and its neighbours: a sensor delay's cost has
     a kink at every whole tick (the interpolation weights are piecewise linear in the delay)
-    and is far from a parabola between them. On the truth machine's feedback delays
-    (blind_truth measurement_delay@101-103, the first round) the parabola's vertex, one more
-    simulation, cost more than the grid's best twice in three (4 ms: 15.71 ticks, cost 921
-    against 624 at 16; 2 ms: 9.02, 1154 against 1151 at 9), while the bounded search found the
-    minimum of a 41-point scan of the two ticks around the best each time (16.31, 3.98, 8.45
-    ticks; costs 452, 1644, 1069) in 6-9 simulations."""
+    and is far from a parabola between them; the bounded search found the minimum of a scan
+    of the two ticks around the best on the truth machine's delays."""
     name = param.name
     centre = found.values[name]
     lo, hi = max(centre - step, param.lower), min(centre + step, param.upper)
@@ -260,7 +275,7 @@ def refined(
         for i in twin.index[name]:
             batch[:, i] = value
         out = twin.simulate(drive, batch)
-        tried[float(value)] = (cost_of(meas, out, 0), one_row(out, 0))
+        tried[float(value)] = (profile_cost(meas, out, 0), one_row(out, 0))
         return tried[float(value)][0]
 
     minimize_scalar(
@@ -269,12 +284,12 @@ def refined(
     evaluations = found.evaluations + len(tried)
     value = min(tried, key=lambda v: tried[v][0])
     best, outputs = tried[value]
-    if not best < found.cost:
+    if not best < profile_cost(meas, found.outputs, 0):
         return dataclasses.replace(found, evaluations=evaluations)
     return dataclasses.replace(
         found,
         values={name: value},
-        cost=best,
+        cost=cost_of(meas, outputs, 0),
         message=f"{found.message}, refined to {value:.4g} in {len(tried)} more",
         evaluations=evaluations,
         outputs=outputs,

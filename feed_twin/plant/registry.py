@@ -18,6 +18,7 @@ from feed_twin.plant.dc_bus import DcBus
 from feed_twin.plant.dc_motor import DcMotor
 from feed_twin.plant.effect_api import Effect
 from feed_twin.plant.effort_source import EffortSource
+from feed_twin.plant.elastoplastic_friction import ElastoPlasticFriction
 from feed_twin.plant.external_force import ConstantForce, ExternalForce
 from feed_twin.plant.gas_spring import GasSpring
 from feed_twin.plant.gravity import Gravity
@@ -44,6 +45,7 @@ COMPONENT_TYPES: dict[str, type[Component]] = {
         DcBus,
         DcMotor,
         EffortSource,
+        ElastoPlasticFriction,
         Encoder,
         ExternalForce,
         GasSpring,

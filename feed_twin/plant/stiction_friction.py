@@ -35,6 +35,8 @@ Stored energy k_s clip(z)^2 / 2; loss F v - k_s clip(z) d(clip z)/dt (F_hold sgn
 sliding, plus d_s v^2 stuck).
 Port: `flange` (translational: s [m], v [m/s], f [N] into the flange). State: `z` [m], 0 at
 the start (nothing held).
+The effect this file declares has a second contact, ElastoPlasticFriction, that stops deflected
+the way it slid and holds its sliding force at rest; the record chooses (`_choices`).
 """
 
 from __future__ import annotations
@@ -62,6 +64,8 @@ from feed_twin.plant.effect_api import (
     make_edit,
     moving,
 )
+from feed_twin.plant.elastoplastic_friction import ElastoPlasticFriction
+from feed_twin.plant.stiction_evidence import held_share, held_stops
 
 DEFLECTION_LIMIT_M = 1e-2  # |z| above this is a runaway
 # what the workflow gives a stiction it adds: the stuck table on the asperity spring rings at
@@ -137,85 +141,33 @@ def _held(m: Motion) -> dict[str, FloatArray]:
     return out
 
 
-# a table that stands still this long is held there by friction: a sliding friction lets the
-# loop creep it onto its target (the truth machine's atan law at 2e-5 m/s, as sharp as a real
-# guide's, stood 24-42 ms at its longest on records without stiction; held, 171-287 ms)
-HOLD_MIN_S = 0.1
-# the still band: this many of the position's steps at rest (its quantum, or its noise)
-HOLD_BAND_STEPS = 2.5
-# the force held over a still span, as an RMS over it, against the effort's sample noise: a
-# noise alone is 1, the nominal twin's own settling in it up to about 2.5
-HOLD_FORCE_NOISE = 4.0
-POSITION_ZERO_M = 1e-12  # steps below this are the record's decimal rounding, not a move
-
-
 def _choices(m: Motion) -> list[tuple[str, Signature]]:
     """The signature where the record holds a table stopped by friction (`held_stops`), none
     where it does not: the twin's sliding law, softer than a real guide's, lets its table creep
     where the machine's holds it still for a few tens of ms, and a stiction catches that creep
     on any record (fitted beside the hidden effect on 11 of 26 truth records, at 60 N, where
-    the machine had no stiction), while only a holding friction keeps a table still longer."""
-    return [("held", _held)] if held_stops(m) else []
+    the machine had no stiction), while only a holding friction keeps a table still longer.
 
-
-def held_stops(m: Motion) -> list[tuple[int, int]]:
-    """(first, end) of each span after the first move over which the table stays within
-    HOLD_BAND_STEPS of the position's steps at rest from where it stopped, for HOLD_MIN_S at
-    least, holding a force (`_holding`)."""
-    x, t = m.x_m, m.t_s
-    slow = np.abs(m.v_m_s) <= MOVING_SPEEDS * m.speed_eps
-    if slow.all() or not slow.any():
+    Its variant is the contact the record shows (`held_share`): "held", the Karnopp contact
+    whose asperities let go while sliding (this file's law: caught at the release speed with
+    part of the sliding force, then wound up by the loop to a break-away), or "deflected", one
+    that stops deflected the way it slid and holds its sliding force at rest
+    (ElastoPlasticFriction). Both have this signature: what the drive holds at rest."""
+    spans = held_stops(m)
+    if not spans:
         return []
-    band = HOLD_BAND_STEPS * _position_step(x, slow)
-    starts = np.flatnonzero(slow)
-    spans: list[tuple[int, int]] = []
-    a = int(np.argmax(~slow))  # after the first move: the contact's state is known
-    while (nxt := np.searchsorted(starts, a)) < len(starts):
-        a = int(starts[nxt])
-        b = _still_until(x, a, band)
-        if t[b - 1] - t[a] >= HOLD_MIN_S and _holding(m, slice(a, b)):
-            spans.append((a, b))
-        a = b
-    return spans
+    share = held_share(m, spans)
+    deflected = share is not None and share >= DEFLECTED_SHARE
+    return [("deflected" if deflected else "held", _held)]
 
 
-def _holding(m: Motion, span: slice) -> bool:
-    """Over a span where the table stands still, the drive holds a force the nominal twin does
-    not: the effort residual's RMS there is HOLD_FORCE_NOISE times the effort's sample noise
-    (true where the record has no effort: the position alone is the evidence then). A table
-    resting in a backlash gap stands still as long (the truth machine's: 180-260 ms, 8 um off
-    its command) with nothing pushing it (residual 1.0-2.4x the noise; held by stiction,
-    8.8-10x)."""
-    if m.effort_meas is None or m.effort_sim is None:
-        return True
-    e = m.effort_meas[span]
-    held = float(np.sqrt(np.mean((e - m.effort_sim[span]) ** 2)))
-    noise = 1.4826 * float(np.median(np.abs(np.diff(e)))) / np.sqrt(2.0)
-    return held > HOLD_FORCE_NOISE * noise
-
-
-def _position_step(x: FloatArray, slow: np.ndarray) -> float:
-    """The smallest change the position record shows: its quantum (the smallest step between
-    samples), or its sample noise at low speed where that is larger (white noise of standard
-    deviation sigma has second differences of sigma sqrt(6))."""
-    steps = np.abs(np.diff(x))
-    moved = steps[steps > POSITION_ZERO_M]
-    quantum = float(np.min(moved)) if len(moved) else 0.0
-    curvature = np.abs(np.diff(x, 2))[slow[1:-1]]
-    noise = 1.4826 * float(np.median(curvature)) / np.sqrt(6.0) if len(curvature) else 0.0
-    return max(quantum, noise)
-
-
-def _still_until(x: FloatArray, a: int, band: float) -> int:
-    """The first sample after `a` that lies more than `band` from x[a] (len(x) if none)."""
-    width = 64
-    while True:
-        off = np.flatnonzero(np.abs(x[a : a + width] - x[a]) > band)
-        if len(off):
-            return a + int(off[0])
-        if a + width >= len(x):
-            return len(x)
-        width *= 2
+# the share of its sliding force a contact holds as its table comes to rest (`held_share`),
+# midway between what a Karnopp contact is caught with (the sliding law's share at its release
+# speed: 0.3 for the law added here, 30 % for the truth machine's atan law at its stick speed
+# too) and what an elasto-plastic one keeps (all of it). Measured: the truth machine's
+# stiction@101 0.13 (its loop then winds the force through zero to the other side's
+# break-away), the 10 Hz mill log's drive 1.18 (its stops 0.88-2.1)
+DEFLECTED_SHARE = 0.5 * (ADDED_RELEASE_SHARE + 1.0)
 
 
 def _stops(m: Motion) -> list[tuple[int, int]]:
@@ -257,9 +209,10 @@ def _stop_ramps(m: Motion, rest: FloatArray) -> list[FloatArray]:
 
 
 def _edit(doc: Document, cand: Weights) -> Edit:
-    """Add StictionFriction on the table; it takes over the Coulomb part of the guide friction
-    (the common part of both directions) and its regularisation, so that the sliding force
-    stays what it was."""
+    """Add the contact of the chosen variant on the table (StictionFriction for "held",
+    ElastoPlasticFriction for "deflected"); it takes over the Coulomb part of the guide
+    friction (the common part of both directions) and its regularisation, so that the sliding
+    force stays what it was."""
     fr = doc.friction()
     coulomb = 0.0
     v_reg = ADDED_V_REG_M_S
@@ -269,7 +222,7 @@ def _edit(doc: Document, cand: Weights) -> Edit:
         for side in ("F_c_pos", "F_c_neg"):
             doc = doc.set(f"{fr}.{side}", doc.get(f"{fr}.{side}") - coulomb)
     f_hold = coulomb if coulomb > 0.0 else max(abs(cand.force("held")), 1e-3)
-    doc, name = _with_stiction(doc, f_hold, v_reg)
+    doc, name = _with_stiction(doc, f_hold, v_reg, deflected=cand.variant == "deflected")
     slot = f"{name}.F_hold"
     own = [FreeParameter(name=slot, initial=f_hold, scale=f_hold, lower=0.0)]
     # re-fitted with the rigid-body parameters it trades off against (mass, friction)
@@ -279,14 +232,17 @@ def _edit(doc: Document, cand: Weights) -> Edit:
 def _truth(doc: Document, p: Mapping[str, float]) -> Document:
     fr = doc.friction()
     v_reg = doc.get(f"{fr}.v_reg") if fr is not None else ADDED_V_REG_M_S
-    return _with_stiction(doc, float(p["F_hold_N"]), v_reg)[0]
+    return _with_stiction(doc, float(p["F_hold_N"]), v_reg, deflected=False)[0]
 
 
-def _with_stiction(doc: Document, f_hold: float, v_reg: float) -> tuple[Document, str]:
-    """The document with a StictionFriction of holding force f_hold [N] on the table, sliding
-    regularised at v_reg [m/s]: its presliding spring as stiff as the base period h resolves
-    (the table mass m on it rings at ADDED_PRESLIDING_OMEGA_H / h), damped at
-    ADDED_DAMPING_RATIO, let go above ADDED_RELEASE_SHARE v_reg."""
+def _with_stiction(
+    doc: Document, f_hold: float, v_reg: float, *, deflected: bool
+) -> tuple[Document, str]:
+    """The document with a contact of holding force f_hold [N] on the table: its presliding
+    spring as stiff as the base period h resolves (the table mass m on it rings at
+    ADDED_PRESLIDING_OMEGA_H / h), damped at ADDED_DAMPING_RATIO; a StictionFriction sliding
+    regularised at v_reg [m/s], let go above ADDED_RELEASE_SHARE v_reg, or, `deflected`, an
+    ElastoPlasticFriction that is never let go."""
     slot = doc.mass_slot()
     mass = doc.get(slot) if slot is not None else 1.0
     h = doc.base_period()
@@ -296,9 +252,10 @@ def _with_stiction(doc: Document, f_hold: float, v_reg: float) -> tuple[Document
         "k_s": k_s,
         "d_s": 2.0 * ADDED_DAMPING_RATIO * float(np.sqrt(k_s * mass)),
         "r_slip": 1.0 / h,
-        "v_reg": v_reg,
-        "v_release": ADDED_RELEASE_SHARE * v_reg,
     }
+    if deflected:
+        return doc.with_table_component("stiction", ElastoPlasticFriction.TYPE, params)
+    params |= {"v_reg": v_reg, "v_release": ADDED_RELEASE_SHARE * v_reg}
     return doc.with_table_component("stiction", StictionFriction.TYPE, params)
 
 
