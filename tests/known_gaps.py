@@ -46,15 +46,6 @@ PLACED_REPETITIONS_VISCOUS = (
     "noise). Cause not found yet"
 )
 
-HEAVIER_SLIDE_WITH_CURRENT_LOOP = (
-    "issue #27, open, since the truth twin's torque source carries the drive's current loop and "
-    "the coupling (merge afca94f; it passes at 6e41574, just before): on seed 2's weight + "
-    "Coulomb + 172 kg heavier slide the workflow names constant_force, asymmetric friction "
-    "(dropped later), torque_constant_error and viscous_friction, where the hidden set is "
-    "constant_force, coulomb_friction and mass_error. The benchmark's combination of the same "
-    "three effects (weight+coulomb+mass, seeds 101-103) passes. Cause not measured yet"
-)
-
 VOLTAGE_BOUNDARY_LIMIT_CYCLE = (
     "open, found on branch i30jerk: with the full cascade in the controller node (boundary "
     "voltage: the current loop at 1 kHz, about 120 Hz, the velocity loop re-tuned above it to Kp "
