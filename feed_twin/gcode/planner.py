@@ -43,6 +43,7 @@ import dataclasses
 import math
 from collections.abc import Iterator
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,6 +61,7 @@ from feed_twin.gcode.plan_profile import (
     motion_pieces,
     node_entries,
     speed_profile,
+    speeds_fit,
     stop_holds,
     with_dwells,
 )
@@ -167,6 +169,14 @@ def _plan_chunks(source: str | Path, config: NcConfig) -> Iterator[SampledTrajec
         yield last
 
 
+class _Decided(NamedTuple):
+    """What a window that committed planned its nodes with (global node indices)."""
+
+    end: int  # its last listed node (at rest there: the program's next moves were not listed)
+    stop: np.ndarray  # the nodes it planned at rest
+    forced: np.ndarray  # its forced breaks
+
+
 class _Counted:
     """Iterates blocks and counts them (an empty program is an error)."""
 
@@ -218,6 +228,7 @@ class _StreamPlanner:
         self.v_first = 0.0
         self.first_stop = False  # whether the path stops there
         self.start_holds: StartHolds | None = None  # its holds, as committed (jerk filter)
+        self.decided_before: _Decided | None = None  # the last committing window's decisions
         self.t_s = 0.0
         self.k_next = 0
 
@@ -246,14 +257,17 @@ class _StreamPlanner:
         if isinstance(item, Stop) or item.stops:
             self.stops.add(node)
 
-    def plan(self, *, final: bool) -> SampledTrajectory | None:
-        """Plan the listed moves; sample and return what is committed (None: nothing yet)."""
+    def plan(self, *, final: bool, as_decided: bool = False) -> SampledTrajectory | None:
+        """Plan the listed moves; sample and return what is committed (None: nothing yet).
+
+        `as_decided`: with the stops and forced breaks the previous window planned with on the
+        nodes both list (`_Decided`), taken where this window cannot keep v_first otherwise."""
         n = len(self.lines)
         if n == 0:
             return self._plan_standstill()
         first = self.first()
         listed = np.array(self.points)
-        flags = self._node_flags(n, final, listed)
+        flags = self._node_flags(n, final, listed, as_decided)
         points, movable = self._smoothed(flags, listed)
         if np.any(movable):
             flags = dataclasses.replace(flags, tol=blend_tolerance(flags.tol, movable))
@@ -272,6 +286,8 @@ class _StreamPlanner:
         if bodies is None:
             return self._plan_standstill() if final else None
         speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
+        if not as_decided and self.decided_before is not None and not speeds_fit(bodies, speeds.v):
+            return self.plan(final=final, as_decided=True)
         q_commit = self._commit_point(bodies, movable, first, n, final)
         if q_commit is None:
             return None  # nothing safely committable yet: wait for more moves
@@ -346,11 +362,17 @@ class _StreamPlanner:
             hold_out=float(bodies.hold_out[q_commit]),
         )
         if not final:
+            self.decided_before = _Decided(
+                end=self.g0 + n,
+                stop=self.g0 + np.flatnonzero(flags.stop),
+                forced=self.g0 + np.flatnonzero(flags.forced),
+            )
             self._drop_committed(end_node, bodies.S, blends.w, bool(blends.stop[end_node]), points)
         return chunk
 
-    def _node_flags(self, n: int, final: bool, listed: np.ndarray) -> NodeFlags:
-        """Tolerances, stops, entries and forced breaks at the listed nodes 0..n."""
+    def _node_flags(self, n: int, final: bool, listed: np.ndarray, as_decided: bool) -> NodeFlags:
+        """Tolerances, stops, entries and forced breaks at the listed nodes 0..n; `as_decided`:
+        those of the previous window where both list the node (`_as_decided`)."""
         g = self.g0
         stop = np.zeros(n + 1, dtype=bool)
         stop[0] = not self.has_context
@@ -377,7 +399,31 @@ class _StreamPlanner:
         )
         if not final:
             forced = self._commit_break_only(forced, listed, n)
+        if as_decided and self.decided_before is not None:
+            stop, forced = self._as_decided(stop, forced, n)
         return NodeFlags(tol=tol, stop=stop, has_entries=has_entries, forced=forced)
+
+    def _as_decided(
+        self, stop: np.ndarray, forced: np.ndarray, n: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The stops and forced breaks of the listed nodes after the first uncommitted one up
+        to the previous window's last, as that window planned them: its stop at its end (where
+        the program does not stop) and its forced breaks (a break that `_commit_break_only`
+        dropped since may merge chains and bring a sharper blend's curvature into them).
+
+        With them this window plans those nodes on the same geometry and with the same limits
+        as the window that committed v_first (its last body is even longer: the open end's
+        share is gone), so v_first can brake to every constraint up to there; beyond the
+        stop nothing reaches back. A controller whose look-ahead ran short stops there too."""
+        decided = self.decided_before
+        assert decided is not None
+        g = self.g0
+        nodes = np.arange(self.first() + 1, min(decided.end - g, n) + 1)
+        stop = stop.copy()
+        forced = forced.copy()
+        stop[nodes] |= np.isin(nodes + g, decided.stop)
+        forced[nodes] = np.isin(nodes + g, decided.forced)
+        return stop, forced
 
     def _commit_break_only(self, forced: np.ndarray, listed: np.ndarray, n: int) -> np.ndarray:
         """The forced breaks without those the window neither commits at nor leaves for a
