@@ -42,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterator
+from enum import IntEnum
 from pathlib import Path
 from typing import NamedTuple
 
@@ -169,6 +170,14 @@ def _plan_chunks(source: str | Path, config: NcConfig) -> Iterator[SampledTrajec
         yield last
 
 
+class Kept(IntEnum):
+    """What a window keeps of the previous window's decisions (`_StreamPlanner._as_decided`)."""
+
+    NOTHING = 0
+    BREAKS = 1  # its forced breaks
+    BREAKS_AND_END = 2  # and its stops, the one at its end included
+
+
 class _Decided(NamedTuple):
     """What a window that committed planned its nodes with (global node indices)."""
 
@@ -257,11 +266,11 @@ class _StreamPlanner:
         if isinstance(item, Stop) or item.stops:
             self.stops.add(node)
 
-    def plan(self, *, final: bool, as_decided: bool = False) -> SampledTrajectory | None:
+    def plan(self, *, final: bool, as_decided: Kept = Kept.NOTHING) -> SampledTrajectory | None:
         """Plan the listed moves; sample and return what is committed (None: nothing yet).
 
-        `as_decided`: with the stops and forced breaks the previous window planned with on the
-        nodes both list (`_Decided`), taken where this window cannot keep v_first otherwise."""
+        `as_decided`: what of the previous window's decisions on the nodes both list is kept
+        (`_as_decided`); more is kept, step by step, where this window cannot keep v_first."""
         n = len(self.lines)
         if n == 0:
             return self._plan_standstill()
@@ -286,8 +295,12 @@ class _StreamPlanner:
         if bodies is None:
             return self._plan_standstill() if final else None
         speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
-        if not as_decided and self.decided_before is not None and not speeds_fit(bodies, speeds.v):
-            return self.plan(final=final, as_decided=True)
+        if (
+            as_decided < Kept.BREAKS_AND_END
+            and self.decided_before is not None
+            and not speeds_fit(bodies, speeds.v)
+        ):
+            return self.plan(final=final, as_decided=Kept(as_decided + 1))
         q_commit = self._commit_point(bodies, movable, first, n, final)
         if q_commit is None:
             return None  # nothing safely committable yet: wait for more moves
@@ -370,7 +383,7 @@ class _StreamPlanner:
             self._drop_committed(end_node, bodies.S, blends.w, bool(blends.stop[end_node]), points)
         return chunk
 
-    def _node_flags(self, n: int, final: bool, listed: np.ndarray, as_decided: bool) -> NodeFlags:
+    def _node_flags(self, n: int, final: bool, listed: np.ndarray, as_decided: Kept) -> NodeFlags:
         """Tolerances, stops, entries and forced breaks at the listed nodes 0..n; `as_decided`:
         those of the previous window where both list the node (`_as_decided`)."""
         g = self.g0
@@ -399,19 +412,20 @@ class _StreamPlanner:
         )
         if not final:
             forced = self._commit_break_only(forced, listed, n)
-        if as_decided and self.decided_before is not None:
-            stop, forced = self._as_decided(stop, forced, n)
+        if as_decided > Kept.NOTHING:
+            stop, forced = self._as_decided(stop, forced, n, end=as_decided == Kept.BREAKS_AND_END)
         return NodeFlags(tol=tol, stop=stop, has_entries=has_entries, forced=forced)
 
     def _as_decided(
-        self, stop: np.ndarray, forced: np.ndarray, n: int
+        self, stop: np.ndarray, forced: np.ndarray, n: int, *, end: bool
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The stops and forced breaks of the listed nodes after the first uncommitted one up
-        to the previous window's last, as that window planned them: its stop at its end (where
-        the program does not stop) and its forced breaks (a break that `_commit_break_only`
-        dropped since may merge chains and bring a sharper blend's curvature into them).
+        """The forced breaks of the listed nodes after the first uncommitted one up to the
+        previous window's last, as that window planned them (a break that `_commit_break_only`
+        dropped since may merge chains and bring a sharper blend's curvature into them), and
+        with `end` its stops: the one at its end too, where the program does not stop (its
+        blend there may lower the limits of the bodies before it, `plan_chains._eroded`).
 
-        With them this window plans those nodes on the same geometry and with the same limits
+        With both this window plans those nodes on the same geometry and with the same limits
         as the window that committed v_first (its last body is even longer: the open end's
         share is gone), so v_first can brake to every constraint up to there; beyond the
         stop nothing reaches back. A controller whose look-ahead ran short stops there too."""
@@ -421,7 +435,8 @@ class _StreamPlanner:
         nodes = np.arange(self.first() + 1, min(decided.end - g, n) + 1)
         stop = stop.copy()
         forced = forced.copy()
-        stop[nodes] |= np.isin(nodes + g, decided.stop)
+        if end:
+            stop[nodes] |= np.isin(nodes + g, decided.stop)
         forced[nodes] = np.isin(nodes + g, decided.forced)
         return stop, forced
 
