@@ -34,7 +34,11 @@ to `lookahead_segments` moves, with the window's end at rest; the first half is 
 sampled and yielded, the rest is planned again with the next moves (the moves the filter's
 window still runs on stay listed as context, with their blends). Committed speeds stay
 reachable as constraints relax (the braking bound is monotonic), so the result is always
-safe, and memory stays bounded.
+safe, and memory stays bounded. Where the next moves tighten them instead (the blend at the
+window's last node, where it stopped, lowers the limits of the bodies before it; a forced
+break dropped later merges chains), the next window plans again with the committed window's
+forced breaks, then with its stop at its end too: the limits the committed speed was planned
+with, as a controller whose look-ahead ran short stops there.
 """
 
 from __future__ import annotations
@@ -445,8 +449,10 @@ class _StreamPlanner:
         later window: of those from the first uncommitted node to the last one it may commit
         at, all but the last (the commit point, `_commit_point`) where beyond what the
         committed motion's filter windows reach. They lie in the committed part, where no
-        later window plans again, and without them the constraints only relax (a break
-        squeezes its neighbours' blends). Dropped for good (`decided`: none)."""
+        later window plans again, and without them the constraints mostly relax (a break
+        squeezes its neighbours' blends); where the chains a drop merges carry a sharper
+        blend's curvature into bodies v_first must brake on, the next window keeps the break
+        (`_as_decided`). Dropped for good (`decided`: none)."""
         first = self.first()
         top = min(self._commit_limit(n), n - max(3, SMOOTH_REACH + 1) - 1)
         at = np.flatnonzero(forced[first + 1 : top + 1])[:-1] + first + 1
