@@ -15,8 +15,9 @@ import pytest
 from twin_support import assert_current_lag_taken_as_timing
 
 from feed_twin.analysis.diagnose import diagnose
-from feed_twin.analysis.synthetic import generate, position_spread, write_csv
-from feed_twin.analysis.twin import ModelDoc
+from feed_twin.analysis.model_doc import model_of
+from feed_twin.analysis.synthetic import HIDDEN, generate, position_spread, write_csv
+from feed_twin.analysis.twin import ModelDoc, Twin, drive_from_run
 from feed_twin.io.measured import load_measured
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,6 +77,9 @@ def test_two_simultaneous_effects_are_both_named(tmp_path):
 # seeds of the cogging record's other realisations (the record itself is seed 0)
 OTHER_REALISATIONS = (1, 2, 3)
 REPRODUCIBLE_WINDOW_S = 0.1  # [s] windows over which the realisations' spread is judged
+# a window is judged where the realisations' spread is at most this share of the deviation to
+# remove there: half the 20 % the criterion allows, the rest is the fit's
+REPRODUCIBLE_SHARE = 0.1
 
 
 @pytest.mark.slow
@@ -86,23 +90,25 @@ def test_cogging_is_found_on_the_machine_tool_axis(tmp_path):
     33 nm (sensor noise and quantisation through the loop); 0.3 N m of cogging adds only 161 nm
     RMS, so even a perfect fit could not remove 80 % of it.
 
-    The gap to close is judged against what no deterministic twin can reproduce. This motion's
-    reversals pass through zero speed while accelerating: the nut crosses its 2 um backlash and
-    strikes, and the table comes to rest on its stiction at the end. There the truth's current
-    ADC (rounding of 24 mA, noise) decides when and how hard: records of the same machine that
-    differ only in their noise seeds part by up to 2 um (a 66 nm RMS spread over the record,
-    312 nm RMS in the 0.1 s at 2.2 s), and changing only the truth's RK4 sub-steps moves its
-    record by 82-149 nm RMS (0.1-1.2 nm with smooth sensors). The twin at the TRUE cogging leaves
-    15-94 nm on 16 realisations (63 nm RMS), 86 nm on this one. So (1) over the record, the
-    residual above that spread (in quadrature) shrinks by 80 %, and (2) where the record is
-    reproducible (the windows whose spread is under a fifth of the deviation to remove there:
-    76 of 82) the FE deviation shrinks by 80 %, as in the other cases.
+    The gap is judged where the record is reproducible. This motion's reversals pass through
+    zero speed while accelerating: the nut crosses its 2 um backlash and strikes, and the table
+    comes to rest on its stiction at the end. There the truth's current ADC (steps of 24 mA,
+    20 mA noise) decides when and how hard: records of the same machine that differ only in
+    their noise seeds part by up to 2 um (312 nm RMS in the 0.1 s at 2.2 s), and changing only
+    the truth's RK4 sub-steps moves its record by 82-149 nm RMS (0.1-1.2 nm with smooth
+    sensors). The smooth twin at the TRUE cogging is one more such realisation there: it leaves
+    15-94 nm over the record on 16 realisations, 86 nm on this one. So (1) in the 0.1 s windows
+    whose spread is at most a tenth of the deviation to remove (69 of 82 here) the FE deviation
+    shrinks by 80 %, as in the other cases (the twin at the true values: 4-12 % left on 20
+    realisations), and (2) over the whole record the fit closes 80 % of what the twin at the
+    true values closes.
     """
     nominal = ModelDoc.load(ROOT / "config" / "axis_default.yaml")
     truth = {"order": 6, "amplitude_Nm": 0.6, "phase_rad": 0.5}
     columns = generate(nominal, {"cogging_torque": truth}, start_m=0.3)
     map_path = write_csv(tmp_path / "run.csv", columns, nominal)
-    d = diagnose(load_measured(tmp_path / "run.csv", map_path), nominal)[0]
+    run = load_measured(tmp_path / "run.csv", map_path)
+    d = diagnose(run, nominal)[0]
     assert d.effects and d.effects[0].name == "cogging_torque", d.notes
     found = d.effects[0].parameters
     assert found["order"] == 6
@@ -111,11 +117,8 @@ def test_cogging_is_found_on_the_machine_tool_axis(tmp_path):
     spread = position_spread(
         nominal, {"cogging_torque": truth}, seeds=(0, *OTHER_REALISATIONS), start_m=0.3
     )
-    floor = float(np.sqrt(np.mean(spread**2)))
-    before, after = d.before.fe_dev_rms_m, d.after.fe_dev_rms_m
-    assert after**2 - floor**2 <= 0.2**2 * (before**2 - floor**2), (before, after, floor)
-    x = d.before_trace.x_meas_m
-    per = round(REPRODUCIBLE_WINDOW_S / float(d.before_trace.t_s[1] - d.before_trace.t_s[0]))
+    x = run["pos_meas_m"]
+    per = round(REPRODUCIBLE_WINDOW_S / run.sample_period_s)
     n = len(x) // per
 
     def windows(y: np.ndarray) -> np.ndarray:
@@ -123,11 +126,16 @@ def test_cogging_is_found_on_the_machine_tool_axis(tmp_path):
 
     gap_before = windows(d.before_trace.x_sim_m - x)
     gap_after = windows(d.after_trace.x_sim_m - x)
-    reproducible = windows(spread) <= 0.2 * gap_before
-    assert reproducible.sum() >= 0.8 * n, windows(spread)  # the floor is local, not the record
+    reproducible = windows(spread) <= REPRODUCIBLE_SHARE * gap_before
+    assert reproducible.sum() >= 0.75 * n, windows(spread)  # the floor is local, not the record
     kept_before = np.sqrt(np.mean(gap_before[reproducible] ** 2))
     kept_after = np.sqrt(np.mean(gap_after[reproducible] ** 2))
     assert kept_after <= 0.2 * kept_before, (kept_before, kept_after)
+    true_twin = Twin.compile(model_of(HIDDEN["cogging_torque"](nominal, truth)))
+    x_true = true_twin.simulate(drive_from_run(run), true_twin.nominal[None, :]).x_m[0]
+    floor = float(np.sqrt(np.mean((x_true - x) ** 2)))
+    before, after = d.before.fe_dev_rms_m, d.after.fe_dev_rms_m
+    assert after**2 - floor**2 <= 0.2**2 * (before**2 - floor**2), (before, after, floor)
 
 
 @pytest.mark.slow
