@@ -94,14 +94,16 @@ def test_cogging_is_found_on_the_machine_tool_axis(tmp_path):
     zero speed while accelerating: the nut crosses its 2 um backlash and strikes, and the table
     comes to rest on its stiction at the end. There the truth's current ADC (steps of 24 mA,
     20 mA noise) decides when and how hard: records of the same machine that differ only in
-    their noise seeds part by up to 2 um (312 nm RMS in the 0.1 s at 2.2 s), and changing only
-    the truth's RK4 sub-steps moves its record by 82-149 nm RMS (0.1-1.2 nm with smooth
-    sensors). The smooth twin at the TRUE cogging is one more such realisation there: it leaves
-    15-94 nm over the record on 16 realisations, 86 nm on this one. So (1) in the 0.1 s windows
-    whose spread is at most a tenth of the deviation to remove (69 of 82 here) the FE deviation
-    shrinks by 80 %, as in the other cases (the twin at the true values: 4-12 % left on 20
-    realisations), and (2) over the whole record the fit closes 80 % of what the twin at the
-    true values closes.
+    their noise seeds part by up to 1.3 um (39-70 nm RMS over the record), and changing only
+    the truth's RK4 sub-steps moves its record by 24-77 nm RMS (0.1-1.2 nm with smooth
+    sensors); the jerk filter's integral in two doubles (i30jerk) moved the command by rounding
+    alone (5e-14 m) and took this fit's residual from 77 to 33 nm.
+    The smooth twin at the TRUE cogging is one more such realisation: it leaves 23-98 nm over
+    the record on 16 realisations, 70 nm on this one. So (1) in the 0.1 s windows whose spread
+    is at most a tenth of the deviation to remove (71 of 82 here) the FE deviation shrinks by
+    80 %, as in the other cases (the twin at the true values: 4-11 % left on 20 realisations),
+    and (2) over the whole record the fit closes 80 % of what the twin at the true values
+    closes.
     """
     nominal = ModelDoc.load(ROOT / "config" / "axis_default.yaml")
     truth = {"order": 6, "amplitude_Nm": 0.6, "phase_rad": 0.5}
