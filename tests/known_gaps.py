@@ -28,15 +28,6 @@ CROSS_COUPLING_FIT = (
     "the 16 kHz loop's L di/dt is noise; the back-EMF constant fits within 2 %"
 )
 
-PLACED_REPETITIONS_VISCOUS = (
-    "open, since the effort stamp and sub-steps were restored (it passes on main before them; "
-    "the re-examined delays do not change it): on the thrice-run EMPS record placed from "
-    "--program with --repetitions, a viscous friction of 193 N s/m is named beside the "
-    "Coulomb friction (15.08 N for 15 N); it removes 17.6 % of the effort residual and 26 % of "
-    "the position's; what is left follows the speed (correlation 0.95, 0.55 um RMS, 63x the "
-    "noise). Cause not found yet"
-)
-
 HEAVIER_SLIDE_WITH_CURRENT_LOOP = (
     "issue #27, open, since the truth twin's torque source carries the drive's current loop and "
     "the coupling (merge afca94f; it passes at 6e41574, just before): on seed 2's weight + "
