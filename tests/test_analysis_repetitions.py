@@ -199,14 +199,14 @@ def test_the_program_of_one_run_is_placed_on_each_repetition(record, tmp_path, c
     placed = [n for n in report["notes"] if n.startswith(f"command from {program}")]
     assert len(placed) == 2  # the identification run's and the validation run's, as placed last
     # Coulomb friction alone, as with the record's own command: placed against the nominal
-    # twin only, whose response lacks the friction's lag, the command came out 16 us late, and
-    # a viscous term 5 % under the nominal (before that, a 1 N Stribeck term) was named too
-    # (analysis/placed.py places it again against the fitted model); that model's command
-    # delay had taken up the first placement's error (30 us late, fitted as -25 us) and, kept
-    # in the response, put the second placement 26.7 us late again: a Stribeck term (before,
-    # a 193 N s/m viscous friction) was named beside the same delay
+    # twin only, whose response lacks the friction's lag, the command came out 30 us late, and
+    # a command delay (-25 us) and a viscous term were named too (analysis/placed.py places it
+    # again against the fitted model); that model's command delay, kept in the response, put
+    # the second placement 26.7 us late again: the same delay was named, and beside it a
+    # Stribeck term (before, a 193 N s/m viscous friction)
     assert [e["name"] for e in report["effects"]] == ["coulomb_friction"]
     assert report["effects"][0]["parameters"]["F_c_N"] == pytest.approx(15.0, rel=0.05)
+    assert ModelDoc.load(out / "model.yaml").get(COMMAND_DELAY_SLOT) == 0.0
     assert report["validation"]["after"]["effort_rel_err_pct"] < 2.0
     assert report["notes"][0].startswith("the program was placed again")
     # report.json times every pass: the placements, both diagnoses, and a total over all
