@@ -26,9 +26,10 @@ every figure. Exit status 1 when a requirement is broken.
         [--linuxcnc-cache DIR]
 
 With --linuxcnc-cache DIR, LinuxCNC's trajectory of each program is saved there
-(`NAME.npz`, keyed by the program text and the machine's limits) and reused while neither
-changes: LinuxCNC takes about 5 min for the corpus (one run at a time per host), and while our
-planner changes LinuxCNC's side does not.
+(`NAME.npz`, keyed by the program text and what LinuxCNC's run reads: the generated machine's
+files, the blend tolerance and the servo; not the jerk limit or the profile) and reused while
+neither changes: LinuxCNC takes about 5 min for the corpus (one run at a time per host), and
+while our planner changes LinuxCNC's side does not.
 """
 
 from __future__ import annotations
@@ -125,10 +126,20 @@ def linuxcnc(
     return trace.commanded_trajectory(nc.axis_names)
 
 
-def cache_key(program: Path, nc: NcConfig, servo: HalServo) -> str:
-    """What LinuxCNC's run depends on: the program's text, the limits and the servo."""
-    text = program.read_bytes() + repr((nc, servo)).encode()
-    return hashlib.sha256(text).hexdigest()
+def cache_key(program: Path, nc: NcConfig, servo: HalServo, machine: Path) -> str:
+    """What LinuxCNC's run depends on: the program's text, the machine's files as
+    `peer_machine` wrote them (limits, travel, home, work offsets, servo), the blend tolerance
+    the runner sets (G64 P Q), the axes it records and the servo (its period times the run).
+    Not the rest of `nc`: LinuxCNC 2.9 has no jerk limit, and our profile is ours alone, so a
+    change of either keeps the cached runs."""
+    digest = hashlib.sha256()
+    parts = [program.read_bytes()]
+    for file in sorted(machine.iterdir()):
+        parts += [file.name.encode(), file.read_bytes()]
+    parts.append(repr((nc.path_tolerance_m, nc.axis_names, servo)).encode())
+    for part in parts:  # each part's length first: no two different splits hash alike
+        digest.update(len(part).to_bytes(8, "little") + part)
+    return digest.hexdigest()
 
 
 def cached_linuxcnc(
@@ -139,7 +150,7 @@ def cached_linuxcnc(
     if cache is None:
         return linuxcnc(program, nc, servo, machine)
     file = cache / f"{program.stem}.npz"
-    key = cache_key(program, nc, servo)
+    key = cache_key(program, nc, servo, machine)
     if file.exists():
         with np.load(file, allow_pickle=False) as data:
             if str(data["key"]) == key:

@@ -3,11 +3,13 @@ moves (jerk profile), velocity, acceleration and jerk of every axis from differe
 sampled positions (not from the planner's own numbers), against each axis's limits.
 
 The programs are those of tests/test_gcode_planner.py (`tests/gcode_random.py`, seeds 0..n-1),
-the config tests/fixtures/gcode/nc_test.yaml. Prints each failing seed with its worst ratios
-(peak / limit, 1 = at the limit) and, last, one JSON object of the counts per look-ahead.
+the config tests/fixtures/gcode/nc_test.yaml (its jerk filter T = A/J = 50 ms; `--filter-ms T`
+sets every axis's j_max to a_max / T, e.g. 9 for the default axis's T). Prints each failing
+seed with its worst ratios (peak / limit, 1 = at the limit) and, last, one JSON object of the
+counts per look-ahead.
 
     .venv/bin/python benchmarks/lookahead_limits.py [--programs 100] [--moves 80] \
-        [--lookahead 8 16 50]
+        [--lookahead 8 16 50] [--filter-ms 9]
 """
 
 from __future__ import annotations
@@ -37,10 +39,20 @@ def main() -> None:
     parser.add_argument("--moves", type=int, default=80)
     parser.add_argument("--lookahead", type=int, nargs="+", default=[8, 16, 50])
     parser.add_argument("--profile", choices=("jerk", "trapezoid"), default="jerk")
+    parser.add_argument("--filter-ms", type=float, help="jerk filter time T = a_max / j_max")
     args = parser.parse_args()
     figures: dict[str, object] = {"programs": args.programs, "moves": args.moves}
+    base = CONFIG
+    if args.filter_ms is not None:
+        # a hair above a_max / T, as config/axis_default.yaml rounds up: A/J within T's periods
+        T = args.filter_ms * 1e-3
+        axes = tuple(
+            dataclasses.replace(a, j_max_m_s3=a.a_max_m_s2 / T * (1.0 + 1e-5)) for a in base.axes
+        )
+        base = dataclasses.replace(base, axes=axes)
+        figures["filter_ms"] = args.filter_ms
     for lookahead in args.lookahead:
-        config = dataclasses.replace(CONFIG, lookahead_segments=lookahead, profile=args.profile)
+        config = dataclasses.replace(base, lookahead_segments=lookahead, profile=args.profile)
         failed: list[int] = []
         worst = [0.0, 0.0, 0.0]
         for seed in range(args.programs):

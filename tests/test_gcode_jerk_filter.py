@@ -115,11 +115,11 @@ def test_box_filter_of_a_trapezoid_is_the_s_curve_in_closed_form():
         v0=np.array([0.0]), vp=np.array([A * t_up]), A=np.array([A]),
         t_up=np.array([t_up]), t_cruise=np.array([0.2]),
     )  # fmt: skip
-    s, sd, F, _, F_end = raw_samples(times, **pieces, F0=0.0)
+    s, sd, F, F_lo, _, F_end, F_end_lo = raw_samples(times, **pieces, F0=0.0, F0_lo=0.0)
     n = int(round(T / period))
     before = -np.arange(n, 0, -1) * period
-    history = np.column_stack((0 * before, 0 * before, 0 * before, before))
-    smooth = box_filter(history, np.column_stack((s, sd, F, times)), T)
+    history = np.column_stack((0 * before, 0 * before, 0 * before, before, 0 * before))
+    smooth = box_filter(history, np.column_stack((s, sd, F, times, F_lo)), T)
     J = A / T
     early = times < T
     np.testing.assert_allclose(smooth[early, 0], J * times[early] ** 3 / 6, rtol=1e-9, atol=1e-16)
@@ -129,4 +129,35 @@ def test_box_filter_of_a_trapezoid_is_the_s_curve_in_closed_form():
     late = times > t_up + T + 1e-9
     np.testing.assert_allclose(smooth[late, 1], A * t_up, rtol=1e-12)
     np.testing.assert_allclose(smooth[late, 0], s[late] - A * t_up * T / 2, rtol=1e-12)
-    assert F_end == pytest.approx(A * t_up**3 / 6 + (A * t_up**2 / 2) * 0.2 + A * t_up * 0.02)
+    assert F_end + F_end_lo == pytest.approx(
+        A * t_up**3 / 6 + (A * t_up**2 / 2) * 0.2 + A * t_up * 0.02
+    )
+
+
+def test_box_filter_keeps_its_precision_late_in_a_long_program():
+    # The same trapezoid 170 s into a program whose integral of s has grown to 500 m s: the
+    # window's integral (F(t) - F(t - T)) is a few mm s, so F in one double would leave
+    # eps 500 / T = 2e-12 m in s_f (the samples' third differences multiply it by 8 / period^3:
+    # 1.8e-2 m/s^3). Carried as two doubles, s_f is the closed form to 1e-15 m.
+    A, t_up, t_start, F0 = 2.0, 0.1, 170.0, 500.0 + 1.0 / 3.0
+    period = 1e-3
+    times = t_start + np.arange(0, 301) * period
+    pieces = dict(
+        kind=np.array([BODY]), t0=np.array([t_start]), dur=np.array([0.3]),
+        s0=np.array([0.0]), v0=np.array([0.0]), vp=np.array([A * t_up]), A=np.array([A]),
+        t_up=np.array([t_up]), t_cruise=np.array([0.2]),
+    )  # fmt: skip
+    s, sd, F, F_lo, _, _, _ = raw_samples(times, **pieces, F0=F0, F0_lo=0.0)
+    n = int(round(T / period))
+    before = t_start - np.arange(n, 0, -1) * period
+    # at rest at s = 0 before: F stays F0 there
+    history = np.column_stack((0 * before, 0 * before, 0 * before + F0, before, 0 * before))
+    smooth = box_filter(history, np.column_stack((s, sd, F, times, F_lo)), T)
+    J = A / T
+    tau = times - t_start
+    early = tau < T
+    np.testing.assert_allclose(smooth[early, 0], J * tau[early] ** 3 / 6, rtol=1e-9, atol=1e-15)
+    # what F's high part alone (one double) gives: off by far more than 1e-15
+    joined = np.concatenate((history[:, 2], F))
+    single = (joined[n:] - joined[:-n]) / T
+    assert np.max(np.abs(single[early] - J * tau[early] ** 3 / 6)) > 1e-13

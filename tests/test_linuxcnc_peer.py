@@ -19,7 +19,7 @@ import pytest
 from feed_twin.gcode import SampledTrajectory, plan_program
 from feed_twin.gcode.geometry import programmed_path
 from feed_twin.gcode.metrics import CORNER_RESOLUTION
-from feed_twin.gcode.peer import TIME_TOLERANCE, measure_side, time_ratio
+from feed_twin.gcode.peer import JERK_TIME_LIMIT, TIME_TOLERANCE, measure_side, time_ratio
 from feed_twin.linuxcnc.machine import machine_for_config
 from feed_twin.linuxcnc.runner import run_program
 
@@ -53,8 +53,11 @@ def test_our_planner_meets_the_requirements_beside_linuxcnc(name):
     trapezoid_ratio, jerk_ratio = time_ratio(trapezoid, linuxcnc), time_ratio(jerk, linuxcnc)
     assert trapezoid_ratio is not None and jerk_ratio is not None, "three sides accept it"
     assert abs(trapezoid_ratio - 1.0) <= TIME_TOLERANCE
-    # The jerk limit costs time LinuxCNC (acceleration-limited) does not spend.
-    assert jerk_ratio > 1.0
+    # The jerk limit costs time the same planner without it (acceleration-limited, as LinuxCNC)
+    # does not spend; at the jerk the axis's first mode allows (T = 9 ms) that is less than
+    # what LinuxCNC's half acceleration on arcs costs it (arcs_g19: 0.984x), and within the
+    # 1.10x issue 30 asks.
+    assert trapezoid_ratio < jerk_ratio <= JERK_TIME_LIMIT
 
     f = linuxcnc.figures
     assert f is not None and jerk.figures is not None, "both sides accept the program"

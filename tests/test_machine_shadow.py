@@ -70,8 +70,20 @@ def test_the_worn_guide_is_estimated_near_its_true_change(tmp_path):
     # +100 %, or its Stribeck part, which doubled with it)
     last = x.verdicts[-1]
     assert last.effect in ("coulomb_friction", "stribeck_friction"), last.message
+    # X runs at one speed both ways (F6000 on the 45-degree X-Z line: 70.7 mm/s), where a
+    # Coulomb and a viscous change have the same signature (sign v and v): a window may name
+    # either, and the name holds while later windows cannot tell them apart (health.py). What
+    # is determined is the force added at that speed, the truth's +120 N. Measured: after the
+    # jerk filter's integral became two doubles (the command moved by rounding) the first
+    # windows named viscous_friction +394 % and +423 % (111 and 120 N at 70.7 mm/s) where they
+    # had named the Coulomb change; from 4.5 s on coulomb_friction +98-101 %.
+    v_x = 0.1 / math.sqrt(2.0)
     for v in named:
-        assert v.relative_change == pytest.approx(1.0, abs=0.15), v.message
+        if v.effect == "viscous_friction":
+            added = (v.estimated_value - v.nominal_value) * v_x
+            assert added == pytest.approx(120.0, rel=0.15), v.message
+        else:
+            assert v.relative_change == pytest.approx(1.0, abs=0.15), v.message
     # no window reports a size it cannot determine (opposite weights of |v| and "moving" on a
     # cruise, a Stribeck speed the window never reaches): what an effect adds stays near the
     # truth's change (120 N, about 0.1 A)

@@ -21,8 +21,13 @@ from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag.schema import message_definition
 from feed_twin.io.cdr import FlatCodec, NotFlatError
 from feed_twin.nodeset.config import NodeLoopGains, NodeSetConfig, load_node_set_config
-from feed_twin.nodeset.controller_core import ControllerCore, controller_node_config
+from feed_twin.nodeset.controller_core import (
+    ControllerCore,
+    controller_node_config,
+    feed_forward_delays,
+)
 from feed_twin.nodeset.nc_buffer import NcBuffer
+from feed_twin.nodeset.reference_delay import DelayedReference
 from feed_twin.nodeset.summary import summarise
 from feed_twin.nodeset.topics import AxisTopics
 from feed_twin.nodeset.wire import (
@@ -300,3 +305,54 @@ def test_program_stream_pause_request_waits_for_standstill() -> None:
     assert stream.paused == "by request" and abs(last[2]) < 1e-9
     hold = stream.next_sample()
     assert (hold[1], hold[2], hold[4]) == (last[1], 0.0, stream.paused_line)
+
+
+def test_delayed_reference_is_the_cubic_late() -> None:
+    # Hermite through positions and velocities reproduces a cubic exactly: x(t - D_x) and
+    # x'(t - D_v) for delays between samples, the acceleration (feed-forward) as it comes.
+    period, D_x, D_v = 1e-3, 1.6875e-3, 2.6875e-3
+    delayed = DelayedReference(period_s=period, position_delay_s=D_x, velocity_delay_s=D_v)
+
+    def x(t: float) -> float:
+        return 0.4 + 2.0 * t**3 - 0.5 * t**2
+
+    def v(t: float) -> float:
+        return 6.0 * t**2 - t
+
+    first = delayed.update(x(0.0), 0.0, -1.0)
+    assert first == (0.4, 0.0, -1.0)  # before the first sample: at rest where it starts
+    for k in range(1, 12):
+        t = k * period
+        got = delayed.update(x(t), v(t), 12.0 * t - 1.0)
+        if k >= 3:
+            assert got[0] == pytest.approx(x(t - D_x), abs=1e-15)
+            assert got[1] == pytest.approx(v(t - D_v), abs=1e-12)
+            assert got[2] == 12.0 * t - 1.0
+    delayed.reset()
+    assert delayed.update(1.0, 2.0, 3.0) == (1.0, 0.0, 3.0)  # whole-period delays, at rest
+    whole = DelayedReference(period_s=period, position_delay_s=0.0, velocity_delay_s=2e-3)
+    whole.update(0.0, 0.5, 0.0)
+    whole.update(1.0, 0.7, 0.0)
+    assert whole.update(2.0, 0.9, 0.0) == (2.0, 0.5, 0.0)
+    with pytest.raises(ValueError, match=r"period_s = 0.0: must be > 0"):
+        DelayedReference(period_s=0.0, position_delay_s=0.0, velocity_delay_s=0.0)
+    with pytest.raises(ValueError, match=r"velocity_delay_s = -0.001: must lie in \[0, 1\] s"):
+        DelayedReference(period_s=period, position_delay_s=0.0, velocity_delay_s=-1e-3)
+
+
+def test_feed_forward_delays_are_the_loops_lags() -> None:
+    config = load_controller_config(yaml.safe_load(AXIS.read_text())["controller"], str(AXIS))
+    D_x, D_v = feed_forward_delays(config, 1e-3)
+    # one exchange of transport, half of hold, the current loop's 3 T_i; then the estimator's
+    # half sample and the FIR's half sample at the exchange period: the velocity loop's T_sigma
+    assert D_x == pytest.approx(1.5e-3 + 3 * 62.5e-6, rel=1e-12)
+    assert D_v == pytest.approx(D_x + 1e-3, rel=1e-12)
+    core = ControllerCore(config, boundary="torque", exchange_period_s=1e-3)
+    assert any("feed-forward symmetrized" in n for n in core.notes)
+    plain = ControllerCore(
+        config,
+        boundary="torque",
+        exchange_period_s=1e-3,
+        gains=NodeLoopGains(symmetrize_feed_forward=False),
+    )
+    assert not any("symmetrized" in n for n in plain.notes)

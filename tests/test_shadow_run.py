@@ -1,7 +1,7 @@
 """`feed-twin run PROGRAM --shadow` end to end on the machine-tool axis (config/axis_default.yaml).
 
 Real processes (recorder, twin, stand-in, G-code node) in a private ROS domain, lockstep; the
-bag is read back with `rosbags`. The program shuttles X at 4-6 m/min for about 5.6 s, so the
+bag is read back with `rosbags`. The program shuttles X at 4-6 m/min for about 5.4 s, so the
 health baseline (1.5 s) and window (1 s) of the config have motion in them.
 """
 
@@ -47,6 +47,14 @@ G1 X0
 M30
 %
 """
+# The worn run goes on with the 4 m/min shuttle once more after the 6 m/min one: from the first
+# warning on (the segment `feed-twin diagnose` is given) it holds both feeds in both directions,
+# which a Coulomb friction needs to be told from a viscous one and a Stribeck excess. With the
+# 5.4 s shuttle alone that segment (3.0-5.4 s) holds 4 m/min for 0.25 s, one way: coulomb
+# alone fitted 231 N, but freed with the nominal friction parameters it read 56 N beside a
+# viscous 2200 N s/m (interval -312..425 N); on the former 5.7 s shuttle (T = 50 ms jerk
+# filter) the segment held more of it and read 240 N.
+WORN_SHUTTLE = SHUTTLE.replace("G1 X0\n", "G1 X30 F4000\nG1 X-30\nG1 X0\n")
 RAISE_AT_S = 2.5  # [s] machine time when the worn stand-in's guide friction doubles
 WINDOW_S = 1.0  # [s] shadow.window_s of axis_default
 SCALE_RESOLUTION_M = 1e-8  # axis_default's linear scale
@@ -57,7 +65,9 @@ NC_PERIOD_S = 1e-3
 SHADOW_ROLES = ("recorder", "twin", "standin", "gcode")
 
 
-def write_inputs(directory: Path, name: str, friction_steps: list[dict]) -> list[str]:
+def write_inputs(
+    directory: Path, name: str, friction_steps: list[dict], program_text: str = SHUTTLE
+) -> list[str]:
     """A private config copy (its path tells this run's processes apart) and the program;
     the `feed-twin run` arguments of a shadow run writing to directory/out."""
     data = yaml.safe_load(AXIS_CONFIG.read_text())
@@ -65,14 +75,17 @@ def write_inputs(directory: Path, name: str, friction_steps: list[dict]) -> list
     config = directory / f"{name}.yaml"
     config.write_text(yaml.safe_dump(data, sort_keys=False))
     program = directory / "shuttle.ngc"
-    program.write_text(SHUTTLE)
+    program.write_text(program_text)
     return [str(program), "--config", str(config), "--shadow", "--out", str(directory / "out"),
             "--name", name, "--json"]  # fmt: skip
 
 
-def shadow_run(directory: Path, name: str, friction_steps: list[dict]) -> dict:
+def shadow_run(
+    directory: Path, name: str, friction_steps: list[dict], program_text: str = SHUTTLE
+) -> dict:
     with reserve_domain_id() as domain:
-        code, out, err = run(write_inputs(directory, name, friction_steps), domain.domain_id)
+        args = write_inputs(directory, name, friction_steps, program_text)
+        code, out, err = run(args, domain.domain_id)
     assert code == 0, err[-4000:]
     return assert_report(out, mode="axis nodes shadow")  # the report of every mode
 
@@ -134,7 +147,7 @@ def steady(tmp_path_factory) -> dict:
 def worn(tmp_path_factory) -> dict:
     steps = [{"at_s": RAISE_AT_S, "scale": 2.0}]
     directory = tmp_path_factory.mktemp("worn")
-    record = shadow_run(directory, "worn", steps)
+    record = shadow_run(directory, "worn", steps, WORN_SHUTTLE)
     return {"json": record, "bag": read_bag(record["bag"]), "config": directory / "worn.yaml"}
 
 
@@ -189,9 +202,14 @@ def test_unchanged_machine_stays_at_the_twin_and_never_warns(steady) -> None:
     # feed-forward removes the rest): the machine's following error peaks at v_peak * T_nc
     assert j["velocity_peak_m_s"] == pytest.approx(V_PEAK_M_S, rel=1e-6)
     assert j["following_error_max_m"] == pytest.approx(V_PEAK_M_S * NC_PERIOD_S, rel=0.05)
-    # the twin follows the machine to the scale's resolution: what is left is the scale's
-    # quantisation and the truth's unmodelled current-loop lag and softer coupling
-    assert j["shadow_fe_dev_rms_m"] < 5 * SCALE_RESOLUTION_M
+    # the twin follows the machine to a few times the scale's resolution. What is left is
+    # mostly the nut striking across its 2 um backlash at the reversals (216 and 103 nm RMS over
+    # the quarter seconds of the first two, 3-5 nm at constant speed), whose outcome the
+    # truth's own sensors and sub-steps change: 54.6 nm RMS at the T = 9 ms jerk filter (22 nm
+    # at T = 50 ms, whose reversals were gentler); 60.8 nm with the stand-in's current lag and
+    # coupling made the twin's; 19.1 nm with the gap closed in both, 21.1 nm with that and
+    # nothing unmodelled (the scale's quantisation and the truth's sensors)
+    assert j["shadow_fe_dev_rms_m"] < 8 * SCALE_RESOLUTION_M
     assert j["shadow_fe_dev_max_m"] < 0.01 * j["following_error_max_m"]
     # effort: 0.01 A noise + the 12-bit current ADC (0.024 A steps) + the lag's transients,
     # a few per cent of the peak current, well under the 0.025 A warning rise
@@ -219,7 +237,15 @@ def test_raised_friction_is_named_in_the_health_topic(worn) -> None:
     assert all(
         m.effect.endswith("_friction") or m.effect == "friction_drift" for _, m in flagged
     ), [m.message for _, m in flagged]
-    settled = [m for ti, m in flagged if ti > RAISE_AT_S + WINDOW_S]
+    # The monitor ranks at most once per window (feed_twin/shadow/health.py: ranking costs
+    # about 0.1 s), so the first warning's name holds until one window after it: the first
+    # ranking of a window with only doubled friction in it is the one a window after the first
+    # warning (the first warning comes after the change). At the T = 9 ms jerk filter the first
+    # warning is at 3.0 s and its name (asymmetric_friction, the window 2-3 s holding the old
+    # friction one way and the new the other) stands at 3.5 and 3.75 s, past RAISE_AT_S +
+    # WINDOW_S.
+    renamed = flagged[0][0] + WINDOW_S - 1e-6
+    settled = [m for ti, m in flagged if ti > max(RAISE_AT_S + WINDOW_S, renamed)]
     assert settled and all(m.effect == "coulomb_friction" for m in settled), [
         m.message for m in settled
     ]
@@ -256,7 +282,14 @@ def test_diagnose_names_the_raised_friction_in_the_run_bag(worn, tmp_path) -> No
     assert done.returncode == 0, done.stderr[-4000:]
     report = json.loads((out / "report.json").read_text())
     assert [e["name"] for e in report["effects"]] == ["coulomb_friction"], done.stderr[-4000:]
-    assert report["effects"][0]["parameters"]["F_c_N"] == pytest.approx(240.0, rel=0.03)
+    # 231.7 N on this record at the T = 9 ms jerk filter (240 N on the former 5.7 s shuttle at
+    # T = 50 ms): the same 231.4 N with the stand-in's current lag and coupling made the
+    # twin's, so not the unmodelled drive; the re-fit with the nominal friction gives the
+    # Stribeck excess 23 N for 40 N beside it, and its 95 % interval is 197-267 N
+    estimate = report["effects"][0]
+    low, high = estimate["intervals"]["F_c_N"]
+    assert low < 240.0 < high and high - low < 0.3 * 240.0
+    assert estimate["parameters"]["F_c_N"] == pytest.approx(240.0, rel=0.05)
 
 
 def test_killed_twin_is_noticed_named_and_the_bag_readable(tmp_path) -> None:

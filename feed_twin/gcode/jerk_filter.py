@@ -34,6 +34,7 @@ What the raw plan does for the filter:
 from __future__ import annotations
 
 import math
+from typing import TypeVar
 
 import numpy as np
 from numba import njit
@@ -264,6 +265,17 @@ def _piece_state(
     return s, max(v, 0.0), G
 
 
+Real = TypeVar("Real", float, np.ndarray)
+
+
+@njit(cache=True)
+def two_sum(a: Real, b: Real) -> tuple[Real, Real]:
+    """(a + b rounded, its rounding error): Knuth's error-free sum, elementwise on arrays too."""
+    total = a + b
+    b_part = total - a
+    return total, (a - (total - b_part)) + (b - b_part)
+
+
 @njit(cache=True)
 def raw_samples(
     times: np.ndarray,
@@ -277,42 +289,85 @@ def raw_samples(
     t_up: np.ndarray,
     t_cruise: np.ndarray,
     F0: float,
+    F0_lo: float,
 ):
-    """s, ds/dt, F = F0 + integral of s from t0[0], and the piece, at increasing sample times
-    of raw (trapezoid) pieces; F at the end of the last piece is returned too."""
+    """s, ds/dt, F = F0 + integral of s from t0[0] (as F + F_lo), and the piece, at increasing
+    sample times of raw (trapezoid) pieces; F at the end of the last piece is returned too.
+
+    F grows with time (s times t: hundreds of m s on a program of minutes) while the filter
+    needs F(t) - F(t - T), the integral over one window: a double alone loses eps |F| / T of
+    s_f there, which the samples' third differences multiply by 8 / period^3 (1.4e-4 of the
+    jerk limit at T = 9 ms after 170 s). F is therefore carried as a sum of two doubles (the
+    pieces' integrals added with their rounding errors, `two_sum`), and F(t) and F(t - T),
+    close to each other, subtract exactly in their high parts.
+    """
     m = t0.shape[0]
     F_start = np.empty(m + 1)
+    F_start_lo = np.empty(m + 1)
     F_start[0] = F0
+    F_start_lo[0] = F0_lo
     for p in range(m):
         _, _, G = _piece_state(kind[p], s0[p], v0[p], vp[p], A[p], t_up[p], t_cruise[p], dur[p])
-        F_start[p + 1] = F_start[p] + G
+        hi, err = two_sum(F_start[p], G)
+        F_start[p + 1], F_start_lo[p + 1] = two_sum(hi, err + F_start_lo[p])
     n = times.shape[0]
     s = np.empty(n)
     sd = np.empty(n)
     F = np.empty(n)
+    F_lo = np.empty(n)
     piece = piece_of_samples(times, t0, dur)
     for k in range(n):
         p = int(piece[k])
         tau = times[k] - t0[p]
         if tau < 0.0:  # a rounding error before the first piece: at its start point
             s[k], sd[k] = s0[p], 0.0
-            F[k] = F_start[p] + s0[p] * tau
+            G = s0[p] * tau
         else:
             s[k], sd[k], G = _piece_state(
                 kind[p], s0[p], v0[p], vp[p], A[p], t_up[p], t_cruise[p], tau
             )
-            F[k] = F_start[p] + G
-    return s, sd, F, piece, F_start[m]
+        hi, err = two_sum(F_start[p], G)
+        F[k], F_lo[k] = two_sum(hi, err + F_start_lo[p])
+    return s, sd, F, F_lo, piece, F_start[m], F_start_lo[m]
+
+
+def window_integral(
+    dF: np.ndarray, dF_lo: np.ndarray, s_then: np.ndarray, dt: np.ndarray, span: float
+) -> np.ndarray:
+    """The integral of s over the `span` before each sample from F's differences over the
+    sample times' differences `dt` (both parts of F's, `raw_samples`). A sample time k * period
+    is rounded to eps t (1.5e-14 s at 137 s), and over that much more or less time F gains s
+    times it: with the path coordinate s at metres, 1e-11 m in s_f at T = 9 ms. So the window's
+    start is moved to exactly `span` before its end with the speed-free part s_then of s,
+    leaving (s - s_then) times the rounding: the speed times T times eps t."""
+    return (dF + dF_lo) - s_then * (dt - span)
+
+
+# Columns of the raw sample rows `box_filter` averages (the planner's filter history too).
+ROW_S, ROW_SD, ROW_F, ROW_T, ROW_F_LO = range(5)
 
 
 def box_filter(history: np.ndarray, raw: np.ndarray, span: float) -> np.ndarray:
-    """The raw samples (rows s, ds/dt, F) averaged over the last `span` [s]: s_f, ds_f/dt and
-    d2s_f/dt2 at each row of `raw`, `history` holding the n - 1 rows before it (n - 1 = span /
-    period). Exact: s_f = (F(t) - F(t - span)) / span and so on."""
+    """The raw samples (rows s, ds/dt, F, t, F_lo: `ROW_*`) averaged over the last `span` [s]:
+    s_f, ds_f/dt and d2s_f/dt2 at each row of `raw`, `history` holding the n - 1 rows before it
+    (n - 1 = span / period). Exact: s_f = (F(t) - F(t - span)) / span and so on."""
     lag = len(history)
     joined = np.concatenate((history, raw))
     now, then = joined[lag:], joined[: len(joined) - lag]
+    window = window_integral(
+        now[:, ROW_F] - then[:, ROW_F],
+        now[:, ROW_F_LO] - then[:, ROW_F_LO],
+        then[:, ROW_S],
+        now[:, ROW_T] - then[:, ROW_T],
+        span,
+    )
     # The mean lies between the window's ends: held there, the rounding of F cannot carry it
     # past a stop (onto the next move) before it comes to rest, and at rest it is exact.
-    s = np.clip((now[:, 2] - then[:, 2]) / span, then[:, 0], now[:, 0])
-    return np.column_stack((s, (now[:, 0] - then[:, 0]) / span, (now[:, 1] - then[:, 1]) / span))
+    s = np.clip(window / span, then[:, ROW_S], now[:, ROW_S])
+    return np.column_stack(
+        (
+            s,
+            (now[:, ROW_S] - then[:, ROW_S]) / span,
+            (now[:, ROW_SD] - then[:, ROW_SD]) / span,
+        )
+    )

@@ -123,23 +123,26 @@ def sample_filtered(
     dU: np.ndarray,
     *,
     history: np.ndarray,
-    F0: float,
+    F0: tuple[float, float],
     span: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[float, float]
+]:
     """(position, velocity, acceleration, piece, move, history, F_end) with the jerk filter.
 
-    The raw plan's s, ds/dt and F (the integral of s, F0 at the first piece's start) at the
-    sample times follow the `history` rows (s, ds/dt, F, t of the samples within `span`
-    before them); `jerk_filter.box_filter` averages them and the result is mapped onto the
-    path. Returned: the new history and F at the end of the pieces.
+    The raw plan's s, ds/dt and F (the integral of s, F0 at the first piece's start, as the
+    sum of two doubles: `jerk_filter.raw_samples`) at the sample times follow the `history`
+    rows (`jerk_filter.ROW_*` of the samples within `span` before them);
+    `jerk_filter.box_filter` averages them and the result is mapped onto the path. Returned:
+    the new history and F at the end of the pieces.
     """
     n = len(moves.L)
     S = np.concatenate(([0.0], np.cumsum(moves.L)))
     p = pieces
-    s, sd, F, piece, F_end = raw_samples(
-        times, p.kind, t0, p.dur, p.s0, p.v0, p.vp, p.A, p.t_up, p.t_cruise, F0
+    s, sd, F, F_lo, piece, F_end, F_end_lo = raw_samples(
+        times, p.kind, t0, p.dur, p.s0, p.v0, p.vp, p.A, p.t_up, p.t_cruise, F0[0], F0[1]
     )
-    raw = np.column_stack((s, sd, F, times))
+    raw = np.column_stack((s, sd, F, times, F_lo))
     smooth = box_filter(history, raw, span)
     # At a node itself a sample belongs to the move it leaves on once the raw plan is past it
     # (arriving at a stop, the raw plan is at the node: the move it arrives on).
@@ -158,4 +161,4 @@ def sample_filtered(
         move=np.clip(first - 1, 0, n - 1),
     )
     joined = np.concatenate((history, raw))
-    return pos, vel, acc, piece, seg, joined[len(raw) :], float(F_end)
+    return pos, vel, acc, piece, seg, joined[len(raw) :], (float(F_end), float(F_end_lo))

@@ -50,6 +50,7 @@ from feed_twin.gcode.config import NcConfig
 from feed_twin.gcode.errors import GcodeError
 from feed_twin.gcode.interpreter import Interpreter
 from feed_twin.gcode.items import Event, Move, Stop
+from feed_twin.gcode.jerk_filter import ROW_F, ROW_F_LO, ROW_S, ROW_T, two_sum
 from feed_twin.gcode.lexer import Block, iter_source_lines, lex_line
 from feed_twin.gcode.plan_blends import NodeFlags, WindowStart, corner_blends, fitted_widths
 from feed_twin.gcode.plan_breaks import forced_breaks
@@ -204,13 +205,14 @@ class _StreamPlanner:
         self.g0 = 0  # global index of listed move 0
         self.has_context = False
         self.w_context = np.zeros(1)  # blend half-widths of the listed nodes up to the first
-        # Raw samples (s, ds/dt, F = integral of s dt, t) within the jerk filter's span before
-        # the next one, in the listed moves' s (at first the start point, at rest since t = 0);
-        # F at the end of the committed pieces.
+        # Raw samples (s, ds/dt, F = integral of s dt, t, F's low part: jerk_filter.ROW_*)
+        # within the jerk filter's span before the next one, in the listed moves' s (at first
+        # the start point, at rest since t = 0); F at the end of the committed pieces, as the
+        # sum of two doubles (jerk_filter.raw_samples says why).
         k_before = np.arange(1 - self.n_filter, 0)
         self.history = np.column_stack((0.0 * k_before, 0.0 * k_before, 0.0 * k_before,
-                                        k_before * self.period))  # fmt: skip
-        self.F_end = 0.0
+                                        k_before * self.period, 0.0 * k_before))  # fmt: skip
+        self.F_end = (0.0, 0.0)
         self.stops: set[int] = set()  # global node indices where the path is at rest
         self.entries: dict[int, list[Event | Stop]] = {}  # global node -> events and dwells
         self.v_first = 0.0
@@ -491,10 +493,13 @@ class _StreamPlanner:
         del self.feeds[:keep]
         del self.tols[:keep]
         self.g0 += keep
-        # s counted from the new first listed node: F = integral of s dt moves with it.
-        self.history[:, 0] -= S[keep]
-        self.history[:, 2] -= S[keep] * self.history[:, 3]
-        self.F_end -= S[keep] * self.t_s
+        # s counted from the new first listed node: F = integral of s dt moves with it, by
+        # S (t - t_s) (any constant more is as good: only F's differences count), whose terms
+        # are small beside F over the span the history holds.
+        h = self.history
+        h[:, ROW_S] -= S[keep]
+        h[:, ROW_F], err = two_sum(h[:, ROW_F], -S[keep] * (h[:, ROW_T] - self.t_s))
+        h[:, ROW_F], h[:, ROW_F_LO] = two_sum(h[:, ROW_F], err + h[:, ROW_F_LO])
         self.n_frozen = frozen - keep
         self.has_context = True
         self.w_context = w[keep : end_node + 1].copy()

@@ -84,6 +84,9 @@ class NodeLoopGains:
     Kv_1_s: float | None = None  # position gain [1/s]
     velocity_Kp: float | None = None  # [effort unit per m/s], load side
     velocity_Ti_s: float | None = None  # [s]
+    # at the torque boundary, compare the feedback with the NC's position and velocity as late
+    # as the feed-forward shows in it (feed_twin/nodeset/reference_delay.py) [-]
+    symmetrize_feed_forward: bool = True
 
     def __post_init__(self) -> None:
         for name in ("Kv_1_s", "velocity_Kp", "velocity_Ti_s"):

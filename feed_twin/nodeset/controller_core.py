@@ -21,6 +21,7 @@ from feed_twin.control.config import ControllerConfig
 from feed_twin.control.loops import Cascade, PositionLoop, VelocityLoop, VelocitySetpoint
 from feed_twin.core import signals as sig
 from feed_twin.nodeset.config import Boundary, NodeLoopGains
+from feed_twin.nodeset.reference_delay import DelayedReference
 from feed_twin.nodeset.wire import BOUNDARY_MODES, NS_PER_S, DriveSetpoint, NcSample
 from feed_twin.sim.program import set_nc_reference
 
@@ -163,6 +164,28 @@ def _retune_velocity(
     return design.Kp, design.Ti_s, 2.0 * math.pi * design.bandwidth_hz / 4.0
 
 
+def feed_forward_delays(config: ControllerConfig, exchange_period_s: float) -> tuple[float, float]:
+    """(D_x, D_v) [s]: how late the controller node's feed-forward shows in the feedback it
+    compares with, at the torque boundary (feed_twin/nodeset/reference_delay.py).
+
+    The i_q setpoint computed from the feedback latched at t_k acts from t_{k+1} and is held one
+    exchange (its centre 1.5 exchanges late), then the drive's closed current loop lags by about
+    2 T_sigma_i = 3 T_i (technical optimum): D_x. The velocity estimate lags the table by the
+    estimator's delay on top (half a sample and the FIR's group delay): D_v, the T_sigma the
+    velocity loop is re-tuned for (`_retune_velocity`).
+    """
+    from feed_twin.control.tuning import estimator_delay
+
+    current = config.current
+    D_x = 1.5 * exchange_period_s + (3.0 * current.period_s if current is not None else 0.0)
+    velocity = config.velocity
+    if velocity is None:
+        return D_x, D_x
+    period = max(velocity.period_s, exchange_period_s)
+    est = velocity.estimator
+    return D_x, D_x + estimator_delay(est.fir_taps, est.lowpass_hz, period)
+
+
 class ControllerCore:
     """What the controller node computes per exchange: NC sample + drive feedback -> setpoint.
 
@@ -189,6 +212,7 @@ class ControllerCore:
         self._position: PositionLoop | None = None
         self._velocity: VelocityLoop | None = None
         self._cascade: Cascade | None = None
+        self._delayed: DelayedReference | None = None
         self._ref = np.zeros(sig.REF_SIZE)
         if boundary == "voltage":
             node_config, self.notes = controller_node_config(
@@ -204,6 +228,15 @@ class ControllerCore:
             self._position = PositionLoop(node_config)
             if boundary == "torque":
                 self._velocity = VelocityLoop(node_config)
+                if (gains or NodeLoopGains()).symmetrize_feed_forward:
+                    D_x, D_v = feed_forward_delays(config, exchange_period_s)
+                    self._delayed = DelayedReference(
+                        period_s=exchange_period_s, position_delay_s=D_x, velocity_delay_s=D_v
+                    )
+                    self.notes.append(
+                        f"feed-forward symmetrized: NC position {D_x * 1e3:.4g} ms and velocity "
+                        f"{D_v * 1e3:.4g} ms late, acceleration as it comes"
+                    )
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the loop kernels, so that the first exchange
@@ -216,7 +249,7 @@ class ControllerCore:
             return
         nc = NcSample(t_ns=0, position_m=0.0, velocity_m_s=0.0, acceleration_m_s2=0.0, line=-1)
         self.step(0, nc, np.zeros(sig.MEAS_SIZE))
-        for loop in (self._position, self._velocity, self._cascade):
+        for loop in (self._position, self._velocity, self._cascade, self._delayed):
             if loop is not None:
                 loop.reset()
 
@@ -231,7 +264,10 @@ class ControllerCore:
                 velocity_m_s=nc.velocity_m_s,
             )
         ref = self._ref
-        set_nc_reference(ref, nc.position_m, nc.velocity_m_s, nc.acceleration_m_s2)
+        x, v, a = nc.position_m, nc.velocity_m_s, nc.acceleration_m_s2
+        if self._delayed is not None:
+            x, v, a = self._delayed.update(x, v, a)
+        set_nc_reference(ref, x, v, a)
         if self._cascade is not None:
             out = self._cascade.update(t, ref, meas)
             return DriveSetpoint(
