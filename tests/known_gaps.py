@@ -23,15 +23,6 @@ CROSS_COUPLING_FIT = (
     "so at this motion it lands within 5 % while the cause stands"
 )
 
-PLACED_REPETITIONS_VISCOUS = (
-    "open, since the effort stamp and sub-steps were restored (it passes on main before them; "
-    "the re-examined delays do not change it): on the thrice-run EMPS record placed from "
-    "--program with --repetitions, a viscous friction of 193 N s/m is named beside the "
-    "Coulomb friction (15.08 N for 15 N); it removes 17.6 % of the effort residual and 26 % of "
-    "the position's; what is left follows the speed (correlation 0.95, 0.55 um RMS, 63x the "
-    "noise). Cause not found yet"
-)
-
 VOLTAGE_BOUNDARY_LIMIT_CYCLE = (
     "open, found on branch i30jerk: with the full cascade in the controller node (boundary "
     "voltage: the current loop at 1 kHz, about 120 Hz, the velocity loop re-tuned above it to Kp "
