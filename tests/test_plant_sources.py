@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from feed_twin.analysis.twin import substeps_needed
 from feed_twin.core import signals as sig
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.engine import Engine
@@ -79,6 +80,48 @@ def test_force_source_follows_its_command_with_the_current_loop_lag():
     res = Engine(plant, base_period_s=1e-4).run(n, drive=_drive(n, effort))
     expected = gain * effort * (1.0 - np.exp(-res.t / T_lag))
     np.testing.assert_allclose(res["drive.effort"], expected, atol=1e-9 * gain * effort)
+
+
+def test_a_short_lag_gets_the_sub_steps_rk4_needs():
+    """The lag's pole 1 / T_lag counts as a fast state: at h = 1 ms a 0.2 ms lag (h / T_lag = 5,
+    beyond RK4's 2.5) is refused with one sub-step, and the twin's choice (4: 1.25) follows
+    RK4's own closed form on the lag, within 0.3 % of f = g e (1 - exp(-t / T_lag)) (one
+    sub-step diverged at tick 6)."""
+    T_lag, gain, effort, h = 2e-4, 35.15, 3.0, 1e-3
+    plant = load_plant(
+        {
+            "components": [
+                {"name": "table", "type": "Mass", "params": {"m": 1e6}},
+                {
+                    "name": "drive",
+                    "type": "EffortSource",
+                    "params": {
+                        "domain": "translational",
+                        "gain": gain,
+                        "T_lag": T_lag,
+                        "f_max": 1e6,
+                    },
+                },
+            ],
+            "unusual": ["table.m"],
+            "connect": [["table.flange", "drive.flange"]],
+        },
+        source="short lag",
+    )
+    with pytest.raises(ValueError, match=r"plant.drive: .* fastest rate 5000 1/s is 5, must be"):
+        Engine(plant, base_period_s=h)
+    nsub = substeps_needed(plant, plant.nominal_params(), h)
+    assert nsub == 4
+    n = 20
+    res = Engine(plant, base_period_s=h, substeps=nsub).run(n, drive=_drive(n, effort))
+    # RK4 on this linear lag decays by its stability polynomial R(z) per sub-step, z = -1.25
+    z = -h / nsub / T_lag
+    r = 1.0 + z + z**2 / 2.0 + z**3 / 6.0 + z**4 / 24.0
+    ticks = np.round(res.t / h)
+    rk4 = gain * effort * (1.0 - r ** (nsub * ticks))
+    np.testing.assert_allclose(res["drive.effort"], rk4, atol=1e-9 * gain * effort)
+    exact = gain * effort * (1.0 - np.exp(-res.t / T_lag))
+    np.testing.assert_allclose(res["drive.effort"], exact, atol=3e-3 * gain * effort)
 
 
 @pytest.mark.parametrize("m_cw", [0.0, 40.0])

@@ -4,13 +4,23 @@ Placing (analysis.program) refines the program's time shifts and the record's po
 against a twin's response to the command. The first placement can only use the nominal twin,
 whose response lacks the very effects the workflow is about to find: a missing force lags or
 holds the measured axis, and that moves the placed command. On a 1 kHz record with 15 N of
-Coulomb friction hidden the command came out 16 us late, which the fit explained with a viscous
-term of its own (tests/test_analysis_repetitions.py); on a 50 Hz exact-stop trace of a vertical
-axis held at rest by friction the zero came out 92 um off (benchmarks/real_machine_record.py).
-So when the first pass names effects, the program is placed again against the fitted model's
-response and the workflow runs once more from the nominal model; that second diagnosis is the
-result. Its timings cover every pass: each placement and each diagnosis, and `total_s` all of
-them (the second diagnosis alone took 92 of 172 s on a real record).
+Coulomb friction hidden the command came out 30 us late (tests/test_analysis_repetitions.py);
+on a 50 Hz exact-stop trace of a vertical axis held at rest by friction the zero came out 92 um
+off (benchmarks/real_machine_record.py). So when the first pass names effects, the program is
+placed again against the fitted model's response and the workflow runs once more from the
+nominal model; that second diagnosis is the result.
+
+That response leaves out the command delay the first pass fitted (analysis.command_delay_s;
+the nominal model's own stays): for a command placed from a program, the placement's time shift
+and a command delay are one timing, and the first pass's delay is the first placement's error
+(fitted as -25 us on that record). Kept in the response, it put the second placement 26.7 us
+late again, so the second pass named the same delay and, beside it, a friction of the wrong law
+for the rest of the nominal twin's lag (a viscous friction of 193 N s/m, later a Stribeck term
+in the Coulomb friction's place); without it the command lands 1.7 us from the record's own and the
+Coulomb friction is named alone (15.00 N).
+
+The timings cover every pass: each placement and each diagnosis, and `total_s` all of them (the
+second diagnosis alone took 92 of 172 s on a real record).
 """
 
 from __future__ import annotations
@@ -22,6 +32,7 @@ from pathlib import Path
 
 from feed_twin.analysis.diagnose import diagnose
 from feed_twin.analysis.effects import Motion
+from feed_twin.analysis.model_doc import COMMAND_DELAY_SLOT
 from feed_twin.analysis.passes import PassListener, ignore
 from feed_twin.analysis.program import command_from_program, nc_of_model
 from feed_twin.analysis.report import Diagnosis
@@ -37,9 +48,13 @@ def place(
     response: ModelDoc | None = None,
 ) -> list[MeasuredRun | None]:
     """Each run (None stays None) with `program` planned on the nominal model's NC and placed
-    against the response of `response` (default: the nominal model)."""
+    against the response of `response` (default: the nominal model), with the nominal model's
+    command delay in place of the one `response` fitted (module docstring: the placement is
+    the command's timing)."""
     nc = nc_of_model(nominal.data, nominal.source)
-    twin = nominal if response is None else response
+    twin = nominal
+    if response is not None:
+        twin = response.set(COMMAND_DELAY_SLOT, nominal.get(COMMAND_DELAY_SLOT))
     return [
         None
         if r is None

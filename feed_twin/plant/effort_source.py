@@ -139,9 +139,13 @@ class EffortSource(Component):
         return self.R_s is not None
 
     def state_rate(self, slot: SlotReader) -> float:
-        """The current loop's fastest pole [1/s] (0 without a loop)."""
+        """The current loop's fastest pole [1/s]; 1 / T_lag for a first-order lag; 0 for an
+        instantaneous source."""
         if not self.has_current_loop:
-            return 0.0
+            if self.T_lag <= 0.0:
+                return 0.0
+            t_lag = slot("T_lag")
+            return 1.0 / t_lag if t_lag > 0.0 else float("inf")
         return fastest_rate(slot("R_s"), slot("L_s"), slot("Kp_i"), slot("Ti_i"))
 
     def ports(self) -> dict[str, PortKind]:
