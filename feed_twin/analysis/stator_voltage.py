@@ -21,7 +21,7 @@ application period, with the currents averaged over it and di_d/dt their change 
 Why both are needed: the drive's compensation has the shape of its own law (linear to `band`)
 and the inverter its own (the quintic smooth sign of i_reg); at the 0.1-0.5 A a feed axis draws
 while cruising the two differ by up to a volt, as much as omega_e L_q i_q itself. Fitted at
-every current-loop sample of the default twin, u_s gives L_q within 0.5 % at both jerk filters
+every current-loop sample of the default twin, u_s gives L_q within 1.5 % at both jerk filters
 (tests/test_stator_voltage.py); the references themselves read mostly the controller's own
 decoupling gain L_q_H plus what its d integrator learned of these errors. Sampled once per
 exchange (the node set's AxisFeedback, 1 kHz), always at the current loop's first sample after
@@ -113,7 +113,7 @@ def applied_stator_voltage(
     return _rotate(-theta_m, alpha, beta)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DAxisFit:
     """Least squares of u_d = R_s i_d + L_d di_d/dt - omega_e L_q i_q + c."""
 
