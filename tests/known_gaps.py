@@ -1,8 +1,7 @@
 """Reasons for the tests that are known to fail today, each with what was measured.
 
 A test marked `xfail(strict=True)` with one of these fails the suite as soon as it passes again,
-so the mark cannot outlive the gap it names. A mark is not strict only where the test passes by
-the motion's chance while the cause stands; its text says what was measured.
+so the mark cannot outlive the gap it names.
 """
 
 VOLTAGE_BOUNDARY_LIMIT_CYCLE = (
