@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -13,7 +15,7 @@ from feed_twin.gcode.plan_blends import (
 )
 from feed_twin.gcode.plan_chains import chain_bodies
 from feed_twin.gcode.plan_limits import AxisLimits, move_limits
-from feed_twin.gcode.plan_profile import Pieces, motion_pieces, speed_profile
+from feed_twin.gcode.plan_profile import Pieces, motion_pieces, speed_profile, speeds_fit
 from feed_twin.gcode.plan_sampling import piece_starts, sample_indices, sample_path
 from feed_twin.gcode.profile import evaluate_path, sample_pieces
 
@@ -153,6 +155,27 @@ def test_speed_profile_keeps_v_a_within_limits_and_integrates_to_the_length():
     assert np.all(sd >= -1e-15) and np.all(sd <= max(bodies.V) * (1.0 + 1e-12))
     assert np.all(np.abs(sdd) <= max(bodies.A) * (1.0 + 1e-9))
     assert sd[0] == 0.0 and sd[-1] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_speeds_fit_tells_a_start_the_bodies_cannot_brake_from():
+    # seed 24 of benchmarks/lookahead_limits.py at look-ahead 16 in one body: 68.5 mm/s
+    # committed, 13.7 mm/s allowed 7.86 mm on at A = 0.147 m/s^2 (the committed window saw
+    # A = 0.299 and a stop): v^2 = 13.7^2 + 2 A L gives 50.0 mm/s, not 68.5.
+    limits = LIMITS
+    moves, _, bodies, _ = _pieces([(0.0, 0.0), (0.00786, 0.0)], [0.3], limits)
+    bodies = dataclasses.replace(
+        bodies, A=np.array([0.147]), cap=np.array([0.3, 0.0137]), length=np.array([0.00786])
+    )
+    reachable = np.sqrt(0.0137**2 + 2.0 * 0.147 * 0.00786)
+    assert reachable == pytest.approx(0.0500, abs=1e-4)
+    for v_first, fits in ((0.0685, False), (reachable * (1.0 - 1e-6), True)):
+        speeds = speed_profile(bodies, v_first=v_first)
+        assert speeds.v[0] == v_first
+        assert speeds_fit(bodies, speeds.v) is fits
+    assert speeds_fit(bodies, np.array([0.0, 0.0138])) is False  # above the end's cap
+    held = dataclasses.replace(bodies, hold_in=np.array([0.0, 0.55]))  # 0.55 s at the end
+    assert speeds_fit(held, np.array([0.0, 0.0137])) is False  # 7.54 + 0.64 mm > 7.86 mm ...
+    assert speeds_fit(held, np.array([0.0, 0.0130])) is True  # ... 7.15 + 0.57 mm fits
 
 
 def test_sampler_positions_equal_the_analytic_trapezoid():

@@ -75,7 +75,8 @@ def plan_speeds_filtered(
     the planned one that still leaves room for the next node's hold, else (the body too
     short to brake further) to the slowest speed it can reach: above the node's cap, but
     with s and ds/dt continuous, where the next window's constraints are tighter than the
-    committed window's (a rare case that remains, see docs/planner.md)."""
+    committed window's (`plan_profile.speeds_fit` tells; the planner then plans that window
+    again with the committed window's decisions, `planner._StreamPlanner._as_decided`)."""
     m = L.shape[0]
     v = cap.copy()
     for i in range(m + 1):

@@ -54,6 +54,26 @@ def speed_profile(bodies: Bodies, *, v_first: float, window_s: float = 0.0) -> S
     return SpeedProfile(v=v, vp=vp, t_up=t_up, t_cruise=t_cruise, t_down=t_down, A=A)
 
 
+FIT_SLACK = 1e-9  # relative: a speed or a braking distance this much over its bound fits
+
+
+def speeds_fit(bodies: Bodies, v: np.ndarray) -> bool:
+    """Whether boundary speeds v [m/s] keep within the 1-D nodes' caps and every body changes
+    between its end speeds within its length, its nodes' holds included.
+
+    The backward pass makes this so from any start its braking bounds allow; a window that goes
+    on from committed motion starts at v_first, which only the committed window's constraints
+    bounded: where this window's are tighter, the forward pass cannot keep them
+    (`jerk_filter._braked_to`) and this is False."""
+    v0, v1 = v[:-1], v[1:]
+    change = np.abs(v0 * v0 - v1 * v1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        used = np.where(change > 0.0, change / (2.0 * bodies.A), 0.0)
+    used += bodies.hold_out[:-1] * v0 + bodies.hold_in[1:] * v1
+    within_caps = np.all(v[1:] <= bodies.cap[1:] * (1.0 + FIT_SLACK))
+    return bool(within_caps and np.all(used <= bodies.length * (1.0 + FIT_SLACK) + 1e-15))
+
+
 @dataclass(frozen=True, kw_only=True)
 class Pieces:
     """The 1-D profile pieces in time order (arrays of one length; see `profile.sample_pieces`)."""

@@ -34,7 +34,11 @@ to `lookahead_segments` moves, with the window's end at rest; the first half is 
 sampled and yielded, the rest is planned again with the next moves (the moves the filter's
 window still runs on stay listed as context, with their blends). Committed speeds stay
 reachable as constraints relax (the braking bound is monotonic), so the result is always
-safe, and memory stays bounded.
+safe, and memory stays bounded. Where the next moves tighten them instead (the blend at the
+window's last node, where it stopped, lowers the limits of the bodies before it; a forced
+break dropped later merges chains), the next window plans again with the committed window's
+forced breaks, then with its stop at its end too: the limits the committed speed was planned
+with, as a controller whose look-ahead ran short stops there.
 """
 
 from __future__ import annotations
@@ -42,7 +46,9 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterator
+from enum import IntEnum
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,6 +66,7 @@ from feed_twin.gcode.plan_profile import (
     motion_pieces,
     node_entries,
     speed_profile,
+    speeds_fit,
     stop_holds,
     with_dwells,
 )
@@ -167,6 +174,22 @@ def _plan_chunks(source: str | Path, config: NcConfig) -> Iterator[SampledTrajec
         yield last
 
 
+class Kept(IntEnum):
+    """What a window keeps of the previous window's decisions (`_StreamPlanner._as_decided`)."""
+
+    NOTHING = 0
+    BREAKS = 1  # its forced breaks
+    BREAKS_AND_END = 2  # and its stops, the one at its end included
+
+
+class _Decided(NamedTuple):
+    """What a window that committed planned its nodes with (global node indices)."""
+
+    end: int  # its last listed node (at rest there: the program's next moves were not listed)
+    stop: np.ndarray  # the nodes it planned at rest
+    forced: np.ndarray  # its forced breaks
+
+
 class _Counted:
     """Iterates blocks and counts them (an empty program is an error)."""
 
@@ -218,6 +241,7 @@ class _StreamPlanner:
         self.v_first = 0.0
         self.first_stop = False  # whether the path stops there
         self.start_holds: StartHolds | None = None  # its holds, as committed (jerk filter)
+        self.decided_before: _Decided | None = None  # the last committing window's decisions
         self.t_s = 0.0
         self.k_next = 0
 
@@ -246,14 +270,17 @@ class _StreamPlanner:
         if isinstance(item, Stop) or item.stops:
             self.stops.add(node)
 
-    def plan(self, *, final: bool) -> SampledTrajectory | None:
-        """Plan the listed moves; sample and return what is committed (None: nothing yet)."""
+    def plan(self, *, final: bool, as_decided: Kept = Kept.NOTHING) -> SampledTrajectory | None:
+        """Plan the listed moves; sample and return what is committed (None: nothing yet).
+
+        `as_decided`: what of the previous window's decisions on the nodes both list is kept
+        (`_as_decided`); more is kept, step by step, where this window cannot keep v_first."""
         n = len(self.lines)
         if n == 0:
             return self._plan_standstill()
         first = self.first()
         listed = np.array(self.points)
-        flags = self._node_flags(n, final, listed)
+        flags = self._node_flags(n, final, listed, as_decided)
         points, movable = self._smoothed(flags, listed)
         if np.any(movable):
             flags = dataclasses.replace(flags, tol=blend_tolerance(flags.tol, movable))
@@ -272,6 +299,12 @@ class _StreamPlanner:
         if bodies is None:
             return self._plan_standstill() if final else None
         speeds = speed_profile(bodies, v_first=self.v_first, window_s=self.window_s)
+        if (
+            as_decided < Kept.BREAKS_AND_END
+            and self.decided_before is not None
+            and not speeds_fit(bodies, speeds.v)
+        ):
+            return self.plan(final=final, as_decided=Kept(as_decided + 1))
         q_commit = self._commit_point(bodies, movable, first, n, final)
         if q_commit is None:
             return None  # nothing safely committable yet: wait for more moves
@@ -346,11 +379,17 @@ class _StreamPlanner:
             hold_out=float(bodies.hold_out[q_commit]),
         )
         if not final:
+            self.decided_before = _Decided(
+                end=self.g0 + n,
+                stop=self.g0 + np.flatnonzero(flags.stop),
+                forced=self.g0 + np.flatnonzero(flags.forced),
+            )
             self._drop_committed(end_node, bodies.S, blends.w, bool(blends.stop[end_node]), points)
         return chunk
 
-    def _node_flags(self, n: int, final: bool, listed: np.ndarray) -> NodeFlags:
-        """Tolerances, stops, entries and forced breaks at the listed nodes 0..n."""
+    def _node_flags(self, n: int, final: bool, listed: np.ndarray, as_decided: Kept) -> NodeFlags:
+        """Tolerances, stops, entries and forced breaks at the listed nodes 0..n; `as_decided`:
+        those of the previous window where both list the node (`_as_decided`)."""
         g = self.g0
         stop = np.zeros(n + 1, dtype=bool)
         stop[0] = not self.has_context
@@ -377,15 +416,43 @@ class _StreamPlanner:
         )
         if not final:
             forced = self._commit_break_only(forced, listed, n)
+        if as_decided > Kept.NOTHING:
+            stop, forced = self._as_decided(stop, forced, n, end=as_decided == Kept.BREAKS_AND_END)
         return NodeFlags(tol=tol, stop=stop, has_entries=has_entries, forced=forced)
+
+    def _as_decided(
+        self, stop: np.ndarray, forced: np.ndarray, n: int, *, end: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The forced breaks of the listed nodes after the first uncommitted one up to the
+        previous window's last, as that window planned them (a break that `_commit_break_only`
+        dropped since may merge chains and bring a sharper blend's curvature into them), and
+        with `end` its stops: the one at its end too, where the program does not stop (its
+        blend there may lower the limits of the bodies before it, `plan_chains._eroded`).
+
+        With both this window plans those nodes on the same geometry and with the same limits
+        as the window that committed v_first (its last body is even longer: the open end's
+        share is gone), so v_first can brake to every constraint up to there; beyond the
+        stop nothing reaches back. A controller whose look-ahead ran short stops there too."""
+        decided = self.decided_before
+        assert decided is not None
+        g = self.g0
+        nodes = np.arange(self.first() + 1, min(decided.end - g, n) + 1)
+        stop = stop.copy()
+        forced = forced.copy()
+        if end:
+            stop[nodes] |= np.isin(nodes + g, decided.stop)
+        forced[nodes] = np.isin(nodes + g, decided.forced)
+        return stop, forced
 
     def _commit_break_only(self, forced: np.ndarray, listed: np.ndarray, n: int) -> np.ndarray:
         """The forced breaks without those the window neither commits at nor leaves for a
         later window: of those from the first uncommitted node to the last one it may commit
         at, all but the last (the commit point, `_commit_point`) where beyond what the
         committed motion's filter windows reach. They lie in the committed part, where no
-        later window plans again, and without them the constraints only relax (a break
-        squeezes its neighbours' blends). Dropped for good (`decided`: none)."""
+        later window plans again, and without them the constraints mostly relax (a break
+        squeezes its neighbours' blends); where the chains a drop merges carry a sharper
+        blend's curvature into bodies v_first must brake on, the next window keeps the break
+        (`_as_decided`). Dropped for good (`decided`: none)."""
         first = self.first()
         top = min(self._commit_limit(n), n - max(3, SMOOTH_REACH + 1) - 1)
         at = np.flatnonzero(forced[first + 1 : top + 1])[:-1] + first + 1
