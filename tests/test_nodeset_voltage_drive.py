@@ -8,16 +8,20 @@ exchange start: that late 20 V/A current feedback drove a limit cycle of 700 um 
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 from nodes_support import AXIS_CONFIG, SHORT_PROGRAM
 
+from feed_twin.core import signals as sig
 from feed_twin.gcode import load_nc_config, plan_program
-from feed_twin.nodeset.config import load_node_set_config
+from feed_twin.nodeset.config import NodeLoopGains, load_node_set_config
 from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.drive_host import Lockstep, nc_samples
-from feed_twin.nodeset.wire import NS_PER_S, DriveSetpoint
+from feed_twin.nodeset.wire import NS_PER_S, DriveSetpoint, NcSample
 from feed_twin.ros.sim_node import build_drive_host
 from feed_twin.sim.config import load_axis_config
 
@@ -25,9 +29,87 @@ TARGET_M = 0.410  # G54 X10 from the NC start X = 0.4 m
 R_S_OHM = 0.35  # the default motor's stator resistance
 
 
-def voltage_host():
-    ros = dataclasses.replace(load_node_set_config(AXIS_CONFIG), boundary="voltage")
-    return build_drive_host(AXIS_CONFIG, ros), ros
+def voltage_host(config: Path = AXIS_CONFIG):
+    ros = dataclasses.replace(load_node_set_config(config), boundary="voltage")
+    return build_drive_host(config, ros), ros
+
+
+# The default axis with what is not linear taken out: guide and motor friction, backlash, the
+# inverter's dead time and its compensation, the current sensor's noise.
+LINEAR_EDITS = (
+    (r"F_c_pos: 120.0, F_c_neg: 120.0, F_v_pos: 400.0, F_v_neg: 400.0, dF_s: 40.0",
+     "F_c_pos: 0.0, F_c_neg: 0.0, F_v_pos: 0.0, F_v_neg: 0.0, dF_s: 0.0"),
+    (r"T_c: 0.03", "T_c: 0.0"),
+    (r"gap: 2.0e-6", "gap: 0.0"),
+    (r"t_dead: 1.0e-6, u_f: 1.2", "t_dead: 0.0, u_f: 0.0"),
+    (r"noise_std: 0.02", "noise_std: 0.0"),
+    (r"dead_time_comp_V: 10.16", "dead_time_comp_V: 0.0"),
+)  # fmt: skip
+
+
+class CurrentProbe(ControllerCore):
+    """The node's full cascade with a multi-sine added to its q-current reference."""
+
+    def __init__(self, frequencies_hz: tuple[float, ...], amplitude_A: float, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.frequencies_hz = frequencies_hz
+        self.amplitude_A = amplitude_A
+        self.i_q_ref: list[float] = []
+
+    def step(self, t_ns: int, nc: NcSample, meas: np.ndarray) -> DriveSetpoint:
+        t = t_ns / NS_PER_S
+        self._ref[sig.REF_EFFORT_ADD] = self.amplitude_A * sum(
+            math.sin(2.0 * math.pi * f * t) for f in self.frequencies_hz
+        )
+        setpoint = super().step(t_ns, nc, meas)
+        self.i_q_ref.append(setpoint.i_q_A)
+        return setpoint
+
+
+def test_node_current_loop_closes_as_the_lag_the_velocity_loop_is_tuned_for(
+    tmp_path: Path,
+) -> None:
+    """The node's 1 kHz current loop, measured in-process on the linear axis by a multi-sine on
+    its reference (position and velocity loops at zero gain): i_q / i_q* at 5-23 Hz equals the
+    technical optimum's closed loop 1 / (1 + 2 T_sigma s + 2 T_sigma^2 s^2), T_sigma = 1.5 T,
+    whose phase is that of the 2 T_sigma = 3 T lag the velocity loop's re-tune counts on, once
+    the PI's zero sits on R_s + R_ff; with it on R_s alone it lagged 26 deg at 13 Hz with a
+    gain of 0.68 (the late back-EMF feed-forward's resistance)."""
+    text = AXIS_CONFIG.read_text(encoding="utf-8")
+    for old, new in LINEAR_EDITS:
+        text, count = re.subn(old, new, text)
+        assert count == 1, old
+    config = tmp_path / "axis_linear.yaml"
+    config.write_text(text)
+    host, ros = voltage_host(config)
+    axis = load_axis_config(config)
+    free = dataclasses.replace(
+        axis.controller,
+        position=dataclasses.replace(axis.controller.position, following_error_limit_m=1.0),
+    )
+    frequencies = (5.0, 9.0, 13.0, 17.0, 23.0)  # whole cycles in the 1 s window
+    probe = CurrentProbe(
+        frequencies,
+        1.0,
+        config=free,
+        boundary="voltage",
+        exchange_period_s=ros.exchange_period_s,
+        gains=NodeLoopGains(Kv_1_s=1e-9, velocity_Kp=1e-9, velocity_Ti_s=1e3),
+    )
+    hold = NcSample(t_ns=0, position_m=0.4, velocity_m_s=0.0, acceleration_m_s2=0.0, line=-1)
+    samples = Lockstep(probe, host, ros).run([hold], until_ns=1_200_000_000)
+    # the setpoint computed from sample k (stamped t_(k+1)) against the current of sample k
+    i_q = np.array([s.feedback["i_q"] for s in samples])[200:1200]
+    i_q_ref = np.array(probe.i_q_ref)[200:1200]
+    t = np.arange(200, 1200) * ros.exchange_period_s
+    T_sigma = 1.5 * ros.exchange_period_s
+    for f in frequencies:
+        phasor = np.exp(-2j * np.pi * f * t)
+        measured = np.mean(i_q * phasor) / np.mean(i_q_ref * phasor)
+        s = 2j * np.pi * f
+        expected = 1.0 / (1.0 + 2.0 * T_sigma * s + 2.0 * T_sigma**2 * s * s)
+        assert abs(measured) == pytest.approx(abs(expected), abs=0.03), f
+        assert math.degrees(np.angle(measured / expected)) == pytest.approx(0.0, abs=2.0), f
 
 
 def test_dead_time_is_compensated_in_the_direction_of_the_current_references() -> None:
