@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 from nodes_support import AXIS_CONFIG, SHORT_PROGRAM
 
+from feed_twin.control.tuning import estimator_delay, tune_velocity_loop
 from feed_twin.core import signals as sig
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.nodeset.config import NodeLoopGains, load_node_set_config
-from feed_twin.nodeset.controller_core import ControllerCore
+from feed_twin.nodeset.controller_core import ControllerCore, controller_node_config
 from feed_twin.nodeset.drive_host import Lockstep, nc_samples
 from feed_twin.nodeset.wire import NS_PER_S, DriveSetpoint, NcSample
 from feed_twin.ros.sim_node import build_drive_host
@@ -66,6 +67,44 @@ class CurrentProbe(ControllerCore):
         return setpoint
 
 
+def linear_axis(directory: Path) -> Path:
+    text = AXIS_CONFIG.read_text(encoding="utf-8")
+    for old, new in LINEAR_EDITS:
+        text, count = re.subn(old, new, text)
+        assert count == 1, old
+    config = directory / "axis_linear.yaml"
+    config.write_text(text)
+    return config
+
+
+def probe_run(
+    config: Path, frequencies_hz: tuple[float, ...], amplitude_A: float, gains: NodeLoopGains
+) -> tuple[CurrentProbe, list, float]:
+    """1.2 s of the node's cascade at rest with the multi-sine on its q-current reference, the
+    following-error fault out of the way (the outer loops may be at zero gain)."""
+    host, ros = voltage_host(config)
+    axis = load_axis_config(config)
+    free = dataclasses.replace(
+        axis.controller,
+        position=dataclasses.replace(axis.controller.position, following_error_limit_m=1.0),
+    )
+    probe = CurrentProbe(
+        frequencies_hz,
+        amplitude_A,
+        config=free,
+        boundary="voltage",
+        exchange_period_s=ros.exchange_period_s,
+        gains=gains,
+    )
+    hold = NcSample(t_ns=0, position_m=0.4, velocity_m_s=0.0, acceleration_m_s2=0.0, line=-1)
+    samples = Lockstep(probe, host, ros).run([hold], until_ns=1_200_000_000)
+    return probe, samples, ros.exchange_period_s
+
+
+# the last second of a probe run: whole cycles of every integer frequency
+WINDOW = slice(200, 1200)
+
+
 def test_node_current_loop_closes_as_the_lag_the_velocity_loop_is_tuned_for(
     tmp_path: Path,
 ) -> None:
@@ -75,34 +114,18 @@ def test_node_current_loop_closes_as_the_lag_the_velocity_loop_is_tuned_for(
     whose phase is that of the 2 T_sigma = 3 T lag the velocity loop's re-tune counts on, once
     the PI's zero sits on R_s + R_ff; with it on R_s alone it lagged 26 deg at 13 Hz with a
     gain of 0.68 (the late back-EMF feed-forward's resistance)."""
-    text = AXIS_CONFIG.read_text(encoding="utf-8")
-    for old, new in LINEAR_EDITS:
-        text, count = re.subn(old, new, text)
-        assert count == 1, old
-    config = tmp_path / "axis_linear.yaml"
-    config.write_text(text)
-    host, ros = voltage_host(config)
-    axis = load_axis_config(config)
-    free = dataclasses.replace(
-        axis.controller,
-        position=dataclasses.replace(axis.controller.position, following_error_limit_m=1.0),
-    )
-    frequencies = (5.0, 9.0, 13.0, 17.0, 23.0)  # whole cycles in the 1 s window
-    probe = CurrentProbe(
+    frequencies = (5.0, 9.0, 13.0, 17.0, 23.0)
+    probe, samples, period = probe_run(
+        linear_axis(tmp_path),
         frequencies,
         1.0,
-        config=free,
-        boundary="voltage",
-        exchange_period_s=ros.exchange_period_s,
-        gains=NodeLoopGains(Kv_1_s=1e-9, velocity_Kp=1e-9, velocity_Ti_s=1e3),
+        NodeLoopGains(Kv_1_s=1e-9, velocity_Kp=1e-9, velocity_Ti_s=1e3),
     )
-    hold = NcSample(t_ns=0, position_m=0.4, velocity_m_s=0.0, acceleration_m_s2=0.0, line=-1)
-    samples = Lockstep(probe, host, ros).run([hold], until_ns=1_200_000_000)
     # the setpoint computed from sample k (stamped t_(k+1)) against the current of sample k
-    i_q = np.array([s.feedback["i_q"] for s in samples])[200:1200]
-    i_q_ref = np.array(probe.i_q_ref)[200:1200]
-    t = np.arange(200, 1200) * ros.exchange_period_s
-    T_sigma = 1.5 * ros.exchange_period_s
+    i_q = np.array([s.feedback["i_q"] for s in samples])[WINDOW]
+    i_q_ref = np.array(probe.i_q_ref)[WINDOW]
+    t = np.arange(len(samples))[WINDOW] * period
+    T_sigma = 1.5 * period
     for f in frequencies:
         phasor = np.exp(-2j * np.pi * f * t)
         measured = np.mean(i_q * phasor) / np.mean(i_q_ref * phasor)
@@ -162,3 +185,47 @@ def test_full_cascade_settles_after_a_move() -> None:
     rms_late = np.sqrt(np.mean(velocity[late] ** 2))
     assert rms_late < 0.3 * rms_early
     assert rms_late < 1e-4
+
+
+def test_velocity_loop_has_the_phase_margin_its_re_tune_promises(tmp_path: Path) -> None:
+    """The velocity loop's open loop L = -(i_q* - d) / i_q*, measured in-process on the linear
+    axis with a multi-sine d added to the velocity PI's output (position loop at zero gain):
+    its crossover is the symmetric-optimum re-tune's (15.4 Hz) within 10 % and its phase margin
+    at least the 34.8 deg the re-tune promises (41.5 deg at 16.6 Hz). With the current loop's
+    zero on R_s alone it measured 27.8 deg at 12 Hz: 7 deg below the promise."""
+    config = linear_axis(tmp_path)
+    frequencies = tuple(float(f) for f in range(10, 26, 2))
+    probe, samples, period = probe_run(config, frequencies, 0.3, NodeLoopGains(Kv_1_s=1e-9))
+    t = np.arange(len(samples))[WINDOW] * period
+    i_q_ref = np.array(probe.i_q_ref)[WINDOW]
+    d = 0.3 * np.sum([np.sin(2.0 * np.pi * f * t) for f in frequencies], axis=0)
+    loop = []
+    for f in frequencies:
+        phasor = np.exp(-2j * np.pi * f * t)
+        reference = np.mean(i_q_ref * phasor)
+        loop.append(-(reference - np.mean(d * phasor)) / reference)
+    gain = np.log(np.abs(loop))
+    k = int(np.nonzero(gain < 0.0)[0][0])  # the first point past the crossover
+    w = gain[k - 1] / (gain[k - 1] - gain[k])
+    crossover_hz = frequencies[k - 1] + w * (frequencies[k] - frequencies[k - 1])
+    phase = np.degrees(np.angle(loop))
+    margin_deg = 180.0 + phase[k - 1] + w * (phase[k] - phase[k - 1])
+    # what `controller_core._retune_velocity` designs for the node: the symmetric optimum (a = 2)
+    # on the current loop as a 3 T lag, the estimator's delay and one exchange of transport
+    # (counted in both, so the promise is a floor)
+    axis = load_axis_config(config).controller
+    est = axis.velocity.estimator
+    promised = tune_velocity_loop(
+        J_total_kg_m2=axis.drive.J_total_kg_m2,
+        K_t=axis.drive.K_t,
+        lead_m=axis.drive.lead_m,
+        period_s=period,
+        T_current_s=3.0 * period,
+        estimator_delay_s=estimator_delay(est.fir_taps, est.lowpass_hz, period) + period,
+    )
+    derived, _ = controller_node_config(axis, period, with_current=True)
+    assert derived.velocity is not None
+    assert (derived.velocity.Kp, derived.velocity.Ti_s) == (promised.Kp, promised.Ti_s)
+    assert promised.margins.phase_margin_deg == pytest.approx(34.8, abs=0.1)
+    assert promised.margins.phase_margin_deg <= margin_deg < promised.margins.phase_margin_deg + 10
+    assert crossover_hz == pytest.approx(promised.margins.crossover_rad_s / (2 * np.pi), rel=0.1)
