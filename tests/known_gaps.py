@@ -5,20 +5,6 @@ so the mark cannot outlive the gap it names. A mark is not strict only where the
 the motion's chance while the cause stands; its text says what was measured.
 """
 
-REVERSAL_IMPACTS = (
-    "issue #27, open: on the #30 jerk profile's motion this record's reversals pass through zero "
-    "speed while accelerating, so the nut crosses the nominal 2 um backlash and strikes; the "
-    "truth's current-ADC rounding and noise make those impacts differ from the smooth fitting "
-    "twin's by up to 1 um (669 nm RMS over 0.1 s at t = 2.2 s). The twin with the hidden cogging "
-    "at its TRUE values leaves 87 nm FE deviation RMS of 307 nm before, where the test asks at "
-    "most 61 nm (38 nm on the old planner's motion; 6.5 nm with the backlash taken out of both). "
-    "The workflow names the cogging first, order 6, 0.589 N m, 0.507 rad, and leaves 71 nm. Not "
-    "strict since the jerk filter's integral became two doubles (branch i30jerk): the command "
-    "moved by rounding (4.9e-14 m at most on the shadow shuttle) and this record now gives 0.594 "
-    "N m, 0.542 rad and "
-    "leaves 33 nm of 297 (within the 0.2 asked): the impacts' outcome, not a fix"
-)
-
 CROSS_COUPLING_FIT = (
     "open, cause measured: the fit takes the drive's voltage references for the stator's "
     "voltage, and they differ by the drive's own voltage errors, which the #30 motion's higher "

@@ -248,6 +248,8 @@ def test_bad_unmodelled_dynamics_are_named():
         Unmodelled(current_lag_s=-1.0)
     with pytest.raises(ValueError, match=r"effort_noise_std = -0.1: must be >= 0"):
         Unmodelled(effort_noise_std=-0.1)
+    with pytest.raises(ValueError, match=r"sensor_seed = -2: must be >= 0"):
+        Unmodelled(sensor_seed=-2)
 
 
 def test_diagnose_runs_with_one_blas_thread_unless_the_user_set_one():

@@ -18,7 +18,7 @@ what was hidden.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -107,7 +107,11 @@ class Unmodelled:
     current_lag_s: float = 2e-4  # [s] first-order lag of a force-source drive's current loop
     coupling_stiffness_factor: float = 0.97  # truth/nominal torsional coupling stiffness [-]
     effort_noise_std: float | None = None  # [effort unit]; None: 0.3 N or 0.01 A
-    seed: int = 0
+    seed: int = 0  # of the noise added to the recorded effort
+    # of the truth's own sensors' noise (the current ADC's, feed_twin.plant.noise): another
+    # value is another realisation of the same machine, to measure what a deterministic twin
+    # cannot reproduce
+    sensor_seed: int = 0
     # [1] share by which the truth's guide friction grows, linearly, over the record (the
     # engine holds parameters constant: the growth acts as a force on the table)
     friction_growth: float = 0.0
@@ -117,6 +121,7 @@ class Unmodelled:
         require_positive("coupling_stiffness_factor", self.coupling_stiffness_factor)
         if self.effort_noise_std is not None:
             require_nonnegative("effort_noise_std", self.effort_noise_std)
+        require_nonnegative("sensor_seed", self.sensor_seed)
 
 
 def truth_model(
@@ -175,6 +180,7 @@ def generate(
     lagged = um.current_lag_s > 0 and truth.of_type("EffortSource")
     nsub = max(1, int(np.ceil(2.0 * h / um.current_lag_s))) if lagged else 1
     twin = Twin.compile(truth, smooth_sensors=False, min_substeps=nsub)
+    twin.engine.seed = um.sensor_seed
     t, x_cmd = command(program, nc_config)
     x_cmd = x_cmd + start_m
     h = float(t[1] - t[0])
@@ -208,6 +214,41 @@ def generate(
     if out.voltage_q is not None:
         columns[VOLTAGE_COLUMN] = out.voltage_q[0]
     return columns
+
+
+def position_spread(
+    nominal: ModelDoc,
+    hidden: Mapping[str, Mapping[str, float]],
+    *,
+    seeds: tuple[int, ...],
+    unmodelled: Unmodelled | None = None,
+    program: str = PROGRAM,
+    nc_config: str = NC_CONFIG,
+    start_m: float = 0.0,
+) -> np.ndarray:
+    """[m] per sample, the standard deviation of the recorded position over realisations of
+    one truth that differ only in their noise (`seed` and `sensor_seed` both set to each of
+    `seeds`): what of a record no deterministic twin can reproduce. Where the nut crosses its
+    backlash or the table comes to rest, a current ADC's rounding and noise change when and how
+    hard it strikes or sticks, and records of the same machine part by hundreds of nm."""
+    if len(seeds) < 2:
+        raise ValueError(f"seeds = {seeds!r}: a spread needs at least two realisations")
+    um = unmodelled or Unmodelled()
+    x = np.array(
+        [
+            generate(
+                nominal,
+                hidden,
+                unmodelled=replace(um, seed=seed, sensor_seed=seed),
+                program=program,
+                nc_config=nc_config,
+                start_m=start_m,
+            )["x_act_mm"]
+            * 1e-3
+            for seed in seeds
+        ]
+    )
+    return np.std(x, axis=0, ddof=1)
 
 
 def _friction_growth(
