@@ -213,11 +213,18 @@ def test_full_cascade_runs_the_current_loop_at_the_exchange_period() -> None:
     derived, notes = controller_node_config(controller, 1e-3, with_current=True)
     current = current_loop(derived)
     assert current.period_s == 1e-3 and derived.base_period_s == 1e-3
-    # Technical optimum for 1.5 periods of delay: Kp = L / (2 * 1.5 T), Ti = L / R.
+    # Technical optimum for 1.5 periods of delay: Kp = L / (2 * 1.5 T), Ti = L / (R_s + R_ff),
+    # R_ff = p psi_pm K_t tau_ff / J the late back-EMF feed-forward's resistance, tau_ff the
+    # estimator's 1 ms (half a sample, the two-tap FIR's half) and 1.5 exchanges.
+    R_ff = 4 * 0.3167 * 1.9 * 2.5e-3 / 5.8e-3
     assert current.Kp_q_V_A == pytest.approx(4.0e-3 / 3.0e-3, rel=1e-12)
-    assert current.Ti_q_s == pytest.approx(4.0e-3 / 0.35, rel=1e-12)
+    assert current.Ti_q_s == pytest.approx(4.0e-3 / (0.35 + R_ff), rel=1e-12)
     assert not derived.computation_delay and current.dead_time_comp_V == 0.0
-    assert any(n.startswith("current loop at the exchange period") for n in notes)
+    assert any(
+        n.startswith("current loop at the exchange period")
+        and "(zero on R_s + 1.04 Ohm of late back-EMF feed-forward)" in n
+        for n in notes
+    )
     without, _ = controller_node_config(controller, 1e-3)
     assert without.current is None
     with pytest.raises(ValueError, match=r"boundary = 'voltage': the controller has no current"):

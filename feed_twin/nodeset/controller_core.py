@@ -40,10 +40,11 @@ def controller_node_config(
     gives its gains it is re-tuned by the symmetric optimum (a = 2) for those delays and the
     position gain is capped at a quarter of its closed-loop bandwidth. With `with_current` (the
     full cascade) the current loop runs at the exchange period too, re-tuned by the technical
-    optimum for 1.5 periods of delay (one of transport, half of hold), without the computation
-    delay (the transport is that delay) and without dead-time compensation (a per-phase
-    correction the drive's modulator would do). Returns the derived configuration and one note
-    per change, for the node's log.
+    optimum for 1.5 periods of delay (one of transport, half of hold), its zero on the back-EMF
+    feed-forward's residual resistance (`_node_current_loop`), without the computation delay
+    (the transport is that delay) and without dead-time compensation (a per-phase correction
+    the drive's modulator does). Returns the derived configuration and one note per change,
+    for the node's log.
     """
     gains = gains or NodeLoopGains()
     notes: list[str] = []
@@ -53,7 +54,7 @@ def controller_node_config(
     if with_current:
         if current is None:
             raise ValueError("boundary = 'voltage': the controller has no current section")
-        replace["current"], note = _node_current_loop(current, exchange_period_s)
+        replace["current"], note = _node_current_loop(config, current, exchange_period_s)
         replace["computation_delay"] = False
         notes.append(note)
     slowed: set[str] = set()
@@ -114,16 +115,38 @@ def controller_node_config(
     return derived, notes
 
 
-def _node_current_loop(current, exchange_period_s: float):
-    from feed_twin.control.tuning import tune_current_loop
+def _node_current_loop(config: ControllerConfig, current, exchange_period_s: float):
+    """The current loop at the exchange period: technical optimum on R_s + R_ff.
+
+    The back-EMF feed-forward p psi_pm omega comes from the velocity estimate, tau_ff late (the
+    estimator's delay, one exchange of transport, half of hold: 2.5 ms at 1 ms). What it leaves,
+    p psi_pm (omega(t - tau_ff) - omega(t)) = -p psi_pm tau_ff K_t i_q / J at low frequency, is
+    a resistance R_ff = p psi_pm K_t tau_ff / J in series with R_s (1.04 Ohm on the default
+    axis, three times R_s: its mechanical time constant R_s J / (p psi_pm K_t) = 0.84 ms is
+    shorter than tau_ff). With the PI's zero at R_s / L the closed loop lagged 26 deg at 13 Hz
+    (0.68 in gain) where the velocity loop's re-tune counts on a 3 T lag (14 deg); with the zero
+    at (R_s + R_ff) / L it is that lag within 1.5 deg up to 31 Hz
+    (tests/test_nodeset_voltage_drive.py). Without a back-EMF feed-forward or a velocity loop
+    the zero stays at R_s / L.
+    """
+    from feed_twin.control.tuning import estimator_delay, tune_current_loop
 
     if current.period_s > exchange_period_s * (1.0 + 1e-9):
         raise ValueError(
             f"controller.current.period_s = {current.period_s!r}: longer than the exchange "
             f"period {exchange_period_s!r} s"
         )
-    d = tune_current_loop(R_s=current.R_s_ohm, L=current.L_d_H, period_s=exchange_period_s)
-    q = tune_current_loop(R_s=current.R_s_ohm, L=current.L_q_H, period_s=exchange_period_s)
+    R_ff = 0.0
+    velocity = config.velocity
+    if current.back_emf_ff and velocity is not None:
+        est = velocity.estimator
+        tau_ff = estimator_delay(est.fir_taps, est.lowpass_hz, exchange_period_s)
+        tau_ff += 1.5 * exchange_period_s
+        k_e = current.pole_pairs * current.psi_pm_Vs  # back-EMF per rad/s of the rotor [V s]
+        R_ff = k_e * config.drive.K_t * tau_ff / config.drive.J_total_kg_m2
+    R = current.R_s_ohm + R_ff
+    d = tune_current_loop(R_s=R, L=current.L_d_H, period_s=exchange_period_s)
+    q = tune_current_loop(R_s=R, L=current.L_q_H, period_s=exchange_period_s)
     derived = dataclasses.replace(
         current,
         period_s=exchange_period_s,
@@ -136,7 +159,9 @@ def _node_current_loop(current, exchange_period_s: float):
     )
     note = (
         f"current loop at the exchange period {exchange_period_s!r} s, re-tuned: Kp_q "
-        f"{current.Kp_q_V_A:g} -> {q.Kp_V_A:.4g} V/A, bandwidth about {q.bandwidth_hz:.0f} Hz"
+        f"{current.Kp_q_V_A:g} -> {q.Kp_V_A:.4g} V/A, Ti_q {current.Ti_q_s:g} -> {q.Ti_s:.4g} s "
+        f"(zero on R_s + {R_ff:.3g} Ohm of late back-EMF feed-forward), bandwidth about "
+        f"{q.bandwidth_hz:.0f} Hz"
     )
     return derived, note
 

@@ -14,9 +14,21 @@ drive is its modulator: at every PWM period j of the exchange it rotates (u_d, u
 stator frame at the electrical angle p * phi(t_j) + offset, phi(t_j) = phi_k + omega_k * (j + 1/2) h
 extrapolated from the rotor angle and speed at the exchange start (the error over 1 ms at
 3 m/s^2 is below 0.01 rad electrical), and modulates with the cascade's own law
-(feed_twin.control.transforms.modulate: dead-time compensation with the phase currents latched
-at the exchange start and the controller section's values, SVPWM on u_dc of the previous
-exchange); a disabled drive applies zero voltage (duties 1/2) with the stage off.
+(feed_twin.control.transforms.modulate: SVPWM on u_dc of the previous exchange, dead-time
+compensation with the controller section's values in the direction of the phase current
+references, the setpoint's (i_d, i_q) at each PWM period's angle); a disabled drive applies
+zero voltage (duties 1/2) with the stage off.
+
+Why the references and not the phase currents latched at the exchange start: within the
+compensation's band (u_comp / band = 10.16 V / 0.5 A, 20 V per A) the compensation is a feedback
+of the phase current, and latched once per exchange it comes up to one exchange late while the
+inverter's dead time takes its voltage off with the present current. At rest the phase currents
+lie in that band, and the late 20 V/A against the current loop's 1.3 V/A drove a limit cycle of
+the full cascade (700 um peak to peak at 12 Hz after a 10 mm move, with friction, backlash and
+the inverter's dead time off as well; tests/test_nodeset_voltage_drive.py). A drive's own
+16 kHz loop compensates from currents one PWM period old; a drive modulating setpoints of a
+1 kHz loop uses the reference currents' direction, as the industrial modulators do whose
+current measurement is noisy near zero.
 """
 
 from __future__ import annotations
@@ -28,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from feed_twin.control.layout import disable, enable
-from feed_twin.control.transforms import clarke, modulate, park
+from feed_twin.control.transforms import clarke, inverse_clarke, modulate, park
 from feed_twin.core import signals as sig
 from feed_twin.core.config import ConfigError
 from feed_twin.nodeset.config import NodeSetConfig, StateSignals
@@ -115,7 +127,6 @@ class DriveHost:
         self.engine = engine
         self.dead_time_comp_V = dead_time_comp_V
         self.dead_time_comp_band_A = dead_time_comp_band_A
-        self._i_phase = (0.0, 0.0, 0.0)
         ticks = exchange_period_s / engine.h
         if abs(ticks - round(ticks)) > 1e-9 * ticks or round(ticks) < 1:
             raise ValueError(
@@ -194,6 +205,7 @@ class DriveHost:
         park(0.0, 0.0, 0.0)
         if self.modulator:
             modulate(0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0)
+            inverse_clarke(0.0, 0.0)
 
     @staticmethod
     def record_names(signals: StateSignals) -> tuple[str, ...]:
@@ -239,14 +251,18 @@ class DriveHost:
         phi = float(self.engine.x[self._i_phi])
         omega = float(self.engine.x[self._i_omega])
         h = self.engine.h
-        i_a, i_b, i_c = self._i_phase
         for j in range(self.ticks):
             theta_e = self.pole_pairs * (phi + omega * (j + 0.5) * h) + self.encoder_offset_rad
+            cos_e, sin_e = math.cos(theta_e), math.sin(theta_e)
+            # the compensation's direction: the phase current references (module docstring)
+            i_a, i_b, i_c = inverse_clarke(
+                cos_e * sp.i_d_A - sin_e * sp.i_q_A, sin_e * sp.i_d_A + cos_e * sp.i_q_A
+            )
             rows[j, sig.OUT_DUTY_A : sig.OUT_DUTY_C + 1] = modulate(
                 sp.u_d_V,
                 sp.u_q_V,
-                math.cos(theta_e),
-                math.sin(theta_e),
+                cos_e,
+                sin_e,
                 i_a,
                 i_b,
                 i_c,
@@ -261,7 +277,6 @@ class DriveHost:
         following error setpoint - scale [m]); i_d, i_q are NaN without a current loop."""
         meas = row[self._meas_idx].tolist()
         self._u_dc = meas[sig.MEAS_U_DC_V]
-        self._i_phase = (meas[sig.MEAS_I_A], meas[sig.MEAS_I_B], meas[sig.MEAS_I_C])
         theta = meas[sig.MEAS_THETA_ENC_RAD]
         counts = round(theta / self.encoder_step_rad) if self.encoder_step_rad > 0.0 else 0
         if self.pole_pairs:
