@@ -153,26 +153,14 @@ def shadow(model: str, program: str, measured: tuple[np.ndarray, np.ndarray]) ->
 
 def lockstep(program: str) -> str:
     from feed_twin.gcode import load_nc_config, plan_program
-    from feed_twin.nodeset.config import load_node_set_config
-    from feed_twin.nodeset.controller_core import ControllerCore
-    from feed_twin.nodeset.drive_host import Lockstep, build_drive_host, nc_samples
+    from feed_twin.nodeset.drive_host import Lockstep
     from feed_twin.nodeset.wire import NS_PER_S
-    from feed_twin.sim.config import load_axis_config
 
     config = ROOT / NC_CONFIG
-    ros = load_node_set_config(config)
-    axis = load_axis_config(config)
-    assert axis.controller is not None
-    controller = ControllerCore(
-        axis.controller, boundary=ros.boundary, exchange_period_s=ros.exchange_period_s
-    )
-    host = build_drive_host(config, ros)
+    lockstep = Lockstep.for_config(config)
     traj = plan_program(ROOT / program, load_nc_config(config))
-    x, v, a = traj.axis("X")
-    until = round((traj.t_s[-1] + ros.settle_s) * NS_PER_S)
-    samples = Lockstep(controller, host, ros).run(
-        nc_samples(traj.t_s, x, v, a, traj.line), until_ns=until
-    )
+    until = round((traj.t_s[-1] + lockstep.ros.settle_s) * NS_PER_S)
+    samples = lockstep.run_trajectory(traj, until_ns=until)
     names = sorted(samples[0].truth)
     return digest(
         np.array([s.t_ns for s in samples]),

@@ -23,8 +23,7 @@ import numpy as np
 
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.nodeset.config import NodeLoopGains, load_node_set_config
-from feed_twin.nodeset.controller_core import ControllerCore
-from feed_twin.nodeset.drive_host import Lockstep, build_drive_host, nc_samples
+from feed_twin.nodeset.drive_host import Lockstep
 from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.sim.config import load_axis_config
 
@@ -43,18 +42,12 @@ def run(T_s: float, symmetrize: bool) -> dict:
         dataclasses.replace(a, j_max_m_s3=a.a_max_m_s2 / T_s * (1.0 + 1e-5)) for a in nc.axes
     )
     nc = dataclasses.replace(nc, axes=axes)
-    controller = ControllerCore(
-        axis.controller,
-        boundary=ros.boundary,
-        exchange_period_s=ros.exchange_period_s,
-        gains=NodeLoopGains(symmetrize_feed_forward=symmetrize),
-    )
-    host = build_drive_host(AXIS_CONFIG, ros)
     trajectory = plan_program(SHORT_PROGRAM, nc)
-    x, v, a = trajectory.axis("X")
+    _, v, _ = trajectory.axis("X")
     until = round((trajectory.t_s[-1] + ros.settle_s) * NS_PER_S)
-    samples = Lockstep(controller, host, ros).run(
-        nc_samples(trajectory.t_s, x, v, a, trajectory.line), until_ns=until
+    gains = NodeLoopGains(symmetrize_feed_forward=symmetrize)
+    samples = Lockstep.for_config(AXIS_CONFIG, gains=gains).run_trajectory(
+        trajectory, until_ns=until
     )
     lead = axis.controller.drive.lead_m
     table = np.array([s.truth["table_velocity"] for s in samples])

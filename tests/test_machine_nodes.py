@@ -26,12 +26,9 @@ from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag import BagReader
 from feed_twin.machine.config import load_machine_config
 from feed_twin.machine.nodes import chosen_processes, node_plan, write_axis_files
-from feed_twin.nodeset.config import load_node_set_config
-from feed_twin.nodeset.controller_core import ControllerCore
-from feed_twin.nodeset.drive_host import Lockstep, build_drive_host, nc_samples
+from feed_twin.nodeset.drive_host import Lockstep
 from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.ros.domain import reserve_domain_id
-from feed_twin.sim.config import load_axis_config
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = ROOT / "config" / "machine_default.yaml"
@@ -43,17 +40,9 @@ LONG_PROGRAM = "G90 G54\nG1 X100 Z120 F500\nM2\n"
 
 def in_process_positions(axis_file: Path, program: Path, stamps: np.ndarray) -> np.ndarray:
     """The axis's table positions of the same exchanges without DDS (drive_host.Lockstep)."""
-    ros = load_node_set_config(axis_file)
-    axis = load_axis_config(axis_file)
-    controller = ControllerCore(
-        axis.controller, boundary=ros.boundary, exchange_period_s=ros.exchange_period_s
-    )
     nc = load_nc_config(axis_file)
-    trajectory = plan_program(program, nc)
-    x, v, a = trajectory.axis(nc.twin_axis)
-    host = build_drive_host(axis_file, ros)
-    samples = Lockstep(controller, host, ros).run(
-        nc_samples(trajectory.t_s, x, v, a, trajectory.line), until_ns=int(stamps[-1])
+    samples = Lockstep.for_config(axis_file).run_trajectory(
+        plan_program(program, nc), until_ns=int(stamps[-1]), axis=nc.twin_axis
     )
     by_time = {s.t_ns: s.truth["table_position"] for s in samples}
     return np.array([by_time[int(t)] for t in stamps])

@@ -9,31 +9,19 @@ import pytest
 from nodes_support import AXIS_CONFIG, SHORT_PROGRAM
 
 from feed_twin.gcode import load_nc_config, plan_program
-from feed_twin.nodeset.config import NodeLoopGains, NodeSetConfig, load_node_set_config
-from feed_twin.nodeset.controller_core import ControllerCore
-from feed_twin.nodeset.drive_host import Lockstep, nc_samples
+from feed_twin.nodeset.config import NodeLoopGains, NodeSetConfig
+from feed_twin.nodeset.drive_host import Lockstep
 from feed_twin.ros.sim_node import build_drive_host
-from feed_twin.sim.config import load_axis_config
 
 pytestmark = pytest.mark.slow
 
 
 def lockstep(gains: NodeLoopGains | None = None) -> dict[str, np.ndarray]:
     """The 10 mm F3000 move through the node set's exchanges, in-process: AxisState columns."""
-    config = AXIS_CONFIG
-    ros = load_node_set_config(config)
-    axis = load_axis_config(config)
-    controller = ControllerCore(
-        axis.controller,
-        boundary=ros.boundary,
-        exchange_period_s=ros.exchange_period_s,
-        gains=gains,
-    )
-    host = build_drive_host(config, ros)
-    trajectory = plan_program(SHORT_PROGRAM, load_nc_config(config))
-    x, v, a = trajectory.axis("X")
-    samples = Lockstep(controller, host, ros).run(
-        nc_samples(trajectory.t_s, x, v, a, trajectory.line), until_ns=400_000_000
+    trajectory = plan_program(SHORT_PROGRAM, load_nc_config(AXIS_CONFIG))
+    _, v, _ = trajectory.axis("X")
+    samples = Lockstep.for_config(AXIS_CONFIG, gains=gains).run_trajectory(
+        trajectory, until_ns=400_000_000
     )
     columns = {name: np.array([s.truth[name] for s in samples]) for name in samples[0].truth}
     columns["t"] = np.array([s.t_ns for s in samples]) * 1e-9

@@ -16,13 +16,9 @@ from run_report_support import assert_report
 from feed_twin.gcode import load_nc_config, plan_program
 from feed_twin.io.bag import BagReader
 from feed_twin.io.dashboard import rerun_binary
-from feed_twin.nodeset.config import load_node_set_config
-from feed_twin.nodeset.controller_core import ControllerCore
-from feed_twin.nodeset.drive_host import ExchangeSample, Lockstep, nc_samples
+from feed_twin.nodeset.drive_host import ExchangeSample, Lockstep
 from feed_twin.nodeset.wire import NS_PER_S
 from feed_twin.ros.domain import reserve_domain_id
-from feed_twin.ros.sim_node import build_drive_host
-from feed_twin.sim.config import load_axis_config
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 TARGET_M = 0.410  # the program moves X by +10 mm from the NC start X = 0.4 m (machine coordinates)
@@ -53,16 +49,8 @@ def multi(setup: dict) -> dict:
 def in_process_samples(setup: dict, until_ns: int) -> dict[int, ExchangeSample]:
     """The same exchanges computed without DDS: ControllerCore + DriveHost (drive_host.Lockstep)."""
     config = setup["config"]
-    ros = load_node_set_config(config)
-    axis = load_axis_config(config)
-    controller = ControllerCore(
-        axis.controller, boundary=ros.boundary, exchange_period_s=ros.exchange_period_s
-    )
-    host = build_drive_host(config, ros)
     trajectory = plan_program(setup["program"], load_nc_config(config))
-    x, v, a = trajectory.axis("X")
-    commands = nc_samples(trajectory.t_s, x, v, a, trajectory.line)
-    samples = Lockstep(controller, host, ros).run(commands, until_ns=until_ns)
+    samples = Lockstep.for_config(config).run_trajectory(trajectory, until_ns=until_ns)
     return {s.t_ns: s for s in samples}
 
 

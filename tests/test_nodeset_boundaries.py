@@ -42,17 +42,8 @@ def config_with_boundary(directory: Path, boundary: str) -> Path:
 
 
 def in_process(config: Path, program: Path, until_ns: int) -> dict[str, np.ndarray]:
-    ros = load_node_set_config(config)
-    axis = load_axis_config(config)
-    controller = ControllerCore(
-        axis.controller, boundary=ros.boundary, exchange_period_s=ros.exchange_period_s
-    )
-    host = build_drive_host(config, ros)
     trajectory = plan_program(program, load_nc_config(config))
-    x, v, a = trajectory.axis("X")
-    samples = Lockstep(controller, host, ros).run(
-        nc_samples(trajectory.t_s, x, v, a, trajectory.line), until_ns=until_ns
-    )
+    samples = Lockstep.for_config(config).run_trajectory(trajectory, until_ns=until_ns)
     return {
         "t_ns": np.array([s.t_ns for s in samples]),
         "table_position": np.array([s.truth["table_position"] for s in samples]),

@@ -16,12 +16,9 @@ from feed_twin.analysis.stator_voltage import DriveVoltagePath, applied_stator_v
 from feed_twin.control.layout import enable
 from feed_twin.core import signals as sig
 from feed_twin.gcode import load_nc_config, plan_program
-from feed_twin.nodeset.config import load_node_set_config
-from feed_twin.nodeset.controller_core import ControllerCore
-from feed_twin.nodeset.drive_host import DriveHost, nc_samples
+from feed_twin.nodeset.drive_host import DriveHost, Lockstep, nc_samples
 from feed_twin.nodeset.nc_buffer import NcBuffer
 from feed_twin.nodeset.wire import drive_reference
-from feed_twin.ros.sim_node import build_drive_host
 from feed_twin.sim.config import build_engine, load_axis_config
 
 JERK_9_MS = "j_max_m_s3: 333.34,\n       travel_min_m: 0.0, travel_max_m: 0.8"  # the X axis
@@ -44,13 +41,10 @@ def variant(tmp_path: Path, name: str, *edits: tuple[str, str]) -> Path:
 
 def current_loop_trace(config: Path, program: Path) -> dict[str, np.ndarray]:
     """Every current-loop sample of the node set's exchanges for the program, by signal name."""
-    ros = load_node_set_config(config)
+    pair = Lockstep.for_config(config)
+    controller, host, ros = pair.controller, pair.host, pair.ros
     axis = load_axis_config(config)
     assert axis.controller is not None
-    controller = ControllerCore(
-        axis.controller, boundary=ros.boundary, exchange_period_s=ros.exchange_period_s
-    )
-    host = build_drive_host(config, ros)
     names = DriveHost.record_names(host.signals)
     trace = build_engine(
         axis,

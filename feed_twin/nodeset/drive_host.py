@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -43,7 +44,12 @@ from feed_twin.control.layout import disable, enable
 from feed_twin.control.transforms import clarke, inverse_clarke, modulate, park
 from feed_twin.core import signals as sig
 from feed_twin.core.config import ConfigError
-from feed_twin.nodeset.config import NodeSetConfig, StateSignals
+from feed_twin.nodeset.config import (
+    NodeLoopGains,
+    NodeSetConfig,
+    StateSignals,
+    load_node_set_config,
+)
 from feed_twin.nodeset.controller_core import ControllerCore
 from feed_twin.nodeset.nc_buffer import NcBuffer
 from feed_twin.nodeset.wire import (
@@ -55,6 +61,9 @@ from feed_twin.nodeset.wire import (
     NcSample,
     drive_reference,
 )
+
+if TYPE_CHECKING:
+    from feed_twin.gcode.trajectory import SampledTrajectory
 
 MEAS_RECORD = tuple(f"meas.{n}" for n in sig.MEAS_NAMES)
 OUT_RECORD = tuple(f"out.{n}" for n in sig.OUT_NAMES)
@@ -365,6 +374,31 @@ class Lockstep:
         self.controller = controller
         self.host = host
         self.ros = ros
+
+    @classmethod
+    def for_config(cls, config_path: str | Path, *, gains: NodeLoopGains | None = None) -> Lockstep:
+        """The controller node's core and the sim node's drive host of an axis config, as the
+        node set builds them (`gains`: the node's loop options, the config's when None)."""
+        from feed_twin.sim.config import load_axis_config
+
+        ros = load_node_set_config(config_path)
+        axis = load_axis_config(config_path)
+        if axis.controller is None:
+            raise ConfigError(f"{config_path}: the node set needs a controller section")
+        controller = ControllerCore(
+            axis.controller,
+            boundary=ros.boundary,
+            exchange_period_s=ros.exchange_period_s,
+            gains=gains,
+        )
+        return cls(controller, build_drive_host(config_path, ros), ros)
+
+    def run_trajectory(
+        self, trajectory: SampledTrajectory, *, until_ns: int, axis: str = "X"
+    ) -> list[ExchangeSample]:
+        """`run` on one axis of a planned program (feed_twin.gcode)."""
+        x, v, a = trajectory.axis(axis)
+        return self.run(nc_samples(trajectory.t_s, x, v, a, trajectory.line), until_ns=until_ns)
 
     def run(self, commands: list[NcSample], *, until_ns: int) -> list[ExchangeSample]:
         """Exchanges from t = 0 while t <= until_ns, the whole NC stream known in advance."""
