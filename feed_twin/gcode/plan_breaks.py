@@ -10,10 +10,13 @@ or dwells, a clearly sharp corner) within a quarter of the spacing. Then a windo
 spacings from its first uncommitted node always holds a natural or forced break in about its
 first half. The rest of a program planned at once (the last window) needs no new break.
 
-Each candidate is decided once, in the first window that lists it, and keeps that decision:
-geometry a window planned with never changes in a later one (the speeds it commits stay
-reachable). Where that window does not list its whole neighbourhood (its last nodes excluded,
-where the stop at its end is not the program's), the break stays on the candidate node.
+Each candidate is decided once, in the first window that lists it, and keeps that decision,
+so the speeds a window commits stay reachable. Where that window does not list its whole
+neighbourhood (its last nodes excluded, where the stop at its end is not the program's), the
+break stays on the candidate node. One exception: the planner drops forced breaks that lie
+wholly in the committed part (`planner._commit_break_only`); where that makes a later
+window's limits tighter than the committed speed allows, that window plans again with the
+committed window's breaks (and, if needed, its stop; `planner._as_decided`).
 
 The last window commits the program's rest: it drops the breaks decided beyond the motion a
 filter window at its first node reaches (`beyond`). Without them its constraints only relax
