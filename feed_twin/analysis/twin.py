@@ -249,6 +249,14 @@ class Twin:
     def base_period_s(self) -> float:
         return float(self.controller.base_period_s)
 
+    @property
+    def effort_is_current(self) -> bool:
+        """The twin's effort is a current its model integrates (a current loop's source, an
+        expanded drive stage's motor): a state, what acted up to its stamp as it stands, where
+        a command (the controller's effort or current setpoint) acts from the next tick
+        (`acted`)."""
+        return self.loop_source is not None or self.stage_motor is not None
+
     def _cubic_setpoints(self) -> bool:
         """The controller fine-interpolates the NC setpoints by a cubic (`interpolation:
         cubic`)."""
@@ -511,8 +519,8 @@ class Twin:
             x0 = self._loop_started(start, x0, P[rows[0]], ref, ext, cs0)
             res = run_batch(self.engine, P[rows], n, ref=ref, ext=ext, x0=x0, cs0=cs0)
             pos, eff = self._measured_signals(res, 1)
-            if drive.effort_actual and self.loop_source is None:
-                # a command acts from the next tick; a current loop's current is the actual
+            if drive.effort_actual and not self.effort_is_current:
+                # a command acts from the next tick; a current is the actual at its stamp
                 eff = acted(eff)
             volt = res["out.u_q_ref_V"] if u_q is not None else None
             for j in members:

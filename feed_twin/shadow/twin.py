@@ -222,8 +222,9 @@ class ShadowTwin:
             )
         self.twin = twin
         # the machine's effort at a stamp is the one that acted up to it (the twin's command
-        # of the base tick before) or the command issued at it (ColumnMap.effort_sample)
-        self.effort_actual = effort_sample == "actual"
+        # of the base tick before, or a current its model integrates as it stands at the stamp:
+        # Twin.effort_is_current) or the command issued at it (ColumnMap.effort_sample)
+        self.effort_actual = effort_sample == "actual" and not twin.effort_is_current
         self._effort_before: np.ndarray | None = None  # the last base tick's command
         self.config = config
         self.engine = twin.engine
