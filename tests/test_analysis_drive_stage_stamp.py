@@ -5,6 +5,7 @@ against the current loop's first answer to a step of its setpoint."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -23,17 +24,8 @@ STEP_NM = 0.9  # [N m] 2 A at K_t 0.45: far above the stage's smallest current
 
 def _step_drive(t_s: np.ndarray) -> Drive:
     """At rest, a known effort stepping at STEP_TICK (added to the velocity loop's)."""
-    zero = np.zeros_like(t_s)
-    return Drive(
-        t_s=t_s,
-        pos_ref_m=zero,
-        vel_ref_m_s=zero,
-        acc_ref_m_s2=zero,
-        effort_add=np.where(np.arange(len(t_s)) >= STEP_TICK, STEP_NM, 0.0),
-        force_ext_N=None,
-        x0_m=0.0,
-        sensor="motor_encoder",
-    )
+    step = np.where(np.arange(len(t_s)) >= STEP_TICK, STEP_NM, 0.0)
+    return dataclasses.replace(Drive.at_rest(t_s), effort_add=step)
 
 
 @pytest.mark.slow
