@@ -19,8 +19,11 @@ echo "== ruff check"
 echo "== ruff format --check"
 "$bin/ruff" format --check . || failed+=("ruff format")
 echo "== pyright"
-# the pinned wheel's own pyright and Node.js: no look-up of a newer version on the network
-PYRIGHT_PYTHON_IGNORE_WARNINGS=1 "$bin/pyright" --pythonpath "$bin/python" || failed+=("pyright")
+# the pinned wheel's own pyright and Node.js: no look-up of a newer version on the network;
+# --project: this checkout's pyproject.toml, never a pyrightconfig.json in a folder above it
+# (a stray /tmp/pyrightconfig.json once made a clone in /tmp check nothing, with 0 errors)
+PYRIGHT_PYTHON_IGNORE_WARNINGS=1 "$bin/pyright" --project pyproject.toml --pythonpath "$bin/python" \
+    || failed+=("pyright")
 echo "== pytest $*"
 # OpenBLAS's own threads spin against the engine's and the nodes' on a small machine (a diagnose
 # of the same record took 0.9-21 s); one thread unless the caller chose
