@@ -346,7 +346,7 @@ def test_the_test_runner_runs_everything_and_combines_the_outcomes(
     lines = result.stdout.splitlines()
     # pytest runs even when ruff or pyright failed, so its summary is always printed.
     assert "ruff check ." in lines and "ruff format --check ." in lines
-    assert f"pyright --pythonpath {venv}/bin/python" in lines
+    assert f"pyright --project pyproject.toml --pythonpath {venv}/bin/python" in lines
     assert "pytest -m not slow" in lines
     assert lines[-1] == last_line
 
