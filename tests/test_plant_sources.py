@@ -7,6 +7,7 @@ import pytest
 
 from feed_twin.analysis.twin import substeps_needed
 from feed_twin.core import signals as sig
+from feed_twin.plant.assembly import PlantModel
 from feed_twin.plant.config import load_plant
 from feed_twin.sim.engine import Engine
 
@@ -54,41 +55,10 @@ def test_dc_motor_settles_at_the_speed_of_its_voltage_equation():
     assert res["motor.u"][-1] == pytest.approx(u, rel=1e-12)
 
 
-def test_force_source_follows_its_command_with_the_current_loop_lag():
-    T_lag, gain, effort = 2e-3, 35.15, 3.0
-    plant = load_plant(
-        {
-            "components": [
-                {"name": "table", "type": "Mass", "params": {"m": 1e6}},
-                {
-                    "name": "drive",
-                    "type": "EffortSource",
-                    "params": {
-                        "domain": "translational",
-                        "gain": gain,
-                        "T_lag": T_lag,
-                        "f_max": 1e6,
-                    },
-                },
-            ],
-            "unusual": ["table.m"],  # a heavy table keeps the speed while the lag is measured
-            "connect": [["table.flange", "drive.flange"]],
-        },
-        source="lag",
-    )
-    n = 100
-    res = Engine(plant, base_period_s=1e-4).run(n, drive=_drive(n, effort))
-    expected = gain * effort * (1.0 - np.exp(-res.t / T_lag))
-    np.testing.assert_allclose(res["drive.effort"], expected, atol=1e-9 * gain * effort)
-
-
-def test_a_short_lag_gets_the_sub_steps_rk4_needs():
-    """The lag's pole 1 / T_lag counts as a fast state: at h = 1 ms a 0.2 ms lag (h / T_lag = 5,
-    beyond RK4's 2.5) is refused with one sub-step, and the twin's choice (4: 1.25) follows
-    RK4's own closed form on the lag, within 0.3 % of f = g e (1 - exp(-t / T_lag)) (one
-    sub-step diverged at tick 6)."""
-    T_lag, gain, effort, h = 2e-4, 35.15, 3.0, 1e-3
-    plant = load_plant(
+def _lagged_source(T_lag: float, gain: float) -> PlantModel:
+    """A force source with its current loop's lag driving a heavy table (one that keeps its
+    speed while the lag is measured)."""
+    return load_plant(
         {
             "components": [
                 {"name": "table", "type": "Mass", "params": {"m": 1e6}},
@@ -106,8 +76,26 @@ def test_a_short_lag_gets_the_sub_steps_rk4_needs():
             "unusual": ["table.m"],
             "connect": [["table.flange", "drive.flange"]],
         },
-        source="short lag",
+        source=f"lag {T_lag!r} s",
     )
+
+
+def test_force_source_follows_its_command_with_the_current_loop_lag():
+    T_lag, gain, effort = 2e-3, 35.15, 3.0
+    plant = _lagged_source(T_lag, gain)
+    n = 100
+    res = Engine(plant, base_period_s=1e-4).run(n, drive=_drive(n, effort))
+    expected = gain * effort * (1.0 - np.exp(-res.t / T_lag))
+    np.testing.assert_allclose(res["drive.effort"], expected, atol=1e-9 * gain * effort)
+
+
+def test_a_short_lag_gets_the_sub_steps_rk4_needs():
+    """The lag's pole 1 / T_lag counts as a fast state: at h = 1 ms a 0.2 ms lag (h / T_lag = 5,
+    beyond RK4's 2.5) is refused with one sub-step, and the twin's choice (4: 1.25) follows
+    RK4's own closed form on the lag, within 0.3 % of f = g e (1 - exp(-t / T_lag)) (one
+    sub-step diverged at tick 6)."""
+    T_lag, gain, effort, h = 2e-4, 35.15, 3.0, 1e-3
+    plant = _lagged_source(T_lag, gain)
     with pytest.raises(ValueError, match=r"plant.drive: .* fastest rate 5000 1/s is 5, must be"):
         Engine(plant, base_period_s=h)
     nsub = substeps_needed(plant, plant.nominal_params(), h)
